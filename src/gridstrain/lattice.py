@@ -1,0 +1,272 @@
+"""The lattice of a grid: its two wave vectors, given or detected from the spectrum.
+
+See :mod:`gridstrain.conventions` for the coordinate and wave-vector conventions.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import fft as sfft
+from scipy import optimize
+
+from ._validation import as_image, check_mask, check_positive
+
+__all__ = ["Lattice", "detect_lattice"]
+
+# Two wave vectors closer than this angle (or its supplement) are taken as parallel:
+# harmonics of one family of lines lie on the same line through the origin.
+_PARALLEL_DEG = 15.0
+# A spectral peak is a periodic pattern only if it stands this many times above the
+# median spectral magnitude around it. White noise reaches about 4 (the maximum of
+# ~1e5 Rayleigh variables over their median), a smooth natural image 1 to 3; any
+# printed grid or checkerboard is above 1e2.
+_MIN_PROMINENCE = 10.0
+# Detection works on a central crop of at most this size: enough periods for a
+# sub-bin frequency estimate, and it bounds the cost of the refinement.
+_MAX_DETECT_SIZE = 1024
+
+
+@dataclass(frozen=True)
+class Lattice:
+    """Two wave vectors of a periodic pattern, in cycles per pixel.
+
+    Parameters
+    ----------
+    k1, k2 : (2,) tuple of float
+        Wave vectors ``(kx, ky)`` in cycles/px. They must be finite, below the
+        Nyquist frequency (pitch above 2 px) and not parallel.
+
+    Notes
+    -----
+    ``K`` is the 2x2 matrix whose rows are ``k1`` and ``k2``. The grid's period
+    vectors (the real-space lattice) are the columns of ``K^-1``: translating the
+    specimen by one of them leaves the pattern unchanged, which is why large
+    displacements need a fringe order (see :func:`gridstrain.displacement`).
+    Angles are measured from the x axis towards the y axis; y points down the image,
+    so a positive angle turns clockwise on screen.
+    """
+
+    k1: tuple[float, float]
+    k2: tuple[float, float]
+
+    def __post_init__(self):
+        for name in ("k1", "k2"):
+            v = np.asarray(getattr(self, name), dtype=float)
+            if v.shape != (2,) or not np.all(np.isfinite(v)):
+                raise ValueError(f"{name} must be a finite (kx, ky) pair in cycles/px, "
+                                 f"got {getattr(self, name)!r}")
+            norm = float(np.hypot(*v))
+            if not 0 < norm < 0.5:
+                raise ValueError(f"{name} must have a norm in (0, 0.5) cycles/px (a pitch "
+                                 f"above 2 px), got {norm:.6g}")
+            object.__setattr__(self, name, (float(v[0]), float(v[1])))
+        k1, k2 = np.array(self.k1), np.array(self.k2)
+        sin = abs(float(np.cross(k1, k2))) / (np.hypot(*k1) * np.hypot(*k2))
+        if sin < math.sin(math.radians(_PARALLEL_DEG)):
+            raise ValueError(f"k1 and k2 must not be parallel, got an angle of "
+                             f"{math.degrees(math.asin(min(sin, 1.0))):.3g} deg between them")
+
+    @classmethod
+    def from_pitch(cls, pitch: float, *, angle: float = 0.0,
+                   pitch2: float | None = None) -> Lattice:
+        """Orthogonal lattice of pitch ``pitch`` (px), k1 at ``angle`` degrees.
+
+        ``pitch2`` is the pitch of the second family (default: ``pitch``).
+        ``Lattice.from_pitch(5)`` is the paper's grid, ``k1 = (1/5, 0)``,
+        ``k2 = (0, 1/5)``.
+        """
+        p1 = check_positive(pitch, "pitch")
+        p2 = check_positive(pitch2, "pitch2", allow_none=True) or p1
+        if isinstance(angle, bool) or not isinstance(angle, int | float) or not math.isfinite(
+                angle):
+            raise ValueError(f"angle must be a finite number of degrees, got {angle!r}")
+        a = math.radians(angle)
+        c, s = math.cos(a), math.sin(a)
+        return cls((c / p1 + 0.0, s / p1 + 0.0), (-s / p2 + 0.0, c / p2 + 0.0))
+
+    @property
+    def K(self) -> np.ndarray:
+        """(2, 2) matrix with rows k1 and k2, cycles/px."""
+        return np.array([self.k1, self.k2])
+
+    @property
+    def pitches(self) -> tuple[float, float]:
+        """Pitches ``(1/|k1|, 1/|k2|)`` in px."""
+        return (1.0 / math.hypot(*self.k1), 1.0 / math.hypot(*self.k2))
+
+    @property
+    def pitch(self) -> float:
+        """The larger of the two pitches, px (the default window size)."""
+        return max(self.pitches)
+
+    @property
+    def angles(self) -> tuple[float, float]:
+        """Directions of k1 and k2 in degrees from the x axis, in (-180, 180]."""
+        return (math.degrees(math.atan2(self.k1[1], self.k1[0])),
+                math.degrees(math.atan2(self.k2[1], self.k2[0])))
+
+    @property
+    def periods(self) -> np.ndarray:
+        """(2, 2) array whose columns are the real-space period vectors, px."""
+        return np.linalg.inv(self.K)
+
+    def __repr__(self) -> str:
+        p1, p2 = self.pitches
+        a1, a2 = self.angles
+        return (f"Lattice(k1=({self.k1[0]:.6g}, {self.k1[1]:.6g}), "
+                f"k2=({self.k2[0]:.6g}, {self.k2[1]:.6g}); pitches {p1:.5g}/{p2:.5g} px, "
+                f"angles {a1:.4g}/{a2:.4g} deg)")
+
+
+def _window(n: int) -> np.ndarray:
+    # Hann window: side lobes fall as 1/f^3, so neighbouring peaks (the other family,
+    # harmonics, the conjugate peak) barely pull the refined frequency.
+    return 0.5 - 0.5 * np.cos(2 * np.pi * (np.arange(n) + 0.5) / n)
+
+
+def _dtft_power(data: np.ndarray, k: np.ndarray, x: np.ndarray, y: np.ndarray) -> float:
+    ex = np.exp(-2j * np.pi * k[0] * x)
+    ey = np.exp(-2j * np.pi * k[1] * y)
+    return float(abs(ey @ data @ ex) ** 2)
+
+
+def detect_lattice(image, *, mask=None, max_pitch: float | None = None) -> Lattice:
+    """Detect the two wave vectors of a grid or checkerboard from its spectrum.
+
+    Parameters
+    ----------
+    image : (H, W) array_like
+        Grid image (any real dtype).
+    mask : (H, W) bool array_like, optional
+        True on the pixels to use (the specimen). Default: all pixels.
+    max_pitch : float, optional
+        Largest pitch searched, px. Default: a quarter of the smaller image side,
+        so that at least four periods are seen.
+
+    Returns
+    -------
+    Lattice
+        ``k1`` is the wave vector closer to the x axis, with ``k1x > 0``; ``k2`` is
+        oriented so that ``det K > 0`` (for the axis-aligned grid, ``k2y > 0``).
+
+    Raises
+    ------
+    ValueError
+        If the image holds no periodic pattern in two directions.
+
+    Notes
+    -----
+    The mean-removed image (masked pixels set to the mean) is multiplied by a 2-D
+    Hann window; the two strongest non-parallel peaks of its spectrum are located on
+    the FFT grid, then refined off the grid by maximising the windowed discrete-time
+    Fourier transform magnitude, ``|sum w v exp(-2 i pi k.x)|``, which for a
+    sinusoid peaks exactly at its frequency. On a noise-free 512 x 512 grid the
+    pitch is found to better than 1e-5 relative and the angle to better than 1e-3
+    degree (see the tests). For a deformed image the lattice found is the mean
+    frequency, so detect on the reference image.
+
+    Examples
+    --------
+    >>> from gridstrain import synthetic
+    >>> img = synthetic.grid_image((128, 128), Lattice.from_pitch(5.0, angle=10.0))
+    >>> lat = detect_lattice(img)
+    >>> round(lat.pitches[0], 4), round(lat.angles[0], 3)
+    (5.0, 10.0)
+    """
+    img = as_image(image)
+    m = check_mask(mask, img.shape)
+    H, W = img.shape
+    # central crop
+    h, w = min(H, _MAX_DETECT_SIZE), min(W, _MAX_DETECT_SIZE)
+    r0, c0 = (H - h) // 2, (W - w) // 2
+    sub = img[r0:r0 + h, c0:c0 + w].astype(np.float64)
+    msub = m[r0:r0 + h, c0:c0 + w]
+    if not msub.any():
+        raise ValueError("mask selects no pixel in the central part of the image used to "
+                         "detect the lattice; pass the lattice explicitly")
+    mean = float(sub[msub].mean())
+    data = np.where(msub, sub - mean, 0.0) * np.outer(_window(h), _window(w))
+    if not np.any(data):
+        raise ValueError("image is uniform over the mask: no grid to detect")
+    if max_pitch is None:
+        max_pitch = min(h, w) / 4.0
+    max_pitch = check_positive(max_pitch, "max_pitch")
+
+    spec = np.abs(sfft.rfft2(data))
+    fy = sfft.fftfreq(h)[:, None]
+    fx = sfft.rfftfreq(w)[None, :]
+    fr = np.hypot(fx, fy)
+    allowed = (fr >= 1.0 / max_pitch) & (fr < 0.5)
+    # keep one of each +-k pair: fx > 0, or fx == 0 with fy > 0
+    allowed &= (fx > 0) | (fy > 0)
+    if not allowed.any():
+        raise ValueError(f"image of shape {img.shape} is too small to detect a lattice")
+
+    x = np.arange(c0, c0 + w, dtype=float)
+    y = np.arange(r0, r0 + h, dtype=float)
+    found: list[np.ndarray] = []
+    search = allowed.copy()
+    for which in ("first", "second"):
+        if not search.any():
+            break
+        score = np.where(search, spec, -1.0)
+        iy, ix = np.unravel_index(int(np.argmax(score)), score.shape)
+        k0 = np.array([fx[0, ix], fy[iy, 0]])
+        prom = _prominence(spec, iy, ix)
+        if prom < _MIN_PROMINENCE:
+            if which == "first":
+                raise ValueError(
+                    "image shows no periodic pattern: its strongest spectral peak stands "
+                    f"only {prom:.3g} times above its surroundings (a grid gives > 100); "
+                    "check the image or pass the lattice explicitly")
+            raise ValueError(
+                "image shows only one family of lines (the second direction's peak stands "
+                f"only {prom:.3g} times above its surroundings); pass the lattice explicitly")
+        found.append(_refine(data, k0, x - c0, y - r0, h, w))
+        # exclude everything parallel to the peak just found (its harmonics)
+        ang = np.degrees(np.arctan2(fy, fx))
+        a0 = math.degrees(math.atan2(k0[1], k0[0]))
+        d = np.abs((ang - a0 + 90.0) % 180.0 - 90.0)
+        search &= d > _PARALLEL_DEG
+    if len(found) < 2:
+        raise ValueError("image shows only one family of lines; pass the lattice explicitly")
+    # The refinement was done in crop coordinates; a wave vector does not depend on the
+    # origin, so it applies to the whole image.
+    ka, kb = found
+    # k1: the one closer to the x axis, oriented with kx > 0
+    if abs(kb[0]) * np.hypot(*ka) > abs(ka[0]) * np.hypot(*kb):
+        ka, kb = kb, ka
+    if ka[0] < 0:
+        ka = -ka
+    if ka[0] * kb[1] - ka[1] * kb[0] < 0:
+        kb = -kb
+    return Lattice(tuple(ka), tuple(kb))
+
+
+def _prominence(spec: np.ndarray, iy: int, ix: int) -> float:
+    """Peak magnitude over the median magnitude 4 to 12 bins away."""
+    h, wr = spec.shape
+    dy = (np.arange(h) - iy + h // 2) % h - h // 2
+    dx = np.arange(wr) - ix
+    ring = np.maximum(np.abs(dy)[:, None], np.abs(dx)[None, :])
+    sel = (ring >= 4) & (ring <= 12)
+    bg = float(np.median(spec[sel])) if sel.any() else 0.0
+    return float(spec[iy, ix]) / bg if bg > 0 else np.inf
+
+
+def _refine(data, k0, x, y, h, w) -> np.ndarray:
+    """Maximise the windowed DTFT magnitude around the FFT-grid peak ``k0``."""
+    scale = np.array([1.0 / w, 1.0 / h])  # one FFT bin in each direction
+    p0 = _dtft_power(data, k0, x, y)
+
+    def cost(z):
+        return -_dtft_power(data, k0 + z * scale, x, y) / p0
+
+    res = optimize.minimize(cost, np.zeros(2), method="Nelder-Mead",
+                            options={"xatol": 1e-7, "fatol": 1e-15, "maxiter": 400,
+                                     "initial_simplex": [[0, 0], [0.3, 0], [0, 0.3]]})
+    z = res.x if np.all(np.abs(res.x) < 1.5) else np.zeros(2)
+    return k0 + z * scale
