@@ -4,9 +4,20 @@ The conventions (axes, signs, window, Lagrangian description) are written once, 
 :mod:`gridstrain.conventions`.
 """
 
+from .kinematics import Measurement, coarse_displacement, deformation, measure
 from .lattice import Lattice, detect_lattice
 from .wft import PhaseMaps, wft
 
 __version__ = "0.1.0"
 
-__all__ = ["Lattice", "PhaseMaps", "__version__", "detect_lattice", "wft"]
+__all__ = [
+    "Lattice",
+    "Measurement",
+    "PhaseMaps",
+    "__version__",
+    "coarse_displacement",
+    "deformation",
+    "detect_lattice",
+    "measure",
+    "wft",
+]

@@ -10,7 +10,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from scipy import fft as sfft
-from scipy import optimize
+from scipy import ndimage, optimize
 
 from ._validation import as_image, check_mask, check_positive
 
@@ -20,10 +20,13 @@ __all__ = ["Lattice", "detect_lattice"]
 # harmonics of one family of lines lie on the same line through the origin.
 _PARALLEL_DEG = 15.0
 # A spectral peak is a periodic pattern only if it stands this many times above the
-# median spectral magnitude around it. White noise reaches about 4 (the maximum of
-# ~1e5 Rayleigh variables over their median), a smooth natural image 1 to 3; any
-# printed grid or checkerboard is above 1e2.
+# median spectral magnitude at the same spatial frequency. White noise reaches about
+# 3 (the largest of a few hundred Rayleigh variables over their median), an
+# isotropic smooth scene a few; a printed grid or checkerboard is above 1e2.
 _MIN_PROMINENCE = 10.0
+# The second family's peak must reach this fraction of the first one's: weaker
+# "peaks" are side lobes or intermodulation products, not a family of lines.
+_MIN_RELATIVE_PEAK = 0.02
 # Detection works on a central crop of at most this size: enough periods for a
 # sub-bin frequency estimate, and it bounds the cost of the refinement.
 _MAX_DETECT_SIZE = 1024
@@ -64,7 +67,7 @@ class Lattice:
                                  f"above 2 px), got {norm:.6g}")
             object.__setattr__(self, name, (float(v[0]), float(v[1])))
         k1, k2 = np.array(self.k1), np.array(self.k2)
-        sin = abs(float(np.cross(k1, k2))) / (np.hypot(*k1) * np.hypot(*k2))
+        sin = abs(float(k1[0] * k2[1] - k1[1] * k2[0])) / (np.hypot(*k1) * np.hypot(*k2))
         if sin < math.sin(math.radians(_PARALLEL_DEG)):
             raise ValueError(f"k1 and k2 must not be parallel, got an angle of "
                              f"{math.degrees(math.asin(min(sin, 1.0))):.3g} deg between them")
@@ -202,6 +205,9 @@ def detect_lattice(image, *, mask=None, max_pitch: float | None = None) -> Latti
     allowed = (fr >= 1.0 / max_pitch) & (fr < 0.5)
     # keep one of each +-k pair: fx > 0, or fx == 0 with fy > 0
     allowed &= (fx > 0) | (fy > 0)
+    # only local maxima are peaks: the rim of a smooth image's low-frequency content,
+    # cut by the pitch limit, is not one
+    allowed &= spec == ndimage.maximum_filter(spec, size=3, mode="wrap")
     if not allowed.any():
         raise ValueError(f"image of shape {img.shape} is too small to detect a lattice")
 
@@ -215,7 +221,9 @@ def detect_lattice(image, *, mask=None, max_pitch: float | None = None) -> Latti
         score = np.where(search, spec, -1.0)
         iy, ix = np.unravel_index(int(np.argmax(score)), score.shape)
         k0 = np.array([fx[0, ix], fy[iy, 0]])
-        prom = _prominence(spec, iy, ix)
+        prom = _prominence(spec, fr, iy, ix, min(h, w))
+        if found and spec[iy, ix] < _MIN_RELATIVE_PEAK * first_peak:
+            prom = min(prom, spec[iy, ix] / first_peak)
         if prom < _MIN_PROMINENCE:
             if which == "first":
                 raise ValueError(
@@ -223,8 +231,10 @@ def detect_lattice(image, *, mask=None, max_pitch: float | None = None) -> Latti
                     f"only {prom:.3g} times above its surroundings (a grid gives > 100); "
                     "check the image or pass the lattice explicitly")
             raise ValueError(
-                "image shows only one family of lines (the second direction's peak stands "
-                f"only {prom:.3g} times above its surroundings); pass the lattice explicitly")
+                "image shows only one family of lines (no second spectral peak stands out "
+                "in another direction); pass the lattice explicitly")
+        if not found:
+            first_peak = float(spec[iy, ix])
         found.append(_refine(data, k0, x - c0, y - r0, h, w))
         # exclude everything parallel to the peak just found (its harmonics)
         ang = np.degrees(np.arctan2(fy, fx))
@@ -246,14 +256,15 @@ def detect_lattice(image, *, mask=None, max_pitch: float | None = None) -> Latti
     return Lattice(tuple(ka), tuple(kb))
 
 
-def _prominence(spec: np.ndarray, iy: int, ix: int) -> float:
-    """Peak magnitude over the median magnitude 4 to 12 bins away."""
-    h, wr = spec.shape
-    dy = (np.arange(h) - iy + h // 2) % h - h // 2
-    dx = np.arange(wr) - ix
-    ring = np.maximum(np.abs(dy)[:, None], np.abs(dx)[None, :])
-    sel = (ring >= 4) & (ring <= 12)
-    bg = float(np.median(spec[sel])) if sel.any() else 0.0
+def _prominence(spec: np.ndarray, fr: np.ndarray, iy: int, ix: int, n: int) -> float:
+    """Peak magnitude over the median magnitude at the same spatial frequency.
+
+    The annulus of radius ``|f_peak|`` (1.5 bins wide) holds thousands of bins and at
+    most a few peaks, so its median is the background a periodic pattern must stand
+    out of: isotropic content (noise, a natural scene, a speckle) does not.
+    """
+    sel = np.abs(fr - fr[iy, ix]) <= 1.5 / n
+    bg = float(np.median(spec[sel]))
     return float(spec[iy, ix]) / bg if bg > 0 else np.inf
 
 

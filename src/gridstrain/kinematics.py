@@ -1,0 +1,401 @@
+"""Displacement and strain from phase maps (paper eqs. 34-35, any two wave vectors).
+
+Signs, axes and the Lagrangian description are those of
+:mod:`gridstrain.conventions`.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy import ndimage
+from skimage.registration import phase_cross_correlation
+from skimage.restoration import unwrap_phase
+
+from ._validation import as_image, check_mask, check_positive
+from .lattice import Lattice, detect_lattice
+from .wft import DEFAULT_MARGIN, PhaseMaps, wft
+
+__all__ = ["Measurement", "coarse_displacement", "deformation", "measure"]
+
+# Spline order used to evaluate the deformed maps at x + u: the demodulated maps are
+# smooth on the scale of the window, and quintic splines keep the interpolation error
+# of a noise-free grid below 1e-6 rad.
+_SPLINE_ORDER = 5
+# A coarse cross-correlation estimate is trusted only if the low-passed images,
+# aligned, correlate at least this well (Pearson); below it the pattern has no
+# features beyond the periodic grid and the displacement is ambiguous to a period.
+_MIN_COARSE_CORRELATION = 0.5
+
+
+@dataclass(frozen=True, eq=False)
+class Measurement:
+    """Displacement and strain maps between a reference and a deformed state.
+
+    Attributes
+    ----------
+    u : (2, H, W) float ndarray
+        Displacement ``(u_x, u_y)`` in px, Lagrangian (at reference pixels), NaN
+        where not ``valid``.
+    strain : (3, H, W) float ndarray
+        ``(eps_xx, eps_yy, eps_xy)``, dimensionless small-strain tensor (tensor
+        shear), NaN where not ``valid``.
+    rotation : (H, W) float ndarray
+        Infinitesimal rotation ``omega = (du_y/dx - du_x/dy)/2``, rad.
+    valid : (H, W) bool ndarray
+        Pixels where both states were measured.
+    lattice : Lattice
+    sigma : float
+        Window standard deviation, px.
+    lagrangian : bool
+        Whether the large-displacement (Lagrangian) correction was applied.
+    iterations : int
+        Fixed-point iterations of the correction (0 without it).
+    step_rms : float
+        RMS change of ``u`` over the valid pixels at the last iteration, px.
+    guess : (2,) tuple of float
+        Median of the initial guess that fixed the fringe order, px.
+    guess_source : str
+        ``"auto"`` (cross-correlation), ``"zero"``, or ``"user"``.
+    reference, deformed : PhaseMaps
+        The phase maps the measurement was made from.
+    """
+
+    u: np.ndarray
+    strain: np.ndarray
+    rotation: np.ndarray
+    valid: np.ndarray
+    lattice: Lattice
+    sigma: float
+    lagrangian: bool
+    iterations: int
+    step_rms: float
+    guess: tuple[float, float]
+    guess_source: str
+    reference: PhaseMaps = field(repr=False)
+    deformed: PhaseMaps = field(repr=False)
+
+    def __post_init__(self):
+        for name in ("u", "strain", "rotation", "valid"):
+            getattr(self, name).flags.writeable = False
+
+    @property
+    def ux(self) -> np.ndarray:
+        """(H, W) displacement along x, px."""
+        return self.u[0]
+
+    @property
+    def uy(self) -> np.ndarray:
+        """(H, W) displacement along y, px."""
+        return self.u[1]
+
+    @property
+    def exx(self) -> np.ndarray:
+        """(H, W) normal strain along x."""
+        return self.strain[0]
+
+    @property
+    def eyy(self) -> np.ndarray:
+        """(H, W) normal strain along y."""
+        return self.strain[1]
+
+    @property
+    def exy(self) -> np.ndarray:
+        """(H, W) shear strain (tensor component, half the engineering shear)."""
+        return self.strain[2]
+
+    def __repr__(self) -> str:
+        H, W = self.valid.shape
+        v = self.valid
+        mu = [float(np.mean(c[v])) if v.any() else math.nan for c in self.u]
+        return (f"Measurement({H}x{W}, {v.mean():.1%} valid, mean u = ({mu[0]:.4g}, "
+                f"{mu[1]:.4g}) px, sigma={self.sigma:.4g} px, lagrangian={self.lagrangian}, "
+                f"iterations={self.iterations})")
+
+
+def coarse_displacement(reference, deformed, lattice: Lattice, *, mask=None):
+    """Coarse rigid displacement from the images' non-periodic content.
+
+    The images are low-passed with a Gaussian of one pitch, which removes the grid
+    (its carrier is attenuated by ``exp(-2 pi^2)`` ~ 3e-9) and keeps what is not
+    periodic: printing defects, reflectance, specimen edges, holes. Their masked
+    normalised cross-correlation (scikit-image's ``phase_cross_correlation`` with
+    masks, which is not biased towards zero by the image borders) gives the
+    translation to the nearest pixel (to the nearest ``q`` pixels on images larger
+    than 1024 px, decimated by ``q``), enough to fix the fringe order.
+
+    Parameters
+    ----------
+    reference, deformed : (H, W) array_like
+    lattice : Lattice
+    mask : (H, W) bool array_like, optional
+        True on the specimen in the reference image.
+
+    Returns
+    -------
+    shift : (2,) ndarray
+        ``(u_x, u_y)`` in px (Lagrangian sign: a specimen moved right gives
+        ``u_x > 0``).
+    correlation : float
+        Pearson correlation of the low-passed images once aligned; below 0.5 the
+        estimate is not trustworthy (no feature besides the periodic grid).
+    """
+    ref = as_image(reference, "reference").astype(np.float64)
+    cur = as_image(deformed, "deformed").astype(np.float64)
+    if ref.shape != cur.shape:
+        raise ValueError(f"deformed must have the shape of reference {ref.shape}, "
+                         f"got {cur.shape}")
+    m = check_mask(mask, ref.shape)
+    if not isinstance(lattice, Lattice):
+        raise TypeError(f"lattice must be a Lattice, got {type(lattice).__name__}")
+    q = max(1, math.ceil(max(ref.shape) / 1024))
+    low = []
+    for img in (ref, cur):
+        mean = img[m].mean()
+        low.append(ndimage.gaussian_filter(np.where(m, img, mean) - mean, lattice.pitch,
+                                           truncate=6.0)[::q, ::q])
+    a, b = low
+    ma = m[::q, ::q]
+    if not (np.any(a) and np.any(b)):
+        return np.zeros(2), 0.0
+    shift, _, _ = phase_cross_correlation(a, b, reference_mask=ma,
+                                          moving_mask=np.ones_like(ma), overlap_ratio=0.5)
+    dy, dx = (int(round(v)) for v in shift)
+    # Pearson correlation over the overlap of a(x) and b(x - shift)
+    H, W = a.shape
+    ys = slice(max(0, dy), min(H, H + dy))
+    xs = slice(max(0, dx), min(W, W + dx))
+    yb = slice(max(0, -dy), min(H, H - dy))
+    xb = slice(max(0, -dx), min(W, W - dx))
+    aa, bb, mm = a[ys, xs], b[yb, xb], ma[ys, xs]
+    aa, bb = aa[mm] - aa[mm].mean(), bb[mm] - bb[mm].mean()
+    den = math.sqrt(float(np.sum(aa * aa)) * float(np.sum(bb * bb)))
+    corr = float(np.sum(aa * bb)) / den if den > 0 else 0.0
+    return np.array([-dx * q, -dy * q], dtype=float), corr
+
+
+def _interp(arr: np.ndarray, coords: np.ndarray) -> np.ndarray:
+    """Spline interpolation of a (possibly complex) 2-D map at ``coords`` (2, H, W)."""
+    kw = {"order": _SPLINE_ORDER, "mode": "nearest", "prefilter": True}
+    if np.iscomplexobj(arr):
+        return (ndimage.map_coordinates(arr.real, coords, **kw)
+                + 1j * ndimage.map_coordinates(arr.imag, coords, **kw))
+    return ndimage.map_coordinates(arr, coords, **kw)
+
+
+def _solve(K: np.ndarray, r: np.ndarray) -> np.ndarray:
+    """``K^-1 r`` for a 2x2 ``K`` and ``r`` of shape (2, ...)."""
+    return np.tensordot(np.linalg.inv(K), r, axes=1)
+
+
+def _guess_field(guess, shape, ref_img, cur_img, lattice, mask):
+    if isinstance(guess, str):
+        if guess != "auto":
+            raise ValueError(f"guess must be 'auto', None, a (u_x, u_y) pair or a (2, H, W) "
+                             f"field, got {guess!r}")
+        if ref_img is None:
+            raise ValueError("guess='auto' needs the images; pass a guess with phase maps")
+        shift, corr = coarse_displacement(ref_img, cur_img, lattice, mask=mask)
+        if corr >= _MIN_COARSE_CORRELATION:
+            return np.broadcast_to(shift[:, None, None], (2, *shape)), "auto"
+        return np.zeros((2, *shape)), "zero"
+    if guess is None:
+        return np.zeros((2, *shape)), "zero"
+    g = np.asarray(guess, dtype=float)
+    if g.shape == (2,):
+        g = np.broadcast_to(g[:, None, None], (2, *shape))
+    elif g.shape != (2, *shape):
+        raise ValueError(f"guess must be a (u_x, u_y) pair or a field of shape "
+                         f"{(2, *shape)}, got shape {g.shape}")
+    if not np.all(np.isfinite(g)):
+        raise ValueError("guess must be finite")
+    return g, "user"
+
+
+def deformation(reference: PhaseMaps, deformed: PhaseMaps, *, lagrangian: bool = True,
+                guess=None, tol: float = 1e-6, max_iter: int = 50,
+                _images=None) -> Measurement:
+    """Displacement and strain between two phase-map sets of the same lattice.
+
+    Parameters
+    ----------
+    reference, deformed : PhaseMaps
+        From :func:`gridstrain.wft` (or a stack average) with the same lattice and
+        window.
+    lagrangian : bool
+        Apply the large-displacement correction: solve
+        ``u(X) = -(1/2pi) K^-1 (phi_def(X + u(X)) - phi_ref(X))`` by fixed point,
+        and take the deformed-state derivatives at ``X + u``. Without it, eq. (34)
+        as printed (``phi_def`` at ``X``), exact only to first order.
+    guess : None, (2,) array_like or (2, H, W) array_like
+        Initial displacement, px, that fixes the fringe order (a displacement is
+        known from phases only up to a lattice period). Default: zero.
+    tol : float
+        Stop when the RMS change of ``u`` over the valid pixels falls below
+        ``tol`` px.
+    max_iter : int
+        Largest number of fixed-point iterations.
+
+    Returns
+    -------
+    Measurement
+
+    Notes
+    -----
+    The wrapped phase difference is unwrapped in space by scikit-image's
+    ``unwrap_phase`` over the valid pixels (each connected region on its own); each
+    region's fringe order is the one closest to the guess. With the correction on,
+    the residual ``phi_def(X + u) - phi_ref(X) + 2 pi K u`` is wrapped at every
+    iteration, so any displacement is followed once the start is within half a
+    period. The strain then comes from the exact Lagrangian gradient
+    ``G = (2 pi K + D_def(X + u))^-1 (D_ref - D_def(X + u))``, with ``D`` the 2x2
+    phase-derivative matrices; to first order this is eq. (35),
+    ``G = -(1/2pi) K^-1 (D_def - D_ref)``, which is what is used without the
+    correction.
+    """
+    for name, pm in (("reference", reference), ("deformed", deformed)):
+        if not isinstance(pm, PhaseMaps):
+            raise TypeError(f"{name} must be PhaseMaps, got {type(pm).__name__}")
+    if reference.shape != deformed.shape:
+        raise ValueError(f"deformed maps must have the shape of the reference "
+                         f"{reference.shape}, got {deformed.shape}")
+    if reference.lattice != deformed.lattice:
+        raise ValueError("reference and deformed maps must use the same lattice")
+    tol = check_positive(tol, "tol")
+    if not isinstance(max_iter, int) or max_iter < 1:
+        raise ValueError(f"max_iter must be a positive integer, got {max_iter!r}")
+
+    lattice = reference.lattice
+    K = lattice.K
+    shape = reference.shape
+    ref_img, cur_img, img_mask = _images if _images is not None else (None, None, None)
+    g, source = _guess_field(guess, shape, ref_img, cur_img, lattice, img_mask)
+
+    # eq. (34): wrapped phase difference, unwrapped over the valid region
+    valid = reference.valid & deformed.valid
+    dphase = np.angle(deformed.psi * np.conj(reference.psi)).astype(np.float64)
+    labels, n_regions = ndimage.label(valid)
+    if n_regions == 0:
+        raise ValueError("no valid pixel: the image is smaller than the window and its "
+                         "margin, or the mask leaves nothing")
+    unwrapped = np.empty_like(dphase)
+    for j in range(2):
+        ma = np.ma.masked_array(dphase[j], mask=~valid)
+        unwrapped[j] = np.ma.filled(unwrap_phase(ma, rng=0), 0.0)
+    u = -_solve(K, unwrapped) / (2 * np.pi)
+    # fringe order per connected region, closest to the guess: u -> u - K^-1 n
+    for lab in range(1, n_regions + 1):
+        sel = labels == lab
+        n = np.rint(np.median((K @ (u[:, sel] - g[:, sel])), axis=1))
+        if np.any(n):
+            u[:, sel] -= np.linalg.solve(K, n)[:, None]
+
+    iterations, step = 0, 0.0
+    D_ref = reference.dphi.astype(np.float64)
+    if lagrangian:
+        yy, xx = np.mgrid[0:shape[0], 0:shape[1]].astype(np.float64)
+        psi_ref = reference.psi.astype(np.complex128)
+        psi_cur = deformed.psi.astype(np.complex128)
+        nv = max(int(valid.sum()), 1)
+        for iterations in range(1, max_iter + 1):  # noqa: B007
+            coords = np.stack([yy + u[1], xx + u[0]])
+            r = np.empty_like(u)
+            for j in range(2):
+                psi_at = _interp(psi_cur[j], coords)
+                carrier = np.exp(2j * np.pi * (K[j, 0] * u[0] + K[j, 1] * u[1]))
+                r[j] = np.angle(psi_at * np.conj(psi_ref[j]) * carrier)
+            du = -_solve(K, r) / (2 * np.pi)
+            u = u + np.where(valid, du, 0.0)
+            step = math.sqrt(float(np.sum(du[:, valid] ** 2)) / nv)
+            if step < tol:
+                break
+        coords = np.stack([yy + u[1], xx + u[0]])
+        inside = ((coords[0] >= 0) & (coords[0] <= shape[0] - 1)
+                  & (coords[1] >= 0) & (coords[1] <= shape[1] - 1))
+        cur_valid = ndimage.map_coordinates(deformed.valid.astype(np.float64), coords,
+                                            order=1, mode="constant", cval=0.0)
+        valid = reference.valid & inside & (cur_valid > 0.999)
+        D_cur = np.empty((2, 2, *shape))
+        for j in range(2):
+            for m in range(2):
+                D_cur[j, m] = _interp(deformed.dphi[j, m].astype(np.float64), coords)
+        # exact Lagrangian gradient: (2 pi K + D_cur) G = D_ref - D_cur
+        A = 2 * np.pi * K[:, :, None, None] + D_cur
+        B = D_ref - D_cur
+        det = A[0, 0] * A[1, 1] - A[0, 1] * A[1, 0]
+        inv = np.array([[A[1, 1], -A[0, 1]], [-A[1, 0], A[0, 0]]]) / det
+        G = np.einsum("ij...,jk...->ik...", inv, B)
+    else:
+        D_cur = deformed.dphi.astype(np.float64)
+        G = -np.tensordot(np.linalg.inv(K), D_cur - D_ref, axes=1) / (2 * np.pi)  # eq. (35)
+
+    strain = np.stack([G[0, 0], G[1, 1], 0.5 * (G[0, 1] + G[1, 0])])
+    rotation = 0.5 * (G[1, 0] - G[0, 1])
+    u = np.where(valid, u, np.nan)
+    strain = np.where(valid, strain, np.nan)
+    rotation = np.where(valid, rotation, np.nan)
+    gmed = tuple(float(np.median(c)) for c in g) if source != "zero" else (0.0, 0.0)
+    return Measurement(u=u, strain=strain, rotation=rotation, valid=valid, lattice=lattice,
+                       sigma=reference.sigma, lagrangian=bool(lagrangian),
+                       iterations=iterations, step_rms=step, guess=gmed,
+                       guess_source=source, reference=reference, deformed=deformed)
+
+
+def measure(reference, deformed, *, lattice: Lattice | None = None,
+            sigma: float | None = None, mask=None, lagrangian: bool = True,
+            guess="auto", margin: float = DEFAULT_MARGIN) -> Measurement:
+    """Displacement and strain maps between a reference and a deformed grid image.
+
+    Parameters
+    ----------
+    reference, deformed : (H, W) array_like
+        Grid images of the specimen before and after loading (grey levels).
+    lattice : Lattice, optional
+        The grid's wave vectors; detected on the reference image by default.
+    sigma : float, optional
+        Window standard deviation, px (default: the pitch).
+    mask : (H, W) bool array_like, optional
+        True on the specimen, in the reference configuration.
+    lagrangian : bool
+        Large-displacement correction (default on); see :func:`deformation`.
+    guess : "auto", None, (2,) or (2, H, W) array_like
+        Initial displacement fixing the fringe order. ``"auto"`` cross-correlates
+        the low-passed images (:func:`coarse_displacement`) and falls back to zero
+        when they hold nothing but the periodic grid.
+    margin : float
+        Invalid band along borders and mask edges, in units of ``sigma``.
+
+    Returns
+    -------
+    Measurement
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from gridstrain import Lattice, measure, synthetic
+    >>> lat = Lattice.from_pitch(5.0)
+    >>> ref = synthetic.grid_image((96, 96), lat)
+    >>> cur = synthetic.grid_image((96, 96), lat,
+    ...                            displacement=lambda X, Y: (0.3 + 0 * X, -0.2 + 0 * Y))
+    >>> res = measure(ref, cur, lattice=lat, guess=None)
+    >>> [round(float(np.nanmean(c)), 5) for c in res.u]
+    [0.3, -0.2]
+    """
+    ref = as_image(reference, "reference")
+    cur = as_image(deformed, "deformed")
+    if ref.shape != cur.shape:
+        raise ValueError(f"deformed must have the shape of reference {ref.shape}, "
+                         f"got {cur.shape}")
+    m = check_mask(mask, ref.shape)
+    if lattice is None:
+        lattice = detect_lattice(ref, mask=m)
+    elif not isinstance(lattice, Lattice):
+        raise TypeError(f"lattice must be a Lattice or None, got {type(lattice).__name__}")
+    pm_ref = wft(ref, lattice, sigma=sigma, mask=m, margin=margin)
+    # the deformed specimen has moved: its mask is not the reference's, so the
+    # deformed image is transformed whole and validity comes from its own moduli
+    pm_cur = wft(cur, lattice, sigma=sigma, margin=margin)
+    return deformation(pm_ref, pm_cur, lagrangian=lagrangian, guess=guess,
+                       _images=(ref, cur, m))
