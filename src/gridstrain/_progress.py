@@ -12,7 +12,7 @@ from collections.abc import Callable
 Progress = Callable[[float, str], None]
 
 
-def null_progress(fraction: float, message: str) -> None:  # noqa: ARG001
+def null_progress(fraction: float, message: str) -> None:
     """A progress callback that does nothing."""
 
 
@@ -26,7 +26,7 @@ def bar(*, quiet: bool = False, stream=None) -> Progress:
 
     def report(fraction: float, message: str) -> None:
         f = min(max(float(fraction), 0.0), 1.0)
-        fill = int(round(f * width))
+        fill = round(f * width)
         line = f"\r[{'#' * fill}{'.' * (width - fill)}] {f:4.0%} {message[:60]:<60}"
         if line != state["last"]:
             stream.write(line)

@@ -46,7 +46,7 @@ def as_image(image, name: str = "image", *, allow_uniform: bool = False) -> np.n
         bad = int(np.count_nonzero(~np.isfinite(arr)))
         raise ValueError(f"{name} must be finite, got {bad} NaN or infinite pixel(s)")
     if not allow_uniform and np.ptp(arr) == 0:
-        raise ValueError(f"{name} is uniform (every pixel equals {arr.flat[0]!r}): no grid")
+        raise ValueError(f"{name} is uniform (every pixel equals {float(arr.flat[0]):g}): no grid")
     return arr
 
 

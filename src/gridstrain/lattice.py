@@ -214,6 +214,7 @@ def detect_lattice(image, *, mask=None, max_pitch: float | None = None) -> Latti
     x = np.arange(c0, c0 + w, dtype=float)
     y = np.arange(r0, r0 + h, dtype=float)
     found: list[np.ndarray] = []
+    first_peak = 0.0
     search = allowed.copy()
     for which in ("first", "second"):
         if not search.any():
@@ -234,7 +235,7 @@ def detect_lattice(image, *, mask=None, max_pitch: float | None = None) -> Latti
                 "image shows only one family of lines (no second spectral peak stands out "
                 "in another direction); pass the lattice explicitly")
         if not found:
-            first_peak = float(spec[iy, ix])
+            float(spec[iy, ix])
         found.append(_refine(data, k0, x - c0, y - r0, h, w))
         # exclude everything parallel to the peak just found (its harmonics)
         ang = np.degrees(np.arctan2(fy, fx))

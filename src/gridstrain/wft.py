@@ -208,7 +208,7 @@ def wft(image, lattice: Lattice, *, sigma: float | None = None, mask=None,
     H, W = img.shape
     mean = float(np.mean(img[m], dtype=np.float64))
     centred = np.where(m, img - dtype.type(mean), dtype.type(0))
-    pad = int(math.ceil(_PAD_SIGMAS * sigma))
+    pad = math.ceil(_PAD_SIGMAS * sigma)
     ny = sfft.next_fast_len(H + pad, real=True)
     nx = sfft.next_fast_len(W + pad, real=True)
     V = sfft.rfft2(centred, s=(ny, nx))
