@@ -162,7 +162,7 @@ def coarse_displacement(reference, deformed, lattice: Lattice, *, mask=None):
         return np.zeros(2), 0.0
     shift, _, _ = phase_cross_correlation(a, b, reference_mask=ma,
                                           moving_mask=np.ones_like(ma), overlap_ratio=0.5)
-    dy, dx = (round(v) for v in shift)
+    dy, dx = (int(np.rint(v)) for v in shift)
     # Pearson correlation over the overlap of a(x) and b(x - shift)
     H, W = a.shape
     ys = slice(max(0, dy), min(H, H + dy))

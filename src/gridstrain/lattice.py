@@ -235,7 +235,7 @@ def detect_lattice(image, *, mask=None, max_pitch: float | None = None) -> Latti
                 "image shows only one family of lines (no second spectral peak stands out "
                 "in another direction); pass the lattice explicitly")
         if not found:
-            float(spec[iy, ix])
+            first_peak = float(spec[iy, ix])
         found.append(_refine(data, k0, x - c0, y - r0, h, w))
         # exclude everything parallel to the peak just found (its harmonics)
         ang = np.degrees(np.arctan2(fy, fx))
