@@ -1,0 +1,1246 @@
+"""Reading lab image series and writing results.
+
+Input
+    :func:`open_series` turns a single image, a multi-page TIFF stack, a directory,
+    a glob pattern or a list of files into a :class:`FrameSeries`: a validated,
+    ordered list of 2-D grey-level frames that are read one at a time (memory is
+    bounded by one frame whatever the length of the series). TIFF files are read
+    with ``tifffile``, page by page; PNG and BMP files with ``imageio``.
+    :func:`read_mask` reads a specimen mask (:mod:`gridstrain.conventions`, Masks).
+
+Grey levels and bit depth
+    Frames are returned in *raw* grey levels, the values stored in the files.
+    Cameras of the PCO Sensicam class store their 12-bit output in 16-bit files
+    multiplied by 2**4 (the founding paper, Fig. 1), so that raw values are
+    multiples of 16 up to 4095 * 16 = 65520. :func:`open_series` detects this and
+    records it as ``scale = 16`` and ``bit_depth = 12``; nothing is divided
+    silently. Pass ``to_sensor_units=True`` to the readers to get grey levels of
+    the sensor (raw / ``scale``), the unit in which the sensor noise model of
+    :mod:`gridstrain.synthetic` (``Var = K l + L``) is written.
+
+Output
+    Every file is written atomically (:func:`atomic_path`): to a temporary file in
+    the destination directory, renamed onto the destination only when complete,
+    so that an interrupted run never leaves a truncated result behind. An existing
+    file is replaced only with ``overwrite=True``. :func:`write_hdf5` writes
+    compressed, checksummed HDF5 with units and JSON-encoded metadata;
+    :func:`write_csv` writes exact decimal columns; :func:`write_tiff_series`
+    writes a folder of numbered single-page TIFFs such as a camera produces.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import glob
+import json
+import numbers
+import os
+import re
+import secrets
+from collections.abc import Callable, Iterable, Iterator, Mapping
+from dataclasses import dataclass, field
+from itertools import groupby
+from pathlib import Path
+
+import h5py
+import numpy as np
+import numpy.typing as npt
+import tifffile
+
+__all__ = [
+    "IMAGE_EXTENSIONS",
+    "FrameSeries",
+    "atomic_path",
+    "check_saturation",
+    "check_saturation_limit",
+    "natural_sort_key",
+    "open_series",
+    "read_hdf5",
+    "read_mask",
+    "write_csv",
+    "write_hdf5",
+    "write_tiff_series",
+]
+
+#: File name extensions read as images (compared case-insensitively). JPEG is left
+#: out on purpose: its lossy compression changes the grey levels the method measures.
+IMAGE_EXTENSIONS = (".tif", ".tiff", ".png", ".bmp")
+_TIFF_EXTENSIONS = (".tif", ".tiff")
+
+# Number of leading frames inspected to recognise 12-bit data stored x16 in 16-bit
+# files. A frame of N noisy pixels from a true 16-bit camera has probability
+# 16**-N of holding only multiples of 16, so one frame would already do; three
+# guard against a black first frame.
+_DETECT_FRAMES = 3
+_PCO_SCALE = 16
+
+# Attribute listing which HDF5 attributes hold JSON text (lists, dicts, None), so
+# that read_hdf5 can decode them and leave ordinary strings alone.
+_JSON_ATTRS = "_json_attrs"
+_UNITS_ATTR = "units"
+
+_FloatDType = npt.DTypeLike
+
+
+# --------------------------------------------------------------------------- helpers
+
+
+def natural_sort_key(text: str | os.PathLike) -> tuple:
+    """Sort key ordering embedded numbers by value: ``frame2`` before ``frame10``.
+
+    Letters compare case-insensitively; ties (``f01`` and ``f1``) are broken by the
+    plain string so that the order is total and reproducible.
+    """
+    s = os.fspath(text)
+    parts = re.split(r"(\d+)", s)
+    # re.split with a capturing group alternates text (even) and digits (odd), so the
+    # keys of two strings compare str with str and int with int, position by position.
+    key = tuple(int(p) if i % 2 else p.casefold() for i, p in enumerate(parts))
+    return (key, s)
+
+
+def _check_name(name) -> str:
+    if not isinstance(name, str) or not name:
+        raise TypeError(f"name must be a non-empty string, got {name!r}")
+    return name
+
+
+def _as_path(value, what: str) -> Path:
+    if isinstance(value, str | os.PathLike):
+        return Path(os.path.expanduser(os.fspath(value)))
+    raise TypeError(f"{what} must be a path (str or os.PathLike), got {type(value).__name__}")
+
+
+def _is_image_name(path: Path) -> bool:
+    return path.suffix.lower() in IMAGE_EXTENSIONS
+
+
+def _is_tiff(path: Path) -> bool:
+    return path.suffix.lower() in _TIFF_EXTENSIONS
+
+
+def _check_extension(path: Path, name: str) -> None:
+    if not _is_image_name(path):
+        raise ValueError(f"{name}: {path} has extension {path.suffix!r}; supported image "
+                         f"files are {', '.join(IMAGE_EXTENSIONS)}")
+
+
+def _check_out_dtype(dtype, *, allow_none: bool = True) -> np.dtype | None:
+    if dtype is None and allow_none:
+        return None
+    allowed = "float32, float64 or None" if allow_none else "float32 or float64"
+    if dtype is None:  # np.dtype(None) would silently mean float64
+        raise ValueError(f"dtype must be {allowed}, got None")
+    try:
+        dt = np.dtype(dtype)
+    except TypeError:
+        dt = None
+    if dt not in (np.dtype(np.float32), np.dtype(np.float64)):
+        raise ValueError(f"dtype must be {allowed}, got {dtype!r}")
+    return dt
+
+
+def _check_fraction(value, name: str) -> float:
+    if isinstance(value, bool) or not isinstance(value, numbers.Real):
+        raise TypeError(f"{name} must be a number in [0, 1], got {value!r}")
+    v = float(value)
+    if not 0.0 <= v <= 1.0:
+        raise ValueError(f"{name} must be in [0, 1], got {value!r}")
+    return v
+
+
+def _check_page(shape: tuple[int, ...], samples: int, dtype: np.dtype | None, where: str,
+                name: str) -> None:
+    """Refuse colour, 1-D, 3-D and non-numeric pages, naming the file."""
+    if samples > 1 or (len(shape) == 3 and shape[-1] in (2, 3, 4)):
+        n = samples if samples > 1 else shape[-1]
+        raise ValueError(f"{name}: {where} has {n} channels per pixel (colour or alpha); "
+                         "the grid method needs grey levels: convert it to grayscale")
+    if len(shape) > 2:
+        raise ValueError(f"{name}: {where} is a 3-D page of shape {tuple(shape)}; each "
+                         "frame must be a 2-D image (H, W)")
+    if len(shape) < 2 or min(shape) <= 1:
+        raise ValueError(f"{name}: {where} is 1-D (shape {tuple(shape)}); each frame must "
+                         "be a 2-D image (H, W)")
+    if dtype is None or dtype.kind not in "uif":
+        raise ValueError(f"{name}: {where} holds {dtype} pixels; expected unsigned/signed "
+                         "integer or float grey levels")
+
+
+def _describe(path: Path, page: int, n_pages: int) -> str:
+    return f"{path} (page {page})" if n_pages > 1 else str(path)
+
+
+# --------------------------------------------------------------------------- readers
+
+
+@contextlib.contextmanager
+def _open_tiff(path: Path, name: str) -> Iterator[tifffile.TiffFile]:
+    try:
+        tif = tifffile.TiffFile(path)
+    except (FileNotFoundError, PermissionError):
+        raise  # the message names the path
+    except Exception as exc:
+        raise OSError(f"{name}: cannot read {path} as a TIFF file ({exc})") from exc
+    with tif:
+        yield tif
+
+
+def _read_tiff_page(tif: tifffile.TiffFile, page: int, where: str, name: str) -> np.ndarray:
+    try:
+        return tif.pages[page].asarray()
+    except MemoryError:
+        raise
+    except Exception as exc:  # truncated data, unknown compression, bad offsets
+        raise OSError(f"{name}: cannot read {where}: {exc}") from exc
+
+
+def _imageio():
+    # imported on first use: only PNG and BMP need it, and it is slow to import
+    import imageio.v3 as iio
+
+    return iio
+
+
+def _read_other(path: Path, name: str) -> np.ndarray:
+    try:
+        return np.asarray(_imageio().imread(path))
+    except (FileNotFoundError, PermissionError, MemoryError):
+        raise
+    except Exception as exc:
+        raise OSError(f"{name}: cannot read {path} as an image ({exc})") from exc
+
+
+@dataclass(frozen=True)
+class _FileInfo:
+    path: Path
+    tiff: bool
+    shapes: tuple[tuple[int, int], ...]  # one per page
+    dtypes: tuple[np.dtype, ...]
+
+
+def _scan_file(path: Path, name: str) -> _FileInfo:
+    """Read the headers of ``path`` (no pixel data) and check every page."""
+    if _is_tiff(path):
+        with _open_tiff(path, name) as tif:
+            n = len(tif.pages)
+            if n == 0:
+                raise OSError(f"{name}: {path} contains no readable image page "
+                              "(corrupt TIFF?)")
+            shapes, dtypes = [], []
+            for k in range(n):
+                try:
+                    page = tif.pages[k]
+                    shape, samples, dtype = page.shape, page.samplesperpixel, page.dtype
+                except MemoryError:
+                    raise
+                except Exception as exc:
+                    raise OSError(f"{name}: cannot read page {k} of {path}: {exc}") from exc
+                _check_page(shape, samples, dtype, _describe(path, k, n), name)
+                shapes.append(tuple(int(s) for s in shape))
+                dtypes.append(np.dtype(dtype))
+        return _FileInfo(path, True, tuple(shapes), tuple(dtypes))
+    try:
+        props = _imageio().improps(path)
+    except (FileNotFoundError, PermissionError, MemoryError):
+        raise
+    except Exception as exc:
+        raise OSError(f"{name}: cannot read {path} as an image ({exc})") from exc
+    shape = tuple(int(s) for s in props.shape)
+    _check_page(shape, 1, np.dtype(props.dtype), str(path), name)
+    return _FileInfo(path, False, (shape,), (np.dtype(props.dtype),))
+
+
+def _resolve_source(source, name: str) -> tuple[Path, ...]:
+    """The ordered image files of ``source`` (see :func:`open_series`)."""
+    if isinstance(source, list | tuple):
+        if not source:
+            raise ValueError(f"{name}: the list of image files is empty")
+        paths = []
+        for item in source:
+            p = _as_path(item, f"{name} list items")
+            if not p.exists():
+                raise FileNotFoundError(f"{name}: image file {p} does not exist")
+            if p.is_dir():
+                raise ValueError(f"{name}: {p} in the list is a directory; pass the "
+                                 "directory itself, not inside a list")
+            _check_extension(p, name)
+            paths.append(p)
+        return tuple(paths)
+
+    p = _as_path(source, name)
+    if p.is_dir():
+        entries = [e for e in p.iterdir() if e.is_file() and not e.name.startswith(".")]
+        images = sorted((e for e in entries if _is_image_name(e)),
+                        key=lambda e: natural_sort_key(e.name))
+        if not images:
+            others = f" ({len(entries)} other file(s) ignored)" if entries else ""
+            raise ValueError(f"{name}: directory {p} holds no image file "
+                             f"({', '.join(IMAGE_EXTENSIONS)}){others}")
+        return tuple(images)
+    if p.is_file():
+        _check_extension(p, name)
+        return (p,)
+    pattern = os.fspath(p)
+    if re.search(r"[*?\[]", pattern):
+        matches = [Path(m) for m in glob.glob(pattern)]
+        files = [m for m in matches if m.is_file()]
+        images = sorted((m for m in files if _is_image_name(m)), key=natural_sort_key)
+        if not images:
+            if files:
+                raise ValueError(f"{name}: glob pattern {pattern!r} matches {len(files)} "
+                                 f"file(s) but no image ({', '.join(IMAGE_EXTENSIONS)})")
+            raise FileNotFoundError(f"{name}: no file matches the glob pattern {pattern!r}")
+        return tuple(images)
+    raise FileNotFoundError(f"{name}: {p} does not exist")
+
+
+# --------------------------------------------------------------------------- series
+
+
+@dataclass(frozen=True, repr=False)
+class FrameSeries:
+    """An ordered series of 2-D grey-level frames stored in image files.
+
+    Built by :func:`open_series`, which checks every file; the frames themselves
+    are read only when asked for, one at a time.
+
+    Attributes
+    ----------
+    name : str
+        Name used in error messages (``"reference"``, ``"deformed"``...).
+    paths : tuple of pathlib.Path
+        The files, in frame order (one file may hold several frames).
+    shape : tuple of int
+        ``(H, W)`` of every frame, px.
+    dtype : numpy.dtype
+        The stored pixel type.
+    bit_depth : int or None
+        Significant bits of the sensor: 8, 12 (12-bit data stored x16 in 16-bit
+        files, or declared through ``open_series(bit_depth=...)``), 16, ...;
+        the bits of the positive range for signed integers (15 for int16);
+        ``None`` for float data.
+    scale : int
+        Raw value of one sensor grey level: 16 for 12-bit data stored x16 in
+        16-bit files, otherwise 1.
+    saturation_level : int or None
+        Largest raw value the sensor can produce (255, 4095 * 16 = 65520, 4095,
+        65535...); ``None`` for float data, whose saturation level is unknown.
+    """
+
+    name: str
+    paths: tuple[Path, ...]
+    shape: tuple[int, int]
+    dtype: np.dtype
+    bit_depth: int | None
+    scale: int
+    saturation_level: int | None
+    # (file index, page index, number of pages in that file) of every frame
+    _frames: tuple[tuple[int, int, int], ...] = field(default=(), compare=True)
+    _tiff: tuple[bool, ...] = field(default=(), compare=False)
+
+    @property
+    def n_frames(self) -> int:
+        """Number of frames."""
+        return len(self._frames)
+
+    def __len__(self) -> int:
+        return len(self._frames)
+
+    def __repr__(self) -> str:
+        first = self.paths[0] if self.paths else None
+        return (f"FrameSeries(name={self.name!r}, n_frames={self.n_frames}, "
+                f"shape={self.shape}, dtype={self.dtype}, bit_depth={self.bit_depth}, "
+                f"scale={self.scale}, saturation_level={self.saturation_level}, "
+                f"files={len(self.paths)}, first={str(first)!r})")
+
+    def _index(self, i) -> int:
+        if isinstance(i, bool) or not isinstance(i, numbers.Integral):
+            raise TypeError(f"frame index must be an integer, got {i!r}")
+        n = self.n_frames
+        j = int(i) + n if i < 0 else int(i)
+        if not 0 <= j < n:
+            raise ValueError(f"{self.name}: frame index must be in [0, {n}) (or negative "
+                             f"from the end), got {i}")
+        return j
+
+    def source_of(self, i: int) -> tuple[Path, int]:
+        """File and page index holding frame ``i``."""
+        f, page, _ = self._frames[self._index(i)]
+        return self.paths[f], page
+
+    def describe_frame(self, i: int) -> str:
+        """``"frame i (file[, page k])"``, for messages."""
+        j = self._index(i)
+        f, page, n_pages = self._frames[j]
+        return f"frame {j} ({_describe(self.paths[f], page, n_pages)})"
+
+    # -- reading
+
+    def _iter_raw(self, indices: Iterable[int]) -> Iterator[tuple[str, np.ndarray]]:
+        """Yield ``(description, raw frame)``, opening each file once per run."""
+        locs = [(j, *self._frames[j]) for j in indices]
+        for f, group in groupby(locs, key=lambda loc: loc[1]):
+            path = self.paths[f]
+            if self._tiff[f]:
+                with _open_tiff(path, self.name) as tif:
+                    for j, _, page, n_pages in group:
+                        where = f"frame {j} ({_describe(path, page, n_pages)})"
+                        yield where, self._checked(_read_tiff_page(tif, page, where,
+                                                                   self.name), where)
+            else:
+                for j, _, _, _ in group:
+                    where = f"frame {j} ({path})"
+                    yield where, self._checked(_read_other(path, self.name), where)
+
+    def _checked(self, raw: np.ndarray, where: str) -> np.ndarray:
+        if raw.shape != self.shape or raw.dtype != self.dtype:
+            # headers were checked by open_series: the file changed since
+            raise ValueError(f"{self.name}: {where} is now {raw.shape} {raw.dtype}, "
+                             f"expected {self.shape} {self.dtype} (file changed since "
+                             "the series was opened?)")
+        if raw.dtype.kind == "f" and not np.all(np.isfinite(raw)):
+            bad = int(np.count_nonzero(~np.isfinite(raw)))
+            raise ValueError(f"{self.name}: {where} has {bad} NaN or infinite pixel(s); "
+                             "frames must hold finite grey levels")
+        return raw
+
+    def _to_units(self, raw: np.ndarray, where: str, to_sensor_units: bool) -> np.ndarray:
+        if to_sensor_units and self.scale != 1 and np.any(raw % self.scale):
+            raise ValueError(f"{self.name}: {where} holds raw values that are not "
+                             f"multiples of {self.scale}, unlike the first frames that "
+                             f"set scale={self.scale}; open the series with "
+                             "bit_depth=16 to read raw values")
+        return raw
+
+    def _convert(self, raw: np.ndarray, where: str, dtype: np.dtype | None,
+                 to_sensor_units: bool) -> np.ndarray:
+        raw = self._to_units(raw, where, to_sensor_units)
+        s = self.scale if to_sensor_units else 1
+        if dtype is None:
+            return raw // s if s != 1 else raw
+        out = raw.astype(dtype, copy=False)
+        # dividing by a power of two is exact in floating point
+        return out / dtype.type(s) if s != 1 else out
+
+    def read(self, i: int, *, dtype: _FloatDType = np.float64,
+             to_sensor_units: bool = False) -> np.ndarray:
+        """Read frame ``i``.
+
+        Parameters
+        ----------
+        i : int
+            Frame index, ``0 <= i < n_frames`` (negative counts from the end).
+        dtype : {numpy.float64, numpy.float32, None}
+            Type of the returned array; ``None`` keeps the stored type.
+        to_sensor_units : bool
+            Divide the raw values by :attr:`scale` (sensor grey levels). Raises
+            ``ValueError`` if the frame holds values that are not multiples of it.
+
+        Returns
+        -------
+        (H, W) ndarray
+            Grey levels, raw unless ``to_sensor_units``.
+        """
+        j = self._index(i)
+        dt = _check_out_dtype(dtype)
+        gen = self._iter_raw([j])
+        try:
+            where, raw = next(gen)
+        finally:
+            gen.close()  # close the file now, not when the generator is collected
+        return self._convert(raw, where, dt, bool(to_sensor_units))
+
+    def frames(self, *, dtype: _FloatDType = np.float64, to_sensor_units: bool = False,
+               start: int = 0, stop: int | None = None) -> Iterator[np.ndarray]:
+        """Iterate over the frames, one array alive at a time.
+
+        Multi-page TIFFs are read page by page from one open file, so memory stays
+        bounded by one frame whatever the series length.
+
+        Parameters
+        ----------
+        dtype : {numpy.float64, numpy.float32, None}
+            Type of the yielded arrays; ``None`` keeps the stored type.
+        to_sensor_units : bool
+            See :meth:`read`.
+        start, stop : int
+            Range of frame indices, as ``range(start, stop)`` (``stop=None``: to the
+            end).
+
+        Yields
+        ------
+        (H, W) ndarray
+            A new array per frame (the caller may modify it).
+        """
+        dt = _check_out_dtype(dtype)
+        idx = self._range(start, stop)
+        # a plain function returning a generator: arguments are checked on the call,
+        # not on the first ``next``
+        return (self._convert(raw, where, dt, bool(to_sensor_units))
+                for where, raw in self._iter_raw(idx))
+
+    def _range(self, start, stop) -> range:
+        n = self.n_frames
+        for v, what in ((start, "start"), (stop, "stop")):
+            if v is not None and (isinstance(v, bool) or not isinstance(v, numbers.Integral)):
+                raise TypeError(f"{what} must be an integer or None, got {v!r}")
+        stop = n if stop is None else int(stop)
+        start = int(start)
+        if not 0 <= start < stop <= n:
+            raise ValueError(f"{self.name}: frame range must satisfy 0 <= start < stop <= "
+                             f"{n}, got start={start}, stop={stop}")
+        return range(start, stop)
+
+    def mean(self, *, dtype: _FloatDType = np.float64, to_sensor_units: bool = False,
+             start: int = 0, stop: int | None = None,
+             progress: Callable[[float, str], None] | None = None) -> np.ndarray:
+        """Pixel-wise mean of the frames, streamed.
+
+        Frames are added one at a time into a float64 accumulator (exact for integer
+        data up to 2**53 / 65535 ~ 1.4e11 frames of 16 bits), then divided once by
+        the number of frames.
+
+        Parameters
+        ----------
+        dtype : {numpy.float64, numpy.float32}
+            Type of the result (the accumulation is float64 either way).
+        to_sensor_units : bool
+            Average in sensor grey levels (see :meth:`read`).
+        start, stop : int
+            Range of frames averaged, as in :meth:`frames`.
+        progress : callable, optional
+            ``progress(fraction, message)``, called once before the first frame
+            and after each frame.
+
+        Returns
+        -------
+        (H, W) ndarray of ``dtype``
+            Mean grey level, raw unless ``to_sensor_units``.
+        """
+        dt = _check_out_dtype(dtype, allow_none=False)
+        if progress is not None and not callable(progress):
+            raise TypeError(f"progress must be callable or None, got {progress!r}")
+        idx = self._range(start, stop)
+        acc = np.zeros(self.shape, dtype=np.float64)
+        n = len(idx)
+        if progress is not None:
+            progress(0.0, f"{self.name}: averaging {n} frame(s)")
+        for k, (where, raw) in enumerate(self._iter_raw(idx), start=1):
+            self._to_units(raw, where, bool(to_sensor_units))
+            np.add(acc, raw, out=acc)
+            if progress is not None:
+                progress(k / n, f"{self.name}: averaged frame {k}/{n}")
+        acc /= n
+        if to_sensor_units and self.scale != 1:
+            # scaling by a power of two commutes with rounding: same bits as
+            # averaging frames already divided by the scale
+            acc /= self.scale
+        return acc.astype(dt, copy=False)
+
+
+def _depth(dtype: np.dtype, first: list[np.ndarray], declared: int | None, path: Path,
+           name: str) -> tuple[int | None, int, int | None]:
+    """``(bit_depth, scale, saturation_level)`` from the stored type and first frames."""
+    if dtype.kind == "f":
+        if declared is not None:
+            raise ValueError(f"bit_depth applies to integer images; {path} holds {dtype} "
+                             f"pixels, got bit_depth={declared!r}")
+        return None, 1, None
+    bits = 8 * dtype.itemsize
+    if dtype.kind == "i":
+        if declared is not None and declared != bits - 1:
+            raise ValueError(f"bit_depth can only be declared for unsigned images; {path} "
+                             f"holds {dtype} pixels, got bit_depth={declared!r}")
+        return bits - 1, 1, int(np.iinfo(dtype).max)
+    vmax = max(int(f.max()) for f in first)
+    if declared is None:
+        # 12-bit sensor data stored x16 in 16-bit files (PCO; the paper's Fig. 1)
+        if bits == 16 and vmax > 0 and vmax <= 4095 * _PCO_SCALE and not any(
+                np.any(f % _PCO_SCALE) for f in first):
+            return 12, _PCO_SCALE, 4095 * _PCO_SCALE
+        return bits, 1, int(np.iinfo(dtype).max)
+    if isinstance(declared, bool) or not isinstance(declared, numbers.Integral) \
+            or not 1 <= declared <= bits:
+        raise ValueError(f"bit_depth must be an integer in [1, {bits}] for {dtype} images, "
+                         f"got {declared!r}")
+    declared = int(declared)
+    if declared == bits:
+        return bits, 1, int(np.iinfo(dtype).max)
+    shift = 2 ** (bits - declared)
+    top = 2**declared - 1
+    # left-aligned (stored x shift) takes precedence: right-aligned noisy data are
+    # multiples of the shift with negligible probability
+    if vmax > 0 and vmax <= top * shift and not any(np.any(f % shift) for f in first):
+        return declared, shift, top * shift
+    if vmax <= top:
+        return declared, 1, top
+    raise ValueError(f"{name}: bit_depth={declared} does not fit {path}: values reach "
+                     f"{vmax} > {top} and are not all multiples of {shift}")
+
+
+def open_series(source, *, name: str = "series", bit_depth: int | None = None
+                ) -> FrameSeries:
+    """Open a series of grey-level frames from image files.
+
+    Every file is opened and its header checked (size, pixel type, channels);
+    pixel data are read later, one frame at a time, except the first few frames
+    used to recognise the bit depth.
+
+    Parameters
+    ----------
+    source : path, glob pattern or list of paths
+        - an image file (``.tif``/``.tiff``/``.png``/``.bmp``): one frame, or one
+          frame per page for a multi-page TIFF;
+        - a directory: every image file in it, in natural order (``f2`` before
+          ``f10``); files with other extensions, hidden files and sub-directories
+          are ignored;
+        - a string with ``*``, ``?`` or ``[`` that names no existing path: a glob
+          pattern, matches in natural order of their full path, non-image matches
+          ignored;
+        - a list or tuple of image files, read in the order given.
+    name : str
+        What the series is, for error messages (``"reference"``...).
+    bit_depth : int, optional
+        Significant bits of unsigned integer data, when known. By default 16-bit
+        files whose first frames hold only multiples of 16 are taken as 12-bit data
+        stored x16 (``scale = 16``, saturation 65520); other files use their full
+        range. ``bit_depth=12`` also accepts right-aligned 12-bit data (values up to
+        4095, saturation 4095); ``bit_depth=16`` turns the detection off.
+
+    Returns
+    -------
+    FrameSeries
+
+    Raises
+    ------
+    FileNotFoundError
+        A path does not exist, or a glob pattern matches nothing.
+    OSError
+        A file is not a readable image (corrupt or truncated TIFF...).
+    ValueError
+        No image in a directory; frames of different sizes or pixel types (the
+        first offending file is named, with both values); colour, 1-D or 3-D
+        images; a ``bit_depth`` that does not fit the data.
+
+    Notes
+    -----
+    Frames are neither flipped nor rotated: ``frame[row, col]`` is the stored pixel,
+    as in :mod:`gridstrain.conventions`. NaN checks of float data happen when the
+    frames are read.
+
+    Examples
+    --------
+    >>> series = open_series("run3/*.tif", name="deformed")  # doctest: +SKIP
+    >>> mean = series.mean()  # doctest: +SKIP
+    """
+    name = _check_name(name)
+    paths = _resolve_source(source, name)
+    infos = [_scan_file(p, name) for p in paths]
+    ref = infos[0]
+    shape, dtype = ref.shapes[0], ref.dtypes[0]
+    frames, tiff = [], []
+    for f, info in enumerate(infos):
+        n_pages = len(info.shapes)
+        for k, (s, d) in enumerate(zip(info.shapes, info.dtypes, strict=True)):
+            where = _describe(info.path, k, n_pages)
+            if s != shape:
+                raise ValueError(f"{name}: frames of different sizes: {where} is {s} but "
+                                 f"{_describe(ref.path, 0, len(ref.shapes))} is {shape} "
+                                 "(H, W)")
+            if d != dtype:
+                raise ValueError(f"{name}: frames of different pixel types: {where} holds "
+                                 f"{d} but {_describe(ref.path, 0, len(ref.shapes))} "
+                                 f"holds {dtype}")
+            frames.append((f, k, n_pages))
+        tiff.append(info.tiff)
+    series = FrameSeries(name=name, paths=paths, shape=shape, dtype=dtype, bit_depth=None,
+                         scale=1, saturation_level=None, _frames=tuple(frames),
+                         _tiff=tuple(tiff))
+    first = []
+    if dtype.kind == "u":
+        n = min(_DETECT_FRAMES, series.n_frames)
+        first = [raw for _, raw in series._iter_raw(range(n))]
+    bits, scale, sat = _depth(dtype, first, bit_depth, paths[0], name)
+    return FrameSeries(name=name, paths=paths, shape=shape, dtype=dtype, bit_depth=bits,
+                       scale=scale, saturation_level=sat, _frames=tuple(frames),
+                       _tiff=tuple(tiff))
+
+
+# --------------------------------------------------------------------------- saturation
+
+
+def check_saturation(frame, series: FrameSeries, *, mask=None,
+                     to_sensor_units: bool = False) -> float:
+    """Fraction of the pixels of ``frame`` at the sensor's saturation level.
+
+    Parameters
+    ----------
+    frame : (H, W) array_like
+        A frame of ``series`` in raw grey levels, as returned by
+        :meth:`FrameSeries.read` (or in sensor grey levels if ``to_sensor_units``).
+    series : FrameSeries
+        Gives the saturation level.
+    mask : (H, W) bool array_like, optional
+        Count only these pixels (the specimen; :mod:`gridstrain.conventions`).
+    to_sensor_units : bool
+        ``frame`` was read with ``to_sensor_units=True``.
+
+    Returns
+    -------
+    float
+        Saturated pixels (value >= saturation level) over counted pixels, in
+        [0, 1]. Always 0.0 for float series, whose saturation level is unknown.
+    """
+    if not isinstance(series, FrameSeries):
+        raise TypeError(f"series must be a FrameSeries, got {type(series).__name__}")
+    arr = np.asarray(frame)
+    if arr.shape != series.shape:
+        raise ValueError(f"frame must have the series shape {series.shape}, got {arr.shape}")
+    m = None
+    if mask is not None:
+        m = np.asarray(mask)
+        if m.shape != series.shape or m.dtype != bool:
+            raise ValueError(f"mask must be a boolean array of shape {series.shape}, got "
+                             f"{m.dtype} array of shape {m.shape}")
+    if series.saturation_level is None:
+        return 0.0
+    level = series.saturation_level / (series.scale if to_sensor_units else 1)
+    sat = arr >= level
+    if m is None:
+        return float(np.count_nonzero(sat)) / sat.size
+    n = int(np.count_nonzero(m))
+    if n == 0:
+        raise ValueError("mask selects no pixel")
+    return float(np.count_nonzero(sat & m)) / n
+
+
+def check_saturation_limit(frame, series: FrameSeries, *, max_fraction: float = 0.01,
+                           mask=None, index: int | None = None,
+                           to_sensor_units: bool = False) -> float:
+    """Raise ``ValueError`` if more than ``max_fraction`` of ``frame`` is saturated.
+
+    Saturated pixels clip the grid's sinusoidal profile: the phase there is biased
+    and no averaging removes the bias. A few isolated pixels are harmless; a
+    larger area calls for a shorter exposure or a mask.
+
+    Parameters
+    ----------
+    frame, series, mask, to_sensor_units
+        As in :func:`check_saturation`.
+    max_fraction : float
+        Largest acceptable fraction in [0, 1] (default 0.01, i.e. 1 %).
+    index : int, optional
+        Frame index in ``series``, to name the frame and its file in the message.
+
+    Returns
+    -------
+    float
+        The saturated fraction (at most ``max_fraction``), so that the caller can
+        warn about any non-zero value.
+    """
+    max_fraction = _check_fraction(max_fraction, "max_fraction")
+    frac = check_saturation(frame, series, mask=mask, to_sensor_units=to_sensor_units)
+    if frac > max_fraction:
+        where = series.describe_frame(index) if index is not None else "a frame"
+        level = series.saturation_level // (series.scale if to_sensor_units else 1)
+        units = "sensor" if to_sensor_units else "raw"
+        raise ValueError(f"{series.name}: {where} has {frac:.2%} saturated pixels ({units} "
+                         f"value >= {level}), more than max_fraction="
+                         f"{max_fraction:.2%}; shorten the exposure or mask the saturated "
+                         "area")
+    return frac
+
+
+# --------------------------------------------------------------------------- mask
+
+
+def read_mask(path, shape, *, name: str = "mask") -> np.ndarray:
+    """Read a specimen mask from an image file: nonzero pixels are the specimen.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        Single-page grey-level TIFF, PNG or BMP.
+    shape : tuple of int
+        Expected ``(H, W)``, the frames' shape.
+    name : str
+        What the mask is, for error messages.
+
+    Returns
+    -------
+    (H, W) bool ndarray
+        ``True`` on the specimen (:mod:`gridstrain.conventions`, Masks).
+    """
+    name = _check_name(name)
+    p = _as_path(path, name)
+    if (not isinstance(shape, tuple | list) or len(shape) != 2
+            or not all(isinstance(s, numbers.Integral) and not isinstance(s, bool)
+                       and s > 0 for s in shape)):
+        raise TypeError(f"shape must be a pair of positive integers (H, W), got {shape!r}")
+    shape = (int(shape[0]), int(shape[1]))
+    if not p.exists():
+        raise FileNotFoundError(f"{name}: {p} does not exist")
+    if p.is_dir():
+        raise ValueError(f"{name}: {p} is a directory, expected an image file")
+    _check_extension(p, name)
+    info = _scan_file(p, name)
+    if len(info.shapes) != 1:
+        raise ValueError(f"{name}: {p} has {len(info.shapes)} pages, expected a single "
+                         "image")
+    if info.shapes[0] != shape:
+        raise ValueError(f"{name}: {p} has shape {info.shapes[0]}, expected {shape} (the "
+                         "frames' shape (H, W))")
+    if info.tiff:
+        with _open_tiff(p, name) as tif:
+            arr = _read_tiff_page(tif, 0, str(p), name)
+    else:
+        arr = _read_other(p, name)
+    if arr.dtype.kind == "f" and not np.all(np.isfinite(arr)):
+        raise ValueError(f"{name}: {p} has NaN or infinite pixels")
+    m = arr != 0
+    if not m.any():
+        raise ValueError(f"{name}: {p} selects no pixel (every pixel is 0)")
+    return m
+
+
+# --------------------------------------------------------------------------- output
+
+
+def _fsync(path: Path) -> None:
+    fd = os.open(path, os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+@contextlib.contextmanager
+def atomic_path(path, *, overwrite: bool = False) -> Iterator[Path]:
+    """Write a file atomically: yield a temporary path, rename it onto ``path``.
+
+    The temporary path is in the destination directory (so that the final
+    :func:`os.replace` is atomic) and does not exist yet: the block creates it. When
+    the block completes, the file is flushed to disk and renamed onto ``path``;
+    if the block raises, the temporary file is removed and ``path`` is untouched.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        Destination file.
+    overwrite : bool
+        Replace an existing ``path``. Without it, an existing file raises
+        ``FileExistsError`` both before the block and, if one appeared meanwhile,
+        before the rename.
+
+    Yields
+    ------
+    pathlib.Path
+        Temporary file path, with the same extension as ``path``.
+
+    Raises
+    ------
+    FileNotFoundError
+        The destination directory does not exist, or the block created no file.
+    FileExistsError
+        ``path`` exists and ``overwrite`` is False.
+    IsADirectoryError
+        ``path`` is a directory.
+    """
+    dest = _as_path(path, "path")
+    parent = dest.parent
+    if not parent.is_dir():
+        raise FileNotFoundError(f"output directory {parent} does not exist (for {dest})")
+    if dest.is_dir():
+        raise IsADirectoryError(f"output path {dest} is a directory")
+    if dest.exists() and not overwrite:
+        raise FileExistsError(f"output file {dest} already exists (pass overwrite=True "
+                              "to replace it)")
+    # a name that nothing else uses; the writer creates the file itself, with the
+    # permissions it would give the destination
+    tmp = parent / f".{dest.name}.{secrets.token_hex(6)}.tmp{dest.suffix}"
+    try:
+        yield tmp
+        if not tmp.exists():
+            raise FileNotFoundError(f"nothing was written to the temporary file for {dest}")
+        _fsync(tmp)
+        if not overwrite and dest.exists():
+            raise FileExistsError(f"output file {dest} appeared while it was being "
+                                  "written (pass overwrite=True to replace it)")
+        os.replace(tmp, dest)
+    except BaseException:
+        with contextlib.suppress(FileNotFoundError):
+            tmp.unlink()
+        raise
+
+
+def _json_default(obj):
+    if isinstance(obj, np.generic):
+        return obj.item()
+    if isinstance(obj, np.ndarray):
+        return obj.tolist()
+    if isinstance(obj, os.PathLike):
+        return os.fspath(obj)
+    raise TypeError(f"{type(obj).__name__} is not JSON serialisable")
+
+
+def _encode_attr(key, value, where: str):
+    """``(value to store, stored as JSON?)`` for one HDF5 attribute."""
+    if not isinstance(key, str) or not key:
+        raise TypeError(f"{where} keys must be non-empty strings, got {key!r}")
+    if key == _JSON_ATTRS:
+        raise ValueError(f"{where}[{key!r}]: the name {_JSON_ATTRS!r} is reserved")
+    label = f"{where}[{key!r}]"
+    if isinstance(value, str):
+        return value, False
+    if isinstance(value, os.PathLike):
+        return os.fspath(value), False
+    if isinstance(value, bool | np.bool_):
+        return np.bool_(value), False
+    if isinstance(value, numbers.Integral):
+        if -(2**63) <= int(value) < 2**63:
+            return np.int64(value), False
+        return json.dumps(int(value)), True
+    if isinstance(value, numbers.Real):
+        return np.float64(value), False
+    if isinstance(value, numbers.Complex):
+        return np.complex128(value), False
+    if isinstance(value, np.ndarray) and value.dtype.kind in "biufc":
+        return value, False
+    if value is None or isinstance(value, list | tuple | dict | np.ndarray):
+        try:
+            return json.dumps(value, default=_json_default), True
+        except (TypeError, ValueError) as exc:
+            raise TypeError(f"{label} cannot be stored as JSON: {exc}") from exc
+    raise TypeError(f"{label} has unsupported type {type(value).__name__}; use str, "
+                    "numbers, numeric arrays, lists or dicts")
+
+
+def _write_attrs(obj, attrs: Mapping, where: str) -> None:
+    json_keys = []
+    for key, value in attrs.items():
+        stored, is_json = _encode_attr(key, value, where)
+        obj.attrs[key] = stored
+        if is_json:
+            json_keys.append(key)
+    if json_keys:
+        obj.attrs[_JSON_ATTRS] = json.dumps(json_keys)
+
+
+def _read_attrs(obj) -> dict:
+    raw = dict(obj.attrs)
+    json_keys = set(json.loads(raw.pop(_JSON_ATTRS))) if _JSON_ATTRS in raw else set()
+    out = {}
+    for key, value in raw.items():
+        if isinstance(value, bytes):
+            value = value.decode("utf-8")
+        if key in json_keys:
+            value = json.loads(value)
+        elif isinstance(value, np.generic):
+            value = value.item()
+        out[key] = value
+    return out
+
+
+def _check_h5_name(key, what: str) -> str:
+    if not isinstance(key, str) or not key or key.startswith("/") or key.endswith("/") \
+            or "//" in key or key in (".", ".."):
+        raise ValueError(f"{what} names must be non-empty relative HDF5 paths such as "
+                         f"'maps/u', got {key!r}")
+    return key
+
+
+def _check_mapping(value, what: str, *, allow_none: bool = True) -> Mapping:
+    if value is None and allow_none:
+        return {}
+    if not isinstance(value, Mapping):
+        raise TypeError(f"{what} must be a dict, got {type(value).__name__}")
+    return value
+
+
+def write_hdf5(path, datasets: Mapping[str, np.ndarray], attrs: Mapping | None = None, *,
+               groups: Mapping[str, Mapping] | None = None,
+               units: Mapping[str, str] | None = None, overwrite: bool = False,
+               compression: str | None = "gzip") -> Path:
+    """Write arrays and metadata to an HDF5 file, atomically.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        Destination (``.h5``); see :func:`atomic_path` for ``overwrite``.
+    datasets : dict of str to ndarray
+        Arrays of booleans, integers, floats or complex numbers. A name may hold
+        slashes (``"maps/u"``) to place the dataset in a group. Arrays of two or
+        more elements are chunked, compressed and checksummed (Fletcher-32).
+    attrs : dict, optional
+        Attributes of the file (root group). Strings, numbers and numeric arrays
+        are stored natively; lists, tuples, dicts and ``None`` as JSON text
+        (decoded by :func:`read_hdf5`; tuples come back as lists).
+    groups : dict of str to dict, optional
+        Attributes of groups, by group path (``{"parameters": {"sigma": 5.0}}``),
+        encoded as ``attrs``; the groups are created if no dataset creates them.
+    units : dict of str to str, optional
+        Unit of each named dataset (``{"maps/u": "px", "maps/eps_xx": "1"}``),
+        stored as the dataset attribute ``units``.
+    overwrite : bool
+        Replace an existing file.
+    compression : {"gzip", "lzf", None}
+        Lossless filter: ``"gzip"`` (level 4, readable everywhere), ``"lzf"``
+        (faster, h5py only) or ``None``.
+
+    Returns
+    -------
+    pathlib.Path
+        ``path``.
+    """
+    datasets = _check_mapping(datasets, "datasets", allow_none=False)
+    attrs = _check_mapping(attrs, "attrs")
+    groups = _check_mapping(groups, "groups")
+    units = _check_mapping(units, "units")
+    if compression not in ("gzip", "lzf", None):
+        raise ValueError(f"compression must be one of 'gzip', 'lzf', None, got "
+                         f"{compression!r}")
+    # validate everything before creating any file
+    arrays = {}
+    for key, value in datasets.items():
+        _check_h5_name(key, "datasets")
+        arr = np.asarray(value)
+        if arr.dtype.kind not in "biufc":
+            raise TypeError(f"datasets[{key!r}] must be a numeric or boolean array, got "
+                            f"dtype {arr.dtype}")
+        arrays[key] = arr
+    for key in arrays:
+        parts = key.split("/")
+        for i in range(1, len(parts)):
+            if "/".join(parts[:i]) in arrays:
+                raise ValueError(f"datasets[{key!r}] would sit inside dataset "
+                                 f"{'/'.join(parts[:i])!r}")
+    for key, value in units.items():
+        if key not in arrays:
+            raise ValueError(f"units[{key!r}] names no dataset; datasets are "
+                             f"{sorted(arrays)}")
+        if not isinstance(value, str):
+            raise TypeError(f"units[{key!r}] must be a string, got {value!r}")
+    for key, value in attrs.items():
+        _encode_attr(key, value, "attrs")
+    for g, gattrs in groups.items():
+        _check_h5_name(g, "groups")
+        if g in arrays:
+            raise ValueError(f"groups[{g!r}] is also a dataset name")
+        for key, value in _check_mapping(gattrs, f"groups[{g!r}]", allow_none=False).items():
+            _encode_attr(key, value, f"groups[{g!r}]")
+
+    dest = _as_path(path, "path")
+    with atomic_path(dest, overwrite=overwrite) as tmp, h5py.File(tmp, "x") as h5:
+        _write_attrs(h5, attrs, "attrs")
+        for key, arr in arrays.items():
+            if arr.ndim > 0 and arr.size > 1 and compression is not None:
+                opts = {"chunks": True, "compression": compression, "shuffle": True,
+                        "fletcher32": True}
+                if compression == "gzip":
+                    opts["compression_opts"] = 4
+                dset = h5.create_dataset(key, data=arr, **opts)
+            else:
+                dset = h5.create_dataset(key, data=arr)
+            if key in units:
+                dset.attrs[_UNITS_ATTR] = units[key]
+        for g, gattrs in groups.items():
+            _write_attrs(h5.require_group(g), gattrs, f"groups[{g!r}]")
+    return dest
+
+
+def read_hdf5(path) -> dict:
+    """Read a file written by :func:`write_hdf5` (or any simple HDF5 file).
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+
+    Returns
+    -------
+    dict
+        ``{"datasets": {name: ndarray}, "attrs": {...}, "groups": {name: {...}},
+        "units": {name: str}}``, the arguments of :func:`write_hdf5`: dataset and
+        group names are full paths (``"maps/u"``), every group is listed (with
+        ``{}`` when it has no attribute), JSON attributes are decoded.
+    """
+    p = _as_path(path, "path")
+    if not p.exists():
+        raise FileNotFoundError(f"HDF5 file {p} does not exist")
+    try:
+        h5 = h5py.File(p, "r")
+    except OSError as exc:
+        raise OSError(f"cannot read {p} as an HDF5 file ({exc})") from exc
+    out = {"datasets": {}, "attrs": {}, "groups": {}, "units": {}}
+    with h5:
+        out["attrs"] = _read_attrs(h5)
+
+        def visit(key, obj):
+            if isinstance(obj, h5py.Dataset):
+                out["datasets"][key] = np.asarray(obj[()])
+                if _UNITS_ATTR in obj.attrs:
+                    u = obj.attrs[_UNITS_ATTR]
+                    out["units"][key] = u.decode() if isinstance(u, bytes) else str(u)
+            elif isinstance(obj, h5py.Group):
+                out["groups"][key] = _read_attrs(obj)
+
+        h5.visititems(visit)
+    return out
+
+
+def _column_format(dtype: np.dtype, digits: int | None) -> str:
+    if dtype.kind in "biu":
+        return "%d"
+    if digits is not None:
+        return f"%.{digits}g"
+    # shortest text that reads back to the same float64 (Python's repr); float32
+    # needs 9 significant digits to round-trip
+    return "%r" if dtype.itemsize >= 8 else "%.9g"
+
+
+def write_csv(path, columns: Mapping[str, np.ndarray], *, overwrite: bool = False,
+              digits: int | None = None, chunk_rows: int = 65536) -> Path:
+    """Write named columns to a CSV file, atomically.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        Destination (``.csv``); see :func:`atomic_path` for ``overwrite``.
+    columns : dict of str to array_like
+        Arrays of one shape; each is flattened in C order (row by row for an
+        (H, W) map) into one column. Booleans are written 0/1.
+    overwrite : bool
+        Replace an existing file.
+    digits : int, optional
+        Significant digits of floats. By default values read back exactly: float64
+        as the shortest round-trip decimal, float32 with 9 digits. NaN is ``nan``.
+    chunk_rows : int
+        Rows formatted at once: memory is bounded by this, not by the row count.
+
+    Returns
+    -------
+    pathlib.Path
+        ``path``.
+
+    Notes
+    -----
+    One header line holds the column names, separated by commas; no index column,
+    no quoting (names may not contain commas, quotes or line breaks).
+    """
+    columns = _check_mapping(columns, "columns", allow_none=False)
+    if not columns:
+        raise ValueError("columns must hold at least one column, got an empty dict")
+    if digits is not None and (isinstance(digits, bool) or not isinstance(digits, int)
+                               or not 1 <= digits <= 17):
+        raise ValueError(f"digits must be an integer in [1, 17] or None, got {digits!r}")
+    if isinstance(chunk_rows, bool) or not isinstance(chunk_rows, int) or chunk_rows < 1:
+        raise ValueError(f"chunk_rows must be a positive integer, got {chunk_rows!r}")
+    names, arrays = [], []
+    first = None
+    for key, value in columns.items():
+        if not isinstance(key, str) or not key or re.search(r"[,\"'\r\n]", key):
+            raise ValueError("column names must be non-empty strings without commas, "
+                             f"quotes or line breaks, got {key!r}")
+        arr = np.asarray(value)
+        if arr.dtype.kind not in "biuf":
+            raise TypeError(f"columns[{key!r}] must be a real numeric or boolean array, "
+                            f"got dtype {arr.dtype}")
+        if first is None:
+            first = (key, arr.shape)
+        elif arr.shape != first[1]:
+            raise ValueError(f"columns[{key!r}] has shape {arr.shape}, expected "
+                             f"{first[1]} like columns[{first[0]!r}]")
+        names.append(key)
+        arrays.append(arr.reshape(-1))
+    line = ",".join(_column_format(a.dtype, digits) for a in arrays) + "\n"
+    n = arrays[0].size
+    dest = _as_path(path, "path")
+    with atomic_path(dest, overwrite=overwrite) as tmp, \
+            open(tmp, "x", encoding="utf-8", newline="\n") as fh:
+        fh.write(",".join(names) + "\n")
+        for start in range(0, n, chunk_rows):
+            # tolist gives Python ints and floats: "%r" of a float is then the
+            # shortest exact decimal, and bools format as 0/1 through "%d"
+            cols = [a[start:start + chunk_rows].tolist() for a in arrays]
+            fh.write("".join(line % row for row in zip(*cols, strict=True)))
+    return dest
+
+
+def write_tiff_series(directory, frames: Iterable, *, prefix: str = "frame",
+                      dtype=np.uint16, start: int = 0, digits: int | None = None,
+                      overwrite: bool = False) -> tuple[Path, ...]:
+    """Write frames as numbered single-page TIFFs, as a camera fills a folder.
+
+    Parameters
+    ----------
+    directory : str or os.PathLike
+        Destination folder, created if missing (its parent must exist).
+    frames : iterable of (H, W) array_like
+        Grey levels; consumed one at a time (a generator keeps memory low).
+    prefix : str
+        File name prefix: ``{prefix}{number}.tif``.
+    dtype : {numpy.uint16, numpy.uint8, numpy.float32, numpy.float64}
+        Stored type. Integer types round to the nearest grey level and refuse
+        values outside their range (clip beforehand to simulate saturation; multiply
+        12-bit values by 16 beforehand to mimic PCO files).
+    start : int
+        Number of the first file.
+    digits : int, optional
+        Zero-padded width of the numbers; default: enough for ``len(frames)``, at
+        least 4 (6 when ``frames`` has no length).
+    overwrite : bool
+        Replace existing files of the same names.
+
+    Returns
+    -------
+    tuple of pathlib.Path
+        The files written, in order. Each is written atomically; if a frame is
+        refused, the files written before it stay.
+    """
+    if not isinstance(prefix, str) or "/" in prefix or os.sep in prefix:
+        raise ValueError(f"prefix must be a file name prefix without path separators, "
+                         f"got {prefix!r}")
+    try:
+        dt = np.dtype(dtype)
+    except TypeError:
+        dt = None
+    allowed = tuple(np.dtype(t) for t in (np.uint8, np.uint16, np.float32, np.float64))
+    if dt not in allowed:
+        raise ValueError(f"dtype must be one of uint8, uint16, float32, float64, got "
+                         f"{dtype!r}")
+    if isinstance(start, bool) or not isinstance(start, int) or start < 0:
+        raise ValueError(f"start must be a non-negative integer, got {start!r}")
+    if digits is None:
+        digits = max(4, len(str(start + len(frames) - 1))) if hasattr(frames, "__len__") \
+            else 6
+    elif isinstance(digits, bool) or not isinstance(digits, int) or digits < 1:
+        raise ValueError(f"digits must be a positive integer, got {digits!r}")
+    folder = _as_path(directory, "directory")
+    if not folder.is_dir():
+        if not folder.parent.is_dir():
+            raise FileNotFoundError(f"cannot create directory {folder}: its parent "
+                                    f"{folder.parent} does not exist")
+        folder.mkdir()
+    written = []
+    for k, frame in enumerate(frames):
+        arr = np.asarray(frame)
+        label = f"frames[{k}]"
+        if arr.ndim != 2 or arr.dtype.kind not in "buif":
+            raise ValueError(f"{label} must be a 2-D numeric array, got {arr.dtype} "
+                             f"array of shape {arr.shape}")
+        if arr.dtype.kind == "f" and not np.all(np.isfinite(arr)):
+            raise ValueError(f"{label} has NaN or infinite values")
+        if dt.kind == "u":
+            if arr.dtype.kind == "f":
+                arr = np.rint(arr)
+            lo, hi = np.iinfo(dt).min, np.iinfo(dt).max
+            if arr.size and (arr.min() < lo or arr.max() > hi):
+                raise ValueError(f"{label} has values in [{arr.min()}, {arr.max()}], "
+                                 f"outside the {dt} range [{lo}, {hi}]")
+        out = arr.astype(dt, copy=False)
+        dest = folder / f"{prefix}{start + k:0{digits}d}.tif"
+        with atomic_path(dest, overwrite=overwrite) as tmp:
+            tifffile.imwrite(tmp, out, photometric="minisblack")
+        written.append(dest)
+    return tuple(written)
+
