@@ -21,7 +21,7 @@ from ._validation import as_image, check_positive
 from .theory import window_energy
 from .wft import PhaseMaps
 
-__all__ = ["Uncertainty", "noise_variance_map", "predict_uncertainty"]
+__all__ = ["NoiseFloor", "Uncertainty", "noise_floor", "noise_variance_map", "predict_uncertainty"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -178,3 +178,83 @@ def predict_uncertainty(reference: PhaseMaps, deformed: PhaseMaps, *, variance_r
         a[..., nan] = np.nan
     return Uncertainty(u_std=u_std, strain_std=strain_std, phase_std=phase_std,
                        dphi_std=dphi_std, valid=valid)
+
+
+@dataclass(frozen=True)
+class NoiseFloor:
+    """Predicted noise floor of a measurement between two states of ``T`` frames.
+
+    Attributes
+    ----------
+    frames : int
+        ``T`` frames averaged per state.
+    sigma : float
+        Window standard deviation, px.
+    level : float
+        Median grey level of the specimen (stored units).
+    modulus : (2,) tuple of float
+        Median fringe modulus ``|Psi_j|`` (grey levels).
+    phase_std, dphi_std : (2,) tuple of float
+        Per wave vector, rad and rad/px, for one state.
+    u_std : (2,) tuple of float
+        ``(u_x, u_y)``, px.
+    strain_std : (3,) tuple of float
+        ``(eps_xx, eps_yy, eps_xy)``.
+    resolution : float
+        Spatial resolution, px: the full width at half maximum of the window,
+        ``2 sqrt(2 ln 2) sigma`` (two features closer than this are not told apart).
+    """
+
+    frames: int
+    sigma: float
+    level: float
+    modulus: tuple[float, float]
+    phase_std: tuple[float, float]
+    dphi_std: tuple[float, float]
+    u_std: tuple[float, float]
+    strain_std: tuple[float, float, float]
+    resolution: float
+
+
+def noise_floor(maps: PhaseMaps, mean_image, *, K: float, L: float,
+                frames: int = 1) -> NoiseFloor:
+    """Predicted std of displacement and strain between two states like ``maps``.
+
+    Parameters
+    ----------
+    maps : PhaseMaps
+        Transform of a representative (averaged) image of the specimen.
+    mean_image : (H, W) array_like
+        That image, grey levels.
+    K, L : float
+        Sensor noise ``Var = K l + L``, in the image's grey levels.
+    frames : int
+        ``T``, frames averaged per state (reference and deformed alike).
+
+    Returns
+    -------
+    NoiseFloor
+        Medians over the valid pixels of the maps of :func:`predict_uncertainty`,
+        for two independent states with the same noise.
+    """
+    if not isinstance(maps, PhaseMaps):
+        raise TypeError(f"maps must be PhaseMaps, got {type(maps).__name__}")
+    var = noise_variance_map(mean_image, K=K, L=L, sigma=maps.sigma, frames=frames)
+    unc = predict_uncertainty(maps, maps, variance_ref=var, variance_def=var)
+    v = unc.valid
+    if not v.any():
+        raise ValueError("maps have no valid pixel: no noise floor can be predicted")
+    img = np.asarray(mean_image, dtype=np.float64)
+
+    def med(a):
+        return float(np.median(a[v]))
+
+    return NoiseFloor(
+        frames=int(frames), sigma=maps.sigma, level=med(img),
+        modulus=tuple(med(np.abs(p)) for p in maps.psi),
+        phase_std=tuple(med(a) for a in unc.phase_std[0]),
+        dphi_std=tuple(med(a) for a in unc.dphi_std[0]),
+        u_std=tuple(med(a) for a in unc.u_std),
+        strain_std=tuple(med(a) for a in unc.strain_std),
+        resolution=2 * math.sqrt(2 * math.log(2)) * maps.sigma,
+    )

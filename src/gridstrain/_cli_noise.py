@@ -1,0 +1,123 @@
+"""``gridstrain noise STACK``: camera noise (K, L), vibrations and the predicted noise floor."""
+
+from __future__ import annotations
+
+import json
+from datetime import UTC, datetime
+
+import numpy as np
+
+from . import __version__
+from ._cli_common import add_lattice_options, check_output, fmt, lattice_from_args, print_json
+from ._progress import bar
+from .io import atomic_path, open_series, write_hdf5
+from .noise import estimate_noise
+from .uncertainty import noise_floor
+from .vibration import vibration_report
+from .wft import wft
+
+
+def register(sub) -> None:
+    p = sub.add_parser(
+        "noise", help="estimate the camera noise and vibrations from a static stack",
+        description="Estimate the sensor noise Var = K l + L from a static grid stack "
+        "affected by vibrations, the per-frame vibration series, and the predicted noise "
+        "floor of displacement and strain.")
+    p.add_argument("stack", help="static series: multi-page TIFF, directory, glob or file")
+    p.add_argument("-o", "--output", help="write the report to OUT.h5 or OUT.json")
+    p.add_argument("--T", type=int, default=None, dest="frames",
+                   help="frames per state for the predicted noise floor (default: the stack's)")
+    p.add_argument("--sigma", type=float, help="window standard deviation, px (default: pitch)")
+    p.add_argument("--bit-depth", type=int, choices=(8, 12, 16),
+                   help="override the detected bit depth")
+    p.add_argument("--degree", type=int, default=3, choices=(0, 1, 2, 3, 4),
+                   help="polynomial degree of the vibration model (default 3; 0 = static)")
+    add_lattice_options(p)
+    p.add_argument("--overwrite", action="store_true", help="replace an existing output")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.add_argument("--json", action="store_true", help="print a JSON summary on stdout")
+    p.set_defaults(func=run)
+
+
+def run(args) -> int:
+    out = None
+    if args.output:
+        out = check_output(args.output, overwrite=args.overwrite,
+                           suffixes=(".h5", ".hdf5", ".json"))
+    if args.frames is not None and args.frames < 1:
+        raise ValueError(f"--T must be a positive integer, got {args.frames}")
+    series = open_series(args.stack, name="stack", bit_depth=args.bit_depth)
+    progress = bar(quiet=args.quiet or args.json)
+    mean = series.mean(progress=lambda f, m: progress(0.3 * f, "mean image"))
+    lattice = lattice_from_args(args, mean)
+    model = estimate_noise(series.frames(), lattice, saturation=series.saturation_level,
+                           scale=series.scale, degree=args.degree,
+                           progress=lambda f, m: progress(0.3 + 0.5 * f, "noise model"))
+    vib = vibration_report(series.frames(), lattice)
+    progress(0.9, "noise floor")
+    T = args.frames or series.n_frames
+    maps = wft(mean, lattice, sigma=args.sigma)
+    floor = noise_floor(maps, mean, K=model.K, L=model.L, frames=T)
+    progress(1.0, "done")
+
+    summary = {
+        "stack": str(args.stack), "n_frames": series.n_frames, "shape": list(series.shape),
+        "bit_depth": series.bit_depth, "scale": series.scale,
+        "lattice": {"k1": list(lattice.k1), "k2": list(lattice.k2),
+                    "pitches_px": list(lattice.pitches), "angles_deg": list(lattice.angles)},
+        "noise": {"K": model.K, "L": model.L, "K_ci": model.K_ci, "L_ci": model.L_ci,
+                  "K_sensor": model.K_sensor, "L_sensor": model.L_sensor,
+                  "reduced_chi2": model.reduced_chi2, "units": "stored grey levels"},
+        "vibration": {"std_px": vib.std.tolist(), "covariance_px2": vib.covariance.tolist(),
+                      "contrast_factor": vib.contrast_factor.tolist(),
+                      "method_a_phase_offset_std_rad": vib.phase_offset_std.tolist()},
+        "noise_floor": {"frames_per_state": floor.frames, "sigma_px": floor.sigma,
+                        "spatial_resolution_px": floor.resolution,
+                        "u_std_px": list(floor.u_std), "strain_std": list(floor.strain_std),
+                        "phase_std_rad": list(floor.phase_std),
+                        "dphi_std_rad_per_px": list(floor.dphi_std)},
+    }
+    if out is not None:
+        if out.suffix.lower() == ".json":
+            with atomic_path(out, overwrite=args.overwrite) as tmp:
+                tmp.write_text(json.dumps(summary, indent=2, default=float))
+        else:
+            attrs = dict(summary, version=__version__,
+                         created=datetime.now(UTC).isoformat(timespec="seconds"))
+            write_hdf5(out, {"vibration/shifts": vib.shifts,
+                             "noise/levels": _arr(model.levels),
+                             "noise/variances": _arr(model.variances),
+                             "noise/variance_errors": _arr(model.variance_errors)},
+                       attrs, units={"vibration/shifts": "px", "noise/levels": "grey level",
+                                     "noise/variances": "grey level^2",
+                                     "noise/variance_errors": "grey level^2"},
+                       overwrite=args.overwrite)
+    if args.json:
+        print_json(summary)
+        return 0
+    n = summary["noise"]
+    print(f"stack: {series.n_frames} frames of {series.shape[0]}x{series.shape[1]}, "
+          f"bit depth {series.bit_depth}" + (f" stored x{series.scale:g}" if series.scale != 1
+                                             else ""))
+    print(f"lattice: pitches {fmt(lattice.pitches[0])}/{fmt(lattice.pitches[1])} px, "
+          f"angles {fmt(lattice.angles[0])}/{fmt(lattice.angles[1])} deg")
+    ci = (lambda c: "" if c is None else f"  (95 % CI {fmt(c[0])} to {fmt(c[1])})")  # noqa: E731
+    print(f"noise Var = K l + L:  K = {fmt(n['K'])}{ci(model.K_ci)}")
+    print(f"                      L = {fmt(n['L'])}{ci(model.L_ci)}   (stored grey levels)")
+    if series.scale != 1:
+        print(f"  sensor units:       K = {fmt(n['K_sensor'])}, L = {fmt(n['L_sensor'])}")
+    print(f"vibrations: std = ({fmt(vib.std[0])}, {fmt(vib.std[1])}) px; contrast factor "
+          f"({fmt(vib.contrast_factor[0])}, {fmt(vib.contrast_factor[1])}); method-A phase "
+          f"offset std ({fmt(vib.phase_offset_std[0])}, {fmt(vib.phase_offset_std[1])}) rad")
+    print(f"predicted noise floor, T = {T} frames per state, sigma = {fmt(floor.sigma)} px "
+          f"(spatial resolution {fmt(floor.resolution)} px FWHM):")
+    print(f"  u_x {fmt(floor.u_std[0])} px   u_y {fmt(floor.u_std[1])} px")
+    print(f"  e_xx {fmt(floor.strain_std[0])}   e_yy {fmt(floor.strain_std[1])}   "
+          f"e_xy {fmt(floor.strain_std[2])}")
+    if out is not None:
+        print(f"report written to {out}")
+    return 0
+
+
+def _arr(a):
+    return np.zeros(0) if a is None else np.asarray(a)

@@ -1,0 +1,77 @@
+"""``gridstrain noise`` on a generated static stack."""
+
+import json
+
+import numpy as np
+import pytest
+import tifffile
+
+from gridstrain import Lattice, synthetic
+from gridstrain.cli import main
+from gridstrain.io import read_hdf5
+
+
+@pytest.fixture(scope="module")
+def stack(tmp_path_factory):
+    """40 frames, case-2 vibrations, 12-bit noise (K=0.28, L=5) stored x16."""
+    lat = Lattice.from_pitch(5.0)
+    rng = np.random.default_rng(3)
+    frames, shifts = [], []
+    for _ in range(40):
+        a, b = rng.normal(0, 0.1), rng.normal(0, 0.05)
+        shifts.append((a, b))
+        s = synthetic.grid_image((160, 160), lat, amplitude=2000.0,
+                                 displacement=lambda X, Y, a=a, b=b: (-a + 0 * X, -b + 0 * Y))
+        frames.append(synthetic.add_noise(s, rng=rng) * 16)
+    path = tmp_path_factory.mktemp("noise") / "stack.tif"
+    tifffile.imwrite(path, np.array(frames, dtype=np.uint16))
+    return path, np.array(shifts)
+
+
+def test_noise_report(stack, tmp_path, capsys):
+    stack, shifts = stack
+    out = tmp_path / "rep.h5"
+    assert main(["noise", str(stack), "-o", str(out), "--quiet"]) == 0
+    text = capsys.readouterr().out
+    assert "K = " in text
+    assert "noise floor" in text
+    rep = read_hdf5(out)
+    noise = rep["attrs"]["noise"]
+    # K from 40 frames of 160^2: ~1 % statistical error (tests/test_noise.py); the
+    # x16 storage is undone in sensor units
+    assert noise["K_sensor"] == pytest.approx(0.28, rel=0.05)
+    measured = rep["datasets"]["vibration/shifts"]
+    # the carrier-phase estimate is good to ~1e-3 px per frame at this size and noise
+    np.testing.assert_allclose(measured, shifts - shifts.mean(axis=0), atol=4e-3)
+    np.testing.assert_allclose(rep["attrs"]["vibration"]["std_px"], shifts.std(axis=0, ddof=1),
+                               atol=1e-3)
+
+
+def test_noise_json_and_floor_scales_as_one_over_sqrt_T(stack, capsys):
+    stack, _ = stack
+    floors = []
+    for T in (4, 16):
+        assert main(["noise", str(stack), "--json", "--T", str(T)]) == 0
+        floors.append(json.loads(capsys.readouterr().out)["noise_floor"])
+    # Prop. 2.3: the noise variance falls as 1/T, so the std halves from T=4 to 16
+    ratio = np.array(floors[0]["strain_std"]) / np.array(floors[1]["strain_std"])
+    np.testing.assert_allclose(ratio, 2.0, rtol=1e-9)
+
+
+@pytest.mark.parametrize(
+    ("argv", "match"),
+    [(["noise", "missing.tif"], "missing.tif"),
+     (["noise", "STACK", "-o", "out.txt"], "must end in"),
+     (["noise", "STACK", "--T", "0"], "--T"),
+     (["noise", "STACK", "--k1", "0.2", "0"], "--k1 and --k2")],
+)
+def test_noise_bad_input(stack, tmp_path, capsys, argv, match, monkeypatch):
+    stack, _ = stack
+    monkeypatch.chdir(tmp_path)
+    argv = [str(stack) if a == "STACK" else a for a in argv]
+    assert main([*argv, "--quiet"]) != 0
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1
+    assert err[0].startswith("gridstrain noise: error:")
+    assert match in err[0]
+    assert not (tmp_path / "out.txt").exists()
