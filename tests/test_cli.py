@@ -397,7 +397,8 @@ def test_demo_small(tmp_path, monkeypatch, capsys):
     floor = s["noise_floor"]["theory_strain"][0]
     for i, name in enumerate(("exx", "eyy", "exy")):
         assert s["demo"]["rms_error"][name] < 1.5 * floor[i]
-    assert max(s["demo"]["shift_rms_error_px"].values()) < 2e-3  # px
+    # px: sensor noise on a 128^2 frame, ~1.5e-3 px per shift, against 1e-2 px
+    assert max(s["demo"]["shift_rms_error_px"].values()) < 3e-3
     assert s["demo"]["measure_command"].startswith("gridstrain measure d/ref d/load")
     # an earlier demo is kept without --overwrite
     assert _run(argv) == 2

@@ -554,11 +554,15 @@ def _frame_shifts_private(frames: Iterable, lattice: Lattice) -> np.ndarray:
     return shifts - shifts.mean(axis=0)
 
 
-def _frame_shifts(frames: Iterable, lattice: Lattice) -> tuple[np.ndarray, str]:
-    if _external_frame_shifts is not None:
-        return (np.asarray(_external_frame_shifts(frames, lattice), dtype=np.float64),
-                "gridstrain.vibration.frame_shifts")
-    return _frame_shifts_private(frames, lattice), "gridstrain.pipeline (carrier phase)"
+def _frame_shifts(frames: Iterable, lattice: Lattice, name: str) -> tuple[np.ndarray, str]:
+    try:
+        if _external_frame_shifts is not None:
+            return (np.asarray(_external_frame_shifts(frames, lattice), dtype=np.float64),
+                    "gridstrain.vibration.frame_shifts")
+        return _frame_shifts_private(frames, lattice), "gridstrain.pipeline (carrier phase)"
+    except ValueError as exc:
+        msg = str(exc)
+        raise ValueError(msg if msg.startswith(f"{name}:") else f"{name}: {msg}") from None
 
 
 def _diagnose(name: str, shifts: np.ndarray, estimator: str, lattice: Lattice,
@@ -669,8 +673,8 @@ def _finite(pm: PhaseMaps) -> PhaseMaps:
                      sigma=pm.sigma)
 
 
-def _check_given_lattice(pm: PhaseMaps, image: np.ndarray, mask: np.ndarray,
-                         margin: float) -> None:
+def _check_given_lattice(image: np.ndarray, lattice: Lattice, sigma: float,
+                         mask: np.ndarray, margin: float) -> None:
     """Refuse a given lattice that the reference image does not show.
 
     The lattice is detected anyway and each given wave vector must lie within the
@@ -683,13 +687,14 @@ def _check_given_lattice(pm: PhaseMaps, image: np.ndarray, mask: np.ndarray,
     try:
         found = detect_lattice(image, mask=mask)
     except ValueError:
-        _check_grid(pm, image, mask, margin)
+        pm, used = _phase_maps_a(image, lattice, sigma, mask, margin)
+        _check_grid(pm, image, used, margin)
         return
-    for j, k in enumerate((pm.lattice.k1, pm.lattice.k2)):
+    for j, k in enumerate((lattice.k1, lattice.k2)):
         kv = np.array(k)
         dk = min(float(np.hypot(*(kv - s * np.array(f)))) for f in (found.k1, found.k2)
                  for s in (1, -1))
-        if 2 * math.pi * pm.sigma * dk > 1:
+        if 2 * math.pi * sigma * dk > 1:
             p1, p2 = found.pitches
             a1, a2 = found.angles
             raise ValueError(f"reference: the given lattice is not the grid's: k{j + 1} = "
@@ -725,7 +730,7 @@ def _phase_maps_a(image, lattice, sigma, mask, margin):
     if nogrid.any():
         m = m & ~nogrid
         if not m.any():
-            raise ValueError("no pixel shows a grid")
+            raise ValueError("no pixel shows a grid at the lattice's wave vectors")
         pm = wft(image, lattice, sigma=sigma, mask=m, margin=margin)
     return _finite(pm), m
 
@@ -949,7 +954,7 @@ def measure_series(reference, states, *, lattice: Lattice | None = None,
     wft_cost = 4.0
     n_states = len(series) - 1
     detect = lattice is None
-    total = (ref.n_frames if detect else 0) + 1.0
+    total = ref.n_frames + 1.0
     for s in series:
         total += 2 * s.n_frames + (s.n_frames * wft_cost if method == "B" else 0) \
             + 2 * wft_cost
@@ -958,33 +963,32 @@ def measure_series(reference, states, *, lattice: Lattice | None = None,
     steps = _Steps(progress, total)
     warnings: list[str] = []
 
-    mean_ref = None
+    # the lattice, detected on the mean reference image or checked against it
+    mean_ref = ref.mean(progress=steps.sub(ref.n_frames, ""))
     if detect:
-        mean_ref = ref.mean(progress=steps.sub(ref.n_frames, ""))
         try:
             lattice = detect_lattice(mean_ref, mask=m)
         except ValueError as exc:
             raise ValueError(f"reference: {exc}") from None
-    else:
-        steps.step(1.0, "")
     sigma = lattice.pitch if sigma is None else sigma
     if sigma < lattice.pitch * (1 - 1e-9):
         raise ValueError(f"sigma must be at least the pitch ({lattice.pitch:.4g} px) so "
                          f"that the window holds one period, got {sigma:.4g}")
+    if not detect:
+        _check_given_lattice(mean_ref, lattice, sigma, m, margin)
+    steps.step(1.0, "lattice")
 
     vib, stats, maps, masks = [], [], [], []
     for s in series:
         n = s.n_frames
         shifts, how = _frame_shifts(
             _counting(s.frames(dtype=np.float64), n, steps.sub(n, s.name), "shifts"),
-            lattice)
+            lattice, s.name)
         vib.append(_diagnose(s.name, shifts, how, lattice, method))
         st = _statistics(s, shifts, m, max_saturation, steps.sub(n, s.name))
         stats.append(st)
         base = m if s is ref else None
         pm, used = _phase_maps_a(st.mean, lattice, sigma, base, margin)
-        if s is ref and not detect:
-            _check_given_lattice(pm, st.mean, used, margin)
         steps.step(2 * wft_cost, f"{s.name}: phase maps")
         if method == "B":
             pm = _phase_maps_b(s, lattice, sigma, used, margin,
