@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import datetime
 import itertools
 import math
@@ -439,6 +440,12 @@ def test_save_result_layout(noisy_plate, tmp_path):
     with pytest.raises(ValueError, match="pixel_size"):
         save_result(res, tmp_path / "b.h5", pixel_size=-1.0, unit="mm")
     assert not (tmp_path / "b.h5").exists()
+    # the place kept for per-pixel uncertainty maps: saved next to the maps
+    std = np.full((1, 192, 192), 2e-3)
+    with_std = dataclasses.replace(res, uncertainty={"ux_std": std})
+    data = read_hdf5(save_result(with_std, tmp_path / "c.h5"))
+    assert_array_equal(data["datasets"]["ux_std"], std)
+    assert data["units"]["ux_std"] == "px"
 
 
 def test_save_csv(noisy_plate, tmp_path):

@@ -1152,6 +1152,9 @@ def save_result(result: SeriesResult, path, *, pixel_size: float | None = None,
             units[f"{name}_phys"] = unit
     for name, arr in (result.uncertainty or {}).items():
         datasets[name] = np.asarray(arr)
+        base = name.removesuffix("_std")
+        if base in MAP_FIELDS:  # "ux_std" is in px like "ux"
+            units[name] = MAP_FIELDS[base]
     datasets["reference_image"] = result.reference_image.astype(np.float32)
     units["reference_image"] = "grey levels (raw)"
     datasets["mask"] = result.mask
