@@ -1,0 +1,480 @@
+"""``gridstrain measure``: strain maps from a lab's image series.
+
+The command only parses, draws progress and prints; the work is
+:func:`gridstrain.pipeline.measure_series`, :func:`gridstrain.pipeline.save_result`
+and :func:`gridstrain.plotting.save_figures`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import sys
+import time
+import tomllib
+from pathlib import Path
+
+import numpy as np
+
+from ._progress import bar
+from .io import open_series, read_mask
+from .lattice import Lattice
+from .pipeline import (
+    FWHM_PER_SIGMA,
+    MAP_FIELDS,
+    SeriesResult,
+    measure_series,
+    save_csv,
+    save_result,
+)
+from .plotting import figure_names, save_figures
+from .wft import DEFAULT_MARGIN
+
+# The options a TOML configuration file may set: its keys are the long options
+# (``pixel-size`` or ``pixel_size``), with the type each must have there.
+_CONFIG_KEYS = {
+    "output": "path", "pitch": "float", "angle": "float", "k1": "pair", "k2": "pair",
+    "sigma": "float", "method": "method", "mask": "path", "pixel-size": "float",
+    "unit": "str", "no-lagrangian": "bool", "guess": "pair", "margin": "float",
+    "csv": "path", "figures": "path", "quiet": "bool", "json": "bool",
+    "overwrite": "bool", "bit-depth": "int",
+}
+
+_EXAMPLE = """example:
+  gridstrain measure ref/ load1/ load2/ -o maps.h5 --mask mask.tif \\
+      --pixel-size 0.04 --unit mm --figures figs --csv maps.csv
+
+REF and DEF are each a TIFF file (one frame, or one per page), a directory of
+images or a quoted glob ("run3/*.tif"); one DEF per loaded state. Options may also
+come from --config FILE.toml, whose keys are the long option names
+(pixel-size = 0.04, method = "B", k1 = [0.2, 0.0]...); paths in it are relative to
+the file; options on the command line win."""
+
+
+def register(sub) -> None:
+    p = sub.add_parser(
+        "measure", help="displacement and strain maps from image series",
+        description="Measure displacement and strain maps of loaded states against a "
+        "reference, from series of grid images; diagnose vibrations and state the noise "
+        "floor. Writes one HDF5 file.", epilog=_EXAMPLE,
+        formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("reference", metavar="REF", help="reference series")
+    p.add_argument("states", metavar="DEF", nargs="+", help="loaded state series, in order")
+    p.add_argument("-o", "--output", metavar="OUT.h5", help="output HDF5 file")
+    g = p.add_argument_group("grid and window")
+    g.add_argument("--pitch", type=float, metavar="PX",
+                   help="grid pitch, px (default: detected on the reference)")
+    g.add_argument("--angle", type=float, metavar="DEG",
+                   help="grid angle, degrees (with --pitch; default 0)")
+    g.add_argument("--k1", type=float, nargs=2, metavar=("KX", "KY"),
+                   help="first wave vector, cycles/px (with --k2, instead of --pitch)")
+    g.add_argument("--k2", type=float, nargs=2, metavar=("KX", "KY"),
+                   help="second wave vector, cycles/px")
+    g.add_argument("--sigma", type=float, metavar="PX",
+                   help="window standard deviation, px (default and minimum: the pitch)")
+    g.add_argument("--method", type=str.upper, choices=("A", "B"),
+                   help="A: transform of the averaged images (default); B: transform of "
+                   "every frame, averaged")
+    g.add_argument("--margin", type=float, metavar="N",
+                   help=f"invalid band at borders and mask edges, in sigmas "
+                   f"(default {DEFAULT_MARGIN:g})")
+    k = p.add_argument_group("specimen and kinematics")
+    k.add_argument("--mask", metavar="FILE",
+                   help="specimen mask image (nonzero = specimen), reference configuration")
+    k.add_argument("--no-lagrangian", action="store_true", default=None,
+                   help="turn the large-displacement correction off")
+    k.add_argument("--guess", type=float, nargs=2, metavar=("UX", "UY"),
+                   help="initial displacement fixing the fringe order, px (default: "
+                   "cross-correlation)")
+    k.add_argument("--bit-depth", type=int, metavar="BITS",
+                   help="significant bits of the camera (default: detected)")
+    o = p.add_argument_group("output")
+    o.add_argument("--pixel-size", type=float, metavar="SIZE",
+                   help="pixel size on the specimen, in --unit (adds ux_phys, uy_phys)")
+    o.add_argument("--unit", metavar="UNIT", help="length unit of --pixel-size (e.g. mm)")
+    o.add_argument("--csv", metavar="FILE", help="also write one CSV row per valid pixel")
+    o.add_argument("--figures", metavar="DIR", help="also write PNG maps into DIR")
+    o.add_argument("--overwrite", action="store_true", default=None,
+                   help="replace existing output files")
+    o.add_argument("--config", metavar="FILE.toml", help="read options from a TOML file")
+    o.add_argument("--quiet", action="store_true", default=None,
+                   help="no progress bar and no report")
+    o.add_argument("--json", action="store_true", default=None,
+                   help="print a JSON summary on stdout instead of the report")
+    p.set_defaults(func=run)
+
+
+# --------------------------------------------------------------------------- options
+
+
+def _config_value(key: str, value, kind: str, base: Path, where: str):
+    def bad(expected):
+        return ValueError(f"{where}: {key} must be {expected}, got {value!r}")
+
+    if kind in ("float", "int"):
+        if isinstance(value, bool) or not isinstance(value, int | float) \
+                or (kind == "int" and not isinstance(value, int)):
+            raise bad("an integer" if kind == "int" else "a number")
+        return float(value) if kind == "float" else int(value)
+    if kind == "pair":
+        if not isinstance(value, list) or len(value) != 2 or any(
+                isinstance(v, bool) or not isinstance(v, int | float) for v in value):
+            raise bad("a list of two numbers")
+        return [float(v) for v in value]
+    if kind == "bool":
+        if not isinstance(value, bool):
+            raise bad("true or false")
+        return value
+    if kind == "method":
+        if not isinstance(value, str) or value.upper() not in ("A", "B"):
+            raise bad('"A" or "B"')
+        return value.upper()
+    if not isinstance(value, str) or not value:
+        raise bad("a non-empty string")
+    if kind == "path":
+        p = Path(os.path.expanduser(value))
+        return str(p if p.is_absolute() else base / p)
+    return value
+
+
+def _read_config(path: str) -> dict:
+    p = Path(os.path.expanduser(path))
+    if not p.is_file():
+        raise FileNotFoundError(f"config file {p} does not exist")
+    try:
+        with open(p, "rb") as fh:
+            data = tomllib.load(fh)
+    except tomllib.TOMLDecodeError as exc:
+        raise ValueError(f"config {p}: not valid TOML ({exc})") from None
+    out = {}
+    for key, value in data.items():
+        name = key.replace("_", "-")
+        if name not in _CONFIG_KEYS:
+            raise ValueError(f"config {p}: unknown key {key!r}; allowed keys are "
+                             f"{', '.join(sorted(_CONFIG_KEYS))}")
+        out[name] = _config_value(key, value, _CONFIG_KEYS[name], p.parent, f"config {p}")
+    return out
+
+
+def _options(args) -> dict:
+    """The options of the command line over those of the config file."""
+    opts = _read_config(args.config) if args.config else {}
+    for name in _CONFIG_KEYS:
+        value = getattr(args, name.replace("-", "_"))
+        if value is not None:
+            opts[name] = list(value) if isinstance(value, tuple) else value
+    for name in ("no-lagrangian", "quiet", "json", "overwrite"):
+        opts[name] = bool(opts.get(name, False))
+    opts.setdefault("method", "A")
+    opts.setdefault("margin", DEFAULT_MARGIN)
+    if not opts.get("output"):
+        raise ValueError("the output file is missing: pass -o OUT.h5 (or output = ... in "
+                         "the config file)")
+    return opts
+
+
+def _positive(opts: dict, name: str) -> None:
+    v = opts.get(name)
+    if v is not None and not (math.isfinite(v) and v > 0):
+        raise ValueError(f"--{name} must be a finite positive number, got {v:g}")
+
+
+def _lattice(opts: dict) -> Lattice | None:
+    has_pitch = opts.get("pitch") is not None
+    k1, k2 = opts.get("k1"), opts.get("k2")
+    if has_pitch and (k1 is not None or k2 is not None):
+        raise ValueError("give the grid either by --pitch (and --angle) or by --k1 and "
+                         "--k2, not both")
+    if (k1 is None) != (k2 is None):
+        raise ValueError("--k1 and --k2 go together: give both wave vectors")
+    if opts.get("angle") is not None and not has_pitch:
+        raise ValueError("--angle needs --pitch")
+    if has_pitch:
+        _positive(opts, "pitch")
+        if opts["pitch"] <= 2:
+            raise ValueError(f"--pitch must be above 2 px (the Nyquist limit), got "
+                             f"{opts['pitch']:g}")
+        return Lattice.from_pitch(opts["pitch"], angle=float(opts.get("angle") or 0.0))
+    if k1 is not None:
+        try:
+            return Lattice(tuple(k1), tuple(k2))
+        except ValueError as exc:
+            raise ValueError(f"--k1/--k2: {exc}") from None
+    return None
+
+
+def _check_output_file(path: Path, what: str, overwrite: bool, inputs: set[Path]) -> None:
+    if path.resolve() in inputs:
+        raise ValueError(f"{what} {path} is one of the input files; inputs are never "
+                         "modified")
+    if not path.parent.is_dir():
+        raise FileNotFoundError(f"{what} directory {path.parent} does not exist (for {path})")
+    if path.is_dir():
+        raise IsADirectoryError(f"{what} {path} is a directory")
+    if path.exists() and not overwrite:
+        raise FileExistsError(f"{what} {path} already exists (pass --overwrite to replace "
+                              "it)")
+
+
+def _check_outputs(opts: dict, n_states: int, inputs: set[Path]) -> None:
+    """Refuse, before any work, what would fail or clobber at the end."""
+    out = Path(os.path.expanduser(opts["output"]))
+    _check_output_file(out, "output file", opts["overwrite"], inputs)
+    if opts.get("csv"):
+        csv = Path(os.path.expanduser(opts["csv"]))
+        if csv.resolve() == out.resolve():
+            raise ValueError(f"--csv {csv} is the output file itself")
+        _check_output_file(csv, "CSV file", opts["overwrite"], inputs)
+    if opts.get("figures"):
+        d = Path(os.path.expanduser(opts["figures"]))
+        if d.exists() and not d.is_dir():
+            raise NotADirectoryError(f"figures directory {d} is a file")
+        if not d.exists() and not d.parent.is_dir():
+            raise FileNotFoundError(f"cannot create figures directory {d}: its parent "
+                                    f"{d.parent} does not exist")
+        if d.is_dir() and not opts["overwrite"]:
+            for name in figure_names(n_states):
+                if (d / name).exists():
+                    raise FileExistsError(f"figure {d / name} already exists (pass "
+                                          "--overwrite to replace it)")
+
+
+def _input_files(sources) -> set[Path]:
+    files = set()
+    for s in sources:
+        for p in s.paths:
+            files.add(Path(p).resolve())
+    return files
+
+
+# --------------------------------------------------------------------------- report
+
+
+def _fmt(x: float, spec: str = ".2e") -> str:
+    return "n/a" if x is None or not math.isfinite(x) else format(x, spec)
+
+
+def _angle(deg: float) -> str:
+    # round first, then add 0.0 so that a tiny negative angle prints 0.000, not -0.000
+    return f"{round(deg, 3) + 0.0:.3f}"
+
+
+def _describe_depth(result: SeriesResult) -> str:
+    bits, scale = result.bit_depth[0], result.scale[0]
+    if bits is None:
+        return "float data"
+    return f"{bits}-bit data" + (f" stored x{scale}" if scale != 1 else "")
+
+
+def report_lines(result: SeriesResult, *, pixel_size: float | None = None,
+                 unit: str | None = None) -> list[str]:
+    """The human-readable report of a measurement, as lines of text."""
+    H, W = result.shape
+    lat = result.lattice
+    p1, p2 = lat.pitches
+    a1, a2 = lat.angles
+    lines = [
+        f"{result.n_states} loaded state(s) against the reference, {H} x {W} px, "
+        f"{_describe_depth(result)}",
+        f"lattice ({'detected' if result.lattice_detected else 'given'}): pitches "
+        f"{p1:.4f}/{p2:.4f} px, angles {_angle(a1)}/{_angle(a2)} deg; sigma "
+        f"{result.sigma:.4g} px, "
+        f"method {result.method}, large-displacement correction "
+        f"{'on' if result.lagrangian else 'off'}",
+        "",
+        "vibrations (rigid shift of each frame, 1 std)  alpha px  beta px   contrast k1/k2"
+        "   phase offset k1/k2 rad",
+    ]
+    for v in result.vibration:
+        label = f"  {v.name}, {v.n_frames} frame(s)"
+        contrast = f"{_fmt(v.contrast_factor[0], '.5f')}/{_fmt(v.contrast_factor[1], '.5f')}"
+        lines.append(f"{label:<46} {_fmt(v.std[0], '.4f'):>8} {_fmt(v.std[1], '.4f'):>8}   "
+                     f"{contrast:<16} "
+                     f"{_fmt(v.phase_offset_std[0])}/{_fmt(v.phase_offset_std[1])}")
+    nf = result.noise
+    lines += ["", "noise floor (1 std at a pixel)            u_x px    u_y px    e_xx      "
+              "e_yy      e_xy"]
+    for i in range(result.n_states):
+        rows = (("theory, measured sensor noise", nf.theory_u[i], nf.theory_strain[i]),
+                ("reference halves, scaled", nf.split_u[i], nf.split_strain[i]),
+                ("vibration offset (rigid)", nf.vibration_u[i], None))
+        for k, (name, u, e) in enumerate(rows):
+            head = f"  {result.names[i + 1] if k == 0 else '':<9} {name:<30}"
+            es = "  ".join(f"{_fmt(x):<8}" for x in e) if e is not None else \
+                "-         -         -"
+            lines.append(f"{head} {_fmt(u[0]):<8}  {_fmt(u[1]):<8}  {es}")
+    res = f"{nf.resolution:.3g} px"
+    if pixel_size is not None:
+        res += f" = {nf.resolution * pixel_size:.3g} {unit}"
+    lines.append(f"spatial resolution: {res} (FWHM of the Gaussian window, "
+                 f"{FWHM_PER_SIGMA:.3f} sigma)")
+    lines.append("")
+    for i, m in enumerate(result.measurements):
+        v = result.valid[i]
+        if v.any():
+            e = [float(np.mean(c[v])) for c in result.strain[i]]
+            u = [float(np.mean(c[v])) for c in result.u[i]]
+            lines.append(f"{result.names[i + 1]}: {v.mean():.1%} valid; mean e_xx "
+                         f"{e[0]:.3e}, e_yy {e[1]:.3e}, e_xy {e[2]:.3e}; mean u "
+                         f"({u[0]:.4f}, {u[1]:.4f}) px; {m.iterations} iteration(s)")
+            lines.append(f"  fringe order from the guess ({result.guesses[i][0]:.2f}, "
+                         f"{result.guesses[i][1]:.2f}) px: {result.guess_sources[i]}")
+        else:
+            lines.append(f"{result.names[i + 1]}: no valid pixel")
+    for w in result.warnings:
+        lines.append(f"warning: {w}")
+    return lines
+
+
+def jsonable(value):
+    """``value`` with NaN and infinities replaced by None, tuples by lists."""
+    if isinstance(value, dict):
+        return {k: jsonable(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [jsonable(v) for v in value]
+    if isinstance(value, float | np.floating):
+        return float(value) if math.isfinite(value) else None
+    if isinstance(value, np.integer):
+        return int(value)
+    return value
+
+
+def summary(result: SeriesResult, *, outputs: dict, seconds: float,
+            pixel_size: float | None = None, unit: str | None = None) -> dict:
+    """JSON-ready summary of a measurement."""
+    def num(x):
+        return float(x) if x is not None and math.isfinite(x) else None
+
+    states = []
+    for i, m in enumerate(result.measurements):
+        v = result.valid[i]
+        states.append({
+            "name": result.names[i + 1], "frames": result.n_frames[i + 1],
+            "files": list(result.sources[i + 1]), "valid_fraction": float(v.mean()),
+            "mean": {name: num(float(np.mean(result.get_map(name)[i][v]))) if v.any()
+                     else None for name in MAP_FIELDS},
+            "iterations": int(m.iterations), "guess_px": list(result.guesses[i]),
+            "guess_source": result.guess_sources[i],
+        })
+    lat = result.lattice
+    return {
+        "outputs": outputs,
+        "image": list(result.shape),
+        "bit_depth": result.bit_depth[0], "scale": result.scale[0],
+        "lattice": {"k1": list(lat.k1), "k2": list(lat.k2), "pitches_px": list(lat.pitches),
+                    "angles_deg": list(lat.angles), "detected": result.lattice_detected},
+        "sigma_px": result.sigma, "method": result.method, "lagrangian": result.lagrangian,
+        "margin": result.margin, "pixel_size": pixel_size, "unit": unit,
+        "reference": {"frames": result.n_frames[0], "files": list(result.sources[0])},
+        "states": states,
+        "vibration": [{"series": v.name, "frames": v.n_frames,
+                       "std_px": [num(x) for x in v.std],
+                       "contrast_factor": [num(x) for x in v.contrast_factor],
+                       "phase_offset_std_rad": [num(x) for x in v.phase_offset_std],
+                       "estimator": v.estimator} for v in result.vibration],
+        "noise_floor": result.noise.as_dict(),
+        "warnings": list(result.warnings),
+        "seconds": seconds,
+    }
+
+
+# --------------------------------------------------------------------------- run
+
+
+class _Bar:
+    """The progress bar, remembering whether a line was left open on stderr."""
+
+    def __init__(self, quiet: bool):
+        self.open = False
+        self.configure(quiet)
+
+    def configure(self, quiet: bool) -> None:
+        """Draw or not (``quiet`` may come from the configuration file)."""
+        self._draw = bar(quiet=quiet)
+        self._quiet = quiet
+
+    def __call__(self, fraction: float, message: str) -> None:
+        self._draw(fraction, message)
+        if not self._quiet:
+            self.open = fraction < 1.0
+
+    def close(self) -> None:
+        """End an open bar line, so that an error message gets a line of its own."""
+        if self.open:
+            sys.stderr.write("\n")
+            sys.stderr.flush()
+            self.open = False
+
+
+def run(args) -> int:
+    progress = _Bar(quiet=bool(args.quiet))
+    try:
+        return _run(args, progress)
+    except BaseException:
+        progress.close()
+        raise
+
+
+def _run(args, progress: _Bar) -> int:
+    t0 = time.perf_counter()
+    opts = _options(args)
+    for name in ("sigma", "margin", "pixel-size"):
+        _positive(opts, name)
+    if (opts.get("pixel-size") is None) != (opts.get("unit") is None):
+        raise ValueError("--pixel-size and --unit go together (e.g. --pixel-size 0.04 "
+                         "--unit mm)")
+    bits = opts.get("bit-depth")
+    if bits is not None and not 1 <= bits <= 32:
+        raise ValueError(f"--bit-depth must be between 1 and 32, got {bits}")
+    lattice = _lattice(opts)
+    quiet, as_json = opts["quiet"], opts["json"]
+    progress.configure(quiet)
+
+    reference = open_series(args.reference, name="reference", bit_depth=bits)
+    states = [open_series(s, name=f"state {i}", bit_depth=bits)
+              for i, s in enumerate(args.states)]
+    inputs = _input_files([reference, *states])
+    mask = None
+    if opts.get("mask"):
+        mask_path = Path(os.path.expanduser(opts["mask"]))
+        inputs.add(mask_path.resolve())
+        mask = read_mask(mask_path, reference.shape)
+    if args.config:
+        inputs.add(Path(os.path.expanduser(args.config)).resolve())
+    _check_outputs(opts, len(states), inputs)
+
+    guess = "auto" if opts.get("guess") is None else tuple(opts["guess"])
+    result = measure_series(reference, states, lattice=lattice, sigma=opts.get("sigma"),
+                            method=opts["method"], mask=mask,
+                            lagrangian=not opts["no-lagrangian"], guess=guess,
+                            margin=opts["margin"], progress=progress)
+    ps, unit = opts.get("pixel-size"), opts.get("unit")
+    extra = {"options": dict(opts.items()),
+             "config_file": args.config or "", "mask_file": opts.get("mask") or ""}
+    out = save_result(result, opts["output"], pixel_size=ps, unit=unit,
+                      overwrite=opts["overwrite"], attrs=extra)
+    outputs = {"hdf5": str(out)}
+    if opts.get("csv"):
+        outputs["csv"] = str(save_csv(result, opts["csv"], overwrite=opts["overwrite"]))
+    if opts.get("figures"):
+        figs = save_figures(result, opts["figures"], pixel_size=ps, unit=unit,
+                            overwrite=opts["overwrite"], progress=progress)
+        outputs["figures"] = [str(f) for f in figs]
+    seconds = time.perf_counter() - t0
+    if as_json:
+        json.dump(jsonable(summary(result, outputs=outputs, seconds=seconds, pixel_size=ps,
+                                   unit=unit)), sys.stdout, indent=2, allow_nan=False)
+        sys.stdout.write("\n")
+    elif not quiet:
+        lines = report_lines(result, pixel_size=ps, unit=unit)
+        H, W = result.shape
+        lines.append(f"wrote {out} ({', '.join(MAP_FIELDS)}, valid: {result.n_states} x {H} "
+                     f"x {W}) in {seconds:.1f} s")
+        if "csv" in outputs:
+            lines.append(f"wrote {outputs['csv']} (one row per valid pixel)")
+        if "figures" in outputs:
+            lines.append(f"wrote {len(outputs['figures'])} figures into {opts['figures']}")
+        print("\n".join(lines))
+    return 0

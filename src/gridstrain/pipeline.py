@@ -1,0 +1,1223 @@
+"""From a lab's image series to strain maps: the library side of ``gridstrain measure``.
+
+A *series* is a set of frames of one static state of the specimen (a camera
+taking ``T`` images of the reference, then ``T`` of each loaded state). The
+pipeline measures every loaded state against the reference, diagnoses the
+vibrations of every series and states the noise floor of the maps. Conventions
+(axes, signs, the Lagrangian description, units) are those of
+:mod:`gridstrain.conventions`; frames are streamed, never held whole.
+
+For each series
+    1. If no lattice is given, the reference frames are averaged (streamed) and
+       the lattice detected on the mean image.
+    2. Vibrations: the rigid translation ``(alpha_t, beta_t)`` of every frame from
+       the phase of one global Fourier coefficient per wave vector
+       (:func:`gridstrain.vibration.frame_shifts` when available), no windowed
+       Fourier transform per frame. Paper eq. (2): frame ``t`` is
+       ``s(x + alpha_t, y + beta_t)``.
+    3. Statistics (streamed): the mean image, the per-pixel sensor noise variance
+       (see *Noise floor*) and the saturated fraction of every frame.
+    4. Phase maps. Method A (paper §2.2): the windowed Fourier transform of the
+       mean image. Method B (§2.3): one transform per frame, averaged
+       (:func:`gridstrain.stacks.method_b` when available). Regions without a grid
+       (modulus below a quarter of the median, e.g. a hole) are masked
+       automatically so that the validity margin applies around them.
+    5. Kinematics: :func:`gridstrain.kinematics.deformation` with the fringe order
+       from the cross-correlation of the mean images and the large-displacement
+       (Lagrangian) correction.
+
+Noise floor
+    Two estimates, both one standard deviation of the map's random error at a
+    pixel, for ``T_ref`` reference frames and ``T`` frames of the state:
+
+    - **theory**: the windowed-Fourier noise of :func:`gridstrain.theory.wft_noise_std`
+      with the image noise variance ``v / T`` (Prop. 2.3) and the measured median
+      modulus ``|Psi|`` of each series (which includes the vibrations' contrast
+      loss), carried through eqs. (34)-(35). ``v`` is measured in the data: the
+      temporal variance of each pixel, averaged over the valid pixels, after
+      regressing out the first-order effect of the measured frame shifts,
+      ``v_t(x) - mean = grad s(x) . (a_t - mean a) + noise`` (a least-squares
+      fit per pixel on the two shift components, ``T - 3`` degrees of freedom).
+      Without that regression a vibration of 0.05 px on a grid of pitch 5 would
+      pass for sensor noise. It needs ``T >= 4`` (plain temporal variance for
+      ``T = 2, 3``; nothing for ``T = 1``, where the state is assumed as noisy as
+      the reference).
+    - **split**: an empirical check that assumes nothing about the noise: the
+      reference frames are split into two halves, each averaged, and the second
+      half is measured against the first. The result is pure error (the specimen
+      did not move, a rigid vibration offset aside, which is removed as the map's
+      mean), and its spatial standard deviation over the valid pixels, scaled by
+      ``sqrt((1/T_ref + 1/T) / (1/T_1 + 1/T_2))``, is the floor of a state of
+      ``T`` frames whose noise per frame is the reference's. Needs ``T_ref >= 2``.
+      Its own sampling error is about ``1 / sqrt(2 N)`` relative, ``N`` being the
+      number of independent windows in the valid region (tens on a small image).
+
+    Separately, the vibrations leave a phase offset ``delta`` constant over the
+    map (eqs. 26-31): its standard deviation, Prop. 2.4 with ``Var(mean alpha) =
+    Var(alpha) / T``, is reported as ``vibration_u`` (px). It shifts the
+    displacement map as a whole (a rigid translation) and does not reach the
+    strain (eq. 27).
+
+Spatial resolution
+    The maps are the true fields convolved with the Gaussian window
+    (eqs. 24-25). The spatial resolution is stated as the window's full width at
+    half maximum, ``2 sqrt(2 ln 2) sigma = 2.355 sigma`` px; ``sigma`` itself is
+    stored too, for other definitions.
+
+Per-pixel uncertainty maps (``ux_std``...) are not computed yet; their place is
+:attr:`SeriesResult.uncertainty`, saved next to the maps by :func:`save_result`.
+"""
+
+from __future__ import annotations
+
+import datetime
+import inspect
+import math
+import numbers
+import os
+from collections.abc import Callable, Iterable, Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from . import __version__, theory
+from ._progress import null_progress
+from ._validation import check_choice, check_mask, check_positive
+from .io import (
+    FrameSeries,
+    check_saturation_limit,
+    open_series,
+    read_mask,
+    write_csv,
+    write_hdf5,
+)
+from .kinematics import Measurement, coarse_displacement, deformation
+from .lattice import Lattice, detect_lattice
+from .wft import DEFAULT_MARGIN, PhaseMaps, wft
+
+try:  # the streaming vibration estimator, when the package has it
+    from .vibration import frame_shifts as _external_frame_shifts
+except ImportError:  # pragma: no cover - depends on the installed modules
+    _external_frame_shifts = None
+try:  # method B over frame iterables, when the package has it
+    from .stacks import method_b as _external_method_b
+except ImportError:  # pragma: no cover - depends on the installed modules
+    _external_method_b = None
+
+__all__ = [
+    "FWHM_PER_SIGMA",
+    "MAP_FIELDS",
+    "NoiseFloor",
+    "SeriesResult",
+    "VibrationDiagnostics",
+    "measure_series",
+    "save_csv",
+    "save_result",
+]
+
+Progress = Callable[[float, str], None]
+
+#: Full width at half maximum of a Gaussian over its standard deviation,
+#: ``2 sqrt(2 ln 2)``: the spatial resolution of the maps is this times sigma.
+FWHM_PER_SIGMA = 2.0 * math.sqrt(2.0 * math.log(2.0))
+#: Names of the maps, in file order, with their units before ``pixel_size``.
+MAP_FIELDS = {"ux": "px", "uy": "px", "exx": "1", "eyy": "1", "exy": "1"}
+
+# A pixel holds no grid when its modulus, for either wave vector, is below this
+# fraction of the median modulus (the threshold gridstrain.wft uses for validity):
+# such regions (holes, specimen edges, stains) are masked and get the margin.
+_NO_GRID_MODULUS = 0.25
+# A cross-correlation guess is trusted from this Pearson correlation of the aligned,
+# low-passed images (gridstrain.kinematics uses the same): below it they hold
+# nothing but the periodic grid and the translation is ambiguous to a period.
+_MIN_COARSE_CORRELATION = 0.5
+# A given lattice must show a modulus this many times larger than at the same
+# frequencies turned by 45 degrees, where a grid or checkerboard has no harmonic:
+# noise alone gives about 1, the mean of a 12-bit grid image hundreds.
+_MIN_GRID_CONTRAST = 5.0
+# Largest fraction of saturated pixels accepted in a frame (gridstrain.io's default).
+_MAX_SATURATION = 0.01
+
+
+# --------------------------------------------------------------------------- results
+
+
+@dataclass(frozen=True, eq=False)
+class VibrationDiagnostics:
+    """Per-frame rigid translations of one series and what they do to the maps.
+
+    Attributes
+    ----------
+    name : str
+        The series (``"reference"``, ``"state 0"``...).
+    shifts : (T, 2) float ndarray
+        ``(alpha_t, beta_t)`` per frame, px, zero mean: frame ``t`` is
+        ``s(x + alpha_t, y + beta_t)`` (paper eq. 2; the specimen moved by
+        ``-(alpha_t, beta_t)``).
+    std : (2,) tuple of float
+        Sample standard deviations (``ddof=1``) of ``alpha`` and ``beta``, px;
+        NaN for a single frame (as are the two attributes below).
+    contrast_factor : (2,) tuple of float
+        Per wave vector, ``1 - 1/2 (2 pi f)^2 Var`` (Prop. 2.2), with ``Var`` the
+        variance of the shifts along the wave vector: the fraction of the grid's
+        modulus that survives averaging (method A).
+    phase_offset_std : (2,) tuple of float
+        Per wave vector, the standard deviation of the vibration phase offset of
+        the averaged series, rad (Prop. 2.4, eq. 31, ``Var(mean) = Var / T``).
+    estimator : str
+        Which code estimated the shifts.
+    """
+
+    name: str
+    shifts: np.ndarray
+    std: tuple[float, float]
+    contrast_factor: tuple[float, float]
+    phase_offset_std: tuple[float, float]
+    estimator: str
+
+    def __post_init__(self):
+        self.shifts.flags.writeable = False
+
+    @property
+    def n_frames(self) -> int:
+        """Number of frames ``T``."""
+        return int(self.shifts.shape[0])
+
+    def __repr__(self) -> str:
+        return (f"VibrationDiagnostics({self.name}, T={self.n_frames}, std=("
+                f"{self.std[0]:.3g}, {self.std[1]:.3g}) px, phase offset std=("
+                f"{self.phase_offset_std[0]:.3g}, {self.phase_offset_std[1]:.3g}) rad)")
+
+
+@dataclass(frozen=True, eq=False)
+class NoiseFloor:
+    """Noise floor of the maps of each state (see the module docstring).
+
+    Every ``*_u`` array is ``(n_states, 2)`` for ``(u_x, u_y)`` in px, every
+    ``*_strain`` array ``(n_states, 3)`` for ``(e_xx, e_yy, e_xy)``
+    (dimensionless); NaN where the estimate is unavailable.
+
+    Attributes
+    ----------
+    sigma : float
+        Window standard deviation, px.
+    resolution : float
+        Spatial resolution, the window's FWHM ``2.355 sigma``, px.
+    sensor_variance : (n_series,) tuple of float
+        Per-frame image noise variance of each series (reference first), raw
+        grey levels^2, NaN for a single frame.
+    variance_method : (n_series,) tuple of str
+        How each variance was measured.
+    modulus : (n_series, 2) ndarray
+        Median ``|Psi|`` of each series' phase maps over their valid pixels, raw
+        grey levels.
+    theory_u, theory_strain : ndarray
+        Windowed-Fourier noise theory with the measured variances.
+    split_u, split_strain : ndarray
+        Reference split into halves, scaled to each state's frame counts.
+    vibration_u : ndarray
+        Standard deviation of the constant vibration offset of the displacement
+        (reference and state together), px.
+    """
+
+    sigma: float
+    resolution: float
+    sensor_variance: tuple[float, ...]
+    variance_method: tuple[str, ...]
+    modulus: np.ndarray
+    theory_u: np.ndarray
+    theory_strain: np.ndarray
+    split_u: np.ndarray
+    split_strain: np.ndarray
+    vibration_u: np.ndarray
+
+    def __post_init__(self):
+        for name in ("modulus", "theory_u", "theory_strain", "split_u", "split_strain",
+                     "vibration_u"):
+            getattr(self, name).flags.writeable = False
+
+    def as_dict(self) -> dict:
+        """Plain-Python summary (lists, floats, NaN as None), for JSON and HDF5."""
+        def clean(a):
+            return [None if not math.isfinite(v) else float(v)
+                    for v in np.asarray(a, dtype=float).ravel()]
+
+        out = {"sigma_px": self.sigma, "resolution_fwhm_px": self.resolution,
+               "resolution_definition": "FWHM of the Gaussian window, 2 sqrt(2 ln 2) sigma",
+               "sensor_variance": clean(self.sensor_variance),
+               "variance_method": list(self.variance_method),
+               "modulus": [clean(m) for m in self.modulus]}
+        for name in ("theory_u", "theory_strain", "split_u", "split_strain", "vibration_u"):
+            out[name] = [clean(row) for row in getattr(self, name)]
+        return out
+
+
+@dataclass(frozen=True, eq=False)
+class SeriesResult:
+    """Displacement and strain maps of every loaded state against the reference.
+
+    Attributes
+    ----------
+    u : (n_states, 2, H, W) float64 ndarray
+        ``(u_x, u_y)`` per state, px, Lagrangian; NaN where not ``valid``.
+    strain : (n_states, 3, H, W) float64 ndarray
+        ``(e_xx, e_yy, e_xy)`` per state, dimensionless (tensor shear).
+    valid : (n_states, H, W) bool ndarray
+    lattice : Lattice
+    lattice_detected : bool
+        Whether the lattice was detected (True) or given.
+    sigma : float
+        Window standard deviation, px.
+    method : {"A", "B"}
+    lagrangian : bool
+    margin : float
+        Invalid band along borders and mask edges, in units of ``sigma``.
+    mask : (H, W) bool ndarray
+        The specimen mask used for the reference: the given one, less the regions
+        found without a grid.
+    reference_image : (H, W) float64 ndarray
+        Mean reference frame, raw grey levels (for display).
+    names : tuple of str
+        ``("reference", "state 0", ...)``.
+    sources : tuple of tuple of str
+        The files of each series (empty for arrays given in memory).
+    n_frames : tuple of int
+        ``T`` of each series, reference first.
+    bit_depth, scale : tuple
+        Of each series (:class:`gridstrain.io.FrameSeries`; ``None``/1 for arrays).
+    saturation : tuple of float
+        Largest saturated fraction of a frame in each series.
+    measurements : tuple of Measurement
+        One per state, with its phase maps and iterations.
+    guesses : tuple of (float, float)
+        The initial displacement that fixed each state's fringe order, px.
+    guess_sources : tuple of str
+        Where each guess came from (the user, a cross-correlation, or zero).
+    vibration : tuple of VibrationDiagnostics
+        One per series, reference first.
+    noise : NoiseFloor
+    parameters : dict
+        Every option of the measurement, as given.
+    warnings : tuple of str
+        Things the user should know that did not stop the measurement.
+    uncertainty : dict of str to ndarray, optional
+        Reserved for per-pixel standard-deviation maps (``"ux_std"``... each
+        ``(n_states, H, W)``); ``None`` until computed.
+    """
+
+    u: np.ndarray
+    strain: np.ndarray
+    valid: np.ndarray
+    lattice: Lattice
+    lattice_detected: bool
+    sigma: float
+    method: str
+    lagrangian: bool
+    margin: float
+    mask: np.ndarray
+    reference_image: np.ndarray
+    names: tuple[str, ...]
+    sources: tuple[tuple[str, ...], ...]
+    n_frames: tuple[int, ...]
+    bit_depth: tuple[int | None, ...]
+    scale: tuple[int, ...]
+    saturation: tuple[float, ...]
+    measurements: tuple[Measurement, ...] = field(repr=False)
+    guesses: tuple[tuple[float, float], ...]
+    guess_sources: tuple[str, ...]
+    vibration: tuple[VibrationDiagnostics, ...]
+    noise: NoiseFloor
+    parameters: dict
+    warnings: tuple[str, ...] = ()
+    uncertainty: dict | None = None
+
+    def __post_init__(self):
+        for name in ("u", "strain", "valid", "mask", "reference_image"):
+            getattr(self, name).flags.writeable = False
+
+    @property
+    def n_states(self) -> int:
+        """Number of loaded states."""
+        return int(self.u.shape[0])
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        """``(H, W)`` of the maps."""
+        return tuple(self.valid.shape[1:])
+
+    def get_map(self, name: str) -> np.ndarray:
+        """The ``(n_states, H, W)`` map of one of :data:`MAP_FIELDS`."""
+        check_choice(name, "name", tuple(MAP_FIELDS))
+        i = tuple(MAP_FIELDS).index(name)
+        return self.u[:, i] if i < 2 else self.strain[:, i - 2]
+
+    @property
+    def ux(self) -> np.ndarray:
+        """(n_states, H, W) displacement along x, px."""
+        return self.u[:, 0]
+
+    @property
+    def uy(self) -> np.ndarray:
+        """(n_states, H, W) displacement along y, px."""
+        return self.u[:, 1]
+
+    @property
+    def exx(self) -> np.ndarray:
+        """(n_states, H, W) normal strain along x."""
+        return self.strain[:, 0]
+
+    @property
+    def eyy(self) -> np.ndarray:
+        """(n_states, H, W) normal strain along y."""
+        return self.strain[:, 1]
+
+    @property
+    def exy(self) -> np.ndarray:
+        """(n_states, H, W) shear strain (tensor component)."""
+        return self.strain[:, 2]
+
+    def __repr__(self) -> str:
+        H, W = self.shape
+        valid = ", ".join(f"{v.mean():.1%}" for v in self.valid)
+        return (f"SeriesResult({self.n_states} state(s) of {H}x{W}, method {self.method}, "
+                f"sigma={self.sigma:.4g} px, frames {list(self.n_frames)}, valid {valid})")
+
+
+# --------------------------------------------------------------------------- inputs
+
+
+class _ArraySeries:
+    """Frames held in memory, behaving like a :class:`gridstrain.io.FrameSeries`."""
+
+    bit_depth = None
+    scale = 1
+    saturation_level = None
+    paths: tuple = ()
+
+    def __init__(self, data, name: str):
+        arr = np.asarray(data)
+        if arr.dtype == bool or arr.dtype.kind not in "uif":
+            raise TypeError(f"{name} must hold real grey levels, got dtype {arr.dtype}")
+        if arr.ndim == 2:
+            arr = arr[None]
+        if arr.ndim != 3 or arr.shape[0] < 1:
+            raise ValueError(f"{name} must be one (H, W) frame or a (T, H, W) stack, got "
+                             f"shape {np.shape(data)}")
+        if min(arr.shape[1:]) < 8:
+            raise ValueError(f"{name} frames must be at least 8 x 8 pixels, got "
+                             f"{arr.shape[1:]}")
+        if arr.dtype.kind == "f" and not np.all(np.isfinite(arr)):
+            raise ValueError(f"{name} has NaN or infinite pixels; frames must hold finite "
+                             "grey levels")
+        self.name = name
+        self.dtype = arr.dtype
+        self.shape = (int(arr.shape[1]), int(arr.shape[2]))
+        self._data = arr
+
+    @property
+    def n_frames(self) -> int:
+        return int(self._data.shape[0])
+
+    def __len__(self) -> int:
+        return self.n_frames
+
+    def frames(self, *, dtype=np.float64, start: int = 0, stop: int | None = None):
+        return (np.array(f, dtype=dtype) for f in self._data[start:stop])
+
+    def mean(self, *, start: int = 0, stop: int | None = None, progress=None):
+        sub = self._data[start:stop]
+        acc = np.zeros(self.shape)
+        for f in sub:
+            acc += f
+        return acc / len(sub)
+
+
+def _as_series(source, name: str, bit_depth):
+    if isinstance(source, FrameSeries):
+        return source
+    if isinstance(source, np.ndarray):
+        return _ArraySeries(source, name)
+    if isinstance(source, str | os.PathLike | list | tuple):
+        return open_series(source, name=name, bit_depth=bit_depth)
+    raise TypeError(f"{name} must be a FrameSeries, a path, a glob pattern, a list of "
+                    f"files or an array of frames, got {type(source).__name__}")
+
+
+def _as_states(states) -> list:
+    if isinstance(states, FrameSeries | np.ndarray | str | os.PathLike):
+        return [states]
+    if isinstance(states, Sequence) and not isinstance(states, bytes):
+        if not states:
+            raise ValueError("states must hold at least one loaded state, got none")
+        return list(states)
+    raise TypeError(f"states must be a series or a list of series, got "
+                    f"{type(states).__name__}")
+
+
+def _check_guess(guess):
+    if isinstance(guess, str):
+        check_choice(guess, "guess", ("auto",))
+        return guess
+    if guess is None:
+        return None
+    try:
+        g = np.asarray(guess, dtype=float)
+    except (TypeError, ValueError):
+        raise ValueError(f"guess must be 'auto', None or a (u_x, u_y) pair in px, got "
+                         f"{guess!r}") from None
+    if g.shape != (2,) or not np.all(np.isfinite(g)):
+        raise ValueError(f"guess must be 'auto', None or a finite (u_x, u_y) pair in px, "
+                         f"got {guess!r}")
+    return (float(g[0]), float(g[1]))
+
+
+# --------------------------------------------------------------------------- progress
+
+
+class _Steps:
+    """Map the pipeline's steps, weighted by their cost, onto one [0, 1] callback."""
+
+    def __init__(self, progress: Progress, total: float):
+        self._progress = progress
+        self._total = max(float(total), 1e-12)
+        self._done = 0.0
+
+    def sub(self, weight: float, prefix: str) -> Progress:
+        start = self._done
+        self._done += weight
+
+        def report(fraction: float, message: str) -> None:
+            f = min(max(float(fraction), 0.0), 1.0)
+            text = f"{prefix}: {message}" if prefix and message else (prefix or message)
+            self._progress(min((start + f * weight) / self._total, 1.0), text)
+
+        return report
+
+    def step(self, weight: float, message: str) -> None:
+        self._done += weight
+        self._progress(min(self._done / self._total, 1.0), message)
+
+
+def _counting(frames: Iterable, n: int, report: Progress, what: str):
+    """Yield ``frames`` unchanged, reporting after each one."""
+    for k, f in enumerate(frames, start=1):
+        yield f
+        report(k / n, f"{what} {k}/{n}")
+
+
+# --------------------------------------------------------------------------- vibrations
+
+
+def _hann(n: int) -> np.ndarray:
+    # apodisation of the global coefficient: its side lobes fall as 1/f^3, so the
+    # conjugate carrier and the harmonics (tens of bins away) do not pull the phase
+    return 0.5 - 0.5 * np.cos(2 * np.pi * (np.arange(n) + 0.5) / n)
+
+
+def _frame_shifts_private(frames: Iterable, lattice: Lattice) -> np.ndarray:
+    """Per-frame translation from the carrier phase (fallback of frame_shifts).
+
+    One windowed Fourier coefficient per frame and wave vector,
+    ``c_j(t) = sum w(x) (v_t(x) - m_t) exp(-2 i pi k_j . x)``; a frame
+    ``s(x + a)`` has it turned by ``+2 pi k_j . a`` (eq. 2), so with the mean
+    frame's coefficient (the mean of the coefficients, by linearity) as origin,
+    ``a_t = K^-1 arg(c(t) conj(c_mean)) / (2 pi)``, then centred.
+    """
+    K = lattice.K
+    coeffs = []
+    probe = None
+    for frame in frames:
+        v = np.asarray(frame, dtype=np.float64)
+        if probe is None:
+            H, W = v.shape
+            w = np.outer(_hann(H), _hann(W))
+            x = np.arange(W, dtype=np.float64)
+            y = np.arange(H, dtype=np.float64)
+            ex = np.stack([np.exp(-2j * np.pi * k[0] * x) for k in K], axis=1)  # (W, 2)
+            ey = np.stack([np.exp(-2j * np.pi * k[1] * y) for k in K])  # (2, H)
+            # the x carriers as a real (W, 4) matrix: numpy multiplies a real matrix by
+            # a complex vector without BLAS, a hundred times slower
+            exr = np.concatenate([ex.real, ex.imag], axis=1)
+            probe = (w, w.sum(), exr, ey)
+        w, wsum, exr, ey = probe
+        wv = w * (v - float(np.sum(w * v)) / wsum)
+        rows = wv @ exr  # (H, 4)
+        rows = rows[:, :2] + 1j * rows[:, 2:]  # sum over x, per wave vector (H, 2)
+        coeffs.append(np.einsum("jh,hj->j", ey, rows))
+    c = np.array(coeffs)
+    ref = c.mean(axis=0)
+    if np.any(np.abs(ref) == 0):
+        raise ValueError("the frames hold no grid at the lattice's wave vectors")
+    dphi = np.angle(c * np.conj(ref))
+    shifts = dphi @ np.linalg.inv(K).T / (2 * np.pi)
+    return shifts - shifts.mean(axis=0)
+
+
+def _frame_shifts(frames: Iterable, lattice: Lattice, name: str) -> tuple[np.ndarray, str]:
+    try:
+        if _external_frame_shifts is not None:
+            return (np.asarray(_external_frame_shifts(frames, lattice), dtype=np.float64),
+                    "gridstrain.vibration.frame_shifts")
+        return _frame_shifts_private(frames, lattice), "gridstrain.pipeline (carrier phase)"
+    except ValueError as exc:
+        msg = str(exc)
+        raise ValueError(msg if msg.startswith(f"{name}:") else f"{name}: {msg}") from None
+
+
+def _diagnose(name: str, shifts: np.ndarray, estimator: str, lattice: Lattice,
+              method: str) -> VibrationDiagnostics:
+    T = shifts.shape[0]
+    if T < 2:  # one frame says nothing about the vibrations
+        nan2 = (math.nan, math.nan)
+        return VibrationDiagnostics(name=name, shifts=shifts, std=nan2, contrast_factor=nan2,
+                                    phase_offset_std=nan2, estimator=estimator)
+    cov = np.cov(shifts.T, ddof=1)
+    std = tuple(float(math.sqrt(max(cov[i, i], 0.0))) for i in range(2))
+    contrast, offset = [], []
+    for k in (np.array(lattice.k1), np.array(lattice.k2)):
+        f = float(np.hypot(*k))
+        var = float(k @ cov @ k) / f**2  # variance of the shifts along k
+        contrast.append(theory.contrast_factor(f, var))
+        try:
+            offset.append(theory.phase_offset_std(f, var, T, method=method))
+        except ValueError:  # eq. (31) breaks down beyond ~1 px of vibration
+            offset.append(math.nan)
+    return VibrationDiagnostics(name=name, shifts=shifts, std=std,
+                                contrast_factor=tuple(contrast),
+                                phase_offset_std=tuple(offset), estimator=estimator)
+
+
+# --------------------------------------------------------------------------- statistics
+
+
+@dataclass(frozen=True)
+class _Stats:
+    mean: np.ndarray
+    variance: np.ndarray | None  # per-pixel noise variance of one frame, grey levels^2
+    variance_method: str
+    saturation: float
+
+
+def _statistics(series, shifts: np.ndarray, mask: np.ndarray | None,
+                max_saturation: float, report: Progress) -> _Stats:
+    """Mean, vibration-corrected temporal variance and saturation, in one pass."""
+    T = series.n_frames
+    c = shifts - shifts.mean(axis=0)  # centred regressors (T, 2)
+    S_aa = c.T @ c
+    # rank of the shift regressors: 0 without vibration, 2 normally
+    rank = int(np.linalg.matrix_rank(S_aa, tol=1e-12 * max(float(np.trace(S_aa)), 1e-300)))
+    regress = T - 1 - 2 >= 1 and rank == 2
+    first = None
+    s1 = s2 = sva = None
+    worst = 0.0
+    check = isinstance(series, FrameSeries)
+    for t, frame in enumerate(series.frames(dtype=np.float64)):
+        if check:
+            worst = max(worst, check_saturation_limit(frame, series, mask=mask,
+                                                      max_fraction=max_saturation,
+                                                      index=t))
+        if first is None:
+            # accumulate differences to the first frame: the sums of squares then
+            # hold noise-sized numbers, not grey levels squared
+            first = frame
+            s1 = np.zeros_like(frame)
+            s2 = np.zeros_like(frame)
+            sva = np.zeros((2, *frame.shape)) if regress else None
+        d = frame - first
+        s1 += d
+        s2 += d * d
+        if regress:
+            sva += c[t][:, None, None] * d
+        report((t + 1) / T, f"statistics {t + 1}/{T}")
+    mean = first + s1 / T
+    if T < 2:
+        return _Stats(mean, None, "unavailable (a single frame)", worst)
+    svv = s2 - s1 * s1 / T
+    if regress:
+        P = np.linalg.inv(S_aa)
+        svv = svv - np.einsum("ihw,ij,jhw->hw", sva, P, sva)
+        dof = T - 3
+        how = f"temporal variance, shifts regressed out ({dof} dof)"
+    else:
+        dof = T - 1
+        how = f"temporal variance, vibrations not removed ({dof} dof)"
+    return _Stats(mean, np.maximum(svv, 0.0) / dof, how, worst)
+
+
+# --------------------------------------------------------------------------- phase maps
+
+
+def _no_grid(pm: PhaseMaps, mask: np.ndarray) -> np.ndarray:
+    """Pixels of ``mask`` whose modulus shows no grid."""
+    mod = pm.modulus
+    ref = pm.valid if pm.valid.any() else mask
+    out = np.zeros(mask.shape, dtype=bool)
+    for j in range(2):
+        out |= mod[j] < _NO_GRID_MODULUS * float(np.median(mod[j][ref]))
+    return out & mask
+
+
+def _finite(pm: PhaseMaps) -> PhaseMaps:
+    """``pm`` with its undefined derivatives (where ``psi = 0``) set to 0, invalid.
+
+    Far inside a large masked region the transform is exactly 0 and its phase
+    derivatives NaN; the deformed maps are interpolated by splines, whose
+    prefilter would spread a single NaN over whole rows and columns.
+    """
+    ok = np.isfinite(pm.dphi)
+    if ok.all():
+        return pm
+    return PhaseMaps(psi=pm.psi, dphi=np.where(ok, pm.dphi, 0).astype(pm.dphi.dtype),
+                     valid=pm.valid & ok.all(axis=(0, 1)), lattice=pm.lattice,
+                     sigma=pm.sigma)
+
+
+def _check_given_lattice(image: np.ndarray, lattice: Lattice, sigma: float,
+                         mask: np.ndarray, margin: float) -> None:
+    """Refuse a given lattice that the reference image does not show.
+
+    The lattice is detected anyway and each given wave vector must lie within the
+    window's bandwidth of a detected one, ``2 pi sigma |dk| <= 1`` (the window's
+    transfer, hence the modulus, would otherwise drop below exp(-1/2)); a
+    neighbouring pattern's side lobe would otherwise pass for the grid. When the
+    detection itself fails (a pattern it does not handle), the modulus at the
+    given wave vectors must stand above that 45 degrees away.
+    """
+    try:
+        found = detect_lattice(image, mask=mask)
+    except ValueError:
+        pm, used = _phase_maps_a(image, lattice, sigma, mask, margin)
+        _check_grid(pm, image, used, margin)
+        return
+    for j, k in enumerate((lattice.k1, lattice.k2)):
+        kv = np.array(k)
+        dk = min(float(np.hypot(*(kv - s * np.array(f)))) for f in (found.k1, found.k2)
+                 for s in (1, -1))
+        if 2 * math.pi * sigma * dk > 1:
+            p1, p2 = found.pitches
+            a1, a2 = found.angles
+            raise ValueError(f"reference: the given lattice is not the grid's: k{j + 1} = "
+                             f"({k[0]:.4g}, {k[1]:.4g}) cycles/px is not among the wave "
+                             f"vectors detected in the image (pitches {p1:.4g}/{p2:.4g} "
+                             f"px, angles {a1:.3g}/{a2:.3g} deg); check --pitch/--angle or "
+                             "--k1/--k2, or let the lattice be detected")
+
+
+def _check_grid(pm: PhaseMaps, image: np.ndarray, mask: np.ndarray, margin: float) -> None:
+    """Refuse a lattice at which the image shows no more than noise."""
+    c, s = math.cos(math.pi / 4), math.sin(math.pi / 4)
+    turned = Lattice(*((k[0] * c - k[1] * s, k[0] * s + k[1] * c)
+                       for k in (pm.lattice.k1, pm.lattice.k2)))
+    control = wft(image, turned, sigma=pm.sigma, mask=mask, margin=margin)
+    sel = pm.valid if pm.valid.any() else mask
+    for j in range(2):
+        grid = float(np.median(pm.modulus[j][sel]))
+        other = float(np.median(control.modulus[j][sel]))
+        ratio = grid / other if other > 0 else math.inf
+        if ratio < _MIN_GRID_CONTRAST:
+            raise ValueError(f"reference: no grid at the given lattice: the modulus at k{j + 1} "
+                             f"is only {ratio:.3g} times that 45 degrees away (a grid gives "
+                             "tens to hundreds); check --pitch/--angle or --k1/--k2, or let "
+                             "the lattice be detected")
+
+
+def _phase_maps_a(image, lattice, sigma, mask, margin):
+    """WFT of an averaged image, masking regions without a grid (method A)."""
+    m = np.ones(image.shape, dtype=bool) if mask is None else mask
+    pm = wft(image, lattice, sigma=sigma, mask=m, margin=margin)
+    nogrid = _no_grid(pm, m)
+    if nogrid.any():
+        m = m & ~nogrid
+        if not m.any():
+            raise ValueError("no pixel shows a grid at the lattice's wave vectors")
+        pm = wft(image, lattice, sigma=sigma, mask=m, margin=margin)
+    return _finite(pm), m
+
+
+def _method_b_private(frames, lattice, sigma, mask, margin, report, n):
+    """Method B (§2.3): circular mean of the phases, mean of the derivatives."""
+    unit = dphi = valid = None
+    modulus = None
+    for t, frame in enumerate(frames, start=1):
+        pm = _finite(wft(frame, lattice, sigma=sigma, mask=mask, margin=margin))
+        mod = np.abs(pm.psi)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            u = np.where(mod > 0, pm.psi / mod, 0)
+        if unit is None:
+            unit, dphi, valid, modulus = u.astype(np.complex128), pm.dphi.astype(
+                np.float64), pm.valid.copy(), mod.astype(np.float64)
+        else:
+            unit += u
+            dphi += pm.dphi
+            valid &= pm.valid
+            modulus += mod
+        report(t / n, f"method B: transform {t}/{n}")
+    # eq. (32) on the circle: the phase of the mean unit phasor; eq. (33) for the
+    # derivatives, which need no unwrapping
+    r = np.abs(unit)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        phasor = np.where(r > 0, unit / r, 0)
+    psi = phasor * (modulus / n)
+    return PhaseMaps(psi=psi, dphi=dphi / n, valid=valid, lattice=lattice,
+                     sigma=float(sigma))
+
+
+def _phase_maps_b(series, lattice, sigma, mask, margin, report):
+    n = series.n_frames
+    frames = series.frames(dtype=np.float64)
+    ext = _external_method_b
+    if ext is not None:
+        params = inspect.signature(ext).parameters
+        if "margin" in params or margin == DEFAULT_MARGIN:
+            kw = {"sigma": sigma, "mask": mask}
+            if "margin" in params:
+                kw["margin"] = margin
+            return _finite(ext(_counting(frames, n, report, "method B: transform"),
+                               lattice, **kw).maps)
+    return _method_b_private(frames, lattice, sigma, mask, margin, report, n)
+
+
+# --------------------------------------------------------------------------- kinematics
+
+
+def _coarse_guess(ref: np.ndarray, cur: np.ndarray, lattice: Lattice, mask: np.ndarray):
+    """Fringe-order guess from the non-periodic content of the mean images.
+
+    The specimen mask often hides the best features (a hole, the specimen's
+    edges), and the masked images may then correlate falsely (a featureless
+    masked pair was seen to give r = 0.74 at half the image width), so the whole
+    images are tried too and the better-correlated estimate wins.
+    """
+    tries = [(mask, "masked images")]
+    if not mask.all():
+        tries.append((None, "whole images"))
+    best = None
+    for m, label in tries:
+        shift, corr = coarse_displacement(ref, cur, lattice, mask=m)
+        if corr >= _MIN_COARSE_CORRELATION and (best is None or corr > best[1]):
+            best = (shift, corr, label)
+    if best is None:
+        return None, "zero (nothing but the grid to cross-correlate)"
+    shift, corr, label = best
+    return shift, f"cross-correlation of the {label} (r = {corr:.2f})"
+
+
+# --------------------------------------------------------------------------- noise
+
+
+def _median_modulus(pm: PhaseMaps, valid: np.ndarray) -> np.ndarray:
+    mod = pm.modulus
+    sel = valid if valid.any() else pm.valid
+    if not sel.any():
+        return np.full(2, np.nan)
+    return np.array([float(np.median(mod[j][sel])) for j in range(2)])
+
+
+def _theory_floor(var_ref, T_ref, mod_ref, var_s, T_s, mod_s, sigma, lattice):
+    """(2,) px and (3,) strain from the WFT noise theory; NaN when unavailable."""
+    if not (math.isfinite(var_ref) or math.isfinite(var_s)):
+        return np.full(2, np.nan), np.full(3, np.nan)
+    # a single-frame series is taken as noisy per frame as the other one
+    var_ref = var_ref if math.isfinite(var_ref) else var_s
+    var_s = var_s if math.isfinite(var_s) else var_ref
+    if not (np.all(np.isfinite(mod_ref)) and np.all(np.isfinite(mod_s))):
+        return np.full(2, np.nan), np.full(3, np.nan)
+    ph_r, d_r, ph_s, d_s = [], [], [], []
+    for j in range(2):
+        p, d = theory.wft_noise_std(var_ref / T_ref, float(mod_ref[j]), sigma)  # Prop. 2.3
+        ph_r.append(p)
+        d_r.append(d)
+        p, d = theory.wft_noise_std(var_s / T_s, float(mod_s[j]), sigma)
+        ph_s.append(p)
+        d_s.append(d)
+    su = theory.displacement_noise_std(ph_r, ph_s, lattice)  # eq. (34)
+    se = theory.strain_noise_std(d_r, d_s, lattice)  # eq. (35)
+    return su, se
+
+
+def _split_floor(ref_series, lattice, sigma, mask, margin, report):
+    """Spatial std of a half-against-half measurement of the reference."""
+    T = ref_series.n_frames
+    T1 = T // 2
+    halves = []
+    for k, (start, stop) in enumerate(((0, T1), (T1, T))):
+        img = ref_series.mean(start=start, stop=stop)
+        halves.append(wft(img, lattice, sigma=sigma, mask=mask, margin=margin))
+        report((k + 1) / 3, f"half {k + 1} of the reference")
+    m = deformation(_finite(halves[0]), _finite(halves[1]), lagrangian=False, guess=None)
+    report(1.0, "half against half")
+    v = m.valid
+    if int(v.sum()) < 2:
+        return np.full(2, np.nan), np.full(3, np.nan), (T1, T - T1)
+    su = np.array([float(np.std(c[v], ddof=1)) for c in m.u])
+    se = np.array([float(np.std(c[v], ddof=1)) for c in m.strain])
+    return su, se, (T1, T - T1)
+
+
+# --------------------------------------------------------------------------- pipeline
+
+
+def measure_series(reference, states, *, lattice: Lattice | None = None,
+                   sigma: float | None = None, method: str = "A", mask=None,
+                   lagrangian: bool = True, guess="auto", margin: float = DEFAULT_MARGIN,
+                   bit_depth: int | None = None, max_saturation: float = _MAX_SATURATION,
+                   progress: Progress | None = None) -> SeriesResult:
+    """Displacement and strain maps of loaded states from series of grid images.
+
+    Parameters
+    ----------
+    reference : FrameSeries, path, glob, list of files, or array
+        The reference series: a :class:`gridstrain.io.FrameSeries`, anything
+        :func:`gridstrain.io.open_series` opens, one ``(H, W)`` frame or a
+        ``(T, H, W)`` stack of grey levels.
+    states : series or sequence of series
+        The loaded states, each like ``reference`` (a list of file names is read
+        as a list of states; wrap it, ``[files]``, to make one series of it).
+    lattice : Lattice, optional
+        The grid's wave vectors; detected on the mean reference image by default.
+    sigma : float, optional
+        Window standard deviation, px (default: the pitch; at least the pitch).
+    method : {"A", "B"}
+        "A" (paper §2.2): one windowed Fourier transform of each averaged series.
+        "B" (§2.3): one transform per frame, phases and derivatives averaged.
+    mask : (H, W) bool array_like or path, optional
+        True (nonzero, for an image file) on the specimen, in the reference
+        configuration. Regions without a grid are masked automatically on top.
+    lagrangian : bool
+        Large-displacement correction (:func:`gridstrain.kinematics.deformation`).
+    guess : "auto", None or (2,) array_like
+        Initial displacement fixing the fringe order of every state, px. "auto":
+        cross-correlation of the mean images; None: zero.
+    margin : float
+        Invalid band along borders and mask edges, in units of ``sigma``.
+    bit_depth : int, optional
+        Passed to :func:`gridstrain.io.open_series` for paths.
+    max_saturation : float
+        Largest fraction of saturated pixels accepted in any frame of a file
+        series (within the mask), in [0, 1].
+    progress : callable, optional
+        ``progress(fraction, message)``.
+
+    Returns
+    -------
+    SeriesResult
+
+    Raises
+    ------
+    ValueError, TypeError, OSError
+        Bad arguments or input files (the message names the series, the frame
+        and the file).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from gridstrain import Lattice, synthetic
+    >>> lat = Lattice.from_pitch(5.0)
+    >>> ref = synthetic.grid_image((96, 96), lat)
+    >>> cur = synthetic.grid_image((96, 96), lat,
+    ...                            displacement=lambda X, Y: (1e-3 * X, 0 * Y))
+    >>> res = measure_series(ref, cur, lattice=lat, guess=None)
+    >>> round(float(np.nanmean(res.strain[0, 0])), 6)
+    0.001
+    """
+    progress = null_progress if progress is None else progress
+    if not callable(progress):
+        raise TypeError(f"progress must be callable or None, got {progress!r}")
+    check_choice(method, "method", ("A", "B"))
+    margin = check_positive(margin, "margin")
+    sigma = check_positive(sigma, "sigma", allow_none=True)
+    guess = _check_guess(guess)
+    if isinstance(max_saturation, bool) or not isinstance(max_saturation, numbers.Real) \
+            or not 0 <= max_saturation <= 1:
+        raise ValueError(f"max_saturation must be a fraction in [0, 1], got "
+                         f"{max_saturation!r}")
+    if lattice is not None and not isinstance(lattice, Lattice):
+        raise TypeError(f"lattice must be a Lattice or None, got {type(lattice).__name__}")
+    if sigma is not None and lattice is not None and sigma < lattice.pitch * (1 - 1e-9):
+        raise ValueError(f"sigma must be at least the pitch ({lattice.pitch:.4g} px) so "
+                         f"that the window holds one period, got {sigma:.4g}")
+
+    ref = _as_series(reference, "reference", bit_depth)
+    series = [ref] + [_as_series(s, f"state {i}", bit_depth)
+                      for i, s in enumerate(_as_states(states))]
+    for s in series[1:]:
+        if s.shape != ref.shape:
+            raise ValueError(f"{s.name}: frames are {s.shape} (H, W) but the reference "
+                             f"frames are {ref.shape}")
+    if isinstance(mask, str | os.PathLike):
+        m = read_mask(mask, ref.shape)
+    else:
+        m = check_mask(mask, ref.shape)
+
+    # the plan: frame passes cost 1 per frame, a transform ~4 frames' worth
+    wft_cost = 4.0
+    n_states = len(series) - 1
+    detect = lattice is None
+    total = ref.n_frames + 1.0
+    for s in series:
+        total += 2 * s.n_frames + (s.n_frames * wft_cost if method == "B" else 0) \
+            + 2 * wft_cost
+    total += n_states * (3 * wft_cost if lagrangian else wft_cost)
+    total += ref.n_frames + 2 * wft_cost + wft_cost
+    steps = _Steps(progress, total)
+    warnings: list[str] = []
+
+    # the lattice, detected on the mean reference image or checked against it
+    mean_ref = ref.mean(progress=steps.sub(ref.n_frames, ""))
+    if detect:
+        try:
+            lattice = detect_lattice(mean_ref, mask=m)
+        except ValueError as exc:
+            raise ValueError(f"reference: {exc}") from None
+    sigma = lattice.pitch if sigma is None else sigma
+    if sigma < lattice.pitch * (1 - 1e-9):
+        raise ValueError(f"sigma must be at least the pitch ({lattice.pitch:.4g} px) so "
+                         f"that the window holds one period, got {sigma:.4g}")
+    if not detect:
+        _check_given_lattice(mean_ref, lattice, sigma, m, margin)
+    steps.step(1.0, "lattice")
+
+    vib, stats, maps, masks = [], [], [], []
+    for s in series:
+        n = s.n_frames
+        shifts, how = _frame_shifts(
+            _counting(s.frames(dtype=np.float64), n, steps.sub(n, s.name), "shifts"),
+            lattice, s.name)
+        vib.append(_diagnose(s.name, shifts, how, lattice, method))
+        st = _statistics(s, shifts, m, max_saturation, steps.sub(n, s.name))
+        stats.append(st)
+        base = m if s is ref else None
+        pm, used = _phase_maps_a(st.mean, lattice, sigma, base, margin)
+        steps.step(2 * wft_cost, f"{s.name}: phase maps")
+        if method == "B":
+            pm = _phase_maps_b(s, lattice, sigma, used, margin,
+                               steps.sub(n * wft_cost, s.name))
+        maps.append(pm)
+        masks.append(used)
+
+    mean_ref = stats[0].mean
+    measurements, guesses, sources = [], [], []
+    for i in range(1, len(series)):
+        if guess == "auto":
+            g, how = _coarse_guess(mean_ref, stats[i].mean, lattice, masks[0])
+        elif guess is None:
+            g, how = None, "zero (given)"
+        else:
+            g, how = guess, "given"
+        res = deformation(maps[0], maps[i], lagrangian=lagrangian, guess=g)
+        measurements.append(res)
+        guesses.append((0.0, 0.0) if g is None else (float(g[0]), float(g[1])))
+        sources.append(how)
+        steps.step(3 * wft_cost if lagrangian else wft_cost, f"{series[i].name}: kinematics")
+
+    # noise floor
+    var = [float(np.mean(st.variance[pm.valid])) if st.variance is not None and pm.valid.any()
+           else math.nan for st, pm in zip(stats, maps, strict=True)]
+    mods = np.array([_median_modulus(pm, pm.valid) for pm in maps])
+    T = [s.n_frames for s in series]
+    th_u = np.full((n_states, 2), np.nan)
+    th_e = np.full((n_states, 3), np.nan)
+    sp_u = np.full((n_states, 2), np.nan)
+    sp_e = np.full((n_states, 3), np.nan)
+    vib_u = np.full((n_states, 2), np.nan)
+    if ref.n_frames >= 2:
+        su, se, (T1, T2) = _split_floor(ref, lattice, sigma, masks[0], margin,
+                                        steps.sub(ref.n_frames + 3 * wft_cost,
+                                                  "noise floor"))
+    else:
+        su, se, (T1, T2) = np.full(2, np.nan), np.full(3, np.nan), (1, 1)
+        warnings.append("a single reference frame: no split-halves noise estimate (measure "
+                        "a second image of the unloaded specimen as a state: its maps are "
+                        "the noise floor)")
+    for i in range(n_states):
+        th_u[i], th_e[i] = _theory_floor(var[0], T[0], mods[0], var[i + 1], T[i + 1],
+                                         mods[i + 1], sigma, lattice)
+        scale = math.sqrt((1 / T[0] + 1 / T[i + 1]) / (1 / T1 + 1 / T2))
+        sp_u[i], sp_e[i] = su * scale, se * scale
+        offs = [np.array(v.phase_offset_std) for v in (vib[0], vib[i + 1])]
+        if all(np.all(np.isfinite(o)) for o in offs):
+            # the offsets are phases: eq. (34) turns them into a rigid translation
+            vib_u[i] = theory.displacement_noise_std(offs[0], offs[1], lattice)
+    noise = NoiseFloor(sigma=float(sigma), resolution=FWHM_PER_SIGMA * float(sigma),
+                       sensor_variance=tuple(var),
+                       variance_method=tuple(st.variance_method for st in stats),
+                       modulus=mods, theory_u=th_u, theory_strain=th_e, split_u=sp_u,
+                       split_strain=sp_e, vibration_u=vib_u)
+    for st, s in zip(stats, series, strict=True):
+        if st.saturation > 0:
+            warnings.append(f"{s.name}: up to {st.saturation:.2%} of a frame's pixels are "
+                            "saturated")
+    progress(1.0, "done")
+
+    parameters = {"sigma": float(sigma), "method": method, "lagrangian": bool(lagrangian),
+                  "guess": guess, "margin": float(margin), "max_saturation":
+                  float(max_saturation), "bit_depth": bit_depth,
+                  "lattice": None if detect else {"k1": list(lattice.k1),
+                                                  "k2": list(lattice.k2)}}
+    u = np.stack([r.u for r in measurements])
+    strain = np.stack([r.strain for r in measurements])
+    valid = np.stack([r.valid for r in measurements])
+    return SeriesResult(
+        u=u, strain=strain, valid=valid, lattice=lattice, lattice_detected=detect,
+        sigma=float(sigma), method=method, lagrangian=bool(lagrangian),
+        margin=float(margin), mask=masks[0].copy(), reference_image=np.array(mean_ref),
+        names=tuple(s.name for s in series),
+        sources=tuple(tuple(str(p) for p in s.paths) for s in series),
+        n_frames=tuple(T), bit_depth=tuple(s.bit_depth for s in series),
+        scale=tuple(int(s.scale) for s in series),
+        saturation=tuple(st.saturation for st in stats),
+        measurements=tuple(measurements), guesses=tuple(guesses),
+        guess_sources=tuple(sources), vibration=tuple(vib), noise=noise,
+        parameters=parameters, warnings=tuple(warnings))
+
+
+# --------------------------------------------------------------------------- saving
+
+
+def _check_pixel_size(pixel_size, unit):
+    if pixel_size is None:
+        if unit is not None:
+            raise ValueError(f"unit needs a pixel_size, got unit={unit!r} without one")
+        return None, None
+    ps = check_positive(pixel_size, "pixel_size")
+    if not isinstance(unit, str) or not unit.strip() or len(unit) > 32 \
+            or not unit.isprintable():
+        raise ValueError(f"unit must be a short name such as 'mm' when pixel_size is "
+                         f"given, got {unit!r}")
+    return ps, unit.strip()
+
+
+def _finite_list(values) -> list:
+    """Floats, NaN as None (stored as JSON null, readable everywhere)."""
+    return [float(x) if math.isfinite(x) else None for x in values]
+
+
+def _timestamp() -> str:
+    return datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds")
+
+
+def save_result(result: SeriesResult, path, *, pixel_size: float | None = None,
+                unit: str | None = None, overwrite: bool = False,
+                attrs: Mapping | None = None) -> Path:
+    """Write a :class:`SeriesResult` to one HDF5 file, atomically.
+
+    Parameters
+    ----------
+    result : SeriesResult
+    path : str or os.PathLike
+        Destination (``.h5``).
+    pixel_size : float, optional
+        Size of a pixel on the specimen, in ``unit``: adds ``ux_phys`` and
+        ``uy_phys``.
+    unit : str, optional
+        Length unit of ``pixel_size`` (``"mm"``...); required with it.
+    overwrite : bool
+        Replace an existing file.
+    attrs : dict, optional
+        Extra root attributes (the command line, the mask file...).
+
+    Returns
+    -------
+    pathlib.Path
+
+    Notes
+    -----
+    Layout (every map ``(n_states, H, W)``, states in the order given):
+
+    - ``ux``, ``uy`` (px), ``exx``, ``eyy``, ``exy`` (``"1"``, dimensionless,
+      tensor shear), ``valid`` (bool); ``ux_phys``, ``uy_phys`` in ``unit``;
+      per-pixel uncertainty maps (``ux_std``...) when the result has them;
+    - ``reference_image`` (H, W), the mean reference frame (raw grey levels),
+      and ``mask`` (H, W), the specimen mask used;
+    - ``vibration/<series>/shifts`` (T, 2), px, one group per series
+      (``reference``, ``state_0``...), attributes ``std``, ``contrast_factor``,
+      ``phase_offset_std`` (rad), ``n_frames``, ``estimator``;
+    - group ``noise``: the :class:`NoiseFloor` as attributes;
+    - root attributes: every parameter, the lattice (``k1``, ``k2`` in cycles/px,
+      ``pitches`` px, ``angles`` deg), the input files, ``n_frames`` per series,
+      bit depth and scale, ``gridstrain_version``, ``created`` (UTC, ISO 8601).
+    """
+    if not isinstance(result, SeriesResult):
+        raise TypeError(f"result must be a SeriesResult, got {type(result).__name__}")
+    ps, unit = _check_pixel_size(pixel_size, unit)
+    datasets, units = {}, {}
+    for name, u in MAP_FIELDS.items():
+        datasets[name] = result.get_map(name)
+        units[name] = u
+    datasets["valid"] = result.valid
+    if ps is not None:
+        for name in ("ux", "uy"):
+            datasets[f"{name}_phys"] = result.get_map(name) * ps
+            units[f"{name}_phys"] = unit
+    for name, arr in (result.uncertainty or {}).items():
+        datasets[name] = np.asarray(arr)
+        base = name.removesuffix("_std")
+        if base in MAP_FIELDS:  # "ux_std" is in px like "ux"
+            units[name] = MAP_FIELDS[base]
+    datasets["reference_image"] = result.reference_image.astype(np.float32)
+    units["reference_image"] = "grey levels (raw)"
+    datasets["mask"] = result.mask
+    groups = {}
+    keys = _series_keys(result)
+    for key, v in zip(keys, result.vibration, strict=True):
+        datasets[f"vibration/{key}/shifts"] = v.shifts
+        units[f"vibration/{key}/shifts"] = "px"
+        groups[f"vibration/{key}"] = {
+            "name": v.name, "n_frames": v.n_frames, "std_px": _finite_list(v.std),
+            "contrast_factor": _finite_list(v.contrast_factor),
+            "phase_offset_std_rad": _finite_list(v.phase_offset_std),
+            "estimator": v.estimator,
+            "definition": "frame t is s(x + alpha_t, y + beta_t) (paper eq. 2); shifts "
+                          "centred on the series mean"}
+    groups["noise"] = result.noise.as_dict()
+    lat = result.lattice
+    root = {
+        "gridstrain_version": __version__,
+        "created": _timestamp(),
+        "conventions": "gridstrain.conventions: [row, col] = [y, x], Lagrangian "
+                       "displacement, small-strain tensor (exy = tensor shear)",
+        "states": list(result.names[1:]),
+        "series_keys": keys,
+        "n_frames": list(result.n_frames),
+        "n_frames_reference": result.n_frames[0],
+        "n_frames_states": list(result.n_frames[1:]),
+        "reference_files": list(result.sources[0]),
+        "state_files": [list(s) for s in result.sources[1:]],
+        "bit_depth": list(result.bit_depth),
+        "scale": list(result.scale),
+        "saturation": list(result.saturation),
+        "k1": list(lat.k1), "k2": list(lat.k2), "pitches": list(lat.pitches),
+        "angles": list(lat.angles), "lattice_detected": bool(result.lattice_detected),
+        "sigma": result.sigma, "method": result.method, "lagrangian": result.lagrangian,
+        "margin": result.margin, "parameters": dict(result.parameters),
+        "pixel_size": ps, "unit": unit,
+        "iterations": [int(m.iterations) for m in result.measurements],
+        "guess_used": [list(g) for g in result.guesses],
+        "guess_source": list(result.guess_sources),
+        "valid_fraction": [float(v.mean()) for v in result.valid],
+        "warnings": list(result.warnings),
+    }
+    for key, value in (attrs or {}).items():
+        root[key] = value
+    return write_hdf5(path, datasets, root, groups=groups, units=units, overwrite=overwrite)
+
+
+def _series_keys(result: SeriesResult) -> list[str]:
+    return ["reference"] + [f"state_{i}" for i in range(result.n_states)]
+
+
+def save_csv(result: SeriesResult, path, *, overwrite: bool = False) -> Path:
+    """Write one row per valid pixel: ``state, x, y, ux, uy, exx, eyy, exy``.
+
+    ``x`` is the column and ``y`` the row (:mod:`gridstrain.conventions`),
+    displacements in px, strains dimensionless; ``state`` indexes the loaded
+    states in the order given (0 first). Written atomically.
+    """
+    if not isinstance(result, SeriesResult):
+        raise TypeError(f"result must be a SeriesResult, got {type(result).__name__}")
+    st, yy, xx = np.nonzero(result.valid)
+    cols = {"state": st, "x": xx, "y": yy}
+    for name in MAP_FIELDS:
+        cols[name] = result.get_map(name)[st, yy, xx]
+    return write_csv(path, cols, overwrite=overwrite)

@@ -1,0 +1,282 @@
+"""Figures of displacement and strain maps and of vibrations, drawn off-screen.
+
+Figures are built on :class:`matplotlib.figure.Figure` with the Agg canvas, never
+through ``pyplot``: no window, no global state, no backend to configure, safe in
+scripts and on servers. Maps follow :mod:`gridstrain.conventions`: ``x`` is the
+column (to the right), ``y`` the row (downwards), as in the image, with no flip.
+
+Map style
+    A diverging colormap (``RdBu_r``) with limits symmetric about 0, so that
+    white is zero and the two signs read alike. Displacement maps are drawn with
+    their mean over the valid pixels removed (and stated on the colour bar): a
+    rigid translation would otherwise fill the map with one colour. The limit is
+    the 99.5th
+    percentile of ``|value|`` over the valid pixels, so that a few outliers do not
+    wash the map out. Invalid pixels are transparent over the grid image in grey.
+    Displacements are in px or, with a pixel size, in its unit; strains are
+    dimensionless.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+from matplotlib import colormaps
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.colors import Normalize
+from matplotlib.figure import Figure
+
+from .io import atomic_path
+from .pipeline import SeriesResult, _check_pixel_size
+
+__all__ = [
+    "figure_names",
+    "plot_map",
+    "plot_shifts",
+    "save_figure",
+    "save_figures",
+]
+
+# Percentile of |value| over the valid pixels used as the colour limit.
+_LIMIT_PERCENTILE = 99.5
+# Grey-level percentiles mapped to black and white in the background image.
+_GREY_PERCENTILES = (1.0, 99.0)
+_DPI = 100
+
+#: Symbol and kind of each map of :data:`gridstrain.pipeline.MAP_FIELDS`.
+_FIELDS = {
+    "ux": (r"$u_x$", "displacement"),
+    "uy": (r"$u_y$", "displacement"),
+    "exx": (r"$\varepsilon_{xx}$", "strain"),
+    "eyy": (r"$\varepsilon_{yy}$", "strain"),
+    "exy": (r"$\varepsilon_{xy}$", "strain"),
+}
+
+
+def _new_figure(width: float, height: float) -> Figure:
+    fig = Figure(figsize=(width, height), dpi=_DPI)
+    FigureCanvasAgg(fig)
+    return fig
+
+
+def _symmetric_limit(values: np.ndarray, valid: np.ndarray) -> float:
+    v = np.abs(values[valid & np.isfinite(values)])
+    if v.size == 0:
+        return 1.0
+    lim = float(np.percentile(v, _LIMIT_PERCENTILE))
+    if not math.isfinite(lim) or lim <= 0:
+        lim = float(v.max()) if v.max() > 0 else 1.0
+    return lim
+
+
+def plot_map(values, *, valid=None, background=None, label: str = "", unit: str = "",
+             title: str = "", pixel_size: float | None = None, length_unit: str = "px",
+             limit: float | None = None, offset: float = 0.0) -> Figure:
+    """A map with a diverging colormap centred on 0 over the grid image.
+
+    Parameters
+    ----------
+    values : (H, W) array_like
+        The field (NaN where undefined).
+    valid : (H, W) bool array_like, optional
+        Pixels to colour; the others are transparent. Default: finite values.
+    background : (H, W) array_like, optional
+        Grey image drawn under the map (the reference grid image).
+    label : str
+        Name of the quantity, for the colour bar (mathtext allowed).
+    unit : str
+        Unit of the values, for the colour bar (``"px"``, ``"mm"``, ``""`` for a
+        dimensionless quantity).
+    title : str
+        Figure title.
+    pixel_size : float, optional
+        Pixel size in ``length_unit``: the axes are then in that unit.
+    length_unit : str
+        Unit of the axes (``"px"`` without ``pixel_size``).
+    limit : float, optional
+        Colour limit: the colours span ``[-limit, limit]``. Default: the 99.5th
+        percentile of ``|values - offset|`` over the valid pixels.
+    offset : float
+        Subtracted from the values before drawing (stated on the colour bar).
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+    """
+    offset = float(offset)
+    if not math.isfinite(offset):
+        raise ValueError(f"offset must be finite, got {offset!r}")
+    v = np.asarray(values, dtype=np.float64) - offset
+    if v.ndim != 2:
+        raise ValueError(f"values must be a 2-D map (H, W), got shape {v.shape}")
+    ok = np.isfinite(v)
+    if valid is not None:
+        vm = np.asarray(valid, dtype=bool)
+        if vm.shape != v.shape:
+            raise ValueError(f"valid must have the shape of values {v.shape}, got "
+                             f"{vm.shape}")
+        ok &= vm
+    lim = _symmetric_limit(v, ok) if limit is None else float(limit)
+    if not math.isfinite(lim) or lim <= 0:
+        raise ValueError(f"limit must be a finite positive number, got {limit!r}")
+    H, W = v.shape
+    s = 1.0 if pixel_size is None else float(pixel_size)
+    axis_unit = "px" if pixel_size is None else length_unit
+    extent = (-0.5 * s, (W - 0.5) * s, (H - 0.5) * s, -0.5 * s)
+    aspect = H / W
+    fig = _new_figure(6.4, max(3.0, 5.2 * aspect + 1.0))
+    ax = fig.add_subplot()
+    if background is not None:
+        bg = np.asarray(background, dtype=np.float64)
+        if bg.shape != v.shape:
+            raise ValueError(f"background must have the shape of values {v.shape}, got "
+                             f"{bg.shape}")
+        lo, hi = np.percentile(bg[np.isfinite(bg)], _GREY_PERCENTILES)
+        ax.imshow(bg, cmap="gray", vmin=lo, vmax=hi if hi > lo else lo + 1, extent=extent,
+                  interpolation="nearest")
+    cmap = colormaps["RdBu_r"].with_extremes(bad=(0.0, 0.0, 0.0, 0.0))
+    data = np.ma.masked_array(v, mask=~ok)
+    im = ax.imshow(data, cmap=cmap, norm=Normalize(vmin=-lim, vmax=lim), extent=extent,
+                   interpolation="nearest")
+    ax.set_xlabel(f"x ({axis_unit})")
+    ax.set_ylabel(f"y ({axis_unit})")
+    if title:
+        ax.set_title(title, fontsize=10)
+    cbar = fig.colorbar(im, ax=ax, shrink=0.9)
+    text = f"{label} ({unit})" if unit else f"{label} (dimensionless)"
+    if offset != 0:
+        text += f", mean {offset:.4g}{' ' + unit if unit else ''} removed"
+    cbar.set_label(text)
+    cbar.formatter.set_powerlimits((-2, 3))
+    cbar.update_ticks()
+    return fig
+
+
+def plot_shifts(shifts, *, title: str = "") -> Figure:
+    """Per-frame rigid translations against the frame index (cf. paper Fig. 2).
+
+    Parameters
+    ----------
+    shifts : (T, 2) array_like
+        ``(alpha_t, beta_t)``, px.
+    title : str
+        Figure title.
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+        Two panels, ``alpha_t`` and ``beta_t``, with their ``+-1`` standard
+        deviation as dashed lines.
+    """
+    a = np.asarray(shifts, dtype=np.float64)
+    if a.ndim != 2 or a.shape[1] != 2 or a.shape[0] < 1:
+        raise ValueError(f"shifts must have shape (T, 2), got {a.shape}")
+    T = a.shape[0]
+    t = np.arange(T)
+    fig = _new_figure(6.4, 4.8)
+    axes = fig.subplots(2, 1, sharex=True)
+    for ax, col, name in zip(axes, a.T, (r"$\alpha_t$", r"$\beta_t$"), strict=True):
+        std = float(np.std(col, ddof=1)) if T > 1 else 0.0
+        ax.plot(t, col, marker="o", markersize=3, linewidth=1)
+        ax.axhline(0.0, color="0.5", linewidth=0.8)
+        for sgn in (-1, 1):
+            ax.axhline(sgn * std, color="0.3", linestyle="--", linewidth=0.8)
+        ax.set_ylabel(f"{name} (px)")
+        ax.set_title(f"{name}: std {std:.3g} px", fontsize=9, loc="left")
+    axes[-1].set_xlabel("frame index t")
+    if title:
+        fig.suptitle(title, fontsize=10)
+    fig.tight_layout()
+    return fig
+
+
+def save_figure(fig: Figure, path, *, overwrite: bool = False) -> Path:
+    """Write ``fig`` as a PNG, atomically (see :func:`gridstrain.io.atomic_path`)."""
+    dest = Path(os.fspath(path))
+    with atomic_path(dest, overwrite=overwrite) as tmp:
+        fig.savefig(tmp, format="png", dpi=_DPI)
+    return dest
+
+
+def figure_names(n_states: int) -> list[str]:
+    """File names :func:`save_figures` writes for ``n_states`` loaded states."""
+    names = [f"{f}_state{i}.png" for i in range(n_states) for f in _FIELDS]
+    names.append("vibration_reference.png")
+    names += [f"vibration_state{i}.png" for i in range(n_states)]
+    return names
+
+
+def save_figures(result, directory, *, pixel_size: float | None = None,
+                 unit: str | None = None, overwrite: bool = False,
+                 progress: Callable[[float, str], None] | None = None) -> tuple[Path, ...]:
+    """Write every figure of a :class:`gridstrain.pipeline.SeriesResult`.
+
+    Parameters
+    ----------
+    result : SeriesResult
+    directory : str or os.PathLike
+        Created if missing (its parent must exist).
+    pixel_size : float, optional
+        Pixel size in ``unit``: displacements and axes in that unit.
+    unit : str, optional
+        Length unit, required with ``pixel_size``.
+    overwrite : bool
+        Replace existing figures of the same names.
+    progress : callable, optional
+        ``progress(fraction, message)``.
+
+    Returns
+    -------
+    tuple of pathlib.Path
+        One PNG per map and state (``exx_state0.png``...) and one per series for
+        the vibrations (``vibration_reference.png``, ``vibration_state0.png``...),
+        in the order of :func:`figure_names`.
+    """
+    if not isinstance(result, SeriesResult):
+        raise TypeError(f"result must be a SeriesResult, got {type(result).__name__}")
+    ps, unit = _check_pixel_size(pixel_size, unit)
+    folder = Path(os.fspath(directory))
+    names = figure_names(result.n_states)
+    if folder.exists() and not folder.is_dir():
+        raise NotADirectoryError(f"figures directory {folder} is a file")
+    if not overwrite:
+        taken = [n for n in names if (folder / n).exists()]
+        if taken:
+            raise FileExistsError(f"figure {folder / taken[0]} already exists (pass "
+                                  "overwrite=True to replace it)")
+    if not folder.is_dir():
+        if not folder.parent.is_dir():
+            raise FileNotFoundError(f"cannot create figures directory {folder}: its parent "
+                                    f"{folder.parent} does not exist")
+        folder.mkdir()
+    report = progress or (lambda f, m: None)
+    total = len(names)
+    written = []
+    T = result.n_frames
+    for i in range(result.n_states):
+        valid = result.valid[i]
+        for name, (symbol, kind) in _FIELDS.items():
+            values = result.get_map(name)[i]
+            u, offset = "", 0.0
+            if kind == "displacement":
+                values, u = (values * ps, unit) if ps is not None else (values, "px")
+                if valid.any():
+                    offset = float(np.mean(values[valid]))
+            title = (f"{symbol}, {result.names[i + 1]}: method {result.method}, "
+                     f"$\\sigma$ = {result.sigma:.3g} px, T = {T[0]}/{T[i + 1]}")
+            fig = plot_map(values, valid=valid, background=result.reference_image,
+                           label=symbol, unit=u, title=title, pixel_size=ps,
+                           length_unit=unit or "px", offset=offset)
+            written.append(save_figure(fig, folder / f"{name}_state{i}.png",
+                                       overwrite=overwrite))
+            report(len(written) / total, f"figure {len(written)}/{total}")
+    for v, fname in zip(result.vibration, names[5 * result.n_states:], strict=True):
+        fig = plot_shifts(v.shifts, title=f"vibrations of the {v.name} series "
+                                          f"({v.n_frames} frames)")
+        written.append(save_figure(fig, folder / fname, overwrite=overwrite))
+        report(len(written) / total, f"figure {len(written)}/{total}")
+    return tuple(written)

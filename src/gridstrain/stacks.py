@@ -1,0 +1,411 @@
+"""Stacks of grid images: averaging before (method A) or after (method B) the WFT.
+
+A stack is ``T`` images of the same, static specimen, each translated by an unknown
+vibration (the founding paper's eq. 2). The paper proves (§2.2) that the windowed
+Fourier transform of the *averaged* image (method A) gives phase derivatives whose
+noise falls as ``1/sqrt(T)`` whatever the vibrations, and phases offset by a
+spatially constant ``delta`` (eqs. 26-30); averaging the phases and derivatives of
+every image instead (method B, §2.3) gives the same precision at ``T`` times the
+cost. Frames are consumed one at a time: a stack is never held in memory. The
+conventions are those of :mod:`gridstrain.conventions`.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+import numbers
+from collections.abc import Iterable, Iterator
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from ._progress import Progress, null_progress
+from ._validation import as_image, check_choice
+from .lattice import Lattice
+from .wft import PhaseMaps, wft
+
+__all__ = [
+    "StackResult",
+    "correct_phases",
+    "mean_image",
+    "method_a",
+    "method_b",
+    "prefix_stacks",
+]
+
+
+@dataclass(frozen=True, eq=False)
+class StackResult:
+    """Phases and phase derivatives of a stack of ``n_frames`` grid images.
+
+    Attributes
+    ----------
+    maps : PhaseMaps
+        Method A: the transform of the averaged image. Method B: ``psi`` is the
+        mean modulus times the unit circular mean of the frames' ``psi``, ``dphi``
+        the arithmetic mean of their derivatives (rad/px), ``valid`` the AND of
+        their ``valid`` maps. Either way it feeds the kinematics unchanged.
+    n_frames : int
+        Number of images averaged, ``T``.
+    method : {"A", "B"}
+        How they were averaged.
+    mean_image : (H, W) float64 ndarray or None
+        The averaged image, grey levels (method A only).
+    resultant : (2, H, W) float64 ndarray or None
+        Method B only: length of the mean unit phasor ``|mean_t psi_t / |psi_t||``
+        for each wave vector, in [0, 1]. ``1 - resultant`` is about half the
+        variance of the frames' phases (rad^2), a measure of how much they scatter.
+    """
+
+    maps: PhaseMaps
+    n_frames: int
+    method: str
+    mean_image: np.ndarray | None = None
+    resultant: np.ndarray | None = None
+
+    def __post_init__(self):
+        for name in ("mean_image", "resultant"):
+            arr = getattr(self, name)
+            if arr is not None:
+                arr.flags.writeable = False
+
+    def __repr__(self) -> str:
+        H, W = self.maps.shape
+        return (f"StackResult(method {self.method}, {self.n_frames} frames of {H}x{W}, "
+                f"sigma={self.maps.sigma:.4g} px, {self.maps.valid.mean():.1%} valid)")
+
+
+def _frames(frames) -> Iterator[tuple[int, np.ndarray, int | None]]:
+    """Validate frames lazily: yields ``(index, frame, total or None)``."""
+    if isinstance(frames, np.ndarray):
+        if frames.ndim != 3:
+            raise ValueError(f"frames must be a (T, H, W) array or an iterable of (H, W) "
+                             f"images, got an array of shape {frames.shape}")
+    elif not isinstance(frames, Iterable):
+        raise TypeError(f"frames must be an iterable of 2-D images, got "
+                        f"{type(frames).__name__}")
+    try:
+        total = len(frames)  # type: ignore[arg-type]
+    except TypeError:
+        total = None
+    shape = None
+    for i, frame in enumerate(frames):
+        img = as_image(frame, f"frames[{i}]", allow_uniform=True)
+        if shape is None:
+            shape = img.shape
+        elif img.shape != shape:
+            raise ValueError(f"frames[{i}] must have the shape of frames[0], {shape}, got "
+                             f"{img.shape}")
+        yield i, img, total
+
+
+def _report(progress: Progress, i: int, total: int | None, what: str) -> None:
+    if total:
+        progress((i + 1) / total, f"{what}: frame {i + 1}/{total}")
+    else:
+        progress(0.0, f"{what}: frame {i + 1}")
+
+
+def _check_counts(counts) -> list[int]:
+    try:
+        items = list(counts)
+    except TypeError:
+        raise TypeError(f"counts must be an iterable of positive integers, got "
+                        f"{counts!r}") from None
+    if any(isinstance(c, bool) or not isinstance(c, numbers.Integral) for c in items):
+        raise TypeError(f"counts must be positive integers, got {counts!r}")
+    values = [int(c) for c in items]
+    if not values or any(v < 1 for v in values):
+        raise ValueError(f"counts must be positive integers, got {counts!r}")
+    if any(b <= a for a, b in itertools.pairwise(values)):
+        raise ValueError(f"counts must be strictly increasing, got {counts!r}")
+    return values
+
+
+class _MeanImage:
+    """Running float64 sum of frames."""
+
+    def __init__(self):
+        self.total = None
+        self.n = 0
+
+    def add(self, img: np.ndarray) -> None:
+        if self.total is None:
+            self.total = np.zeros(img.shape, dtype=np.float64)
+        self.total += img  # float64 accumulation whatever the frame dtype
+        self.n += 1
+
+    def mean(self) -> np.ndarray:
+        return self.total / self.n
+
+
+class _PhaseMean:
+    """Running sums of the frames' WFTs for method B."""
+
+    def __init__(self):
+        self.n = 0
+
+    def add(self, maps: PhaseMaps) -> None:
+        mod = np.abs(maps.psi).astype(np.float64)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            unit = np.where(mod > 0, maps.psi / mod, 0)
+        dphi = np.where(np.isfinite(maps.dphi), maps.dphi, 0).astype(np.float64)
+        if self.n == 0:
+            self.unit = unit.astype(np.complex128)
+            self.mod = mod
+            self.dphi = dphi
+            self.valid = maps.valid.copy()
+            self.lattice = maps.lattice
+            self.sigma = maps.sigma
+            self.dtype = maps.dphi.dtype
+            self.cdtype = maps.psi.dtype
+        else:
+            self.unit += unit
+            self.mod += mod
+            self.dphi += dphi
+            self.valid &= maps.valid
+        self.n += 1
+
+    def result(self) -> StackResult:
+        mean_unit = self.unit / self.n
+        r = np.abs(mean_unit)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            direction = np.where(r > 0, mean_unit / r, 0)
+        psi = (direction * (self.mod / self.n)).astype(self.cdtype)
+        dphi = (self.dphi / self.n).astype(self.dtype)
+        valid = self.valid & np.all(r > 0, axis=0)
+        maps = PhaseMaps(psi=psi, dphi=dphi, valid=valid.copy(), lattice=self.lattice,
+                         sigma=self.sigma)
+        return StackResult(maps=maps, n_frames=self.n, method="B", resultant=r)
+
+
+def mean_image(frames, *, progress: Progress | None = None) -> np.ndarray:
+    """Average a stack of images, one frame at a time, in float64.
+
+    Parameters
+    ----------
+    frames : iterable of (H, W) array_like, or (T, H, W) array
+        The images, grey levels; any iterable (a generator, a list, a memory-mapped
+        stack) is consumed once and never held whole. Not modified.
+    progress : callable, optional
+        ``progress(fraction, message)``; the fraction is known only when ``frames``
+        has a length.
+
+    Returns
+    -------
+    (H, W) float64 ndarray
+        ``v_bar = (1/T) sum_t v_t``, grey levels.
+    """
+    progress = progress or null_progress
+    acc = _MeanImage()
+    for i, img, total in _frames(frames):
+        acc.add(img)
+        _report(progress, i, total, "averaging")
+    if acc.n == 0:
+        raise ValueError("frames must hold at least one image, got none")
+    return acc.mean()
+
+
+def method_a(frames, lattice: Lattice, *, sigma: float | None = None, mask=None,
+             progress: Progress | None = None) -> StackResult:
+    """Method A: the windowed Fourier transform of the averaged image (paper §2.2).
+
+    Parameters
+    ----------
+    frames : iterable of (H, W) array_like, or (T, H, W) array
+        The stack, consumed one frame at a time (see :func:`mean_image`).
+    lattice : Lattice
+        Wave vectors of the grid.
+    sigma : float, optional
+        Window standard deviation, px (default: the pitch).
+    mask : (H, W) bool array_like, optional
+        True on the specimen.
+    progress : callable, optional
+        ``progress(fraction, message)``.
+
+    Returns
+    -------
+    StackResult
+        ``maps = wft(v_bar)``, with ``mean_image = v_bar``.
+
+    Notes
+    -----
+    Under vibrations the averaged image is a biased estimate of the reference
+    image (Proposition 2.1), yet its phase derivatives are unbiased with a noise
+    falling as ``1/sqrt(T)`` (eq. 27), and its phases are offset by the constant
+    ``delta`` of eqs. (29)-(30), removable with :func:`correct_phases` when the
+    vibrations are known. One transform whatever ``T``.
+    """
+    if not isinstance(lattice, Lattice):
+        raise TypeError(f"lattice must be a Lattice, got {type(lattice).__name__}")
+    progress = progress or null_progress
+    acc = _MeanImage()
+    for i, img, total in _frames(frames):
+        acc.add(img)
+        _report(progress, i, total, "method A")
+    if acc.n == 0:
+        raise ValueError("frames must hold at least one image, got none")
+    avg = acc.mean()
+    maps = wft(avg, lattice, sigma=sigma, mask=mask)
+    progress(1.0, "method A: done")
+    return StackResult(maps=maps, n_frames=acc.n, method="A", mean_image=avg)
+
+
+def method_b(frames, lattice: Lattice, *, sigma: float | None = None, mask=None,
+             progress: Progress | None = None) -> StackResult:
+    """Method B: average the phases and phase derivatives of every frame (paper §2.3).
+
+    Parameters
+    ----------
+    frames : iterable of (H, W) array_like, or (T, H, W) array
+        The stack, consumed one frame at a time; one WFT per frame.
+    lattice : Lattice
+        Wave vectors of the grid.
+    sigma : float, optional
+        Window standard deviation, px (default: the pitch).
+    mask : (H, W) bool array_like, optional
+        True on the specimen.
+    progress : callable, optional
+        ``progress(fraction, message)``.
+
+    Returns
+    -------
+    StackResult
+        See :class:`StackResult` for how ``maps`` is formed; ``resultant`` gives
+        the spread of the frames' phases.
+
+    Notes
+    -----
+    The phases are averaged on the circle: the phase of the stack is
+    ``arg mean_t (psi_t / |psi_t|)``. It needs no unwrapping and no reference frame,
+    is right when the frames' phases straddle ``+-pi`` (where an arithmetic mean of
+    wrapped phases is off by up to ``pi``), and agrees with the arithmetic mean of
+    the unwrapped phases (eq. 32) up to third-order terms in their spread. Its
+    vibration offset is ``arg mean_t exp(2 i pi k . (alpha_t, beta_t))``, which
+    eqs. (29)-(30) approximate to second order, so :func:`correct_phases` applies
+    to both methods. Derivatives are already unwrapped quantities (rad/px) and are
+    averaged arithmetically (eq. 33).
+    """
+    if not isinstance(lattice, Lattice):
+        raise TypeError(f"lattice must be a Lattice, got {type(lattice).__name__}")
+    progress = progress or null_progress
+    acc = _PhaseMean()
+    for i, img, total in _frames(frames):
+        acc.add(wft(img, lattice, sigma=sigma, mask=mask))
+        _report(progress, i, total, "method B")
+    if acc.n == 0:
+        raise ValueError("frames must hold at least one image, got none")
+    progress(1.0, "method B: done")
+    return acc.result()
+
+
+def prefix_stacks(frames, lattice: Lattice, counts, *, method: str = "A",
+                  sigma: float | None = None, mask=None,
+                  progress: Progress | None = None) -> Iterator[StackResult]:
+    """Results for the first ``T`` frames, for every ``T`` in ``counts``, in one pass.
+
+    The stacks are nested (the one of ``T = 1000`` holds the one of ``T = 200``),
+    which is how a growing acquisition behaves and costs one pass over the frames:
+    a running sum for method A, running sums of the WFTs for method B.
+
+    Parameters
+    ----------
+    frames : iterable of (H, W) array_like
+        At least ``max(counts)`` frames (extra ones are not read).
+    lattice : Lattice
+        Wave vectors.
+    counts : iterable of int
+        Strictly increasing stack sizes ``T``.
+    method : {"A", "B"}
+        Averaging method (see :func:`method_a`, :func:`method_b`).
+    sigma, mask
+        As in :func:`gridstrain.wft.wft`.
+    progress : callable, optional
+        ``progress(fraction, message)``.
+
+    Yields
+    ------
+    StackResult
+        One per count, in order, as soon as that many frames have been read.
+    """
+    if not isinstance(lattice, Lattice):
+        raise TypeError(f"lattice must be a Lattice, got {type(lattice).__name__}")
+    check_choice(method, "method", ("A", "B"))
+    wanted = _check_counts(counts)
+    progress = progress or null_progress
+    acc = _MeanImage() if method == "A" else _PhaseMean()
+    k = 0
+    last = wanted[-1]
+    n = 0
+    for i, img, _ in _frames(frames):
+        if method == "A":
+            acc.add(img)
+        else:
+            acc.add(wft(img, lattice, sigma=sigma, mask=mask))
+        n = i + 1
+        progress(n / last, f"method {method}: frame {n}/{last}")
+        if n == wanted[k]:
+            if method == "A":
+                avg = acc.mean()
+                yield StackResult(maps=wft(avg, lattice, sigma=sigma, mask=mask),
+                                  n_frames=n, method="A", mean_image=avg)
+            else:
+                yield acc.result()
+            k += 1
+            if k == len(wanted):
+                return
+    raise ValueError(f"frames must hold at least {last} images (the largest count), got {n}")
+
+
+def _offsets(shifts, lattice: Lattice, *, exact: bool) -> np.ndarray:
+    """Phase offsets ``(delta_1, delta_2)`` of a vibrated stack, rad (eqs. 28-30)."""
+    sh = np.asarray(shifts, dtype=float)
+    if sh.ndim != 2 or sh.shape[1] != 2 or sh.shape[0] < 1:
+        raise ValueError(f"shifts must be a (T, 2) array of (alpha, beta) in px, got shape "
+                         f"{sh.shape}")
+    if not np.all(np.isfinite(sh)):
+        raise ValueError("shifts must be finite")
+    # phase advance of each frame for each wave vector: arg Psi_k of s(x + shift) is
+    # arg Psi_k(s) + 2 pi k . shift (checked in tests/test_stacks.py)
+    u = 2 * math.pi * sh @ lattice.K.T  # (T, 2)
+    if exact:
+        return np.angle(np.mean(np.exp(1j * u), axis=0))
+    # eq. (28) expanded to second order, i.e. eqs. (29)-(30) written with atan2 so
+    # that the branch is that of the argument in eq. (28)
+    return np.arctan2(u.mean(axis=0), 1 - 0.5 * np.mean(u**2, axis=0))
+
+
+def correct_phases(maps, shifts, *, exact: bool = False):
+    """Remove the vibration phase offset ``delta`` of a stack (paper eqs. 29-30).
+
+    Parameters
+    ----------
+    maps : PhaseMaps or StackResult
+        Phases of a stack (method A or B).
+    shifts : (T, 2) array_like
+        The vibrations ``(alpha_t, beta_t)`` of its frames, px (known only for
+        synthetic data, or measured by other means).
+    exact : bool
+        False: ``delta_j = arctan(2 pi m1 / (1 - (2 pi)^2 m2 / 2))`` with ``m1``,
+        ``m2`` the sample mean and mean square of ``k_j . shift_t``, the paper's
+        eqs. (29)-(30) for any lattice. True: ``delta_j = arg mean_t
+        exp(2 i pi k_j . shift_t)``, the offset these approximate to second order
+        (the paper's eq. 28 before truncating the Taylor series of eq. 3).
+
+    Returns
+    -------
+    PhaseMaps or StackResult
+        Same type as ``maps``, with ``psi_j`` multiplied by ``exp(-i delta_j)``;
+        moduli and derivatives unchanged (``delta`` is uniform).
+    """
+    if isinstance(maps, StackResult):
+        return replace(maps, maps=correct_phases(maps.maps, shifts, exact=exact))
+    if not isinstance(maps, PhaseMaps):
+        raise TypeError(f"maps must be a PhaseMaps or StackResult, got "
+                        f"{type(maps).__name__}")
+    delta = _offsets(shifts, maps.lattice, exact=bool(exact))
+    rot = np.exp(-1j * delta).astype(maps.psi.dtype)[:, None, None]
+    # dphi and valid are read-only arrays: sharing them cannot alter the input
+    return PhaseMaps(psi=maps.psi * rot, dphi=maps.dphi, valid=maps.valid,
+                     lattice=maps.lattice, sigma=maps.sigma)

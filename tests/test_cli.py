@@ -1,0 +1,436 @@
+"""Tests of ``gridstrain measure`` and ``gridstrain demo`` through cli.main."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import shlex
+from pathlib import Path
+
+import h5py
+import imageio.v3 as iio
+import numpy as np
+import pytest
+import tifffile
+
+from gridstrain import Lattice, kirsch, synthetic
+from gridstrain.cli import main
+from gridstrain.plotting import figure_names
+
+LAT = Lattice.from_pitch(5.0)
+N, A_HOLE = 128, 14.0
+C = ((N - 1) / 2, (N - 1) / 2)
+
+
+def _frames(T, *, loaded, rng):
+    """12-bit frames of a plate with a hole, noisy and vibrating, as raw x16 uint16."""
+    el = {"radius": A_HOLE, "remote_stress": 100.0, "centre": C}
+
+    def refl(X, Y):
+        return ((X - C[0]) ** 2 + (Y - C[1]) ** 2 >= A_HOLE**2).astype(float)
+
+    out = []
+    for _ in range(T):
+        a = rng.normal(0.0, 0.01, 2)
+
+        def disp(X, Y, a=a):
+            ux, uy = (kirsch.displacement(X, Y, inside="extend", **el) if loaded
+                      else (0 * X, 0 * Y))
+            return ux + 1.2 - a[0], uy - 0.4 - a[1]
+
+        img = synthetic.grid_image((N, N), LAT, amplitude=2400.0, displacement=disp,
+                                   reflectance=refl) + 100.0
+        out.append((synthetic.add_noise(img, rng=rng, clip=True) * 16).astype(np.uint16))
+    return out
+
+
+@pytest.fixture(scope="module")
+def data(tmp_path_factory):
+    """A reference directory of 3 TIFFs, a loaded state as a 3-page TIFF, a mask."""
+    root = tmp_path_factory.mktemp("series")
+    rng = np.random.default_rng(2015)
+    (root / "ref").mkdir()
+    for k, f in enumerate(_frames(3, loaded=False, rng=rng)):
+        tifffile.imwrite(root / "ref" / f"img{k}.tif", f, photometric="minisblack")
+    tifffile.imwrite(root / "load.tif", np.stack(_frames(3, loaded=True, rng=rng)),
+                     photometric="minisblack")
+    yy, xx = np.mgrid[0:N, 0:N]
+    mask = (xx - C[0]) ** 2 + (yy - C[1]) ** 2 > (A_HOLE + 1) ** 2
+    tifffile.imwrite(root / "mask.tif", (mask * 255).astype(np.uint8))
+    return root
+
+
+def _hashes(root: Path) -> dict:
+    return {p: hashlib.sha256(p.read_bytes()).hexdigest()
+            for p in sorted(root.rglob("*")) if p.is_file()}
+
+
+def _run(argv):
+    """``main(argv)`` -> return code, also for argparse's SystemExit."""
+    try:
+        return main([str(a) for a in argv])
+    except SystemExit as exc:
+        return exc.code
+
+
+# ------------------------------------------------------------------- success
+
+
+def test_measure_writes_hdf5_csv_and_figures(data, tmp_path, capsys):
+    before = _hashes(data)
+    out = tmp_path / "maps.h5"
+    rc = _run(["measure", data / "ref", data / "load.tif", "-o", out, "--mask",
+               data / "mask.tif", "--pixel-size", "0.04", "--unit", "mm", "--csv",
+               tmp_path / "maps.csv", "--figures", tmp_path / "figs", "--json", "--quiet"])
+    cap = capsys.readouterr()
+    assert rc == 0, cap.err
+    assert cap.err == ""  # --quiet: no progress bar
+    summary = json.loads(cap.out)
+    assert summary["outputs"]["hdf5"] == str(out)
+    assert summary["bit_depth"] == 12
+    assert summary["scale"] == 16
+    assert summary["reference"]["frames"] == 3
+    assert summary["states"][0]["frames"] == 3
+    assert math.isclose(summary["lattice"]["pitches_px"][0], 5.0, rel_tol=1e-4)
+    assert _hashes(data) == before  # inputs untouched
+
+    with h5py.File(out, "r") as h5:
+        for name, unit in (("ux", "px"), ("uy", "px"), ("exx", "1"), ("eyy", "1"),
+                           ("exy", "1"), ("ux_phys", "mm"), ("uy_phys", "mm")):
+            assert h5[name].shape == (1, N, N)
+            assert h5[name].attrs["units"] == unit
+        valid = h5["valid"][()]
+        assert valid.dtype == bool
+        assert valid.shape == (1, N, N)
+        np.testing.assert_allclose(h5["ux_phys"][()], 0.04 * h5["ux"][()], rtol=1e-15)
+        exx = h5["exx"][0][valid[0]]
+        assert h5.attrs["unit"] == "mm"
+        assert h5.attrs["pixel_size"] == 0.04
+        assert h5.attrs["mask_file"] == str(data / "mask.tif")
+        assert "vibration/reference/shifts" in h5
+        assert "noise" in h5
+        assert h5["vibration/state_0/shifts"].shape == (3, 2)
+        files = json.loads(h5.attrs["reference_files"])
+        assert [Path(f).name for f in files] == ["img0.tif", "img1.tif", "img2.tif"]
+    # the plate is in tension: e_xx near the remote 1.4e-3 on average (the noise
+    # floor of T = 3 frames, ~3e-4 per pixel, averages out over the map)
+    assert 1.0e-3 < float(np.mean(exx)) < 2.0e-3
+
+    rows = np.genfromtxt(tmp_path / "maps.csv", delimiter=",", names=True)
+    assert rows.size == int(valid.sum())
+    assert rows.dtype.names == ("state", "x", "y", "ux", "uy", "exx", "eyy", "exy")
+
+    figs = sorted((tmp_path / "figs").iterdir())
+    assert [f.name for f in figs] == sorted(figure_names(1))
+    assert len(figs) == 5 + 2  # five maps of one state, two vibration plots
+    for f in figs:
+        img = iio.imread(f)
+        assert img.ndim == 3
+        assert img.shape[2] in (3, 4)
+        assert min(img.shape[:2]) > 200
+        assert img.std() > 0  # something drawn
+    assert summary["outputs"]["figures"] == [str(tmp_path / "figs" / n)
+                                             for n in figure_names(1)]
+
+
+def test_report_progress_and_overwrite(data, tmp_path, capsys):
+    out = tmp_path / "maps.h5"
+    argv = ["measure", data / "ref", data / "load.tif", "-o", out, "--mask",
+            data / "mask.tif", "--pitch", "5"]
+    assert _run(argv) == 0
+    cap = capsys.readouterr()
+    assert "noise floor" in cap.out
+    assert "spatial resolution" in cap.out
+    assert "vibrations" in cap.out
+    assert "wrote" in cap.out
+    assert "lattice (given)" in cap.out
+    assert "100%" in cap.err  # the progress bar, on stderr
+    first = out.stat().st_mtime_ns
+    # kept without --overwrite, replaced with it
+    assert _run(argv) == 2
+    assert out.stat().st_mtime_ns == first
+    capsys.readouterr()
+    assert _run([*argv, "--overwrite", "--quiet"]) == 0
+    cap = capsys.readouterr()
+    assert cap.out == ""
+    assert cap.err == ""
+
+
+def test_config_file_and_command_line_override(data, tmp_path, capsys):
+    cfg = tmp_path / "run.toml"
+    cfg.write_text(f'output = "maps.h5"\npitch = 5\nsigma = 6.0\nmethod = "B"\n'
+                   f'mask = "{data / "mask.tif"}"\npixel_size = 0.04\nunit = "mm"\n'
+                   'no-lagrangian = true\nquiet = true\n')
+    rc = _run(["measure", data / "ref", data / "load.tif", "--config", cfg, "--sigma", "7"])
+    assert rc == 0, capsys.readouterr().err
+    out = tmp_path / "maps.h5"  # relative to the config file
+    with h5py.File(out, "r") as h5:
+        assert h5.attrs["sigma"] == 7.0  # the command line wins
+        assert h5.attrs["method"] == "B"
+        assert not h5.attrs["lagrangian"]
+        assert h5.attrs["config_file"] == str(cfg)
+        assert h5.attrs["unit"] == "mm"
+
+
+# ------------------------------------------------------------------- bad input
+
+
+def _write(path, arr, **kw):
+    tifffile.imwrite(path, arr, **{"photometric": "minisblack", **kw})
+    return path
+
+
+def _case_missing(d, t):
+    return [t / "nope", d / "load.tif"]
+
+
+def _case_empty_dir(d, t):
+    (t / "empty").mkdir()
+    return [t / "empty", d / "load.tif"]
+
+
+def _case_mixed_sizes(d, t):
+    (t / "mixed").mkdir()
+    _write(t / "mixed" / "a.tif", np.zeros((N, N), np.uint16))
+    _write(t / "mixed" / "b.tif", np.zeros((N, N - 8), np.uint16))
+    return [t / "mixed", d / "load.tif"]
+
+
+def _case_corrupt(d, t):
+    (t / "bad.tif").write_bytes(b"II*\x00" + b"\x07" * 64)
+    return [t / "bad.tif", d / "load.tif"]
+
+
+def _case_rgb(d, t):
+    return [_write(t / "rgb.tif", np.zeros((N, N, 3), np.uint8), photometric="rgb"),
+            d / "load.tif"]
+
+
+def _case_nan(d, t):
+    img = synthetic.grid_image((N, N), LAT, amplitude=1000.0).astype(np.float32)
+    img[5, 5] = np.nan
+    return [_write(t / "nan.tif", img), d / "load.tif"]
+
+
+def _case_saturated(d, t):
+    img = np.rint(synthetic.grid_image((N, N), LAT, amplitude=150.0)).astype(np.uint8)
+    img[:10] = 255  # 8 % saturated
+    return [d / "ref", _write(t / "sat.tif", img)]
+
+
+def _case_no_grid(d, t):
+    noise = np.random.default_rng(1).normal(30000, 300, (N, N)).astype(np.uint16)
+    return [_write(t / "noise.tif", noise), _write(t / "noise2.tif", noise)]
+
+
+def _case_mask_size(d, t):
+    return [d / "ref", d / "load.tif", "--mask",
+            _write(t / "m.tif", np.ones((N, N + 1), np.uint8))]
+
+
+def _case_mask_empty(d, t):
+    return [d / "ref", d / "load.tif", "--mask", _write(t / "m0.tif", np.zeros((N, N),
+                                                                                np.uint8))]
+
+
+def _case_negative_pixel_size(d, t):
+    return [d / "ref", d / "load.tif", "--pixel-size", "-0.04", "--unit", "mm"]
+
+
+def _case_method_c(d, t):
+    return [d / "ref", d / "load.tif", "--method", "C"]
+
+
+def _case_missing_out_dir(d, t):
+    return [d / "ref", d / "load.tif", "-o", t / "nodir" / "out.h5"]
+
+
+def _case_existing_output(d, t):
+    (t / "out.h5").write_bytes(b"earlier result")
+    return [d / "ref", d / "load.tif"]
+
+
+def _case_bad_toml_key(d, t):
+    (t / "c.toml").write_text("pich = 5\n")
+    return [d / "ref", d / "load.tif", "--config", t / "c.toml"]
+
+
+def _case_bad_toml_syntax(d, t):
+    (t / "c.toml").write_text("pitch = = 5\n")
+    return [d / "ref", d / "load.tif", "--config", t / "c.toml"]
+
+
+def _case_bad_toml_type(d, t):
+    (t / "c.toml").write_text('sigma = "five"\n')
+    return [d / "ref", d / "load.tif", "--config", t / "c.toml"]
+
+
+def _case_sigma_below_pitch(d, t):
+    return [d / "ref", d / "load.tif", "--pitch", "5", "--sigma", "3"]
+
+
+def _case_k1_without_k2(d, t):
+    return [d / "ref", d / "load.tif", "--k1", "0.2", "0"]
+
+
+def _case_pitch_and_k(d, t):
+    return [d / "ref", d / "load.tif", "--pitch", "5", "--k1", "0.2", "0", "--k2", "0", "0.2"]
+
+
+def _case_unit_without_size(d, t):
+    return [d / "ref", d / "load.tif", "--unit", "mm"]
+
+
+def _case_output_is_input(d, t):
+    # even with --overwrite an input is never replaced (the output is redirected
+    # to the input file; the check in _run_case sees no new file)
+    return [d / "ref", d / "load.tif", "--overwrite", "--csv", d / "load.tif"]
+
+
+def _case_state_size(d, t):
+    return [d / "ref", _write(t / "small.tif", np.zeros((N - 8, N), np.uint16) + 16)]
+
+
+def _case_bit_depth(d, t):
+    return [d / "ref", d / "load.tif", "--bit-depth", "20"]
+
+
+def _case_missing_csv_dir(d, t):
+    return [d / "ref", d / "load.tif", "--csv", t / "nodir" / "x.csv"]
+
+
+def _case_figures_is_file(d, t):
+    (t / "figs").write_text("not a directory")
+    return [d / "ref", d / "load.tif", "--figures", t / "figs"]
+
+
+def _case_nyquist_pitch(d, t):
+    return [d / "ref", d / "load.tif", "--pitch", "1.5"]
+
+
+def _case_wrong_lattice(d, t):
+    return [d / "ref", d / "load.tif", "--pitch", "8"]
+
+
+def _case_zero_margin(d, t):
+    return [d / "ref", d / "load.tif", "--margin", "0"]
+
+
+def _case_guess_one_value(d, t):
+    return [d / "ref", d / "load.tif", "--guess", "1"]
+
+
+CASES = {name[6:]: f for name, f in globals().items() if name.startswith("_case_")}
+
+
+@pytest.mark.parametrize("case", sorted(CASES))
+def test_bad_input_gives_one_line_and_no_output(case, data, tmp_path, capsys):
+    args = CASES[case](data, tmp_path)
+    before = {p.name for p in tmp_path.iterdir()}
+    data_before = _hashes(data)
+    argv = ["measure", *args, "--quiet"]
+    if "-o" not in args:
+        argv += ["-o", tmp_path / "out.h5"]
+    rc = _run(argv)
+    cap = capsys.readouterr()
+    assert rc != 0
+    lines = cap.err.splitlines()
+    assert len(lines) == 1, cap.err
+    assert lines[0].startswith("gridstrain measure: error:"), cap.err
+    assert "Traceback" not in cap.err
+    assert cap.out == ""
+    # no output left behind (the case may have created its inputs in tmp_path)
+    after = {p.name for p in tmp_path.iterdir()}
+    assert after == before, after - before
+    assert _hashes(data) == data_before
+
+
+def test_at_least_fifteen_kinds_of_bad_input():
+    assert len(CASES) >= 15
+
+
+def test_error_after_the_progress_bar_has_a_line_of_its_own(data, tmp_path, capsys):
+    args = _case_saturated(data, tmp_path)
+    rc = _run(["measure", *args, "-o", tmp_path / "out.h5"])
+    err = capsys.readouterr().err
+    assert rc == 2
+    assert err.endswith("\n")
+    assert "%" in err
+    last = err.splitlines()[-1]
+    assert last.startswith("gridstrain measure: error: state 0: frame 0"), err
+    assert "saturated" in last
+    assert not (tmp_path / "out.h5").exists()
+
+
+# ------------------------------------------------------------------- demo
+
+
+@pytest.mark.slow
+def test_demo_defaults(tmp_path, monkeypatch, capsys):
+    monkeypatch.chdir(tmp_path)
+    assert _run(["demo", "--json", "--quiet"]) == 0
+    s = json.loads(capsys.readouterr().out)
+    floor = s["noise_floor"]["theory_strain"][0]
+    for i, name in enumerate(("exx", "eyy", "exy")):
+        assert s["demo"]["rms_error"][name] < 1.3 * floor[i]
+
+
+def test_demo_small(tmp_path, monkeypatch, capsys):
+    monkeypatch.chdir(tmp_path)
+    argv = ["demo", "--size", "128", "--radius", "14", "--frames", "3", "--out", "d"]
+    assert _run([*argv, "--json", "--quiet"]) == 0
+    s = json.loads(capsys.readouterr().out)
+    d = tmp_path / "d"
+    assert len(list((d / "ref").iterdir())) == 3
+    assert len(list((d / "load").iterdir())) == 3
+    for name in ("mask.tif", "maps.h5", "truth.h5"):
+        assert (d / name).is_file()
+    assert len(list((d / "figures").iterdir())) == 7
+    ref = tifffile.imread(d / "ref" / "frame000000.tif")
+    assert ref.dtype == np.uint16
+    assert not np.any(ref % 16)  # 12-bit data x16
+    assert s["bit_depth"] == 12
+    assert s["scale"] == 16
+    # errors against the analytic field: within 1.5 x the predicted floor (the
+    # valid region of a 128^2 image holds ~12 independent windows: 20 % sampling)
+    floor = s["noise_floor"]["theory_strain"][0]
+    for i, name in enumerate(("exx", "eyy", "exy")):
+        assert s["demo"]["rms_error"][name] < 1.5 * floor[i]
+    # px: sensor noise on a 128^2 frame, ~1.5e-3 px per shift, against 1e-2 px
+    assert max(s["demo"]["shift_rms_error_px"].values()) < 3e-3
+    assert s["demo"]["measure_command"].startswith("gridstrain measure d/ref d/load")
+    # an earlier demo is kept without --overwrite
+    assert _run(argv) == 2
+    assert "already exists" in capsys.readouterr().err
+
+
+@pytest.mark.slow
+def test_demo_overwrite_then_measure_its_command(tmp_path, monkeypatch, capsys):
+    monkeypatch.chdir(tmp_path)
+    argv = ["demo", "--size", "128", "--radius", "14", "--out", "d", "--quiet"]
+    assert _run([*argv, "--frames", "3"]) == 0
+    assert _run([*argv, "--frames", "2", "--overwrite"]) == 0
+    assert len(list((tmp_path / "d" / "ref").iterdir())) == 2  # no stale frame left
+    capsys.readouterr()
+    assert _run(["demo", "--size", "128", "--radius", "14", "--out", "d", "--frames", "2",
+                 "--overwrite"]) == 0
+    out = capsys.readouterr().out
+    assert "RMS error against the analytic field" in out
+    command = out.strip().splitlines()[-1].strip()
+    assert command.startswith("gridstrain measure d/ref d/load -o maps.h5")
+    rc = _run([*shlex.split(command)[1:], "--quiet"])
+    assert rc == 0, capsys.readouterr().err
+    assert (tmp_path / "maps.h5").is_file()
+    assert len(list((tmp_path / "figs").iterdir())) == 7
+
+
+@pytest.mark.parametrize("bad", [["--size", "32"], ["--frames", "0"], ["--radius", "200"],
+                                 ["--vibration", "-1"], ["--stress", "1e4"]])
+def test_demo_bad_options(bad, tmp_path, capsys):
+    rc = _run(["demo", "--out", tmp_path / "d", *bad])
+    assert rc == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1
+    assert err[0].startswith("gridstrain demo: error:")
+    assert not (tmp_path / "d").exists()

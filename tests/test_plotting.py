@@ -1,0 +1,99 @@
+"""Tests of gridstrain.plotting: maps centred on zero, transparent invalid pixels, PNGs."""
+
+from __future__ import annotations
+
+import imageio.v3 as iio
+import numpy as np
+import pytest
+from numpy.testing import assert_allclose, assert_array_equal
+
+from gridstrain import Lattice, synthetic
+from gridstrain.pipeline import measure_series
+from gridstrain.plotting import figure_names, plot_map, plot_shifts, save_figure, save_figures
+
+LAT = Lattice.from_pitch(5.0)
+
+
+def _images(fig):
+    return [im for ax in fig.axes for im in ax.get_images()]
+
+
+def test_map_is_centred_on_zero_and_invalid_is_transparent(rng):
+    values = rng.normal(2e-3, 1e-3, (40, 50))  # mostly positive, like a tensile strain
+    valid = np.ones((40, 50), bool)
+    valid[10:20, 10:30] = False
+    values[~valid] = np.nan
+    bg = synthetic.grid_image((40, 50), LAT)
+    fig = plot_map(values, valid=valid, background=bg, label="e", unit="")
+    grey, data = _images(fig)  # the grid image under the map
+    assert grey.get_cmap().name == "gray"
+    norm = data.norm
+    assert norm.vmin == -norm.vmax  # white is zero whatever the sign of the field
+    assert_allclose(norm.vmax, np.percentile(np.abs(values[valid]), 99.5), rtol=1e-12)
+    arr = data.get_array()
+    assert_array_equal(np.ma.getmaskarray(arr), ~valid)
+    rgba = data.get_cmap()(np.ma.masked_invalid([np.nan]))
+    assert rgba[0, 3] == 0.0  # bad (invalid) pixels are fully transparent
+    cbar_label = fig.axes[1].get_ylabel()
+    assert "dimensionless" in cbar_label
+
+
+def test_map_axes_in_physical_units_and_offset(rng):
+    values = rng.normal(3.0, 0.1, (30, 60))
+    fig = plot_map(values, label="u", unit="mm", pixel_size=0.04, length_unit="mm",
+                   offset=3.0)
+    (data,) = _images(fig)
+    ax = fig.axes[0]
+    assert ax.get_xlabel() == "x (mm)"
+    assert ax.get_ylabel() == "y (mm)"
+    # pixel j covers [j - 1/2, j + 1/2] (gridstrain.conventions), row 0 at the top
+    assert_allclose(data.get_extent(), (-0.02, 59.5 * 0.04, 29.5 * 0.04, -0.02))
+    assert_allclose(np.ma.getdata(data.get_array()), values - 3.0)
+    assert "mean 3 mm removed" in fig.axes[1].get_ylabel()
+
+
+def test_bad_map_arguments():
+    with pytest.raises(ValueError, match="2-D"):
+        plot_map(np.zeros(5))
+    with pytest.raises(ValueError, match="valid must have the shape"):
+        plot_map(np.zeros((4, 4)), valid=np.ones((3, 3), bool))
+    with pytest.raises(ValueError, match="limit"):
+        plot_map(np.zeros((4, 4)), limit=-1.0)
+    with pytest.raises(ValueError, match="shifts"):
+        plot_shifts(np.zeros((4, 3)))
+
+
+def test_shifts_plot_shows_the_series(rng, tmp_path):
+    shifts = rng.normal(0, 0.01, (12, 2))
+    fig = plot_shifts(shifts, title="reference")
+    a, b = fig.axes
+    assert_allclose(a.get_lines()[0].get_ydata(), shifts[:, 0])
+    assert_allclose(b.get_lines()[0].get_ydata(), shifts[:, 1])
+    assert_array_equal(a.get_lines()[0].get_xdata(), np.arange(12))  # frame index
+    path = save_figure(fig, tmp_path / "v.png")
+    img = iio.imread(path)
+    assert img.shape[:2] == (480, 640)  # 6.4 x 4.8 in at 100 dpi
+    assert [p.name for p in tmp_path.iterdir()] == ["v.png"]  # no temporary left
+    with pytest.raises(FileExistsError):
+        save_figure(fig, path)
+
+
+def test_save_figures_count_and_names(tmp_path):
+    ref = synthetic.grid_image((64, 64), LAT)
+    states = [synthetic.grid_image((64, 64), LAT,
+                                   displacement=lambda X, Y, s=s: (s * X, 0 * Y))
+              for s in (1e-3, 2e-3)]
+    res = measure_series(ref, states, lattice=LAT, guess=None)
+    paths = save_figures(res, tmp_path / "figs", pixel_size=0.04, unit="mm")
+    names = figure_names(2)
+    assert len(paths) == len(names) == 2 * 5 + 3
+    assert [p.name for p in paths] == names
+    assert sorted(p.name for p in (tmp_path / "figs").iterdir()) == sorted(names)
+    for p in paths:
+        assert iio.imread(p).ndim == 3
+    with pytest.raises(FileExistsError, match="overwrite"):
+        save_figures(res, tmp_path / "figs")
+    with pytest.raises(FileNotFoundError, match="parent"):
+        save_figures(res, tmp_path / "no" / "figs")
+    with pytest.raises(ValueError, match="unit"):
+        save_figures(res, tmp_path / "f2", pixel_size=0.04)
