@@ -205,3 +205,22 @@ def test_bad_input(ref, cur, kw, exc, match):
     kw.setdefault("lattice", lat if "sigma" in kw or "guess" in kw else None)
     with pytest.raises(exc, match=match):
         measure(ref, cur, **kw)
+
+
+def test_coarse_displacement_when_the_mask_hides_the_only_feature(lattice5):
+    # A perfect grid whose only non-periodic feature is a dark hole, which the
+    # specimen mask removes: the whole images must be used to find the shift.
+    shift = (7.0, -3.0)
+    yy, xx = np.mgrid[0:N, 0:N].astype(float)
+
+    def with_hole(img, dx, dy):
+        out = img.copy()
+        out[(xx - 128 - dx) ** 2 + (yy - 128 - dy) ** 2 < 30**2] = 0.0
+        return out
+
+    ref = with_hole(synthetic.grid_image((N, N), lattice5), 0, 0)
+    cur = with_hole(synthetic.grid_image((N, N), lattice5, displacement=rigid(*shift)), *shift)
+    mask = ref > 0
+    found, corr = coarse_displacement(ref, cur, lattice5, mask=mask)
+    np.testing.assert_allclose(found, shift, atol=1.0)  # nearest pixel
+    assert corr > 0.9

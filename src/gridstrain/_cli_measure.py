@@ -297,9 +297,15 @@ def report_lines(result: SeriesResult, *, pixel_size: float | None = None,
     lines += ["", "noise floor (1 std at a pixel)            u_x px    u_y px    e_xx      "
               "e_yy      e_xy"]
     for i in range(result.n_states):
-        rows = (("theory, measured sensor noise", nf.theory_u[i], nf.theory_strain[i]),
-                ("reference halves, scaled", nf.split_u[i], nf.split_strain[i]),
-                ("vibration offset (rigid)", nf.vibration_u[i], None))
+        rows = [("theory, measured sensor noise", nf.theory_u[i], nf.theory_strain[i]),
+                ("reference halves, scaled", nf.split_u[i], nf.split_strain[i])]
+        unc = result.uncertainty
+        if unc is not None and result.valid[i].any():
+            v = result.valid[i]
+            med = [float(np.median(unc[k][i][v])) for k in
+                   ("ux_std", "uy_std", "exx_std", "eyy_std", "exy_std")]
+            rows.append(("uncertainty maps, median", med[:2], med[2:]))
+        rows.append(("vibration offset (rigid)", nf.vibration_u[i], None))
         for k, (name, u, e) in enumerate(rows):
             head = f"  {result.names[i + 1] if k == 0 else '':<9} {name:<30}"
             es = "  ".join(f"{_fmt(x):<8}" for x in e) if e is not None else \
@@ -375,9 +381,22 @@ def summary(result: SeriesResult, *, outputs: dict, seconds: float,
                        "phase_offset_std_rad": [num(x) for x in v.phase_offset_std],
                        "estimator": v.estimator} for v in result.vibration],
         "noise_floor": result.noise.as_dict(),
+        "uncertainty_median": _uncertainty_medians(result),
         "warnings": list(result.warnings),
         "seconds": seconds,
     }
+
+
+def _uncertainty_medians(result: SeriesResult):
+    """Median of each per-pixel std map over the valid pixels, per state."""
+    if result.uncertainty is None:
+        return None
+    out = []
+    for i in range(result.n_states):
+        v = result.valid[i]
+        out.append({k: (float(np.median(a[i][v])) if v.any() else None)
+                    for k, a in result.uncertainty.items()})
+    return out
 
 
 # --------------------------------------------------------------------------- run

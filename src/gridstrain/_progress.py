@@ -17,10 +17,15 @@ def null_progress(fraction: float, message: str) -> None:
 
 
 def bar(*, quiet: bool = False, stream=None) -> Progress:
-    """A progress callback drawing a one-line bar on ``stream`` (default stderr)."""
-    if quiet:
-        return null_progress
+    """A progress callback drawing a one-line bar on ``stream`` (default stderr).
+
+    Nothing is drawn when ``quiet`` or when the stream is not a terminal (a log
+    file or a pipe would only collect carriage returns).
+    """
     stream = sys.stderr if stream is None else stream
+    isatty = getattr(stream, "isatty", None)
+    if quiet or not (callable(isatty) and isatty()):
+        return null_progress
     width = 30
     state = {"last": ""}
 

@@ -150,6 +150,18 @@ def coarse_displacement(reference, deformed, lattice: Lattice, *, mask=None):
     m = check_mask(mask, ref.shape)
     if not isinstance(lattice, Lattice):
         raise TypeError(f"lattice must be a Lattice, got {type(lattice).__name__}")
+    best = _correlate(ref, cur, lattice, m)
+    if not m.all():
+        # The mask often hides the best features (the hole, the specimen's edges) and
+        # a featureless masked pair can correlate falsely, so the whole images are
+        # tried too and the better-correlated estimate wins.
+        whole = _correlate(ref, cur, lattice, np.ones_like(m))
+        if whole[1] > best[1]:
+            best = whole
+    return best
+
+
+def _correlate(ref, cur, lattice, m):
     q = max(1, math.ceil(max(ref.shape) / 1024))
     low = []
     for img in (ref, cur):
@@ -274,7 +286,7 @@ def deformation(reference: PhaseMaps, deformed: PhaseMaps, *, lagrangian: bool =
     g, source = _guess_field(guess, shape, ref_img, cur_img, lattice, img_mask)
 
     # eq. (34): wrapped phase difference, unwrapped over the valid region
-    valid = reference.valid & deformed.valid
+    valid = reference.valid & deformed.valid & np.all(np.isfinite(reference.dphi), axis=(0, 1))
     dphase = np.angle(deformed.psi * np.conj(reference.psi)).astype(np.float64)
     labels, n_regions = ndimage.label(valid)
     if n_regions == 0:
@@ -318,9 +330,14 @@ def deformation(reference: PhaseMaps, deformed: PhaseMaps, *, lagrangian: bool =
                                             order=1, mode="constant", cval=0.0)
         valid = reference.valid & inside & (cur_valid > 0.999)
         D_cur = np.empty((2, 2, *shape))
+        # Where Psi is exactly 0 (deep in a masked area) its derivatives are undefined;
+        # a spline's prefilter would spread one NaN over whole rows, so zero them (the
+        # pixels are invalid anyway).
+        dphi_cur = np.nan_to_num(deformed.dphi.astype(np.float64), nan=0.0, posinf=0.0,
+                                 neginf=0.0)
         for j in range(2):
             for m in range(2):
-                D_cur[j, m] = _interp(deformed.dphi[j, m].astype(np.float64), coords)
+                D_cur[j, m] = _interp(dphi_cur[j, m], coords)
         # exact Lagrangian gradient: (2 pi K + D_cur) G = D_ref - D_cur
         A = 2 * np.pi * K[:, :, None, None] + D_cur
         B = D_ref - D_cur

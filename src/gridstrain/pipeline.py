@@ -64,8 +64,13 @@ Spatial resolution
     half maximum, ``2 sqrt(2 ln 2) sigma = 2.355 sigma`` px; ``sigma`` itself is
     stored too, for other definitions.
 
-Per-pixel uncertainty maps (``ux_std``...) are not computed yet; their place is
-:attr:`SeriesResult.uncertainty`, saved next to the maps by :func:`save_result`.
+Per-pixel uncertainty maps (``ux_std``, ``uy_std``, ``exx_std``, ``eyy_std``,
+``exy_std``) come from :func:`gridstrain.uncertainty.predict_uncertainty`: the
+measured per-pixel noise variance of each series (vibrations regressed out),
+averaged with the weight ``g^2`` the window gives each pixel and divided by ``T``,
+over the local modulus ``|Psi|``. They are :attr:`SeriesResult.uncertainty`, saved
+next to the maps by :func:`save_result`. With a single frame per series no variance
+can be measured and the maps are absent.
 """
 
 from __future__ import annotations
@@ -80,6 +85,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+from scipy import ndimage
 
 from . import __version__, theory
 from ._progress import null_progress
@@ -94,6 +100,7 @@ from .io import (
 )
 from .kinematics import Measurement, coarse_displacement, deformation
 from .lattice import Lattice, detect_lattice
+from .uncertainty import predict_uncertainty
 from .wft import DEFAULT_MARGIN, PhaseMaps, wft
 
 try:  # the streaming vibration estimator, when the package has it
@@ -302,8 +309,9 @@ class SeriesResult:
     warnings : tuple of str
         Things the user should know that did not stop the measurement.
     uncertainty : dict of str to ndarray, optional
-        Reserved for per-pixel standard-deviation maps (``"ux_std"``... each
-        ``(n_states, H, W)``); ``None`` until computed.
+        Per-pixel predicted standard deviations ``"ux_std"``, ``"uy_std"`` (px),
+        ``"exx_std"``, ``"eyy_std"``, ``"exy_std"``, each ``(n_states, H, W)``, NaN
+        where not valid; ``None`` when no series has two frames or more.
     """
 
     u: np.ndarray
@@ -782,25 +790,11 @@ def _phase_maps_b(series, lattice, sigma, mask, margin, report):
 
 
 def _coarse_guess(ref: np.ndarray, cur: np.ndarray, lattice: Lattice, mask: np.ndarray):
-    """Fringe-order guess from the non-periodic content of the mean images.
-
-    The specimen mask often hides the best features (a hole, the specimen's
-    edges), and the masked images may then correlate falsely (a featureless
-    masked pair was seen to give r = 0.74 at half the image width), so the whole
-    images are tried too and the better-correlated estimate wins.
-    """
-    tries = [(mask, "masked images")]
-    if not mask.all():
-        tries.append((None, "whole images"))
-    best = None
-    for m, label in tries:
-        shift, corr = coarse_displacement(ref, cur, lattice, mask=m)
-        if corr >= _MIN_COARSE_CORRELATION and (best is None or corr > best[1]):
-            best = (shift, corr, label)
-    if best is None:
+    """Fringe-order guess from the non-periodic content of the mean images."""
+    shift, corr = coarse_displacement(ref, cur, lattice, mask=mask)
+    if corr < _MIN_COARSE_CORRELATION:
         return None, "zero (nothing but the grid to cross-correlate)"
-    shift, corr, label = best
-    return shift, f"cross-correlation of the {label} (r = {corr:.2f})"
+    return shift, f"cross-correlation of the low-passed images (r = {corr:.2f})"
 
 
 # --------------------------------------------------------------------------- noise
@@ -1048,6 +1042,7 @@ def measure_series(reference, states, *, lattice: Lattice | None = None,
         if st.saturation > 0:
             warnings.append(f"{s.name}: up to {st.saturation:.2%} of a frame's pixels are "
                             "saturated")
+    uncertainty = _uncertainty_maps(stats, maps, measurements, T, float(sigma))
     progress(1.0, "done")
 
     parameters = {"sigma": float(sigma), "method": method, "lagrangian": bool(lagrangian),
@@ -1069,7 +1064,31 @@ def measure_series(reference, states, *, lattice: Lattice | None = None,
         saturation=tuple(st.saturation for st in stats),
         measurements=tuple(measurements), guesses=tuple(guesses),
         guess_sources=tuple(sources), vibration=tuple(vib), noise=noise,
-        parameters=parameters, warnings=tuple(warnings))
+        parameters=parameters, warnings=tuple(warnings), uncertainty=uncertainty)
+
+
+def _uncertainty_maps(stats, maps, measurements, T, sigma):
+    """Per-pixel std maps of every state, or None without a measured variance."""
+    local = []
+    for st in stats:
+        if st.variance is None:
+            local.append(None)
+            continue
+        # the weight of a pixel's noise in Psi is g^2, a Gaussian of std sigma / sqrt 2
+        local.append(ndimage.gaussian_filter(st.variance, sigma / math.sqrt(2),
+                                             mode="nearest", truncate=5.0))
+    if all(v is None for v in local):
+        return None
+    out = {name: [] for name in ("ux_std", "uy_std", "exx_std", "eyy_std", "exy_std")}
+    for i, res in enumerate(measurements, start=1):
+        # a single-frame series is taken as noisy per frame as the other one
+        v_ref = local[0] if local[0] is not None else local[i]
+        v_def = local[i] if local[i] is not None else local[0]
+        unc = predict_uncertainty(maps[0], maps[i], variance_ref=v_ref / T[0],
+                                  variance_def=v_def / T[i], valid=res.valid)
+        for name, arr in zip(out, (*unc.u_std, *unc.strain_std), strict=True):
+            out[name].append(arr)
+    return {name: np.stack(arrs) for name, arrs in out.items()}
 
 
 # --------------------------------------------------------------------------- saving
