@@ -161,6 +161,28 @@ def test_plate_with_hole_recovers_strain_within_the_noise_floor(noisy_plate):
     assert_allclose(res.noise.split_u[0], res.noise.theory_u[0], rtol=0.3)
 
 
+def test_uncertainty_maps_predict_the_error(noisy_plate, tmp_path):
+    p, _, _, _, res = noisy_plate
+    v = res.valid[0]
+    uw, ew = p.windowed_truth(res.sigma)
+    unc = res.uncertainty
+    assert set(unc) == {"ux_std", "uy_std", "exx_std", "eyy_std", "exy_std"}
+    # the error about the windowed truth, over the RMS of the predicted std: 1 within
+    # the ~9 % sampling error of ~60 independent windows (previous test), and the
+    # displacement's rigid vibration offset removed (it is not in the maps)
+    for i, name in enumerate(("exx_std", "eyy_std", "exy_std")):
+        assert np.all(np.isnan(unc[name][0][~v]))
+        ratio = _rms(res.strain[0, i][v] - ew[i][v]) / _rms(unc[name][0][v])
+        assert 0.7 < ratio < 1.3, (name, ratio)
+    for i, name in enumerate(("ux_std", "uy_std")):
+        err = res.u[0, i][v] - uw[i][v]
+        ratio = _rms(err - err.mean()) / _rms(unc[name][0][v])
+        assert 0.7 < ratio < 1.3, (name, ratio)
+    data = read_hdf5(save_result(res, tmp_path / "maps.h5"))
+    assert data["datasets"]["exx_std"].shape == (1, 192, 192)
+    assert data["units"]["uy_std"] == "px"
+
+
 def test_sensor_variance_is_the_camera_model(noisy_plate):
     _p, ref, _, _, res = noisy_plate
     # Var = K l + L (K = 0.28, L = 5) averaged over the valid pixels of the mean
