@@ -156,7 +156,8 @@ def test_cli_maps_options_to_the_library(monkeypatch, capsys, tmp_path):
     rc = cli.main(["reproduce", "--out", str(tmp_path / "o"), "--quick", "--seed", "7",
                    "--K", "0.3", "--L", "4", "--amplitude", "2824", "--contrast", "0.8",
                    "--profile", "sin", "--size", "128", "160", "--T", "1", "10",
-                   "--T-b", "1", "5", "--repetitions", "2", "--cases", "3", "4"])
+                   "--T-b", "1", "5", "--repetitions", "2", "--cases", "3", "4",
+                   "--workers", "1"])
     assert rc == 0
     assert seen["quick"]
     assert seen["seed"] == 7
@@ -171,6 +172,7 @@ def test_cli_maps_options_to_the_library(monkeypatch, capsys, tmp_path):
     assert seen["repetitions"] == 2
     assert seen["cases"] == [3, 4]
     assert not seen["overwrite"]
+    assert seen["workers"] == 1
     out = capsys.readouterr().out
     assert "method A: derivative slopes -0.510" in out
     assert "Prop. 2.1 level 30.1" in out

@@ -45,6 +45,9 @@ def register(subparsers) -> None:
                    help="independent repetitions (default 3; 1 with --quick)")
     p.add_argument("--cases", type=int, nargs="+", choices=(1, 2, 3, 4),
                    help="vibration cases (default 1 2 3 4)")
+    p.add_argument("--workers", type=int,
+                   help="worker processes (default: the CPUs available); results do not "
+                        "depend on it")
     p.add_argument("--quiet", action="store_true", help="no progress bar, no summary")
     p.set_defaults(func=run)
 
@@ -57,7 +60,7 @@ def run(args: argparse.Namespace) -> int:
     res = reproduce(args.out, quick=args.quick, overwrite=args.overwrite, seed=args.seed,
                     K=args.K, L=args.L, amplitude=args.amplitude, contrast=args.contrast,
                     profile=args.profile, size=args.size, T=args.T, T_b=args.T_b,
-                    repetitions=args.repetitions, cases=args.cases,
+                    repetitions=args.repetitions, cases=args.cases, workers=args.workers,
                     progress=bar(quiet=args.quiet))
     if args.quiet:
         return 0
