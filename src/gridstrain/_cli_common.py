@@ -7,47 +7,65 @@ import math
 import sys
 from pathlib import Path
 
-from .lattice import Lattice, detect_lattice
+from .lattice import Lattice
 
 
-def add_lattice_options(p) -> None:
-    """``--pitch/--angle`` or ``--k1/--k2``; automatic detection otherwise."""
-    g = p.add_argument_group("lattice (default: detected on the reference)")
-    g.add_argument("--pitch", type=float, help="grid pitch, px")
-    g.add_argument("--angle", type=float, default=None,
-                   help="direction of k1, degrees from x towards y (default 0 with --pitch)")
-    g.add_argument("--k1", type=float, nargs=2, metavar=("KX", "KY"),
-                   help="first wave vector, cycles/px")
-    g.add_argument("--k2", type=float, nargs=2, metavar=("KX", "KY"),
-                   help="second wave vector, cycles/px")
+def add_lattice_options(group) -> None:
+    """``--pitch/--angle`` or ``--k1/--k2`` (automatic detection when absent)."""
+    group.add_argument("--pitch", type=float, metavar="PX",
+                       help="grid pitch, px (default: detected on the reference)")
+    group.add_argument("--angle", type=float, metavar="DEG",
+                       help="grid angle, degrees (with --pitch; default 0)")
+    group.add_argument("--k1", type=float, nargs=2, metavar=("KX", "KY"),
+                       help="first wave vector, cycles/px (with --k2, instead of --pitch)")
+    group.add_argument("--k2", type=float, nargs=2, metavar=("KX", "KY"),
+                       help="second wave vector, cycles/px")
 
 
-def lattice_from_args(args, image, *, mask=None) -> Lattice:
-    """The lattice the options ask for, or the one detected on ``image``."""
-    k1, k2 = getattr(args, "k1", None), getattr(args, "k2", None)
+def positive_option(opts: dict, name: str) -> None:
+    """Refuse ``--name`` unless it is absent or a finite positive number."""
+    v = opts.get(name)
+    if v is not None and not (math.isfinite(v) and v > 0):
+        raise ValueError(f"--{name} must be a finite positive number, got {v:g}")
+
+
+def lattice_option(opts: dict) -> Lattice | None:
+    """The lattice the options give, or None to detect it."""
+    has_pitch = opts.get("pitch") is not None
+    k1, k2 = opts.get("k1"), opts.get("k2")
+    if has_pitch and (k1 is not None or k2 is not None):
+        raise ValueError("give the grid either by --pitch (and --angle) or by --k1 and "
+                         "--k2, not both")
     if (k1 is None) != (k2 is None):
-        raise ValueError("--k1 and --k2 must be given together")
-    if k1 is not None:
-        if args.pitch is not None:
-            raise ValueError("give either --pitch/--angle or --k1/--k2, not both")
-        return Lattice(tuple(k1), tuple(k2))
-    if args.pitch is not None:
-        return Lattice.from_pitch(args.pitch, angle=args.angle or 0.0)
-    if args.angle is not None:
+        raise ValueError("--k1 and --k2 go together: give both wave vectors")
+    if opts.get("angle") is not None and not has_pitch:
         raise ValueError("--angle needs --pitch")
-    return detect_lattice(image, mask=mask)
+    if has_pitch:
+        positive_option(opts, "pitch")
+        if opts["pitch"] <= 2:
+            raise ValueError(f"--pitch must be above 2 px (the Nyquist limit), got "
+                             f"{opts['pitch']:g}")
+        return Lattice.from_pitch(opts["pitch"], angle=float(opts.get("angle") or 0.0))
+    if k1 is not None:
+        try:
+            return Lattice(tuple(k1), tuple(k2))
+        except ValueError as exc:
+            raise ValueError(f"--k1/--k2: {exc}") from None
+    return None
 
 
-def check_output(path, *, overwrite: bool, suffixes=None) -> Path:
-    """Refuse an output whose directory is missing, or that exists (no --overwrite)."""
-    out = Path(path)
-    if suffixes and out.suffix.lower() not in suffixes:
-        raise ValueError(f"output {out} must end in one of {', '.join(suffixes)}")
-    if not out.parent.exists():
-        raise FileNotFoundError(f"output directory {out.parent} does not exist")
-    if out.exists() and not overwrite:
-        raise FileExistsError(f"output {out} exists; pass --overwrite to replace it")
-    return out
+def check_output_file(path: Path, what: str, overwrite: bool, inputs=frozenset()) -> None:
+    """Refuse, before any work, an output that would fail or clobber at the end."""
+    if path.resolve() in inputs:
+        raise ValueError(f"{what} {path} is one of the input files; inputs are never "
+                         "modified")
+    if not path.parent.is_dir():
+        raise FileNotFoundError(f"{what} directory {path.parent} does not exist (for {path})")
+    if path.is_dir():
+        raise IsADirectoryError(f"{what} {path} is a directory")
+    if path.exists() and not overwrite:
+        raise FileExistsError(f"{what} {path} already exists (pass --overwrite to replace "
+                              "it)")
 
 
 def fmt(x: float) -> str:

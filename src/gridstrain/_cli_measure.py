@@ -18,9 +18,14 @@ from pathlib import Path
 
 import numpy as np
 
+from ._cli_common import (
+    add_lattice_options,
+    check_output_file,
+    lattice_option,
+    positive_option,
+)
 from ._progress import bar
 from .io import open_series, read_mask
-from .lattice import Lattice
 from .pipeline import (
     FWHM_PER_SIGMA,
     MAP_FIELDS,
@@ -64,14 +69,7 @@ def register(sub) -> None:
     p.add_argument("states", metavar="DEF", nargs="+", help="loaded state series, in order")
     p.add_argument("-o", "--output", metavar="OUT.h5", help="output HDF5 file")
     g = p.add_argument_group("grid and window")
-    g.add_argument("--pitch", type=float, metavar="PX",
-                   help="grid pitch, px (default: detected on the reference)")
-    g.add_argument("--angle", type=float, metavar="DEG",
-                   help="grid angle, degrees (with --pitch; default 0)")
-    g.add_argument("--k1", type=float, nargs=2, metavar=("KX", "KY"),
-                   help="first wave vector, cycles/px (with --k2, instead of --pitch)")
-    g.add_argument("--k2", type=float, nargs=2, metavar=("KX", "KY"),
-                   help="second wave vector, cycles/px")
+    add_lattice_options(g)
     g.add_argument("--sigma", type=float, metavar="PX",
                    help="window standard deviation, px (default and minimum: the pitch)")
     g.add_argument("--method", type=str.upper, choices=("A", "B"),
@@ -175,58 +173,15 @@ def _options(args) -> dict:
     return opts
 
 
-def _positive(opts: dict, name: str) -> None:
-    v = opts.get(name)
-    if v is not None and not (math.isfinite(v) and v > 0):
-        raise ValueError(f"--{name} must be a finite positive number, got {v:g}")
-
-
-def _lattice(opts: dict) -> Lattice | None:
-    has_pitch = opts.get("pitch") is not None
-    k1, k2 = opts.get("k1"), opts.get("k2")
-    if has_pitch and (k1 is not None or k2 is not None):
-        raise ValueError("give the grid either by --pitch (and --angle) or by --k1 and "
-                         "--k2, not both")
-    if (k1 is None) != (k2 is None):
-        raise ValueError("--k1 and --k2 go together: give both wave vectors")
-    if opts.get("angle") is not None and not has_pitch:
-        raise ValueError("--angle needs --pitch")
-    if has_pitch:
-        _positive(opts, "pitch")
-        if opts["pitch"] <= 2:
-            raise ValueError(f"--pitch must be above 2 px (the Nyquist limit), got "
-                             f"{opts['pitch']:g}")
-        return Lattice.from_pitch(opts["pitch"], angle=float(opts.get("angle") or 0.0))
-    if k1 is not None:
-        try:
-            return Lattice(tuple(k1), tuple(k2))
-        except ValueError as exc:
-            raise ValueError(f"--k1/--k2: {exc}") from None
-    return None
-
-
-def _check_output_file(path: Path, what: str, overwrite: bool, inputs: set[Path]) -> None:
-    if path.resolve() in inputs:
-        raise ValueError(f"{what} {path} is one of the input files; inputs are never "
-                         "modified")
-    if not path.parent.is_dir():
-        raise FileNotFoundError(f"{what} directory {path.parent} does not exist (for {path})")
-    if path.is_dir():
-        raise IsADirectoryError(f"{what} {path} is a directory")
-    if path.exists() and not overwrite:
-        raise FileExistsError(f"{what} {path} already exists (pass --overwrite to replace "
-                              "it)")
-
-
 def _check_outputs(opts: dict, n_states: int, inputs: set[Path]) -> None:
     """Refuse, before any work, what would fail or clobber at the end."""
     out = Path(os.path.expanduser(opts["output"]))
-    _check_output_file(out, "output file", opts["overwrite"], inputs)
+    check_output_file(out, "output file", opts["overwrite"], inputs)
     if opts.get("csv"):
         csv = Path(os.path.expanduser(opts["csv"]))
         if csv.resolve() == out.resolve():
             raise ValueError(f"--csv {csv} is the output file itself")
-        _check_output_file(csv, "CSV file", opts["overwrite"], inputs)
+        check_output_file(csv, "CSV file", opts["overwrite"], inputs)
     if opts.get("figures"):
         d = Path(os.path.expanduser(opts["figures"]))
         if d.exists() and not d.is_dir():
@@ -440,14 +395,14 @@ def _run(args, progress: _Bar) -> int:
     t0 = time.perf_counter()
     opts = _options(args)
     for name in ("sigma", "margin", "pixel-size"):
-        _positive(opts, name)
+        positive_option(opts, name)
     if (opts.get("pixel-size") is None) != (opts.get("unit") is None):
         raise ValueError("--pixel-size and --unit go together (e.g. --pixel-size 0.04 "
                          "--unit mm)")
     bits = opts.get("bit-depth")
     if bits is not None and not 1 <= bits <= 32:
         raise ValueError(f"--bit-depth must be between 1 and 32, got {bits}")
-    lattice = _lattice(opts)
+    lattice = lattice_option(opts)
     quiet, as_json = opts["quiet"], opts["json"]
     progress.configure(quiet)
 

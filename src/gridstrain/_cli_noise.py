@@ -4,13 +4,21 @@ from __future__ import annotations
 
 import json
 from datetime import UTC, datetime
+from pathlib import Path
 
 import numpy as np
 
 from . import __version__
-from ._cli_common import add_lattice_options, check_output, fmt, lattice_from_args, print_json
+from ._cli_common import (
+    add_lattice_options,
+    check_output_file,
+    fmt,
+    lattice_option,
+    print_json,
+)
 from ._progress import bar
 from .io import atomic_path, open_series, write_hdf5
+from .lattice import detect_lattice
 from .noise import estimate_noise
 from .uncertainty import noise_floor
 from .vibration import vibration_report
@@ -32,7 +40,7 @@ def register(sub) -> None:
                    help="override the detected bit depth")
     p.add_argument("--degree", type=int, default=3, choices=(0, 1, 2, 3, 4),
                    help="polynomial degree of the vibration model (default 3; 0 = static)")
-    add_lattice_options(p)
+    add_lattice_options(p.add_argument_group("lattice"))
     p.add_argument("--overwrite", action="store_true", help="replace an existing output")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.add_argument("--json", action="store_true", help="print a JSON summary on stdout")
@@ -42,14 +50,18 @@ def register(sub) -> None:
 def run(args) -> int:
     out = None
     if args.output:
-        out = check_output(args.output, overwrite=args.overwrite,
-                           suffixes=(".h5", ".hdf5", ".json"))
+        out = Path(args.output)
+        if out.suffix.lower() not in (".h5", ".hdf5", ".json"):
+            raise ValueError(f"output {out} must end in .h5, .hdf5 or .json")
+        check_output_file(out, "output file", args.overwrite, frozenset({Path(args.stack)
+                                                                          .resolve()}))
+    lattice_given = lattice_option(vars(args))
     if args.frames is not None and args.frames < 1:
         raise ValueError(f"--T must be a positive integer, got {args.frames}")
     series = open_series(args.stack, name="stack", bit_depth=args.bit_depth)
     progress = bar(quiet=args.quiet or args.json)
     mean = series.mean(progress=lambda f, m: progress(0.3 * f, "mean image"))
-    lattice = lattice_from_args(args, mean)
+    lattice = lattice_given or detect_lattice(mean)
     model = estimate_noise(series.frames(), lattice, saturation=series.saturation_level,
                            scale=series.scale, degree=args.degree,
                            progress=lambda f, m: progress(0.3 + 0.5 * f, "noise model"))
