@@ -17,7 +17,7 @@ from scipy import ndimage
 
 from gridstrain import Lattice, synthetic, wft
 from gridstrain._parallel import mean_wft
-from gridstrain.wft import _median, _spectrum_block, transfer_function
+from gridstrain.wft import _median, _spectrum_block, _wft, transfer_function
 
 
 def _reference(img, lat, sigma, mask=None, margin=4.0, min_modulus=0.25):
@@ -69,6 +69,8 @@ CASES = {
     "small pitch": (Lattice.from_pitch(2.5, angle=10.0), (64, 72), None, None),
     # a hole: the valid region needs the distance transform
     "masked": (Lattice.from_pitch(5.0, angle=-15.0), (110, 100), None, "hole"),
+    # a third of the image without grid: the modulus tests thin the valid region
+    "gridless": (Lattice.from_pitch(5.0, angle=8.0), (120, 96), None, "patch"),
 }
 
 
@@ -79,6 +81,9 @@ def test_matches_full_2d_spectral_reference(case):
     if mask == "hole":
         yy, xx = np.mgrid[0:shape[0], 0:shape[1]]
         mask = (yy - 50) ** 2 + (xx - 45) ** 2 > 12**2
+    elif mask == "patch":
+        img[:, 55:] = img.mean()
+        mask = None
     res = wft(img, lat, sigma=sigma, mask=mask)
     psi, dphi, valid = _reference(img, lat, lat.pitch if sigma is None else sigma, mask)
     # float64 rounding of FFTs of ~1e3 grey levels over ~1e4 pixels and of carriers
@@ -154,6 +159,44 @@ def test_spectrum_block_is_the_full_dft_block(ny, nx, r0, nr, c0, nc):
     np.testing.assert_allclose(block, full[np.ix_(rows, cols)], atol=1e-12)
 
 
+def _bump_grid(shape, noisy):
+    """The paper's synthetic fields: phases up to 0.06 and 0.42 rad, |d phi| <= 0.005."""
+    H, W = shape
+    width = 0.42 * math.exp(-0.5) / 0.005  # px
+    lat = Lattice.from_pitch(5.0)
+
+    def phases(X, Y):
+        bump = np.exp(-((X - W / 2) ** 2 + (Y - H / 2) ** 2) / (2 * width**2))
+        return 0.06 * bump, 0.42 * bump
+
+    img = synthetic.grid_image(shape, lat, amplitude=2048.0, phases=phases)
+    return lat, (synthetic.add_noise(img, rng=4) if noisy else img)
+
+
+@pytest.mark.parametrize("noisy", [False, True])
+def test_central_differences_are_faster_but_break_the_derivative_bound(noisy):
+    # The FFT-free derivative (benchmarks/bench_wft.py: about 2/3 of the exact path's
+    # time) is a different filter. Measured against the exact derivative: its
+    # truncation error, a sixth of the third derivative of phi, ~7e-7 rad/px on the
+    # paper's noise-free fields, and ~4e-5 rad/px on a noisy frame, whose noise it
+    # filters differently (sin 2 pi nu instead of 2 pi nu). Both exceed the
+    # 1e-7 rad/px the exact path meets, which is why wft keeps the exact derivatives.
+    lat, img = _bump_grid((256, 256), noisy)
+    exact = wft(img, lat)
+    central = _wft(img, lat, derivatives="central")
+    v = exact.valid
+    # the same Psi, the window applied in another order: float64 rounding, ~1e-15
+    np.testing.assert_allclose(central.psi, exact.psi, rtol=1e-13)
+    np.testing.assert_array_equal(central.valid, v)
+    err = np.max(np.abs(central.dphi - exact.dphi)[:, :, v])
+    lo, hi = (1e-7, 3e-6) if not noisy else (1e-5, 3e-4)
+    assert lo < err < hi  # rad/px
+    # float32 keeps its dtype on this path too
+    c32 = _wft(img.astype(np.float32), lat, derivatives="central")
+    assert c32.dphi.dtype == np.float32
+    assert np.max(np.abs(c32.dphi - central.dphi)[:, :, v]) < 1e-6  # float32 bound, rad/px
+
+
 def _frames(lat, T, shape=(80, 96)):
     rng = np.random.default_rng(11)
     out = []
@@ -165,21 +208,44 @@ def _frames(lat, T, shape=(80, 96)):
     return out
 
 
-def test_mean_wft_is_the_mean_of_the_frames_transforms():
+def test_mean_wft_averages_phases_and_derivatives_of_the_frames():
     lat = Lattice.from_pitch(5.0)
     frames = _frames(lat, 5)
     res = mean_wft(iter(frames), lat, workers=2)
     each = [wft(f, lat) for f in frames]
-    psi = np.mean([r.psi for r in each], axis=0)
-    dphi = np.mean([r.dphi for r in each], axis=0)
-    # float64 sums of 5 terms: a few ulps
-    np.testing.assert_allclose(res.psi, psi, rtol=1e-14, atol=1e-12)
-    np.testing.assert_allclose(res.dphi, dphi, rtol=0, atol=1e-15)
+    # the paper's method B: phases averaged frame by frame (relative to frame 1, the
+    # frames differ by vibrations of 0.05 px, ~0.06 rad, far from the pi of wrapping)
+    rel = np.mean([np.angle(r.psi * np.conj(each[0].psi)) for r in each], axis=0)
+    phase = np.angle(each[0].psi) + rel
+    # float64 sums of 5 terms and an angle: a few ulps of pi
+    np.testing.assert_allclose(np.angle(res.psi * np.exp(-1j * phase)), 0, atol=1e-13)
+    np.testing.assert_allclose(np.abs(res.psi), np.mean([np.abs(r.psi) for r in each], axis=0),
+                               rtol=1e-13)
+    np.testing.assert_allclose(res.dphi, np.mean([r.dphi for r in each], axis=0),
+                               rtol=0, atol=1e-15)
     np.testing.assert_array_equal(res.valid, np.logical_and.reduce([r.valid for r in each]))
     # the additions follow the frames' order whatever the threads: identical bits
     serial = mean_wft(frames, lat, workers=1)
     np.testing.assert_array_equal(serial.psi, res.psi)
     np.testing.assert_array_equal(serial.dphi, res.dphi)
+
+
+def test_mean_of_phasors_is_method_a():
+    # Psi is linear in the image: the mean of the frames' Psi is the Psi of the mean
+    # frame (method A), which is why method B averages phases by default
+    lat = Lattice.from_pitch(5.0, angle=12.0)
+    frames = _frames(lat, 4)
+    res = mean_wft(frames, lat, average="phasor", workers=2)
+    a = wft(np.mean(frames, axis=0), lat)
+    # float64 rounding of the FFTs of ~2000 grey levels, relative to the largest |Psi|
+    np.testing.assert_allclose(res.psi, a.psi, rtol=0, atol=1e-12 * np.abs(a.psi).max())
+    assert np.max(np.abs(np.angle(res.psi * np.conj(a.psi)))[:, a.valid]) < 1e-12
+    # the phase average differs from it at the noise level, which averaging lowers
+    ph = mean_wft(frames, lat, workers=2)
+    d = np.abs(np.angle(ph.psi * np.conj(a.psi)))[:, a.valid]
+    # second order in the frame-to-frame phase spread (0.06 rad of vibration, 1e-3 rad
+    # of noise): a few 1e-4 rad, above rounding and below 1e-2 rad
+    assert 1e-8 < np.max(d) < 1e-2
 
 
 def test_mean_wft_keeps_float32_and_reports_progress():
@@ -203,3 +269,5 @@ def test_mean_wft_refuses_bad_input():
         mean_wft([frames[0], frames[1][:, :-8]], lat, workers=1)
     with pytest.raises(TypeError, match="progress"):
         mean_wft(frames, lat, progress="yes")
+    with pytest.raises(ValueError, match="average"):
+        mean_wft(frames, lat, average="median")

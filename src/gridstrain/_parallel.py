@@ -6,6 +6,10 @@ one (method A transforms the averaged image). This module maps :func:`gridstrain
 over the frames on a pool of threads (scipy.fft and numpy's large array operations
 release the GIL) and accumulates the results in float64, with memory bounded by a
 few frames whatever T.
+
+Averaging the phasors ``Psi`` instead of the phases gives exactly method A's ``Psi``
+(the transform is linear in the image), so by default the phases themselves are
+averaged, as the paper does; the derivatives are averaged in both cases.
 """
 
 from __future__ import annotations
@@ -17,6 +21,7 @@ from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
+from ._validation import check_choice
 from .lattice import Lattice
 from .wft import DEFAULT_MARGIN, PhaseMaps, wft
 
@@ -33,7 +38,8 @@ def _check_workers(workers) -> int:
 
 
 def mean_wft(frames: Iterable, lattice: Lattice, *, sigma: float | None = None, mask=None,
-             margin: float = DEFAULT_MARGIN, workers: int | None = None,
+             margin: float = DEFAULT_MARGIN, average: str = "phase",
+             workers: int | None = None,
              progress: Callable[[float, str], None] | None = None,
              n_frames: int | None = None) -> PhaseMaps:
     """Method B: windowed Fourier transform of each frame, phasors and derivatives averaged.
@@ -48,6 +54,13 @@ def mean_wft(frames: Iterable, lattice: Lattice, *, sigma: float | None = None, 
         Wave vectors, as for :func:`gridstrain.wft`.
     sigma, mask, margin
         As for :func:`gridstrain.wft`, the same for every frame.
+    average : {"phase", "phasor"}
+        ``"phase"`` (the paper's method B): the phase is the first frame's plus the
+        mean of each frame's phase relative to it, ``arg(Psi_t conj(Psi_1))``, which
+        needs no unwrapping while the frames differ by less than pi (vibrations of
+        a fraction of the pitch); the modulus is the mean modulus. ``"phasor"``:
+        the mean of the ``Psi_t``, which equals method A's ``Psi`` and saves the
+        phase computations.
     workers : int, optional
         Threads transforming frames at once (default: the usable cores). At most
         ``2 * workers`` frames and their results are held at a time.
@@ -60,8 +73,8 @@ def mean_wft(frames: Iterable, lattice: Lattice, *, sigma: float | None = None, 
     Returns
     -------
     PhaseMaps
-        ``psi`` (2, H, W): mean of the frames' ``Psi`` (demodulated phasors), grey
-        levels, so that ``phase`` is the argument of the mean phasor; ``dphi``
+        ``psi`` (2, H, W): grey levels, with the averaged phase as argument (see
+        ``average``); ``dphi``
         (2, 2, H, W): mean of the frames' phase derivatives, rad/px; ``valid``:
         pixels valid in every frame. Sums are float64 and the frames' order fixes
         the order of the additions, so the result does not depend on ``workers``;
@@ -70,58 +83,79 @@ def mean_wft(frames: Iterable, lattice: Lattice, *, sigma: float | None = None, 
     Raises
     ------
     ValueError
-        If ``frames`` is empty, the frames differ in shape, or ``workers`` is not
-        a positive integer.
+        If ``frames`` is empty, the frames differ in shape, ``average`` is unknown,
+        or ``workers`` is not a positive integer.
     """
+    check_choice(average, "average", ("phase", "phasor"))
     n_workers = _check_workers(workers)
     if progress is not None and not callable(progress):
         raise TypeError(f"progress must be callable or None, got {progress!r}")
     total = n_frames if n_frames is not None else (
         len(frames) if hasattr(frames, "__len__") else None)
 
-    def one(frame):
-        return wft(frame, lattice, sigma=sigma, mask=mask, margin=margin)
+    it = iter(frames)
+    first_frame = next(it, None)
+    if first_frame is None:
+        raise ValueError("frames must hold at least one frame, got none")
+    first = wft(first_frame, lattice, sigma=sigma, mask=mask, margin=margin)
+    del first_frame
+    dphi = first.dphi.astype(np.float64)
+    valid = first.valid.copy()
+    if average == "phasor":
+        psi_sum = first.psi.astype(np.complex128)
+    else:
+        conj1 = np.conj(first.psi)
+        phase_sum = np.zeros(first.psi.shape)  # frame 1's phase relative to itself
+        mod_sum = np.abs(first.psi).astype(np.float64)
 
-    acc = {}
-    count = 0
+    def transform(frame):
+        # runs in a worker thread: the phase extraction is as costly as a third of
+        # the transform, so it is done here rather than in the accumulating thread
+        res = wft(frame, lattice, sigma=sigma, mask=mask, margin=margin)
+        if res.shape != first.shape:
+            raise ValueError(f"frames must all have the shape of the first, {first.shape}; "
+                             f"got {res.shape}")
+        if average == "phasor":
+            return res, None, None
+        return res, np.angle(res.psi * conj1), np.abs(res.psi)
 
-    def add(res: PhaseMaps) -> None:
+    count = 1
+
+    def add(item) -> None:
         nonlocal count
-        if not acc:
-            acc["psi"] = res.psi.astype(np.complex128)
-            acc["dphi"] = res.dphi.astype(np.float64)
-            acc["valid"] = res.valid.copy()
-            acc["first"] = res
+        res, rel, mod = item
+        np.add(dphi, res.dphi, out=dphi)
+        np.logical_and(valid, res.valid, out=valid)
+        if average == "phasor":
+            np.add(psi_sum, res.psi, out=psi_sum)
         else:
-            if res.shape != acc["first"].shape:
-                raise ValueError(f"frames must all have the shape of the first, "
-                                 f"{acc['first'].shape}; frame {count} has {res.shape}")
-            np.add(acc["psi"], res.psi, out=acc["psi"])
-            np.add(acc["dphi"], res.dphi, out=acc["dphi"])
-            acc["valid"] &= res.valid
+            np.add(phase_sum, rel, out=phase_sum)
+            np.add(mod_sum, mod, out=mod_sum)
         count += 1
         if progress is not None:
-            frac = count / total if total else 0.0
-            progress(min(frac, 1.0), f"method B: transformed frame {count}"
-                     + (f"/{total}" if total else ""))
+            progress(min(count / total, 1.0) if total else 0.0,
+                     f"method B: transformed frame {count}" + (f"/{total}" if total else ""))
 
+    if progress is not None:
+        progress(1 / total if total else 0.0,
+                 "method B: transformed frame 1" + (f"/{total}" if total else ""))
     if n_workers == 1:
-        for frame in frames:
-            add(one(frame))
+        for frame in it:
+            add(transform(frame))
     else:
         with ThreadPoolExecutor(max_workers=n_workers) as pool:
             pending: deque = deque()
-            for frame in frames:
-                pending.append(pool.submit(one, frame))
+            for frame in it:
+                pending.append(pool.submit(transform, frame))
                 while len(pending) >= 2 * n_workers:
                     add(pending.popleft().result())
             while pending:
                 add(pending.popleft().result())
-    if count == 0:
-        raise ValueError("frames must hold at least one frame, got none")
-    first = acc["first"]
-    acc["psi"] /= count
-    acc["dphi"] /= count
-    return PhaseMaps(psi=acc["psi"].astype(first.psi.dtype, copy=False),
-                     dphi=acc["dphi"].astype(first.dphi.dtype, copy=False),
-                     valid=acc["valid"], lattice=lattice, sigma=first.sigma)
+    if average == "phasor":
+        psi = psi_sum / count
+    else:
+        psi = mod_sum / count * np.exp(1j * (np.angle(first.psi) + phase_sum / count))
+    dphi /= count
+    return PhaseMaps(psi=psi.astype(first.psi.dtype, copy=False),
+                     dphi=dphi.astype(first.dphi.dtype, copy=False),
+                     valid=valid, lattice=lattice, sigma=first.sigma)

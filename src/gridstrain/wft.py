@@ -15,7 +15,7 @@ import numpy as np
 from scipy import fft as sfft
 from scipy import ndimage
 
-from ._validation import as_image, check_mask, check_positive
+from ._validation import as_image, check_choice, check_mask, check_positive
 from .lattice import Lattice
 
 __all__ = ["DEFAULT_MARGIN", "PhaseMaps", "transfer_function", "wft"]
@@ -264,6 +264,28 @@ def wft(image, lattice: Lattice, *, sigma: float | None = None, mask=None,
     from the edge, 3e-4 rad at 3 sigma, 7e-6 rad at 4 sigma, falling as a Gaussian)
     and are flagged invalid within ``margin`` sigmas.
     """
+    return _wft(image, lattice, sigma=sigma, mask=mask, margin=margin,
+                min_modulus=min_modulus)
+
+
+def _wft(image, lattice: Lattice, *, sigma: float | None = None, mask=None,
+         margin: float = DEFAULT_MARGIN, min_modulus: float = _MIN_MODULUS,
+         derivatives: str = "exact") -> PhaseMaps:
+    """:func:`wft`, with a choice of phase derivatives.
+
+    ``derivatives="exact"`` (what :func:`wft` does): ``Im(conj(Psi) dPsi)/|Psi|^2``
+    with ``dPsi`` from the analytic derivative of the window, two more inverse FFTs
+    along x and one more along y per wave vector.
+
+    ``derivatives="central"``: ``Im(conj(Psi) (Psi[+1] - Psi[-1])) / (2 |Psi|^2)``,
+    central differences of the demodulated map along each axis, no FFT beyond the
+    one for ``Psi``. Faster (``benchmarks/bench_wft.py``) but a different filter:
+    its bias (about phi'''/6) and its response to the noise differ from the exact
+    derivative by ~1e-6 rad/px on the paper's noise-free fields and by ~5e-5 rad/px
+    on a noisy frame (tests/test_fast.py), far above the 1e-7 rad/px that the exact
+    path meets; it is not used by default.
+    """
+    check_choice(derivatives, "derivatives", ("exact", "central"))
     if not isinstance(lattice, Lattice):
         raise TypeError(f"lattice must be a Lattice, got {type(lattice).__name__}")
     img = as_image(image)
@@ -287,25 +309,49 @@ def wft(image, lattice: Lattice, *, sigma: float | None = None, mask=None,
     V = _padded_rfft2(img, m, full, ny, nx)
     psi = np.empty((2, H, W), dtype=V.dtype)
     dphi = np.empty((2, 2, H, W), dtype=dtype)
-    mod = np.empty((2, H, W), dtype=dtype)
-    for j, k in enumerate((lattice.k1, lattice.k2)):
-        _one_wave_vector(V, k, sigma, H, W, nx, psi[j], dphi[j], mod[j])
 
     if full:
         valid, box = _valid_rectangle(H, W, margin * sigma)
     else:
         valid, box = _valid_region(m, margin * sigma), None
-    if not valid.any():
-        box = np.s_[:, :] if full else None
-        ref = m
-    else:
-        ref = valid
-    for j in range(2):
-        # median over the valid pixels, before the modulus test thins them; a box is
-        # sliced (and copied for the partial sort) instead of gathered by a mask
-        values = np.array(mod[j][box]) if box is not None else mod[j][ref]
-        valid &= mod[j] >= min_modulus * _median(values)
+    any_valid = bool(valid.any())
+    if not any_valid and full:
+        box = np.s_[:, :]
+    # scratch arrays shared by the two wave vectors: fresh pages cost a page fault each
+    work = _Workspace()
+    mod = work.get("mod", (H, W), dtype)
+    one = _one_wave_vector if derivatives == "exact" else _one_wave_vector_central
+    for j, k in enumerate((lattice.k1, lattice.k2)):
+        one(V, k, sigma, H, W, nx, psi[j], dphi[j], mod, work)
+        # The median modulus over the valid region, which the first wave vector's
+        # test may already have thinned. While the region is a box, it is sliced
+        # (and copied, to be partially sorted) instead of gathered through a mask.
+        if box is not None:
+            values = work.get("median", mod[box].shape, dtype)
+            np.copyto(values, mod[box])
+        else:
+            values = mod[valid] if any_valid else mod[m]
+        keep = mod >= min_modulus * _median(values)
+        if box is not None and any_valid and not keep[box].all():
+            box = None
+        valid &= keep
     return PhaseMaps(psi=psi, dphi=dphi, valid=valid, lattice=lattice, sigma=float(sigma))
+
+
+class _Workspace:
+    """Scratch arrays reused from one wave vector to the next (named flat buffers)."""
+
+    def __init__(self):
+        self._buffers: dict[str, np.ndarray] = {}
+
+    def get(self, name: str, shape, dtype) -> np.ndarray:
+        """An uninitialised C-contiguous array of ``shape``, sharing ``name``'s buffer."""
+        dtype = np.dtype(dtype)
+        size = math.prod(shape)
+        buf = self._buffers.get(name)
+        if buf is None or buf.dtype != dtype or buf.size < size:
+            buf = self._buffers[name] = np.empty(size, dtype=dtype)
+        return buf[:size].reshape(shape)
 
 
 def _padded_rfft2(img: np.ndarray, m: np.ndarray, full: bool, ny: int, nx: int) -> np.ndarray:
@@ -323,7 +369,8 @@ def _padded_rfft2(img: np.ndarray, m: np.ndarray, full: bool, ny: int, nx: int) 
     return sfft.rfft2(padded, overwrite_x=True)
 
 
-def _one_wave_vector(V, k, sigma, H, W, nx, psi, dphi, mod, *, chunk: int | None = None):
+def _one_wave_vector(V, k, sigma, H, W, nx, psi, dphi, mod, work, *,
+                     chunk: int | None = None):
     """Fill ``psi`` (H, W) and ``dphi`` (2, H, W) for the wave vector ``k``.
 
     The filtered spectrum is non-zero only on a band of rows x cols around ``k``, and
@@ -347,11 +394,17 @@ def _one_wave_vector(V, k, sigma, H, W, nx, psi, dphi, mod, *, chunk: int | None
     gx = transfer_function(nux, sigma).astype(cdtype)
     dgx = transfer_function(nux, sigma, derivative=True).astype(cdtype)
 
-    # along y: window and its derivative, for the band's columns only
-    Y = np.zeros((2, ny, cols.size), dtype=cdtype)
+    # along y: window and its derivative, for the band's columns only. The x-window
+    # is applied here too, on the small band, so that the blocks along x below are
+    # mostly copies; dPsi/dx then needs dgx / gx (~ 2 i pi nu, finite on the band).
+    block *= gx
+    Y = work.get("Y", (2, ny, cols.size), cdtype)
+    for gap in _gaps(yruns, ny):
+        Y[:, gap] = 0
     for dst, src in yruns:
         np.multiply(block[src], gy[src, None], out=Y[0, dst])
         np.multiply(block[src], dgy[src, None], out=Y[1, dst])
+    ratio = (dgx / gx).astype(cdtype)
     A = sfft.ifft(Y, axis=1, overwrite_x=True)[:, :H]
     ry = sy / ny - k[1]
     if ry != 0:
@@ -361,10 +414,10 @@ def _one_wave_vector(V, k, sigma, H, W, nx, psi, dphi, mod, *, chunk: int | None
 
     # along x, by blocks of rows: Psi, dPsi/dx, dPsi/dy. One buffer serves every block
     # (the in-place FFT overwrites it, so the columns outside the band are re-zeroed).
-    X = np.empty((3, min(chunk, H), nx), dtype=cdtype)
+    X = work.get("X", (3, min(chunk, H), nx), cdtype)
     gaps = _gaps(xruns, nx)
-    cc = np.empty((min(chunk, H), W), dtype=cdtype)
-    prod = np.empty((2, min(chunk, H), W), dtype=cdtype)
+    cc = work.get("cc", (min(chunk, H), W), cdtype)
+    prod = work.get("prod", (2, min(chunk, H), W), cdtype)
     for r0 in range(0, H, chunk):
         r1 = min(r0 + chunk, H)
         h = r1 - r0
@@ -372,9 +425,9 @@ def _one_wave_vector(V, k, sigma, H, W, nx, psi, dphi, mod, *, chunk: int | None
         for gap in gaps:
             Xh[:, :, gap] = 0
         for dst, src in xruns:
-            np.multiply(A[0, r0:r1, src], gx[src], out=Xh[0, :, dst])
-            np.multiply(A[0, r0:r1, src], dgx[src], out=Xh[1, :, dst])
-            np.multiply(A[1, r0:r1, src], gx[src], out=Xh[2, :, dst])
+            Xh[0, :, dst] = A[0, r0:r1, src]
+            np.multiply(A[0, r0:r1, src], ratio[src], out=Xh[1, :, dst])
+            Xh[2, :, dst] = A[1, r0:r1, src]
         out = sfft.ifft(Xh, axis=2, overwrite_x=True)
         c = out[0, :, :W]
         if ex is None:
@@ -390,6 +443,70 @@ def _one_wave_vector(V, k, sigma, H, W, nx, psi, dphi, mod, *, chunk: int | None
         with np.errstate(invalid="ignore", divide="ignore"):
             inv = np.square(mod[r0:r1], dtype=np.float64)
             np.reciprocal(inv, out=inv)
+        np.multiply(ph.imag, inv, out=dphi[:, r0:r1], casting="same_kind")
+
+
+def _one_wave_vector_central(V, k, sigma, H, W, nx, psi, dphi, mod, work, *,
+                             chunk: int | None = None):
+    """:func:`_one_wave_vector` with central-difference derivatives (see :func:`_wft`).
+
+    Only ``Psi`` is transformed, by blocks of rows with one more row above and below
+    and one more column on each side, so that the differences at the image's edge use
+    the transform just outside it (the zero-extended image's), as the exact path does.
+    """
+    ny = V.shape[0]
+    cdtype = V.dtype
+    if chunk is None:
+        chunk = max(8, _CHUNK_BYTES // (nx * cdtype.itemsize))
+    rows, yruns, nuy, sy = _axis_band(ny, k[1], sigma)
+    cols, xruns, nux, sx = _axis_band(nx, k[0], sigma)
+    block = _spectrum_block(V, rows, cols, nx)
+    gy = transfer_function(nuy, sigma).astype(cdtype)
+    gx = transfer_function(nux, sigma).astype(cdtype)
+    Y = work.get("Y", (ny, cols.size), cdtype)
+    for gap in _gaps(yruns, ny):
+        Y[gap] = 0
+    for dst, src in yruns:
+        np.multiply(block[src], gy[src, None], out=Y[dst])
+    A = sfft.ifft(Y, axis=0, overwrite_x=True)  # all ny rows: row -1 is row ny - 1
+    # residual demodulation (less than half a bin) at y = -1 .. H and x = -1 .. W
+    ey = np.exp(2j * math.pi * (sy / ny - k[1]) * np.arange(-1, H + 1)).astype(cdtype)
+    ex = np.exp(2j * math.pi * (sx / nx - k[0]) * np.arange(-1, W + 1)).astype(cdtype)
+    gaps = _gaps(xruns, nx)
+    h_max = min(chunk, H)
+    X = work.get("X", (h_max + 2, nx), cdtype)
+    ext = work.get("ext", (h_max + 2, W + 2), cdtype)
+    cc = work.get("cc", (h_max, W), cdtype)
+    prod = work.get("prod", (2, h_max, W), cdtype)
+    for r0 in range(0, H, chunk):
+        r1 = min(r0 + chunk, H)
+        h = r1 - r0
+        Xh = X[:h + 2]
+        for gap in gaps:
+            Xh[:, gap] = 0
+        ys = np.arange(r0 - 1, r1 + 1) % ny
+        for dst, src in xruns:
+            np.multiply(A[ys, src], gx[src], out=Xh[:, dst])
+        out = sfft.ifft(Xh, axis=1, overwrite_x=True)
+        e = ext[:h + 2]
+        e[:, 1:W + 1] = out[:, :W]
+        e[:, 0] = out[:, nx - 1]
+        e[:, W + 1] = out[:, W]
+        e *= ey[r0:r1 + 2, None]
+        e *= ex
+        centre = e[1:-1, 1:-1]
+        psi[r0:r1] = centre
+        np.abs(centre, out=mod[r0:r1])
+        ch = cc[:h]
+        np.conjugate(centre, out=ch)
+        ph = prod[:, :h]
+        np.subtract(e[1:-1, 2:], e[1:-1, :-2], out=ph[0])
+        np.subtract(e[2:, 1:-1], e[:-2, 1:-1], out=ph[1])
+        ph *= ch
+        with np.errstate(invalid="ignore", divide="ignore"):
+            inv = np.square(mod[r0:r1], dtype=np.float64)
+            np.reciprocal(inv, out=inv)
+        inv *= 0.5
         np.multiply(ph.imag, inv, out=dphi[:, r0:r1], casting="same_kind")
 
 
