@@ -34,20 +34,26 @@ def machine() -> str:
 
 
 def interleaved(funcs: dict, repeat: int) -> dict:
-    """Best and median wall time, s, of each callable, run in turn ``repeat`` times.
+    """Wall and CPU times, s, of each callable, run in turn ``repeat`` times.
 
-    Interleaving spreads any slowdown of the machine over all the candidates, so that
-    their ratios hold even when the absolute times drift.
+    Returns ``{name: (best wall, median wall, best CPU)}``. Interleaving spreads any
+    slowdown of the machine over all the candidates, so that their ratios hold even
+    when the absolute times drift; the CPU time of this process (all its threads)
+    is what a single-threaded candidate would take on an idle machine, less the
+    cache and memory contention of the other processes.
     """
-    times = {name: [] for name in funcs}
+    wall = {name: [] for name in funcs}
+    cpu = {name: [] for name in funcs}
     for f in funcs.values():  # warm-up: plans, caches, first-touch of memory
         f()
     for _ in range(repeat):
         for name, f in funcs.items():
-            t0 = time.perf_counter()
+            c0, t0 = time.process_time(), time.perf_counter()
             f()
-            times[name].append(time.perf_counter() - t0)
-    return {name: (min(v), float(np.median(v))) for name, v in times.items()}
+            wall[name].append(time.perf_counter() - t0)
+            cpu[name].append(time.process_time() - c0)
+    return {name: (min(wall[name]), float(np.median(wall[name])), min(cpu[name]))
+            for name in funcs}
 
 
 def issue_phases(shape):
@@ -68,7 +74,7 @@ def issue_phases(shape):
 
 
 def grid_test_image(shape, *, pitch: float = 5.0, noisy: bool = True, seed: int = 0,
-               amplitude: float = 2048.0):
+                    amplitude: float = 2048.0):
     """A 12-bit-like grid image of ``shape`` with the issue's phase fields."""
     lattice = Lattice.from_pitch(pitch)
     img = synthetic.grid_image(shape, lattice, amplitude=amplitude,

@@ -63,7 +63,8 @@ def mean_wft(frames: Iterable, lattice: Lattice, *, sigma: float | None = None, 
         phase computations.
     workers : int, optional
         Threads transforming frames at once (default: the usable cores). At most
-        ``2 * workers`` frames and their results are held at a time.
+        ``workers`` frames and their transforms are held at a time, besides the
+        float64 sums.
     progress : callable, optional
         ``progress(fraction, message)``, called after each frame; ``fraction`` is
         known only when ``n_frames`` is given or ``frames`` has a length.
@@ -110,27 +111,28 @@ def mean_wft(frames: Iterable, lattice: Lattice, *, sigma: float | None = None, 
 
     def transform(frame):
         # runs in a worker thread: the phase extraction is as costly as a third of
-        # the transform, so it is done here rather than in the accumulating thread
+        # the transform, so it is done here rather than in the accumulating thread;
+        # only what is summed is kept
         res = wft(frame, lattice, sigma=sigma, mask=mask, margin=margin)
         if res.shape != first.shape:
             raise ValueError(f"frames must all have the shape of the first, {first.shape}; "
                              f"got {res.shape}")
         if average == "phasor":
-            return res, None, None
-        return res, np.angle(res.psi * conj1), np.abs(res.psi)
+            return res.dphi, res.valid, res.psi, None
+        return res.dphi, res.valid, np.angle(res.psi * conj1), np.abs(res.psi)
 
     count = 1
 
     def add(item) -> None:
         nonlocal count
-        res, rel, mod = item
-        np.add(dphi, res.dphi, out=dphi)
-        np.logical_and(valid, res.valid, out=valid)
+        d, v, a, b = item
+        np.add(dphi, d, out=dphi)
+        np.logical_and(valid, v, out=valid)
         if average == "phasor":
-            np.add(psi_sum, res.psi, out=psi_sum)
+            np.add(psi_sum, a, out=psi_sum)
         else:
-            np.add(phase_sum, rel, out=phase_sum)
-            np.add(mod_sum, mod, out=mod_sum)
+            np.add(phase_sum, a, out=phase_sum)
+            np.add(mod_sum, b, out=mod_sum)
         count += 1
         if progress is not None:
             progress(min(count / total, 1.0) if total else 0.0,
@@ -146,9 +148,12 @@ def mean_wft(frames: Iterable, lattice: Lattice, *, sigma: float | None = None, 
         with ThreadPoolExecutor(max_workers=n_workers) as pool:
             pending: deque = deque()
             for frame in it:
-                pending.append(pool.submit(transform, frame))
-                while len(pending) >= 2 * n_workers:
+                # one frame per thread at a time: memory stays at about ``workers``
+                # transforms whatever the number of frames
+                while len(pending) >= n_workers:
                     add(pending.popleft().result())
+                pending.append(pool.submit(transform, frame))
+                del frame
             while pending:
                 add(pending.popleft().result())
     if average == "phasor":

@@ -199,12 +199,13 @@ def _runs(idx: np.ndarray):
 
 
 def _median(values: np.ndarray) -> float:
-    """``np.median`` of finite ``values``; they are partially sorted in place.
+    """``np.median`` of the finite ``values`` (any shape, a view is fine; not modified).
 
-    One partition around the upper middle, then the maximum of the lower half:
-    ``np.median`` partitions around both middle elements, which costs twice as much.
+    One partial sort around the upper middle, then the maximum of the lower half:
+    ``np.median`` partially sorts around both middle elements, which costs about
+    five times as much on the modulus maps of the valid region.
     """
-    flat = values.reshape(-1)
+    flat = np.array(values, copy=True).reshape(-1)
     n = flat.size
     k = n // 2
     flat.partition(k)
@@ -252,12 +253,14 @@ def wft(image, lattice: Lattice, *, sigma: float | None = None, mask=None,
     equals the linear one.
 
     Cost: one real FFT of the image; then, per wave vector, inverse FFTs along y of
-    only the columns where ``G`` is non-zero (a band of about ``2.7 / sigma`` of the
-    spectrum) for the window and its y-derivative, and three inverse FFTs along x of
-    the image's rows, for ``Psi``, ``dPsi/dx`` and ``dPsi/dy``. The window being
-    separable, this equals the three 2-D inverse FFTs of the filtered spectra, at
-    about half their cost; the derivatives cost about one 2-D FFT each
-    (``benchmarks/bench_wft.py`` prints the figures).
+    only the columns where ``G`` is non-zero (a band of about ``2.7 / sigma`` cycle/px)
+    for the window and its y-derivative, and three inverse FFTs along x of the
+    image's rows, for ``Psi``, ``dPsi/dx`` and ``dPsi/dy``, by blocks of rows that
+    stay in cache. The window being separable, this equals the three 2-D inverse
+    FFTs of the filtered spectra at about 40 % of their cost. At 1040 x 1376 px,
+    sigma = 5 px, one call takes about 2.7 times one rfft2 and two complex ifft2 of
+    the padded size, the least any FFT method needs for the two phase maps alone
+    (``benchmarks/bench_wft.py``).
 
     Near the border or a mask edge the window is cut: results there are biased
     (for a noise-free grid at sigma = pitch, phase errors of 3e-3 rad at 2 sigma
@@ -325,12 +328,8 @@ def _wft(image, lattice: Lattice, *, sigma: float | None = None, mask=None,
         one(V, k, sigma, H, W, nx, psi[j], dphi[j], mod, work)
         # The median modulus over the valid region, which the first wave vector's
         # test may already have thinned. While the region is a box, it is sliced
-        # (and copied, to be partially sorted) instead of gathered through a mask.
-        if box is not None:
-            values = work.get("median", mod[box].shape, dtype)
-            np.copyto(values, mod[box])
-        else:
-            values = mod[valid] if any_valid else mod[m]
+        # instead of gathered through a mask.
+        values = mod[box] if box is not None else mod[valid] if any_valid else mod[m]
         keep = mod >= min_modulus * _median(values)
         if box is not None and any_valid and not keep[box].all():
             box = None
@@ -450,9 +449,9 @@ def _one_wave_vector_central(V, k, sigma, H, W, nx, psi, dphi, mod, work, *,
                              chunk: int | None = None):
     """:func:`_one_wave_vector` with central-difference derivatives (see :func:`_wft`).
 
-    Only ``Psi`` is transformed, by blocks of rows with one more row above and below
-    and one more column on each side, so that the differences at the image's edge use
-    the transform just outside it (the zero-extended image's), as the exact path does.
+    Only ``Psi`` is transformed, by blocks of rows with one more row above and below,
+    and the differences at the image's edge use the transform just outside it (that
+    of the zero-extended image), as the exact path does.
     """
     ny = V.shape[0]
     cdtype = V.dtype
@@ -461,21 +460,29 @@ def _one_wave_vector_central(V, k, sigma, H, W, nx, psi, dphi, mod, work, *,
     rows, yruns, nuy, sy = _axis_band(ny, k[1], sigma)
     cols, xruns, nux, sx = _axis_band(nx, k[0], sigma)
     block = _spectrum_block(V, rows, cols, nx)
+    block *= transfer_function(nux, sigma).astype(cdtype)
     gy = transfer_function(nuy, sigma).astype(cdtype)
-    gx = transfer_function(nux, sigma).astype(cdtype)
     Y = work.get("Y", (ny, cols.size), cdtype)
     for gap in _gaps(yruns, ny):
         Y[gap] = 0
     for dst, src in yruns:
         np.multiply(block[src], gy[src, None], out=Y[dst])
-    A = sfft.ifft(Y, axis=0, overwrite_x=True)  # all ny rows: row -1 is row ny - 1
-    # residual demodulation (less than half a bin) at y = -1 .. H and x = -1 .. W
-    ey = np.exp(2j * math.pi * (sy / ny - k[1]) * np.arange(-1, H + 1)).astype(cdtype)
-    ex = np.exp(2j * math.pi * (sx / nx - k[0]) * np.arange(-1, W + 1)).astype(cdtype)
+    A = sfft.ifft(Y, axis=0, overwrite_x=True)
+    # rows -1 .. H (row -1 of the periodic transform is row ny - 1), demodulated
+    # along y by the residual (less than half a bin) left by the shift of the band
+    Ae = work.get("Ae", (H + 2, cols.size), cdtype)
+    Ae[0] = A[ny - 1]
+    Ae[1:] = A[:H + 1]
+    ry = sy / ny - k[1]
+    if ry != 0:
+        Ae *= np.exp(2j * math.pi * ry * np.arange(-1, H + 1)).astype(cdtype)[:, None]
+    # along x the residual stays in c; it enters the differences as exp(+-i theta)
+    theta = 2 * math.pi * (sx / nx - k[0])
+    ex = np.exp(1j * theta * np.arange(W)).astype(cdtype) if theta != 0 else None
+    turn = cdtype.type(np.exp(1j * theta))
     gaps = _gaps(xruns, nx)
     h_max = min(chunk, H)
     X = work.get("X", (h_max + 2, nx), cdtype)
-    ext = work.get("ext", (h_max + 2, W + 2), cdtype)
     cc = work.get("cc", (h_max, W), cdtype)
     prod = work.get("prod", (2, h_max, W), cdtype)
     for r0 in range(0, H, chunk):
@@ -484,24 +491,28 @@ def _one_wave_vector_central(V, k, sigma, H, W, nx, psi, dphi, mod, work, *,
         Xh = X[:h + 2]
         for gap in gaps:
             Xh[:, gap] = 0
-        ys = np.arange(r0 - 1, r1 + 1) % ny
         for dst, src in xruns:
-            np.multiply(A[ys, src], gx[src], out=Xh[:, dst])
+            Xh[:, dst] = Ae[r0:r1 + 2, src]
         out = sfft.ifft(Xh, axis=1, overwrite_x=True)
-        e = ext[:h + 2]
-        e[:, 1:W + 1] = out[:, :W]
-        e[:, 0] = out[:, nx - 1]
-        e[:, W + 1] = out[:, W]
-        e *= ey[r0:r1 + 2, None]
-        e *= ex
-        centre = e[1:-1, 1:-1]
-        psi[r0:r1] = centre
-        np.abs(centre, out=mod[r0:r1])
+        c = out[1:-1, :W]
+        if ex is None:
+            psi[r0:r1] = c
+        else:
+            np.multiply(c, ex, out=psi[r0:r1])
+        np.abs(c, out=mod[r0:r1])
         ch = cc[:h]
-        np.conjugate(centre, out=ch)
+        np.conjugate(c, out=ch)
         ph = prod[:, :h]
-        np.subtract(e[1:-1, 2:], e[1:-1, :-2], out=ph[0])
-        np.subtract(e[2:, 1:-1], e[:-2, 1:-1], out=ph[1])
+        # x: c[x + 1] - c[x - 1], where x = -1 is column nx - 1 of the periodic transform
+        d = ph[0]
+        if ex is None:
+            np.subtract(out[1:-1, 2:W + 1], out[1:-1, :W - 1], out=d[:, 1:])
+            np.subtract(out[1:-1, 1], out[1:-1, nx - 1], out=d[:, 0])
+        else:
+            np.multiply(out[1:-1, 1:W + 1], turn, out=d)
+            d[:, 1:] -= out[1:-1, :W - 1] * np.conj(turn)
+            d[:, 0] -= out[1:-1, nx - 1] * np.conj(turn)
+        np.subtract(out[2:, :W], out[:-2, :W], out=ph[1])
         ph *= ch
         with np.errstate(invalid="ignore", divide="ignore"):
             inv = np.square(mod[r0:r1], dtype=np.float64)
