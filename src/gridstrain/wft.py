@@ -257,7 +257,7 @@ def wft(image, lattice: Lattice, *, sigma: float | None = None, mask=None,
     for the window and its y-derivative, and three inverse FFTs along x of the
     image's rows, for ``Psi``, ``dPsi/dx`` and ``dPsi/dy``, by blocks of rows that
     stay in cache. The window being separable, this equals the three 2-D inverse
-    FFTs of the filtered spectra at about 40 % of their cost. At 1040 x 1376 px,
+    FFTs of the filtered spectra at about half their cost. At 1040 x 1376 px,
     sigma = 5 px, one call takes about 2.7 times one rfft2 and two complex ifft2 of
     the padded size, the least any FFT method needs for the two phase maps alone
     (``benchmarks/bench_wft.py``).
@@ -325,7 +325,9 @@ def _wft(image, lattice: Lattice, *, sigma: float | None = None, mask=None,
     mod = work.get("mod", (H, W), dtype)
     one = _one_wave_vector if derivatives == "exact" else _one_wave_vector_central
     for j, k in enumerate((lattice.k1, lattice.k2)):
-        one(V, k, sigma, H, W, nx, psi[j], dphi[j], mod, work)
+        # where Psi = 0 (no signal at all) the derivatives are 0/0: NaN, silently
+        with np.errstate(invalid="ignore", divide="ignore"):
+            one(V, k, sigma, H, W, nx, psi[j], dphi[j], mod, work)
         # The median modulus over the valid region, which the first wave vector's
         # test may already have thinned. While the region is a box, it is sliced
         # instead of gathered through a mask.
@@ -439,9 +441,8 @@ def _one_wave_vector(V, k, sigma, H, W, nx, psi, dphi, mod, work, *,
         np.conjugate(c, out=ch)
         ph = prod[:, :h]
         np.multiply(out[1:, :, :W], ch, out=ph)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            inv = np.square(mod[r0:r1], dtype=np.float64)
-            np.reciprocal(inv, out=inv)
+        inv = np.square(mod[r0:r1], dtype=np.float64)
+        np.reciprocal(inv, out=inv)  # inf where Psi = 0: d phi is NaN there, as 0/0
         np.multiply(ph.imag, inv, out=dphi[:, r0:r1], casting="same_kind")
 
 
@@ -514,9 +515,8 @@ def _one_wave_vector_central(V, k, sigma, H, W, nx, psi, dphi, mod, work, *,
             d[:, 0] -= out[1:-1, nx - 1] * np.conj(turn)
         np.subtract(out[2:, :W], out[:-2, :W], out=ph[1])
         ph *= ch
-        with np.errstate(invalid="ignore", divide="ignore"):
-            inv = np.square(mod[r0:r1], dtype=np.float64)
-            np.reciprocal(inv, out=inv)
+        inv = np.square(mod[r0:r1], dtype=np.float64)
+        np.reciprocal(inv, out=inv)
         inv *= 0.5
         np.multiply(ph.imag, inv, out=dphi[:, r0:r1], casting="same_kind")
 
