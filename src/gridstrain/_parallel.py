@@ -23,7 +23,7 @@ import numpy as np
 
 from ._validation import check_choice
 from .lattice import Lattice
-from .wft import DEFAULT_MARGIN, PhaseMaps, wft
+from .wft import _MIN_MODULUS, DEFAULT_MARGIN, PhaseMaps, wft
 
 __all__ = ["mean_wft"]
 
@@ -38,11 +38,12 @@ def _check_workers(workers) -> int:
 
 
 def mean_wft(frames: Iterable, lattice: Lattice, *, sigma: float | None = None, mask=None,
-             margin: float = DEFAULT_MARGIN, average: str = "phase",
+             margin: float = DEFAULT_MARGIN, min_modulus: float = _MIN_MODULUS,
+             average: str = "phase",
              workers: int | None = None,
              progress: Callable[[float, str], None] | None = None,
              n_frames: int | None = None) -> PhaseMaps:
-    """Method B: windowed Fourier transform of each frame, phasors and derivatives averaged.
+    """Method B: windowed Fourier transform of each frame, phases and derivatives averaged.
 
     Parameters
     ----------
@@ -52,7 +53,7 @@ def mean_wft(frames: Iterable, lattice: Lattice, *, sigma: float | None = None, 
         transformed in float32; every frame must have the same shape.
     lattice : Lattice
         Wave vectors, as for :func:`gridstrain.wft`.
-    sigma, mask, margin
+    sigma, mask, margin, min_modulus
         As for :func:`gridstrain.wft`, the same for every frame.
     average : {"phase", "phasor"}
         ``"phase"`` (the paper's method B): the phase is the first frame's plus the
@@ -98,8 +99,12 @@ def mean_wft(frames: Iterable, lattice: Lattice, *, sigma: float | None = None, 
     first_frame = next(it, None)
     if first_frame is None:
         raise ValueError("frames must hold at least one frame, got none")
-    first = wft(first_frame, lattice, sigma=sigma, mask=mask, margin=margin)
+    first = wft(first_frame, lattice, sigma=sigma, mask=mask, margin=margin,
+                min_modulus=min_modulus)
     del first_frame
+    # keep only the sums and what the last step needs of frame 1, not its maps
+    shape, sigma_used = first.shape, first.sigma
+    cdtype, rdtype = first.psi.dtype, first.dphi.dtype
     dphi = first.dphi.astype(np.float64)
     valid = first.valid.copy()
     if average == "phasor":
@@ -108,14 +113,16 @@ def mean_wft(frames: Iterable, lattice: Lattice, *, sigma: float | None = None, 
         conj1 = np.conj(first.psi)
         phase_sum = np.zeros(first.psi.shape)  # frame 1's phase relative to itself
         mod_sum = np.abs(first.psi).astype(np.float64)
+    del first
 
     def transform(frame):
         # runs in a worker thread: the phase extraction is as costly as a third of
         # the transform, so it is done here rather than in the accumulating thread;
         # only what is summed is kept
-        res = wft(frame, lattice, sigma=sigma, mask=mask, margin=margin)
-        if res.shape != first.shape:
-            raise ValueError(f"frames must all have the shape of the first, {first.shape}; "
+        res = wft(frame, lattice, sigma=sigma, mask=mask, margin=margin,
+                  min_modulus=min_modulus)
+        if res.shape != shape:
+            raise ValueError(f"frames must all have the shape of the first, {shape}; "
                              f"got {res.shape}")
         if average == "phasor":
             return res.dphi, res.valid, res.psi, None
@@ -159,8 +166,8 @@ def mean_wft(frames: Iterable, lattice: Lattice, *, sigma: float | None = None, 
     if average == "phasor":
         psi = psi_sum / count
     else:
-        psi = mod_sum / count * np.exp(1j * (np.angle(first.psi) + phase_sum / count))
+        # arg Psi_1 = -arg conj(Psi_1)
+        psi = mod_sum / count * np.exp(1j * (phase_sum / count - np.angle(conj1)))
     dphi /= count
-    return PhaseMaps(psi=psi.astype(first.psi.dtype, copy=False),
-                     dphi=dphi.astype(first.dphi.dtype, copy=False),
-                     valid=valid, lattice=lattice, sigma=first.sigma)
+    return PhaseMaps(psi=psi.astype(cdtype, copy=False), dphi=dphi.astype(rdtype, copy=False),
+                     valid=valid, lattice=lattice, sigma=sigma_used)
