@@ -1,0 +1,227 @@
+"""Per-frame cost of gridstrain.wft against the FFT floor and a naive reference.
+
+Run from the repository root::
+
+    PYTHONPATH=src python benchmarks/bench_wft.py [--sizes 1040x1376 2048x2048] [--repeat 7]
+
+For each image size and precision it prints the per-frame time of
+
+* ``exact``: :func:`gridstrain.wft`, both phases and the four exact phase derivatives;
+* ``central``: the same with central-difference derivatives (the private
+  ``gridstrain.wft._wft(..., derivatives="central")``), which costs no FFT beyond
+  those of the phases but breaks the 1e-7 rad/px derivative bound (printed below);
+* ``floor``: one ``rfft2`` and two complex ``ifft2`` of the padded size wft uses,
+  with the same library (scipy.fft) -- the least any FFT implementation of the
+  window needs for the two phase maps, derivatives not included;
+* ``naive``: the way the MATLAB toolbox does it, in float64 -- zero-padded linear
+  convolution with the window truncated at 4 sigma through full complex FFTs,
+  phases by ``np.angle``, derivatives by ``np.gradient`` of the unwrapped phases;
+
+as the best wall time of interleaved runs (median in brackets) and the ratios of
+the best wall times and of the best CPU times (the CPU ratio is the one to trust on
+a machine shared with other work), and the peak of memory allocated through numpy
+during one call (tracemalloc). ``--study`` adds the accuracy, against the exact
+derivatives, of central differences of orders 2 to 8 on the demodulated maps, and
+their cost in numpy.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import tracemalloc
+from functools import partial
+
+import numpy as np
+from scipy import fft as sfft
+
+from _common import grid_test_image, interleaved, machine
+from gridstrain import wft
+from gridstrain.wft import _PAD_SIGMAS, _wft
+
+
+def naive_wft(img, lattice, sigma):
+    """Phases and derivatives as the MATLAB toolbox computes them, in numpy float64.
+
+    Returns ``psi (2, H, W)`` and ``dphi (2, 2, H, W)``.
+    """
+    img = np.asarray(img, dtype=np.float64)
+    H, W = img.shape
+    v = img - img.mean()
+    half = math.ceil(4 * sigma)  # window truncated at 4 sigma
+    d = np.arange(-half, half + 1, dtype=float)
+    g = np.exp(-(d**2) / (2 * sigma**2))
+    window = np.outer(g, g)
+    window /= window.sum()
+    shape = (H + 2 * half, W + 2 * half)  # full linear convolution, no wrap-around
+    spectrum = np.fft.fft2(v, s=shape)
+    y = np.arange(H, dtype=float)[:, None]
+    x = np.arange(W, dtype=float)[None, :]
+    psi = np.empty((2, H, W), dtype=complex)
+    dphi = np.empty((2, 2, H, W))
+    for j, k in enumerate((lattice.k1, lattice.k2)):
+        # Psi(x) = sum v(xi) g(xi - x) exp(-2 i pi k xi): convolution with the
+        # flipped Gabor kernel g(d) exp(+2 i pi k d), then the carrier at x
+        kernel = window * np.exp(2j * np.pi * (k[0] * d[None, :] + k[1] * d[:, None]))
+        conv = np.fft.ifft2(spectrum * np.fft.fft2(kernel, s=shape))
+        psi[j] = conv[half:half + H, half:half + W] * np.exp(-2j * np.pi * (k[0] * x + k[1] * y))
+        phase = np.angle(psi[j])
+        dphi[j, 0] = np.gradient(np.unwrap(phase, axis=1), axis=1)
+        dphi[j, 1] = np.gradient(np.unwrap(phase, axis=0), axis=0)
+    return psi, dphi
+
+
+def floor_inputs(shape, sigma, dtype):
+    """Arrays of the padded size that wft uses, for one rfft2 and two ifft2."""
+    H, W = shape
+    pad = math.ceil(_PAD_SIGMAS * sigma)
+    ny = sfft.next_fast_len(H + pad, real=True)
+    nx = sfft.next_fast_len(W + pad, real=True)
+    rng = np.random.default_rng(1)
+    real = np.zeros((ny, nx), dtype=dtype)
+    real[:H, :W] = rng.random((H, W))
+    cplx = (rng.standard_normal((ny, nx)) + 1j * rng.standard_normal((ny, nx))).astype(
+        np.complex64 if dtype == np.float32 else np.complex128)
+    return real, cplx
+
+
+def floor(real, cplx):
+    sfft.rfft2(real)
+    sfft.ifft2(cplx)
+    sfft.ifft2(cplx)
+
+
+def peak_mib(func) -> float:
+    """Peak of the memory allocated by ``func()`` through numpy (and Python), MiB."""
+    tracemalloc.start()
+    tracemalloc.reset_peak()
+    base = tracemalloc.get_traced_memory()[0]
+    func()
+    peak = tracemalloc.get_traced_memory()[1]
+    tracemalloc.stop()
+    return (peak - base) / 2**20
+
+
+def parse_size(text: str) -> tuple[int, int]:
+    h, w = text.lower().split("x")
+    return int(h), int(w)
+
+
+def difference_derivatives(psi, order):
+    """Phase derivatives of ``psi`` (H, W) by central differences of ``order`` (2, 4...).
+
+    Coefficients of the maximally flat antisymmetric filter; edges wrap (the study
+    looks at valid pixels only).
+    """
+    m = order // 2
+    n = np.arange(1, m + 1)
+    a = np.linalg.solve(np.array([2.0 * n ** (2 * j + 1) for j in range(m)]), np.eye(m)[0])
+    power = np.abs(psi) ** 2
+    out = []
+    for axis in (1, 0):
+        d = np.zeros_like(psi)
+        for i, an in enumerate(a, start=1):
+            d += an * (np.roll(psi, -i, axis=axis) - np.roll(psi, i, axis=axis))
+        out.append(np.imag(np.conj(psi) * d) / power)
+    return out
+
+
+def study(shape, repeat):
+    print()
+    print(f"derivatives by central differences of the demodulated maps, {shape[0]}x{shape[1]}, "
+          "against the exact ones (max over valid pixels, rad/px):")
+    print(f"{'order':>6} {'noise-free':>12} {'noisy':>12} {'numpy ms (4 maps)':>18}")
+    maps = {}
+    for noisy in (False, True):
+        lattice, img = grid_test_image(shape, noisy=noisy)
+        maps[noisy] = wft(img, lattice)
+    for order in (2, 4, 6, 8):
+        errs = []
+        for noisy in (False, True):
+            res = maps[noisy]
+            worst = 0.0
+            for j in range(2):
+                dx, dy = difference_derivatives(res.psi[j], order)
+                for axis, d in enumerate((dx, dy)):
+                    worst = max(worst, float(np.max(np.abs(d - res.dphi[j, axis])[res.valid])))
+            errs.append(worst)
+        psi = np.ascontiguousarray(maps[True].psi)
+        t = interleaved({"fd": lambda psi=psi, order=order: [difference_derivatives(p, order)
+                                                             for p in psi]}, repeat)["fd"]
+        print(f"{order:>6} {errs[0]:>12.1e} {errs[1]:>12.1e} {t[2] * 1e3:>18.1f}")
+    print("(order 2 is the central path; the exact path's extra FFTs cost the difference "
+          "between the exact and central columns above)")
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--sizes", nargs="+", type=parse_size, default=[(1040, 1376), (2048, 2048)],
+                    help="image sizes HxW (default: 1040x1376 2048x2048)")
+    ap.add_argument("--pitch", type=float, default=5.0, help="grid pitch = sigma, px")
+    ap.add_argument("--repeat", type=int, default=7, help="timed runs of each candidate")
+    ap.add_argument("--workers", type=int, default=1,
+                    help="scipy.fft workers for ours and the floor alike (default 1)")
+    ap.add_argument("--no-naive", action="store_true", help="skip the naive reference")
+    ap.add_argument("--study", action="store_true",
+                    help="accuracy and cost of difference derivatives (first size)")
+    args = ap.parse_args(argv)
+
+    print(f"machine: {machine()}")
+    print(f"scipy.fft workers: {args.workers}; pitch = sigma = {args.pitch:g} px; "
+          f"best of {args.repeat} interleaved runs")
+    names = ["exact", "central", "floor"] + ([] if args.no_naive else ["naive"])
+    header = (f"{'size':>10} {'dtype':>8} " + " ".join(f"{n + ' ms':>16}" for n in names)
+              + f" {'exact/floor':>12} {'central/floor':>14} {'naive/exact':>12} "
+              f"{'peak MiB':>9}")
+    print(header)
+    print(f"{'':>19} ratios: best wall (best CPU)")
+    print("-" * len(header))
+    notes = []
+    for shape in args.sizes:
+        lattice, img64 = grid_test_image(shape, pitch=args.pitch)
+        sigma = lattice.pitch
+        for dtype in (np.float64, np.float32):
+            img = img64.astype(dtype)
+            real, cplx = floor_inputs(shape, sigma, dtype)
+            funcs = {"exact": partial(wft, img, lattice),
+                     "central": partial(_wft, img, lattice, derivatives="central"),
+                     "floor": partial(floor, real, cplx)}
+            if not args.no_naive:
+                funcs["naive"] = partial(naive_wft, img64, lattice, sigma)
+            with sfft.set_workers(args.workers):
+                t = interleaved(funcs, args.repeat)
+                peak = peak_mib(funcs["exact"])
+
+            def ratio(a, b, t=t):
+                return f"{t[a][0] / t[b][0]:5.2f} ({t[a][2] / t[b][2]:4.2f})"
+
+            cells = " ".join(f"{t[n][0] * 1e3:7.1f} ({t[n][1] * 1e3:6.1f})" for n in names)
+            naive = ratio("naive", "exact") if "naive" in t else "-"
+            print(f"{shape[0]:>4}x{shape[1]:<5} {np.dtype(dtype).name:>8} {cells} "
+                  f"{ratio('exact', 'floor'):>12} {ratio('central', 'floor'):>14} "
+                  f"{naive:>12} {peak:>9.0f}")
+        res = wft(img64, lattice)
+        cen = _wft(img64, lattice, derivatives="central")
+        v = res.valid
+        notes.append(f"{shape[0]}x{shape[1]} float64, max |d phi| difference from exact on valid "
+                     f"pixels: central {np.max(np.abs(cen.dphi - res.dphi)[:, :, v]):.1e} rad/px")
+        if not args.no_naive:
+            _, dphi = naive_wft(img64, lattice, sigma)
+            notes[-1] += f", naive {np.max(np.abs(dphi - res.dphi)[:, :, v]):.1e} rad/px"
+    for line in notes:
+        print(line)
+    print("peak MiB: memory allocated through numpy during one call of exact (tracemalloc), "
+          "outputs included; the floor's own outputs take "
+          f"{_floor_mib(args):.0f} MiB "
+          f"at {args.sizes[0][0]}x{args.sizes[0][1]} float64")
+    if args.study:
+        study(args.sizes[0], args.repeat)
+
+
+def _floor_mib(args) -> float:
+    real, cplx = floor_inputs(args.sizes[0], args.pitch, np.float64)
+    return peak_mib(partial(floor, real, cplx))
+
+
+if __name__ == "__main__":
+    main()

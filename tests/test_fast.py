@@ -1,0 +1,293 @@
+"""The fast windowed Fourier transform against the plain spectral one, and method B.
+
+gridstrain.wft computes, per wave vector, 1-D inverse FFTs of only the band of the
+spectrum where the window's transfer function is non-zero (see its Notes). The
+oracle here is the textbook spectral evaluation of eqs. (22)-(25): full 2-D inverse
+FFTs of the filtered spectra of the zero-padded image, a distance transform for the
+valid region and np.median, at a different padded size. The direct double sum of
+tests/test_wft.py ties both to the definition.
+"""
+
+import importlib
+import math
+
+import numpy as np
+import pytest
+from scipy import ndimage
+
+from gridstrain import Lattice, synthetic, wft
+from gridstrain._parallel import mean_wft
+from gridstrain.wft import _median, _spectrum_block, _wft, transfer_function
+
+
+def _reference(img, lat, sigma, mask=None, margin=4.0, min_modulus=0.25):
+    """Eqs. (22)-(25) by full 2-D FFTs; ``(psi, dphi, valid)``."""
+    H, W = img.shape
+    m = np.ones(img.shape, bool) if mask is None else mask
+    v = np.where(m, img - img[m].mean(), 0.0)
+    pad = math.ceil(8 * sigma) + 3  # any size >= H + 8 sigma makes the convolution linear
+    ny, nx = H + pad, W + pad
+    F = np.fft.fft2(v, s=(ny, nx))
+    fy, fx = np.fft.fftfreq(ny)[:, None], np.fft.fftfreq(nx)[None, :]
+    y, x = np.arange(H)[:, None], np.arange(W)[None, :]
+    psi = np.empty((2, H, W), complex)
+    dphi = np.empty((2, 2, H, W))
+    for j, k in enumerate((lat.k1, lat.k2)):
+        nux = (fx - k[0] + 0.5) % 1.0 - 0.5
+        nuy = (fy - k[1] + 0.5) % 1.0 - 0.5
+        gx, gy = transfer_function(nux, sigma), transfer_function(nuy, sigma)
+        dgx = transfer_function(nux, sigma, derivative=True)
+        dgy = transfer_function(nuy, sigma, derivative=True)
+        c = np.fft.ifft2(F * gy * gx)[:H, :W]
+        cx = np.fft.ifft2(F * gy * dgx)[:H, :W]
+        cy = np.fft.ifft2(F * dgy * gx)[:H, :W]
+        psi[j] = c * np.exp(-2j * np.pi * (k[0] * x + k[1] * y))
+        dphi[j, 0] = np.imag(np.conj(c) * cx) / np.abs(c) ** 2
+        dphi[j, 1] = np.imag(np.conj(c) * cy) / np.abs(c) ** 2
+    dist = ndimage.distance_transform_edt(np.pad(m, 1))[1:-1, 1:-1]
+    valid = dist > margin * sigma
+    ref = valid if valid.any() else m
+    mod = np.abs(psi)
+    for j in range(2):
+        valid &= mod[j] >= min_modulus * np.median(mod[j][ref])
+    return psi, dphi, valid
+
+
+def _noisy_grid(shape, lat, seed):
+    img = synthetic.grid_image(
+        shape, lat, amplitude=2000.0,
+        phases=lambda X, Y: (0.3 * np.sin(2 * np.pi * Y / 60), 0.4 * np.cos(2 * np.pi * X / 45)))
+    return synthetic.add_noise(img, rng=seed)
+
+
+CASES = {
+    # axis-aligned: the carrier falls on FFT bins, no residual demodulation
+    "aligned": (Lattice.from_pitch(5.0), (96, 120), None, None),
+    # rotated, sigma above the pitch: off-bin carrier, bands not centred on a bin
+    "rotated": (Lattice.from_pitch(5.0, angle=23.0), (101, 87), 7.3, None),
+    # pitch 2.5: the band of sigma = 2.5 wraps over the whole spectrum
+    "small pitch": (Lattice.from_pitch(2.5, angle=10.0), (64, 72), None, None),
+    # a hole: the valid region needs the distance transform
+    "masked": (Lattice.from_pitch(5.0, angle=-15.0), (110, 100), None, "hole"),
+    # a third of the image without grid: the modulus tests thin the valid region
+    "gridless": (Lattice.from_pitch(5.0, angle=8.0), (120, 96), None, "patch"),
+}
+
+
+@pytest.mark.parametrize("case", list(CASES))
+def test_matches_full_2d_spectral_reference(case):
+    lat, shape, sigma, mask = CASES[case]
+    img = _noisy_grid(shape, lat, seed=len(case))
+    if mask == "hole":
+        yy, xx = np.mgrid[0:shape[0], 0:shape[1]]
+        mask = (yy - 50) ** 2 + (xx - 45) ** 2 > 12**2
+    elif mask == "patch":
+        img[:, 55:] = img.mean()
+        mask = None
+    res = wft(img, lat, sigma=sigma, mask=mask)
+    psi, dphi, valid = _reference(img, lat, lat.pitch if sigma is None else sigma, mask)
+    # float64 rounding of FFTs of ~1e3 grey levels over ~1e4 pixels and of carriers
+    # at phases up to 2 pi k x ~ 1e3 rad: ~1e-13 relative on Psi, ~1e-16 rad/px on the
+    # derivatives; 1e-11 relative and 1e-12 rad/px leave room and are 1000x below the
+    # 1e-9 bound of tests/test_wft.py
+    np.testing.assert_allclose(res.psi, psi, rtol=1e-11, atol=1e-11 * np.abs(psi).max())
+    np.testing.assert_allclose(res.dphi[:, :, valid], dphi[:, :, valid], rtol=0, atol=1e-12)
+    np.testing.assert_array_equal(res.valid, valid)
+    assert valid.any()
+
+
+def test_blocks_of_rows_give_the_same_maps(monkeypatch):
+    # the final inverse FFTs run by blocks of rows sized for the cache; force blocks
+    # of 8 rows (the last one partial) and compare with one block for the image
+    # the package's ``wft`` attribute is the function: fetch the module itself
+    wft_module = importlib.import_module("gridstrain.wft")
+    lat, shape, sigma, _ = CASES["rotated"]
+    img = _noisy_grid(shape, lat, seed=2)
+    whole = wft(img, lat, sigma=sigma)
+    monkeypatch.setattr(wft_module, "_CHUNK_BYTES", 1)
+    blocks = wft(img, lat, sigma=sigma)
+    # the same arithmetic on the same numbers, row by row: identical bits
+    np.testing.assert_array_equal(blocks.psi, whole.psi)
+    np.testing.assert_array_equal(blocks.dphi, whole.dphi)
+    np.testing.assert_array_equal(blocks.valid, whole.valid)
+
+
+def test_nothing_valid_takes_the_median_over_the_mask():
+    # a margin wider than the image leaves no valid pixel; the modulus test then uses
+    # the median over the whole mask, as the reference does
+    lat = Lattice.from_pitch(5.0)
+    img = _noisy_grid((48, 48), lat, seed=3)
+    res = wft(img, lat, margin=10.0)
+    _, _, valid = _reference(img, lat, 5.0, margin=10.0)
+    assert not res.valid.any()
+    np.testing.assert_array_equal(res.valid, valid)
+
+
+def test_float32_stays_within_the_float32_bound():
+    lat = Lattice.from_pitch(5.0, angle=20.0)
+    img = _noisy_grid((128, 144), lat, seed=5)
+    r64 = wft(img, lat)
+    r32 = wft(img.astype(np.float32), lat)
+    assert r32.psi.dtype == np.complex64
+    assert r32.dphi.dtype == np.float32
+    v = r64.valid
+    # float32 bound of the issue on derivatives: 1e-6 rad/px (rounding gives ~1e-8)
+    assert np.max(np.abs(r32.dphi - r64.dphi)[:, :, v]) < 1e-6
+    # phases: float32 relative rounding 6e-8 times the FFT's log n growth, < 1e-5 rad
+    assert np.max(np.abs(np.angle(r32.psi * np.conj(r64.psi)))[:, v]) < 1e-5
+
+
+@pytest.mark.parametrize("n", [1, 2, 7, 1000, 1001])
+def test_median_is_numpy_median(n):
+    rng = np.random.default_rng(n)
+    values = rng.integers(0, 5, n).astype(float) + rng.random(n) * (n % 2)  # ties when even
+    before = values.copy()
+    assert _median(values) == np.median(values)
+    np.testing.assert_array_equal(values, before)  # not modified
+    box = rng.random((n + 20, 31))[7:n + 9, 3:30]  # a 2-D view, as the valid box is
+    assert _median(box) == np.median(box)
+
+
+@pytest.mark.parametrize(("ny", "nx", "r0", "nr", "c0", "nc"),
+                         [(12, 16, 10, 5, 13, 6), (9, 10, 0, 9, 0, 10), (12, 15, 3, 4, 2, 4)])
+def test_spectrum_block_is_the_full_dft_block(ny, nx, r0, nr, c0, nc):
+    # bands that wrap around zero frequency in both axes, the whole spectrum, and a
+    # block of positive frequencies only
+    rng = np.random.default_rng(0)
+    img = rng.standard_normal((ny, nx))
+    full = np.fft.fft2(img)
+    rows = np.sort((r0 + np.arange(nr)) % ny)
+    cols = np.sort((c0 + np.arange(nc)) % nx)
+    block = _spectrum_block(np.fft.rfft2(img), rows, cols, nx)
+    # float64 FFT rounding of unit-variance data, ~1e-15 of the spectrum's size
+    np.testing.assert_allclose(block, full[np.ix_(rows, cols)], atol=1e-12)
+
+
+def _bump_grid(shape, noisy):
+    """The paper's synthetic fields: phases up to 0.06 and 0.42 rad, |d phi| <= 0.005."""
+    H, W = shape
+    width = 0.42 * math.exp(-0.5) / 0.005  # px
+    lat = Lattice.from_pitch(5.0)
+
+    def phases(X, Y):
+        bump = np.exp(-((X - W / 2) ** 2 + (Y - H / 2) ** 2) / (2 * width**2))
+        return 0.06 * bump, 0.42 * bump
+
+    img = synthetic.grid_image(shape, lat, amplitude=2048.0, phases=phases)
+    return lat, (synthetic.add_noise(img, rng=4) if noisy else img)
+
+
+@pytest.mark.parametrize("noisy", [False, True])
+def test_central_differences_are_faster_but_break_the_derivative_bound(noisy):
+    # The FFT-free derivative (benchmarks/bench_wft.py: about 2/3 of the exact path's
+    # time) is a different filter. Measured against the exact derivative: its
+    # truncation error, a sixth of the third derivative of phi, ~7e-7 rad/px on the
+    # paper's noise-free fields, and ~4e-5 rad/px on a noisy frame, whose noise it
+    # filters differently (sin 2 pi nu instead of 2 pi nu). Both exceed the
+    # 1e-7 rad/px the exact path meets, which is why wft keeps the exact derivatives.
+    lat, img = _bump_grid((256, 256), noisy)
+    exact = wft(img, lat)
+    central = _wft(img, lat, derivatives="central")
+    v = exact.valid
+    # the same Psi, the window applied in another order: float64 rounding, ~1e-15
+    np.testing.assert_allclose(central.psi, exact.psi, rtol=1e-13)
+    np.testing.assert_array_equal(central.valid, v)
+    err = np.max(np.abs(central.dphi - exact.dphi)[:, :, v])
+    lo, hi = (1e-7, 3e-6) if not noisy else (1e-5, 3e-4)
+    assert lo < err < hi  # rad/px
+    # float32 keeps its dtype on this path too
+    c32 = _wft(img.astype(np.float32), lat, derivatives="central")
+    assert c32.dphi.dtype == np.float32
+    assert np.max(np.abs(c32.dphi - central.dphi)[:, :, v]) < 1e-6  # float32 bound, rad/px
+
+
+def test_central_differences_are_those_of_the_returned_maps():
+    # off-bin carriers (rotated lattice, sigma above the pitch): the residual
+    # demodulation must enter the differences as it enters Psi
+    lat, shape, sigma, _ = CASES["rotated"]
+    img = _noisy_grid(shape, lat, seed=6)
+    res = _wft(img, lat, sigma=sigma, derivatives="central")
+    p = res.psi
+    centre = p[:, 1:-1, 1:-1]
+    power = np.abs(centre) ** 2
+    dx = np.imag(np.conj(centre) * (p[:, 1:-1, 2:] - p[:, 1:-1, :-2])) / (2 * power)
+    dy = np.imag(np.conj(centre) * (p[:, 2:, 1:-1] - p[:, :-2, 1:-1])) / (2 * power)
+    # float64 rounding of a difference of neighbours, relative to |Psi|: ~1e-16 rad/px
+    np.testing.assert_allclose(res.dphi[:, 0, 1:-1, 1:-1], dx, rtol=0, atol=1e-13)
+    np.testing.assert_allclose(res.dphi[:, 1, 1:-1, 1:-1], dy, rtol=0, atol=1e-13)
+
+
+def _frames(lat, T, shape=(80, 96)):
+    rng = np.random.default_rng(11)
+    out = []
+    for _ in range(T):
+        ux, uy = rng.normal(0, 0.05, 2)
+        img = synthetic.grid_image(shape, lat, amplitude=2000.0,
+                                   displacement=lambda X, Y, a=ux, b=uy: (a + 0 * X, b + 0 * Y))
+        out.append(synthetic.add_noise(img, rng=rng))
+    return out
+
+
+def test_mean_wft_averages_phases_and_derivatives_of_the_frames():
+    lat = Lattice.from_pitch(5.0)
+    frames = _frames(lat, 5)
+    res = mean_wft(iter(frames), lat, workers=2)
+    each = [wft(f, lat) for f in frames]
+    # the paper's method B: phases averaged frame by frame (relative to frame 1, the
+    # frames differ by vibrations of 0.05 px, ~0.06 rad, far from the pi of wrapping)
+    rel = np.mean([np.angle(r.psi * np.conj(each[0].psi)) for r in each], axis=0)
+    phase = np.angle(each[0].psi) + rel
+    # float64 sums of 5 terms and an angle: a few ulps of pi
+    np.testing.assert_allclose(np.angle(res.psi * np.exp(-1j * phase)), 0, atol=1e-13)
+    np.testing.assert_allclose(np.abs(res.psi), np.mean([np.abs(r.psi) for r in each], axis=0),
+                               rtol=1e-13)
+    np.testing.assert_allclose(res.dphi, np.mean([r.dphi for r in each], axis=0),
+                               rtol=0, atol=1e-15)
+    np.testing.assert_array_equal(res.valid, np.logical_and.reduce([r.valid for r in each]))
+    # the additions follow the frames' order whatever the threads: identical bits
+    serial = mean_wft(frames, lat, workers=1)
+    np.testing.assert_array_equal(serial.psi, res.psi)
+    np.testing.assert_array_equal(serial.dphi, res.dphi)
+
+
+def test_mean_of_phasors_is_method_a():
+    # Psi is linear in the image: the mean of the frames' Psi is the Psi of the mean
+    # frame (method A), which is why method B averages phases by default
+    lat = Lattice.from_pitch(5.0, angle=12.0)
+    frames = _frames(lat, 4)
+    res = mean_wft(frames, lat, average="phasor", workers=2)
+    a = wft(np.mean(frames, axis=0), lat)
+    # float64 rounding of the FFTs of ~2000 grey levels, relative to the largest |Psi|
+    np.testing.assert_allclose(res.psi, a.psi, rtol=0, atol=1e-12 * np.abs(a.psi).max())
+    assert np.max(np.abs(np.angle(res.psi * np.conj(a.psi)))[:, a.valid]) < 1e-12
+    # the phase average differs from it at the noise level, which averaging lowers
+    ph = mean_wft(frames, lat, workers=2)
+    d = np.abs(np.angle(ph.psi * np.conj(a.psi)))[:, a.valid]
+    # second order in the frame-to-frame phase spread (0.06 rad of vibration, 1e-3 rad
+    # of noise): a few 1e-4 rad, above rounding and below 1e-2 rad
+    assert 1e-8 < np.max(d) < 1e-2
+
+
+def test_mean_wft_keeps_float32_and_reports_progress():
+    lat = Lattice.from_pitch(5.0)
+    frames = [f.astype(np.float32) for f in _frames(lat, 3)]
+    calls = []
+    res = mean_wft(frames, lat, workers=2, progress=lambda f, msg: calls.append(f))
+    assert res.psi.dtype == np.complex64
+    assert res.dphi.dtype == np.float32
+    assert calls == pytest.approx([1 / 3, 2 / 3, 1.0])
+
+
+def test_mean_wft_refuses_bad_input():
+    lat = Lattice.from_pitch(5.0)
+    frames = _frames(lat, 2)
+    with pytest.raises(ValueError, match="at least one frame"):
+        mean_wft([], lat)
+    with pytest.raises(ValueError, match="workers"):
+        mean_wft(frames, lat, workers=0)
+    with pytest.raises(ValueError, match="shape"):
+        mean_wft([frames[0], frames[1][:, :-8]], lat, workers=1)
+    with pytest.raises(TypeError, match="progress"):
+        mean_wft(frames, lat, progress="yes")
+    with pytest.raises(ValueError, match="average"):
+        mean_wft(frames, lat, average="median")
