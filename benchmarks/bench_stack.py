@@ -11,7 +11,7 @@ prints:
 * method A -- ``open_series(folder).mean()`` and one :func:`gridstrain.wft` of the
   mean -- against the read-and-sum floor (tifffile reads each file and adds it to a
   float64 accumulator, nothing else);
-* method B -- :func:`gridstrain._parallel.mean_wft` over the frames streamed from
+* method B -- :func:`gridstrain.stacks.method_b` over the frames streamed from
   the files, with 1 and with all usable threads, averaging phases (the paper) or
   phasors -- against ``T x`` the per-frame FFT floor (one rfft2 and two complex
   ifft2 of the padded size) plus the read-and-sum floor;
@@ -34,8 +34,8 @@ import tifffile
 from _common import issue_phases, machine
 from bench_wft import floor, floor_inputs, parse_size
 from gridstrain import Lattice, synthetic, wft
-from gridstrain._parallel import mean_wft
 from gridstrain.io import open_series, write_tiff_series
+from gridstrain.stacks import method_b
 
 
 def make_frames(shape, T, *, pitch=5.0, vibration=0.05, seed=0):
@@ -118,15 +118,12 @@ def main(argv=None):
         # method B
         t_b = {}
         for w in sorted({1, cores}):
-            for average in ("phase", "phasor"):
-                c0, t0 = time.process_time(), time.perf_counter()
-                res = mean_wft(series.frames(dtype=dtype), lattice, workers=w, average=average)
-                t_b[w, average] = (time.perf_counter() - t0, time.process_time() - c0)
-                if average == "phase":
-                    res_b = res
+            c0, t0 = time.process_time(), time.perf_counter()
+            res_b = method_b(series.frames(dtype=dtype), lattice, workers=w).maps
+            t_b[w] = (time.perf_counter() - t0, time.process_time() - c0)
         n_mem = min(args.memory_frames, T)
         tracemalloc.start()
-        mean_wft(series.frames(dtype=dtype, stop=n_mem), lattice, workers=cores)
+        method_b(series.frames(dtype=dtype, stop=n_mem), lattice, workers=cores)
         peak = tracemalloc.get_traced_memory()[1] / 2**20
         tracemalloc.stop()
 
@@ -144,18 +141,17 @@ def main(argv=None):
         ("method A total  / read-and-sum floor", t_a, t_a / t_read),
     ]
     floor_b = T * t_fft + t_read
-    for (w, average), (wall, cpu) in t_b.items():
-        rows.append((f"method B, {average}s, {w} thread(s)  / (T x FFT floor + read)", wall,
+    for w, (wall, cpu) in t_b.items():
+        rows.append((f"method B, {w} thread(s)  / (T x FFT floor + read)", wall,
                      wall / floor_b))
         rows.append(("   same, CPU time of all threads  / (T x FFT floor + read)", cpu,
                      cpu / floor_b))
-    rows.append(("method B (phases, 1 thread)  / method A", t_b[1, "phase"][0],
-                 t_b[1, "phase"][0] / t_a))
+    rows.append(("method B (1 thread)  / method A", t_b[1][0], t_b[1][0] / t_a))
     for name, t, r in rows:
         print(f"{name:<66} {t:>8.3f} {'' if r is None else f'{r:8.2f}':>8}")
     if cores > 1:
-        print(f"thread speed-up of method B (phases) on {cores} cores: "
-              f"{t_b[1, 'phase'][0] / t_b[cores, 'phase'][0]:.2f}x")
+        print(f"thread speed-up of method B on {cores} cores: "
+              f"{t_b[1][0] / t_b[cores][0]:.2f}x")
     print(f"method B peak memory ({n_mem} frames, {cores} threads): {peak:.0f} MiB "
           f"(one {dtype.name} frame is {frame_mib:.1f} MiB, its PhaseMaps "
           f"{frame_mib * 8:.0f} MiB)")

@@ -16,7 +16,7 @@ import pytest
 from scipy import ndimage
 
 from gridstrain import Lattice, synthetic, wft
-from gridstrain._parallel import mean_wft
+from gridstrain.stacks import method_b
 from gridstrain.wft import _median, _spectrum_block, _wft, transfer_function
 
 
@@ -228,66 +228,41 @@ def _frames(lat, T, shape=(80, 96)):
     return out
 
 
-def test_mean_wft_averages_phases_and_derivatives_of_the_frames():
+def test_method_b_on_threads_is_the_circular_mean_of_the_frames():
     lat = Lattice.from_pitch(5.0)
     frames = _frames(lat, 5)
-    res = mean_wft(iter(frames), lat, workers=2)
+    res = method_b(iter(frames), lat, workers=2).maps
     each = [wft(f, lat) for f in frames]
-    # the paper's method B: phases averaged frame by frame (relative to frame 1, the
-    # frames differ by vibrations of 0.05 px, ~0.06 rad, far from the pi of wrapping)
-    rel = np.mean([np.angle(r.psi * np.conj(each[0].psi)) for r in each], axis=0)
-    phase = np.angle(each[0].psi) + rel
+    # the paper's method B, on the circle: arg of the mean unit phasor (oracle written
+    # here), mean modulus, mean derivatives, AND of the validity maps
+    unit = np.mean([r.psi / np.abs(r.psi) for r in each], axis=0)
     # float64 sums of 5 terms and an angle: a few ulps of pi
-    np.testing.assert_allclose(np.angle(res.psi * np.exp(-1j * phase)), 0, atol=1e-13)
+    np.testing.assert_allclose(np.angle(res.psi * np.conj(unit)), 0, atol=1e-13)
     np.testing.assert_allclose(np.abs(res.psi), np.mean([np.abs(r.psi) for r in each], axis=0),
                                rtol=1e-13)
     np.testing.assert_allclose(res.dphi, np.mean([r.dphi for r in each], axis=0),
                                rtol=0, atol=1e-15)
     np.testing.assert_array_equal(res.valid, np.logical_and.reduce([r.valid for r in each]))
     # the additions follow the frames' order whatever the threads: identical bits
-    serial = mean_wft(frames, lat, workers=1)
+    serial = method_b(frames, lat, workers=1).maps
     np.testing.assert_array_equal(serial.psi, res.psi)
     np.testing.assert_array_equal(serial.dphi, res.dphi)
 
 
-def test_mean_of_phasors_is_method_a():
-    # Psi is linear in the image: the mean of the frames' Psi is the Psi of the mean
-    # frame (method A), which is why method B averages phases by default
-    lat = Lattice.from_pitch(5.0, angle=12.0)
-    frames = _frames(lat, 4)
-    res = mean_wft(frames, lat, average="phasor", workers=2)
-    a = wft(np.mean(frames, axis=0), lat)
-    # float64 rounding of the FFTs of ~2000 grey levels, relative to the largest |Psi|
-    np.testing.assert_allclose(res.psi, a.psi, rtol=0, atol=1e-12 * np.abs(a.psi).max())
-    assert np.max(np.abs(np.angle(res.psi * np.conj(a.psi)))[:, a.valid]) < 1e-12
-    # the phase average differs from it at the noise level, which averaging lowers
-    ph = mean_wft(frames, lat, workers=2)
-    d = np.abs(np.angle(ph.psi * np.conj(a.psi)))[:, a.valid]
-    # second order in the frame-to-frame phase spread (0.06 rad of vibration, 1e-3 rad
-    # of noise): a few 1e-4 rad, above rounding and below 1e-2 rad
-    assert 1e-8 < np.max(d) < 1e-2
-
-
-def test_mean_wft_keeps_float32_and_reports_progress():
+def test_method_b_on_threads_keeps_float32_and_reports_progress():
     lat = Lattice.from_pitch(5.0)
     frames = [f.astype(np.float32) for f in _frames(lat, 3)]
     calls = []
-    res = mean_wft(frames, lat, workers=2, progress=lambda f, msg: calls.append(f))
+    res = method_b(frames, lat, workers=2, progress=lambda f, msg: calls.append(f)).maps
     assert res.psi.dtype == np.complex64
     assert res.dphi.dtype == np.float32
-    assert calls == pytest.approx([1 / 3, 2 / 3, 1.0])
+    assert calls == pytest.approx([1 / 3, 2 / 3, 1.0, 1.0])
 
 
-def test_mean_wft_refuses_bad_input():
+def test_method_b_refuses_bad_workers():
     lat = Lattice.from_pitch(5.0)
     frames = _frames(lat, 2)
-    with pytest.raises(ValueError, match="at least one frame"):
-        mean_wft([], lat)
     with pytest.raises(ValueError, match="workers"):
-        mean_wft(frames, lat, workers=0)
+        method_b(frames, lat, workers=0)
     with pytest.raises(ValueError, match="shape"):
-        mean_wft([frames[0], frames[1][:, :-8]], lat, workers=1)
-    with pytest.raises(TypeError, match="progress"):
-        mean_wft(frames, lat, progress="yes")
-    with pytest.raises(ValueError, match="average"):
-        mean_wft(frames, lat, average="median")
+        method_b([frames[0], frames[1][:, :-8]], lat, workers=2)

@@ -19,13 +19,10 @@ from gridstrain.pipeline import (
     FWHM_PER_SIGMA,
     MAP_FIELDS,
     SeriesResult,
-    _frame_shifts_private,
-    _method_b_private,
     measure_series,
     save_csv,
     save_result,
 )
-from gridstrain.wft import wft
 
 LAT = Lattice.from_pitch(5.0)
 AMP = 2400.0  # mean grey level, 12-bit: the grid peaks at 1.45 AMP = 3480 < 4095
@@ -295,34 +292,6 @@ def test_method_b_agrees_with_method_a():
         assert _rms(a.strain[0, i][v] - b.strain[0, i][v]) < 1e-6
     du = a.u[0][:, v] - b.u[0][:, v]
     assert np.std(du, axis=1).max() < 1e-5  # px, once the rigid offset is removed
-
-
-def test_private_method_b_is_the_circular_mean_of_the_frames():
-    p = Plate(n=96, radius=8.0)
-    rng = np.random.default_rng(4)
-    frames, _ = p.frames(3, loaded=True, rng=rng, vibration=0.05)
-    pm = _method_b_private(iter(frames), LAT, 5.0, p.mask, 4.0, lambda f, m: None, 3)
-    maps = [wft(f, LAT, sigma=5.0, mask=p.mask) for f in frames]
-    # oracle: eqs. (32)-(33) written out, the mean phase on the circle
-    unit = sum(m.psi / np.abs(m.psi) for m in maps)
-    v = pm.valid
-    assert_array_equal(v, maps[0].valid & maps[1].valid & maps[2].valid)
-    assert_allclose(np.angle(pm.psi)[:, v], np.angle(unit)[:, v], atol=1e-12)
-    assert_allclose(np.abs(pm.psi)[:, v], (sum(np.abs(m.psi) for m in maps) / 3)[:, v],
-                    rtol=1e-12)
-    assert_allclose(pm.dphi[..., v], (sum(m.dphi for m in maps) / 3)[..., v], atol=1e-15)
-
-
-def test_private_frame_shifts_recover_rigid_translations():
-    lat = Lattice.from_pitch(6.0, angle=12.0)  # any lattice: K^-1 does the rest
-    rng = np.random.default_rng(5)
-    a = rng.normal(0.0, 0.08, (5, 2))
-    frames = (synthetic.grid_image((96, 96), lat, displacement=lambda X, Y, s=s:
-                                   (-s[0] + 0 * X, -s[1] + 0 * Y)) for s in a)
-    est = _frame_shifts_private(frames, lat)
-    # px: the apodised global coefficient of a noise-free frame; the residual is
-    # the leakage of the conjugate carrier and harmonics, ~1e-5 px
-    assert_allclose(est, a - a.mean(axis=0), atol=1e-4)
 
 
 def test_vibrations_do_not_pass_for_sensor_noise():

@@ -76,7 +76,6 @@ can be measured and the maps are absent.
 from __future__ import annotations
 
 import datetime
-import inspect
 import math
 import numbers
 import os
@@ -100,17 +99,10 @@ from .io import (
 )
 from .kinematics import Measurement, coarse_displacement, deformation
 from .lattice import Lattice, detect_lattice
+from .stacks import method_b
 from .uncertainty import predict_uncertainty
+from .vibration import frame_shifts
 from .wft import DEFAULT_MARGIN, PhaseMaps, wft
-
-try:  # the streaming vibration estimator, when the package has it
-    from .vibration import frame_shifts as _external_frame_shifts
-except ImportError:  # pragma: no cover - depends on the installed modules
-    _external_frame_shifts = None
-try:  # method B over frame iterables, when the package has it
-    from .stacks import method_b as _external_method_b
-except ImportError:  # pragma: no cover - depends on the installed modules
-    _external_method_b = None
 
 __all__ = [
     "FWHM_PER_SIGMA",
@@ -517,57 +509,10 @@ def _counting(frames: Iterable, n: int, report: Progress, what: str):
 # --------------------------------------------------------------------------- vibrations
 
 
-def _hann(n: int) -> np.ndarray:
-    # apodisation of the global coefficient: its side lobes fall as 1/f^3, so the
-    # conjugate carrier and the harmonics (tens of bins away) do not pull the phase
-    return 0.5 - 0.5 * np.cos(2 * np.pi * (np.arange(n) + 0.5) / n)
-
-
-def _frame_shifts_private(frames: Iterable, lattice: Lattice) -> np.ndarray:
-    """Per-frame translation from the carrier phase (fallback of frame_shifts).
-
-    One windowed Fourier coefficient per frame and wave vector,
-    ``c_j(t) = sum w(x) (v_t(x) - m_t) exp(-2 i pi k_j . x)``; a frame
-    ``s(x + a)`` has it turned by ``+2 pi k_j . a`` (eq. 2), so with the mean
-    frame's coefficient (the mean of the coefficients, by linearity) as origin,
-    ``a_t = K^-1 arg(c(t) conj(c_mean)) / (2 pi)``, then centred.
-    """
-    K = lattice.K
-    coeffs = []
-    probe = None
-    for frame in frames:
-        v = np.asarray(frame, dtype=np.float64)
-        if probe is None:
-            H, W = v.shape
-            w = np.outer(_hann(H), _hann(W))
-            x = np.arange(W, dtype=np.float64)
-            y = np.arange(H, dtype=np.float64)
-            ex = np.stack([np.exp(-2j * np.pi * k[0] * x) for k in K], axis=1)  # (W, 2)
-            ey = np.stack([np.exp(-2j * np.pi * k[1] * y) for k in K])  # (2, H)
-            # the x carriers as a real (W, 4) matrix: numpy multiplies a real matrix by
-            # a complex vector without BLAS, a hundred times slower
-            exr = np.concatenate([ex.real, ex.imag], axis=1)
-            probe = (w, w.sum(), exr, ey)
-        w, wsum, exr, ey = probe
-        wv = w * (v - float(np.sum(w * v)) / wsum)
-        rows = wv @ exr  # (H, 4)
-        rows = rows[:, :2] + 1j * rows[:, 2:]  # sum over x, per wave vector (H, 2)
-        coeffs.append(np.einsum("jh,hj->j", ey, rows))
-    c = np.array(coeffs)
-    ref = c.mean(axis=0)
-    if np.any(np.abs(ref) == 0):
-        raise ValueError("the frames hold no grid at the lattice's wave vectors")
-    dphi = np.angle(c * np.conj(ref))
-    shifts = dphi @ np.linalg.inv(K).T / (2 * np.pi)
-    return shifts - shifts.mean(axis=0)
-
-
 def _frame_shifts(frames: Iterable, lattice: Lattice, name: str) -> tuple[np.ndarray, str]:
     try:
-        if _external_frame_shifts is not None:
-            return (np.asarray(_external_frame_shifts(frames, lattice), dtype=np.float64),
-                    "gridstrain.vibration.frame_shifts")
-        return _frame_shifts_private(frames, lattice), "gridstrain.pipeline (carrier phase)"
+        return (np.asarray(frame_shifts(frames, lattice), dtype=np.float64),
+                "gridstrain.vibration.frame_shifts")
     except ValueError as exc:
         msg = str(exc)
         raise ValueError(msg if msg.startswith(f"{name}:") else f"{name}: {msg}") from None
@@ -743,47 +688,11 @@ def _phase_maps_a(image, lattice, sigma, mask, margin):
     return _finite(pm), m
 
 
-def _method_b_private(frames, lattice, sigma, mask, margin, report, n):
-    """Method B (§2.3): circular mean of the phases, mean of the derivatives."""
-    unit = dphi = valid = None
-    modulus = None
-    for t, frame in enumerate(frames, start=1):
-        pm = _finite(wft(frame, lattice, sigma=sigma, mask=mask, margin=margin))
-        mod = np.abs(pm.psi)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            u = np.where(mod > 0, pm.psi / mod, 0)
-        if unit is None:
-            unit, dphi, valid, modulus = u.astype(np.complex128), pm.dphi.astype(
-                np.float64), pm.valid.copy(), mod.astype(np.float64)
-        else:
-            unit += u
-            dphi += pm.dphi
-            valid &= pm.valid
-            modulus += mod
-        report(t / n, f"method B: transform {t}/{n}")
-    # eq. (32) on the circle: the phase of the mean unit phasor; eq. (33) for the
-    # derivatives, which need no unwrapping
-    r = np.abs(unit)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        phasor = np.where(r > 0, unit / r, 0)
-    psi = phasor * (modulus / n)
-    return PhaseMaps(psi=psi, dphi=dphi / n, valid=valid, lattice=lattice,
-                     sigma=float(sigma))
-
-
 def _phase_maps_b(series, lattice, sigma, mask, margin, report):
+    """Method B (§2.3) on the series' frames, streamed."""
     n = series.n_frames
-    frames = series.frames(dtype=np.float64)
-    ext = _external_method_b
-    if ext is not None:
-        params = inspect.signature(ext).parameters
-        if "margin" in params or margin == DEFAULT_MARGIN:
-            kw = {"sigma": sigma, "mask": mask}
-            if "margin" in params:
-                kw["margin"] = margin
-            return _finite(ext(_counting(frames, n, report, "method B: transform"),
-                               lattice, **kw).maps)
-    return _method_b_private(frames, lattice, sigma, mask, margin, report, n)
+    frames = _counting(series.frames(dtype=np.float64), n, report, "method B: transform")
+    return _finite(method_b(frames, lattice, sigma=sigma, mask=mask, margin=margin).maps)
 
 
 # --------------------------------------------------------------------------- kinematics

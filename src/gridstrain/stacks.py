@@ -15,7 +15,10 @@ from __future__ import annotations
 import itertools
 import math
 import numbers
-from collections.abc import Iterable, Iterator
+import os
+from collections import deque
+from collections.abc import Callable, Iterable, Iterator
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -23,7 +26,7 @@ import numpy as np
 from ._progress import Progress, null_progress
 from ._validation import as_image, check_choice
 from .lattice import Lattice
-from .wft import PhaseMaps, wft
+from .wft import DEFAULT_MARGIN, PhaseMaps, wft
 
 __all__ = [
     "StackResult",
@@ -146,11 +149,17 @@ class _PhaseMean:
     def __init__(self):
         self.n = 0
 
-    def add(self, maps: PhaseMaps) -> None:
+    @staticmethod
+    def parts(maps: PhaseMaps):
+        """What a frame contributes: unit phasors, moduli, derivatives (per thread)."""
         mod = np.abs(maps.psi).astype(np.float64)
         with np.errstate(invalid="ignore", divide="ignore"):
             unit = np.where(mod > 0, maps.psi / mod, 0)
         dphi = np.where(np.isfinite(maps.dphi), maps.dphi, 0).astype(np.float64)
+        return maps, unit, mod, dphi
+
+    def add(self, parts) -> None:
+        maps, unit, mod, dphi = parts
         if self.n == 0:
             self.unit = unit.astype(np.complex128)
             self.mod = mod
@@ -252,7 +261,34 @@ def method_a(frames, lattice: Lattice, *, sigma: float | None = None, mask=None,
     return StackResult(maps=maps, n_frames=acc.n, method="A", mean_image=avg)
 
 
+def _map_ordered(fn: Callable, items: Iterable, workers: int) -> Iterator:
+    """``map(fn, items)`` on a pool of ``workers`` threads, in order, holding at most
+    ``workers`` items and results at a time (scipy.fft and numpy's large array
+    operations release the GIL, so the transforms of two frames overlap)."""
+    if workers == 1:
+        yield from map(fn, items)
+        return
+    with ThreadPoolExecutor(max_workers=workers) as pool:
+        pending: deque = deque()
+        for item in items:
+            while len(pending) >= workers:
+                yield pending.popleft().result()
+            pending.append(pool.submit(fn, item))
+        while pending:
+            yield pending.popleft().result()
+
+
+def _check_workers(workers) -> int:
+    if workers is None:
+        return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (
+            os.cpu_count() or 1)
+    if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
+        raise ValueError(f"workers must be a positive integer or None, got {workers!r}")
+    return workers
+
+
 def method_b(frames, lattice: Lattice, *, sigma: float | None = None, mask=None,
+             margin: float = DEFAULT_MARGIN, workers: int | None = None,
              progress: Progress | None = None) -> StackResult:
     """Method B: average the phases and phase derivatives of every frame (paper §2.3).
 
@@ -266,6 +302,12 @@ def method_b(frames, lattice: Lattice, *, sigma: float | None = None, mask=None,
         Window standard deviation, px (default: the pitch).
     mask : (H, W) bool array_like, optional
         True on the specimen.
+    margin : float
+        Invalid band at borders and mask edges, in sigmas (see :func:`wft`).
+    workers : int, optional
+        Threads transforming frames at once (default: the usable cores). At most
+        ``workers`` frames and their transforms are held at a time; the sums are
+        made in frame order, so the result does not depend on ``workers``.
     progress : callable, optional
         ``progress(fraction, message)``.
 
@@ -290,9 +332,16 @@ def method_b(frames, lattice: Lattice, *, sigma: float | None = None, mask=None,
     if not isinstance(lattice, Lattice):
         raise TypeError(f"lattice must be a Lattice, got {type(lattice).__name__}")
     progress = progress or null_progress
+    n_workers = _check_workers(workers)
     acc = _PhaseMean()
-    for i, img, total in _frames(frames):
-        acc.add(wft(img, lattice, sigma=sigma, mask=mask))
+
+    def transform(item):
+        i, img, total = item
+        return i, total, _PhaseMean.parts(wft(img, lattice, sigma=sigma, mask=mask,
+                                              margin=margin))
+
+    for i, total, parts in _map_ordered(transform, _frames(frames), n_workers):
+        acc.add(parts)
         _report(progress, i, total, "method B")
     if acc.n == 0:
         raise ValueError("frames must hold at least one image, got none")
@@ -342,7 +391,7 @@ def prefix_stacks(frames, lattice: Lattice, counts, *, method: str = "A",
         if method == "A":
             acc.add(img)
         else:
-            acc.add(wft(img, lattice, sigma=sigma, mask=mask))
+            acc.add(_PhaseMean.parts(wft(img, lattice, sigma=sigma, mask=mask)))
         n = i + 1
         progress(n / last, f"method {method}: frame {n}/{last}")
         if n == wanted[k]:
