@@ -758,17 +758,41 @@ def _with_first(first, sums):
     return (first, *sums)
 
 
-def _submit_statistics(client, series, c, mask, max_saturation: float):
+class _Pending:
+    """A submitted computation and the scattered data it reads.
+
+    The scattered data stay on the workers as long as this object lives (a
+    ``distributed.Future`` released by its last reference may be deleted before
+    the tasks that read it have run).
+    """
+
+    def __init__(self, future, scattered):
+        self._future = future
+        self._scattered = scattered
+
+    def result(self):
+        try:
+            return self._future.result()
+        finally:
+            self._future = self._scattered = None
+
+
+def _scatter(client, obj):
+    # sent once to the cluster, not with every task; a key of its own (hash=False)
+    # so that releasing it cannot release an equal object scattered by another call
+    return None if obj is None else client.scatter(obj, hash=False)
+
+
+def _submit_statistics(client, series, c, mask, max_saturation: float) -> _Pending:
     """Submit the pipeline's statistics pass over ``series`` (internal).
 
-    Returns a ``distributed.Future`` of ``(first, s1, s2, sva, worst)``: the first
-    frame, the sums over the frames of ``d = frame - first``, ``d * d``, ``c_t d``
-    (None when ``c`` is None) and the largest saturated fraction, the quantities
+    ``result()`` gives ``(first, s1, s2, sva, worst)``: the first frame, the sums
+    over the frames of ``d = frame - first``, ``d * d``, ``c_t d`` (None when
+    ``c`` is None) and the largest saturated fraction, the quantities
     :func:`gridstrain.pipeline._statistics` accumulates, here tree-reduced.
     """
     dask, _ = _dask()
-    s = client.scatter(series)  # sent once, not with every task
-    m = None if mask is None else client.scatter(mask)
+    s, m = _scatter(client, series), _scatter(client, mask)
     first = dask.delayed(_first_frame, pure=True)(s)
     leaf = dask.delayed(_series_sums, pure=True)
     check = isinstance(series, FrameSeries)
@@ -777,7 +801,8 @@ def _submit_statistics(client, series, c, mask, max_saturation: float):
     parts = [leaf(s, a, min(a + step, T), first, None if c is None else c[a:a + step], m,
                   max_saturation, check) for a in range(0, T, step)]
     total = _tree(parts, _add_series_sums, _SPLIT_EVERY)
-    return client.compute(dask.delayed(_with_first, pure=True)(first, total))
+    return _Pending(client.compute(dask.delayed(_with_first, pure=True)(first, total)),
+                    (s, m))
 
 
 def _series_block_sums(series, start, stop, lattice, sigma, mask, margin):
@@ -785,19 +810,18 @@ def _series_block_sums(series, start, stop, lattice, sigma, mask, margin):
     return _phase_sums(frames, lattice, sigma, mask, margin, with_total=False)
 
 
-def _submit_method_b(client, series, lattice, sigma, mask, margin):
+def _submit_method_b(client, series, lattice, sigma, mask, margin) -> _Pending:
     """Submit method B over ``series``, one frame per task (internal).
 
-    Returns a ``distributed.Future`` of the :class:`StackResult` that
+    ``result()`` gives the :class:`StackResult` that
     :func:`gridstrain.stacks.method_b` gives for the frames read as float64.
     """
     dask, _ = _dask()
-    s = client.scatter(series)
-    m = None if mask is None else client.scatter(mask)
+    s, m = _scatter(client, series), _scatter(client, mask)
     leaf = dask.delayed(_series_block_sums, pure=True)
     parts = [leaf(s, t, t + 1, lattice, sigma, m, margin) for t in range(series.n_frames)]
     result = dask.delayed(_method_b_result, pure=True)(_tree(parts, _add_sums, _SPLIT_EVERY))
-    return client.compute(result)
+    return _Pending(client.compute(result), (s, m))
 
 
 def _check_scheduler(scheduler):
