@@ -69,8 +69,8 @@ _INSTALL = ("install the distributed extra: pip install 'gridstrain[distributed]
             "(dask[array], distributed, zarr)")
 # Partial sums added per task of the tree reductions. A method-B partial sum holds
 # about 90 bytes per pixel (two complex128 phasor sums, two moduli, four
-# derivatives, the valid map, the frame sum): 4 of them and their sum are ~0.5 GB
-# for a 2048 x 2048 camera, which a worker holds comfortably.
+# derivatives, the valid map, the frame sum), 0.4 GB for a 2048 x 2048 camera: a
+# reduction task holds 4 of them and their sum, 2 GB, which a worker can afford.
 _SPLIT_EVERY = 4
 # Frames read per task for the pipeline's statistics: a few additions per pixel
 # and frame are too little work for one task each (a task costs ~1 ms on the
@@ -92,8 +92,8 @@ def _dask():
         import dask
         import dask.array as da
     except ImportError as exc:
-        raise MissingDistributedError(f"gridstrain.distributed needs Dask: {_INSTALL}; "
-                                      f"({exc})") from exc
+        raise MissingDistributedError(f"gridstrain.distributed needs Dask, which cannot "
+                                      f"be imported ({exc}): {_INSTALL}") from exc
     return dask, da
 
 
@@ -107,8 +107,8 @@ def _distributed():
     try:
         import distributed
     except ImportError as exc:
-        raise MissingDistributedError(f"a Dask scheduler needs the 'distributed' package: "
-                                      f"{_INSTALL}; ({exc})") from exc
+        raise MissingDistributedError(f"a Dask scheduler needs the 'distributed' package, "
+                                      f"which cannot be imported ({exc}): {_INSTALL}") from exc
     return distributed
 
 
@@ -116,8 +116,8 @@ def _zarr():
     try:
         import zarr
     except ImportError as exc:
-        raise MissingDistributedError(f"reading Zarr stores needs the 'zarr' package: "
-                                      f"{_INSTALL}; ({exc})") from exc
+        raise MissingDistributedError(f"reading Zarr stores needs the 'zarr' package, "
+                                      f"which cannot be imported ({exc}): {_INSTALL}") from exc
     return zarr
 
 
