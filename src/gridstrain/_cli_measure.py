@@ -44,7 +44,7 @@ _CONFIG_KEYS = {
     "sigma": "float", "method": "method", "mask": "path", "pixel-size": "float",
     "unit": "str", "no-lagrangian": "bool", "guess": "pair", "margin": "float",
     "csv": "path", "figures": "path", "quiet": "bool", "json": "bool",
-    "overwrite": "bool", "bit-depth": "int",
+    "overwrite": "bool", "bit-depth": "int", "scheduler": "str",
 }
 
 _EXAMPLE = """example:
@@ -101,6 +101,11 @@ def register(sub) -> None:
                    help="no progress bar and no report")
     o.add_argument("--json", action="store_true", default=None,
                    help="print a JSON summary on stdout instead of the report")
+    d = p.add_argument_group("distributed (needs gridstrain[distributed])")
+    d.add_argument("--scheduler", metavar="ADDRESS",
+                   help="compute the statistics and method B's transforms on Dask: "
+                   "'local' (a worker per core) or a scheduler's tcp://HOST:PORT, whose "
+                   "workers must see the input files at the same paths")
     p.set_defaults(func=run)
 
 
@@ -423,7 +428,8 @@ def _run(args, progress: _Bar) -> int:
     result = measure_series(reference, states, lattice=lattice, sigma=opts.get("sigma"),
                             method=opts["method"], mask=mask,
                             lagrangian=not opts["no-lagrangian"], guess=guess,
-                            margin=opts["margin"], progress=progress)
+                            margin=opts["margin"], progress=progress,
+                            scheduler=opts.get("scheduler"))
     ps, unit = opts.get("pixel-size"), opts.get("unit")
     extra = {"options": dict(opts.items()),
              "config_file": args.config or "", "mask_file": opts.get("mask") or ""}

@@ -75,6 +75,7 @@ can be measured and the maps are absent.
 
 from __future__ import annotations
 
+import contextlib
 import datetime
 import math
 import numbers
@@ -552,15 +553,21 @@ class _Stats:
     saturation: float
 
 
-def _statistics(series, shifts: np.ndarray, mask: np.ndarray | None,
-                max_saturation: float, report: Progress) -> _Stats:
-    """Mean, vibration-corrected temporal variance and saturation, in one pass."""
-    T = series.n_frames
+def _regressors(shifts: np.ndarray):
+    """Centred shifts ``c`` (T, 2), their scatter matrix, whether to regress them out."""
+    T = shifts.shape[0]
     c = shifts - shifts.mean(axis=0)  # centred regressors (T, 2)
     S_aa = c.T @ c
     # rank of the shift regressors: 0 without vibration, 2 normally
     rank = int(np.linalg.matrix_rank(S_aa, tol=1e-12 * max(float(np.trace(S_aa)), 1e-300)))
-    regress = T - 1 - 2 >= 1 and rank == 2
+    return c, S_aa, T - 1 - 2 >= 1 and rank == 2
+
+
+def _statistics(series, shifts: np.ndarray, mask: np.ndarray | None,
+                max_saturation: float, report: Progress) -> _Stats:
+    """Mean, vibration-corrected temporal variance and saturation, in one pass."""
+    T = series.n_frames
+    c, _, regress = _regressors(shifts)
     first = None
     s1 = s2 = sva = None
     worst = 0.0
@@ -583,6 +590,14 @@ def _statistics(series, shifts: np.ndarray, mask: np.ndarray | None,
         if regress:
             sva += c[t][:, None, None] * d
         report((t + 1) / T, f"statistics {t + 1}/{T}")
+    return _finish_statistics(first, s1, s2, sva, shifts, worst)
+
+
+def _finish_statistics(first, s1, s2, sva, shifts, worst) -> _Stats:
+    """The statistics from the sums over the frames of ``d = frame - first``,
+    ``d * d`` and ``c_t d`` (None without regression)."""
+    T = shifts.shape[0]
+    _, S_aa, regress = _regressors(shifts)
     mean = first + s1 / T
     if T < 2:
         return _Stats(mean, None, "unavailable (a single frame)", worst)
@@ -695,6 +710,29 @@ def _phase_maps_b(series, lattice, sigma, mask, margin, report):
     return _finite(method_b(frames, lattice, sigma=sigma, mask=mask, margin=margin).maps)
 
 
+# --------------------------------------------------------------------------- Dask
+
+
+def _dist():
+    """gridstrain.distributed, imported only when a scheduler is given."""
+    from . import distributed
+
+    return distributed
+
+
+def _check_scheduler(scheduler):
+    if scheduler is None:
+        return None
+    return _dist()._check_scheduler(scheduler)
+
+
+def _connect(scheduler):
+    """A distributed.Client for ``scheduler``, or None without one."""
+    if scheduler is None:
+        return contextlib.nullcontext()
+    return _dist().connect(scheduler)
+
+
 # --------------------------------------------------------------------------- kinematics
 
 
@@ -765,7 +803,7 @@ def measure_series(reference, states, *, lattice: Lattice | None = None,
                    sigma: float | None = None, method: str = "A", mask=None,
                    lagrangian: bool = True, guess="auto", margin: float = DEFAULT_MARGIN,
                    bit_depth: int | None = None, max_saturation: float = _MAX_SATURATION,
-                   progress: Progress | None = None) -> SeriesResult:
+                   progress: Progress | None = None, scheduler=None) -> SeriesResult:
     """Displacement and strain maps of loaded states from series of grid images.
 
     Parameters
@@ -801,6 +839,16 @@ def measure_series(reference, states, *, lattice: Lattice | None = None,
         series (within the mask), in [0, 1].
     progress : callable, optional
         ``progress(fraction, message)``.
+    scheduler : str or distributed.Client, optional
+        Compute each series' statistics pass (mean, variance, saturation) and
+        method B's transforms on Dask: ``"local"`` (one worker process per core),
+        a scheduler address ``"tcp://HOST:PORT"`` or a ``distributed.Client``
+        (see :func:`gridstrain.distributed.connect`; needs the ``distributed``
+        extra, and on a cluster workers that see the input files at the same
+        paths). Every series is submitted before the first is awaited. The frame
+        shifts, the lattice, the noise floor and the kinematics stay on this
+        machine. Results equal those without a scheduler to the rounding of sums
+        added in another order.
 
     Returns
     -------
@@ -810,7 +858,7 @@ def measure_series(reference, states, *, lattice: Lattice | None = None,
     ------
     ValueError, TypeError, OSError
         Bad arguments or input files (the message names the series, the frame
-        and the file).
+        and the file); an unreachable scheduler (OSError).
 
     Examples
     --------
@@ -837,6 +885,7 @@ def measure_series(reference, states, *, lattice: Lattice | None = None,
                          f"{max_saturation!r}")
     if lattice is not None and not isinstance(lattice, Lattice):
         raise TypeError(f"lattice must be a Lattice or None, got {type(lattice).__name__}")
+    scheduler = _check_scheduler(scheduler)
     if sigma is not None and lattice is not None and sigma < lattice.pitch * (1 - 1e-9):
         raise ValueError(f"sigma must be at least the pitch ({lattice.pitch:.4g} px) so "
                          f"that the window holds one period, got {sigma:.4g}")
@@ -882,22 +931,40 @@ def measure_series(reference, states, *, lattice: Lattice | None = None,
     steps.step(1.0, "lattice")
 
     vib, stats, maps, masks = [], [], [], []
-    for s in series:
-        n = s.n_frames
-        shifts, how = _frame_shifts(
-            _counting(s.frames(dtype=np.float64), n, steps.sub(n, s.name), "shifts"),
-            lattice, s.name)
-        vib.append(_diagnose(s.name, shifts, how, lattice, method))
-        st = _statistics(s, shifts, m, max_saturation, steps.sub(n, s.name))
-        stats.append(st)
-        base = m if s is ref else None
-        pm, used = _phase_maps_a(st.mean, lattice, sigma, base, margin)
-        steps.step(2 * wft_cost, f"{s.name}: phase maps")
-        if method == "B":
-            pm = _phase_maps_b(s, lattice, sigma, used, margin,
-                               steps.sub(n * wft_cost, s.name))
-        maps.append(pm)
-        masks.append(used)
+    with _connect(scheduler) as client:
+        for s in series:
+            n = s.n_frames
+            shifts, how = _frame_shifts(
+                _counting(s.frames(dtype=np.float64), n, steps.sub(n, s.name), "shifts"),
+                lattice, s.name)
+            vib.append(_diagnose(s.name, shifts, how, lattice, method))
+            if client is None:
+                stats.append(_statistics(s, shifts, m, max_saturation, steps.sub(n, s.name)))
+            else:  # a future: the cluster works while this machine reads the next series
+                c, _, regress = _regressors(shifts)
+                stats.append(_dist()._submit_statistics(client, s, c if regress else None, m,
+                                                        max_saturation))
+        for k, s in enumerate(series):
+            n = s.n_frames
+            if client is not None:
+                first, s1, s2, sva, worst = stats[k].result()
+                stats[k] = _finish_statistics(first, s1, s2, sva, vib[k].shifts, worst)
+                steps.step(n, f"{s.name}: statistics")
+            st = stats[k]
+            base = m if s is ref else None
+            pm, used = _phase_maps_a(st.mean, lattice, sigma, base, margin)
+            steps.step(2 * wft_cost, f"{s.name}: phase maps")
+            if method == "B" and client is None:
+                pm = _phase_maps_b(s, lattice, sigma, used, margin,
+                                   steps.sub(n * wft_cost, s.name))
+            elif method == "B":  # a future, gathered once every series is submitted
+                pm = _dist()._submit_method_b(client, s, lattice, sigma, used, margin)
+            maps.append(pm)
+            masks.append(used)
+        if client is not None and method == "B":
+            for k, s in enumerate(series):
+                maps[k] = _finite(maps[k].result().maps)
+                steps.step(s.n_frames * wft_cost, f"{s.name}: method B")
 
     mean_ref = stats[0].mean
     measurements, guesses, sources = [], [], []

@@ -1,0 +1,853 @@
+"""Methods A and B on Dask: one machine's cores, or a cluster given its scheduler.
+
+Needs the ``distributed`` extra (``pip install gridstrain[distributed]``: Dask's
+arrays, its distributed scheduler and Zarr). The rest of gridstrain never imports
+Dask; this module imports it inside its functions, so that ``import
+gridstrain.distributed`` works without it and every function says what to install.
+
+Stacks
+    :func:`as_dask_stack` turns a series (anything :func:`gridstrain.io.open_series`
+    opens, a :class:`gridstrain.io.FrameSeries`, a Zarr array or store, a NumPy or
+    Dask array) into a lazy ``(T, H, W)`` Dask array with one task per frame (or
+    per ``chunk_frames`` frames). Image files are read by the tasks themselves,
+    through :class:`~gridstrain.io.FrameSeries`, with its checks (sizes, pixel
+    types, NaN); on a cluster every worker must see the files at the same paths.
+
+Method A (paper §2.2)
+    :func:`mean_image_dask` averages the frames with a tree reduction in float64;
+    :func:`method_a_dask` transforms the mean, as :func:`gridstrain.stacks.method_a`.
+
+Method B (paper §2.3)
+    :func:`method_b_dask` computes one windowed Fourier transform per task and
+    returns the partial sums that :func:`gridstrain.stacks.method_b` accumulates
+    (the sum of the unit phasors ``psi / |psi|``, of the moduli, of the phase
+    derivatives, the AND of the valid maps); a tree reduction adds them
+    ``split_every`` at a time, so that memory holds a few partial sums per
+    worker, never every frame's maps. The result is that of
+    :func:`gridstrain.stacks.method_b` up to the rounding of the additions, which
+    happen in another order (about 1e-16 relative).
+
+Several load steps at once
+    :func:`measure_states_dask` builds the graphs of the reference and of every
+    loaded state and computes them together, then runs the kinematics
+    (:func:`gridstrain.kinematics.deformation`) on this machine.
+    :func:`gridstrain.pipeline.measure_series` takes ``scheduler=`` for the full
+    pipeline (vibrations, noise floor, uncertainty maps), see :func:`connect`.
+
+Conventions are those of :mod:`gridstrain.conventions`.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import numbers
+import os
+from collections.abc import Iterable, Iterator, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ._validation import check_choice, check_mask, check_positive
+from .io import FrameSeries, check_saturation_limit, open_series
+from .kinematics import Measurement, deformation
+from .lattice import Lattice, detect_lattice
+from .stacks import StackResult
+from .wft import DEFAULT_MARGIN, PhaseMaps, wft
+
+__all__ = [
+    "MissingDistributedError",
+    "as_dask_stack",
+    "connect",
+    "mean_image_dask",
+    "measure_states_dask",
+    "method_a_dask",
+    "method_b_dask",
+]
+
+_INSTALL = ("install the distributed extra: pip install 'gridstrain[distributed]' "
+            "(dask[array], distributed, zarr)")
+# Partial sums added per task of the tree reductions. A method-B partial sum holds
+# about 90 bytes per pixel (two complex128 phasor sums, two moduli, four
+# derivatives, the valid map, the frame sum), 0.4 GB for a 2048 x 2048 camera: a
+# reduction task holds 4 of them and their sum, 2 GB, which a worker can afford.
+_SPLIT_EVERY = 4
+# Frames read per task for the pipeline's statistics: a few additions per pixel
+# and frame are too little work for one task each (a task costs ~1 ms on the
+# distributed scheduler).
+_STATS_FRAMES_PER_TASK = 16
+
+
+class MissingDistributedError(ImportError, ValueError):
+    """Dask, ``distributed`` or Zarr is not installed.
+
+    Both an ``ImportError`` (what it is) and a ``ValueError`` (so that the command
+    line reports it as one line, like any bad option).
+    """
+
+
+def _dask():
+    """``(dask, dask.array)``, or a clear error naming the extra to install."""
+    try:
+        import dask
+        import dask.array as da
+    except ImportError as exc:
+        raise MissingDistributedError(f"gridstrain.distributed needs Dask, which cannot "
+                                      f"be imported ({exc}): {_INSTALL}") from exc
+    return dask, da
+
+
+def _dask_config():
+    """``dask.config``."""
+    dask, _ = _dask()
+    return dask.config
+
+
+def _distributed():
+    try:
+        import distributed
+    except ImportError as exc:
+        raise MissingDistributedError(f"a Dask scheduler needs the 'distributed' package, "
+                                      f"which cannot be imported ({exc}): {_INSTALL}") from exc
+    return distributed
+
+
+def _zarr():
+    try:
+        import zarr
+    except ImportError as exc:
+        raise MissingDistributedError(f"reading Zarr stores needs the 'zarr' package, "
+                                      f"which cannot be imported ({exc}): {_INSTALL}") from exc
+    return zarr
+
+
+# --------------------------------------------------------------------------- client
+
+
+def _local_workers() -> int:
+    try:
+        return max(len(os.sched_getaffinity(0)), 1)
+    except AttributeError:  # not on Linux
+        return max(os.cpu_count() or 1, 1)
+
+
+@contextlib.contextmanager
+def connect(scheduler, *, n_workers: int | None = None) -> Iterator:
+    """A ``distributed.Client`` for ``scheduler``, closed on exit if opened here.
+
+    Parameters
+    ----------
+    scheduler : str or distributed.Client
+        - the address of a running Dask scheduler, ``"tcp://HOST:PORT"`` (any
+          address ``distributed.Client`` accepts; start one with ``dask scheduler``
+          and workers with ``dask worker tcp://HOST:PORT``);
+        - ``"local"``: a cluster on this machine, one single-threaded worker
+          process per core, listening on the loopback interface only;
+        - a ``distributed.Client``, used as is and left open.
+    n_workers : int, optional
+        Worker processes of a ``"local"`` cluster (default: the cores this process
+        may use).
+
+    Yields
+    ------
+    distributed.Client
+
+    Raises
+    ------
+    MissingDistributedError
+        ``distributed`` is not installed.
+    OSError
+        No scheduler answers at the address within Dask's connection timeout
+        (``distributed.comm.timeouts.connect`` in the Dask configuration, 30 s by
+        default).
+
+    Notes
+    -----
+    Workers run gridstrain's functions and read the image files themselves: each
+    must have gridstrain installed and see the files at the paths given here (a
+    shared file system).
+    """
+    distributed = _distributed()
+    if isinstance(scheduler, distributed.Client):
+        yield scheduler
+        return
+    if not isinstance(scheduler, str) or not scheduler.strip():
+        raise TypeError(f"scheduler must be 'local', a scheduler address such as "
+                        f"'tcp://HOST:PORT' or a distributed.Client, got {scheduler!r}")
+    address = scheduler.strip()
+    if address == "local":
+        n = _local_workers() if n_workers is None else n_workers
+        if isinstance(n, bool) or not isinstance(n, numbers.Integral) or n < 1:
+            raise ValueError(f"n_workers must be a positive integer, got {n_workers!r}")
+        # Dask starts its workers with glibc's MALLOC_TRIM_THRESHOLD_ at 64 KiB, which
+        # freezes the mmap threshold: every array of the transforms is then mapped
+        # and unmapped afresh, and a 512 x 512 transform takes 1.5 times longer
+        # (measured); the workers of this cluster keep glibc's adaptive default.
+        key = "distributed.nanny.pre-spawn-environ"
+        environ = {k: v for k, v in _dask_config().get(key, default={}).items()
+                   if k != "MALLOC_TRIM_THRESHOLD_"}
+        # single-threaded processes: the transforms hold the GIL part of the time
+        with _dask_config().set({key: environ}):
+            cluster = distributed.LocalCluster(n_workers=int(n), threads_per_worker=1,
+                                               processes=True, host="127.0.0.1",
+                                               dashboard_address=None)
+        with cluster, distributed.Client(cluster) as client:
+            yield client
+        return
+    try:
+        client = distributed.Client(address)
+    except OSError as exc:
+        raise OSError(f"scheduler: cannot reach a Dask scheduler at {address!r} ({exc}); "
+                      "check the address and that `dask scheduler` runs there") from None
+    except ValueError as exc:  # an address distributed cannot parse
+        raise ValueError(f"scheduler must be 'local' or a scheduler address such as "
+                         f"'tcp://HOST:PORT', got {address!r} ({exc})") from None
+    with client:
+        yield client
+
+
+def _compute(graphs: Sequence, client):
+    """Compute Dask collections together, on ``client`` when given."""
+    dask, _ = _dask()
+    if client is None:
+        return dask.compute(*graphs)
+    return dask.compute(*graphs, scheduler=client)
+
+
+# --------------------------------------------------------------------------- stacks
+
+
+def _check_split_every(split_every) -> int:
+    if split_every is None:
+        return _SPLIT_EVERY
+    if isinstance(split_every, bool) or not isinstance(split_every, numbers.Integral) \
+            or split_every < 2:
+        raise ValueError(f"split_every must be an integer >= 2, got {split_every!r}")
+    return int(split_every)
+
+
+def _check_chunk(chunk_frames) -> int:
+    if isinstance(chunk_frames, bool) or not isinstance(chunk_frames, numbers.Integral) \
+            or chunk_frames < 1:
+        raise ValueError(f"chunk_frames must be a positive integer, got {chunk_frames!r}")
+    return int(chunk_frames)
+
+
+def _check_dtype(dtype) -> np.dtype | None:
+    if dtype is None:
+        return None
+    try:
+        dt = np.dtype(dtype)
+    except TypeError:
+        dt = None
+    if dt not in (np.dtype(np.float32), np.dtype(np.float64)):
+        raise ValueError(f"dtype must be float32, float64 or None, got {dtype!r}")
+    return dt
+
+
+def _is_zarr_path(p: Path) -> bool:
+    return p.is_dir() and any((p / f).is_file() for f in ("zarr.json", ".zarray", ".zgroup"))
+
+
+def _read_frames(series, start: int, stop: int, dtype) -> np.ndarray:
+    """Frames ``start:stop`` of a FrameSeries, ``(n, H, W)`` (a task of the graph)."""
+    return np.stack(list(series.frames(dtype=dtype, start=start, stop=stop)))
+
+
+def _series_stack(series: FrameSeries, chunk: int, dtype: np.dtype | None):
+    dask, da = _dask()
+    # one key for the series: every task refers to it, no task carries a copy
+    s = dask.delayed(series, pure=True)
+    out_dtype = series.dtype if dtype is None else dtype
+    H, W = series.shape
+    read = dask.delayed(_read_frames, pure=True)
+    blocks = []
+    for start in range(0, series.n_frames, chunk):
+        stop = min(start + chunk, series.n_frames)
+        blocks.append(da.from_delayed(read(s, start, stop, dtype), shape=(stop - start, H, W),
+                                      dtype=out_dtype))
+    return da.concatenate(blocks, axis=0)
+
+
+def as_dask_stack(source, *, chunk_frames: int = 1, dtype=None, name: str = "series",
+                  bit_depth: int | None = None):
+    """A series of frames as a lazy ``(T, H, W)`` Dask array.
+
+    Parameters
+    ----------
+    source
+        - a path, directory, glob pattern or list of image files, or a
+          :class:`gridstrain.io.FrameSeries`: read with
+          :func:`gridstrain.io.open_series`, one read task per chunk of frames
+          (a multi-page TIFF is read page by page);
+        - a Zarr array, or the path of a Zarr array (a directory holding
+          ``zarr.json`` or ``.zarray``), frames along the first axis;
+        - a ``(T, H, W)`` or ``(H, W)`` NumPy or Dask array of grey levels.
+    chunk_frames : int
+        Frames per chunk (per task). One by default: one task per frame.
+    dtype : {None, numpy.float32, numpy.float64}
+        ``None`` keeps the stored pixel type (raw grey levels).
+    name : str
+        What the series is, for error messages.
+    bit_depth : int, optional
+        Passed to :func:`gridstrain.io.open_series` for image files.
+
+    Returns
+    -------
+    dask.array.Array
+        ``(T, H, W)``, chunks ``(chunk_frames, H, W)``: whole frames, since each
+        transform needs one.
+
+    Raises
+    ------
+    MissingDistributedError
+        Dask (or Zarr, for a Zarr source) is not installed.
+    ValueError, TypeError, OSError
+        As :func:`gridstrain.io.open_series`; arrays that are not 2-D or 3-D real
+        grey levels of at least 8 x 8 pixels; a Zarr group instead of an array.
+    """
+    _, da = _dask()
+    chunk = _check_chunk(chunk_frames)
+    dt = _check_dtype(dtype)
+    if isinstance(source, FrameSeries):
+        return _series_stack(source, chunk, dt)
+    if isinstance(source, str | os.PathLike):
+        p = Path(os.path.expanduser(os.fspath(source)))
+        if _is_zarr_path(p):
+            zarr = _zarr()
+            try:
+                source = zarr.open_array(p, mode="r")
+            except Exception as exc:  # zarr's errors for a group, a bad store...
+                raise ValueError(f"{name}: {p} is not a Zarr array ({exc}); for a group, "
+                                 "give the path of the array inside it") from None
+        else:
+            return _series_stack(open_series(source, name=name, bit_depth=bit_depth),
+                                 chunk, dt)
+    elif isinstance(source, list | tuple):
+        return _series_stack(open_series(source, name=name, bit_depth=bit_depth), chunk, dt)
+    if isinstance(source, da.Array):
+        arr = source
+    elif _is_zarr_array(source):
+        arr = da.from_zarr(source)
+    elif isinstance(source, np.ndarray):
+        arr = da.from_array(source, chunks=(chunk, *source.shape[1:])
+                            if source.ndim == 3 else source.shape)
+    else:
+        raise TypeError(f"{name} must be a path, a glob pattern, a list of image files, "
+                        f"a FrameSeries, a Zarr array or a NumPy/Dask array, got "
+                        f"{type(source).__name__}")
+    if arr.ndim == 2:
+        arr = arr[None]
+    if arr.ndim != 3:
+        raise ValueError(f"{name} must be a (T, H, W) stack or one (H, W) frame, got shape "
+                         f"{arr.shape}")
+    if arr.dtype == bool or arr.dtype.kind not in "uif":
+        raise TypeError(f"{name} must hold real grey levels, got dtype {arr.dtype}")
+    if arr.shape[0] < 1 or min(arr.shape[1:]) < 8:
+        raise ValueError(f"{name} must hold frames of at least 8 x 8 pixels, got shape "
+                         f"{arr.shape}")
+    if dt is not None:
+        arr = arr.astype(dt)
+    return arr.rechunk((chunk, -1, -1))
+
+
+def _is_zarr_array(obj) -> bool:
+    try:
+        import zarr
+    except ImportError:
+        return False
+    return isinstance(obj, zarr.Array)
+
+
+def _stack(stack, name: str = "frames"):
+    """``stack`` as a Dask array of whole frames (anything as_dask_stack takes)."""
+    _, da = _dask()
+    if isinstance(stack, da.Array) and stack.ndim == 3 \
+            and len(stack.chunks[1]) == 1 and len(stack.chunks[2]) == 1:
+        if stack.dtype == bool or stack.dtype.kind not in "uif":
+            raise TypeError(f"{name} must hold real grey levels, got dtype {stack.dtype}")
+        return stack
+    return as_dask_stack(stack, name=name)
+
+
+# --------------------------------------------------------------------------- method A
+
+
+def mean_image_dask(stack, *, split_every: int | None = None):
+    """Mean of a stack's frames by a tree reduction, lazily.
+
+    Parameters
+    ----------
+    stack : dask.array.Array or anything :func:`as_dask_stack` takes
+        ``(T, H, W)`` frames, grey levels.
+    split_every : int, optional
+        Chunks added per task of the reduction tree (default 4).
+
+    Returns
+    -------
+    dask.array.Array
+        ``(H, W)`` float64, ``v_bar = (1/T) sum_t v_t``, grey levels: accumulated in
+        float64 whatever the frames' type, as :func:`gridstrain.stacks.mean_image`.
+        Call ``.compute()`` (or compute it with other graphs).
+    """
+    arr = _stack(stack)
+    k = _check_split_every(split_every)
+    return arr.astype(np.float64).mean(axis=0, dtype=np.float64, split_every=k)
+
+
+def _method_a_result(mean: np.ndarray, lattice, sigma, mask, margin, n: int) -> StackResult:
+    maps = wft(mean, lattice, sigma=sigma, mask=mask, margin=margin)
+    return StackResult(maps=maps, n_frames=n, method="A", mean_image=mean)
+
+
+def _check_options(sigma, mask, margin, shape):
+    sigma = check_positive(sigma, "sigma", allow_none=True)
+    margin = check_positive(margin, "margin")
+    m = None if mask is None else check_mask(mask, shape)
+    return sigma, m, margin
+
+
+def _check_common(lattice, sigma, mask, margin, shape):
+    if not isinstance(lattice, Lattice):
+        raise TypeError(f"lattice must be a Lattice, got {type(lattice).__name__}")
+    return _check_options(sigma, mask, margin, shape)
+
+
+def method_a_dask(stack, lattice: Lattice, *, sigma: float | None = None, mask=None,
+                  margin: float = DEFAULT_MARGIN, split_every: int | None = None,
+                  client=None, compute: bool = True):
+    """Method A on Dask: the transform of the tree-reduced mean image (paper §2.2).
+
+    Parameters
+    ----------
+    stack : dask.array.Array or anything :func:`as_dask_stack` takes
+        ``(T, H, W)`` frames, grey levels.
+    lattice : Lattice
+        Wave vectors of the grid.
+    sigma : float, optional
+        Window standard deviation, px (default: the pitch).
+    mask : (H, W) bool array_like, optional
+        True on the specimen.
+    margin : float
+        Invalid band along borders and mask edges, in units of ``sigma``.
+    split_every : int, optional
+        Chunks added per task of the reduction tree (default 4).
+    client : distributed.Client, optional
+        Where to compute (default: Dask's current scheduler).
+    compute : bool
+        False: return a ``dask.delayed`` object, to compute with other graphs.
+
+    Returns
+    -------
+    StackResult or dask.delayed.Delayed
+        As :func:`gridstrain.stacks.method_a`, to the rounding of the sum.
+    """
+    dask, _ = _dask()
+    arr = _stack(stack)
+    sigma, m, margin = _check_common(lattice, sigma, mask, margin, arr.shape[1:])
+    mean = mean_image_dask(arr, split_every=split_every)
+    # the transform runs where the mean is (one task): no round trip of the image
+    graph = dask.delayed(_method_a_result, pure=True)(mean, lattice, sigma, m, margin,
+                                                      int(arr.shape[0]))
+    return _compute([graph], client)[0] if compute else graph
+
+
+# --------------------------------------------------------------------------- method B
+
+
+@dataclass
+class _PhaseSums:
+    """Partial sums of method B over some frames (what stacks.method_b accumulates)."""
+
+    n: int
+    unit: np.ndarray  # (2, H, W) complex128, sum of psi / |psi|
+    mod: np.ndarray  # (2, H, W) float64, sum of |psi|
+    dphi: np.ndarray  # (2, 2, H, W) float64, sum of the derivatives (NaN as 0)
+    valid: np.ndarray  # (H, W) bool, AND of the valid maps
+    total: np.ndarray | None  # (H, W) float64, sum of the frames (for the mean image)
+    lattice: Lattice
+    sigma: float
+    dtype: np.dtype  # of the frames' derivatives
+    cdtype: np.dtype  # of the frames' psi
+
+
+def _phase_sums(frames: Iterable, lattice, sigma, mask, margin, with_total) -> _PhaseSums:
+    """Method B's sums over ``frames``, one transform at a time (one task)."""
+    acc = None
+    for frame in frames:
+        maps = wft(frame, lattice, sigma=sigma, mask=mask, margin=margin)
+        # the same operations, in the same types, as gridstrain.stacks.method_b
+        mod = np.abs(maps.psi).astype(np.float64)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            unit = np.where(mod > 0, maps.psi / mod, 0)
+        dphi = np.where(np.isfinite(maps.dphi), maps.dphi, 0).astype(np.float64)
+        if acc is None:
+            total = np.array(frame, dtype=np.float64) if with_total else None
+            acc = _PhaseSums(n=1, unit=unit.astype(np.complex128), mod=mod, dphi=dphi,
+                             valid=maps.valid.copy(), total=total, lattice=maps.lattice,
+                             sigma=maps.sigma, dtype=maps.dphi.dtype,
+                             cdtype=maps.psi.dtype)
+        else:
+            acc.unit += unit
+            acc.mod += mod
+            acc.dphi += dphi
+            acc.valid &= maps.valid
+            if with_total:
+                acc.total += frame
+            acc.n += 1
+    if acc is None:
+        raise ValueError("frames must hold at least one image, got none")
+    return acc
+
+
+def _block_sums(block: np.ndarray, lattice, sigma, mask, margin, with_total) -> _PhaseSums:
+    return _phase_sums(block, lattice, sigma, mask, margin, with_total)
+
+
+def _add_sums(*parts: _PhaseSums) -> _PhaseSums:
+    """Sum of partial sums (a node of the reduction tree); the inputs are not changed."""
+    first = parts[0]
+    out = _PhaseSums(n=first.n, unit=first.unit.copy(), mod=first.mod.copy(),
+                     dphi=first.dphi.copy(), valid=first.valid.copy(),
+                     total=None if first.total is None else first.total.copy(),
+                     lattice=first.lattice, sigma=first.sigma, dtype=first.dtype,
+                     cdtype=first.cdtype)
+    for p in parts[1:]:
+        out.n += p.n
+        out.unit += p.unit
+        out.mod += p.mod
+        out.dphi += p.dphi
+        out.valid &= p.valid
+        if out.total is not None:
+            out.total += p.total
+    return out
+
+
+def _method_b_result(acc: _PhaseSums) -> StackResult:
+    """gridstrain.stacks.method_b's result from the sums over every frame."""
+    n = acc.n
+    # eq. (32) on the circle: the phase of the mean unit phasor; eq. (33) for the
+    # derivatives, which need no unwrapping
+    mean_unit = acc.unit / n
+    r = np.abs(mean_unit)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        direction = np.where(r > 0, mean_unit / r, 0)
+    psi = (direction * (acc.mod / n)).astype(acc.cdtype)
+    dphi = (acc.dphi / n).astype(acc.dtype)
+    valid = acc.valid & np.all(r > 0, axis=0)
+    maps = PhaseMaps(psi=psi, dphi=dphi, valid=valid, lattice=acc.lattice, sigma=acc.sigma)
+    return StackResult(maps=maps, n_frames=n, method="B", resultant=r)
+
+
+def _method_b_with_mean(acc: _PhaseSums) -> tuple[StackResult, np.ndarray]:
+    """Method B's result and the mean frame, float64 (for the coarse guess)."""
+    return _method_b_result(acc), acc.total / acc.n
+
+
+def _method_a_with_mean(mean: np.ndarray, lattice, sigma, mask, margin, n: int):
+    return _method_a_result(mean, lattice, sigma, mask, margin, n), mean
+
+
+def _tree(parts: list, combine, split_every: int):
+    """Reduce delayed ``parts`` with ``combine``, ``split_every`` at a time."""
+    dask, _ = _dask()
+    node = dask.delayed(combine, pure=True)
+    while len(parts) > 1:
+        parts = [node(*parts[i:i + split_every]) if len(parts[i:i + split_every]) > 1
+                 else parts[i] for i in range(0, len(parts), split_every)]
+    return parts[0]
+
+
+def _method_b_graph(arr, lattice, sigma, mask, margin, split_every, with_mean):
+    dask, _ = _dask()
+    # one key for the mask: the tasks refer to it instead of each carrying a copy
+    m = None if mask is None else dask.delayed(mask, pure=True)
+    leaf = dask.delayed(_block_sums, pure=True)
+    parts = [leaf(block, lattice, sigma, m, margin, with_mean)
+             for block in arr.to_delayed().ravel()]
+    finish = _method_b_with_mean if with_mean else _method_b_result
+    return dask.delayed(finish, pure=True)(_tree(parts, _add_sums, split_every))
+
+
+def method_b_dask(stack, lattice: Lattice, *, sigma: float | None = None, mask=None,
+                  margin: float = DEFAULT_MARGIN, split_every: int | None = None,
+                  client=None, compute: bool = True):
+    """Method B on Dask: one transform per task, the sums tree-reduced (paper §2.3).
+
+    Parameters
+    ----------
+    stack : dask.array.Array or anything :func:`as_dask_stack` takes
+        ``(T, H, W)`` frames, grey levels; one task per chunk of frames (one frame
+        per chunk from :func:`as_dask_stack` by default).
+    lattice : Lattice
+        Wave vectors of the grid.
+    sigma : float, optional
+        Window standard deviation, px (default: the pitch).
+    mask : (H, W) bool array_like, optional
+        True on the specimen.
+    margin : float
+        Invalid band along borders and mask edges, in units of ``sigma``.
+    split_every : int, optional
+        Partial sums added per task of the reduction tree (default 4).
+    client : distributed.Client, optional
+        Where to compute (default: Dask's current scheduler).
+    compute : bool
+        False: return a ``dask.delayed`` object, to compute with other graphs.
+
+    Returns
+    -------
+    StackResult or dask.delayed.Delayed
+        As :func:`gridstrain.stacks.method_b`, to the rounding of the sums.
+
+    Notes
+    -----
+    Each task transforms its frames one at a time and returns the sums method B
+    needs; memory holds at most ``split_every`` partial sums per reduction task
+    (about 90 bytes per pixel each) and never the frames' maps together.
+    """
+    arr = _stack(stack)
+    sigma, m, margin = _check_common(lattice, sigma, mask, margin, arr.shape[1:])
+    k = _check_split_every(split_every)
+    graph = _method_b_graph(arr, lattice, sigma, m, margin, k, with_mean=False)
+    return _compute([graph], client)[0] if compute else graph
+
+
+# --------------------------------------------------------------------------- states
+
+
+def measure_states_dask(reference, states, *, lattice: Lattice | None = None,
+                        method: str = "A", sigma: float | None = None, mask=None,
+                        margin: float = DEFAULT_MARGIN, lagrangian: bool = True,
+                        guess="auto", chunk_frames: int = 1,
+                        split_every: int | None = None,
+                        client=None) -> tuple[Measurement, ...]:
+    """Displacement and strain of several loaded states, their stacks computed together.
+
+    Parameters
+    ----------
+    reference : anything :func:`as_dask_stack` takes
+        The reference series.
+    states : series or sequence of series
+        The loaded states, each like ``reference`` (a list of file names is read
+        as a list of states).
+    lattice : Lattice, optional
+        Detected on the mean reference image (computed first) by default.
+    method : {"A", "B"}
+        Averaging method (:func:`method_a_dask`, :func:`method_b_dask`).
+    sigma : float, optional
+        Window standard deviation, px (default: the pitch).
+    mask : (H, W) bool array_like, optional
+        True on the specimen, in the reference configuration; the states'
+        frames are transformed whole, their validity coming from their moduli
+        (as :func:`gridstrain.kinematics.measure`).
+    margin : float
+        Invalid band along borders and mask edges, in units of ``sigma``.
+    lagrangian : bool
+        Large-displacement correction (:func:`gridstrain.kinematics.deformation`).
+    guess : "auto", None or (2,) array_like
+        Initial displacement fixing the fringe order, px; "auto" cross-correlates
+        the mean images (:func:`gridstrain.kinematics.coarse_displacement`).
+    chunk_frames : int
+        Frames per task (:func:`as_dask_stack`).
+    split_every : int, optional
+        Partial sums added per task of the reduction trees (default 4).
+    client : distributed.Client, optional
+        Where to compute (default: Dask's current scheduler).
+
+    Returns
+    -------
+    tuple of Measurement
+        One per state, in order, with the stacks' phase maps in ``reference`` and
+        ``deformed``.
+
+    Notes
+    -----
+    This is the stacks and the kinematics only. :func:`gridstrain.pipeline.measure_series`
+    with ``scheduler=`` adds the vibration diagnostics, the noise floor, the
+    automatic masking of regions without a grid and the uncertainty maps.
+    """
+    dask, da = _dask()
+    check_choice(method, "method", ("A", "B"))
+    if isinstance(states, str | os.PathLike | FrameSeries | np.ndarray | da.Array) \
+            or _is_zarr_array(states):
+        states = [states]
+    elif not isinstance(states, Sequence) or not states:
+        raise ValueError(f"states must be a series or a non-empty sequence of series, got "
+                         f"{states!r}")
+    if lattice is not None and not isinstance(lattice, Lattice):
+        raise TypeError(f"lattice must be a Lattice or None, got {type(lattice).__name__}")
+    if isinstance(guess, str):
+        check_choice(guess, "guess", ("auto",))
+    k = _check_split_every(split_every)
+    ref = as_dask_stack(reference, chunk_frames=chunk_frames, name="reference")
+    cur = [as_dask_stack(s, chunk_frames=chunk_frames, name=f"state {i}")
+           for i, s in enumerate(states)]
+    for i, c in enumerate(cur):
+        if c.shape[1:] != ref.shape[1:]:
+            raise ValueError(f"state {i}: frames are {c.shape[1:]} (H, W) but the reference "
+                             f"frames are {ref.shape[1:]}")
+    sigma, m, margin = _check_options(sigma, mask, margin, ref.shape[1:])
+
+    ref_mean = None
+    if lattice is None:
+        ref_mean = _compute([mean_image_dask(ref, split_every=k)], client)[0]
+        lattice = detect_lattice(ref_mean, mask=m)
+    graphs = []
+    for i, c in enumerate([ref, *cur]):
+        mk = m if i == 0 else None
+        if method == "A":
+            mean = ref_mean if i == 0 and ref_mean is not None \
+                else mean_image_dask(c, split_every=k)
+            graphs.append(dask.delayed(_method_a_with_mean, pure=True)(
+                mean, lattice, sigma, mk, margin, int(c.shape[0])))
+        else:
+            graphs.append(_method_b_graph(c, lattice, sigma, mk, margin, k, with_mean=True))
+    # every series at once: the scheduler interleaves their tasks
+    results = _compute(graphs, client)
+
+    (r0, mean0), out = results[0], []
+    img_mask = np.ones(r0.maps.shape, dtype=bool) if m is None else m
+    for r, mean in results[1:]:
+        out.append(deformation(_finite(r0.maps), _finite(r.maps), lagrangian=lagrangian,
+                               guess=guess, _images=(mean0, mean, img_mask)))
+    return tuple(out)
+
+
+def _finite(pm: PhaseMaps) -> PhaseMaps:
+    """``pm`` with undefined derivatives (where ``psi = 0``) set to 0 and invalid."""
+    ok = np.isfinite(pm.dphi)
+    if ok.all():
+        return pm
+    return PhaseMaps(psi=pm.psi, dphi=np.where(ok, pm.dphi, 0).astype(pm.dphi.dtype),
+                     valid=pm.valid & ok.all(axis=(0, 1)), lattice=pm.lattice,
+                     sigma=pm.sigma)
+
+
+# --------------------------------------------------------------------------- pipeline
+
+
+def _series_sums(series, start, stop, first, c, mask, max_saturation, check):
+    """The pipeline's streamed sums over frames ``start:stop`` (one task).
+
+    Differences to the first frame ``d``, their squares, and ``c_t d`` with ``c``
+    the centred shifts of these frames (or None), and the largest saturated
+    fraction: the terms gridstrain.pipeline's statistics pass adds, frame by frame.
+    """
+    s1 = np.zeros(first.shape)
+    s2 = np.zeros(first.shape)
+    sva = None if c is None else np.zeros((2, *first.shape))
+    worst = 0.0
+    for k, frame in enumerate(series.frames(dtype=np.float64, start=start, stop=stop)):
+        if check:
+            worst = max(worst, check_saturation_limit(frame, series, mask=mask,
+                                                      max_fraction=max_saturation,
+                                                      index=start + k))
+        d = frame - first
+        s1 += d
+        s2 += d * d
+        if sva is not None:
+            sva += c[k][:, None, None] * d
+    return s1, s2, sva, worst
+
+
+def _add_series_sums(*parts):
+    s1 = parts[0][0].copy()
+    s2 = parts[0][1].copy()
+    sva = None if parts[0][2] is None else parts[0][2].copy()
+    worst = parts[0][3]
+    for p in parts[1:]:
+        s1 += p[0]
+        s2 += p[1]
+        if sva is not None:
+            sva += p[2]
+        worst = max(worst, p[3])
+    return s1, s2, sva, worst
+
+
+def _first_frame(series) -> np.ndarray:
+    return next(iter(series.frames(dtype=np.float64, start=0, stop=1)))
+
+
+def _with_first(first, sums):
+    return (first, *sums)
+
+
+class _Pending:
+    """A submitted computation and the scattered data it reads.
+
+    The scattered data stay on the workers as long as this object lives (a
+    ``distributed.Future`` released by its last reference may be deleted before
+    the tasks that read it have run).
+    """
+
+    def __init__(self, future, scattered):
+        self._future = future
+        self._scattered = scattered
+
+    def result(self):
+        try:
+            return self._future.result()
+        finally:
+            self._future = self._scattered = None
+
+
+def _scatter(client, obj):
+    # sent once to the cluster, not with every task; a key of its own (hash=False)
+    # so that releasing it cannot release an equal object scattered by another call
+    return None if obj is None else client.scatter(obj, hash=False)
+
+
+def _submit_statistics(client, series, c, mask, max_saturation: float) -> _Pending:
+    """Submit the pipeline's statistics pass over ``series`` (internal).
+
+    ``result()`` gives ``(first, s1, s2, sva, worst)``: the first frame, the sums
+    over the frames of ``d = frame - first``, ``d * d``, ``c_t d`` (None when
+    ``c`` is None) and the largest saturated fraction, the quantities
+    :func:`gridstrain.pipeline._statistics` accumulates, here tree-reduced.
+    """
+    dask, _ = _dask()
+    s, m = _scatter(client, series), _scatter(client, mask)
+    first = dask.delayed(_first_frame, pure=True)(s)
+    leaf = dask.delayed(_series_sums, pure=True)
+    check = isinstance(series, FrameSeries)
+    T = series.n_frames
+    step = _STATS_FRAMES_PER_TASK
+    parts = [leaf(s, a, min(a + step, T), first, None if c is None else c[a:a + step], m,
+                  max_saturation, check) for a in range(0, T, step)]
+    total = _tree(parts, _add_series_sums, _SPLIT_EVERY)
+    return _Pending(client.compute(dask.delayed(_with_first, pure=True)(first, total)),
+                    (s, m))
+
+
+def _series_block_sums(series, start, stop, lattice, sigma, mask, margin):
+    frames = series.frames(dtype=np.float64, start=start, stop=stop)
+    return _phase_sums(frames, lattice, sigma, mask, margin, with_total=False)
+
+
+def _submit_method_b(client, series, lattice, sigma, mask, margin) -> _Pending:
+    """Submit method B over ``series``, one frame per task (internal).
+
+    ``result()`` gives the :class:`StackResult` that
+    :func:`gridstrain.stacks.method_b` gives for the frames read as float64.
+    """
+    dask, _ = _dask()
+    s, m = _scatter(client, series), _scatter(client, mask)
+    leaf = dask.delayed(_series_block_sums, pure=True)
+    parts = [leaf(s, t, t + 1, lattice, sigma, m, margin) for t in range(series.n_frames)]
+    result = dask.delayed(_method_b_result, pure=True)(_tree(parts, _add_sums, _SPLIT_EVERY))
+    return _Pending(client.compute(result), (s, m))
+
+
+def _check_scheduler(scheduler):
+    """``scheduler`` if it is None, a non-empty string or a distributed.Client.
+
+    Called before any work, so that a missing extra is reported at once.
+    """
+    if scheduler is None:
+        return None
+    distributed = _distributed()
+    if isinstance(scheduler, distributed.Client) \
+            or (isinstance(scheduler, str) and scheduler.strip()):
+        return scheduler
+    raise TypeError(f"scheduler must be None, 'local', a scheduler address such as "
+                    f"'tcp://HOST:PORT' or a distributed.Client, got {scheduler!r}")

@@ -1,0 +1,432 @@
+"""Tests of gridstrain.distributed: methods A and B on a real Dask cluster.
+
+The cluster is two single-threaded worker processes on the loopback interface
+(127.0.0.1, nothing else). Every result is checked against the single-process
+code (gridstrain.stacks, gridstrain.pipeline) or a direct sum written here. The
+reductions add the same terms in another order, so the results agree to the
+rounding of float64 sums, not bit for bit: the tolerances below are a few hundred
+times that rounding and many orders of magnitude below any physical effect.
+"""
+
+from __future__ import annotations
+
+import os
+import socket
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import tifffile
+from numpy.testing import assert_allclose, assert_array_equal
+
+distributed = pytest.importorskip("distributed")
+dask = pytest.importorskip("dask")
+da = pytest.importorskip("dask.array")
+zarr = pytest.importorskip("zarr")
+
+import gridstrain  # noqa: E402
+from gridstrain import Lattice, kirsch, stacks, synthetic  # noqa: E402
+from gridstrain import distributed as gd  # noqa: E402
+from gridstrain.cli import main  # noqa: E402
+from gridstrain.io import open_series, read_hdf5  # noqa: E402
+from gridstrain.kinematics import deformation  # noqa: E402
+from gridstrain.pipeline import measure_series  # noqa: E402
+
+LAT = Lattice.from_pitch(5.0)
+N = 80  # px: 4-sigma margins leave a 40 x 40 valid centre at sigma = pitch = 5
+AMP = 2400.0  # mean grey level, 12-bit
+# Phases: the sums of unit phasors differ by ~1e-16 relative between summation
+# orders, i.e. ~1e-16 rad; 1e-12 rad leaves room for a few thousand roundings.
+PHASE_TOL = 1e-12  # rad
+DPHI_TOL = 1e-12  # rad/px, same argument for the averaged derivatives
+# Displacements and strains are linear in the phases (eqs. 34-35) with factors of
+# order p / 2 pi ~ 1 px/rad: the phase tolerance carried through.
+U_TOL = 1e-11  # px
+STRAIN_TOL = 1e-12  # strain
+
+
+@pytest.fixture(scope="module")
+def cluster():
+    """Two worker processes on 127.0.0.1, closed after the module's tests."""
+    # the spawned workers import gridstrain from this checkout, installed or not
+    src = str(Path(gridstrain.__file__).resolve().parents[1])
+    old = os.environ.get("PYTHONPATH")
+    os.environ["PYTHONPATH"] = src + (os.pathsep + old if old else "")
+    try:
+        with dask.config.set({"distributed.comm.timeouts.connect": "10s"}), \
+                distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
+                                         host="127.0.0.1", dashboard_address=None) as c:
+            yield c
+    finally:
+        if old is None:
+            os.environ.pop("PYTHONPATH", None)
+        else:
+            os.environ["PYTHONPATH"] = old
+
+
+@pytest.fixture(scope="module")
+def client(cluster):
+    with distributed.Client(cluster, set_as_default=False) as c:
+        yield c
+
+
+def _frames(T, rng, *, strain=0.0, hole=False, vibration=0.05, dtype=np.float64):
+    """(T, N, N) noisy frames of a plate stretched by ``strain``, each frame shifted
+    by a random rigid vibration (px); uint16 frames are 12-bit data stored x16."""
+    c = ((N - 1) / 2, (N - 1) / 2)
+    el = {"radius": 7.0, "remote_stress": 70e3 * strain, "centre": c}
+
+    def refl(X, Y):
+        return ((X - c[0]) ** 2 + (Y - c[1]) ** 2 >= 7.0**2).astype(float)
+
+    out = []
+    for _ in range(T):
+        a = rng.normal(0.0, vibration, 2)
+
+        def disp(X, Y, a=a):
+            if hole:
+                ux, uy = kirsch.displacement(X, Y, inside="extend", **el)
+            else:
+                ux, uy = strain * (X - c[0]), -0.3 * strain * (Y - c[1])
+            return ux + 0.4 - a[0], uy - 0.2 - a[1]
+
+        img = synthetic.grid_image((N, N), LAT, amplitude=AMP, displacement=disp,
+                                   reflectance=refl if hole else None) + 100.0
+        img = synthetic.add_noise(img, rng=rng, clip=True)
+        out.append((img * 16).astype(np.uint16) if dtype == np.uint16 else img)
+    return np.array(out, dtype=dtype)
+
+
+def _phase_error(a, b) -> float:
+    """Largest phase difference of two PhaseMaps over the pixels valid in both, rad."""
+    v = a.valid & b.valid
+    return float(np.max(np.abs(np.angle(a.psi * np.conj(b.psi)))[:, v]))
+
+
+def _check_maps(got, want):
+    """Same maps to float rounding: validity exact, phases, moduli, derivatives."""
+    assert_array_equal(got.valid, want.valid)
+    assert got.psi.dtype == want.psi.dtype
+    assert got.dphi.dtype == want.dphi.dtype
+    v = want.valid
+    if want.dphi.dtype == np.float32:
+        # float32 results: the float64 sums, rounded to float32 at the end, may
+        # round to neighbouring float32 values (4 ulp of 6e-8 relative)
+        tol = 4 * float(np.finfo(np.float32).eps)
+        phase_tol, rtol = tol, tol
+        dphi_tol = tol * float(np.max(np.abs(want.dphi[..., v])))
+    else:
+        # moduli: grey levels, sums of T moduli ~1e3 each, rounding ~1e-16 relative
+        phase_tol, rtol, dphi_tol = PHASE_TOL, 1e-12, DPHI_TOL
+    assert _phase_error(got, want) < phase_tol
+    assert_allclose(np.abs(got.psi), np.abs(want.psi), rtol=rtol)
+    assert_allclose(got.dphi[..., v], want.dphi[..., v], rtol=0, atol=dphi_tol)
+
+
+def _closed_port() -> int:
+    """A loopback port nothing listens on (bound, then released)."""
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+# --------------------------------------------------------------------------- stacks
+
+
+def test_multipage_tiff_stack_is_the_files_frames(tmp_path):
+    rng = np.random.default_rng(1)
+    frames = _frames(5, rng, dtype=np.uint16)
+    path = tmp_path / "stack.tif"
+    tifffile.imwrite(path, frames, photometric="minisblack")
+    st = gd.as_dask_stack(path)
+    # one task per frame, whole frames, the stored type
+    assert st.shape == frames.shape
+    assert st.dtype == np.uint16
+    assert st.chunks == ((1,) * 5, (N,), (N,))
+    assert_array_equal(st.compute(), frames)
+    st2 = gd.as_dask_stack(open_series(path), chunk_frames=2, dtype=np.float32)
+    assert st2.chunks[0] == (2, 2, 1)
+    assert st2.dtype == np.float32
+    assert_array_equal(st2.compute(), frames.astype(np.float32))
+
+
+def test_zarr_stack_from_a_path_and_an_array(tmp_path):
+    rng = np.random.default_rng(2)
+    frames = _frames(4, rng)
+    z = zarr.create_array(tmp_path / "frames.zarr", shape=frames.shape,
+                          chunks=(2, N // 2, N), dtype=frames.dtype)
+    z[:] = frames
+    for source in (tmp_path / "frames.zarr", str(tmp_path / "frames.zarr"), z):
+        st = gd.as_dask_stack(source)
+        # spatial chunks are merged: each task needs a whole frame
+        assert st.chunks == ((1,) * 4, (N,), (N,))
+        assert_array_equal(st.compute(), frames)
+    group = zarr.open_group(tmp_path / "group.zarr", mode="w")
+    group.create_array("frames", shape=frames.shape, dtype=frames.dtype)[:] = frames
+    with pytest.raises(ValueError, match="not a Zarr array"):
+        gd.as_dask_stack(tmp_path / "group.zarr")
+    assert_array_equal(gd.as_dask_stack(tmp_path / "group.zarr" / "frames").compute(), frames)
+
+
+@pytest.mark.parametrize(("bad", "exc", "match"), [
+    ({"source": np.zeros((2, 3, 8, 8))}, ValueError, "shape"),
+    ({"source": np.zeros((2, 4, 8))}, ValueError, "8 x 8"),
+    ({"source": np.zeros((2, 8, 8), dtype=bool)}, TypeError, "grey levels"),
+    ({"source": 3.0}, TypeError, "got float"),
+    ({"chunk_frames": 0}, ValueError, "chunk_frames"),
+    ({"dtype": np.int32}, ValueError, "dtype"),
+])
+def test_as_dask_stack_refuses_bad_input(bad, exc, match):
+    kw = {"source": np.zeros((2, 8, 8))} | bad
+    with pytest.raises(exc, match=match):
+        gd.as_dask_stack(kw.pop("source"), **kw)
+
+
+def test_bad_options_are_named():
+    st = gd.as_dask_stack(np.zeros((2, 16, 16)))
+    with pytest.raises(ValueError, match="split_every"):
+        gd.mean_image_dask(st, split_every=1)
+    with pytest.raises(TypeError, match="lattice"):
+        gd.method_b_dask(st, "pitch 5")
+    with pytest.raises(ValueError, match="mask"):
+        gd.method_a_dask(st, LAT, mask=np.ones((3, 3), dtype=bool))
+    with pytest.raises(TypeError, match="scheduler"):
+        measure_series(np.zeros((2, 16, 16)), np.zeros((2, 16, 16)), lattice=LAT,
+                       scheduler=5)
+
+
+# --------------------------------------------------------------------------- methods
+
+
+def test_mean_is_a_direct_sum_and_method_a_matches_stacks(client):
+    rng = np.random.default_rng(3)
+    frames = _frames(9, rng, dtype=np.uint16)
+    st = gd.as_dask_stack(frames, chunk_frames=2)
+    # a direct float64 sum, frame by frame; 9 frames of <= 65520 sum exactly in
+    # float64 (integers below 2**53), so only the final division rounds
+    direct = sum(f.astype(np.float64) for f in frames) / 9
+    mean = gd.mean_image_dask(st, split_every=2).compute(scheduler=client)
+    assert mean.dtype == np.float64
+    assert_array_equal(mean, direct)
+    mask = np.ones((N, N), dtype=bool)
+    mask[:, :6] = False
+    got = gd.method_a_dask(st, LAT, mask=mask, split_every=2, client=client)
+    want = stacks.method_a(frames, LAT, mask=mask)
+    assert got.method == "A"
+    assert got.n_frames == 9
+    assert_array_equal(got.mean_image, want.mean_image)
+    _check_maps(got.maps, want.maps)
+
+
+@pytest.mark.parametrize("dtype", [np.uint16, np.float32])
+def test_method_b_per_frame_tasks_match_stacks(client, tmp_path, dtype):
+    rng = np.random.default_rng(4)
+    frames = _frames(7, rng, dtype=dtype, vibration=0.1)
+    path = tmp_path / "stack.tif"
+    tifffile.imwrite(path, frames, photometric="minisblack")
+    mask = np.ones((N, N), dtype=bool)
+    mask[-5:] = False
+    # frames read by the workers from the TIFF, one task each, summed 3 at a time
+    got = gd.method_b_dask(path, LAT, mask=mask, split_every=3, client=client)
+    want = stacks.method_b(open_series(path).frames(dtype=None), LAT, mask=mask)
+    assert got.method == "B"
+    assert got.n_frames == 7
+    assert got.mean_image is None
+    _check_maps(got.maps, want.maps)
+    # resultant lengths in [0, 1]: rounding of sums of 7 unit phasors
+    assert_allclose(got.resultant, want.resultant, rtol=0, atol=1e-14)
+
+
+def test_method_b_graph_is_a_tree_of_bounded_fan_in():
+    # memory bound: no task ever receives more than split_every partial sums
+    st = gd.as_dask_stack(np.random.default_rng(5).random((10, 16, 16)))
+    graph = gd.method_b_dask(st, LAT, split_every=3, compute=False)
+    deps = graph.__dask_graph__().get_all_dependencies()
+    sums = [k for k in deps if "block_sums" in str(k)]
+    adds = [k for k in deps if "add_sums" in str(k)]
+    assert len(sums) == 10
+    assert all(len(deps[k]) <= 3 for k in adds)
+    # 10 leaves, 3 at a time: sums of 3, 3, 3 (the tenth waits), then of 3 + the
+    # tenth's 1, then the last two
+    assert len(adds) == 3 + 1 + 1
+
+
+@pytest.mark.parametrize("method", ["A", "B"])
+def test_several_states_at_once_match_single_process(client, method):
+    rng = np.random.default_rng(6)
+    ref = _frames(6, rng)
+    states = [_frames(5, rng, strain=1e-3), _frames(5, rng, strain=2.5e-3)]
+    got = gd.measure_states_dask(ref, states, lattice=LAT, method=method, client=client)
+    run = stacks.method_a if method == "A" else stacks.method_b
+    r0 = run(ref, LAT)
+    assert len(got) == 2
+    for g, cur, eps in zip(got, states, (1e-3, 2.5e-3), strict=True):
+        r = run(cur, LAT)
+        # the coarse guess from the mean images, as kinematics.measure takes it
+        means = (ref.mean(axis=0), cur.mean(axis=0), np.ones((N, N), dtype=bool))
+        want = deformation(r0.maps, r.maps, guess="auto", _images=means)
+        assert_array_equal(g.valid, want.valid)
+        v = want.valid
+        assert v.mean() > 0.2
+        assert_allclose(g.u[:, v], want.u[:, v], rtol=0, atol=U_TOL)
+        assert_allclose(g.strain[:, v], want.strain[:, v], rtol=0, atol=STRAIN_TOL)
+        assert g.iterations == want.iterations
+        # and the physics: the applied uniform strain, to the noise of a few frames
+        # (a few 1e-5 at sigma = 5 px with 5-6 frames)
+        assert abs(float(np.mean(g.strain[0][v])) - eps) < 1e-4
+
+
+def test_lattice_detected_on_the_cluster_mean(client):
+    rng = np.random.default_rng(7)
+    ref, cur = _frames(4, rng), _frames(4, rng, strain=1e-3)
+    got = gd.measure_states_dask(ref, cur, client=client)[0]
+    want = gd.measure_states_dask(ref, cur, lattice=got.lattice, client=client)[0]
+    # the detected pitch is the grid's (0.5 % of the 5 px pitch)
+    assert got.lattice.pitch == pytest.approx(5.0, rel=5e-3)
+    assert_array_equal(got.u, want.u)
+
+
+# --------------------------------------------------------------------------- pipeline
+
+
+@pytest.mark.parametrize("method", ["A", "B"])
+def test_pipeline_on_the_cluster_matches_single_process(client, method, monkeypatch):
+    rng = np.random.default_rng(8)
+    ref = _frames(11, rng, hole=True)
+    states = [_frames(6, rng, strain=1e-3, hole=True),
+              _frames(5, rng, strain=2e-3, hole=True)]
+    # 3 frames per statistics task: a reduction tree even on these short series
+    monkeypatch.setattr(gd, "_STATS_FRAMES_PER_TASK", 3)
+    want = measure_series(ref, states, lattice=LAT, method=method)
+    got = measure_series(ref, states, lattice=LAT, method=method, scheduler=client)
+    assert_array_equal(got.valid, want.valid)
+    assert_array_equal(got.mask, want.mask)
+    v = want.valid
+    assert_allclose(got.u[:, :, v[0]], want.u[:, :, v[0]], rtol=0, atol=U_TOL)
+    assert_allclose(got.strain[:, :, v[0]], want.strain[:, :, v[0]], rtol=0, atol=STRAIN_TOL)
+    # the temporal variances: sums of noise-sized squares in another order
+    assert_allclose(got.noise.sensor_variance, want.noise.sensor_variance, rtol=1e-12)
+    for name, arr in want.uncertainty.items():
+        assert_allclose(got.uncertainty[name], arr, rtol=1e-9, equal_nan=True)
+    assert_allclose(got.reference_image, want.reference_image, rtol=1e-14)
+    for a, b in zip(got.vibration, want.vibration, strict=True):
+        assert_array_equal(a.shifts, b.shifts)  # computed on this machine either way
+
+
+def test_saturation_found_on_a_worker_names_the_frame(client, tmp_path):
+    rng = np.random.default_rng(9)
+    ref = _frames(4, rng, dtype=np.uint16)
+    bad = ref.copy()
+    bad[2, :30] = 4095 * 16  # 37 % of frame 2 saturated
+    tifffile.imwrite(tmp_path / "ref.tif", ref, photometric="minisblack")
+    tifffile.imwrite(tmp_path / "bad.tif", bad, photometric="minisblack")
+    with pytest.raises(ValueError, match=r"state 0: frame 2 .*saturated"):
+        measure_series(tmp_path / "ref.tif", tmp_path / "bad.tif", lattice=LAT,
+                       scheduler=client)
+
+
+# --------------------------------------------------------------------------- command line
+
+
+@pytest.fixture(scope="module")
+def tiff_series(tmp_path_factory):
+    root = tmp_path_factory.mktemp("series")
+    rng = np.random.default_rng(10)
+    (root / "ref").mkdir()
+    for k, f in enumerate(_frames(4, rng, dtype=np.uint16)):
+        tifffile.imwrite(root / "ref" / f"img{k}.tif", f, photometric="minisblack")
+    tifffile.imwrite(root / "load.tif", _frames(4, rng, strain=1e-3, dtype=np.uint16),
+                     photometric="minisblack")
+    return root
+
+
+def test_cli_with_the_test_cluster_address(cluster, tiff_series, tmp_path, capsys):
+    root = tiff_series
+    args = [str(root / "ref"), str(root / "load.tif"), "--pitch", "5", "--method", "B",
+            "--quiet"]
+    assert main(["measure", *args, "-o", str(tmp_path / "one.h5")]) == 0
+    assert main(["measure", *args, "-o", str(tmp_path / "dask.h5"),
+                 "--scheduler", cluster.scheduler_address]) == 0
+    one, dist = read_hdf5(tmp_path / "one.h5"), read_hdf5(tmp_path / "dask.h5")
+    assert dist["attrs"]["options"]["scheduler"] == cluster.scheduler_address
+    v = one["datasets"]["valid"]
+    assert_array_equal(dist["datasets"]["valid"], v)
+    for name, tol in (("ux", U_TOL), ("uy", U_TOL), ("exx", STRAIN_TOL)):
+        assert_allclose(dist["datasets"][name][v], one["datasets"][name][v], rtol=0,
+                        atol=tol)
+
+
+def test_cli_unreachable_scheduler_is_one_line(tiff_series, tmp_path, capsys):
+    address = f"tcp://127.0.0.1:{_closed_port()}"
+    out = tmp_path / "maps.h5"
+    with dask.config.set({"distributed.comm.timeouts.connect": "2s"}):
+        code = main(["measure", str(tiff_series / "ref"), str(tiff_series / "load.tif"),
+                     "--pitch", "5", "--quiet", "-o", str(out), "--scheduler", address])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2
+    assert "cannot reach a Dask scheduler" in err[-1]
+    assert address in err[-1]
+    assert not out.exists()
+
+
+# --------------------------------------------------------------------------- without Dask
+
+
+def test_missing_dask_is_a_clear_error(monkeypatch, tiff_series, tmp_path, capsys):
+    for name in ("dask", "dask.array", "distributed", "zarr"):
+        monkeypatch.setitem(sys.modules, name, None)  # "import dask" now fails
+    with pytest.raises(gd.MissingDistributedError, match=r"gridstrain\[distributed\]") as e:
+        gd.as_dask_stack(np.zeros((2, 8, 8)))
+    assert isinstance(e.value, ImportError)
+    assert isinstance(e.value, ValueError)
+    with pytest.raises(ImportError, match=r"gridstrain\[distributed\]"), gd.connect("local"):
+        pass
+    # the pipeline refuses before reading a frame, the command line in one line
+    with pytest.raises(ValueError, match=r"gridstrain\[distributed\]"):
+        measure_series(np.zeros((2, 16, 16)), np.zeros((2, 16, 16)), lattice=LAT,
+                       scheduler="local")
+    code = main(["measure", str(tiff_series / "ref"), str(tiff_series / "load.tif"),
+                 "--quiet", "-o", str(tmp_path / "m.h5"), "--scheduler", "local"])
+    assert code == 2
+    assert "pip install 'gridstrain[distributed]'" in capsys.readouterr().err
+
+
+def test_core_imports_without_dask():
+    code = ("import sys\n"
+            "for m in ('dask', 'distributed', 'zarr'): sys.modules[m] = None\n"
+            "import gridstrain, gridstrain.pipeline, gridstrain.distributed, gridstrain.cli\n"
+            "from gridstrain.cli import build_parser; build_parser()\n")
+    src = str(Path(gridstrain.__file__).resolve().parents[1])
+    env = dict(os.environ, PYTHONPATH=src)
+    res = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True,
+                         text=True, timeout=60)
+    assert res.returncode == 0, res.stderr
+
+
+# --------------------------------------------------------------------------- local cluster
+
+
+def _trim_threshold():
+    return os.environ.get("MALLOC_TRIM_THRESHOLD_")
+
+
+@pytest.mark.slow
+def test_local_cluster_workers_keep_the_adaptive_malloc():
+    # Dask's default, 64 KiB, makes every transform 1.5 times slower
+    key = "distributed.nanny.pre-spawn-environ"
+    before = dict(dask.config.get(key))
+    with gd.connect("local", n_workers=1) as c:
+        assert set(c.run(_trim_threshold).values()) == {None}
+    assert dask.config.get(key) == before  # the user's configuration is left alone
+
+
+@pytest.mark.slow
+def test_scheduler_local_starts_and_stops_its_own_cluster():
+    rng = np.random.default_rng(11)
+    ref, cur = _frames(4, rng), _frames(4, rng, strain=1e-3)
+    want = measure_series(ref, cur, lattice=LAT, method="B")
+    got = measure_series(ref, cur, lattice=LAT, method="B", scheduler="local")
+    v = want.valid[0]
+    assert_allclose(got.u[0][:, v], want.u[0][:, v], rtol=0, atol=U_TOL)
