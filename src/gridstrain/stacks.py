@@ -151,29 +151,31 @@ class _PhaseMean:
 
     @staticmethod
     def parts(maps: PhaseMaps):
-        """What a frame contributes: unit phasors, moduli, derivatives (per thread)."""
+        """What a frame contributes: unit phasors, moduli, derivatives, validity.
+
+        Computed where the transform was made (a worker thread) so that only these
+        are kept until they are added, not the transform itself.
+        """
         mod = np.abs(maps.psi).astype(np.float64)
         with np.errstate(invalid="ignore", divide="ignore"):
-            unit = np.where(mod > 0, maps.psi / mod, 0)
-        dphi = np.where(np.isfinite(maps.dphi), maps.dphi, 0).astype(np.float64)
-        return maps, unit, mod, dphi
+            unit = np.where(mod > 0, maps.psi / mod, 0).astype(np.complex128, copy=False)
+        dphi = np.where(np.isfinite(maps.dphi), maps.dphi, 0).astype(np.float64, copy=False)
+        meta = (maps.lattice, maps.sigma, maps.dphi.dtype, maps.psi.dtype)
+        return unit, mod, dphi, maps.valid, meta
 
     def add(self, parts) -> None:
-        maps, unit, mod, dphi = parts
+        unit, mod, dphi, valid, meta = parts
         if self.n == 0:
-            self.unit = unit.astype(np.complex128)
-            self.mod = mod
-            self.dphi = dphi
-            self.valid = maps.valid.copy()
-            self.lattice = maps.lattice
-            self.sigma = maps.sigma
-            self.dtype = maps.dphi.dtype
-            self.cdtype = maps.psi.dtype
+            self.unit = unit.copy()
+            self.mod = mod.copy()
+            self.dphi = dphi.copy()
+            self.valid = valid.copy()
+            self.lattice, self.sigma, self.dtype, self.cdtype = meta
         else:
             self.unit += unit
             self.mod += mod
             self.dphi += dphi
-            self.valid &= maps.valid
+            self.valid &= valid
         self.n += 1
 
     def result(self) -> StackResult:
