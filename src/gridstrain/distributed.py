@@ -52,8 +52,8 @@ from ._validation import check_choice, check_mask, check_positive
 from .io import FrameSeries, check_saturation_limit, open_series
 from .kinematics import Measurement, deformation
 from .lattice import Lattice, detect_lattice
-from .stacks import StackResult
-from .wft import DEFAULT_MARGIN, PhaseMaps, wft
+from .stacks import StackResult, _PhaseMean
+from .wft import DEFAULT_MARGIN, finite_derivatives, wft
 
 __all__ = [
     "MissingDistributedError",
@@ -457,47 +457,23 @@ def method_a_dask(stack, lattice: Lattice, *, sigma: float | None = None, mask=N
 
 @dataclass
 class _PhaseSums:
-    """Partial sums of method B over some frames (what stacks.method_b accumulates)."""
+    """Partial sums of method B over some frames: gridstrain.stacks.method_b's own
+    accumulator, and the sum of the frames themselves when the mean is wanted."""
 
-    n: int
-    unit: np.ndarray  # (2, H, W) complex128, sum of psi / |psi|
-    mod: np.ndarray  # (2, H, W) float64, sum of |psi|
-    dphi: np.ndarray  # (2, 2, H, W) float64, sum of the derivatives (NaN as 0)
-    valid: np.ndarray  # (H, W) bool, AND of the valid maps
+    acc: _PhaseMean
     total: np.ndarray | None  # (H, W) float64, sum of the frames (for the mean image)
-    lattice: Lattice
-    sigma: float
-    dtype: np.dtype  # of the frames' derivatives
-    cdtype: np.dtype  # of the frames' psi
 
 
 def _phase_sums(frames: Iterable, lattice, sigma, mask, margin, with_total) -> _PhaseSums:
     """Method B's sums over ``frames``, one transform at a time (one task)."""
-    acc = None
+    acc, total = _PhaseMean(), None
     for frame in frames:
-        maps = wft(frame, lattice, sigma=sigma, mask=mask, margin=margin)
-        # the same operations, in the same types, as gridstrain.stacks.method_b
-        mod = np.abs(maps.psi).astype(np.float64)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            unit = np.where(mod > 0, maps.psi / mod, 0)
-        dphi = np.where(np.isfinite(maps.dphi), maps.dphi, 0).astype(np.float64)
-        if acc is None:
-            total = np.array(frame, dtype=np.float64) if with_total else None
-            acc = _PhaseSums(n=1, unit=unit.astype(np.complex128), mod=mod, dphi=dphi,
-                             valid=maps.valid.copy(), total=total, lattice=maps.lattice,
-                             sigma=maps.sigma, dtype=maps.dphi.dtype,
-                             cdtype=maps.psi.dtype)
-        else:
-            acc.unit += unit
-            acc.mod += mod
-            acc.dphi += dphi
-            acc.valid &= maps.valid
-            if with_total:
-                acc.total += frame
-            acc.n += 1
-    if acc is None:
+        acc.add(_PhaseMean.parts(wft(frame, lattice, sigma=sigma, mask=mask, margin=margin)))
+        if with_total:
+            total = np.array(frame, dtype=np.float64) if total is None else total + frame
+    if acc.n == 0:
         raise ValueError("frames must hold at least one image, got none")
-    return acc
+    return _PhaseSums(acc, total)
 
 
 def _block_sums(block: np.ndarray, lattice, sigma, mask, margin, with_total) -> _PhaseSums:
@@ -506,42 +482,23 @@ def _block_sums(block: np.ndarray, lattice, sigma, mask, margin, with_total) -> 
 
 def _add_sums(*parts: _PhaseSums) -> _PhaseSums:
     """Sum of partial sums (a node of the reduction tree); the inputs are not changed."""
-    first = parts[0]
-    out = _PhaseSums(n=first.n, unit=first.unit.copy(), mod=first.mod.copy(),
-                     dphi=first.dphi.copy(), valid=first.valid.copy(),
-                     total=None if first.total is None else first.total.copy(),
-                     lattice=first.lattice, sigma=first.sigma, dtype=first.dtype,
-                     cdtype=first.cdtype)
+    acc = parts[0].acc
+    total = None if parts[0].total is None else parts[0].total.copy()
     for p in parts[1:]:
-        out.n += p.n
-        out.unit += p.unit
-        out.mod += p.mod
-        out.dphi += p.dphi
-        out.valid &= p.valid
-        if out.total is not None:
-            out.total += p.total
-    return out
+        acc = acc.merge(p.acc)
+        if total is not None:
+            total += p.total
+    return _PhaseSums(acc, total)
 
 
-def _method_b_result(acc: _PhaseSums) -> StackResult:
+def _method_b_result(sums: _PhaseSums) -> StackResult:
     """gridstrain.stacks.method_b's result from the sums over every frame."""
-    n = acc.n
-    # eq. (32) on the circle: the phase of the mean unit phasor; eq. (33) for the
-    # derivatives, which need no unwrapping
-    mean_unit = acc.unit / n
-    r = np.abs(mean_unit)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        direction = np.where(r > 0, mean_unit / r, 0)
-    psi = (direction * (acc.mod / n)).astype(acc.cdtype)
-    dphi = (acc.dphi / n).astype(acc.dtype)
-    valid = acc.valid & np.all(r > 0, axis=0)
-    maps = PhaseMaps(psi=psi, dphi=dphi, valid=valid, lattice=acc.lattice, sigma=acc.sigma)
-    return StackResult(maps=maps, n_frames=n, method="B", resultant=r)
+    return sums.acc.result()
 
 
 def _method_b_with_mean(acc: _PhaseSums) -> tuple[StackResult, np.ndarray]:
     """Method B's result and the mean frame, float64 (for the coarse guess)."""
-    return _method_b_result(acc), acc.total / acc.n
+    return _method_b_result(acc), acc.total / acc.acc.n
 
 
 def _method_a_with_mean(mean: np.ndarray, lattice, sigma, mask, margin, n: int):
@@ -708,19 +665,10 @@ def measure_states_dask(reference, states, *, lattice: Lattice | None = None,
     (r0, mean0), out = results[0], []
     img_mask = np.ones(r0.maps.shape, dtype=bool) if m is None else m
     for r, mean in results[1:]:
-        out.append(deformation(_finite(r0.maps), _finite(r.maps), lagrangian=lagrangian,
-                               guess=guess, _images=(mean0, mean, img_mask)))
+        out.append(deformation(finite_derivatives(r0.maps), finite_derivatives(r.maps),
+                               lagrangian=lagrangian, guess=guess,
+                               _images=(mean0, mean, img_mask)))
     return tuple(out)
-
-
-def _finite(pm: PhaseMaps) -> PhaseMaps:
-    """``pm`` with undefined derivatives (where ``psi = 0``) set to 0 and invalid."""
-    ok = np.isfinite(pm.dphi)
-    if ok.all():
-        return pm
-    return PhaseMaps(psi=pm.psi, dphi=np.where(ok, pm.dphi, 0).astype(pm.dphi.dtype),
-                     valid=pm.valid & ok.all(axis=(0, 1)), lattice=pm.lattice,
-                     sigma=pm.sigma)
 
 
 # --------------------------------------------------------------------------- pipeline

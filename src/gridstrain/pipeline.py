@@ -103,7 +103,7 @@ from .lattice import Lattice, detect_lattice
 from .stacks import method_b
 from .uncertainty import predict_uncertainty
 from .vibration import frame_shifts
-from .wft import DEFAULT_MARGIN, PhaseMaps, wft
+from .wft import DEFAULT_MARGIN, PhaseMaps, finite_derivatives, wft
 
 __all__ = [
     "FWHM_PER_SIGMA",
@@ -626,21 +626,6 @@ def _no_grid(pm: PhaseMaps, mask: np.ndarray) -> np.ndarray:
     return out & mask
 
 
-def _finite(pm: PhaseMaps) -> PhaseMaps:
-    """``pm`` with its undefined derivatives (where ``psi = 0``) set to 0, invalid.
-
-    Far inside a large masked region the transform is exactly 0 and its phase
-    derivatives NaN; the deformed maps are interpolated by splines, whose
-    prefilter would spread a single NaN over whole rows and columns.
-    """
-    ok = np.isfinite(pm.dphi)
-    if ok.all():
-        return pm
-    return PhaseMaps(psi=pm.psi, dphi=np.where(ok, pm.dphi, 0).astype(pm.dphi.dtype),
-                     valid=pm.valid & ok.all(axis=(0, 1)), lattice=pm.lattice,
-                     sigma=pm.sigma)
-
-
 def _check_given_lattice(image: np.ndarray, lattice: Lattice, sigma: float,
                          mask: np.ndarray, margin: float) -> None:
     """Refuse a given lattice that the reference image does not show.
@@ -700,14 +685,14 @@ def _phase_maps_a(image, lattice, sigma, mask, margin):
         if not m.any():
             raise ValueError("no pixel shows a grid at the lattice's wave vectors")
         pm = wft(image, lattice, sigma=sigma, mask=m, margin=margin)
-    return _finite(pm), m
+    return finite_derivatives(pm), m
 
 
 def _phase_maps_b(series, lattice, sigma, mask, margin, report):
     """Method B (§2.3) on the series' frames, streamed."""
     n = series.n_frames
     frames = _counting(series.frames(dtype=np.float64), n, report, "method B: transform")
-    return _finite(method_b(frames, lattice, sigma=sigma, mask=mask, margin=margin).maps)
+    return finite_derivatives(method_b(frames, lattice, sigma=sigma, mask=mask, margin=margin).maps)
 
 
 # --------------------------------------------------------------------------- Dask
@@ -786,7 +771,8 @@ def _split_floor(ref_series, lattice, sigma, mask, margin, report):
         img = ref_series.mean(start=start, stop=stop)
         halves.append(wft(img, lattice, sigma=sigma, mask=mask, margin=margin))
         report((k + 1) / 3, f"half {k + 1} of the reference")
-    m = deformation(_finite(halves[0]), _finite(halves[1]), lagrangian=False, guess=None)
+    m = deformation(finite_derivatives(halves[0]), finite_derivatives(halves[1]),
+                    lagrangian=False, guess=None)
     report(1.0, "half against half")
     v = m.valid
     if int(v.sum()) < 2:
@@ -963,7 +949,7 @@ def measure_series(reference, states, *, lattice: Lattice | None = None,
             masks.append(used)
         if client is not None and method == "B":
             for k, s in enumerate(series):
-                maps[k] = _finite(maps[k].result().maps)
+                maps[k] = finite_derivatives(maps[k].result().maps)
                 steps.step(s.n_frames * wft_cost, f"{s.name}: method B")
 
     mean_ref = stats[0].mean

@@ -163,6 +163,18 @@ class _PhaseMean:
         meta = (maps.lattice, maps.sigma, maps.dphi.dtype, maps.psi.dtype)
         return unit, mod, dphi, maps.valid, meta
 
+    def merge(self, other: _PhaseMean) -> _PhaseMean:
+        """A new accumulator holding the sums of ``self`` and ``other`` (unchanged)."""
+        out = _PhaseMean()
+        out.add((self.unit, self.mod, self.dphi, self.valid,
+                 (self.lattice, self.sigma, self.dtype, self.cdtype)))
+        out.unit += other.unit
+        out.mod += other.mod
+        out.dphi += other.dphi
+        out.valid &= other.valid
+        out.n = self.n + other.n
+        return out
+
     def add(self, parts) -> None:
         unit, mod, dphi, valid, meta = parts
         if self.n == 0:

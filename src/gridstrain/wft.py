@@ -339,6 +339,21 @@ def _wft(image, lattice: Lattice, *, sigma: float | None = None, mask=None,
     return PhaseMaps(psi=psi, dphi=dphi, valid=valid, lattice=lattice, sigma=float(sigma))
 
 
+def finite_derivatives(pm: PhaseMaps) -> PhaseMaps:
+    """``pm`` with its undefined derivatives (where ``psi = 0``) set to 0 and invalid.
+
+    Far inside a large masked region the transform is exactly 0 and its phase
+    derivatives are 0/0; a spline's prefilter (the kinematics interpolate the
+    deformed maps) would spread a single NaN over whole rows and columns.
+    """
+    ok = np.isfinite(pm.dphi)
+    if ok.all():
+        return pm
+    return PhaseMaps(psi=pm.psi, dphi=np.where(ok, pm.dphi, 0).astype(pm.dphi.dtype),
+                     valid=pm.valid & ok.all(axis=(0, 1)), lattice=pm.lattice,
+                     sigma=pm.sigma)
+
+
 class _Workspace:
     """Scratch arrays reused from one wave vector to the next (named flat buffers)."""
 
