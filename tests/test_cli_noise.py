@@ -75,3 +75,19 @@ def test_noise_bad_input(stack, tmp_path, capsys, argv, match, monkeypatch):
     assert err[0].startswith("gridstrain noise: error:")
     assert match in err[0]
     assert not (tmp_path / "out.txt").exists()
+
+
+def test_short_stack_uses_the_degree_it_allows(stack, tmp_path, capsys):
+    stack, _ = stack
+    import tifffile as tf
+
+    short = tmp_path / "short.tif"
+    tf.imwrite(short, tf.imread(stack)[:10])
+    assert main(["noise", str(short), "--json"]) == 0
+    noise = json.loads(capsys.readouterr().out)["noise"]
+    # 10 frames: the quadratic model (6 regressors) is the largest that leaves 3 dof
+    assert noise["vibration_model_degree"] == 2
+    # 10 frames of 160^2 still pin K to a few per cent (tests/test_noise.py)
+    assert noise["K_sensor"] == pytest.approx(0.28, rel=0.1)
+    assert main(["noise", str(short), "--degree", "3", "--quiet"]) == 2
+    assert "13 frames" in capsys.readouterr().err

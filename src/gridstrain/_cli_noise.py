@@ -38,8 +38,9 @@ def register(sub) -> None:
     p.add_argument("--sigma", type=float, help="window standard deviation, px (default: pitch)")
     p.add_argument("--bit-depth", type=int, choices=(8, 12, 16),
                    help="override the detected bit depth")
-    p.add_argument("--degree", type=int, default=3, choices=(0, 1, 2, 3, 4),
-                   help="polynomial degree of the vibration model (default 3; 0 = static)")
+    p.add_argument("--degree", type=int, default=None, choices=(0, 1, 2, 3, 4),
+                   help="polynomial degree of the vibration model (default: 3, or the "
+                   "highest the number of frames allows; 0 = static set-up)")
     add_lattice_options(p.add_argument_group("lattice"))
     p.add_argument("--overwrite", action="store_true", help="replace an existing output")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -62,8 +63,16 @@ def run(args) -> int:
     progress = bar(quiet=args.quiet or args.json)
     mean = series.mean(progress=lambda f, m: progress(0.3 * f, "mean image"))
     lattice = lattice_given or detect_lattice(mean)
+    degree = args.degree
+    if degree is None:
+        # (d + 1)(d + 2) / 2 regressors and 3 degrees of freedom at least
+        fits = [d for d in (3, 2, 1) if series.n_frames >= (d + 1) * (d + 2) // 2 + 3]
+        if not fits:
+            raise ValueError(f"stack: at least 6 frames are needed to separate the noise "
+                             f"from the vibrations, got {series.n_frames}")
+        degree = fits[0]
     model = estimate_noise(series.frames(), lattice, saturation=series.saturation_level,
-                           scale=series.scale, degree=args.degree,
+                           scale=series.scale, degree=degree,
                            progress=lambda f, m: progress(0.3 + 0.5 * f, "noise model"))
     vib = vibration_report(series.frames(), lattice)
     progress(0.9, "noise floor")
@@ -78,6 +87,7 @@ def run(args) -> int:
         "lattice": {"k1": list(lattice.k1), "k2": list(lattice.k2),
                     "pitches_px": list(lattice.pitches), "angles_deg": list(lattice.angles)},
         "noise": {"K": model.K, "L": model.L, "K_ci": model.K_ci, "L_ci": model.L_ci,
+                  "vibration_model_degree": degree,
                   "K_sensor": model.K_sensor, "L_sensor": model.L_sensor,
                   "reduced_chi2": model.reduced_chi2, "units": "stored grey levels"},
         "vibration": {"std_px": vib.std.tolist(), "covariance_px2": vib.covariance.tolist(),
@@ -114,7 +124,8 @@ def run(args) -> int:
     print(f"lattice: pitches {fmt(lattice.pitches[0])}/{fmt(lattice.pitches[1])} px, "
           f"angles {fmt(lattice.angles[0])}/{fmt(lattice.angles[1])} deg")
     ci = (lambda c: "" if c is None else f"  (95 % CI {fmt(c[0])} to {fmt(c[1])})")  # noqa: E731
-    print(f"noise Var = K l + L:  K = {fmt(n['K'])}{ci(model.K_ci)}")
+    print(f"noise Var = K l + L (vibrations regressed out, degree {degree}):")
+    print(f"                      K = {fmt(n['K'])}{ci(model.K_ci)}")
     print(f"                      L = {fmt(n['L'])}{ci(model.L_ci)}   (stored grey levels)")
     if series.scale != 1:
         print(f"  sensor units:       K = {fmt(n['K_sensor'])}, L = {fmt(n['L_sensor'])}")
