@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 
 from gridstrain import Lattice, synthetic, wft
+from gridstrain.stacks import method_b
 from gridstrain.uncertainty import noise_variance_map, predict_uncertainty
 
 CASES = {1: (0.15, 0.1), 2: (0.1, 0.05), 3: (0.01, 0.01), 4: (0.001, 0.005)}
@@ -14,15 +15,11 @@ N = 96
 LAT = Lattice.from_pitch(5.0)
 
 
-def _stack_mean(s_fn, shifts, rng):
-    acc = np.zeros((N, N))
-    for a, b in shifts:
-        frame = s_fn(a, b)
-        acc += synthetic.add_noise(frame, K=K, L=L, rng=rng)
-    return acc / len(shifts)
+def _stack(s_fn, shifts, rng):
+    return [synthetic.add_noise(s_fn(a, b), K=K, L=L, rng=rng) for a, b in shifts]
 
 
-def _calibration(case, T, reps, seed):
+def _calibration(case, T, reps, seed, method="A"):
     rng = np.random.default_rng(seed)
     sa, sb = CASES[case]
 
@@ -35,9 +32,13 @@ def _calibration(case, T, reps, seed):
     phases, derivs, us, predicted = [], [], [], None
     for _ in range(reps):
         shifts = np.stack([rng.normal(0, sa, T), rng.normal(0, sb, T)], axis=1)
-        mean = _stack_mean(s_fn, shifts, rng)
-        pm = wft(mean, LAT)
-        # exact phase offset of the averaged image for the known shifts (eqs. 28-29)
+        frames = _stack(s_fn, shifts, rng)
+        mean = np.mean(frames, axis=0)
+        # method B's transform is the circular mean of the frames' (stacks.method_b):
+        # its modulus is the frames' mean modulus, its noise that of T frames
+        pm = wft(mean, LAT) if method == "A" else method_b(frames, LAT).maps
+        # exact phase offset for the known shifts (eqs. 28-29; for method B the
+        # circular mean of the frames' phasors has the same offset)
         delta = np.angle(np.mean(np.exp(2j * np.pi * shifts @ LAT.K.T), axis=0))
         dphi = np.angle(pm.psi * np.conj(truth.psi)) - delta[:, None, None]
         phases.append(dphi)
@@ -79,16 +80,18 @@ def _check(ratios):
         np.testing.assert_allclose(r, 1.0, atol=0.10, err_msg=key)
 
 
-@pytest.mark.parametrize(("case", "T"), [(1, 1), (3, 10), (1, 10)])
-def test_calibration(case, T):
-    _check(_calibration(case, T, reps=24, seed=case * 100 + T))
+@pytest.mark.parametrize(("case", "T", "method"), [(1, 1, "A"), (3, 10, "A"), (1, 10, "A"),
+                                                   (2, 10, "B")])
+def test_calibration(case, T, method):
+    _check(_calibration(case, T, reps=24, seed=case * 100 + T, method=method))
 
 
 @pytest.mark.slow
+@pytest.mark.parametrize("method", ["A", "B"])
 @pytest.mark.parametrize("case", [1, 2, 3, 4])
 @pytest.mark.parametrize("T", [1, 10, 100])
-def test_calibration_all_cases(case, T):
-    _check(_calibration(case, T, reps=24, seed=case * 1000 + T))
+def test_calibration_all_cases(case, T, method):
+    _check(_calibration(case, T, reps=24, seed=case * 1000 + T, method=method))
 
 
 def test_noise_variance_map_is_local_mean_over_T():
