@@ -49,7 +49,7 @@ from pathlib import Path
 import numpy as np
 
 from ._validation import check_choice, check_mask, check_positive
-from .io import FrameSeries, check_saturation_limit, open_series
+from .io import FrameSeries, _check_out_dtype, check_saturation_limit, open_series
 from .kinematics import Measurement, deformation
 from .lattice import Lattice, detect_lattice
 from .stacks import StackResult, _PhaseMean
@@ -233,18 +233,6 @@ def _check_chunk(chunk_frames) -> int:
     return int(chunk_frames)
 
 
-def _check_dtype(dtype) -> np.dtype | None:
-    if dtype is None:
-        return None
-    try:
-        dt = np.dtype(dtype)
-    except TypeError:
-        dt = None
-    if dt not in (np.dtype(np.float32), np.dtype(np.float64)):
-        raise ValueError(f"dtype must be float32, float64 or None, got {dtype!r}")
-    return dt
-
-
 def _is_zarr_path(p: Path) -> bool:
     return p.is_dir() and any((p / f).is_file() for f in ("zarr.json", ".zarray", ".zgroup"))
 
@@ -308,7 +296,7 @@ def as_dask_stack(source, *, chunk_frames: int = 1, dtype=None, name: str = "ser
     """
     _, da = _dask()
     chunk = _check_chunk(chunk_frames)
-    dt = _check_dtype(dtype)
+    dt = _check_out_dtype(dtype)
     if isinstance(source, FrameSeries):
         return _series_stack(source, chunk, dt)
     if isinstance(source, str | os.PathLike):

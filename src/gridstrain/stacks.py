@@ -220,14 +220,18 @@ def mean_image(frames, *, progress: Progress | None = None) -> np.ndarray:
     (H, W) float64 ndarray
         ``v_bar = (1/T) sum_t v_t``, grey levels.
     """
-    progress = progress or null_progress
+    return _average(frames, progress or null_progress, "averaging")[0]
+
+
+def _average(frames, progress: Progress, what: str) -> tuple[np.ndarray, int]:
+    """The streamed float64 mean of ``frames`` and their number."""
     acc = _MeanImage()
     for i, img, total in _frames(frames):
         acc.add(img)
-        _report(progress, i, total, "averaging")
+        _report(progress, i, total, what)
     if acc.n == 0:
         raise ValueError("frames must hold at least one image, got none")
-    return acc.mean()
+    return acc.mean(), acc.n
 
 
 def method_a(frames, lattice: Lattice, *, sigma: float | None = None, mask=None,
@@ -262,17 +266,10 @@ def method_a(frames, lattice: Lattice, *, sigma: float | None = None, mask=None,
     """
     if not isinstance(lattice, Lattice):
         raise TypeError(f"lattice must be a Lattice, got {type(lattice).__name__}")
-    progress = progress or null_progress
-    acc = _MeanImage()
-    for i, img, total in _frames(frames):
-        acc.add(img)
-        _report(progress, i, total, "method A")
-    if acc.n == 0:
-        raise ValueError("frames must hold at least one image, got none")
-    avg = acc.mean()
+    avg, n = _average(frames, progress or null_progress, "method A")
     maps = wft(avg, lattice, sigma=sigma, mask=mask)
-    progress(1.0, "method A: done")
-    return StackResult(maps=maps, n_frames=acc.n, method="A", mean_image=avg)
+    (progress or null_progress)(1.0, "method A: done")
+    return StackResult(maps=maps, n_frames=n, method="A", mean_image=avg)
 
 
 def _map_ordered(fn: Callable, items: Iterable, workers: int) -> Iterator:

@@ -417,6 +417,18 @@ def _family_terms(lattice: Lattice, cov: np.ndarray, d: np.ndarray, exact: bool)
     return out
 
 
+def _grid_terms(lattice, cov, amplitude, contrast, profile, n_harmonics, exact):
+    """Checked eq. (1) grid parameters and each family's bias coefficients."""
+    lattice = _check_lattice(lattice)
+    c = _check_cov(cov)
+    A = check_positive(amplitude, "amplitude")
+    gamma = _check_real(contrast, "contrast")
+    if not 0 <= gamma <= 1:
+        raise ValueError(f"contrast must be in [0, 1], got {contrast!r}")
+    d = profile_coefficients(profile, n_harmonics=n_harmonics)
+    return lattice, A, gamma, d, _family_terms(lattice, c, d, bool(exact))
+
+
 def grid_mean_image_bias(shape, lattice: Lattice, cov, *, amplitude: float = 1.0,
                          contrast: float = 0.9, profile="sin3", exact: bool = False,
                          n_harmonics: int = 16, dtype=np.float64) -> np.ndarray:
@@ -461,14 +473,8 @@ def grid_mean_image_bias(shape, lattice: Lattice, cov, *, amplitude: float = 1.0
     H, W = (int(s) for s in shape)
     if H < 1 or W < 1:
         raise ValueError(f"shape must be two positive integers, got {shape!r}")
-    lattice = _check_lattice(lattice)
-    c = _check_cov(cov)
-    A = check_positive(amplitude, "amplitude")
-    gamma = _check_real(contrast, "contrast")
-    if not 0 <= gamma <= 1:
-        raise ValueError(f"contrast must be in [0, 1], got {contrast!r}")
-    d = profile_coefficients(profile, n_harmonics=n_harmonics)
-    terms = _family_terms(lattice, c, d, bool(exact))
+    lattice, A, gamma, d, terms = _grid_terms(lattice, cov, amplitude, contrast, profile,
+                                              n_harmonics, exact)
     yy, xx = np.mgrid[0:H, 0:W].astype(np.float64)
     k = _harmonics(d)
     out = np.zeros((H, W))
@@ -520,14 +526,8 @@ def mean_image_bias_rms(lattice: Lattice, cov, *, amplitude: float = 1.0,
                                  contrast=contrast, profile=profile, exact=exact,
                                  n_harmonics=n_harmonics)
         return float(np.sqrt(np.mean(b**2)))
-    lattice = _check_lattice(lattice)
-    c = _check_cov(cov)
-    A = check_positive(amplitude, "amplitude")
-    gamma = _check_real(contrast, "contrast")
-    if not 0 <= gamma <= 1:
-        raise ValueError(f"contrast must be in [0, 1], got {contrast!r}")
-    d = profile_coefficients(profile, n_harmonics=n_harmonics)
-    terms = _family_terms(lattice, c, d, bool(exact))
+    lattice, A, gamma, _d, terms = _grid_terms(lattice, cov, amplitude, contrast, profile,
+                                               n_harmonics, exact)
     return float(A / 2 * gamma * math.sqrt(sum(float(np.sum(np.abs(b) ** 2)) for b in terms)))
 
 
