@@ -160,14 +160,16 @@ def main(argv=None):
     ap.add_argument("--pitch", type=float, default=5.0, help="grid pitch = sigma, px")
     ap.add_argument("--repeat", type=int, default=7, help="timed runs of each candidate")
     ap.add_argument("--workers", type=int, default=1,
-                    help="scipy.fft workers for ours and the floor alike (default 1)")
+                    help="threads for ours (wft's workers) and for the floor and the naive "
+                         "reference (scipy.fft's workers, numpy.fft has none) (default 1)")
     ap.add_argument("--no-naive", action="store_true", help="skip the naive reference")
     ap.add_argument("--study", action="store_true",
                     help="accuracy and cost of difference derivatives (first size)")
     args = ap.parse_args(argv)
 
     print(f"machine: {machine()}")
-    print(f"scipy.fft workers: {args.workers}; pitch = sigma = {args.pitch:g} px; "
+    print(f"threads: {args.workers} (wft's workers, scipy.fft's for the floor); "
+          f"pitch = sigma = {args.pitch:g} px; "
           f"best of {args.repeat} interleaved runs")
     names = ["exact", "central", "floor"] + ([] if args.no_naive else ["naive"])
     header = (f"{'size':>10} {'dtype':>8} " + " ".join(f"{n + ' ms':>16}" for n in names)
@@ -183,8 +185,9 @@ def main(argv=None):
         for dtype in (np.float64, np.float32):
             img = img64.astype(dtype)
             real, cplx = floor_inputs(shape, sigma, dtype)
-            funcs = {"exact": partial(wft, img, lattice),
-                     "central": partial(_wft, img, lattice, derivatives="central"),
+            funcs = {"exact": partial(wft, img, lattice, workers=args.workers),
+                     "central": partial(_wft, img, lattice, derivatives="central",
+                                        workers=args.workers),
                      "floor": partial(floor, real, cplx)}
             if not args.no_naive:
                 funcs["naive"] = partial(naive_wft, img64, lattice, sigma)

@@ -10,6 +10,7 @@ tests/test_wft.py ties both to the definition.
 
 import importlib
 import math
+import threading
 
 import numpy as np
 import pytest
@@ -46,7 +47,9 @@ def _reference(img, lat, sigma, mask=None, margin=4.0, min_modulus=0.25):
         dphi[j, 1] = np.imag(np.conj(c) * cy) / np.abs(c) ** 2
     dist = ndimage.distance_transform_edt(np.pad(m, 1))[1:-1, 1:-1]
     valid = dist > margin * sigma
-    ref = valid if valid.any() else m
+    # both medians over the region valid by its distance to the edges (a copy:
+    # the first modulus test must not thin the second one's region)
+    ref = (valid if valid.any() else m).copy()
     mod = np.abs(psi)
     for j in range(2):
         valid &= mod[j] >= min_modulus * np.median(mod[j][ref])
@@ -110,6 +113,24 @@ def test_blocks_of_rows_give_the_same_maps(monkeypatch):
     np.testing.assert_array_equal(blocks.psi, whole.psi)
     np.testing.assert_array_equal(blocks.dphi, whole.dphi)
     np.testing.assert_array_equal(blocks.valid, whole.valid)
+
+
+@pytest.mark.parametrize("derivatives", ["exact", "central"])
+def test_two_threads_give_the_same_maps(derivatives):
+    # one wave vector per thread, each on its own scratch arrays: the same arithmetic
+    # on the same numbers, so identical bits (a shared buffer would show here)
+    lat, shape, sigma, _ = CASES["rotated"]
+    img = _noisy_grid(shape, lat, seed=4)
+    mask = np.ones(shape, dtype=bool)
+    mask[30:50, 40:70] = False
+    for m in (None, mask):
+        one = _wft(img, lat, sigma=sigma, mask=m, derivatives=derivatives)
+        two = _wft(img, lat, sigma=sigma, mask=m, derivatives=derivatives, workers=2)
+        np.testing.assert_array_equal(two.psi, one.psi)
+        np.testing.assert_array_equal(two.dphi, one.dphi)
+        np.testing.assert_array_equal(two.valid, one.valid)
+    with pytest.raises(ValueError, match="workers"):
+        wft(img, lat, workers=0)
 
 
 def test_nothing_valid_takes_the_median_over_the_mask():
@@ -243,10 +264,34 @@ def test_method_b_on_threads_is_the_circular_mean_of_the_frames():
     np.testing.assert_allclose(res.dphi, np.mean([r.dphi for r in each], axis=0),
                                rtol=0, atol=1e-15)
     np.testing.assert_array_equal(res.valid, np.logical_and.reduce([r.valid for r in each]))
-    # the additions follow the frames' order whatever the threads: identical bits
+    # the frames add their blocks in frame order whatever the threads: identical bits
     serial = method_b(frames, lat, workers=1).maps
     np.testing.assert_array_equal(serial.psi, res.psi)
     np.testing.assert_array_equal(serial.dphi, res.dphi)
+    np.testing.assert_array_equal(serial.valid, res.valid)
+
+
+def test_method_b_on_threads_stops_on_a_failing_frame():
+    # a uniform frame passes the stack's checks and fails in its transform, in a
+    # worker thread, while the frames after it wait for its blocks: they must be
+    # released with an error, not left waiting
+    lat = Lattice.from_pitch(5.0)
+    frames = _frames(lat, 6)
+    frames[2] = np.full_like(frames[2], 100.0)
+    outcome = []
+
+    def run():
+        try:
+            method_b(frames, lat, workers=3)
+        except ValueError as err:
+            outcome.append(str(err))
+
+    t = threading.Thread(target=run, daemon=True)
+    t.start()
+    t.join(timeout=60)  # seconds; the whole stack takes ~0.1 s
+    assert not t.is_alive()
+    assert len(outcome) == 1
+    assert "uniform" in outcome[0]
 
 
 def test_method_b_on_threads_keeps_float32_and_reports_progress():

@@ -6,6 +6,7 @@ Every error names the parameter, says what was expected and what was received.
 from __future__ import annotations
 
 import numbers
+import os
 
 import numpy as np
 
@@ -87,3 +88,13 @@ def check_choice(value, name: str, choices) -> str:
         allowed = ", ".join(repr(c) for c in choices)
         raise ValueError(f"{name} must be one of {allowed}, got {value!r}")
     return value
+
+
+def check_workers(workers) -> int:
+    """Return ``workers`` (a positive integer), or the usable cores for None."""
+    if workers is None:
+        return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (
+            os.cpu_count() or 1)
+    if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
+        raise ValueError(f"workers must be a positive integer or None, got {workers!r}")
+    return workers

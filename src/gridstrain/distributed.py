@@ -456,7 +456,7 @@ def _phase_sums(frames: Iterable, lattice, sigma, mask, margin, with_total) -> _
     """Method B's sums over ``frames``, one transform at a time (one task)."""
     acc, total = _PhaseMean(), None
     for frame in frames:
-        acc.add(_PhaseMean.parts(wft(frame, lattice, sigma=sigma, mask=mask, margin=margin)))
+        acc.add_frame(frame, lattice, sigma=sigma, mask=mask, margin=margin)
         if with_total:
             total = np.array(frame, dtype=np.float64) if total is None else total + frame
     if acc.n == 0:

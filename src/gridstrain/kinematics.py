@@ -410,9 +410,9 @@ def measure(reference, deformed, *, lattice: Lattice | None = None,
         lattice = detect_lattice(ref, mask=m)
     elif not isinstance(lattice, Lattice):
         raise TypeError(f"lattice must be a Lattice or None, got {type(lattice).__name__}")
-    pm_ref = wft(ref, lattice, sigma=sigma, mask=m, margin=margin)
+    pm_ref = wft(ref, lattice, sigma=sigma, mask=m, margin=margin, workers=None)
     # the deformed specimen has moved: its mask is not the reference's, so the
     # deformed image is transformed whole and validity comes from its own moduli
-    pm_cur = wft(cur, lattice, sigma=sigma, margin=margin)
+    pm_cur = wft(cur, lattice, sigma=sigma, margin=margin, workers=None)
     return deformation(pm_ref, pm_cur, lagrangian=lagrangian, guess=guess,
                        _images=(ref, cur, m))

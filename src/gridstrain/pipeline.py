@@ -678,13 +678,13 @@ def _check_grid(pm: PhaseMaps, image: np.ndarray, mask: np.ndarray, margin: floa
 def _phase_maps_a(image, lattice, sigma, mask, margin):
     """WFT of an averaged image, masking regions without a grid (method A)."""
     m = np.ones(image.shape, dtype=bool) if mask is None else mask
-    pm = wft(image, lattice, sigma=sigma, mask=m, margin=margin)
+    pm = wft(image, lattice, sigma=sigma, mask=m, margin=margin, workers=None)
     nogrid = _no_grid(pm, m)
     if nogrid.any():
         m = m & ~nogrid
         if not m.any():
             raise ValueError("no pixel shows a grid at the lattice's wave vectors")
-        pm = wft(image, lattice, sigma=sigma, mask=m, margin=margin)
+        pm = wft(image, lattice, sigma=sigma, mask=m, margin=margin, workers=None)
     return finite_derivatives(pm), m
 
 
@@ -769,7 +769,7 @@ def _split_floor(ref_series, lattice, sigma, mask, margin, report):
     halves = []
     for k, (start, stop) in enumerate(((0, T1), (T1, T))):
         img = ref_series.mean(start=start, stop=stop)
-        halves.append(wft(img, lattice, sigma=sigma, mask=mask, margin=margin))
+        halves.append(wft(img, lattice, sigma=sigma, mask=mask, margin=margin, workers=None))
         report((k + 1) / 3, f"half {k + 1} of the reference")
     m = deformation(finite_derivatives(halves[0]), finite_derivatives(halves[1]),
                     lagrangian=False, guess=None)

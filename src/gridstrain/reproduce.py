@@ -211,7 +211,7 @@ def _job(setup, rep, case, report=None) -> dict:
     for t, frame in enumerate(frames, start=1):
         acc_a.add(frame)
         if t <= Tbs[-1]:
-            acc_b.add(_PhaseMean.parts(wft(frame, lattice, sigma=sigma)))
+            acc_b.add_frame(frame, lattice, sigma=sigma)
         if t in set_a:
             avg = acc_a.mean()
             vals = _rmse_all(wft(avg, lattice, sigma=sigma), gt, region, shifts[:t])

@@ -15,7 +15,7 @@ from __future__ import annotations
 import itertools
 import math
 import numbers
-import os
+import threading
 from collections import deque
 from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import ThreadPoolExecutor
@@ -24,9 +24,9 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from ._progress import Progress, null_progress
-from ._validation import as_image, check_choice
+from ._validation import as_image, check_choice, check_workers
 from .lattice import Lattice
-from .wft import DEFAULT_MARGIN, PhaseMaps, wft
+from .wft import DEFAULT_MARGIN, PhaseMaps, _wft, _Workspace, wft
 
 __all__ = [
     "StackResult",
@@ -143,52 +143,140 @@ class _MeanImage:
         return self.total / self.n
 
 
+class _FrameOrder:
+    """Makes the frames of a stack add each block of rows in frame order.
+
+    Frame ``i`` may add its block ``key`` once frame ``i - 1`` has added it, so the
+    sums come out bit for bit as one thread would make them, however many threads
+    transform frames at once. Two threads rarely wait: each adds a block while the
+    other computes.
+    """
+
+    def __init__(self):
+        self._cond = threading.Condition()
+        self._done: dict = {}
+        self._failed = math.inf  # index of the first frame that failed
+
+    def wait(self, key, i: int) -> None:
+        with self._cond:
+            self._cond.wait_for(lambda: self._failed < i or self._done.get(key, 0) == i)
+            if self._done.get(key, 0) != i:
+                raise RuntimeError(f"frame {self._failed} of the stack failed")
+
+    def release(self, key, i: int) -> None:
+        with self._cond:
+            self._done[key] = i + 1
+            self._cond.notify_all()
+
+    def fail(self, i: int) -> None:
+        """Frame ``i`` failed: wake the frames after it, with an error."""
+        with self._cond:
+            self._failed = min(self._failed, i)
+            self._cond.notify_all()
+
+
 class _PhaseMean:
-    """Running sums of the frames' WFTs for method B."""
+    """Running sums of the frames' WFTs for method B.
+
+    Each frame is transformed block of rows by block of rows and its contributions
+    (unit phasors, moduli, derivatives) are added while the block is in cache, so a
+    frame's maps are never whole in memory. Several threads may add frames at once
+    (``index`` and ``order``); each keeps its own scratch arrays from one frame to
+    the next.
+    """
 
     def __init__(self):
         self.n = 0
+        self._lock = threading.Lock()
+        self._local = threading.local()
 
-    @staticmethod
-    def parts(maps: PhaseMaps):
-        """What a frame contributes: unit phasors, moduli, derivatives, validity.
+    def __getstate__(self):
+        # sent between Dask workers: the sums travel, the scratch arrays stay behind
+        state = self.__dict__.copy()
+        del state["_lock"], state["_local"]
+        return state
 
-        Computed where the transform was made (a worker thread) so that only these
-        are kept until they are added, not the transform itself.
+    def __setstate__(self, state):
+        self.__dict__.update(state)
+        self._lock = threading.Lock()
+        self._local = threading.local()
+
+    def _start(self, shape, lattice: Lattice, sigma, dtype) -> None:
+        H, W = shape
+        self.unit = np.zeros((2, H, W), dtype=np.complex128)
+        self.mod = np.zeros((2, H, W), dtype=np.float64)
+        self.dphi = np.zeros((2, 2, H, W), dtype=np.float64)
+        self.valid = np.ones((H, W), dtype=bool)
+        self.lattice = lattice
+        self.sigma = float(lattice.pitch if sigma is None else sigma)
+        self.dtype = np.dtype(dtype)
+        self.cdtype = np.result_type(dtype, np.complex64)
+
+    def add_frame(self, img, lattice: Lattice, *, sigma=None, mask=None,
+                  margin: float = DEFAULT_MARGIN, index: int = 0,
+                  order: _FrameOrder | None = None) -> None:
+        """Add the WFT of ``img`` (as :func:`~gridstrain.wft.wft` computes it).
+
+        With ``order``, ``index`` is the frame's rank in the stack (from 0), and its
+        blocks are added after those of frame ``index - 1``.
         """
-        mod = np.abs(maps.psi).astype(np.float64)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            unit = np.where(mod > 0, maps.psi / mod, 0).astype(np.complex128, copy=False)
-        dphi = np.where(np.isfinite(maps.dphi), maps.dphi, 0).astype(np.float64, copy=False)
-        meta = (maps.lattice, maps.sigma, maps.dphi.dtype, maps.psi.dtype)
-        return unit, mod, dphi, maps.valid, meta
+        img = as_image(img, "frame", allow_uniform=True)
+        H, W = img.shape
+        with self._lock:
+            if not hasattr(self, "unit"):
+                self._start((H, W), lattice, sigma, img.dtype)
+            elif self.unit.shape[1:] != (H, W):
+                raise ValueError(f"frames must all have the shape {self.unit.shape[1:]}, "
+                                 f"got {(H, W)}")
+        work = getattr(self._local, "work", None)
+        if work is None:
+            work = self._local.work = _Workspace()
+        # float64 views (..., 2) of the complex sums: real arithmetic on them avoids
+        # numpy's slow mixed complex-by-real loops
+        unit = self.unit.view(np.float64).reshape(2, H, W, 2)
+
+        def sink(j, r0, r1, psi, dphi, mod):
+            h = r1 - r0
+            # unit phasor psi / |psi|, 0 where psi = 0 (no signal: no direction)
+            inv = work.get("inv", (h, W), np.float64)
+            inv.fill(0.0)
+            np.divide(1.0, mod, out=inv, where=mod > 0)
+            u = work.get("u", (h, W, 2), np.float64)
+            np.multiply(psi.view(psi.real.dtype).reshape(h, W, 2), inv[..., None], out=u)
+            if not mod.all():  # derivatives 0/0 where psi = 0: they add nothing
+                dphi[:, mod == 0] = 0
+            if order is not None:
+                order.wait((j, r0), index)
+            unit[j, r0:r1] += u
+            self.mod[j, r0:r1] += mod
+            self.dphi[j, :, r0:r1] += dphi
+            if order is not None:
+                order.release((j, r0), index)
+
+        valid = _wft(img, lattice, sigma=sigma, mask=mask, margin=margin, sink=sink,
+                     work=work)
+        with self._lock:
+            self.valid &= valid
+            self.n += 1
 
     def merge(self, other: _PhaseMean) -> _PhaseMean:
         """A new accumulator holding the sums of ``self`` and ``other`` (unchanged)."""
         out = _PhaseMean()
-        out.add((self.unit, self.mod, self.dphi, self.valid,
-                 (self.lattice, self.sigma, self.dtype, self.cdtype)))
-        out.unit += other.unit
-        out.mod += other.mod
-        out.dphi += other.dphi
-        out.valid &= other.valid
         out.n = self.n + other.n
+        if self.n == 0 or other.n == 0:
+            src = other if self.n == 0 else self
+            if src.n:
+                out.__dict__.update({k: v.copy() if isinstance(v, np.ndarray) else v
+                                     for k, v in src.__getstate__().items()})
+                out.n = src.n
+            return out
+        out.unit = self.unit + other.unit
+        out.mod = self.mod + other.mod
+        out.dphi = self.dphi + other.dphi
+        out.valid = self.valid & other.valid
+        out.lattice, out.sigma, out.dtype, out.cdtype = (
+            self.lattice, self.sigma, self.dtype, self.cdtype)
         return out
-
-    def add(self, parts) -> None:
-        unit, mod, dphi, valid, meta = parts
-        if self.n == 0:
-            self.unit = unit.copy()
-            self.mod = mod.copy()
-            self.dphi = dphi.copy()
-            self.valid = valid.copy()
-            self.lattice, self.sigma, self.dtype, self.cdtype = meta
-        else:
-            self.unit += unit
-            self.mod += mod
-            self.dphi += dphi
-            self.valid &= valid
-        self.n += 1
 
     def result(self) -> StackResult:
         mean_unit = self.unit / self.n
@@ -235,7 +323,7 @@ def _average(frames, progress: Progress, what: str) -> tuple[np.ndarray, int]:
 
 
 def method_a(frames, lattice: Lattice, *, sigma: float | None = None, mask=None,
-             progress: Progress | None = None) -> StackResult:
+             workers: int | None = None, progress: Progress | None = None) -> StackResult:
     """Method A: the windowed Fourier transform of the averaged image (paper §2.2).
 
     Parameters
@@ -248,6 +336,8 @@ def method_a(frames, lattice: Lattice, *, sigma: float | None = None, mask=None,
         Window standard deviation, px (default: the pitch).
     mask : (H, W) bool array_like, optional
         True on the specimen.
+    workers : int, optional
+        Threads of the transform (default: the usable cores; see :func:`wft`).
     progress : callable, optional
         ``progress(fraction, message)``.
 
@@ -266,16 +356,17 @@ def method_a(frames, lattice: Lattice, *, sigma: float | None = None, mask=None,
     """
     if not isinstance(lattice, Lattice):
         raise TypeError(f"lattice must be a Lattice, got {type(lattice).__name__}")
+    n_workers = check_workers(workers)
     avg, n = _average(frames, progress or null_progress, "method A")
-    maps = wft(avg, lattice, sigma=sigma, mask=mask)
+    maps = wft(avg, lattice, sigma=sigma, mask=mask, workers=n_workers)
     (progress or null_progress)(1.0, "method A: done")
     return StackResult(maps=maps, n_frames=n, method="A", mean_image=avg)
 
 
-def _map_ordered(fn: Callable, items: Iterable, workers: int) -> Iterator:
-    """``map(fn, items)`` on a pool of ``workers`` threads, in order, holding at most
-    ``workers`` items and results at a time (scipy.fft and numpy's large array
-    operations release the GIL, so the transforms of two frames overlap)."""
+def _map_bounded(fn: Callable, items: Iterable, workers: int) -> Iterator:
+    """``map(fn, items)`` on ``workers`` threads, yielding in order, with at most
+    ``workers`` items in flight (scipy.fft and numpy's large array operations release
+    the GIL, so the transforms of several frames overlap)."""
     if workers == 1:
         yield from map(fn, items)
         return
@@ -287,15 +378,6 @@ def _map_ordered(fn: Callable, items: Iterable, workers: int) -> Iterator:
             pending.append(pool.submit(fn, item))
         while pending:
             yield pending.popleft().result()
-
-
-def _check_workers(workers) -> int:
-    if workers is None:
-        return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (
-            os.cpu_count() or 1)
-    if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
-        raise ValueError(f"workers must be a positive integer or None, got {workers!r}")
-    return workers
 
 
 def method_b(frames, lattice: Lattice, *, sigma: float | None = None, mask=None,
@@ -316,9 +398,12 @@ def method_b(frames, lattice: Lattice, *, sigma: float | None = None, mask=None,
     margin : float
         Invalid band at borders and mask edges, in sigmas (see :func:`wft`).
     workers : int, optional
-        Threads transforming frames at once (default: the usable cores). At most
-        ``workers`` frames and their transforms are held at a time; the sums are
-        made in frame order, so the result does not depend on ``workers``.
+        Threads transforming frames at once (default: the usable cores). The
+        frames add their contributions to one set of float64 sums (80 bytes a
+        pixel), block of rows by block of rows, in frame order: the result does not
+        depend on ``workers``, bit for bit. Memory: the sums, and per thread one
+        frame and the scratch arrays of one transform (about 100 bytes a pixel in
+        float64).
     progress : callable, optional
         ``progress(fraction, message)``.
 
@@ -343,16 +428,22 @@ def method_b(frames, lattice: Lattice, *, sigma: float | None = None, mask=None,
     if not isinstance(lattice, Lattice):
         raise TypeError(f"lattice must be a Lattice, got {type(lattice).__name__}")
     progress = progress or null_progress
-    n_workers = _check_workers(workers)
+    n_workers = check_workers(workers)
     acc = _PhaseMean()
+    order = _FrameOrder() if n_workers > 1 else None
 
     def transform(item):
         i, img, total = item
-        return i, total, _PhaseMean.parts(wft(img, lattice, sigma=sigma, mask=mask,
-                                              margin=margin))
+        try:
+            acc.add_frame(img, lattice, sigma=sigma, mask=mask, margin=margin, index=i,
+                          order=order)
+        except BaseException:
+            if order is not None:
+                order.fail(i)  # the frames after this one must not wait for it
+            raise
+        return i, total
 
-    for i, total, parts in _map_ordered(transform, _frames(frames), n_workers):
-        acc.add(parts)
+    for i, total in _map_bounded(transform, _frames(frames), n_workers):
         _report(progress, i, total, "method B")
     if acc.n == 0:
         raise ValueError("frames must hold at least one image, got none")
@@ -402,7 +493,7 @@ def prefix_stacks(frames, lattice: Lattice, counts, *, method: str = "A",
         if method == "A":
             acc.add(img)
         else:
-            acc.add(_PhaseMean.parts(wft(img, lattice, sigma=sigma, mask=mask)))
+            acc.add_frame(img, lattice, sigma=sigma, mask=mask)
         n = i + 1
         progress(n / last, f"method {method}: frame {n}/{last}")
         if n == wanted[k]:

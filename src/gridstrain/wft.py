@@ -9,13 +9,14 @@ from __future__ import annotations
 
 import itertools
 import math
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
 from scipy import fft as sfft
 from scipy import ndimage
 
-from ._validation import as_image, check_choice, check_mask, check_positive
+from ._validation import as_image, check_choice, check_mask, check_positive, check_workers
 from .lattice import Lattice
 
 __all__ = ["DEFAULT_MARGIN", "PhaseMaps", "transfer_function", "wft"]
@@ -215,7 +216,8 @@ def _median(values: np.ndarray) -> float:
 
 
 def wft(image, lattice: Lattice, *, sigma: float | None = None, mask=None,
-        margin: float = DEFAULT_MARGIN, min_modulus: float = _MIN_MODULUS) -> PhaseMaps:
+        margin: float = DEFAULT_MARGIN, min_modulus: float = _MIN_MODULUS,
+        workers: int | None = 1) -> PhaseMaps:
     """Windowed Fourier transform of a grid image for the lattice's two wave vectors.
 
     Parameters
@@ -235,8 +237,13 @@ def wft(image, lattice: Lattice, *, sigma: float | None = None, mask=None,
         Width, in units of ``sigma``, of the band along the border and around
         masked pixels that is declared invalid (default 4, see Notes).
     min_modulus : float
-        Pixels whose modulus, for either wave vector, is below this fraction of the
-        median modulus are invalid (no grid there).
+        Pixels whose modulus, for either wave vector, is below this fraction of its
+        median over the pixels at least ``margin`` sigmas inside the image and the
+        mask are invalid (no grid there).
+    workers : int or None
+        Threads (default 1; None: the usable cores). From 2 on, the two wave
+        vectors are transformed at once, each on its own scratch arrays (about
+        1.7x faster on two cores); the result is the same, bit for bit.
 
     Returns
     -------
@@ -268,12 +275,12 @@ def wft(image, lattice: Lattice, *, sigma: float | None = None, mask=None,
     and are flagged invalid within ``margin`` sigmas.
     """
     return _wft(image, lattice, sigma=sigma, mask=mask, margin=margin,
-                min_modulus=min_modulus)
+                min_modulus=min_modulus, workers=check_workers(workers))
 
 
 def _wft(image, lattice: Lattice, *, sigma: float | None = None, mask=None,
          margin: float = DEFAULT_MARGIN, min_modulus: float = _MIN_MODULUS,
-         derivatives: str = "exact") -> PhaseMaps:
+         derivatives: str = "exact", sink=None, work=None, workers: int = 1):
     """:func:`wft`, with a choice of phase derivatives.
 
     ``derivatives="exact"`` (what :func:`wft` does): ``Im(conj(Psi) dPsi)/|Psi|^2``
@@ -287,8 +294,19 @@ def _wft(image, lattice: Lattice, *, sigma: float | None = None, mask=None,
     derivative by ~1e-6 rad/px on the paper's noise-free fields and by ~5e-5 rad/px
     on a noisy frame (tests/test_fast.py), far above the 1e-7 rad/px that the exact
     path meets; it is not used by default.
+
+    ``sink`` (exact derivatives only): instead of keeping the maps, hand each block
+    of rows to ``sink(j, r0, r1, psi, dphi, mod)`` as soon as it is computed -- the
+    wave vector's index, the rows ``r0:r1``, and views of ``psi`` (h, W),
+    ``dphi`` (2, h, W) and the modulus (h, W) that are overwritten by the next
+    block -- and return only the validity map. Method B sums the frames that way,
+    while the blocks are still in cache, without a frame's maps ever being whole.
+    ``work`` (a :class:`_Workspace`) lends the scratch arrays, so that a caller
+    transforming many frames reuses the same pages.
     """
     check_choice(derivatives, "derivatives", ("exact", "central"))
+    if sink is not None and derivatives != "exact":
+        raise ValueError("sink needs the exact derivatives")
     if not isinstance(lattice, Lattice):
         raise TypeError(f"lattice must be a Lattice, got {type(lattice).__name__}")
     img = as_image(image)
@@ -310,8 +328,19 @@ def _wft(image, lattice: Lattice, *, sigma: float | None = None, mask=None,
     ny = sfft.next_fast_len(H + pad, real=True)
     nx = sfft.next_fast_len(W + pad, real=True)
     V = _padded_rfft2(img, m, full, ny, nx)
-    psi = np.empty((2, H, W), dtype=V.dtype)
-    dphi = np.empty((2, 2, H, W), dtype=dtype)
+    cdtype = V.dtype
+    # rows per block of the final inverse FFTs (three transforms of nx points each)
+    chunk = max(8, _CHUNK_BYTES // (3 * nx * cdtype.itemsize))
+    # scratch arrays shared by the two wave vectors (and by the frames of a caller
+    # that lends its workspace): fresh pages cost a page fault each
+    work = _Workspace() if work is None else work
+    if sink is None:
+        psi = np.empty((2, H, W), dtype=cdtype)
+        dphi = np.empty((2, 2, H, W), dtype=dtype)
+    else:
+        h = min(chunk, H)
+        psi = work.get("psi", (2, h, W), cdtype)
+        dphi = work.get("dphi", (2, 2, h, W), dtype)
 
     if full:
         valid, box = _valid_rectangle(H, W, margin * sigma)
@@ -320,22 +349,39 @@ def _wft(image, lattice: Lattice, *, sigma: float | None = None, mask=None,
     any_valid = bool(valid.any())
     if not any_valid and full:
         box = np.s_[:, :]
-    # scratch arrays shared by the two wave vectors: fresh pages cost a page fault each
-    work = _Workspace()
-    mod = work.get("mod", (H, W), dtype)
-    one = _one_wave_vector if derivatives == "exact" else _one_wave_vector_central
-    for j, k in enumerate((lattice.k1, lattice.k2)):
+    mods = [work.get(f"mod{j}", (H, W), dtype) for j in range(2)]
+    # with two threads, one wave vector each, and scratch arrays of its own
+    works = [work, _Workspace()] if workers > 1 else [work, work]
+
+    def one(j):
+        k = (lattice.k1, lattice.k2)[j]
         # where Psi = 0 (no signal at all) the derivatives are 0/0: NaN, silently
         with np.errstate(invalid="ignore", divide="ignore"):
-            one(V, k, sigma, H, W, nx, psi[j], dphi[j], mod, work)
-        # The median modulus over the valid region, which the first wave vector's
-        # test may already have thinned. While the region is a box, it is sliced
-        # instead of gathered through a mask.
+            if derivatives == "central":
+                _one_wave_vector_central(V, k, sigma, H, W, nx, psi[j], dphi[j], mods[j],
+                                         works[j])
+            else:
+                out = None if sink is None else (
+                    lambda r0, r1, p, d, md: sink(j, r0, r1, p, d, md))
+                _one_wave_vector(V, k, sigma, H, W, nx, psi[j], dphi[j], mods[j], works[j],
+                                 chunk=chunk, sink=out)
+
+    if workers > 1:
+        with ThreadPoolExecutor(max_workers=2) as pool:
+            list(pool.map(one, range(2)))
+    else:
+        for j in range(2):
+            one(j)
+    # A grid is there where both moduli reach min_modulus times their median over
+    # the region valid by its distance to the edges (sliced while it is a box,
+    # rather than gathered through a mask).
+    keep = np.ones((H, W), dtype=bool)
+    for mod in mods:
         values = mod[box] if box is not None else mod[valid] if any_valid else mod[m]
-        keep = mod >= min_modulus * _median(values)
-        if box is not None and any_valid and not keep[box].all():
-            box = None
-        valid &= keep
+        keep &= mod >= min_modulus * _median(values)
+    valid &= keep
+    if sink is not None:
+        return valid
     return PhaseMaps(psi=psi, dphi=dphi, valid=valid, lattice=lattice, sigma=float(sigma))
 
 
@@ -386,8 +432,12 @@ def _padded_rfft2(img: np.ndarray, m: np.ndarray, full: bool, ny: int, nx: int) 
 
 
 def _one_wave_vector(V, k, sigma, H, W, nx, psi, dphi, mod, work, *,
-                     chunk: int | None = None):
-    """Fill ``psi`` (H, W) and ``dphi`` (2, H, W) for the wave vector ``k``.
+                     chunk: int | None = None, sink=None):
+    """Fill ``psi`` (H, W), ``dphi`` (2, H, W) and ``mod`` (H, W) for the wave vector ``k``.
+
+    With ``sink``, ``psi`` and ``dphi`` hold one block of ``chunk`` rows: each block
+    is computed there, then handed to ``sink(r0, r1, psi, dphi, mod)`` (``mod`` is
+    still filled whole: the validity test needs its median).
 
     The filtered spectrum is non-zero only on a band of rows x cols around ``k``, and
     the window is separable: one inverse FFT along y of the band's columns for the
@@ -446,10 +496,11 @@ def _one_wave_vector(V, k, sigma, H, W, nx, psi, dphi, mod, work, *,
             Xh[2, :, dst] = A[1, r0:r1, src]
         out = sfft.ifft(Xh, axis=2, overwrite_x=True)
         c = out[0, :, :W]
+        ps, dp = (psi[r0:r1], dphi[:, r0:r1]) if sink is None else (psi[:h], dphi[:, :h])
         if ex is None:
-            psi[r0:r1] = c
+            ps[...] = c
         else:
-            np.multiply(c, ex, out=psi[r0:r1])
+            np.multiply(c, ex, out=ps)
         np.abs(c, out=mod[r0:r1])
         # d phi = Im(conj(c) dc) / |c|^2: exact for the sampled window, no unwrapping
         ch = cc[:h]
@@ -458,7 +509,9 @@ def _one_wave_vector(V, k, sigma, H, W, nx, psi, dphi, mod, work, *,
         np.multiply(out[1:, :, :W], ch, out=ph)
         inv = np.square(mod[r0:r1], dtype=np.float64)
         np.reciprocal(inv, out=inv)  # inf where Psi = 0: d phi is NaN there, as 0/0
-        np.multiply(ph.imag, inv, out=dphi[:, r0:r1], casting="same_kind")
+        np.multiply(ph.imag, inv, out=dp, casting="same_kind")
+        if sink is not None:
+            sink(r0, r1, ps, dp, mod[r0:r1])
 
 
 def _one_wave_vector_central(V, k, sigma, H, W, nx, psi, dphi, mod, work, *,
