@@ -15,9 +15,9 @@ a fresh Python process so that the peaks do not mix:
   files, on every usable core;
 
 and prints, for each, the wall time, the peak resident memory of the process
-(``ru_maxrss``, everything: Python, numpy, scipy.fft's buffers, the library
-itself) and that peak less the resident memory after the imports, in MB (1e6
-bytes) and MiB.
+(``VmHWM`` on Linux: everything, Python, numpy, scipy.fft's buffers, the library
+itself) and that peak less the peak after the imports and the opening of the
+series, in MB (1e6 bytes) and MiB.
 """
 
 from __future__ import annotations
@@ -46,7 +46,13 @@ from gridstrain.io import open_series
 from gridstrain.stacks import method_b
 
 def rss():
-    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024  # Linux: KiB
+    # peak resident set of this process, bytes: VmHWM belongs to the address space,
+    # which exec replaces (ru_maxrss would keep the parent's peak across exec)
+    with open("/proc/self/status") as f:
+        for line in f:
+            if line.startswith("VmHWM:"):
+                return int(line.split()[1]) * 1024
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
 folder, method, pitch = sys.argv[1], sys.argv[2], float(sys.argv[3])
 lattice = Lattice.from_pitch(pitch)
 series = open_series(folder)

@@ -28,6 +28,7 @@ their cost in numpy.
 from __future__ import annotations
 
 import argparse
+import importlib
 import math
 import tracemalloc
 from functools import partial
@@ -38,6 +39,8 @@ from scipy import fft as sfft
 from _common import grid_test_image, interleaved, machine
 from gridstrain import wft
 from gridstrain.wft import _PAD_SIGMAS, _wft
+
+_fft = importlib.import_module("gridstrain._fft")
 
 
 def naive_wft(img, lattice, sigma):
@@ -85,10 +88,12 @@ def floor_inputs(shape, sigma, dtype):
     return real, cplx
 
 
-def floor(real, cplx):
-    sfft.rfft2(real)
-    sfft.ifft2(cplx)
-    sfft.ifft2(cplx)
+def floor(real, cplx, workers=1):
+    """One rfft2 and two ifft2, on the FFT implementation wft uses (gridstrain._fft)."""
+    with _fft.backend():
+        sfft.rfft2(real, workers=workers)
+        sfft.ifft2(cplx, workers=workers)
+        sfft.ifft2(cplx, workers=workers)
 
 
 def peak_mib(func) -> float:
@@ -160,15 +165,16 @@ def main(argv=None):
     ap.add_argument("--pitch", type=float, default=5.0, help="grid pitch = sigma, px")
     ap.add_argument("--repeat", type=int, default=7, help="timed runs of each candidate")
     ap.add_argument("--workers", type=int, default=1,
-                    help="threads for ours (wft's workers) and for the floor and the naive "
-                         "reference (scipy.fft's workers, numpy.fft has none) (default 1)")
+                    help="threads for ours (wft's workers) and for the floor's FFTs; the naive "
+                         "reference runs on numpy.fft, single-threaded (default 1)")
     ap.add_argument("--no-naive", action="store_true", help="skip the naive reference")
     ap.add_argument("--study", action="store_true",
                     help="accuracy and cost of difference derivatives (first size)")
     args = ap.parse_args(argv)
 
     print(f"machine: {machine()}")
-    print(f"threads: {args.workers} (wft's workers, scipy.fft's for the floor); "
+    print(f"FFT implementation: {_fft.name()} (GRIDSTRAIN_FFT); threads: {args.workers} "
+          "(wft's workers, the floor's FFT workers); "
           f"pitch = sigma = {args.pitch:g} px; "
           f"best of {args.repeat} interleaved runs")
     names = ["exact", "central", "floor"] + ([] if args.no_naive else ["naive"])
@@ -188,12 +194,11 @@ def main(argv=None):
             funcs = {"exact": partial(wft, img, lattice, workers=args.workers),
                      "central": partial(_wft, img, lattice, derivatives="central",
                                         workers=args.workers),
-                     "floor": partial(floor, real, cplx)}
+                     "floor": partial(floor, real, cplx, args.workers)}
             if not args.no_naive:
                 funcs["naive"] = partial(naive_wft, img64, lattice, sigma)
-            with sfft.set_workers(args.workers):
-                t = interleaved(funcs, args.repeat)
-                peak = peak_mib(funcs["exact"])
+            t = interleaved(funcs, args.repeat)
+            peak = peak_mib(funcs["exact"])
 
             def ratio(a, b, t=t):
                 return f"{t[a][0] / t[b][0]:5.2f} ({t[a][2] / t[b][2]:4.2f})"

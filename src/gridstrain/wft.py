@@ -16,6 +16,7 @@ import numpy as np
 from scipy import fft as sfft
 from scipy import ndimage
 
+from . import _fft
 from ._validation import as_image, check_choice, check_mask, check_positive, check_workers
 from .lattice import Lattice
 
@@ -428,7 +429,14 @@ def _padded_rfft2(img: np.ndarray, m: np.ndarray, full: bool, ny: int, nx: int) 
     else:
         mean = float(np.mean(img[m], dtype=np.float64))
         padded[:H, :W] = np.where(m, img - dtype.type(mean), dtype.type(0))
-    return sfft.rfft2(padded, overwrite_x=True)
+    with _fft.backend():
+        return sfft.rfft2(padded, overwrite_x=True, workers=1)
+
+
+def _ifft(x: np.ndarray, axis: int) -> np.ndarray:
+    """In-place-allowed 1-D inverse FFT along ``axis``, on the chosen implementation."""
+    with _fft.backend():
+        return sfft.ifft(x, axis=axis, overwrite_x=True, workers=1)
 
 
 def _one_wave_vector(V, k, sigma, H, W, nx, psi, dphi, mod, work, *,
@@ -471,7 +479,7 @@ def _one_wave_vector(V, k, sigma, H, W, nx, psi, dphi, mod, work, *,
         np.multiply(block[src], gy[src, None], out=Y[0, dst])
         np.multiply(block[src], dgy[src, None], out=Y[1, dst])
     ratio = (dgx / gx).astype(cdtype)
-    A = sfft.ifft(Y, axis=1, overwrite_x=True)[:, :H]
+    A = _ifft(Y, 1)[:, :H]
     ry = sy / ny - k[1]
     if ry != 0:
         A *= np.exp(2j * math.pi * ry * np.arange(H)).astype(cdtype)[:, None]
@@ -494,7 +502,7 @@ def _one_wave_vector(V, k, sigma, H, W, nx, psi, dphi, mod, work, *,
             Xh[0, :, dst] = A[0, r0:r1, src]
             np.multiply(A[0, r0:r1, src], ratio[src], out=Xh[1, :, dst])
             Xh[2, :, dst] = A[1, r0:r1, src]
-        out = sfft.ifft(Xh, axis=2, overwrite_x=True)
+        out = _ifft(Xh, 2)
         c = out[0, :, :W]
         ps, dp = (psi[r0:r1], dphi[:, r0:r1]) if sink is None else (psi[:h], dphi[:, :h])
         if ex is None:
@@ -536,7 +544,7 @@ def _one_wave_vector_central(V, k, sigma, H, W, nx, psi, dphi, mod, work, *,
         Y[gap] = 0
     for dst, src in yruns:
         np.multiply(block[src], gy[src, None], out=Y[dst])
-    A = sfft.ifft(Y, axis=0, overwrite_x=True)
+    A = _ifft(Y, 0)
     # rows -1 .. H (row -1 of the periodic transform is row ny - 1), demodulated
     # along y by the residual (less than half a bin) left by the shift of the band
     Ae = work.get("Ae", (H + 2, cols.size), cdtype)
@@ -562,7 +570,7 @@ def _one_wave_vector_central(V, k, sigma, H, W, nx, psi, dphi, mod, work, *,
             Xh[:, gap] = 0
         for dst, src in xruns:
             Xh[:, dst] = Ae[r0:r1 + 2, src]
-        out = sfft.ifft(Xh, axis=1, overwrite_x=True)
+        out = _ifft(Xh, 1)
         c = out[1:-1, :W]
         if ex is None:
             psi[r0:r1] = c

@@ -1,0 +1,75 @@
+"""The FFT implementation is chosen once and entered in every thread that transforms."""
+
+from __future__ import annotations
+
+import importlib
+import threading
+from typing import ClassVar
+
+import numpy as np
+import pytest
+
+from gridstrain import Lattice, synthetic, wft
+from gridstrain.stacks import method_b
+
+_fft = importlib.import_module("gridstrain._fft")
+
+
+class _Spy:
+    """A scipy.fft backend that computes with numpy.fft and notes the calling threads."""
+
+    __ua_domain__ = "numpy.scipy.fft"
+    threads: ClassVar[set] = set()
+
+    @staticmethod
+    def __ua_function__(method, args, kwargs):
+        _Spy.threads.add(threading.current_thread().name)
+        kwargs = {k: v for k, v in kwargs.items() if k in ("axis", "axes", "s", "n")}
+        return getattr(np.fft, method.__name__)(*args, **kwargs)
+
+
+@pytest.fixture
+def spy(monkeypatch):
+    _Spy.threads = set()
+    monkeypatch.setattr(_fft, "_backend", lambda: _Spy)
+    return _Spy
+
+
+def _image(shape=(96, 112)):
+    lat = Lattice.from_pitch(5.0, angle=10.0)
+    rng = np.random.default_rng(3)
+    img = synthetic.grid_image(shape, lat, amplitude=1500.0)
+    return lat, synthetic.add_noise(img, rng=rng)
+
+
+def test_worker_threads_transform_on_the_chosen_implementation(spy):
+    lat, img = _image()
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(_fft, "_backend", lambda: None)
+        want = wft(img, lat)
+    got = wft(img, lat, workers=2)
+    # both wave vectors' threads went through the backend, not only the caller's
+    assert len(spy.threads - {threading.current_thread().name}) == 2
+    # numpy.fft and scipy.fft are both pocketfft, with other orders of operations:
+    # ~1e-16 relative on the maps, far below the 1e-9 rad/px of the oracle tests
+    np.testing.assert_allclose(got.dphi, want.dphi, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(got.psi, want.psi, rtol=1e-12, atol=1e-9)
+    spy.threads = set()
+    method_b([img, img, img], lat, workers=2)
+    assert len(spy.threads - {threading.current_thread().name}) == 2
+
+
+def test_choice_by_environment(monkeypatch):
+    _fft._backend.cache_clear()
+    monkeypatch.setenv("GRIDSTRAIN_FFT", "scipy")
+    assert _fft.name() == "scipy"
+    _fft._backend.cache_clear()
+    monkeypatch.setenv("GRIDSTRAIN_FFT", "fftw")
+    with pytest.raises(ValueError, match="GRIDSTRAIN_FFT must be one of"):
+        _fft.name()
+    _fft._backend.cache_clear()
+    if importlib.util.find_spec("mkl_fft") is None:
+        monkeypatch.setenv("GRIDSTRAIN_FFT", "mkl")
+        with pytest.raises(ImportError, match=r"gridstrain\[mkl\]"):
+            _fft.name()
+    _fft._backend.cache_clear()
