@@ -266,9 +266,11 @@ def wft(image, lattice: Lattice, *, sigma: float | None = None, mask=None,
     image's rows, for ``Psi``, ``dPsi/dx`` and ``dPsi/dy``, by blocks of rows that
     stay in cache. The window being separable, this equals the three 2-D inverse
     FFTs of the filtered spectra at about half their cost. At 1040 x 1376 px,
-    sigma = 5 px, one call takes about 2.6 times one rfft2 and two complex ifft2 of
+    sigma = 5 px, one call takes about 2.7 times one rfft2 and two complex ifft2 of
     the padded size, the least any FFT method needs for the two phase maps alone
-    (``benchmarks/bench_wft.py``).
+    (``benchmarks/bench_wft.py``); with ``workers=2``, 95 ms instead of 152 ms on two
+    cores. The FFTs run on the implementation :mod:`gridstrain._fft` chooses
+    (scipy.fft, or MKL with the ``mkl`` extra).
 
     Near the border or a mask edge the window is cut: results there are biased
     (for a noise-free grid at sigma = pitch, phase errors of 3e-3 rad at 2 sigma
