@@ -220,7 +220,7 @@ class _PhaseMean:
         With ``order``, ``index`` is the frame's rank in the stack (from 0), and its
         blocks are added after those of frame ``index - 1``.
         """
-        img = as_image(img, "frame", allow_uniform=True)
+        img = as_image(img, "frame")
         H, W = img.shape
         with self._lock:
             if not hasattr(self, "unit"):
@@ -254,7 +254,7 @@ class _PhaseMean:
                 order.release((j, r0), index)
 
         valid = _wft(img, lattice, sigma=sigma, mask=mask, margin=margin, sink=sink,
-                     work=work)
+                     work=work, checked=True)
         with self._lock:
             self.valid &= valid
             self.n += 1

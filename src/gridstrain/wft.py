@@ -283,7 +283,8 @@ def wft(image, lattice: Lattice, *, sigma: float | None = None, mask=None,
 
 def _wft(image, lattice: Lattice, *, sigma: float | None = None, mask=None,
          margin: float = DEFAULT_MARGIN, min_modulus: float = _MIN_MODULUS,
-         derivatives: str = "exact", sink=None, work=None, workers: int = 1):
+         derivatives: str = "exact", sink=None, work=None, workers: int = 1,
+         checked: bool = False):
     """:func:`wft`, with a choice of phase derivatives.
 
     ``derivatives="exact"`` (what :func:`wft` does): ``Im(conj(Psi) dPsi)/|Psi|^2``
@@ -305,14 +306,15 @@ def _wft(image, lattice: Lattice, *, sigma: float | None = None, mask=None,
     block -- and return only the validity map. Method B sums the frames that way,
     while the blocks are still in cache, without a frame's maps ever being whole.
     ``work`` (a :class:`_Workspace`) lends the scratch arrays, so that a caller
-    transforming many frames reuses the same pages.
+    transforming many frames reuses the same pages. ``checked``: ``image`` already
+    went through :func:`~gridstrain._validation.as_image` (a stack's frames do).
     """
     check_choice(derivatives, "derivatives", ("exact", "central"))
     if sink is not None and derivatives != "exact":
         raise ValueError("sink needs the exact derivatives")
     if not isinstance(lattice, Lattice):
         raise TypeError(f"lattice must be a Lattice, got {type(lattice).__name__}")
-    img = as_image(image)
+    img = image if checked else as_image(image)
     m = check_mask(mask, img.shape)
     if sigma is None:
         sigma = lattice.pitch
