@@ -210,7 +210,6 @@ class _PhaseMean:
         self.lattice = lattice
         self.sigma = float(lattice.pitch if sigma is None else sigma)
         self.dtype = np.dtype(dtype)
-        self.cdtype = np.result_type(dtype, np.complex64)
 
     def add_frame(self, img, lattice: Lattice, *, sigma=None, mask=None,
                   margin: float = DEFAULT_MARGIN, index: int = 0,
@@ -260,22 +259,15 @@ class _PhaseMean:
             self.n += 1
 
     def merge(self, other: _PhaseMean) -> _PhaseMean:
-        """A new accumulator holding the sums of ``self`` and ``other`` (unchanged)."""
+        """A new accumulator holding the sums of ``self`` and ``other`` (both
+        non-empty, unchanged)."""
         out = _PhaseMean()
         out.n = self.n + other.n
-        if self.n == 0 or other.n == 0:
-            src = other if self.n == 0 else self
-            if src.n:
-                out.__dict__.update({k: v.copy() if isinstance(v, np.ndarray) else v
-                                     for k, v in src.__getstate__().items()})
-                out.n = src.n
-            return out
         out.unit = self.unit + other.unit
         out.mod = self.mod + other.mod
         out.dphi = self.dphi + other.dphi
         out.valid = self.valid & other.valid
-        out.lattice, out.sigma, out.dtype, out.cdtype = (
-            self.lattice, self.sigma, self.dtype, self.cdtype)
+        out.lattice, out.sigma, out.dtype = self.lattice, self.sigma, self.dtype
         return out
 
     def result(self) -> StackResult:
@@ -283,7 +275,7 @@ class _PhaseMean:
         r = np.abs(mean_unit)
         with np.errstate(invalid="ignore", divide="ignore"):
             direction = np.where(r > 0, mean_unit / r, 0)
-        psi = (direction * (self.mod / self.n)).astype(self.cdtype)
+        psi = (direction * (self.mod / self.n)).astype(np.result_type(self.dtype, np.complex64))
         dphi = (self.dphi / self.n).astype(self.dtype)
         valid = self.valid & np.all(r > 0, axis=0)
         maps = PhaseMaps(psi=psi, dphi=dphi, valid=valid.copy(), lattice=self.lattice,

@@ -443,8 +443,8 @@ def _ifft(x: np.ndarray, axis: int) -> np.ndarray:
         return sfft.ifft(x, axis=axis, overwrite_x=True, workers=1)
 
 
-def _one_wave_vector(V, k, sigma, H, W, nx, psi, dphi, mod, work, *,
-                     chunk: int | None = None, sink=None):
+def _one_wave_vector(V, k, sigma, H, W, nx, psi, dphi, mod, work, *, chunk: int,
+                     sink=None):
     """Fill ``psi`` (H, W), ``dphi`` (2, H, W) and ``mod`` (H, W) for the wave vector ``k``.
 
     With ``sink``, ``psi`` and ``dphi`` hold one block of ``chunk`` rows: each block
@@ -460,8 +460,6 @@ def _one_wave_vector(V, k, sigma, H, W, nx, psi, dphi, mod, work, *,
     """
     ny = V.shape[0]
     cdtype = V.dtype
-    if chunk is None:
-        chunk = max(8, _CHUNK_BYTES // (3 * nx * cdtype.itemsize))
     rows, yruns, nuy, sy = _axis_band(ny, k[1], sigma)
     cols, xruns, nux, sx = _axis_band(nx, k[0], sigma)
     block = _spectrum_block(V, rows, cols, nx)
