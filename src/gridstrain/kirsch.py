@@ -182,8 +182,9 @@ def displacement(x, y, *, radius: float, remote_stress: float = 1.0,
     >>> import numpy as np
     >>> ux, uy = displacement(np.array([1000.0]), np.array([0.0]), radius=10.0,
     ...                       remote_stress=70.0)
-    >>> round(float(ux[0]), 4)  # far from the hole: S / E * x = 1e-3 * 1000
-    1.0
+    >>> # far from the hole, S / E * x = 1e-3 * 1000 plus the hole's a^2 / r terms
+    >>> round(float(ux[0]), 4)
+    1.0003
     """
     S = _check_real(remote_stress, "remote_stress")
     E, nu = _elastic(youngs_modulus, poisson_ratio)
