@@ -8,6 +8,7 @@ import pytest
 from numpy.testing import assert_allclose, assert_array_equal
 
 from gridstrain import Lattice, synthetic
+from gridstrain.io import MARKER_NAME
 from gridstrain.pipeline import measure_series
 from gridstrain.plotting import figure_names, plot_map, plot_shifts, save_figure, save_figures
 
@@ -88,7 +89,9 @@ def test_save_figures_count_and_names(tmp_path):
     names = figure_names(2)
     assert len(paths) == len(names) == 2 * 5 + 3
     assert [p.name for p in paths] == names
-    assert sorted(p.name for p in (tmp_path / "figs").iterdir()) == sorted(names)
+    # the figures and the marker listing them, nothing else
+    assert sorted(p.name for p in (tmp_path / "figs").iterdir()) == sorted(
+        [*names, MARKER_NAME])
     for p in paths:
         assert iio.imread(p).ndim == 3
     with pytest.raises(FileExistsError, match="overwrite"):

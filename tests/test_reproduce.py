@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from gridstrain import cli
+from gridstrain.io import MARKER_NAME
 from gridstrain.reproduce import QUANTITIES, reproduce
 
 TINY = {"size": (96, 96), "T": [1, 4, 16], "T_b": [1, 4], "repetitions": 1,
@@ -24,8 +25,10 @@ def tiny(tmp_path_factory):
 
 def test_writes_every_file(tiny):
     out, res, _ = tiny
-    names = sorted(p.name for p in out.iterdir())
+    names = sorted(p.name for p in out.iterdir() if p.name != MARKER_NAME)
     assert names == sorted(res["files"])
+    # the marker lists exactly these files, so that --overwrite replaces them only
+    assert sorted(json.loads((out / MARKER_NAME).read_text())["files"]) == names
     for name in names:
         if name.endswith(".png"):
             assert (out / name).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
@@ -108,8 +111,10 @@ def test_theory_values_follow_the_papers_laws(tiny):
 
 def test_existing_output_is_refused(tmp_path):
     (tmp_path / "keep.txt").write_text("mine")
-    with pytest.raises(FileExistsError, match="overwrite"):
-        reproduce(tmp_path, **TINY)
+    for overwrite in (False, True):
+        with pytest.raises(FileExistsError, match="not written by gridstrain"):
+            reproduce(tmp_path, overwrite=overwrite, **TINY)
+    assert [p.name for p in tmp_path.iterdir()] == ["keep.txt"]
     assert (tmp_path / "keep.txt").read_text() == "mine"
 
 
@@ -118,11 +123,13 @@ def test_overwrite_replaces_and_is_reproducible(tiny, tmp_path):
     # a second full run (about 5 s, most of it drawing the figures)
     _, first, _ = tiny
     out = tmp_path / "out"
-    out.mkdir()
-    (out / "stale.txt").write_text("old")
+    reproduce(out, **TINY)
+    (out / "notes.txt").write_text("mine")
     res = reproduce(out, overwrite=True, **dict(TINY, workers=2))
-    assert not (out / "stale.txt").exists()
-    assert sorted(p.name for p in out.iterdir()) == sorted(res["files"])
+    # gridstrain's files replaced, the user's note kept
+    assert (out / "notes.txt").read_text() == "mine"
+    assert sorted(p.name for p in out.iterdir()) == sorted(
+        [*res["files"], MARKER_NAME, "notes.txt"])
     # same seed, other process layout: the same numbers
     assert [r["rmse"] for r in res["records"]] == [r["rmse"] for r in first["records"]]
 
@@ -183,7 +190,7 @@ def test_cli_refuses_existing_output_in_one_line(tmp_path, capsys):
     assert rc == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1
-    assert "already exists" in err
+    assert "already exists and was not written by gridstrain" in err
 
 
 @pytest.mark.slow

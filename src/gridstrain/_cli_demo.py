@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import json
 import math
-import re
 import shlex
 import sys
 import time
@@ -26,10 +25,10 @@ import tifffile
 from . import kirsch, synthetic
 from ._cli_measure import jsonable, report_lines, summary
 from ._progress import bar
-from .io import atomic_path, open_series, read_mask, write_hdf5, write_tiff_series
+from .io import OutputDirectory, open_series, read_mask, write_hdf5, write_tiff_series
 from .lattice import Lattice
 from .pipeline import MAP_FIELDS, measure_series, save_result
-from .plotting import save_figures
+from .plotting import figure_names, save_figures
 
 # The simulated camera and specimen (paper §3.2 and README of the paper notes).
 _AMPLITUDE = 2400.0  # mean grey level of the grid, 12-bit levels: peaks at 3480 + black
@@ -38,7 +37,7 @@ _BLACK_LEVEL = 100.0  # the camera's offset, 12-bit levels (the hole shows it)
 _K, _L = 0.28, 5.0  # Poisson-Gaussian noise, Var = K l + L in 12-bit levels
 _BITS, _STORE_SCALE = 12, 16
 _PIXEL_SIZE, _UNIT = 0.04, "mm"  # 40 um per pixel on the specimen
-_FRAME_NAME = re.compile(r"frame\d+\.tif")
+_FRAME_DIGITS = 6
 
 
 def register(sub) -> None:
@@ -70,7 +69,8 @@ def register(sub) -> None:
                    help="averaging method (default A)")
     p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     p.add_argument("--overwrite", action="store_true",
-                   help="replace the files of an earlier demo in DIR")
+                   help="replace the files of an earlier demo in DIR (only those: DIR "
+                   "lists them in its .gridstrain file)")
     p.add_argument("--quiet", action="store_true", help="no progress bar and no report")
     p.add_argument("--json", action="store_true", help="print a JSON summary on stdout")
     p.set_defaults(func=run)
@@ -96,34 +96,31 @@ def _check(args) -> None:
         raise ValueError(f"--translation must be within +-20 px, got {args.translation}")
 
 
-def _prepare(out: Path, overwrite: bool) -> None:
-    """Create ``out``; refuse to replace an earlier demo unless ``overwrite``."""
-    if out.exists() and not out.is_dir():
-        raise NotADirectoryError(f"demo directory {out} is a file")
-    if not out.exists():
-        if not out.parent.is_dir():
-            raise FileNotFoundError(f"cannot create {out}: its parent {out.parent} does "
-                                    "not exist")
-        out.mkdir()
-    mine = [out / n for n in ("ref", "load", "mask.tif", "maps.h5", "truth.h5", "figures")]
-    taken = [p for p in mine if p.exists()]
-    if taken and not overwrite:
-        raise FileExistsError(f"{taken[0]} already exists from an earlier demo (pass "
-                              "--overwrite to replace it)")
-    for sub in ("ref", "load"):
-        d = out / sub
-        if d.is_dir():
-            # frames of an earlier, longer series would join the new one
-            for f in d.iterdir():
-                if f.is_file() and _FRAME_NAME.fullmatch(f.name):
-                    f.unlink()
+def _frame_name(k: int) -> str:
+    return f"frame{k:0{_FRAME_DIGITS}d}.tif"
+
+
+def _prepare(out: Path, frames: int, overwrite: bool) -> OutputDirectory:
+    """Check ``out``: only the files of an earlier demo are replaced, with ``overwrite``.
+
+    The frame folders must hold the demo's frames only (anything else there would
+    join the series measured); the figures folder keeps its own list.
+    """
+    names = [f"{sub}/{_frame_name(k)}" for sub in ("ref", "load") for k in range(frames)]
+    names += ["mask.tif", "maps.h5", "truth.h5"]
+    directory = OutputDirectory(out, names, overwrite=overwrite, exclusive=("ref", "load"),
+                                what="demo directory")
+    if (out / "figures").exists():
+        OutputDirectory(out / "figures", figure_names(1), overwrite=overwrite,
+                        what="figures directory")
+    return directory
 
 
 def run(args) -> int:
     _check(args)
     t0 = time.perf_counter()
     out = Path(args.out).expanduser()
-    _prepare(out, args.overwrite)
+    directory = _prepare(out, args.frames, args.overwrite)
     progress = bar(quiet=args.quiet)
     rng = np.random.default_rng(args.seed)
     n, T, a = args.size, args.frames, float(args.radius)
@@ -161,13 +158,16 @@ def run(args) -> int:
         shifts[state] = np.array(true)
 
     progress(0.0, "simulating the reference frames")
-    write_tiff_series(out / "ref", frames("reference", None, 0), overwrite=True)
-    write_tiff_series(out / "load", frames("loaded", loaded, T), overwrite=True)
+    directory.prepare()
+    directory.record(*write_tiff_series(out / "ref", frames("reference", None, 0),
+                                        digits=_FRAME_DIGITS))
+    directory.record(*write_tiff_series(out / "load", frames("loaded", loaded, T),
+                                        digits=_FRAME_DIGITS))
     yy, xx = np.mgrid[0:n, 0:n].astype(np.float64)
     # the specimen in the reference image, one pixel clear of the hole's edge
     mask = (xx - centre[0]) ** 2 + (yy - centre[1]) ** 2 > (a + 1) ** 2
-    with atomic_path(out / "mask.tif", overwrite=True) as tmp:
-        tifffile.imwrite(tmp, (mask * 255).astype(np.uint8), photometric="minisblack")
+    directory.write("mask.tif", lambda fh: tifffile.imwrite(
+        fh, (mask * 255).astype(np.uint8), photometric="minisblack"))
     t1 = time.perf_counter()
 
     ref = open_series(out / "ref", name="reference")
@@ -179,8 +179,8 @@ def run(args) -> int:
 
     result = measure_series(ref, [load], method=args.method, mask=m, progress=measuring)
     maps = save_result(result, out / "maps.h5", pixel_size=_PIXEL_SIZE, unit=_UNIT,
-                       overwrite=True, attrs={"mask_file": str(out / "mask.tif"),
-                                              "demo": "gridstrain demo"})
+                       attrs={"mask_file": str(out / "mask.tif"), "demo": "gridstrain demo"})
+    directory.record(maps)
     figs = save_figures(result, out / "figures", pixel_size=_PIXEL_SIZE, unit=_UNIT,
                         overwrite=True,
                         progress=lambda f, msg: progress(0.9 + 0.1 * f, msg))
@@ -200,7 +200,8 @@ def run(args) -> int:
                 "translation_px": [tx, ty], "vibration_std_px": args.vibration,
                 "shifts": "frame t is s(x + alpha_t, y + beta_t)"},
                units={"ux": "px", "uy": "px", "exx": "1", "eyy": "1", "exy": "1",
-                      "shifts_reference": "px", "shifts_loaded": "px"}, overwrite=True)
+                      "shifts_reference": "px", "shifts_loaded": "px"})
+    directory.record(out / "truth.h5")
     v = result.valid[0]
     errors = {}
     for name in MAP_FIELDS:

@@ -25,7 +25,7 @@ from ._cli_common import (
     positive_option,
 )
 from ._progress import bar
-from .io import open_series, read_mask
+from .io import OutputDirectory, open_series, read_mask
 from .pipeline import (
     FWHM_PER_SIGMA,
     MAP_FIELDS,
@@ -188,17 +188,9 @@ def _check_outputs(opts: dict, n_states: int, inputs: set[Path]) -> None:
             raise ValueError(f"--csv {csv} is the output file itself")
         check_output_file(csv, "CSV file", opts["overwrite"], inputs)
     if opts.get("figures"):
-        d = Path(os.path.expanduser(opts["figures"]))
-        if d.exists() and not d.is_dir():
-            raise NotADirectoryError(f"figures directory {d} is a file")
-        if not d.exists() and not d.parent.is_dir():
-            raise FileNotFoundError(f"cannot create figures directory {d}: its parent "
-                                    f"{d.parent} does not exist")
-        if d.is_dir() and not opts["overwrite"]:
-            for name in figure_names(n_states):
-                if (d / name).exists():
-                    raise FileExistsError(f"figure {d / name} already exists (pass "
-                                          "--overwrite to replace it)")
+        # only figures an earlier run wrote there are replaced (its marker lists them)
+        OutputDirectory(os.path.expanduser(opts["figures"]), figure_names(n_states),
+                        overwrite=opts["overwrite"], what="figures directory")
 
 
 def _input_files(sources) -> set[Path]:

@@ -17,7 +17,7 @@ from ._cli_common import (
     print_json,
 )
 from ._progress import bar
-from .io import atomic_path, open_series, write_hdf5
+from .io import open_series, write_atomic, write_hdf5
 from .lattice import detect_lattice
 from .noise import estimate_noise
 from .uncertainty import noise_floor
@@ -101,8 +101,8 @@ def run(args) -> int:
     }
     if out is not None:
         if out.suffix.lower() == ".json":
-            with atomic_path(out, overwrite=args.overwrite) as tmp:
-                tmp.write_text(json.dumps(summary, indent=2, default=float))
+            write_atomic(out, json.dumps(summary, indent=2, default=float).encode("utf-8"),
+                         overwrite=args.overwrite)
         else:
             attrs = dict(summary, version=__version__,
                          created=datetime.now(UTC).isoformat(timespec="seconds"))

@@ -31,7 +31,9 @@ Output
 from __future__ import annotations
 
 import contextlib
+import errno
 import glob
+import io
 import json
 import numbers
 import os
@@ -49,14 +51,19 @@ import tifffile
 
 __all__ = [
     "IMAGE_EXTENSIONS",
+    "MARKER_NAME",
     "FrameSeries",
+    "OutputDirectory",
     "atomic_path",
     "check_saturation",
     "check_saturation_limit",
+    "hdf5_in_memory",
     "natural_sort_key",
     "open_series",
     "read_hdf5",
     "read_mask",
+    "space_error",
+    "write_atomic",
     "write_csv",
     "write_hdf5",
     "write_tiff_series",
@@ -815,6 +822,20 @@ def _fsync(path: Path) -> None:
         os.close(fd)
 
 
+def _check_destination(path, overwrite: bool) -> Path:
+    """The destination of :func:`atomic_path`, checked before anything is written."""
+    dest = _as_path(path, "path")
+    parent = dest.parent
+    if not parent.is_dir():
+        raise FileNotFoundError(f"output directory {parent} does not exist (for {dest})")
+    if dest.is_dir():
+        raise IsADirectoryError(f"output path {dest} is a directory")
+    if dest.exists() and not overwrite:
+        raise FileExistsError(f"output file {dest} already exists (pass overwrite=True "
+                              "to replace it)")
+    return dest
+
+
 @contextlib.contextmanager
 def atomic_path(path, *, overwrite: bool = False) -> Iterator[Path]:
     """Write a file atomically: yield a temporary path, rename it onto ``path``.
@@ -847,15 +868,8 @@ def atomic_path(path, *, overwrite: bool = False) -> Iterator[Path]:
     IsADirectoryError
         ``path`` is a directory.
     """
-    dest = _as_path(path, "path")
+    dest = _check_destination(path, overwrite)
     parent = dest.parent
-    if not parent.is_dir():
-        raise FileNotFoundError(f"output directory {parent} does not exist (for {dest})")
-    if dest.is_dir():
-        raise IsADirectoryError(f"output path {dest} is a directory")
-    if dest.exists() and not overwrite:
-        raise FileExistsError(f"output file {dest} already exists (pass overwrite=True "
-                              "to replace it)")
     # a name that nothing else uses; the writer creates the file itself, with the
     # permissions it would give the destination
     tmp = parent / f".{dest.name}.{secrets.token_hex(6)}.tmp{dest.suffix}"
@@ -868,10 +882,72 @@ def atomic_path(path, *, overwrite: bool = False) -> Iterator[Path]:
             raise FileExistsError(f"output file {dest} appeared while it was being "
                                   "written (pass overwrite=True to replace it)")
         os.replace(tmp, dest)
-    except BaseException:
+    except BaseException as exc:
         with contextlib.suppress(FileNotFoundError):
             tmp.unlink()
+        if isinstance(exc, OSError) and exc.errno in _SPACE_ERRORS:
+            raise space_error(exc, dest) from None
         raise
+
+
+# Write errors that mean "no room for this file": the disk or the quota is full, or
+# the file outgrew a size limit (``ulimit -f``, the file system's maximum).
+_SPACE_ERRORS = {e for e in (errno.ENOSPC, errno.EFBIG, getattr(errno, "EDQUOT", None))
+                 if e is not None}
+
+
+def space_error(exc: OSError, path) -> OSError:
+    """A one-line ``OSError`` for a write that ran out of room, naming ``path``.
+
+    ``exc`` is the error of the failed write (ENOSPC, EFBIG or EDQUOT); the result
+    keeps its errno and says what it means and what to do.
+    """
+    code = errno.errorcode.get(exc.errno, str(exc.errno))
+    hint = {errno.EFBIG: "the file exceeds the size limit of this process or file "
+                         "system (see `ulimit -f`)"}.get(exc.errno, "free some space or "
+                                                                     "write elsewhere")
+    return OSError(exc.errno, f"cannot write {path}: {os.strerror(exc.errno).lower()} "
+                              f"({code}); nothing was written; {hint}")
+
+
+def write_atomic(path, data, *, overwrite: bool = False) -> Path:
+    """Write ``data`` (bytes, or a callable filling a binary file) to ``path`` atomically.
+
+    The content is built in memory first and then written with ordinary file calls
+    through :func:`atomic_path`, so that a full disk or a file size limit (ENOSPC,
+    EDQUOT, EFBIG) raises one ``OSError`` naming ``path`` and leaves nothing
+    behind, whatever library produced the bytes (HDF5, TIFF, PNG...).
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        Destination; see :func:`atomic_path` for ``overwrite``.
+    data : bytes-like or callable
+        The file content, or ``fill(fh)`` writing it into a binary file object
+        (an :class:`io.BytesIO`).
+    overwrite : bool
+        Replace an existing file.
+
+    Returns
+    -------
+    pathlib.Path
+        ``path``.
+    """
+    dest = _as_path(path, "path")
+    if callable(data):
+        buf = io.BytesIO()
+        data(buf)
+        data = buf.getbuffer()
+    view = memoryview(data).cast("B")
+    with atomic_path(dest, overwrite=overwrite) as tmp:
+        fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
+        try:
+            done = 0
+            while done < len(view):
+                done += os.write(fd, view[done:done + (1 << 24)])
+        finally:
+            os.close(fd)
+    return dest
 
 
 def _json_default(obj):
@@ -891,10 +967,16 @@ def _encode_attr(key, value, where: str):
     if key == _JSON_ATTRS:
         raise ValueError(f"{where}[{key!r}]: the name {_JSON_ATTRS!r} is reserved")
     label = f"{where}[{key!r}]"
-    if isinstance(value, str):
-        return value, False
     if isinstance(value, os.PathLike):
-        return os.fspath(value), False
+        value = os.fspath(value)
+    if isinstance(value, str):
+        try:
+            value.encode("utf-8")
+        except UnicodeEncodeError:
+            # a path with a byte that is not UTF-8 (decoded by Python with
+            # surrogateescape): HDF5 stores UTF-8 only, JSON escapes it exactly
+            return json.dumps(value), True
+        return value, False
     if isinstance(value, bool | np.bool_):
         return np.bool_(value), False
     if isinstance(value, numbers.Integral):
@@ -1030,8 +1112,8 @@ def write_hdf5(path, datasets: Mapping[str, np.ndarray], attrs: Mapping | None =
         for key, value in _check_mapping(gattrs, f"groups[{g!r}]", allow_none=False).items():
             _encode_attr(key, value, f"groups[{g!r}]")
 
-    dest = _as_path(path, "path")
-    with atomic_path(dest, overwrite=overwrite) as tmp, h5py.File(tmp, "x") as h5:
+    dest = _check_destination(path, overwrite)  # refused before the file is built
+    with hdf5_in_memory() as h5:
         _write_attrs(h5, attrs, "attrs")
         for key, arr in arrays.items():
             if arr.ndim > 0 and arr.size > 1 and compression is not None:
@@ -1046,7 +1128,23 @@ def write_hdf5(path, datasets: Mapping[str, np.ndarray], attrs: Mapping | None =
                 dset.attrs[_UNITS_ATTR] = units[key]
         for g, gattrs in groups.items():
             _write_attrs(h5.require_group(g), gattrs, f"groups[{g!r}]")
-    return dest
+        h5.flush()
+        image = h5.id.get_file_image()
+    return write_atomic(dest, image, overwrite=overwrite)
+
+
+@contextlib.contextmanager
+def hdf5_in_memory() -> Iterator[h5py.File]:
+    """A new HDF5 file that lives in memory only (h5py's ``core`` driver).
+
+    Build the file in the block, then take its bytes with
+    ``h5.id.get_file_image()`` (after ``h5.flush()``) and write them with
+    :func:`write_atomic`: HDF5 itself then never writes to disk, so that a full
+    disk is an ordinary ``OSError`` rather than a crash inside the HDF5 library.
+    """
+    name = f"gridstrain-{os.getpid()}-{secrets.token_hex(8)}.h5"
+    with h5py.File(name, "w", driver="core", backing_store=False) as h5:
+        yield h5
 
 
 def read_hdf5(path) -> dict:
@@ -1239,8 +1337,198 @@ def write_tiff_series(directory, frames: Iterable, *, prefix: str = "frame",
                                  f"outside the {dt} range [{lo}, {hi}]")
         out = arr.astype(dt, copy=False)
         dest = folder / f"{prefix}{start + k:0{digits}d}.tif"
-        with atomic_path(dest, overwrite=overwrite) as tmp:
-            tifffile.imwrite(tmp, out, photometric="minisblack")
+        write_atomic(dest, lambda fh, out=out: tifffile.imwrite(fh, out,
+                                                                photometric="minisblack"),
+                     overwrite=overwrite)
         written.append(dest)
     return tuple(written)
 
+
+
+# --------------------------------------------------------------------------- directories
+
+#: Name of the file listing what gridstrain wrote in an output directory.
+MARKER_NAME = ".gridstrain"
+
+
+def _stamp(path: Path) -> list[int]:
+    st = os.lstat(path)
+    return [int(st.st_size), int(st.st_mtime_ns)]
+
+
+class OutputDirectory:
+    """A directory of outputs in which gridstrain replaces only its own files.
+
+    Every file written through :meth:`write` (or declared by :meth:`record`) is
+    listed, with its size and modification time, in a marker file
+    (:data:`MARKER_NAME`, JSON) in the directory. A later run may replace those
+    files, with ``overwrite``, if they are unchanged; any other file of the
+    planned names is never replaced, deleted or written over, whatever
+    ``overwrite`` says. Files of other names are left alone.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The directory; created by :meth:`prepare` if missing.
+    names : iterable of str
+        Relative paths (``"maps.h5"``, ``"ref/frame000000.tif"``) this run will write.
+    overwrite : bool
+        Replace the files an earlier run wrote and listed in the marker (all of them,
+        so that an earlier, longer series leaves no frame behind).
+    exclusive : iterable of str
+        Sub-directories that must hold gridstrain's files only (a folder of frames
+        read back as a series: a foreign image there would join it).
+    parents : bool
+        Create missing parent directories (otherwise the parent must exist).
+    adopt : bool
+        Accept an existing, non-empty directory without a marker (the new files
+        are then added beside the others). False refuses it.
+    what : str
+        What the directory is, for messages.
+
+    Raises
+    ------
+    FileExistsError
+        A planned file exists that gridstrain did not write (or that changed
+        since), a foreign file sits in an ``exclusive`` sub-directory, or the
+        directory holds an earlier run's files and ``overwrite`` is False.
+    NotADirectoryError, FileNotFoundError
+        ``path`` is a file, or its parent does not exist.
+
+    Notes
+    -----
+    Every refusal happens on construction and again in :meth:`prepare`, before
+    any file is touched.
+    """
+
+    def __init__(self, path, names, *, overwrite: bool = False, exclusive=(),
+                 parents: bool = False, adopt: bool = True,
+                 what: str = "output directory"):
+        self.what = _check_name(what)
+        self.path = _as_path(path, what)
+        self.names = tuple(self._rel(n) for n in names)
+        self.exclusive = tuple(self._rel(d) for d in exclusive)
+        self.overwrite = bool(overwrite)
+        self.parents = bool(parents)
+        self.adopt = bool(adopt)
+        self._check()
+
+    @property
+    def marker(self) -> Path:
+        """The marker file."""
+        return self.path / MARKER_NAME
+
+    def _rel(self, name) -> str:
+        if not isinstance(name, str) or not name:
+            raise TypeError(f"{self.what}: file names must be non-empty strings, got "
+                            f"{name!r}")
+        parts = Path(name).parts
+        if Path(name).is_absolute() or ".." in parts or name == MARKER_NAME:
+            raise ValueError(f"{self.what}: {name!r} is not a plain relative file name")
+        return Path(*parts).as_posix()
+
+    def _manifest(self) -> dict[str, list[int]]:
+        if not self.marker.is_file():
+            return {}
+        try:
+            data = json.loads(self.marker.read_text(encoding="utf-8"))
+            files = data["files"]
+            out = {}
+            for k, v in files.items():
+                rel = self._rel(k)
+                if not (isinstance(v, list) and len(v) == 2
+                        and all(isinstance(x, int) for x in v)):
+                    raise ValueError(k)
+                out[rel] = v
+            return out
+        except (OSError, ValueError, KeyError, TypeError, AttributeError):
+            raise ValueError(f"{self.marker} is not a gridstrain manifest; refusing to "
+                             f"write into {self.path} (move the file away)") from None
+
+    def _check(self) -> dict[str, list[int]]:
+        """The earlier files to remove; raise on anything that is not ours."""
+        p = self.path
+        if p.exists() and not p.is_dir():
+            raise NotADirectoryError(f"{self.what} {p} is a file")
+        if not p.exists():
+            if not self.parents and not p.parent.is_dir():
+                raise FileNotFoundError(f"cannot create {self.what} {p}: its parent "
+                                        f"{p.parent} does not exist")
+            return {}
+        if not self.adopt and not self.marker.exists() and any(p.iterdir()):
+            raise FileExistsError(f"{self.what} {p} already exists and was not written by "
+                                  "gridstrain (it has no .gridstrain marker); choose a new "
+                                  "folder, nothing there is replaced")
+        manifest = self._manifest()
+        ours = {}
+        for rel, stamp in manifest.items():
+            f = p / rel
+            if not (f.exists() or f.is_symlink()):
+                continue
+            if not f.is_file() or f.is_symlink() or _stamp(f) != stamp:
+                raise FileExistsError(f"{f} has changed since gridstrain wrote it; "
+                                      f"refusing to replace it (move it away or choose "
+                                      f"another {self.what})")
+            ours[rel] = stamp
+        for rel in self.names:
+            f = p / rel
+            if (f.exists() or f.is_symlink()) and rel not in ours:
+                raise FileExistsError(f"{f} exists and was not written by gridstrain; "
+                                      f"refusing to replace it (move it away or choose "
+                                      f"another {self.what})")
+        for d in self.exclusive:
+            sub = p / d
+            if sub.is_dir():
+                for e in sorted(sub.iterdir()):
+                    if not e.name.startswith(".") and f"{d}/{e.name}" not in ours:
+                        raise FileExistsError(
+                            f"{e} was not written by gridstrain, and {sub} must hold "
+                            f"gridstrain's files only; move it away or choose another "
+                            f"{self.what}")
+            elif sub.exists() or sub.is_symlink():
+                raise FileExistsError(f"{sub} exists and is not a directory; move it away "
+                                      f"or choose another {self.what}")
+        if ours and not self.overwrite:
+            first = p / next(iter(ours))
+            raise FileExistsError(f"{self.what} {p} holds the files of an earlier "
+                                  f"gridstrain run ({first}...); pass --overwrite "
+                                  "(overwrite=True) to replace them")
+        return ours
+
+    def prepare(self) -> None:
+        """Create the directory; remove, with ``overwrite``, the earlier run's files.
+
+        Only files listed in the marker and unchanged since are removed; the marker
+        is rewritten first, so that an interruption leaves no file unlisted.
+        """
+        ours = self._check()
+        self.path.mkdir(parents=self.parents, exist_ok=True)
+        for rel in {*self.names, *self.exclusive}:
+            parent = (self.path / rel) if rel in self.exclusive else (self.path / rel).parent
+            parent.mkdir(parents=True, exist_ok=True)
+        for rel in ours:
+            with contextlib.suppress(FileNotFoundError):
+                (self.path / rel).unlink()
+        self._save({})
+
+    def _save(self, files: dict) -> None:
+        from . import __version__
+
+        text = json.dumps({"gridstrain": __version__,
+                           "note": "files written by gridstrain, which replaces only these",
+                           "files": files}, indent=1)
+        write_atomic(self.marker, text.encode("utf-8"), overwrite=True)
+
+    def record(self, *paths) -> None:
+        """Add files written in the directory to the marker."""
+        files = self._manifest()
+        for f in paths:
+            rel = Path(os.fspath(f)).resolve().relative_to(self.path.resolve()).as_posix()
+            files[self._rel(rel)] = _stamp(self.path / rel)
+        self._save(files)
+
+    def write(self, name: str, data) -> Path:
+        """Write ``name`` with :func:`write_atomic` and list it in the marker."""
+        dest = write_atomic(self.path / self._rel(name), data, overwrite=False)
+        self.record(dest)
+        return dest

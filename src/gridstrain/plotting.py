@@ -30,7 +30,7 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.colors import Normalize
 from matplotlib.figure import Figure
 
-from .io import atomic_path
+from .io import OutputDirectory, write_atomic
 from .pipeline import SeriesResult, _check_pixel_size
 
 __all__ = [
@@ -195,11 +195,16 @@ def plot_shifts(shifts, *, title: str = "") -> Figure:
 
 
 def save_figure(fig: Figure, path, *, overwrite: bool = False) -> Path:
-    """Write ``fig`` as a PNG, atomically (see :func:`gridstrain.io.atomic_path`)."""
-    dest = Path(os.fspath(path))
-    with atomic_path(dest, overwrite=overwrite) as tmp:
-        fig.savefig(tmp, format="png", dpi=_DPI)
-    return dest
+    """Write ``fig`` as a PNG, atomically (see :func:`gridstrain.io.write_atomic`).
+
+    The PNG is drawn in memory and then written, so that a full disk is one
+    ``OSError`` naming the file and leaves nothing behind.
+    """
+    return write_atomic(Path(os.fspath(path)), _png(fig), overwrite=overwrite)
+
+
+def _png(fig: Figure):
+    return lambda fh: fig.savefig(fh, format="png", dpi=_DPI)
 
 
 def figure_names(n_states: int) -> list[str]:
@@ -219,13 +224,16 @@ def save_figures(result, directory, *, pixel_size: float | None = None,
     ----------
     result : SeriesResult
     directory : str or os.PathLike
-        Created if missing (its parent must exist).
+        Created if missing (its parent must exist). The figures are listed in
+        its marker file (:class:`gridstrain.io.OutputDirectory`).
     pixel_size : float, optional
         Pixel size in ``unit``: displacements and axes in that unit.
     unit : str, optional
         Length unit, required with ``pixel_size``.
     overwrite : bool
-        Replace existing figures of the same names.
+        Replace the figures an earlier call wrote in ``directory`` (and only
+        those: a file of the same name that gridstrain did not write, or that
+        changed since, is refused).
     progress : callable, optional
         ``progress(fraction, message)``.
 
@@ -239,20 +247,9 @@ def save_figures(result, directory, *, pixel_size: float | None = None,
     if not isinstance(result, SeriesResult):
         raise TypeError(f"result must be a SeriesResult, got {type(result).__name__}")
     ps, unit = _check_pixel_size(pixel_size, unit)
-    folder = Path(os.fspath(directory))
     names = figure_names(result.n_states)
-    if folder.exists() and not folder.is_dir():
-        raise NotADirectoryError(f"figures directory {folder} is a file")
-    if not overwrite:
-        taken = [n for n in names if (folder / n).exists()]
-        if taken:
-            raise FileExistsError(f"figure {folder / taken[0]} already exists (pass "
-                                  "overwrite=True to replace it)")
-    if not folder.is_dir():
-        if not folder.parent.is_dir():
-            raise FileNotFoundError(f"cannot create figures directory {folder}: its parent "
-                                    f"{folder.parent} does not exist")
-        folder.mkdir()
+    out = OutputDirectory(directory, names, overwrite=overwrite, what="figures directory")
+    out.prepare()
     report = progress or (lambda f, m: None)
     total = len(names)
     written = []
@@ -271,12 +268,11 @@ def save_figures(result, directory, *, pixel_size: float | None = None,
             fig = plot_map(values, valid=valid, background=result.reference_image,
                            label=symbol, unit=u, title=title, pixel_size=ps,
                            length_unit=unit or "px", offset=offset)
-            written.append(save_figure(fig, folder / f"{name}_state{i}.png",
-                                       overwrite=overwrite))
+            written.append(out.write(f"{name}_state{i}.png", _png(fig)))
             report(len(written) / total, f"figure {len(written)}/{total}")
     for v, fname in zip(result.vibration, names[5 * result.n_states:], strict=True):
         fig = plot_shifts(v.shifts, title=f"vibrations of the {v.name} series "
                                           f"({v.n_frames} frames)")
-        written.append(save_figure(fig, folder / fname, overwrite=overwrite))
+        written.append(out.write(fname, _png(fig)))
         report(len(written) / total, f"figure {len(written)}/{total}")
     return tuple(written)

@@ -47,8 +47,6 @@ import itertools
 import json
 import math
 import os
-import shutil
-import tempfile
 import time
 from pathlib import Path
 
@@ -57,6 +55,7 @@ import numpy as np
 from . import __version__
 from ._progress import Progress, null_progress
 from ._validation import check_positive
+from .io import OutputDirectory
 from .lattice import Lattice
 from .paper import (
     MAX_DERIVATIVE,
@@ -285,14 +284,17 @@ def reproduce(out_dir, *, quick: bool = False, overwrite: bool = False, seed: in
     Parameters
     ----------
     out_dir : str or Path
-        Output folder, created atomically (written in a temporary sibling folder,
-        then renamed). It must not exist unless ``overwrite``.
+        Output folder, created if missing (parents included). Each file is written
+        atomically and listed in the folder's marker file
+        (:class:`gridstrain.io.OutputDirectory`); files of other names are left
+        alone, and a file of the same name that gridstrain did not write is
+        refused.
     quick : bool
         Use :data:`QUICK` defaults (256 x 256, 7 values of T up to 1000, method B up
         to 100, one repetition; about a minute) instead of :data:`FULL` (512 x 512,
         10 values up to 1000, B up to 200, three repetitions; about 15 minutes).
     overwrite : bool
-        Replace an existing ``out_dir``.
+        Replace the files an earlier run wrote in ``out_dir`` (only those).
     seed : int
         Seed of every random draw; the same seed gives the same results.
     K, L : float
@@ -341,9 +343,9 @@ def reproduce(out_dir, *, quick: bool = False, overwrite: bool = False, seed: in
     """
     progress = progress or null_progress
     out = Path(out_dir)
-    if out.exists() and not overwrite:
-        raise FileExistsError(f"out_dir {str(out)!r} already exists; pass overwrite=True "
-                              f"(--overwrite) to replace it")
+    # refused now, not after the run: a folder holding files gridstrain did not write
+    directory = OutputDirectory(out, _FILES, overwrite=overwrite, parents=True,
+                                adopt=False, what="out_dir")
     preset = QUICK if quick else FULL
     H, W = (int(v) for v in (size if size is not None else preset["size"]))
     if H < 64 or W < 64:
@@ -511,7 +513,7 @@ def reproduce(out_dir, *, quick: bool = False, overwrite: bool = False, seed: in
     timing["total_run_seconds"] = time.perf_counter() - t_start
     result = {"parameters": parameters, "records": records, "slopes": slopes,
               "timing": timing, "checks": checks}
-    _write(out, result, phases, exact_der, gt, region, levels, overwrite=overwrite)
+    _write(directory, result, phases, gt, region, levels)
     result = dict(result, out_dir=str(out), files=list(_FILES))
     return result
 
@@ -591,29 +593,13 @@ def _checks(records, slopes, cases, levels, timing) -> dict:
 
 # ------------------------------------------------------------------------ writing
 
-def _write(out: Path, result, phases, exact_der, gt, region, levels, *, overwrite):
-    parent = out.parent if str(out.parent) else Path(".")
-    parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", suffix=".tmp", dir=parent))
-    try:
-        with open(tmp / "results.json", "w", encoding="utf-8") as fh:
-            json.dump({k: result[k] for k in ("parameters", "records", "slopes", "timing",
-                                              "checks")}, fh, indent=1)
-        (tmp / "summary.md").write_text(_summary(result), encoding="utf-8")
-        _figures(tmp, result, phases, gt, region, levels)
-        if out.exists() or out.is_symlink():
-            if not overwrite:
-                raise FileExistsError(f"out_dir {str(out)!r} appeared while running; "
-                                      f"nothing overwritten")
-            old = Path(tempfile.mkdtemp(prefix=f".{out.name}.", suffix=".old", dir=parent))
-            os.replace(out, old / "previous")
-            os.replace(tmp, out)
-            shutil.rmtree(old, ignore_errors=True)
-        else:
-            os.replace(tmp, out)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
+def _write(directory: OutputDirectory, result, phases, gt, region, levels):
+    directory.prepare()
+    text = json.dumps({k: result[k] for k in ("parameters", "records", "slopes", "timing",
+                                              "checks")}, indent=1)
+    directory.write("results.json", text.encode("utf-8"))
+    directory.write("summary.md", _summary(result).encode("utf-8"))
+    _figures(directory, result, phases, gt, region, levels)
 
 
 _CASE_STYLE = {1: "tab:red", 2: "tab:orange", 3: "tab:green", 4: "tab:blue"}
@@ -641,7 +627,11 @@ def _panel(ax, records, method, q, cases, letter):
     ax.grid(True, which="both", alpha=0.3)
 
 
-def _figures(folder: Path, result, phases, gt, region, levels):
+def _save(directory: OutputDirectory, name: str, fig, dpi: int) -> None:
+    directory.write(name, lambda fh: fig.savefig(fh, format="png", dpi=dpi))
+
+
+def _figures(folder: OutputDirectory, result, phases, gt, region, levels):
     from matplotlib.figure import Figure  # no pyplot: no global state, Agg canvas
 
     records = result["records"]
@@ -657,7 +647,7 @@ def _figures(folder: Path, result, phases, gt, region, levels):
         axes[0, 0].legend(fontsize=7)
         fig.suptitle(f"Method {method}: RMSE against the ground truth "
                      f"(solid: measured, dashed: small-noise theory)", fontsize=10)
-        fig.savefig(folder / name, dpi=90)
+        _save(folder, name, fig, 90)
 
     fig = Figure(figsize=(6, 4.5))
     ax = fig.subplots()
@@ -668,7 +658,7 @@ def _figures(folder: Path, result, phases, gt, region, levels):
     ax.set_title("Averaged image vs s (dashed: eq. 4 theory, dotted: Prop. 2.1 level)",
                  fontsize=9)
     ax.legend(fontsize=7)
-    fig.savefig(folder / "fig5c_image_rmse.png", dpi=90)
+    _save(folder, "fig5c_image_rmse.png", fig, 90)
 
     fig = Figure(figsize=(13, 7.5))
     axes = fig.subplots(2, 3)
@@ -689,7 +679,7 @@ def _figures(folder: Path, result, phases, gt, region, levels):
         ax.set_xlabel("x (px)")
         ax.set_ylabel("y (px)")
         fig.colorbar(im, ax=ax, shrink=0.8)
-    fig.savefig(folder / "fig4_phase_maps.png", dpi=80)
+    _save(folder, "fig4_phase_maps.png", fig, 80)
 
 
 def _fmt(v, digits=3):
