@@ -186,11 +186,13 @@ def test_cli_maps_options_to_the_library(monkeypatch, capsys, tmp_path):
 
 
 def test_cli_refuses_existing_output_in_one_line(tmp_path, capsys):
-    rc = cli.main(["reproduce", "--out", str(tmp_path), "--quiet"])
+    (tmp_path / "thesis.tex").write_text("mine")
+    rc = cli.main(["reproduce", "--out", str(tmp_path), "--quiet", "--overwrite"])
     assert rc == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1
     assert "already exists and was not written by gridstrain" in err
+    assert [p.name for p in tmp_path.iterdir()] == ["thesis.tex"]
 
 
 @pytest.mark.slow
