@@ -44,8 +44,12 @@ _CONFIG_KEYS = {
     "sigma": "float", "method": "method", "mask": "path", "pixel-size": "float",
     "unit": "str", "no-lagrangian": "bool", "guess": "pair", "margin": "float",
     "csv": "path", "figures": "path", "quiet": "bool", "json": "bool",
-    "overwrite": "bool", "bit-depth": "int", "scheduler": "str",
+    "overwrite": "bool", "bit-depth": "int", "scheduler": "str", "timeout": "float",
 }
+
+# Seconds the command waits for a cluster's result of one series: an hour covers
+# thousands of method-B transforms on a few workers, and ends a stalled run.
+_TIMEOUT = 3600.0
 
 _EXAMPLE = """example:
   gridstrain measure ref/ load1/ load2/ -o maps.h5 --mask mask.tif \\
@@ -106,6 +110,9 @@ def register(sub) -> None:
                    help="compute the statistics and method B's transforms on Dask: "
                    "'local' (a worker per core) or a scheduler's tcp://HOST:PORT, whose "
                    "workers must see the input files at the same paths")
+    d.add_argument("--timeout", type=float, metavar="SECONDS",
+                   help=f"with --scheduler, give up on a cluster that returns no result "
+                   f"for a series within SECONDS (default {_TIMEOUT:g})")
     p.set_defaults(func=run)
 
 
@@ -172,6 +179,7 @@ def _options(args) -> dict:
         opts[name] = bool(opts.get(name, False))
     opts.setdefault("method", "A")
     opts.setdefault("margin", DEFAULT_MARGIN)
+    opts.setdefault("timeout", _TIMEOUT)
     if not opts.get("output"):
         raise ValueError("the output file is missing: pass -o OUT.h5 (or output = ... in "
                          "the config file)")
@@ -191,6 +199,18 @@ def _check_outputs(opts: dict, n_states: int, inputs: set[Path]) -> None:
         # only figures an earlier run wrote there are replaced (its marker lists them)
         OutputDirectory(os.path.expanduser(opts["figures"]), figure_names(n_states),
                         overwrite=opts["overwrite"], what="figures directory")
+
+
+def _refuse_empty(result: SeriesResult) -> None:
+    """A state without a single valid pixel is a failure, never a written result."""
+    for i in range(result.n_states):
+        if not result.valid[i].any():
+            g = result.guesses[i]
+            raise ValueError(
+                f"{result.names[i + 1]}: no valid pixel, nothing written: the mask, the "
+                f"band of margin = {result.margin:g} sigmas (sigma {result.sigma:.4g} px), "
+                f"the grid's modulus and the displacement (guess {g[0]:.4g}, {g[1]:.4g} "
+                f"px, {result.guess_sources[i]}) leave no pixel to measure")
 
 
 def _input_files(sources) -> set[Path]:
@@ -391,7 +411,7 @@ def run(args) -> int:
 def _run(args, progress: _Bar) -> int:
     t0 = time.perf_counter()
     opts = _options(args)
-    for name in ("sigma", "margin", "pixel-size"):
+    for name in ("sigma", "margin", "pixel-size", "timeout"):
         positive_option(opts, name)
     if (opts.get("pixel-size") is None) != (opts.get("unit") is None):
         raise ValueError("--pixel-size and --unit go together (e.g. --pixel-size 0.04 "
@@ -421,7 +441,8 @@ def _run(args, progress: _Bar) -> int:
                             method=opts["method"], mask=mask,
                             lagrangian=not opts["no-lagrangian"], guess=guess,
                             margin=opts["margin"], progress=progress,
-                            scheduler=opts.get("scheduler"))
+                            scheduler=opts.get("scheduler"), timeout=opts["timeout"])
+    _refuse_empty(result)
     ps, unit = opts.get("pixel-size"), opts.get("unit")
     extra = {"options": dict(opts.items()),
              "config_file": args.config or "", "mask_file": opts.get("mask") or ""}

@@ -2,15 +2,22 @@
 
 Each sub-command lives in a module ``gridstrain._cli_<name>`` exposing
 ``register(subparsers)``, which adds its parser and sets ``func`` to a callable
-``func(args) -> int``. User errors (``ValueError``, ``TypeError``, ``OSError``)
-become one line on stderr and exit code 2; the library itself never prints.
+``func(args) -> int``. User errors (``ValueError``, ``TypeError``, ``OSError``,
+a full disk included) become one line on stderr and exit code 2; the library
+itself never prints. So do a lack of memory and a failing Dask cluster. SIGINT
+(exit 130) and SIGTERM (exit 143) unwind the stack like an exception, so that
+every temporary file is removed before the one-line message; a file size limit
+(SIGXFSZ, ``ulimit -f``) is an error of the write, not a kill.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import importlib
+import signal
 import sys
+import threading
 
 from . import __version__
 
@@ -40,19 +47,75 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+class Terminated(BaseException):
+    """Raised in the main thread by SIGTERM, so that clean-ups run (exit 143)."""
+
+
+def _interrupt(signum, frame):
+    # a second signal must not break the clean-up the first one started
+    for s in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(s, signal.SIG_IGN)
+    raise KeyboardInterrupt if signum == signal.SIGINT else Terminated
+
+
+@contextlib.contextmanager
+def _signals():
+    """SIGINT and SIGTERM raise; SIGXFSZ is ignored (the write fails with EFBIG)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    wanted = {signal.SIGINT: _interrupt, signal.SIGTERM: _interrupt}
+    if hasattr(signal, "SIGXFSZ"):
+        wanted[signal.SIGXFSZ] = signal.SIG_IGN
+    old = {s: signal.signal(s, h) for s, h in wanted.items()}
+    try:
+        yield
+    finally:
+        for s, h in old.items():
+            signal.signal(s, h)
+
+
+def _one_line(exc: BaseException) -> str:
+    text = str(exc).strip()
+    return text.splitlines()[0] if text else type(exc).__name__
+
+
+def _is_dask_error(exc: BaseException) -> bool:
+    """An error of the Dask cluster itself (lost scheduler, killed workers...)."""
+    import concurrent.futures
+
+    mod = type(exc).__module__ or ""
+    return mod.split(".")[0] in ("distributed", "tornado") \
+        or isinstance(exc, concurrent.futures.CancelledError)
+
+
 def main(argv=None) -> int:
     """Entry point of the ``gridstrain`` console script."""
     parser = build_parser()
     args = parser.parse_args(argv)
+    where = f"gridstrain {args.command}"
     try:
-        return int(args.func(args) or 0)
+        with _signals():
+            return int(args.func(args) or 0)
     except (ValueError, TypeError, OSError) as exc:
-        msg = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-        print(f"gridstrain {args.command}: error: {msg}", file=sys.stderr)
+        print(f"{where}: error: {_one_line(exc)}", file=sys.stderr)
+        return 2
+    except MemoryError:
+        print(f"{where}: error: out of memory; use fewer or smaller frames, a smaller "
+              "--sigma, method A, or --scheduler to spread the work", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
-        print(f"gridstrain {args.command}: interrupted", file=sys.stderr)
+        print(f"{where}: interrupted; no partial output left", file=sys.stderr)
         return 130
+    except Terminated:
+        print(f"{where}: terminated (SIGTERM); no partial output left", file=sys.stderr)
+        return 143
+    except Exception as exc:
+        if not _is_dask_error(exc):
+            raise
+        print(f"{where}: error: the Dask cluster failed ({type(exc).__name__}: "
+              f"{_one_line(exc)}); check the scheduler and its workers", file=sys.stderr)
+        return 2
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -716,13 +716,22 @@ class _Pending:
     the tasks that read it have run).
     """
 
-    def __init__(self, future, scattered):
+    def __init__(self, future, scattered, what: str = "a series"):
         self._future = future
         self._scattered = scattered
+        self._what = what
 
-    def result(self):
+    def result(self, timeout: float | None = None):
+        """The result, waiting at most ``timeout`` seconds (None: for ever)."""
         try:
-            return self._future.result()
+            return self._future.result(timeout=timeout)
+        except TimeoutError:
+            if not self._future.done():
+                raise TimeoutError(
+                    f"the Dask cluster returned no result for {self._what} within "
+                    f"{timeout:g} s; check that its workers run (or raise --timeout)"
+                    ) from None
+            raise
         finally:
             self._future = self._scattered = None
 
@@ -752,7 +761,7 @@ def _submit_statistics(client, series, c, mask, max_saturation: float) -> _Pendi
                   max_saturation, check) for a in range(0, T, step)]
     total = _tree(parts, _add_series_sums, _SPLIT_EVERY)
     return _Pending(client.compute(dask.delayed(_with_first, pure=True)(first, total)),
-                    (s, m))
+                    (s, m), f"the statistics of {getattr(series, 'name', 'a series')}")
 
 
 def _series_block_sums(series, start, stop, lattice, sigma, mask, margin):
@@ -771,7 +780,8 @@ def _submit_method_b(client, series, lattice, sigma, mask, margin) -> _Pending:
     leaf = dask.delayed(_series_block_sums, pure=True)
     parts = [leaf(s, t, t + 1, lattice, sigma, m, margin) for t in range(series.n_frames)]
     result = dask.delayed(_method_b_result, pure=True)(_tree(parts, _add_sums, _SPLIT_EVERY))
-    return _Pending(client.compute(result), (s, m))
+    return _Pending(client.compute(result), (s, m),
+                    f"method B on {getattr(series, 'name', 'a series')}")
 
 
 def _check_scheduler(scheduler):

@@ -35,6 +35,7 @@ import errno
 import glob
 import io
 import json
+import logging
 import numbers
 import os
 import re
@@ -181,25 +182,94 @@ def _describe(path: Path, page: int, n_pages: int) -> str:
 # --------------------------------------------------------------------------- readers
 
 
+class _TiffLog(logging.Handler):
+    """Collects what tifffile logs (it reports damaged files as log warnings)."""
+
+    def __init__(self):
+        super().__init__(logging.WARNING)
+        self.messages: list[str] = []
+
+    def emit(self, record):
+        self.messages.append(record.getMessage())
+
+
+@contextlib.contextmanager
+def _tiff_log() -> Iterator[_TiffLog]:
+    # tifffile's warnings are turned into errors by the callers: a damaged file is
+    # never read "as well as possible" in silence
+    logger = logging.getLogger("tifffile")
+    handler = _TiffLog()
+    propagate = logger.propagate
+    logger.addHandler(handler)
+    logger.propagate = False
+    try:
+        yield handler
+    finally:
+        logger.removeHandler(handler)
+        logger.propagate = propagate
+
+
+def _check_tiff_log(log: _TiffLog, where: str, name: str) -> None:
+    if log.messages:
+        msg = log.messages[0].splitlines()[0] if log.messages[0] else ""
+        msg = re.sub(r"^<[^>]*>\s*", "", msg) or "damaged file"
+        raise OSError(f"{name}: {where} is damaged or truncated ({msg}); refusing to use "
+                      "what remains of the file")
+
+
 @contextlib.contextmanager
 def _open_tiff(path: Path, name: str) -> Iterator[tifffile.TiffFile]:
     try:
-        tif = tifffile.TiffFile(path)
+        with _tiff_log() as log:
+            tif = tifffile.TiffFile(path)
+        try:
+            _check_tiff_log(log, str(path), name)
+        except BaseException:
+            tif.close()
+            raise
     except (FileNotFoundError, PermissionError):
         raise  # the message names the path
+    except OSError as exc:
+        if str(exc).startswith(f"{name}:"):
+            raise
+        raise OSError(f"{name}: cannot read {path} as a TIFF file ({exc})") from exc
     except Exception as exc:
         raise OSError(f"{name}: cannot read {path} as a TIFF file ({exc})") from exc
     with tif:
         yield tif
 
 
+def _codec_hint(page, exc: Exception) -> str | None:
+    """A message naming a compression this installation cannot decode, or None."""
+    compression = getattr(page, "compression", None)
+    if compression is None or int(compression) == 1:  # 1: no compression
+        return None
+    if isinstance(exc, ImportError) or "imagecodecs" in str(exc):
+        codec = getattr(compression, "name", str(compression))
+        return (f"its pages are {codec}-compressed and no decoder for {codec} is "
+                "installed: pip install imagecodecs")
+    return None
+
+
 def _read_tiff_page(tif: tifffile.TiffFile, page: int, where: str, name: str) -> np.ndarray:
     try:
-        return tif.pages[page].asarray()
+        with _tiff_log() as log:
+            p = tif.pages[page]
+            end = max((o + c for o, c in zip(p.dataoffsets, p.databytecounts, strict=False)),
+                      default=0)
+            if end > tif.filehandle.size:
+                raise OSError(f"the page's data end at byte {end} but the file has "
+                              f"{tif.filehandle.size} bytes (truncated file)")
+            arr = p.asarray()
+        _check_tiff_log(log, where, name)
+        return arr
     except MemoryError:
         raise
     except Exception as exc:  # truncated data, unknown compression, bad offsets
-        raise OSError(f"{name}: cannot read {where}: {exc}") from exc
+        if str(exc).startswith(f"{name}:"):
+            raise
+        hint = _codec_hint(tif.pages[page], exc)
+        raise OSError(f"{name}: cannot read {where}: {hint or exc}") from exc
 
 
 def _imageio():
@@ -230,19 +300,30 @@ def _scan_file(path: Path, name: str) -> _FileInfo:
     """Read the headers of ``path`` (no pixel data) and check every page."""
     if _is_tiff(path):
         with _open_tiff(path, name) as tif:
-            n = len(tif.pages)
+            with _tiff_log() as log:
+                n = len(tif.pages)
+            _check_tiff_log(log, f"{path} from page {n} on" if n else str(path), name)
             if n == 0:
                 raise OSError(f"{name}: {path} contains no readable image page "
                               "(corrupt TIFF?)")
             shapes, dtypes = [], []
             for k in range(n):
                 try:
-                    page = tif.pages[k]
-                    shape, samples, dtype = page.shape, page.samplesperpixel, page.dtype
+                    with _tiff_log() as log:
+                        page = tif.pages[k]
+                        shape, samples, dtype = page.shape, page.samplesperpixel, page.dtype
+                        end = max((o + c for o, c in zip(page.dataoffsets,
+                                                         page.databytecounts, strict=False)),
+                                  default=0)
                 except MemoryError:
                     raise
                 except Exception as exc:
                     raise OSError(f"{name}: cannot read page {k} of {path}: {exc}") from exc
+                _check_tiff_log(log, _describe(path, k, n), name)
+                if end > tif.filehandle.size:
+                    raise OSError(f"{name}: {_describe(path, k, n)} is truncated: "
+                                  f"its data end at byte {end} but the file has "
+                                  f"{tif.filehandle.size} bytes")
                 _check_page(shape, samples, dtype, _describe(path, k, n), name)
                 shapes.append(tuple(int(s) for s in shape))
                 dtypes.append(np.dtype(dtype))

@@ -473,6 +473,36 @@ def _check_guess(guess):
     return (float(g[0]), float(g[1]))
 
 
+def _min_side(sigma: float, margin: float) -> int:
+    """Smallest frame side, px, with a valid pixel: a band of ``margin`` sigmas each side."""
+    return 2 * math.ceil(margin * sigma) + 1
+
+
+def _check_fit(shape, sigma, margin: float, guess) -> None:
+    """Refuse, before any frame is read, a window or a guess that cannot fit the frames."""
+    H, W = shape
+    if sigma is not None and min(H, W) < _min_side(sigma, margin):
+        top = (min(H, W) - 1) / (2 * margin)
+        raise ValueError(f"sigma must be at most {top:.4g} px for frames of {H} x {W} px "
+                         f"(the window and its invalid band of margin = {margin:g} sigmas "
+                         f"on each side must leave a pixel), got {sigma:.4g}")
+    if isinstance(guess, tuple) and (abs(guess[0]) >= W or abs(guess[1]) >= H):
+        raise ValueError(f"guess must lie within the frame, |u_x| < {W} px and |u_y| < {H} "
+                         f"px (a larger displacement leaves no pixel of the specimen to "
+                         f"compare), got ({guess[0]:g}, {guess[1]:g})")
+
+
+def _check_pitch_fits(shape, pitch: float, margin: float) -> None:
+    """Refuse frames too small for a window of one pitch and its invalid band."""
+    H, W = shape
+    need = _min_side(pitch, margin)
+    if min(H, W) < need:
+        raise ValueError(f"the frames ({H} x {W} px) are too small for the grid's pitch "
+                         f"({pitch:.3g} px): a window of sigma >= the pitch with its band "
+                         f"of margin = {margin:g} sigmas needs frames of at least {need} x "
+                         f"{need} px")
+
+
 # --------------------------------------------------------------------------- progress
 
 
@@ -789,7 +819,8 @@ def measure_series(reference, states, *, lattice: Lattice | None = None,
                    sigma: float | None = None, method: str = "A", mask=None,
                    lagrangian: bool = True, guess="auto", margin: float = DEFAULT_MARGIN,
                    bit_depth: int | None = None, max_saturation: float = _MAX_SATURATION,
-                   progress: Progress | None = None, scheduler=None) -> SeriesResult:
+                   progress: Progress | None = None, scheduler=None,
+                   timeout: float | None = None) -> SeriesResult:
     """Displacement and strain maps of loaded states from series of grid images.
 
     Parameters
@@ -835,6 +866,9 @@ def measure_series(reference, states, *, lattice: Lattice | None = None,
         shifts, the lattice, the noise floor and the kinematics stay on this
         machine. Results equal those without a scheduler to the rounding of sums
         added in another order.
+    timeout : float, optional
+        With a scheduler: the longest wait, s, for the cluster's result of one
+        series (TimeoutError past it: a stalled cluster). None waits for ever.
 
     Returns
     -------
@@ -872,6 +906,7 @@ def measure_series(reference, states, *, lattice: Lattice | None = None,
     if lattice is not None and not isinstance(lattice, Lattice):
         raise TypeError(f"lattice must be a Lattice or None, got {type(lattice).__name__}")
     scheduler = _check_scheduler(scheduler)
+    timeout = check_positive(timeout, "timeout", allow_none=True)
     if sigma is not None and lattice is not None and sigma < lattice.pitch * (1 - 1e-9):
         raise ValueError(f"sigma must be at least the pitch ({lattice.pitch:.4g} px) so "
                          f"that the window holds one period, got {sigma:.4g}")
@@ -883,6 +918,9 @@ def measure_series(reference, states, *, lattice: Lattice | None = None,
         if s.shape != ref.shape:
             raise ValueError(f"{s.name}: frames are {s.shape} (H, W) but the reference "
                              f"frames are {ref.shape}")
+    _check_fit(ref.shape, sigma, margin, guess)
+    if lattice is not None:
+        _check_pitch_fits(ref.shape, lattice.pitch, margin)
     if isinstance(mask, str | os.PathLike):
         m = read_mask(mask, ref.shape)
     else:
@@ -907,7 +945,16 @@ def measure_series(reference, states, *, lattice: Lattice | None = None,
         try:
             lattice = detect_lattice(mean_ref, mask=m)
         except ValueError as exc:
+            # frames smaller than a common 5-px pitch needs: say so first
+            need = _min_side(2.0, margin)
+            if min(ref.shape) < _min_side(5.0, margin):
+                raise ValueError(f"reference: no grid detected on frames of {ref.shape[0]} "
+                                 f"x {ref.shape[1]} px, too small for the grid method: a "
+                                 f"window of sigma >= the pitch with its band of margin = "
+                                 f"{margin:g} sigmas needs {need} px for a 2-px pitch, "
+                                 f"{_min_side(5.0, margin)} px for a 5-px pitch") from None
             raise ValueError(f"reference: {exc}") from None
+        _check_pitch_fits(ref.shape, lattice.pitch, margin)
     sigma = lattice.pitch if sigma is None else sigma
     if sigma < lattice.pitch * (1 - 1e-9):
         raise ValueError(f"sigma must be at least the pitch ({lattice.pitch:.4g} px) so "
@@ -933,7 +980,7 @@ def measure_series(reference, states, *, lattice: Lattice | None = None,
         for k, s in enumerate(series):
             n = s.n_frames
             if client is not None:
-                first, s1, s2, sva, worst = stats[k].result()
+                first, s1, s2, sva, worst = stats[k].result(timeout)
                 stats[k] = _finish_statistics(first, s1, s2, sva, vib[k].shifts, worst)
                 steps.step(n, f"{s.name}: statistics")
             st = stats[k]
@@ -949,7 +996,7 @@ def measure_series(reference, states, *, lattice: Lattice | None = None,
             masks.append(used)
         if client is not None and method == "B":
             for k, s in enumerate(series):
-                maps[k] = finite_derivatives(maps[k].result().maps)
+                maps[k] = finite_derivatives(maps[k].result(timeout).maps)
                 steps.step(s.n_frames * wft_cost, f"{s.name}: method B")
 
     mean_ref = stats[0].mean
