@@ -97,9 +97,6 @@ def main(argv=None) -> int:
     try:
         with _signals():
             return int(args.func(args) or 0)
-    except (ValueError, TypeError, OSError) as exc:
-        print(f"{where}: error: {_one_line(exc)}", file=sys.stderr)
-        return 2
     except MemoryError:
         print(f"{where}: error: out of memory; use fewer or smaller frames, a smaller "
               "--sigma, method A, or --scheduler to spread the work", file=sys.stderr)
@@ -111,11 +108,16 @@ def main(argv=None) -> int:
         print(f"{where}: terminated (SIGTERM); no partial output left", file=sys.stderr)
         return 143
     except Exception as exc:
-        if not _is_dask_error(exc):
-            raise
-        print(f"{where}: error: the Dask cluster failed ({type(exc).__name__}: "
-              f"{_one_line(exc)}); check the scheduler and its workers", file=sys.stderr)
-        return 2
+        # a lost connection is an OSError too: the cluster is named first
+        if _is_dask_error(exc):
+            print(f"{where}: error: the Dask cluster failed ({type(exc).__name__}: "
+                  f"{_one_line(exc)}); check the scheduler and its workers",
+                  file=sys.stderr)
+            return 2
+        if isinstance(exc, ValueError | TypeError | OSError):
+            print(f"{where}: error: {_one_line(exc)}", file=sys.stderr)
+            return 2
+        raise
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -1,0 +1,436 @@
+"""Faults and bad inputs: one line on stderr, a non-zero exit, nothing left behind.
+
+Each case runs the command line as a user would and checks three things: exactly
+one line on stderr, a non-zero exit code, and no output file and no temporary
+file in the output folder. Then ``--overwrite``: gridstrain replaces only the
+files it wrote, whatever folder it is pointed at.
+
+The series are written here with numpy and tifffile only: a sinusoidal grid of
+pitch 5 px (two crossed cosines, 12-bit levels stored x16 in uint16, Gaussian
+noise of 5 levels), the loaded state translated by 0.3 px and stretched by 1e-3
+along x. Nothing of gridstrain's generator is used.
+"""
+
+from __future__ import annotations
+
+import errno
+import json
+import os
+import signal
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import numpy as np
+import pytest
+import tifffile
+
+import gridstrain
+from gridstrain import io as gio
+from gridstrain.cli import main
+from gridstrain.io import MARKER_NAME, read_hdf5
+
+N, PITCH = 96, 5.0
+SRC = str(Path(gridstrain.__file__).resolve().parents[1])
+
+
+def _grid(shape, *, ux=0.0, strain=0.0, rng):
+    """12-bit grid frames stored x16: A (1 + 0.8 (cos 2pi x/p + cos 2pi y/p) / 2)."""
+    yy, xx = np.mgrid[0:shape[0], 0:shape[1]].astype(float)
+    x0 = xx - ux - strain * (xx - shape[1] / 2)  # reference point of each pixel
+    img = 2000.0 * (1 + 0.4 * (np.cos(2 * np.pi * x0 / PITCH)
+                               + np.cos(2 * np.pi * yy / PITCH)))
+    img = np.clip(np.rint(img + rng.normal(0, 5, shape)), 0, 4095)
+    return (img * 16).astype(np.uint16)
+
+
+@pytest.fixture(scope="module")
+def data(tmp_path_factory):
+    root = tmp_path_factory.mktemp("faults")
+    rng = np.random.default_rng(15)
+    ref = np.stack([_grid((N, N), rng=rng) for _ in range(5)])
+    load = np.stack([_grid((N, N), ux=0.3, strain=1e-3, rng=rng) for _ in range(5)])
+    tifffile.imwrite(root / "ref.tif", ref, photometric="minisblack")
+    tifffile.imwrite(root / "load.tif", load, photometric="minisblack")
+    # a multi-page stack cut at 60 % of its bytes
+    stack = root / "stack.tif"
+    tifffile.imwrite(stack, ref, photometric="minisblack")
+    raw = stack.read_bytes()
+    (root / "truncated.tif").write_bytes(raw[: int(0.6 * len(raw))])
+    tifffile.imwrite(root / "small.tif", ref[0, :16, :16], photometric="minisblack")
+    return root
+
+
+def _run(argv):
+    try:
+        return main([os.fspath(a) if isinstance(a, Path) else str(a) for a in argv])
+    except SystemExit as exc:
+        return exc.code
+
+
+def _leftovers(folder: Path) -> list[str]:
+    return sorted(p.name for p in folder.iterdir())
+
+
+def _one_line_failure(capsys, rc, folder: Path, *, expect_rc=2) -> str:
+    err = capsys.readouterr().err
+    assert rc == expect_rc, err
+    lines = err.strip("\n").split("\n")
+    assert len(lines) == 1, err
+    assert _leftovers(folder) == []  # no output, no temporary file
+    return lines[0]
+
+
+# ------------------------------------------------------------------ bad inputs
+
+
+def test_truncated_stack_names_file_and_page(data, tmp_path, capsys):
+    rc = _run(["measure", data / "truncated.tif", data / "load.tif", "-o",
+               tmp_path / "o.h5", "--quiet"])
+    line = _one_line_failure(capsys, rc, tmp_path)
+    assert "truncated.tif" in line
+    assert "page 1" in line  # the first page that cannot be read
+    assert "truncated" in line
+
+
+@pytest.mark.parametrize("compression", ["zstd", "lzw"])
+def test_compressed_tiffs_are_read(data, tmp_path, compression):
+    pytest.importorskip("imagecodecs")
+    raw = tifffile.imread(data / "ref.tif")
+    p = tmp_path / f"{compression}.tif"
+    tifffile.imwrite(p, raw, photometric="minisblack", compression=compression)
+    series = gio.open_series(p)
+    np.testing.assert_array_equal(series.read(3, dtype=None), raw[3])  # lossless
+
+
+def test_missing_codec_names_it_and_the_package(data, tmp_path):
+    p = tmp_path / "z.tif"
+    tifffile.imwrite(p, tifffile.imread(data / "ref.tif")[0], photometric="minisblack",
+                     compression="zstd")
+    out = tmp_path / "out"
+    out.mkdir()
+    # a Python without imagecodecs: the module is blocked before tifffile imports it
+    code = textwrap.dedent(f"""
+        import sys
+        sys.modules["imagecodecs"] = None
+        sys.modules["compression"] = None
+        from gridstrain.cli import main
+        sys.exit(main(["measure", {str(p)!r}, {str(data / 'load.tif')!r}, "-o",
+                       {str(out / 'o.h5')!r}, "--quiet"]))
+    """)
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                       env=dict(os.environ, PYTHONPATH=SRC), timeout=120)
+    assert r.returncode == 2, r.stderr
+    assert len(r.stderr.strip().splitlines()) == 1, r.stderr
+    assert "ZSTD" in r.stderr
+    assert "pip install imagecodecs" in r.stderr
+    assert _leftovers(out) == []
+
+
+def test_huge_sigma_refused_with_the_limit(data, tmp_path, capsys):
+    rc = _run(["measure", data / "ref.tif", data / "load.tif", "-o", tmp_path / "o.h5",
+               "--sigma", "1e6", "--quiet"])
+    line = _one_line_failure(capsys, rc, tmp_path)
+    # (96 - 1) / (2 * 4): the window's band of 4 sigmas on each side must leave a pixel
+    assert "sigma must be at most 11.88 px" in line
+
+
+def test_guess_beyond_the_image_refused(data, tmp_path, capsys):
+    rc = _run(["measure", data / "ref.tif", data / "load.tif", "-o", tmp_path / "o.h5",
+               "--guess", "1e6", "1e6", "--quiet"])
+    line = _one_line_failure(capsys, rc, tmp_path)
+    assert "guess must lie within the frame" in line
+    assert f"< {N} px" in line
+
+
+def test_no_valid_pixel_is_not_a_result(data, tmp_path, capsys):
+    # a specimen of 30 x 30 px: the band of 4 sigmas (20 px) inside its edge leaves
+    # nothing
+    mask = np.zeros((N, N), np.uint8)
+    mask[30:60, 30:60] = 255
+    tifffile.imwrite(tmp_path.parent / f"{tmp_path.name}_mask.tif", mask)
+    rc = _run(["measure", data / "ref.tif", data / "load.tif", "-o", tmp_path / "o.h5",
+               "--mask", tmp_path.parent / f"{tmp_path.name}_mask.tif", "--quiet",
+               "--pitch", "5"])
+    line = _one_line_failure(capsys, rc, tmp_path)
+    assert "no valid pixel" in line
+
+
+@pytest.mark.parametrize("pitch", [None, "5"])
+def test_tiny_image_says_too_small_with_the_minimum(data, tmp_path, capsys, pitch):
+    extra = ["--pitch", pitch] if pitch else []
+    rc = _run(["measure", data / "small.tif", data / "small.tif", "-o", tmp_path / "o.h5",
+               "--quiet", *extra])
+    line = _one_line_failure(capsys, rc, tmp_path)
+    assert "16 x 16 px" in line
+    assert "too small" in line
+    if pitch:  # 2 * ceil(4 sigmas of 5 px) + 1
+        assert "at least 41 x 41 px" in line
+
+
+def test_mask_path_with_a_non_utf8_byte(data, tmp_path, capsys):
+    name = os.fsdecode(b"mask\xff.tif")  # Python decodes the byte as a surrogate
+    mask = np.full((N, N), 255, np.uint8)
+    tifffile.imwrite(tmp_path / name, mask)
+    rc = _run(["measure", data / "ref.tif", data / "load.tif", "-o", tmp_path / "o.h5",
+               "--mask", tmp_path / name, "--quiet"])
+    assert rc == 0, capsys.readouterr().err
+    # the file names the mask exactly, byte for byte
+    attrs = read_hdf5(tmp_path / "o.h5")["attrs"]
+    assert os.fsencode(attrs["mask_file"]) == os.fsencode(str(tmp_path / name))
+
+
+# ------------------------------------------------------------------ full disk
+
+
+class _OsProxy:
+    """``os`` for gridstrain.io, whose writes to files under ``folder`` fail (ENOSPC)."""
+
+    def __init__(self, folder: Path):
+        self._folder = str(folder)
+        self._fds: set[int] = set()
+
+    def __getattr__(self, name):
+        return getattr(os, name)
+
+    def open(self, path, flags, *args):
+        fd = os.open(path, flags, *args)
+        if os.fspath(path).startswith(self._folder):
+            self._fds.add(fd)
+        return fd
+
+    def write(self, fd, data):
+        if fd in self._fds:
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+        return os.write(fd, data)
+
+
+class _FullFile:
+    """A text file whose writes fail with ENOSPC after 1000 characters."""
+
+    def __init__(self, fh):
+        self._fh, self._n = fh, 0
+
+    def write(self, text):
+        self._n += len(text)
+        if self._n > 1000:
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+        return self._fh.write(text)
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self._fh.close()
+
+
+def _disk_full_under(monkeypatch, folder: Path) -> None:
+    """Every write of gridstrain.io into ``folder`` fails as on a full disk."""
+    monkeypatch.setattr(gio, "os", _OsProxy(folder))
+
+    def fake_open(path, *args, **kw):
+        fh = open(path, *args, **kw)  # noqa: SIM115 (closed by the caller's with)
+        return _FullFile(fh) if os.fspath(path).startswith(str(folder)) else fh
+
+    monkeypatch.setattr(gio, "open", fake_open, raising=False)
+
+
+@pytest.mark.parametrize("what", ["hdf5", "csv", "figures"])
+def test_disk_full_is_one_line_and_leaves_nothing(data, tmp_path, capsys, monkeypatch, what):
+    out = tmp_path / "out"
+    out.mkdir()
+    argv = ["measure", data / "ref.tif", data / "load.tif", "--quiet"]
+    if what == "hdf5":
+        argv += ["-o", out / "o.h5"]
+    else:  # the HDF5 file is written elsewhere; the second output meets the full disk
+        argv += ["-o", tmp_path / "o.h5"]
+        argv += ["--csv", out / "o.csv"] if what == "csv" else ["--figures", out / "figs"]
+    _disk_full_under(monkeypatch, out)
+    rc = _run(argv)
+    err = capsys.readouterr().err
+    assert rc == 2, err
+    assert len(err.strip().splitlines()) == 1, err
+    assert "no space left on device (ENOSPC); nothing was written" in err
+    assert f"cannot write {out}" in err
+    if what == "figures":  # the folder was created; no figure and no temporary file
+        assert _leftovers(out / "figs") == []
+    else:
+        assert _leftovers(out) == []
+
+
+def test_file_size_limit_is_one_line_and_leaves_nothing(data, tmp_path):
+    """A real RLIMIT_FSIZE (``ulimit -f``): the kernel refuses the write with EFBIG."""
+    pytest.importorskip("resource")
+    out = tmp_path / "out"
+    out.mkdir()
+    code = textwrap.dedent(f"""
+        import resource, sys
+        from gridstrain.cli import main
+        resource.setrlimit(resource.RLIMIT_FSIZE, (20000, 20000))
+        sys.exit(main(["measure", {str(data / 'ref.tif')!r}, {str(data / 'load.tif')!r},
+                       "-o", {str(out / 'o.h5')!r}, "--quiet"]))
+    """)
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                       env=dict(os.environ, PYTHONPATH=SRC), timeout=120)
+    assert r.returncode == 2, r.stderr
+    assert len(r.stderr.strip().splitlines()) == 1, r.stderr
+    assert "EFBIG" in r.stderr
+    assert str(out / "o.h5") in r.stderr
+    assert _leftovers(out) == []
+
+
+# ------------------------------------------------------------------ signals and memory
+
+
+@pytest.mark.parametrize(("sig", "rc", "word"), [("SIGTERM", 143, "terminated"),
+                                                 ("SIGINT", 130, "interrupted")])
+def test_signal_during_the_write_cleans_up(data, tmp_path, sig, rc, word):
+    """The signal is sent from inside the first write of the output: no timing."""
+    out = tmp_path / "out"
+    out.mkdir()
+    code = textwrap.dedent(f"""
+        import os, signal, sys
+        import gridstrain.io as gio
+        from gridstrain.cli import main
+        real = os.write
+        def write(fd, data):
+            os.kill(os.getpid(), signal.{sig})
+            return real(fd, data)
+        gio.os = type(sys)("os_proxy")
+        gio.os.__dict__.update({{k: getattr(os, k) for k in dir(os)}})
+        gio.os.write = write
+        sys.exit(main(["measure", {str(data / 'ref.tif')!r}, {str(data / 'load.tif')!r},
+                       "-o", {str(out / 'o.h5')!r}, "--quiet"]))
+    """)
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                       env=dict(os.environ, PYTHONPATH=SRC), timeout=120)
+    assert r.returncode == rc, r.stderr
+    assert len(r.stderr.strip().splitlines()) == 1, r.stderr
+    assert word in r.stderr
+    assert _leftovers(out) == []  # the temporary file was removed
+
+
+def test_memory_error_is_one_line(data, tmp_path, capsys, monkeypatch):
+    import gridstrain._cli_measure as cm
+
+    def exhausted(*a, **k):
+        raise MemoryError
+
+    monkeypatch.setattr(cm, "measure_series", exhausted)
+    rc = _run(["measure", data / "ref.tif", data / "load.tif", "-o", tmp_path / "o.h5"])
+    line = _one_line_failure(capsys, rc, tmp_path)
+    assert "out of memory" in line
+
+
+def test_lost_scheduler_is_one_line(data, tmp_path, capsys, monkeypatch):
+    comm = pytest.importorskip("distributed.comm")
+    import gridstrain._cli_measure as cm
+
+    def lost(*a, **k):
+        raise comm.CommClosedError("in <TCP (closed)>: Stream is closed")
+
+    monkeypatch.setattr(cm, "measure_series", lost)
+    rc = _run(["measure", data / "ref.tif", data / "load.tif", "-o", tmp_path / "o.h5",
+               "--quiet"])
+    line = _one_line_failure(capsys, rc, tmp_path)
+    assert "the Dask cluster failed (CommClosedError" in line
+
+
+# ------------------------------------------------------------------ --overwrite
+
+
+def _tree(folder: Path) -> dict[str, bytes]:
+    return {p.relative_to(folder).as_posix(): p.read_bytes()
+            for p in sorted(folder.rglob("*")) if p.is_file()}
+
+
+DEMO = ["demo", "--size", "96", "--pitch", "5", "--radius", "10", "--frames", "1",
+        "--quiet"]
+
+
+def test_demo_overwrite_keeps_the_users_files(tmp_path, capsys, monkeypatch):
+    """``--out .`` with --overwrite, twice: the user's files stay, byte for byte."""
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / ".bashrc").write_text("alias ll='ls -l'\n")
+    (tmp_path / "thesis").mkdir()
+    (tmp_path / "thesis" / "chapter1.tex").write_text("mine")
+    mine = _tree(tmp_path)
+    for _ in range(2):
+        assert _run([*DEMO, "--out", ".", "--overwrite"]) == 0, capsys.readouterr().err
+    after = _tree(tmp_path)
+    assert {k: after[k] for k in mine} == mine
+    # only the demo's files besides, no stray temporary or ".old" folder
+    assert sorted({p.name for p in tmp_path.iterdir()}) == sorted(
+        [".bashrc", "thesis", MARKER_NAME, "ref", "load", "mask.tif", "maps.h5", "truth.h5",
+         "figures"])
+
+
+def test_demo_refuses_foreign_frames_even_with_overwrite(tmp_path, capsys):
+    exp = tmp_path / "EXP"
+    (exp / "ref").mkdir(parents=True)
+    (exp / "ref" / "img_0001.tif").write_bytes(b"the user's frame")
+    for flags in ([], ["--overwrite"]):
+        rc = _run([*DEMO, "--out", exp, *flags])
+        err = capsys.readouterr().err
+        assert rc == 2
+        assert len(err.strip().splitlines()) == 1
+        assert "img_0001.tif was not written by gridstrain" in err
+    assert _tree(exp) == {"ref/img_0001.tif": b"the user's frame"}
+
+
+def test_demo_refuses_its_own_file_once_changed(tmp_path, capsys):
+    exp = tmp_path / "EXP"
+    assert _run([*DEMO, "--out", exp]) == 0
+    (exp / "truth.h5").write_bytes(b"edited by the user")
+    rc = _run([*DEMO, "--out", exp, "--overwrite"])
+    err = capsys.readouterr().err
+    assert rc == 2
+    assert "truth.h5 has changed since gridstrain wrote it" in err
+    assert (exp / "truth.h5").read_bytes() == b"edited by the user"
+
+
+def test_figures_overwrite_replaces_only_gridstrain_figures(data, tmp_path, capsys):
+    figs = tmp_path / "figs"
+    figs.mkdir()
+    (figs / "exx_state0.png").write_bytes(b"the user's own figure")
+    argv = ["measure", data / "ref.tif", data / "load.tif", "--quiet", "--figures", figs]
+    rc = _run([*argv, "-o", tmp_path / "a.h5", "--overwrite"])
+    err = capsys.readouterr().err
+    assert rc == 2
+    assert "exx_state0.png exists and was not written by gridstrain" in err
+    assert _leftovers(figs) == ["exx_state0.png"]
+    assert not (tmp_path / "a.h5").exists()
+    # in a folder of the user's other files: written beside them, replaced alone
+    (figs / "exx_state0.png").rename(figs / "notes.png")
+    for _ in range(2):
+        assert _run([*argv, "-o", tmp_path / "a.h5", "--overwrite"]) == 0
+    manifest = json.loads((figs / MARKER_NAME).read_text())["files"]
+    assert "notes.png" not in manifest
+    assert (figs / "notes.png").read_bytes() == b"the user's own figure"
+
+
+def test_signal_module_untouched_after_main(data, tmp_path):
+    before = signal.getsignal(signal.SIGTERM), signal.getsignal(signal.SIGINT)
+    _run(["measure", data / "ref.tif", data / "load.tif", "-o", tmp_path / "o.h5",
+          "--quiet"])
+    assert (signal.getsignal(signal.SIGTERM), signal.getsignal(signal.SIGINT)) == before
+
+
+def test_an_all_invalid_result_is_never_written(data, tmp_path, capsys, monkeypatch):
+    """Whatever the cause, a state without one valid pixel is an error, not a file."""
+    import dataclasses
+
+    import gridstrain._cli_measure as cm
+
+    real = cm.measure_series
+
+    def all_invalid(*a, **k):
+        res = real(*a, **k)
+        return dataclasses.replace(res, valid=np.zeros_like(res.valid))
+
+    monkeypatch.setattr(cm, "measure_series", all_invalid)
+    rc = _run(["measure", data / "ref.tif", data / "load.tif", "-o", tmp_path / "o.h5",
+               "--quiet"])
+    line = _one_line_failure(capsys, rc, tmp_path)
+    assert "state 0: no valid pixel, nothing written" in line
