@@ -55,9 +55,12 @@ def cluster():
     old = os.environ.get("PYTHONPATH")
     os.environ["PYTHONPATH"] = src + (os.pathsep + old if old else "")
     try:
+        # the scheduler's HTTP server on a free port: the default 8787 may be held by
+        # another cluster on the machine, and the warning would fail the setup
         with dask.config.set({"distributed.comm.timeouts.connect": "10s"}), \
                 distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
-                                         host="127.0.0.1", dashboard_address=None) as c:
+                                         host="127.0.0.1",
+                                         dashboard_address="127.0.0.1:0") as c:
             yield c
     finally:
         if old is None:
@@ -430,3 +433,71 @@ def test_scheduler_local_starts_and_stops_its_own_cluster():
     got = measure_series(ref, cur, lattice=LAT, method="B", scheduler="local")
     v = want.valid[0]
     assert_allclose(got.u[0][:, v], want.u[0][:, v], rtol=0, atol=U_TOL)
+
+
+# ------------------------------------------------------------------- faults
+
+
+class _DyingSeries:
+    """Frames of an array; the worker reading frame ``kill_at`` dies, once.
+
+    The death is tied to a frame index and a flag file, not to a time: whichever
+    worker reads that frame first exits at once (``os._exit``); the rerun finds
+    the flag and reads on.
+    """
+
+    def __init__(self, frames, kill_at, flag):
+        self._frames, self.kill_at, self.flag = frames, kill_at, str(flag)
+        self.name = "dying"
+
+    @property
+    def n_frames(self):
+        return len(self._frames)
+
+    def frames(self, *, dtype=np.float64, start=0, stop=None):
+        for t in range(start, len(self._frames) if stop is None else stop):
+            if t == self.kill_at and not os.path.exists(self.flag):
+                with open(self.flag, "w") as fh:
+                    fh.write(str(os.getpid()))
+                os._exit(1)
+            yield self._frames[t].astype(dtype)
+
+
+def test_method_b_survives_a_worker_killed_mid_run(client, tmp_path):
+    """One of the two workers dies on frame 3 of 8: Dask reruns its task on the other
+    (the inputs are on every worker) and the result is bit for bit that of a run
+    without the death (same graph, same order of the sums)."""
+    import cloudpickle
+
+    # sent by value, should a worker be unable to import this test module
+    cloudpickle.register_pickle_by_value(sys.modules[__name__])
+    try:
+        frames = _frames(8, np.random.default_rng(8))
+        flag = tmp_path / "killed"
+        killed = gd._submit_method_b(client, _DyingSeries(frames, 3, flag), LAT, 5.0,
+                                     None, 4.0).result(timeout=120)
+        assert flag.exists()  # a worker did die, on frame 3
+        calm = gd._submit_method_b(client, _DyingSeries(frames, 3, flag), LAT, 5.0,
+                                   None, 4.0).result(timeout=120)
+    finally:
+        cloudpickle.unregister_pickle_by_value(sys.modules[__name__])
+    assert killed.n_frames == calm.n_frames == 8
+    assert_array_equal(killed.maps.phase, calm.maps.phase)
+    assert_array_equal(killed.maps.valid, calm.maps.valid)
+
+
+def _blocked(name):
+    distributed.Event(name).wait()  # until the test sets it
+    return 1
+
+
+def test_stalled_cluster_times_out_with_a_message(client):
+    name = f"gridstrain-test-{os.getpid()}"
+    pending = gd._Pending(client.submit(_blocked, name, pure=False), None,
+                          "the statistics of state 0")
+    try:
+        with pytest.raises(TimeoutError, match=r"no result for the statistics of state 0 "
+                                                r"within 0\.5 s"):
+            pending.result(timeout=0.5)
+    finally:
+        distributed.Event(name, client=client).set()

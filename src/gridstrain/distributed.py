@@ -738,8 +738,10 @@ class _Pending:
 
 def _scatter(client, obj):
     # sent once to the cluster, not with every task; a key of its own (hash=False)
-    # so that releasing it cannot release an equal object scattered by another call
-    return None if obj is None else client.scatter(obj, hash=False)
+    # so that releasing it cannot release an equal object scattered by another call.
+    # Copied to every worker (broadcast): a worker lost mid-run takes no input with
+    # it, and Dask reruns its tasks on the others.
+    return None if obj is None else client.scatter(obj, hash=False, broadcast=True)
 
 
 def _submit_statistics(client, series, c, mask, max_saturation: float) -> _Pending:
