@@ -22,7 +22,13 @@ Output
     Every file is written atomically (:func:`atomic_path`): to a temporary file in
     the destination directory, renamed onto the destination only when complete,
     so that an interrupted run never leaves a truncated result behind. An existing
-    file is replaced only with ``overwrite=True``. :func:`write_hdf5` writes
+    file is replaced only with ``overwrite=True``. Files made by other libraries
+    (HDF5, TIFF, PNG) are built in memory and written with plain file calls
+    (:func:`write_atomic`): a full disk or a file size limit is then one
+    ``OSError`` naming the file (:func:`space_error`), with nothing left behind,
+    never a crash inside the library. In an output directory
+    (:class:`OutputDirectory`) a marker file lists what gridstrain wrote, and only
+    those files are ever replaced. :func:`write_hdf5` writes
     compressed, checksummed HDF5 with units and JSON-encoded metadata;
     :func:`write_csv` writes exact decimal columns; :func:`write_tiff_series`
     writes a folder of numbered single-page TIFFs such as a camera produces.
