@@ -329,7 +329,8 @@ def test_a_saturated_frame_is_screened_before_the_cluster_sees_it(client, tmp_pa
     got = measure_series(tmp_path / "ref.tif", tmp_path / "bad.tif", lattice=LAT,
                          scheduler=client)
     want = measure_series(tmp_path / "ref.tif", ref[[0, 1, 3]], lattice=LAT)
-    assert got.n_frames == (4, 3) and got.excluded == ((), (2,))
+    assert got.n_frames == (4, 3)
+    assert got.excluded == ((), (2,))
     assert any("frame 2 (" in w and "saturated" in w for w in got.warnings)
     assert_allclose(got.u, want.u, rtol=0, atol=1e-9)  # px: the same frames, sums reordered
 

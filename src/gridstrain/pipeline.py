@@ -10,11 +10,16 @@ vibrations of every series and states the noise floor of the maps. Conventions
 For each series
     1. If no lattice is given, the reference frames are averaged (streamed) and
        the lattice detected on the mean image.
-    2. Vibrations: the rigid translation ``(alpha_t, beta_t)`` of every frame from
-       the phase of one global Fourier coefficient per wave vector
-       (:func:`gridstrain.vibration.frame_shifts` when available), no windowed
-       Fourier transform per frame. Paper eq. (2): frame ``t`` is
-       ``s(x + alpha_t, y + beta_t)``.
+    2. Screening and vibrations, in one read of every frame
+       (:func:`gridstrain.screening.screen_frames`): each frame is checked against
+       its series (a grid, its contrast, a rigid slip, the non-rigid residual of a
+       frame of another state, clipping at the ceiling or at a level ``2^n - 1``)
+       and the flagged frames are excluded, refused or kept with a warning
+       (``outliers``); every later pass sees the frames kept only. The rigid
+       translation ``(alpha_t, beta_t)`` of every frame comes from the phase of one
+       global Fourier coefficient per wave vector, as in
+       :func:`gridstrain.vibration.frame_shifts`, no windowed Fourier transform per
+       frame. Paper eq. (2): frame ``t`` is ``s(x + alpha_t, y + beta_t)``.
     3. Statistics (streamed): the mean image, the per-pixel sensor noise variance
        (see *Noise floor*) and the saturated fraction of every frame.
     4. Phase maps. Method A (paper §2.2): the windowed Fourier transform of the
@@ -970,6 +975,14 @@ def measure_series(reference, states, *, lattice: Lattice | None = None,
         Bad arguments or input files (the message names the series, the frame
         and the file); an unreachable scheduler (OSError).
 
+    Notes
+    -----
+    Frames are read one at a time, never held whole. Every frame is read once for
+    the screening and the shifts, once for the statistics and, with method B, once
+    for its transform; the reference's frames twice more (the mean that detects or
+    checks the lattice, before the screening, and the two halves of the noise
+    floor).
+
     Examples
     --------
     >>> import numpy as np
@@ -1251,7 +1264,8 @@ def save_result(result: SeriesResult, path, *, pixel_size: float | None = None,
     - group ``noise``: the :class:`NoiseFloor` as attributes;
     - root attributes: every parameter, the lattice (``k1``, ``k2`` in cycles/px,
       ``pitches`` px, ``angles`` deg), the input files, ``n_frames`` per series,
-      bit depth and scale, ``gridstrain_version``, ``created`` (UTC, ISO 8601).
+      bit depth and scale, ``excluded_frames`` (per series, the frame numbers the
+      screening left out), ``gridstrain_version``, ``created`` (UTC, ISO 8601).
     """
     if not isinstance(result, SeriesResult):
         raise TypeError(f"result must be a SeriesResult, got {type(result).__name__}")

@@ -88,6 +88,9 @@ _TILE_PITCHES = 12.0
 # upper tail of a noisy, unclipped histogram thins out instead.
 _CLIP_MIN_PIXELS = 4
 _CLIP_BITS = range(8, 17)
+# Up to this many frames, each frame's tiles are compared with the median of the
+# others; beyond, with the median of all (one frame weighs 1/T in it).
+_LEAVE_ONE_OUT = 64
 # Median absolute deviation of a Gaussian over its standard deviation.
 _MAD_TO_STD = 1.4826
 
@@ -206,6 +209,15 @@ def _clipped(frame: np.ndarray, level: float | None, scale: int, mask) -> tuple[
     return at / sel.size, top
 
 
+def _level_name(level: float, scale: int) -> str:
+    """`` = 2^n - 1`` (or ``(2^n - 1) x scale``) for a clipping level, else ``""``."""
+    for s, suffix in ((1, ""), (scale, f" x {scale}")):
+        n = math.log2(level / s + 1)
+        if n == int(n):
+            return f" = 2^{int(n)} - 1" if not suffix else f" = (2^{int(n)} - 1){suffix}"
+    return ""
+
+
 def _wrap(phase: np.ndarray) -> np.ndarray:
     return (phase + np.pi) % (2 * np.pi) - np.pi
 
@@ -262,7 +274,7 @@ def screen_frames(frames, lattice: Lattice, *, saturation_level: float | None = 
     if not 0 <= max_saturation <= 1:
         raise ValueError(f"max_saturation must be a fraction in [0, 1], got {max_saturation!r}")
     m = None if mask is None else np.asarray(mask, dtype=bool)
-    coeffs, prom, sat, clip, tile_c = [], [], [], [], []
+    coeffs, prom, sat, clip, tile_c, uniform = [], [], [], [], [], []
     probe, tiles, tile_probes, shape = None, [], {}, None
     for t, frame in _iter_frames(frames):
         arr = _as_frame(frame, shape, t)
@@ -274,6 +286,7 @@ def screen_frames(frames, lattice: Lattice, *, saturation_level: float | None = 
                 raise ValueError(f"mask must have the frames' shape {shape}, got {m.shape}")
         c = probe(arr)
         coeffs.append(c)
+        uniform.append(bool(arr.min() == arr.max()))
         prom.append(probe.prominence(arr, c))
         f, lev = _clipped(arr, saturation_level, scale, m)
         sat.append(f)
@@ -290,7 +303,7 @@ def screen_frames(frames, lattice: Lattice, *, saturation_level: float | None = 
         raise ValueError("frames must hold at least one frame, got none")
     coeffs = np.array(coeffs)
     prom = np.array(prom)
-    grid = np.all(prom >= _MIN_PROMINENCE, axis=1)
+    grid = np.all(prom >= _MIN_PROMINENCE, axis=1) & ~np.array(uniform)
     if not grid.any():
         raise ValueError(f"no frame shows a grid at the lattice's wave vectors: the carrier "
                          f"stands at most {float(prom.min(axis=1).max()):.3g} times above the "
@@ -299,19 +312,18 @@ def screen_frames(frames, lattice: Lattice, *, saturation_level: float | None = 
     T = coeffs.shape[0]
     mod = np.abs(coeffs)
     ratio = mod / np.median(mod[grid], axis=0)
-    dev = _deviation(coeffs, grid, lattice)
+    dev, slip = _deviation(coeffs, grid, lattice)
     residual = _residual(coeffs, np.array(tile_c).reshape(T, len(tiles), 2), grid, lattice)
     sat = np.array(sat)
     clip = np.array(clip)
     reasons = []
-    slip = _slips(dev, grid, lattice)
     res_ok = residual[grid & np.isfinite(residual)]
     res_median = float(np.median(res_ok)) if res_ok.size >= 3 else math.nan
     res_limit = max(_RESIDUAL_FACTOR * res_median, _RESIDUAL_FLOOR) \
         if res_ok.size >= 3 else math.inf
     for t in range(T):
         r = []
-        if prom[t].max() == 0:
+        if uniform[t]:
             r.append("uniform (no grey-level variation)")
         elif not grid[t]:
             r.append(f"shows no grid (its carrier stands {float(prom[t].min()):.3g} times "
@@ -327,39 +339,35 @@ def screen_frames(frames, lattice: Lattice, *, saturation_level: float | None = 
                      f"other frames (typical {res_median:.2g} px): a frame of another "
                      "state?")
         if sat[t] > max_saturation:
-            r.append(f"{sat[t]:.2%} of its pixels saturated (clipped at {clip[t]:g}), more "
-                     f"than max_saturation={max_saturation:.2%}")
+            below = saturation_level is None or clip[t] < saturation_level
+            r.append(f"{sat[t]:.2%} of its pixels saturated (clipped at {clip[t]:g}"
+                     + (f"{_level_name(clip[t], scale)}, below the files' range: a camera "
+                        "of fewer bits?" if below else "")
+                     + f"), more than max_saturation={max_saturation:.2%}")
         reasons.append(tuple(r))
     return FrameScreen(coefficients=coeffs, deviation=dev, modulus_ratio=ratio,
                        prominence=prom, residual=residual, saturated=sat, clip_level=clip,
                        reasons=tuple(reasons), lattice=lattice)
 
 
-def _deviation(coeffs: np.ndarray, grid: np.ndarray, lattice: Lattice) -> np.ndarray:
-    """(T, 2) shifts of every frame from the robust centre of the gridded ones, px."""
+def _deviation(coeffs: np.ndarray, grid: np.ndarray, lattice: Lattice):
+    """``(dev, slip)``: (T, 2) shift of every frame from the robust centre of the
+    gridded ones, px (NaN without a grid), and (T,) whether it is a slip."""
     ref = coeffs[grid].mean(axis=0)
     theta = np.angle(coeffs * np.conj(ref))  # (T, 2), 2 pi k_j . a_t, eq. (2)
-    centre = np.array([_robust_centre(theta[grid, j]) for j in range(2)])
-    d = _wrap(theta - centre)
+    medoid = np.array([_robust_centre(theta[grid, j]) for j in range(2)])
+    d = _wrap(theta - medoid)
+    # the centre: the mean of the frames within a slip's distance of the medoid
+    limit = np.full(2, 2 * np.pi * _SLIP_FRACTION)  # rad, per wave vector
+    inl = grid & np.all(np.abs(d) <= limit, axis=1)
+    d = _wrap(d - d[inl].mean(axis=0))
+    if inl.sum() >= 3:  # and their spread, robustly
+        spread = _MAD_TO_STD * np.median(np.abs(d[inl]), axis=0)
+        limit = np.maximum(limit, _SLIP_SIGMAS * spread)
+    slip = grid & np.any(np.abs(d) > limit, axis=1)
     dev = d @ _shift_matrix(lattice).T
     dev[~grid] = np.nan
-    return dev
-
-
-def _slips(dev: np.ndarray, grid: np.ndarray, lattice: Lattice) -> np.ndarray:
-    """Frames whose shift is far from the centre, relative to the pitch and the spread."""
-    K = lattice.K
-    f = np.hypot(K[:, 0], K[:, 1])
-    along = np.where(grid[:, None], np.nan_to_num(dev) @ K.T / f, 0.0)  # (T, 2) px along k_j
-    pitch = 1.0 / f
-    inl = grid & np.all(np.abs(along) <= _SLIP_FRACTION * pitch, axis=1)
-    limit = _SLIP_FRACTION * pitch
-    if inl.sum() >= 3:
-        centred = along[inl] - along[inl].mean(axis=0)
-        spread = _MAD_TO_STD * np.median(np.abs(centred), axis=0)
-        limit = np.maximum(limit, _SLIP_SIGMAS * spread)
-        along = along - along[inl].mean(axis=0)
-    return grid & np.any(np.abs(along) > limit, axis=1)
+    return dev, slip
 
 
 def _residual(coeffs: np.ndarray, tiles: np.ndarray, grid: np.ndarray,
@@ -375,8 +383,17 @@ def _residual(coeffs: np.ndarray, tiles: np.ndarray, grid: np.ndarray,
     # tile phase change minus the frame's rigid phase change: small, no wrapping
     rigid = np.angle(coeffs * np.conj(ref_g))  # (T, 2)
     psi = _wrap(np.angle(tiles * np.conj(ref_t)) - rigid[:, None, :])  # (T, n, 2)
-    # per-tile robust reference over the frames, then the frame's mean over tiles out
-    psi = _wrap(psi - np.median(psi[g], axis=0))
+    # per-tile robust reference: the median over the other frames (leaving the frame
+    # out keeps a short series' median frame from reading a residual of zero)
+    idx = np.flatnonzero(g)
+    if idx.size <= _LEAVE_ONE_OUT:
+        ref_psi = np.empty_like(psi)
+        for t in range(T):
+            ref_psi[t] = np.median(psi[idx[idx != t]], axis=0)
+    else:
+        ref_psi = np.median(psi[idx], axis=0)[None]
+    psi = _wrap(psi - ref_psi)
+    # then the frame's (weighted) mean over the tiles out: a rigid shift
     w = np.abs(ref_t) ** 2  # inverse phase-noise variance of each tile (n, 2)
     w = w / w.sum(axis=0)
     psi = psi - (w * psi).sum(axis=1, keepdims=True)
