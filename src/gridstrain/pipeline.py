@@ -265,9 +265,11 @@ class SeriesResult:
 
     Attributes
     ----------
-    u : (n_states, 2, H, W) float64 ndarray
-        ``(u_x, u_y)`` per state, px, Lagrangian; NaN where not ``valid``.
-    strain : (n_states, 3, H, W) float64 ndarray
+    u : (n_states, 2, H, W) float ndarray
+        ``(u_x, u_y)`` per state, px, Lagrangian; NaN where not ``valid``. float32
+        when every series holds float32 frames, float64 otherwise (precision in
+        :mod:`gridstrain.conventions`).
+    strain : (n_states, 3, H, W) float ndarray
         ``(e_xx, e_yy, e_xy)`` per state, dimensionless (tensor shear).
     valid : (n_states, H, W) bool ndarray
     lattice : Lattice
@@ -812,6 +814,15 @@ def _phase_maps_b(series, lattice, sigma, mask, margin, report):
     return finite_derivatives(method_b(frames, lattice, sigma=sigma, mask=mask, margin=margin).maps)
 
 
+def _in_precision(maps: list, series: list) -> list:
+    """The phase maps in the precision of the input (gridstrain.conventions): float32
+    when every series holds float32 frames; they were computed in float64."""
+    if not all(np.dtype(s.dtype) == np.float32 for s in series):
+        return maps
+    return [dataclasses.replace(pm, psi=pm.psi.astype(np.complex64),
+                                dphi=pm.dphi.astype(np.float32)) for pm in maps]
+
+
 # --------------------------------------------------------------------------- Dask
 
 
@@ -1098,6 +1109,7 @@ def measure_series(reference, states, *, lattice: Lattice | None = None,
                 maps[k] = finite_derivatives(maps[k].result().maps)
                 steps.step(s.n_frames * wft_cost, f"{s.name}: method B")
 
+    maps = _in_precision(maps, series)
     mean_ref = stats[0].mean
     measurements, guesses, sources = [], [], []
     for i in range(1, len(series)):
