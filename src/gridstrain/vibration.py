@@ -85,8 +85,14 @@ class _CarrierProbe:
         """(2,) moduli of the coefficients ``c = self(frame)`` over the white-noise
         level of the frame, ``sqrt(sum w^2 (v - m)^2)``; zero for a uniform frame."""
         wx, wy = self._right[:, 0], self._wy
-        m = float(wy @ frame @ wx) / self._wsum
-        level = math.sqrt(float((wy**2) @ (frame - m) ** 2 @ (wx**2)))
+        wx2, wy2 = wx * wx, wy * wy
+        m = float(wy @ np.einsum("ij,j->i", frame, wx)) / self._wsum
+        # sum w^2 (v - m)^2 expanded: three passes over the frame, no temporary
+        s2 = float(wy2 @ np.einsum("ij,ij,j->i", frame, frame, wx2))
+        s1 = float(wy2 @ np.einsum("ij,j->i", frame, wx2))
+        var = s2 - 2 * m * s1 + m * m * float(wy2.sum() * wx2.sum())
+        # cancellation leaves ~1e-16 s2 for a uniform frame: zero below that
+        level = math.sqrt(var) if var > 1e-12 * s2 else 0.0
         return np.abs(c) / level if level > 0 else np.zeros(2)
 
     def check(self, frame: np.ndarray, name: str) -> None:
