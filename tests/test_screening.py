@@ -181,6 +181,9 @@ def test_a_black_frame_in_the_reference_is_excluded_by_both_methods():
         want = measure_series(np.delete(ref, 3, axis=0), cur, lattice=LAT, method=method)
         assert_allclose(res.strain, want.strain, rtol=0, atol=1e-12)  # the same frames
         assert_allclose(res.uncertainty["exx_std"], want.uncertainty["exx_std"], rtol=1e-12)
+        assert res.n_frames == want.n_frames
+        assert_allclose(res.noise.split_strain, want.noise.split_strain, rtol=1e-12)
+        assert_allclose(res.noise.theory_strain, want.noise.theory_strain, rtol=1e-12)
         assert abs(mean_map(res, "exx") - STRAIN) < 1.5e-5  # noise of the mean strain
 
 
@@ -282,3 +285,18 @@ def test_command_line_names_the_frame_and_follows_outliers(tmp_path, capsys):
     assert summary["reference"]["excluded_frames"] == [2]
     assert summary["reference"]["frames"] == 5
     assert any("img_002.tif" in w for w in summary["warnings"])
+
+
+def test_a_subset_of_a_file_series_names_frames_as_in_the_folder(tmp_path):
+    from gridstrain.io import open_series
+
+    rng = np.random.default_rng(12)
+    frames, _ = grid_frames(4, rng, size=64)
+    series = open_series(write_folder(tmp_path / "s", frames), name="reference")
+    sub = series.subset([0, 2, 3]).subset([1, 2])
+    assert sub.n_frames == 2
+    assert sub.describe_frame(0) == f"frame 2 ({tmp_path / 's' / 'img_002.tif'})"
+    np.testing.assert_array_equal(np.array(list(sub.frames(dtype=None))), frames[2:])
+    assert_allclose(sub.mean(), frames[2:].mean(axis=0), rtol=1e-15)
+    with pytest.raises(ValueError, match="at least one frame"):
+        series.subset([])
