@@ -300,3 +300,17 @@ def test_a_subset_of_a_file_series_names_frames_as_in_the_folder(tmp_path):
     assert_allclose(sub.mean(), frames[2:].mean(axis=0), rtol=1e-15)
     with pytest.raises(ValueError, match="at least one frame"):
         series.subset([])
+
+
+def test_clipping_is_a_pile_up_at_the_top_not_a_maximum_that_happens_to_be_2n_minus_1():
+    rng = np.random.default_rng(13)
+    frames, _ = grid_frames(3, rng, size=64)
+    frames[:, 10, 10] = 4095  # one pixel per frame at 4095: a maximum, no pile-up
+    sc = screen_frames(frames, LAT, saturation_level=65535)
+    assert np.all(sc.saturated == 0)
+    # float data normalised to [0, 1] and clipped at 1 (2^1 - 1)
+    flt = np.clip(frames / 3000.0, 0, 1).astype(np.float32)
+    assert (flt == 1).mean() > 0.05  # the premise
+    sc = screen_frames(flt, LAT, max_saturation=0.01)
+    assert sc.flagged == (0, 1, 2)
+    assert sc.reasons[0][0].endswith("(clipped at 1), more than max_saturation=1.00%")

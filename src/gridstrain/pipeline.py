@@ -636,7 +636,7 @@ def _saturation_warning(s, sc: _Screened, saturation: float) -> list[str]:
         return []
     lvl = sc.clip_level
     at = "" if not math.isfinite(lvl) else f" (clipped at {lvl:g}" + (
-        ")" if s.saturation_level is not None and lvl >= s.saturation_level else
+        ")" if s.saturation_level is None or lvl >= s.saturation_level else
         ", a level 2^n - 1 below the files' range: a camera of fewer bits? pass its "
         "bit depth)")
     return [f"{s.name}: up to {saturation:.2%} of a frame's pixels are saturated{at}"]

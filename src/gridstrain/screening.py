@@ -187,7 +187,7 @@ def _clipped(frame: np.ndarray, level: float | None, scale: int, mask) -> tuple[
 
     ``level`` is the container's (or declared sensor's) saturation level, None for
     float data. Beyond it, a pile-up at the frame's maximum when that maximum is
-    ``2^n - 1`` (times ``scale``) for ``n`` in 8..16.
+    ``2^n - 1`` (times ``scale``) for ``n`` in 8..16, or 1 (normalised float data).
     """
     sel = frame if mask is None else frame[mask]
     if sel.size == 0:
@@ -197,7 +197,7 @@ def _clipped(frame: np.ndarray, level: float | None, scale: int, mask) -> tuple[
         if k:
             return k / sel.size, float(level)
     top = float(sel.max())
-    if top not in {float((2**n - 1) * s) for n in _CLIP_BITS for s in {1, scale}}:
+    if top not in {float((2**n - 1) * s) for n in _CLIP_BITS for s in {1, scale}} | {1.0}:
         return 0.0, math.nan
     at = int(np.count_nonzero(sel == top))
     if at < _CLIP_MIN_PIXELS:
@@ -339,7 +339,7 @@ def screen_frames(frames, lattice: Lattice, *, saturation_level: float | None = 
                      f"other frames (typical {res_median:.2g} px): a frame of another "
                      "state?")
         if sat[t] > max_saturation:
-            below = saturation_level is None or clip[t] < saturation_level
+            below = saturation_level is not None and clip[t] < saturation_level
             r.append(f"{sat[t]:.2%} of its pixels saturated (clipped at {clip[t]:g}"
                      + (f"{_level_name(clip[t], scale)}, below the files' range: a camera "
                         "of fewer bits?" if below else "")
