@@ -38,7 +38,8 @@ class Measurement:
     ----------
     u : (2, H, W) float ndarray
         Displacement ``(u_x, u_y)`` in px, Lagrangian (at reference pixels), NaN
-        where not ``valid``.
+        where not ``valid``. Computed in float64; float32 (as are ``strain`` and
+        ``rotation``) when both sets of phase maps are (:mod:`gridstrain.conventions`).
     strain : (3, H, W) float ndarray
         ``(eps_xx, eps_yy, eps_xy)``, dimensionless small-strain tensor (tensor
         shear), NaN where not ``valid``.

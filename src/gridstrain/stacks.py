@@ -347,7 +347,9 @@ def method_a(frames, lattice: Lattice, *, sigma: float | None = None, mask=None,
     Returns
     -------
     StackResult
-        ``maps = wft(v_bar)``, with ``mean_image = v_bar``.
+        ``maps = wft(v_bar)``, with ``mean_image = v_bar`` (float64, the sum's
+        precision); the transform is taken in float32 when every frame is float32
+        (precision in :mod:`gridstrain.conventions`).
 
     Notes
     -----
