@@ -603,10 +603,10 @@ def _screen_series(s, lattice: Lattice, mask, max_saturation: float, outliers: s
     warnings = []
     keep = [t for t in range(n) if t not in set(bad)]
     if bad and outliers != "warn" and (outliers == "refuse" or 2 * len(bad) >= n):
-        why = "" if outliers == "refuse" or n == 1 else " (half or more: the good " \
-            "frames cannot be told from the bad)"
+        why = "" if outliers == "refuse" or len(bad) == n else " (half or more: the " \
+            "good frames cannot be told from the bad)"
         raise ValueError(f"{s.name}: {listed} -- {len(bad)} of {n} frame(s) flagged{why}; "
-                         "remove or re-take them, or pass outliers='warn' (--outliers warn) "
+                         f"{_advice(sc, bad)}, or pass outliers='warn' (--outliers warn) "
                          "to measure anyway")
     if bad and outliers == "exclude":
         warnings.append(f"{s.name}: excluded {len(bad)} of {n} frames: {listed}")
@@ -629,6 +629,24 @@ def _screen_series(s, lattice: Lattice, mask, max_saturation: float, outliers: s
                      kept_flagged=bool(bad) and outliers == "warn",
                      saturation=float(sat[worst]), clip_level=level,
                      warnings=tuple(warnings))
+
+
+# What the user can do about a flagged frame, by what its reason says.
+_ADVICE = (("uniform", "remove the blank frames"), ("shows no grid", "remove the blank frames"),
+           ("low grid contrast", "remove the dark or blurred frames"),
+           ("rigid shift", "measure the frames before and after the slip as two series"),
+           ("non-rigid", "move the frames of another state to their own series"),
+           ("pixels saturated", "shorten the exposure or mask the saturated area"))
+
+
+def _advice(sc, bad) -> str:
+    out = []
+    for t in bad:
+        for reason in sc.reasons[t]:
+            for key, what in _ADVICE:
+                if key in reason and what not in out:
+                    out.append(what)
+    return "; ".join(out) or "remove or re-take them"
 
 
 def _saturation_warning(s, sc: _Screened, saturation: float) -> list[str]:
