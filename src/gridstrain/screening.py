@@ -9,11 +9,11 @@ a black or clipped frame enters the mean image (method A) or the mean phases
 - the carrier coefficient of each wave vector over the whole frame (the probe of
   :func:`gridstrain.vibration.frame_shifts`), hence its rigid shift ``(alpha_t,
   beta_t)`` (paper eq. 2) and its grid's modulus;
-- the same coefficient on a few tiles of the frame: once the frame's rigid shift
-  is taken out, the tiles of a frame of the same state keep their phases (up to the
-  noise), those of a frame of another state move by its non-rigid displacement
-  (a strain of 1e-3 moves tiles 70 px apart by 0.07 px, the noise of a tile is a
-  few 1e-3 px);
+- the same coefficient on a few tiles of the frame: once the frame's rigid motion
+  (translation and small rotation) is taken out, the tiles of a frame of the same
+  state keep their phases (up to the noise), those of a frame of another state
+  move by its non-rigid displacement (a strain of 1e-3 moves tiles 70 px apart by
+  0.07 px, the noise of a tile is about 1e-3 px);
 - the fraction of its pixels clipped at the sensor's ceiling: the container's
   maximum or a level ``2^n - 1`` (a 12-bit camera writing right-aligned values
   into 16-bit files clips at 4095), recognised as a pile-up of pixels at the
@@ -31,7 +31,8 @@ A frame is *flagged* when
   shift is known modulo a pitch only: a 3-px slip at pitch 5 reads as -2 px,
   still flagged; a slip of a whole pitch cannot be seen;
 - its tiles' non-rigid residual (rms, px) exceeds three times the series' median
-  and 1e-3 px: a frame of another state;
+  (five times with the four tiles of a small image) and 1e-3 px: a frame of
+  another state;
 - more than ``max_saturation`` of its pixels are clipped.
 
 Conventions: :mod:`gridstrain.conventions`. The decisions (exclude, refuse or keep
@@ -70,10 +71,13 @@ _SLIP_SIGMAS = 6.0
 # defocused or occluded: it would lower the mean image's contrast by its share.
 _LOW_CONTRAST = 0.5
 # A frame's non-rigid residual above this many times the series' median is a frame
-# of another state. The residual of a frame of the series is the rms of about 30
-# independent tile phases (a chi variable with ~30 degrees of freedom): three times
-# its median is out of its reach (probability < 1e-20).
+# of another state. The residual of a frame of the series is the rms of the tiles'
+# noise, 2 n - 3 degrees of freedom for n tiles: with 16 tiles (29) three times the
+# median is out of its reach; with 4 (5), and the median itself taken over a few
+# frames, the largest of 1800 clean frames reached 3.0 times it (see the tests).
 _RESIDUAL_FACTOR = 3.0
+_RESIDUAL_FACTOR_FEW_TILES = 5.0
+_FEW_TILES = 8
 # ... and above this absolute floor, px: noise-free frames have residuals of 1e-7 px
 # from the window's leakage, which the factor alone would compare. A frame of another
 # state with a residual of 1e-3 px biases an average of 10 frames by 1e-4 px.
@@ -113,8 +117,10 @@ class FrameScreen:
         Carrier modulus over the frame's white-noise level (a grid gives tens to
         hundreds, noise about 1).
     residual : (T,) float64 ndarray
-        Non-rigid residual of the tiles' phases, rms, px; NaN where unavailable
-        (a frame without a grid, an image too small for two tiles per side).
+        The tiles' displacements against the other frames once the frame's rigid
+        motion (translation, rotation) is fitted out, rms, px; NaN where
+        unavailable (a frame without a grid, an image too small for two tiles per
+        side, fewer than three frames).
     saturated : (T,) float64 ndarray
         Fraction of the frame's (masked) pixels at the clipping level.
     clip_level : (T,) float64 ndarray
@@ -313,14 +319,17 @@ def screen_frames(frames, lattice: Lattice, *, saturation_level: float | None = 
     mod = np.abs(coeffs)
     ratio = mod / np.median(mod[grid], axis=0)
     dev, slip = _deviation(coeffs, grid, lattice)
-    residual = _residual(coeffs, np.array(tile_c).reshape(T, len(tiles), 2), grid, lattice)
+    centres = np.array([((xs.start + xs.stop - 1) / 2, (ys.start + ys.stop - 1) / 2)
+                        for ys, xs in tiles]).reshape(len(tiles), 2)
+    residual = _residual(coeffs, np.array(tile_c).reshape(T, len(tiles), 2), centres, grid,
+                         lattice)
     sat = np.array(sat)
     clip = np.array(clip)
     reasons = []
     res_ok = residual[grid & np.isfinite(residual)]
     res_median = float(np.median(res_ok)) if res_ok.size >= 3 else math.nan
-    res_limit = max(_RESIDUAL_FACTOR * res_median, _RESIDUAL_FLOOR) \
-        if res_ok.size >= 3 else math.inf
+    factor = _RESIDUAL_FACTOR if len(tiles) > _FEW_TILES else _RESIDUAL_FACTOR_FEW_TILES
+    res_limit = max(factor * res_median, _RESIDUAL_FLOOR) if res_ok.size >= 3 else math.inf
     for t in range(T):
         r = []
         if uniform[t]:
@@ -370,12 +379,13 @@ def _deviation(coeffs: np.ndarray, grid: np.ndarray, lattice: Lattice):
     return dev, slip
 
 
-def _residual(coeffs: np.ndarray, tiles: np.ndarray, grid: np.ndarray,
-              lattice: Lattice) -> np.ndarray:
-    """(T,) rms non-rigid residual of the tiles' phases, px (NaN where unavailable)."""
+def _residual(coeffs: np.ndarray, tiles: np.ndarray, centres: np.ndarray,
+              grid: np.ndarray, lattice: Lattice) -> np.ndarray:
+    """(T,) rms of the tiles' displacements left by the frame's rigid motion
+    (translation and rotation), px; NaN where unavailable."""
     T, n = tiles.shape[:2]
     out = np.full(T, np.nan)
-    if n < 2 or grid.sum() < 3:
+    if n < 4 or grid.sum() < 3:
         return out
     g = grid
     ref_t = tiles[g].mean(axis=0)  # (n, 2), the mean frame's tiles (linearity)
@@ -393,12 +403,22 @@ def _residual(coeffs: np.ndarray, tiles: np.ndarray, grid: np.ndarray,
     else:
         ref_psi = np.median(psi[idx], axis=0)[None]
     psi = _wrap(psi - ref_psi)
-    # then the frame's (weighted) mean over the tiles out: a rigid shift
-    w = np.abs(ref_t) ** 2  # inverse phase-noise variance of each tile (n, 2)
-    w = w / w.sum(axis=0)
-    psi = psi - (w * psi).sum(axis=1, keepdims=True)
-    f = np.hypot(lattice.K[:, 0], lattice.K[:, 1])
-    px = psi / (2 * np.pi * f)  # along each wave vector, px
-    out[g] = np.sqrt((w * px[g] ** 2).sum(axis=(1, 2)) / 2)
+    # each tile's displacement (x, y), px (eq. 2 inverted per tile), weighted by the
+    # inverse phase-noise variance |C|^2 of its weaker wave vector
+    d = (psi @ _shift_matrix(lattice).T).reshape(T, 2 * n)
+    w = np.min(np.abs(ref_t) ** 2, axis=1)
+    w = np.repeat(w / w.sum(), 2)  # per component, (2n,)
+    # the frame's rigid motion, a translation and a small rotation omega about the
+    # weighted centre (d_x = t_x - omega y, d_y = t_y + omega x), fitted and taken
+    # out: a camera that rocks moves no material point against another
+    c = centres - (w[::2] / w[::2].sum()) @ centres  # (n, 2), (x, y)
+    A = np.zeros((n, 2, 3))
+    A[:, 0, 0] = A[:, 1, 1] = 1.0
+    A[:, 0, 2], A[:, 1, 2] = -c[:, 1], c[:, 0]
+    A = A.reshape(2 * n, 3)
+    sw = np.sqrt(w)
+    fit = np.linalg.lstsq(A * sw[:, None], (d * sw).T, rcond=None)[0]  # (3, T)
+    r = d - (A @ fit).T
+    out[g] = np.sqrt((w * r[g] ** 2).sum(axis=1))  # rms |residual| over the tiles
     return out
 
