@@ -269,9 +269,14 @@ def test_excluded_frames_are_recorded_in_the_file(tmp_path):
     ref[5] = 0
     res = measure_series(ref, cur, lattice=LAT)
     out = save_result(res, tmp_path / "m.h5")
-    attrs = read_hdf5(out)["attrs"]
+    back = read_hdf5(out)
+    attrs = back["attrs"]
     assert attrs["excluded_frames"] == [[5], []]
     assert any("frame 5: uniform" in w for w in attrs["warnings"])
+    assert back["datasets"]["screening/reference/residual"].shape == (6,)
+    assert back["groups"]["screening/reference"]["excluded_frames"] == [5]
+    assert back["groups"]["screening/reference"]["reasons"][5].startswith("uniform")
+    assert back["units"]["screening/state_0/deviation"] == "px"
 
 
 def test_outliers_option_is_checked():

@@ -106,7 +106,7 @@ from .io import (
 )
 from .kinematics import Measurement, coarse_displacement, deformation
 from .lattice import Lattice, detect_lattice
-from .screening import screen_frames
+from .screening import FrameScreen, screen_frames
 from .stacks import method_b
 from .uncertainty import predict_uncertainty
 from .wft import DEFAULT_MARGIN, PhaseMaps, finite_derivatives, wft
@@ -312,6 +312,9 @@ class SeriesResult:
     excluded : tuple of tuple of int
         Per series, the numbers of the frames the screening excluded (their files
         and reasons are in ``warnings``); ``n_frames`` counts the frames kept.
+    screening : tuple of gridstrain.screening.FrameScreen
+        Per series, what the screening measured on every frame (excluded ones
+        included).
     uncertainty : dict of str to ndarray, optional
         Per-pixel predicted standard deviations ``"ux_std"``, ``"uy_std"`` (px),
         ``"exx_std"``, ``"eyy_std"``, ``"exy_std"``, each ``(n_states, H, W)``, NaN
@@ -344,6 +347,7 @@ class SeriesResult:
     warnings: tuple[str, ...] = ()
     uncertainty: dict | None = None
     excluded: tuple[tuple[int, ...], ...] = ()
+    screening: tuple = field(default=(), repr=False)
 
     def __post_init__(self):
         for name in ("u", "strain", "valid", "mask", "reference_image"):
@@ -572,6 +576,7 @@ _MIN_COHERENCE = 0.8
 
 @dataclass(frozen=True, eq=False)
 class _Screened:
+    screen: FrameScreen
     series: object  # the frames kept
     shifts: np.ndarray  # (T_kept, 2) px, centred
     excluded: tuple[int, ...]  # frame numbers
@@ -624,7 +629,7 @@ def _screen_series(s, lattice: Lattice, mask, max_saturation: float, outliers: s
     sat = sc.saturated[keep]
     worst = int(np.argmax(sat))
     level = float(sc.clip_level[keep][worst]) if sat[worst] > 0 else math.nan
-    return _Screened(series=kept, shifts=sc.shifts(keep),
+    return _Screened(screen=sc, series=kept, shifts=sc.shifts(keep),
                      excluded=tuple(s._number(t) for t in bad if outliers == "exclude"),
                      kept_flagged=bool(bad) and outliers == "warn",
                      saturation=float(sat[worst]), clip_level=level,
@@ -1201,6 +1206,7 @@ def measure_series(reference, states, *, lattice: Lattice | None = None,
         n_frames=tuple(T), bit_depth=tuple(s.bit_depth for s in series),
         scale=tuple(int(s.scale) for s in series),
         saturation=saturation, excluded=tuple(sc.excluded for sc in screens),
+        screening=tuple(sc.screen for sc in screens),
         measurements=tuple(measurements), guesses=tuple(guesses),
         guess_sources=tuple(sources), vibration=tuple(vib), noise=noise,
         parameters=parameters, warnings=tuple(warnings), uncertainty=uncertainty)
@@ -1291,6 +1297,10 @@ def save_result(result: SeriesResult, path, *, pixel_size: float | None = None,
     - ``vibration/<series>/shifts`` (T, 2), px, one group per series
       (``reference``, ``state_0``...), attributes ``std``, ``contrast_factor``,
       ``phase_offset_std`` (rad), ``n_frames``, ``estimator``;
+    - ``screening/<series>/deviation`` (T, 2) px, ``residual`` (T,) px,
+      ``modulus_ratio`` (T, 2) and ``saturated`` (T,): what the screening measured
+      on every frame (:class:`gridstrain.screening.FrameScreen`), attributes
+      ``excluded_frames`` and ``reasons`` (one string per frame, empty when good);
     - group ``noise``: the :class:`NoiseFloor` as attributes;
     - root attributes: every parameter, the lattice (``k1``, ``k2`` in cycles/px,
       ``pitches`` px, ``angles`` deg), the input files, ``n_frames`` per series,
@@ -1329,6 +1339,20 @@ def save_result(result: SeriesResult, path, *, pixel_size: float | None = None,
             "estimator": v.estimator,
             "definition": "frame t is s(x + alpha_t, y + beta_t) (paper eq. 2); shifts "
                           "centred on the series mean"}
+    for key, sc, ex in zip(keys, result.screening, result.excluded or
+                           [()] * len(keys), strict=False):
+        for name, arr, unit in (("deviation", sc.deviation, "px"),
+                                ("residual", sc.residual, "px"),
+                                ("modulus_ratio", sc.modulus_ratio, "1"),
+                                ("saturated", sc.saturated, "1")):
+            datasets[f"screening/{key}/{name}"] = arr
+            units[f"screening/{key}/{name}"] = unit
+        groups[f"screening/{key}"] = {
+            "excluded_frames": list(ex), "reasons": [" / ".join(r) for r in sc.reasons],
+            "definition": "every frame of the series, excluded ones included: rigid shift "
+                          "from the series' robust centre (modulo a pitch), non-rigid "
+                          "residual of its tiles, grid modulus over the series' median, "
+                          "clipped fraction (gridstrain.screening)"}
     groups["noise"] = result.noise.as_dict()
     lat = result.lattice
     root = {
