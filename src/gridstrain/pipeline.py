@@ -1341,12 +1341,12 @@ def save_result(result: SeriesResult, path, *, pixel_size: float | None = None,
                           "centred on the series mean"}
     for key, sc, ex in zip(keys, result.screening, result.excluded or
                            [()] * len(keys), strict=False):
-        for name, arr, unit in (("deviation", sc.deviation, "px"),
+        for name, arr, what in (("deviation", sc.deviation, "px"),
                                 ("residual", sc.residual, "px"),
                                 ("modulus_ratio", sc.modulus_ratio, "1"),
                                 ("saturated", sc.saturated, "1")):
             datasets[f"screening/{key}/{name}"] = arr
-            units[f"screening/{key}/{name}"] = unit
+            units[f"screening/{key}/{name}"] = what
         groups[f"screening/{key}"] = {
             "excluded_frames": list(ex), "reasons": [" / ".join(r) for r in sc.reasons],
             "definition": "every frame of the series, excluded ones included: rigid shift "
