@@ -309,6 +309,17 @@ def test_command_line_names_the_frame_and_follows_outliers(tmp_path, capsys):
                  "--quiet"]) == 0
     summary = json.loads(capsys.readouterr().out)
     assert summary["reference"]["excluded_frames"] == [2]
+    # the option from a configuration file, and a bad value refused in one line
+    cfg = tmp_path / "run.toml"
+    cfg.write_text('outliers = "refuse"\n')
+    assert main(["measure", str(r), str(c), "-o", str(tmp_path / "n.h5"), "--pitch", "5",
+                 "--quiet", "--config", str(cfg)]) != 0
+    cfg.write_text('outliers = "drop"\n')
+    assert main(["measure", str(r), str(c), "-o", str(tmp_path / "n.h5"), "--pitch", "5",
+                 "--quiet", "--config", str(cfg)]) != 0
+    err = capsys.readouterr().err.strip().splitlines()
+    assert "no grid" in err[0]
+    assert 'outliers must be "exclude" or "refuse" or "warn"' in err[1]
     assert summary["reference"]["frames"] == 5
     assert any("img_002.tif" in w for w in summary["warnings"])
 
