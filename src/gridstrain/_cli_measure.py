@@ -50,8 +50,9 @@ _CONFIG_KEYS = {
     "quiet": "bool", "json": "bool", "overwrite": "bool", "bit-depth": "int",
     "scheduler": "str",
 }
-# Options that say how to run, not what to measure: left out of the stored config.
-_RUN_ONLY = ("quiet", "json", "overwrite")
+# Left out of the configuration stored in the result: how to run (not what to
+# measure), and the side outputs, which a replay must not write over.
+_RUN_ONLY = ("quiet", "json", "overwrite", "csv", "figures", "report")
 _EXPORTS = ("mat", "vtk", "csv")
 
 _EXAMPLE = """example:
@@ -561,7 +562,7 @@ def _run(args, progress: _Bar) -> int:
                             scheduler=opts.get("scheduler"))
     ps, unit = opts.get("pixel-size"), opts.get("unit")
     stored = dict(opts)
-    for key in ("reference", "states", "output", "mask", "csv", "figures", "report"):
+    for key in ("reference", "states", "output", "mask"):
         if stored.get(key):
             stored[key] = _absolute(stored[key])
     extra = {"config": config_text(stored),

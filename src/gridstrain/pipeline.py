@@ -375,6 +375,26 @@ class SeriesResult:
         """(n_states, H, W) shear strain (tensor component)."""
         return self.strain[:, 2]
 
+    def save(self, path, **options):
+        """Write this result to its HDF5 file (:func:`gridstrain.results.save_result`)."""
+        from .results import save_result as _save
+
+        return _save(self, path, **options)
+
+    def to_xarray(self, **options):
+        """This result as an ``xarray.Dataset`` (:func:`gridstrain.results.to_xarray`);
+        needs ``gridstrain[xarray]``."""
+        from .results import to_xarray
+
+        return to_xarray(self, **options)
+
+    def plot(self, name: str = "exx", **options):
+        """Maps of ``name`` for every state on common colour limits
+        (:func:`gridstrain.plotting.plot_states`); returns a matplotlib Figure."""
+        from .plotting import plot_states
+
+        return plot_states(self, name, **options)
+
     def __repr__(self) -> str:
         H, W = self.shape
         valid = ", ".join(f"{v.mean():.1%}" for v in self.valid)

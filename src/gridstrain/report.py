@@ -198,7 +198,7 @@ def render_report(result: SeriesResult, *, attrs: dict | None = None,
     if a.get("config"):
         out.append("<p>The configuration of this run (replay it with <code>gridstrain "
                    "measure --config RESULT.h5 -o OUT.h5</code>):</p>"
-                   f"<pre>{html.escape(str(a['config']))}</pre>")
+                   f"<pre>{html.escape(str(a['config']), quote=False)}</pre>")
     out.append(f"<p>Conventions: {html.escape(str(a.get('conventions', '')))}</p>")
     out.append("</body></html>\n")
     return "\n".join(out)

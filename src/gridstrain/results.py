@@ -340,7 +340,7 @@ def save_result(result: SeriesResult, path, *, pixel_size: float | None = None,
         _encode(g, [("result", result)], memo)
         extra = [(k, v) for k, v in attrs.items() if _root_attr(v) is None]
         if extra:
-            _encode(g.create_group("attrs", track_order=True), extra, memo)
+            _encode(g, [("attrs", dict(extra))], memo)
     return _as_path(path, "path")
 
 
