@@ -5,8 +5,13 @@ Input
     a glob pattern or a list of files into a :class:`FrameSeries`: a validated,
     ordered list of 2-D grey-level frames that are read one at a time (memory is
     bounded by one frame whatever the length of the series). TIFF files are read
-    with ``tifffile``, page by page; PNG and BMP files with ``imageio``.
-    :func:`read_mask` reads a specimen mask (:mod:`gridstrain.conventions`, Masks).
+    with ``tifffile``, page by page (packed 10/12-bit and LZW, deflate or zstd
+    compressed pages through ``imagecodecs``); PNG, BMP and JPEG files with
+    ``imageio``. Colour frames are read as their luminance (:func:`to_luminance`,
+    ITU-R BT.709 weights) and JPEG files with a note on their lossy compression
+    (:attr:`FrameSeries.notes`). :func:`read_mask` reads a specimen mask, grey,
+    1-bit or colour (:mod:`gridstrain.conventions`, Masks); :func:`roi_mask`
+    makes one from a rectangle or a polygon.
 
 Grey levels and bit depth
     Frames are returned in *raw* grey levels, the values stored in the files.
