@@ -47,7 +47,8 @@ _CONFIG_KEYS = {
     "roi-polygon": "polygon", "pixel-size": "float",
     "unit": "str", "no-lagrangian": "bool", "guess": "pair", "margin": "float",
     "csv": "path", "figures": "path", "export": "formats", "report": "path",
-    "quiet": "bool", "json": "bool", "overwrite": "bool", "bit-depth": "int",
+    "phase-maps": "bool", "quiet": "bool", "json": "bool", "overwrite": "bool",
+    "bit-depth": "int",
     "scheduler": "str",
 }
 # Left out of the configuration stored in the result: how to run (not what to
@@ -116,6 +117,9 @@ def register(sub) -> None:
     o.add_argument("--export", metavar="FORMATS",
                    help="also write mat (MATLAB), vtk (ParaView .vti) and/or csv next to "
                    "the output, comma-separated (e.g. mat,vtk)")
+    o.add_argument("--phase-maps", action="store_true", default=None,
+                   help="also store the phase maps of every series in the output (about 3x "
+                   "the file; gridstrain.load then gives them back)")
     o.add_argument("--report", metavar="FILE.html",
                    help="also write a self-contained HTML report of the run")
     o.add_argument("--overwrite", action="store_true", default=None,
@@ -253,7 +257,7 @@ def _options(args) -> dict:
     if not opts.get("reference") or not opts.get("states"):
         raise ValueError("the inputs are missing: give REF and at least one DEF (or "
                          "reference = ... and states = [...] in the config file)")
-    for name in ("no-lagrangian", "quiet", "json", "overwrite"):
+    for name in ("no-lagrangian", "quiet", "json", "overwrite", "phase-maps"):
         opts[name] = bool(opts.get(name, False))
     opts.setdefault("method", "A")
     opts.setdefault("margin", DEFAULT_MARGIN)
@@ -568,7 +572,8 @@ def _run(args, progress: _Bar) -> int:
     extra = {"config": config_text(stored),
              "config_file": args.config or "", "mask_file": opts.get("mask") or ""}
     out = save_result(result, opts["output"], pixel_size=ps, unit=unit,
-                      overwrite=opts["overwrite"], attrs=extra)
+                      overwrite=opts["overwrite"], attrs=extra,
+                      phase_maps=opts["phase-maps"])
     outputs = {"hdf5": str(out)}
     if opts.get("csv"):
         outputs["csv"] = str(save_csv(result, opts["csv"], overwrite=opts["overwrite"],

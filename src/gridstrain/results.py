@@ -138,8 +138,9 @@ def _dataset(group: h5py.Group, key: str, arr: np.ndarray) -> h5py.Dataset:
     return group.create_dataset(key, data=arr, **opts)
 
 
-def _encode(group: h5py.Group, items, memo: dict) -> None:
-    """Write ``(key, value)`` pairs into ``group`` (see the module docstring)."""
+def _encode(group: h5py.Group, items, memo: dict, skip: Mapping = _ROOT_FIELDS) -> None:
+    """Write ``(key, value)`` pairs into ``group`` (see the module docstring);
+    ``skip`` names, per class name, the fields not written."""
     tuples, lists = [], []
     for key, value in items:
         _check_key(key, group.name)
@@ -164,7 +165,7 @@ def _encode(group: h5py.Group, items, memo: dict) -> None:
             else:
                 g = group.create_group(key, track_order=True)
                 g.attrs[_TYPE] = "tuple" if isinstance(value, tuple) else "list"
-                _encode(g, ((str(i), v) for i, v in enumerate(value)), memo)
+                _encode(g, ((str(i), v) for i, v in enumerate(value)), memo, skip)
         elif value is None:
             group.create_group(key).attrs[_TYPE] = "none"
         elif isinstance(value, Mapping):
@@ -172,7 +173,7 @@ def _encode(group: h5py.Group, items, memo: dict) -> None:
             g.attrs[_TYPE] = "dict"
             keys = [_check_key(k, f"{group.name}/{key}") for k in value]
             g.attrs[_KEYS] = np.array(keys, dtype=h5py.string_dtype())
-            _encode(g, value.items(), memo)
+            _encode(g, value.items(), memo, skip)
         elif dataclasses.is_dataclass(value) and not isinstance(value, type):
             if id(value) in memo:
                 group[key] = h5py.SoftLink(memo[id(value)])
@@ -182,9 +183,9 @@ def _encode(group: h5py.Group, items, memo: dict) -> None:
             memo[id(value)] = g.name
             g.attrs[_TYPE] = "dataclass"
             g.attrs[_CLASS] = f"{cls.__module__}.{cls.__qualname__}"
-            skip = _ROOT_FIELDS.get(cls.__name__, ())
+            left = skip.get(cls.__name__, ())
             _encode(g, ((f.name, getattr(value, f.name)) for f in dataclasses.fields(value)
-                        if f.init and f.name not in skip), memo)
+                        if f.init and f.name not in left), memo, skip)
         elif isinstance(value, np.generic):
             group.attrs[key] = value
         else:
@@ -294,7 +295,7 @@ def _root_attr(value):
 
 def save_result(result: SeriesResult, path, *, pixel_size: float | None = None,
                 unit: str | None = None, overwrite: bool = False,
-                attrs: Mapping | None = None) -> Path:
+                attrs: Mapping | None = None, phase_maps: bool = False) -> Path:
     """Write a :class:`~gridstrain.pipeline.SeriesResult` to one HDF5 file, atomically.
 
     Parameters
@@ -313,6 +314,11 @@ def save_result(result: SeriesResult, path, *, pixel_size: float | None = None,
         Extra root attributes (``config``, the mask file...): strings, numbers,
         lists of them; a dict or any other value is stored in the group
         ``gridstrain/attrs`` instead.
+    phase_maps : bool
+        Also store the phase maps of every series (``Measurement.reference`` and
+        ``.deformed``: ``Psi`` and its derivatives, eight maps per series, which
+        triples the file). Without them :func:`load` gives those two fields as
+        ``None``; every other field comes back equal.
 
     Returns
     -------
@@ -337,7 +343,11 @@ def save_result(result: SeriesResult, path, *, pixel_size: float | None = None,
         g = h5.create_group(_GROUP, track_order=True)
         g.attrs["format_version"] = np.int64(FORMAT_VERSION)
         memo: dict = {}
-        _encode(g, [("result", result)], memo)
+        skip = dict(_ROOT_FIELDS)
+        if not phase_maps:
+            skip["Measurement"] = (*skip["Measurement"], "reference", "deformed")
+        g.attrs["phase_maps"] = bool(phase_maps)
+        _encode(g, [("result", result)], memo, skip)
         extra = [(k, v) for k, v in attrs.items() if _root_attr(v) is None]
         if extra:
             _encode(g, [("attrs", dict(extra))], memo)
@@ -476,7 +486,9 @@ def load(path) -> SeriesResult:
     Returns
     -------
     SeriesResult
-        Equal, field by field, to the result that was saved (arrays bit for bit).
+        Equal, field by field, to the result that was saved (arrays bit for bit);
+        the measurements' ``reference`` and ``deformed`` phase maps are ``None``
+        unless they were saved (``save_result(..., phase_maps=True)``).
 
     Raises
     ------
@@ -507,6 +519,8 @@ def load(path) -> SeriesResult:
                 i = int(group.name.rsplit("/", 1)[1])
                 values.update(u=u[i].copy(), strain=strain[i].copy(),
                               rotation=rotation[i].copy(), valid=valid[i].copy())
+                values.setdefault("reference", None)  # saved without the phase maps
+                values.setdefault("deformed", None)
             return values
 
         return _decode(h5[_GROUP]["result"], {}, fill)
