@@ -366,3 +366,11 @@ def test_top_level_names_and_xarray(result):
     assert_array_equal(ds["eyy"].values, result.eyy)
     for name in MAP_FIELDS:
         assert ds[name].dims == ("state", "y", "x")
+
+
+def test_a_field_this_version_does_not_know_is_refused_by_name(result, tmp_path):
+    path = save_result(result, tmp_path / "r.h5")
+    with h5py.File(path, "a") as h5:
+        h5["gridstrain/result/noise"].attrs["from_the_future"] = 1.0
+    with pytest.raises(ValueError, match=r"fields from_the_future .* newer version"):
+        load(path)

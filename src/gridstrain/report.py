@@ -63,11 +63,14 @@ def _num(x, spec: str = ".3g") -> str:
     return "–" if not math.isfinite(v) else format(v, spec)
 
 
-def _table(header, rows) -> str:
-    head = "".join(f'<th class="l">{html.escape(h)}</th>' if i == 0 else
-                   f"<th>{html.escape(h)}</th>" for i, h in enumerate(header))
-    body = "".join("<tr>" + "".join(f'<td class="l">{c}</td>' if i == 0 else f"<td>{c}</td>"
-                                    for i, c in enumerate(r)) + "</tr>" for r in rows)
+def _table(header, rows, left=(0,)) -> str:
+    """A table; cells are HTML already escaped; the columns ``left`` hold text."""
+    def cell(tag, i, c):
+        return f'<{tag} class="l">{c}</{tag}>' if i in left else f"<{tag}>{c}</{tag}>"
+
+    head = "".join(cell("th", i, html.escape(h)) for i, h in enumerate(header))
+    body = "".join("<tr>" + "".join(cell("td", i, c) for i, c in enumerate(r)) + "</tr>"
+                   for r in rows)
     return f"<table><tr>{head}</tr>{body}</table>"
 
 
@@ -111,7 +114,7 @@ def render_report(result: SeriesResult, *, attrs: dict | None = None,
         depth = "float" if bits is None else f"{bits}-bit" + (f" ×{scale}" if scale != 1
                                                                else "")
         rows.append([html.escape(name), str(T), depth, f"{sat:.2%}", where])
-    out.append(_table(["series", "frames", "data", "saturated", "files"], rows))
+    out.append(_table(["series", "frames", "data", "saturated", "files"], rows, left=(0, 4)))
 
     out.append("<h2>Lattice</h2>")
     out.append(_table(["wave vector", "kx (cycles/px)", "ky (cycles/px)", "pitch (px)",
@@ -151,6 +154,7 @@ def render_report(result: SeriesResult, *, attrs: dict | None = None,
     out.append(_table(["", "u_x (px)", "u_y (px)", "ε_xx (µε)", "ε_yy (µε)", "ε_xy (µε)"],
                       rows))
     out.append(_table(["series", "sensor variance (grey levels²)", "how", "|Ψ| k1", "|Ψ| k2"],
+                      left=(0, 2), rows=
                       [[html.escape(n), _num(v), html.escape(m), _num(mod[0]), _num(mod[1])]
                        for n, v, m, mod in zip(result.names, nf.sensor_variance,
                                                nf.variance_method, nf.modulus, strict=True)]))
@@ -173,7 +177,7 @@ def render_report(result: SeriesResult, *, attrs: dict | None = None,
                      html.escape(result.guess_sources[i])])
     out.append(_table(["state", "valid", "mean u_x (px)", "mean u_y (px)", "mean ε_xx (µε)",
                        "mean ε_yy (µε)", "mean ε_xy (µε)", "iterations", "fringe order"],
-                      rows))
+                      rows, left=(0, 8)))
     if result.n_states > 1:
         out.append(_figure(plot_history(result), "strain of the states",
                            "Strain of every state, mean over the valid pixels."))
@@ -194,7 +198,7 @@ def render_report(result: SeriesResult, *, attrs: dict | None = None,
     out.append("<h2>Provenance</h2>")
     params = [[html.escape(str(k)), html.escape(repr(v))]
               for k, v in result.parameters.items()]
-    out.append(_table(["parameter", "value"], params))
+    out.append(_table(["parameter", "value"], params, left=(0, 1)))
     if a.get("config"):
         out.append("<p>The configuration of this run (replay it with <code>gridstrain "
                    "measure --config RESULT.h5 -o OUT.h5</code>):</p>"

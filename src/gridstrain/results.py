@@ -239,9 +239,20 @@ def _decode(group: h5py.Group, memo: dict, fill):
         return tuple(seq) if kind == "tuple" else seq
     if kind == "dict":
         return {k: values[k] for k in _names(group, _KEYS)}
-    module, _, name = _plain(group.attrs[_CLASS]).rpartition(".")
-    cls = getattr(importlib.import_module(module), name)
-    return cls(**fill(cls, group, values))
+    qualname = _plain(group.attrs[_CLASS])
+    module, _, name = qualname.rpartition(".")
+    try:
+        cls = getattr(importlib.import_module(module), name)
+    except (ImportError, AttributeError):
+        raise ValueError(f"{group.name} holds a {qualname}, which this gridstrain does "
+                         "not have (written by another version?)") from None
+    values = fill(cls, group, values)
+    known = {f.name for f in dataclasses.fields(cls) if f.init}
+    unknown = sorted(set(values) - known)
+    if unknown:
+        raise ValueError(f"{group.name} holds fields {', '.join(unknown)} that this "
+                         f"gridstrain's {name} does not have (written by a newer version?)")
+    return cls(**values)
 
 
 # --------------------------------------------------------------------------- save
