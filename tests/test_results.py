@@ -374,3 +374,25 @@ def test_a_field_this_version_does_not_know_is_refused_by_name(result, tmp_path)
         h5["gridstrain/result/noise"].attrs["from_the_future"] = 1.0
     with pytest.raises(ValueError, match=r"fields from_the_future .* newer version"):
         load(path)
+
+
+def test_measure_figures_share_one_limit_per_quantity(result, tmp_path, monkeypatch):
+    from gridstrain import plotting
+
+    seen = []
+    real = plotting.plot_map
+
+    def spy(values, **kw):
+        seen.append((kw["label"], kw["limit"]))
+        return real(values, **kw)
+
+    monkeypatch.setattr(plotting, "plot_map", spy)
+    plotting.save_figures(result, tmp_path / "figs")
+    by_label = {}
+    for label, limit in seen:
+        by_label.setdefault(label, set()).add(limit)
+    assert len(by_label) == 5
+    assert all(len(v) == 1 for v in by_label.values())  # the same for both states
+    # e_xx's limit covers the larger strain of state 1 (2 E0 against E0)
+    (exx_limit,) = by_label[r"$\varepsilon_{xx}$"]
+    assert exx_limit > 1.5 * E0

@@ -12,7 +12,9 @@ Map style
     rigid translation would otherwise fill the map with one colour. The limit is
     the 99.5th
     percentile of ``|value|`` over the valid pixels, so that a few outliers do not
-    wash the map out. Invalid pixels are transparent over the grid image in grey.
+    wash the map out; :func:`save_figures` takes it over the valid pixels of every
+    state, so that the states of a series share their colours. Invalid pixels are
+    transparent over the grid image in grey.
     Displacements are in px or, with a pixel size, in its unit; strains are
     dimensionless.
 """
@@ -257,20 +259,32 @@ def save_figures(result, directory, *, pixel_size: float | None = None,
     total = len(names)
     written = []
     T = result.n_frames
+    # one colour limit per quantity, common to every state, so that the states
+    # compare by eye (displacements about each state's mean)
+    shown = {}
+    for name, (_symbol, kind) in _FIELDS.items():
+        maps, offsets = [], []
+        for i in range(result.n_states):
+            values, valid = result.get_map(name)[i], result.valid[i]
+            if kind == "displacement" and ps is not None:
+                values = values * ps
+            off = float(np.mean(values[valid])) if kind == "displacement" and valid.any() \
+                else 0.0
+            maps.append(values)
+            offsets.append(off)
+        centred = np.stack([m - o for m, o in zip(maps, offsets, strict=True)])
+        shown[name] = (maps, offsets, _symmetric_limit(centred, result.valid))
     for i in range(result.n_states):
         valid = result.valid[i]
         for name, (symbol, kind) in _FIELDS.items():
-            values = result.get_map(name)[i]
-            u, offset = "", 0.0
-            if kind == "displacement":
-                values, u = (values * ps, unit) if ps is not None else (values, "px")
-                if valid.any():
-                    offset = float(np.mean(values[valid]))
+            maps, offsets, limit = shown[name]
+            values, offset = maps[i], offsets[i]
+            u = (unit if ps is not None else "px") if kind == "displacement" else ""
             title = (f"{symbol}, {result.names[i + 1]}: method {result.method}, "
                      f"$\\sigma$ = {result.sigma:.3g} px, T = {T[0]}/{T[i + 1]}")
             fig = plot_map(values, valid=valid, background=result.reference_image,
                            label=symbol, unit=u, title=title, pixel_size=ps,
-                           length_unit=unit or "px", offset=offset)
+                           length_unit=unit or "px", offset=offset, limit=limit)
             written.append(save_figure(fig, folder / f"{name}_state{i}.png",
                                        overwrite=overwrite))
             report(len(written) / total, f"figure {len(written)}/{total}")
