@@ -217,9 +217,11 @@ ENTRY_POINTS = {
     "method_b_dask": _dask, "measure_states_dask": _dask,
 }
 # Public functions that take no image: their outputs are float64 by construction
-# (frequencies), files (save_*), or the frames themselves at a dtype the caller
-# names (gridstrain.io; as_dask_stack); connect() opens a cluster.
-NO_IMAGE = {"transfer_function", "save_result", "save_csv", "as_dask_stack", "connect"}
+# (frequencies), files (save_*, load: the dtypes saved), or the frames themselves at
+# a dtype the caller names (gridstrain.io; as_dask_stack); connect() opens a
+# cluster, progress_bar() draws.
+NO_IMAGE = {"transfer_function", "save_result", "save_csv", "as_dask_stack", "connect",
+            "load", "progress_bar"}
 
 
 def test_every_public_function_of_the_numerical_core_is_covered():

@@ -23,8 +23,8 @@ import tifffile
 from numpy.testing import assert_allclose
 
 from gridstrain import Lattice
-from gridstrain.io import read_hdf5
 from gridstrain.pipeline import measure_series, save_result
+from gridstrain.results import load, read_attrs
 from gridstrain.screening import screen_frames
 
 PITCH = 5.0
@@ -269,14 +269,14 @@ def test_excluded_frames_are_recorded_in_the_file(tmp_path):
     ref[5] = 0
     res = measure_series(ref, cur, lattice=LAT)
     out = save_result(res, tmp_path / "m.h5")
-    back = read_hdf5(out)
-    attrs = back["attrs"]
-    assert attrs["excluded_frames"] == [[5], []]
-    assert any("frame 5: uniform" in w for w in attrs["warnings"])
-    assert back["datasets"]["screening/reference/residual"].shape == (6,)
-    assert back["groups"]["screening/reference"]["excluded_frames"] == [5]
-    assert back["groups"]["screening/reference"]["reasons"][5].startswith("uniform")
-    assert back["units"]["screening/state_0/deviation"] == "px"
+    assert any("frame 5: uniform" in w for w in read_attrs(out)["warnings"])
+    back = load(out)
+    assert back.excluded == ((5,), ())
+    assert back.n_frames == (5, 6)
+    sc = back.screening[0]
+    assert sc.reasons[5][0].startswith("uniform")
+    assert_allclose(sc.residual, res.screening[0].residual, rtol=0, equal_nan=True)
+    assert_allclose(sc.deviation, res.screening[0].deviation, rtol=0, equal_nan=True)
 
 
 def test_outliers_option_is_checked():
