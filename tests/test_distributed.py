@@ -14,6 +14,7 @@ import os
 import socket
 import subprocess
 import sys
+import tomllib
 from pathlib import Path
 
 import numpy as np
@@ -33,6 +34,7 @@ from gridstrain.cli import main  # noqa: E402
 from gridstrain.io import open_series, read_hdf5  # noqa: E402
 from gridstrain.kinematics import deformation  # noqa: E402
 from gridstrain.pipeline import measure_series  # noqa: E402
+from gridstrain.results import read_attrs  # noqa: E402
 
 LAT = Lattice.from_pitch(5.0)
 N = 80  # px: 4-sigma margins leave a 40 x 40 valid centre at sigma = pitch = 5
@@ -318,7 +320,7 @@ def test_pipeline_on_the_cluster_matches_single_process(client, method, monkeypa
         assert_array_equal(a.shifts, b.shifts)  # computed on this machine either way
 
 
-def test_saturation_found_on_a_worker_names_the_frame(client, tmp_path):
+def test_a_saturated_frame_is_screened_before_the_cluster_sees_it(client, tmp_path):
     rng = np.random.default_rng(9)
     ref = _frames(4, rng, dtype=np.uint16)
     bad = ref.copy()
@@ -327,7 +329,15 @@ def test_saturation_found_on_a_worker_names_the_frame(client, tmp_path):
     tifffile.imwrite(tmp_path / "bad.tif", bad, photometric="minisblack")
     with pytest.raises(ValueError, match=r"state 0: frame 2 .*saturated"):
         measure_series(tmp_path / "ref.tif", tmp_path / "bad.tif", lattice=LAT,
-                       scheduler=client)
+                       scheduler=client, outliers="refuse")
+    # by default the frame is left out of the workers' sums, and named
+    got = measure_series(tmp_path / "ref.tif", tmp_path / "bad.tif", lattice=LAT,
+                         scheduler=client)
+    want = measure_series(tmp_path / "ref.tif", ref[[0, 1, 3]], lattice=LAT)
+    assert got.n_frames == (4, 3)
+    assert got.excluded == ((), (2,))
+    assert any("frame 2 (" in w and "saturated" in w for w in got.warnings)
+    assert_allclose(got.u, want.u, rtol=0, atol=1e-9)  # px: the same frames, sums reordered
 
 
 # --------------------------------------------------------------------------- command line
@@ -353,7 +363,8 @@ def test_cli_with_the_test_cluster_address(cluster, tiff_series, tmp_path, capsy
     assert main(["measure", *args, "-o", str(tmp_path / "dask.h5"),
                  "--scheduler", cluster.scheduler_address]) == 0
     one, dist = read_hdf5(tmp_path / "one.h5"), read_hdf5(tmp_path / "dask.h5")
-    assert dist["attrs"]["options"]["scheduler"] == cluster.scheduler_address
+    config = tomllib.loads(read_attrs(tmp_path / "dask.h5")["config"])
+    assert config["scheduler"] == cluster.scheduler_address
     v = one["datasets"]["valid"]
     assert_array_equal(dist["datasets"]["valid"], v)
     for name, tol in (("ux", U_TOL), ("uy", U_TOL), ("exx", STRAIN_TOL)):

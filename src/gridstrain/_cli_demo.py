@@ -29,6 +29,7 @@ from .io import OutputDirectory, open_series, read_mask, write_hdf5, write_tiff_
 from .lattice import Lattice
 from .pipeline import MAP_FIELDS, measure_series, save_result
 from .plotting import figure_names, save_figures
+from .report import write_report
 
 # The simulated camera and specimen (paper §3.2 and README of the paper notes).
 _AMPLITUDE = 2400.0  # mean grey level of the grid, 12-bit levels: peaks at 3480 + black
@@ -107,7 +108,7 @@ def _prepare(out: Path, frames: int, overwrite: bool) -> OutputDirectory:
     join the series measured); the figures folder keeps its own list.
     """
     names = [f"{sub}/{_frame_name(k)}" for sub in ("ref", "load") for k in range(frames)]
-    names += ["mask.tif", "maps.h5", "truth.h5"]
+    names += ["mask.tif", "maps.h5", "truth.h5", "report.html"]
     directory = OutputDirectory(out, names, overwrite=overwrite, exclusive=("ref", "load"),
                                 what="demo directory")
     if (out / "figures").exists():
@@ -184,6 +185,8 @@ def run(args) -> int:
     figs = save_figures(result, out / "figures", pixel_size=_PIXEL_SIZE, unit=_UNIT,
                         overwrite=True,
                         progress=lambda f, msg: progress(0.9 + 0.1 * f, msg))
+    report = write_report(maps, out / "report.html")
+    directory.record(report)
     t2 = time.perf_counter()
 
     # the truth at the reference pixels (Lagrangian, conventions)
@@ -220,7 +223,8 @@ def run(args) -> int:
     seconds = {"simulate": t1 - t0, "measure_and_write": t2 - t1,
                "total": time.perf_counter() - t0}
     if args.json:
-        s = summary(result, outputs={"hdf5": str(maps), "figures": [str(f) for f in figs]},
+        s = summary(result, outputs={"hdf5": str(maps), "figures": [str(f) for f in figs],
+                                     "report": str(report)},
                     seconds=seconds["total"], pixel_size=_PIXEL_SIZE, unit=_UNIT)
         s["demo"] = {"directory": str(out), "rms_error": errors,
                      "shift_rms_error_px": {"reference": shift_err[0],
@@ -251,7 +255,8 @@ def run(args) -> int:
         f"{nf.theory_strain[0][2]:.2e})",
         f"  per-frame shifts: RMS error {shift_err[0]:.1e} px (reference), "
         f"{shift_err[1]:.1e} px (loaded)",
-        f"wrote {maps} and {len(figs)} figures in {out / 'figures'}; "
+        f"wrote {maps}, the report {report} (open it in a browser) and {len(figs)} "
+        f"figures in {out / 'figures'}; "
         f"{seconds['total']:.1f} s in all",
         "",
         "measure the same series yourself:",

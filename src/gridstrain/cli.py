@@ -21,7 +21,7 @@ import threading
 
 from . import __version__
 
-_COMMANDS = ("demo", "measure", "noise", "reproduce")
+_COMMANDS = ("demo", "measure", "noise", "plot", "report", "reproduce")
 
 
 class _Parser(argparse.ArgumentParser):

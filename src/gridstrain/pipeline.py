@@ -10,11 +10,16 @@ vibrations of every series and states the noise floor of the maps. Conventions
 For each series
     1. If no lattice is given, the reference frames are averaged (streamed) and
        the lattice detected on the mean image.
-    2. Vibrations: the rigid translation ``(alpha_t, beta_t)`` of every frame from
-       the phase of one global Fourier coefficient per wave vector
-       (:func:`gridstrain.vibration.frame_shifts` when available), no windowed
-       Fourier transform per frame. Paper eq. (2): frame ``t`` is
-       ``s(x + alpha_t, y + beta_t)``.
+    2. Screening and vibrations, in one read of every frame
+       (:func:`gridstrain.screening.screen_frames`): each frame is checked against
+       its series (a grid, its contrast, a rigid slip, the non-rigid residual of a
+       frame of another state, clipping at the ceiling or at a level ``2^n - 1``)
+       and the flagged frames are excluded, refused or kept with a warning
+       (``outliers``); every later pass sees the frames kept only. The rigid
+       translation ``(alpha_t, beta_t)`` of every frame comes from the phase of one
+       global Fourier coefficient per wave vector, as in
+       :func:`gridstrain.vibration.frame_shifts`, no windowed Fourier transform per
+       frame. Paper eq. (2): frame ``t`` is ``s(x + alpha_t, y + beta_t)``.
     3. Statistics (streamed): the mean image, the per-pixel sensor noise variance
        (see *Noise floor*) and the saturated fraction of every frame.
     4. Phase maps. Method A (paper §2.2): the windowed Fourier transform of the
@@ -76,18 +81,18 @@ can be measured and the maps are absent.
 from __future__ import annotations
 
 import contextlib
-import datetime
+import dataclasses
 import math
 import numbers
 import os
-from collections.abc import Callable, Iterable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 from scipy import ndimage
 
-from . import __version__, theory
+from . import theory
 from ._progress import null_progress
 from ._validation import check_choice, check_mask, check_positive
 from .io import (
@@ -95,14 +100,12 @@ from .io import (
     check_saturation_limit,
     open_series,
     read_mask,
-    write_csv,
-    write_hdf5,
 )
 from .kinematics import Measurement, coarse_displacement, deformation
 from .lattice import Lattice, detect_lattice
+from .screening import FrameScreen, screen_frames
 from .stacks import method_b
 from .uncertainty import predict_uncertainty
-from .vibration import frame_shifts
 from .wft import DEFAULT_MARGIN, PhaseMaps, finite_derivatives, wft
 
 __all__ = [
@@ -259,9 +262,11 @@ class SeriesResult:
 
     Attributes
     ----------
-    u : (n_states, 2, H, W) float64 ndarray
-        ``(u_x, u_y)`` per state, px, Lagrangian; NaN where not ``valid``.
-    strain : (n_states, 3, H, W) float64 ndarray
+    u : (n_states, 2, H, W) float ndarray
+        ``(u_x, u_y)`` per state, px, Lagrangian; NaN where not ``valid``. float32
+        when every series holds float32 frames, float64 otherwise (precision in
+        :mod:`gridstrain.conventions`).
+    strain : (n_states, 3, H, W) float ndarray
         ``(e_xx, e_yy, e_xy)`` per state, dimensionless (tensor shear).
     valid : (n_states, H, W) bool ndarray
     lattice : Lattice
@@ -301,6 +306,12 @@ class SeriesResult:
         Every option of the measurement, as given.
     warnings : tuple of str
         Things the user should know that did not stop the measurement.
+    excluded : tuple of tuple of int
+        Per series, the numbers of the frames the screening excluded (their files
+        and reasons are in ``warnings``); ``n_frames`` counts the frames kept.
+    screening : tuple of gridstrain.screening.FrameScreen
+        Per series, what the screening measured on every frame (excluded ones
+        included).
     uncertainty : dict of str to ndarray, optional
         Per-pixel predicted standard deviations ``"ux_std"``, ``"uy_std"`` (px),
         ``"exx_std"``, ``"eyy_std"``, ``"exy_std"``, each ``(n_states, H, W)``, NaN
@@ -332,6 +343,8 @@ class SeriesResult:
     parameters: dict
     warnings: tuple[str, ...] = ()
     uncertainty: dict | None = None
+    excluded: tuple[tuple[int, ...], ...] = ()
+    screening: tuple = field(default=(), repr=False)
 
     def __post_init__(self):
         for name in ("u", "strain", "valid", "mask", "reference_image"):
@@ -378,6 +391,26 @@ class SeriesResult:
         """(n_states, H, W) shear strain (tensor component)."""
         return self.strain[:, 2]
 
+    def save(self, path, **options):
+        """Write this result to its HDF5 file (:func:`gridstrain.results.save_result`)."""
+        from .results import save_result as _save
+
+        return _save(self, path, **options)
+
+    def to_xarray(self, **options):
+        """This result as an ``xarray.Dataset`` (:func:`gridstrain.results.to_xarray`);
+        needs ``gridstrain[xarray]``."""
+        from .results import to_xarray
+
+        return to_xarray(self, **options)
+
+    def plot(self, name: str = "exx", **options):
+        """Maps of ``name`` for every state on common colour limits
+        (:func:`gridstrain.plotting.plot_states`); returns a matplotlib Figure."""
+        from .plotting import plot_states
+
+        return plot_states(self, name, **options)
+
     def __repr__(self) -> str:
         H, W = self.shape
         valid = ", ".join(f"{v.mean():.1%}" for v in self.valid)
@@ -415,22 +448,37 @@ class _ArraySeries:
         self.dtype = arr.dtype
         self.shape = (int(arr.shape[1]), int(arr.shape[2]))
         self._data = arr
+        self._numbers = np.arange(arr.shape[0])  # frames kept, numbered in ``data``
+        if arr.dtype.kind in "ui":  # the container's ceiling, for the screening
+            self.saturation_level = int(np.iinfo(arr.dtype).max)
 
     @property
     def n_frames(self) -> int:
-        return int(self._data.shape[0])
+        return int(self._numbers.size)
 
     def __len__(self) -> int:
         return self.n_frames
 
+    def _number(self, j: int) -> int:
+        return int(self._numbers[j])
+
+    def describe_frame(self, i: int) -> str:
+        return f"frame {self._number(i)}"
+
+    def subset(self, indices) -> _ArraySeries:
+        out = object.__new__(_ArraySeries)
+        out.__dict__.update(self.__dict__)
+        out._numbers = self._numbers[np.asarray(indices, dtype=int)]
+        return out
+
     def frames(self, *, dtype=np.float64, start: int = 0, stop: int | None = None):
-        return (np.array(f, dtype=dtype) for f in self._data[start:stop])
+        return (np.array(self._data[t], dtype=dtype) for t in self._numbers[start:stop])
 
     def mean(self, *, start: int = 0, stop: int | None = None, progress=None):
-        sub = self._data[start:stop]
+        sub = self._numbers[start:stop]
         acc = np.zeros(self.shape)
-        for f in sub:
-            acc += f
+        for t in sub:
+            acc += self._data[t]
         return acc / len(sub)
 
 
@@ -540,15 +588,6 @@ def _counting(frames: Iterable, n: int, report: Progress, what: str):
 # --------------------------------------------------------------------------- vibrations
 
 
-def _frame_shifts(frames: Iterable, lattice: Lattice, name: str) -> tuple[np.ndarray, str]:
-    try:
-        return (np.asarray(frame_shifts(frames, lattice), dtype=np.float64),
-                "gridstrain.vibration.frame_shifts")
-    except ValueError as exc:
-        msg = str(exc)
-        raise ValueError(msg if msg.startswith(f"{name}:") else f"{name}: {msg}") from None
-
-
 def _diagnose(name: str, shifts: np.ndarray, estimator: str, lattice: Lattice,
               method: str) -> VibrationDiagnostics:
     T = shifts.shape[0]
@@ -570,6 +609,126 @@ def _diagnose(name: str, shifts: np.ndarray, estimator: str, lattice: Lattice,
     return VibrationDiagnostics(name=name, shifts=shifts, std=std,
                                 contrast_factor=tuple(contrast),
                                 phase_offset_std=tuple(offset), estimator=estimator)
+
+
+# --------------------------------------------------------------------------- screening
+
+#: What ``outliers`` may say to do with the frames the screening flags.
+OUTLIER_POLICIES = ("exclude", "refuse", "warn")
+# A screened series keeps the mean image's contrast above this fraction
+# (|mean c_t| / mean |c_t|): 0.8 is a vibration of 0.25 pitch / 2 pi ~ 0.2 px std at
+# pitch 5, past the second-order theory of the noise floor (Prop. 2.2).
+_MIN_COHERENCE = 0.8
+
+
+@dataclass(frozen=True, eq=False)
+class _Screened:
+    screen: FrameScreen
+    series: object  # the frames kept
+    shifts: np.ndarray  # (T_kept, 2) px, centred
+    excluded: tuple[int, ...]  # frame numbers
+    kept_flagged: bool  # frames flagged but kept (outliers="warn")
+    saturation: float  # largest clipped fraction of a kept frame
+    clip_level: float  # the level of that frame, NaN when none is clipped
+    warnings: tuple[str, ...]
+
+
+def _screen_series(s, lattice: Lattice, mask, max_saturation: float, outliers: str,
+                   report: Progress) -> _Screened:
+    """Read every frame of ``s`` once: rigid shifts and the screening
+    (:func:`gridstrain.screening.screen_frames`), then exclude, refuse or keep
+    the flagged frames as ``outliers`` says. A strict minority is excluded; when half
+    the frames or more are flagged the series is refused whatever the policy but
+    "warn": the good frames cannot be told from the bad."""
+    n = s.n_frames
+    try:
+        sc = screen_frames(_counting(s.frames(dtype=np.float64), n, report, "screening"),
+                           lattice, saturation_level=s.saturation_level, scale=s.scale,
+                           mask=mask, max_saturation=max_saturation)
+    except ValueError as exc:
+        raise ValueError(f"{s.name}: {exc}") from None
+    bad = sc.flagged
+    names = {t: s.describe_frame(t) for t in bad}
+    listed = "; ".join(f"{names[t]}: {', '.join(sc.reasons[t])}" for t in bad[:5])
+    if len(bad) > 5:
+        listed += f"; and {len(bad) - 5} more"
+    warnings = []
+    keep = [t for t in range(n) if t not in set(bad)]
+    if bad and outliers != "warn" and (outliers == "refuse" or 2 * len(bad) >= n):
+        why = "" if outliers == "refuse" or len(bad) == n else " (half or more: the " \
+            "good frames cannot be told from the bad)"
+        raise ValueError(f"{s.name}: {listed} -- {len(bad)} of {n} frame(s) flagged{why}; "
+                         f"{_advice(sc, bad)}, or pass outliers='warn' (--outliers warn) "
+                         "to measure anyway")
+    if bad and outliers == "exclude":
+        warnings.append(f"{s.name}: excluded {len(bad)} of {n} frames: {listed}")
+    elif bad:
+        warnings.append(f"{s.name}: kept {len(bad)} flagged frame(s) of {n} (outliers="
+                        f"'warn'): {listed}; the noise floor and uncertainty maps of the "
+                        "states measured with them are not stated (NaN)")
+        keep = list(range(n))
+    kept = s if len(keep) == n else s.subset(keep)
+    coh = sc.coherence(keep)
+    if len(keep) > 1 and coh.min() < _MIN_COHERENCE:
+        warnings.append(f"{s.name}: the frames' rigid shifts leave only {coh.min():.0%} of "
+                        "the grid's contrast in their mean (vibrations of a large fraction "
+                        "of a pitch): the noise floor's theory does not hold")
+    sat = sc.saturated[keep]
+    worst = int(np.argmax(sat))
+    level = float(sc.clip_level[keep][worst]) if sat[worst] > 0 else math.nan
+    return _Screened(screen=sc, series=kept, shifts=sc.shifts(keep),
+                     excluded=tuple(s._number(t) for t in bad if outliers == "exclude"),
+                     kept_flagged=bool(bad) and outliers == "warn",
+                     saturation=float(sat[worst]), clip_level=level,
+                     warnings=tuple(warnings))
+
+
+# What the user can do about a flagged frame, by what its reason says.
+_ADVICE = (("uniform", "remove the blank frames"), ("shows no grid", "remove the blank frames"),
+           ("low grid contrast", "remove the dark or blurred frames"),
+           ("rigid shift", "measure the frames before and after the slip as two series"),
+           ("non-rigid", "move the frames of another state to their own series"),
+           ("pixels saturated", "shorten the exposure or mask the saturated area"))
+
+
+def _advice(sc, bad) -> str:
+    out = []
+    for t in bad:
+        for reason in sc.reasons[t]:
+            for key, what in _ADVICE:
+                if key in reason and what not in out:
+                    out.append(what)
+    return "; ".join(out) or "remove or re-take them"
+
+
+def _saturation_warning(s, sc: _Screened, saturation: float) -> list[str]:
+    if saturation <= 0:
+        return []
+    lvl = sc.clip_level
+    at = "" if not math.isfinite(lvl) else f" (clipped at {lvl:g}" + (
+        ")" if s.saturation_level is None or lvl >= s.saturation_level else
+        ", a level 2^n - 1 below the files' range: a camera of fewer bits? pass its "
+        "bit depth)")
+    return [f"{s.name}: up to {saturation:.2%} of a frame's pixels are saturated{at}"]
+
+
+def _void_precision(noise: NoiseFloor, uncertainty, screens) -> tuple:
+    """NaN noise floor and uncertainty maps for every state measured with frames that
+    were flagged but kept: their precision is not known."""
+    states = [i for i in range(noise.theory_u.shape[0])
+              if screens[0].kept_flagged or screens[i + 1].kept_flagged]
+    if not states:
+        return noise, uncertainty
+    arrays = {}
+    for name in ("theory_u", "theory_strain", "split_u", "split_strain", "vibration_u"):
+        a = np.array(getattr(noise, name))
+        a[states] = np.nan
+        arrays[name] = a
+    if uncertainty is not None:
+        uncertainty = {k: np.array(v) for k, v in uncertainty.items()}
+        for v in uncertainty.values():
+            v[states] = np.nan
+    return dataclasses.replace(noise, **arrays), uncertainty
 
 
 # --------------------------------------------------------------------------- statistics
@@ -725,6 +884,15 @@ def _phase_maps_b(series, lattice, sigma, mask, margin, report):
     return finite_derivatives(method_b(frames, lattice, sigma=sigma, mask=mask, margin=margin).maps)
 
 
+def _in_precision(maps: list, series: list) -> list:
+    """The phase maps in the precision of the input (gridstrain.conventions): float32
+    when every series holds float32 frames; they were computed in float64."""
+    if not all(np.dtype(s.dtype) == np.float32 for s in series):
+        return maps
+    return [dataclasses.replace(pm, psi=pm.psi.astype(np.complex64),
+                                dphi=pm.dphi.astype(np.float32)) for pm in maps]
+
+
 # --------------------------------------------------------------------------- Dask
 
 
@@ -819,8 +987,8 @@ def measure_series(reference, states, *, lattice: Lattice | None = None,
                    sigma: float | None = None, method: str = "A", mask=None,
                    lagrangian: bool = True, guess="auto", margin: float = DEFAULT_MARGIN,
                    bit_depth: int | None = None, max_saturation: float = _MAX_SATURATION,
-                   progress: Progress | None = None, scheduler=None,
-                   timeout: float | None = None) -> SeriesResult:
+                   outliers: str = "exclude", progress: Progress | None = None,
+                   scheduler=None, timeout: float | None = None) -> SeriesResult:
     """Displacement and strain maps of loaded states from series of grid images.
 
     Parameters
@@ -854,6 +1022,17 @@ def measure_series(reference, states, *, lattice: Lattice | None = None,
     max_saturation : float
         Largest fraction of saturated pixels accepted in any frame of a file
         series (within the mask), in [0, 1].
+    outliers : {"exclude", "refuse", "warn"}
+        What to do with the frames that the screening flags (every frame is checked
+        against its series by :func:`gridstrain.screening.screen_frames`: no grid
+        or a uniform frame, low contrast, a rigid slip, a frame of another state,
+        more than ``max_saturation`` clipped pixels, at the container's ceiling or
+        at a level ``2^n - 1``). "exclude" (default): leave them out of every
+        average (mean, variance, method B, the noise floor's halves, ``T``) and
+        name them in the warnings; a series with half its frames flagged or more
+        is refused, the good ones being then unknown. "refuse": raise on any
+        flagged frame. "warn": keep them, name them in the warnings, and give the
+        noise floor and uncertainty maps of the states they enter as NaN.
     progress : callable, optional
         ``progress(fraction, message)``.
     scheduler : str or distributed.Client, optional
@@ -880,6 +1059,14 @@ def measure_series(reference, states, *, lattice: Lattice | None = None,
         Bad arguments or input files (the message names the series, the frame
         and the file); an unreachable scheduler (OSError).
 
+    Notes
+    -----
+    Frames are read one at a time, never held whole. Every frame is read once for
+    the screening and the shifts, once for the statistics and, with method B, once
+    for its transform; the reference's frames twice more (the mean that detects or
+    checks the lattice, before the screening, and the two halves of the noise
+    floor).
+
     Examples
     --------
     >>> import numpy as np
@@ -896,6 +1083,7 @@ def measure_series(reference, states, *, lattice: Lattice | None = None,
     if not callable(progress):
         raise TypeError(f"progress must be callable or None, got {progress!r}")
     check_choice(method, "method", ("A", "B"))
+    check_choice(outliers, "outliers", OUTLIER_POLICIES)
     margin = check_positive(margin, "margin")
     sigma = check_positive(sigma, "sigma", allow_none=True)
     guess = _check_guess(guess)
@@ -937,7 +1125,8 @@ def measure_series(reference, states, *, lattice: Lattice | None = None,
     total += n_states * (3 * wft_cost if lagrangian else wft_cost)
     total += ref.n_frames + 2 * wft_cost + wft_cost
     steps = _Steps(progress, total)
-    warnings: list[str] = []
+    # how the frames were read (colour converted, lossy JPEG), series by series
+    warnings: list[str] = [n for s in series for n in getattr(s, "notes", ())]
 
     # the lattice, detected on the mean reference image or checked against it
     mean_ref = ref.mean(progress=steps.sub(ref.n_frames, ""))
@@ -963,20 +1152,28 @@ def measure_series(reference, states, *, lattice: Lattice | None = None,
         _check_given_lattice(mean_ref, lattice, sigma, m, margin)
     steps.step(1.0, "lattice")
 
+    # every frame screened against its series (one read), the flagged ones handled
+    # before any average; the rest of the pipeline sees the frames kept only
+    screens = [_screen_series(s, lattice, m, max_saturation, outliers,
+                              steps.sub(s.n_frames, s.name)) for s in series]
+    series = [sc.series for sc in screens]
+    ref = series[0]
+    warnings += [w for sc in screens for w in sc.warnings]
+
     vib, stats, maps, masks = [], [], [], []
     with _connect(scheduler) as client:
-        for s in series:
+        for s, sc in zip(series, screens, strict=True):
             n = s.n_frames
-            shifts, how = _frame_shifts(
-                _counting(s.frames(dtype=np.float64), n, steps.sub(n, s.name), "shifts"),
-                lattice, s.name)
-            vib.append(_diagnose(s.name, shifts, how, lattice, method))
+            shifts = sc.shifts
+            vib.append(_diagnose(s.name, shifts, "gridstrain.vibration.frame_shifts",
+                                 lattice, method))
+            # the screening judged the saturation: the pass below only measures it
             if client is None:
-                stats.append(_statistics(s, shifts, m, max_saturation, steps.sub(n, s.name)))
+                stats.append(_statistics(s, shifts, m, 1.0, steps.sub(n, s.name)))
             else:  # a future: the cluster works while this machine reads the next series
                 c, _, regress = _regressors(shifts)
                 stats.append(_dist()._submit_statistics(client, s, c if regress else None, m,
-                                                        max_saturation))
+                                                        1.0))
         for k, s in enumerate(series):
             n = s.n_frames
             if client is not None:
@@ -999,6 +1196,7 @@ def measure_series(reference, states, *, lattice: Lattice | None = None,
                 maps[k] = finite_derivatives(maps[k].result(timeout).maps)
                 steps.step(s.n_frames * wft_cost, f"{s.name}: method B")
 
+    maps = _in_precision(maps, series)
     mean_ref = stats[0].mean
     measurements, guesses, sources = [], [], []
     for i in range(1, len(series)):
@@ -1047,16 +1245,17 @@ def measure_series(reference, states, *, lattice: Lattice | None = None,
                        variance_method=tuple(st.variance_method for st in stats),
                        modulus=mods, theory_u=th_u, theory_strain=th_e, split_u=sp_u,
                        split_strain=sp_e, vibration_u=vib_u)
-    for st, s in zip(stats, series, strict=True):
-        if st.saturation > 0:
-            warnings.append(f"{s.name}: up to {st.saturation:.2%} of a frame's pixels are "
-                            "saturated")
+    saturation = tuple(max(st.saturation, sc.saturation)
+                       for st, sc in zip(stats, screens, strict=True))
+    for s, sc, sat in zip(series, screens, saturation, strict=True):
+        warnings += _saturation_warning(s, sc, sat)
     uncertainty = _uncertainty_maps(stats, maps, measurements, T, float(sigma))
+    noise, uncertainty = _void_precision(noise, uncertainty, screens)
     progress(1.0, "done")
 
     parameters = {"sigma": float(sigma), "method": method, "lagrangian": bool(lagrangian),
                   "guess": guess, "margin": float(margin), "max_saturation":
-                  float(max_saturation), "bit_depth": bit_depth,
+                  float(max_saturation), "bit_depth": bit_depth, "outliers": outliers,
                   "lattice": None if detect else {"k1": list(lattice.k1),
                                                   "k2": list(lattice.k2)}}
     u = np.stack([r.u for r in measurements])
@@ -1070,7 +1269,8 @@ def measure_series(reference, states, *, lattice: Lattice | None = None,
         sources=tuple(tuple(str(p) for p in s.paths) for s in series),
         n_frames=tuple(T), bit_depth=tuple(s.bit_depth for s in series),
         scale=tuple(int(s.scale) for s in series),
-        saturation=tuple(st.saturation for st in stats),
+        saturation=saturation, excluded=tuple(sc.excluded for sc in screens),
+        screening=tuple(sc.screen for sc in screens),
         measurements=tuple(measurements), guesses=tuple(guesses),
         guess_sources=tuple(sources), vibration=tuple(vib), noise=noise,
         parameters=parameters, warnings=tuple(warnings), uncertainty=uncertainty)
@@ -1116,136 +1316,15 @@ def _check_pixel_size(pixel_size, unit):
     return ps, unit.strip()
 
 
-def _finite_list(values) -> list:
-    """Floats, NaN as None (stored as JSON null, readable everywhere)."""
-    return [float(x) if math.isfinite(x) else None for x in values]
+def save_result(result: SeriesResult, path, **options) -> Path:
+    """Write a result to its HDF5 file: :func:`gridstrain.results.save_result`."""
+    from .results import save_result as _save
+
+    return _save(result, path, **options)
 
 
-def _timestamp() -> str:
-    return datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds")
+def save_csv(result: SeriesResult, path, **options) -> Path:
+    """One CSV row per valid pixel: :func:`gridstrain.results.save_csv`."""
+    from .results import save_csv as _save
 
-
-def save_result(result: SeriesResult, path, *, pixel_size: float | None = None,
-                unit: str | None = None, overwrite: bool = False,
-                attrs: Mapping | None = None) -> Path:
-    """Write a :class:`SeriesResult` to one HDF5 file, atomically.
-
-    Parameters
-    ----------
-    result : SeriesResult
-    path : str or os.PathLike
-        Destination (``.h5``).
-    pixel_size : float, optional
-        Size of a pixel on the specimen, in ``unit``: adds ``ux_phys`` and
-        ``uy_phys``.
-    unit : str, optional
-        Length unit of ``pixel_size`` (``"mm"``...); required with it.
-    overwrite : bool
-        Replace an existing file.
-    attrs : dict, optional
-        Extra root attributes (the command line, the mask file...).
-
-    Returns
-    -------
-    pathlib.Path
-
-    Notes
-    -----
-    Layout (every map ``(n_states, H, W)``, states in the order given):
-
-    - ``ux``, ``uy`` (px), ``exx``, ``eyy``, ``exy`` (``"1"``, dimensionless,
-      tensor shear), ``valid`` (bool); ``ux_phys``, ``uy_phys`` in ``unit``;
-      per-pixel uncertainty maps (``ux_std``...) when the result has them;
-    - ``reference_image`` (H, W), the mean reference frame (raw grey levels),
-      and ``mask`` (H, W), the specimen mask used;
-    - ``vibration/<series>/shifts`` (T, 2), px, one group per series
-      (``reference``, ``state_0``...), attributes ``std``, ``contrast_factor``,
-      ``phase_offset_std`` (rad), ``n_frames``, ``estimator``;
-    - group ``noise``: the :class:`NoiseFloor` as attributes;
-    - root attributes: every parameter, the lattice (``k1``, ``k2`` in cycles/px,
-      ``pitches`` px, ``angles`` deg), the input files, ``n_frames`` per series,
-      bit depth and scale, ``gridstrain_version``, ``created`` (UTC, ISO 8601).
-    """
-    if not isinstance(result, SeriesResult):
-        raise TypeError(f"result must be a SeriesResult, got {type(result).__name__}")
-    ps, unit = _check_pixel_size(pixel_size, unit)
-    datasets, units = {}, {}
-    for name, u in MAP_FIELDS.items():
-        datasets[name] = result.get_map(name)
-        units[name] = u
-    datasets["valid"] = result.valid
-    if ps is not None:
-        for name in ("ux", "uy"):
-            datasets[f"{name}_phys"] = result.get_map(name) * ps
-            units[f"{name}_phys"] = unit
-    for name, arr in (result.uncertainty or {}).items():
-        datasets[name] = np.asarray(arr)
-        base = name.removesuffix("_std")
-        if base in MAP_FIELDS:  # "ux_std" is in px like "ux"
-            units[name] = MAP_FIELDS[base]
-    datasets["reference_image"] = result.reference_image.astype(np.float32)
-    units["reference_image"] = "grey levels (raw)"
-    datasets["mask"] = result.mask
-    groups = {}
-    keys = _series_keys(result)
-    for key, v in zip(keys, result.vibration, strict=True):
-        datasets[f"vibration/{key}/shifts"] = v.shifts
-        units[f"vibration/{key}/shifts"] = "px"
-        groups[f"vibration/{key}"] = {
-            "name": v.name, "n_frames": v.n_frames, "std_px": _finite_list(v.std),
-            "contrast_factor": _finite_list(v.contrast_factor),
-            "phase_offset_std_rad": _finite_list(v.phase_offset_std),
-            "estimator": v.estimator,
-            "definition": "frame t is s(x + alpha_t, y + beta_t) (paper eq. 2); shifts "
-                          "centred on the series mean"}
-    groups["noise"] = result.noise.as_dict()
-    lat = result.lattice
-    root = {
-        "gridstrain_version": __version__,
-        "created": _timestamp(),
-        "conventions": "gridstrain.conventions: [row, col] = [y, x], Lagrangian "
-                       "displacement, small-strain tensor (exy = tensor shear)",
-        "states": list(result.names[1:]),
-        "series_keys": keys,
-        "n_frames": list(result.n_frames),
-        "n_frames_reference": result.n_frames[0],
-        "n_frames_states": list(result.n_frames[1:]),
-        "reference_files": list(result.sources[0]),
-        "state_files": [list(s) for s in result.sources[1:]],
-        "bit_depth": list(result.bit_depth),
-        "scale": list(result.scale),
-        "saturation": list(result.saturation),
-        "k1": list(lat.k1), "k2": list(lat.k2), "pitches": list(lat.pitches),
-        "angles": list(lat.angles), "lattice_detected": bool(result.lattice_detected),
-        "sigma": result.sigma, "method": result.method, "lagrangian": result.lagrangian,
-        "margin": result.margin, "parameters": dict(result.parameters),
-        "pixel_size": ps, "unit": unit,
-        "iterations": [int(m.iterations) for m in result.measurements],
-        "guess_used": [list(g) for g in result.guesses],
-        "guess_source": list(result.guess_sources),
-        "valid_fraction": [float(v.mean()) for v in result.valid],
-        "warnings": list(result.warnings),
-    }
-    for key, value in (attrs or {}).items():
-        root[key] = value
-    return write_hdf5(path, datasets, root, groups=groups, units=units, overwrite=overwrite)
-
-
-def _series_keys(result: SeriesResult) -> list[str]:
-    return ["reference"] + [f"state_{i}" for i in range(result.n_states)]
-
-
-def save_csv(result: SeriesResult, path, *, overwrite: bool = False) -> Path:
-    """Write one row per valid pixel: ``state, x, y, ux, uy, exx, eyy, exy``.
-
-    ``x`` is the column and ``y`` the row (:mod:`gridstrain.conventions`),
-    displacements in px, strains dimensionless; ``state`` indexes the loaded
-    states in the order given (0 first). Written atomically.
-    """
-    if not isinstance(result, SeriesResult):
-        raise TypeError(f"result must be a SeriesResult, got {type(result).__name__}")
-    st, yy, xx = np.nonzero(result.valid)
-    cols = {"state": st, "x": xx, "y": yy}
-    for name in MAP_FIELDS:
-        cols[name] = result.get_map(name)[st, yy, xx]
-    return write_csv(path, cols, overwrite=overwrite)
+    return _save(result, path, **options)
