@@ -82,11 +82,12 @@ def _one_line(exc: BaseException) -> str:
 
 def _is_dask_error(exc: BaseException) -> bool:
     """An error of the Dask cluster itself (lost scheduler, killed workers...)."""
+    import asyncio
     import concurrent.futures
 
     mod = type(exc).__module__ or ""
     return mod.split(".")[0] in ("distributed", "tornado") \
-        or isinstance(exc, concurrent.futures.CancelledError)
+        or isinstance(exc, concurrent.futures.CancelledError | asyncio.CancelledError)
 
 
 def main(argv=None) -> int:
@@ -107,7 +108,9 @@ def main(argv=None) -> int:
     except Terminated:
         print(f"{where}: terminated (SIGTERM); no partial output left", file=sys.stderr)
         return 143
-    except Exception as exc:
+    except BaseException as exc:
+        if isinstance(exc, SystemExit | GeneratorExit):
+            raise
         # a lost connection is an OSError too: the cluster is named first
         if _is_dask_error(exc):
             print(f"{where}: error: the Dask cluster failed ({type(exc).__name__}: "
