@@ -1174,8 +1174,10 @@ def space_error(exc: OSError, path) -> OSError:
     hint = {errno.EFBIG: "the file exceeds the size limit of this process or file "
                          "system (see `ulimit -f`)"}.get(exc.errno, "free some space or "
                                                                      "write elsewhere")
-    return OSError(exc.errno, f"cannot write {path}: {os.strerror(exc.errno).lower()} "
-                              f"({code}); nothing was written; {hint}")
+    err = OSError(f"cannot write {path}: {os.strerror(exc.errno).lower()} ({code}); "
+                  f"nothing was written; {hint}")
+    err.errno = exc.errno  # the message stays one plain line, the code stays testable
+    return err
 
 
 def write_atomic(path, data, *, overwrite: bool = False) -> Path:
