@@ -89,7 +89,7 @@ from scipy import ndimage
 
 from . import __version__, theory
 from ._progress import null_progress
-from ._validation import check_choice, check_mask, check_positive
+from ._validation import check_choice, check_mask, check_positive, check_sigma
 from .io import (
     FrameSeries,
     check_saturation_limit,
@@ -872,9 +872,8 @@ def measure_series(reference, states, *, lattice: Lattice | None = None,
     if lattice is not None and not isinstance(lattice, Lattice):
         raise TypeError(f"lattice must be a Lattice or None, got {type(lattice).__name__}")
     scheduler = _check_scheduler(scheduler)
-    if sigma is not None and lattice is not None and sigma < lattice.pitch * (1 - 1e-9):
-        raise ValueError(f"sigma must be at least the pitch ({lattice.pitch:.4g} px) so "
-                         f"that the window holds one period, got {sigma:.4g}")
+    if sigma is not None and lattice is not None:
+        sigma = check_sigma(sigma, lattice.pitch)
 
     ref = _as_series(reference, "reference", bit_depth)
     series = [ref] + [_as_series(s, f"state {i}", bit_depth)
@@ -908,10 +907,7 @@ def measure_series(reference, states, *, lattice: Lattice | None = None,
             lattice = detect_lattice(mean_ref, mask=m)
         except ValueError as exc:
             raise ValueError(f"reference: {exc}") from None
-    sigma = lattice.pitch if sigma is None else sigma
-    if sigma < lattice.pitch * (1 - 1e-9):
-        raise ValueError(f"sigma must be at least the pitch ({lattice.pitch:.4g} px) so "
-                         f"that the window holds one period, got {sigma:.4g}")
+    sigma = check_sigma(sigma, lattice.pitch)
     if not detect:
         _check_given_lattice(mean_ref, lattice, sigma, m, margin)
     steps.step(1.0, "lattice")
