@@ -23,8 +23,12 @@ from .lattice import Lattice, detect_lattice
 from .vibration import _as_frame, _CarrierProbe, _iter_frames, _streaming_shift
 from .wft import wft
 
-__all__ = ["NoiseModel", "anscombe", "estimate_noise", "estimate_noise_image",
+__all__ = ["NOISE_RESULT_KIND", "NoiseModel", "anscombe", "estimate_noise", "estimate_noise_image",
            "inverse_anscombe"]
+
+#: ``result_kind`` attribute of the files ``gridstrain noise`` writes, by which
+#: ``gridstrain measure --noise`` recognises them.
+NOISE_RESULT_KIND = "gridstrain noise model"
 
 # Tail probabilities beyond which a pixel's residual variance is rejected as an
 # outlier (chi-square test against the current model). Contamination is nearly
@@ -232,6 +236,8 @@ class NoiseModel:
     filter_gain : float or None
         Single-image method: the fraction ``sum h^2`` of white-noise power its
         grid-removal filter passes (divided out of the variances).
+    bit_depth : int or None
+        Significant bits of the images the model was estimated on, when known.
     """
 
     K: float
@@ -248,6 +254,7 @@ class NoiseModel:
     variance_errors: np.ndarray | None = None
     method: str = "stack"
     filter_gain: float | None = None
+    bit_depth: int | None = None
 
     def __post_init__(self):
         for name in ("K", "L"):
@@ -259,6 +266,20 @@ class NoiseModel:
                 arr = np.array(arr, dtype=np.float64)
                 arr.flags.writeable = False
                 object.__setattr__(self, name, arr)
+
+    def as_dict(self) -> dict:
+        """Plain-Python description (floats, lists, None), stored units and sensor units."""
+        def pair(c):
+            return None if c is None else [float(c[0]), float(c[1])]
+
+        return {"method": self.method, "K": self.K, "L": self.L, "K_ci": pair(self.K_ci),
+                "L_ci": pair(self.L_ci), "scale": self.scale, "bit_depth": self.bit_depth,
+                "K_sensor": self.K_sensor, "L_sensor": self.L_sensor,
+                "K_sensor_ci": pair(self.K_sensor_ci), "L_sensor_ci": pair(self.L_sensor_ci),
+                "n_frames": self.n_frames, "n_pixels": self.n_pixels,
+                "reduced_chi2": self.reduced_chi2, "filter_gain": self.filter_gain,
+                "units": "K: stored grey levels, L: stored grey levels^2 (sensor: / scale, "
+                         "/ scale^2)"}
 
     def variance(self, level):
         """Noise variance ``K level + L`` at grey level(s) ``level``, stored units^2."""
@@ -736,14 +757,12 @@ def _residual_filter(shape, lattice: Lattice, spec: np.ndarray):
     s = _NOTCH_STD
     cand = _harmonics(lattice, _MAX_ORDER)
     # noise floor: tile bins more than 3 bins from every candidate
-    fb = np.fft.fftfreq(tile)
     near = np.zeros((tile, tile), dtype=bool)
     for fy, fx in cand:
-        iy, ix = int(round(fy * tile)) % tile, int(round(fx * tile)) % tile
+        iy, ix = round(fy * tile) % tile, round(fx * tile) % tile
         near[np.ix_(np.arange(iy - 3, iy + 4) % tile, np.arange(ix - 3, ix + 4) % tile)] = True
     far = spec[~near] if (~near).sum() >= 20 else spec.ravel()
     floor = float(np.median(far)) if (~near).sum() >= 20 else float(np.quantile(far, 0.1))
-    del fb
     n = np.arange(-_MAX_ORDER, _MAX_ORDER + 1)
     nn, mm = np.meshgrid(n, n)
     always = (np.abs(nn) + np.abs(mm)).ravel() <= 1
@@ -751,7 +770,7 @@ def _residual_filter(shape, lattice: Lattice, spec: np.ndarray):
     fy_all, fx_all = np.fft.fftfreq(H), np.fft.fftfreq(W)
     used = []
     for (fy, fx), keep in zip(cand, always, strict=True):
-        iy, ix = int(round(fy * tile)) % tile, int(round(fx * tile)) % tile
+        iy, ix = round(fy * tile) % tile, round(fx * tile) % tile
         local = spec[np.ix_(np.arange(iy - 1, iy + 2) % tile, np.arange(ix - 1, ix + 2) % tile)]
         if not keep and local.max() <= _PEAK_FACTOR * floor:
             continue
