@@ -745,7 +745,7 @@ def _harmonics(lattice: Lattice, order: int) -> np.ndarray:
     return f[:, ::-1]
 
 
-def _residual_filter(shape, lattice: Lattice, spec: np.ndarray):
+def _residual_filter(shape, lattice: Lattice, spec: np.ndarray, s: float):
     """Transfer (H, W) of the grid-removal filter and the notched frequencies.
 
     ``H(f) = prod_h (1 - exp(-|f - f_h|^2 / (2 s^2)))^2`` over the significant
@@ -754,7 +754,6 @@ def _residual_filter(shape, lattice: Lattice, spec: np.ndarray):
     """
     H, W = shape
     tile = spec.shape[0]
-    s = _NOTCH_STD
     cand = _harmonics(lattice, _MAX_ORDER)
     # noise floor: tile bins more than 3 bins from every candidate
     near = np.zeros((tile, tile), dtype=bool)
@@ -901,13 +900,16 @@ def estimate_noise_image(image, lattice: Lattice | None = None, *, mask=None,
     # the kernel of a Gaussian notch of frequency std s is a Gaussian envelope of
     # 1 / (2 pi s) px (its square, of the double notch, is narrower): beyond 4.5 of
     # them a pixel's residual no longer sees an edge, a hole or a clipped pixel
-    reach = math.ceil(4.5 / (2 * math.pi * _NOTCH_STD))
-    band = math.ceil(reach + 2 * lattice.pitch)
+    # on small images the notches widen so that the reach stays a sixth of the side
+    notch = max(_NOTCH_STD, 4.5 / (2 * math.pi * min(H, W) / 6))
+    reach = math.ceil(4.5 / (2 * math.pi * notch))
+    # the modulus marks a gridless region's border to within about two pitches
+    band = math.ceil(2 * lattice.pitch)
     edge = ndimage.binary_dilation(nogrid, iterations=band) & ndimage.binary_dilation(
         ~nogrid, iterations=band)
     usable = ~bad & ~edge
     tile = min(_TILE, 1 << math.floor(math.log2(min(H, W) / 2)))
-    Hf, _ = _residual_filter(img.shape, lattice, _tile_spectrum(img, usable, tile))
+    Hf, _ = _residual_filter(img.shape, lattice, _tile_spectrum(img, usable, tile), notch)
     h = np.real(np.fft.ifft2(Hf))
     G = float(np.mean(Hf * Hf))  # Parseval: sum h^2, the white-noise power passed
     F = np.fft.fft2(img)
@@ -916,11 +918,13 @@ def estimate_noise_image(image, lattice: Lattice | None = None, *, mask=None,
     ok = ~ndimage.binary_dilation(bad | edge, iterations=reach)
     ok[:reach] = ok[-reach:] = False
     ok[:, :reach] = ok[:, -reach:] = False
-    if np.count_nonzero(ok) < 100 * n_bins:
+    n_bins = min(n_bins, np.count_nonzero(ok) // 200)
+    if n_bins < 8:
         raise ValueError(f"too few usable pixels ({np.count_nonzero(ok)}) to estimate the "
                          "noise from this image (borders, masked, clipped and gridless "
                          "regions are left out with a band of "
-                         f"{reach} px)")
+                         f"{reach} px); a larger image or a noise model from a stack "
+                         "helps")
     # correlation of neighbouring residuals: Var(mean of n r^2) = 2 V^2 R / n
     A = np.abs(Hf) ** 2
     R = float(A.size * np.sum(A * A) / np.sum(A) ** 2)

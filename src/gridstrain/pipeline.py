@@ -1186,8 +1186,9 @@ def _figures(noise, uncertainty, measurements, mean_ref, lattice, sigma, mask, w
     for i, m in enumerate(measurements):
         name = f"state {i}"
         fl = floors[i]
-        u_noise = max(v for v in (fl["ux"], fl["uy"]) if math.isfinite(v)) if any(
-            math.isfinite(fl[k]) for k in ("ux", "uy")) else 0.0
+        known = [fl[k] for k in ("ux", "uy") if math.isfinite(fl[k])]
+        u_noise = max(known) if known else 0.0
+        noise_txt = f"{u_noise:.2g} px" if known else "unknown"
         if alias["u_px"] > max(u_noise, _ALIAS_MIN_PX):
             how = ("estimated from the harmonics seen in the reference image"
                    if alias["observable"] else "bound for sharp lines; the line profile "
@@ -1195,7 +1196,7 @@ def _figures(noise, uncertainty, measurements, mean_ref, lattice, sigma, mask, w
             warnings.append(f"{name}: harmonics of the grid's lines can alias onto the carrier "
                             f"at pitch {lattice.pitch:.3g} px: displacement error up to "
                             f"{alias['u_px']:.2g} px ({how}), above the noise "
-                            f"({u_noise:.2g} px); use a larger sigma, a pitch away from 4 px "
+                            f"({noise_txt}); use a larger sigma, a pitch away from 4 px "
                             "or a smoother (defocused) grid")
         for j, comp in enumerate(("exx", "eyy", "exy")):
             b = smooth[i]["p95"][j]

@@ -378,9 +378,9 @@ def aliasing_bias(image, lattice, *, sigma: float, mask=None) -> dict:
     At pitch 4 the 3rd, 5th, 7th... harmonics land exactly on ``-k``, ``+k``...
     The bound sums these terms for sharp lines (a square profile, ``a_n / a_1
     = 1/n`` for odd ``n``, times the pixel's integration ``sinc(n k)/sinc(k)``
-    along each axis), scaled by the profile's sharpness: measured as the ratio of
-    the harmonics that alias elsewhere (seen in the image's spectrum) to their
-    sharp-line value, or 1 when none can be seen (integer pitches such as 4,
+    along each axis), scaled by the profile's sharpness: measured as the median
+    ratio of the odd harmonics that alias elsewhere (seen in the image's spectrum)
+    to their sharp-line value, or 1 when none can be seen (integer pitches such as 4,
     where every alias lands on a carrier, zero or the Nyquist frequency). The
     strain error follows from the phase ``(n + 1) phi`` of the error term: about
     ``(n + 1)`` times the phase bound per unit strain. Figures on noise-free
@@ -392,7 +392,11 @@ def aliasing_bias(image, lattice, *, sigma: float, mask=None) -> dict:
     H, W = img.shape
     w = np.outer(np.hanning(H), np.hanning(W))
     if mask is not None:
-        w = w * np.asarray(mask, dtype=bool)
+        # a soft edge: a hard one would spread the mean level and the fundamental
+        # over the spectrum, where they would pass for harmonics
+        p = float(np.mean(lattice.pitches))
+        m = ndimage.binary_erosion(np.asarray(mask, dtype=bool), iterations=math.ceil(3 * p))
+        w = w * ndimage.gaussian_filter(m.astype(np.float64), p)
     ref = img - float(np.sum(img * w) / np.sum(w))
     ks = [np.array(lattice.k1), np.array(lattice.k2)]
     carriers = [s * k for k in ks for s in (1, -1)]
@@ -414,10 +418,12 @@ def aliasing_bias(image, lattice, *, sigma: float, mask=None) -> dict:
             strain_b += (n + 1) * term * transfer
             # an odd harmonic whose alias is far from the carriers, zero and the
             # Nyquist lines can be measured
-            if n % 2 and term > 0 and delta > 3 * bw and np.hypot(*f) > 3 * bw and \
-                    np.all(np.abs(np.abs(f) - 0.5) > 3 * bw) and a1 > 0:
+            # (near the Nyquist lines the harmonic meets its own conjugate's alias)
+            if n % 2 and term > 0.01 and delta > 3 * bw and np.hypot(*f) > 3 * bw and \
+                    np.all(np.abs(np.abs(f) - 0.5) > 1.5 * bw) and a1 > 0:
                 ratios.append(abs(_dtft(ref, w, n * k)) / a1 / term)
-        c = min(1.0, max(ratios)) if ratios else 1.0
+        # the median: one harmonic caught by a mask edge or texture does not decide
+        c = min(1.0, float(np.median(ratios))) if ratios else 1.0
         sharp.append(c)
         seen.append(bool(ratios))
         phase.append(c * bound)
