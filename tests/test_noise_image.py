@@ -1,19 +1,7 @@
 """The camera noise (K, L) from one grid image, and uncertainty maps for one-frame states.
 
-The images come from a generator written here with numpy alone, independent of
-gridstrain.synthetic. Its assumptions:
-
-- the specimen carries a printed pattern: a checkerboard (product of two tanh
-  edges, edges about half a pixel wide, the blur of a good lens) or a grid of
-  dark lines 0.3 period wide (tanh edges) or a pure sine grid;
-- the pixel integrates the light over its area (3 x 3 sub-samples);
-- the lighting is fixed to the camera, a broad Gaussian falling to about 40 %;
-- a hole shows a uniform dark background (level 300 sensor grey levels);
-- optional print texture: a reflectance factor ``1 + c t`` with ``t`` white noise
-  smoothed by a 20-px Gaussian, normalised to unit std;
-- the sensor is Poisson-Gaussian: ``K`` times a Poisson count plus normal read
-  noise of variance ``L``, rounded to integers (quantisation adds 1/12), clipped
-  to 12 bits and stored x16 in 16-bit integers.
+Images from the numpy-only generator of ``tests/independent_grid.py`` (its
+assumptions are in its docstring).
 """
 
 from __future__ import annotations
@@ -23,58 +11,8 @@ import pytest
 
 from gridstrain.noise import estimate_noise_image
 from gridstrain.pipeline import measure_series
-
-
-def _pattern(a, b, kind):
-    if kind == "checker":
-        c = 3.0  # edge width ~ p / (pi c): half a pixel at pitch 5
-        return 0.5 + 0.5 * np.tanh(c * np.sin(np.pi * (a + b))) * np.tanh(
-            c * np.sin(np.pi * (a - b))) / np.tanh(c) ** 2
-    if kind == "lines":
-        def line(t):  # dark lines 0.3 period wide, ~0.3 px edges at pitch 4
-            return 0.5 + 0.5 * np.tanh(4 * (np.cos(2 * np.pi * t) - np.cos(0.3 * np.pi)))
-        return 1 - 0.5 * (line(a) + line(b))
-    return 0.5 + 0.25 * (np.sin(2 * np.pi * a) + np.sin(2 * np.pi * b))
-
-
-def _scene(shape, *, pitch, angle, kind="checker", amplitude=2000.0, contrast=0.9,
-           light=True, hole=True, texture=0.0, displacement=None, over=3, seed=0):
-    """Noise-free expected sensor levels (float), and the hole mask."""
-    H, W = shape
-    th = np.deg2rad(angle)
-    ys, xs = np.mgrid[0:H * over, 0:W * over].astype(np.float64)
-    x, y = (xs + 0.5) / over - 0.5, (ys + 0.5) / over - 0.5
-    X, Y = x, y
-    if displacement is not None:  # Lagrangian: the point X is seen at X + u(X)
-        for _ in range(8):
-            ux, uy = displacement(X, Y)
-            X, Y = x - ux, y - uy
-    a = (np.cos(th) * X + np.sin(th) * Y) / pitch
-    b = (-np.sin(th) * X + np.cos(th) * Y) / pitch
-    img = amplitude * ((1 - contrast) + contrast * _pattern(a, b, kind))
-    if light:
-        img = img * (0.35 + 0.75 * np.exp(-((x - 0.4 * W) ** 2 + (y - 0.6 * H) ** 2)
-                                           / (2 * (0.5 * W) ** 2)))
-    inside = (X - 0.7 * W) ** 2 + (Y - 0.35 * H) ** 2 < (0.075 * min(H, W) * 1.3) ** 2
-    img = img.reshape(H, over, W, over).mean(axis=(1, 3))
-    inside = inside.reshape(H, over, W, over).mean(axis=(1, 3)) > 0.5
-    if texture:
-        rng = np.random.default_rng(seed + 1000)
-        f2 = np.fft.fftfreq(H)[:, None] ** 2 + np.fft.fftfreq(W)[None] ** 2
-        t = np.real(np.fft.ifft2(np.fft.fft2(rng.normal(size=(H, W)))
-                                 * np.exp(-2 * np.pi**2 * 20**2 * f2)))
-        img = img * (1 + texture * t / t.std())
-    if hole:
-        img[inside] = 300.0
-    return img, inside if hole else np.zeros((H, W), dtype=bool)
-
-
-def _camera(level, K, L, rng, scale=16):
-    """Poisson-Gaussian 12-bit sensor, stored x ``scale`` in uint16."""
-    e = rng.poisson(level / K)
-    out = np.clip(np.round(K * e + rng.normal(0.0, np.sqrt(L), level.shape)), 0, 4095)
-    return (out * scale).astype(np.uint16)
-
+from independent_grid import camera as _camera
+from independent_grid import scene as _scene
 
 CASES = [
     # K, L (sensor), pitch, angle, pattern
@@ -85,14 +23,16 @@ CASES = [
 ]
 
 
-@pytest.mark.parametrize("K, L, pitch, angle, kind", CASES)
+@pytest.mark.parametrize(("K", "L", "pitch", "angle", "kind"), CASES)
 def test_single_image_noise_model(K, L, pitch, angle, kind):
     level, _ = _scene((512, 688), pitch=pitch, angle=angle, kind=kind)
     img = _camera(level, K, L, np.random.default_rng(7))
     m = estimate_noise_image(img, saturation=65520, scale=16)
-    assert m.method == "single image" and m.n_frames == 1
+    assert m.method == "single image"
+    assert m.n_frames == 1
     # stored units are 16 and 256 times the sensor's
-    assert np.isclose(m.K_sensor, m.K / 16) and np.isclose(m.L_sensor, m.L / 256)
+    assert np.isclose(m.K_sensor, m.K / 16)
+    assert np.isclose(m.L_sensor, m.L / 256)
     # K within 15 % and the variance at the image's mean level within 10 % (the
     # acceptance figures), and tighter, at about five standard errors of each:
     # K within 3 % and the variance within 2 % (measured: within 1 % and 0.5 %);
@@ -105,7 +45,7 @@ def test_single_image_noise_model(K, L, pitch, angle, kind):
     assert m.K_sensor_ci[0] <= K <= m.K_sensor_ci[1]
 
 
-@pytest.mark.parametrize("texture, low, high", [
+@pytest.mark.parametrize(("texture", "low", "high"), [
     # 2 % texture: measured +1 % on the variance at the mean level
     (0.02, -0.02, 0.03),
     # 5 %: measured +8 to +10 %: texture at the pixel scale passes the filter
@@ -174,7 +114,8 @@ def test_one_frame_uncertainty_maps_match_repeated_draws():
     res, ratios = _empirical_vs_predicted(256, 12, 0)
     r = res[0]
     assert r.noise.model["source"] == "single image"
-    assert all(np.isfinite(r.noise.theory_u[0])) and all(np.isfinite(r.noise.theory_strain[0]))
+    assert all(np.isfinite(r.noise.theory_u[0]))
+    assert all(np.isfinite(r.noise.theory_strain[0]))
     for name, ratio in ratios.items():
         assert abs(ratio - 1) < 0.10, (name, ratio)
 

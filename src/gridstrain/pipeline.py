@@ -1193,9 +1193,11 @@ def _figures(noise, uncertainty, measurements, mean_ref, lattice, sigma, mask, w
             how = ("estimated from the harmonics seen in the reference image"
                    if alias["observable"] else "bound for sharp lines; the line profile "
                    "cannot be seen at this pitch")
+            e_max = float(np.max(np.abs(m.strain[:, m.valid]))) if m.valid.any() else 0.0
             warnings.append(f"{name}: harmonics of the grid's lines can alias onto the carrier "
                             f"at pitch {lattice.pitch:.3g} px: displacement error up to "
-                            f"{alias['u_px']:.2g} px ({how}), above the noise "
+                            f"{alias['u_px']:.2g} px and strain error up to "
+                            f"{alias['strain_per_strain'] * e_max:.2g} ({how}), above the noise "
                             f"({noise_txt}); use a larger sigma, a pitch away from 4 px "
                             "or a smoother (defocused) grid")
         for j, comp in enumerate(("exx", "eyy", "exy")):
@@ -1207,7 +1209,6 @@ def _figures(noise, uncertainty, measurements, mean_ref, lattice, sigma, mask, w
                                 f"sigma^2/2 lap(e) reaches {b:.2g} (95th percentile) against "
                                 f"a noise std of {e_noise:.2g}; a smaller sigma resolves them "
                                 "better at the cost of noise")
-        del m
     return metro, {"aliasing": alias, "smoothing": smooth}
 
 
