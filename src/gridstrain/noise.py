@@ -832,14 +832,17 @@ def estimate_noise_image(image, lattice: Lattice | None = None, *, mask=None,
     Notes
     -----
     A grid image is a locally periodic pattern times a slowly varying lighting,
-    plus noise: in the spectrum the pattern lives in narrow peaks around the
-    harmonics ``n k1 + m k2`` (aliased by the sampling) and around zero, and the
-    noise, white, everywhere. The peaks are located from the data, the median over
-    half-overlapping 128 x 128 tiles of Blackman-Harris periodograms (so a hole or
-    an edge in a few tiles does not matter): every bin above 1.5 times the noise
-    floor is notched, with a margin. The residual ``r = h * image`` keeps the
-    spectrum outside the notches; ``h`` is that band-stop filter times a Gaussian
-    envelope of 6 px, so each residual only depends on the 27-px disc around it.
+    plus noise: in the spectrum the pattern lives in narrow peaks at the harmonics
+    ``n k1 + m k2`` (``|n|, |m| <= 12``, folded by the sampling) and at zero, and
+    the noise, white, everywhere. Which harmonics hold more than noise is read
+    from the data, the median over half-overlapping 128 x 128 tiles of
+    Blackman-Harris periodograms (so a hole or an edge in a few tiles does not
+    matter): a harmonic is notched when the tile spectrum near it exceeds 1.3
+    times the noise floor. The filter is ``H(f) = prod (1 - G(f - f_h))^2`` over
+    the notched harmonics, ``G`` a Gaussian of 0.012 cycle/px (wider on images
+    under 560 px): a double zero at each harmonic, so a peak broadened by the
+    lighting or the strain leaks nothing measurable, and a kernel whose reach is
+    about 60 px. The residual ``r = h * image`` is what the grid does not explain.
 
     The filter's effect is accounted for exactly, not fitted: a pixel's residual
     has variance ``sum_y h(x - y)^2 (K l(y) + L) = G (K lambda(x) + L)`` with
@@ -853,7 +856,8 @@ def estimate_noise_image(image, lattice: Lattice | None = None, *, mask=None,
     estimation (Foi et al. 2008). Pixels within the kernel's reach of the image
     border, of a pixel outside ``mask``, of a clipped pixel, or of the border of a
     region without a grid (fundamental modulus below a quarter of its median) are
-    left out. Confidence intervals come from the fit's covariance, with each
+    left out; the inside of a hole, uniform, is noise and is kept. Confidence
+    intervals come from the fit's covariance, with each
     bin's error from the chi-square law corrected for the correlation the filter
     puts between neighbouring residuals (``sum_d rho(d)^2``, from ``h``),
     inflated by the square root of the reduced chi-square when above 1.
@@ -862,8 +866,13 @@ def estimate_noise_image(image, lattice: Lattice | None = None, *, mask=None,
     modulates the harmonics and the zero frequency only within the notches, where
     it is removed with the grid; what it holds at the scale of a pixel or two
     passes the filter and is counted as noise: the estimate is biased up by the
-    texture's power in the kept band. ``tests/test_noise_image.py`` measures the
-    bias for a smooth texture (correlation length 20 px, 10 % contrast).
+    texture's power in the kept band. Measured (``tests/test_noise_image.py``) for
+    a texture smoothed over 20 px: +1 % on the variance at 2 % contrast, +8 to
+    +10 % at 5 %, +36 % at 10 %. Without texture, on 512 x 688 12-bit images
+    stored x16 (checkerboards rotated 20 and -12 degrees at pitches 5.3 and 7.1,
+    sharp lines at pitch 4, a sine grid at 6.2; a hole, lighting falling to 40 %):
+    ``K`` within 1 % and the variance at the mean level within 0.5 %, the 95 %
+    intervals of ``K`` holding the truth, in about 0.4 s.
 
     References
     ----------
