@@ -638,6 +638,21 @@ def _wls(x, y, err):
     return coef, cov, chi2
 
 
+def _settled(K, L, K_new, L_new, level, tol) -> bool:
+    """Whether an iteration of the weighted fit moved (K, L) by less than ``tol``."""
+    return abs(K_new - K) <= tol * abs(K_new) and abs(L_new - L) <= tol * (
+        abs(L_new) + abs(K_new) * level)
+
+
+def _intervals(cov, chi2, n_bins):
+    """Reduced chi-square and the 95 % half-widths of (K, L), inflated by the
+    square root of the reduced chi-square when it exceeds 1 (misfit the weights
+    do not cover)."""
+    red = chi2 / max(n_bins - 2, 1)
+    infl = math.sqrt(max(1.0, red))
+    return red, tuple(math.sqrt(cov[i, i]) * infl * _Z95 for i in range(2))
+
+
 def _fit_variance(level, var, dof, n_bins):
     n = level.size
     nb = min(n_bins, n // _MIN_PER_BIN)
@@ -672,17 +687,14 @@ def _fit_variance(level, var, dof, n_bins):
         if lb.size < 3:
             raise ValueError("too few intensity bins left after rejecting outliers")
         (K_new, L_new), cov, chi2 = _wls(lb, sb, err)
-        done = abs(K_new - K) <= 1e-10 * abs(K_new) and abs(L_new - L) <= 1e-10 * (
-            abs(L_new) + abs(K_new) * float(np.mean(level)))
+        done = _settled(K, L, K_new, L_new, float(np.mean(level)), 1e-10)
         K, L = float(K_new), float(L_new)
         if done:
             break
     if not K > 0:
         raise ValueError(f"no signal-dependent noise found (fitted K = {K:.3g}); the "
                          "frames may be processed or the stack not static")
-    red = chi2 / max(lb.size - 2, 1)
-    infl = math.sqrt(max(1.0, red))
-    sK, sL = (math.sqrt(cov[i, i]) * infl * _Z95 for i in range(2))
+    red, (sK, sL) = _intervals(cov, chi2, lb.size)
     return {"K": K, "L": L, "K_ci": (K - sK, K + sK), "L_ci": (L - sL, L + sL),
             "n_pixels": int(np.count_nonzero(keep)), "reduced_chi2": red,
             "levels": lb, "variances": sb, "errors": err}
@@ -961,17 +973,14 @@ def estimate_noise_image(image, lattice: Lattice | None = None, *, mask=None,
         model = np.maximum(K * lb + L, 1e-6 * float(np.median(vb)))
         err = model * np.sqrt(2 * R / nbin)
         (K_new, L_new), cov, chi2 = _wls(lb, vb, err)
-        done = abs(K_new - K) <= 1e-9 * abs(K_new) and abs(L_new - L) <= 1e-9 * (
-            abs(L_new) + abs(K_new) * float(np.mean(lb)))
+        done = _settled(K, L, K_new, L_new, float(np.mean(lb)), 1e-9)
         K, L = float(K_new), float(L_new)
         if done:
             break
     if not K > 0:
         raise ValueError(f"no signal-dependent noise found in the image (fitted K = {K:.3g}); "
                          "it may be processed (denoised, compressed) or hold no grid")
-    red = chi2 / max(lb.size - 2, 1)
-    infl = math.sqrt(max(1.0, red))
-    sK, sL = (math.sqrt(cov[i, i]) * infl * _Z95 for i in range(2))
+    red, (sK, sL) = _intervals(cov, chi2, lb.size)
     return NoiseModel(K=K, L=L, K_ci=(K - sK, K + sK), L_ci=(L - sL, L + sL), scale=scale,
                       n_frames=1, n_pixels=int(np.count_nonzero(ok)), dof=None,
                       reduced_chi2=red, levels=lb, variances=vb, variance_errors=err,

@@ -1204,7 +1204,7 @@ def _figures(noise, uncertainty, measurements, mean_ref, lattice, sigma, mask, w
             b = smooth[i]["p95"][j]
             e_noise = fl[comp]
             # noise alone gives a 95th percentile of ~0.6 noise std: twice it is signal
-            if math.isfinite(b) and math.isfinite(e_noise) and b > 2 * e_noise and b > 1e-6:
+            if b is not None and math.isfinite(e_noise) and b > 2 * e_noise and b > 1e-6:
                 warnings.append(f"{name}: the window smooths the {comp} gradients: bias "
                                 f"sigma^2/2 lap(e) reaches {b:.2g} (95th percentile) against "
                                 f"a noise std of {e_noise:.2g}; a smaller sigma resolves them "
@@ -1340,9 +1340,9 @@ def save_result(result: SeriesResult, path, *, pixel_size: float | None = None,
                           "centred on the series mean"}
     groups["noise"] = result.noise.as_dict()
     if result.metrology is not None:
-        groups["metrology"] = _jsonable_tree(result.metrology)
+        groups["metrology"] = result.metrology
     if result.systematic is not None:
-        groups["systematic"] = _jsonable_tree(result.systematic)
+        groups["systematic"] = result.systematic
     lat = result.lattice
     root = {
         "gridstrain_version": __version__,
@@ -1374,19 +1374,6 @@ def save_result(result: SeriesResult, path, *, pixel_size: float | None = None,
     for key, value in (attrs or {}).items():
         root[key] = value
     return write_hdf5(path, datasets, root, groups=groups, units=units, overwrite=overwrite)
-
-
-def _jsonable_tree(value):
-    """Nested dicts and lists of plain floats (NaN as None), for HDF5 attributes."""
-    if isinstance(value, dict):
-        return {k: _jsonable_tree(v) for k, v in value.items()}
-    if isinstance(value, list | tuple):
-        return [_jsonable_tree(v) for v in value]
-    if isinstance(value, float | np.floating):
-        return float(value) if math.isfinite(value) else None
-    if isinstance(value, np.integer | np.bool_):
-        return value.item()
-    return value
 
 
 def _series_keys(result: SeriesResult) -> list[str]:
