@@ -108,7 +108,7 @@ def _empirical_vs_predicted(size, draws, seed):
 def test_one_frame_uncertainty_maps_match_repeated_draws():
     """One frame per state: the std maps from the single-image noise model against
     the scatter over 12 noise draws (256 x 256, a hole, non-uniform strain).
-    Measured: ratios 0.98 to 1.0. Tolerance 10 %: the empirical std of 12 draws
+    Measured: ratios 1.00 to 1.03. Tolerance 10 %: the empirical std of 12 draws
     has a 21 % spread per pixel, its median over the ~100 independent windows of
     the valid region about 2 %, and the model of one image about 1 %."""
     res, ratios = _empirical_vs_predicted(256, 12, 0)
@@ -122,7 +122,7 @@ def test_one_frame_uncertainty_maps_match_repeated_draws():
 
 @pytest.mark.slow
 def test_one_frame_uncertainty_maps_large():
-    """The same on 512 x 512 with 40 draws: within 5 %."""
+    """The same on 512 x 512 with 40 draws: within 5 % (measured: 1.005 to 1.012)."""
     _, ratios = _empirical_vs_predicted(512, 40, 1)
     for name, ratio in ratios.items():
         assert abs(ratio - 1) < 0.05, (name, ratio)
