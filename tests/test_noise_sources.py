@@ -201,3 +201,17 @@ def test_sine_at_pitch_5_3_no_aliasing_warning():
     # 2e-6 px, is far below the noise
     assert res.systematic["aliasing"]["u_px"] < 1e-4
     assert not any("alias" in w for w in res.warnings)
+
+
+def test_check_sigma_snaps_within_1e_3_and_refuses_below():
+    from gridstrain._validation import check_sigma
+
+    assert check_sigma(None, 6.000003) == 6.000003
+    # typed as 6 for a detected 6.000003 px: the pitch itself
+    assert check_sigma(6.0, 6.000003) == 6.000003
+    assert check_sigma(6.0 * (1 - 0.9e-3), 6.0) == 6.0
+    assert check_sigma(9.0, 6.0) == 9.0
+    with pytest.raises(ValueError, match="at least the pitch"):
+        check_sigma(6.0 * (1 - 1.1e-3), 6.0)
+    with pytest.raises(TypeError, match="sigma"):
+        check_sigma("6", 6.0)
