@@ -113,6 +113,12 @@ def test_noise_model_typed_in_stored_units(pair, tmp_path, capsys):
     th = summary["noise_floor"]["theory_strain"][0][0]
     med = summary["uncertainty_median"][0]["exx_std"]
     assert med == pytest.approx(th, rel=0.05)
+    # four times the variance, twice the std: the maps follow the model given
+    assert _run(["measure", pair / "ref.tif", pair / "def.tif", "-o", res, "--json",
+                 "--overwrite", "--noise-model", 4 * 4.48, 4 * 1280, "--guess", 0, 0]) == 0
+    four = json.loads(capsys.readouterr().out)["uncertainty_median"][0]
+    for name, value in four.items():
+        assert value == pytest.approx(2 * summary["uncertainty_median"][0][name], rel=1e-9)
 
 
 def test_noise_options_refused(pair, tmp_path, capsys):

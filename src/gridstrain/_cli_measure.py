@@ -286,7 +286,9 @@ def report_lines(result: SeriesResult, *, pixel_size: float | None = None,
     lines += ["", "noise floor (1 std at a pixel)            u_x px    u_y px    e_xx      "
               "e_yy      e_xy"]
     for i in range(result.n_states):
-        rows = [("theory, measured sensor noise", nf.theory_u[i], nf.theory_strain[i]),
+        given = (nf.model or {}).get("source", "").startswith("given")
+        theory = "theory, given camera model" if given else "theory, measured sensor noise"
+        rows = [(theory, nf.theory_u[i], nf.theory_strain[i]),
                 ("reference halves, scaled", nf.split_u[i], nf.split_strain[i])]
         unc = result.uncertainty
         if unc is not None and result.valid[i].any():
