@@ -7,6 +7,7 @@ regressed out); a single image (or a stack too short) from the image itself
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from datetime import UTC, datetime
 from pathlib import Path
@@ -97,7 +98,7 @@ def run(args) -> int:
         model = estimate_noise_image(first, lattice, saturation=series.saturation_level,
                                      scale=series.scale)
         degree = None
-    model = _with_depth(model, series.bit_depth)
+    model = dataclasses.replace(model, bit_depth=series.bit_depth)
     progress(0.9, "noise floor")
     T = args.frames or series.n_frames
     maps = wft(mean, lattice, sigma=args.sigma)
@@ -170,12 +171,6 @@ def run(args) -> int:
     if out is not None:
         print(f"report written to {out}")
     return 0
-
-
-def _with_depth(model, bit_depth):
-    """``model`` recording the bit depth of the images it came from."""
-    fields = {f: getattr(model, f) for f in model.__dataclass_fields__}
-    return type(model)(**{**fields, "bit_depth": bit_depth})
 
 
 def _arr(a):

@@ -100,6 +100,7 @@ Systematic errors (``SeriesResult.systematic``)
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import datetime
 import math
 import numbers
@@ -1155,11 +1156,10 @@ def _noise_models(stats, series, given, lattice, mask, warnings):
                                      saturation=s0.saturation_level, scale=s0.scale)
     except ValueError as exc:
         warnings.append(f"{s0.name}: the noise could not be estimated from its single image "
-                        f"({exc}); no uncertainty for the single-frame series (give "
-                        "--noise or --noise-model)")
+                        f"({exc}); the single-frame series get no uncertainty of their "
+                        "own (give --noise or --noise-model)")
         return stats, {"source": "unavailable"}
-    model = NoiseModel(**{**{f: getattr(model, f) for f in model.__dataclass_fields__},
-                          "bit_depth": s0.bit_depth})
+    model = dataclasses.replace(model, bit_depth=s0.bit_depth)
     how = describe(model, f"single image ({s0.name})")
     out = [from_model(st, model, how) if k in single else st for k, st in enumerate(stats)]
     source = "single image" if len(single) == len(stats) else "stack and single image"
