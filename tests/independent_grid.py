@@ -8,7 +8,7 @@ gridstrain.synthetic. Its assumptions:
 - the lighting is fixed to the camera, a broad Gaussian falling to about 40 %;
 - a hole shows a uniform dark background (level 300 sensor grey levels);
 - optional print texture: a reflectance factor ``1 + c t`` with ``t`` white noise
-  smoothed by a 20-px Gaussian, normalised to unit std;
+  smoothed by a Gaussian (20 px by default), normalised to unit std;
 - the sensor is Poisson-Gaussian: ``K`` times a Poisson count plus normal read
   noise of variance ``L``, rounded to integers (quantisation adds 1/12), clipped
   to 12 bits and stored x16 in 16-bit integers.
@@ -33,7 +33,7 @@ def _pattern(a, b, kind, edge):
 
 def scene(shape, *, pitch, angle, kind="checker", amplitude=2000.0, contrast=0.9,
            light=True, hole=True, texture=0.0, displacement=None, over=3, seed=0,
-           edge=4.0):
+           edge=4.0, texture_scale=20.0):
     """Noise-free expected sensor levels (float), and the hole mask."""
     H, W = shape
     th = np.deg2rad(angle)
@@ -57,7 +57,7 @@ def scene(shape, *, pitch, angle, kind="checker", amplitude=2000.0, contrast=0.9
         rng = np.random.default_rng(seed + 1000)
         f2 = np.fft.fftfreq(H)[:, None] ** 2 + np.fft.fftfreq(W)[None] ** 2
         t = np.real(np.fft.ifft2(np.fft.fft2(rng.normal(size=(H, W)))
-                                 * np.exp(-2 * np.pi**2 * 20**2 * f2)))
+                                 * np.exp(-2 * np.pi**2 * texture_scale**2 * f2)))
         img = img * (1 + texture * t / t.std())
     if hole:
         img[inside] = 300.0
