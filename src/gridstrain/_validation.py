@@ -11,6 +11,7 @@ import os
 import numpy as np
 
 __all__ = [
+    "SIGMA_PITCH_RTOL",
     "as_image",
     "check_choice",
     "check_mask",

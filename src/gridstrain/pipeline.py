@@ -114,7 +114,13 @@ from scipy import ndimage
 
 from . import __version__, theory
 from ._progress import null_progress
-from ._validation import check_choice, check_mask, check_positive, check_sigma
+from ._validation import (
+    SIGMA_PITCH_RTOL,
+    check_choice,
+    check_mask,
+    check_positive,
+    check_sigma,
+)
 from .io import (
     FrameSeries,
     check_saturation_limit,
@@ -927,7 +933,11 @@ def measure_series(reference, states, *, lattice: Lattice | None = None,
         if sigma is not None:
             raise ValueError(f"give sigma or sigma_pitches, not both (got sigma={sigma!r}, "
                              f"sigma_pitches={sigma_pitches!r})")
-        sigma_pitches = check_sigma(sigma_pitches, 1.0, "sigma_pitches")
+        sigma_pitches = check_positive(sigma_pitches, "sigma_pitches")
+        if sigma_pitches < 1 - SIGMA_PITCH_RTOL:
+            raise ValueError(f"sigma_pitches must be at least 1 (the window must hold one "
+                             f"period), got {sigma_pitches!r}")
+        sigma_pitches = max(sigma_pitches, 1.0)
     guess = _check_guess(guess)
     if isinstance(max_saturation, bool) or not isinstance(max_saturation, numbers.Real) \
             or not 0 <= max_saturation <= 1:
