@@ -17,6 +17,7 @@ from gridstrain import Lattice
 from gridstrain.cli import main
 from gridstrain.io import read_hdf5, read_noise_model
 from gridstrain.pipeline import measure_series
+from gridstrain.results import load
 from independent_grid import camera as _camera
 from independent_grid import scene as _scene
 
@@ -75,9 +76,18 @@ def test_noise_from_one_image_then_measure_with_it(pair, tmp_path, capsys):
     h5 = read_hdf5(res)
     assert "ux_std" in h5["datasets"]
     assert h5["attrs"]["noise_model_source"] == "given (single image)"
-    assert h5["groups"]["metrology"]["units"]["efficiency_strain"] == "px^2"
-    assert "smoothing" in h5["groups"]["systematic"]
-    assert h5["groups"]["noise"]["model"]["K"] == pytest.approx(model.K)
+    assert h5["attrs"]["spatial_resolution_px"] == pytest.approx(d)
+    assert h5["units"]["efficiency_strain"] == "px^2"
+    assert h5["units"]["resolution_u"] == "px"
+    np.testing.assert_allclose(h5["datasets"]["efficiency_strain"][0, 0],
+                               st["exx"]["efficiency"], rtol=1e-12)
+    assert "systematic_smoothing_strain" in h5["datasets"]
+    assert "systematic_aliasing_u_px" in h5["attrs"]
+    back = load(res)
+    assert back.noise.model["K"] == pytest.approx(model.K)
+    assert back.metrology == json.loads(json.dumps(back.metrology))
+    assert back.systematic["aliasing"]["u_px"] == pytest.approx(
+        summary["systematic_errors"]["aliasing"]["u_px"])
 
 
 def test_measure_single_frames_gets_maps_and_report(pair, tmp_path, capsys):
