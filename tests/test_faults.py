@@ -435,3 +435,55 @@ def test_an_all_invalid_result_is_never_written(data, tmp_path, capsys, monkeypa
                "--quiet"])
     line = _one_line_failure(capsys, rc, tmp_path)
     assert "state 0: no valid pixel, nothing written" in line
+
+
+def test_killed_scheduler_is_one_line_within_bounded_time(data, tmp_path):
+    """A real scheduler (its own process) killed once the first series is submitted:
+    the command ends with one line, within Dask's reconnection timeout (3 s here),
+    and writes nothing. The kill is tied to the submission, not to a time."""
+    pytest.importorskip("distributed")
+    out = tmp_path / "out"
+    out.mkdir()
+    code = textwrap.dedent(f"""
+        import socket, subprocess, sys, time
+        import dask
+        from gridstrain import distributed as gd
+        from gridstrain.cli import main
+
+        dask.config.set({{"distributed.comm.timeouts.connect": "3s"}})
+        with socket.socket() as s:  # a free port for the scheduler
+            s.bind(("127.0.0.1", 0))
+            port = s.getsockname()[1]
+        sched = subprocess.Popen(
+            [sys.executable, "-m", "distributed.cli.dask_scheduler", "--host", "127.0.0.1",
+             "--port", str(port), "--dashboard-address", "127.0.0.1:0"],
+            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        for _ in range(600):  # until it listens (at most 60 s)
+            try:
+                socket.create_connection(("127.0.0.1", port), timeout=0.1).close()
+                break
+            except OSError:
+                time.sleep(0.1)
+        real = gd._submit_statistics
+
+        def submit(client, *a, **k):
+            pending = real(client, *a, **k)
+            sched.kill()
+            sched.wait()
+            return pending
+
+        gd._submit_statistics = submit
+        try:
+            rc = main(["measure", {str(data / 'ref.tif')!r}, {str(data / 'load.tif')!r},
+                       "-o", {str(out / 'o.h5')!r}, "--quiet",
+                       "--scheduler", f"tcp://127.0.0.1:{{port}}"])
+        finally:
+            sched.kill()
+        sys.exit(rc)
+    """)
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                       env=dict(os.environ, PYTHONPATH=SRC), timeout=180)
+    assert r.returncode == 2, r.stderr
+    assert len(r.stderr.strip().splitlines()) == 1, r.stderr
+    assert "the Dask cluster failed" in r.stderr
+    assert _leftovers(out) == []

@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import contextlib
 import json
+import logging
 import math
 import sys
 from pathlib import Path
@@ -66,6 +68,29 @@ def check_output_file(path: Path, what: str, overwrite: bool, inputs=frozenset()
     if path.exists() and not overwrite:
         raise FileExistsError(f"{what} {path} already exists (pass --overwrite to replace "
                               "it)")
+
+
+@contextlib.contextmanager
+def quiet_dask_logs():
+    """Dask's own log records off while a command runs (restored after).
+
+    A lost scheduler makes ``distributed`` log dozens of lines of tracebacks; the
+    command says what happened in one line instead. Imports ``distributed``
+    first, whose configuration sets the levels of its loggers on import.
+    """
+    with contextlib.suppress(ImportError):  # the command says which extra is missing
+        import distributed  # noqa: F401
+    names = [n for n in list(logging.root.manager.loggerDict)
+             if n.split(".")[0] in ("distributed", "tornado")]
+    loggers = [logging.getLogger(n) for n in ("distributed", "tornado", *names)]
+    levels = [lg.level for lg in loggers]
+    for lg in loggers:
+        lg.setLevel(logging.CRITICAL + 1)
+    try:
+        yield
+    finally:
+        for lg, level in zip(loggers, levels, strict=True):
+            lg.setLevel(level)
 
 
 def fmt(x: float) -> str:

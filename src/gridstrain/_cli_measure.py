@@ -8,6 +8,7 @@ and :func:`gridstrain.plotting.save_figures`.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import math
 import os
@@ -25,6 +26,7 @@ from ._cli_common import (
     check_output_file,
     lattice_option,
     positive_option,
+    quiet_dask_logs,
 )
 from ._progress import bar
 from .io import OutputDirectory, open_series, read_mask, read_noise_model, roi_mask
@@ -675,13 +677,15 @@ def _run(args, progress: _Bar) -> int:
     _check_outputs(opts, len(states), inputs)
 
     guess = "auto" if opts.get("guess") is None else tuple(opts["guess"])
-    result = measure_series(reference, states, lattice=lattice, sigma=opts.get("sigma"),
-                            method=opts["method"], mask=mask,
-                            lagrangian=not opts["no-lagrangian"], guess=guess,
-                            margin=opts["margin"], outliers=opts["outliers"],
-                            progress=progress,
-                            scheduler=opts.get("scheduler"), noise_model=noise_model,
-                            sigma_pitches=opts.get("sigma-pitches"), timeout=opts["timeout"])
+    # with a cluster, its failures are one line (cli.main), not Dask's log records
+    dask_logs = quiet_dask_logs() if opts.get("scheduler") else contextlib.nullcontext()
+    with dask_logs:
+        result = measure_series(
+            reference, states, lattice=lattice, sigma=opts.get("sigma"),
+            method=opts["method"], mask=mask, lagrangian=not opts["no-lagrangian"],
+            guess=guess, margin=opts["margin"], outliers=opts["outliers"],
+            progress=progress, scheduler=opts.get("scheduler"), noise_model=noise_model,
+            sigma_pitches=opts.get("sigma-pitches"), timeout=opts["timeout"])
     _refuse_empty(result)
     ps, unit = opts.get("pixel-size"), opts.get("unit")
     stored = dict(opts)

@@ -15,6 +15,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import importlib
+import os
 import signal
 import sys
 import threading
@@ -86,8 +87,16 @@ def _is_dask_error(exc: BaseException) -> bool:
     import concurrent.futures
 
     mod = type(exc).__module__ or ""
-    return mod.split(".")[0] in ("distributed", "tornado") \
-        or isinstance(exc, concurrent.futures.CancelledError | asyncio.CancelledError)
+    if mod.split(".")[0] in ("distributed", "tornado") \
+            or isinstance(exc, concurrent.futures.CancelledError | asyncio.CancelledError):
+        return True
+    # a connection that failed inside distributed's client (a builtin OSError)
+    tb = exc.__traceback__
+    while tb is not None and isinstance(exc, OSError):
+        if f"{os.sep}distributed{os.sep}" in tb.tb_frame.f_code.co_filename:
+            return True
+        tb = tb.tb_next
+    return False
 
 
 def main(argv=None) -> int:
