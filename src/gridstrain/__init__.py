@@ -4,7 +4,14 @@ The conventions (axes, signs, window, Lagrangian description) are written once, 
 :mod:`gridstrain.conventions`.
 """
 
-from .kinematics import Measurement, coarse_displacement, deformation, measure
+from .kinematics import (
+    CoarseEstimate,
+    FringeOrder,
+    Measurement,
+    coarse_displacement,
+    deformation,
+    measure,
+)
 from .lattice import Lattice, detect_lattice
 from .noise import NoiseModel, anscombe, estimate_noise, inverse_anscombe
 from .uncertainty import Uncertainty, predict_uncertainty
@@ -14,6 +21,8 @@ from .wft import PhaseMaps, wft
 __version__ = "0.1.0"
 
 __all__ = [
+    "CoarseEstimate",
+    "FringeOrder",
     "Lattice",
     "Measurement",
     "NoiseModel",

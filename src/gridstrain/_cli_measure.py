@@ -29,10 +29,12 @@ from .io import open_series, read_mask
 from .pipeline import (
     FWHM_PER_SIGMA,
     MAP_FIELDS,
+    ORDERS,
     SeriesResult,
     measure_series,
     save_csv,
     save_result,
+    state_names,
 )
 from .plotting import figure_names, save_figures
 from .wft import DEFAULT_MARGIN
@@ -42,9 +44,10 @@ from .wft import DEFAULT_MARGIN
 _CONFIG_KEYS = {
     "output": "path", "pitch": "float", "angle": "float", "k1": "pair", "k2": "pair",
     "sigma": "float", "method": "method", "mask": "path", "pixel-size": "float",
-    "unit": "str", "no-lagrangian": "bool", "guess": "pair", "margin": "float",
+    "unit": "str", "no-lagrangian": "bool", "guess": "pairs", "margin": "float",
     "csv": "path", "figures": "path", "quiet": "bool", "json": "bool",
-    "overwrite": "bool", "bit-depth": "int", "scheduler": "str",
+    "overwrite": "bool", "bit-depth": "int", "scheduler": "str", "order": "str",
+    "max-saturation": "float",
 }
 
 _EXAMPLE = """example:
@@ -83,9 +86,19 @@ def register(sub) -> None:
                    help="specimen mask image (nonzero = specimen), reference configuration")
     k.add_argument("--no-lagrangian", action="store_true", default=None,
                    help="turn the large-displacement correction off")
-    k.add_argument("--guess", type=float, nargs=2, metavar=("UX", "UY"),
-                   help="initial displacement fixing the fringe order, px (default: "
-                   "cross-correlation)")
+    k.add_argument("--guess", type=float, nargs=2, metavar=("UX", "UY"), action="append",
+                   help="displacement fixing the fringe order (the whole number of "
+                   "periods), px: once for the first state (series order; the others "
+                   "follow it) or for every state (independent order), or once per "
+                   "state (default: the previous state, else printed features, else the "
+                   "smallest displacement, flagged)")
+    k.add_argument("--order", metavar="ORDER",
+                   help="'series' (default): the states are load steps in time, each "
+                   "state's fringe order followed from the previous one; "
+                   "'independent': unordered states, each on its own")
+    k.add_argument("--max-saturation", type=float, metavar="FRACTION",
+                   help="largest fraction of saturated pixels accepted in a frame, in "
+                   "[0, 1] (default 0.01); photos of white paper clip between the lines")
     k.add_argument("--bit-depth", type=int, metavar="BITS",
                    help="significant bits of the camera (default: detected)")
     o = p.add_argument_group("output")
@@ -121,6 +134,10 @@ def _config_value(key: str, value, kind: str, base: Path, where: str):
                 or (kind == "int" and not isinstance(value, int)):
             raise bad("an integer" if kind == "int" else "a number")
         return float(value) if kind == "float" else int(value)
+    if kind == "pairs":  # one pair, or a list of pairs (one per state)
+        if isinstance(value, list) and value and all(isinstance(v, list) for v in value):
+            return [_config_value(key, v, "pair", base, where) for v in value]
+        return [_config_value(key, value, "pair", base, where)]
     if kind == "pair":
         if not isinstance(value, list) or len(value) != 2 or any(
                 isinstance(v, bool) or not isinstance(v, int | float) for v in value):
@@ -167,6 +184,8 @@ def _options(args) -> dict:
     for name in _CONFIG_KEYS:
         value = getattr(args, name.replace("-", "_"))
         if value is not None:
+            if name == "guess":
+                value = [list(v) for v in value]
             opts[name] = list(value) if isinstance(value, tuple) else value
     for name in ("no-lagrangian", "quiet", "json", "overwrite"):
         opts[name] = bool(opts.get(name, False))
@@ -285,13 +304,23 @@ def report_lines(result: SeriesResult, *, pixel_size: float | None = None,
             lines.append(f"{result.names[i + 1]}: {v.mean():.1%} valid; mean e_xx "
                          f"{e[0]:.3e}, e_yy {e[1]:.3e}, e_xy {e[2]:.3e}; mean u "
                          f"({u[0]:.4f}, {u[1]:.4f}) px; {m.iterations} iteration(s)")
-            lines.append(f"  fringe order from the guess ({result.guesses[i][0]:.2f}, "
-                         f"{result.guesses[i][1]:.2f}) px: {result.guess_sources[i]}")
+            lines.append("  " + _fringe_line(result, i))
         else:
             lines.append(f"{result.names[i + 1]}: no valid pixel")
     for w in result.warnings:
         lines.append(f"warning: {w}")
     return lines
+
+
+def _fringe_line(result: SeriesResult, i: int) -> str:
+    """How state ``i``'s fringe order was fixed, in one line."""
+    if not result.fringe_orders:
+        return (f"fringe order from the guess ({result.guesses[i][0]:.2f}, "
+                f"{result.guesses[i][1]:.2f}) px: {result.guess_sources[i]}")
+    r = result.fringe_orders[i]
+    state = "confirmed" if r.confirmed else "NOT CONFIRMED (may be whole periods off)"
+    return (f"fringe order: {r.source}, {state}; guess ({r.guess[0]:.2f}, "
+            f"{r.guess[1]:.2f}) px; {r.detail}")
 
 
 def jsonable(value):
@@ -323,6 +352,8 @@ def summary(result: SeriesResult, *, outputs: dict, seconds: float,
                      else None for name in MAP_FIELDS},
             "iterations": int(m.iterations), "guess_px": list(result.guesses[i]),
             "guess_source": result.guess_sources[i],
+            "fringe_order": result.fringe_orders[i].as_dict() if result.fringe_orders
+            else None,
         })
     lat = result.lattice
     return {
@@ -411,9 +442,22 @@ def _run(args, progress: _Bar) -> int:
     quiet, as_json = opts["quiet"], opts["json"]
     progress.configure(quiet)
 
+    order = opts.get("order", "series")
+    if order not in ORDERS:
+        raise ValueError(f"--order must be one of {', '.join(ORDERS)}, got {order!r}")
+    sat = opts.get("max-saturation")
+    if sat is not None and not (math.isfinite(sat) and 0 <= sat <= 1):
+        raise ValueError(f"--max-saturation must be a fraction in [0, 1], got {sat:g}")
+    guesses = opts.get("guess")
+    n = len(args.states)
+    if guesses is not None and len(guesses) not in (1, n):
+        raise ValueError(f"--guess given {len(guesses)} times: give it once (the first "
+                         f"state, or every state with --order independent) or once per "
+                         f"state ({n})")
+
     reference = open_series(args.reference, name="reference", bit_depth=bits)
-    states = [open_series(s, name=f"state {i}", bit_depth=bits)
-              for i, s in enumerate(args.states)]
+    states = [open_series(s, name=name, bit_depth=bits)
+              for s, name in zip(args.states, state_names(args.states), strict=True)]
     inputs = _input_files([reference, *states])
     mask = None
     if opts.get("mask"):
@@ -424,12 +468,18 @@ def _run(args, progress: _Bar) -> int:
         inputs.add(Path(os.path.expanduser(args.config)).resolve())
     _check_outputs(opts, len(states), inputs)
 
-    guess = "auto" if opts.get("guess") is None else tuple(opts["guess"])
+    if guesses is None:
+        guess = "auto"
+    elif len(guesses) == 1:
+        guess = tuple(guesses[0])
+    else:
+        guess = [tuple(g) for g in guesses]
+    kw = {} if sat is None else {"max_saturation": sat}
     result = measure_series(reference, states, lattice=lattice, sigma=opts.get("sigma"),
                             method=opts["method"], mask=mask,
                             lagrangian=not opts["no-lagrangian"], guess=guess,
-                            margin=opts["margin"], progress=progress,
-                            scheduler=opts.get("scheduler"))
+                            order=order, margin=opts["margin"], progress=progress,
+                            scheduler=opts.get("scheduler"), **kw)
     ps, unit = opts.get("pixel-size"), opts.get("unit")
     extra = {"options": dict(opts.items()),
              "config_file": args.config or "", "mask_file": opts.get("mask") or ""}
