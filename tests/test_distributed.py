@@ -322,7 +322,7 @@ def test_saturation_found_on_a_worker_names_the_frame(client, tmp_path):
     bad[2, :30] = 4095 * 16  # 37 % of frame 2 saturated
     tifffile.imwrite(tmp_path / "ref.tif", ref, photometric="minisblack")
     tifffile.imwrite(tmp_path / "bad.tif", bad, photometric="minisblack")
-    with pytest.raises(ValueError, match=r"state 0: frame 2 .*saturated"):
+    with pytest.raises(ValueError, match=r"^bad: frame 2 .*saturated"):
         measure_series(tmp_path / "ref.tif", tmp_path / "bad.tif", lattice=LAT,
                        scheduler=client)
 
