@@ -590,8 +590,10 @@ def measure_states_dask(reference, states, *, lattice: Lattice | None = None,
     lagrangian : bool
         Large-displacement correction (:func:`gridstrain.kinematics.deformation`).
     guess : "auto", None or (2,) array_like
-        Initial displacement fixing the fringe order, px; "auto" cross-correlates
-        the mean images (:func:`gridstrain.kinematics.coarse_displacement`).
+        Initial displacement fixing the fringe order, px; "auto" uses the mean
+        images' features when conclusive
+        (:func:`gridstrain.kinematics.coarse_displacement`), else the smallest
+        displacement; each state's :attr:`Measurement.fringe_order` says which.
     chunk_frames : int
         Frames per task (:func:`as_dask_stack`).
     split_every : int, optional

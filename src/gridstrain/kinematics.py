@@ -160,7 +160,8 @@ class Measurement:
     guess : (2,) tuple of float
         Median of the initial guess that fixed the fringe order, px.
     guess_source : str
-        ``"auto"`` (cross-correlation), ``"zero"``, or ``"user"``.
+        ``"auto"`` (image features, :func:`coarse_displacement`), ``"zero"``, or
+        ``"user"``.
     reference, deformed : PhaseMaps
         The phase maps the measurement was made from.
     fringe_order : FringeOrder
@@ -676,9 +677,10 @@ def measure(reference, deformed, *, lattice: Lattice | None = None,
     lagrangian : bool
         Large-displacement correction (default on); see :func:`deformation`.
     guess : "auto", None, (2,) or (2, H, W) array_like
-        Initial displacement fixing the fringe order. ``"auto"`` cross-correlates
-        the low-passed images (:func:`coarse_displacement`) and falls back to zero
-        when they hold nothing but the periodic grid.
+        Initial displacement fixing the fringe order. ``"auto"`` uses the images'
+        features (:func:`coarse_displacement`) when they are conclusive and falls
+        back to the smallest displacement the phases allow otherwise;
+        :attr:`Measurement.fringe_order` says which, and whether it is confirmed.
     margin : float
         Invalid band along borders and mask edges, in units of ``sigma``.
 

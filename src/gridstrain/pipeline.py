@@ -889,8 +889,8 @@ def _median_u(res: Measurement) -> str:
 
 def _what_to_do(lattice: Lattice) -> str:
     p1, p2 = lattice.pitches
-    return (f"if the specimen moved by more than half a period ({p1:.3g}/{p2:.3g} px) it "
-            "is off by whole periods: pass --guess UX UY (guess= in Python), add an "
+    return (f"if the specimen moved by more than half a period (periods {p1:.3g}/{p2:.3g} "
+            "px) it is off by whole periods: pass --guess UX UY (guess= in Python), add an "
             "intermediate image to the series, or image a grid with printed features")
 
 
