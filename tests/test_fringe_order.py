@@ -366,11 +366,29 @@ def test_lens_dust_fixed_to_the_camera_disagrees_with_the_phases():
     cur = render((n, n), pitch, rigid(7.4, 0.0)) * dust(xx, yy)
     ps = _phase_shift(wft(ref, lat), wft(cur, lat))
     est = coarse_displacement(ref, cur, lat, phase_shift=ps)
+    # the best candidate is the one nearest the dust's peak: a whole period off
+    assert abs(est.shift[0] - 7.4) == pytest.approx(5.0, abs=0.05)
     assert not est.confident
     assert est.disagreement > 0.25
 
 
 # --------------------------------------------------------------------------- names, options
+
+
+def test_one_guess_per_state_through_the_cli(tmp_path, capsys):
+    n, pitch = 96, 5.0
+    _write(tmp_path / "ref.tif", render((n, n), pitch, vignette=0.0))
+    _write(tmp_path / "a.tif", render((n, n), pitch, rigid(6.0, 0.0), vignette=0.0))
+    _write(tmp_path / "b.tif", render((n, n), pitch, rigid(0.0, -7.0), vignette=0.0))
+    rc, out, err = _run(["measure", tmp_path / "ref.tif", tmp_path / "a.tif", tmp_path / "b.tif",
+                         "-o", tmp_path / "o.h5", "--json", "--quiet", "--order",
+                         "independent", "--guess", "6", "0", "--guess", "0", "-7"], capsys)
+    assert rc == 0, err
+    states = json.loads(out)["states"]
+    assert [s["fringe_order"]["source"] for s in states] == ["user", "user"]
+    # px: noise-free rigid motions, measured to the interpolation error
+    assert states[0]["mean"]["ux"] == pytest.approx(6.0, abs=1e-3)
+    assert states[1]["mean"]["uy"] == pytest.approx(-7.0, abs=1e-3)
 
 
 def test_states_are_named_after_their_folders_and_files(tmp_path):
