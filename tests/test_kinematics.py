@@ -31,6 +31,11 @@ def test_fringe_order_is_ambiguous_without_a_guess(grid256, lattice5):
     res = measure(grid256, cur, lattice=lattice5, guess=None)
     np.testing.assert_allclose(np.nanmedian(res.ux), 2.7 - 5.0, atol=1e-4)
     assert res.guess_source == "zero"
+    assert not res.fringe_order.confirmed
+    # nor can the images: the automatic guess says so rather than guessing
+    auto = measure(grid256, cur, lattice=lattice5)
+    assert auto.fringe_order.source == "smallest displacement"
+    assert not auto.fringe_order.confirmed
 
 
 def test_homogeneous_strain(grid256, lattice5):
@@ -119,8 +124,10 @@ def _checkerboard_pair(shift=(11.0, -4.0)):
 
 def test_rotated_checkerboard_large_displacement_end_to_end():
     lat, U, ref, cur = _checkerboard_pair()
-    res = measure(ref, cur)  # lattice detected, fringe order from cross-correlation
+    res = measure(ref, cur)  # lattice detected, fringe order from the printed spots
     assert res.guess_source == "auto"
+    assert res.fringe_order.source == "image features"
+    assert res.fringe_order.confirmed
     np.testing.assert_allclose(res.lattice.pitches, lat.pitches, rtol=1e-4)
     yy, xx = np.mgrid[0:N, 0:N].astype(float)
     truth = np.array(U(xx, yy))
