@@ -412,6 +412,13 @@ def test_unquoted_glob_gets_a_warning(tmp_path, capsys):
     summary = json.loads(stdout)
     assert [s["name"] for s in summary["states"]] == ["f1", "f2"]
     assert any("quote it" in w for w in summary["warnings"])
+    # one image per state, named for what they are, is a layout of its own: no warning
+    for old, new in (("f0", "ref"), ("f1", "load"), ("f2", "unload")):
+        (tmp_path / f"{old}.tif").rename(tmp_path / f"{new}.tif")
+    rc, stdout, err = _run(["measure", *(tmp_path / f"{k}.tif" for k in ("ref", "load", "unload")),
+                            "-o", tmp_path / "out2.h5", "--json", "--quiet"], capsys)
+    assert rc == 0, err
+    assert not any("quote it" in w for w in json.loads(stdout)["warnings"])
 
 
 def test_max_saturation_option(tmp_path, capsys):

@@ -239,3 +239,17 @@ def test_coarse_displacement_when_the_mask_hides_the_only_feature(lattice5):
     est = coarse_displacement(ref, cur, lattice5, mask=mask)
     np.testing.assert_allclose(est.shift, shift, atol=1.0)  # px: the peak, sub-pixel
     assert est.confident
+
+
+def test_sinusoidal_field_below_half_a_period_with_the_automatic_guess(grid256, lattice5):
+    # |u| <= 2 px < 2.5 px: the smallest displacement is the right one; the old
+    # low-pass correlation took (0, -14) px from the image borders and was 10 px off
+    cur = synthetic.grid_image((N, N), lattice5, displacement=_issue_field)
+    res = measure(grid256, cur, lattice=lattice5)
+    assert res.fringe_order.source == "smallest displacement"
+    yy, xx = np.mgrid[0:N, 0:N].astype(float)
+    truth = np.array(_issue_field(xx, yy))
+    v = res.valid
+    # px: the window attenuates the 128-px sinusoid by exp(-2 pi^2 25 / 128^2) = 0.97,
+    # 0.01 px of its 0.3-px amplitude; a wrong order would be 5 px
+    assert np.max(np.abs(res.u[:, v] - truth[:, v])) < 0.05

@@ -96,6 +96,7 @@ import datetime
 import math
 import numbers
 import os
+import re
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -589,12 +590,16 @@ def state_names(states) -> list[str]:
 
 
 def _glob_warning(series) -> list[str]:
-    """Warn when a shell glob seems to have made every frame a state of its own."""
+    """Warn when a shell glob seems to have made every frame a state of its own: the
+    reference and every state are single frames of one folder, numbered alike."""
     if len(series) < 3 or not all(isinstance(s, FrameSeries) for s in series):
         return []
     if any(s.n_frames != 1 or len(s.paths) != 1 for s in series):
         return []
     if len({Path(s.paths[0]).resolve().parent for s in series}) != 1:
+        return []
+    # numbered frames of one acquisition (img_001, img_002...), not ref/load1/load2
+    if len({re.sub(r"\d+", "#", Path(s.paths[0]).stem) for s in series}) != 1:
         return []
     folder = Path(series[0].paths[0]).parent
     return [f"the reference and all {len(series) - 1} states are single frames of one "
