@@ -197,7 +197,7 @@ def test_featureless_load_series_is_followed_through_the_cli(tmp_path, capsys, k
         assert o["step_periods"] < 0.4
     assert any("load01" in w and "not confirmed" in w for w in summary["warnings"])
     with h5py.File(out, "r") as h5:
-        assert list(json.loads(h5.attrs["fringe_order_source"])) == \
+        assert [str(x) for x in h5.attrs["fringe_order_source"]] == \
             [o["source"] for o in orders]
 
 
@@ -300,7 +300,7 @@ def test_printed_features_fix_an_eleven_pixel_displacement(tmp_path, capsys):
     with h5py.File(out, "r") as h5:
         v = h5["valid"][0]
         u = np.array([h5["ux"][0][v], h5["uy"][0][v]])
-        assert json.loads(h5.attrs["fringe_order_confirmed"]) == [True]
+        assert list(h5.attrs["fringe_order_confirmed"]) == [True]
     # px: the bound (the spots modulate the grid, but move with it)
     assert np.max(np.abs(u - np.array(shift)[:, None])) < 0.05
 
