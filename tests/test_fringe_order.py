@@ -24,6 +24,7 @@ from gridstrain import Lattice, coarse_displacement, wft
 from gridstrain.cli import main
 from gridstrain.kinematics import _phase_shift
 from gridstrain.pipeline import measure_series, state_names
+from gridstrain.results import load, save_result
 
 # --------------------------------------------------------------------------- generator
 
@@ -211,6 +212,11 @@ def test_series_with_a_guess_for_the_first_state_is_confirmed(tmp_path):
                          guess=U0((n - 1) / 2, (n - 1) / 2))
     assert [r.source for r in res.fringe_orders] == ["user"] + ["previous state"] * 3
     assert all(r.confirmed for r in res.fringe_orders)
+    # the records survive the result file
+    back = load(save_result(res, tmp_path / "r.h5"))
+    assert [r.as_dict() for r in back.fringe_orders] == [r.as_dict() for r in res.fringe_orders]
+    assert [m.fringe_order.as_dict() for m in back.measurements] == \
+        [r.as_dict() for r in res.fringe_orders]
     yy, xx = np.mgrid[0:n, 0:n].astype(float)
     for i, (U, _) in enumerate(truths):
         v = res.valid[i]

@@ -92,6 +92,7 @@ can be measured and the maps are absent.
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import math
 import numbers
 import os
@@ -986,6 +987,8 @@ def _track(maps, means, mask, lattice, guesses, order, names, lagrangian, report
         else:
             res = deformation(ref_pm, pm, lagrangian=lagrangian, guess=g)
             rec = FringeOrder("user", True, res.guess, "the given guess")
+        # the measurement carries the series' record, not the pair's view of its guess
+        res = dataclasses.replace(res, fringe_order=rec)
         measurements.append(res)
         records.append(rec)
         filled = _filled(res.u, res.valid)
