@@ -275,11 +275,11 @@ def coarse_displacement(reference, deformed, lattice: Lattice, *, mask=None,
     The phases fix the displacement modulo the lattice: the candidates are
     ``phase_shift + m a1 + n a2``. The estimate is *confident* only when (a) the
     band-passed images correlate (``>= 0.5``) at the best candidate, (b) that
-    candidate beats every alias within two periods by the peak-to-alias ratio
-    ``_MIN_PEAK_TO_ALIAS`` and (c) the correlation peak itself lies within a
-    quarter period of it. A pattern with nothing but the grid, or content fixed to
-    the camera, fails (a) or (b); when it cannot decide, the caller must not use
-    ``shift``.
+    candidate beats every alias within two periods by a peak-to-alias ratio of
+    1.5 and (c) the correlation peak itself lies within a quarter period of it. A
+    pattern with nothing but the grid, or smooth content fixed to the camera
+    (lighting, vignetting), fails (a) or (b); when it cannot decide, the caller
+    must not use ``shift``.
 
     Parameters
     ----------
@@ -297,6 +297,14 @@ def coarse_displacement(reference, deformed, lattice: Lattice, *, mask=None,
     CoarseEstimate
         ``shift`` with the Lagrangian sign: a specimen moved right gives
         ``u_x > 0``.
+
+    Notes
+    -----
+    Sharp content fixed to the camera (dust on the lens or sensor, hot pixels)
+    that outweighs the specimen's own features makes the estimate say "no
+    motion"; check (c) catches it unless the specimen moved by a whole number of
+    periods to within a quarter period. Images larger than 1024 px are
+    correlated over their central 1024 x 1024 px.
     """
     ref = as_image(reference, "reference").astype(np.float64)
     cur = as_image(deformed, "deformed").astype(np.float64)
