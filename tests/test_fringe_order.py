@@ -260,6 +260,24 @@ def test_a_step_of_nearly_half_a_period_is_flagged():
     assert any(res.names[2] in w and "changed by up to" in w for w in res.warnings)
 
 
+def test_printed_features_take_over_when_a_step_exceeds_half_a_period():
+    """Grips moving 3 px a step at pitch 4.1 (0.73 period): followed step by step the
+    displacement would lose a period each time; the printed spots fix every state."""
+    n, pitch = 128, 4.1
+    R = spots(np.random.default_rng(5), (n, n))
+    ref = render((n, n), pitch, defects=R)
+    shifts = [(3.0 * k, 0.0) for k in (1, 2, 3)]
+    states = [render((n, n), pitch, rigid(*t), defects=R) for t in shifts]
+    res = measure_series(ref, states, lattice=Lattice.from_pitch(pitch))
+    assert [r.source for r in res.fringe_orders] == ["image features"] * 3
+    assert all(r.confirmed for r in res.fringe_orders)
+    for i, t in enumerate(shifts):
+        v = res.valid[i]
+        # px: noise-free rigid motions; a lost period would be 4.1 px
+        assert np.max(np.abs(res.u[i][:, v] - np.array(t)[:, None])) < 0.05
+    assert sum("more than half a period" in w for w in res.warnings) == 2
+
+
 # --------------------------------------------------------------------------- pairs
 
 

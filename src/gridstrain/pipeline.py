@@ -38,6 +38,10 @@ Fringe order
     clearly beat their aliases one or two periods away and agree with the phases;
     or followed from a confirmed previous state with a displacement change below
     ``_MAX_STEP`` = 0.4 period at every pixel (or with image features agreeing).
+    Conclusive image features that put the specimen half a period or more from
+    zero override the tracking when the two disagree (the step was more than half
+    a period), with a warning; features that say "no motion" do not (content fixed
+    to the camera can say that), and the state is not confirmed.
     A state that is not confirmed may be off by whole periods; a warning says what
     to do. A step of more than 0.6 period between states without image features
     would be followed one period off and cannot be detected from the phases alone.
@@ -940,22 +944,32 @@ def _track(maps, means, mask, lattice, guesses, order, names, lagrangian, report
                 rec = _from_estimate(est, "previous state", True, gmed,
                                      f"followed from {prev_name} (step {step:.2f} period); "
                                      f"image features agree ({est.reason})", step)
-            elif est.confident and step > _MAX_STEP:
-                # the step was too large to follow; the features decide
+            elif est.confident and (step > _MAX_STEP
+                                    or np.max(np.abs(lattice.K @ est.shift)) >= 0.5):
+                # conclusive features that moved with the specimen beat the assumption
+                # of a step below half a period: the step was larger
+                followed = _median_u(res)
                 res = deformation(ref_pm, pm, lagrangian=lagrangian, guess=est.shift)
                 rec = _from_estimate(est, "image features", True, res.guess,
-                                     f"{est.reason}; the step from {prev_name} "
-                                     f"({step:.2f} period) was too large to follow", step)
+                                     f"{est.reason}; followed from {prev_name} it would "
+                                     f"have been {followed}", step)
+                warnings.append(f"{name}: image features fix the displacement at "
+                                f"{_median_u(res)}, whole periods from {followed} followed "
+                                f"from {prev_name}: the load step was more than half a "
+                                "period; the features were used")
             elif est.confident:
+                # the features say "no motion" while the specimen was followed away from
+                # zero: content fixed to the camera (dust, hot pixels) can do that
                 rec = _from_estimate(est, "previous state", False, gmed,
                                      f"followed from {prev_name}, but image features "
                                      f"suggest {est.shift[0]:.2f}, {est.shift[1]:.2f} px",
                                      step)
                 warnings.append(f"{name}: the displacement followed from {prev_name} "
                                 f"(median {_median_u(res)}) and the image features "
-                                f"({est.shift[0]:.2f}, {est.shift[1]:.2f}) px disagree by "
-                                "whole periods: fringe order not confirmed; check the order "
-                                "of the states or pass --guess UX UY")
+                                f"({est.shift[0]:.2f}, {est.shift[1]:.2f}) px, which may be "
+                                "dust or hot pixels fixed to the camera, disagree by whole "
+                                "periods: fringe order not confirmed; check the order of "
+                                "the states or pass --guess UX UY")
             elif step > _MAX_STEP:
                 rec = _from_estimate(est, "previous state", False, gmed,
                                      f"followed from {prev_name}, but the displacement "
