@@ -32,6 +32,7 @@ from .pipeline import (
     FWHM_PER_SIGMA,
     MAP_FIELDS,
     ORDERS,
+    OUTLIER_POLICIES,
     SeriesResult,
     measure_series,
     state_names,
@@ -51,7 +52,7 @@ _CONFIG_KEYS = {
     "csv": "path", "figures": "path", "export": "formats", "report": "path",
     "phase-maps": "bool", "quiet": "bool", "json": "bool", "overwrite": "bool",
     "bit-depth": "int",
-    "scheduler": "str", "order": "str", "max-saturation": "float",
+    "scheduler": "str", "outliers": "outliers", "order": "str", "max-saturation": "float",
 }
 # Left out of the configuration stored in the result: how to run (not what to
 # measure), and the side outputs, which a replay must not write over.
@@ -120,6 +121,11 @@ def register(sub) -> None:
                    "[0, 1] (default 0.01); photos of white paper clip between the lines")
     k.add_argument("--bit-depth", type=int, metavar="BITS",
                    help="significant bits of the camera (default: detected)")
+    k.add_argument("--outliers", choices=OUTLIER_POLICIES,
+                   help="frames that do not belong to their series (no grid, low contrast, "
+                   "a slip, another state's frame, clipped): 'exclude' them with a warning "
+                   "(default; a series with half its frames flagged is refused), 'refuse' "
+                   "the run, or 'warn' and keep them (noise floor then not stated)")
     o = p.add_argument_group("output")
     o.add_argument("--pixel-size", type=float, metavar="SIZE",
                    help="pixel size on the specimen, in --unit (adds ux_phys, uy_phys)")
@@ -173,6 +179,10 @@ def _config_value(key: str, value, kind: str, base: Path, where: str):
     if kind == "bool":
         if not isinstance(value, bool):
             raise bad("true or false")
+        return value
+    if kind == "outliers":
+        if value not in OUTLIER_POLICIES:
+            raise bad(" or ".join(f'"{p}"' for p in OUTLIER_POLICIES))
         return value
     if kind == "roi":
         if not isinstance(value, list) or len(value) != 4 or any(
@@ -278,6 +288,7 @@ def _options(args) -> dict:
     for name in ("no-lagrangian", "quiet", "json", "overwrite", "phase-maps"):
         opts[name] = bool(opts.get(name, False))
     opts.setdefault("method", "A")
+    opts.setdefault("outliers", "exclude")
     opts.setdefault("margin", DEFAULT_MARGIN)
     if not opts.get("output"):
         raise ValueError("the output file is missing: pass -o OUT.h5 (or output = ... in "
@@ -390,8 +401,10 @@ def report_lines(result: SeriesResult, *, pixel_size: float | None = None,
         "vibrations (rigid shift of each frame, 1 std)  alpha px  beta px   contrast k1/k2"
         "   phase offset k1/k2 rad",
     ]
-    for v in result.vibration:
+    for k, v in enumerate(result.vibration):
         label = f"  {v.name}, {v.n_frames} frame(s)"
+        if result.excluded and result.excluded[k]:
+            label += f" ({len(result.excluded[k])} excluded)"
         contrast = f"{_fmt(v.contrast_factor[0], '.5f')}/{_fmt(v.contrast_factor[1], '.5f')}"
         lines.append(f"{label:<46} {_fmt(v.std[0], '.4f'):>8} {_fmt(v.std[1], '.4f'):>8}   "
                      f"{contrast:<16} "
@@ -471,6 +484,7 @@ def summary(result: SeriesResult, *, outputs: dict, seconds: float,
         v = result.valid[i]
         states.append({
             "name": result.names[i + 1], "frames": result.n_frames[i + 1],
+            "excluded_frames": list(result.excluded[i + 1]) if result.excluded else [],
             "files": list(result.sources[i + 1]), "valid_fraction": float(v.mean()),
             "mean": {name: num(float(np.mean(result.get_map(name)[i][v]))) if v.any()
                      else None for name in MAP_FIELDS},
@@ -488,7 +502,9 @@ def summary(result: SeriesResult, *, outputs: dict, seconds: float,
                     "angles_deg": list(lat.angles), "detected": result.lattice_detected},
         "sigma_px": result.sigma, "method": result.method, "lagrangian": result.lagrangian,
         "margin": result.margin, "pixel_size": pixel_size, "unit": unit,
-        "reference": {"frames": result.n_frames[0], "files": list(result.sources[0])},
+        "reference": {"frames": result.n_frames[0], "files": list(result.sources[0]),
+                      "excluded_frames": list(result.excluded[0]) if result.excluded
+                      else []},
         "states": states,
         "vibration": [{"series": v.name, "frames": v.n_frames,
                        "std_px": [num(x) for x in v.std],
@@ -611,8 +627,8 @@ def _run(args, progress: _Bar) -> int:
     result = measure_series(reference, states, lattice=lattice, sigma=opts.get("sigma"),
                             method=opts["method"], mask=mask,
                             lagrangian=not opts["no-lagrangian"], guess=guess,
-                            order=order, margin=opts["margin"], progress=progress,
-                            scheduler=opts.get("scheduler"), **kw)
+                            order=order, margin=opts["margin"], outliers=opts["outliers"],
+                            progress=progress, scheduler=opts.get("scheduler"), **kw)
     ps, unit = opts.get("pixel-size"), opts.get("unit")
     stored = dict(opts)
     for key in ("reference", "states", "output", "mask"):

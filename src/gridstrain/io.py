@@ -36,6 +36,7 @@ Output
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import glob
 import json
 import numbers
@@ -406,6 +407,8 @@ class FrameSeries:
     _tiff: tuple[bool, ...] = field(default=(), compare=False)
     channels: int = 1
     notes: tuple[str, ...] = ()
+    # number of every frame in the series it was taken from (subset); () : 0, 1, ...
+    _numbers: tuple[int, ...] = field(default=(), compare=True)
 
     @property
     def n_frames(self) -> int:
@@ -438,16 +441,37 @@ class FrameSeries:
         return self.paths[f], page
 
     def describe_frame(self, i: int) -> str:
-        """``"frame i (file[, page k])"``, for messages."""
+        """``"frame i (file[, page k])"``, for messages (``i`` numbered in the
+        series a :meth:`subset` was taken from)."""
         j = self._index(i)
         f, page, n_pages = self._frames[j]
-        return f"frame {j} ({_describe(self.paths[f], page, n_pages)})"
+        return f"frame {self._number(j)} ({_describe(self.paths[f], page, n_pages)})"
+
+    def _number(self, j: int) -> int:
+        return self._numbers[j] if self._numbers else j
+
+    def subset(self, indices) -> FrameSeries:
+        """The series of the frames ``indices`` only, in the order given.
+
+        Messages keep naming each frame by its number in this series, so that a
+        frame excluded or reported later is the one the user sees in the folder.
+
+        Parameters
+        ----------
+        indices : sequence of int
+            Frame indices, ``0 <= i < n_frames``, at least one.
+        """
+        idx = [self._index(i) for i in indices]
+        if not idx:
+            raise ValueError(f"{self.name}: a subset must keep at least one frame, got none")
+        return dataclasses.replace(self, _frames=tuple(self._frames[j] for j in idx),
+                                   _numbers=tuple(self._number(j) for j in idx))
 
     # -- reading
 
     def _iter_raw(self, indices: Iterable[int]) -> Iterator[tuple[str, np.ndarray]]:
         """Yield ``(description, raw frame)``, opening each file once per run."""
-        locs = [(j, *self._frames[j]) for j in indices]
+        locs = [(self._number(j), *self._frames[j]) for j in indices]
         for f, group in groupby(locs, key=lambda loc: loc[1]):
             path = self.paths[f]
             if self._tiff[f]:

@@ -10,11 +10,16 @@ vibrations of every series and states the noise floor of the maps. Conventions
 For each series
     1. If no lattice is given, the reference frames are averaged (streamed) and
        the lattice detected on the mean image.
-    2. Vibrations: the rigid translation ``(alpha_t, beta_t)`` of every frame from
-       the phase of one global Fourier coefficient per wave vector
-       (:func:`gridstrain.vibration.frame_shifts` when available), no windowed
-       Fourier transform per frame. Paper eq. (2): frame ``t`` is
-       ``s(x + alpha_t, y + beta_t)``.
+    2. Screening and vibrations, in one read of every frame
+       (:func:`gridstrain.screening.screen_frames`): each frame is checked against
+       its series (a grid, its contrast, a rigid slip, the non-rigid residual of a
+       frame of another state, clipping at the ceiling or at a level ``2^n - 1``)
+       and the flagged frames are excluded, refused or kept with a warning
+       (``outliers``); every later pass sees the frames kept only. The rigid
+       translation ``(alpha_t, beta_t)`` of every frame comes from the phase of one
+       global Fourier coefficient per wave vector, as in
+       :func:`gridstrain.vibration.frame_shifts`, no windowed Fourier transform per
+       frame. Paper eq. (2): frame ``t`` is ``s(x + alpha_t, y + beta_t)``.
     3. Statistics (streamed): the mean image, the per-pixel sensor noise variance
        (see *Noise floor*) and the saturated fraction of every frame.
     4. Phase maps. Method A (paper §2.2): the windowed Fourier transform of the
@@ -126,9 +131,9 @@ from .kinematics import (
     deformation,
 )
 from .lattice import Lattice, detect_lattice
+from .screening import FrameScreen, screen_frames
 from .stacks import method_b
 from .uncertainty import predict_uncertainty
-from .vibration import frame_shifts
 from .wft import DEFAULT_MARGIN, PhaseMaps, finite_derivatives, wft
 
 __all__ = [
@@ -292,9 +297,11 @@ class SeriesResult:
 
     Attributes
     ----------
-    u : (n_states, 2, H, W) float64 ndarray
-        ``(u_x, u_y)`` per state, px, Lagrangian; NaN where not ``valid``.
-    strain : (n_states, 3, H, W) float64 ndarray
+    u : (n_states, 2, H, W) float ndarray
+        ``(u_x, u_y)`` per state, px, Lagrangian; NaN where not ``valid``. float32
+        when every series holds float32 frames, float64 otherwise (precision in
+        :mod:`gridstrain.conventions`).
+    strain : (n_states, 3, H, W) float ndarray
         ``(e_xx, e_yy, e_xy)`` per state, dimensionless (tensor shear).
     valid : (n_states, H, W) bool ndarray
     lattice : Lattice
@@ -335,6 +342,12 @@ class SeriesResult:
         Every option of the measurement, as given.
     warnings : tuple of str
         Things the user should know that did not stop the measurement.
+    excluded : tuple of tuple of int
+        Per series, the numbers of the frames the screening excluded (their files
+        and reasons are in ``warnings``); ``n_frames`` counts the frames kept.
+    screening : tuple of gridstrain.screening.FrameScreen
+        Per series, what the screening measured on every frame (excluded ones
+        included).
     uncertainty : dict of str to ndarray, optional
         Per-pixel predicted standard deviations ``"ux_std"``, ``"uy_std"`` (px),
         ``"exx_std"``, ``"eyy_std"``, ``"exy_std"``, each ``(n_states, H, W)``, NaN
@@ -370,6 +383,8 @@ class SeriesResult:
     warnings: tuple[str, ...] = ()
     uncertainty: dict | None = None
     fringe_orders: tuple[FringeOrder, ...] = ()
+    excluded: tuple[tuple[int, ...], ...] = ()
+    screening: tuple = field(default=(), repr=False)
 
     def __post_init__(self):
         for name in ("u", "strain", "valid", "mask", "reference_image"):
@@ -473,22 +488,37 @@ class _ArraySeries:
         self.dtype = arr.dtype
         self.shape = (int(arr.shape[1]), int(arr.shape[2]))
         self._data = arr
+        self._numbers = np.arange(arr.shape[0])  # frames kept, numbered in ``data``
+        if arr.dtype.kind in "ui":  # the container's ceiling, for the screening
+            self.saturation_level = int(np.iinfo(arr.dtype).max)
 
     @property
     def n_frames(self) -> int:
-        return int(self._data.shape[0])
+        return int(self._numbers.size)
 
     def __len__(self) -> int:
         return self.n_frames
 
+    def _number(self, j: int) -> int:
+        return int(self._numbers[j])
+
+    def describe_frame(self, i: int) -> str:
+        return f"frame {self._number(i)}"
+
+    def subset(self, indices) -> _ArraySeries:
+        out = object.__new__(_ArraySeries)
+        out.__dict__.update(self.__dict__)
+        out._numbers = self._numbers[np.asarray(indices, dtype=int)]
+        return out
+
     def frames(self, *, dtype=np.float64, start: int = 0, stop: int | None = None):
-        return (np.array(f, dtype=dtype) for f in self._data[start:stop])
+        return (np.array(self._data[t], dtype=dtype) for t in self._numbers[start:stop])
 
     def mean(self, *, start: int = 0, stop: int | None = None, progress=None):
-        sub = self._data[start:stop]
+        sub = self._numbers[start:stop]
         acc = np.zeros(self.shape)
-        for f in sub:
-            acc += f
+        for t in sub:
+            acc += self._data[t]
         return acc / len(sub)
 
 
@@ -667,15 +697,6 @@ def _counting(frames: Iterable, n: int, report: Progress, what: str):
 # --------------------------------------------------------------------------- vibrations
 
 
-def _frame_shifts(frames: Iterable, lattice: Lattice, name: str) -> tuple[np.ndarray, str]:
-    try:
-        return (np.asarray(frame_shifts(frames, lattice), dtype=np.float64),
-                "gridstrain.vibration.frame_shifts")
-    except ValueError as exc:
-        msg = str(exc)
-        raise ValueError(msg if msg.startswith(f"{name}:") else f"{name}: {msg}") from None
-
-
 def _diagnose(name: str, shifts: np.ndarray, estimator: str, lattice: Lattice,
               method: str) -> VibrationDiagnostics:
     T = shifts.shape[0]
@@ -697,6 +718,126 @@ def _diagnose(name: str, shifts: np.ndarray, estimator: str, lattice: Lattice,
     return VibrationDiagnostics(name=name, shifts=shifts, std=std,
                                 contrast_factor=tuple(contrast),
                                 phase_offset_std=tuple(offset), estimator=estimator)
+
+
+# --------------------------------------------------------------------------- screening
+
+#: What ``outliers`` may say to do with the frames the screening flags.
+OUTLIER_POLICIES = ("exclude", "refuse", "warn")
+# A screened series keeps the mean image's contrast above this fraction
+# (|mean c_t| / mean |c_t|): 0.8 is a vibration of 0.25 pitch / 2 pi ~ 0.2 px std at
+# pitch 5, past the second-order theory of the noise floor (Prop. 2.2).
+_MIN_COHERENCE = 0.8
+
+
+@dataclass(frozen=True, eq=False)
+class _Screened:
+    screen: FrameScreen
+    series: object  # the frames kept
+    shifts: np.ndarray  # (T_kept, 2) px, centred
+    excluded: tuple[int, ...]  # frame numbers
+    kept_flagged: bool  # frames flagged but kept (outliers="warn")
+    saturation: float  # largest clipped fraction of a kept frame
+    clip_level: float  # the level of that frame, NaN when none is clipped
+    warnings: tuple[str, ...]
+
+
+def _screen_series(s, lattice: Lattice, mask, max_saturation: float, outliers: str,
+                   report: Progress) -> _Screened:
+    """Read every frame of ``s`` once: rigid shifts and the screening
+    (:func:`gridstrain.screening.screen_frames`), then exclude, refuse or keep
+    the flagged frames as ``outliers`` says. A strict minority is excluded; when half
+    the frames or more are flagged the series is refused whatever the policy but
+    "warn": the good frames cannot be told from the bad."""
+    n = s.n_frames
+    try:
+        sc = screen_frames(_counting(s.frames(dtype=np.float64), n, report, "screening"),
+                           lattice, saturation_level=s.saturation_level, scale=s.scale,
+                           mask=mask, max_saturation=max_saturation)
+    except ValueError as exc:
+        raise ValueError(f"{s.name}: {exc}") from None
+    bad = sc.flagged
+    names = {t: s.describe_frame(t) for t in bad}
+    listed = "; ".join(f"{names[t]}: {', '.join(sc.reasons[t])}" for t in bad[:5])
+    if len(bad) > 5:
+        listed += f"; and {len(bad) - 5} more"
+    warnings = []
+    keep = [t for t in range(n) if t not in set(bad)]
+    if bad and outliers != "warn" and (outliers == "refuse" or 2 * len(bad) >= n):
+        why = "" if outliers == "refuse" or len(bad) == n else " (half or more: the " \
+            "good frames cannot be told from the bad)"
+        raise ValueError(f"{s.name}: {listed} -- {len(bad)} of {n} frame(s) flagged{why}; "
+                         f"{_advice(sc, bad)}, or pass outliers='warn' (--outliers warn) "
+                         "to measure anyway")
+    if bad and outliers == "exclude":
+        warnings.append(f"{s.name}: excluded {len(bad)} of {n} frames: {listed}")
+    elif bad:
+        warnings.append(f"{s.name}: kept {len(bad)} flagged frame(s) of {n} (outliers="
+                        f"'warn'): {listed}; the noise floor and uncertainty maps of the "
+                        "states measured with them are not stated (NaN)")
+        keep = list(range(n))
+    kept = s if len(keep) == n else s.subset(keep)
+    coh = sc.coherence(keep)
+    if len(keep) > 1 and coh.min() < _MIN_COHERENCE:
+        warnings.append(f"{s.name}: the frames' rigid shifts leave only {coh.min():.0%} of "
+                        "the grid's contrast in their mean (vibrations of a large fraction "
+                        "of a pitch): the noise floor's theory does not hold")
+    sat = sc.saturated[keep]
+    worst = int(np.argmax(sat))
+    level = float(sc.clip_level[keep][worst]) if sat[worst] > 0 else math.nan
+    return _Screened(screen=sc, series=kept, shifts=sc.shifts(keep),
+                     excluded=tuple(s._number(t) for t in bad if outliers == "exclude"),
+                     kept_flagged=bool(bad) and outliers == "warn",
+                     saturation=float(sat[worst]), clip_level=level,
+                     warnings=tuple(warnings))
+
+
+# What the user can do about a flagged frame, by what its reason says.
+_ADVICE = (("uniform", "remove the blank frames"), ("shows no grid", "remove the blank frames"),
+           ("low grid contrast", "remove the dark or blurred frames"),
+           ("rigid shift", "measure the frames before and after the slip as two series"),
+           ("non-rigid", "move the frames of another state to their own series"),
+           ("pixels saturated", "shorten the exposure or mask the saturated area"))
+
+
+def _advice(sc, bad) -> str:
+    out = []
+    for t in bad:
+        for reason in sc.reasons[t]:
+            for key, what in _ADVICE:
+                if key in reason and what not in out:
+                    out.append(what)
+    return "; ".join(out) or "remove or re-take them"
+
+
+def _saturation_warning(s, sc: _Screened, saturation: float) -> list[str]:
+    if saturation <= 0:
+        return []
+    lvl = sc.clip_level
+    at = "" if not math.isfinite(lvl) else f" (clipped at {lvl:g}" + (
+        ")" if s.saturation_level is None or lvl >= s.saturation_level else
+        ", a level 2^n - 1 below the files' range: a camera of fewer bits? pass its "
+        "bit depth)")
+    return [f"{s.name}: up to {saturation:.2%} of a frame's pixels are saturated{at}"]
+
+
+def _void_precision(noise: NoiseFloor, uncertainty, screens) -> tuple:
+    """NaN noise floor and uncertainty maps for every state measured with frames that
+    were flagged but kept: their precision is not known."""
+    states = [i for i in range(noise.theory_u.shape[0])
+              if screens[0].kept_flagged or screens[i + 1].kept_flagged]
+    if not states:
+        return noise, uncertainty
+    arrays = {}
+    for name in ("theory_u", "theory_strain", "split_u", "split_strain", "vibration_u"):
+        a = np.array(getattr(noise, name))
+        a[states] = np.nan
+        arrays[name] = a
+    if uncertainty is not None:
+        uncertainty = {k: np.array(v) for k, v in uncertainty.items()}
+        for v in uncertainty.values():
+            v[states] = np.nan
+    return dataclasses.replace(noise, **arrays), uncertainty
 
 
 # --------------------------------------------------------------------------- statistics
@@ -850,6 +991,15 @@ def _phase_maps_b(series, lattice, sigma, mask, margin, report):
     n = series.n_frames
     frames = _counting(series.frames(dtype=np.float64), n, report, "method B: transform")
     return finite_derivatives(method_b(frames, lattice, sigma=sigma, mask=mask, margin=margin).maps)
+
+
+def _in_precision(maps: list, series: list) -> list:
+    """The phase maps in the precision of the input (gridstrain.conventions): float32
+    when every series holds float32 frames; they were computed in float64."""
+    if not all(np.dtype(s.dtype) == np.float32 for s in series):
+        return maps
+    return [dataclasses.replace(pm, psi=pm.psi.astype(np.complex64),
+                                dphi=pm.dphi.astype(np.float32)) for pm in maps]
 
 
 # --------------------------------------------------------------------------- Dask
@@ -1074,7 +1224,7 @@ def measure_series(reference, states, *, lattice: Lattice | None = None,
                    sigma: float | None = None, method: str = "A", mask=None,
                    lagrangian: bool = True, guess="auto", order: str = "series",
                    margin: float = DEFAULT_MARGIN, bit_depth: int | None = None,
-                   max_saturation: float = _MAX_SATURATION,
+                   max_saturation: float = _MAX_SATURATION, outliers: str = "exclude",
                    progress: Progress | None = None, scheduler=None) -> SeriesResult:
     """Displacement and strain maps of loaded states from series of grid images.
 
@@ -1126,6 +1276,17 @@ def measure_series(reference, states, *, lattice: Lattice | None = None,
     max_saturation : float
         Largest fraction of saturated pixels accepted in any frame of a file
         series (within the mask), in [0, 1].
+    outliers : {"exclude", "refuse", "warn"}
+        What to do with the frames that the screening flags (every frame is checked
+        against its series by :func:`gridstrain.screening.screen_frames`: no grid
+        or a uniform frame, low contrast, a rigid slip, a frame of another state,
+        more than ``max_saturation`` clipped pixels, at the container's ceiling or
+        at a level ``2^n - 1``). "exclude" (default): leave them out of every
+        average (mean, variance, method B, the noise floor's halves, ``T``) and
+        name them in the warnings; a series with half its frames flagged or more
+        is refused, the good ones being then unknown. "refuse": raise on any
+        flagged frame. "warn": keep them, name them in the warnings, and give the
+        noise floor and uncertainty maps of the states they enter as NaN.
     progress : callable, optional
         ``progress(fraction, message)``.
     scheduler : str or distributed.Client, optional
@@ -1149,6 +1310,14 @@ def measure_series(reference, states, *, lattice: Lattice | None = None,
         Bad arguments or input files (the message names the series, the frame
         and the file); an unreachable scheduler (OSError).
 
+    Notes
+    -----
+    Frames are read one at a time, never held whole. Every frame is read once for
+    the screening and the shifts, once for the statistics and, with method B, once
+    for its transform; the reference's frames twice more (the mean that detects or
+    checks the lattice, before the screening, and the two halves of the noise
+    floor).
+
     Examples
     --------
     >>> import numpy as np
@@ -1165,6 +1334,7 @@ def measure_series(reference, states, *, lattice: Lattice | None = None,
     if not callable(progress):
         raise TypeError(f"progress must be callable or None, got {progress!r}")
     check_choice(method, "method", ("A", "B"))
+    check_choice(outliers, "outliers", OUTLIER_POLICIES)
     margin = check_positive(margin, "margin")
     sigma = check_positive(sigma, "sigma", allow_none=True)
     check_choice(order, "order", ORDERS)
@@ -1227,20 +1397,28 @@ def measure_series(reference, states, *, lattice: Lattice | None = None,
         _check_given_lattice(mean_ref, lattice, sigma, m, margin)
     steps.step(1.0, "lattice")
 
+    # every frame screened against its series (one read), the flagged ones handled
+    # before any average; the rest of the pipeline sees the frames kept only
+    screens = [_screen_series(s, lattice, m, max_saturation, outliers,
+                              steps.sub(s.n_frames, s.name)) for s in series]
+    series = [sc.series for sc in screens]
+    ref = series[0]
+    warnings += [w for sc in screens for w in sc.warnings]
+
     vib, stats, maps, masks = [], [], [], []
     with _connect(scheduler) as client:
-        for s in series:
+        for s, sc in zip(series, screens, strict=True):
             n = s.n_frames
-            shifts, how = _frame_shifts(
-                _counting(s.frames(dtype=np.float64), n, steps.sub(n, s.name), "shifts"),
-                lattice, s.name)
-            vib.append(_diagnose(s.name, shifts, how, lattice, method))
+            shifts = sc.shifts
+            vib.append(_diagnose(s.name, shifts, "gridstrain.vibration.frame_shifts",
+                                 lattice, method))
+            # the screening judged the saturation: the pass below only measures it
             if client is None:
-                stats.append(_statistics(s, shifts, m, max_saturation, steps.sub(n, s.name)))
+                stats.append(_statistics(s, shifts, m, 1.0, steps.sub(n, s.name)))
             else:  # a future: the cluster works while this machine reads the next series
                 c, _, regress = _regressors(shifts)
                 stats.append(_dist()._submit_statistics(client, s, c if regress else None, m,
-                                                        max_saturation))
+                                                        1.0))
         for k, s in enumerate(series):
             n = s.n_frames
             if client is not None:
@@ -1263,6 +1441,7 @@ def measure_series(reference, states, *, lattice: Lattice | None = None,
                 maps[k] = finite_derivatives(maps[k].result().maps)
                 steps.step(s.n_frames * wft_cost, f"{s.name}: method B")
 
+    maps = _in_precision(maps, series)
     mean_ref = stats[0].mean
     kin = 3 * wft_cost if lagrangian else wft_cost
     measurements, orders, notes = _track(
@@ -1304,17 +1483,18 @@ def measure_series(reference, states, *, lattice: Lattice | None = None,
                        variance_method=tuple(st.variance_method for st in stats),
                        modulus=mods, theory_u=th_u, theory_strain=th_e, split_u=sp_u,
                        split_strain=sp_e, vibration_u=vib_u)
-    for st, s in zip(stats, series, strict=True):
-        if st.saturation > 0:
-            warnings.append(f"{s.name}: up to {st.saturation:.2%} of a frame's pixels are "
-                            "saturated")
+    saturation = tuple(max(st.saturation, sc.saturation)
+                       for st, sc in zip(stats, screens, strict=True))
+    for s, sc, sat in zip(series, screens, saturation, strict=True):
+        warnings += _saturation_warning(s, sc, sat)
     uncertainty = _uncertainty_maps(stats, maps, measurements, T, float(sigma))
+    noise, uncertainty = _void_precision(noise, uncertainty, screens)
     progress(1.0, "done")
 
     parameters = {"sigma": float(sigma), "method": method, "lagrangian": bool(lagrangian),
                   "guess": _guess_parameter(guess),
                   "order": order, "margin": float(margin), "max_saturation":
-                  float(max_saturation), "bit_depth": bit_depth,
+                  float(max_saturation), "bit_depth": bit_depth, "outliers": outliers,
                   "lattice": None if detect else {"k1": list(lattice.k1),
                                                   "k2": list(lattice.k2)}}
     u = np.stack([r.u for r in measurements])
@@ -1328,7 +1508,8 @@ def measure_series(reference, states, *, lattice: Lattice | None = None,
         sources=tuple(tuple(str(p) for p in s.paths) for s in series),
         n_frames=tuple(T), bit_depth=tuple(s.bit_depth for s in series),
         scale=tuple(int(s.scale) for s in series),
-        saturation=tuple(st.saturation for st in stats),
+        saturation=saturation, excluded=tuple(sc.excluded for sc in screens),
+        screening=tuple(sc.screen for sc in screens),
         measurements=tuple(measurements),
         guesses=tuple(tuple(float(v) for v in r.guess) for r in orders),
         guess_sources=tuple(r.source for r in orders), vibration=tuple(vib), noise=noise,
