@@ -204,6 +204,32 @@ def _dask(dt):
         _check_measurement(m, dt)
 
 
+def _estimate_noise_image(dt):
+    # the single-image estimate needs 160 px at least: the same grid on 192 x 192
+    rng = np.random.default_rng(5)
+    y, x = np.mgrid[0:192, 0:192].astype(np.float64)
+    i = 120 + 50 * (np.cos(2 * np.pi * x / 5) + np.cos(2 * np.pi * y / 5))
+    img = np.rint(np.clip(i + np.sqrt(0.3 * i + 4.0) * rng.standard_normal(i.shape), 0, 255))
+    m = gridstrain.estimate_noise_image(img.astype(dt), LAT)
+    assert isinstance(m.K, float)
+    assert isinstance(m.L, float)
+    assert m.levels.dtype == np.float64  # statistics are float64
+
+
+def _aliasing_bias(dt):
+    ref, _ = _ref_cur(dt)
+    a = uncertainty.aliasing_bias(ref[0], LAT, sigma=5.0)
+    assert isinstance(a["u_px"], float)
+    assert all(isinstance(v, float) for v in a["phase_rad"])
+
+
+def _smoothing_bias(dt):
+    ref, cur = _ref_cur(dt)
+    m = gridstrain.measure(ref[0], cur[0], lattice=LAT, guess=None)
+    b = uncertainty.smoothing_bias(m.strain, m.valid, sigma=5.0)
+    assert all(v is None or isinstance(v, float) for v in b["p95"])
+
+
 ENTRY_POINTS = {
     "wft": _wft, "method_a": _method_a, "method_b": _method_b,
     "prefix_stacks": _prefix_stacks, "correct_phases": _correct_phases,
@@ -215,13 +241,15 @@ ENTRY_POINTS = {
     "anscombe": _anscombe, "inverse_anscombe": _anscombe, "estimate_noise": _estimate_noise,
     "detect_lattice": _detect_lattice, "mean_image_dask": _dask, "method_a_dask": _dask,
     "method_b_dask": _dask, "measure_states_dask": _dask,
+    "estimate_noise_image": _estimate_noise_image, "aliasing_bias": _aliasing_bias,
+    "smoothing_bias": _smoothing_bias,
 }
 # Public functions that take no image: their outputs are float64 by construction
-# (frequencies), files (save_*, load: the dtypes saved), or the frames themselves at
-# a dtype the caller names (gridstrain.io; as_dask_stack); connect() opens a
-# cluster, progress_bar() draws, state_names() names the inputs.
+# (frequencies; metrology's figures), files (save_*, load: the dtypes saved), or the
+# frames themselves at a dtype the caller names (gridstrain.io; as_dask_stack);
+# connect() opens a cluster, progress_bar() draws, state_names() names the inputs.
 NO_IMAGE = {"transfer_function", "save_result", "save_csv", "as_dask_stack", "connect",
-            "load", "progress_bar", "state_names"}
+            "load", "progress_bar", "metrology", "state_names"}
 
 
 def test_every_public_function_of_the_numerical_core_is_covered():

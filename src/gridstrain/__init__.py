@@ -13,7 +13,7 @@ from .kinematics import (
     measure,
 )
 from .lattice import Lattice, detect_lattice
-from .noise import NoiseModel, anscombe, estimate_noise, inverse_anscombe
+from .noise import NoiseModel, anscombe, estimate_noise, estimate_noise_image, inverse_anscombe
 from .uncertainty import Uncertainty, predict_uncertainty
 from .vibration import VibrationReport, frame_shifts, vibration_report
 from .wft import PhaseMaps, wft
@@ -62,6 +62,7 @@ __all__ = [
     "deformation",
     "detect_lattice",
     "estimate_noise",
+    "estimate_noise_image",
     "frame_shifts",
     "inverse_anscombe",
     "load",

@@ -64,6 +64,7 @@ __all__ = [
     "open_series",
     "read_hdf5",
     "read_mask",
+    "read_noise_model",
     "roi_mask",
     "to_luminance",
     "write_csv",
@@ -1293,6 +1294,54 @@ def read_hdf5(path) -> dict:
 
         h5.visititems(visit)
     return out
+
+
+def read_noise_model(path):
+    """The camera noise model saved by ``gridstrain noise -o FILE.h5`` (or ``.json``).
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+
+    Returns
+    -------
+    gridstrain.noise.NoiseModel
+        ``K``, ``L`` in the stored grey levels of the images it was estimated on,
+        with their ``scale`` and ``bit_depth``.
+
+    Raises
+    ------
+    ValueError
+        The file is not a noise result, or holds an unusable model (``K <= 0``).
+    """
+    from .noise import NOISE_RESULT_KIND, NoiseModel
+
+    p = _as_path(path, "path")
+    if not p.is_file():
+        raise FileNotFoundError(f"noise file {p} does not exist")
+    if p.suffix.lower() == ".json":
+        try:
+            attrs = json.loads(p.read_text())
+        except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+            raise ValueError(f"noise file {p} is not JSON ({exc})") from None
+    else:
+        attrs = read_hdf5(p)["attrs"]
+    d = attrs.get("noise_model") if isinstance(attrs, dict) else None
+    if not isinstance(attrs, dict) or attrs.get("result_kind") != NOISE_RESULT_KIND \
+            or not isinstance(d, dict):
+        raise ValueError(f"noise file {p} is not a noise result of 'gridstrain noise -o' "
+                         "(no noise_model in it)")
+    try:
+        model = NoiseModel(K=d["K"], L=d["L"], K_ci=d.get("K_ci"), L_ci=d.get("L_ci"),
+                           scale=d.get("scale", 1.0), n_frames=d.get("n_frames"),
+                           n_pixels=d.get("n_pixels"), reduced_chi2=d.get("reduced_chi2"),
+                           method=str(d.get("method", "stack")),
+                           filter_gain=d.get("filter_gain"), bit_depth=d.get("bit_depth"))
+    except (KeyError, TypeError, ValueError) as exc:
+        raise ValueError(f"noise file {p}: unusable noise model ({exc})") from None
+    if not model.K > 0:
+        raise ValueError(f"noise file {p}: K must be positive, got {model.K!r}")
+    return model
 
 
 def _column_format(dtype: np.dtype, digits: int | None) -> str:

@@ -94,8 +94,32 @@ Per-pixel uncertainty maps (``ux_std``, ``uy_std``, ``exx_std``, ``eyy_std``,
 measured per-pixel noise variance of each series (vibrations regressed out),
 averaged with the weight ``g^2`` the window gives each pixel and divided by ``T``,
 over the local modulus ``|Psi|``. They are :attr:`SeriesResult.uncertainty`, saved
-next to the maps by :func:`save_result`. With a single frame per series no variance
-can be measured and the maps are absent.
+next to the maps by :func:`save_result`.
+
+Where the noise variance comes from (``NoiseFloor.model``)
+    - a camera model given by the user (``noise_model``: a
+      :class:`gridstrain.noise.NoiseModel` from ``gridstrain noise``, or ``(K, L)``
+      in stored grey levels): every series' variance is ``K mean + L``;
+    - otherwise the temporal variance of each series of two frames or more, and
+      for the series of a single frame the model ``Var = K l + L`` estimated from
+      one image (:func:`gridstrain.noise.estimate_noise_image`, on the first
+      single-frame series: the camera is the same), evaluated at the image.
+    So every state gets its maps, its noise floor and its metrological figures,
+    whatever ``T``.
+
+Metrological figures (``SeriesResult.metrology``, :func:`gridstrain.uncertainty.metrology`)
+    Per state and map: the resolution (median predicted std), the spatial
+    resolution (FWHM) and the 10-90 % width of a step, and the metrological
+    efficiency indicator ``sigma_u d`` (displacement) or ``sigma_e d^2``
+    (strain), px^2, independent of ``sigma``.
+
+Systematic errors (``SeriesResult.systematic``)
+    The uncertainty maps cover noise only. Two biases are estimated and warned
+    about where they can exceed the noise: the harmonics of sharp lines aliasing
+    onto the carrier (:func:`gridstrain.uncertainty.aliasing_bias`, from the
+    reference image's spectrum, or a bound where the profile cannot be seen),
+    and the window's smoothing of strain gradients, ``sigma^2 / 2 lap(e)``
+    (:func:`gridstrain.uncertainty.smoothing_bias`, from the measured field).
 """
 
 from __future__ import annotations
@@ -115,7 +139,13 @@ from scipy import ndimage
 
 from . import theory
 from ._progress import null_progress
-from ._validation import check_choice, check_mask, check_positive
+from ._validation import (
+    SIGMA_PITCH_RTOL,
+    check_choice,
+    check_mask,
+    check_positive,
+    check_sigma,
+)
 from .io import (
     FrameSeries,
     check_saturation_limit,
@@ -131,9 +161,10 @@ from .kinematics import (
     deformation,
 )
 from .lattice import Lattice, detect_lattice
+from .noise import NoiseModel, estimate_noise_image
 from .screening import FrameScreen, screen_frames
 from .stacks import method_b
-from .uncertainty import predict_uncertainty
+from .uncertainty import aliasing_bias, metrology, predict_uncertainty, smoothing_bias
 from .wft import DEFAULT_MARGIN, PhaseMaps, finite_derivatives, wft
 
 __all__ = [
@@ -174,6 +205,9 @@ ORDERS = ("series", "independent")
 # frequencies turned by 45 degrees, where a grid or checkerboard has no harmonic:
 # noise alone gives about 1, the mean of a 12-bit grid image hundreds.
 _MIN_GRID_CONTRAST = 5.0
+# Aliasing of the lines' harmonics is flagged only above this displacement error, px
+# (when the noise is lower still): below it no measurement can tell it from noise.
+_ALIAS_MIN_PX = 1e-3
 # Largest fraction of saturated pixels accepted in a frame (gridstrain.io's default).
 _MAX_SATURATION = 0.01
 
@@ -257,6 +291,10 @@ class NoiseFloor:
     vibration_u : ndarray
         Standard deviation of the constant vibration offset of the displacement
         (reference and state together), px.
+    model : dict, optional
+        Where the image noise came from: ``source`` ("stack", "single image",
+        "given" or a mix per series), and the camera model ``Var = K l + L`` used
+        where one was (:meth:`gridstrain.noise.NoiseModel.as_dict`).
     """
 
     sigma: float
@@ -269,6 +307,7 @@ class NoiseFloor:
     split_u: np.ndarray
     split_strain: np.ndarray
     vibration_u: np.ndarray
+    model: dict | None = None
 
     def __post_init__(self):
         for name in ("modulus", "theory_u", "theory_strain", "split_u", "split_strain",
@@ -288,6 +327,7 @@ class NoiseFloor:
                "modulus": [clean(m) for m in self.modulus]}
         for name in ("theory_u", "theory_strain", "split_u", "split_strain", "vibration_u"):
             out[name] = [clean(row) for row in getattr(self, name)]
+        out["model"] = self.model
         return out
 
 
@@ -351,7 +391,17 @@ class SeriesResult:
     uncertainty : dict of str to ndarray, optional
         Per-pixel predicted standard deviations ``"ux_std"``, ``"uy_std"`` (px),
         ``"exx_std"``, ``"eyy_std"``, ``"exy_std"``, each ``(n_states, H, W)``, NaN
-        where not valid; ``None`` when no series has two frames or more.
+        where not valid; ``None`` when no noise variance could be had (a single
+        frame per series whose noise could not be estimated, and no model given).
+    metrology : dict, optional
+        Per state and per map: resolution (median predicted std), spatial
+        resolution (window FWHM and 10-90 % step width, px) and the metrological
+        efficiency indicator (:func:`gridstrain.uncertainty.metrology`).
+    systematic : dict, optional
+        Estimated systematic errors that the uncertainty maps do not cover:
+        harmonic aliasing onto the carrier and the window's smoothing of strain
+        gradients (:func:`gridstrain.uncertainty.aliasing_bias`,
+        :func:`gridstrain.uncertainty.smoothing_bias`).
     fringe_orders : tuple of FringeOrder
         How each state's whole number of periods was fixed and whether anything
         confirms it (see :class:`gridstrain.kinematics.FringeOrder`).
@@ -385,6 +435,8 @@ class SeriesResult:
     fringe_orders: tuple[FringeOrder, ...] = ()
     excluded: tuple[tuple[int, ...], ...] = ()
     screening: tuple = field(default=(), repr=False)
+    metrology: dict | None = None
+    systematic: dict | None = None
 
     def __post_init__(self):
         for name in ("u", "strain", "valid", "mask", "reference_image"):
@@ -1225,7 +1277,8 @@ def measure_series(reference, states, *, lattice: Lattice | None = None,
                    lagrangian: bool = True, guess="auto", order: str = "series",
                    margin: float = DEFAULT_MARGIN, bit_depth: int | None = None,
                    max_saturation: float = _MAX_SATURATION, outliers: str = "exclude",
-                   progress: Progress | None = None, scheduler=None) -> SeriesResult:
+                   progress: Progress | None = None, scheduler=None, noise_model=None,
+                   sigma_pitches: float | None = None) -> SeriesResult:
     """Displacement and strain maps of loaded states from series of grid images.
 
     Parameters
@@ -1242,7 +1295,8 @@ def measure_series(reference, states, *, lattice: Lattice | None = None,
     lattice : Lattice, optional
         The grid's wave vectors; detected on the mean reference image by default.
     sigma : float, optional
-        Window standard deviation, px (default: the pitch; at least the pitch).
+        Window standard deviation, px (default: the pitch; at least the pitch; a
+        value within a relative 1e-3 below the pitch is taken as the pitch).
     method : {"A", "B"}
         "A" (paper §2.2): one windowed Fourier transform of each averaged series.
         "B" (§2.3): one transform per frame, phases and derivatives averaged.
@@ -1299,6 +1353,16 @@ def measure_series(reference, states, *, lattice: Lattice | None = None,
         shifts, the lattice, the noise floor and the kinematics stay on this
         machine. Results equal those without a scheduler to the rounding of sums
         added in another order.
+    noise_model : NoiseModel or (K, L), optional
+        The camera's noise ``Var = K l + L`` in the stored grey levels of the
+        images (a :class:`gridstrain.noise.NoiseModel`, e.g. from ``gridstrain
+        noise``, or a pair from a datasheet). Used for every series instead of
+        the noise measured in the data. Default: the temporal variance of each
+        series of two frames or more, and for single frames the model estimated
+        from one image (:func:`gridstrain.noise.estimate_noise_image`).
+    sigma_pitches : float, optional
+        The window's standard deviation in pitches (``sigma = sigma_pitches x
+        pitch``, at least 1), instead of ``sigma``.
 
     Returns
     -------
@@ -1338,6 +1402,15 @@ def measure_series(reference, states, *, lattice: Lattice | None = None,
     margin = check_positive(margin, "margin")
     sigma = check_positive(sigma, "sigma", allow_none=True)
     check_choice(order, "order", ORDERS)
+    if sigma_pitches is not None:
+        if sigma is not None:
+            raise ValueError(f"give sigma or sigma_pitches, not both (got sigma={sigma!r}, "
+                             f"sigma_pitches={sigma_pitches!r})")
+        sigma_pitches = check_positive(sigma_pitches, "sigma_pitches")
+        if sigma_pitches < 1 - SIGMA_PITCH_RTOL:
+            raise ValueError(f"sigma_pitches must be at least 1 (the window must hold one "
+                             f"period), got {sigma_pitches!r}")
+        sigma_pitches = max(sigma_pitches, 1.0)
     if isinstance(max_saturation, bool) or not isinstance(max_saturation, numbers.Real) \
             or not 0 <= max_saturation <= 1:
         raise ValueError(f"max_saturation must be a fraction in [0, 1], got "
@@ -1345,9 +1418,9 @@ def measure_series(reference, states, *, lattice: Lattice | None = None,
     if lattice is not None and not isinstance(lattice, Lattice):
         raise TypeError(f"lattice must be a Lattice or None, got {type(lattice).__name__}")
     scheduler = _check_scheduler(scheduler)
-    if sigma is not None and lattice is not None and sigma < lattice.pitch * (1 - 1e-9):
-        raise ValueError(f"sigma must be at least the pitch ({lattice.pitch:.4g} px) so "
-                         f"that the window holds one period, got {sigma:.4g}")
+    given_model = _check_noise_model(noise_model)
+    if sigma is not None and lattice is not None:
+        sigma = check_sigma(sigma, lattice.pitch)
 
     ref = _as_series(reference, "reference", bit_depth)
     raw_states = _as_states(states)
@@ -1389,10 +1462,9 @@ def measure_series(reference, states, *, lattice: Lattice | None = None,
             lattice = detect_lattice(mean_ref, mask=m)
         except ValueError as exc:
             raise ValueError(f"reference: {exc}") from None
-    sigma = lattice.pitch if sigma is None else sigma
-    if sigma < lattice.pitch * (1 - 1e-9):
-        raise ValueError(f"sigma must be at least the pitch ({lattice.pitch:.4g} px) so "
-                         f"that the window holds one period, got {sigma:.4g}")
+    if sigma_pitches is not None:
+        sigma = sigma_pitches * lattice.pitch
+    sigma = check_sigma(sigma, lattice.pitch)
     if not detect:
         _check_given_lattice(mean_ref, lattice, sigma, m, margin)
     steps.step(1.0, "lattice")
@@ -1441,6 +1513,8 @@ def measure_series(reference, states, *, lattice: Lattice | None = None,
                 maps[k] = finite_derivatives(maps[k].result().maps)
                 steps.step(s.n_frames * wft_cost, f"{s.name}: method B")
 
+    stats, model_info = _noise_models(stats, series, given_model, lattice, masks[0],
+                                      warnings)
     maps = _in_precision(maps, series)
     mean_ref = stats[0].mean
     kin = 3 * wft_cost if lagrangian else wft_cost
@@ -1482,13 +1556,15 @@ def measure_series(reference, states, *, lattice: Lattice | None = None,
                        sensor_variance=tuple(var),
                        variance_method=tuple(st.variance_method for st in stats),
                        modulus=mods, theory_u=th_u, theory_strain=th_e, split_u=sp_u,
-                       split_strain=sp_e, vibration_u=vib_u)
+                       split_strain=sp_e, vibration_u=vib_u, model=model_info)
     saturation = tuple(max(st.saturation, sc.saturation)
                        for st, sc in zip(stats, screens, strict=True))
     for s, sc, sat in zip(series, screens, saturation, strict=True):
         warnings += _saturation_warning(s, sc, sat)
     uncertainty = _uncertainty_maps(stats, maps, measurements, T, float(sigma))
     noise, uncertainty = _void_precision(noise, uncertainty, screens)
+    metrology, systematic = _figures(noise, uncertainty, measurements, mean_ref, lattice,
+                                     float(sigma), masks[0], warnings)
     progress(1.0, "done")
 
     parameters = {"sigma": float(sigma), "method": method, "lagrangian": bool(lagrangian),
@@ -1496,7 +1572,9 @@ def measure_series(reference, states, *, lattice: Lattice | None = None,
                   "order": order, "margin": float(margin), "max_saturation":
                   float(max_saturation), "bit_depth": bit_depth, "outliers": outliers,
                   "lattice": None if detect else {"k1": list(lattice.k1),
-                                                  "k2": list(lattice.k2)}}
+                                                  "k2": list(lattice.k2)},
+                  "noise_model": None if given_model is None else given_model.as_dict(),
+                  "sigma_pitches": sigma_pitches}
     u = np.stack([r.u for r in measurements])
     strain = np.stack([r.strain for r in measurements])
     valid = np.stack([r.valid for r in measurements])
@@ -1514,7 +1592,121 @@ def measure_series(reference, states, *, lattice: Lattice | None = None,
         guesses=tuple(tuple(float(v) for v in r.guess) for r in orders),
         guess_sources=tuple(r.source for r in orders), vibration=tuple(vib), noise=noise,
         parameters=parameters, warnings=tuple(warnings), uncertainty=uncertainty,
+        metrology=metrology, systematic=systematic,
         fringe_orders=tuple(orders))
+
+
+def _check_noise_model(noise_model):
+    """A NoiseModel from ``noise_model`` (a NoiseModel or a (K, L) pair), or None."""
+    if noise_model is None or isinstance(noise_model, NoiseModel):
+        if noise_model is not None and not noise_model.K > 0:
+            raise ValueError(f"noise_model: K must be positive, got {noise_model.K!r}")
+        return noise_model
+    if isinstance(noise_model, str | bytes) or not isinstance(noise_model, Sequence) \
+            or len(noise_model) != 2:
+        raise TypeError(f"noise_model must be a NoiseModel or a (K, L) pair in stored grey "
+                        f"levels, got {noise_model!r}")
+    K = check_positive(noise_model[0], "noise_model K")
+    L = noise_model[1]
+    if isinstance(L, bool) or not isinstance(L, numbers.Real) or not math.isfinite(L):
+        raise ValueError(f"noise_model L must be a finite number of grey levels^2, got {L!r}")
+    return NoiseModel(K=K, L=float(L), method="given")
+
+
+def _noise_models(stats, series, given, lattice, mask, warnings):
+    """Per-frame noise variance maps of every series, and where they came from.
+
+    A given camera model sets every series' variance to ``K mean + L``; otherwise
+    the series of one frame get the model estimated from one image (the first such
+    series: the camera is the same), and the others keep their temporal variance.
+    """
+    def from_model(st, model, how):
+        var = np.maximum(model.K * st.mean + model.L, 0.0)
+        return _Stats(st.mean, var, how, st.saturation)
+
+    def describe(model, what):
+        return (f"{what}: Var = K l + L, K = {model.K:.4g}, L = {model.L:.4g} (stored grey "
+                "levels)")
+
+    for s in series:
+        if given is not None and s.bit_depth is not None and given.bit_depth is not None \
+                and given.bit_depth != s.bit_depth:
+            raise ValueError(f"noise model: estimated on {given.bit_depth}-bit images but "
+                             f"{s.name} is {s.bit_depth}-bit; estimate it on this camera's "
+                             "images or give --noise-model K L in their stored units")
+        if given is not None and given.method != "given" and given.scale != s.scale:
+            raise ValueError(f"noise model: estimated on images stored x{given.scale:g} but "
+                             f"{s.name} is stored x{s.scale:g}; its K and L are in other "
+                             "units")
+    if given is not None:
+        how = describe(given, f"camera model ({given.method})")
+        return ([from_model(st, given, how) for st in stats],
+                {"source": f"given ({given.method})", **given.as_dict()})
+    single = [k for k, st in enumerate(stats) if st.variance is None]
+    if not single:
+        return stats, {"source": "stack"}
+    k0 = single[0]
+    s0 = series[k0]
+    try:
+        model = estimate_noise_image(stats[k0].mean, lattice,
+                                     mask=mask if k0 == 0 else None,
+                                     saturation=s0.saturation_level, scale=s0.scale)
+    except ValueError as exc:
+        warnings.append(f"{s0.name}: the noise could not be estimated from its single image "
+                        f"({exc}); the single-frame series get no uncertainty of their "
+                        "own (give --noise or --noise-model)")
+        return stats, {"source": "unavailable"}
+    model = dataclasses.replace(model, bit_depth=s0.bit_depth)
+    how = describe(model, f"single image ({s0.name})")
+    out = [from_model(st, model, how) if k in single else st for k, st in enumerate(stats)]
+    source = "single image" if len(single) == len(stats) else "stack and single image"
+    return out, {"source": source, "estimated_on": s0.name, **model.as_dict()}
+
+
+def _figures(noise, uncertainty, measurements, mean_ref, lattice, sigma, mask, warnings):
+    """Metrological figures and the systematic errors, warning where they can matter."""
+    n = len(measurements)
+    floors = {}
+    for i in range(n):
+        if uncertainty is not None and measurements[i].valid.any():
+            v = measurements[i].valid
+            floors[i] = {k.removesuffix("_std"): float(np.median(a[i][v]))
+                         for k, a in uncertainty.items()}
+        else:
+            floors[i] = {"ux": float(noise.theory_u[i][0]), "uy": float(noise.theory_u[i][1]),
+                         "exx": float(noise.theory_strain[i][0]),
+                         "eyy": float(noise.theory_strain[i][1]),
+                         "exy": float(noise.theory_strain[i][2])}
+    metro = metrology([floors[i] for i in range(n)], sigma)
+    alias = aliasing_bias(mean_ref, lattice, sigma=sigma, mask=mask)
+    smooth = [smoothing_bias(m.strain, m.valid, sigma=sigma) for m in measurements]
+    for i, m in enumerate(measurements):
+        name = f"state {i}"
+        fl = floors[i]
+        known = [fl[k] for k in ("ux", "uy") if math.isfinite(fl[k])]
+        u_noise = max(known) if known else 0.0
+        noise_txt = f"{u_noise:.2g} px" if known else "unknown"
+        if alias["u_px"] > max(u_noise, _ALIAS_MIN_PX):
+            how = ("estimated from the harmonics seen in the reference image"
+                   if alias["observable"] else "bound for sharp lines; the line profile "
+                   "cannot be seen at this pitch")
+            e_max = float(np.max(np.abs(m.strain[:, m.valid]))) if m.valid.any() else 0.0
+            warnings.append(f"{name}: harmonics of the grid's lines can alias onto the carrier "
+                            f"at pitch {lattice.pitch:.3g} px: displacement error up to "
+                            f"{alias['u_px']:.2g} px and strain error up to "
+                            f"{alias['strain_per_strain'] * e_max:.2g} ({how}), above the noise "
+                            f"({noise_txt}); use a larger sigma, a pitch away from 4 px "
+                            "or a smoother (defocused) grid")
+        for j, comp in enumerate(("exx", "eyy", "exy")):
+            b = smooth[i]["p95"][j]
+            e_noise = fl[comp]
+            # noise alone gives a 95th percentile of ~0.6 noise std: twice it is signal
+            if b is not None and math.isfinite(e_noise) and b > 2 * e_noise and b > 1e-6:
+                warnings.append(f"{name}: the window smooths the {comp} gradients: bias "
+                                f"sigma^2/2 lap(e) reaches {b:.2g} (95th percentile) against "
+                                f"a noise std of {e_noise:.2g}; a smaller sigma resolves them "
+                                "better at the cost of noise")
+    return metro, {"aliasing": alias, "smoothing": smooth}
 
 
 def _uncertainty_maps(stats, maps, measurements, T, sigma):
