@@ -1564,7 +1564,8 @@ def measure_series(reference, states, *, lattice: Lattice | None = None,
     uncertainty = _uncertainty_maps(stats, maps, measurements, T, float(sigma))
     noise, uncertainty = _void_precision(noise, uncertainty, screens)
     metrology, systematic = _figures(noise, uncertainty, measurements, mean_ref, lattice,
-                                     float(sigma), masks[0], warnings)
+                                     float(sigma), masks[0], warnings,
+                                     [s.name for s in series[1:]])
     progress(1.0, "done")
 
     parameters = {"sigma": float(sigma), "method": method, "lagrangian": bool(lagrangian),
@@ -1663,7 +1664,8 @@ def _noise_models(stats, series, given, lattice, mask, warnings):
     return out, {"source": source, "estimated_on": s0.name, **model.as_dict()}
 
 
-def _figures(noise, uncertainty, measurements, mean_ref, lattice, sigma, mask, warnings):
+def _figures(noise, uncertainty, measurements, mean_ref, lattice, sigma, mask, warnings,
+             names):
     """Metrological figures and the systematic errors, warning where they can matter."""
     n = len(measurements)
     floors = {}
@@ -1681,7 +1683,7 @@ def _figures(noise, uncertainty, measurements, mean_ref, lattice, sigma, mask, w
     alias = aliasing_bias(mean_ref, lattice, sigma=sigma, mask=mask)
     smooth = [smoothing_bias(m.strain, m.valid, sigma=sigma) for m in measurements]
     for i, m in enumerate(measurements):
-        name = f"state {i}"
+        name = names[i]
         fl = floors[i]
         known = [fl[k] for k in ("ux", "uy") if math.isfinite(fl[k])]
         u_noise = max(known) if known else 0.0
