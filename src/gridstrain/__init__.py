@@ -2,34 +2,71 @@
 
 The conventions (axes, signs, window, Lagrangian description) are written once, in
 :mod:`gridstrain.conventions`.
+
+The public names below are imported on first use (PEP 562), so that ``import
+gridstrain`` and ``gridstrain --help`` do not pay for scipy, scikit-image, h5py or
+matplotlib before anything is computed.
 """
 
-from .kinematics import Measurement, coarse_displacement, deformation, measure
-from .lattice import Lattice, detect_lattice
-from .noise import NoiseModel, anscombe, estimate_noise, inverse_anscombe
-from .uncertainty import Uncertainty, predict_uncertainty
-from .vibration import VibrationReport, frame_shifts, vibration_report
-from .wft import PhaseMaps, wft
+from __future__ import annotations
+
+import importlib
+import sys
+import types
 
 __version__ = "0.1.0"
 
-__all__ = [
-    "Lattice",
-    "Measurement",
-    "NoiseModel",
-    "PhaseMaps",
-    "Uncertainty",
-    "VibrationReport",
-    "__version__",
-    "anscombe",
-    "coarse_displacement",
-    "deformation",
-    "detect_lattice",
-    "estimate_noise",
-    "frame_shifts",
-    "inverse_anscombe",
-    "measure",
-    "predict_uncertainty",
-    "vibration_report",
-    "wft",
-]
+# public name -> submodule that defines it
+_LAZY = {
+    "Lattice": "lattice",
+    "Measurement": "kinematics",
+    "NoiseModel": "noise",
+    "PhaseMaps": "wft",
+    "Uncertainty": "uncertainty",
+    "VibrationReport": "vibration",
+    "anscombe": "noise",
+    "coarse_displacement": "kinematics",
+    "deformation": "kinematics",
+    "detect_lattice": "lattice",
+    "estimate_noise": "noise",
+    "frame_shifts": "vibration",
+    "inverse_anscombe": "noise",
+    "measure": "kinematics",
+    "predict_uncertainty": "uncertainty",
+    "vibration_report": "vibration",
+    "wft": "wft",
+}
+
+__all__ = ["__version__", *sorted(_LAZY)]
+
+
+def __getattr__(name: str):
+    module = _LAZY.get(name)
+    if module is None:
+        raise AttributeError(f"module 'gridstrain' has no attribute {name!r}")
+    value = getattr(importlib.import_module(f".{module}", __name__), name)
+    # once resolved, the name is a plain attribute of the package
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(_LAZY))
+
+
+class _Package(types.ModuleType):
+    """The package module: a public function keeps its name when its submodule loads.
+
+    The import system binds every submodule it loads to the package under the
+    submodule's name; :func:`wft` lives in :mod:`gridstrain.wft`, and the function,
+    not the module, is the package's ``wft`` (as with an eager ``from .wft import
+    wft``), whichever of the two is imported first.
+    """
+
+    def __setattr__(self, name, value):
+        if isinstance(value, types.ModuleType) and _LAZY.get(name) == name:
+            value = getattr(value, name)
+        super().__setattr__(name, value)
+
+
+sys.modules[__name__].__class__ = _Package
