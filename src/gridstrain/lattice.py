@@ -170,8 +170,8 @@ def detect_lattice(image, *, mask=None, max_pitch: float | None = None) -> Latti
     -----
     The mean-removed image (masked pixels set to the mean) is multiplied by a 2-D
     Hann window; the two strongest non-parallel peaks of its spectrum are located on
-    the FFT grid, then refined off the grid by maximising the windowed discrete-time
-    Fourier transform magnitude, ``|sum w v exp(-2 i pi k.x)|``, which for a
+    the FFT grid, then refined off the grid by maximising (Newton's method) the
+    windowed discrete-time Fourier transform magnitude, ``|sum w v exp(-2 i pi k.x)|``, which for a
     sinusoid peaks exactly at its frequency. On a noise-free 512 x 512 grid the
     pitch is found to better than 1e-5 relative and the angle to better than 1e-3
     degree (see the tests). For a deformed image the lattice found is the mean
@@ -301,20 +301,21 @@ def _dtft_taylor(data, k, x, y):
 def _refine(data, k0, x, y, h, w) -> np.ndarray:
     """Maximise the windowed DTFT magnitude around the FFT-grid peak ``k0``.
 
-    Newton's method on ``|F|^2`` with its exact gradient and Hessian: from the
+    Newton's method on ``log |F|^2`` with its exact gradient and Hessian: from the
     nearest bin (within half a bin of the maximum, well inside the main lobe of the
-    Hann window, two bins wide, where ``|F|^2`` is concave) it converges
-    quadratically, in 3 to 5 steps. Should a step leave the lobe or the Hessian stop
-    being negative definite (a strong neighbouring peak), Nelder-Mead on the
-    magnitude takes over.
+    Hann window, two bins wide, where the logarithm is concave and nearly
+    quadratic) it converges quadratically, in 3 to 5 steps (each about three DTFT
+    evaluations; Nelder-Mead needed about a hundred). Should a step leave the lobe
+    or the Hessian stop being negative definite (a strong neighbouring peak),
+    Nelder-Mead on the magnitude takes over.
     """
     scale = np.array([1.0 / w, 1.0 / h])  # one FFT bin in each direction
     z = np.zeros(2)
     for _ in range(_NEWTON_STEPS):
-        _, grad, hess = _dtft_taylor(data, k0 + z * scale, x, y)
-        # in bins: d/dz = scale * d/dk
-        g = grad * scale
-        H = hess * np.outer(scale, scale)
+        power, grad, hess = _dtft_taylor(data, k0 + z * scale, x, y)
+        # log |F|^2, nearly quadratic over the main lobe, in bins (d/dz = scale d/dk)
+        g = grad * scale / power
+        H = hess * np.outer(scale, scale) / power - np.outer(g, g)
         if not (H[0, 0] < 0 and np.linalg.det(H) > 0):
             return _refine_nelder_mead(data, k0, x, y, scale)
         step = -np.linalg.solve(H, g)
