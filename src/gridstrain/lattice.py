@@ -171,11 +171,12 @@ def detect_lattice(image, *, mask=None, max_pitch: float | None = None) -> Latti
     The mean-removed image (masked pixels set to the mean) is multiplied by a 2-D
     Hann window; the two strongest non-parallel peaks of its spectrum are located on
     the FFT grid, then refined off the grid by maximising (Newton's method) the
-    windowed discrete-time Fourier transform magnitude, ``|sum w v exp(-2 i pi k.x)|``, which for a
-    sinusoid peaks exactly at its frequency. On a noise-free 512 x 512 grid the
-    pitch is found to better than 1e-5 relative and the angle to better than 1e-3
-    degree (see the tests). For a deformed image the lattice found is the mean
-    frequency, so detect on the reference image.
+    windowed discrete-time Fourier transform magnitude,
+    ``|sum w v exp(-2 i pi k.x)|``, which for a sinusoid peaks exactly at its
+    frequency. On a noise-free 512 x 512 grid the pitch is found to better than
+    1e-5 relative and the angle to better than 1e-3 degree (see the tests). For a
+    deformed image the lattice found is the mean frequency, so detect on the
+    reference image.
 
     Examples
     --------
