@@ -76,3 +76,7 @@ def test_only_the_sub_command_run_is_built():
     assert set(sub.choices) == set(cli._COMMANDS)
     # the others are summaries without arguments
     assert [a.dest for a in sub.choices["measure"]._actions] == []
+
+
+def test_measure_command_loads_matplotlib_only_for_figures():
+    assert "matplotlib" not in _loaded_after("import gridstrain._cli_measure")
