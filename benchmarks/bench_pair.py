@@ -149,6 +149,9 @@ def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--size", default="1040x1376", help="image size HxW (default 1040x1376)")
     ap.add_argument("--repeat", type=int, default=3, help="interleaved runs of each candidate")
+    ap.add_argument("--baseline", metavar="SRC",
+                    help="also run gridstrain from this source folder (another checkout's "
+                         "src/), interleaved with this one")
     args = ap.parse_args(argv)
     shape = tuple(int(v) for v in args.size.lower().split("x"))
 
@@ -175,6 +178,12 @@ def main(argv=None):
             "gridstrain measure": [sys.executable, "-m", "gridstrain.cli", "measure", ref, cur,
                                    "-o", str(out), "--quiet", "--overwrite"],
         }
+        if args.baseline:
+            cands["gridstrain measure (baseline)"] = [
+                sys.executable, "-c",
+                f"import sys; sys.path.insert(0, {args.baseline!r}); "
+                "from gridstrain.cli import main; sys.exit(main())",
+                "measure", ref, cur, "-o", str(tmp / "base.h5"), "--quiet", "--overwrite"]
         if have_openlsa:
             row, col = round(FEATURE[1] * shape[0]), round(FEATURE[0] * shape[1])
             ux, uy = field(shape)(float(col), float(row))
