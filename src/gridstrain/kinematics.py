@@ -203,8 +203,8 @@ class _Spline:
     :func:`deformation` evaluate the same deformed map several times.
     """
 
-    def __init__(self, arr: np.ndarray, order: int = _SPLINE_ORDER):
-        self.order = order
+    def __init__(self, arr: np.ndarray, order: int | None = None):
+        self.order = order = _SPLINE_ORDER if order is None else order
         padded = np.pad(arr, _SPLINE_PAD, mode="edge")
         self.coef = ndimage.spline_filter(padded, order, mode="nearest",
                                           output=padded.dtype)
