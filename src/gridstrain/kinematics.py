@@ -359,12 +359,19 @@ def deformation(reference: PhaseMaps, deformed: PhaseMaps, *, lagrangian: bool =
         for j in range(2):
             for m in range(2):
                 D_cur[j, m] = _Spline(dphi_cur[j, m])(coords)
-        # exact Lagrangian gradient: (2 pi K + D_cur) G = D_ref - D_cur
-        A = 2 * np.pi * K[:, :, None, None] + D_cur
-        B = D_ref - D_cur
-        det = A[0, 0] * A[1, 1] - A[0, 1] * A[1, 0]
-        inv = np.array([[A[1, 1], -A[0, 1]], [-A[1, 0], A[0, 0]]]) / det
-        G = np.einsum("ij...,jk...->ik...", inv, B)
+        # exact Lagrangian gradient: (2 pi K + D_cur) G = D_ref - D_cur, by Cramer's
+        # rule map by map rather than through (2, 2, H, W) temporaries
+        a00 = 2 * np.pi * K[0, 0] + D_cur[0, 0]
+        a01 = 2 * np.pi * K[0, 1] + D_cur[0, 1]
+        a10 = 2 * np.pi * K[1, 0] + D_cur[1, 0]
+        a11 = 2 * np.pi * K[1, 1] + D_cur[1, 1]
+        B = np.subtract(D_ref, D_cur, out=D_cur)
+        rdet = 1.0 / (a00 * a11 - a01 * a10)
+        G = np.empty((2, 2, *shape))
+        G[0, 0] = (a11 * B[0, 0] - a01 * B[1, 0]) * rdet
+        G[0, 1] = (a11 * B[0, 1] - a01 * B[1, 1]) * rdet
+        G[1, 0] = (a00 * B[1, 0] - a10 * B[0, 0]) * rdet
+        G[1, 1] = (a00 * B[1, 1] - a10 * B[0, 1]) * rdet
     else:
         D_cur = deformed.dphi.astype(np.float64)
         G = -np.tensordot(np.linalg.inv(K), D_cur - D_ref, axes=1) / (2 * np.pi)  # eq. (35)
