@@ -24,8 +24,8 @@ __all__ = ["Measurement", "coarse_displacement", "deformation", "measure"]
 # band-limited by the window (their spectrum falls as exp(-2 pi^2 sigma^2 nu^2)), so
 # cubic splines suffice: against the direct sum at off-grid points the phase error is
 # 3e-7 rad at sigma = pitch = 5 px (tests/test_lagrangian_interpolation.py), and on a noisy
-# 1040 x 1376 pair they change u by less than 1e-7 px from quintic splines, at half
-# the cost per evaluation.
+# 1040 x 1376 pair they change u by less than 1e-7 px from quintic splines, with 16
+# coefficients per point instead of 36.
 _SPLINE_ORDER = 3
 # Rows and columns of edge values added around a map before its spline prefilter, as
 # scipy's map_coordinates(mode="nearest") does: the prefilter's boundary then matches
