@@ -3,6 +3,7 @@
 import numpy as np
 import pytest
 from scipy import ndimage
+from skimage.restoration import unwrap_phase as _original_unwrap_phase
 
 from gridstrain import Lattice, deformation, kinematics, wft
 from gridstrain.kinematics import _Spline
@@ -105,3 +106,31 @@ def test_cubic_correction_equals_the_quintic_one(monkeypatch):
     # 1e-5 strain users resolve (measured 8e-8)
     np.testing.assert_allclose(cubic.u[:, v], quintic.u[:, v], rtol=0, atol=1e-6)
     np.testing.assert_allclose(cubic.strain[:, v], quintic.strain[:, v], rtol=0, atol=1e-6)
+
+
+def _skimage_unwrap(wrapped, valid):
+    return np.ma.filled(_original_unwrap_phase(np.ma.masked_array(wrapped, mask=~valid), rng=0),
+                        0.0)
+
+
+@pytest.mark.parametrize(("amplitude", "calls"), [(2.0, 0), (6.0, 1)])  # rad
+def test_unwrap_shortcut_decides_what_scikit_image_decides(monkeypatch, amplitude, calls):
+    # 2 rad: within a fringe, scikit-image is spared; 6 rad: across fringes, it runs
+    rng = np.random.default_rng(int(amplitude * 10))
+    yy, xx = np.mgrid[0:120, 0:150].astype(float)
+    phase = amplitude * np.sin(xx / 40) * np.cos(yy / 30) + 0.2 * rng.standard_normal(xx.shape)
+    wrapped = np.angle(np.exp(1j * phase))
+    valid = rng.random(xx.shape) > 0.05
+    valid[40:70, 60:100] = False
+    want = _skimage_unwrap(wrapped, valid)
+    seen = []
+
+    def spy(*args, **kwargs):
+        seen.append(1)
+        return _original_unwrap_phase(*args, **kwargs)
+
+    monkeypatch.setattr(kinematics, "unwrap_phase", spy)
+    got = kinematics._unwrap(wrapped, valid)
+    assert len(seen) == calls
+    # the same map, bit for bit, whether or not scikit-image had to run
+    np.testing.assert_array_equal(got, want)
