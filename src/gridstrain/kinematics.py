@@ -292,8 +292,9 @@ def deformation(reference: PhaseMaps, deformed: PhaseMaps, *, lagrangian: bool =
     Notes
     -----
     The wrapped phase difference is unwrapped in space by scikit-image's
-    ``unwrap_phase`` over the valid pixels (each connected region on its own); each
-    region's fringe order is the one closest to the guess. With the correction on,
+    ``unwrap_phase`` over the valid pixels (each connected region on its own; not
+    called where no two valid neighbours differ by pi, since it would return the map
+    unchanged); each region's fringe order is the one closest to the guess. With the correction on,
     the residual ``phi_def(X + u) - phi_ref(X) + 2 pi K u`` is wrapped at every
     iteration, so any displacement is followed once the start is within half a
     period. The strain then comes from the exact Lagrangian gradient
