@@ -35,6 +35,14 @@ _LAZY = {
     "predict_uncertainty": "uncertainty",
     "vibration_report": "vibration",
     "wft": "wft",
+    # the series workflow and the result files (they pull in h5py and matplotlib)
+    "SeriesResult": "pipeline",
+    "load": "results",
+    "measure_series": "pipeline",
+    "method_a": "stacks",
+    "method_b": "stacks",
+    "progress_bar": "_progress",
+    "save_result": "results",
 }
 
 __all__ = ["__version__", *sorted(_LAZY)]

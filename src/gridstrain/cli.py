@@ -25,6 +25,8 @@ _COMMANDS = {
     "demo": "simulate a plate with a hole in tension and measure it",
     "measure": "displacement and strain maps from image series",
     "noise": "estimate the camera noise and vibrations from a static stack",
+    "plot": "figures of a result file: maps of every state, strain history",
+    "report": "a self-contained HTML report of a result file",
     "reproduce": "re-run the paper's synthetic experiments (RMSE vs T, methods A and B)",
 }
 
