@@ -218,16 +218,28 @@ class _Spline:
 def _unwrap(wrapped: np.ndarray, valid: np.ndarray) -> np.ndarray:
     """scikit-image's ``unwrap_phase`` of ``wrapped`` over ``valid`` (0 elsewhere).
 
-    Where no two valid neighbours (along a row or a column) differ by pi or more, the
-    reliability-guided unwrapping adds no multiple of 2 pi anywhere: every merge of
-    two groups offsets one by the rounded difference of two neighbours, which is 0.
-    Its result is then the wrapped map itself, found here by two differences instead
-    of the sort of every edge: the common case of a displacement within a fringe.
+    Like scikit-image's, the result is defined up to one multiple of 2 pi per
+    connected region (4-connected), which the fringe order chosen from the guess
+    absorbs. Turned by a constant ``c`` (its circular mean), the map becomes
+    ``s = wrap(wrapped - c)``; if no two valid neighbours of ``s`` (along a row or a
+    column) differ by pi or more, scikit-image's reliability-guided unwrapping would
+    join every pair of groups with the offset that makes them continuous in ``s``
+    (each merge rounds the difference of two neighbours), so its result is ``s + c``
+    up to those multiples. That is checked by two differences instead of sorting
+    every edge: the common case of a displacement field spread over less than a
+    fringe, whatever its mean. Otherwise scikit-image runs.
     """
-    wraps = (np.any((np.abs(np.diff(wrapped, axis=1)) >= np.pi) & valid[:, 1:] & valid[:, :-1])
-             or np.any((np.abs(np.diff(wrapped, axis=0)) >= np.pi) & valid[1:] & valid[:-1]))
-    if not wraps:
-        return np.where(valid, wrapped, 0.0)
+    # any constant would do for the proof; the circular mean of a subsample centres
+    # the map so that a field spread over less than 2 pi shows no jump
+    sub = wrapped[::4, ::4][valid[::4, ::4]]
+    c = float(np.angle(np.sum(np.exp(1j * sub)))) if sub.size else 0.0
+    s = np.mod(wrapped - c + np.pi, 2 * np.pi) - np.pi
+    jumps = (np.any((np.abs(np.diff(s, axis=1)) >= np.pi) & valid[:, 1:] & valid[:, :-1])
+             or np.any((np.abs(np.diff(s, axis=0)) >= np.pi) & valid[1:] & valid[:-1]))
+    if not jumps:
+        # wrapped plus whole turns, as scikit-image adds them
+        turns = np.rint((s + c - wrapped) / (2 * np.pi))
+        return np.where(valid, wrapped + 2 * np.pi * turns, 0.0)
     ma = np.ma.masked_array(wrapped, mask=~valid)
     return np.ma.filled(unwrap_phase(ma, rng=0), 0.0)
 
@@ -293,8 +305,9 @@ def deformation(reference: PhaseMaps, deformed: PhaseMaps, *, lagrangian: bool =
     -----
     The wrapped phase difference is unwrapped in space by scikit-image's
     ``unwrap_phase`` over the valid pixels (each connected region on its own; not
-    called where no two valid neighbours differ by pi, since it would return the map
-    unchanged); each region's fringe order is the one closest to the guess. With the correction on,
+    called where the map, turned by its mean, shows no jump between valid
+    neighbours, since its result is then known); each region's fringe order is the
+    one closest to the guess. With the correction on,
     the residual ``phi_def(X + u) - phi_ref(X) + 2 pi K u`` is wrapped at every
     iteration, so any displacement is followed once the start is within half a
     period. The strain then comes from the exact Lagrangian gradient
