@@ -29,6 +29,7 @@ _LAZY = {
     "deformation": "kinematics",
     "detect_lattice": "lattice",
     "estimate_noise": "noise",
+    "estimate_noise_image": "noise",
     "frame_shifts": "vibration",
     "inverse_anscombe": "noise",
     "measure": "kinematics",
