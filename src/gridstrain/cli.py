@@ -24,7 +24,8 @@ from . import __version__
 _COMMANDS = {
     "demo": "simulate a plate with a hole in tension and measure it",
     "measure": "displacement and strain maps from image series",
-    "noise": "estimate the camera noise and vibrations from a static stack",
+    "noise": "estimate the camera noise (and vibrations) from a static stack or a single "
+             "image",
     "plot": "figures of a result file: maps of every state, strain history",
     "report": "a self-contained HTML report of a result file",
     "reproduce": "re-run the paper's synthetic experiments (RMSE vs T, methods A and B)",
