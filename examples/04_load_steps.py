@@ -41,3 +41,8 @@ result = measure_series(root / "ref", [root / f"step{i}" for i in (1, 2, 3)],
 print(result)
 for i, e in enumerate(steps):
     print(f"{result.names[i + 1]}: mean exx = {np.nanmean(result.exx[i]):.2e} (true {e:.0e})")
+# how each state's whole number of periods was fixed: the first from the smallest
+# displacement (nothing but the grid to go by), the others followed step by step
+for name, order in zip(result.names[1:], result.fringe_orders, strict=True):
+    print(f"{name}: fringe order from {order.source}, "
+          f"{'confirmed' if order.confirmed else 'not confirmed'}")

@@ -357,7 +357,7 @@ def test_error_after_the_progress_bar_has_a_line_of_its_own(data, tmp_path, caps
     assert err.endswith("\n")
     assert "%" in err
     last = err.splitlines()[-1]
-    assert last.startswith("gridstrain measure: error: state 0: frame 0"), err
+    assert last.startswith("gridstrain measure: error: sat: frame 0"), err  # the file's stem
     assert "saturated" in last
     assert not (tmp_path / "out.h5").exists()
 

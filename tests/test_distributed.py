@@ -61,8 +61,7 @@ def cluster():
         # another cluster on the machine, and the warning would fail the setup
         with dask.config.set({"distributed.comm.timeouts.connect": "10s"}), \
                 distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
-                                         host="127.0.0.1",
-                                         dashboard_address="127.0.0.1:0") as c:
+                                         host="127.0.0.1", dashboard_address=":0") as c:
             yield c
     finally:
         if old is None:
@@ -327,7 +326,7 @@ def test_a_saturated_frame_is_screened_before_the_cluster_sees_it(client, tmp_pa
     bad[2, :30] = 4095 * 16  # 37 % of frame 2 saturated
     tifffile.imwrite(tmp_path / "ref.tif", ref, photometric="minisblack")
     tifffile.imwrite(tmp_path / "bad.tif", bad, photometric="minisblack")
-    with pytest.raises(ValueError, match=r"state 0: frame 2 .*saturated"):
+    with pytest.raises(ValueError, match=r"^bad: frame 2 .*saturated"):
         measure_series(tmp_path / "ref.tif", tmp_path / "bad.tif", lattice=LAT,
                        scheduler=client, outliers="refuse")
     # by default the frame is left out of the workers' sums, and named

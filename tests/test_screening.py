@@ -160,7 +160,7 @@ def test_a_12_bit_camera_clipping_at_4095_in_16_bit_files_is_recognised(tmp_path
     assert (cur == 4095).mean() > 0.03
     r = write_folder(tmp_path / "ref", ref)
     c = write_folder(tmp_path / "cur", cur, prefix="load")
-    with pytest.raises(ValueError, match=r"state 0: frame 0 \(.*load_000\.tif\): 4\.\d+% of "
+    with pytest.raises(ValueError, match=r"cur: frame 0 \(.*load_000\.tif\): 4\.\d+% of "
                                          r"its pixels saturated \(clipped at 4095 = 2\^12 - 1, "
                                          r"below the files' range"):
         measure_series(r, c, lattice=LAT)

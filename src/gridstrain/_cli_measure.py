@@ -33,11 +33,12 @@ from .io import OutputDirectory, open_series, read_mask, read_noise_model, roi_m
 from .pipeline import (
     FWHM_PER_SIGMA,
     MAP_FIELDS,
+    ORDERS,
     OUTLIER_POLICIES,
     SeriesResult,
     measure_series,
+    state_names,
 )
-from .plotting import figure_names, save_figures
 from .results import export, save_csv, save_result
 from .wft import DEFAULT_MARGIN
 
@@ -48,11 +49,12 @@ _CONFIG_KEYS = {
     "output": "path", "pitch": "float", "angle": "float", "k1": "pair", "k2": "pair",
     "sigma": "float", "method": "method", "mask": "path", "roi": "roi",
     "roi-polygon": "polygon", "pixel-size": "float",
-    "unit": "str", "no-lagrangian": "bool", "guess": "pair", "margin": "float",
+    "unit": "str", "no-lagrangian": "bool", "guess": "pairs", "margin": "float",
     "csv": "path", "figures": "path", "export": "formats", "report": "path",
     "phase-maps": "bool", "quiet": "bool", "json": "bool", "overwrite": "bool",
     "bit-depth": "int",
-    "scheduler": "str", "outliers": "outliers", "timeout": "float",
+    "scheduler": "str", "outliers": "outliers", "order": "str", "max-saturation": "float",
+    "timeout": "float",
     "sigma-pitches": "float", "noise": "path", "noise-model": "pair",
 }
 # Left out of the configuration stored in the result: how to run (not what to
@@ -114,9 +116,19 @@ def register(sub) -> None:
                    help="polygon of interest, its vertices as x,y in px (at least 3)")
     k.add_argument("--no-lagrangian", action="store_true", default=None,
                    help="turn the large-displacement correction off")
-    k.add_argument("--guess", type=float, nargs=2, metavar=("UX", "UY"),
-                   help="initial displacement fixing the fringe order, px (default: "
-                   "cross-correlation)")
+    k.add_argument("--guess", type=float, nargs=2, metavar=("UX", "UY"), action="append",
+                   help="displacement fixing the fringe order (the whole number of "
+                   "periods), px: once for the first state (series order; the others "
+                   "follow it) or for every state (independent order), or once per "
+                   "state (default: the previous state, else printed features, else the "
+                   "smallest displacement, flagged)")
+    k.add_argument("--order", metavar="ORDER",
+                   help="'series' (default): the states are load steps in time, each "
+                   "state's fringe order followed from the previous one; "
+                   "'independent': unordered states, each on its own")
+    k.add_argument("--max-saturation", type=float, metavar="FRACTION",
+                   help="largest fraction of saturated pixels accepted in a frame, in "
+                   "[0, 1] (default 0.01); photos of white paper clip between the lines")
     k.add_argument("--bit-depth", type=int, metavar="BITS",
                    help="significant bits of the camera (default: detected)")
     k.add_argument("--outliers", choices=OUTLIER_POLICIES,
@@ -176,6 +188,10 @@ def _config_value(key: str, value, kind: str, base: Path, where: str):
                 or (kind == "int" and not isinstance(value, int)):
             raise bad("an integer" if kind == "int" else "a number")
         return float(value) if kind == "float" else int(value)
+    if kind == "pairs":  # one pair, or a list of pairs (one per state)
+        if isinstance(value, list) and value and all(isinstance(v, list) for v in value):
+            return [_config_value(key, v, "pair", base, where) for v in value]
+        return [_config_value(key, value, "pair", base, where)]
     if kind == "pair":
         if not isinstance(value, list) or len(value) != 2 or any(
                 isinstance(v, bool) or not isinstance(v, int | float) for v in value):
@@ -284,6 +300,8 @@ def _options(args) -> dict:
         if name == "roi-polygon" and value is not None:
             value = _polygon(value)
         if value is not None:
+            if name == "guess":
+                value = [list(v) for v in value]
             opts[name] = list(value) if isinstance(value, tuple) else value
     if not opts.get("reference") or not opts.get("states"):
         raise ValueError("the inputs are missing: give REF and at least one DEF (or "
@@ -311,6 +329,8 @@ def _check_outputs(opts: dict, n_states: int, inputs: set[Path]) -> None:
         check_output_file(csv, "CSV file", opts["overwrite"], inputs)
     if opts.get("figures"):
         # only figures an earlier run wrote there are replaced (its marker lists them)
+        from .plotting import figure_names  # matplotlib only when figures are asked
+
         OutputDirectory(os.path.expanduser(opts["figures"]), figure_names(n_states),
                         overwrite=opts["overwrite"], what="figures directory")
     for f in opts.get("export") or ():
@@ -471,13 +491,23 @@ def report_lines(result: SeriesResult, *, pixel_size: float | None = None,
             lines.append(f"{result.names[i + 1]}: {v.mean():.1%} valid; mean e_xx "
                          f"{e[0]:.3e}, e_yy {e[1]:.3e}, e_xy {e[2]:.3e}; mean u "
                          f"({u[0]:.4f}, {u[1]:.4f}) px; {m.iterations} iteration(s)")
-            lines.append(f"  fringe order from the guess ({result.guesses[i][0]:.2f}, "
-                         f"{result.guesses[i][1]:.2f}) px: {result.guess_sources[i]}")
+            lines.append("  " + _fringe_line(result, i))
         else:
             lines.append(f"{result.names[i + 1]}: no valid pixel")
     for w in result.warnings:
         lines.append(f"warning: {w}")
     return lines
+
+
+def _fringe_line(result: SeriesResult, i: int) -> str:
+    """How state ``i``'s fringe order was fixed, in one line."""
+    if not result.fringe_orders:
+        return (f"fringe order from the guess ({result.guesses[i][0]:.2f}, "
+                f"{result.guesses[i][1]:.2f}) px: {result.guess_sources[i]}")
+    r = result.fringe_orders[i]
+    state = "confirmed" if r.confirmed else "NOT CONFIRMED (may be whole periods off)"
+    return (f"fringe order: {r.source}, {state}; guess ({r.guess[0]:.2f}, "
+            f"{r.guess[1]:.2f}) px; {r.detail}")
 
 
 def _noise_source_lines(result: SeriesResult) -> list[str]:
@@ -558,6 +588,8 @@ def summary(result: SeriesResult, *, outputs: dict, seconds: float,
                      else None for name in MAP_FIELDS},
             "iterations": int(m.iterations), "guess_px": list(result.guesses[i]),
             "guess_source": result.guess_sources[i],
+            "fringe_order": result.fringe_orders[i].as_dict() if result.fringe_orders
+            else None,
         })
     lat = result.lattice
     return {
@@ -657,9 +689,22 @@ def _run(args, progress: _Bar) -> int:
     quiet, as_json = opts["quiet"], opts["json"]
     progress.configure(quiet)
 
+    order = opts.get("order", "series")
+    if order not in ORDERS:
+        raise ValueError(f"--order must be one of {', '.join(ORDERS)}, got {order!r}")
+    sat = opts.get("max-saturation")
+    if sat is not None and not (math.isfinite(sat) and 0 <= sat <= 1):
+        raise ValueError(f"--max-saturation must be a fraction in [0, 1], got {sat:g}")
+    guesses = opts.get("guess")
+    n = len(opts["states"])
+    if guesses is not None and len(guesses) not in (1, n):
+        raise ValueError(f"--guess given {len(guesses)} times: give it once (the first "
+                         f"state, or every state with --order independent) or once per "
+                         f"state ({n})")
+
     reference = open_series(opts["reference"], name="reference", bit_depth=bits)
-    states = [open_series(s, name=f"state {i}", bit_depth=bits)
-              for i, s in enumerate(opts["states"])]
+    states = [open_series(s, name=name, bit_depth=bits)
+              for s, name in zip(opts["states"], state_names(opts["states"]), strict=True)]
     inputs = _input_files([reference, *states])
     mask = None
     if opts.get("mask"):
@@ -676,16 +721,22 @@ def _run(args, progress: _Bar) -> int:
         inputs.add(Path(os.path.expanduser(args.config)).resolve())
     _check_outputs(opts, len(states), inputs)
 
-    guess = "auto" if opts.get("guess") is None else tuple(opts["guess"])
+    if guesses is None:
+        guess = "auto"
+    elif len(guesses) == 1:
+        guess = tuple(guesses[0])
+    else:
+        guess = [tuple(g) for g in guesses]
+    kw = {} if sat is None else {"max_saturation": sat}
     # with a cluster, its failures are one line (cli.main), not Dask's log records
     dask_logs = quiet_dask_logs() if opts.get("scheduler") else contextlib.nullcontext()
     with dask_logs:
         result = measure_series(
             reference, states, lattice=lattice, sigma=opts.get("sigma"),
             method=opts["method"], mask=mask, lagrangian=not opts["no-lagrangian"],
-            guess=guess, margin=opts["margin"], outliers=opts["outliers"],
+            guess=guess, order=order, margin=opts["margin"], outliers=opts["outliers"],
             progress=progress, scheduler=opts.get("scheduler"), noise_model=noise_model,
-            sigma_pitches=opts.get("sigma-pitches"), timeout=opts["timeout"])
+            sigma_pitches=opts.get("sigma-pitches"), timeout=opts["timeout"], **kw)
     _refuse_empty(result)
     ps, unit = opts.get("pixel-size"), opts.get("unit")
     stored = dict(opts)
@@ -711,6 +762,8 @@ def _run(args, progress: _Bar) -> int:
         outputs["report"] = str(write_report(out, opts["report"],
                                              overwrite=opts["overwrite"]))
     if opts.get("figures"):
+        from .plotting import save_figures  # matplotlib only when figures are asked
+
         figs = save_figures(result, opts["figures"], pixel_size=ps, unit=unit,
                             overwrite=opts["overwrite"], progress=progress)
         outputs["figures"] = [str(f) for f in figs]

@@ -190,7 +190,10 @@ def connect(scheduler, *, n_workers: int | None = None) -> Iterator:
         with _dask_config().set({key: environ}):
             cluster = distributed.LocalCluster(n_workers=int(n), threads_per_worker=1,
                                                processes=True, host="127.0.0.1",
-                                               dashboard_address=None)
+                                               # a free port: never the default 8787 (None
+                                               # means 8787, and a second cluster on the
+                                               # machine then raises a warning)
+                                               dashboard_address=":0")
         with cluster, distributed.Client(cluster) as client:
             yield client
         return
@@ -593,8 +596,10 @@ def measure_states_dask(reference, states, *, lattice: Lattice | None = None,
     lagrangian : bool
         Large-displacement correction (:func:`gridstrain.kinematics.deformation`).
     guess : "auto", None or (2,) array_like
-        Initial displacement fixing the fringe order, px; "auto" cross-correlates
-        the mean images (:func:`gridstrain.kinematics.coarse_displacement`).
+        Initial displacement fixing the fringe order, px; "auto" uses the mean
+        images' features when conclusive
+        (:func:`gridstrain.kinematics.coarse_displacement`), else the smallest
+        displacement; each state's :attr:`Measurement.fringe_order` says which.
     chunk_frames : int
         Frames per task (:func:`as_dask_stack`).
     split_every : int, optional

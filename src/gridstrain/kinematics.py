@@ -10,24 +10,133 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy import fft as sfft
 from scipy import ndimage
-from skimage.registration import phase_cross_correlation
 from skimage.restoration import unwrap_phase
 
 from ._validation import as_image, check_mask, check_positive
 from .lattice import Lattice, detect_lattice
 from .wft import DEFAULT_MARGIN, PhaseMaps, wft
 
-__all__ = ["Measurement", "coarse_displacement", "deformation", "measure"]
+__all__ = [
+    "FRINGE_ORDER_SOURCES",
+    "CoarseEstimate",
+    "FringeOrder",
+    "Measurement",
+    "coarse_displacement",
+    "deformation",
+    "measure",
+]
 
-# Spline order used to evaluate the deformed maps at x + u: the demodulated maps are
-# smooth on the scale of the window, and quintic splines keep the interpolation error
-# of a noise-free grid below 1e-6 rad.
-_SPLINE_ORDER = 5
+# Spline order used to evaluate the deformed maps at x + u. The demodulated maps are
+# band-limited by the window (their spectrum falls as exp(-2 pi^2 sigma^2 nu^2)), so
+# cubic splines suffice: against the direct sum at off-grid points the phase error is
+# 3e-7 rad at sigma = pitch = 5 px (tests/test_lagrangian_interpolation.py), and on a noisy
+# 1040 x 1376 pair they change u by less than 1e-7 px from quintic splines, with 16
+# coefficients per point instead of 36.
+_SPLINE_ORDER = 3
+# Rows and columns of edge values added around a map before its spline prefilter, as
+# scipy's map_coordinates(mode="nearest") does: the prefilter's boundary then matches
+# the clamped evaluation outside the image.
+_SPLINE_PAD = 12
 # A coarse cross-correlation estimate is trusted only if the low-passed images,
 # aligned, correlate at least this well (Pearson); below it the pattern has no
 # features beyond the periodic grid and the displacement is ambiguous to a period.
 _MIN_COARSE_CORRELATION = 0.5
+# Band-pass of the coarse estimate, in pitches (see coarse_displacement): a narrow
+# band around the pitch makes a feature's correlation peak narrower than a period.
+# With a wide band (up to 2 or 4 pitches) a hole's edge beat its aliases by only 1.3
+# (up to 1.05 for reflectance blobs 20 px wide), with this one by 2.0.
+_BAND_LOW = 0.5
+_BAND_HIGH = 1.0
+# The coarse estimate works on a central crop of at most this size, px.
+_MAX_COARSE_SIZE = 1024
+# The best candidate must correlate this many times better than any alias a lattice
+# period or two away. Measured (160-px images, 0.1 % noise, 40 % vignette): grids and
+# sharp rotated checkerboards with nothing else, moved by 0 to 13 px, 1.00 to 1.18;
+# sixty printed spots moving with the specimen 2.2 to 3.2, a hole's edge 2.0.
+_MIN_PEAK_TO_ALIAS = 1.5
+# The correlation peak must lie within this fraction of a period (along each wave
+# vector) of the candidate the phases allow: the peak is good to a pixel, a quarter
+# of a 4-px pitch.
+_MAX_DISAGREEMENT = 0.25
+
+
+#: How a fringe order can be fixed (:attr:`FringeOrder.source`).
+FRINGE_ORDER_SOURCES = ("previous state", "image features", "user", "smallest displacement")
+
+
+@dataclass(frozen=True)
+class FringeOrder:
+    """How the whole number of periods (the fringe order) of a displacement was fixed.
+
+    The phases give the displacement only modulo the lattice periods; the fringe
+    order comes from elsewhere, and this record says from where and whether
+    anything confirms it.
+
+    Attributes
+    ----------
+    source : str
+        One of :data:`FRINGE_ORDER_SOURCES`: ``"previous state"`` (the previous
+        load step's displacement field, incremental tracking), ``"image features"``
+        (a confident :func:`coarse_displacement`), ``"user"`` (a given guess) or
+        ``"smallest displacement"`` (nothing else: the order closest to zero).
+    confirmed : bool
+        True when the order is backed by something besides the phases: the user's
+        guess; image features that clearly pick one candidate and agree with the
+        phases; or tracking from a confirmed previous state with an increment
+        below ``_MAX_STEP`` periods everywhere (a step that is plausibly less than
+        half a period). A state not confirmed may be one or more periods off.
+    guess : (2,) tuple of float
+        Median of the guess field that fixed the order, px.
+    detail : str
+        Why, in words.
+    correlation, peak_to_alias, disagreement : float
+        Of the image-feature estimate (:class:`CoarseEstimate`), NaN when not made.
+    features_shift : (2,) tuple of float or None
+        The image-feature estimate's displacement, px, when made.
+    step : float
+        Largest increment from the previous state along a wave vector, in periods
+        (NaN when not tracked).
+    """
+
+    source: str
+    confirmed: bool
+    guess: tuple[float, float] = (0.0, 0.0)
+    detail: str = ""
+    correlation: float = math.nan
+    peak_to_alias: float = math.nan
+    disagreement: float = math.nan
+    features_shift: tuple[float, float] | None = None
+    step: float = math.nan
+
+    def __post_init__(self):
+        if self.source not in FRINGE_ORDER_SOURCES:
+            raise ValueError(f"source must be one of {FRINGE_ORDER_SOURCES}, got "
+                             f"{self.source!r}")
+
+    def as_dict(self) -> dict:
+        """Plain-Python record (NaN as None), for JSON and HDF5."""
+        def num(x):
+            return float(x) if x is not None and math.isfinite(x) else None
+
+        return {"source": self.source, "confirmed": bool(self.confirmed),
+                "guess_px": [float(v) for v in self.guess], "detail": self.detail,
+                "correlation": num(self.correlation),
+                "peak_to_alias": num(self.peak_to_alias),
+                "disagreement_periods": num(self.disagreement),
+                "features_shift_px": None if self.features_shift is None
+                else [float(v) for v in self.features_shift],
+                "step_periods": num(self.step)}
+
+
+def _from_estimate(est, source, confirmed, guess, detail, step=math.nan) -> FringeOrder:
+    """A :class:`FringeOrder` carrying the figures of a coarse estimate (or none)."""
+    if est is None:
+        return FringeOrder(source, confirmed, guess, detail, step=step)
+    return FringeOrder(source, confirmed, guess, detail, correlation=est.correlation,
+                       peak_to_alias=est.peak_to_alias, disagreement=est.disagreement,
+                       features_shift=est.shift, step=step)
 
 
 @dataclass(frozen=True, eq=False)
@@ -59,9 +168,12 @@ class Measurement:
     guess : (2,) tuple of float
         Median of the initial guess that fixed the fringe order, px.
     guess_source : str
-        ``"auto"`` (cross-correlation), ``"zero"``, or ``"user"``.
+        ``"auto"`` (image features, :func:`coarse_displacement`), ``"zero"``, or
+        ``"user"``.
     reference, deformed : PhaseMaps
         The phase maps the measurement was made from.
+    fringe_order : FringeOrder
+        How the whole number of periods was fixed, and whether it is confirmed.
     """
 
     u: np.ndarray
@@ -77,6 +189,7 @@ class Measurement:
     guess_source: str
     reference: PhaseMaps = field(repr=False)
     deformed: PhaseMaps = field(repr=False)
+    fringe_order: FringeOrder | None = field(default=None, repr=False)
 
     def __post_init__(self):
         for name in ("u", "strain", "rotation", "valid"):
@@ -116,16 +229,65 @@ class Measurement:
                 f"iterations={self.iterations})")
 
 
-def coarse_displacement(reference, deformed, lattice: Lattice, *, mask=None):
-    """Coarse rigid displacement from the images' non-periodic content.
+@dataclass(frozen=True)
+class CoarseEstimate:
+    """What the images' non-periodic content says about the rigid displacement.
 
-    The images are low-passed with a Gaussian of one pitch, which removes the grid
-    (its carrier is attenuated by ``exp(-2 pi^2)`` ~ 3e-9) and keeps what is not
-    periodic: printing defects, reflectance, specimen edges, holes. Their masked
-    normalised cross-correlation (scikit-image's ``phase_cross_correlation`` with
-    masks, which is not biased towards zero by the image borders) gives the
-    translation to the nearest pixel (to the nearest ``q`` pixels on images larger
-    than 1024 px, decimated by ``q``), enough to fix the fringe order.
+    Attributes
+    ----------
+    shift : (2,) tuple of float
+        ``(u_x, u_y)``, px: the best phase-consistent candidate when the phases
+        were given, otherwise the correlation peak (to the pixel).
+    peak : (2,) tuple of float
+        The correlation peak itself, px (sub-pixel, parabolic).
+    correlation : float
+        Normalised correlation of the band-passed images at ``shift``.
+    alias_correlation : float
+        Best correlation among ``shift``'s aliases ``shift + m a1 + n a2``
+        (``a1``, ``a2`` the lattice periods, ``0 < max(|m|, |n|) <= 2``).
+    peak_to_alias : float
+        ``correlation / max(alias_correlation, 0.01)``.
+    disagreement : float
+        Distance from ``peak`` to ``shift`` in periods (largest over the two wave
+        vectors, ``|K (peak - shift)|``); NaN without phases.
+    confident : bool
+        Whether the estimate fixes the fringe order: content that moves with the
+        specimen, a peak that clearly beats its aliases and agrees with the phases.
+    reason : str
+        Why it is (or is not) confident, in words.
+    """
+
+    shift: tuple[float, float]
+    peak: tuple[float, float]
+    correlation: float
+    alias_correlation: float
+    peak_to_alias: float
+    disagreement: float
+    confident: bool
+    reason: str
+
+
+def coarse_displacement(reference, deformed, lattice: Lattice, *, mask=None,
+                        phase_shift=None) -> CoarseEstimate:
+    """Rigid displacement from the images' non-periodic content, and whether to trust it.
+
+    The images are band-passed by a difference of Gaussians of half a pitch and
+    one pitch: the first removes the grid (its carrier is attenuated by
+    ``exp(-pi^2 / 2)`` ~ 7e-3, and what survives is periodic, so it favours no
+    alias), the second what is fixed to the camera and smooth (lighting,
+    vignetting). What is left is what moves with the specimen: printing defects,
+    dust on it, edges, holes. Their normalised cross-correlation is computed over
+    the overlap of the two images at every shift (masked, so that the image
+    borders neither pad with zeros nor pull the peak towards zero shift).
+
+    The phases fix the displacement modulo the lattice: the candidates are
+    ``phase_shift + m a1 + n a2``. The estimate is *confident* only when (a) the
+    band-passed images correlate (``>= 0.5``) at the best candidate, (b) that
+    candidate beats every alias within two periods by a peak-to-alias ratio of
+    1.5 and (c) the correlation peak itself lies within a quarter period of it. A
+    pattern with nothing but the grid, or smooth content fixed to the camera
+    (lighting, vignetting), fails (a) or (b); when it cannot decide, the caller
+    must not use ``shift``.
 
     Parameters
     ----------
@@ -133,15 +295,24 @@ def coarse_displacement(reference, deformed, lattice: Lattice, *, mask=None):
     lattice : Lattice
     mask : (H, W) bool array_like, optional
         True on the specimen in the reference image.
+    phase_shift : (2,) array_like, optional
+        The rigid displacement the phases give, px, known modulo the lattice
+        periods (see :func:`deformation`). Without it the candidates are the
+        correlation peak and its aliases, and nothing is checked against phases.
 
     Returns
     -------
-    shift : (2,) ndarray
-        ``(u_x, u_y)`` in px (Lagrangian sign: a specimen moved right gives
-        ``u_x > 0``).
-    correlation : float
-        Pearson correlation of the low-passed images once aligned; below 0.5 the
-        estimate is not trustworthy (no feature besides the periodic grid).
+    CoarseEstimate
+        ``shift`` with the Lagrangian sign: a specimen moved right gives
+        ``u_x > 0``.
+
+    Notes
+    -----
+    Sharp content fixed to the camera (dust on the lens or sensor, hot pixels)
+    that outweighs the specimen's own features makes the estimate say "no
+    motion"; check (c) catches it unless the specimen moved by a whole number of
+    periods to within a quarter period. Images larger than 1024 px are
+    correlated over their central 1024 x 1024 px.
     """
     ref = as_image(reference, "reference").astype(np.float64)
     cur = as_image(deformed, "deformed").astype(np.float64)
@@ -151,51 +322,220 @@ def coarse_displacement(reference, deformed, lattice: Lattice, *, mask=None):
     m = check_mask(mask, ref.shape)
     if not isinstance(lattice, Lattice):
         raise TypeError(f"lattice must be a Lattice, got {type(lattice).__name__}")
-    best = _correlate(ref, cur, lattice, m)
-    if not m.all():
-        # The mask often hides the best features (the hole, the specimen's edges) and
-        # a featureless masked pair can correlate falsely, so the whole images are
-        # tried too and the better-correlated estimate wins.
-        whole = _correlate(ref, cur, lattice, np.ones_like(m))
-        if whole[1] > best[1]:
+    if phase_shift is not None:
+        phase_shift = np.asarray(phase_shift, dtype=float)
+        if phase_shift.shape != (2,) or not np.all(np.isfinite(phase_shift)):
+            raise ValueError(f"phase_shift must be a finite (u_x, u_y) pair, got "
+                             f"{phase_shift!r}")
+    best = _correlate(ref, cur, lattice, m, phase_shift)
+    if not m.all() and not best.confident:
+        # The mask often hides the best features (the hole, the specimen's edges),
+        # so the whole images are tried too.
+        whole = _correlate(ref, cur, lattice, np.ones_like(m), phase_shift)
+        if whole.confident or whole.peak_to_alias > best.peak_to_alias:
             best = whole
     return best
 
 
-def _correlate(ref, cur, lattice, m):
-    q = max(1, math.ceil(max(ref.shape) / 1024))
-    low = []
-    for img in (ref, cur):
-        mean = img[m].mean()
-        low.append(ndimage.gaussian_filter(np.where(m, img, mean) - mean, lattice.pitch,
-                                           truncate=6.0)[::q, ::q])
-    a, b = low
-    ma = m[::q, ::q]
-    if not (np.any(a) and np.any(b)):
-        return np.zeros(2), 0.0
-    shift, _, _ = phase_cross_correlation(a, b, reference_mask=ma,
-                                          moving_mask=np.ones_like(ma), overlap_ratio=0.5)
-    dy, dx = (int(np.rint(v)) for v in shift)
-    # Pearson correlation over the overlap of a(x) and b(x - shift)
-    H, W = a.shape
-    ys = slice(max(0, dy), min(H, H + dy))
-    xs = slice(max(0, dx), min(W, W + dx))
-    yb = slice(max(0, -dy), min(H, H - dy))
-    xb = slice(max(0, -dx), min(W, W - dx))
-    aa, bb, mm = a[ys, xs], b[yb, xb], ma[ys, xs]
-    aa, bb = aa[mm] - aa[mm].mean(), bb[mm] - bb[mm].mean()
-    den = math.sqrt(float(np.sum(aa * aa)) * float(np.sum(bb * bb)))
-    corr = float(np.sum(aa * bb)) / den if den > 0 else 0.0
-    return np.array([-dx * q, -dy * q], dtype=float), corr
+def _band_pass(img, m, pitch):
+    """Difference of Gaussians (half a pitch, one pitch), normalised over ``m``."""
+    w = m.astype(np.float64)
+    x = np.where(m, img, 0.0)
+    out = []
+    for s in (_BAND_LOW * pitch, _BAND_HIGH * pitch):
+        # normalised convolution: nothing is assumed beyond the border or the mask
+        num = ndimage.gaussian_filter(x, s, mode="constant", truncate=4.0)
+        den = ndimage.gaussian_filter(w, s, mode="constant", truncate=4.0)
+        out.append(num / np.maximum(den, 1e-12))
+    return out[0] - out[1]
 
 
-def _interp(arr: np.ndarray, coords: np.ndarray) -> np.ndarray:
-    """Spline interpolation of a (possibly complex) 2-D map at ``coords`` (2, H, W)."""
-    kw = {"order": _SPLINE_ORDER, "mode": "nearest", "prefilter": True}
-    if np.iscomplexobj(arr):
-        return (ndimage.map_coordinates(arr.real, coords, **kw)
-                + 1j * ndimage.map_coordinates(arr.imag, coords, **kw))
-    return ndimage.map_coordinates(arr, coords, **kw)
+def _ncc_map(f, g, mf, mg):
+    """Normalised correlation of ``f(x)`` and ``g(x + s)`` over ``mf(x) mg(x + s)``.
+
+    Returns the map indexed by ``s`` modulo its shape, and the overlap count.
+    """
+    H, W = f.shape
+    shape = (sfft.next_fast_len(2 * H), sfft.next_fast_len(2 * W))
+    mf, mg = mf.astype(np.float64), mg.astype(np.float64)
+    f = (f - f[mf > 0].mean()) * mf
+    g = (g - g[mg > 0].mean()) * mg
+
+    def tr(a):
+        return sfft.rfft2(a, s=shape)
+
+    def xc(a, b):  # sum_x a(x) b(x + s)
+        return sfft.irfft2(np.conj(a) * b, s=shape)
+
+    F, F2, MF = tr(f), tr(f * f), tr(mf)
+    G, G2, MG = tr(g), tr(g * g), tr(mg)
+    n = np.rint(xc(MF, MG))
+    nn = np.maximum(n, 1.0)
+    sf, sg = xc(F, MG), xc(MF, G)
+    vf = xc(F2, MG) - sf * sf / nn
+    vg = xc(MF, G2) - sg * sg / nn
+    num = xc(F, G) - sf * sg / nn
+    den = np.sqrt(np.maximum(vf, 0.0) * np.maximum(vg, 0.0))
+    scale = max(float(np.max(den)), 1e-300)
+    ok = (n >= 0.5 * min(mf.sum(), mg.sum())) & (den > 1e-9 * scale)
+    c = np.full(shape, np.nan)
+    c[ok] = num[ok] / den[ok]
+    return c
+
+
+def _at(c, s):
+    """Bilinear value of the wrapped map ``c`` at shifts ``s`` (..., 2) = (x, y) px."""
+    s = np.asarray(s, dtype=float)
+    x, y = s[..., 0], s[..., 1]
+    x0, y0 = np.floor(x), np.floor(y)
+    fx, fy = x - x0, y - y0
+    Sy, Sx = c.shape
+    out = 0.0
+    for dy, wy in ((0, 1 - fy), (1, fy)):
+        for dx, wx in ((0, 1 - fx), (1, fx)):
+            out = out + wy * wx * c[(y0.astype(int) + dy) % Sy, (x0.astype(int) + dx) % Sx]
+    return out
+
+
+def _correlate(ref, cur, lattice, m, phase_shift) -> CoarseEstimate:
+    # large images: a central crop of at most _MAX_COARSE_SIZE keeps the transform
+    # cheap and still holds hundreds of periods
+    H, W = ref.shape
+    cy, cx = max(0, (H - _MAX_COARSE_SIZE) // 2), max(0, (W - _MAX_COARSE_SIZE) // 2)
+    win = (slice(cy, cy + _MAX_COARSE_SIZE), slice(cx, cx + _MAX_COARSE_SIZE))
+    ref, cur, m = ref[win], cur[win], m[win]
+    pitch = lattice.pitch
+    a = _band_pass(ref, m, pitch)
+    b = _band_pass(cur, np.ones_like(m), pitch)
+    # the band-pass of a pixel within the wide Gaussian's reach of the image border
+    # depends on where the border is (fixed to the camera): leave that band out
+    edge = math.ceil(_BAND_HIGH * pitch)
+    inner = np.zeros_like(m)
+    inner[edge:-edge, edge:-edge] = True
+    ma = ndimage.binary_erosion(m, iterations=max(1, int(_BAND_LOW * pitch) + 1)) & inner
+    mb = inner
+    nan = math.nan
+    if ma.sum() < 16 or not (np.ptp(a[ma]) > 0 and np.ptp(b[mb]) > 0):
+        return CoarseEstimate((0.0, 0.0), (0.0, 0.0), 0.0, nan, nan, nan, False,
+                              "the images are too small or uniform once band-passed")
+    c = _ncc_map(a, b, ma, mb)
+    if not np.any(np.isfinite(c)):
+        return CoarseEstimate((0.0, 0.0), (0.0, 0.0), 0.0, nan, nan, nan, False,
+                              "no overlap to correlate")
+    k = int(np.nanargmax(c))
+    iy, ix = np.unravel_index(k, c.shape)
+    Sy, Sx = c.shape
+    py = iy - Sy if iy > Sy // 2 else iy
+    px = ix - Sx if ix > Sx // 2 else ix
+    # sub-pixel peak, one parabola per axis (NaN neighbours leave the integer peak)
+    sub = []
+    for d, (i, S) in enumerate(((ix, Sx), (iy, Sy))):
+        lo = c[iy, (i - 1) % S] if d == 0 else c[(i - 1) % S, ix]
+        hi = c[iy, (i + 1) % S] if d == 0 else c[(i + 1) % S, ix]
+        den = lo - 2 * c[iy, ix] + hi
+        sub.append(0.5 * (lo - hi) / den if np.isfinite(den) and den < 0 else 0.0)
+    peak = np.array([px + sub[0], py + sub[1]])
+    P = lattice.periods  # columns a1, a2
+    K = lattice.K
+    span = np.array([W, H], dtype=float)
+    M = math.ceil(float(np.max(span)) / min(lattice.pitches)) + 2
+    mm, nn = np.meshgrid(np.arange(-M, M + 1), np.arange(-M, M + 1), indexing="ij")
+    # with phases, the candidate nearest to the peak anchors the lattice of candidates
+    base = peak if phase_shift is None else \
+        phase_shift + P @ np.rint(K @ (peak - phase_shift))
+    cands = base[None, None, :] + mm[..., None] * P[:, 0] + nn[..., None] * P[:, 1]
+    inside = (np.abs(cands[..., 0]) < Sx // 2 - 1) & (np.abs(cands[..., 1]) < Sy // 2 - 1)
+    vals = np.where(inside, _at(c, np.where(inside[..., None], cands, 0.0)), np.nan)
+    if not np.any(np.isfinite(vals)):
+        return CoarseEstimate((0.0, 0.0), tuple(map(float, peak)), 0.0, nan, nan, nan,
+                              False, "no candidate within the correlated shifts")
+    j = np.unravel_index(int(np.nanargmax(vals)), vals.shape)
+    best = float(vals[j])
+    near = (np.abs(mm - mm[j]) <= 2) & (np.abs(nn - nn[j]) <= 2)
+    near[j] = False
+    aliases = vals[near & np.isfinite(vals)]
+    alias = float(np.max(aliases)) if aliases.size else nan
+    ratio = best / max(alias, 0.01) if aliases.size else nan
+    shift = cands[j]
+    off = float(np.max(np.abs(K @ (peak - shift)))) if phase_shift is not None else nan
+    if best < _MIN_COARSE_CORRELATION:
+        ok, why = False, (f"correlation {best:.2f} < {_MIN_COARSE_CORRELATION}: nothing "
+                          "but the grid moves with the specimen")
+    elif not ratio >= _MIN_PEAK_TO_ALIAS:
+        ok, why = False, (f"peak-to-alias ratio {ratio:.2f} < {_MIN_PEAK_TO_ALIAS}: a "
+                          "lattice period away correlates almost as well")
+    elif phase_shift is not None and not off <= _MAX_DISAGREEMENT:
+        ok, why = False, (f"the correlation peak lies {off:.2f} period from every "
+                          "displacement the phases allow")
+    else:
+        ok, why = True, (f"correlation {best:.2f}, peak-to-alias ratio {ratio:.2f}"
+                         + (f", {off:.2f} period from the phases"
+                            if phase_shift is not None else ""))
+    return CoarseEstimate(tuple(float(v) for v in shift), tuple(float(v) for v in peak),
+                          best, alias, ratio, off, ok, why)
+
+
+def _phase_shift(reference: PhaseMaps, deformed: PhaseMaps) -> np.ndarray | None:
+    """Rigid displacement the phases give, modulo the lattice, px (None if no pixel).
+
+    The circular mean of each wrapped phase difference over the common valid
+    pixels, through eq. (34): ``u = -K^-1 dphi / 2 pi``.
+    """
+    valid = reference.valid & deformed.valid
+    if not valid.any():
+        return None
+    z = deformed.psi[:, valid] * np.conj(reference.psi[:, valid])
+    mean = np.sum(z / np.maximum(np.abs(z), 1e-300), axis=1)
+    return -_solve(reference.lattice.K, np.angle(mean)) / (2 * np.pi)
+
+
+class _Spline:
+    """A (possibly complex) 2-D map, prefiltered once, evaluated at many point sets.
+
+    ``map_coordinates`` with ``prefilter=True`` would filter the whole map again at
+    every call, as costly as the evaluation itself; the fixed-point iterations of
+    :func:`deformation` evaluate the same deformed map several times.
+    """
+
+    def __init__(self, arr: np.ndarray, order: int | None = None):
+        self.order = order = _SPLINE_ORDER if order is None else order
+        padded = np.pad(arr, _SPLINE_PAD, mode="edge")
+        self.coef = ndimage.spline_filter(padded, order, mode="nearest",
+                                          output=padded.dtype)
+
+    def __call__(self, coords: np.ndarray) -> np.ndarray:
+        """Values at ``coords`` (2, H, W) = (rows, columns) of the unpadded map."""
+        return ndimage.map_coordinates(self.coef, coords + _SPLINE_PAD, order=self.order,
+                                       mode="nearest", prefilter=False)
+
+
+def _unwrap(wrapped: np.ndarray, valid: np.ndarray) -> np.ndarray:
+    """scikit-image's ``unwrap_phase`` of ``wrapped`` over ``valid`` (0 elsewhere).
+
+    Like scikit-image's, the result is defined up to one multiple of 2 pi per
+    connected region (4-connected), which the fringe order chosen from the guess
+    absorbs. Turned by a constant ``c`` (its circular mean), the map becomes
+    ``s = wrap(wrapped - c)``; if no two valid neighbours of ``s`` (along a row or a
+    column) differ by pi or more, scikit-image's reliability-guided unwrapping would
+    join every pair of groups with the offset that makes them continuous in ``s``
+    (each merge rounds the difference of two neighbours), so its result is ``s + c``
+    up to those multiples. That is checked by two differences instead of sorting
+    every edge: the common case of a displacement field spread over less than a
+    fringe, whatever its mean. Otherwise scikit-image runs.
+    """
+    # any constant would do for the proof; the circular mean of a subsample centres
+    # the map so that a field spread over less than 2 pi shows no jump
+    sub = wrapped[::4, ::4][valid[::4, ::4]]
+    c = float(np.angle(np.sum(np.exp(1j * sub)))) if sub.size else 0.0
+    s = np.mod(wrapped - c + np.pi, 2 * np.pi) - np.pi
+    jumps = (np.any((np.abs(np.diff(s, axis=1)) >= np.pi) & valid[:, 1:] & valid[:, :-1])
+             or np.any((np.abs(np.diff(s, axis=0)) >= np.pi) & valid[1:] & valid[:-1]))
+    if not jumps:
+        # wrapped plus whole turns, as scikit-image adds them
+        turns = np.rint((s + c - wrapped) / (2 * np.pi))
+        return np.where(valid, wrapped + 2 * np.pi * turns, 0.0)
+    ma = np.ma.masked_array(wrapped, mask=~valid)
+    return np.ma.filled(unwrap_phase(ma, rng=0), 0.0)
 
 
 def _solve(K: np.ndarray, r: np.ndarray) -> np.ndarray:
@@ -203,19 +543,24 @@ def _solve(K: np.ndarray, r: np.ndarray) -> np.ndarray:
     return np.tensordot(np.linalg.inv(K), r, axes=1)
 
 
-def _guess_field(guess, shape, ref_img, cur_img, lattice, mask):
+def _guess_field(guess, reference, deformed, images):
+    """The guess as a (2, H, W) field, its source, and the coarse estimate (or None)."""
+    shape = reference.shape
     if isinstance(guess, str):
         if guess != "auto":
             raise ValueError(f"guess must be 'auto', None, a (u_x, u_y) pair or a (2, H, W) "
                              f"field, got {guess!r}")
-        if ref_img is None:
+        if images is None:
             raise ValueError("guess='auto' needs the images; pass a guess with phase maps")
-        shift, corr = coarse_displacement(ref_img, cur_img, lattice, mask=mask)
-        if corr >= _MIN_COARSE_CORRELATION:
-            return np.broadcast_to(shift[:, None, None], (2, *shape)), "auto"
-        return np.zeros((2, *shape)), "zero"
+        ref_img, cur_img, mask = images
+        est = coarse_displacement(ref_img, cur_img, reference.lattice, mask=mask,
+                                  phase_shift=_phase_shift(reference, deformed))
+        if est.confident:
+            shift = np.array(est.shift)
+            return np.broadcast_to(shift[:, None, None], (2, *shape)), "auto", est
+        return np.zeros((2, *shape)), "zero", est
     if guess is None:
-        return np.zeros((2, *shape)), "zero"
+        return np.zeros((2, *shape)), "zero", None
     g = np.asarray(guess, dtype=float)
     if g.shape == (2,):
         g = np.broadcast_to(g[:, None, None], (2, *shape))
@@ -224,7 +569,7 @@ def _guess_field(guess, shape, ref_img, cur_img, lattice, mask):
                          f"{(2, *shape)}, got shape {g.shape}")
     if not np.all(np.isfinite(g)):
         raise ValueError("guess must be finite")
-    return g, "user"
+    return g, "user", None
 
 
 def deformation(reference: PhaseMaps, deformed: PhaseMaps, *, lagrangian: bool = True,
@@ -258,8 +603,10 @@ def deformation(reference: PhaseMaps, deformed: PhaseMaps, *, lagrangian: bool =
     Notes
     -----
     The wrapped phase difference is unwrapped in space by scikit-image's
-    ``unwrap_phase`` over the valid pixels (each connected region on its own); each
-    region's fringe order is the one closest to the guess. With the correction on,
+    ``unwrap_phase`` over the valid pixels (each connected region on its own; not
+    called where the map, turned by its mean, shows no jump between valid
+    neighbours, since its result is then known); each region's fringe order is the
+    one closest to the guess. With the correction on,
     the residual ``phi_def(X + u) - phi_ref(X) + 2 pi K u`` is wrapped at every
     iteration, so any displacement is followed once the start is within half a
     period. The strain then comes from the exact Lagrangian gradient
@@ -283,8 +630,7 @@ def deformation(reference: PhaseMaps, deformed: PhaseMaps, *, lagrangian: bool =
     lattice = reference.lattice
     K = lattice.K
     shape = reference.shape
-    ref_img, cur_img, img_mask = _images if _images is not None else (None, None, None)
-    g, source = _guess_field(guess, shape, ref_img, cur_img, lattice, img_mask)
+    g, source, coarse = _guess_field(guess, reference, deformed, _images)
 
     # eq. (34): wrapped phase difference, unwrapped over the valid region
     valid = reference.valid & deformed.valid & np.all(np.isfinite(reference.dphi), axis=(0, 1))
@@ -293,10 +639,7 @@ def deformation(reference: PhaseMaps, deformed: PhaseMaps, *, lagrangian: bool =
     if n_regions == 0:
         raise ValueError("no valid pixel: the image is smaller than the window and its "
                          "margin, or the mask leaves nothing")
-    unwrapped = np.empty_like(dphase)
-    for j in range(2):
-        ma = np.ma.masked_array(dphase[j], mask=~valid)
-        unwrapped[j] = np.ma.filled(unwrap_phase(ma, rng=0), 0.0)
+    unwrapped = np.stack([_unwrap(dphase[j], valid) for j in range(2)])
     u = -_solve(K, unwrapped) / (2 * np.pi)
     # fringe order per connected region, closest to the guess: u -> u - K^-1 n
     for lab in range(1, n_regions + 1):
@@ -306,19 +649,22 @@ def deformation(reference: PhaseMaps, deformed: PhaseMaps, *, lagrangian: bool =
             u[:, sel] -= np.linalg.solve(K, n)[:, None]
 
     iterations, step = 0, 0.0
-    D_ref = reference.dphi.astype(np.float64)
+    D_ref = reference.dphi.astype(np.float64, copy=False)
     if lagrangian:
         yy, xx = np.mgrid[0:shape[0], 0:shape[1]].astype(np.float64)
-        psi_ref = reference.psi.astype(np.complex128)
-        psi_cur = deformed.psi.astype(np.complex128)
+        conj_ref = np.conj(reference.psi.astype(np.complex128, copy=False))
+        psi_cur = [_Spline(p.astype(np.complex128, copy=False)) for p in deformed.psi]
+        two_pi_K = 2 * np.pi * K
         nv = max(int(valid.sum()), 1)
         for iterations in range(1, max_iter + 1):  # noqa: B007
             coords = np.stack([yy + u[1], xx + u[0]])
             r = np.empty_like(u)
             for j in range(2):
-                psi_at = _interp(psi_cur[j], coords)
-                carrier = np.exp(2j * np.pi * (K[j, 0] * u[0] + K[j, 1] * u[1]))
-                r[j] = np.angle(psi_at * np.conj(psi_ref[j]) * carrier)
+                # residual phi_def(X + u) - phi_ref(X) + 2 pi k.u, wrapped to (-pi, pi]:
+                # the carrier's phase added as a real number rather than as exp(i .)
+                r[j] = np.angle(psi_cur[j](coords) * conj_ref[j])
+                r[j] += two_pi_K[j, 0] * u[0] + two_pi_K[j, 1] * u[1]
+                r[j] = np.pi - np.mod(np.pi - r[j], 2 * np.pi)
             du = -_solve(K, r) / (2 * np.pi)
             u = u + np.where(valid, du, 0.0)
             step = math.sqrt(float(np.sum(du[:, valid] ** 2)) / nv)
@@ -338,13 +684,20 @@ def deformation(reference: PhaseMaps, deformed: PhaseMaps, *, lagrangian: bool =
                                  neginf=0.0)
         for j in range(2):
             for m in range(2):
-                D_cur[j, m] = _interp(dphi_cur[j, m], coords)
-        # exact Lagrangian gradient: (2 pi K + D_cur) G = D_ref - D_cur
-        A = 2 * np.pi * K[:, :, None, None] + D_cur
-        B = D_ref - D_cur
-        det = A[0, 0] * A[1, 1] - A[0, 1] * A[1, 0]
-        inv = np.array([[A[1, 1], -A[0, 1]], [-A[1, 0], A[0, 0]]]) / det
-        G = np.einsum("ij...,jk...->ik...", inv, B)
+                D_cur[j, m] = _Spline(dphi_cur[j, m])(coords)
+        # exact Lagrangian gradient: (2 pi K + D_cur) G = D_ref - D_cur, by Cramer's
+        # rule map by map rather than through (2, 2, H, W) temporaries
+        a00 = 2 * np.pi * K[0, 0] + D_cur[0, 0]
+        a01 = 2 * np.pi * K[0, 1] + D_cur[0, 1]
+        a10 = 2 * np.pi * K[1, 0] + D_cur[1, 0]
+        a11 = 2 * np.pi * K[1, 1] + D_cur[1, 1]
+        B = np.subtract(D_ref, D_cur, out=D_cur)
+        rdet = 1.0 / (a00 * a11 - a01 * a10)
+        G = np.empty((2, 2, *shape))
+        G[0, 0] = (a11 * B[0, 0] - a01 * B[1, 0]) * rdet
+        G[0, 1] = (a11 * B[0, 1] - a01 * B[1, 1]) * rdet
+        G[1, 0] = (a00 * B[1, 0] - a10 * B[0, 0]) * rdet
+        G[1, 1] = (a00 * B[1, 1] - a10 * B[0, 1]) * rdet
     else:
         D_cur = deformed.dphi.astype(np.float64)
         G = -np.tensordot(np.linalg.inv(K), D_cur - D_ref, axes=1) / (2 * np.pi)  # eq. (35)
@@ -357,10 +710,20 @@ def deformation(reference: PhaseMaps, deformed: PhaseMaps, *, lagrangian: bool =
     strain = np.where(valid, strain, np.nan).astype(dt, copy=False)
     rotation = np.where(valid, rotation, np.nan).astype(dt, copy=False)
     gmed = tuple(float(np.median(c)) for c in g) if source != "zero" else (0.0, 0.0)
+    if source == "user":
+        order = FringeOrder("user", True, gmed, "the given guess")
+    elif source == "auto":
+        order = _from_estimate(coarse, "image features", True, gmed, coarse.reason)
+    elif coarse is not None:
+        order = _from_estimate(coarse, "smallest displacement", False, gmed,
+                               f"image features undecided ({coarse.reason})")
+    else:
+        order = FringeOrder("smallest displacement", False, gmed, "guess=None")
     return Measurement(u=u, strain=strain, rotation=rotation, valid=valid, lattice=lattice,
                        sigma=reference.sigma, lagrangian=bool(lagrangian),
                        iterations=iterations, step_rms=step, guess=gmed,
-                       guess_source=source, reference=reference, deformed=deformed)
+                       guess_source=source, reference=reference, deformed=deformed,
+                       fringe_order=order)
 
 
 def measure(reference, deformed, *, lattice: Lattice | None = None,
@@ -381,9 +744,10 @@ def measure(reference, deformed, *, lattice: Lattice | None = None,
     lagrangian : bool
         Large-displacement correction (default on); see :func:`deformation`.
     guess : "auto", None, (2,) or (2, H, W) array_like
-        Initial displacement fixing the fringe order. ``"auto"`` cross-correlates
-        the low-passed images (:func:`coarse_displacement`) and falls back to zero
-        when they hold nothing but the periodic grid.
+        Initial displacement fixing the fringe order. ``"auto"`` uses the images'
+        features (:func:`coarse_displacement`) when they are conclusive and falls
+        back to the smallest displacement the phases allow otherwise;
+        :attr:`Measurement.fringe_order` says which, and whether it is confirmed.
     margin : float
         Invalid band along borders and mask edges, in units of ``sigma``.
 

@@ -27,9 +27,29 @@ For each series
        (:func:`gridstrain.stacks.method_b` when available). Regions without a grid
        (modulus below a quarter of the median, e.g. a hole) are masked
        automatically so that the validity margin applies around them.
-    5. Kinematics: :func:`gridstrain.kinematics.deformation` with the fringe order
-       from the cross-correlation of the mean images and the large-displacement
-       (Lagrangian) correction.
+    5. Kinematics: :func:`gridstrain.kinematics.deformation` with the
+       large-displacement (Lagrangian) correction, every state against the
+       reference. The fringe order (the whole number of periods the phases cannot
+       see) comes, by default, from the previous state's displacement field
+       (incremental tracking: a load step that moves the specimen by less than half
+       a period anywhere is followed, whatever the total motion), for the first
+       state from image features when they are conclusive
+       (:func:`gridstrain.kinematics.coarse_displacement`), else it is the smallest
+       displacement the phases allow, flagged as not confirmed with a warning.
+
+Fringe order
+    :attr:`SeriesResult.fringe_orders` says, per state, where the order came from
+    and whether it is *confirmed*: given by the user; fixed by image features that
+    clearly beat their aliases one or two periods away and agree with the phases;
+    or followed from a confirmed previous state with a displacement change below
+    ``_MAX_STEP`` = 0.4 period at every pixel (or with image features agreeing).
+    Conclusive image features that put the specimen half a period or more from
+    zero override the tracking when the two disagree (the step was more than half
+    a period), with a warning; features that say "no motion" do not (content fixed
+    to the camera can say that), and the state is not confirmed.
+    A state that is not confirmed may be off by whole periods; a warning says what
+    to do. A step of more than 0.6 period between states without image features
+    would be followed one period off and cannot be detected from the phases alone.
 
 Noise floor
     Two estimates, both one standard deviation of the map's random error at a
@@ -109,6 +129,7 @@ import dataclasses
 import math
 import numbers
 import os
+import re
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -131,7 +152,14 @@ from .io import (
     open_series,
     read_mask,
 )
-from .kinematics import Measurement, coarse_displacement, deformation
+from .kinematics import (
+    FringeOrder,
+    Measurement,
+    _from_estimate,
+    _phase_shift,
+    coarse_displacement,
+    deformation,
+)
 from .lattice import Lattice, detect_lattice
 from .noise import NoiseModel, estimate_noise_image
 from .screening import FrameScreen, screen_frames
@@ -142,12 +170,14 @@ from .wft import DEFAULT_MARGIN, PhaseMaps, finite_derivatives, wft
 __all__ = [
     "FWHM_PER_SIGMA",
     "MAP_FIELDS",
+    "ORDERS",
     "NoiseFloor",
     "SeriesResult",
     "VibrationDiagnostics",
     "measure_series",
     "save_csv",
     "save_result",
+    "state_names",
 ]
 
 Progress = Callable[[float, str], None]
@@ -162,10 +192,15 @@ MAP_FIELDS = {"ux": "px", "uy": "px", "exx": "1", "eyy": "1", "exy": "1"}
 # fraction of the median modulus (the threshold gridstrain.wft uses for validity):
 # such regions (holes, specimen edges, stains) are masked and get the margin.
 _NO_GRID_MODULUS = 0.25
-# A cross-correlation guess is trusted from this Pearson correlation of the aligned,
-# low-passed images (gridstrain.kinematics uses the same): below it they hold
-# nothing but the periodic grid and the translation is ambiguous to a period.
-_MIN_COARSE_CORRELATION = 0.5
+# A state followed from the previous one is confirmed only if its displacement
+# changed by at most this many periods (along each wave vector) at every pixel: the
+# phase change is taken within half a period of the previous field, and the margin of
+# 0.1 period covers noise and a step that is not quite uniform. A larger change may
+# be a step of more than half a period, followed one period off.
+_MAX_STEP = 0.4
+#: How the states are ordered: "series" follows them in time (each state's fringe
+#: order from the previous state's field), "independent" measures each on its own.
+ORDERS = ("series", "independent")
 # A given lattice must show a modulus this many times larger than at the same
 # frequencies turned by 45 degrees, where a grid or checkerboard has no harmonic:
 # noise alone gives about 1, the mean of a 12-bit grid image hundreds.
@@ -336,9 +371,10 @@ class SeriesResult:
     measurements : tuple of Measurement
         One per state, with its phase maps and iterations.
     guesses : tuple of (float, float)
-        The initial displacement that fixed each state's fringe order, px.
+        The initial displacement that fixed each state's fringe order (median of
+        the guess field), px.
     guess_sources : tuple of str
-        Where each guess came from (the user, a cross-correlation, or zero).
+        Where each guess came from: ``fringe_orders[i].source``.
     vibration : tuple of VibrationDiagnostics
         One per series, reference first.
     noise : NoiseFloor
@@ -366,6 +402,9 @@ class SeriesResult:
         harmonic aliasing onto the carrier and the window's smoothing of strain
         gradients (:func:`gridstrain.uncertainty.aliasing_bias`,
         :func:`gridstrain.uncertainty.smoothing_bias`).
+    fringe_orders : tuple of FringeOrder
+        How each state's whole number of periods was fixed and whether anything
+        confirms it (see :class:`gridstrain.kinematics.FringeOrder`).
     """
 
     u: np.ndarray
@@ -393,6 +432,7 @@ class SeriesResult:
     parameters: dict
     warnings: tuple[str, ...] = ()
     uncertainty: dict | None = None
+    fringe_orders: tuple[FringeOrder, ...] = ()
     excluded: tuple[tuple[int, ...], ...] = ()
     screening: tuple = field(default=(), repr=False)
     metrology: dict | None = None
@@ -556,21 +596,120 @@ def _as_states(states) -> list:
                     f"{type(states).__name__}")
 
 
-def _check_guess(guess):
+def _check_one_guess(guess, what: str):
+    """One state's guess: "auto", None, a finite (u_x, u_y) pair or a (2, H, W) field."""
     if isinstance(guess, str):
-        check_choice(guess, "guess", ("auto",))
+        check_choice(guess, what, ("auto",))
         return guess
     if guess is None:
         return None
     try:
         g = np.asarray(guess, dtype=float)
     except (TypeError, ValueError):
-        raise ValueError(f"guess must be 'auto', None or a (u_x, u_y) pair in px, got "
-                         f"{guess!r}") from None
-    if g.shape != (2,) or not np.all(np.isfinite(g)):
-        raise ValueError(f"guess must be 'auto', None or a finite (u_x, u_y) pair in px, "
-                         f"got {guess!r}")
-    return (float(g[0]), float(g[1]))
+        raise ValueError(f"{what} must be 'auto', None, a (u_x, u_y) pair or a (2, H, W) "
+                         f"field in px, got {guess!r}") from None
+    if not (g.shape == (2,) or (g.ndim == 3 and g.shape[0] == 2)) \
+            or not np.all(np.isfinite(g)):
+        raise ValueError(f"{what} must be 'auto', None, a finite (u_x, u_y) pair or a "
+                         f"finite (2, H, W) field in px, got shape {g.shape}")
+    return (float(g[0]), float(g[1])) if g.shape == (2,) else g
+
+
+def _is_per_state(guess) -> bool:
+    """A sequence of per-state guesses, rather than one pair (numbers) or one field."""
+    if isinstance(guess, str) or guess is None or isinstance(guess, np.ndarray):
+        return False
+    if isinstance(guess, Sequence):
+        return not all(isinstance(v, numbers.Real) and not isinstance(v, bool)
+                       for v in guess)
+    return False
+
+
+def _check_guess(guess, n_states: int, order: str) -> list:
+    """One guess per state ("auto", None, a pair or a field).
+
+    A single guess fixes the first state in series order (the others follow it) and
+    every state in independent order.
+    """
+    if _is_per_state(guess):
+        if len(guess) != n_states:
+            raise ValueError(f"guess must hold one entry per loaded state ({n_states}), "
+                             f"got {len(guess)}")
+        return [_check_one_guess(g, f"guess[{i}]") for i, g in enumerate(guess)]
+    g = _check_one_guess(guess, "guess")
+    if order == "series":
+        return [g] + ["auto"] * (n_states - 1)
+    return [g] * n_states
+
+
+def _guess_parameter(guess):
+    """The guess as given, JSON-friendly (a field is recorded as "field")."""
+    if _is_per_state(guess):
+        return [_guess_parameter(g) for g in guess]
+    if isinstance(guess, str) or guess is None:
+        return guess
+    g = np.asarray(guess, dtype=float)
+    return [float(g[0]), float(g[1])] if g.shape == (2,) else "field"
+
+
+def _source_name(source, i: int) -> str:
+    """A state's name from its folder or file (``"state i"`` for arrays)."""
+    if isinstance(source, FrameSeries):
+        return source.name
+    if isinstance(source, list | tuple) and source \
+            and all(isinstance(p, str | os.PathLike) for p in source):
+        paths = [Path(os.fspath(p)) for p in source]
+        parents = {p.parent for p in paths}
+        if len(paths) > 1 and len(parents) == 1 and paths[0].parent.name:
+            return paths[0].parent.name
+        return paths[0].stem or f"state {i}"
+    if isinstance(source, str | os.PathLike):
+        p = Path(os.path.expanduser(os.fspath(source)))
+        if p.is_dir():
+            return p.resolve().name or f"state {i}"
+        if any(ch in p.name for ch in "*?[") and p.parent.name \
+                and not any(ch in str(p.parent) for ch in "*?["):
+            return p.parent.name  # "run3/*.tif": the folder names the state
+        return p.stem or f"state {i}"
+    return f"state {i}"
+
+
+def state_names(states) -> list[str]:
+    """Names of the loaded states, after their folder or file stem, made unique.
+
+    Arrays are named ``"state i"``; a name that repeats (or ``"reference"``) gets
+    ``" (2)"``, ``" (3)"``... appended.
+    """
+    seen = {"reference": 1}
+    out = []
+    for i, src in enumerate(states):
+        base = _source_name(src, i)
+        name = base
+        while name in seen:
+            seen[base] = seen.get(base, 1) + 1
+            name = f"{base} ({seen[base]})"
+        seen[name] = 1
+        out.append(name)
+    return out
+
+
+def _glob_warning(series) -> list[str]:
+    """Warn when a shell glob seems to have made every frame a state of its own: the
+    reference and every state are single frames of one folder, numbered alike."""
+    if len(series) < 3 or not all(isinstance(s, FrameSeries) for s in series):
+        return []
+    if any(s.n_frames != 1 or len(s.paths) != 1 for s in series):
+        return []
+    if len({Path(s.paths[0]).resolve().parent for s in series}) != 1:
+        return []
+    # numbered frames of one acquisition (img_001, img_002...), not ref/load1/load2
+    if len({re.sub(r"\d+", "#", Path(s.paths[0]).stem) for s in series}) != 1:
+        return []
+    folder = Path(series[0].paths[0]).parent
+    return [f"the reference and all {len(series) - 1} states are single frames of one "
+            f"folder ({folder}): if they are frames of one series, the shell expanded an "
+            f"unquoted glob; quote it (\"{folder}/*.tif\") or pass the folder, and give "
+            "each state its own folder or quoted glob"]
 
 
 def _min_side(sigma: float, margin: float) -> int:
@@ -578,7 +717,7 @@ def _min_side(sigma: float, margin: float) -> int:
     return 2 * math.ceil(margin * sigma) + 1
 
 
-def _check_fit(shape, sigma, margin: float, guess) -> None:
+def _check_fit(shape, sigma, margin: float, guesses=()) -> None:
     """Refuse, before any frame is read, a window or a guess that cannot fit the frames."""
     H, W = shape
     if sigma is not None and min(H, W) < _min_side(sigma, margin):
@@ -586,10 +725,11 @@ def _check_fit(shape, sigma, margin: float, guess) -> None:
         raise ValueError(f"sigma must be at most {top:.4g} px for frames of {H} x {W} px "
                          f"(the window and its invalid band of margin = {margin:g} sigmas "
                          f"on each side must leave a pixel), got {sigma:.4g}")
-    if isinstance(guess, tuple) and (abs(guess[0]) >= W or abs(guess[1]) >= H):
-        raise ValueError(f"guess must lie within the frame, |u_x| < {W} px and |u_y| < {H} "
-                         f"px (a larger displacement leaves no pixel of the specimen to "
-                         f"compare), got ({guess[0]:g}, {guess[1]:g})")
+    for guess in guesses:
+        if isinstance(guess, tuple) and (abs(guess[0]) >= W or abs(guess[1]) >= H):
+            raise ValueError(f"guess must lie within the frame, |u_x| < {W} px and |u_y| < "
+                             f"{H} px (a larger displacement leaves no pixel of the specimen "
+                             f"to compare), got ({guess[0]:g}, {guess[1]:g})")
 
 
 def _check_pitch_fits(shape, pitch: float, margin: float) -> None:
@@ -971,12 +1111,140 @@ def _connect(scheduler):
 # --------------------------------------------------------------------------- kinematics
 
 
-def _coarse_guess(ref: np.ndarray, cur: np.ndarray, lattice: Lattice, mask: np.ndarray):
-    """Fringe-order guess from the non-periodic content of the mean images."""
-    shift, corr = coarse_displacement(ref, cur, lattice, mask=mask)
-    if corr < _MIN_COARSE_CORRELATION:
-        return None, "zero (nothing but the grid to cross-correlate)"
-    return shift, f"cross-correlation of the low-passed images (r = {corr:.2f})"
+def _filled(u: np.ndarray, valid: np.ndarray) -> np.ndarray | None:
+    """``u`` with every invalid pixel given its nearest valid pixel's value."""
+    if not valid.any():
+        return None
+    if valid.all():
+        return np.array(u)
+    idx = ndimage.distance_transform_edt(~valid, return_distances=False,
+                                         return_indices=True)
+    return u[:, idx[0], idx[1]]
+
+
+def _largest_step(res: Measurement, field: np.ndarray, lattice: Lattice,
+                  before: np.ndarray) -> float:
+    """Largest change of the displacement from ``field``, in periods along k1/k2."""
+    v = res.valid & before
+    if not v.any():
+        return math.inf
+    d = lattice.K @ (res.u[:, v] - field[:, v])
+    return float(np.max(np.abs(d)))
+
+
+def _order_offset(res: Measurement, shift, lattice: Lattice) -> float:
+    """How far, in periods, the measured median displacement is from ``shift``."""
+    if not res.valid.any():
+        return math.inf
+    med = np.array([float(np.median(c[res.valid])) for c in res.u])
+    return float(np.max(np.abs(lattice.K @ (med - np.asarray(shift)))))
+
+
+def _median_u(res: Measurement) -> str:
+    if not res.valid.any():
+        return "(n/a)"
+    med = [float(np.median(c[res.valid])) for c in res.u]
+    return f"({med[0]:.2f}, {med[1]:.2f}) px"
+
+
+def _what_to_do(lattice: Lattice) -> str:
+    p1, p2 = lattice.pitches
+    return (f"if the specimen moved by more than half a period (periods {p1:.3g}/{p2:.3g} "
+            "px) it is off by whole periods: pass --guess UX UY (guess= in Python), add an "
+            "intermediate image to the series, or image a grid with printed features")
+
+
+def _track(maps, means, mask, lattice, guesses, order, names, lagrangian, report):
+    """Measure every state and fix its fringe order (see :class:`FringeOrder`).
+
+    Returns the measurements, their :class:`FringeOrder` records and warnings.
+    """
+    measurements, records, warnings = [], [], []
+    prev = None  # (filled field, valid, confirmed, name) of the last state measured
+    inherited = []  # states followed from an unconfirmed one
+    for i, g in enumerate(guesses):
+        ref_pm, pm, name = maps[0], maps[i + 1], names[i + 1]
+        est = None
+        if isinstance(g, str):  # automatic: the previous state, else image features
+            est = coarse_displacement(means[0], means[i + 1], lattice, mask=mask,
+                                      phase_shift=_phase_shift(ref_pm, pm))
+        if isinstance(g, str) and order == "series" and prev is not None:
+            field, before, prev_ok, prev_name = prev
+            res = deformation(ref_pm, pm, lagrangian=lagrangian, guess=field)
+            step = _largest_step(res, field, lattice, before)
+            gmed = res.guess
+            if est.confident and _order_offset(res, est.shift, lattice) < 0.5:
+                rec = _from_estimate(est, "previous state", True, gmed,
+                                     f"followed from {prev_name} (step {step:.2f} period); "
+                                     f"image features agree ({est.reason})", step)
+            elif est.confident and (step > _MAX_STEP
+                                    or np.max(np.abs(lattice.K @ est.shift)) >= 0.5):
+                # conclusive features that moved with the specimen beat the assumption
+                # of a step below half a period: the step was larger
+                followed = _median_u(res)
+                res = deformation(ref_pm, pm, lagrangian=lagrangian, guess=est.shift)
+                rec = _from_estimate(est, "image features", True, res.guess,
+                                     f"{est.reason}; followed from {prev_name} it would "
+                                     f"have been {followed}", step)
+                warnings.append(f"{name}: image features fix the displacement at "
+                                f"{_median_u(res)}, whole periods from {followed} followed "
+                                f"from {prev_name}: the load step was more than half a "
+                                "period; the features were used")
+            elif est.confident:
+                # the features say "no motion" while the specimen was followed away from
+                # zero: content fixed to the camera (dust, hot pixels) can do that
+                rec = _from_estimate(est, "previous state", False, gmed,
+                                     f"followed from {prev_name}, but image features "
+                                     f"suggest {est.shift[0]:.2f}, {est.shift[1]:.2f} px",
+                                     step)
+                warnings.append(f"{name}: the displacement followed from {prev_name} "
+                                f"(median {_median_u(res)}) and the image features "
+                                f"({est.shift[0]:.2f}, {est.shift[1]:.2f}) px, which may be "
+                                "dust or hot pixels fixed to the camera, disagree by whole "
+                                "periods: fringe order not confirmed; check the order of "
+                                "the states or pass --guess UX UY")
+            elif step > _MAX_STEP:
+                rec = _from_estimate(est, "previous state", False, gmed,
+                                     f"followed from {prev_name}, but the displacement "
+                                     f"changed by up to {step:.2f} period", step)
+                warnings.append(f"{name}: the displacement changed by up to {step:.2f} "
+                                f"period since {prev_name}, more than the {_MAX_STEP} a load "
+                                "step can be followed with: fringe order not confirmed; "
+                                + _what_to_do(lattice))
+            else:
+                rec = _from_estimate(est, "previous state", prev_ok, gmed,
+                                     f"followed from {prev_name} (step {step:.2f} period)"
+                                     + ("" if prev_ok else ", itself not confirmed"), step)
+                if not prev_ok:
+                    inherited.append(name)
+        elif isinstance(g, str) and est.confident:
+            res = deformation(ref_pm, pm, lagrangian=lagrangian, guess=est.shift)
+            rec = _from_estimate(est, "image features", True, res.guess, est.reason)
+        elif isinstance(g, str) or g is None:
+            res = deformation(ref_pm, pm, lagrangian=lagrangian, guess=None)
+            if g is None:
+                rec = FringeOrder("smallest displacement", False, (0.0, 0.0),
+                                  "guess=None: the order closest to zero, as asked")
+            else:
+                rec = _from_estimate(est, "smallest displacement", False, (0.0, 0.0),
+                                     f"image features undecided: {est.reason}")
+                warnings.append(f"{name}: fringe order not confirmed ({est.reason}); the "
+                                f"smallest displacement the phases allow was taken (median "
+                                f"{_median_u(res)}); " + _what_to_do(lattice))
+        else:
+            res = deformation(ref_pm, pm, lagrangian=lagrangian, guess=g)
+            rec = FringeOrder("user", True, res.guess, "the given guess")
+        # the measurement carries the series' record, not the pair's view of its guess
+        res = dataclasses.replace(res, fringe_order=rec)
+        measurements.append(res)
+        records.append(rec)
+        filled = _filled(res.u, res.valid)
+        prev = None if filled is None else (filled, res.valid, rec.confirmed, name)
+        report(i + 1)
+    if inherited:
+        warnings.append(f"{', '.join(inherited)}: followed from a state whose fringe order "
+                        "is not confirmed; they share its uncertainty")
+    return measurements, records, warnings
 
 
 # --------------------------------------------------------------------------- noise
@@ -1037,10 +1305,10 @@ def _split_floor(ref_series, lattice, sigma, mask, margin, report):
 
 def measure_series(reference, states, *, lattice: Lattice | None = None,
                    sigma: float | None = None, method: str = "A", mask=None,
-                   lagrangian: bool = True, guess="auto", margin: float = DEFAULT_MARGIN,
-                   bit_depth: int | None = None, max_saturation: float = _MAX_SATURATION,
-                   outliers: str = "exclude", progress: Progress | None = None,
-                   scheduler=None, noise_model=None,
+                   lagrangian: bool = True, guess="auto", order: str = "series",
+                   margin: float = DEFAULT_MARGIN, bit_depth: int | None = None,
+                   max_saturation: float = _MAX_SATURATION, outliers: str = "exclude",
+                   progress: Progress | None = None, scheduler=None, noise_model=None,
                    sigma_pitches: float | None = None,
                    timeout: float | None = None) -> SeriesResult:
     """Displacement and strain maps of loaded states from series of grid images.
@@ -1052,8 +1320,10 @@ def measure_series(reference, states, *, lattice: Lattice | None = None,
         :func:`gridstrain.io.open_series` opens, one ``(H, W)`` frame or a
         ``(T, H, W)`` stack of grey levels.
     states : series or sequence of series
-        The loaded states, each like ``reference`` (a list of file names is read
-        as a list of states; wrap it, ``[files]``, to make one series of it).
+        The loaded states, each like ``reference``, in the order they were loaded
+        (a list of file names is read as a list of states; wrap it, ``[files]``, to
+        make one series of it). States given as paths are named after their folder
+        or file stem.
     lattice : Lattice, optional
         The grid's wave vectors; detected on the mean reference image by default.
     sigma : float, optional
@@ -1067,9 +1337,24 @@ def measure_series(reference, states, *, lattice: Lattice | None = None,
         configuration. Regions without a grid are masked automatically on top.
     lagrangian : bool
         Large-displacement correction (:func:`gridstrain.kinematics.deformation`).
-    guess : "auto", None or (2,) array_like
-        Initial displacement fixing the fringe order of every state, px. "auto":
-        cross-correlation of the mean images; None: zero.
+    guess : "auto", None, (2,) or (2, H, W) array_like, or a sequence of them
+        Initial displacement fixing the fringe order (the whole number of periods),
+        px. "auto": from the previous state in series order, else from image
+        features (:func:`gridstrain.kinematics.coarse_displacement`, used only when
+        confident), else the smallest displacement the phases allow, with a
+        warning. None: the smallest displacement. A pair or field fixes the first
+        state in series order (the others follow it) and every state in
+        independent order. A sequence gives one entry per state (``"auto"`` for
+        the automatic choice).
+    order : {"series", "independent"}
+        "series" (default): the states are load steps in time, and each state's
+        fringe order comes from the previous state's displacement field, so that a
+        series whose displacement changes by less than half a period between
+        consecutive states is followed whatever its total motion. Every state is
+        still measured against the reference (Lagrangian, no accumulation of
+        error); only its guess comes from the previous one. "independent": every
+        state on its own (unordered states). How each order was fixed is in
+        :attr:`SeriesResult.fringe_orders`.
     margin : float
         Invalid band along borders and mask edges, in units of ``sigma``.
     bit_depth : int, optional
@@ -1151,6 +1436,7 @@ def measure_series(reference, states, *, lattice: Lattice | None = None,
     check_choice(outliers, "outliers", OUTLIER_POLICIES)
     margin = check_positive(margin, "margin")
     sigma = check_positive(sigma, "sigma", allow_none=True)
+    check_choice(order, "order", ORDERS)
     if sigma_pitches is not None:
         if sigma is not None:
             raise ValueError(f"give sigma or sigma_pitches, not both (got sigma={sigma!r}, "
@@ -1160,7 +1446,6 @@ def measure_series(reference, states, *, lattice: Lattice | None = None,
             raise ValueError(f"sigma_pitches must be at least 1 (the window must hold one "
                              f"period), got {sigma_pitches!r}")
         sigma_pitches = max(sigma_pitches, 1.0)
-    guess = _check_guess(guess)
     if isinstance(max_saturation, bool) or not isinstance(max_saturation, numbers.Real) \
             or not 0 <= max_saturation <= 1:
         raise ValueError(f"max_saturation must be a fraction in [0, 1], got "
@@ -1174,13 +1459,15 @@ def measure_series(reference, states, *, lattice: Lattice | None = None,
         sigma = check_sigma(sigma, lattice.pitch)
 
     ref = _as_series(reference, "reference", bit_depth)
-    series = [ref] + [_as_series(s, f"state {i}", bit_depth)
-                      for i, s in enumerate(_as_states(states))]
+    raw_states = _as_states(states)
+    guesses = _check_guess(guess, len(raw_states), order)
+    series = [ref] + [_as_series(s, name, bit_depth)
+                      for s, name in zip(raw_states, state_names(raw_states), strict=True)]
     for s in series[1:]:
         if s.shape != ref.shape:
             raise ValueError(f"{s.name}: frames are {s.shape} (H, W) but the reference "
                              f"frames are {ref.shape}")
-    _check_fit(ref.shape, sigma, margin, guess)
+    _check_fit(ref.shape, sigma, margin, guesses)
     if lattice is not None:
         _check_pitch_fits(ref.shape, lattice.pitch, margin)
     if isinstance(mask, str | os.PathLike):
@@ -1201,6 +1488,11 @@ def measure_series(reference, states, *, lattice: Lattice | None = None,
     steps = _Steps(progress, total)
     # how the frames were read (colour converted, lossy JPEG), series by series
     warnings: list[str] = [n for s in series for n in getattr(s, "notes", ())]
+    warnings += _glob_warning(series)
+    for i, g in enumerate(guesses):
+        if isinstance(g, np.ndarray) and g.shape != (2, *ref.shape):
+            raise ValueError(f"guess for {series[i + 1].name} must be a (u_x, u_y) pair or "
+                             f"a field of shape {(2, *ref.shape)}, got shape {g.shape}")
 
     # the lattice, detected on the mean reference image or checked against it
     mean_ref = ref.mean(progress=steps.sub(ref.n_frames, ""))
@@ -1221,7 +1513,7 @@ def measure_series(reference, states, *, lattice: Lattice | None = None,
     if sigma_pitches is not None:
         sigma = sigma_pitches * lattice.pitch
     sigma = check_sigma(sigma, lattice.pitch)
-    _check_fit(ref.shape, sigma, margin, None)
+    _check_fit(ref.shape, sigma, margin)
     if not detect:
         _check_given_lattice(mean_ref, lattice, sigma, m, margin)
     steps.step(1.0, "lattice")
@@ -1274,19 +1566,12 @@ def measure_series(reference, states, *, lattice: Lattice | None = None,
                                       warnings)
     maps = _in_precision(maps, series)
     mean_ref = stats[0].mean
-    measurements, guesses, sources = [], [], []
-    for i in range(1, len(series)):
-        if guess == "auto":
-            g, how = _coarse_guess(mean_ref, stats[i].mean, lattice, masks[0])
-        elif guess is None:
-            g, how = None, "zero (given)"
-        else:
-            g, how = guess, "given"
-        res = deformation(maps[0], maps[i], lagrangian=lagrangian, guess=g)
-        measurements.append(res)
-        guesses.append((0.0, 0.0) if g is None else (float(g[0]), float(g[1])))
-        sources.append(how)
-        steps.step(3 * wft_cost if lagrangian else wft_cost, f"{series[i].name}: kinematics")
+    kin = 3 * wft_cost if lagrangian else wft_cost
+    measurements, orders, notes = _track(
+        maps, [st.mean for st in stats], masks[0], lattice, guesses, order,
+        [s.name for s in series], lagrangian,
+        lambda k: steps.step(kin, f"{series[k].name}: kinematics"))
+    warnings += notes
 
     # noise floor
     var = [float(np.mean(st.variance[pm.valid])) if st.variance is not None and pm.valid.any()
@@ -1328,11 +1613,13 @@ def measure_series(reference, states, *, lattice: Lattice | None = None,
     uncertainty = _uncertainty_maps(stats, maps, measurements, T, float(sigma))
     noise, uncertainty = _void_precision(noise, uncertainty, screens)
     metrology, systematic = _figures(noise, uncertainty, measurements, mean_ref, lattice,
-                                     float(sigma), masks[0], warnings)
+                                     float(sigma), masks[0], warnings,
+                                     [s.name for s in series[1:]])
     progress(1.0, "done")
 
     parameters = {"sigma": float(sigma), "method": method, "lagrangian": bool(lagrangian),
-                  "guess": guess, "margin": float(margin), "max_saturation":
+                  "guess": _guess_parameter(guess),
+                  "order": order, "margin": float(margin), "max_saturation":
                   float(max_saturation), "bit_depth": bit_depth, "outliers": outliers,
                   "lattice": None if detect else {"k1": list(lattice.k1),
                                                   "k2": list(lattice.k2)},
@@ -1351,10 +1638,12 @@ def measure_series(reference, states, *, lattice: Lattice | None = None,
         scale=tuple(int(s.scale) for s in series),
         saturation=saturation, excluded=tuple(sc.excluded for sc in screens),
         screening=tuple(sc.screen for sc in screens),
-        measurements=tuple(measurements), guesses=tuple(guesses),
-        guess_sources=tuple(sources), vibration=tuple(vib), noise=noise,
+        measurements=tuple(measurements),
+        guesses=tuple(tuple(float(v) for v in r.guess) for r in orders),
+        guess_sources=tuple(r.source for r in orders), vibration=tuple(vib), noise=noise,
         parameters=parameters, warnings=tuple(warnings), uncertainty=uncertainty,
-        metrology=metrology, systematic=systematic)
+        metrology=metrology, systematic=systematic,
+        fringe_orders=tuple(orders))
 
 
 def _check_noise_model(noise_model):
@@ -1424,7 +1713,8 @@ def _noise_models(stats, series, given, lattice, mask, warnings):
     return out, {"source": source, "estimated_on": s0.name, **model.as_dict()}
 
 
-def _figures(noise, uncertainty, measurements, mean_ref, lattice, sigma, mask, warnings):
+def _figures(noise, uncertainty, measurements, mean_ref, lattice, sigma, mask, warnings,
+             names):
     """Metrological figures and the systematic errors, warning where they can matter."""
     n = len(measurements)
     floors = {}
@@ -1442,7 +1732,7 @@ def _figures(noise, uncertainty, measurements, mean_ref, lattice, sigma, mask, w
     alias = aliasing_bias(mean_ref, lattice, sigma=sigma, mask=mask)
     smooth = [smoothing_bias(m.strain, m.valid, sigma=sigma) for m in measurements]
     for i, m in enumerate(measurements):
-        name = f"state {i}"
+        name = names[i]
         fl = floors[i]
         known = [fl[k] for k in ("ux", "uy") if math.isfinite(fl[k])]
         u_noise = max(known) if known else 0.0

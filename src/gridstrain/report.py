@@ -174,7 +174,7 @@ def render_report(result: SeriesResult, *, attrs: dict | None = None,
         rows.append([html.escape(result.names[i + 1]), f"{v.mean():.1%}",
                      _num(means[0], ".4f"), _num(means[1], ".4f"),
                      *(_num(x * 1e6, ".1f") for x in means[2:]), str(m.iterations),
-                     html.escape(result.guess_sources[i])])
+                     html.escape(_fringe_order(result, i))])
     out.append(_table(["state", "valid", "mean u_x (px)", "mean u_y (px)", "mean ε_xx (µε)",
                        "mean ε_yy (µε)", "mean ε_xy (µε)", "iterations", "fringe order"],
                       rows, left=(0, 8)))
@@ -208,13 +208,21 @@ def render_report(result: SeriesResult, *, attrs: dict | None = None,
     return "\n".join(out)
 
 
+def _fringe_order(result, i: int) -> str:
+    """Where state ``i``'s fringe order came from, and whether it is confirmed."""
+    if not result.fringe_orders:
+        return result.guess_sources[i]
+    r = result.fringe_orders[i]
+    return f"{r.source}, {'confirmed' if r.confirmed else 'NOT CONFIRMED'}"
+
+
 # The fields every report shows in its own section; any other field a result
 # class gains is listed under "Other results" by its repr.
 _SHOWN = {
     "u", "strain", "valid", "lattice", "lattice_detected", "sigma", "method", "lagrangian",
     "margin", "mask", "reference_image", "names", "sources", "n_frames", "bit_depth",
     "scale", "saturation", "measurements", "guesses", "guess_sources", "vibration", "noise",
-    "parameters", "warnings", "uncertainty"}
+    "parameters", "warnings", "uncertainty", "fringe_orders"}
 
 
 def _extra_fields(result) -> list[tuple[str, str]]:

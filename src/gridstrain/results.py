@@ -467,6 +467,9 @@ def _write_root(h5, result, ps, unit, attrs, H, W, n, n_series, lat) -> None:
         "n_frames_reference": result.n_frames[0],
         "reference_files": list(result.sources[0]),
         "warnings": list(result.warnings),
+        # how each state's whole number of periods was fixed (FringeOrder)
+        "fringe_order_source": [r.source for r in result.fringe_orders],
+        "fringe_order_confirmed": [bool(r.confirmed) for r in result.fringe_orders],
     }
     if ps is not None:
         root.update(pixel_size=ps, unit=unit)
