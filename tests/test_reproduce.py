@@ -39,9 +39,10 @@ def test_results_json_schema(tiny):
     assert set(data) == {"parameters", "records", "slopes", "timing", "checks"}
     recs = data["records"]
     assert all(set(r) == RECORD_KEYS for r in recs)
-    # method A: every quantity at every T; method B: all but the averaged image
+    # method A: every quantity at every T; methods B and C: all but the averaged image
     for m, Ts, qs in (("A", TINY["T"], set(QUANTITIES)),
-                      ("B", TINY["T_b"], set(QUANTITIES) - {"image"})):
+                      ("B", TINY["T_b"], set(QUANTITIES) - {"image"}),
+                      ("C", TINY["T"], set(QUANTITIES) - {"image"})):
         for c in TINY["cases"]:
             got = {(r["quantity"], r["T"]) for r in recs if r["method"] == m and r["case"] == c}
             assert got == {(q, t) for q in qs for t in Ts}
@@ -50,7 +51,7 @@ def test_results_json_schema(tiny):
         assert math.isfinite(r["rmse"])
         assert r["theory"] > 0
         assert math.isfinite(r["theory"])
-    assert set(data["slopes"]) == {"A", "B"}
+    assert set(data["slopes"]) == {"A", "B", "C"}
     assert set(data["slopes"]["A"]) == {"1", "3"}
     assert set(data["slopes"]["A"]["1"]) == set(QUANTITIES)
     p = data["parameters"]
@@ -64,6 +65,8 @@ def test_results_json_schema(tiny):
     assert t["method_A_seconds_per_100_images"] > 0
     assert t["ratio_B_over_A"] == pytest.approx(
         t["method_B_seconds_per_100_images"] / t["method_A_seconds_per_100_images"])
+    assert t["ratio_C_over_A"] == pytest.approx(
+        t["method_C_seconds_per_100_images"] / t["method_A_seconds_per_100_images"])
     assert data["records"] == res["records"]
 
 
@@ -129,7 +132,7 @@ def test_overwrite_replaces_and_is_reproducible(tiny, tmp_path):
 
 @pytest.mark.parametrize(("kw", "match"), [
     ({"size": (32, 32)}, "size"), ({"T": [0, 3]}, "T"), ({"T_b": [64]}, "T_b"),
-    ({"cases": [5]}, "cases"), ({"repetitions": 0}, "repetitions"),
+    ({"cases": [6]}, "cases"), ({"repetitions": 0}, "repetitions"),
     ({"profile": "zigzag"}, "profile"), ({"contrast": 2.0}, "contrast"),
 ])
 def test_validation(tmp_path, kw, match):
