@@ -109,6 +109,17 @@ def test_theory_values_follow_the_papers_laws(tiny):
         math.hypot(th["A", 1, "phi1_corrected", 16], off), rel=1e-12)
 
 
+def test_method_c_has_method_b_precision_on_the_papers_data(tiny):
+    # the same frames through methods B and C: to first order in the noise both
+    # average the same linear functional of it (one transform of the realigned mean
+    # against the mean of the transforms), so their derivative RMSEs agree far
+    # better than the sampling error; the acceptance bound is 3 %
+    _, res, _ = tiny
+    ch = res["checks"]
+    assert 0.97 < ch["C_over_B_derivatives_min"] <= ch["C_over_B_derivatives_max"] < 1.03
+    assert set(res["slopes"]["C"]) == {"1", "3"}
+
+
 def test_existing_output_is_refused(tmp_path):
     (tmp_path / "keep.txt").write_text("mine")
     with pytest.raises(FileExistsError, match="overwrite"):
@@ -208,6 +219,19 @@ def test_quick_run_meets_the_papers_statements(tmp_path):
                 assert ch[m]["corrected_phase_slopes"][c][q] == pytest.approx(-0.5, abs=0.05)
     assert ch["B_over_A_derivatives_min"] > 0.95
     assert ch["B_over_A_derivatives_max"] < 1.05
+    # method C: method B's derivatives within 3 % (the same data, see above); its
+    # derivatives and its phase about the mean position within the sampling error
+    # of the theory, in every case, case 5 (0.5 px) included, where eqs. (29)-(30)
+    # leave method A's corrected phase far above the noise
+    assert ch["C_over_B_derivatives_min"] > 0.97
+    assert ch["C_over_B_derivatives_max"] < 1.03
+    assert ch["C_derivative_rmse_over_theory_min"] > 0.85
+    assert ch["C_derivative_rmse_over_theory_max"] < 1.15
+    assert ch["C_corrected_phase_rmse_over_theory_min"] > 0.85
+    assert ch["C_corrected_phase_rmse_over_theory_max"] < 1.15
+    assert ch["A_corrected_phase_rmse_over_theory_max"] > 3
+    # at 0.5 px method A's averaged grid keeps 80 % of its contrast (eq. 14)
+    assert ch["C_over_A_derivatives_case5_max"] < 0.85
     for c in ("1", "2"):
         assert ch["image_level"][c]["rmse_over_prop21"] == pytest.approx(1.0, abs=0.1)
     assert ch["cost_ratio_B_over_A"] > 1

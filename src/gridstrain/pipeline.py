@@ -698,6 +698,25 @@ def _phase_maps_b(series, lattice, sigma, mask, margin, report):
     return finite_derivatives(method_b(frames, lattice, sigma=sigma, mask=mask, margin=margin).maps)
 
 
+# Method A's averaged grid keeps this fraction of its contrast or less (eq. 14): its
+# phase-derivative noise is then 2 % or more above method C's, about the precision of
+# the noise floor itself, and worth method C's 2 to 3 times A's cost.
+_SUGGEST_C_CONTRAST = 0.98
+
+
+def _contrast_notes(vib) -> list[str]:
+    """Series whose vibrations cost method A more than method C's extra time."""
+    out = []
+    for v in vib:
+        c = min(v.contrast_factor)
+        if math.isfinite(c) and c < _SUGGEST_C_CONTRAST:
+            out.append(f"{v.name}: vibrations of ({v.std[0]:.3g}, {v.std[1]:.3g}) px std "
+                       f"lower the averaged grid's contrast to {c:.3f} (Prop. 2.2, eq. 14): "
+                       f"method A's strain noise is {1 / c - 1:.1%} above that of method C, "
+                       "which realigns the frames before averaging (--method C)")
+    return out
+
+
 def _phase_maps_c(series, lattice, sigma, mask, margin, shifts, report):
     """Method C (vibration-compensated averaging) on the series' frames, streamed,
     with the shifts of the series pass; returns the maps and the warnings."""
@@ -982,6 +1001,8 @@ def measure_series(reference, states, *, lattice: Lattice | None = None,
                 maps[k] = finite_derivatives(maps[k].result().maps)
                 steps.step(s.n_frames * wft_cost, f"{s.name}: method B")
 
+    if method == "A":
+        warnings.extend(_contrast_notes(vib))
     mean_ref = stats[0].mean
     measurements, guesses, sources = [], [], []
     for i in range(1, len(series)):

@@ -846,8 +846,10 @@ def compensated_noise_std(noise_variance: float, modulus: float, sigma: float, T
     e_t)``. The mean over frames is the analogue of eq. (14) with ``alpha_t``
     replaced by ``-e_t``: modulus factor ``1 - 1/2 (2 pi f)^2 Var(e)``
     (Prop. 2.2), offset ``arg mean_t exp(-2 i pi k . e_t)`` (eq. 28) whose first
-    order is ``-2 pi k . e_bar``, zero for centred shifts, leaving a third-order
-    term ``Var = 15/36 (2 pi f)^6 Var(e)^3 / T`` (Prop. 2.4). The noise
+    order is ``-2 pi k . e_bar``, zero for centred shifts, leaving the third-order
+    term ``m3 / 6``, ``m3`` the sample third central moment of ``2 pi k . e_t``,
+    of variance ``(2 pi f)^6 Var(e)^3 (T - 1)(T - 2) / (6 T^3)`` for Gaussian
+    errors (zero for one or two frames; Prop. 2.4's analogue). The noise
     ``(1/T) sum_t exp(-i theta_t) n_t`` has the variance ``v / T`` of method A's
     (Prop. 2.3) and is circular, so eqs. (24)-(25) apply with the full modulus.
     The shift estimates' errors are global (one number per frame) and add no
@@ -868,7 +870,8 @@ def compensated_noise_std(noise_variance: float, modulus: float, sigma: float, T
     mod = check_positive(modulus, "modulus") * contrast
     p_std, d_std = wft_noise_std(v / n, mod, sigma)  # Prop. 2.3 and eqs. (24)-(25)
     if centred:
-        third = math.sqrt(15 / 36 * w**6 * var_e**3 / n)
+        # Var(m3) = 6 s^6 (T-1)(T-2) / T^3 for a Gaussian sample, divided by 6^2
+        third = math.sqrt(w**6 * var_e**3 * (n - 1) * (n - 2) / (6 * n**3))
         return math.hypot(p_std, third), d_std, float(w * math.sqrt(var_a / n))
     return math.hypot(p_std, w * math.sqrt(var_e / n)), d_std, 0.0
 
