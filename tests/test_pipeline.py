@@ -342,7 +342,7 @@ def test_vibrations_do_not_pass_for_sensor_noise():
 
 
 @pytest.mark.parametrize(("kwargs", "exc", "match"), [
-    ({"method": "C"}, ValueError, "method"),
+    ({"method": "D"}, ValueError, "method"),
     ({"sigma": 3.0, "lattice": LAT}, ValueError, "sigma must be at least the pitch"),
     ({"margin": -1.0}, ValueError, "margin"),
     ({"guess": "zero"}, ValueError, "guess"),
