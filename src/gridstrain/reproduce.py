@@ -495,15 +495,14 @@ def reproduce(out_dir, *, quick: bool = False, overwrite: bool = False, seed: in
     t_rng = np.random.default_rng([seed, 2**32 - 1])
     t_shifts = t_rng.standard_normal((timing_frames, 2)) * np.array(all_cases[case_list[0]])
     timing_stack = list(iter_frames(phases, t_shifts, rng=t_rng, K=K, L=L, bits=bits, **gen))
-    t0 = time.perf_counter()
-    method_a(timing_stack, lattice, sigma=sigma)
-    ta = time.perf_counter() - t0
-    t0 = time.perf_counter()
-    method_b(timing_stack, lattice, sigma=sigma)
-    tb = time.perf_counter() - t0
-    t0 = time.perf_counter()
-    method_c(timing_stack, lattice, sigma=sigma)
-    tc = time.perf_counter() - t0
+    wall, cpu = {}, {}
+    for name, fn in (("A", method_a), ("B", method_b), ("C", method_c)):
+        # wall-clock time, and the CPU time of every thread of this process (the
+        # figure to compare on a machine shared with other work)
+        t0, c0 = time.perf_counter(), time.process_time()
+        fn(timing_stack, lattice, sigma=sigma)
+        wall[name], cpu[name] = time.perf_counter() - t0, time.process_time() - c0
+    ta, tb, tc = wall["A"], wall["B"], wall["C"]
     del timing_stack
     progress(1.0, "writing the report")
     scale = 100.0 / timing_frames
@@ -512,6 +511,9 @@ def reproduce(out_dir, *, quick: bool = False, overwrite: bool = False, seed: in
               "method_C_seconds_per_100_images": tc * scale,
               "ratio_B_over_A": tb / ta if ta > 0 else None,
               "ratio_C_over_A": tc / ta if ta > 0 else None,
+              "cpu_seconds_per_100_images": {m: v * scale for m, v in cpu.items()},
+              "cpu_ratio_C_over_A": cpu["C"] / cpu["A"] if cpu["A"] > 0 else None,
+              "cpu_ratio_C_over_B": cpu["C"] / cpu["B"] if cpu["B"] > 0 else None,
               "image_shape": [H, W], "frames_timed": timing_frames,
               "total_run_seconds": None}
 
@@ -919,7 +921,9 @@ def _summary(result) -> str:
         f"{tim['method_B_seconds_per_100_images']:.2f} s per 100 images of "
         f"{tim['image_shape'][0]} x {tim['image_shape'][1]} px, ratio "
         f"{_fmt(tim['ratio_B_over_A'])}; method C "
-        f"{tim['method_C_seconds_per_100_images']:.2f} s, {_fmt(tim['ratio_C_over_A'])} x A")
+        f"{tim['method_C_seconds_per_100_images']:.2f} s, {_fmt(tim['ratio_C_over_A'])} x A "
+        f"(CPU time: C/A {_fmt(tim['cpu_ratio_C_over_A'])}, C/B "
+        f"{_fmt(tim['cpu_ratio_C_over_B'])})")
     mod = [_at(rec, "A", c, q, 200) for c in cases if max(_all_cases()[c]) < 0.1
            for q in ("phi1", "phi2")]
     mod = [v for v in mod if v is not None]
