@@ -1,0 +1,34 @@
+"""Averaging a vibrated stack: the paper's methods A and B.
+
+Twenty frames of a static grid, each shifted by a random rigid vibration of 0.1 px
+and carrying its own sensor noise. Method A averages the frames and transforms once;
+method B transforms each frame and averages the phases and their derivatives. Both
+reduce the noise of the phase derivatives by about sqrt(T) (paper §2).
+Run: ``python examples/02_vibrated_stack.py``.
+"""
+
+import numpy as np
+
+from gridstrain import Lattice, synthetic, wft
+from gridstrain.stacks import method_a, method_b
+
+lattice = Lattice.from_pitch(5.0)
+shape, T = (192, 192), 20
+rng = np.random.default_rng(1)
+frames = []
+for _ in range(T):
+    a = rng.normal(0.0, 0.1, size=2)  # rigid vibration (px)
+    img = synthetic.grid_image(shape, lattice, amplitude=1500.0,
+                               displacement=lambda X, Y, a=a: (a[0] + 0 * X, a[1] + 0 * Y))
+    frames.append(synthetic.add_noise(img, rng=rng))
+
+single = wft(frames[0], lattice)
+a_res = method_a(frames, lattice)
+b_res = method_b(frames, lattice)
+v = single.valid & a_res.maps.valid & b_res.maps.valid
+for name, maps in (("one frame", single), ("method A", a_res.maps), ("method B", b_res.maps)):
+    # the grid is undeformed: any phase derivative is noise
+    print(f"{name:9s}: std of d(phi1)/dx = {np.std(maps.dphi[0, 0][v]):.2e} rad/px")
+ratio = np.std(single.dphi[0, 0][v]) / np.std(b_res.maps.dphi[0, 0][v])
+print(f"one frame / method B = {ratio:.1f}; theory sqrt(T) = {np.sqrt(T):.1f} (the spatial "
+      "std of one map holds few independent windows, so expect about 15 % scatter)")
