@@ -129,6 +129,10 @@ def test_large_vibrations_need_the_shift_only_modulo_a_period():
     np.testing.assert_allclose(ratio, 1.0, atol=1e-4)  # estimates good to 1e-5 px
     a = method_a(frames, LAT).maps
     assert np.median(a.modulus[:, a.valid]) < 0.5 * np.median(truth.modulus[:, v])
+    # what breaks instead: the phase maps move with the frames, a window of variance
+    # sigma^2 + Var(a), 4 % wider here (sqrt(1 + 1.5^2 / 25) = 1.044)
+    assert len(c.warnings) == 1
+    assert "wider than sigma" in c.warnings[0]
     # given shifts off by whole periods along the lines give the same weights
     moved = shifts + np.array([[P, -2 * P]])
     r1 = method_c(frames, LAT, shifts=shifts).maps

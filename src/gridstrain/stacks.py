@@ -53,6 +53,10 @@ _BATCH_BYTES = 2**26
 # method A: 0.05 rad lowers the modulus by 0.1 % (eq. 14) and leaves phase offsets
 # of up to 0.05 / sqrt(T) rad that vary across the field.
 _MAX_WEIGHT_PHASE_ERROR = 0.05
+# Method C warns when the vibrations widen the effective window (the phase maps,
+# which move with the frames, are averaged over the vibrations' spread: variance
+# sigma^2 + Var(a)) by more than 1 %, i.e. Std(a) > 0.14 sigma (0.7 px at sigma = 5).
+_MAX_WINDOW_WIDENING = 0.01
 
 
 @dataclass(frozen=True, eq=False)
@@ -79,6 +83,8 @@ class StackResult:
     shifts : (T, 2) float64 ndarray or None
         Method C only: the rigid shifts ``(alpha_t, beta_t)`` the frames were
         realigned by, px (frame ``t`` is ``s(x + alpha_t, y + beta_t)``, eq. 2).
+        Measured ones are known modulo a period along each wave vector (all the
+        weights need): beyond half a period from the first frame they wrap.
     motion_residual : float or None
         Method C only: RMS departure of the frames' motion from a rigid translation,
         px (spread of the shifts of the frame's quadrants about its shift, see
@@ -618,6 +624,15 @@ class _MethodC:
                     f"translation is compensated; the rest (rotation, non-rigid "
                     f"vibration) averages as under method A, with its contrast loss "
                     f"and phase offsets that now vary across the field")
+        s = float(self.lattice.pitch if sigma is None else sigma)
+        spread = float(np.sqrt(np.mean(np.sum((used - used.mean(axis=0)) ** 2, axis=1)) / 2))
+        widening = math.sqrt(1 + spread**2 / s**2) - 1
+        if widening > _MAX_WINDOW_WIDENING:
+            warnings.append(
+                f"method C: vibrations of {spread:.3g} px RMS move the phase maps under the "
+                f"window: the maps are those of a window {widening:.1%} wider than sigma = "
+                f"{s:.3g} px (variance sigma^2 + Var(a)); the spatial resolution is "
+                f"that much coarser (as for methods A and B)")
         maps = wft_complex(self.acc.averages(centre), self.lattice, sigma=sigma, mask=mask,
                            margin=margin, dtype=self.acc.dtype)
         return StackResult(maps=maps, n_frames=n, method="C",
@@ -710,9 +725,9 @@ def method_c(frames, lattice: Lattice, *, shifts=None, sigma: float | None = Non
     **Limits.** (i) The frames' phase modulation moves with them,
     ``phi(x + a_t)``; method C realigns the carrier, not the modulation, so the
     result is the modulation averaged over the vibration's law, a window of
-    variance ``sigma^2 + Var(a)`` instead of ``sigma^2`` (a 1 % wider window at
-    0.5 px of vibration and ``sigma = 5``): negligible while ``Std(a)`` is small
-    against ``sigma``, whatever it is against the pitch (the weights need the
+    variance ``sigma^2 + Var(a)`` instead of ``sigma^2`` (a 0.5 % wider window at
+    0.5 px of vibration and ``sigma = 5``; a warning beyond 1 %): negligible while
+    ``Std(a)`` is small against ``sigma``, whatever it is against the pitch (the weights need the
     shift only modulo a period, so shifts past half a period do no harm). (ii) A
     rotation or a non-rigid vibration moves the quadrants of a frame apart; only
     the translation is compensated and the rest averages as under method A.
