@@ -876,8 +876,8 @@ def measure_series(reference, states, *, lattice: Lattice | None = None,
         (see :func:`gridstrain.distributed.connect`; needs the ``distributed``
         extra, and on a cluster workers that see the input files at the same
         paths). Every series is submitted before the first is awaited. The frame
-        shifts, the lattice, the noise floor and the kinematics stay on this
-        machine. Results equal those without a scheduler to the rounding of sums
+        shifts, the lattice, method C, the noise floor and the kinematics stay on
+        this machine. Results equal those without a scheduler to the rounding of sums
         added in another order.
 
     Returns
