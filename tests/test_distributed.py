@@ -14,6 +14,7 @@ import os
 import socket
 import subprocess
 import sys
+import tomllib
 from pathlib import Path
 
 import numpy as np
@@ -33,6 +34,7 @@ from gridstrain.cli import main  # noqa: E402
 from gridstrain.io import open_series, read_hdf5  # noqa: E402
 from gridstrain.kinematics import deformation  # noqa: E402
 from gridstrain.pipeline import measure_series  # noqa: E402
+from gridstrain.results import read_attrs  # noqa: E402
 
 LAT = Lattice.from_pitch(5.0)
 N = 80  # px: 4-sigma margins leave a 40 x 40 valid centre at sigma = pitch = 5
@@ -350,7 +352,8 @@ def test_cli_with_the_test_cluster_address(cluster, tiff_series, tmp_path, capsy
     assert main(["measure", *args, "-o", str(tmp_path / "dask.h5"),
                  "--scheduler", cluster.scheduler_address]) == 0
     one, dist = read_hdf5(tmp_path / "one.h5"), read_hdf5(tmp_path / "dask.h5")
-    assert dist["attrs"]["options"]["scheduler"] == cluster.scheduler_address
+    config = tomllib.loads(read_attrs(tmp_path / "dask.h5")["config"])
+    assert config["scheduler"] == cluster.scheduler_address
     v = one["datasets"]["valid"]
     assert_array_equal(dist["datasets"]["valid"], v)
     for name, tol in (("ux", U_TOL), ("uy", U_TOL), ("exx", STRAIN_TOL)):

@@ -25,6 +25,7 @@ EXPECTED = {
     "03_noise_and_uncertainty.py": "measured  std of exx",
     "04_load_steps.py": "mean exx",
     "05_dask.py": "largest difference Dask - in process",
+    "06_share_results.py": "report written",
 }
 
 

@@ -17,12 +17,11 @@ from numpy.testing import assert_allclose, assert_array_equal
 from gridstrain.io import (
     FrameSeries,
     atomic_path,
-    check_saturation,
-    check_saturation_limit,
     natural_sort_key,
     open_series,
     read_hdf5,
     read_mask,
+    roi_mask,
     write_csv,
     write_hdf5,
     write_tiff_series,
@@ -306,9 +305,9 @@ def test_empty_list_and_bad_types(tmp_path):
 
 
 def test_unknown_extension(tmp_path):
-    p = tmp_path / "frame.jpg"
-    p.write_bytes(b"\xff\xd8\xff")
-    with pytest.raises(ValueError, match=r"frame\.jpg has extension '\.jpg'"):
+    p = tmp_path / "frame.gif"
+    p.write_bytes(b"GIF89a")
+    with pytest.raises(ValueError, match=r"frame\.gif has extension '\.gif'"):
         open_series(p)
 
 
@@ -355,129 +354,53 @@ def test_truncated_tiff_fails_when_read(tmp_path):
         s.mean()
 
 
-@pytest.mark.parametrize("kind", ["rgb_tif", "rgb_png", "rgba_png", "gray_alpha_png"])
-def test_colour_images_refused(tmp_path, kind):
-    if kind == "rgb_tif":
+@pytest.mark.parametrize("kind", ["rgb_tif", "rgb_tif_planar", "rgb_png", "rgba_png",
+                                  "gray_alpha_png"])
+def test_colour_images_read_as_luminance(tmp_path, kind):
+    """Colour frames are read as 0.2126 R + 0.7152 G + 0.0722 B (BT.709), alpha ignored.
+
+    Oracle: the weighted sum of the channels written, computed here by hand.
+    """
+    rng = np.random.default_rng(7)
+    nch = {"rgb_png": 3, "rgba_png": 4, "gray_alpha_png": 2}.get(kind, 3)
+    rgb = rng.integers(0, 256, (*SHAPE, nch), dtype=np.uint8)
+    if kind.startswith("rgb_tif"):
         p = tmp_path / "c.tif"
-        tifffile.imwrite(p, np.zeros((*SHAPE, 3), np.uint8), photometric="rgb")
+        planar = kind.endswith("planar")
+        tifffile.imwrite(p, np.moveaxis(rgb, -1, 0) if planar else rgb, photometric="rgb",
+                         planarconfig="separate" if planar else "contig")
     else:
-        nch = {"rgb_png": 3, "rgba_png": 4, "gray_alpha_png": 2}[kind]
         p = tmp_path / "c.png"
-        iio.imwrite(p, np.zeros((*SHAPE, nch), np.uint8))
-    with pytest.raises(ValueError, match=r"c\.(tif|png) has \d channels.*convert it to "
-                                         "grayscale"):
-        open_series(p)
+        iio.imwrite(p, rgb)
+    s = open_series(p, name="ref")
+    assert s.shape == SHAPE
+    assert s.channels == nch
+    assert s.bit_depth == 8
+    assert s.saturation_level == 255
+    c = rgb.astype(float)
+    want = c[..., 0] if nch == 2 else 0.2126 * c[..., 0] + 0.7152 * c[..., 1] \
+        + 0.0722 * c[..., 2]
+    # the weights sum to 1: an exact multiple-add, rounding ~1e-13 grey levels
+    assert_allclose(s.read(0), want, rtol=0, atol=1e-9)
+    assert s.read(0, dtype=None).dtype == np.float64
+    assert "ref: colour frames" in s.notes[0]
 
 
-def test_float_with_nan(tmp_path):
-    img = np.ones(SHAPE, np.float32)
-    img[3, 4] = np.nan
-    (p,) = _write(tmp_path, ["nan.tif"], [img])
-    s = open_series(p)
-    with pytest.raises(ValueError, match=r"nan\.tif.*1 NaN or infinite pixel"):
-        s.read(0)
-    with pytest.raises(ValueError, match=r"nan\.tif"):
-        s.mean()
-
-
-def test_one_d_and_three_d_pages(tmp_path):
-    line = tmp_path / "line.tif"
-    tifffile.imwrite(line, np.arange(32, dtype=np.uint16))
-    with pytest.raises(ValueError, match=r"line\.tif is 1-D"):
-        open_series(line)
-    vol = tmp_path / "vol.tif"
-    tifffile.imwrite(vol, np.zeros((4, 16, 16), np.uint16), volumetric=True, tile=(16, 16),
+def test_jpeg_and_packed_and_lzw_tiffs(tmp_path):
+    rng = np.random.default_rng(8)
+    img = rng.integers(0, 1024, SHAPE, dtype=np.uint16)
+    tifffile.imwrite(tmp_path / "p10.tif", img, bitspersample=10, photometric="minisblack")
+    s = open_series(tmp_path / "p10.tif")
+    assert (s.bit_depth, s.scale, s.saturation_level) == (10, 1, 1023)
+    assert_array_equal(s.read(0, dtype=None), img)
+    tifffile.imwrite(tmp_path / "lzw.tif", img * 16, compression="lzw",
                      photometric="minisblack")
-    with pytest.raises(ValueError, match=r"vol\.tif is a 3-D page of shape \(4, 16, 16\)"):
-        open_series(vol)
-
-
-def test_boolean_image_refused(tmp_path):
-    p = tmp_path / "b.tif"
-    tifffile.imwrite(p, np.zeros(SHAPE, bool))
-    with pytest.raises(ValueError, match=r"b\.tif holds bool pixels"):
-        open_series(p)
-
-
-def test_bad_read_arguments(tmp_path):
-    (p,) = _write(tmp_path, ["a.tif"], [np.zeros(SHAPE, np.uint16)])
-    s = open_series(p)
-    with pytest.raises(ValueError, match=r"frame index must be in \[0, 1\).*got 1"):
-        s.read(1)
-    with pytest.raises(TypeError, match="frame index must be an integer"):
-        s.read(0.0)
-    with pytest.raises(ValueError, match="dtype must be float32, float64 or None"):
-        s.read(0, dtype=np.int32)
-    # checked on the call, before any iteration
-    with pytest.raises(ValueError, match="dtype must be float32 or float64"):
-        s.mean(dtype=None)
-    with pytest.raises(ValueError, match="0 <= start < stop <= 1"):
-        s.frames(start=1)
-    with pytest.raises(TypeError, match="progress must be callable"):
-        s.mean(progress="yes")
-    with pytest.raises(TypeError, match="name must be a non-empty string"):
-        open_series(p, name="")
-
-
-def test_inputs_never_modified(tmp_path):
-    rng = np.random.default_rng(17)
-    paths = _write(tmp_path, ["f1.tif", "f2.tif"], [f * 16 for f in _frames12(rng, 2)])
-    stack = tmp_path / "s.tif"
-    tifffile.imwrite(stack, np.stack(_frames12(rng, 3)), photometric="minisblack")
-    iio.imwrite(tmp_path / "m.png", np.ones(SHAPE, np.uint8))
-    before = _snapshot([*paths, stack, tmp_path / "m.png"])
-    s = open_series(paths)
-    frame = s.read(0)
-    frame += 1  # writing into a returned frame must not reach the file
-    list(s.frames())
-    s.mean(to_sensor_units=True)
-    open_series(stack).mean()
-    read_mask(tmp_path / "m.png", SHAPE)
-    assert _snapshot([*paths, stack, tmp_path / "m.png"]) == before
-
-
-# ------------------------------------------------------------------------ saturation
-
-
-def test_saturation_fraction_and_limit(tmp_path):
-    rng = np.random.default_rng(18)
-    sensor = _frames12(rng, 1)[0] % 4000  # no pixel at 4095 yet
-    flat = sensor.reshape(-1)
-    n = flat.size  # 768 pixels
-    k = 12  # 1.5625 % of the pixels
-    flat[rng.choice(n, k, replace=False)] = 4095
-    (p,) = _write(tmp_path, ["s.tif"], [sensor * 16])
-    s = open_series(p)
-    frame = s.read(0)
-    assert check_saturation(frame, s) == k / n
-    assert check_saturation(s.read(0, to_sensor_units=True), s, to_sensor_units=True) == k / n
-    with pytest.raises(ValueError, match=r"frame 0 \(.*s\.tif\) has 1\.56% saturated .*"
-                                         r"65520.*max_fraction=1\.00%"):
-        check_saturation_limit(frame, s, index=0)
-    assert check_saturation_limit(frame, s, max_fraction=0.02) == k / n
-    with pytest.raises(ValueError, match=r"sensor value >= 4095"):
-        check_saturation_limit(s.read(0, to_sensor_units=True), s, to_sensor_units=True)
-    # a mask that leaves the saturated pixels out
-    mask = (frame < 65520).reshape(SHAPE)
-    assert check_saturation_limit(frame, s, mask=mask) == 0.0
-    with pytest.raises(ValueError, match=r"max_fraction must be in \[0, 1\]"):
-        check_saturation_limit(frame, s, max_fraction=1.5)
-    with pytest.raises(ValueError, match=r"frame must have the series shape"):
-        check_saturation(frame[:-1], s)
-
-
-def test_saturation_8_bit_and_float(tmp_path):
-    img = np.zeros(SHAPE, np.uint8)
-    img[0, :8] = 255
-    (p8,) = _write(tmp_path, ["a.tif"], [img])
-    s8 = open_series(p8)
-    assert check_saturation(s8.read(0), s8) == 8 / img.size
-    (pf,) = _write(tmp_path, ["f.tif"], [np.ones(SHAPE, np.float32)])
-    sf = open_series(pf)
-    assert check_saturation(sf.read(0), sf) == 0.0  # no known saturation level
-
-
-# ------------------------------------------------------------------------ mask
+    s = open_series(tmp_path / "lzw.tif")
+    assert_array_equal(s.read(0, dtype=None), img * 16)
+    iio.imwrite(tmp_path / "a.jpg", (img // 4).astype(np.uint8))
+    s = open_series(tmp_path / "a.jpg", name="state 0")
+    assert s.shape == SHAPE
+    assert "JPEG" in s.notes[0]
 
 
 def test_read_mask(tmp_path):
@@ -485,7 +408,16 @@ def test_read_mask(tmp_path):
     m[4:20, 5:25] = 255
     iio.imwrite(tmp_path / "m.png", m)
     tifffile.imwrite(tmp_path / "m.tif", (m > 0).astype(np.uint16))
-    for name in ("m.png", "m.tif"):
+    tifffile.imwrite(tmp_path / "m1.tif", m > 0)  # 1-bit
+    # drawn in a paint program: white on black (RGB), or on a transparent layer
+    rgb = np.zeros((*SHAPE, 3), np.uint8)
+    rgb[m > 0] = (250, 30, 0)
+    iio.imwrite(tmp_path / "rgb.png", rgb)
+    rgba = np.zeros((*SHAPE, 4), np.uint8)
+    rgba[..., :3] = 255  # white everywhere: only the alpha says where the specimen is
+    rgba[m > 0, 3] = 255
+    iio.imwrite(tmp_path / "rgba.png", rgba)
+    for name in ("m.png", "m.tif", "m1.tif", "rgb.png", "rgba.png"):
         got = read_mask(tmp_path / name, SHAPE)
         assert got.dtype == bool
         assert_array_equal(got, m > 0)
@@ -493,14 +425,33 @@ def test_read_mask(tmp_path):
         read_mask(tmp_path / "m.png", (24, 30))
     with pytest.raises(FileNotFoundError, match=r"none\.png does not exist"):
         read_mask(tmp_path / "none.png", SHAPE)
-    iio.imwrite(tmp_path / "rgb.png", np.zeros((*SHAPE, 3), np.uint8))
-    with pytest.raises(ValueError, match="grayscale"):
-        read_mask(tmp_path / "rgb.png", SHAPE)
+    iio.imwrite(tmp_path / "black.png", np.zeros((*SHAPE, 3), np.uint8))
+    with pytest.raises(ValueError, match="selects no pixel"):
+        read_mask(tmp_path / "black.png", SHAPE)
     iio.imwrite(tmp_path / "zero.png", np.zeros(SHAPE, np.uint8))
     with pytest.raises(ValueError, match="selects no pixel"):
         read_mask(tmp_path / "zero.png", SHAPE)
     with pytest.raises(TypeError, match="shape must be a pair"):
         read_mask(tmp_path / "m.png", 24)
+
+
+def test_roi_mask():
+    m = roi_mask((24, 32), rectangle=(5, 4, 25, 20))
+    want = np.zeros((24, 32), bool)
+    want[4:20, 5:25] = True
+    assert_array_equal(m, want)
+    # a right triangle (0,0) (10,0) (0,10): pixel centres with x + y <= 10 (edge
+    # pixels are a convention of the rasteriser: count only the strict interior)
+    tri = roi_mask((24, 32), polygon=[(0, 0), (10, 0), (0, 10)])
+    yy, xx = np.mgrid[0:24, 0:32]
+    assert tri[(xx + yy) < 9.5].all()
+    assert not tri[(xx + yy) > 10.5].any()
+    with pytest.raises(ValueError, match="inside the 32 x 24 px image"):
+        roi_mask((24, 32), rectangle=(5, 4, 40, 20))
+    with pytest.raises(ValueError, match="at least 3 vertices"):
+        roi_mask((24, 32), polygon=[(0, 0), (10, 0)])
+    with pytest.raises(ValueError, match="four integers"):
+        roi_mask((24, 32), rectangle=(1.5, 0, 4, 4))
 
 
 # ------------------------------------------------------------------------ atomic output

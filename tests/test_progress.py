@@ -1,8 +1,8 @@
-"""The command line's progress bar."""
+"""The progress bar (a tqdm bar behind a progress(fraction, message) callback)."""
 
 import io
 
-from gridstrain._progress import bar
+from gridstrain._progress import ProgressBar, bar, null_progress
 
 
 class _Terminal(io.StringIO):
@@ -13,15 +13,28 @@ class _Terminal(io.StringIO):
 def test_bar_draws_on_a_terminal_only():
     term = _Terminal()
     report = bar(stream=term)
-    report(0.5, "half")
     report(1.0, "done")
     text = term.getvalue()
-    assert "50%" in text
     assert "100% done" in text
     assert text.endswith("\n")
     pipe = io.StringIO()
-    bar(stream=pipe)(1.0, "done")
+    assert bar(stream=pipe) is null_progress
+    pipe_report = bar(stream=pipe)
+    pipe_report(1.0, "done")
     assert pipe.getvalue() == ""
     quiet = _Terminal()
     bar(stream=quiet, quiet=True)(1.0, "done")
     assert quiet.getvalue() == ""
+
+
+def test_bar_shows_fraction_message_and_time_left():
+    term = _Terminal()
+    with ProgressBar(stream=term, mininterval=0) as report:
+        report(0.5, "half")
+        text = term.getvalue()
+        assert "50% half" in text
+        assert "<" in text  # elapsed<remaining
+        report(0.25, "going back is drawn, not counted")
+    report(1.0, "after close: ignored")
+    assert "ignored" not in term.getvalue()
+    assert term.getvalue().endswith("\n")

@@ -30,6 +30,7 @@ from .io import atomic_path, open_series, read_mask, write_hdf5, write_tiff_seri
 from .lattice import Lattice
 from .pipeline import MAP_FIELDS, measure_series, save_result
 from .plotting import save_figures
+from .report import write_report
 
 # The simulated camera and specimen (paper §3.2 and README of the paper notes).
 _AMPLITUDE = 2400.0  # mean grey level of the grid, 12-bit levels: peaks at 3480 + black
@@ -105,7 +106,8 @@ def _prepare(out: Path, overwrite: bool) -> None:
             raise FileNotFoundError(f"cannot create {out}: its parent {out.parent} does "
                                     "not exist")
         out.mkdir()
-    mine = [out / n for n in ("ref", "load", "mask.tif", "maps.h5", "truth.h5", "figures")]
+    mine = [out / n for n in ("ref", "load", "mask.tif", "maps.h5", "truth.h5", "figures",
+                              "report.html")]
     taken = [p for p in mine if p.exists()]
     if taken and not overwrite:
         raise FileExistsError(f"{taken[0]} already exists from an earlier demo (pass "
@@ -184,6 +186,7 @@ def run(args) -> int:
     figs = save_figures(result, out / "figures", pixel_size=_PIXEL_SIZE, unit=_UNIT,
                         overwrite=True,
                         progress=lambda f, msg: progress(0.9 + 0.1 * f, msg))
+    report = write_report(maps, out / "report.html", overwrite=True)
     t2 = time.perf_counter()
 
     # the truth at the reference pixels (Lagrangian, conventions)
@@ -219,7 +222,8 @@ def run(args) -> int:
     seconds = {"simulate": t1 - t0, "measure_and_write": t2 - t1,
                "total": time.perf_counter() - t0}
     if args.json:
-        s = summary(result, outputs={"hdf5": str(maps), "figures": [str(f) for f in figs]},
+        s = summary(result, outputs={"hdf5": str(maps), "figures": [str(f) for f in figs],
+                                     "report": str(report)},
                     seconds=seconds["total"], pixel_size=_PIXEL_SIZE, unit=_UNIT)
         s["demo"] = {"directory": str(out), "rms_error": errors,
                      "shift_rms_error_px": {"reference": shift_err[0],
@@ -250,7 +254,8 @@ def run(args) -> int:
         f"{nf.theory_strain[0][2]:.2e})",
         f"  per-frame shifts: RMS error {shift_err[0]:.1e} px (reference), "
         f"{shift_err[1]:.1e} px (loaded)",
-        f"wrote {maps} and {len(figs)} figures in {out / 'figures'}; "
+        f"wrote {maps}, the report {report} (open it in a browser) and {len(figs)} "
+        f"figures in {out / 'figures'}; "
         f"{seconds['total']:.1f} s in all",
         "",
         "measure the same series yourself:",

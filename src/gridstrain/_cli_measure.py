@@ -16,8 +16,10 @@ import time
 import tomllib
 from pathlib import Path
 
+import h5py
 import numpy as np
 
+from . import __version__
 from ._cli_common import (
     add_lattice_options,
     check_output_file,
@@ -25,37 +27,48 @@ from ._cli_common import (
     positive_option,
 )
 from ._progress import bar
-from .io import open_series, read_mask
+from .io import open_series, read_mask, roi_mask
 from .pipeline import (
     FWHM_PER_SIGMA,
     MAP_FIELDS,
     SeriesResult,
     measure_series,
-    save_csv,
-    save_result,
 )
 from .plotting import figure_names, save_figures
+from .results import export, save_csv, save_result
 from .wft import DEFAULT_MARGIN
 
 # The options a TOML configuration file may set: its keys are the long options
 # (``pixel-size`` or ``pixel_size``), with the type each must have there.
 _CONFIG_KEYS = {
+    "reference": "source", "states": "sources",
     "output": "path", "pitch": "float", "angle": "float", "k1": "pair", "k2": "pair",
-    "sigma": "float", "method": "method", "mask": "path", "pixel-size": "float",
+    "sigma": "float", "method": "method", "mask": "path", "roi": "roi",
+    "roi-polygon": "polygon", "pixel-size": "float",
     "unit": "str", "no-lagrangian": "bool", "guess": "pair", "margin": "float",
-    "csv": "path", "figures": "path", "quiet": "bool", "json": "bool",
-    "overwrite": "bool", "bit-depth": "int", "scheduler": "str",
+    "csv": "path", "figures": "path", "export": "formats", "report": "path",
+    "phase-maps": "bool", "quiet": "bool", "json": "bool", "overwrite": "bool",
+    "bit-depth": "int",
+    "scheduler": "str",
 }
+# Left out of the configuration stored in the result: how to run (not what to
+# measure), and the side outputs, which a replay must not write over.
+_RUN_ONLY = ("quiet", "json", "overwrite", "csv", "figures", "report")
+_EXPORTS = ("mat", "vtk", "csv")
 
 _EXAMPLE = """example:
   gridstrain measure ref/ load1/ load2/ -o maps.h5 --mask mask.tif \\
-      --pixel-size 0.04 --unit mm --figures figs --csv maps.csv
+      --pixel-size 0.04 --unit mm --report report.html --export mat,vtk,csv
 
-REF and DEF are each a TIFF file (one frame, or one per page), a directory of
-images or a quoted glob ("run3/*.tif"); one DEF per loaded state. Options may also
-come from --config FILE.toml, whose keys are the long option names
-(pixel-size = 0.04, method = "B", k1 = [0.2, 0.0]...); paths in it are relative to
-the file; options on the command line win."""
+REF and DEF are each an image file (TIFF, one frame or one per page; PNG, BMP,
+JPEG; colour frames are read as their luminance), a directory of images or a
+quoted glob ("run3/*.tif"); one DEF per loaded state. Options may also come from
+--config FILE.toml, whose keys are the long option names (reference = "ref/",
+states = ["load1/", "load2/"], pixel-size = 0.04, method = "B", roi = [10, 10, 300,
+200], roi-polygon = [[10, 10], [300, 20], [150, 200]]...); paths in it are relative
+to the file; options on the command line win. Every result file stores the
+configuration of its run: 'gridstrain measure --config RESULT.h5 -o again.h5'
+measures the same inputs with the same options."""
 
 
 def register(sub) -> None:
@@ -65,8 +78,10 @@ def register(sub) -> None:
         "reference, from series of grid images; diagnose vibrations and state the noise "
         "floor. Writes one HDF5 file.", epilog=_EXAMPLE,
         formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("reference", metavar="REF", help="reference series")
-    p.add_argument("states", metavar="DEF", nargs="+", help="loaded state series, in order")
+    p.add_argument("reference", metavar="REF", nargs="?",
+                   help="reference series (or reference = ... in the config)")
+    p.add_argument("states", metavar="DEF", nargs="*",
+                   help="loaded state series, in order (or states = [...] in the config)")
     p.add_argument("-o", "--output", metavar="OUT.h5", help="output HDF5 file")
     g = p.add_argument_group("grid and window")
     add_lattice_options(g)
@@ -83,6 +98,11 @@ def register(sub) -> None:
     k = p.add_argument_group("specimen and kinematics")
     k.add_argument("--mask", metavar="FILE",
                    help="specimen mask image (nonzero = specimen), reference configuration")
+    k.add_argument("--roi", type=int, nargs=4, metavar=("X0", "Y0", "X1", "Y1"),
+                   help="rectangle of interest, px: columns X0 <= x < X1, rows Y0 <= y < "
+                   "Y1 (with --mask: both)")
+    k.add_argument("--roi-polygon", nargs="+", metavar="X,Y",
+                   help="polygon of interest, its vertices as x,y in px (at least 3)")
     k.add_argument("--no-lagrangian", action="store_true", default=None,
                    help="turn the large-displacement correction off")
     k.add_argument("--guess", type=float, nargs=2, metavar=("UX", "UY"),
@@ -96,6 +116,14 @@ def register(sub) -> None:
     o.add_argument("--unit", metavar="UNIT", help="length unit of --pixel-size (e.g. mm)")
     o.add_argument("--csv", metavar="FILE", help="also write one CSV row per valid pixel")
     o.add_argument("--figures", metavar="DIR", help="also write PNG maps into DIR")
+    o.add_argument("--export", metavar="FORMATS",
+                   help="also write mat (MATLAB), vtk (ParaView .vti) and/or csv next to "
+                   "the output, comma-separated (e.g. mat,vtk)")
+    o.add_argument("--phase-maps", action="store_true", default=None,
+                   help="also store the phase maps of every series in the output (about 3x "
+                   "the file; gridstrain.load then gives them back)")
+    o.add_argument("--report", metavar="FILE.html",
+                   help="also write a self-contained HTML report of the run")
     o.add_argument("--overwrite", action="store_true", default=None,
                    help="replace existing output files")
     o.add_argument("--config", metavar="FILE.toml", help="read options from a TOML file")
@@ -132,6 +160,29 @@ def _config_value(key: str, value, kind: str, base: Path, where: str):
         if not isinstance(value, bool):
             raise bad("true or false")
         return value
+    if kind == "roi":
+        if not isinstance(value, list) or len(value) != 4 or any(
+                isinstance(v, bool) or not isinstance(v, int) for v in value):
+            raise bad("a list of four integers [x0, y0, x1, y1]")
+        return list(value)
+    if kind == "polygon":
+        if not isinstance(value, list) or any(
+                not isinstance(v, list) or len(v) != 2 or any(
+                    isinstance(c, bool) or not isinstance(c, int | float) for c in v)
+                for v in value):
+            raise bad("a list of [x, y] vertices")
+        return [[float(c) for c in v] for v in value]
+    if kind == "formats":
+        return _formats(value, f"{where}: {key}")
+    if kind == "source":
+        if isinstance(value, list) and value and all(isinstance(v, str) and v
+                                                     for v in value):
+            return [_config_value(key, v, "path", base, where) for v in value]
+        return _config_value(key, value, "path", base, where)
+    if kind == "sources":
+        if not isinstance(value, list) or not value:
+            raise bad("a list of series (each a path, a glob or a list of files)")
+        return [_config_value(key, v, "source", base, where) for v in value]
     if kind == "method":
         if not isinstance(value, str) or value.upper() not in ("A", "B", "C"):
             raise bad('"A", "B" or "C"')
@@ -144,15 +195,44 @@ def _config_value(key: str, value, kind: str, base: Path, where: str):
     return value
 
 
+def _formats(value, where: str) -> list[str]:
+    items = value.split(",") if isinstance(value, str) else value
+    if not isinstance(items, list) or not items or any(
+            not isinstance(v, str) or v.strip().lower() not in _EXPORTS for v in items):
+        raise ValueError(f"{where} must list formats among {', '.join(_EXPORTS)} (e.g. "
+                         f"mat,vtk), got {value!r}")
+    return list(dict.fromkeys(v.strip().lower() for v in items))
+
+
+def _polygon(values) -> list[list[float]]:
+    out = []
+    for v in values:
+        try:
+            x, y = (float(c) for c in v.split(","))
+        except ValueError:
+            raise ValueError(f"--roi-polygon vertices must be x,y pairs such as 10,20, got "
+                             f"{v!r}") from None
+        out.append([x, y])
+    return out
+
+
 def _read_config(path: str) -> dict:
     p = Path(os.path.expanduser(path))
     if not p.is_file():
         raise FileNotFoundError(f"config file {p} does not exist")
-    try:
-        with open(p, "rb") as fh:
-            data = tomllib.load(fh)
-    except tomllib.TOMLDecodeError as exc:
-        raise ValueError(f"config {p}: not valid TOML ({exc})") from None
+    if h5py.is_hdf5(p):  # a result file: the configuration of its run
+        from .results import read_attrs
+
+        text = read_attrs(p).get("config")
+        if not isinstance(text, str):
+            raise ValueError(f"config {p}: this HDF5 file holds no gridstrain configuration")
+        data = tomllib.loads(text)
+    else:
+        try:
+            with open(p, "rb") as fh:
+                data = tomllib.load(fh)
+        except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+            raise ValueError(f"config {p}: not valid TOML ({exc})") from None
     out = {}
     for key, value in data.items():
         name = key.replace("_", "-")
@@ -168,9 +248,18 @@ def _options(args) -> dict:
     opts = _read_config(args.config) if args.config else {}
     for name in _CONFIG_KEYS:
         value = getattr(args, name.replace("-", "_"))
+        if name == "states" and not value:
+            continue
+        if name == "export" and value is not None:
+            value = _formats(value, "--export")
+        if name == "roi-polygon" and value is not None:
+            value = _polygon(value)
         if value is not None:
             opts[name] = list(value) if isinstance(value, tuple) else value
-    for name in ("no-lagrangian", "quiet", "json", "overwrite"):
+    if not opts.get("reference") or not opts.get("states"):
+        raise ValueError("the inputs are missing: give REF and at least one DEF (or "
+                         "reference = ... and states = [...] in the config file)")
+    for name in ("no-lagrangian", "quiet", "json", "overwrite", "phase-maps"):
         opts[name] = bool(opts.get(name, False))
     opts.setdefault("method", "A")
     opts.setdefault("margin", DEFAULT_MARGIN)
@@ -201,6 +290,42 @@ def _check_outputs(opts: dict, n_states: int, inputs: set[Path]) -> None:
                 if (d / name).exists():
                     raise FileExistsError(f"figure {d / name} already exists (pass "
                                           "--overwrite to replace it)")
+    for f in opts.get("export") or ():
+        check_output_file(_export_path(out, f), f"{f} export", opts["overwrite"], inputs)
+    if opts.get("report"):
+        check_output_file(Path(os.path.expanduser(opts["report"])), "report file",
+                          opts["overwrite"], inputs)
+
+
+def _export_path(out: Path, fmt: str) -> Path:
+    return out.with_suffix({"mat": ".mat", "vtk": ".vti", "csv": ".csv"}[fmt])
+
+
+def _toml_value(v) -> str:
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, int | float):
+        return repr(v) if math.isfinite(v) else ("nan" if v != v else
+                                                 ("inf" if v > 0 else "-inf"))
+    if isinstance(v, str):
+        return json.dumps(v)  # a TOML basic string: JSON's escapes are TOML's
+    return "[" + ", ".join(_toml_value(x) for x in v) + "]"
+
+
+def config_text(opts: dict) -> str:
+    """The TOML configuration that replays a run: its inputs and every option."""
+    lines = [f"# gridstrain {__version__} measure: replay with "
+             "'gridstrain measure --config THIS_FILE -o OUT.h5'"]
+    for key in _CONFIG_KEYS:
+        if key in opts and key not in _RUN_ONLY and opts[key] is not None:
+            lines.append(f"{key} = {_toml_value(opts[key])}")
+    return "\n".join(lines) + "\n"
+
+
+def _absolute(source):
+    if isinstance(source, list):
+        return [_absolute(s) for s in source]
+    return str(Path(os.path.abspath(os.path.expanduser(source))))
 
 
 def _input_files(sources) -> set[Path]:
@@ -383,6 +508,9 @@ class _Bar:
 
     def close(self) -> None:
         """End an open bar line, so that an error message gets a line of its own."""
+        if hasattr(self._draw, "close"):
+            self._draw.close()
+            self.open = False
         if self.open:
             sys.stderr.write("\n")
             sys.stderr.flush()
@@ -413,15 +541,21 @@ def _run(args, progress: _Bar) -> int:
     quiet, as_json = opts["quiet"], opts["json"]
     progress.configure(quiet)
 
-    reference = open_series(args.reference, name="reference", bit_depth=bits)
+    reference = open_series(opts["reference"], name="reference", bit_depth=bits)
     states = [open_series(s, name=f"state {i}", bit_depth=bits)
-              for i, s in enumerate(args.states)]
+              for i, s in enumerate(opts["states"])]
     inputs = _input_files([reference, *states])
     mask = None
     if opts.get("mask"):
         mask_path = Path(os.path.expanduser(opts["mask"]))
         inputs.add(mask_path.resolve())
         mask = read_mask(mask_path, reference.shape)
+    if opts.get("roi") is not None or opts.get("roi-polygon") is not None:
+        roi = roi_mask(reference.shape, rectangle=opts.get("roi"),
+                       polygon=opts.get("roi-polygon"))
+        mask = roi if mask is None else mask & roi
+        if not mask.any():
+            raise ValueError("the region of interest and the mask have no pixel in common")
     if args.config:
         inputs.add(Path(os.path.expanduser(args.config)).resolve())
     _check_outputs(opts, len(states), inputs)
@@ -433,13 +567,28 @@ def _run(args, progress: _Bar) -> int:
                             margin=opts["margin"], progress=progress,
                             scheduler=opts.get("scheduler"))
     ps, unit = opts.get("pixel-size"), opts.get("unit")
-    extra = {"options": dict(opts.items()),
+    stored = dict(opts)
+    for key in ("reference", "states", "output", "mask"):
+        if stored.get(key):
+            stored[key] = _absolute(stored[key])
+    extra = {"config": config_text(stored),
              "config_file": args.config or "", "mask_file": opts.get("mask") or ""}
     out = save_result(result, opts["output"], pixel_size=ps, unit=unit,
-                      overwrite=opts["overwrite"], attrs=extra)
+                      overwrite=opts["overwrite"], attrs=extra,
+                      phase_maps=opts["phase-maps"])
     outputs = {"hdf5": str(out)}
     if opts.get("csv"):
-        outputs["csv"] = str(save_csv(result, opts["csv"], overwrite=opts["overwrite"]))
+        outputs["csv"] = str(save_csv(result, opts["csv"], overwrite=opts["overwrite"],
+                                      pixel_size=ps, unit=unit))
+    if opts.get("export"):
+        written = export(result, out.with_suffix(""), opts["export"], pixel_size=ps,
+                         unit=unit, overwrite=opts["overwrite"])
+        outputs["export"] = {k: str(v) for k, v in written.items()}
+    if opts.get("report"):
+        from .report import write_report
+
+        outputs["report"] = str(write_report(out, opts["report"],
+                                             overwrite=opts["overwrite"]))
     if opts.get("figures"):
         figs = save_figures(result, opts["figures"], pixel_size=ps, unit=unit,
                             overwrite=opts["overwrite"], progress=progress)
@@ -458,5 +607,9 @@ def _run(args, progress: _Bar) -> int:
             lines.append(f"wrote {outputs['csv']} (one row per valid pixel)")
         if "figures" in outputs:
             lines.append(f"wrote {len(outputs['figures'])} figures into {opts['figures']}")
+        for path in (outputs.get("export") or {}).values():
+            lines.append(f"wrote {path}")
+        if "report" in outputs:
+            lines.append(f"wrote {outputs['report']} (open it in a browser)")
         print("\n".join(lines))
     return 0

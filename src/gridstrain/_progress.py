@@ -1,7 +1,11 @@
-"""Progress reporting for the command line (the library only calls callbacks).
+"""Progress reporting (the library only calls callbacks; bars are drawn at the edge).
 
 Library functions accept ``progress``: a callable ``progress(fraction, message)``
-with ``fraction`` in [0, 1]. The CLI passes :func:`bar` to draw it on stderr.
+with ``fraction`` in [0, 1]. :func:`progress_bar` turns such calls into a ``tqdm``
+bar with an estimated time left, for the command line and for library users::
+
+    with gridstrain.progress_bar() as bar:
+        result = gridstrain.measure_series(ref, states, progress=bar)
 """
 
 from __future__ import annotations
@@ -11,13 +15,85 @@ from collections.abc import Callable
 
 Progress = Callable[[float, str], None]
 
+# Steps of the bar: a fraction is shown to 0.1 %.
+_STEPS = 1000
+_FORMAT = "{bar:30} {percentage:3.0f}% {desc} [{elapsed}<{remaining}]"
+
 
 def null_progress(fraction: float, message: str) -> None:
     """A progress callback that does nothing."""
 
 
+class ProgressBar:
+    """A ``progress(fraction, message)`` callback drawing a ``tqdm`` bar with an ETA.
+
+    Parameters
+    ----------
+    stream : file-like, optional
+        Where to draw (default ``sys.stderr``).
+    **tqdm_options
+        Passed to :class:`tqdm.tqdm` (``leave``, ``ncols``...).
+
+    Notes
+    -----
+    The bar closes itself at ``fraction >= 1``; use it as a context manager (or
+    call :meth:`close`) to end it early, after an error.
+    """
+
+    def __init__(self, *, stream=None, **tqdm_options):
+        from tqdm.auto import tqdm
+
+        opts = {"total": _STEPS, "bar_format": _FORMAT, "leave": True,
+                "file": sys.stderr if stream is None else stream,
+                "dynamic_ncols": True} | tqdm_options
+        self._bar = tqdm(**opts)
+        self._done = 0
+
+    def __call__(self, fraction: float, message: str) -> None:
+        if self._bar.disable is None:  # closed
+            return
+        n = round(min(max(float(fraction), 0.0), 1.0) * _STEPS)
+        self._bar.set_description_str(message[:50], refresh=False)
+        if n > self._done:
+            self._bar.update(n - self._done)
+            self._done = n
+        else:
+            self._bar.refresh()
+        if n >= _STEPS:
+            self.close()
+
+    def close(self) -> None:
+        """End the bar's line."""
+        if self._bar.disable is not None:
+            self._bar.close()
+            self._bar.disable = None
+
+    def __enter__(self) -> ProgressBar:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+def progress_bar(**tqdm_options) -> ProgressBar:
+    """A progress callback drawing a ``tqdm`` bar on stderr (see :class:`ProgressBar`).
+
+    Examples
+    --------
+    >>> import io
+    >>> out = io.StringIO()
+    >>> with progress_bar(stream=out) as bar:
+    ...     bar(0.5, "half way")
+    ...     bar(1.0, "done")
+    >>> "100% done" in out.getvalue()
+    True
+    """
+    stream = tqdm_options.pop("stream", None)
+    return ProgressBar(stream=stream, **tqdm_options)
+
+
 def bar(*, quiet: bool = False, stream=None) -> Progress:
-    """A progress callback drawing a one-line bar on ``stream`` (default stderr).
+    """The command line's bar on ``stream`` (default stderr): a :class:`ProgressBar`.
 
     Nothing is drawn when ``quiet`` or when the stream is not a terminal (a log
     file or a pipe would only collect carriage returns).
@@ -26,18 +102,4 @@ def bar(*, quiet: bool = False, stream=None) -> Progress:
     isatty = getattr(stream, "isatty", None)
     if quiet or not (callable(isatty) and isatty()):
         return null_progress
-    width = 30
-    state = {"last": ""}
-
-    def report(fraction: float, message: str) -> None:
-        f = min(max(float(fraction), 0.0), 1.0)
-        fill = round(f * width)
-        line = f"\r[{'#' * fill}{'.' * (width - fill)}] {f:4.0%} {message[:60]:<60}"
-        if line != state["last"]:
-            stream.write(line)
-            state["last"] = line
-            if f >= 1.0:
-                stream.write("\n")
-            stream.flush()
-
-    return report
+    return ProgressBar(stream=stream)

@@ -14,7 +14,7 @@ import sys
 
 from . import __version__
 
-_COMMANDS = ("demo", "measure", "noise", "reproduce")
+_COMMANDS = ("demo", "measure", "noise", "plot", "report", "reproduce")
 
 
 class _Parser(argparse.ArgumentParser):

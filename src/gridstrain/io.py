@@ -5,8 +5,13 @@ Input
     a glob pattern or a list of files into a :class:`FrameSeries`: a validated,
     ordered list of 2-D grey-level frames that are read one at a time (memory is
     bounded by one frame whatever the length of the series). TIFF files are read
-    with ``tifffile``, page by page; PNG and BMP files with ``imageio``.
-    :func:`read_mask` reads a specimen mask (:mod:`gridstrain.conventions`, Masks).
+    with ``tifffile``, page by page (packed 10/12-bit and LZW, deflate or zstd
+    compressed pages through ``imagecodecs``); PNG, BMP and JPEG files with
+    ``imageio``. Colour frames are read as their luminance (:func:`to_luminance`,
+    ITU-R BT.709 weights) and JPEG files with a note on their lossy compression
+    (:attr:`FrameSeries.notes`). :func:`read_mask` reads a specimen mask, grey,
+    1-bit or colour (:mod:`gridstrain.conventions`, Masks); :func:`roi_mask`
+    makes one from a rectangle or a polygon.
 
 Grey levels and bit depth
     Frames are returned in *raw* grey levels, the values stored in the files.
@@ -53,19 +58,28 @@ __all__ = [
     "atomic_path",
     "check_saturation",
     "check_saturation_limit",
+    "hdf5_file",
     "natural_sort_key",
     "open_series",
     "read_hdf5",
     "read_mask",
+    "roi_mask",
+    "to_luminance",
     "write_csv",
     "write_hdf5",
     "write_tiff_series",
 ]
 
-#: File name extensions read as images (compared case-insensitively). JPEG is left
-#: out on purpose: its lossy compression changes the grey levels the method measures.
-IMAGE_EXTENSIONS = (".tif", ".tiff", ".png", ".bmp")
+#: File name extensions read as images (compared case-insensitively). JPEG files are
+#: read with a note: lossy compression adds noise the noise model does not describe.
+IMAGE_EXTENSIONS = (".tif", ".tiff", ".png", ".bmp", ".jpg", ".jpeg")
 _TIFF_EXTENSIONS = (".tif", ".tiff")
+_JPEG_EXTENSIONS = (".jpg", ".jpeg")
+
+#: Weights of R, G, B in the luminance of colour frames: ITU-R BT.709 (the
+#: primaries of sRGB, which most colour cameras and PNG/JPEG files use). Applied to
+#: the stored values; an alpha channel is ignored.
+LUMINANCE_WEIGHTS = (0.2126, 0.7152, 0.0722)
 
 # Number of leading frames inspected to recognise 12-bit data stored x16 in 16-bit
 # files. A frame of N noisy pixels from a true 16-bit camera has probability
@@ -149,20 +163,53 @@ def _check_fraction(value, name: str) -> float:
     return v
 
 
-def _check_page(shape: tuple[int, ...], samples: int, dtype: np.dtype | None, where: str,
-                name: str) -> None:
-    """Refuse colour, 1-D, 3-D and non-numeric pages, naming the file."""
-    if samples > 1 or (len(shape) == 3 and shape[-1] in (2, 3, 4)):
+def _page_layout(shape: tuple[int, ...], samples: int) -> tuple[tuple[int, ...], int, int]:
+    """``((H, W) or the shape, channels, channel axis)`` of a page: colour pages have
+    2 (grey and alpha), 3 (RGB) or 4 (RGBA) samples per pixel, last or first axis."""
+    shape = tuple(int(v) for v in shape)
+    if len(shape) == 3:
         n = samples if samples > 1 else shape[-1]
-        raise ValueError(f"{name}: {where} has {n} channels per pixel (colour or alpha); "
-                         "the grid method needs grey levels: convert it to grayscale")
+        if n in (2, 3, 4) and shape[-1] == n:
+            return shape[:2], n, -1
+        if samples in (2, 3, 4) and shape[0] == samples:
+            return shape[1:], samples, 0
+    return shape, 1, -1
+
+
+def to_luminance(raw: np.ndarray, axis: int = -1) -> np.ndarray:
+    """Grey levels of a colour frame: ``0.2126 R + 0.7152 G + 0.0722 B`` (BT.709).
+
+    Parameters
+    ----------
+    raw : (H, W, C) or (C, H, W) ndarray
+        ``C = 2`` (grey and alpha: the grey channel is returned), 3 (RGB) or 4
+        (RGBA: alpha ignored), along ``axis``.
+    axis : {-1, 0}
+        The channel axis.
+
+    Returns
+    -------
+    (H, W) float64 ndarray
+        In the stored units of the channels. A fixed linear combination: the phase
+        of the grid, which the method measures, is the same in every channel.
+    """
+    a = np.moveaxis(np.asarray(raw), axis, -1)
+    if a.shape[-1] == 2:
+        return a[..., 0].astype(np.float64)
+    return a[..., :3].astype(np.float64) @ np.asarray(LUMINANCE_WEIGHTS)
+
+
+def _check_page(shape: tuple[int, ...], samples: int, dtype: np.dtype | None, where: str,
+                name: str, *, allow_bool: bool = False) -> None:
+    """Refuse 1-D, 3-D and non-numeric pages, naming the file (colour is converted)."""
+    shape, _, _ = _page_layout(shape, samples)
     if len(shape) > 2:
         raise ValueError(f"{name}: {where} is a 3-D page of shape {tuple(shape)}; each "
                          "frame must be a 2-D image (H, W)")
     if len(shape) < 2 or min(shape) <= 1:
         raise ValueError(f"{name}: {where} is 1-D (shape {tuple(shape)}); each frame must "
                          "be a 2-D image (H, W)")
-    if dtype is None or dtype.kind not in "uif":
+    if dtype is None or dtype.kind not in ("buif" if allow_bool else "uif"):
         raise ValueError(f"{name}: {where} holds {dtype} pixels; expected unsigned/signed "
                          "integer or float grey levels")
 
@@ -217,9 +264,11 @@ class _FileInfo:
     tiff: bool
     shapes: tuple[tuple[int, int], ...]  # one per page
     dtypes: tuple[np.dtype, ...]
+    channels: tuple[int, ...] = ()  # samples per pixel of each page (1: grey)
+    bits: int | None = None  # bits per sample stored in the first TIFF page
 
 
-def _scan_file(path: Path, name: str) -> _FileInfo:
+def _scan_file(path: Path, name: str, *, allow_bool: bool = False) -> _FileInfo:
     """Read the headers of ``path`` (no pixel data) and check every page."""
     if _is_tiff(path):
         with _open_tiff(path, name) as tif:
@@ -227,19 +276,26 @@ def _scan_file(path: Path, name: str) -> _FileInfo:
             if n == 0:
                 raise OSError(f"{name}: {path} contains no readable image page "
                               "(corrupt TIFF?)")
-            shapes, dtypes = [], []
+            shapes, dtypes, channels = [], [], []
+            bits = None
             for k in range(n):
                 try:
                     page = tif.pages[k]
                     shape, samples, dtype = page.shape, page.samplesperpixel, page.dtype
+                    if k == 0:
+                        bps = page.bitspersample
+                        bits = int(bps[0] if isinstance(bps, tuple) else bps)
                 except MemoryError:
                     raise
                 except Exception as exc:
                     raise OSError(f"{name}: cannot read page {k} of {path}: {exc}") from exc
-                _check_page(shape, samples, dtype, _describe(path, k, n), name)
-                shapes.append(tuple(int(s) for s in shape))
+                _check_page(shape, samples, dtype, _describe(path, k, n), name,
+                            allow_bool=allow_bool)
+                hw, c, _ = _page_layout(shape, samples)
+                shapes.append(hw)
+                channels.append(c)
                 dtypes.append(np.dtype(dtype))
-        return _FileInfo(path, True, tuple(shapes), tuple(dtypes))
+        return _FileInfo(path, True, tuple(shapes), tuple(dtypes), tuple(channels), bits)
     try:
         props = _imageio().improps(path)
     except (FileNotFoundError, PermissionError, MemoryError):
@@ -247,8 +303,9 @@ def _scan_file(path: Path, name: str) -> _FileInfo:
     except Exception as exc:
         raise OSError(f"{name}: cannot read {path} as an image ({exc})") from exc
     shape = tuple(int(s) for s in props.shape)
-    _check_page(shape, 1, np.dtype(props.dtype), str(path), name)
-    return _FileInfo(path, False, (shape,), (np.dtype(props.dtype),))
+    _check_page(shape, 1, np.dtype(props.dtype), str(path), name, allow_bool=allow_bool)
+    hw, c, _ = _page_layout(shape, 1)
+    return _FileInfo(path, False, (hw,), (np.dtype(props.dtype),), (c,))
 
 
 def _resolve_source(source, name: str) -> tuple[Path, ...]:
@@ -326,6 +383,15 @@ class FrameSeries:
     saturation_level : int or None
         Largest raw value the sensor can produce (255, 4095 * 16 = 65520, 4095,
         65535...); ``None`` for float data, whose saturation level is unknown.
+    channels : int
+        Samples per pixel in the files: 1 for grey frames; 2, 3 or 4 for colour
+        frames (grey+alpha, RGB, RGBA), read as their luminance
+        (:func:`to_luminance`, float64; ``dtype`` is then float64 and the bit
+        depth and saturation level are those of one channel).
+    notes : tuple of str
+        What the user should know about how the frames were read (colour
+        conversion, lossy JPEG compression); the pipeline records them in the
+        result's warnings.
     """
 
     name: str
@@ -338,6 +404,8 @@ class FrameSeries:
     # (file index, page index, number of pages in that file) of every frame
     _frames: tuple[tuple[int, int, int], ...] = field(default=(), compare=True)
     _tiff: tuple[bool, ...] = field(default=(), compare=False)
+    channels: int = 1
+    notes: tuple[str, ...] = ()
 
     @property
     def n_frames(self) -> int:
@@ -394,6 +462,9 @@ class FrameSeries:
                     yield where, self._checked(_read_other(path, self.name), where)
 
     def _checked(self, raw: np.ndarray, where: str) -> np.ndarray:
+        if self.channels > 1 and raw.ndim == 3 and self.channels in (raw.shape[0],
+                                                                     raw.shape[-1]):
+            raw = to_luminance(raw, -1 if raw.shape[:2] == self.shape else 0)
         if raw.shape != self.shape or raw.dtype != self.dtype:
             # headers were checked by open_series: the file changed since
             raise ValueError(f"{self.name}: {where} is now {raw.shape} {raw.dtype}, "
@@ -638,33 +709,52 @@ def open_series(source, *, name: str = "series", bit_depth: int | None = None
     paths = _resolve_source(source, name)
     infos = [_scan_file(p, name) for p in paths]
     ref = infos[0]
-    shape, dtype = ref.shapes[0], ref.dtypes[0]
+    shape, stored = ref.shapes[0], ref.dtypes[0]
+    channels = ref.channels[0]
     frames, tiff = [], []
     for f, info in enumerate(infos):
         n_pages = len(info.shapes)
-        for k, (s, d) in enumerate(zip(info.shapes, info.dtypes, strict=True)):
+        for k, (s, d, c) in enumerate(zip(info.shapes, info.dtypes, info.channels,
+                                          strict=True)):
+            if c != channels:
+                raise ValueError(f"{name}: frames with different channels: "
+                                 f"{_describe(info.path, k, n_pages)} has {c} per pixel but "
+                                 f"{_describe(ref.path, 0, len(ref.shapes))} has {channels}")
             where = _describe(info.path, k, n_pages)
             if s != shape:
                 raise ValueError(f"{name}: frames of different sizes: {where} is {s} but "
                                  f"{_describe(ref.path, 0, len(ref.shapes))} is {shape} "
                                  "(H, W)")
-            if d != dtype:
+            if d != stored:
                 raise ValueError(f"{name}: frames of different pixel types: {where} holds "
                                  f"{d} but {_describe(ref.path, 0, len(ref.shapes))} "
-                                 f"holds {dtype}")
+                                 f"holds {stored}")
             frames.append((f, k, n_pages))
         tiff.append(info.tiff)
+    # colour frames are read as their luminance, in float64
+    dtype = np.dtype(np.float64) if channels > 1 else stored
+    notes = []
+    if channels > 1:
+        what = {2: "grey and alpha", 3: "RGB", 4: "RGBA"}[channels]
+        how = ("the grey channel kept" if channels == 2 else "converted to luminance "
+               "0.2126 R + 0.7152 G + 0.0722 B (ITU-R BT.709), alpha ignored")
+        notes.append(f"{name}: colour frames ({what}), {how}")
+    if any(p.suffix.lower() in _JPEG_EXTENSIONS for p in paths):
+        notes.append(f"{name}: JPEG files; lossy compression adds block artefacts that "
+                     "the noise floor does not model: prefer TIFF or PNG")
     series = FrameSeries(name=name, paths=paths, shape=shape, dtype=dtype, bit_depth=None,
                          scale=1, saturation_level=None, _frames=tuple(frames),
-                         _tiff=tuple(tiff))
+                         _tiff=tuple(tiff), channels=channels, notes=tuple(notes))
     first = []
-    if dtype.kind == "u":
+    if stored.kind == "u":
         n = min(_DETECT_FRAMES, series.n_frames)
         first = [raw for _, raw in series._iter_raw(range(n))]
-    bits, scale, sat = _depth(dtype, first, bit_depth, paths[0], name)
+        if bit_depth is None and ref.bits is not None and ref.bits < 8 * stored.itemsize:
+            bit_depth = ref.bits  # packed data (10-bit, 12-bit TIFFs) say their depth
+    bits, scale, sat = _depth(stored, first, bit_depth, paths[0], name)
     return FrameSeries(name=name, paths=paths, shape=shape, dtype=dtype, bit_depth=bits,
                        scale=scale, saturation_level=sat, _frames=tuple(frames),
-                       _tiff=tuple(tiff))
+                       _tiff=tuple(tiff), channels=channels, notes=tuple(notes))
 
 
 # --------------------------------------------------------------------------- saturation
@@ -758,6 +848,11 @@ def check_saturation_limit(frame, series: FrameSeries, *, max_fraction: float = 
 def read_mask(path, shape, *, name: str = "mask") -> np.ndarray:
     """Read a specimen mask from an image file: nonzero pixels are the specimen.
 
+    Grey and 1-bit images: nonzero is the specimen. Colour masks drawn in a paint
+    program: with an alpha channel that varies, the pixels that are not fully
+    transparent are the specimen (a mask painted on a transparent layer);
+    otherwise (RGB, or opaque RGBA) the pixels that are not black.
+
     Parameters
     ----------
     path : str or os.PathLike
@@ -784,7 +879,7 @@ def read_mask(path, shape, *, name: str = "mask") -> np.ndarray:
     if p.is_dir():
         raise ValueError(f"{name}: {p} is a directory, expected an image file")
     _check_extension(p, name)
-    info = _scan_file(p, name)
+    info = _scan_file(p, name, allow_bool=True)
     if len(info.shapes) != 1:
         raise ValueError(f"{name}: {p} has {len(info.shapes)} pages, expected a single "
                          "image")
@@ -798,9 +893,72 @@ def read_mask(path, shape, *, name: str = "mask") -> np.ndarray:
         arr = _read_other(p, name)
     if arr.dtype.kind == "f" and not np.all(np.isfinite(arr)):
         raise ValueError(f"{name}: {p} has NaN or infinite pixels")
-    m = arr != 0
+    c = info.channels[0]
+    if c > 1:
+        arr = np.moveaxis(arr, 0 if arr.shape[0] == c and arr.shape[1:] == shape else -1, -1)
+        alpha = arr[..., -1] if c in (2, 4) else None
+        if alpha is not None and alpha.min() != alpha.max():
+            m = alpha != 0  # drawn on a transparent layer: the opaque pixels
+        else:
+            m = np.any(arr[..., :c - 1 if c in (2, 4) else c] != 0, axis=-1)
+    else:
+        m = arr != 0
     if not m.any():
         raise ValueError(f"{name}: {p} selects no pixel (every pixel is 0)")
+    return m
+
+
+def roi_mask(shape, *, rectangle=None, polygon=None) -> np.ndarray:
+    """A region of interest as a mask: a rectangle, a polygon, or both (intersected).
+
+    Parameters
+    ----------
+    shape : (2,) tuple of int
+        ``(H, W)`` of the frames.
+    rectangle : (4,) sequence of int, optional
+        ``(x0, y0, x1, y1)``, px: columns ``x0 <= x < x1`` and rows
+        ``y0 <= y < y1`` (:mod:`gridstrain.conventions`: x is the column).
+    polygon : (N, 2) array_like, optional
+        Vertices ``(x, y)``, px, ``N >= 3``; pixels whose centre is inside.
+
+    Returns
+    -------
+    (H, W) bool ndarray
+        ``True`` inside the region.
+    """
+    H, W = (int(v) for v in shape)
+    m = np.ones((H, W), dtype=bool)
+    if rectangle is not None:
+        r = np.asarray(rectangle, dtype=float)
+        if r.shape != (4,) or not np.all(np.isfinite(r)) or np.any(r != np.round(r)):
+            raise ValueError(f"roi must be four integers x0 y0 x1 y1 (px), got "
+                             f"{rectangle!r}")
+        x0, y0, x1, y1 = (int(v) for v in r)
+        if not (0 <= x0 < x1 <= W and 0 <= y0 < y1 <= H):
+            raise ValueError(f"roi {x0} {y0} {x1} {y1} must satisfy 0 <= x0 < x1 <= {W} "
+                             f"and 0 <= y0 < y1 <= {H} (inside the {W} x {H} px image)")
+        r_mask = np.zeros((H, W), dtype=bool)
+        r_mask[y0:y1, x0:x1] = True
+        m &= r_mask
+    if polygon is not None:
+        try:
+            v = np.asarray(polygon, dtype=float)
+        except (TypeError, ValueError):
+            v = None
+        if v is None or v.ndim != 2 or v.shape[1] != 2 or v.shape[0] < 3 \
+                or not np.all(np.isfinite(v)):
+            n = "?" if v is None or v.ndim != 2 else v.shape[0]
+            raise ValueError(f"roi polygon must have at least 3 vertices (x, y), got {n}: "
+                             f"{polygon!r}")
+        from skimage.draw import polygon2mask
+
+        p_mask = polygon2mask((H, W), v[:, ::-1])  # skimage wants (row, col) = (y, x)
+        if not p_mask.any():
+            raise ValueError(f"roi polygon holds no pixel of the {W} x {H} px image: "
+                             f"{v.tolist()}")
+        m &= p_mask
+    if not m.any():
+        raise ValueError("the rectangle and the polygon of the roi do not overlap")
     return m
 
 
@@ -958,6 +1116,31 @@ def _check_mapping(value, what: str, *, allow_none: bool = True) -> Mapping:
     return value
 
 
+@contextlib.contextmanager
+def hdf5_file(path, *, overwrite: bool = False) -> Iterator[h5py.File]:
+    """An HDF5 file open for writing, put at ``path`` atomically when the block ends.
+
+    The one place where gridstrain creates HDF5 files: :func:`write_hdf5` and
+    :func:`gridstrain.results.save_result` fill the yielded file; if the block
+    raises, nothing appears at ``path`` (see :func:`atomic_path`).
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        Destination (``.h5``).
+    overwrite : bool
+        Replace an existing file.
+
+    Yields
+    ------
+    h5py.File
+        Open in mode ``"x"`` on the temporary file.
+    """
+    dest = _as_path(path, "path")
+    with atomic_path(dest, overwrite=overwrite) as tmp, h5py.File(tmp, "x") as h5:
+        yield h5
+
+
 def write_hdf5(path, datasets: Mapping[str, np.ndarray], attrs: Mapping | None = None, *,
                groups: Mapping[str, Mapping] | None = None,
                units: Mapping[str, str] | None = None, overwrite: bool = False,
@@ -1031,7 +1214,7 @@ def write_hdf5(path, datasets: Mapping[str, np.ndarray], attrs: Mapping | None =
             _encode_attr(key, value, f"groups[{g!r}]")
 
     dest = _as_path(path, "path")
-    with atomic_path(dest, overwrite=overwrite) as tmp, h5py.File(tmp, "x") as h5:
+    with hdf5_file(dest, overwrite=overwrite) as h5:
         _write_attrs(h5, attrs, "attrs")
         for key, arr in arrays.items():
             if arr.ndim > 0 and arr.size > 1 and compression is not None:

@@ -76,18 +76,17 @@ can be measured and the maps are absent.
 from __future__ import annotations
 
 import contextlib
-import datetime
 import math
 import numbers
 import os
-from collections.abc import Callable, Iterable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 from scipy import ndimage
 
-from . import __version__, theory
+from . import theory
 from ._progress import null_progress
 from ._validation import check_choice, check_mask, check_positive
 from .io import (
@@ -95,8 +94,6 @@ from .io import (
     check_saturation_limit,
     open_series,
     read_mask,
-    write_csv,
-    write_hdf5,
 )
 from .kinematics import Measurement, coarse_displacement, deformation
 from .lattice import Lattice, detect_lattice
@@ -377,6 +374,26 @@ class SeriesResult:
     def exy(self) -> np.ndarray:
         """(n_states, H, W) shear strain (tensor component)."""
         return self.strain[:, 2]
+
+    def save(self, path, **options):
+        """Write this result to its HDF5 file (:func:`gridstrain.results.save_result`)."""
+        from .results import save_result as _save
+
+        return _save(self, path, **options)
+
+    def to_xarray(self, **options):
+        """This result as an ``xarray.Dataset`` (:func:`gridstrain.results.to_xarray`);
+        needs ``gridstrain[xarray]``."""
+        from .results import to_xarray
+
+        return to_xarray(self, **options)
+
+    def plot(self, name: str = "exx", **options):
+        """Maps of ``name`` for every state on common colour limits
+        (:func:`gridstrain.plotting.plot_states`); returns a matplotlib Figure."""
+        from .plotting import plot_states
+
+        return plot_states(self, name, **options)
 
     def __repr__(self) -> str:
         H, W = self.shape
@@ -944,7 +961,8 @@ def measure_series(reference, states, *, lattice: Lattice | None = None,
     total += n_states * (3 * wft_cost if lagrangian else wft_cost)
     total += ref.n_frames + 2 * wft_cost + wft_cost
     steps = _Steps(progress, total)
-    warnings: list[str] = []
+    # how the frames were read (colour converted, lossy JPEG), series by series
+    warnings: list[str] = [n for s in series for n in getattr(s, "notes", ())]
 
     # the lattice, detected on the mean reference image or checked against it
     mean_ref = ref.mean(progress=steps.sub(ref.n_frames, ""))
@@ -1121,136 +1139,15 @@ def _check_pixel_size(pixel_size, unit):
     return ps, unit.strip()
 
 
-def _finite_list(values) -> list:
-    """Floats, NaN as None (stored as JSON null, readable everywhere)."""
-    return [float(x) if math.isfinite(x) else None for x in values]
+def save_result(result: SeriesResult, path, **options) -> Path:
+    """Write a result to its HDF5 file: :func:`gridstrain.results.save_result`."""
+    from .results import save_result as _save
+
+    return _save(result, path, **options)
 
 
-def _timestamp() -> str:
-    return datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds")
+def save_csv(result: SeriesResult, path, **options) -> Path:
+    """One CSV row per valid pixel: :func:`gridstrain.results.save_csv`."""
+    from .results import save_csv as _save
 
-
-def save_result(result: SeriesResult, path, *, pixel_size: float | None = None,
-                unit: str | None = None, overwrite: bool = False,
-                attrs: Mapping | None = None) -> Path:
-    """Write a :class:`SeriesResult` to one HDF5 file, atomically.
-
-    Parameters
-    ----------
-    result : SeriesResult
-    path : str or os.PathLike
-        Destination (``.h5``).
-    pixel_size : float, optional
-        Size of a pixel on the specimen, in ``unit``: adds ``ux_phys`` and
-        ``uy_phys``.
-    unit : str, optional
-        Length unit of ``pixel_size`` (``"mm"``...); required with it.
-    overwrite : bool
-        Replace an existing file.
-    attrs : dict, optional
-        Extra root attributes (the command line, the mask file...).
-
-    Returns
-    -------
-    pathlib.Path
-
-    Notes
-    -----
-    Layout (every map ``(n_states, H, W)``, states in the order given):
-
-    - ``ux``, ``uy`` (px), ``exx``, ``eyy``, ``exy`` (``"1"``, dimensionless,
-      tensor shear), ``valid`` (bool); ``ux_phys``, ``uy_phys`` in ``unit``;
-      per-pixel uncertainty maps (``ux_std``...) when the result has them;
-    - ``reference_image`` (H, W), the mean reference frame (raw grey levels),
-      and ``mask`` (H, W), the specimen mask used;
-    - ``vibration/<series>/shifts`` (T, 2), px, one group per series
-      (``reference``, ``state_0``...), attributes ``std``, ``contrast_factor``,
-      ``phase_offset_std`` (rad), ``n_frames``, ``estimator``;
-    - group ``noise``: the :class:`NoiseFloor` as attributes;
-    - root attributes: every parameter, the lattice (``k1``, ``k2`` in cycles/px,
-      ``pitches`` px, ``angles`` deg), the input files, ``n_frames`` per series,
-      bit depth and scale, ``gridstrain_version``, ``created`` (UTC, ISO 8601).
-    """
-    if not isinstance(result, SeriesResult):
-        raise TypeError(f"result must be a SeriesResult, got {type(result).__name__}")
-    ps, unit = _check_pixel_size(pixel_size, unit)
-    datasets, units = {}, {}
-    for name, u in MAP_FIELDS.items():
-        datasets[name] = result.get_map(name)
-        units[name] = u
-    datasets["valid"] = result.valid
-    if ps is not None:
-        for name in ("ux", "uy"):
-            datasets[f"{name}_phys"] = result.get_map(name) * ps
-            units[f"{name}_phys"] = unit
-    for name, arr in (result.uncertainty or {}).items():
-        datasets[name] = np.asarray(arr)
-        base = name.removesuffix("_std")
-        if base in MAP_FIELDS:  # "ux_std" is in px like "ux"
-            units[name] = MAP_FIELDS[base]
-    datasets["reference_image"] = result.reference_image.astype(np.float32)
-    units["reference_image"] = "grey levels (raw)"
-    datasets["mask"] = result.mask
-    groups = {}
-    keys = _series_keys(result)
-    for key, v in zip(keys, result.vibration, strict=True):
-        datasets[f"vibration/{key}/shifts"] = v.shifts
-        units[f"vibration/{key}/shifts"] = "px"
-        groups[f"vibration/{key}"] = {
-            "name": v.name, "n_frames": v.n_frames, "std_px": _finite_list(v.std),
-            "contrast_factor": _finite_list(v.contrast_factor),
-            "phase_offset_std_rad": _finite_list(v.phase_offset_std),
-            "estimator": v.estimator,
-            "definition": "frame t is s(x + alpha_t, y + beta_t) (paper eq. 2); shifts "
-                          "centred on the series mean"}
-    groups["noise"] = result.noise.as_dict()
-    lat = result.lattice
-    root = {
-        "gridstrain_version": __version__,
-        "created": _timestamp(),
-        "conventions": "gridstrain.conventions: [row, col] = [y, x], Lagrangian "
-                       "displacement, small-strain tensor (exy = tensor shear)",
-        "states": list(result.names[1:]),
-        "series_keys": keys,
-        "n_frames": list(result.n_frames),
-        "n_frames_reference": result.n_frames[0],
-        "n_frames_states": list(result.n_frames[1:]),
-        "reference_files": list(result.sources[0]),
-        "state_files": [list(s) for s in result.sources[1:]],
-        "bit_depth": list(result.bit_depth),
-        "scale": list(result.scale),
-        "saturation": list(result.saturation),
-        "k1": list(lat.k1), "k2": list(lat.k2), "pitches": list(lat.pitches),
-        "angles": list(lat.angles), "lattice_detected": bool(result.lattice_detected),
-        "sigma": result.sigma, "method": result.method, "lagrangian": result.lagrangian,
-        "margin": result.margin, "parameters": dict(result.parameters),
-        "pixel_size": ps, "unit": unit,
-        "iterations": [int(m.iterations) for m in result.measurements],
-        "guess_used": [list(g) for g in result.guesses],
-        "guess_source": list(result.guess_sources),
-        "valid_fraction": [float(v.mean()) for v in result.valid],
-        "warnings": list(result.warnings),
-    }
-    for key, value in (attrs or {}).items():
-        root[key] = value
-    return write_hdf5(path, datasets, root, groups=groups, units=units, overwrite=overwrite)
-
-
-def _series_keys(result: SeriesResult) -> list[str]:
-    return ["reference"] + [f"state_{i}" for i in range(result.n_states)]
-
-
-def save_csv(result: SeriesResult, path, *, overwrite: bool = False) -> Path:
-    """Write one row per valid pixel: ``state, x, y, ux, uy, exx, eyy, exy``.
-
-    ``x`` is the column and ``y`` the row (:mod:`gridstrain.conventions`),
-    displacements in px, strains dimensionless; ``state`` indexes the loaded
-    states in the order given (0 first). Written atomically.
-    """
-    if not isinstance(result, SeriesResult):
-        raise TypeError(f"result must be a SeriesResult, got {type(result).__name__}")
-    st, yy, xx = np.nonzero(result.valid)
-    cols = {"state": st, "x": xx, "y": yy}
-    for name in MAP_FIELDS:
-        cols[name] = result.get_map(name)[st, yy, xx]
-    return write_csv(path, cols, overwrite=overwrite)
+    return _save(result, path, **options)

@@ -12,7 +12,9 @@ Map style
     rigid translation would otherwise fill the map with one colour. The limit is
     the 99.5th
     percentile of ``|value|`` over the valid pixels, so that a few outliers do not
-    wash the map out. Invalid pixels are transparent over the grid image in grey.
+    wash the map out; :func:`save_figures` takes it over the valid pixels of every
+    state, so that the states of a series share their colours. Invalid pixels are
+    transparent over the grid image in grey.
     Displacements are in px or, with a pixel size, in its unit; strains are
     dimensionless.
 """
@@ -257,20 +259,32 @@ def save_figures(result, directory, *, pixel_size: float | None = None,
     total = len(names)
     written = []
     T = result.n_frames
+    # one colour limit per quantity, common to every state, so that the states
+    # compare by eye (displacements about each state's mean)
+    shown = {}
+    for name, (_symbol, kind) in _FIELDS.items():
+        maps, offsets = [], []
+        for i in range(result.n_states):
+            values, valid = result.get_map(name)[i], result.valid[i]
+            if kind == "displacement" and ps is not None:
+                values = values * ps
+            off = float(np.mean(values[valid])) if kind == "displacement" and valid.any() \
+                else 0.0
+            maps.append(values)
+            offsets.append(off)
+        centred = np.stack([m - o for m, o in zip(maps, offsets, strict=True)])
+        shown[name] = (maps, offsets, _symmetric_limit(centred, result.valid))
     for i in range(result.n_states):
         valid = result.valid[i]
         for name, (symbol, kind) in _FIELDS.items():
-            values = result.get_map(name)[i]
-            u, offset = "", 0.0
-            if kind == "displacement":
-                values, u = (values * ps, unit) if ps is not None else (values, "px")
-                if valid.any():
-                    offset = float(np.mean(values[valid]))
+            maps, offsets, limit = shown[name]
+            values, offset = maps[i], offsets[i]
+            u = (unit if ps is not None else "px") if kind == "displacement" else ""
             title = (f"{symbol}, {result.names[i + 1]}: method {result.method}, "
                      f"$\\sigma$ = {result.sigma:.3g} px, T = {T[0]}/{T[i + 1]}")
             fig = plot_map(values, valid=valid, background=result.reference_image,
                            label=symbol, unit=u, title=title, pixel_size=ps,
-                           length_unit=unit or "px", offset=offset)
+                           length_unit=unit or "px", offset=offset, limit=limit)
             written.append(save_figure(fig, folder / f"{name}_state{i}.png",
                                        overwrite=overwrite))
             report(len(written) / total, f"figure {len(written)}/{total}")
@@ -280,3 +294,227 @@ def save_figures(result, directory, *, pixel_size: float | None = None,
         written.append(save_figure(fig, folder / fname, overwrite=overwrite))
         report(len(written) / total, f"figure {len(written)}/{total}")
     return tuple(written)
+
+
+# --------------------------------------------------------------------------- every state
+
+#: What each quantity of a result is drawn as: (symbol, unit in the file, scale to
+#: the unit drawn, unit drawn). Strains read best in microstrain (1e-6).
+QUANTITIES = {
+    "ux": (r"$u_x$", "px"), "uy": (r"$u_y$", "px"),
+    "exx": (r"$\varepsilon_{xx}$", "1"), "eyy": (r"$\varepsilon_{yy}$", "1"),
+    "exy": (r"$\varepsilon_{xy}$", "1"), "rotation": (r"$\omega$", "rad"),
+    "ux_std": (r"std $u_x$", "px"), "uy_std": (r"std $u_y$", "px"),
+    "exx_std": (r"std $\varepsilon_{xx}$", "1"), "eyy_std": (r"std $\varepsilon_{yy}$", "1"),
+    "exy_std": (r"std $\varepsilon_{xy}$", "1"),
+}
+_MICRO = "µε"
+LIMITS = ("common", "robust")
+# Robust limits: these percentiles of the valid values of all states.
+_ROBUST = (0.5, 99.5)
+
+
+def quantity(result, name: str, *, pixel_size: float | None = None,
+             unit: str | None = None, microstrain: bool = True) -> tuple[np.ndarray, str]:
+    """``(values (n_states, H, W), unit drawn)`` of one quantity of a result.
+
+    Strains (and their std) in µε with ``microstrain``, rotations in mrad,
+    displacements in ``unit`` with a pixel size, else px.
+    """
+    check = tuple(QUANTITIES)
+    if name not in check:
+        raise ValueError(f"name must be one of {', '.join(check)}, got {name!r}")
+    if name == "rotation":
+        return np.stack([m.rotation for m in result.measurements]) * 1e3, "mrad"
+    if name.endswith("_std"):
+        if result.uncertainty is None or name not in result.uncertainty:
+            raise ValueError(f"this result has no {name} map (a single frame per series "
+                             "gives no uncertainty map)")
+        values = np.asarray(result.uncertainty[name])
+    else:
+        values = result.get_map(name)
+    base = QUANTITIES[name][1]
+    if base == "1":
+        return (values * 1e6, _MICRO) if microstrain else (values, "1")
+    if pixel_size is not None:
+        return values * pixel_size, unit
+    return values, "px"
+
+
+def state_norm(values, valid, *, limits: str = "common"):
+    """A matplotlib norm shared by every state.
+
+    ``"common"`` spans the valid values of all states, ``"robust"`` their 0.5th to
+    99.5th percentiles (a few outliers then do not wash the maps out). Values of
+    both signs get a :class:`~matplotlib.colors.TwoSlopeNorm` centred on 0 (white
+    is zero, each sign uses its whole half of the diverging colormap); values of
+    one sign a linear :class:`~matplotlib.colors.Normalize` over their range, for
+    a sequential colormap, so that a nearly uniform tensile strain still shows
+    its variations. Returns ``(norm, diverging)``.
+    """
+    from matplotlib.colors import TwoSlopeNorm
+
+    check = tuple(LIMITS)
+    if limits not in check:
+        raise ValueError(f"limits must be one of {', '.join(check)}, got {limits!r}")
+    v = np.asarray(values)[np.asarray(valid) & np.isfinite(values)]
+    if v.size == 0:
+        return Normalize(-1.0, 1.0), True
+    lo, hi = (float(v.min()), float(v.max())) if limits == "common" else \
+        (float(x) for x in np.percentile(v, _ROBUST))
+    if lo < 0 < hi:
+        return TwoSlopeNorm(vcenter=0.0, vmin=lo, vmax=hi), True
+    if hi <= lo:
+        pad = abs(hi) * 1e-6 or 1.0
+        lo, hi = lo - pad, hi + pad
+    return Normalize(lo, hi), False
+
+
+def _nice_length(span: float) -> float:
+    """1, 2 or 5 times a power of ten, near a fifth of ``span``."""
+    target = span / 5
+    p = 10 ** math.floor(math.log10(target))
+    return max((m * p for m in (1, 2, 5) if m * p <= target), default=p)
+
+
+def plot_states(result, name: str, *, limits: str = "common", microstrain: bool = True,
+                pixel_size: float | None = None, unit: str | None = None,
+                columns: int = 3) -> Figure:
+    """Maps of one quantity for every state, on common colour limits.
+
+    Parameters
+    ----------
+    result : SeriesResult
+    name : str
+        One of :data:`QUANTITIES` (``"exx"``, ``"ux"``, ``"rotation"``,
+        ``"exx_std"``...).
+    limits : {"common", "robust"}
+        See :func:`state_norm`.
+    microstrain : bool
+        Strains in µε (else dimensionless).
+    pixel_size, unit : float, str, optional
+        Displacements in ``unit`` and a scale bar in it.
+    columns : int
+        Panels per row.
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+        One panel per state over the grey reference image: pixels outside the
+        valid region show the image, so the region measured is visible; one colour
+        bar with the unit.
+    """
+    from mpl_toolkits.axes_grid1.anchored_artists import AnchoredSizeBar
+
+    ps, unit = _check_pixel_size(pixel_size, unit)
+    values, drawn = quantity(result, name, pixel_size=ps, unit=unit,
+                             microstrain=microstrain)
+    valid = result.valid & np.isfinite(values)
+    norm, diverging = state_norm(values, valid, limits=limits)
+    n = result.n_states
+    cols = max(1, min(int(columns), n))
+    rows = math.ceil(n / cols)
+    H, W = result.shape
+    fig = _new_figure(3.4 * cols + 1.0, (3.4 * H / W + 0.6) * rows + 0.4)
+    axes = np.atleast_1d(fig.subplots(rows, cols, squeeze=False)).ravel()
+    bg = result.reference_image
+    lo_g, hi_g = np.percentile(bg, _GREY_PERCENTILES)
+    cmap = colormaps["RdBu_r" if diverging else "viridis"].with_extremes(
+        bad=(0.0, 0.0, 0.0, 0.0))
+    im = None
+    for i, ax in enumerate(axes):
+        if i >= n:
+            ax.set_axis_off()
+            continue
+        ax.imshow(bg, cmap="gray", vmin=lo_g, vmax=hi_g if hi_g > lo_g else lo_g + 1,
+                  interpolation="nearest")
+        im = ax.imshow(np.ma.masked_array(values[i], mask=~valid[i]), cmap=cmap, norm=norm,
+                       interpolation="nearest")
+        ax.set_title(f"{result.names[i + 1]}: {valid[i].mean():.0%} valid", fontsize=9)
+        ax.set_xlabel("x (px)", fontsize=8)
+        ax.set_ylabel("y (px)", fontsize=8)
+        ax.tick_params(labelsize=7)
+        if ps is not None:
+            length = _nice_length(W * ps)
+            ax.add_artist(AnchoredSizeBar(ax.transData, length / ps, f"{length:g} {unit}",
+                                          "lower right", pad=0.4, color="black",
+                                          frameon=True, size_vertical=max(1, H / 100)))
+    symbol = QUANTITIES[name][0]
+    cbar = fig.colorbar(im, ax=list(axes[:n]), shrink=0.85)
+    cbar.set_label(f"{symbol} ({drawn})" if drawn != "1" else f"{symbol} (dimensionless)")
+    fig.suptitle(f"{symbol}, {limits} colour limits over {n} state(s)", fontsize=10)
+    return fig
+
+
+def _probe(values: np.ndarray, valid: np.ndarray, point, region):
+    """Per-state value at a point, or mean over the valid pixels of a region."""
+    if point is not None:
+        x, y = point
+        v = values[:, y, x].astype(float)
+        return np.where(valid[:, y, x], v, np.nan)
+    x0, y0, x1, y1 = region
+    out = []
+    for vals, ok in zip(values[:, y0:y1, x0:x1], valid[:, y0:y1, x0:x1], strict=True):
+        out.append(float(np.mean(vals[ok])) if ok.any() else math.nan)
+    return np.array(out)
+
+
+def plot_history(result, *, point=None, region=None, names=("exx", "eyy", "exy"),
+                 microstrain: bool = True) -> Figure:
+    """Strain (or any quantity) of all states at a point or averaged over a region.
+
+    Parameters
+    ----------
+    result : SeriesResult
+    point : (x, y) ints, optional
+        A pixel (column, row).
+    region : (x0, y0, x1, y1) ints, optional
+        Columns ``x0 <= x < x1``, rows ``y0 <= y < y1``; the mean of the valid
+        pixels. Default (neither given): the whole image.
+    names : sequence of str
+        Quantities of :data:`QUANTITIES`, drawn on one axis per unit.
+    microstrain : bool
+        Strains in µε.
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+        One curve per quantity against the state; at a point, error bars of one
+        predicted standard deviation where the result has uncertainty maps.
+    """
+    H, W = result.shape
+    if point is not None and region is not None:
+        raise ValueError("give point or region, not both")
+    if point is not None:
+        x, y = (int(v) for v in point)
+        if not (0 <= x < W and 0 <= y < H):
+            raise ValueError(f"point ({x}, {y}) must lie inside the {W} x {H} px image")
+        point, where = (x, y), f"at x = {x}, y = {y} px"
+    else:
+        region = (0, 0, W, H) if region is None else tuple(int(v) for v in region)
+        x0, y0, x1, y1 = region
+        if not (0 <= x0 < x1 <= W and 0 <= y0 < y1 <= H):
+            raise ValueError(f"region {x0} {y0} {x1} {y1} must satisfy 0 <= x0 < x1 <= {W} "
+                             f"and 0 <= y0 < y1 <= {H}")
+        where = f"mean over x in [{x0}, {x1}), y in [{y0}, {y1}) px (valid pixels)"
+    fig = _new_figure(6.4, 4.0)
+    ax = fig.add_subplot()
+    states = np.arange(result.n_states)
+    unit_drawn = None
+    for name in names:
+        values, unit_drawn = quantity(result, name, microstrain=microstrain)
+        curve = _probe(values, result.valid, point, region)
+        err = None
+        std_name = f"{name}_std"
+        if point is not None and result.uncertainty and std_name in result.uncertainty:
+            err = _probe(quantity(result, std_name, microstrain=microstrain)[0],
+                         result.valid, point, None)
+        ax.errorbar(states, curve, yerr=err, marker="o", capsize=3,
+                    label=QUANTITIES[name][0])
+    ax.axhline(0.0, color="0.6", linewidth=0.8)
+    ax.set_xticks(states, list(result.names[1:]), rotation=30, fontsize=8)
+    ax.set_ylabel(f"({unit_drawn})")
+    ax.set_title(where, fontsize=9)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    return fig

@@ -1,0 +1,86 @@
+"""``gridstrain plot``: figures of a result file, for papers and reports."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+_FORMATS = ("png", "pdf", "svg")
+
+
+def register(sub) -> None:
+    p = sub.add_parser(
+        "plot", help="figures of a result file: maps of every state, strain history",
+        description="Draw the maps of every state of a result file on common colour "
+        "limits (strains in microstrain, the valid region shown over the reference image, "
+        "a scale bar in physical units when the file has a pixel size) and the strain of "
+        "the states at a point or averaged over a region.")
+    p.add_argument("result", metavar="RESULT.h5", help="a file written by gridstrain measure")
+    p.add_argument("-o", "--output", metavar="DIR",
+                   help="output directory (default: RESULT_figures next to the result)")
+    p.add_argument("--maps", default="ux,uy,exx,eyy,exy,rotation", metavar="NAMES",
+                   help="comma-separated quantities (ux, uy, exx, eyy, exy, rotation, "
+                   "exx_std...; default ux,uy,exx,eyy,exy,rotation)")
+    p.add_argument("--limits", choices=("common", "robust"), default="common",
+                   help="colour limits over all states: their full range (common, the "
+                   "default) or their 0.5-99.5th percentiles (robust)")
+    p.add_argument("--strain-units", choices=("microstrain", "1"), default="microstrain",
+                   help="strains in microstrain (default) or dimensionless")
+    p.add_argument("--point", type=int, nargs=2, metavar=("X", "Y"),
+                   help="strain history of the states at this pixel")
+    p.add_argument("--region", type=int, nargs=4, metavar=("X0", "Y0", "X1", "Y1"),
+                   help="strain history averaged over this rectangle (default: the whole "
+                   "valid region)")
+    p.add_argument("--dpi", type=int, default=150, help="resolution (default 150; 300 for "
+                   "print)")
+    p.add_argument("--format", choices=_FORMATS, default="png", help="file format")
+    p.add_argument("--overwrite", action="store_true", help="replace existing figures")
+    p.set_defaults(func=run)
+
+
+def run(args) -> int:
+    from .io import atomic_path
+    from .plotting import QUANTITIES, plot_history, plot_states
+    from .results import load, read_attrs
+
+    if not 20 <= args.dpi <= 1200:
+        raise ValueError(f"--dpi must be between 20 and 1200, got {args.dpi}")
+    names = [n.strip() for n in args.maps.split(",") if n.strip()]
+    bad = [n for n in names if n not in QUANTITIES]
+    if bad or not names:
+        raise ValueError(f"--maps must list quantities among {', '.join(QUANTITIES)}, got "
+                         f"{args.maps!r}")
+    if args.point and args.region:
+        raise ValueError("give --point or --region, not both")
+    src = Path(os.path.expanduser(args.result))
+    result = load(src)
+    attrs = read_attrs(src)
+    ps, unit = attrs.get("pixel_size"), attrs.get("unit")
+    if ps is None or unit is None:
+        ps = unit = None
+    out = Path(os.path.expanduser(args.output)) if args.output else \
+        src.with_name(src.stem + "_figures")
+    if out.exists() and not out.is_dir():
+        raise NotADirectoryError(f"output directory {out} is a file")
+    if not out.exists() and not out.parent.is_dir():
+        raise FileNotFoundError(f"cannot create {out}: its parent {out.parent} does not "
+                                "exist")
+    micro = args.strain_units == "microstrain"
+    figures = {f"{n}.{args.format}": (lambda n=n: plot_states(
+        result, n, limits=args.limits, microstrain=micro, pixel_size=ps, unit=unit))
+        for n in names}
+    figures[f"history.{args.format}"] = lambda: plot_history(
+        result, point=args.point, region=args.region, microstrain=micro)
+    if not args.overwrite:
+        for name in figures:
+            if (out / name).exists():
+                raise FileExistsError(f"figure {out / name} already exists (pass "
+                                      "--overwrite to replace it)")
+    # build every figure before writing any: a bad option leaves no partial set
+    built = {name: make() for name, make in figures.items()}
+    out.mkdir(exist_ok=True)
+    for name, fig in built.items():
+        with atomic_path(out / name, overwrite=args.overwrite) as tmp:
+            fig.savefig(tmp, format=args.format, dpi=args.dpi)
+        print(out / name)
+    return 0

@@ -1,0 +1,758 @@
+"""Result files: a self-describing HDF5 (NetCDF-4) file, reloaded exactly, and exports.
+
+The file
+    :func:`save_result` writes one HDF5 file in the NetCDF-4 data model (CF-1.10
+    conventions), written with ``h5py`` dimension scales, so that
+    ``xarray.open_dataset(path)`` (engine ``h5netcdf``) opens it directly:
+
+    - dimensions ``state`` (the loaded states, labelled ``"state 0"``...), ``y``
+      and ``x`` (rows and columns, px, :mod:`gridstrain.conventions`), ``series``
+      (the reference then the states), ``frame``, ``u_component`` (``ux, uy``),
+      ``strain_component`` (``exx, eyy, exy``), ``wave_vector`` (``k1, k2``) and
+      ``axis`` (``x, y``);
+    - coordinates ``x``, ``y`` in px and, with a pixel size, ``x_phys``,
+      ``y_phys`` in its unit;
+    - maps ``(state, y, x)``: ``ux``, ``uy`` (px), ``exx``, ``eyy``, ``exy``
+      (``"1"``: strain is dimensionless), ``rotation`` (rad), ``valid`` (bool),
+      the per-pixel uncertainty maps ``*_std`` and, with a pixel size,
+      ``ux_phys``, ``uy_phys``; ``reference_image`` and ``mask`` ``(y, x)``;
+    - the vibrations (``vibration_shifts (series, frame, axis)``, NaN after the
+      last frame of a shorter series, and their standard deviations, contrast
+      factors and phase offsets), the noise floor (``noise_*``), the lattice
+      (``lattice_k (wave_vector, axis)``) as variables, and the parameters, the
+      lattice's pitches and angles, the warnings and the configuration that
+      replays the run (``config``, TOML text) as root attributes.
+
+    Every variable has ``units`` and ``long_name``. The group ``gridstrain``
+    holds the rest of the :class:`~gridstrain.pipeline.SeriesResult`, field by
+    field (every dataclass, dict, tuple and array as HDF5 groups, attributes and
+    datasets; no pickle, no JSON), so that :func:`load` returns a result equal
+    to the one saved. A field added to a result class is saved and reloaded
+    without changes here, as long as it holds arrays, numbers, strings, ``None``,
+    tuples, lists, dicts with string keys or dataclasses of these.
+
+Exports
+    :func:`export_mat` (MATLAB, ``scipy.io.savemat``), :func:`export_vtk` (VTK
+    XML image data ``.vti``, for ParaView) and :func:`save_csv` (one row per
+    valid pixel, units in the header).
+"""
+
+from __future__ import annotations
+
+import base64
+import dataclasses
+import datetime
+import importlib
+import math
+import numbers
+import os
+import re
+import struct
+import zlib
+from collections.abc import Mapping
+from pathlib import Path
+
+import h5py
+import numpy as np
+
+from . import __version__
+from .io import _as_path, atomic_path, hdf5_file, write_csv
+from .pipeline import MAP_FIELDS, SeriesResult, _check_pixel_size
+
+__all__ = [
+    "FORMAT_VERSION",
+    "export_mat",
+    "export_vtk",
+    "load",
+    "read_attrs",
+    "save_csv",
+    "save_result",
+    "to_xarray",
+]
+
+#: Version of the file layout; :func:`load` refuses other versions by name.
+FORMAT_VERSION = 2
+_GROUP = "gridstrain"
+_TYPE, _CLASS, _KEYS, _TUPLES, _LISTS = "_type", "_class", "_keys", "_tuple_attrs", "_list_attrs"
+_RESERVED = {_TYPE, _CLASS, _KEYS, _TUPLES, _LISTS}
+
+#: Long names of the maps, for the file and the figures.
+LONG_NAMES = {
+    "ux": "displacement along x (Lagrangian)",
+    "uy": "displacement along y (Lagrangian)",
+    "exx": "normal strain along x",
+    "eyy": "normal strain along y",
+    "exy": "shear strain (tensor component)",
+    "rotation": "infinitesimal rotation omega = (duy/dx - dux/dy)/2",
+    "valid": "pixel measured (window inside the image, the mask and the grid)",
+}
+_UNC_KEYS = ("ux_std", "uy_std", "exx_std", "eyy_std", "exy_std")
+# Fields of the result classes stored as the file's CF variables, not in its group.
+_ROOT_FIELDS = {"SeriesResult": ("u", "strain", "valid", "mask", "reference_image",
+                                 "uncertainty"),
+                "Measurement": ("u", "strain", "rotation", "valid")}
+# Lossless filters of the maps (as gridstrain.io.write_hdf5): gzip is read everywhere.
+_FILTERS = {"compression": "gzip", "compression_opts": 4, "shuffle": True,
+            "fletcher32": True}
+
+
+# --------------------------------------------------------------------------- generic codec
+
+
+def _check_key(key, where: str) -> str:
+    if not isinstance(key, str) or not key or "/" in key or key in (".", "..") \
+            or key in _RESERVED:
+        raise TypeError(f"{where}: key {key!r} cannot name an HDF5 member (a non-empty "
+                        "string without '/', not one of " + ", ".join(sorted(_RESERVED))
+                        + ")")
+    return key
+
+
+def _scalar_kind(v) -> str | None:
+    if isinstance(v, bool | np.bool_):
+        return "b"
+    if isinstance(v, numbers.Integral):
+        return "i"
+    if isinstance(v, numbers.Real):
+        return "f"
+    if isinstance(v, str):
+        return "s"
+    return None
+
+
+def _array(values: list, kinds: set) -> np.ndarray:
+    if kinds == {"s"}:
+        return np.array(values, dtype=h5py.string_dtype())
+    if kinds == {"b"}:
+        return np.array(values, dtype=bool)
+    if kinds == {"i"} and all(-(2**63) <= int(v) < 2**63 for v in values):
+        return np.array(values, dtype=np.int64)
+    return np.array(values, dtype=np.float64)
+
+
+def _dataset(group: h5py.Group, key: str, arr: np.ndarray) -> h5py.Dataset:
+    if arr.dtype.kind not in "biufc":
+        raise TypeError(f"{group.name}/{key}: arrays must be numeric or boolean, got "
+                        f"dtype {arr.dtype}")
+    opts = dict(_FILTERS, chunks=True) if arr.ndim > 0 and arr.size > 1 else {}
+    return group.create_dataset(key, data=arr, **opts)
+
+
+def _encode(group: h5py.Group, items, memo: dict, skip: Mapping = _ROOT_FIELDS) -> None:
+    """Write ``(key, value)`` pairs into ``group`` (see the module docstring);
+    ``skip`` names, per class name, the fields not written."""
+    tuples, lists = [], []
+    for key, value in items:
+        _check_key(key, group.name)
+        kind = _scalar_kind(value)
+        if kind is not None or isinstance(value, os.PathLike):
+            if isinstance(value, os.PathLike):
+                value = os.fspath(value)
+            elif kind == "i" and not -(2**63) <= int(value) < 2**63:
+                raise TypeError(f"{group.name}/{key}: integer {value} too large to store")
+            group.attrs[key] = {"b": np.bool_, "i": np.int64, "f": np.float64,
+                                "s": str}[_scalar_kind(value)](value)
+        elif isinstance(value, np.ndarray):
+            if id(value) in memo:
+                group[key] = h5py.SoftLink(memo[id(value)])
+            else:
+                memo[id(value)] = _dataset(group, key, value).name
+        elif isinstance(value, list | tuple):
+            kinds = {_scalar_kind(v) for v in value}
+            if value and None not in kinds and (len(kinds) == 1 or kinds <= {"i", "f"}):
+                group.attrs[key] = _array(list(value), kinds)
+                (tuples if isinstance(value, tuple) else lists).append(key)
+            else:
+                g = group.create_group(key, track_order=True)
+                g.attrs[_TYPE] = "tuple" if isinstance(value, tuple) else "list"
+                _encode(g, ((str(i), v) for i, v in enumerate(value)), memo, skip)
+        elif value is None:
+            group.create_group(key).attrs[_TYPE] = "none"
+        elif isinstance(value, Mapping):
+            g = group.create_group(key, track_order=True)
+            g.attrs[_TYPE] = "dict"
+            keys = [_check_key(k, f"{group.name}/{key}") for k in value]
+            g.attrs[_KEYS] = np.array(keys, dtype=h5py.string_dtype())
+            _encode(g, value.items(), memo, skip)
+        elif dataclasses.is_dataclass(value) and not isinstance(value, type):
+            if id(value) in memo:
+                group[key] = h5py.SoftLink(memo[id(value)])
+                continue
+            cls = type(value)
+            g = group.create_group(key, track_order=True)
+            memo[id(value)] = g.name
+            g.attrs[_TYPE] = "dataclass"
+            g.attrs[_CLASS] = f"{cls.__module__}.{cls.__qualname__}"
+            left = skip.get(cls.__name__, ())
+            _encode(g, ((f.name, getattr(value, f.name)) for f in dataclasses.fields(value)
+                        if f.init and f.name not in left), memo, skip)
+        elif isinstance(value, np.generic):
+            group.attrs[key] = value
+        else:
+            raise TypeError(f"{group.name}/{key}: cannot store a {type(value).__name__} "
+                            "(arrays, numbers, strings, None, tuples, lists, dicts and "
+                            "dataclasses are stored)")
+    if tuples:
+        group.attrs[_TUPLES] = np.array(tuples, dtype=h5py.string_dtype())
+    if lists:
+        group.attrs[_LISTS] = np.array(lists, dtype=h5py.string_dtype())
+
+
+def _plain(v):
+    if isinstance(v, bytes):
+        return v.decode("utf-8")
+    if isinstance(v, np.ndarray):
+        return [_plain(x) for x in v.tolist()] if v.dtype.kind == "O" else v.tolist()
+    if isinstance(v, np.generic):
+        return v.item()
+    return v
+
+
+def _names(group, attr) -> list[str]:
+    return [_plain(x) for x in group.attrs[attr]] if attr in group.attrs else []
+
+
+def _decode(group: h5py.Group, memo: dict, fill):
+    """The object written by :func:`_encode` into ``group``."""
+    kind = _plain(group.attrs.get(_TYPE, "dict"))
+    if kind == "none":
+        return None
+    tuples = set(_names(group, _TUPLES))
+    values = {}
+    for key, raw in group.attrs.items():
+        if key in _RESERVED:
+            continue
+        v = _plain(raw)
+        values[key] = tuple(v) if key in tuples else v
+    for key in group:
+        link = group.get(key, getlink=True)
+        target = link.path if isinstance(link, h5py.SoftLink) else group[key].name
+        if target not in memo:
+            obj = group[key]
+            if isinstance(obj, h5py.Dataset):
+                memo[target] = np.asarray(obj[()])
+            else:
+                memo[target] = _decode(obj, memo, fill)
+        values[key] = memo[target]
+    if kind in ("tuple", "list"):
+        seq = [values[str(i)] for i in range(len(values))]
+        return tuple(seq) if kind == "tuple" else seq
+    if kind == "dict":
+        return {k: values[k] for k in _names(group, _KEYS)}
+    qualname = _plain(group.attrs[_CLASS])
+    module, _, name = qualname.rpartition(".")
+    try:
+        cls = getattr(importlib.import_module(module), name)
+    except (ImportError, AttributeError):
+        raise ValueError(f"{group.name} holds a {qualname}, which this gridstrain does "
+                         "not have (written by another version?)") from None
+    values = fill(cls, group, values)
+    known = {f.name for f in dataclasses.fields(cls) if f.init}
+    unknown = sorted(set(values) - known)
+    if unknown:
+        raise ValueError(f"{group.name} holds fields {', '.join(unknown)} that this "
+                         f"gridstrain's {name} does not have (written by a newer version?)")
+    return cls(**values)
+
+
+# --------------------------------------------------------------------------- save
+
+
+def _timestamp() -> str:
+    return datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds")
+
+
+def _var(h5, name, data, dims, units, long_name, **attrs) -> h5py.Dataset:
+    arr = np.asarray(data)
+    ds = _dataset(h5, name, arr) if arr.dtype.kind != "O" else \
+        h5.create_dataset(name, data=arr.astype(h5py.string_dtype()))
+    for i, d in enumerate(dims):
+        ds.dims[i].attach_scale(h5[d])
+    if units is not None:
+        ds.attrs["units"] = units
+    ds.attrs["long_name"] = long_name
+    for k, v in attrs.items():
+        ds.attrs[k] = v
+    return ds
+
+
+def _dim(h5, name, values, units, long_name) -> None:
+    arr = np.asarray(values)
+    if arr.dtype.kind in "US":
+        ds = h5.create_dataset(name, data=arr.astype(h5py.string_dtype()))
+    else:
+        ds = h5.create_dataset(name, data=arr)
+    ds.make_scale(name)
+    if units is not None:
+        ds.attrs["units"] = units
+    ds.attrs["long_name"] = long_name
+
+
+def _root_attr(value):
+    """A root attribute value: native scalars, strings and arrays, never JSON."""
+    if isinstance(value, os.PathLike):
+        return os.fspath(value)
+    kind = _scalar_kind(value)
+    if kind is not None:
+        return {"b": np.bool_, "i": np.int64, "f": np.float64, "s": str}[kind](value)
+    if isinstance(value, list | tuple) and value:
+        kinds = {_scalar_kind(v) for v in value}
+        if None not in kinds and (len(kinds) == 1 or kinds <= {"i", "f"}):
+            return _array(list(value), kinds)
+    if isinstance(value, np.ndarray) and value.dtype.kind in "biuf":
+        return value
+    return None
+
+
+def save_result(result: SeriesResult, path, *, pixel_size: float | None = None,
+                unit: str | None = None, overwrite: bool = False,
+                attrs: Mapping | None = None, phase_maps: bool = False) -> Path:
+    """Write a :class:`~gridstrain.pipeline.SeriesResult` to one HDF5 file, atomically.
+
+    Parameters
+    ----------
+    result : SeriesResult
+    path : str or os.PathLike
+        Destination (``.h5`` or ``.nc``).
+    pixel_size : float, optional
+        Size of a pixel on the specimen, in ``unit``: adds ``x_phys``, ``y_phys``,
+        ``ux_phys`` and ``uy_phys``.
+    unit : str, optional
+        Length unit of ``pixel_size`` (``"mm"``...); required with it.
+    overwrite : bool
+        Replace an existing file.
+    attrs : dict, optional
+        Extra root attributes (``config``, the mask file...): strings, numbers,
+        lists of them; a dict or any other value is stored in the group
+        ``gridstrain/attrs`` instead.
+    phase_maps : bool
+        Also store the phase maps of every series (``Measurement.reference`` and
+        ``.deformed``: ``Psi`` and its derivatives, eight maps per series, which
+        triples the file). Without them :func:`load` gives those two fields as
+        ``None``; every other field comes back equal.
+
+    Returns
+    -------
+    pathlib.Path
+
+    Notes
+    -----
+    The layout is described in :mod:`gridstrain.results`; ``xarray.open_dataset``
+    opens it, :func:`load` reads it back.
+    """
+    if not isinstance(result, SeriesResult):
+        raise TypeError(f"result must be a SeriesResult, got {type(result).__name__}")
+    ps, unit = _check_pixel_size(pixel_size, unit)
+    attrs = {} if attrs is None else attrs
+    if not isinstance(attrs, Mapping):
+        raise TypeError(f"attrs must be a dict, got {type(attrs).__name__}")
+    H, W = result.shape
+    n, n_series = result.n_states, len(result.names)
+    lat = result.lattice
+    with hdf5_file(path, overwrite=overwrite) as h5:
+        _write_root(h5, result, ps, unit, attrs, H, W, n, n_series, lat)
+        g = h5.create_group(_GROUP, track_order=True)
+        g.attrs["format_version"] = np.int64(FORMAT_VERSION)
+        memo: dict = {}
+        skip = dict(_ROOT_FIELDS)
+        if not phase_maps:
+            skip["Measurement"] = (*skip["Measurement"], "reference", "deformed")
+        g.attrs["phase_maps"] = bool(phase_maps)
+        _encode(g, [("result", result)], memo, skip)
+        extra = [(k, v) for k, v in attrs.items() if _root_attr(v) is None]
+        if extra:
+            _encode(g, [("attrs", dict(extra))], memo)
+    return _as_path(path, "path")
+
+
+def _write_root(h5, result, ps, unit, attrs, H, W, n, n_series, lat) -> None:
+    T = max(result.n_frames)
+    _dim(h5, "state", np.array(result.names[1:]), None, "loaded state")
+    _dim(h5, "y", np.arange(H, dtype=np.float64), "px", "row (y, downwards)")
+    _dim(h5, "x", np.arange(W, dtype=np.float64), "px", "column (x, to the right)")
+    _dim(h5, "series", np.array(result.names), None, "image series (reference first)")
+    _dim(h5, "frame", np.arange(T, dtype=np.int64), "1", "frame index in its series")
+    _dim(h5, "u_component", np.array(["ux", "uy"]), None, "displacement component")
+    _dim(h5, "strain_component", np.array(["exx", "eyy", "exy"]), None,
+         "strain component")
+    _dim(h5, "wave_vector", np.array(["k1", "k2"]), None, "wave vector of the grid")
+    _dim(h5, "axis", np.array(["x", "y"]), None, "image axis")
+    maps = ("state", "y", "x")
+    coords = ""
+    if ps is not None:
+        _var(h5, "x_phys", np.arange(W) * ps, ("x",), unit, "x on the specimen")
+        _var(h5, "y_phys", np.arange(H) * ps, ("y",), unit, "y on the specimen")
+        coords = "x_phys y_phys"
+    extra = {"coordinates": coords} if coords else {}
+    for name, u in MAP_FIELDS.items():
+        _var(h5, name, result.get_map(name), maps, u, LONG_NAMES[name], **extra)
+    rot = np.stack([m.rotation for m in result.measurements])
+    _var(h5, "rotation", rot, maps, "rad", LONG_NAMES["rotation"], **extra)
+    _var(h5, "valid", result.valid, maps, None, LONG_NAMES["valid"], **extra)
+    if ps is not None:
+        for name in ("ux", "uy"):
+            _var(h5, f"{name}_phys", result.get_map(name) * ps, maps, unit,
+                 LONG_NAMES[name], **extra)
+    for name, arr in (result.uncertainty or {}).items():
+        base = name.removesuffix("_std")
+        _var(h5, name, np.asarray(arr), maps, MAP_FIELDS.get(base, "1"),
+             f"predicted standard deviation of {base} (1 sigma)", uncertainty_of=base,
+             **extra)
+    _var(h5, "reference_image", result.reference_image, ("y", "x"), "1",
+         "mean reference frame, raw grey levels", **extra)
+    _var(h5, "mask", result.mask, ("y", "x"), None,
+         "specimen mask used (given mask less regions without a grid)", **extra)
+    # vibrations, padded with NaN after the last frame of a shorter series
+    shifts = np.full((n_series, T, 2), np.nan)
+    for i, v in enumerate(result.vibration):
+        shifts[i, :v.n_frames] = v.shifts
+    _var(h5, "vibration_shifts", shifts, ("series", "frame", "axis"), "px",
+         "rigid translation (alpha_t, beta_t) of each frame, series mean removed; frame "
+         "t is s(x + alpha_t, y + beta_t) (paper eq. 2)")
+    _var(h5, "n_frames", np.array(result.n_frames, dtype=np.int64), ("series",), "1",
+         "frames in the series")
+    _var(h5, "vibration_std", np.array([v.std for v in result.vibration]),
+         ("series", "axis"), "px", "standard deviation of the frame shifts")
+    _var(h5, "vibration_contrast_factor",
+         np.array([v.contrast_factor for v in result.vibration]), ("series", "wave_vector"),
+         "1", "modulus kept by averaging (paper Prop. 2.2)")
+    _var(h5, "vibration_phase_offset_std",
+         np.array([v.phase_offset_std for v in result.vibration]),
+         ("series", "wave_vector"), "rad", "std of the vibration phase offset (eq. 31)")
+    nf = result.noise
+    for name, dims, u, text in (
+            ("theory_u", ("state", "u_component"), "px", "noise floor, theory"),
+            ("theory_strain", ("state", "strain_component"), "1", "noise floor, theory"),
+            ("split_u", ("state", "u_component"), "px",
+             "noise floor, reference halves scaled"),
+            ("split_strain", ("state", "strain_component"), "1",
+             "noise floor, reference halves scaled"),
+            ("vibration_u", ("state", "u_component"), "px",
+             "std of the rigid vibration offset of the displacement")):
+        _var(h5, f"noise_{name}", getattr(nf, name), dims, u, f"{text} (1 std at a pixel)")
+    _var(h5, "noise_sensor_variance", np.array(nf.sensor_variance, dtype=float),
+         ("series",), "1", "per-frame image noise variance, raw grey levels^2")
+    _var(h5, "noise_modulus", nf.modulus, ("series", "wave_vector"), "1",
+         "median modulus |Psi| of the phase maps, raw grey levels")
+    _var(h5, "lattice_k", np.array([lat.k1, lat.k2]), ("wave_vector", "axis"),
+         "cycles/px", "wave vectors of the grid")
+    root = {
+        "Conventions": "CF-1.10",
+        "title": "gridstrain displacement and strain maps",
+        "source": f"gridstrain {__version__}",
+        "gridstrain_version": __version__,
+        "format_version": FORMAT_VERSION,
+        "created": _timestamp(),
+        "conventions": "gridstrain.conventions: [row, col] = [y, x], Lagrangian "
+                       "displacement, small-strain tensor (exy = tensor shear), "
+                       "strain dimensionless",
+        "k1": list(lat.k1), "k2": list(lat.k2), "pitches": list(lat.pitches),
+        "angles": list(lat.angles), "lattice_detected": bool(result.lattice_detected),
+        "sigma": result.sigma, "method": result.method, "lagrangian": result.lagrangian,
+        "margin": result.margin, "resolution_fwhm_px": nf.resolution,
+        "n_frames_reference": result.n_frames[0],
+        "reference_files": list(result.sources[0]),
+        "warnings": list(result.warnings),
+    }
+    if ps is not None:
+        root.update(pixel_size=ps, unit=unit)
+    for key, value in attrs.items():
+        root[_check_key(key, "attrs")] = value
+    for key, value in root.items():
+        stored = _root_attr(value)
+        if stored is not None:
+            h5.attrs[key] = stored
+
+
+# --------------------------------------------------------------------------- load
+
+
+def _open(path) -> h5py.File:
+    p = _as_path(path, "path")
+    if not p.is_file():
+        raise FileNotFoundError(f"result file {p} does not exist")
+    try:
+        h5 = h5py.File(p, "r")
+    except OSError:
+        raise ValueError(f"{p} is not a gridstrain result file (not HDF5)") from None
+    if _GROUP not in h5 or "format_version" not in h5[_GROUP].attrs:
+        h5.close()
+        raise ValueError(f"{p} is not a gridstrain result file (no '{_GROUP}' group; files "
+                         "of gridstrain before 0.2 are read with gridstrain.io.read_hdf5)")
+    version = int(h5[_GROUP].attrs["format_version"])
+    if version != FORMAT_VERSION:
+        h5.close()
+        raise ValueError(f"{p} is a gridstrain result file of format {version}; this "
+                         f"gridstrain reads format {FORMAT_VERSION}")
+    return h5
+
+
+def load(path) -> SeriesResult:
+    """Read a result file written by :func:`save_result`.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+
+    Returns
+    -------
+    SeriesResult
+        Equal, field by field, to the result that was saved (arrays bit for bit);
+        the measurements' ``reference`` and ``deformed`` phase maps are ``None``
+        unless they were saved (``save_result(..., phase_maps=True)``).
+
+    Raises
+    ------
+    FileNotFoundError
+        No such file.
+    ValueError
+        The file is not a gridstrain result file.
+    """
+    with _open(path) as h5:
+        def arr(name):
+            return np.asarray(h5[name][()])
+
+        u = np.stack([arr("ux"), arr("uy")], axis=1)
+        strain = np.stack([arr("exx"), arr("eyy"), arr("exy")], axis=1)
+        valid, rotation = arr("valid"), arr("rotation")
+        unc_keys = [k for k in h5 if "uncertainty_of" in h5[k].attrs]
+        root = {"u": u, "strain": strain, "valid": valid, "mask": arr("mask"),
+                "reference_image": arr("reference_image"),
+                "uncertainty": ({k: arr(k) for k in _UNC_KEYS if k in unc_keys}
+                                | {k: arr(k) for k in unc_keys if k not in _UNC_KEYS})
+                if unc_keys else None}
+
+        def fill(cls, group, values):
+            if cls.__name__ == "SeriesResult":
+                values.update(root)
+            elif cls.__name__ == "Measurement" and group.parent.name.endswith(
+                    "/measurements"):
+                i = int(group.name.rsplit("/", 1)[1])
+                values.update(u=u[i].copy(), strain=strain[i].copy(),
+                              rotation=rotation[i].copy(), valid=valid[i].copy())
+                values.setdefault("reference", None)  # saved without the phase maps
+                values.setdefault("deformed", None)
+            return values
+
+        return _decode(h5[_GROUP]["result"], {}, fill)
+
+
+def read_attrs(path) -> dict:
+    """The root attributes of a result file (pixel size, unit, config...), decoded.
+
+    Lists come back as lists, NaN as NaN; see :func:`save_result`.
+    """
+    with _open(path) as h5:
+        out = {k: _plain(v) for k, v in h5.attrs.items()}
+        if "attrs" in h5[_GROUP]:
+            out.update(_decode(h5[_GROUP]["attrs"], {}, lambda c, g, v: v))
+    return out
+
+
+def to_xarray(result_or_path, *, pixel_size: float | None = None, unit: str | None = None):
+    """An ``xarray.Dataset`` of a result (or of a result file).
+
+    Needs ``xarray`` and ``h5netcdf`` (``pip install 'gridstrain[xarray]'``). A
+    result in memory is written to an in-memory file with :func:`save_result`'s
+    layout, so that both give the same Dataset.
+    """
+    try:
+        import xarray as xr
+    except ImportError as exc:
+        raise ImportError("to_xarray needs xarray and h5netcdf: pip install "
+                          "'gridstrain[xarray]'") from exc
+    if isinstance(result_or_path, SeriesResult):
+        import tempfile
+
+        with tempfile.TemporaryDirectory() as d:
+            p = save_result(result_or_path, Path(d) / "result.h5", pixel_size=pixel_size,
+                            unit=unit)
+            with xr.open_dataset(p, engine="h5netcdf") as ds:
+                return ds.load()
+    with xr.open_dataset(_as_path(result_or_path, "path"), engine="h5netcdf") as ds:
+        return ds.load()
+
+
+# --------------------------------------------------------------------------- exports
+
+
+def _phys(result, pixel_size, unit):
+    return _check_pixel_size(pixel_size, unit)
+
+
+def export_mat(result: SeriesResult, path, *, pixel_size: float | None = None,
+               unit: str | None = None, overwrite: bool = False) -> Path:
+    """Write the maps to a MATLAB ``.mat`` file (version 5, compressed), atomically.
+
+    Maps are ``(H, W, n_states)`` (``ux(:, :, k)`` is state ``k``, row ``y`` and
+    column ``x`` as in the image), NaN where not ``valid`` (a logical array).
+    Also ``x``, ``y`` (px), ``x_phys``, ``y_phys`` with a pixel size, ``states``
+    (cell array of names), ``units`` (a struct), ``k1``, ``k2`` (cycles/px),
+    ``sigma`` (px), ``method``.
+    """
+    from scipy.io import savemat
+
+    if not isinstance(result, SeriesResult):
+        raise TypeError(f"result must be a SeriesResult, got {type(result).__name__}")
+    ps, unit = _phys(result, pixel_size, unit)
+    H, W = result.shape
+
+    def hwn(a):
+        return np.ascontiguousarray(np.moveaxis(np.asarray(a), 0, -1))
+
+    data = {name: hwn(result.get_map(name)) for name in MAP_FIELDS}
+    data["rotation"] = hwn(np.stack([m.rotation for m in result.measurements]))
+    data["valid"] = hwn(result.valid)
+    units = dict(MAP_FIELDS, rotation="rad", x="px", y="px")
+    for name, arr in (result.uncertainty or {}).items():
+        data[name] = hwn(arr)
+        units[name] = MAP_FIELDS.get(name.removesuffix("_std"), "1")
+    data["x"], data["y"] = np.arange(W, dtype=float), np.arange(H, dtype=float)
+    if ps is not None:
+        data["x_phys"], data["y_phys"] = data["x"] * ps, data["y"] * ps
+        data["ux_phys"], data["uy_phys"] = data["ux"] * ps, data["uy"] * ps
+        units.update(x_phys=unit, y_phys=unit, ux_phys=unit, uy_phys=unit)
+    data["states"] = np.array(result.names[1:], dtype=object)
+    data["units"] = units
+    data["k1"], data["k2"] = np.array(result.lattice.k1), np.array(result.lattice.k2)
+    data["sigma"], data["method"] = result.sigma, result.method
+    data["mask"] = result.mask
+    dest = _as_path(path, "path")
+    with atomic_path(dest, overwrite=overwrite) as tmp, open(tmp, "xb") as fh:
+        savemat(fh, data, do_compression=True, oned_as="column")
+    return dest
+
+
+def _vtk_array(name: str, arr: np.ndarray) -> str:
+    a = np.ascontiguousarray(arr.reshape(-1))
+    raw = a.astype(a.dtype.newbyteorder("<"), copy=False).tobytes()
+    comp = zlib.compress(raw, 6)
+    # zlib-compressed binary: one block, header (count, block size, last size, sizes)
+    header = struct.pack("<4Q", 1, len(raw), len(raw), len(comp))
+    kind = {"f8": "Float64", "f4": "Float32", "u1": "UInt8"}[a.dtype.str[1:]]
+    return (f'        <DataArray type="{kind}" Name="{name}" format="binary">'
+            f"{base64.b64encode(header).decode()}{base64.b64encode(comp).decode()}"
+            "</DataArray>\n")
+
+
+def export_vtk(result: SeriesResult, path, *, pixel_size: float | None = None,
+               unit: str | None = None, overwrite: bool = False) -> Path:
+    """Write the maps as VTK XML image data (``.vti``) for ParaView, atomically.
+
+    One point per pixel, spacing ``pixel_size`` (1 without it), origin 0: VTK's
+    point ``(i, j)`` is column ``x = i`` and row ``y = j`` (VTK's y axis is the
+    image's rows, so ParaView, whose y points up, shows the image upside down
+    unless the camera looks along +z with y down). Point arrays ``<map>_<state>``
+    (``exx_state_0``...), NaN where not valid, and ``valid_<state>`` (0/1).
+    """
+    if not isinstance(result, SeriesResult):
+        raise TypeError(f"result must be a SeriesResult, got {type(result).__name__}")
+    ps, unit = _phys(result, pixel_size, unit)
+    s = 1.0 if ps is None else ps
+    H, W = result.shape
+    arrays = []
+    for i in range(result.n_states):
+        key = f"state_{i}"
+        for name in MAP_FIELDS:
+            arrays.append(_vtk_array(f"{name}_{key}", result.get_map(name)[i]))
+        arrays.append(_vtk_array(f"rotation_{key}", result.measurements[i].rotation))
+        for name, arr in (result.uncertainty or {}).items():
+            arrays.append(_vtk_array(f"{name}_{key}", np.asarray(arr)[i]))
+        arrays.append(_vtk_array(f"valid_{key}", result.valid[i].astype(np.uint8)))
+    extent = f"0 {W - 1} 0 {H - 1} 0 0"
+    text = ('<?xml version="1.0"?>\n'
+            '<VTKFile type="ImageData" version="1.0" byte_order="LittleEndian" '
+            'header_type="UInt64" compressor="vtkZLibDataCompressor">\n'
+            f'  <ImageData WholeExtent="{extent}" Origin="0 0 0" Spacing="{s!r} {s!r} 1">\n'
+            f'    <Piece Extent="{extent}">\n      <PointData>\n'
+            + "".join(arrays) + "      </PointData>\n    </Piece>\n  </ImageData>\n"
+            "</VTKFile>\n")
+    dest = _as_path(path, "path")
+    with atomic_path(dest, overwrite=overwrite) as tmp, \
+            open(tmp, "x", encoding="ascii") as fh:
+        fh.write(text)
+    return dest
+
+
+#: Significant digits of the CSV export: 7 resolves 1e-7 of a value, far below
+#: the noise floor of any map (1e-5 strain, 1e-3 px), and keeps the file small.
+CSV_DIGITS = 7
+
+
+def save_csv(result: SeriesResult, path, *, pixel_size: float | None = None,
+             unit: str | None = None, overwrite: bool = False,
+             digits: int | None = CSV_DIGITS) -> Path:
+    """Write one row per valid pixel, with the unit of each column in the header.
+
+    Columns ``state``, ``x [px]``, ``y [px]`` (column and row,
+    :mod:`gridstrain.conventions`), with a pixel size ``x [unit]``, ``y [unit]``;
+    ``ux [px]``, ``uy [px]`` (and in ``unit``), ``exx [1]``, ``eyy [1]``,
+    ``exy [1]`` (dimensionless, tensor shear), ``rotation [rad]``, and the
+    uncertainty maps ``ux_std [px]``... when the result has them. ``state``
+    indexes the loaded states in the order given (0 first). Written atomically.
+
+    Parameters
+    ----------
+    digits : int or None
+        Significant digits of floats (default 7); ``None`` writes each float64 as
+        its shortest exact decimal.
+    """
+    if not isinstance(result, SeriesResult):
+        raise TypeError(f"result must be a SeriesResult, got {type(result).__name__}")
+    ps, unit = _phys(result, pixel_size, unit)
+    st, yy, xx = np.nonzero(result.valid)
+    cols = {"state": st, "x [px]": xx, "y [px]": yy}
+    if ps is not None:
+        cols[f"x [{unit}]"], cols[f"y [{unit}]"] = xx * ps, yy * ps
+    for name, u in MAP_FIELDS.items():
+        cols[f"{name} [{u}]"] = result.get_map(name)[st, yy, xx]
+        if ps is not None and u == "px":
+            cols[f"{name} [{unit}]"] = result.get_map(name)[st, yy, xx] * ps
+    rot = np.stack([m.rotation for m in result.measurements])
+    cols["rotation [rad]"] = rot[st, yy, xx]
+    for name, arr in (result.uncertainty or {}).items():
+        u = MAP_FIELDS.get(name.removesuffix("_std"), "1")
+        cols[f"{name} [{u}]"] = np.asarray(arr)[st, yy, xx]
+    if ps is not None and re.search(r"[,\"'\r\n\[\]]", unit):
+        raise ValueError(f"unit must not contain commas, quotes or brackets for the CSV "
+                         f"header, got {unit!r}")
+    return write_csv(path, cols, overwrite=overwrite, digits=digits)
+
+
+def export(result: SeriesResult, stem, formats, *, pixel_size: float | None = None,
+           unit: str | None = None, overwrite: bool = False) -> dict:
+    """Write ``stem.mat``, ``stem.vti`` and/or ``stem.csv``; returns ``{format: path}``."""
+    writers = {"mat": (export_mat, ".mat"), "vtk": (export_vtk, ".vti"),
+               "csv": (save_csv, ".csv")}
+    out = {}
+    for f in formats:
+        if f not in writers:
+            raise ValueError(f"export format must be one of {', '.join(writers)}, got "
+                             f"{f!r}")
+    stem = _as_path(stem, "stem")
+    for f in formats:
+        fn, ext = writers[f]
+        out[f] = fn(result, stem.with_name(stem.name + ext), pixel_size=pixel_size,
+                    unit=unit, overwrite=overwrite)
+    return out
+
+
+def _nan_equal(a, b) -> bool:
+    """Equality of two values, arrays compared element-wise with NaN equal to NaN."""
+    if isinstance(a, np.ndarray) or isinstance(b, np.ndarray):
+        a, b = np.asarray(a), np.asarray(b)
+        return a.shape == b.shape and a.dtype == b.dtype and bool(
+            np.array_equal(a, b, equal_nan=a.dtype.kind in "fc"))
+    if dataclasses.is_dataclass(a) and not isinstance(a, type):
+        return type(a) is type(b) and all(
+            _nan_equal(getattr(a, f.name), getattr(b, f.name))
+            for f in dataclasses.fields(a))
+    if isinstance(a, Mapping):
+        return isinstance(b, Mapping) and list(a) == list(b) and all(
+            _nan_equal(a[k], b[k]) for k in a)
+    if isinstance(a, list | tuple):
+        return type(a) is type(b) and len(a) == len(b) and all(
+            _nan_equal(x, y) for x, y in zip(a, b, strict=True))
+    if isinstance(a, float) and isinstance(b, float) and math.isnan(a) and math.isnan(b):
+        return True
+    return a == b

@@ -1,0 +1,398 @@
+"""Result files (xarray, exact reload), exports, the HTML report and the plot command."""
+
+from __future__ import annotations
+
+import base64
+import dataclasses
+import math
+import re
+import shutil
+import subprocess
+import xml.etree.ElementTree as ET
+import zlib
+from dataclasses import dataclass
+
+import h5py
+import numpy as np
+import pytest
+from numpy.testing import assert_allclose, assert_array_equal
+
+import gridstrain
+from gridstrain import Lattice, synthetic
+from gridstrain.cli import main
+from gridstrain.pipeline import MAP_FIELDS, SeriesResult, measure_series
+from gridstrain.results import (
+    _nan_equal,
+    export_mat,
+    export_vtk,
+    load,
+    read_attrs,
+    save_csv,
+    save_result,
+)
+
+LAT = Lattice.from_pitch(5.0)
+N = 96
+E0 = 1.5e-3  # homogeneous strain of the loaded states
+
+
+def _frames(T, strain, rng, shift=(0.0, 0.0)):
+    """(T, N, N) 12-bit frames of a grid stretched by ``strain`` along x, plus noise."""
+    def disp(X, Y):
+        return strain * (X - N / 2) + shift[0], 0.0 * Y + shift[1]
+
+    img = synthetic.grid_image((N, N), LAT, amplitude=1500.0, displacement=disp) + 200.0
+    return np.array([synthetic.add_noise(img, rng=rng) for _ in range(T)])
+
+
+@pytest.fixture(scope="module")
+def result():
+    rng = np.random.default_rng(1402)
+    ref = _frames(3, 0.0, rng)
+    states = [_frames(3, E0, rng, (0.4, -0.2)), _frames(3, 2 * E0, rng, (0.8, -0.3))]
+    return measure_series(ref, states, lattice=LAT)
+
+
+# --------------------------------------------------------------------------- the file
+
+
+def test_xarray_opens_the_file_with_dimensions_coordinates_and_units(result, tmp_path):
+    xr = pytest.importorskip("xarray")
+    pytest.importorskip("h5netcdf")
+    path = save_result(result, tmp_path / "r.h5", pixel_size=0.04, unit="mm")
+    with xr.open_dataset(path, engine="h5netcdf") as ds:
+        assert ds["exx"].dims == ("state", "y", "x")
+        assert list(ds["state"].values) == ["state 0", "state 1"]
+        assert_array_equal(ds["x"].values, np.arange(N))
+        assert ds["x"].attrs["units"] == "px"
+        assert_allclose(ds["x_phys"].values, 0.04 * np.arange(N), rtol=1e-15)
+        assert ds["x_phys"].attrs["units"] == "mm"
+        assert "x_phys" in ds["exx"].coords  # physical coordinates ride along
+        for name, var in ds.data_vars.items():
+            assert "units" in var.attrs or var.dtype == bool, name
+            assert var.attrs.get("long_name"), name
+        assert ds["exx"].attrs["units"] == "1"
+        assert ds["ux_phys"].attrs["units"] == "mm"
+        assert ds["rotation"].attrs["units"] == "rad"
+        assert ds["valid"].dtype == bool
+        assert_array_equal(ds["exx"].values, result.exx)
+        assert ds["vibration_shifts"].dims == ("series", "frame", "axis")
+        assert ds["noise_theory_strain"].dims == ("state", "strain_component")
+        assert_allclose(ds["lattice_k"].values, [LAT.k1, LAT.k2], rtol=1e-15)
+        assert ds.attrs["method"] == "A"
+        assert list(ds.attrs["pitches"]) == list(result.lattice.pitches)
+        # the selection a user makes: the mean strain of state 1, in one line
+        s1 = ds.sel(state="state 1")
+        mean = float(s1["exx"].where(s1["valid"]).mean())
+    v = result.valid[1]
+    assert mean == pytest.approx(float(np.mean(result.exx[1][v])), rel=1e-12)
+
+
+def test_load_returns_the_saved_result(result, tmp_path):
+    path = save_result(result, tmp_path / "r.h5", phase_maps=True)
+    back = load(path)
+    assert isinstance(back, SeriesResult)
+    for f in dataclasses.fields(SeriesResult):
+        assert _nan_equal(getattr(back, f.name), getattr(result, f.name)), f.name
+    assert _nan_equal(back, result)
+    # one reference PhaseMaps shared by every state, as measure_series makes it
+    assert back.measurements[0].reference is back.measurements[1].reference
+    assert not back.u.flags.writeable  # frozen like the original
+    # the comparison is not vacuous: one changed number is seen
+    changed = dataclasses.replace(result, sigma=result.sigma + 1e-9)
+    assert not _nan_equal(back, changed)
+    # and a result without uncertainty maps keeps its None
+    bare = dataclasses.replace(result, uncertainty=None, warnings=("a", "b"))
+    assert _nan_equal(load(save_result(bare, tmp_path / "b.h5", phase_maps=True)), bare)
+    # by default the phase maps (8 maps per series) are left out, and only they
+    small = load(save_result(result, tmp_path / "s.h5"))
+    assert (tmp_path / "s.h5").stat().st_size < 0.6 * path.stat().st_size
+    for m in small.measurements:
+        assert m.reference is None
+        assert m.deformed is None
+    without = dataclasses.replace(result, measurements=tuple(
+        dataclasses.replace(m, reference=None, deformed=None) for m in result.measurements))
+    assert _nan_equal(small, without)
+
+
+@dataclass(frozen=True, eq=False)
+class _Later(SeriesResult):
+    """A result class with the kinds of fields a later version may add."""
+
+    records: tuple = ()
+    extra: dict | None = None
+
+
+def test_new_fields_are_saved_without_changing_the_file_code(result, tmp_path):
+    later = _Later(**{f.name: getattr(result, f.name) for f in dataclasses.fields(result)},
+                   records=(LAT, None, (1, 2.5), np.arange(3.0)),
+                   extra={"order": [3, 1, 2], "map": np.ones((2, 2)), "none": None,
+                          "names": ("a", "b"), "nested": {"deep": math.nan}})
+    back = load(save_result(later, tmp_path / "l.h5", phase_maps=True))
+    assert type(back) is _Later
+    assert _nan_equal(back, later)
+
+
+def test_load_refuses_what_is_not_a_result(tmp_path):
+    (tmp_path / "t.h5").write_text("not HDF5")
+    with pytest.raises(ValueError, match=r"t\.h5 is not a gridstrain result file"):
+        load(tmp_path / "t.h5")
+    with h5py.File(tmp_path / "other.h5", "w") as h5:
+        h5["x"] = np.zeros(3)
+    with pytest.raises(ValueError, match="no 'gridstrain' group"):
+        load(tmp_path / "other.h5")
+    with pytest.raises(FileNotFoundError, match="does not exist"):
+        load(tmp_path / "none.h5")
+
+
+def test_attributes_are_native_not_json(result, tmp_path):
+    path = save_result(result, tmp_path / "r.h5", attrs={"config": "pitch = 5\n",
+                                                         "options": {"a": [1, 2]}})
+    with h5py.File(path, "r") as h5:
+        assert h5.attrs["k1"].dtype == np.float64
+        assert h5.attrs["sigma"] == result.sigma
+        assert "_json_attrs" not in h5.attrs
+        noise = h5["gridstrain/result/noise"]
+        assert noise["theory_strain"].shape == (2, 3)
+    a = read_attrs(path)
+    assert a["config"] == "pitch = 5\n"
+    assert a["options"] == {"a": [1, 2]}
+
+
+# --------------------------------------------------------------------------- exports
+
+
+def test_mat_export(result, tmp_path):
+    from scipy.io import loadmat
+
+    path = export_mat(result, tmp_path / "r.mat", pixel_size=0.02, unit="mm")
+    m = loadmat(path)
+    assert m["exx"].shape == (N, N, 2)  # (H, W, state): exx(:, :, k) in MATLAB
+    assert_array_equal(m["exx"][..., 1], result.exx[1])
+    assert_array_equal(m["valid"][..., 0].astype(bool), result.valid[0])
+    assert_allclose(m["ux_phys"][..., 0], result.ux[0] * 0.02, rtol=1e-15)
+    assert [str(s[0]) for s in m["states"].ravel()] == ["state 0", "state 1"]
+    assert str(m["units"]["exx"][0, 0][0]) == "1"
+    assert str(m["units"]["ux_phys"][0, 0][0]) == "mm"
+
+
+def _vti_arrays(path) -> tuple[dict, ET.Element]:
+    """Decode a .vti written with zlib-compressed binary arrays (VTK XML format)."""
+    root = ET.parse(path).getroot()
+    out = {}
+    for da in root.iter("DataArray"):
+        text = da.text.strip()
+        header = base64.b64decode(text[:44])  # 4 UInt64 = 32 bytes = 44 base64 chars
+        nblocks, _, _, csize = np.frombuffer(header, "<u8")
+        assert nblocks == 1
+        comp = base64.b64decode(text[44:])
+        assert len(comp) == csize
+        raw = zlib.decompress(comp)
+        dtype = {"Float64": "<f8", "UInt8": "u1"}[da.get("type")]
+        out[da.get("Name")] = np.frombuffer(raw, dtype)
+    return out, root
+
+
+def test_vtk_export_read_back(result, tmp_path):
+    path = export_vtk(result, tmp_path / "r.vti", pixel_size=0.02, unit="mm")
+    arrays, root = _vti_arrays(path)
+    image = root.find("ImageData")
+    assert image.get("WholeExtent") == f"0 {N - 1} 0 {N - 1} 0 0"
+    assert image.get("Spacing").split()[:2] == ["0.02", "0.02"]
+    # VTK points run x fastest: the C-order flattening of an [y, x] map
+    assert_array_equal(arrays["exx_state_1"], result.exx[1].ravel())
+    assert_array_equal(arrays["valid_state_0"], result.valid[0].ravel())
+
+
+def test_vtk_export_in_vtk_reader(result, tmp_path):
+    """Kitware's own XML reader, the one ParaView uses (when vtk is installed)."""
+    vtk = pytest.importorskip("vtkmodules.vtkIOXML")
+    from vtkmodules.util.numpy_support import vtk_to_numpy
+
+    path = export_vtk(result, tmp_path / "r.vti", pixel_size=0.02, unit="mm")
+    reader = vtk.vtkXMLImageDataReader()
+    reader.SetFileName(str(path))
+    reader.Update()
+    img = reader.GetOutput()
+    assert img.GetDimensions() == (N, N, 1)
+    assert_allclose(img.GetSpacing()[:2], (0.02, 0.02))
+    got = vtk_to_numpy(img.GetPointData().GetArray("exx_state_1"))
+    assert_array_equal(got.reshape(N, N), result.exx[1])
+
+
+def test_csv_export_units_in_header_and_values(result, tmp_path):
+    pd = pytest.importorskip("pandas")
+    path = save_csv(result, tmp_path / "r.csv", pixel_size=0.02, unit="mm")
+    df = pd.read_csv(path)
+    assert list(df.columns[:10]) == ["state", "x [px]", "y [px]", "x [mm]", "y [mm]",
+                                     "ux [px]", "ux [mm]", "uy [px]", "uy [mm]", "exx [1]"]
+    assert "exx_std [1]" in df.columns
+    assert len(df) == int(result.valid.sum())
+    s1 = df[df["state"] == 1]
+    x, y = s1["x [px]"].to_numpy(), s1["y [px]"].to_numpy()
+    # 7 significant digits: half a unit of the 7th digit is at most 5e-7 relative,
+    # 2e-9 on these 4e-3 strains and 1e-7 px on sub-pixel displacements, far below
+    # any noise floor (1e-5 strain, 1e-3 px)
+    assert_allclose(s1["exx [1]"], result.exx[1][y, x], rtol=5e-7, atol=0)
+    assert_allclose(s1["ux [mm]"], result.ux[1][y, x] * 0.02, rtol=5e-7, atol=0)
+    assert_allclose(s1["x [mm]"], x * 0.02, rtol=5e-7)
+    # and much smaller than the shortest round-trip decimals of every float64
+    full = save_csv(result, tmp_path / "full.csv", pixel_size=0.02, unit="mm", digits=None)
+    assert path.stat().st_size < 0.7 * full.stat().st_size
+
+
+# --------------------------------------------------------------------------- report
+
+
+def _chromium():
+    for name in ("chromium", "chromium-browser", "google-chrome"):
+        path = shutil.which(name)
+        if path:
+            return path
+    return None
+
+
+def test_report_is_self_contained(result, tmp_path):
+    path = save_result(result, tmp_path / "r.h5", pixel_size=0.02, unit="mm",
+                       attrs={"config": 'method = "A"\n'})
+    assert main(["report", str(path), "-o", str(tmp_path / "r.html")]) == 0
+    text = (tmp_path / "r.html").read_text(encoding="utf-8")
+    assert "<script" not in text
+    assert not re.search(r"(src|href)=\"(https?:|//)", text)  # nothing fetched
+    images = re.findall(r'<img class="figure" alt="([^"]+)" src="data:image/png;base64,',
+                        text)
+    for name in ("map of exx", "map of ux", "map of rotation", "uncertainty map of exx_std",
+                 "vibrations of reference"):
+        assert name in images
+    assert "µε" in text
+    assert 'method = "A"' in text  # the stored configuration
+
+
+@pytest.mark.skipif(_chromium() is None, reason="headless Chromium is not installed")
+def test_report_renders_in_headless_chromium(tmp_path):
+    """The demo's report, as a browser shows it: no console error, the maps drawn."""
+    demo = tmp_path / "demo"
+    assert main(["demo", "--out", str(demo), "--size", "128", "--frames", "3", "--radius",
+                 "16", "--quiet"]) == 0
+    page = demo / "report.html"
+    shot = tmp_path / "shot.png"
+    proc = subprocess.run(
+        [_chromium(), "--headless", "--no-sandbox", "--disable-gpu",
+         "--disable-background-networking", "--disable-component-update", "--disable-sync",
+         "--no-first-run", f"--user-data-dir={tmp_path / 'profile'}",
+         "--enable-logging=stderr", "--v=0", "--window-size=1200,4000",
+         f"--screenshot={shot}", "--dump-dom", page.as_uri()],
+        capture_output=True, text=True, timeout=120, check=False)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    console = [line for line in proc.stderr.splitlines()
+               if "CONSOLE" in line or "Uncaught" in line]
+    assert console == []
+    dom = proc.stdout
+    assert dom.count('<img class="figure"') >= 6  # five maps, the rotation, vibrations
+    assert "map of exx" in dom
+    proc = subprocess.run(
+        [_chromium(), "--headless", "--no-sandbox", "--disable-gpu",
+         "--disable-background-networking", "--disable-component-update", "--disable-sync",
+         "--no-first-run", f"--user-data-dir={tmp_path / 'profile'}",
+         "--window-size=1200,4000", f"--screenshot={shot}", page.as_uri()],
+        capture_output=True, text=True, timeout=120, check=False)
+    import imageio.v3 as iio
+
+    img = iio.imread(shot)
+    assert img.shape[:2] == (4000, 1200)
+    # the maps are drawn: many pixels far from grey (the diverging colormap's reds and
+    # blues, viridis' greens), not a blank page
+    rgb = img[..., :3].astype(float)
+    colourful = (rgb.max(axis=-1) - rgb.min(axis=-1)) > 80
+    assert colourful.mean() > 0.01
+
+
+# --------------------------------------------------------------------------- plot command
+
+
+def test_plot_command(result, tmp_path, capsys):
+    path = save_result(result, tmp_path / "r.h5", pixel_size=0.02, unit="mm")
+    out = tmp_path / "figs"
+    assert main(["plot", str(path), "-o", str(out), "--limits", "robust", "--dpi", "60",
+                 "--point", "48", "48"]) == 0
+    names = sorted(p.name for p in out.iterdir())
+    assert names == sorted(["ux.png", "uy.png", "exx.png", "eyy.png", "exy.png",
+                            "rotation.png", "history.png"])
+    assert main(["plot", str(path), "-o", str(out)]) == 2  # no silent overwrite
+    assert "already exists" in capsys.readouterr().err
+
+
+def test_common_limits_span_every_state(result):
+    from gridstrain.plotting import quantity, state_norm
+
+    fig = result.plot("exx")
+    maps = [ax.get_images()[1] for ax in fig.axes[:2]]
+    assert maps[0].norm is maps[1].norm  # one norm for all states
+    values, unit = quantity(result, "exx")
+    assert unit == "µε"
+    v = values[result.valid]
+    # tension in both states: all positive, a linear norm over the whole range
+    norm, diverging = state_norm(values, result.valid)
+    assert not diverging
+    assert (norm.vmin, norm.vmax) == (pytest.approx(v.min()), pytest.approx(v.max()))
+    # a field of both signs keeps white at zero (TwoSlopeNorm)
+    norm, diverging = state_norm(np.array([-1.0, 3.0]), np.array([True, True]))
+    assert diverging
+    assert norm(0.0) == pytest.approx(0.5)
+
+
+@pytest.mark.parametrize("argv", [["report", "NOTRESULT"], ["plot", "NOTRESULT"]])
+def test_new_commands_refuse_a_file_that_is_not_a_result(argv, tmp_path, capsys):
+    bad = tmp_path / "x.h5"
+    bad.write_text("hello")
+    argv = [str(bad) if a == "NOTRESULT" else a for a in argv]
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1
+    assert "is not a gridstrain result file" in err[0]
+
+
+# --------------------------------------------------------------------------- Python use
+
+
+def test_top_level_names_and_xarray(result):
+    pytest.importorskip("xarray")
+    assert gridstrain.measure_series is measure_series
+    assert gridstrain.load is load
+    assert callable(gridstrain.method_a)
+    assert callable(gridstrain.method_b)
+    ds = result.to_xarray(pixel_size=0.5, unit="um")
+    assert ds["ux_phys"].attrs["units"] == "um"
+    assert_array_equal(ds["eyy"].values, result.eyy)
+    for name in MAP_FIELDS:
+        assert ds[name].dims == ("state", "y", "x")
+
+
+def test_a_field_this_version_does_not_know_is_refused_by_name(result, tmp_path):
+    path = save_result(result, tmp_path / "r.h5")
+    with h5py.File(path, "a") as h5:
+        h5["gridstrain/result/noise"].attrs["from_the_future"] = 1.0
+    with pytest.raises(ValueError, match=r"fields from_the_future .* newer version"):
+        load(path)
+
+
+def test_measure_figures_share_one_limit_per_quantity(result, tmp_path, monkeypatch):
+    from gridstrain import plotting
+
+    seen = []
+    real = plotting.plot_map
+
+    def spy(values, **kw):
+        seen.append((kw["label"], kw["limit"]))
+        return real(values, **kw)
+
+    monkeypatch.setattr(plotting, "plot_map", spy)
+    plotting.save_figures(result, tmp_path / "figs")
+    by_label = {}
+    for label, limit in seen:
+        by_label.setdefault(label, set()).add(limit)
+    assert len(by_label) == 5
+    assert all(len(v) == 1 for v in by_label.values())  # the same for both states
+    # e_xx's limit covers the larger strain of state 1 (2 E0 against E0)
+    (exx_limit,) = by_label[r"$\varepsilon_{xx}$"]
+    assert exx_limit > 1.5 * E0
