@@ -23,7 +23,8 @@ PACKAGE = Path(gridstrain.__file__).resolve().parent
 
 CORE = {
     "conventions", "_validation", "_progress", "_fft", "lattice", "wft", "kinematics",
-    "stacks", "vibration", "noise", "uncertainty", "theory", "synthetic", "kirsch",
+    "stacks", "vibration", "screening", "noise", "uncertainty", "theory", "synthetic",
+    "kirsch",
 }
 
 

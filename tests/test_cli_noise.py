@@ -91,3 +91,27 @@ def test_short_stack_uses_the_degree_it_allows(stack, tmp_path, capsys):
     assert noise["K_sensor"] == pytest.approx(0.28, rel=0.1)
     assert main(["noise", str(short), "--degree", "3", "--quiet"]) == 2
     assert "13 frames" in capsys.readouterr().err
+
+
+def test_stack_noise_file_is_a_camera_model(stack, tmp_path):
+    """The .h5 of a stack is what ``measure --noise`` reads, with its units."""
+    from gridstrain.io import read_noise_model
+
+    stack, _ = stack
+    out = tmp_path / "cam.h5"
+    assert main(["noise", str(stack), "-o", str(out), "--quiet"]) == 0
+    model = read_noise_model(out)
+    assert model.method == "stack"
+    assert model.scale == 16
+    assert model.bit_depth == 12
+    # K from 40 frames of 160^2: ~1 % statistical error
+    assert model.K_sensor == pytest.approx(0.28, rel=0.05)
+    # a result that is not a noise model is refused by name
+    with pytest.raises(ValueError, match="not a noise result"):
+        read_noise_model(_not_noise(tmp_path))
+
+
+def _not_noise(tmp_path):
+    from gridstrain.io import write_hdf5
+
+    return write_hdf5(tmp_path / "other.h5", {"x": np.zeros(3)}, {"K": 1.0})

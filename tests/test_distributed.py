@@ -317,7 +317,7 @@ def test_pipeline_on_the_cluster_matches_single_process(client, method, monkeypa
         assert_array_equal(a.shifts, b.shifts)  # computed on this machine either way
 
 
-def test_saturation_found_on_a_worker_names_the_frame(client, tmp_path):
+def test_a_saturated_frame_is_screened_before_the_cluster_sees_it(client, tmp_path):
     rng = np.random.default_rng(9)
     ref = _frames(4, rng, dtype=np.uint16)
     bad = ref.copy()
@@ -326,7 +326,15 @@ def test_saturation_found_on_a_worker_names_the_frame(client, tmp_path):
     tifffile.imwrite(tmp_path / "bad.tif", bad, photometric="minisblack")
     with pytest.raises(ValueError, match=r"state 0: frame 2 .*saturated"):
         measure_series(tmp_path / "ref.tif", tmp_path / "bad.tif", lattice=LAT,
-                       scheduler=client)
+                       scheduler=client, outliers="refuse")
+    # by default the frame is left out of the workers' sums, and named
+    got = measure_series(tmp_path / "ref.tif", tmp_path / "bad.tif", lattice=LAT,
+                         scheduler=client)
+    want = measure_series(tmp_path / "ref.tif", ref[[0, 1, 3]], lattice=LAT)
+    assert got.n_frames == (4, 3)
+    assert got.excluded == ((), (2,))
+    assert any("frame 2 (" in w and "saturated" in w for w in got.warnings)
+    assert_allclose(got.u, want.u, rtol=0, atol=1e-9)  # px: the same frames, sums reordered
 
 
 # --------------------------------------------------------------------------- command line

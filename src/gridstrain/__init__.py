@@ -6,7 +6,7 @@ The conventions (axes, signs, window, Lagrangian description) are written once, 
 
 from .kinematics import Measurement, coarse_displacement, deformation, measure
 from .lattice import Lattice, detect_lattice
-from .noise import NoiseModel, anscombe, estimate_noise, inverse_anscombe
+from .noise import NoiseModel, anscombe, estimate_noise, estimate_noise_image, inverse_anscombe
 from .uncertainty import Uncertainty, predict_uncertainty
 from .vibration import VibrationReport, frame_shifts, vibration_report
 from .wft import PhaseMaps, wft
@@ -53,6 +53,7 @@ __all__ = [
     "deformation",
     "detect_lattice",
     "estimate_noise",
+    "estimate_noise_image",
     "frame_shifts",
     "inverse_anscombe",
     "load",

@@ -27,10 +27,11 @@ from ._cli_common import (
     positive_option,
 )
 from ._progress import bar
-from .io import open_series, read_mask, roi_mask
+from .io import open_series, read_mask, read_noise_model, roi_mask
 from .pipeline import (
     FWHM_PER_SIGMA,
     MAP_FIELDS,
+    OUTLIER_POLICIES,
     SeriesResult,
     measure_series,
 )
@@ -49,7 +50,8 @@ _CONFIG_KEYS = {
     "csv": "path", "figures": "path", "export": "formats", "report": "path",
     "phase-maps": "bool", "quiet": "bool", "json": "bool", "overwrite": "bool",
     "bit-depth": "int",
-    "scheduler": "str",
+    "scheduler": "str", "outliers": "outliers",
+    "sigma-pitches": "float", "noise": "path", "noise-model": "pair",
 }
 # Left out of the configuration stored in the result: how to run (not what to
 # measure), and the side outputs, which a replay must not write over.
@@ -87,6 +89,9 @@ def register(sub) -> None:
     add_lattice_options(g)
     g.add_argument("--sigma", type=float, metavar="PX",
                    help="window standard deviation, px (default and minimum: the pitch)")
+    g.add_argument("--sigma-pitches", type=float, metavar="X",
+                   help="window standard deviation in pitches (sigma = X pitch, X >= 1), "
+                   "instead of --sigma")
     g.add_argument("--method", type=str.upper, choices=("A", "B", "C"),
                    help="A: transform of the averaged images (default); B: transform of "
                    "every frame, averaged; C: frames averaged with their carriers "
@@ -110,6 +115,19 @@ def register(sub) -> None:
                    "cross-correlation)")
     k.add_argument("--bit-depth", type=int, metavar="BITS",
                    help="significant bits of the camera (default: detected)")
+    k.add_argument("--outliers", choices=OUTLIER_POLICIES,
+                   help="frames that do not belong to their series (no grid, low contrast, "
+                   "a slip, another state's frame, clipped): 'exclude' them with a warning "
+                   "(default; a series with half its frames flagged is refused), 'refuse' "
+                   "the run, or 'warn' and keep them (noise floor then not stated)")
+    n = p.add_argument_group("noise (default: measured in each series; from the image "
+                             "itself for single frames)")
+    n.add_argument("--noise", metavar="FILE.h5",
+                   help="camera noise model written by 'gridstrain noise -o FILE.h5'")
+    n.add_argument("--noise-model", type=float, nargs=2, metavar=("K", "L"),
+                   help="camera noise Var = K l + L in the STORED grey levels of the images "
+                   "(K grey levels, L grey levels^2; for 12-bit data stored x16, 16 and 256 "
+                   "times the sensor's)")
     o = p.add_argument_group("output")
     o.add_argument("--pixel-size", type=float, metavar="SIZE",
                    help="pixel size on the specimen, in --unit (adds ux_phys, uy_phys)")
@@ -159,6 +177,10 @@ def _config_value(key: str, value, kind: str, base: Path, where: str):
     if kind == "bool":
         if not isinstance(value, bool):
             raise bad("true or false")
+        return value
+    if kind == "outliers":
+        if value not in OUTLIER_POLICIES:
+            raise bad(" or ".join(f'"{p}"' for p in OUTLIER_POLICIES))
         return value
     if kind == "roi":
         if not isinstance(value, list) or len(value) != 4 or any(
@@ -262,6 +284,7 @@ def _options(args) -> dict:
     for name in ("no-lagrangian", "quiet", "json", "overwrite", "phase-maps"):
         opts[name] = bool(opts.get(name, False))
     opts.setdefault("method", "A")
+    opts.setdefault("outliers", "exclude")
     opts.setdefault("margin", DEFAULT_MARGIN)
     if not opts.get("output"):
         raise ValueError("the output file is missing: pass -o OUT.h5 (or output = ... in "
@@ -328,6 +351,23 @@ def _absolute(source):
     return str(Path(os.path.abspath(os.path.expanduser(source))))
 
 
+def _noise_option(opts: dict):
+    """The camera model of --noise or --noise-model, or None."""
+    if opts.get("noise") and opts.get("noise-model"):
+        raise ValueError("give --noise or --noise-model, not both")
+    if opts.get("noise"):
+        return read_noise_model(Path(os.path.expanduser(opts["noise"])))
+    if opts.get("noise-model"):
+        K, L = opts["noise-model"]
+        if not (math.isfinite(K) and K > 0):
+            raise ValueError(f"--noise-model K must be a positive gain in stored grey levels, "
+                             f"got {K:g}")
+        if not math.isfinite(L):
+            raise ValueError(f"--noise-model L must be a finite variance, got {L:g}")
+        return (K, L)
+    return None
+
+
 def _input_files(sources) -> set[Path]:
     files = set()
     for s in sources:
@@ -374,8 +414,10 @@ def report_lines(result: SeriesResult, *, pixel_size: float | None = None,
         "vibrations (rigid shift of each frame, 1 std)  alpha px  beta px   contrast k1/k2"
         "   phase offset k1/k2 rad",
     ]
-    for v in result.vibration:
+    for k, v in enumerate(result.vibration):
         label = f"  {v.name}, {v.n_frames} frame(s)"
+        if result.excluded and result.excluded[k]:
+            label += f" ({len(result.excluded[k])} excluded)"
         contrast = f"{_fmt(v.contrast_factor[0], '.5f')}/{_fmt(v.contrast_factor[1], '.5f')}"
         lines.append(f"{label:<46} {_fmt(v.std[0], '.4f'):>8} {_fmt(v.std[1], '.4f'):>8}   "
                      f"{contrast:<16} "
@@ -384,7 +426,9 @@ def report_lines(result: SeriesResult, *, pixel_size: float | None = None,
     lines += ["", "noise floor (1 std at a pixel)            u_x px    u_y px    e_xx      "
               "e_yy      e_xy"]
     for i in range(result.n_states):
-        rows = [("theory, measured sensor noise", nf.theory_u[i], nf.theory_strain[i]),
+        given = (nf.model or {}).get("source", "").startswith("given")
+        theory = "theory, given camera model" if given else "theory, measured sensor noise"
+        rows = [(theory, nf.theory_u[i], nf.theory_strain[i]),
                 ("reference halves, scaled", nf.split_u[i], nf.split_strain[i])]
         unc = result.uncertainty
         if unc is not None and result.valid[i].any():
@@ -403,6 +447,9 @@ def report_lines(result: SeriesResult, *, pixel_size: float | None = None,
         res += f" = {nf.resolution * pixel_size:.3g} {unit}"
     lines.append(f"spatial resolution: {res} (FWHM of the Gaussian window, "
                  f"{FWHM_PER_SIGMA:.3f} sigma)")
+    lines += _noise_source_lines(result)
+    lines += _metrology_lines(result)
+    lines += _systematic_lines(result)
     lines.append("")
     for i, m in enumerate(result.measurements):
         v = result.valid[i]
@@ -418,6 +465,54 @@ def report_lines(result: SeriesResult, *, pixel_size: float | None = None,
             lines.append(f"{result.names[i + 1]}: no valid pixel")
     for w in result.warnings:
         lines.append(f"warning: {w}")
+    return lines
+
+
+def _noise_source_lines(result: SeriesResult) -> list[str]:
+    model = result.noise.model or {}
+    src = model.get("source", "stack")
+    if "K" not in model:
+        return [f"image noise: {src} (temporal variance of each series)"]
+    scale = model.get("scale") or 1
+    line = (f"image noise: {src}, Var = K l + L with K = {_fmt(model['K'], '.4g')}, "
+            f"L = {_fmt(model['L'], '.4g')} (stored grey levels)")
+    if scale != 1:
+        line += (f"; sensor units (x{scale:g}): K = {_fmt(model['K_sensor'], '.4g')}, "
+                 f"L = {_fmt(model['L_sensor'], '.4g')}")
+    if model.get("K_ci"):
+        line += f"; K 95 % CI {_fmt(model['K_ci'][0], '.4g')} to {_fmt(model['K_ci'][1], '.4g')}"
+    return [line]
+
+
+def _metrology_lines(result: SeriesResult) -> list[str]:
+    m = result.metrology
+    if m is None:
+        return []
+    lines = [f"metrology (sigma {m['sigma_px']:.4g} px: spatial resolution "
+             f"{m['spatial_resolution_px']:.3g} px FWHM, step 10-90 % over "
+             f"{m['step_width_px']:.3g} px; efficiency = resolution x d for u, x d^2 for "
+             "strain, px^2)",
+             "                     u_x px    u_y px    e_xx      e_yy      e_xy"]
+    for i, st in enumerate(m["states"]):
+        names = ("ux", "uy", "exx", "eyy", "exy")
+        res = "  ".join(f"{_fmt(st[k]['resolution']):<8}" for k in names)
+        eff = "  ".join(f"{_fmt(st[k]['efficiency']):<8}" for k in names)
+        lines.append(f"  {result.names[i + 1]:<9} resolution {res}")
+        lines.append(f"  {'':<9} efficiency {eff}")
+    return lines
+
+
+def _systematic_lines(result: SeriesResult) -> list[str]:
+    sy = result.systematic
+    if sy is None:
+        return []
+    a = sy["aliasing"]
+    how = "measured sharpness" if a["observable"] else "bound for sharp lines"
+    lines = [f"systematic: harmonic aliasing up to {_fmt(a['u_px'])} px ({how}); "
+             "window smoothing of strain gradients (95th percentile of sigma^2/2 lap e):"]
+    for i, sm in enumerate(sy["smoothing"]):
+        lines.append(f"  {result.names[i + 1]:<9} e_xx {_fmt(sm['p95'][0])}  e_yy "
+                     f"{_fmt(sm['p95'][1])}  e_xy {_fmt(sm['p95'][2])}")
     return lines
 
 
@@ -445,6 +540,7 @@ def summary(result: SeriesResult, *, outputs: dict, seconds: float,
         v = result.valid[i]
         states.append({
             "name": result.names[i + 1], "frames": result.n_frames[i + 1],
+            "excluded_frames": list(result.excluded[i + 1]) if result.excluded else [],
             "files": list(result.sources[i + 1]), "valid_fraction": float(v.mean()),
             "mean": {name: num(float(np.mean(result.get_map(name)[i][v]))) if v.any()
                      else None for name in MAP_FIELDS},
@@ -460,7 +556,9 @@ def summary(result: SeriesResult, *, outputs: dict, seconds: float,
                     "angles_deg": list(lat.angles), "detected": result.lattice_detected},
         "sigma_px": result.sigma, "method": result.method, "lagrangian": result.lagrangian,
         "margin": result.margin, "pixel_size": pixel_size, "unit": unit,
-        "reference": {"frames": result.n_frames[0], "files": list(result.sources[0])},
+        "reference": {"frames": result.n_frames[0], "files": list(result.sources[0]),
+                      "excluded_frames": list(result.excluded[0]) if result.excluded
+                      else []},
         "states": states,
         "vibration": [{"series": v.name, "frames": v.n_frames,
                        "std_px": [num(x) for x in v.std],
@@ -469,6 +567,9 @@ def summary(result: SeriesResult, *, outputs: dict, seconds: float,
                        "estimator": v.estimator} for v in result.vibration],
         "noise_floor": result.noise.as_dict(),
         "uncertainty_median": _uncertainty_medians(result),
+        "noise_model": result.noise.model,
+        "metrology": result.metrology,
+        "systematic_errors": result.systematic,
         "warnings": list(result.warnings),
         "seconds": seconds,
     }
@@ -529,8 +630,11 @@ def run(args) -> int:
 def _run(args, progress: _Bar) -> int:
     t0 = time.perf_counter()
     opts = _options(args)
-    for name in ("sigma", "margin", "pixel-size"):
+    for name in ("sigma", "margin", "pixel-size", "sigma-pitches"):
         positive_option(opts, name)
+    if opts.get("sigma") is not None and opts.get("sigma-pitches") is not None:
+        raise ValueError("give --sigma or --sigma-pitches, not both")
+    noise_model = _noise_option(opts)
     if (opts.get("pixel-size") is None) != (opts.get("unit") is None):
         raise ValueError("--pixel-size and --unit go together (e.g. --pixel-size 0.04 "
                          "--unit mm)")
@@ -564,8 +668,10 @@ def _run(args, progress: _Bar) -> int:
     result = measure_series(reference, states, lattice=lattice, sigma=opts.get("sigma"),
                             method=opts["method"], mask=mask,
                             lagrangian=not opts["no-lagrangian"], guess=guess,
-                            margin=opts["margin"], progress=progress,
-                            scheduler=opts.get("scheduler"))
+                            margin=opts["margin"], outliers=opts["outliers"],
+                            progress=progress,
+                            scheduler=opts.get("scheduler"), noise_model=noise_model,
+                            sigma_pitches=opts.get("sigma-pitches"))
     ps, unit = opts.get("pixel-size"), opts.get("unit")
     stored = dict(opts)
     for key in ("reference", "states", "output", "mask"):

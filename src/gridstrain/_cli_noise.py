@@ -1,7 +1,13 @@
-"""``gridstrain noise STACK``: camera noise (K, L), vibrations and the predicted noise floor."""
+"""``gridstrain noise IMAGES``: camera noise (K, L), vibrations and the predicted noise floor.
+
+A static stack gives the noise from the frames' temporal scatter (vibrations
+regressed out); a single image (or a stack too short) from the image itself
+(:func:`gridstrain.noise.estimate_noise_image`).
+"""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from datetime import UTC, datetime
 from pathlib import Path
@@ -19,7 +25,7 @@ from ._cli_common import (
 from ._progress import bar
 from .io import atomic_path, open_series, write_hdf5
 from .lattice import detect_lattice
-from .noise import estimate_noise
+from .noise import NOISE_RESULT_KIND, estimate_noise, estimate_noise_image
 from .uncertainty import noise_floor
 from .vibration import vibration_report
 from .wft import wft
@@ -27,11 +33,19 @@ from .wft import wft
 
 def register(sub) -> None:
     p = sub.add_parser(
-        "noise", help="estimate the camera noise and vibrations from a static stack",
+        "noise", help="estimate the camera noise (and vibrations) from a static stack or "
+        "a single image",
         description="Estimate the sensor noise Var = K l + L from a static grid stack "
-        "affected by vibrations, the per-frame vibration series, and the predicted noise "
-        "floor of displacement and strain.")
-    p.add_argument("stack", help="static series: multi-page TIFF, directory, glob or file")
+        "affected by vibrations (and the per-frame vibration series), or from a single "
+        "grid image, and the predicted noise floor of displacement and strain. The .h5 "
+        "output can be given to 'gridstrain measure --noise'.")
+    p.add_argument("stack", help="static series or one image: multi-page TIFF, directory, "
+                   "glob or file")
+    p.add_argument("--from", dest="source", choices=("auto", "stack", "image"),
+                   default="auto",
+                   help="stack: temporal scatter of a static stack (6 frames at least); "
+                   "image: the first frame alone (grid removed by its harmonics); auto "
+                   "(default): stack when it has enough frames")
     p.add_argument("-o", "--output", help="write the report to OUT.h5 or OUT.json")
     p.add_argument("--T", type=int, default=None, dest="frames",
                    help="frames per state for the predicted noise floor (default: the stack's)")
@@ -64,17 +78,27 @@ def run(args) -> int:
     mean = series.mean(progress=lambda f, m: progress(0.3 * f, "mean image"))
     lattice = lattice_given or detect_lattice(mean)
     degree = args.degree
-    if degree is None:
+    fits = [d for d in (3, 2, 1) if series.n_frames >= (d + 1) * (d + 2) // 2 + 3]
+    use_stack = args.source == "stack" or (args.source == "auto" and (fits or degree == 0)
+                                          and series.n_frames >= 6)
+    if degree is None and use_stack:
         # (d + 1)(d + 2) / 2 regressors and 3 degrees of freedom at least
-        fits = [d for d in (3, 2, 1) if series.n_frames >= (d + 1) * (d + 2) // 2 + 3]
         if not fits:
             raise ValueError(f"stack: at least 6 frames are needed to separate the noise "
-                             f"from the vibrations, got {series.n_frames}")
+                             f"from the vibrations, got {series.n_frames} (use --from image)")
         degree = fits[0]
-    model = estimate_noise(series.frames(), lattice, saturation=series.saturation_level,
-                           scale=series.scale, degree=degree,
-                           progress=lambda f, m: progress(0.3 + 0.5 * f, "noise model"))
-    vib = vibration_report(series.frames(), lattice)
+    vib = None
+    if use_stack:
+        model = estimate_noise(series.frames(), lattice, saturation=series.saturation_level,
+                               scale=series.scale, degree=degree,
+                               progress=lambda f, m: progress(0.3 + 0.5 * f, "noise model"))
+        vib = vibration_report(series.frames(), lattice)
+    else:
+        first = next(iter(series.frames()))
+        model = estimate_noise_image(first, lattice, saturation=series.saturation_level,
+                                     scale=series.scale)
+        degree = None
+    model = dataclasses.replace(model, bit_depth=series.bit_depth)
     progress(0.9, "noise floor")
     T = args.frames or series.n_frames
     maps = wft(mean, lattice, sigma=args.sigma)
@@ -86,13 +110,16 @@ def run(args) -> int:
         "bit_depth": series.bit_depth, "scale": series.scale,
         "lattice": {"k1": list(lattice.k1), "k2": list(lattice.k2),
                     "pitches_px": list(lattice.pitches), "angles_deg": list(lattice.angles)},
+        "result_kind": NOISE_RESULT_KIND,
         "noise": {"K": model.K, "L": model.L, "K_ci": model.K_ci, "L_ci": model.L_ci,
-                  "vibration_model_degree": degree,
+                  "method": model.method, "vibration_model_degree": degree,
                   "K_sensor": model.K_sensor, "L_sensor": model.L_sensor,
                   "reduced_chi2": model.reduced_chi2, "units": "stored grey levels"},
-        "vibration": {"std_px": vib.std.tolist(), "covariance_px2": vib.covariance.tolist(),
-                      "contrast_factor": vib.contrast_factor.tolist(),
-                      "method_a_phase_offset_std_rad": vib.phase_offset_std.tolist()},
+        "noise_model": model.as_dict(),
+        "vibration": None if vib is None else {
+            "std_px": vib.std.tolist(), "covariance_px2": vib.covariance.tolist(),
+            "contrast_factor": vib.contrast_factor.tolist(),
+            "method_a_phase_offset_std_rad": vib.phase_offset_std.tolist()},
         "noise_floor": {"frames_per_state": floor.frames, "sigma_px": floor.sigma,
                         "spatial_resolution_px": floor.resolution,
                         "u_std_px": list(floor.u_std), "strain_std": list(floor.strain_std),
@@ -106,7 +133,7 @@ def run(args) -> int:
         else:
             attrs = dict(summary, version=__version__,
                          created=datetime.now(UTC).isoformat(timespec="seconds"))
-            write_hdf5(out, {"vibration/shifts": vib.shifts,
+            write_hdf5(out, {"vibration/shifts": np.zeros((0, 2)) if vib is None else vib.shifts,
                              "noise/levels": _arr(model.levels),
                              "noise/variances": _arr(model.variances),
                              "noise/variance_errors": _arr(model.variance_errors)},
@@ -124,14 +151,18 @@ def run(args) -> int:
     print(f"lattice: pitches {fmt(lattice.pitches[0])}/{fmt(lattice.pitches[1])} px, "
           f"angles {fmt(lattice.angles[0])}/{fmt(lattice.angles[1])} deg")
     ci = (lambda c: "" if c is None else f"  (95 % CI {fmt(c[0])} to {fmt(c[1])})")  # noqa: E731
-    print(f"noise Var = K l + L (vibrations regressed out, degree {degree}):")
+    how = (f"vibrations regressed out, degree {degree}" if use_stack else
+           "from the first image alone, grid removed by its harmonics")
+    print(f"noise Var = K l + L ({how}):")
     print(f"                      K = {fmt(n['K'])}{ci(model.K_ci)}")
     print(f"                      L = {fmt(n['L'])}{ci(model.L_ci)}   (stored grey levels)")
     if series.scale != 1:
         print(f"  sensor units:       K = {fmt(n['K_sensor'])}, L = {fmt(n['L_sensor'])}")
-    print(f"vibrations: std = ({fmt(vib.std[0])}, {fmt(vib.std[1])}) px; contrast factor "
-          f"({fmt(vib.contrast_factor[0])}, {fmt(vib.contrast_factor[1])}); method-A phase "
-          f"offset std ({fmt(vib.phase_offset_std[0])}, {fmt(vib.phase_offset_std[1])}) rad")
+    if vib is not None:
+        print(f"vibrations: std = ({fmt(vib.std[0])}, {fmt(vib.std[1])}) px; contrast factor "
+              f"({fmt(vib.contrast_factor[0])}, {fmt(vib.contrast_factor[1])}); method-A "
+              f"phase offset std ({fmt(vib.phase_offset_std[0])}, "
+              f"{fmt(vib.phase_offset_std[1])}) rad")
     print(f"predicted noise floor, T = {T} frames per state, sigma = {fmt(floor.sigma)} px "
           f"(spatial resolution {fmt(floor.resolution)} px FWHM):")
     print(f"  u_x {fmt(floor.u_std[0])} px   u_y {fmt(floor.u_std[1])} px")

@@ -11,10 +11,12 @@ import os
 import numpy as np
 
 __all__ = [
+    "SIGMA_PITCH_RTOL",
     "as_image",
     "check_choice",
     "check_mask",
     "check_positive",
+    "check_sigma",
     "float_dtype",
     "image_array",
 ]
@@ -89,6 +91,29 @@ def check_positive(value, name: str, *, allow_none: bool = False) -> float | Non
     if not np.isfinite(v) or v <= 0:
         raise ValueError(f"{name} must be a finite positive number, got {value!r}")
     return v
+
+
+#: Relative tolerance under which a window standard deviation below the pitch is
+#: taken as the pitch itself: a sigma typed as "6" for a pitch detected at
+#: 6.000003 px is the user's "one pitch", not a request for a narrower window.
+SIGMA_PITCH_RTOL = 1e-3
+
+
+def check_sigma(sigma, pitch: float, name: str = "sigma") -> float:
+    """Return the window standard deviation ``sigma`` checked against ``pitch``.
+
+    ``None`` gives the pitch. A value within a relative :data:`SIGMA_PITCH_RTOL`
+    below the pitch is snapped to the pitch; anything smaller is refused, since
+    the window must hold one period (paper §2.2).
+    """
+    pitch = float(pitch)
+    if sigma is None:
+        return pitch
+    s = check_positive(sigma, name)
+    if s < pitch * (1 - SIGMA_PITCH_RTOL):
+        raise ValueError(f"{name} must be at least the pitch ({pitch:.6g} px) so that the "
+                         f"window holds one period, got {s:.6g}")
+    return max(s, pitch)
 
 
 def check_choice(value, name: str, choices) -> str:

@@ -54,6 +54,23 @@ Masks
     Every result carries a ``valid`` map; quantities are NaN where it is ``False``.
 
 Precision
-    float32 input is computed in float32 (sums and means in float64); every other
-    input is computed in float64.
+    One policy, held by every public function (``tests/test_dtypes.py``):
+
+    - The *precision* of a computation is float32 when every input image (or frame)
+      is float32, and float64 otherwise: integer images (8, 12, 16 bits...),
+      float64, float16, or float32 mixed with any of them.
+    - *Maps* -- an image transformed pixel by pixel (Anscombe), the windowed
+      Fourier coefficients ``psi`` (complex64 / complex128) and phase derivatives
+      ``dphi``, the displacement ``u``, strain and rotation -- are returned in that
+      precision, whichever path made them (``wft``, methods A and B, on Dask or
+      not, ``measure``, ``deformation``, ``measure_series``).
+    - Sums over frames or pixels are accumulated in float64 whatever the
+      precision (mean images, method B's running sums, temporal variances), and
+      the maps of float32 input are computed from them in float64 where the
+      precision matters (the mean image before method A's float32 transform, the
+      kinematics, whose fixed point and interpolation run in float64 and are
+      rounded once at the end).
+    - Everything else is float64: mean images, per-frame shifts and the
+      screening's figures, noise models and variance maps, uncertainty maps and
+      noise floors, and every scalar.
 """

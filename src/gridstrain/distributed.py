@@ -48,7 +48,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ._validation import check_choice, check_mask, check_positive
+from ._validation import check_choice, check_mask, check_positive, float_dtype
 from .io import FrameSeries, _check_out_dtype, check_saturation_limit, open_series
 from .kinematics import Measurement, deformation
 from .lattice import Lattice, detect_lattice
@@ -383,8 +383,10 @@ def mean_image_dask(stack, *, split_every: int | None = None):
     return arr.astype(np.float64).mean(axis=0, dtype=np.float64, split_every=k)
 
 
-def _method_a_result(mean: np.ndarray, lattice, sigma, mask, margin, n: int) -> StackResult:
-    maps = wft(mean, lattice, sigma=sigma, mask=mask, margin=margin)
+def _method_a_result(mean: np.ndarray, lattice, sigma, mask, margin, n: int,
+                     dtype=np.float64) -> StackResult:
+    # the float64 mean transformed in the frames' precision (gridstrain.conventions)
+    maps = wft(mean.astype(dtype, copy=False), lattice, sigma=sigma, mask=mask, margin=margin)
     return StackResult(maps=maps, n_frames=n, method="A", mean_image=mean)
 
 
@@ -436,7 +438,8 @@ def method_a_dask(stack, lattice: Lattice, *, sigma: float | None = None, mask=N
     mean = mean_image_dask(arr, split_every=split_every)
     # the transform runs where the mean is (one task): no round trip of the image
     graph = dask.delayed(_method_a_result, pure=True)(mean, lattice, sigma, m, margin,
-                                                      int(arr.shape[0]))
+                                                      int(arr.shape[0]),
+                                                      float_dtype(arr.dtype))
     return _compute([graph], client)[0] if compute else graph
 
 
@@ -489,8 +492,8 @@ def _method_b_with_mean(acc: _PhaseSums) -> tuple[StackResult, np.ndarray]:
     return _method_b_result(acc), acc.total / acc.acc.n
 
 
-def _method_a_with_mean(mean: np.ndarray, lattice, sigma, mask, margin, n: int):
-    return _method_a_result(mean, lattice, sigma, mask, margin, n), mean
+def _method_a_with_mean(mean: np.ndarray, lattice, sigma, mask, margin, n: int, dtype):
+    return _method_a_result(mean, lattice, sigma, mask, margin, n, dtype), mean
 
 
 def _tree(parts: list, combine, split_every: int):
@@ -644,7 +647,7 @@ def measure_states_dask(reference, states, *, lattice: Lattice | None = None,
             mean = ref_mean if i == 0 and ref_mean is not None \
                 else mean_image_dask(c, split_every=k)
             graphs.append(dask.delayed(_method_a_with_mean, pure=True)(
-                mean, lattice, sigma, mk, margin, int(c.shape[0])))
+                mean, lattice, sigma, mk, margin, int(c.shape[0]), float_dtype(c.dtype)))
         else:
             graphs.append(_method_b_graph(c, lattice, sigma, mk, margin, k, with_mean=True))
     # every series at once: the scheduler interleaves their tasks

@@ -36,6 +36,7 @@ Output
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import glob
 import json
 import numbers
@@ -63,6 +64,7 @@ __all__ = [
     "open_series",
     "read_hdf5",
     "read_mask",
+    "read_noise_model",
     "roi_mask",
     "to_luminance",
     "write_csv",
@@ -406,6 +408,8 @@ class FrameSeries:
     _tiff: tuple[bool, ...] = field(default=(), compare=False)
     channels: int = 1
     notes: tuple[str, ...] = ()
+    # number of every frame in the series it was taken from (subset); () : 0, 1, ...
+    _numbers: tuple[int, ...] = field(default=(), compare=True)
 
     @property
     def n_frames(self) -> int:
@@ -438,16 +442,37 @@ class FrameSeries:
         return self.paths[f], page
 
     def describe_frame(self, i: int) -> str:
-        """``"frame i (file[, page k])"``, for messages."""
+        """``"frame i (file[, page k])"``, for messages (``i`` numbered in the
+        series a :meth:`subset` was taken from)."""
         j = self._index(i)
         f, page, n_pages = self._frames[j]
-        return f"frame {j} ({_describe(self.paths[f], page, n_pages)})"
+        return f"frame {self._number(j)} ({_describe(self.paths[f], page, n_pages)})"
+
+    def _number(self, j: int) -> int:
+        return self._numbers[j] if self._numbers else j
+
+    def subset(self, indices) -> FrameSeries:
+        """The series of the frames ``indices`` only, in the order given.
+
+        Messages keep naming each frame by its number in this series, so that a
+        frame excluded or reported later is the one the user sees in the folder.
+
+        Parameters
+        ----------
+        indices : sequence of int
+            Frame indices, ``0 <= i < n_frames``, at least one.
+        """
+        idx = [self._index(i) for i in indices]
+        if not idx:
+            raise ValueError(f"{self.name}: a subset must keep at least one frame, got none")
+        return dataclasses.replace(self, _frames=tuple(self._frames[j] for j in idx),
+                                   _numbers=tuple(self._number(j) for j in idx))
 
     # -- reading
 
     def _iter_raw(self, indices: Iterable[int]) -> Iterator[tuple[str, np.ndarray]]:
         """Yield ``(description, raw frame)``, opening each file once per run."""
-        locs = [(j, *self._frames[j]) for j in indices]
+        locs = [(self._number(j), *self._frames[j]) for j in indices]
         for f, group in groupby(locs, key=lambda loc: loc[1]):
             path = self.paths[f]
             if self._tiff[f]:
@@ -1269,6 +1294,54 @@ def read_hdf5(path) -> dict:
 
         h5.visititems(visit)
     return out
+
+
+def read_noise_model(path):
+    """The camera noise model saved by ``gridstrain noise -o FILE.h5`` (or ``.json``).
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+
+    Returns
+    -------
+    gridstrain.noise.NoiseModel
+        ``K``, ``L`` in the stored grey levels of the images it was estimated on,
+        with their ``scale`` and ``bit_depth``.
+
+    Raises
+    ------
+    ValueError
+        The file is not a noise result, or holds an unusable model (``K <= 0``).
+    """
+    from .noise import NOISE_RESULT_KIND, NoiseModel
+
+    p = _as_path(path, "path")
+    if not p.is_file():
+        raise FileNotFoundError(f"noise file {p} does not exist")
+    if p.suffix.lower() == ".json":
+        try:
+            attrs = json.loads(p.read_text())
+        except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+            raise ValueError(f"noise file {p} is not JSON ({exc})") from None
+    else:
+        attrs = read_hdf5(p)["attrs"]
+    d = attrs.get("noise_model") if isinstance(attrs, dict) else None
+    if not isinstance(attrs, dict) or attrs.get("result_kind") != NOISE_RESULT_KIND \
+            or not isinstance(d, dict):
+        raise ValueError(f"noise file {p} is not a noise result of 'gridstrain noise -o' "
+                         "(no noise_model in it)")
+    try:
+        model = NoiseModel(K=d["K"], L=d["L"], K_ci=d.get("K_ci"), L_ci=d.get("L_ci"),
+                           scale=d.get("scale", 1.0), n_frames=d.get("n_frames"),
+                           n_pixels=d.get("n_pixels"), reduced_chi2=d.get("reduced_chi2"),
+                           method=str(d.get("method", "stack")),
+                           filter_gain=d.get("filter_gain"), bit_depth=d.get("bit_depth"))
+    except (KeyError, TypeError, ValueError) as exc:
+        raise ValueError(f"noise file {p}: unusable noise model ({exc})") from None
+    if not model.K > 0:
+        raise ValueError(f"noise file {p}: K must be positive, got {model.K!r}")
+    return model
 
 
 def _column_format(dtype: np.dtype, digits: int | None) -> str:

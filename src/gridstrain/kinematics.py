@@ -38,7 +38,8 @@ class Measurement:
     ----------
     u : (2, H, W) float ndarray
         Displacement ``(u_x, u_y)`` in px, Lagrangian (at reference pixels), NaN
-        where not ``valid``.
+        where not ``valid``. Computed in float64; float32 (as are ``strain`` and
+        ``rotation``) when both sets of phase maps are (:mod:`gridstrain.conventions`).
     strain : (3, H, W) float ndarray
         ``(eps_xx, eps_yy, eps_xy)``, dimensionless small-strain tensor (tensor
         shear), NaN where not ``valid``.
@@ -350,9 +351,11 @@ def deformation(reference: PhaseMaps, deformed: PhaseMaps, *, lagrangian: bool =
 
     strain = np.stack([G[0, 0], G[1, 1], 0.5 * (G[0, 1] + G[1, 0])])
     rotation = 0.5 * (G[1, 0] - G[0, 1])
-    u = np.where(valid, u, np.nan)
-    strain = np.where(valid, strain, np.nan)
-    rotation = np.where(valid, rotation, np.nan)
+    # computed in float64, returned in the maps' precision (gridstrain.conventions)
+    dt = np.result_type(reference.dphi.dtype, deformed.dphi.dtype)
+    u = np.where(valid, u, np.nan).astype(dt, copy=False)
+    strain = np.where(valid, strain, np.nan).astype(dt, copy=False)
+    rotation = np.where(valid, rotation, np.nan).astype(dt, copy=False)
     gmed = tuple(float(np.median(c)) for c in g) if source != "zero" else (0.0, 0.0)
     return Measurement(u=u, strain=strain, rotation=rotation, valid=valid, lattice=lattice,
                        sigma=reference.sigma, lagrangian=bool(lagrangian),

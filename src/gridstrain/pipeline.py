@@ -10,11 +10,16 @@ vibrations of every series and states the noise floor of the maps. Conventions
 For each series
     1. If no lattice is given, the reference frames are averaged (streamed) and
        the lattice detected on the mean image.
-    2. Vibrations: the rigid translation ``(alpha_t, beta_t)`` of every frame from
-       the phase of one global Fourier coefficient per wave vector
-       (:func:`gridstrain.vibration.frame_shifts` when available), no windowed
-       Fourier transform per frame. Paper eq. (2): frame ``t`` is
-       ``s(x + alpha_t, y + beta_t)``.
+    2. Screening and vibrations, in one read of every frame
+       (:func:`gridstrain.screening.screen_frames`): each frame is checked against
+       its series (a grid, its contrast, a rigid slip, the non-rigid residual of a
+       frame of another state, clipping at the ceiling or at a level ``2^n - 1``)
+       and the flagged frames are excluded, refused or kept with a warning
+       (``outliers``); every later pass sees the frames kept only. The rigid
+       translation ``(alpha_t, beta_t)`` of every frame comes from the phase of one
+       global Fourier coefficient per wave vector, as in
+       :func:`gridstrain.vibration.frame_shifts`, no windowed Fourier transform per
+       frame. Paper eq. (2): frame ``t`` is ``s(x + alpha_t, y + beta_t)``.
     3. Statistics (streamed): the mean image, the per-pixel sensor noise variance
        (see *Noise floor*) and the saturated fraction of every frame.
     4. Phase maps. Method A (paper §2.2): the windowed Fourier transform of the
@@ -69,13 +74,38 @@ Per-pixel uncertainty maps (``ux_std``, ``uy_std``, ``exx_std``, ``eyy_std``,
 measured per-pixel noise variance of each series (vibrations regressed out),
 averaged with the weight ``g^2`` the window gives each pixel and divided by ``T``,
 over the local modulus ``|Psi|``. They are :attr:`SeriesResult.uncertainty`, saved
-next to the maps by :func:`save_result`. With a single frame per series no variance
-can be measured and the maps are absent.
+next to the maps by :func:`save_result`.
+
+Where the noise variance comes from (``NoiseFloor.model``)
+    - a camera model given by the user (``noise_model``: a
+      :class:`gridstrain.noise.NoiseModel` from ``gridstrain noise``, or ``(K, L)``
+      in stored grey levels): every series' variance is ``K mean + L``;
+    - otherwise the temporal variance of each series of two frames or more, and
+      for the series of a single frame the model ``Var = K l + L`` estimated from
+      one image (:func:`gridstrain.noise.estimate_noise_image`, on the first
+      single-frame series: the camera is the same), evaluated at the image.
+    So every state gets its maps, its noise floor and its metrological figures,
+    whatever ``T``.
+
+Metrological figures (``SeriesResult.metrology``, :func:`gridstrain.uncertainty.metrology`)
+    Per state and map: the resolution (median predicted std), the spatial
+    resolution (FWHM) and the 10-90 % width of a step, and the metrological
+    efficiency indicator ``sigma_u d`` (displacement) or ``sigma_e d^2``
+    (strain), px^2, independent of ``sigma``.
+
+Systematic errors (``SeriesResult.systematic``)
+    The uncertainty maps cover noise only. Two biases are estimated and warned
+    about where they can exceed the noise: the harmonics of sharp lines aliasing
+    onto the carrier (:func:`gridstrain.uncertainty.aliasing_bias`, from the
+    reference image's spectrum, or a bound where the profile cannot be seen),
+    and the window's smoothing of strain gradients, ``sigma^2 / 2 lap(e)``
+    (:func:`gridstrain.uncertainty.smoothing_bias`, from the measured field).
 """
 
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import math
 import numbers
 import os
@@ -88,7 +118,13 @@ from scipy import ndimage
 
 from . import theory
 from ._progress import null_progress
-from ._validation import check_choice, check_mask, check_positive
+from ._validation import (
+    SIGMA_PITCH_RTOL,
+    check_choice,
+    check_mask,
+    check_positive,
+    check_sigma,
+)
 from .io import (
     FrameSeries,
     check_saturation_limit,
@@ -97,9 +133,10 @@ from .io import (
 )
 from .kinematics import Measurement, coarse_displacement, deformation
 from .lattice import Lattice, detect_lattice
+from .noise import NoiseModel, estimate_noise_image
+from .screening import FrameScreen, screen_frames
 from .stacks import method_b, method_c
-from .uncertainty import predict_uncertainty
-from .vibration import frame_shifts
+from .uncertainty import aliasing_bias, metrology, predict_uncertainty, smoothing_bias
 from .wft import DEFAULT_MARGIN, PhaseMaps, finite_derivatives, wft
 
 __all__ = [
@@ -133,6 +170,9 @@ _MIN_COARSE_CORRELATION = 0.5
 # frequencies turned by 45 degrees, where a grid or checkerboard has no harmonic:
 # noise alone gives about 1, the mean of a 12-bit grid image hundreds.
 _MIN_GRID_CONTRAST = 5.0
+# Aliasing of the lines' harmonics is flagged only above this displacement error, px
+# (when the noise is lower still): below it no measurement can tell it from noise.
+_ALIAS_MIN_PX = 1e-3
 # Largest fraction of saturated pixels accepted in a frame (gridstrain.io's default).
 _MAX_SATURATION = 0.01
 
@@ -216,6 +256,10 @@ class NoiseFloor:
     vibration_u : ndarray
         Standard deviation of the constant vibration offset of the displacement
         (reference and state together), px.
+    model : dict, optional
+        Where the image noise came from: ``source`` ("stack", "single image",
+        "given" or a mix per series), and the camera model ``Var = K l + L`` used
+        where one was (:meth:`gridstrain.noise.NoiseModel.as_dict`).
     """
 
     sigma: float
@@ -228,6 +272,7 @@ class NoiseFloor:
     split_u: np.ndarray
     split_strain: np.ndarray
     vibration_u: np.ndarray
+    model: dict | None = None
 
     def __post_init__(self):
         for name in ("modulus", "theory_u", "theory_strain", "split_u", "split_strain",
@@ -247,6 +292,7 @@ class NoiseFloor:
                "modulus": [clean(m) for m in self.modulus]}
         for name in ("theory_u", "theory_strain", "split_u", "split_strain", "vibration_u"):
             out[name] = [clean(row) for row in getattr(self, name)]
+        out["model"] = self.model
         return out
 
 
@@ -256,9 +302,11 @@ class SeriesResult:
 
     Attributes
     ----------
-    u : (n_states, 2, H, W) float64 ndarray
-        ``(u_x, u_y)`` per state, px, Lagrangian; NaN where not ``valid``.
-    strain : (n_states, 3, H, W) float64 ndarray
+    u : (n_states, 2, H, W) float ndarray
+        ``(u_x, u_y)`` per state, px, Lagrangian; NaN where not ``valid``. float32
+        when every series holds float32 frames, float64 otherwise (precision in
+        :mod:`gridstrain.conventions`).
+    strain : (n_states, 3, H, W) float ndarray
         ``(e_xx, e_yy, e_xy)`` per state, dimensionless (tensor shear).
     valid : (n_states, H, W) bool ndarray
     lattice : Lattice
@@ -298,10 +346,26 @@ class SeriesResult:
         Every option of the measurement, as given.
     warnings : tuple of str
         Things the user should know that did not stop the measurement.
+    excluded : tuple of tuple of int
+        Per series, the numbers of the frames the screening excluded (their files
+        and reasons are in ``warnings``); ``n_frames`` counts the frames kept.
+    screening : tuple of gridstrain.screening.FrameScreen
+        Per series, what the screening measured on every frame (excluded ones
+        included).
     uncertainty : dict of str to ndarray, optional
         Per-pixel predicted standard deviations ``"ux_std"``, ``"uy_std"`` (px),
         ``"exx_std"``, ``"eyy_std"``, ``"exy_std"``, each ``(n_states, H, W)``, NaN
-        where not valid; ``None`` when no series has two frames or more.
+        where not valid; ``None`` when no noise variance could be had (a single
+        frame per series whose noise could not be estimated, and no model given).
+    metrology : dict, optional
+        Per state and per map: resolution (median predicted std), spatial
+        resolution (window FWHM and 10-90 % step width, px) and the metrological
+        efficiency indicator (:func:`gridstrain.uncertainty.metrology`).
+    systematic : dict, optional
+        Estimated systematic errors that the uncertainty maps do not cover:
+        harmonic aliasing onto the carrier and the window's smoothing of strain
+        gradients (:func:`gridstrain.uncertainty.aliasing_bias`,
+        :func:`gridstrain.uncertainty.smoothing_bias`).
     """
 
     u: np.ndarray
@@ -329,6 +393,10 @@ class SeriesResult:
     parameters: dict
     warnings: tuple[str, ...] = ()
     uncertainty: dict | None = None
+    excluded: tuple[tuple[int, ...], ...] = ()
+    screening: tuple = field(default=(), repr=False)
+    metrology: dict | None = None
+    systematic: dict | None = None
 
     def __post_init__(self):
         for name in ("u", "strain", "valid", "mask", "reference_image"):
@@ -432,22 +500,37 @@ class _ArraySeries:
         self.dtype = arr.dtype
         self.shape = (int(arr.shape[1]), int(arr.shape[2]))
         self._data = arr
+        self._numbers = np.arange(arr.shape[0])  # frames kept, numbered in ``data``
+        if arr.dtype.kind in "ui":  # the container's ceiling, for the screening
+            self.saturation_level = int(np.iinfo(arr.dtype).max)
 
     @property
     def n_frames(self) -> int:
-        return int(self._data.shape[0])
+        return int(self._numbers.size)
 
     def __len__(self) -> int:
         return self.n_frames
 
+    def _number(self, j: int) -> int:
+        return int(self._numbers[j])
+
+    def describe_frame(self, i: int) -> str:
+        return f"frame {self._number(i)}"
+
+    def subset(self, indices) -> _ArraySeries:
+        out = object.__new__(_ArraySeries)
+        out.__dict__.update(self.__dict__)
+        out._numbers = self._numbers[np.asarray(indices, dtype=int)]
+        return out
+
     def frames(self, *, dtype=np.float64, start: int = 0, stop: int | None = None):
-        return (np.array(f, dtype=dtype) for f in self._data[start:stop])
+        return (np.array(self._data[t], dtype=dtype) for t in self._numbers[start:stop])
 
     def mean(self, *, start: int = 0, stop: int | None = None, progress=None):
-        sub = self._data[start:stop]
+        sub = self._numbers[start:stop]
         acc = np.zeros(self.shape)
-        for f in sub:
-            acc += f
+        for t in sub:
+            acc += self._data[t]
         return acc / len(sub)
 
 
@@ -527,15 +610,6 @@ def _counting(frames: Iterable, n: int, report: Progress, what: str):
 # --------------------------------------------------------------------------- vibrations
 
 
-def _frame_shifts(frames: Iterable, lattice: Lattice, name: str) -> tuple[np.ndarray, str]:
-    try:
-        return (np.asarray(frame_shifts(frames, lattice), dtype=np.float64),
-                "gridstrain.vibration.frame_shifts")
-    except ValueError as exc:
-        msg = str(exc)
-        raise ValueError(msg if msg.startswith(f"{name}:") else f"{name}: {msg}") from None
-
-
 def _diagnose(name: str, shifts: np.ndarray, estimator: str, lattice: Lattice,
               method: str) -> VibrationDiagnostics:
     T = shifts.shape[0]
@@ -560,6 +634,126 @@ def _diagnose(name: str, shifts: np.ndarray, estimator: str, lattice: Lattice,
     return VibrationDiagnostics(name=name, shifts=shifts, std=std,
                                 contrast_factor=tuple(contrast),
                                 phase_offset_std=tuple(offset), estimator=estimator)
+
+
+# --------------------------------------------------------------------------- screening
+
+#: What ``outliers`` may say to do with the frames the screening flags.
+OUTLIER_POLICIES = ("exclude", "refuse", "warn")
+# A screened series keeps the mean image's contrast above this fraction
+# (|mean c_t| / mean |c_t|): 0.8 is a vibration of 0.25 pitch / 2 pi ~ 0.2 px std at
+# pitch 5, past the second-order theory of the noise floor (Prop. 2.2).
+_MIN_COHERENCE = 0.8
+
+
+@dataclass(frozen=True, eq=False)
+class _Screened:
+    screen: FrameScreen
+    series: object  # the frames kept
+    shifts: np.ndarray  # (T_kept, 2) px, centred
+    excluded: tuple[int, ...]  # frame numbers
+    kept_flagged: bool  # frames flagged but kept (outliers="warn")
+    saturation: float  # largest clipped fraction of a kept frame
+    clip_level: float  # the level of that frame, NaN when none is clipped
+    warnings: tuple[str, ...]
+
+
+def _screen_series(s, lattice: Lattice, mask, max_saturation: float, outliers: str,
+                   report: Progress) -> _Screened:
+    """Read every frame of ``s`` once: rigid shifts and the screening
+    (:func:`gridstrain.screening.screen_frames`), then exclude, refuse or keep
+    the flagged frames as ``outliers`` says. A strict minority is excluded; when half
+    the frames or more are flagged the series is refused whatever the policy but
+    "warn": the good frames cannot be told from the bad."""
+    n = s.n_frames
+    try:
+        sc = screen_frames(_counting(s.frames(dtype=np.float64), n, report, "screening"),
+                           lattice, saturation_level=s.saturation_level, scale=s.scale,
+                           mask=mask, max_saturation=max_saturation)
+    except ValueError as exc:
+        raise ValueError(f"{s.name}: {exc}") from None
+    bad = sc.flagged
+    names = {t: s.describe_frame(t) for t in bad}
+    listed = "; ".join(f"{names[t]}: {', '.join(sc.reasons[t])}" for t in bad[:5])
+    if len(bad) > 5:
+        listed += f"; and {len(bad) - 5} more"
+    warnings = []
+    keep = [t for t in range(n) if t not in set(bad)]
+    if bad and outliers != "warn" and (outliers == "refuse" or 2 * len(bad) >= n):
+        why = "" if outliers == "refuse" or len(bad) == n else " (half or more: the " \
+            "good frames cannot be told from the bad)"
+        raise ValueError(f"{s.name}: {listed} -- {len(bad)} of {n} frame(s) flagged{why}; "
+                         f"{_advice(sc, bad)}, or pass outliers='warn' (--outliers warn) "
+                         "to measure anyway")
+    if bad and outliers == "exclude":
+        warnings.append(f"{s.name}: excluded {len(bad)} of {n} frames: {listed}")
+    elif bad:
+        warnings.append(f"{s.name}: kept {len(bad)} flagged frame(s) of {n} (outliers="
+                        f"'warn'): {listed}; the noise floor and uncertainty maps of the "
+                        "states measured with them are not stated (NaN)")
+        keep = list(range(n))
+    kept = s if len(keep) == n else s.subset(keep)
+    coh = sc.coherence(keep)
+    if len(keep) > 1 and coh.min() < _MIN_COHERENCE:
+        warnings.append(f"{s.name}: the frames' rigid shifts leave only {coh.min():.0%} of "
+                        "the grid's contrast in their mean (vibrations of a large fraction "
+                        "of a pitch): the noise floor's theory does not hold")
+    sat = sc.saturated[keep]
+    worst = int(np.argmax(sat))
+    level = float(sc.clip_level[keep][worst]) if sat[worst] > 0 else math.nan
+    return _Screened(screen=sc, series=kept, shifts=sc.shifts(keep),
+                     excluded=tuple(s._number(t) for t in bad if outliers == "exclude"),
+                     kept_flagged=bool(bad) and outliers == "warn",
+                     saturation=float(sat[worst]), clip_level=level,
+                     warnings=tuple(warnings))
+
+
+# What the user can do about a flagged frame, by what its reason says.
+_ADVICE = (("uniform", "remove the blank frames"), ("shows no grid", "remove the blank frames"),
+           ("low grid contrast", "remove the dark or blurred frames"),
+           ("rigid shift", "measure the frames before and after the slip as two series"),
+           ("non-rigid", "move the frames of another state to their own series"),
+           ("pixels saturated", "shorten the exposure or mask the saturated area"))
+
+
+def _advice(sc, bad) -> str:
+    out = []
+    for t in bad:
+        for reason in sc.reasons[t]:
+            for key, what in _ADVICE:
+                if key in reason and what not in out:
+                    out.append(what)
+    return "; ".join(out) or "remove or re-take them"
+
+
+def _saturation_warning(s, sc: _Screened, saturation: float) -> list[str]:
+    if saturation <= 0:
+        return []
+    lvl = sc.clip_level
+    at = "" if not math.isfinite(lvl) else f" (clipped at {lvl:g}" + (
+        ")" if s.saturation_level is None or lvl >= s.saturation_level else
+        ", a level 2^n - 1 below the files' range: a camera of fewer bits? pass its "
+        "bit depth)")
+    return [f"{s.name}: up to {saturation:.2%} of a frame's pixels are saturated{at}"]
+
+
+def _void_precision(noise: NoiseFloor, uncertainty, screens) -> tuple:
+    """NaN noise floor and uncertainty maps for every state measured with frames that
+    were flagged but kept: their precision is not known."""
+    states = [i for i in range(noise.theory_u.shape[0])
+              if screens[0].kept_flagged or screens[i + 1].kept_flagged]
+    if not states:
+        return noise, uncertainty
+    arrays = {}
+    for name in ("theory_u", "theory_strain", "split_u", "split_strain", "vibration_u"):
+        a = np.array(getattr(noise, name))
+        a[states] = np.nan
+        arrays[name] = a
+    if uncertainty is not None:
+        uncertainty = {k: np.array(v) for k, v in uncertainty.items()}
+        for v in uncertainty.values():
+            v[states] = np.nan
+    return dataclasses.replace(noise, **arrays), uncertainty
 
 
 # --------------------------------------------------------------------------- statistics
@@ -743,6 +937,15 @@ def _phase_maps_c(series, lattice, sigma, mask, margin, shifts, report):
     return finite_derivatives(res.maps), [f"{series.name}: {w}" for w in res.warnings]
 
 
+def _in_precision(maps: list, series: list) -> list:
+    """The phase maps in the precision of the input (gridstrain.conventions): float32
+    when every series holds float32 frames; they were computed in float64."""
+    if not all(np.dtype(s.dtype) == np.float32 for s in series):
+        return maps
+    return [dataclasses.replace(pm, psi=pm.psi.astype(np.complex64),
+                                dphi=pm.dphi.astype(np.float32)) for pm in maps]
+
+
 # --------------------------------------------------------------------------- Dask
 
 
@@ -845,7 +1048,9 @@ def measure_series(reference, states, *, lattice: Lattice | None = None,
                    sigma: float | None = None, method: str = "A", mask=None,
                    lagrangian: bool = True, guess="auto", margin: float = DEFAULT_MARGIN,
                    bit_depth: int | None = None, max_saturation: float = _MAX_SATURATION,
-                   progress: Progress | None = None, scheduler=None) -> SeriesResult:
+                   outliers: str = "exclude", progress: Progress | None = None,
+                   scheduler=None, noise_model=None,
+                   sigma_pitches: float | None = None) -> SeriesResult:
     """Displacement and strain maps of loaded states from series of grid images.
 
     Parameters
@@ -860,7 +1065,8 @@ def measure_series(reference, states, *, lattice: Lattice | None = None,
     lattice : Lattice, optional
         The grid's wave vectors; detected on the mean reference image by default.
     sigma : float, optional
-        Window standard deviation, px (default: the pitch; at least the pitch).
+        Window standard deviation, px (default: the pitch; at least the pitch; a
+        value within a relative 1e-3 below the pitch is taken as the pitch).
     method : {"A", "B", "C"}
         "A" (paper §2.2): one windowed Fourier transform of each averaged series.
         "B" (§2.3): one transform per frame, phases and derivatives averaged.
@@ -884,6 +1090,17 @@ def measure_series(reference, states, *, lattice: Lattice | None = None,
     max_saturation : float
         Largest fraction of saturated pixels accepted in any frame of a file
         series (within the mask), in [0, 1].
+    outliers : {"exclude", "refuse", "warn"}
+        What to do with the frames that the screening flags (every frame is checked
+        against its series by :func:`gridstrain.screening.screen_frames`: no grid
+        or a uniform frame, low contrast, a rigid slip, a frame of another state,
+        more than ``max_saturation`` clipped pixels, at the container's ceiling or
+        at a level ``2^n - 1``). "exclude" (default): leave them out of every
+        average (mean, variance, method B, the noise floor's halves, ``T``) and
+        name them in the warnings; a series with half its frames flagged or more
+        is refused, the good ones being then unknown. "refuse": raise on any
+        flagged frame. "warn": keep them, name them in the warnings, and give the
+        noise floor and uncertainty maps of the states they enter as NaN.
     progress : callable, optional
         ``progress(fraction, message)``.
     scheduler : str or distributed.Client, optional
@@ -896,6 +1113,16 @@ def measure_series(reference, states, *, lattice: Lattice | None = None,
         shifts, the lattice, method C, the noise floor and the kinematics stay on
         this machine. Results equal those without a scheduler to the rounding of sums
         added in another order.
+    noise_model : NoiseModel or (K, L), optional
+        The camera's noise ``Var = K l + L`` in the stored grey levels of the
+        images (a :class:`gridstrain.noise.NoiseModel`, e.g. from ``gridstrain
+        noise``, or a pair from a datasheet). Used for every series instead of
+        the noise measured in the data. Default: the temporal variance of each
+        series of two frames or more, and for single frames the model estimated
+        from one image (:func:`gridstrain.noise.estimate_noise_image`).
+    sigma_pitches : float, optional
+        The window's standard deviation in pitches (``sigma = sigma_pitches x
+        pitch``, at least 1), instead of ``sigma``.
 
     Returns
     -------
@@ -906,6 +1133,14 @@ def measure_series(reference, states, *, lattice: Lattice | None = None,
     ValueError, TypeError, OSError
         Bad arguments or input files (the message names the series, the frame
         and the file); an unreachable scheduler (OSError).
+
+    Notes
+    -----
+    Frames are read one at a time, never held whole. Every frame is read once for
+    the screening and the shifts, once for the statistics and, with method B, once
+    for its transform; the reference's frames twice more (the mean that detects or
+    checks the lattice, before the screening, and the two halves of the noise
+    floor).
 
     Examples
     --------
@@ -923,8 +1158,18 @@ def measure_series(reference, states, *, lattice: Lattice | None = None,
     if not callable(progress):
         raise TypeError(f"progress must be callable or None, got {progress!r}")
     check_choice(method, "method", ("A", "B", "C"))
+    check_choice(outliers, "outliers", OUTLIER_POLICIES)
     margin = check_positive(margin, "margin")
     sigma = check_positive(sigma, "sigma", allow_none=True)
+    if sigma_pitches is not None:
+        if sigma is not None:
+            raise ValueError(f"give sigma or sigma_pitches, not both (got sigma={sigma!r}, "
+                             f"sigma_pitches={sigma_pitches!r})")
+        sigma_pitches = check_positive(sigma_pitches, "sigma_pitches")
+        if sigma_pitches < 1 - SIGMA_PITCH_RTOL:
+            raise ValueError(f"sigma_pitches must be at least 1 (the window must hold one "
+                             f"period), got {sigma_pitches!r}")
+        sigma_pitches = max(sigma_pitches, 1.0)
     guess = _check_guess(guess)
     if isinstance(max_saturation, bool) or not isinstance(max_saturation, numbers.Real) \
             or not 0 <= max_saturation <= 1:
@@ -933,9 +1178,9 @@ def measure_series(reference, states, *, lattice: Lattice | None = None,
     if lattice is not None and not isinstance(lattice, Lattice):
         raise TypeError(f"lattice must be a Lattice or None, got {type(lattice).__name__}")
     scheduler = _check_scheduler(scheduler)
-    if sigma is not None and lattice is not None and sigma < lattice.pitch * (1 - 1e-9):
-        raise ValueError(f"sigma must be at least the pitch ({lattice.pitch:.4g} px) so "
-                         f"that the window holds one period, got {sigma:.4g}")
+    given_model = _check_noise_model(noise_model)
+    if sigma is not None and lattice is not None:
+        sigma = check_sigma(sigma, lattice.pitch)
 
     ref = _as_series(reference, "reference", bit_depth)
     series = [ref] + [_as_series(s, f"state {i}", bit_depth)
@@ -971,28 +1216,35 @@ def measure_series(reference, states, *, lattice: Lattice | None = None,
             lattice = detect_lattice(mean_ref, mask=m)
         except ValueError as exc:
             raise ValueError(f"reference: {exc}") from None
-    sigma = lattice.pitch if sigma is None else sigma
-    if sigma < lattice.pitch * (1 - 1e-9):
-        raise ValueError(f"sigma must be at least the pitch ({lattice.pitch:.4g} px) so "
-                         f"that the window holds one period, got {sigma:.4g}")
+    if sigma_pitches is not None:
+        sigma = sigma_pitches * lattice.pitch
+    sigma = check_sigma(sigma, lattice.pitch)
     if not detect:
         _check_given_lattice(mean_ref, lattice, sigma, m, margin)
     steps.step(1.0, "lattice")
 
+    # every frame screened against its series (one read), the flagged ones handled
+    # before any average; the rest of the pipeline sees the frames kept only
+    screens = [_screen_series(s, lattice, m, max_saturation, outliers,
+                              steps.sub(s.n_frames, s.name)) for s in series]
+    series = [sc.series for sc in screens]
+    ref = series[0]
+    warnings += [w for sc in screens for w in sc.warnings]
+
     vib, stats, maps, masks = [], [], [], []
     with _connect(scheduler) as client:
-        for s in series:
+        for s, sc in zip(series, screens, strict=True):
             n = s.n_frames
-            shifts, how = _frame_shifts(
-                _counting(s.frames(dtype=np.float64), n, steps.sub(n, s.name), "shifts"),
-                lattice, s.name)
-            vib.append(_diagnose(s.name, shifts, how, lattice, method))
+            shifts = sc.shifts
+            vib.append(_diagnose(s.name, shifts, "gridstrain.vibration.frame_shifts",
+                                 lattice, method))
+            # the screening judged the saturation: the pass below only measures it
             if client is None:
-                stats.append(_statistics(s, shifts, m, max_saturation, steps.sub(n, s.name)))
+                stats.append(_statistics(s, shifts, m, 1.0, steps.sub(n, s.name)))
             else:  # a future: the cluster works while this machine reads the next series
                 c, _, regress = _regressors(shifts)
                 stats.append(_dist()._submit_statistics(client, s, c if regress else None, m,
-                                                        max_saturation))
+                                                        1.0))
         for k, s in enumerate(series):
             n = s.n_frames
             if client is not None:
@@ -1021,6 +1273,9 @@ def measure_series(reference, states, *, lattice: Lattice | None = None,
 
     if method == "A":
         warnings.extend(_contrast_notes(vib))
+    stats, model_info = _noise_models(stats, series, given_model, lattice, masks[0],
+                                      warnings)
+    maps = _in_precision(maps, series)
     mean_ref = stats[0].mean
     measurements, guesses, sources = [], [], []
     for i in range(1, len(series)):
@@ -1069,19 +1324,24 @@ def measure_series(reference, states, *, lattice: Lattice | None = None,
                        sensor_variance=tuple(var),
                        variance_method=tuple(st.variance_method for st in stats),
                        modulus=mods, theory_u=th_u, theory_strain=th_e, split_u=sp_u,
-                       split_strain=sp_e, vibration_u=vib_u)
-    for st, s in zip(stats, series, strict=True):
-        if st.saturation > 0:
-            warnings.append(f"{s.name}: up to {st.saturation:.2%} of a frame's pixels are "
-                            "saturated")
+                       split_strain=sp_e, vibration_u=vib_u, model=model_info)
+    saturation = tuple(max(st.saturation, sc.saturation)
+                       for st, sc in zip(stats, screens, strict=True))
+    for s, sc, sat in zip(series, screens, saturation, strict=True):
+        warnings += _saturation_warning(s, sc, sat)
     uncertainty = _uncertainty_maps(stats, maps, measurements, T, float(sigma))
+    noise, uncertainty = _void_precision(noise, uncertainty, screens)
+    metrology, systematic = _figures(noise, uncertainty, measurements, mean_ref, lattice,
+                                     float(sigma), masks[0], warnings)
     progress(1.0, "done")
 
     parameters = {"sigma": float(sigma), "method": method, "lagrangian": bool(lagrangian),
                   "guess": guess, "margin": float(margin), "max_saturation":
-                  float(max_saturation), "bit_depth": bit_depth,
+                  float(max_saturation), "bit_depth": bit_depth, "outliers": outliers,
                   "lattice": None if detect else {"k1": list(lattice.k1),
-                                                  "k2": list(lattice.k2)}}
+                                                  "k2": list(lattice.k2)},
+                  "noise_model": None if given_model is None else given_model.as_dict(),
+                  "sigma_pitches": sigma_pitches}
     u = np.stack([r.u for r in measurements])
     strain = np.stack([r.strain for r in measurements])
     valid = np.stack([r.valid for r in measurements])
@@ -1093,10 +1353,125 @@ def measure_series(reference, states, *, lattice: Lattice | None = None,
         sources=tuple(tuple(str(p) for p in s.paths) for s in series),
         n_frames=tuple(T), bit_depth=tuple(s.bit_depth for s in series),
         scale=tuple(int(s.scale) for s in series),
-        saturation=tuple(st.saturation for st in stats),
+        saturation=saturation, excluded=tuple(sc.excluded for sc in screens),
+        screening=tuple(sc.screen for sc in screens),
         measurements=tuple(measurements), guesses=tuple(guesses),
         guess_sources=tuple(sources), vibration=tuple(vib), noise=noise,
-        parameters=parameters, warnings=tuple(warnings), uncertainty=uncertainty)
+        parameters=parameters, warnings=tuple(warnings), uncertainty=uncertainty,
+        metrology=metrology, systematic=systematic)
+
+
+def _check_noise_model(noise_model):
+    """A NoiseModel from ``noise_model`` (a NoiseModel or a (K, L) pair), or None."""
+    if noise_model is None or isinstance(noise_model, NoiseModel):
+        if noise_model is not None and not noise_model.K > 0:
+            raise ValueError(f"noise_model: K must be positive, got {noise_model.K!r}")
+        return noise_model
+    if isinstance(noise_model, str | bytes) or not isinstance(noise_model, Sequence) \
+            or len(noise_model) != 2:
+        raise TypeError(f"noise_model must be a NoiseModel or a (K, L) pair in stored grey "
+                        f"levels, got {noise_model!r}")
+    K = check_positive(noise_model[0], "noise_model K")
+    L = noise_model[1]
+    if isinstance(L, bool) or not isinstance(L, numbers.Real) or not math.isfinite(L):
+        raise ValueError(f"noise_model L must be a finite number of grey levels^2, got {L!r}")
+    return NoiseModel(K=K, L=float(L), method="given")
+
+
+def _noise_models(stats, series, given, lattice, mask, warnings):
+    """Per-frame noise variance maps of every series, and where they came from.
+
+    A given camera model sets every series' variance to ``K mean + L``; otherwise
+    the series of one frame get the model estimated from one image (the first such
+    series: the camera is the same), and the others keep their temporal variance.
+    """
+    def from_model(st, model, how):
+        var = np.maximum(model.K * st.mean + model.L, 0.0)
+        return _Stats(st.mean, var, how, st.saturation)
+
+    def describe(model, what):
+        return (f"{what}: Var = K l + L, K = {model.K:.4g}, L = {model.L:.4g} (stored grey "
+                "levels)")
+
+    for s in series:
+        if given is not None and s.bit_depth is not None and given.bit_depth is not None \
+                and given.bit_depth != s.bit_depth:
+            raise ValueError(f"noise model: estimated on {given.bit_depth}-bit images but "
+                             f"{s.name} is {s.bit_depth}-bit; estimate it on this camera's "
+                             "images or give --noise-model K L in their stored units")
+        if given is not None and given.method != "given" and given.scale != s.scale:
+            raise ValueError(f"noise model: estimated on images stored x{given.scale:g} but "
+                             f"{s.name} is stored x{s.scale:g}; its K and L are in other "
+                             "units")
+    if given is not None:
+        how = describe(given, f"camera model ({given.method})")
+        return ([from_model(st, given, how) for st in stats],
+                {"source": f"given ({given.method})", **given.as_dict()})
+    single = [k for k, st in enumerate(stats) if st.variance is None]
+    if not single:
+        return stats, {"source": "stack"}
+    k0 = single[0]
+    s0 = series[k0]
+    try:
+        model = estimate_noise_image(stats[k0].mean, lattice,
+                                     mask=mask if k0 == 0 else None,
+                                     saturation=s0.saturation_level, scale=s0.scale)
+    except ValueError as exc:
+        warnings.append(f"{s0.name}: the noise could not be estimated from its single image "
+                        f"({exc}); the single-frame series get no uncertainty of their "
+                        "own (give --noise or --noise-model)")
+        return stats, {"source": "unavailable"}
+    model = dataclasses.replace(model, bit_depth=s0.bit_depth)
+    how = describe(model, f"single image ({s0.name})")
+    out = [from_model(st, model, how) if k in single else st for k, st in enumerate(stats)]
+    source = "single image" if len(single) == len(stats) else "stack and single image"
+    return out, {"source": source, "estimated_on": s0.name, **model.as_dict()}
+
+
+def _figures(noise, uncertainty, measurements, mean_ref, lattice, sigma, mask, warnings):
+    """Metrological figures and the systematic errors, warning where they can matter."""
+    n = len(measurements)
+    floors = {}
+    for i in range(n):
+        if uncertainty is not None and measurements[i].valid.any():
+            v = measurements[i].valid
+            floors[i] = {k.removesuffix("_std"): float(np.median(a[i][v]))
+                         for k, a in uncertainty.items()}
+        else:
+            floors[i] = {"ux": float(noise.theory_u[i][0]), "uy": float(noise.theory_u[i][1]),
+                         "exx": float(noise.theory_strain[i][0]),
+                         "eyy": float(noise.theory_strain[i][1]),
+                         "exy": float(noise.theory_strain[i][2])}
+    metro = metrology([floors[i] for i in range(n)], sigma)
+    alias = aliasing_bias(mean_ref, lattice, sigma=sigma, mask=mask)
+    smooth = [smoothing_bias(m.strain, m.valid, sigma=sigma) for m in measurements]
+    for i, m in enumerate(measurements):
+        name = f"state {i}"
+        fl = floors[i]
+        known = [fl[k] for k in ("ux", "uy") if math.isfinite(fl[k])]
+        u_noise = max(known) if known else 0.0
+        noise_txt = f"{u_noise:.2g} px" if known else "unknown"
+        if alias["u_px"] > max(u_noise, _ALIAS_MIN_PX):
+            how = ("estimated from the harmonics seen in the reference image"
+                   if alias["observable"] else "bound for sharp lines; the line profile "
+                   "cannot be seen at this pitch")
+            e_max = float(np.max(np.abs(m.strain[:, m.valid]))) if m.valid.any() else 0.0
+            warnings.append(f"{name}: harmonics of the grid's lines can alias onto the carrier "
+                            f"at pitch {lattice.pitch:.3g} px: displacement error up to "
+                            f"{alias['u_px']:.2g} px and strain error up to "
+                            f"{alias['strain_per_strain'] * e_max:.2g} ({how}), above the noise "
+                            f"({noise_txt}); use a larger sigma, a pitch away from 4 px "
+                            "or a smoother (defocused) grid")
+        for j, comp in enumerate(("exx", "eyy", "exy")):
+            b = smooth[i]["p95"][j]
+            e_noise = fl[comp]
+            # noise alone gives a 95th percentile of ~0.6 noise std: twice it is signal
+            if b is not None and math.isfinite(e_noise) and b > 2 * e_noise and b > 1e-6:
+                warnings.append(f"{name}: the window smooths the {comp} gradients: bias "
+                                f"sigma^2/2 lap(e) reaches {b:.2g} (95th percentile) against "
+                                f"a noise std of {e_noise:.2g}; a smaller sigma resolves them "
+                                "better at the cost of noise")
+    return metro, {"aliasing": alias, "smoothing": smooth}
 
 
 def _uncertainty_maps(stats, maps, measurements, T, sigma):

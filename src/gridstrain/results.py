@@ -21,7 +21,13 @@ The file
       factors and phase offsets), the noise floor (``noise_*``), the lattice
       (``lattice_k (wave_vector, axis)``) as variables, and the parameters, the
       lattice's pitches and angles, the warnings and the configuration that
-      replays the run (``config``, TOML text) as root attributes.
+      replays the run (``config``, TOML text) as root attributes;
+    - the metrological figures per state: ``resolution_u`` (px),
+      ``resolution_strain`` (1), ``efficiency_u`` and ``efficiency_strain``
+      (px^2), ``systematic_smoothing_strain`` (1), and as root attributes
+      ``noise_model_source`` (where the image noise came from),
+      ``spatial_resolution_px``, ``step_width_px``, ``systematic_aliasing_u_px``
+      and ``systematic_aliasing_strain_per_strain``.
 
     Every variable has ``units`` and ``long_name``. The group ``gridstrain``
     holds the rest of the :class:`~gridstrain.pipeline.SeriesResult`, field by
@@ -436,6 +442,7 @@ def _write_root(h5, result, ps, unit, attrs, H, W, n, n_series, lat) -> None:
          "median modulus |Psi| of the phase maps, raw grey levels")
     _var(h5, "lattice_k", np.array([lat.k1, lat.k2]), ("wave_vector", "axis"),
          "cycles/px", "wave vectors of the grid")
+    _write_metrology(h5, result)
     root = {
         "Conventions": "CF-1.10",
         "title": "gridstrain displacement and strain maps",
@@ -450,6 +457,7 @@ def _write_root(h5, result, ps, unit, attrs, H, W, n, n_series, lat) -> None:
         "angles": list(lat.angles), "lattice_detected": bool(result.lattice_detected),
         "sigma": result.sigma, "method": result.method, "lagrangian": result.lagrangian,
         "margin": result.margin, "resolution_fwhm_px": nf.resolution,
+        "noise_model_source": (nf.model or {}).get("source", "stack"),
         "n_frames_reference": result.n_frames[0],
         "reference_files": list(result.sources[0]),
         "warnings": list(result.warnings),
@@ -462,6 +470,32 @@ def _write_root(h5, result, ps, unit, attrs, H, W, n, n_series, lat) -> None:
         stored = _root_attr(value)
         if stored is not None:
             h5.attrs[key] = stored
+
+
+def _write_metrology(h5, result) -> None:
+    """Resolution, efficiency and systematic errors per state, as CF variables with
+    units (the full records, definitions included, are in the ``gridstrain`` group)."""
+    met, sy = result.metrology, result.systematic
+    if met is not None:
+        for kind, comps, unit in (("u", ("ux", "uy"), "px"),
+                                  ("strain", ("exx", "eyy", "exy"), "1")):
+            for what, u, text in (
+                    ("resolution", unit, "resolution: median predicted std at a pixel"),
+                    ("efficiency", "px^2", "metrological efficiency indicator: resolution "
+                     "x d (u) or x d^2 (strain), d the window FWHM")):
+                vals = np.array([[np.nan if st[c][what] is None else st[c][what]
+                                  for c in comps] for st in met["states"]], dtype=float)
+                _var(h5, f"{what}_{kind}", vals, ("state", f"{kind}_component"), u, text)
+        h5.attrs["spatial_resolution_px"] = float(met["spatial_resolution_px"])
+        h5.attrs["step_width_px"] = float(met["step_width_px"])
+    if sy is not None:
+        smooth = np.array([[np.nan if v is None else v for v in s["p95"]]
+                           for s in sy["smoothing"]], dtype=float)
+        _var(h5, "systematic_smoothing_strain", smooth, ("state", "strain_component"), "1",
+             "window smoothing of strain gradients, 95th percentile of sigma^2/2 lap(e)")
+        h5.attrs["systematic_aliasing_u_px"] = float(sy["aliasing"]["u_px"])
+        h5.attrs["systematic_aliasing_strain_per_strain"] = float(
+            sy["aliasing"]["strain_per_strain"])
 
 
 # --------------------------------------------------------------------------- load

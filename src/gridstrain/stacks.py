@@ -168,20 +168,28 @@ def _check_counts(counts) -> list[int]:
 
 
 class _MeanImage:
-    """Running float64 sum of frames."""
+    """Running float64 sum of frames, and the precision of their maps."""
 
     def __init__(self):
         self.total = None
         self.n = 0
+        self.dtype = None  # float32 while every frame is float32 (conventions)
 
     def add(self, img: np.ndarray) -> None:
         if self.total is None:
             self.total = np.zeros(img.shape, dtype=np.float64)
+            self.dtype = img.dtype
         self.total += img  # float64 accumulation whatever the frame dtype
+        self.dtype = np.promote_types(self.dtype, img.dtype)
         self.n += 1
 
     def mean(self) -> np.ndarray:
         return self.total / self.n
+
+    def transform(self, lattice: Lattice, **kwargs) -> tuple[PhaseMaps, np.ndarray]:
+        """Method A: the WFT of the float64 mean, taken in the frames' precision."""
+        avg = self.mean()
+        return wft(avg.astype(self.dtype, copy=False), lattice, **kwargs), avg
 
 
 class _FrameOrder:
@@ -268,6 +276,8 @@ class _PhaseMean:
             elif self.unit.shape[1:] != (H, W):
                 raise ValueError(f"frames must all have the shape {self.unit.shape[1:]}, "
                                  f"got {(H, W)}")
+            # float32 maps only if every frame is float32 (gridstrain.conventions)
+            self.dtype = np.promote_types(self.dtype, img.dtype)
         work = getattr(self._local, "work", None)
         if work is None:
             work = self._local.work = _Workspace()
@@ -308,7 +318,8 @@ class _PhaseMean:
         out.mod = self.mod + other.mod
         out.dphi = self.dphi + other.dphi
         out.valid = self.valid & other.valid
-        out.lattice, out.sigma, out.dtype = self.lattice, self.sigma, self.dtype
+        out.lattice, out.sigma = self.lattice, self.sigma
+        out.dtype = np.promote_types(self.dtype, other.dtype)
         return out
 
     def result(self) -> StackResult:
@@ -341,18 +352,18 @@ def mean_image(frames, *, progress: Progress | None = None) -> np.ndarray:
     (H, W) float64 ndarray
         ``v_bar = (1/T) sum_t v_t``, grey levels.
     """
-    return _average(frames, progress or null_progress, "averaging")[0]
+    return _average(frames, progress or null_progress, "averaging").mean()
 
 
-def _average(frames, progress: Progress, what: str) -> tuple[np.ndarray, int]:
-    """The streamed float64 mean of ``frames`` and their number."""
+def _average(frames, progress: Progress, what: str) -> _MeanImage:
+    """The streamed float64 sum of ``frames``."""
     acc = _MeanImage()
     for i, img, total in _frames(frames):
         acc.add(img)
         _report(progress, i, total, what)
     if acc.n == 0:
         raise ValueError("frames must hold at least one image, got none")
-    return acc.mean(), acc.n
+    return acc
 
 
 def method_a(frames, lattice: Lattice, *, sigma: float | None = None, mask=None,
@@ -377,7 +388,9 @@ def method_a(frames, lattice: Lattice, *, sigma: float | None = None, mask=None,
     Returns
     -------
     StackResult
-        ``maps = wft(v_bar)``, with ``mean_image = v_bar``.
+        ``maps = wft(v_bar)``, with ``mean_image = v_bar`` (float64, the sum's
+        precision); the transform is taken in float32 when every frame is float32
+        (precision in :mod:`gridstrain.conventions`).
 
     Notes
     -----
@@ -390,10 +403,10 @@ def method_a(frames, lattice: Lattice, *, sigma: float | None = None, mask=None,
     if not isinstance(lattice, Lattice):
         raise TypeError(f"lattice must be a Lattice, got {type(lattice).__name__}")
     n_workers = check_workers(workers)
-    avg, n = _average(frames, progress or null_progress, "method A")
-    maps = wft(avg, lattice, sigma=sigma, mask=mask, workers=n_workers)
+    acc = _average(frames, progress or null_progress, "method A")
+    maps, avg = acc.transform(lattice, sigma=sigma, mask=mask, workers=n_workers)
     (progress or null_progress)(1.0, "method A: done")
-    return StackResult(maps=maps, n_frames=n, method="A", mean_image=avg)
+    return StackResult(maps=maps, n_frames=acc.n, method="A", mean_image=avg)
 
 
 def _map_bounded(fn: Callable, items: Iterable, workers: int) -> Iterator:
@@ -810,9 +823,8 @@ def prefix_stacks(frames, lattice: Lattice, counts, *, method: str = "A",
         progress(n / last, f"method {method}: frame {n}/{last}")
         if n == wanted[k]:
             if method == "A":
-                avg = acc.mean()
-                yield StackResult(maps=wft(avg, lattice, sigma=sigma, mask=mask),
-                                  n_frames=n, method="A", mean_image=avg)
+                maps, avg = acc.transform(lattice, sigma=sigma, mask=mask)
+                yield StackResult(maps=maps, n_frames=n, method="A", mean_image=avg)
             elif method == "C":
                 yield acc.result(sigma=sigma, mask=mask)
             else:

@@ -86,6 +86,20 @@ class _CarrierProbe:
         rows = P[:, 1:3] - 1j * P[:, 3:5]  # sum_x wx v exp(-2 i pi kx x), (H, 2)
         return np.einsum("hj,hj->j", self._ey, rows) - m * self._dc
 
+    def prominence(self, frame: np.ndarray, c: np.ndarray) -> np.ndarray:
+        """(2,) moduli of the coefficients ``c = self(frame)`` over the white-noise
+        level of the frame, ``sqrt(sum w^2 (v - m)^2)``; zero for a uniform frame."""
+        wx, wy = self._right[:, 0], self._wy
+        wx2, wy2 = wx * wx, wy * wy
+        m = float(wy @ np.einsum("ij,j->i", frame, wx)) / self._wsum
+        # sum w^2 (v - m)^2 expanded: three passes over the frame, no temporary
+        s2 = float(wy2 @ np.einsum("ij,ij,j->i", frame, frame, wx2))
+        s1 = float(wy2 @ np.einsum("ij,j->i", frame, wx2))
+        var = s2 - 2 * m * s1 + m * m * float(wy2.sum() * wx2.sum())
+        # cancellation leaves ~1e-16 s2 for a uniform frame: zero below that
+        level = math.sqrt(var) if var > 1e-12 * s2 else 0.0
+        return np.abs(c) / level if level > 0 else np.zeros(2)
+
     def check(self, frame: np.ndarray, name: str) -> None:
         """Raise if ``frame`` shows no carrier at ``k1`` or ``k2``.
 
@@ -94,11 +108,7 @@ class _CarrierProbe:
         about 1 for noise or a scene without the grid, ``0.24 N`` for an ``N x N``
         grid of eq. (1) (15 at N = 64).
         """
-        wx, wy = self._right[:, 0], self._wy
-        m = float(wy @ frame @ wx) / self._wsum
-        c = self(frame)
-        level = math.sqrt(float((wy**2) @ (frame - m) ** 2 @ (wx**2)))
-        prom = np.abs(c) / level if level > 0 else np.zeros(2)
+        prom = self.prominence(frame, self(frame))
         if np.any(prom < _MIN_PROMINENCE):
             raise ValueError(
                 f"{name} shows no grid at the lattice's wave vectors: the carrier stands "
@@ -200,18 +210,26 @@ def frame_shifts(frames, lattice: Lattice, *, reference=None) -> np.ndarray:
     if not isinstance(lattice, Lattice):
         raise TypeError(f"lattice must be a Lattice, got {type(lattice).__name__}")
     coeffs, probe = _frame_coefficients(frames, lattice)
-    if reference is None:
-        ref = coeffs.mean(axis=0)
-    else:
+    ref = None
+    if reference is not None:
         ref_img = as_image(reference, "reference").astype(np.float64, copy=False)
         if ref_img.shape != probe.shape:
             raise ValueError(f"reference must have the frames' shape {probe.shape}, "
                              f"got {ref_img.shape}")
         probe.check(ref_img, "reference")
         ref = probe(ref_img)
+    return _shifts_from_coefficients(coeffs, lattice, ref)
+
+
+def _shifts_from_coefficients(coeffs: np.ndarray, lattice: Lattice,
+                              ref: np.ndarray | None = None) -> np.ndarray:
+    """(T, 2) shifts from the (T, 2) carrier coefficients of the frames, against the
+    coefficients ``ref`` of a reference image, or centred on the mean frame (None)."""
+    centred = ref is None
+    ref = coeffs.mean(axis=0) if centred else ref
     dphi = np.angle(coeffs * np.conj(ref))  # (T, 2), eq. (2): +2 pi k.a
     shifts = dphi @ _shift_matrix(lattice).T
-    if reference is None:
+    if centred:
         shifts -= shifts.mean(axis=0)
     return shifts
 

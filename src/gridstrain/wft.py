@@ -17,7 +17,14 @@ from scipy import fft as sfft
 from scipy import ndimage
 
 from . import _fft
-from ._validation import as_image, check_choice, check_mask, check_positive, check_workers
+from ._validation import (
+    as_image,
+    check_choice,
+    check_mask,
+    check_positive,
+    check_sigma,
+    check_workers,
+)
 from .lattice import Lattice
 
 __all__ = ["DEFAULT_MARGIN", "PhaseMaps", "transfer_function", "wft", "wft_complex"]
@@ -316,12 +323,7 @@ def _wft(image, lattice: Lattice, *, sigma: float | None = None, mask=None,
         raise TypeError(f"lattice must be a Lattice, got {type(lattice).__name__}")
     img = image if checked else as_image(image)
     m = check_mask(mask, img.shape)
-    if sigma is None:
-        sigma = lattice.pitch
-    sigma = check_positive(sigma, "sigma")
-    if sigma < lattice.pitch * (1 - 1e-9):
-        raise ValueError(f"sigma must be at least the pitch ({lattice.pitch:.4g} px) so that "
-                         f"the window holds one period, got {sigma:.4g}")
+    sigma = check_sigma(sigma, lattice.pitch)
     margin = check_positive(margin, "margin")
     if not 0 <= min_modulus < 1:
         raise ValueError(f"min_modulus must be in [0, 1), got {min_modulus!r}")

@@ -1,0 +1,424 @@
+"""Every frame of a series checked against the series before it is averaged.
+
+A series holds ``T`` frames of one static state (:mod:`gridstrain.pipeline`).
+Averaging assumes that they are: one frame of another state, a grid that slipped,
+a black or clipped frame enters the mean image (method A) or the mean phases
+(method B) as silently as a good one, and biases every map by ``1/T`` of its error.
+:func:`screen_frames` reads each frame once and measures, per frame:
+
+- the carrier coefficient of each wave vector over the whole frame (the probe of
+  :func:`gridstrain.vibration.frame_shifts`), hence its rigid shift ``(alpha_t,
+  beta_t)`` (paper eq. 2) and its grid's modulus;
+- the same coefficient on a few tiles of the frame: once the frame's rigid motion
+  (translation and small rotation) is taken out, the tiles of a frame of the same
+  state keep their phases (up to the noise), those of a frame of another state
+  move by its non-rigid displacement (a strain of 1e-3 moves tiles 70 px apart by
+  0.07 px, the noise of a tile is about 1e-3 px);
+- the fraction of its pixels clipped at the sensor's ceiling: the container's
+  maximum or a level ``2^n - 1`` (a 12-bit camera writing right-aligned values
+  into 16-bit files clips at 4095), recognised as a pile-up of pixels at the
+  frame's maximum.
+
+A frame is *flagged* when
+
+- it is uniform or shows no grid (its carrier stands less than 5 times above the
+  white-noise level of the frame, as :func:`gridstrain.vibration.frame_shifts`
+  requires of a first frame);
+- its grid's modulus is less than half the series' median (a dark, defocused or
+  occluded frame);
+- its rigid shift lies farther than a fifth of a pitch (and six robust standard
+  deviations of the others' shifts) from the series' robust centre: a slip. The
+  shift is known modulo a pitch only: a 3-px slip at pitch 5 reads as -2 px,
+  still flagged; a slip of a whole pitch cannot be seen;
+- its tiles' non-rigid residual (rms, px) exceeds three times the series' median
+  (five times with the four tiles of a small image) and 1e-3 px: a frame of
+  another state;
+- more than ``max_saturation`` of its pixels are clipped.
+
+Conventions: :mod:`gridstrain.conventions`. The decisions (exclude, refuse or keep
+the flagged frames) belong to the caller; :func:`gridstrain.pipeline.measure_series`
+takes them with its ``outliers`` option.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from .lattice import Lattice
+from .vibration import (
+    _MIN_PROMINENCE,
+    _as_frame,
+    _CarrierProbe,
+    _iter_frames,
+    _shift_matrix,
+    _shifts_from_coefficients,
+)
+
+__all__ = ["FrameScreen", "screen_frames"]
+
+# A rigid shift farther than this fraction of the pitch from the series' centre is a
+# slip: the paper's vibrations (std 0.02 to 0.1 px at pitch 5) stay 10 times below,
+# and the second-order theory of averaging (Prop. 2.2) fails well before it.
+_SLIP_FRACTION = 0.2
+# ... and farther than this many robust standard deviations of the other frames'
+# shifts, so that a series shaken by 0.3 px at pitch 5 does not lose its tails
+# (a Gaussian exceeds 6 std once in 5e8 draws).
+_SLIP_SIGMAS = 6.0
+# A frame whose grid modulus is below this fraction of the series' median is dark,
+# defocused or occluded: it would lower the mean image's contrast by its share.
+_LOW_CONTRAST = 0.5
+# A frame's non-rigid residual above this many times the series' median is a frame
+# of another state. The residual of a frame of the series is the rms of the tiles'
+# noise, 2 n - 3 degrees of freedom for n tiles: with 16 tiles (29) three times the
+# median is out of its reach; with 4 (5), and the median itself taken over a few
+# frames, the largest of 1800 clean frames reached 3.0 times it (see the tests).
+_RESIDUAL_FACTOR = 3.0
+_RESIDUAL_FACTOR_FEW_TILES = 5.0
+_FEW_TILES = 8
+# ... and above this absolute floor, px: noise-free frames have residuals of 1e-7 px
+# from the window's leakage, which the factor alone would compare. A frame of another
+# state with a residual of 1e-3 px biases an average of 10 frames by 1e-4 px.
+_RESIDUAL_FLOOR = 1e-3
+# Tiles per side for the residual: at most 4, each at least 12 pitches wide (the
+# sin^4 apodisation leaves about 4 periods of effective width; below that the
+# conjugate carrier leaks into the phase).
+_MAX_TILES = 4
+_TILE_PITCHES = 12.0
+# A pile-up at a level 2^n - 1 is clipping when at least this many pixels sit at the
+# frame's maximum and more than twice as many as at the next value below it: the
+# upper tail of a noisy, unclipped histogram thins out instead.
+_CLIP_MIN_PIXELS = 4
+_CLIP_BITS = range(8, 17)
+# Up to this many frames, each frame's tiles are compared with the median of the
+# others; beyond, with the median of all (one frame weighs 1/T in it).
+_LEAVE_ONE_OUT = 64
+# Median absolute deviation of a Gaussian over its standard deviation.
+_MAD_TO_STD = 1.4826
+
+
+@dataclass(frozen=True, eq=False)
+class FrameScreen:
+    """What :func:`screen_frames` measured on each frame of a series.
+
+    Attributes
+    ----------
+    coefficients : (T, 2) complex128 ndarray
+        Carrier coefficient of each wave vector over the whole frame (apodised,
+        grey levels x window weight); their phases give the rigid shifts.
+    deviation : (T, 2) float64 ndarray
+        Each frame's rigid shift from the series' robust centre, px, ``(x, y)``;
+        NaN for a frame without a grid. Known modulo the lattice's periods.
+    modulus_ratio : (T, 2) float64 ndarray
+        Each frame's carrier modulus over the series' median, per wave vector.
+    prominence : (T, 2) float64 ndarray
+        Carrier modulus over the frame's white-noise level (a grid gives tens to
+        hundreds, noise about 1).
+    residual : (T,) float64 ndarray
+        The tiles' displacements against the other frames once the frame's rigid
+        motion (translation, rotation) is fitted out, rms, px; NaN where
+        unavailable (a frame without a grid, an image too small for two tiles per
+        side, fewer than three frames).
+    saturated : (T,) float64 ndarray
+        Fraction of the frame's (masked) pixels at the clipping level.
+    clip_level : (T,) float64 ndarray
+        The level the frame is clipped at, raw grey levels (NaN: not clipped).
+    reasons : tuple of tuple of str
+        Per frame, why it is flagged (empty: a good frame).
+    lattice : Lattice
+        The wave vectors used.
+    """
+
+    coefficients: np.ndarray
+    deviation: np.ndarray
+    modulus_ratio: np.ndarray
+    prominence: np.ndarray
+    residual: np.ndarray
+    saturated: np.ndarray
+    clip_level: np.ndarray
+    reasons: tuple[tuple[str, ...], ...]
+    lattice: Lattice
+
+    def __post_init__(self):
+        for name in ("coefficients", "deviation", "modulus_ratio", "prominence",
+                     "residual", "saturated", "clip_level"):
+            getattr(self, name).flags.writeable = False
+
+    @property
+    def n_frames(self) -> int:
+        """Number of frames ``T``."""
+        return int(self.coefficients.shape[0])
+
+    @property
+    def flagged(self) -> tuple[int, ...]:
+        """Indices of the flagged frames."""
+        return tuple(t for t, r in enumerate(self.reasons) if r)
+
+    def shifts(self, keep=None) -> np.ndarray:
+        """(T_kept, 2) rigid shifts of the frames ``keep`` (default: all), px,
+        centred on their mean frame, as :func:`gridstrain.vibration.frame_shifts`
+        gives them for those frames alone."""
+        idx = np.arange(self.n_frames) if keep is None else np.asarray(keep, dtype=int)
+        return _shifts_from_coefficients(self.coefficients[idx], self.lattice)
+
+    def coherence(self, keep=None) -> np.ndarray:
+        """(2,) ``|mean_t c_t| / mean_t |c_t|`` over the frames ``keep``: the fraction
+        of the frames' grid contrast that survives in their mean image (1 without
+        vibrations; ``1 - (2 pi f)^2 Var / 2`` for small ones, Prop. 2.2)."""
+        idx = np.arange(self.n_frames) if keep is None else np.asarray(keep, dtype=int)
+        c = self.coefficients[idx]
+        den = np.abs(c).mean(axis=0)
+        return np.where(den > 0, np.abs(c.mean(axis=0)) / np.where(den > 0, den, 1), 0.0)
+
+    def __repr__(self) -> str:
+        return f"FrameScreen(T={self.n_frames}, flagged={list(self.flagged)})"
+
+
+def _tiles(shape: tuple[int, int], lattice: Lattice) -> list[tuple[slice, slice]]:
+    """Tiles of the residual test, or none when the image holds fewer than two."""
+    p = max(lattice.pitches)
+    n = [min(_MAX_TILES, int(s // (_TILE_PITCHES * p))) for s in shape]
+    if min(n) < 2:
+        return []
+    edges = [np.linspace(0, s, k + 1).round().astype(int) for s, k in zip(shape, n, strict=True)]
+    return [(slice(y0, y1), slice(x0, x1))
+            for y0, y1 in zip(edges[0][:-1], edges[0][1:], strict=True)
+            for x0, x1 in zip(edges[1][:-1], edges[1][1:], strict=True)]
+
+
+def _clipped(frame: np.ndarray, level: float | None, scale: int, mask) -> tuple[float, float]:
+    """``(fraction, level)`` of the frame's pixels clipped at the ceiling, or ``(0, nan)``.
+
+    ``level`` is the container's (or declared sensor's) saturation level, None for
+    float data. Beyond it, a pile-up at the frame's maximum when that maximum is
+    ``2^n - 1`` (times ``scale``) for ``n`` in 8..16, or 1 (normalised float data).
+    """
+    sel = frame if mask is None else frame[mask]
+    if sel.size == 0:
+        return 0.0, math.nan
+    if level is not None:
+        k = int(np.count_nonzero(sel >= level))
+        if k:
+            return k / sel.size, float(level)
+    top = float(sel.max())
+    if top not in {float((2**n - 1) * s) for n in _CLIP_BITS for s in {1, scale}} | {1.0}:
+        return 0.0, math.nan
+    at = int(np.count_nonzero(sel == top))
+    if at < _CLIP_MIN_PIXELS:
+        return 0.0, math.nan
+    below = sel[sel < top]
+    nxt = int(np.count_nonzero(below == below.max())) if below.size else 0
+    if at <= 2 * nxt:
+        return 0.0, math.nan
+    return at / sel.size, top
+
+
+def _level_name(level: float, scale: int) -> str:
+    """`` = 2^n - 1`` (or ``(2^n - 1) x scale``) for a clipping level, else ``""``."""
+    for s, suffix in ((1, ""), (scale, f" x {scale}")):
+        n = math.log2(level / s + 1)
+        if n == int(n):
+            return f" = 2^{int(n)} - 1" if not suffix else f" = (2^{int(n)} - 1){suffix}"
+    return ""
+
+
+def _wrap(phase: np.ndarray) -> np.ndarray:
+    return (phase + np.pi) % (2 * np.pi) - np.pi
+
+
+def _robust_centre(theta: np.ndarray) -> np.ndarray:
+    """Circular medoid of the phases ``theta`` (n,): the sample with the least sum of
+    circular distances to the others (at most 256 candidates, evenly spread)."""
+    cand = theta[np.linspace(0, theta.size - 1, min(theta.size, 256)).round().astype(int)]
+    cost = np.abs(_wrap(theta[:, None] - cand[None, :])).sum(axis=0)
+    return cand[int(np.argmin(cost))]
+
+
+def screen_frames(frames, lattice: Lattice, *, saturation_level: float | None = None,
+                  scale: int = 1, mask=None, max_saturation: float = 0.01) -> FrameScreen:
+    """Measure every frame of a series against the series (see the module docstring).
+
+    Parameters
+    ----------
+    frames : (T, H, W) array_like or iterable of (H, W) array_like
+        The series, raw grey levels; an iterable is consumed once, one frame alive
+        at a time. Computed in float64.
+    lattice : Lattice
+        The grid's wave vectors.
+    saturation_level : float, optional
+        The sensor's or container's largest value, raw grey levels
+        (:attr:`gridstrain.io.FrameSeries.saturation_level`); None for float data.
+        Clipping at a level ``2^n - 1`` below it is found either way.
+    scale : int
+        Raw value of one sensor grey level (16 for 12-bit data stored x16).
+    mask : (H, W) bool array_like, optional
+        Count clipped pixels only here (the specimen).
+    max_saturation : float
+        Largest clipped fraction of a frame's pixels before it is flagged, in [0, 1].
+
+    Returns
+    -------
+    FrameScreen
+
+    Raises
+    ------
+    ValueError
+        No frame, frames of different shapes, or no frame showing a grid at the
+        lattice's wave vectors.
+
+    Notes
+    -----
+    Each frame is read once. Per frame the cost is two matrix products of the frame
+    with ``(W, 5)`` matrices (whole frame and tiles), two passes for the white-noise
+    level and one to three for the clipping test; the decisions, at the end, work
+    on ``(T, tiles, 2)`` numbers.
+    """
+    if not isinstance(lattice, Lattice):
+        raise TypeError(f"lattice must be a Lattice, got {type(lattice).__name__}")
+    if not 0 <= max_saturation <= 1:
+        raise ValueError(f"max_saturation must be a fraction in [0, 1], got {max_saturation!r}")
+    m = None if mask is None else np.asarray(mask, dtype=bool)
+    coeffs, prom, sat, clip, tile_c, uniform = [], [], [], [], [], []
+    probe, tiles, tile_probes, shape = None, [], {}, None
+    for t, frame in _iter_frames(frames):
+        arr = _as_frame(frame, shape, t)
+        if probe is None:
+            shape = arr.shape
+            probe = _CarrierProbe(lattice, shape)
+            tiles = _tiles(shape, lattice)
+            if m is not None and m.shape != shape:
+                raise ValueError(f"mask must have the frames' shape {shape}, got {m.shape}")
+        c = probe(arr)
+        coeffs.append(c)
+        uniform.append(bool(arr.min() == arr.max()))
+        prom.append(probe.prominence(arr, c))
+        f, lev = _clipped(arr, saturation_level, scale, m)
+        sat.append(f)
+        clip.append(lev)
+        row = []
+        for ys, xs in tiles:
+            sub = arr[ys, xs]
+            tp = tile_probes.get(sub.shape)
+            if tp is None:
+                tp = tile_probes[sub.shape] = _CarrierProbe(lattice, sub.shape)
+            row.append(tp(sub))
+        tile_c.append(row)
+    if probe is None:
+        raise ValueError("frames must hold at least one frame, got none")
+    coeffs = np.array(coeffs)
+    prom = np.array(prom)
+    grid = np.all(prom >= _MIN_PROMINENCE, axis=1) & ~np.array(uniform)
+    if not grid.any():
+        raise ValueError(f"no frame shows a grid at the lattice's wave vectors: the carrier "
+                         f"stands at most {float(prom.min(axis=1).max()):.3g} times above the "
+                         "level of white noise (a grid gives 0.24 per px of side); check the "
+                         "lattice")
+    T = coeffs.shape[0]
+    mod = np.abs(coeffs)
+    ratio = mod / np.median(mod[grid], axis=0)
+    dev, slip = _deviation(coeffs, grid, lattice)
+    centres = np.array([((xs.start + xs.stop - 1) / 2, (ys.start + ys.stop - 1) / 2)
+                        for ys, xs in tiles]).reshape(len(tiles), 2)
+    residual = _residual(coeffs, np.array(tile_c).reshape(T, len(tiles), 2), centres, grid,
+                         lattice)
+    sat = np.array(sat)
+    clip = np.array(clip)
+    reasons = []
+    res_ok = residual[grid & np.isfinite(residual)]
+    res_median = float(np.median(res_ok)) if res_ok.size >= 3 else math.nan
+    factor = _RESIDUAL_FACTOR if len(tiles) > _FEW_TILES else _RESIDUAL_FACTOR_FEW_TILES
+    res_limit = max(factor * res_median, _RESIDUAL_FLOOR) if res_ok.size >= 3 else math.inf
+    for t in range(T):
+        r = []
+        if uniform[t]:
+            r.append("uniform (no grey-level variation)")
+        elif not grid[t]:
+            r.append(f"shows no grid (its carrier stands {float(prom[t].min()):.3g} times "
+                     f"above white noise, a grid's tens to hundreds)")
+        elif ratio[t].min() < _LOW_CONTRAST:
+            r.append(f"low grid contrast ({float(ratio[t].min()):.2f} of the series' median "
+                     "modulus: dark, defocused or occluded?)")
+        if grid[t] and slip[t]:
+            r.append(f"rigid shift ({dev[t, 0]:+.2f}, {dev[t, 1]:+.2f}) px from the other "
+                     "frames (modulo a pitch): the grid or camera slipped")
+        if grid[t] and residual[t] > res_limit:
+            r.append(f"non-rigid displacement {residual[t]:.2g} px rms against the "
+                     f"other frames (typical {res_median:.2g} px): a frame of another "
+                     "state?")
+        if sat[t] > max_saturation:
+            below = saturation_level is not None and clip[t] < saturation_level
+            r.append(f"{sat[t]:.2%} of its pixels saturated (clipped at {clip[t]:g}"
+                     + (f"{_level_name(clip[t], scale)}, below the files' range: a camera "
+                        "of fewer bits?" if below else "")
+                     + f"), more than max_saturation={max_saturation:.2%}")
+        reasons.append(tuple(r))
+    return FrameScreen(coefficients=coeffs, deviation=dev, modulus_ratio=ratio,
+                       prominence=prom, residual=residual, saturated=sat, clip_level=clip,
+                       reasons=tuple(reasons), lattice=lattice)
+
+
+def _deviation(coeffs: np.ndarray, grid: np.ndarray, lattice: Lattice):
+    """``(dev, slip)``: (T, 2) shift of every frame from the robust centre of the
+    gridded ones, px (NaN without a grid), and (T,) whether it is a slip."""
+    ref = coeffs[grid].mean(axis=0)
+    theta = np.angle(coeffs * np.conj(ref))  # (T, 2), 2 pi k_j . a_t, eq. (2)
+    medoid = np.array([_robust_centre(theta[grid, j]) for j in range(2)])
+    d = _wrap(theta - medoid)
+    # the centre: the mean of the frames within a slip's distance of the medoid
+    limit = np.full(2, 2 * np.pi * _SLIP_FRACTION)  # rad, per wave vector
+    inl = grid & np.all(np.abs(d) <= limit, axis=1)
+    d = _wrap(d - d[inl].mean(axis=0))
+    if inl.sum() >= 3:  # and their spread, robustly
+        spread = _MAD_TO_STD * np.median(np.abs(d[inl]), axis=0)
+        limit = np.maximum(limit, _SLIP_SIGMAS * spread)
+    slip = grid & np.any(np.abs(d) > limit, axis=1)
+    dev = d @ _shift_matrix(lattice).T
+    dev[~grid] = np.nan
+    return dev, slip
+
+
+def _residual(coeffs: np.ndarray, tiles: np.ndarray, centres: np.ndarray,
+              grid: np.ndarray, lattice: Lattice) -> np.ndarray:
+    """(T,) rms of the tiles' displacements left by the frame's rigid motion
+    (translation and rotation), px; NaN where unavailable."""
+    T, n = tiles.shape[:2]
+    out = np.full(T, np.nan)
+    if n < 4 or grid.sum() < 3:
+        return out
+    g = grid
+    ref_t = tiles[g].mean(axis=0)  # (n, 2), the mean frame's tiles (linearity)
+    ref_g = coeffs[g].mean(axis=0)  # (2,)
+    # tile phase change minus the frame's rigid phase change: small, no wrapping
+    rigid = np.angle(coeffs * np.conj(ref_g))  # (T, 2)
+    psi = _wrap(np.angle(tiles * np.conj(ref_t)) - rigid[:, None, :])  # (T, n, 2)
+    # per-tile robust reference: the median over the other frames (leaving the frame
+    # out keeps a short series' median frame from reading a residual of zero)
+    idx = np.flatnonzero(g)
+    if idx.size <= _LEAVE_ONE_OUT:
+        ref_psi = np.empty_like(psi)
+        for t in range(T):
+            ref_psi[t] = np.median(psi[idx[idx != t]], axis=0)
+    else:
+        ref_psi = np.median(psi[idx], axis=0)[None]
+    psi = _wrap(psi - ref_psi)
+    # each tile's displacement (x, y), px (eq. 2 inverted per tile), weighted by the
+    # inverse phase-noise variance |C|^2 of its weaker wave vector
+    d = (psi @ _shift_matrix(lattice).T).reshape(T, 2 * n)
+    w = np.min(np.abs(ref_t) ** 2, axis=1)
+    w = np.repeat(w / w.sum(), 2)  # per component, (2n,)
+    # the frame's rigid motion, a translation and a small rotation omega about the
+    # weighted centre (d_x = t_x - omega y, d_y = t_y + omega x), fitted and taken
+    # out: a camera that rocks moves no material point against another
+    c = centres - (w[::2] / w[::2].sum()) @ centres  # (n, 2), (x, y)
+    A = np.zeros((n, 2, 3))
+    A[:, 0, 0] = A[:, 1, 1] = 1.0
+    A[:, 0, 2], A[:, 1, 2] = -c[:, 1], c[:, 0]
+    A = A.reshape(2 * n, 3)
+    sw = np.sqrt(w)
+    fit = np.linalg.lstsq(A * sw[:, None], (d * sw).T, rcond=None)[0]  # (3, T)
+    r = d - (A @ fit).T
+    out[g] = np.sqrt((w * r[g] ** 2).sum(axis=1))  # rms |residual| over the tiles
+    return out
+

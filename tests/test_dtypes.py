@@ -1,0 +1,268 @@
+"""The precision policy of gridstrain.conventions, held by every public entry point.
+
+float32 images give float32 maps (``psi`` complex64, ``dphi``, ``u``, strain, an
+Anscombe-transformed image); any other input (integers, float64) gives float64
+maps; sums, shifts, statistics and uncertainties are float64 whatever the input.
+
+Frames: a cross-line grid of pitch 5 px, ``I = 120 + 50 (cos(2 pi x / 5) +
+cos(2 pi y / 5))``, point-sampled, plus Poisson-Gaussian noise of variance
+``0.3 I + 4`` (normal approximation), rounded into [0, 255] so that the same values
+fit uint8, uint16 and the floats; generated here with numpy alone. The second state
+is the same grid stretched by 1e-3 along x.
+"""
+
+from __future__ import annotations
+
+import importlib
+import numbers
+
+import numpy as np
+import pytest
+
+import gridstrain
+from gridstrain import Lattice, pipeline, screening, stacks, uncertainty
+
+LAT = Lattice.from_pitch(5.0)
+N = 64
+DTYPES = (np.float32, np.float64, np.uint16, np.uint8)
+
+
+def _frames(T, strain=0.0, seed=0):
+    rng = np.random.default_rng(seed)
+    y, x = np.mgrid[0:N, 0:N].astype(np.float64)
+    X = (x + strain * (N - 1) / 2) / (1 + strain)
+    i = 120 + 50 * (np.cos(2 * np.pi * X / 5) + np.cos(2 * np.pi * y / 5))
+    out = [i + np.sqrt(0.3 * i + 4.0) * rng.standard_normal((N, N)) for _ in range(T)]
+    return np.rint(np.clip(out, 0, 255))
+
+
+def _precision(dtype):
+    return np.dtype(np.float32) if np.dtype(dtype) == np.float32 else np.dtype(np.float64)
+
+
+def _complex(dtype):
+    return np.result_type(_precision(dtype), np.complex64)
+
+
+def _ref_cur(dtype, T=3):
+    return _frames(T).astype(dtype), _frames(T, strain=1e-3, seed=1).astype(dtype)
+
+
+def _check_maps(pm, dtype):
+    assert pm.psi.dtype == _complex(dtype)
+    assert pm.dphi.dtype == _precision(dtype)
+
+
+def _check_measurement(m, dtype):
+    for name in ("u", "strain", "rotation"):
+        assert getattr(m, name).dtype == _precision(dtype), name
+
+
+# Each entry point: a function of the input dtype that runs it on images of that
+# dtype and checks what it returns.
+def _wft(dt):
+    ref, _ = _ref_cur(dt)
+    _check_maps(gridstrain.wft(ref[0], LAT), dt)
+
+
+def _method_a(dt):
+    ref, _ = _ref_cur(dt)
+    res = stacks.method_a(ref, LAT)
+    _check_maps(res.maps, dt)
+    assert res.mean_image.dtype == np.float64  # a sum
+
+
+def _method_b(dt):
+    ref, _ = _ref_cur(dt)
+    res = stacks.method_b(ref, LAT)
+    _check_maps(res.maps, dt)
+    assert res.resultant.dtype == np.float64
+
+
+def _prefix_stacks(dt):
+    ref, _ = _ref_cur(dt)
+    for method in ("A", "B"):
+        for res in stacks.prefix_stacks(ref, LAT, [1, 3], method=method):
+            _check_maps(res.maps, dt)
+
+
+def _correct_phases(dt):
+    ref, _ = _ref_cur(dt)
+    res = stacks.method_a(ref, LAT)
+    _check_maps(stacks.correct_phases(res.maps, np.zeros((3, 2))), dt)
+
+
+def _mean_image(dt):
+    ref, _ = _ref_cur(dt)
+    assert stacks.mean_image(ref).dtype == np.float64
+
+
+def _measure(dt):
+    ref, cur = _ref_cur(dt)
+    _check_measurement(gridstrain.measure(ref[0], cur[0], lattice=LAT, guess=None), dt)
+
+
+def _deformation(dt):
+    ref, cur = _ref_cur(dt)
+    m = gridstrain.deformation(gridstrain.wft(ref[0], LAT), gridstrain.wft(cur[0], LAT))
+    _check_measurement(m, dt)
+    # mixed precisions: float64 wins
+    m = gridstrain.deformation(gridstrain.wft(ref[0], LAT),
+                               gridstrain.wft(cur[0].astype(np.float64), LAT))
+    _check_measurement(m, np.float64)
+
+
+def _coarse_displacement(dt):
+    ref, cur = _ref_cur(dt)
+    shift, corr = gridstrain.coarse_displacement(ref[0], cur[0], LAT)
+    assert np.asarray(shift).dtype == np.float64
+    assert isinstance(corr, numbers.Real)
+
+
+def _measure_series(dt):
+    ref, cur = _ref_cur(dt, T=4)
+    for method in ("A", "B"):
+        res = pipeline.measure_series(ref, cur, lattice=LAT, guess=None, method=method)
+        assert res.u.dtype == _precision(dt)
+        assert res.strain.dtype == _precision(dt)
+        _check_measurement(res.measurements[0], dt)
+        assert res.reference_image.dtype == np.float64
+        assert all(a.dtype == np.float64 for a in res.uncertainty.values())
+        assert res.vibration[0].shifts.dtype == np.float64
+
+
+def _predict_uncertainty(dt):
+    ref, cur = _ref_cur(dt)
+    u = gridstrain.predict_uncertainty(gridstrain.wft(ref[0], LAT), gridstrain.wft(cur[0], LAT),
+                                       variance_ref=4.0, variance_def=4.0)
+    assert all(np.asarray(a).dtype == np.float64 for a in (*u.u_std, *u.strain_std))
+
+
+def _noise_variance_map(dt):
+    ref, _ = _ref_cur(dt)
+    v = uncertainty.noise_variance_map(ref[0], K=0.3, L=4.0, sigma=5.0)
+    assert v.dtype == np.float64
+
+
+def _noise_floor(dt):
+    ref, _ = _ref_cur(dt)
+    nf = uncertainty.noise_floor(gridstrain.wft(ref[0], LAT), ref[0], K=0.3, L=4.0)
+    assert all(isinstance(x, float) for x in (*nf.u_std, *nf.strain_std, nf.level))
+
+
+def _frame_shifts(dt):
+    ref, _ = _ref_cur(dt)
+    assert gridstrain.frame_shifts(ref, LAT).dtype == np.float64
+
+
+def _vibration_report(dt):
+    ref, _ = _ref_cur(dt)
+    r = gridstrain.vibration_report(ref, LAT)
+    assert all(getattr(r, k).dtype == np.float64
+               for k in ("shifts", "std", "covariance", "contrast_factor", "phase_offset_std"))
+
+
+def _screen_frames(dt):
+    ref, _ = _ref_cur(dt)
+    sc = screening.screen_frames(ref, LAT)
+    assert sc.deviation.dtype == np.float64
+    assert sc.residual.dtype == np.float64
+    assert sc.coefficients.dtype == np.complex128
+
+
+def _anscombe(dt):
+    ref, _ = _ref_cur(dt)
+    z = gridstrain.anscombe(ref[0], K=0.3, L=4.0)
+    assert z.dtype == _precision(dt)
+    assert gridstrain.inverse_anscombe(z, K=0.3, L=4.0).dtype == _precision(dt)
+
+
+def _estimate_noise(dt):
+    ref = _frames(16).astype(dt)
+    m = gridstrain.estimate_noise(ref, LAT, degree=0, n_bins=8)
+    assert isinstance(m.K, float)
+    assert isinstance(m.L, float)
+
+
+def _detect_lattice(dt):
+    ref, _ = _ref_cur(dt)
+    lat = gridstrain.detect_lattice(ref[0])
+    assert all(isinstance(v, float) for v in (*lat.k1, *lat.k2))
+
+
+def _dask(dt):
+    pytest.importorskip("distributed")
+    from gridstrain import distributed
+
+    ref, cur = _ref_cur(dt)
+    assert distributed.mean_image_dask(ref).compute().dtype == np.float64
+    _check_maps(distributed.method_a_dask(ref, LAT).maps, dt)
+    _check_maps(distributed.method_b_dask(ref, LAT).maps, dt)
+    for method in ("A", "B"):
+        (m,) = distributed.measure_states_dask(ref, [cur], lattice=LAT, method=method,
+                                               guess=None)
+        _check_measurement(m, dt)
+
+
+def _estimate_noise_image(dt):
+    # the single-image estimate needs 160 px at least: the same grid on 192 x 192
+    rng = np.random.default_rng(5)
+    y, x = np.mgrid[0:192, 0:192].astype(np.float64)
+    i = 120 + 50 * (np.cos(2 * np.pi * x / 5) + np.cos(2 * np.pi * y / 5))
+    img = np.rint(np.clip(i + np.sqrt(0.3 * i + 4.0) * rng.standard_normal(i.shape), 0, 255))
+    m = gridstrain.estimate_noise_image(img.astype(dt), LAT)
+    assert isinstance(m.K, float)
+    assert isinstance(m.L, float)
+    assert m.levels.dtype == np.float64  # statistics are float64
+
+
+def _aliasing_bias(dt):
+    ref, _ = _ref_cur(dt)
+    a = uncertainty.aliasing_bias(ref[0], LAT, sigma=5.0)
+    assert isinstance(a["u_px"], float)
+    assert all(isinstance(v, float) for v in a["phase_rad"])
+
+
+def _smoothing_bias(dt):
+    ref, cur = _ref_cur(dt)
+    m = gridstrain.measure(ref[0], cur[0], lattice=LAT, guess=None)
+    b = uncertainty.smoothing_bias(m.strain, m.valid, sigma=5.0)
+    assert all(v is None or isinstance(v, float) for v in b["p95"])
+
+
+ENTRY_POINTS = {
+    "wft": _wft, "method_a": _method_a, "method_b": _method_b,
+    "prefix_stacks": _prefix_stacks, "correct_phases": _correct_phases,
+    "mean_image": _mean_image, "measure": _measure, "deformation": _deformation,
+    "coarse_displacement": _coarse_displacement, "measure_series": _measure_series,
+    "predict_uncertainty": _predict_uncertainty, "noise_variance_map": _noise_variance_map,
+    "noise_floor": _noise_floor, "frame_shifts": _frame_shifts,
+    "vibration_report": _vibration_report, "screen_frames": _screen_frames,
+    "anscombe": _anscombe, "inverse_anscombe": _anscombe, "estimate_noise": _estimate_noise,
+    "detect_lattice": _detect_lattice, "mean_image_dask": _dask, "method_a_dask": _dask,
+    "method_b_dask": _dask, "measure_states_dask": _dask,
+    "estimate_noise_image": _estimate_noise_image, "aliasing_bias": _aliasing_bias,
+    "smoothing_bias": _smoothing_bias,
+}
+# Public functions that take no image: their outputs are float64 by construction
+# (frequencies; metrology's figures), files (save_*, load: the dtypes saved), or the
+# frames themselves at a dtype the caller names (gridstrain.io; as_dask_stack);
+# connect() opens a cluster, progress_bar() draws.
+NO_IMAGE = {"transfer_function", "save_result", "save_csv", "as_dask_stack", "connect",
+            "load", "progress_bar", "metrology"}
+
+
+def test_every_public_function_of_the_numerical_core_is_covered():
+    # by module path: gridstrain.wft the module is shadowed by wft the function
+    modules = [importlib.import_module(f"gridstrain.{m}") for m in (
+        "wft", "stacks", "kinematics", "uncertainty", "noise", "vibration", "lattice",
+        "pipeline", "screening", "distributed")] + [gridstrain]
+    public = {name for mod in modules for name in mod.__all__
+              if callable(getattr(mod, name)) and not isinstance(getattr(mod, name), type)}
+    assert public - set(ENTRY_POINTS) - NO_IMAGE == set()
+
+
+@pytest.mark.parametrize("dtype", DTYPES, ids=lambda d: np.dtype(d).name)
+@pytest.mark.parametrize("name", sorted(ENTRY_POINTS))
+def test_output_dtypes_follow_the_precision_policy(name, dtype):
+    ENTRY_POINTS[name](dtype)
