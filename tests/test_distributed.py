@@ -59,7 +59,7 @@ def cluster():
     try:
         with dask.config.set({"distributed.comm.timeouts.connect": "10s"}), \
                 distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
-                                         host="127.0.0.1", dashboard_address=None) as c:
+                                         host="127.0.0.1", dashboard_address=":0") as c:
             yield c
     finally:
         if old is None:

@@ -2,68 +2,80 @@
 
 The conventions (axes, signs, window, Lagrangian description) are written once, in
 :mod:`gridstrain.conventions`.
+
+The public names below are imported on first use (PEP 562), so that ``import
+gridstrain`` and ``gridstrain --help`` do not pay for scipy, scikit-image, h5py or
+matplotlib before anything is computed.
 """
 
-from .kinematics import Measurement, coarse_displacement, deformation, measure
-from .lattice import Lattice, detect_lattice
-from .noise import NoiseModel, anscombe, estimate_noise, estimate_noise_image, inverse_anscombe
-from .uncertainty import Uncertainty, predict_uncertainty
-from .vibration import VibrationReport, frame_shifts, vibration_report
-from .wft import PhaseMaps, wft
+from __future__ import annotations
+
+import importlib
+import sys
+import types
 
 __version__ = "0.1.0"
 
-# The series workflow and the result files, imported on first use: they pull in
-# the pipeline, h5py and matplotlib, which ``import gridstrain`` need not load.
+# public name -> submodule that defines it
 _LAZY = {
-    "measure_series": "gridstrain.pipeline",
-    "SeriesResult": "gridstrain.pipeline",
-    "method_a": "gridstrain.stacks",
-    "method_b": "gridstrain.stacks",
-    "load": "gridstrain.results",
-    "save_result": "gridstrain.results",
-    "progress_bar": "gridstrain._progress",
+    "Lattice": "lattice",
+    "Measurement": "kinematics",
+    "NoiseModel": "noise",
+    "PhaseMaps": "wft",
+    "Uncertainty": "uncertainty",
+    "VibrationReport": "vibration",
+    "anscombe": "noise",
+    "coarse_displacement": "kinematics",
+    "deformation": "kinematics",
+    "detect_lattice": "lattice",
+    "estimate_noise": "noise",
+    "estimate_noise_image": "noise",
+    "frame_shifts": "vibration",
+    "inverse_anscombe": "noise",
+    "measure": "kinematics",
+    "predict_uncertainty": "uncertainty",
+    "vibration_report": "vibration",
+    "wft": "wft",
+    # the series workflow and the result files (they pull in h5py and matplotlib)
+    "SeriesResult": "pipeline",
+    "load": "results",
+    "measure_series": "pipeline",
+    "method_a": "stacks",
+    "method_b": "stacks",
+    "progress_bar": "_progress",
+    "save_result": "results",
 }
+
+__all__ = ["__version__", *sorted(_LAZY)]
 
 
 def __getattr__(name: str):
-    if name in _LAZY:
-        import importlib
+    module = _LAZY.get(name)
+    if module is None:
+        raise AttributeError(f"module 'gridstrain' has no attribute {name!r}")
+    value = getattr(importlib.import_module(f".{module}", __name__), name)
+    # once resolved, the name is a plain attribute of the package
+    globals()[name] = value
+    return value
 
-        value = getattr(importlib.import_module(_LAZY[name]), name)
-        globals()[name] = value
-        return value
-    raise AttributeError(f"module 'gridstrain' has no attribute {name!r}")
 
-
-def __dir__():
+def __dir__() -> list[str]:
     return sorted(set(globals()) | set(_LAZY))
 
-__all__ = [
-    "Lattice",
-    "Measurement",
-    "NoiseModel",
-    "PhaseMaps",
-    "SeriesResult",
-    "Uncertainty",
-    "VibrationReport",
-    "__version__",
-    "anscombe",
-    "coarse_displacement",
-    "deformation",
-    "detect_lattice",
-    "estimate_noise",
-    "estimate_noise_image",
-    "frame_shifts",
-    "inverse_anscombe",
-    "load",
-    "measure",
-    "measure_series",
-    "method_a",
-    "method_b",
-    "predict_uncertainty",
-    "progress_bar",
-    "save_result",
-    "vibration_report",
-    "wft",
-]
+
+class _Package(types.ModuleType):
+    """The package module: a public function keeps its name when its submodule loads.
+
+    The import system binds every submodule it loads to the package under the
+    submodule's name; :func:`wft` lives in :mod:`gridstrain.wft`, and the function,
+    not the module, is the package's ``wft`` (as with an eager ``from .wft import
+    wft``), whichever of the two is imported first.
+    """
+
+    def __setattr__(self, name, value):
+        if isinstance(value, types.ModuleType) and _LAZY.get(name) == name:
+            value = getattr(value, name)
+        super().__setattr__(name, value)
+
+
+sys.modules[__name__].__class__ = _Package

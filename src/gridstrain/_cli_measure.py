@@ -35,7 +35,6 @@ from .pipeline import (
     SeriesResult,
     measure_series,
 )
-from .plotting import figure_names, save_figures
 from .results import export, save_csv, save_result
 from .wft import DEFAULT_MARGIN
 
@@ -309,6 +308,8 @@ def _check_outputs(opts: dict, n_states: int, inputs: set[Path]) -> None:
             raise FileNotFoundError(f"cannot create figures directory {d}: its parent "
                                     f"{d.parent} does not exist")
         if d.is_dir() and not opts["overwrite"]:
+            from .plotting import figure_names  # matplotlib only when figures are asked
+
             for name in figure_names(n_states):
                 if (d / name).exists():
                     raise FileExistsError(f"figure {d / name} already exists (pass "
@@ -696,6 +697,8 @@ def _run(args, progress: _Bar) -> int:
         outputs["report"] = str(write_report(out, opts["report"],
                                              overwrite=opts["overwrite"]))
     if opts.get("figures"):
+        from .plotting import save_figures  # matplotlib only when figures are asked
+
         figs = save_figures(result, opts["figures"], pixel_size=ps, unit=unit,
                             overwrite=opts["overwrite"], progress=progress)
         outputs["figures"] = [str(f) for f in figs]

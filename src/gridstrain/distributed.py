@@ -190,7 +190,10 @@ def connect(scheduler, *, n_workers: int | None = None) -> Iterator:
         with _dask_config().set({key: environ}):
             cluster = distributed.LocalCluster(n_workers=int(n), threads_per_worker=1,
                                                processes=True, host="127.0.0.1",
-                                               dashboard_address=None)
+                                               # a free port: never the default 8787 (None
+                                               # means 8787, and a second cluster on the
+                                               # machine then raises a warning)
+                                               dashboard_address=":0")
         with cluster, distributed.Client(cluster) as client:
             yield client
         return

@@ -10,7 +10,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from scipy import fft as sfft
-from scipy import ndimage, optimize
+from scipy import ndimage
 
 from ._validation import as_image, check_mask, check_positive
 
@@ -30,6 +30,11 @@ _MIN_RELATIVE_PEAK = 0.02
 # Detection works on a central crop of at most this size: enough periods for a
 # sub-bin frequency estimate, and it bounds the cost of the refinement.
 _MAX_DETECT_SIZE = 1024
+# Newton refinement of a peak: at most this many steps, stopping when one moves the
+# frequency by less than this many FFT bins (1e-9 bin on a 1024 px crop is 1e-12
+# cycle/px, a relative pitch error of 5e-12 at a pitch of 5 px).
+_NEWTON_STEPS = 8
+_NEWTON_TOL = 1e-9
 
 
 @dataclass(frozen=True)
@@ -165,12 +170,13 @@ def detect_lattice(image, *, mask=None, max_pitch: float | None = None) -> Latti
     -----
     The mean-removed image (masked pixels set to the mean) is multiplied by a 2-D
     Hann window; the two strongest non-parallel peaks of its spectrum are located on
-    the FFT grid, then refined off the grid by maximising the windowed discrete-time
-    Fourier transform magnitude, ``|sum w v exp(-2 i pi k.x)|``, which for a
-    sinusoid peaks exactly at its frequency. On a noise-free 512 x 512 grid the
-    pitch is found to better than 1e-5 relative and the angle to better than 1e-3
-    degree (see the tests). For a deformed image the lattice found is the mean
-    frequency, so detect on the reference image.
+    the FFT grid, then refined off the grid by maximising (Newton's method) the
+    windowed discrete-time Fourier transform magnitude,
+    ``|sum w v exp(-2 i pi k.x)|``, which for a sinusoid peaks exactly at its
+    frequency. On a noise-free 512 x 512 grid the pitch is found to better than
+    1e-5 relative and the angle to better than 1e-3 degree (see the tests). For a
+    deformed image the lattice found is the mean frequency, so detect on the
+    reference image.
 
     Examples
     --------
@@ -270,9 +276,62 @@ def _prominence(spec: np.ndarray, fr: np.ndarray, iy: int, ix: int, n: int) -> f
     return float(spec[iy, ix]) / bg if bg > 0 else np.inf
 
 
+def _dtft_taylor(data, k, x, y):
+    """``|F(k)|^2`` and its gradient and Hessian in ``k``, ``F`` the windowed DTFT.
+
+    ``F(k) = sum w v exp(-2 i pi k.x)``; each derivative in ``k`` brings a factor
+    ``-2 i pi x`` (or ``y``) into the sum. Separable: one product of the six rows
+    ``y^n cos``, ``y^n sin`` (n = 0, 1, 2) with the data, then dot products along x.
+    """
+    ty = 2 * np.pi * k[1] * y
+    rows = np.stack([y**n * f(ty) for n in range(3) for f in (np.cos, np.sin)]) @ data
+    R = rows[0::2] - 1j * rows[1::2]  # R[n] = sum_y y^n exp(-2 i pi ky y) data
+    ex = np.exp(-2j * np.pi * k[0] * x)
+    # S[a, b] = sum x^a y^b w v exp(-2 i pi k.x)
+    S = {(a, b): (R[b] * x**a) @ ex for a in range(3) for b in range(3 - a)}
+    c = -2j * np.pi
+    F = S[0, 0]
+    dF = np.array([c * S[1, 0], c * S[0, 1]])
+    d2F = c * c * np.array([[S[2, 0], S[1, 1]], [S[1, 1], S[0, 2]]])
+    power = abs(F) ** 2
+    grad = 2 * np.real(np.conj(F) * dF)
+    hess = 2 * np.real(np.conj(dF)[:, None] * dF[None, :] + np.conj(F) * d2F)
+    return power, grad, hess
+
+
 def _refine(data, k0, x, y, h, w) -> np.ndarray:
-    """Maximise the windowed DTFT magnitude around the FFT-grid peak ``k0``."""
+    """Maximise the windowed DTFT magnitude around the FFT-grid peak ``k0``.
+
+    Newton's method on ``log |F|^2`` with its exact gradient and Hessian: from the
+    nearest bin (within half a bin of the maximum, well inside the main lobe of the
+    Hann window, two bins wide, where the logarithm is concave and nearly
+    quadratic) it converges quadratically, in 3 to 5 steps (each about three DTFT
+    evaluations; Nelder-Mead needed about a hundred). Should a step leave the lobe
+    or the Hessian stop being negative definite (a strong neighbouring peak),
+    Nelder-Mead on the magnitude takes over.
+    """
     scale = np.array([1.0 / w, 1.0 / h])  # one FFT bin in each direction
+    z = np.zeros(2)
+    for _ in range(_NEWTON_STEPS):
+        power, grad, hess = _dtft_taylor(data, k0 + z * scale, x, y)
+        # log |F|^2, nearly quadratic over the main lobe, in bins (d/dz = scale d/dk)
+        g = grad * scale / power
+        H = hess * np.outer(scale, scale) / power - np.outer(g, g)
+        if not (H[0, 0] < 0 and np.linalg.det(H) > 0):
+            return _refine_nelder_mead(data, k0, x, y, scale)
+        step = -np.linalg.solve(H, g)
+        z = z + step
+        if np.max(np.abs(z)) > 1.0:
+            return _refine_nelder_mead(data, k0, x, y, scale)
+        if np.max(np.abs(step)) < _NEWTON_TOL:
+            return k0 + z * scale
+    return _refine_nelder_mead(data, k0, x, y, scale)
+
+
+def _refine_nelder_mead(data, k0, x, y, scale) -> np.ndarray:
+    """The derivative-free fallback of :func:`_refine` (a few hundred evaluations)."""
+    from scipy import optimize
+
     p0 = _dtft_power(data, k0, x, y)
 
     def cost(z):

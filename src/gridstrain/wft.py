@@ -588,6 +588,7 @@ def _one_wave_vector(V, k, sigma, H, W, nx, psi, dphi, mod, work, *, chunk: int,
     gaps = _gaps(xruns, nx)
     cc = work.get("cc", (min(chunk, H), W), cdtype)
     prod = work.get("prod", (2, min(chunk, H), W), cdtype)
+    rinv = work.get("rinv", (min(chunk, H), W), mod.dtype)
     for r0 in range(0, H, chunk):
         r1 = min(r0 + chunk, H)
         h = r1 - r0
@@ -611,9 +612,10 @@ def _one_wave_vector(V, k, sigma, H, W, nx, psi, dphi, mod, work, *, chunk: int,
         np.conjugate(c, out=ch)
         ph = prod[:, :h]
         np.multiply(out[1:, :, :W], ch, out=ph)
-        inv = np.square(mod[r0:r1], dtype=np.float64)
+        # in the maps' own precision: a float32 frame runs float32 loops throughout
+        inv = np.square(mod[r0:r1], out=rinv[:h])
         np.reciprocal(inv, out=inv)  # inf where Psi = 0: d phi is NaN there, as 0/0
-        np.multiply(ph.imag, inv, out=dp, casting="same_kind")
+        np.multiply(ph.imag, inv, out=dp)
         if sink is not None:
             sink(r0, r1, ps, dp, mod[r0:r1])
 

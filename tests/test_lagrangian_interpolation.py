@@ -1,0 +1,147 @@
+"""The deformed maps evaluated off the pixel grid (Lagrangian correction) against a direct sum."""
+
+import numpy as np
+import pytest
+from scipy import ndimage
+from skimage.restoration import unwrap_phase as _original_unwrap_phase
+
+from gridstrain import Lattice, deformation, kinematics, wft
+from gridstrain.kinematics import _Spline
+
+SIGMA = 5.0
+N = 96
+
+
+def _cosine_grid(lat, noise, seed):
+    """Two crossed cosine families with smooth phase modulations, numpy only.
+
+    Assumptions: grey level ``1000 (1 + 0.45 cos(2 pi k1.x + phi1) + 0.45 cos(2 pi k2.x
+    + phi2))`` sampled at the pixel centres, plus white Gaussian noise of ``noise``
+    grey levels (a 12-bit camera at mid-range has about 10).
+    """
+    yy, xx = np.mgrid[0:N, 0:N].astype(float)
+    ph1 = 0.4 * np.sin(2 * np.pi * yy / 50)
+    ph2 = 0.3 * np.cos(2 * np.pi * xx / 40)
+    (a, b), (c, d) = lat.k1, lat.k2
+    img = 1000 * (1 + 0.45 * np.cos(2 * np.pi * (a * xx + b * yy) + ph1)
+                  + 0.45 * np.cos(2 * np.pi * (c * xx + d * yy) + ph2))
+    return img + noise * np.random.default_rng(seed).standard_normal(img.shape)
+
+
+def _direct_psi(img, k, px, py):
+    """Eq. (22) at a point off the pixel grid, summed over the whole image.
+
+    ``Psi(x) = sum_xi v(xi) g(xi - x) exp(-2 i pi k.xi)`` with the unit-sum sampled
+    Gaussian's normalisation: a continuous function of ``x``, the transform that the
+    interpolation of the sampled maps must reproduce.
+    """
+    yy, xx = np.mgrid[0:N, 0:N].astype(float)
+    v = img - img.mean()
+    n = np.arange(-400, 401)
+    norm = np.exp(-(n**2) / (2 * SIGMA**2)).sum() ** 2
+    g = np.exp(-((xx - px) ** 2 + (yy - py) ** 2) / (2 * SIGMA**2)) / norm
+    return np.sum(v * g * np.exp(-2j * np.pi * (k[0] * xx + k[1] * yy)))
+
+
+@pytest.mark.parametrize("noise", [0.0, 10.0])
+def test_prefiltered_cubic_spline_matches_the_transform_off_the_grid(noise):
+    lat = Lattice.from_pitch(SIGMA, angle=20.0)
+    img = _cosine_grid(lat, noise, seed=3)
+    pm = wft(img, lat, sigma=SIGMA)
+    rng = np.random.default_rng(11)
+    # at >= 8 sigma from the border the image edge weighs < exp(-32) in the direct sum
+    pts = rng.uniform(40, 56, size=(2, 12, 1))
+    for j, k in enumerate((lat.k1, lat.k2)):
+        spline = _Spline(pm.psi[j])
+        got = spline(pts)[:, 0]
+        want = np.array([_direct_psi(img, k, px, py) for py, px in pts[:, :, 0].T])
+        # 1e-6 rad is 8e-7 px at this pitch, a hundredth of the 1e-4 px bound on
+        # displacements; cubic splines give 3e-7 rad here, quadratic ones 7e-6 rad
+        np.testing.assert_array_less(np.abs(np.angle(got / want)), 1e-6)
+        np.testing.assert_allclose(np.abs(got), np.abs(want), rtol=1e-6)
+
+
+def test_prefiltered_spline_equals_scipy_with_its_own_prefilter():
+    # the padding before the prefilter reproduces map_coordinates(mode="nearest"),
+    # including points outside the map, to rounding
+    rng = np.random.default_rng(5)
+    arr = rng.standard_normal((40, 50)) + 1j * rng.standard_normal((40, 50))
+    coords = rng.uniform(-6, 56, size=(2, 30, 7))
+    want = (ndimage.map_coordinates(arr.real, coords, order=3, mode="nearest")
+            + 1j * ndimage.map_coordinates(arr.imag, coords, order=3, mode="nearest"))
+    np.testing.assert_allclose(_Spline(arr)(coords), want, rtol=0, atol=1e-12)
+
+
+def test_cubic_correction_equals_the_quintic_one(monkeypatch):
+    """The whole large-displacement correction with cubic against quintic splines.
+
+    Noisy pair, 2.7 px translation with strain (2e-3, -3e-3) and a 0.05 px wavy
+    component, generated here in numpy: the deformed image is the reference pattern
+    at ``x - u(x)`` (first order in the strain, enough for a comparison of two
+    interpolations of the same maps).
+    """
+    n = 160
+    c = (n - 1) / 2
+    lat = Lattice.from_pitch(SIGMA, angle=7.0)
+    yy, xx = np.mgrid[0:n, 0:n].astype(float)
+    ux = 2.7 + 2e-3 * (xx - c) + 1e-3 * (yy - c) + 0.05 * np.sin(2 * np.pi * yy / 60)
+    uy = -1.4 - 3e-3 * (yy - c)
+    rng = np.random.default_rng(8)
+
+    def pattern(x, y):
+        (a, b), (d, e) = lat.k1, lat.k2
+        img = 1000 * (1 + 0.45 * np.cos(2 * np.pi * (a * x + b * y))
+                      + 0.45 * np.cos(2 * np.pi * (d * x + e * y)))
+        return img + 10 * rng.standard_normal(img.shape)
+
+    ref = wft(pattern(xx, yy), lat, sigma=SIGMA)
+    cur = wft(pattern(xx - ux, yy - uy), lat, sigma=SIGMA)
+    cubic = deformation(ref, cur, guess=(3.0, -1.0))
+    monkeypatch.setattr(kinematics, "_SPLINE_ORDER", 5)
+    quintic = deformation(ref, cur, guess=(3.0, -1.0))
+    np.testing.assert_array_equal(cubic.valid, quintic.valid)
+    v = cubic.valid
+    assert v.mean() > 0.3
+    # a hundredth of the 1e-4 px bound on u (measured 3e-7 px) and a tenth of the
+    # 1e-5 strain users resolve (measured 8e-8)
+    np.testing.assert_allclose(cubic.u[:, v], quintic.u[:, v], rtol=0, atol=1e-6)
+    np.testing.assert_allclose(cubic.strain[:, v], quintic.strain[:, v], rtol=0, atol=1e-6)
+
+
+def _skimage_unwrap(wrapped, valid):
+    return np.ma.filled(_original_unwrap_phase(np.ma.masked_array(wrapped, mask=~valid), rng=0),
+                        0.0)
+
+
+@pytest.mark.parametrize(("amplitude", "offset", "calls"),
+                         [(2.0, 0.0, 0), (2.0, 2.5, 0), (6.0, 0.0, 1)])  # rad
+def test_unwrap_shortcut_decides_what_scikit_image_decides(monkeypatch, amplitude, offset,
+                                                           calls):
+    # spread over less than a fringe (2 x 2 rad), centred or offset so that the
+    # wrapped map jumps: scikit-image is spared; over three fringes it runs
+    rng = np.random.default_rng(int(amplitude * 10 + offset))
+    yy, xx = np.mgrid[0:120, 0:150].astype(float)
+    phase = (offset + amplitude * np.sin(xx / 40) * np.cos(yy / 30)
+             + 0.2 * rng.standard_normal(xx.shape))
+    wrapped = np.angle(np.exp(1j * phase))
+    valid = rng.random(xx.shape) > 0.05
+    valid[40:70, 60:100] = False
+    valid[:, 75] = False  # two regions, each free to take its own multiple of 2 pi
+    want = _skimage_unwrap(wrapped, valid)
+    seen = []
+
+    def spy(*args, **kwargs):
+        seen.append(1)
+        return _original_unwrap_phase(*args, **kwargs)
+
+    monkeypatch.setattr(kinematics, "unwrap_phase", spy)
+    got = kinematics._unwrap(wrapped, valid)
+    assert len(seen) == calls
+    np.testing.assert_array_equal(got[~valid], 0.0)
+    # scikit-image's result up to one whole turn per connected region, to rounding
+    labels, n = ndimage.label(valid)
+    assert n == 2
+    turns = (got - want) / (2 * np.pi)
+    for lab in range(1, n + 1):
+        t = turns[labels == lab]
+        np.testing.assert_allclose(t, np.rint(t[0]), rtol=0, atol=1e-12)
