@@ -282,6 +282,6 @@ def test_prefix_stacks_validation():
     with pytest.raises(TypeError, match="counts"):
         list(prefix_stacks(frames, LAT, [1.5]))
     with pytest.raises(ValueError, match="method"):
-        list(prefix_stacks(frames, LAT, [1], method="C"))
+        list(prefix_stacks(frames, LAT, [1], method="D"))
     with pytest.raises(TypeError, match="lattice"):
         method_a(frames, 5.0)

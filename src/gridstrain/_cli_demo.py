@@ -67,7 +67,7 @@ def register(sub) -> None:
     p.add_argument("--translation", type=float, nargs=2, default=(3.2, -1.4),
                    metavar=("UX", "UY"),
                    help="rigid translation of the loaded specimen, px (default 3.2 -1.4)")
-    p.add_argument("--method", type=str.upper, choices=("A", "B"), default="A",
+    p.add_argument("--method", type=str.upper, choices=("A", "B", "C"), default="A",
                    help="averaging method (default A)")
     p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     p.add_argument("--overwrite", action="store_true",
