@@ -173,7 +173,7 @@ def run(args) -> int:
     t1 = time.perf_counter()
 
     ref = open_series(out / "ref", name="reference")
-    load = open_series(out / "load", name="state 0")
+    load = open_series(out / "load", name="load")
     m = read_mask(out / "mask.tif", ref.shape)
 
     def measuring(f, msg):

@@ -222,7 +222,7 @@ class VibrationDiagnostics:
     Attributes
     ----------
     name : str
-        The series (``"reference"``, ``"state 0"``...).
+        The series (``"reference"``, then each state named after its folder or file).
     shifts : (T, 2) float ndarray
         ``(alpha_t, beta_t)`` per frame, px, zero mean: frame ``t`` is
         ``s(x + alpha_t, y + beta_t)`` (paper eq. 2; the specimen moved by
@@ -359,7 +359,8 @@ class SeriesResult:
     reference_image : (H, W) float64 ndarray
         Mean reference frame, raw grey levels (for display).
     names : tuple of str
-        ``("reference", "state 0", ...)``.
+        ``("reference", name of state 0, ...)``: folder or file names
+        (:func:`state_names`).
     sources : tuple of tuple of str
         The files of each series (empty for arrays given in memory).
     n_frames : tuple of int
