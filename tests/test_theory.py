@@ -378,7 +378,7 @@ def test_effective_noise_variance_matches_sensor_model():
     T, K, L = 4, 0.28, 5.0
     stack = np.array([add_noise(s, K=K, L=L, rng=rng, bits=None) for _ in range(T)])
     resid = stack.mean(axis=0) - s
-    want = theory.effective_noise_variance(K, L, float(s.mean()), T)
+    want = theory.effective_noise_variance(K, L, float(s.mean()), T=T)
     # relative: 4 standard errors of a variance over 16384 independent pixels
     assert np.mean(resid**2) == pytest.approx(want, rel=4 * math.sqrt(2 / s.size))
 
@@ -445,7 +445,7 @@ LAT = Lattice.from_pitch(5)
     (lambda: theory.wft_noise_std(1, 0, 5), "modulus"),
     (lambda: theory.grid_modulus(1, 0), "contrast"),
     (lambda: theory.effective_noise_variance(-1, 5, 100), "K"),
-    (lambda: theory.effective_noise_variance(0.28, 5, 100, 0), "T"),
+    (lambda: theory.effective_noise_variance(0.28, 5, 100, T=0), "T"),
     (lambda: theory.displacement_noise_std([1, 2, 3], 0, LAT), "phase_std_ref"),
     (lambda: theory.strain_noise_std(0, -1, LAT), "deriv_std_def"),
 ])

@@ -427,7 +427,7 @@ def reproduce(out_dir, *, quick: bool = False, overwrite: bool = False, seed: in
 
     noise_var = th.effective_noise_variance(K, L, amplitude) + (
         1.0 / 12.0 if bits is not None else 0.0)
-    modulus = th.grid_modulus(amplitude, float(contrast), profile)
+    modulus = th.grid_modulus(amplitude, float(contrast), profile=profile)
     theory = {}
     image_terms = {}
     levels = {}

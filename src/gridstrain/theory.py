@@ -876,7 +876,7 @@ def compensated_noise_std(noise_variance: float, modulus: float, sigma: float, T
     return math.hypot(p_std, w * math.sqrt(var_e / n)), d_std, 0.0
 
 
-def grid_modulus(amplitude: float, contrast: float, profile="sin3") -> float:
+def grid_modulus(amplitude: float, contrast: float, *, profile="sin3") -> float:
     """Fringe modulus ``|Psi| = A/2 gamma |d_1|`` of an eq. (1) grid.
 
     Parameters
@@ -903,7 +903,7 @@ def grid_modulus(amplitude: float, contrast: float, profile="sin3") -> float:
     return float(A / 2 * gamma * abs(d[2]))
 
 
-def effective_noise_variance(K: float, L: float, mean_level: float, T: int = 1) -> float:
+def effective_noise_variance(K: float, L: float, mean_level: float, *, T: int = 1) -> float:
     """Noise variance of an average of ``T`` frames, ``(K mean + L) / T`` (Prop. 2.3).
 
     Parameters
