@@ -237,8 +237,8 @@ def _case_negative_pixel_size(d, t):
     return [d / "ref", d / "load.tif", "--pixel-size", "-0.04", "--unit", "mm"]
 
 
-def _case_method_c(d, t):
-    return [d / "ref", d / "load.tif", "--method", "C"]
+def _case_method_d(d, t):
+    return [d / "ref", d / "load.tif", "--method", "D"]
 
 
 def _case_missing_out_dir(d, t):

@@ -22,6 +22,8 @@ import pytest
 import gridstrain
 from gridstrain import Lattice, pipeline, screening, stacks, uncertainty
 
+gridstrain_wft = importlib.import_module("gridstrain.wft")  # the module, not the function
+
 LAT = Lattice.from_pitch(5.0)
 N = 64
 DTYPES = (np.float32, np.float64, np.uint16, np.uint8)
@@ -223,6 +225,21 @@ def _aliasing_bias(dt):
     assert all(isinstance(v, float) for v in a["phase_rad"])
 
 
+def _method_c(dt):
+    ref, _ = _ref_cur(dt)
+    res = stacks.method_c(ref, LAT)
+    _check_maps(res.maps, dt)
+    assert res.shifts.dtype == np.float64
+
+
+def _wft_complex(dt):
+    # a complex image per wave vector, as method C makes them from frames of dtype
+    # dt: the caller names the precision of the maps (that of its frames)
+    ref, _ = _ref_cur(dt)
+    z = np.stack([ref[0], ref[0]]).astype(np.complex128)
+    _check_maps(gridstrain_wft.wft_complex(z, LAT, dtype=_precision(dt)), dt)
+
+
 def _smoothing_bias(dt):
     ref, cur = _ref_cur(dt)
     m = gridstrain.measure(ref[0], cur[0], lattice=LAT, guess=None)
@@ -231,7 +248,8 @@ def _smoothing_bias(dt):
 
 
 ENTRY_POINTS = {
-    "wft": _wft, "method_a": _method_a, "method_b": _method_b,
+    "wft": _wft, "method_a": _method_a, "method_b": _method_b, "method_c": _method_c,
+    "wft_complex": _wft_complex,
     "prefix_stacks": _prefix_stacks, "correct_phases": _correct_phases,
     "mean_image": _mean_image, "measure": _measure, "deformation": _deformation,
     "coarse_displacement": _coarse_displacement, "measure_series": _measure_series,

@@ -87,7 +87,7 @@ def test_vibration_cases_are_the_papers():
 def test_shift_sample_moments(case):
     T = 40000
     sa, sb = vibration_cases()[case] if isinstance(case, int) else case
-    sh = draw_shifts(T, case, np.random.default_rng(7))
+    sh = draw_shifts(T, case, rng=np.random.default_rng(7))
     assert sh.shape == (T, 2)
     # 4.5 standard errors: the mean's is sigma/sqrt(T), the standard deviation's
     # sigma/sqrt(2T), the correlation's 1/sqrt(T); false alarm below 1e-5 per check
@@ -99,11 +99,11 @@ def test_shift_sample_moments(case):
 
 
 def test_shifts_are_seeded_and_shared_across_cases():
-    a = draw_shifts(50, 1, 3)
-    np.testing.assert_array_equal(a, draw_shifts(50, 1, np.random.default_rng(3)))
-    assert not np.array_equal(a, draw_shifts(50, 1, 4))
+    a = draw_shifts(50, 1, rng=3)
+    np.testing.assert_array_equal(a, draw_shifts(50, 1, rng=np.random.default_rng(3)))
+    assert not np.array_equal(a, draw_shifts(50, 1, rng=4))
     # the same draws, scaled: case 2 = case 1 * (0.1/0.15, 0.05/0.1)
-    np.testing.assert_allclose(draw_shifts(50, 2, 3), a * [0.1 / 0.15, 0.05 / 0.1],
+    np.testing.assert_allclose(draw_shifts(50, 2, rng=3), a * [0.1 / 0.15, 0.05 / 0.1],
                                rtol=1e-15)
 
 
@@ -181,7 +181,7 @@ def test_noise_variance_follows_k_l_plus_l():
 
 def test_frames_are_reproducible_and_streamed():
     phases, _ = paper_phases((32, 32))
-    sh = draw_shifts(4, 2, 0)
+    sh = draw_shifts(4, 2, rng=0)
     a = list(iter_frames(phases, sh, rng=5))
     b = list(iter_frames(phases, sh, rng=np.random.default_rng(5)))
     for x, y in zip(a, b, strict=True):

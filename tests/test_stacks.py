@@ -57,7 +57,7 @@ def test_mean_image_validation():
 
 def test_method_a_is_the_wft_of_the_mean():
     phases, _ = paper_phases((64, 64))
-    frames = list(iter_frames(phases, draw_shifts(5, 2, 0), rng=1))
+    frames = list(iter_frames(phases, draw_shifts(5, 2, rng=0), rng=1))
     res = method_a(iter(frames), LAT)
     ref = wft(np.mean(frames, axis=0), LAT)
     assert isinstance(res, StackResult)
@@ -102,7 +102,7 @@ def test_method_b_circular_mean_across_pi():
 
 def test_method_b_on_identical_frames_is_one_wft():
     phases, _ = paper_phases((64, 64))
-    frame = clean_frame(phases, (0.2, -0.1))
+    frame = clean_frame(phases, shift=(0.2, -0.1))
     res = method_b([frame] * 3, LAT)
     ref = wft(frame, LAT)
     np.testing.assert_allclose(res.maps.psi, ref.psi, rtol=1e-12, atol=1e-9)
@@ -133,7 +133,7 @@ def test_method_b_averages_derivatives_and_ands_valid():
 
 def test_method_b_result_feeds_phase_maps_consumers():
     phases, _ = paper_phases((64, 64))
-    res = method_b(list(iter_frames(phases, draw_shifts(2, 3, 0), rng=0)), LAT)
+    res = method_b(list(iter_frames(phases, draw_shifts(2, 3, rng=0), rng=0)), LAT)
     assert isinstance(res.maps, PhaseMaps)
     assert res.maps.psi.shape == (2, 64, 64)
     assert res.maps.dphi.shape == (2, 2, 64, 64)
@@ -168,7 +168,7 @@ def test_corrected_phase_of_noise_free_vibrated_stack(method):
     # exact=True removes, and (ii) the shifted phase maps, mean_t (alpha_t dphi/dx +
     # beta_t dphi/dy), bounded by 0.005 rad/px * (|alpha_bar| + |beta_bar|).
     phases, _ = paper_phases((96, 96))
-    shifts = draw_shifts(24, 1, np.random.default_rng(5))
+    shifts = draw_shifts(24, 1, rng=np.random.default_rng(5))
     frames = [clean_frame(phases, sh) for sh in shifts]
     res = method(frames, LAT)
     gt = wft(clean_frame(phases), LAT)
@@ -225,7 +225,7 @@ def test_derivative_rmse_falls_as_one_over_sqrt_t_for_a_and_b():
     counts = [1, 2, 4, 8, 16, 32]
     sq = {"A": np.zeros(len(counts)), "B": np.zeros(len(counts))}
     for rep in range(4):
-        shifts = draw_shifts(32, 2, np.random.default_rng([rep, 0]))
+        shifts = draw_shifts(32, 2, rng=np.random.default_rng([rep, 0]))
         for m in ("A", "B"):
             frames = iter_frames(phases, shifts, rng=np.random.default_rng([rep, 1]))
             for i, res in enumerate(prefix_stacks(frames, LAT, counts, method=m)):
@@ -254,7 +254,7 @@ def test_derivative_noise_matches_small_noise_theory():
     expected = math.sqrt(v / (16 * math.pi)) / (25 * A / 2 * 0.9 * 3 / 16)
     sq = 0.0
     for rep in range(3):
-        shifts = draw_shifts(T, 4, rep)
+        shifts = draw_shifts(T, 4, rng=rep)
         res = method_a(iter_frames(phases, shifts, rng=[rep, 9]), LAT)
         sq += np.mean((res.maps.dphi[:, :, sel] - gt.dphi[:, :, sel]) ** 2)
     assert math.sqrt(sq / 3) == pytest.approx(expected, rel=0.10)
@@ -264,7 +264,7 @@ def test_derivative_noise_matches_small_noise_theory():
 
 def test_prefix_stacks_equal_independent_runs():
     phases, _ = paper_phases((48, 48))
-    frames = list(iter_frames(phases, draw_shifts(6, 1, 0), rng=0))
+    frames = list(iter_frames(phases, draw_shifts(6, 1, rng=0), rng=0))
     got = list(prefix_stacks(iter(frames), LAT, [2, 6], method="A"))
     np.testing.assert_allclose(got[0].mean_image, np.mean(frames[:2], axis=0), rtol=1e-15)
     np.testing.assert_array_equal(got[1].maps.psi, method_a(frames, LAT).maps.psi)
@@ -282,6 +282,6 @@ def test_prefix_stacks_validation():
     with pytest.raises(TypeError, match="counts"):
         list(prefix_stacks(frames, LAT, [1.5]))
     with pytest.raises(ValueError, match="method"):
-        list(prefix_stacks(frames, LAT, [1], method="C"))
+        list(prefix_stacks(frames, LAT, [1], method="D"))
     with pytest.raises(TypeError, match="lattice"):
         method_a(frames, 5.0)

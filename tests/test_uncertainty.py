@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from gridstrain import Lattice, synthetic, wft
-from gridstrain.stacks import method_b
+from gridstrain.stacks import method_b, method_c
 from gridstrain.uncertainty import noise_variance_map, predict_uncertainty
 
 CASES = {1: (0.15, 0.1), 2: (0.1, 0.05), 3: (0.01, 0.01), 4: (0.001, 0.005)}
@@ -35,11 +35,19 @@ def _calibration(case, T, reps, seed, method="A"):
         frames = _stack(s_fn, shifts, rng)
         mean = np.mean(frames, axis=0)
         # method B's transform is the circular mean of the frames' (stacks.method_b):
-        # its modulus is the frames' mean modulus, its noise that of T frames
-        pm = wft(mean, LAT) if method == "A" else method_b(frames, LAT).maps
-        # exact phase offset for the known shifts (eqs. 28-29; for method B the
-        # circular mean of the frames' phasors has the same offset)
-        delta = np.angle(np.mean(np.exp(2j * np.pi * shifts @ LAT.K.T), axis=0))
+        # its modulus is the frames' mean modulus, its noise that of T frames.
+        # Method C (shifts measured from the frames) transforms the realigned
+        # average: full modulus, the noise of T frames.
+        if method == "A":
+            pm = wft(mean, LAT)
+        else:
+            pm = (method_b if method == "B" else method_c)(frames, LAT).maps
+        if method == "C":  # the grid at the stack's mean position, exactly
+            delta = 2 * np.pi * LAT.K @ shifts.mean(axis=0)
+        else:
+            # exact phase offset for the known shifts (eqs. 28-29; for method B the
+            # circular mean of the frames' phasors has the same offset)
+            delta = np.angle(np.mean(np.exp(2j * np.pi * shifts @ LAT.K.T), axis=0))
         dphi = np.angle(pm.psi * np.conj(truth.psi)) - delta[:, None, None]
         phases.append(dphi)
         derivs.append(pm.dphi - truth.dphi)
@@ -81,13 +89,13 @@ def _check(ratios):
 
 
 @pytest.mark.parametrize(("case", "T", "method"), [(1, 1, "A"), (3, 10, "A"), (1, 10, "A"),
-                                                   (2, 10, "B")])
+                                                   (2, 10, "B"), (1, 10, "C")])
 def test_calibration(case, T, method):
     _check(_calibration(case, T, reps=24, seed=case * 100 + T, method=method))
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("method", ["A", "B"])
+@pytest.mark.parametrize("method", ["A", "B", "C"])
 @pytest.mark.parametrize("case", [1, 2, 3, 4])
 @pytest.mark.parametrize("T", [1, 10, 100])
 def test_calibration_all_cases(case, T, method):

@@ -66,7 +66,7 @@ def register(sub) -> None:
     p.add_argument("--translation", type=float, nargs=2, default=(3.2, -1.4),
                    metavar=("UX", "UY"),
                    help="rigid translation of the loaded specimen, px (default 3.2 -1.4)")
-    p.add_argument("--method", type=str.upper, choices=("A", "B"), default="A",
+    p.add_argument("--method", type=str.upper, choices=("A", "B", "C"), default="A",
                    help="averaging method (default A)")
     p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     p.add_argument("--overwrite", action="store_true",
@@ -172,7 +172,7 @@ def run(args) -> int:
     t1 = time.perf_counter()
 
     ref = open_series(out / "ref", name="reference")
-    load = open_series(out / "load", name="state 0")
+    load = open_series(out / "load", name="load")
     m = read_mask(out / "mask.tif", ref.shape)
 
     def measuring(f, msg):

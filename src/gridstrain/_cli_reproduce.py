@@ -68,7 +68,7 @@ def run(args: argparse.Namespace) -> int:
     ch = res["checks"]
     out = sys.stdout
     out.write(f"wrote {', '.join(res['files'])} to {res['out_dir']} in {wall:.0f} s\n")
-    for m in ("A", "B"):
+    for m in ("A", "B", "C"):
         if m in ch:
             c = ch[m]
             out.write(f"method {m}: derivative slopes {c['derivative_slopes_min']:.3f} .. "
@@ -80,6 +80,10 @@ def run(args: argparse.Namespace) -> int:
         out.write(f"B/A derivative RMSE {ch['B_over_A_derivatives_min']:.3f} .. "
                   f"{ch['B_over_A_derivatives_max']:.3f}; cost ratio B/A "
                   f"{ch['cost_ratio_B_over_A']:.1f}\n")
+    if "C_over_B_derivatives_min" in ch:
+        out.write(f"C/B derivative RMSE {ch['C_over_B_derivatives_min']:.4f} .. "
+                  f"{ch['C_over_B_derivatives_max']:.4f}; cost ratio C/A "
+                  f"{ch['cost_ratio_C_over_A']:.1f}\n")
     for c, v in ch["image_level"].items():
         out.write(f"case {c}: averaged-image RMSE {v['rmse']:.3g} at T = {v['T']}, "
                   f"Prop. 2.1 level {v['prop21_level']:.3g} grey levels\n")

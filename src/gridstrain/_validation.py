@@ -18,6 +18,7 @@ __all__ = [
     "check_positive",
     "check_sigma",
     "float_dtype",
+    "image_array",
 ]
 
 
@@ -32,6 +33,20 @@ def as_image(image, name: str = "image", *, allow_uniform: bool = False) -> np.n
     The input is never modified: a new array is returned when a conversion is
     needed, and the caller must not write into the result.
     """
+    arr = image_array(image, name)
+    arr = arr.astype(float_dtype(arr.dtype), copy=False)
+    if not np.all(np.isfinite(arr)):
+        bad = int(np.count_nonzero(~np.isfinite(arr)))
+        raise ValueError(f"{name} must be finite, got {bad} NaN or infinite pixel(s)")
+    if not allow_uniform and np.ptp(arr) == 0:
+        raise ValueError(f"{name} is uniform (every pixel equals {float(arr.flat[0]):g}): no grid")
+    return arr
+
+
+def image_array(image, name: str = "image") -> np.ndarray:
+    """``image`` as a real 2-D numeric array of at least 8 x 8, unconverted and
+    unchecked for finiteness (:func:`as_image` does both); for callers that convert
+    while copying into their own buffer."""
     if isinstance(image, np.ndarray | list | tuple) or hasattr(image, "__array__"):
         arr = np.asarray(image)
     else:
@@ -44,12 +59,6 @@ def as_image(image, name: str = "image", *, allow_uniform: bool = False) -> np.n
         raise ValueError(f"{name} must be 2-D (H, W), got shape {arr.shape}")
     if arr.size == 0 or min(arr.shape) < 8:
         raise ValueError(f"{name} must be at least 8 x 8 pixels, got shape {arr.shape}")
-    arr = arr.astype(float_dtype(arr.dtype), copy=False)
-    if not np.all(np.isfinite(arr)):
-        bad = int(np.count_nonzero(~np.isfinite(arr)))
-        raise ValueError(f"{name} must be finite, got {bad} NaN or infinite pixel(s)")
-    if not allow_uniform and np.ptp(arr) == 0:
-        raise ValueError(f"{name} is uniform (every pixel equals {float(arr.flat[0]):g}): no grid")
     return arr
 
 

@@ -191,7 +191,7 @@ def _page_layout(shape: tuple[int, ...], samples: int) -> tuple[tuple[int, ...],
     return shape, 1, -1
 
 
-def to_luminance(raw: np.ndarray, axis: int = -1) -> np.ndarray:
+def to_luminance(raw: np.ndarray, *, axis: int = -1) -> np.ndarray:
     """Grey levels of a colour frame: ``0.2126 R + 0.7152 G + 0.0722 B`` (BT.709).
 
     Parameters
@@ -582,7 +582,7 @@ class FrameSeries:
     def _checked(self, raw: np.ndarray, where: str) -> np.ndarray:
         if self.channels > 1 and raw.ndim == 3 and self.channels in (raw.shape[0],
                                                                      raw.shape[-1]):
-            raw = to_luminance(raw, -1 if raw.shape[:2] == self.shape else 0)
+            raw = to_luminance(raw, axis=-1 if raw.shape[:2] == self.shape else 0)
         if raw.shape != self.shape or raw.dtype != self.dtype:
             # headers were checked by open_series: the file changed since
             raise ValueError(f"{self.name}: {where} is now {raw.shape} {raw.dtype}, "

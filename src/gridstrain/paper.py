@@ -188,7 +188,7 @@ def _stds(case) -> tuple[float, float]:
     return sa, sb
 
 
-def draw_shifts(T: int, case, rng=None) -> np.ndarray:
+def draw_shifts(T: int, case, *, rng=None) -> np.ndarray:
     """Draw ``T`` i.i.d. Gaussian vibration translations ``(alpha_t, beta_t)``.
 
     Parameters
@@ -319,7 +319,7 @@ def vibrated_frame(phases, shift, *, amplitude: float = 4096.0, contrast: float 
     (H, W) float64 ndarray
         Grey levels.
     """
-    s = clean_frame(phases, shift, amplitude=amplitude, contrast=contrast, pitch=pitch,
+    s = clean_frame(phases, shift=shift, amplitude=amplitude, contrast=contrast, pitch=pitch,
                     profile=profile)
     return add_noise(s, K=K, L=L, rng=rng, bits=bits, clip=clip)
 

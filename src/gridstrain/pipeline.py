@@ -163,7 +163,7 @@ from .kinematics import (
 from .lattice import Lattice, detect_lattice
 from .noise import NoiseModel, estimate_noise_image
 from .screening import FrameScreen, screen_frames
-from .stacks import method_b
+from .stacks import method_b, method_c
 from .uncertainty import aliasing_bias, metrology, predict_uncertainty, smoothing_bias
 from .wft import DEFAULT_MARGIN, PhaseMaps, finite_derivatives, wft
 
@@ -222,7 +222,7 @@ class VibrationDiagnostics:
     Attributes
     ----------
     name : str
-        The series (``"reference"``, ``"state 0"``...).
+        The series (``"reference"``, then each state named after its folder or file).
     shifts : (T, 2) float ndarray
         ``(alpha_t, beta_t)`` per frame, px, zero mean: frame ``t`` is
         ``s(x + alpha_t, y + beta_t)`` (paper eq. 2; the specimen moved by
@@ -349,7 +349,7 @@ class SeriesResult:
         Whether the lattice was detected (True) or given.
     sigma : float
         Window standard deviation, px.
-    method : {"A", "B"}
+    method : {"A", "B", "C"}
     lagrangian : bool
     margin : float
         Invalid band along borders and mask edges, in units of ``sigma``.
@@ -359,7 +359,8 @@ class SeriesResult:
     reference_image : (H, W) float64 ndarray
         Mean reference frame, raw grey levels (for display).
     names : tuple of str
-        ``("reference", "state 0", ...)``.
+        ``("reference", name of state 0, ...)``: folder or file names
+        (:func:`state_names`).
     sources : tuple of tuple of str
         The files of each series (empty for arrays given in memory).
     n_frames : tuple of int
@@ -795,7 +796,10 @@ def _diagnose(name: str, shifts: np.ndarray, estimator: str, lattice: Lattice,
         var = float(k @ cov @ k) / f**2  # variance of the shifts along k
         contrast.append(theory.contrast_factor(f, var))
         try:
-            offset.append(theory.phase_offset_std(f, var, T, method=method))
+            # method C's phase is that of the grid at the stack's mean position: its
+            # offset from s is method B's, 2 pi |k| Std(alpha) / sqrt(T)
+            offset.append(theory.phase_offset_std(f, var, T,
+                                                  method="B" if method == "C" else method))
         except ValueError:  # eq. (31) breaks down beyond ~1 px of vibration
             offset.append(math.nan)
     return VibrationDiagnostics(name=name, shifts=shifts, std=std,
@@ -1076,6 +1080,34 @@ def _phase_maps_b(series, lattice, sigma, mask, margin, report):
     return finite_derivatives(method_b(frames, lattice, sigma=sigma, mask=mask, margin=margin).maps)
 
 
+# Method A's averaged grid keeps this fraction of its contrast or less (eq. 14): its
+# phase-derivative noise is then 2 % or more above method C's, about the precision of
+# the noise floor itself, and worth method C's 2 to 3 times A's cost.
+_SUGGEST_C_CONTRAST = 0.98
+
+
+def _contrast_notes(vib) -> list[str]:
+    """Series whose vibrations cost method A more than method C's extra time."""
+    out = []
+    for v in vib:
+        c = min(v.contrast_factor)
+        if math.isfinite(c) and c < _SUGGEST_C_CONTRAST:
+            out.append(f"{v.name}: vibrations of ({v.std[0]:.3g}, {v.std[1]:.3g}) px std "
+                       f"lower the averaged grid's contrast to {c:.3f} (Prop. 2.2, eq. 14): "
+                       f"method A's strain noise is {1 / c - 1:.1%} above that of method C, "
+                       "which realigns the frames before averaging (--method C)")
+    return out
+
+
+def _phase_maps_c(series, lattice, sigma, mask, margin, shifts, report):
+    """Method C (vibration-compensated averaging) on the series' frames, streamed,
+    with the shifts of the series pass; returns the maps and the warnings."""
+    n = series.n_frames
+    frames = _counting(series.frames(dtype=np.float64), n, report, "method C: sums")
+    res = method_c(frames, lattice, shifts=shifts, sigma=sigma, mask=mask, margin=margin)
+    return finite_derivatives(res.maps), [f"{series.name}: {w}" for w in res.warnings]
+
+
 def _in_precision(maps: list, series: list) -> list:
     """The phase maps in the precision of the input (gridstrain.conventions): float32
     when every series holds float32 frames; they were computed in float64."""
@@ -1280,14 +1312,22 @@ def _theory_floor(var_ref, T_ref, mod_ref, var_s, T_s, mod_s, sigma, lattice):
     return su, se
 
 
-def _split_floor(ref_series, lattice, sigma, mask, margin, report):
-    """Spatial std of a half-against-half measurement of the reference."""
+def _split_floor(ref_series, lattice, sigma, mask, margin, report, shifts=None):
+    """Spatial std of a half-against-half measurement of the reference (method A,
+    or method C with ``shifts``)."""
     T = ref_series.n_frames
     T1 = T // 2
     halves = []
     for k, (start, stop) in enumerate(((0, T1), (T1, T))):
-        img = ref_series.mean(start=start, stop=stop)
-        halves.append(wft(img, lattice, sigma=sigma, mask=mask, margin=margin, workers=None))
+        if shifts is None:
+            img = ref_series.mean(start=start, stop=stop)
+            halves.append(wft(img, lattice, sigma=sigma, mask=mask, margin=margin,
+                              workers=None))
+        else:
+            halves.append(method_c(ref_series.frames(dtype=np.float64, start=start,
+                                                     stop=stop), lattice,
+                                   shifts=shifts[start:stop], sigma=sigma, mask=mask,
+                                   margin=margin).maps)
         report((k + 1) / 3, f"half {k + 1} of the reference")
     m = deformation(finite_derivatives(halves[0]), finite_derivatives(halves[1]),
                     lagrangian=False, guess=None)
@@ -1329,9 +1369,14 @@ def measure_series(reference, states, *, lattice: Lattice | None = None,
     sigma : float, optional
         Window standard deviation, px (default: the pitch; at least the pitch; a
         value within a relative 1e-3 below the pitch is taken as the pitch).
-    method : {"A", "B"}
+    method : {"A", "B", "C"}
         "A" (paper §2.2): one windowed Fourier transform of each averaged series.
         "B" (§2.3): one transform per frame, phases and derivatives averaged.
+        "C": each series averaged with its frames' carriers realigned by their
+        measured rigid shifts, one transform per wave vector
+        (:func:`gridstrain.stacks.method_c`): method B's precision without method
+        A's contrast loss, at about twice method A's cost. Warns (in
+        ``warnings``) when a series' motion is not a rigid translation.
     mask : (H, W) bool array_like or path, optional
         True (nonzero, for an image file) on the specimen, in the reference
         configuration. Regions without a grid are masked automatically on top.
@@ -1382,8 +1427,8 @@ def measure_series(reference, states, *, lattice: Lattice | None = None,
         (see :func:`gridstrain.distributed.connect`; needs the ``distributed``
         extra, and on a cluster workers that see the input files at the same
         paths). Every series is submitted before the first is awaited. The frame
-        shifts, the lattice, the noise floor and the kinematics stay on this
-        machine. Results equal those without a scheduler to the rounding of sums
+        shifts, the lattice, method C, the noise floor and the kinematics stay on
+        this machine. Results equal those without a scheduler to the rounding of sums
         added in another order.
     noise_model : NoiseModel or (K, L), optional
         The camera's noise ``Var = K l + L`` in the stored grey levels of the
@@ -1432,7 +1477,7 @@ def measure_series(reference, states, *, lattice: Lattice | None = None,
     progress = null_progress if progress is None else progress
     if not callable(progress):
         raise TypeError(f"progress must be callable or None, got {progress!r}")
-    check_choice(method, "method", ("A", "B"))
+    check_choice(method, "method", ("A", "B", "C"))
     check_choice(outliers, "outliers", OUTLIER_POLICIES)
     margin = check_positive(margin, "margin")
     sigma = check_positive(sigma, "sigma", allow_none=True)
@@ -1482,6 +1527,7 @@ def measure_series(reference, states, *, lattice: Lattice | None = None,
     total = ref.n_frames + 1.0
     for s in series:
         total += 2 * s.n_frames + (s.n_frames * wft_cost if method == "B" else 0) \
+            + (s.n_frames if method == "C" else 0) \
             + 2 * wft_cost
     total += n_states * (3 * wft_cost if lagrangian else wft_cost)
     total += ref.n_frames + 2 * wft_cost + wft_cost
@@ -1550,7 +1596,11 @@ def measure_series(reference, states, *, lattice: Lattice | None = None,
             base = m if s is ref else None
             pm, used = _phase_maps_a(st.mean, lattice, sigma, base, margin)
             steps.step(2 * wft_cost, f"{s.name}: phase maps")
-            if method == "B" and client is None:
+            if method == "C":  # on this machine: one pass, two sums per pixel
+                pm, notes = _phase_maps_c(s, lattice, sigma, used, margin, vib[k].shifts,
+                                          steps.sub(n, s.name))
+                warnings.extend(notes)
+            elif method == "B" and client is None:
                 pm = _phase_maps_b(s, lattice, sigma, used, margin,
                                    steps.sub(n * wft_cost, s.name))
             elif method == "B":  # a future, gathered once every series is submitted
@@ -1562,6 +1612,8 @@ def measure_series(reference, states, *, lattice: Lattice | None = None,
                 maps[k] = finite_derivatives(maps[k].result(timeout).maps)
                 steps.step(s.n_frames * wft_cost, f"{s.name}: method B")
 
+    if method == "A":
+        warnings.extend(_contrast_notes(vib))
     stats, model_info = _noise_models(stats, series, given_model, lattice, masks[0],
                                       warnings)
     maps = _in_precision(maps, series)
@@ -1586,7 +1638,8 @@ def measure_series(reference, states, *, lattice: Lattice | None = None,
     if ref.n_frames >= 2:
         su, se, (T1, T2) = _split_floor(ref, lattice, sigma, masks[0], margin,
                                         steps.sub(ref.n_frames + 3 * wft_cost,
-                                                  "noise floor"))
+                                                  "noise floor"),
+                                        vib[0].shifts if method == "C" else None)
     else:
         su, se, (T1, T2) = np.full(2, np.nan), np.full(3, np.nan), (1, 1)
         warnings.append("a single reference frame: no split-halves noise estimate (measure "

@@ -5,9 +5,10 @@ The file
     conventions), written with ``h5py`` dimension scales, so that
     ``xarray.open_dataset(path)`` (engine ``h5netcdf``) opens it directly:
 
-    - dimensions ``state`` (the loaded states, labelled ``"state 0"``...), ``y``
-      and ``x`` (rows and columns, px, :mod:`gridstrain.conventions`), ``series``
-      (the reference then the states), ``frame``, ``u_component`` (``ux, uy``),
+    - dimensions ``state`` (the loaded states, labelled after their folder or file,
+      ``"state i"`` for arrays), ``y`` and ``x`` (rows and columns, px,
+      :mod:`gridstrain.conventions`), ``series`` (the reference then the states),
+      ``frame``, ``u_component`` (``ux, uy``),
       ``strain_component`` (``exx, eyy, exy``), ``wave_vector`` (``k1, k2``) and
       ``axis`` (``x, y``);
     - coordinates ``x``, ``y`` in px and, with a pixel size, ``x_phys``,

@@ -46,6 +46,14 @@ Proposition 2.4 (eq. 31), :func:`phase_offset_std`
     ``0.1 / sqrt(T)``; a Monte Carlo of 100 000 stacks confirms the corrected
     value to 0.2 % (see :func:`phase_offset_std`).
 
+Method C (not in the paper), :func:`compensated_noise_std`
+    Frames weighted by ``exp(-2 i pi k . a_t)`` before averaging
+    (:func:`gridstrain.stacks.method_c`). Prop. 2.2's factor becomes
+    ``1 - 1/2 (2 pi)^2 k^T Var(e) k`` with ``e`` the shift estimates' errors, the
+    offset ``delta`` about the stack's mean position is third order in ``e``, and
+    what remains relative to ``s`` is the mean position ``2 pi k . a_bar`` itself
+    (exactly linear; with measured, centred shifts; Prop. 2.4's analogue).
+
 Windowed Fourier noise (paper §2.2, after its refs. [23, 24]), :func:`wft_noise_std`
     White noise of variance ``v`` gives phase and phase-derivative noise of
     standard deviations ``sqrt(v sum g^2 / 2) / |Psi|`` and
@@ -73,6 +81,7 @@ from .synthetic import line_profile
 
 __all__ = [
     "averaged_profile_coefficients",
+    "compensated_noise_std",
     "contrast_factor",
     "displacement_noise_std",
     "effective_noise_variance",
@@ -780,7 +789,94 @@ def wft_noise_std(noise_variance: float, modulus: float, sigma: float) -> tuple[
     return math.sqrt(v * g2 / 2) / mod, math.sqrt(v * dg2 / 2) / mod
 
 
-def grid_modulus(amplitude: float, contrast: float, profile="sin3") -> float:
+def compensated_noise_std(noise_variance: float, modulus: float, sigma: float, T: int, *,
+                          frequency: float, vibration_variance: float = 0.0,
+                          shift_error_variance: float = 0.0,
+                          centred: bool = True) -> tuple[float, float, float]:
+    """Small-noise errors of method C (vibration-compensated averaging).
+
+    Parameters
+    ----------
+    noise_variance : float
+        Sensor noise variance of one frame, grey levels^2 (e.g.
+        :func:`effective_noise_variance` with ``T = 1``).
+    modulus : float
+        ``|Psi|`` of the vibration-free grid, grey levels (:func:`grid_modulus`).
+    sigma : float
+        Window standard deviation, px.
+    T : int
+        Number of frames.
+    frequency : float
+        ``|k|`` of the wave vector, cycles/px.
+    vibration_variance : float
+        ``Var(alpha)`` of the vibrations along ``k``, px^2.
+    shift_error_variance : float
+        Variance of the shift estimates' errors along ``k``, px^2 (about
+        ``(5e-4)^2`` for :func:`gridstrain.vibration.frame_shifts` on a 256 x 256
+        frame of the paper's grid, falling as the inverse of the frame's area).
+    centred : bool
+        True: the shifts were measured from the frames and centred (what
+        :func:`gridstrain.stacks.method_c` does by default), so the weights carry
+        no information on the stack's mean position ``a_bar``. False: absolute
+        shifts, known from elsewhere (synthetic data), with errors
+        ``shift_error_variance``.
+
+    Returns
+    -------
+    phase_std : float
+        Std of the phase about that of the grid at the reference position (the
+        mean position if ``centred``, ``s`` otherwise), rad: sensor noise of an
+        average of ``T`` frames at the contrast factor below, and for absolute
+        shifts the mean of their errors, ``2 pi f sqrt(Var(e) / T)``.
+    derivative_std : float
+        Std of the phase derivatives, rad/px (the offsets are uniform).
+    offset_std : float
+        Std of the spatially uniform phase offset relative to ``s``, rad: the mean
+        position ``2 pi f sqrt(Var(alpha) / T)`` if ``centred`` (exactly the offset
+        of method B, :func:`phase_offset_std` with ``method="B"``), else the mean
+        error ``2 pi f sqrt(Var(e) / T)``, already in ``phase_std``, and 0 is
+        returned. Combine with ``phase_std`` in quadrature for the RMSE against
+        ``s``.
+
+    Notes
+    -----
+    Frame ``t`` weighted by ``exp(-i theta_t)``, ``theta_t = 2 pi k . (a_t -
+    c + e_t)`` (``c`` = ``a_bar + e_bar`` when centred, 0 otherwise), adds its
+    carrier ``d_1 exp(i 2 pi k . a_t)`` as ``d_1 exp(i 2 pi k . c) exp(-i 2 pi k .
+    e_t)``. The mean over frames is the analogue of eq. (14) with ``alpha_t``
+    replaced by ``-e_t``: modulus factor ``1 - 1/2 (2 pi f)^2 Var(e)``
+    (Prop. 2.2), offset ``arg mean_t exp(-2 i pi k . e_t)`` (eq. 28) whose first
+    order is ``-2 pi k . e_bar``, zero for centred shifts, leaving the third-order
+    term ``m3 / 6``, ``m3`` the sample third central moment of ``2 pi k . e_t``,
+    of variance ``(2 pi f)^6 Var(e)^3 (T - 1)(T - 2) / (6 T^3)`` for Gaussian
+    errors (zero for one or two frames; Prop. 2.4's analogue). The noise
+    ``(1/T) sum_t exp(-i theta_t) n_t`` has the variance ``v / T`` of method A's
+    (Prop. 2.3) and is circular, so eqs. (24)-(25) apply with the full modulus.
+    The shift estimates' errors are global (one number per frame) and add no
+    spatial noise; their correlation with the local noise of a window is of the
+    order of the window's share of the frame's area. First order in the sensor
+    noise, as :func:`wft_noise_std`.
+    """
+    v = _check_nonnegative(noise_variance, "noise_variance")
+    n = _check_count(T, "T")
+    f = _check_frequency(frequency)
+    var_a = _check_nonnegative(vibration_variance, "vibration_variance")
+    var_e = _check_nonnegative(shift_error_variance, "shift_error_variance")
+    w = 2 * np.pi * f
+    contrast = 1.0 - 0.5 * w**2 * var_e  # eq. (14) with alpha_t -> -e_t
+    if contrast <= 0:
+        raise ValueError(f"shift_error_variance must be below 2 / (2 pi f)^2 = "
+                         f"{2 / w**2:.4g} px^2, got {shift_error_variance!r}")
+    mod = check_positive(modulus, "modulus") * contrast
+    p_std, d_std = wft_noise_std(v / n, mod, sigma)  # Prop. 2.3 and eqs. (24)-(25)
+    if centred:
+        # Var(m3) = 6 s^6 (T-1)(T-2) / T^3 for a Gaussian sample, divided by 6^2
+        third = math.sqrt(w**6 * var_e**3 * (n - 1) * (n - 2) / (6 * n**3))
+        return math.hypot(p_std, third), d_std, float(w * math.sqrt(var_a / n))
+    return math.hypot(p_std, w * math.sqrt(var_e / n)), d_std, 0.0
+
+
+def grid_modulus(amplitude: float, contrast: float, *, profile="sin3") -> float:
     """Fringe modulus ``|Psi| = A/2 gamma |d_1|`` of an eq. (1) grid.
 
     Parameters
@@ -807,7 +903,7 @@ def grid_modulus(amplitude: float, contrast: float, profile="sin3") -> float:
     return float(A / 2 * gamma * abs(d[2]))
 
 
-def effective_noise_variance(K: float, L: float, mean_level: float, T: int = 1) -> float:
+def effective_noise_variance(K: float, L: float, mean_level: float, *, T: int = 1) -> float:
     """Noise variance of an average of ``T`` frames, ``(K mean + L) / T`` (Prop. 2.3).
 
     Parameters

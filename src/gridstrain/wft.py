@@ -27,7 +27,7 @@ from ._validation import (
 )
 from .lattice import Lattice
 
-__all__ = ["DEFAULT_MARGIN", "PhaseMaps", "transfer_function", "wft"]
+__all__ = ["DEFAULT_MARGIN", "PhaseMaps", "transfer_function", "wft", "wft_complex"]
 
 # Spatial padding, in window standard deviations, added before the circular FFT
 # convolution: the wrapped-around tail of the Gaussian then weighs exp(-8^2/2) ~ 1e-14.
@@ -349,13 +349,7 @@ def _wft(image, lattice: Lattice, *, sigma: float | None = None, mask=None,
         psi = work.get("psi", (2, h, W), cdtype)
         dphi = work.get("dphi", (2, 2, h, W), dtype)
 
-    if full:
-        valid, box = _valid_rectangle(H, W, margin * sigma)
-    else:
-        valid, box = _valid_region(m, margin * sigma), None
-    any_valid = bool(valid.any())
-    if not any_valid and full:
-        box = np.s_[:, :]
+    valid, box = _region(m, full, margin * sigma)
     mods = [work.get(f"mod{j}", (H, W), dtype) for j in range(2)]
     # with two threads, one wave vector each, and scratch arrays of its own
     works = [work, _Workspace()] if workers > 1 else [work, work]
@@ -379,17 +373,114 @@ def _wft(image, lattice: Lattice, *, sigma: float | None = None, mask=None,
     else:
         for j in range(2):
             one(j)
-    # A grid is there where both moduli reach min_modulus times their median over
-    # the region valid by its distance to the edges (sliced while it is a box,
-    # rather than gathered through a mask).
-    keep = np.ones((H, W), dtype=bool)
-    for mod in mods:
-        values = mod[box] if box is not None else mod[valid] if any_valid else mod[m]
-        keep &= mod >= min_modulus * _median(values)
-    valid &= keep
+    valid &= _shows_grid(mods, valid, box, m, min_modulus)
     if sink is not None:
         return valid
     return PhaseMaps(psi=psi, dphi=dphi, valid=valid, lattice=lattice, sigma=float(sigma))
+
+
+def _region(m: np.ndarray, full: bool, radius: float):
+    """Pixels farther than ``radius`` px from the border and the mask's edges, and
+    the box they fill when the mask is full (None otherwise)."""
+    if full:
+        valid, box = _valid_rectangle(*m.shape, radius)
+        return valid, (np.s_[:, :] if box is None else box)
+    return _valid_region(m, radius), None
+
+
+def _shows_grid(mods, valid: np.ndarray, box, m: np.ndarray, min_modulus: float) -> np.ndarray:
+    """Where both moduli reach ``min_modulus`` times their median over the region
+    valid by its distance to the edges (sliced while it is a box, rather than
+    gathered through a mask; the mask when no pixel is far enough from an edge)."""
+    any_valid = bool(valid.any())
+    keep = np.ones(valid.shape, dtype=bool)
+    for mod in mods:
+        values = mod[box] if box is not None else mod[valid] if any_valid else mod[m]
+        keep &= mod >= min_modulus * _median(values)
+    return keep
+
+
+def wft_complex(images, lattice: Lattice, *, sigma: float | None = None, mask=None,
+                margin: float = DEFAULT_MARGIN, min_modulus: float = _MIN_MODULUS,
+                dtype=np.float64) -> PhaseMaps:
+    """Windowed Fourier transform of one complex image per wave vector.
+
+    ``Psi_kj`` is the transform of ``images[j]`` at ``k_j``, with the window, the
+    carrier, the mean removal, the zero extension and the exact derivatives of
+    :func:`wft` (:mod:`gridstrain.conventions`). The transform is linear, so
+    ``wft_complex([v, v])`` equals ``wft(v)`` for a real image ``v``; a complex
+    image arises as a weighted sum of real frames, ``z_j = sum_t w_tj v_t``
+    (:func:`gridstrain.stacks.method_c`), whose transform is ``sum_t w_tj
+    Psi_kj(v_t)``.
+
+    Parameters
+    ----------
+    images : (2, H, W) complex array_like
+        One image per wave vector, grey levels.
+    lattice : Lattice
+        The wave vectors.
+    sigma, mask, margin, min_modulus
+        As in :func:`wft`.
+    dtype : numpy dtype
+        Real dtype of the returned derivatives (float32 or float64); ``psi`` is the
+        matching complex type. Computed in complex128 either way.
+
+    Returns
+    -------
+    PhaseMaps
+
+    Notes
+    -----
+    Cost: one complex FFT of the padded image per wave vector (the spectrum of a
+    complex image has no Hermitian symmetry to halve it), then the band-limited
+    inverse transforms of :func:`wft`.
+    """
+    if not isinstance(lattice, Lattice):
+        raise TypeError(f"lattice must be a Lattice, got {type(lattice).__name__}")
+    z = np.asarray(images)
+    if z.ndim != 3 or z.shape[0] != 2 or min(z.shape[1:]) < 2:
+        raise ValueError(f"images must be a (2, H, W) complex array, one image per wave "
+                         f"vector, got shape {z.shape}")
+    if not np.all(np.isfinite(z)):
+        raise ValueError("images must be finite")
+    H, W = z.shape[1:]
+    m = check_mask(mask, (H, W))
+    sigma = lattice.pitch if sigma is None else check_positive(sigma, "sigma")
+    if sigma < lattice.pitch * (1 - 1e-9):
+        raise ValueError(f"sigma must be at least the pitch ({lattice.pitch:.4g} px) so that "
+                         f"the window holds one period, got {sigma:.4g}")
+    margin = check_positive(margin, "margin")
+    if not 0 <= min_modulus < 1:
+        raise ValueError(f"min_modulus must be in [0, 1), got {min_modulus!r}")
+    full = bool(m.all())
+    pad = math.ceil(_PAD_SIGMAS * sigma)
+    ny = sfft.next_fast_len(H + pad)
+    nx = sfft.next_fast_len(W + pad)
+    chunk = max(8, _CHUNK_BYTES // (3 * nx * 16))
+    psi = np.empty((2, H, W), dtype=np.complex128)
+    dphi = np.empty((2, 2, H, W), dtype=np.float64)
+    mods = [np.empty((H, W), dtype=np.float64) for _ in range(2)]
+    work = _Workspace()
+    for j, k in enumerate((lattice.k1, lattice.k2)):
+        padded = np.zeros((ny, nx), dtype=np.complex128)
+        zj = z[j].astype(np.complex128, copy=False)
+        # the mean carries no phase (conventions); for a weighted sum of frames it is
+        # the mean grey level times the mean weight
+        if full:
+            np.subtract(zj, zj.mean(), out=padded[:H, :W])
+        else:
+            padded[:H, :W] = np.where(m, zj - zj[m].mean(), 0)
+        with _fft.backend():
+            V = sfft.fft2(padded, overwrite_x=True, workers=1)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            _one_wave_vector(V, k, sigma, H, W, nx, psi[j], dphi[j], mods[j], work,
+                             chunk=chunk)
+    valid, box = _region(m, full, margin * sigma)
+    valid &= _shows_grid(mods, valid, box, m, min_modulus)
+    dtype = np.dtype(dtype)
+    return PhaseMaps(psi=psi.astype(np.result_type(dtype, np.complex64), copy=False),
+                     dphi=dphi.astype(dtype, copy=False), valid=valid, lattice=lattice,
+                     sigma=float(sigma))
 
 
 def finite_derivatives(pm: PhaseMaps) -> PhaseMaps:
@@ -464,7 +555,8 @@ def _one_wave_vector(V, k, sigma, H, W, nx, psi, dphi, mod, work, *, chunk: int,
     cdtype = V.dtype
     rows, yruns, nuy, sy = _axis_band(ny, k[1], sigma)
     cols, xruns, nux, sx = _axis_band(nx, k[0], sigma)
-    block = _spectrum_block(V, rows, cols, nx)
+    # a complex image's full spectrum (wft_complex), or a real one's half spectrum
+    block = V[np.ix_(rows, cols)] if V.shape[1] == nx else _spectrum_block(V, rows, cols, nx)
     # complex transfer values: a complex times real product would go through a
     # slow mixed-type loop
     gy = transfer_function(nuy, sigma).astype(cdtype)
