@@ -261,3 +261,15 @@ def test_quick_run_meets_the_papers_statements(tmp_path):
     for c in ("1", "2"):
         assert ch["image_level"][c]["rmse_over_prop21"] == pytest.approx(1.0, abs=0.1)
     assert ch["cost_ratio_B_over_A"] > 1
+
+
+def test_a_single_method_b_point_reports_what_it_cannot_fit(tmp_path, capsys):
+    # one T for method B gives no slope and no B/A ratio to fit: those figures read
+    # "n/a" instead of failing the run
+    rc = cli.main(["reproduce", "--out", str(tmp_path / "o"), "--quick", "--T", "1", "2",
+                   "--T-b", "1", "--cases", "1", "--size", "96", "96", "--repetitions", "1",
+                   "--quiet"])
+    assert rc == 0, capsys.readouterr().err
+    res = json.loads((tmp_path / "o" / "results.json").read_text())
+    assert res["checks"]["B"]["derivative_slopes_min"] is None
+    assert "n/a" in (tmp_path / "o" / "summary.md").read_text()

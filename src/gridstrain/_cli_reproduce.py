@@ -10,6 +10,11 @@ from ._progress import bar
 from .synthetic import PROFILES
 
 
+def _fixed(v, digits: int) -> str:
+    """Fixed-point figure, or "n/a" where the run's T values gave none."""
+    return "n/a" if v is None else f"{v:.{digits}f}"
+
+
 def register(subparsers) -> None:
     """Add the ``reproduce`` sub-command to ``subparsers``."""
     p = subparsers.add_parser(
@@ -71,19 +76,19 @@ def run(args: argparse.Namespace) -> int:
     for m in ("A", "B", "C"):
         if m in ch:
             c = ch[m]
-            out.write(f"method {m}: derivative slopes {c['derivative_slopes_min']:.3f} .. "
-                      f"{c['derivative_slopes_max']:.3f}; RMSE/theory "
-                      f"{c['derivative_rmse_over_theory_min']:.3f} .. "
-                      f"{c['derivative_rmse_over_theory_max']:.3f}; spread across cases "
+            out.write(f"method {m}: derivative slopes {_fixed(c['derivative_slopes_min'], 3)} .. "
+                      f"{_fixed(c['derivative_slopes_max'], 3)}; RMSE/theory "
+                      f"{_fixed(c['derivative_rmse_over_theory_min'], 3)} .. "
+                      f"{_fixed(c['derivative_rmse_over_theory_max'], 3)}; spread across cases "
                       f"{100 * c['derivative_spread_across_cases_max']:.1f} %\n")
     if "B_over_A_derivatives_min" in ch:
-        out.write(f"B/A derivative RMSE {ch['B_over_A_derivatives_min']:.3f} .. "
-                  f"{ch['B_over_A_derivatives_max']:.3f}; cost ratio B/A "
-                  f"{ch['cost_ratio_B_over_A']:.1f}\n")
+        out.write(f"B/A derivative RMSE {_fixed(ch['B_over_A_derivatives_min'], 3)} .. "
+                  f"{_fixed(ch['B_over_A_derivatives_max'], 3)}; cost ratio B/A "
+                  f"{_fixed(ch['cost_ratio_B_over_A'], 1)}\n")
     if "C_over_B_derivatives_min" in ch:
-        out.write(f"C/B derivative RMSE {ch['C_over_B_derivatives_min']:.4f} .. "
-                  f"{ch['C_over_B_derivatives_max']:.4f}; cost ratio C/A "
-                  f"{ch['cost_ratio_C_over_A']:.1f}\n")
+        out.write(f"C/B derivative RMSE {_fixed(ch['C_over_B_derivatives_min'], 4)} .. "
+                  f"{_fixed(ch['C_over_B_derivatives_max'], 4)}; cost ratio C/A "
+                  f"{_fixed(ch['cost_ratio_C_over_A'], 1)}\n")
     for c, v in ch["image_level"].items():
         out.write(f"case {c}: averaged-image RMSE {v['rmse']:.3g} at T = {v['T']}, "
                   f"Prop. 2.1 level {v['prop21_level']:.3g} grey levels\n")

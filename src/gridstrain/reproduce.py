@@ -624,10 +624,10 @@ def _checks(records, slopes, cases, levels, timing) -> dict:
                         "geometric_mean_ordered": all(
                             a >= b for a, b in itertools.pairwise(logs))}
         out[m] = {
-            "derivative_slopes_min": min(ds), "derivative_slopes_max": max(ds),
-            "derivative_rmse_over_theory_min": min(ratios),
-            "derivative_rmse_over_theory_max": max(ratios),
-            "derivative_rmse_over_theory_mean": float(np.mean(ratios)),
+            "derivative_slopes_min": _least(ds), "derivative_slopes_max": _most(ds),
+            "derivative_rmse_over_theory_min": _least(ratios),
+            "derivative_rmse_over_theory_max": _most(ratios),
+            "derivative_rmse_over_theory_mean": float(np.mean(ratios)) if ratios else None,
             "derivative_spread_across_cases_max": spread,
             "derivative_spread_across_cases_over_theory_max": spread_th,
             "corrected_phase_slopes": corr,
@@ -641,8 +641,8 @@ def _checks(records, slopes, cases, levels, timing) -> dict:
                 Tb, yb, _ = _get(records, "B", c, q)
                 a = dict(zip(Ta, ya, strict=True))
                 rb += [v / a[t] for t, v in zip(Tb, yb, strict=True) if t in a]
-        out["B_over_A_derivatives_min"] = min(rb)
-        out["B_over_A_derivatives_max"] = max(rb)
+        out["B_over_A_derivatives_min"] = _least(rb)
+        out["B_over_A_derivatives_max"] = _most(rb)
     if "C" in out:
         out.update(_checks_c(records, all_cases))
     img = {}
@@ -656,6 +656,16 @@ def _checks(records, slopes, cases, levels, timing) -> dict:
     out["cost_ratio_B_over_A"] = timing["ratio_B_over_A"]
     out["cost_ratio_C_over_A"] = timing.get("ratio_C_over_A")
     return out
+
+
+def _least(values):
+    """Smallest value, or None when a run's T values leave nothing to compare."""
+    return min(values) if values else None
+
+
+def _most(values):
+    """Largest value, or None when a run's T values leave nothing to compare."""
+    return max(values) if values else None
 
 
 def _ratios(records, num, den, cases, quantities, *, theory=False):
@@ -686,18 +696,18 @@ def _checks_c(records, cases) -> dict:
     """
     phases = ("phi1_corrected", "phi2_corrected")
     cb = _ratios(records, "C", "B", cases, _DERIVATIVES)
-    out = {"C_over_B_derivatives_min": min(cb), "C_over_B_derivatives_max": max(cb)}
+    out = {"C_over_B_derivatives_min": _least(cb), "C_over_B_derivatives_max": _most(cb)}
     cases = [c for c in cases if c in vibration_cases()] or cases
     ct = _ratios(records, "C", None, cases, _DERIVATIVES, theory=True)
-    out["C_derivative_rmse_over_theory_min"] = min(ct)
-    out["C_derivative_rmse_over_theory_max"] = max(ct)
+    out["C_derivative_rmse_over_theory_min"] = _least(ct)
+    out["C_derivative_rmse_over_theory_max"] = _most(ct)
     cp = _ratios(records, "C", None, cases, phases, theory=True)
-    out["C_corrected_phase_rmse_over_theory_min"] = min(cp)
-    out["C_corrected_phase_rmse_over_theory_max"] = max(cp)
+    out["C_corrected_phase_rmse_over_theory_min"] = _least(cp)
+    out["C_corrected_phase_rmse_over_theory_max"] = _most(cp)
     for m in ("A", "B"):
         r = _ratios(records, m, None, cases, phases, theory=True)
         if r:
-            out[f"{m}_corrected_phase_rmse_over_theory_max"] = max(r)
+            out[f"{m}_corrected_phase_rmse_over_theory_max"] = _most(r)
     if 5 in cases or 5 in {r["case"] for r in records}:
         # from T = 30 on: a stack of a few frames keeps more of its contrast by
         # chance (one frame keeps all of it, and methods A and C then coincide; ten
@@ -711,12 +721,12 @@ def _checks_c(records, cases) -> dict:
             if all(v is not None for m in sq for v in sq[m]):
                 ca.append(math.sqrt(sum(v * v for v in sq["C"]) / sum(v * v for v in sq["A"])))
         if ca:
-            out["C_over_A_derivatives_case5_max"] = max(ca)
+            out["C_over_A_derivatives_case5_max"] = _most(ca)
         cp5 = [y / th for q in phases for t, y, th in zip(*_get(records, "C", 5, q),
                                                             strict=True) if t <= 100 and th]
         if cp5:
-            out["C_corrected_phase_case5_over_theory_max"] = max(cp5)
-            out["C_corrected_phase_case5_over_theory_min"] = min(cp5)
+            out["C_corrected_phase_case5_over_theory_max"] = _most(cp5)
+            out["C_corrected_phase_case5_over_theory_min"] = _least(cp5)
     return out
 
 
@@ -817,6 +827,11 @@ def _fmt(v, digits=3):
     return "n/a" if v is None else f"{v:.{digits}g}"
 
 
+def _fixed(v, digits=3):
+    """Fixed-point figure, or "n/a" where the run's T values gave none."""
+    return "n/a" if v is None else f"{v:.{digits}f}"
+
+
 def _at(records, method, case, q, T):
     """RMSE at T (log-log interpolation between measured T values), or None."""
     Ts, ys, _ = _get(records, method, case, q)
@@ -860,17 +875,17 @@ def _summary(result) -> str:
         c = ch[m]
         row(f"Method {m}: phase-derivative RMSE decreases as 1/sqrt(T) (slope -0.5; "
             "the paper's cases)",
-            f"fitted slopes {c['derivative_slopes_min']:.3f} to "
-            f"{c['derivative_slopes_max']:.3f}")
+            f"fitted slopes {_fixed(c['derivative_slopes_min'])} to "
+            f"{_fixed(c['derivative_slopes_max'])}")
         row(f"Method {m}: derivative RMSE does not depend on the vibrations "
             "(curves superposed)",
             f"largest spread across cases {100 * c['derivative_spread_across_cases_max']:.1f} % "
             f"({100 * c['derivative_spread_across_cases_over_theory_max']:.1f} % once divided "
             "by the theory, which for method A includes the contrast loss of eq. 14)")
         row(f"Method {m}: derivatives follow the small-noise theory (eq. 27)",
-            f"measured/theory {c['derivative_rmse_over_theory_min']:.3f} to "
-            f"{c['derivative_rmse_over_theory_max']:.3f} (mean "
-            f"{c['derivative_rmse_over_theory_mean']:.3f})")
+            f"measured/theory {_fixed(c['derivative_rmse_over_theory_min'])} to "
+            f"{_fixed(c['derivative_rmse_over_theory_max'])} (mean "
+            f"{_fixed(c['derivative_rmse_over_theory_mean'])})")
     d200 = [_at(rec, "A", c, q, 200) for c in paper for q in _DERIVATIVES]
     d200 = [v for v in d200 if v is not None]
     row("T = 200: derivative RMSE < 3e-5 rad/px",
@@ -904,31 +919,31 @@ def _summary(result) -> str:
                   f"{img[str(c)]['exact_gaussian_level']:.3g}) grey levels" for c in cases))
     if "B_over_A_derivatives_min" in ch:
         row("Method B gives results comparable to method A",
-            f"derivative RMSE ratio B/A {ch['B_over_A_derivatives_min']:.3f} to "
-            f"{ch['B_over_A_derivatives_max']:.3f}")
+            f"derivative RMSE ratio B/A {_fixed(ch['B_over_A_derivatives_min'])} to "
+            f"{_fixed(ch['B_over_A_derivatives_max'])}")
     if "C_over_B_derivatives_min" in ch:
         row("Method C (not in the paper): derivatives with method B's precision",
-            f"derivative RMSE ratio C/B {ch['C_over_B_derivatives_min']:.3f} to "
-            f"{ch['C_over_B_derivatives_max']:.3f}; C/theory "
-            f"{ch['C_derivative_rmse_over_theory_min']:.3f} to "
-            f"{ch['C_derivative_rmse_over_theory_max']:.3f}")
-        others = ", ".join(f"{m} up to {ch[k]:.3f}" for m in ("A", "B")
+            f"derivative RMSE ratio C/B {_fixed(ch['C_over_B_derivatives_min'])} to "
+            f"{_fixed(ch['C_over_B_derivatives_max'])}; C/theory "
+            f"{_fixed(ch['C_derivative_rmse_over_theory_min'])} to "
+            f"{_fixed(ch['C_derivative_rmse_over_theory_max'])}")
+        others = ", ".join(f"{m} up to {_fixed(ch[k])}" for m in ("A", "B")
                            if (k := f"{m}_corrected_phase_rmse_over_theory_max") in ch)
         row("Method C: phase about the stack's mean position at the noise-only theory "
             "(no contrast loss, no eq. 29 residual)",
             f"corrected-phase RMSE / noise-only theory "
-            f"{ch['C_corrected_phase_rmse_over_theory_min']:.3f} to "
-            f"{ch['C_corrected_phase_rmse_over_theory_max']:.3f} (eqs. 29-30 corrected: "
+            f"{_fixed(ch['C_corrected_phase_rmse_over_theory_min'])} to "
+            f"{_fixed(ch['C_corrected_phase_rmse_over_theory_max'])} (eqs. 29-30 corrected: "
             f"{others})")
         if "C_corrected_phase_case5_over_theory_max" in ch:
             row("Method C at 0.5 px (case 5): phase about the mean position at the theory",
                 f"corrected-phase RMSE / theory "
-                f"{ch['C_corrected_phase_case5_over_theory_min']:.3f} to "
-                f"{ch['C_corrected_phase_case5_over_theory_max']:.3f} (T <= 100)")
+                f"{_fixed(ch['C_corrected_phase_case5_over_theory_min'])} to "
+                f"{_fixed(ch['C_corrected_phase_case5_over_theory_max'])} (T <= 100)")
         if "C_over_A_derivatives_case5_max" in ch:
             row("Method C at 0.5 px of vibration (case 5): derivative error below A's",
                 f"C/A derivative RMSE (RMS over the four) at most "
-                f"{ch['C_over_A_derivatives_case5_max']:.3f} (30 <= T <= 100; beyond, "
+                f"{_fixed(ch['C_over_A_derivatives_case5_max'])} (30 <= T <= 100; beyond, "
                 "the generator's interpolation error, common to all methods, dominates)")
     row("Cost: A 8 s, B 118 s per 100 images (Matlab, 2014 Xeon), ratio 15",
         f"A {tim['method_A_seconds_per_100_images']:.2f} s, B "
