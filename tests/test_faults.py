@@ -312,7 +312,7 @@ def test_signal_during_the_write_cleans_up(data, tmp_path, sig, rc, word):
 
 
 def test_memory_error_is_one_line(data, tmp_path, capsys, monkeypatch):
-    import gridstrain._cli_measure as cm
+    import gridstrain.cli.measure as cm
 
     def exhausted(*a, **k):
         raise MemoryError
@@ -325,7 +325,7 @@ def test_memory_error_is_one_line(data, tmp_path, capsys, monkeypatch):
 
 def test_lost_scheduler_is_one_line(data, tmp_path, capsys, monkeypatch):
     comm = pytest.importorskip("distributed.comm")
-    import gridstrain._cli_measure as cm
+    import gridstrain.cli.measure as cm
 
     def lost(*a, **k):
         raise comm.CommClosedError("in <TCP (closed)>: Stream is closed")
@@ -422,7 +422,7 @@ def test_an_all_invalid_result_is_never_written(data, tmp_path, capsys, monkeypa
     """Whatever the cause, a state without one valid pixel is an error, not a file."""
     import dataclasses
 
-    import gridstrain._cli_measure as cm
+    import gridstrain.cli.measure as cm
 
     real = cm.measure_series
 

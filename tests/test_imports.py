@@ -79,4 +79,4 @@ def test_only_the_sub_command_run_is_built():
 
 
 def test_measure_command_loads_matplotlib_only_for_figures():
-    assert "matplotlib" not in _loaded_after("import gridstrain._cli_measure")
+    assert "matplotlib" not in _loaded_after("import gridstrain.cli.measure")

@@ -14,21 +14,21 @@ from pathlib import Path
 
 import numpy as np
 
-from . import __version__
-from ._cli_common import (
+from .. import __version__
+from .._progress import bar
+from ..io import open_series, write_atomic, write_hdf5
+from ..lattice import detect_lattice
+from ..noise import NOISE_RESULT_KIND, estimate_noise, estimate_noise_image
+from ..uncertainty import noise_floor
+from ..vibration import vibration_report
+from ..wft import wft
+from ._common import (
     add_lattice_options,
     check_output_file,
     fmt,
     lattice_option,
     print_json,
 )
-from ._progress import bar
-from .io import open_series, write_atomic, write_hdf5
-from .lattice import detect_lattice
-from .noise import NOISE_RESULT_KIND, estimate_noise, estimate_noise_image
-from .uncertainty import noise_floor
-from .vibration import vibration_report
-from .wft import wft
 
 
 def register(sub) -> None:

@@ -1,6 +1,6 @@
 """The ``gridstrain`` command line.
 
-Each sub-command lives in a module ``gridstrain._cli_<name>`` exposing
+Each sub-command lives in a module ``gridstrain.cli.<name>`` exposing
 ``register(subparsers)``, which adds its parser and sets ``func`` to a callable
 ``func(args) -> int``. User errors (``ValueError``, ``TypeError``, ``OSError``,
 a full disk included) become one line on stderr and exit code 2; the library
@@ -25,7 +25,7 @@ import signal
 import sys
 import threading
 
-from . import __version__
+from .. import __version__
 
 # sub-command -> the one-line summary its module's parser declares (a test checks
 # that they agree)
@@ -57,7 +57,7 @@ def build_parser(commands=None) -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND",
                                 parser_class=_Parser)
     for name, summary in _COMMANDS.items():
-        module = f"gridstrain._cli_{name}"
+        module = f"gridstrain.cli.{name}"
         if commands is not None and name not in commands:
             if importlib.util.find_spec(module) is not None:
                 sub.add_parser(name, help=summary, add_help=False)

@@ -9,7 +9,7 @@ import math
 import sys
 from pathlib import Path
 
-from .lattice import Lattice
+from ..lattice import Lattice
 
 
 def add_lattice_options(group) -> None:

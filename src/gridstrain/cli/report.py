@@ -5,7 +5,7 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-from ._cli_common import check_output_file
+from ._common import check_output_file
 
 
 def register(sub) -> None:
@@ -23,7 +23,7 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
-    from .report import write_report
+    from ..report import write_report
 
     src = Path(os.path.expanduser(args.result))
     out = Path(os.path.expanduser(args.output)) if args.output else src.with_suffix(".html")

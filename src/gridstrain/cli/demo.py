@@ -22,14 +22,14 @@ from pathlib import Path
 import numpy as np
 import tifffile
 
-from . import kirsch, synthetic
-from ._cli_measure import jsonable, report_lines, summary
-from ._progress import bar
-from .io import OutputDirectory, open_series, read_mask, write_hdf5, write_tiff_series
-from .lattice import Lattice
-from .pipeline import MAP_FIELDS, measure_series, save_result
-from .plotting import figure_names, save_figures
-from .report import write_report
+from .. import kirsch, synthetic
+from .._progress import bar
+from ..io import OutputDirectory, open_series, read_mask, write_hdf5, write_tiff_series
+from ..lattice import Lattice
+from ..pipeline import MAP_FIELDS, measure_series, save_result
+from ..plotting import figure_names, save_figures
+from ..report import write_report
+from .measure import jsonable, report_lines, summary
 
 # The simulated camera and specimen (paper §3.2 and README of the paper notes).
 _AMPLITUDE = 2400.0  # mean grey level of the grid, 12-bit levels: peaks at 3480 + black

@@ -6,8 +6,8 @@ import argparse
 import sys
 import time
 
-from ._progress import bar
-from .synthetic import PROFILES
+from .._progress import bar
+from ..synthetic import PROFILES
 
 
 def _fixed(v, digits: int) -> str:
@@ -59,7 +59,7 @@ def register(subparsers) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Run ``gridstrain reproduce`` with parsed ``args``; returns the exit code."""
-    from .reproduce import reproduce  # heavy imports only when the command runs
+    from ..reproduce import reproduce  # heavy imports only when the command runs
 
     t0 = time.perf_counter()
     res = reproduce(args.out, quick=args.quick, overwrite=args.overwrite, seed=args.seed,

@@ -20,17 +20,10 @@ from pathlib import Path
 import h5py
 import numpy as np
 
-from . import __version__
-from ._cli_common import (
-    add_lattice_options,
-    check_output_file,
-    lattice_option,
-    positive_option,
-    quiet_dask_logs,
-)
-from ._progress import bar
-from .io import OutputDirectory, open_series, read_mask, read_noise_model, roi_mask
-from .pipeline import (
+from .. import __version__
+from .._progress import bar
+from ..io import OutputDirectory, open_series, read_mask, read_noise_model, roi_mask
+from ..pipeline import (
     FWHM_PER_SIGMA,
     MAP_FIELDS,
     ORDERS,
@@ -39,8 +32,15 @@ from .pipeline import (
     measure_series,
     state_names,
 )
-from .results import export, save_csv, save_result
-from .wft import DEFAULT_MARGIN
+from ..results import export, save_csv, save_result
+from ..wft import DEFAULT_MARGIN
+from ._common import (
+    add_lattice_options,
+    check_output_file,
+    lattice_option,
+    positive_option,
+    quiet_dask_logs,
+)
 
 # The options a TOML configuration file may set: its keys are the long options
 # (``pixel-size`` or ``pixel_size``), with the type each must have there.
@@ -268,7 +268,7 @@ def _read_config(path: str) -> dict:
     if not p.is_file():
         raise FileNotFoundError(f"config file {p} does not exist")
     if h5py.is_hdf5(p):  # a result file: the configuration of its run
-        from .results import read_attrs
+        from ..results import read_attrs
 
         text = read_attrs(p).get("config")
         if not isinstance(text, str):
@@ -331,7 +331,7 @@ def _check_outputs(opts: dict, n_states: int, inputs: set[Path]) -> None:
         check_output_file(csv, "CSV file", opts["overwrite"], inputs)
     if opts.get("figures"):
         # only figures an earlier run wrote there are replaced (its marker lists them)
-        from .plotting import figure_names  # matplotlib only when figures are asked
+        from ..plotting import figure_names  # matplotlib only when figures are asked
 
         OutputDirectory(os.path.expanduser(opts["figures"]), figure_names(n_states),
                         overwrite=opts["overwrite"], what="figures directory")
@@ -759,12 +759,12 @@ def _run(args, progress: _Bar) -> int:
                          unit=unit, overwrite=opts["overwrite"])
         outputs["export"] = {k: str(v) for k, v in written.items()}
     if opts.get("report"):
-        from .report import write_report
+        from ..report import write_report
 
         outputs["report"] = str(write_report(out, opts["report"],
                                              overwrite=opts["overwrite"]))
     if opts.get("figures"):
-        from .plotting import save_figures  # matplotlib only when figures are asked
+        from ..plotting import save_figures  # matplotlib only when figures are asked
 
         figs = save_figures(result, opts["figures"], pixel_size=ps, unit=unit,
                             overwrite=opts["overwrite"], progress=progress)
