@@ -8,7 +8,7 @@ import pytest
 
 from gridstrain import Lattice, cli
 from gridstrain.io import MARKER_NAME
-from gridstrain.reproduce import QUANTITIES, _at, _shifts, reproduce
+from gridstrain.paper.experiment import QUANTITIES, _at, _shifts, reproduce
 
 TINY = {"size": (96, 96), "T": [1, 4, 16], "T_b": [1, 4], "repetitions": 1,
         "cases": [1, 3], "timing_frames": 3, "workers": 1, "seed": 3}
@@ -160,7 +160,7 @@ def test_validation(tmp_path, kw, match):
 
 
 def test_cli_maps_options_to_the_library(monkeypatch, capsys, tmp_path):
-    import gridstrain.reproduce as mod
+    import gridstrain.paper.experiment as mod
 
     seen = {}
 

@@ -59,7 +59,7 @@ def register(subparsers) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Run ``gridstrain reproduce`` with parsed ``args``; returns the exit code."""
-    from ..reproduce import reproduce  # heavy imports only when the command runs
+    from ..paper.experiment import reproduce  # heavy imports only when the command runs
 
     t0 = time.perf_counter()
     res = reproduce(args.out, quick=args.quick, overwrite=args.overwrite, seed=args.seed,

@@ -4,7 +4,7 @@ Sur & Grédiac (2015) test time-averaging on grid images generated from eqs. (1)
 a grid of pitch 5 px whose phase modulations ``phi1``, ``phi2`` are synthetic maps
 (their Fig. 4), translated by a random vibration ``(alpha_t, beta_t)`` and corrupted
 by Poisson-Gaussian sensor noise quantised to 12 bits. This module rebuilds that data
-set; :mod:`gridstrain.reproduce` runs the paper's experiments on it. Coordinates and
+set; :mod:`gridstrain.paper.experiment` runs the paper's experiments on it. Coordinates and
 signs follow :mod:`gridstrain.conventions`.
 
 Choices the paper leaves open, made here once:
@@ -44,8 +44,8 @@ from collections.abc import Iterator
 import numpy as np
 from scipy import ndimage
 
-from ._validation import check_positive
-from .synthetic import add_noise, line_profile
+from .._validation import check_positive
+from ..synthetic import add_noise, line_profile
 
 __all__ = [
     "clean_frame",

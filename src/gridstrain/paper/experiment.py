@@ -1,7 +1,7 @@
 """Re-run the synthetic experiments of the founding paper (§3.2, Figs. 5c, 12, 13).
 
 :func:`reproduce` generates the paper's vibrated, noisy stacks
-(:mod:`gridstrain.paper`), averages them with methods A and B
+(:mod:`gridstrain.paper.dataset`), averages them with methods A and B
 (:mod:`gridstrain.stacks`) and with the vibration-compensated method C (not in the
 paper; its shifts measured from the frames, as in the lab), measures the RMSE of
 the phases, corrected phases,
@@ -66,12 +66,15 @@ from pathlib import Path
 
 import numpy as np
 
-from . import __version__
-from ._progress import Progress, null_progress
-from ._validation import check_positive
-from .io import OutputDirectory
-from .lattice import Lattice
-from .paper import (
+from .. import __version__
+from .._progress import Progress, null_progress
+from .._validation import check_positive
+from ..io import OutputDirectory
+from ..lattice import Lattice
+from ..stacks import _MeanImage, _MethodC, _offsets, _PhaseMean, method_a, method_b, method_c
+from ..synthetic import PROFILES, line_profile
+from ..wft import PhaseMaps, wft
+from .dataset import (
     MAX_DERIVATIVE,
     clean_frame,
     iter_frames,
@@ -79,9 +82,6 @@ from .paper import (
     paper_phases,
     vibration_cases,
 )
-from .stacks import _MeanImage, _MethodC, _offsets, _PhaseMean, method_a, method_b, method_c
-from .synthetic import PROFILES, line_profile
-from .wft import PhaseMaps, wft
 
 __all__ = ["FULL", "QUANTITIES", "QUICK", "reproduce"]
 
@@ -329,7 +329,7 @@ def reproduce(out_dir, *, quick: bool = False, overwrite: bool = False, seed: in
         Sensor noise ``Var = K l + L`` (grey levels).
     amplitude, contrast : float
         ``A`` and ``gamma`` of eq. (1) (paper: 2**12 and 0.9; see
-        :mod:`gridstrain.paper` on the 12-bit range).
+        :mod:`gridstrain.paper.dataset` on the 12-bit range).
     profile : str
         Line profile, a key of :data:`gridstrain.synthetic.PROFILES`.
     pitch : float
@@ -345,7 +345,7 @@ def reproduce(out_dir, *, quick: bool = False, overwrite: bool = False, seed: in
         Independent repetitions averaged (root mean square of the RMSEs).
     cases : list of int, optional
         Vibration cases (default all five: the four of
-        :func:`gridstrain.paper.vibration_cases` and case 5,
+        :func:`gridstrain.paper.dataset.vibration_cases` and case 5,
         :data:`LARGE_VIBRATION`).
     sigma : float, optional
         WFT window, px (default: the pitch, the paper's choice).
@@ -425,7 +425,7 @@ def reproduce(out_dir, *, quick: bool = False, overwrite: bool = False, seed: in
                          f"{margin}-px border is excluded; use a larger image")
 
     # ---------------------------------------------------------------- theory curves
-    from . import theory as th  # imported when needed: the closed forms of the paper
+    from .. import theory as th  # imported when needed: the closed forms of the paper
 
     noise_var = th.effective_noise_variance(K, L, amplitude) + (
         1.0 / 12.0 if bits is not None else 0.0)
@@ -962,7 +962,7 @@ def _summary(result) -> str:
         "",
         "Notes. The paper's RMSE numbers depend on its camera parameters (its ref. [22], "
         "not reproduced); ours use K and L above. The theory curves (dashed in the "
-        "figures) are the small-noise model described in `gridstrain.reproduce`. "
+        "figures) are the small-noise model described in `gridstrain.paper.experiment`. "
         "Prop. 2.1 truncates the vibration average at second order; the exact Gaussian "
         "level is given beside it. Corrected phases use eqs. (29)-(30), whose neglected "
         "third-order term is the residual the paper notes in case 1.",
