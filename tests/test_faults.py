@@ -30,6 +30,7 @@ import gridstrain
 from gridstrain import io as gio
 from gridstrain.cli import main
 from gridstrain.io import MARKER_NAME, read_hdf5
+from gridstrain.io import _files as gio_files  # where gridstrain's writes call os and open
 
 N, PITCH = 96, 5.0
 SRC = str(Path(gridstrain.__file__).resolve().parents[1])
@@ -227,13 +228,13 @@ class _FullFile:
 
 def _disk_full_under(monkeypatch, folder: Path) -> None:
     """Every write of gridstrain.io into ``folder`` fails as on a full disk."""
-    monkeypatch.setattr(gio, "os", _OsProxy(folder))
+    monkeypatch.setattr(gio_files, "os", _OsProxy(folder))
 
     def fake_open(path, *args, **kw):
         fh = open(path, *args, **kw)  # noqa: SIM115 (closed by the caller's with)
         return _FullFile(fh) if os.fspath(path).startswith(str(folder)) else fh
 
-    monkeypatch.setattr(gio, "open", fake_open, raising=False)
+    monkeypatch.setattr(gio_files, "open", fake_open, raising=False)
 
 
 @pytest.mark.parametrize("what", ["hdf5", "csv", "figures"])
@@ -291,7 +292,7 @@ def test_signal_during_the_write_cleans_up(data, tmp_path, sig, rc, word):
     out.mkdir()
     code = textwrap.dedent(f"""
         import os, signal, sys
-        import gridstrain.io as gio
+        import gridstrain.io._files as gio
         from gridstrain.cli import main
         real = os.write
         def write(fd, data):

@@ -49,7 +49,8 @@ from pathlib import Path
 import numpy as np
 
 from ._validation import check_choice, check_mask, check_positive, float_dtype
-from .io import FrameSeries, _check_out_dtype, check_saturation_limit, open_series
+from .io import FrameSeries, check_saturation_limit, open_series
+from .io._series import _check_out_dtype
 from .kinematics import Measurement, deformation
 from .lattice import Lattice, detect_lattice
 from .stacks import StackResult, _PhaseMean

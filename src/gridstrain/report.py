@@ -21,7 +21,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .io import _as_path, write_atomic
+from .io import write_atomic
+from .io._series import _as_path
 from .pipeline import MAP_FIELDS, SeriesResult
 from .plotting import plot_history, plot_shifts, plot_states
 from .results import load, read_attrs

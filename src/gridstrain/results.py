@@ -63,7 +63,8 @@ import h5py
 import numpy as np
 
 from . import __version__
-from .io import _as_path, hdf5_file, write_atomic, write_csv
+from .io import hdf5_file, write_atomic, write_csv
+from .io._series import _as_path
 from .pipeline import MAP_FIELDS, SeriesResult, _check_pixel_size
 
 __all__ = [

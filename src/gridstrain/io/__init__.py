@@ -1,0 +1,93 @@
+"""Reading lab image series and writing results: the edge of gridstrain that touches files.
+
+Two private modules, re-exported here: ``_series`` (reading frames and masks)
+and ``_files`` (writing gridstrain's own files, and reading them back).
+
+Input
+    :func:`open_series` turns a single image, a multi-page TIFF stack, a directory,
+    a glob pattern or a list of files into a :class:`FrameSeries`: a validated,
+    ordered list of 2-D grey-level frames that are read one at a time (memory is
+    bounded by one frame whatever the length of the series). TIFF files are read
+    with ``tifffile``, page by page (packed 10/12-bit and LZW, deflate or zstd
+    compressed pages through ``imagecodecs``); PNG, BMP and JPEG files with
+    ``imageio``. Colour frames are read as their luminance (:func:`to_luminance`,
+    ITU-R BT.709 weights) and JPEG files with a note on their lossy compression
+    (:attr:`FrameSeries.notes`). :func:`read_mask` reads a specimen mask, grey,
+    1-bit or colour (:mod:`gridstrain.conventions`, Masks); :func:`roi_mask`
+    makes one from a rectangle or a polygon.
+
+Grey levels and bit depth
+    Frames are returned in *raw* grey levels, the values stored in the files.
+    Cameras of the PCO Sensicam class store their 12-bit output in 16-bit files
+    multiplied by 2**4 (the founding paper, Fig. 1), so that raw values are
+    multiples of 16 up to 4095 * 16 = 65520. :func:`open_series` detects this and
+    records it as ``scale = 16`` and ``bit_depth = 12``; nothing is divided
+    silently. Pass ``to_sensor_units=True`` to the readers to get grey levels of
+    the sensor (raw / ``scale``), the unit in which the sensor noise model of
+    :mod:`gridstrain.synthetic` (``Var = K l + L``) is written.
+
+Output
+    Every file is written atomically (:func:`atomic_path`): to a temporary file in
+    the destination directory, renamed onto the destination only when complete,
+    so that an interrupted run never leaves a truncated result behind. An existing
+    file is replaced only with ``overwrite=True``. Files made by other libraries
+    (HDF5, TIFF, PNG) are built in memory and written with plain file calls
+    (:func:`write_atomic`): a full disk or a file size limit is then one
+    ``OSError`` naming the file (:func:`space_error`), with nothing left behind,
+    never a crash inside the library. In an output directory
+    (:class:`OutputDirectory`) a marker file lists what gridstrain wrote, and only
+    those files are ever replaced. :func:`write_hdf5` writes
+    compressed, checksummed HDF5 with units and JSON-encoded metadata;
+    :func:`write_csv` writes exact decimal columns; :func:`write_tiff_series`
+    writes a folder of numbered single-page TIFFs such as a camera produces.
+"""
+
+
+from ._files import (
+    MARKER_NAME,
+    OutputDirectory,
+    atomic_path,
+    hdf5_file,
+    read_hdf5,
+    read_noise_model,
+    space_error,
+    write_atomic,
+    write_csv,
+    write_hdf5,
+    write_tiff_series,
+)
+from ._series import (
+    IMAGE_EXTENSIONS,
+    FrameSeries,
+    check_saturation,
+    check_saturation_limit,
+    natural_sort_key,
+    open_series,
+    read_mask,
+    roi_mask,
+    to_luminance,
+)
+
+__all__ = [
+    "IMAGE_EXTENSIONS",
+    "MARKER_NAME",
+    "FrameSeries",
+    "OutputDirectory",
+    "atomic_path",
+    "check_saturation",
+    "check_saturation_limit",
+    "hdf5_file",
+    "natural_sort_key",
+    "open_series",
+    "read_hdf5",
+    "read_mask",
+    "read_noise_model",
+    "roi_mask",
+    "space_error",
+    "to_luminance",
+    "write_atomic",
+    "write_csv",
+    "write_hdf5",
+    "write_tiff_series",
+]
+

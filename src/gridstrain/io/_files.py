@@ -1,0 +1,810 @@
+"""Writing gridstrain's files: atomic writes, HDF5, CSV, TIFF series, output
+folders; reading back its own HDF5 and noise files (see :mod:`gridstrain.io`)."""
+
+from __future__ import annotations
+
+import contextlib
+import errno
+import io
+import json
+import numbers
+import os
+import re
+import secrets
+from collections.abc import Iterable, Iterator, Mapping
+from pathlib import Path
+
+import h5py
+import numpy as np
+import tifffile
+
+from ._series import _JSON_ATTRS, _UNITS_ATTR, _as_path, _check_name
+
+# --------------------------------------------------------------------------- output
+
+
+def _fsync(path: Path) -> None:
+    fd = os.open(path, os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+def _check_destination(path, overwrite: bool) -> Path:
+    """The destination of :func:`atomic_path`, checked before anything is written."""
+    dest = _as_path(path, "path")
+    parent = dest.parent
+    if not parent.is_dir():
+        raise FileNotFoundError(f"output directory {parent} does not exist (for {dest})")
+    if dest.is_dir():
+        raise IsADirectoryError(f"output path {dest} is a directory")
+    if dest.exists() and not overwrite:
+        raise FileExistsError(f"output file {dest} already exists (pass overwrite=True "
+                              "to replace it)")
+    return dest
+
+
+@contextlib.contextmanager
+def atomic_path(path, *, overwrite: bool = False) -> Iterator[Path]:
+    """Write a file atomically: yield a temporary path, rename it onto ``path``.
+
+    The temporary path is in the destination directory (so that the final
+    :func:`os.replace` is atomic) and does not exist yet: the block creates it. When
+    the block completes, the file is flushed to disk and renamed onto ``path``;
+    if the block raises, the temporary file is removed and ``path`` is untouched.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        Destination file.
+    overwrite : bool
+        Replace an existing ``path``. Without it, an existing file raises
+        ``FileExistsError`` both before the block and, if one appeared meanwhile,
+        before the rename.
+
+    Yields
+    ------
+    pathlib.Path
+        Temporary file path, with the same extension as ``path``.
+
+    Raises
+    ------
+    FileNotFoundError
+        The destination directory does not exist, or the block created no file.
+    FileExistsError
+        ``path`` exists and ``overwrite`` is False.
+    IsADirectoryError
+        ``path`` is a directory.
+    """
+    dest = _check_destination(path, overwrite)
+    parent = dest.parent
+    # a name that nothing else uses; the writer creates the file itself, with the
+    # permissions it would give the destination
+    tmp = parent / f".{dest.name}.{secrets.token_hex(6)}.tmp{dest.suffix}"
+    try:
+        yield tmp
+        if not tmp.exists():
+            raise FileNotFoundError(f"nothing was written to the temporary file for {dest}")
+        _fsync(tmp)
+        if not overwrite and dest.exists():
+            raise FileExistsError(f"output file {dest} appeared while it was being "
+                                  "written (pass overwrite=True to replace it)")
+        os.replace(tmp, dest)
+    except BaseException as exc:
+        with contextlib.suppress(FileNotFoundError):
+            tmp.unlink()
+        if isinstance(exc, OSError) and exc.errno in _SPACE_ERRORS:
+            raise space_error(exc, dest) from None
+        raise
+
+
+# Write errors that mean "no room for this file": the disk or the quota is full, or
+# the file outgrew a size limit (``ulimit -f``, the file system's maximum).
+_SPACE_ERRORS = {e for e in (errno.ENOSPC, errno.EFBIG, getattr(errno, "EDQUOT", None))
+                 if e is not None}
+
+
+def space_error(exc: OSError, path) -> OSError:
+    """A one-line ``OSError`` for a write that ran out of room, naming ``path``.
+
+    ``exc`` is the error of the failed write (ENOSPC, EFBIG or EDQUOT); the result
+    keeps its errno and says what it means and what to do.
+    """
+    code = errno.errorcode.get(exc.errno, str(exc.errno))
+    hint = {errno.EFBIG: "the file exceeds the size limit of this process or file "
+                         "system (see `ulimit -f`)"}.get(exc.errno, "free some space or "
+                                                                     "write elsewhere")
+    err = OSError(f"cannot write {path}: {os.strerror(exc.errno).lower()} ({code}); "
+                  f"nothing was written; {hint}")
+    err.errno = exc.errno  # the message stays one plain line, the code stays testable
+    return err
+
+
+def write_atomic(path, data, *, overwrite: bool = False) -> Path:
+    """Write ``data`` (bytes, or a callable filling a binary file) to ``path`` atomically.
+
+    The content is built in memory first and then written with ordinary file calls
+    through :func:`atomic_path`, so that a full disk or a file size limit (ENOSPC,
+    EDQUOT, EFBIG) raises one ``OSError`` naming ``path`` and leaves nothing
+    behind, whatever library produced the bytes (HDF5, TIFF, PNG...).
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        Destination; see :func:`atomic_path` for ``overwrite``.
+    data : bytes-like or callable
+        The file content, or ``fill(fh)`` writing it into a binary file object
+        (an :class:`io.BytesIO`).
+    overwrite : bool
+        Replace an existing file.
+
+    Returns
+    -------
+    pathlib.Path
+        ``path``.
+    """
+    dest = _as_path(path, "path")
+    if callable(data):
+        buf = io.BytesIO()
+        data(buf)
+        data = buf.getbuffer()
+    view = memoryview(data).cast("B")
+    with atomic_path(dest, overwrite=overwrite) as tmp:
+        fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
+        try:
+            done = 0
+            while done < len(view):
+                done += os.write(fd, view[done:done + (1 << 24)])
+        finally:
+            os.close(fd)
+    return dest
+
+
+def _json_default(obj):
+    if isinstance(obj, np.generic):
+        return obj.item()
+    if isinstance(obj, np.ndarray):
+        return obj.tolist()
+    if isinstance(obj, os.PathLike):
+        return os.fspath(obj)
+    raise TypeError(f"{type(obj).__name__} is not JSON serialisable")
+
+
+def _encode_attr(key, value, where: str):
+    """``(value to store, stored as JSON?)`` for one HDF5 attribute."""
+    if not isinstance(key, str) or not key:
+        raise TypeError(f"{where} keys must be non-empty strings, got {key!r}")
+    if key == _JSON_ATTRS:
+        raise ValueError(f"{where}[{key!r}]: the name {_JSON_ATTRS!r} is reserved")
+    label = f"{where}[{key!r}]"
+    if isinstance(value, os.PathLike):
+        value = os.fspath(value)
+    if isinstance(value, str):
+        try:
+            value.encode("utf-8")
+        except UnicodeEncodeError:
+            # a path with a byte that is not UTF-8 (decoded by Python with
+            # surrogateescape): HDF5 stores UTF-8 only, JSON escapes it exactly
+            return json.dumps(value), True
+        return value, False
+    if isinstance(value, bool | np.bool_):
+        return np.bool_(value), False
+    if isinstance(value, numbers.Integral):
+        if -(2**63) <= int(value) < 2**63:
+            return np.int64(value), False
+        return json.dumps(int(value)), True
+    if isinstance(value, numbers.Real):
+        return np.float64(value), False
+    if isinstance(value, numbers.Complex):
+        return np.complex128(value), False
+    if isinstance(value, np.ndarray) and value.dtype.kind in "biufc":
+        return value, False
+    if value is None or isinstance(value, list | tuple | dict | np.ndarray):
+        try:
+            return json.dumps(value, default=_json_default), True
+        except (TypeError, ValueError) as exc:
+            raise TypeError(f"{label} cannot be stored as JSON: {exc}") from exc
+    raise TypeError(f"{label} has unsupported type {type(value).__name__}; use str, "
+                    "numbers, numeric arrays, lists or dicts")
+
+
+def _write_attrs(obj, attrs: Mapping, where: str) -> None:
+    json_keys = []
+    for key, value in attrs.items():
+        stored, is_json = _encode_attr(key, value, where)
+        obj.attrs[key] = stored
+        if is_json:
+            json_keys.append(key)
+    if json_keys:
+        obj.attrs[_JSON_ATTRS] = json.dumps(json_keys)
+
+
+def _read_attrs(obj) -> dict:
+    raw = dict(obj.attrs)
+    json_keys = set(json.loads(raw.pop(_JSON_ATTRS))) if _JSON_ATTRS in raw else set()
+    out = {}
+    for key, value in raw.items():
+        if isinstance(value, bytes):
+            value = value.decode("utf-8")
+        if key in json_keys:
+            value = json.loads(value)
+        elif isinstance(value, np.generic):
+            value = value.item()
+        out[key] = value
+    return out
+
+
+def _check_h5_name(key, what: str) -> str:
+    if not isinstance(key, str) or not key or key.startswith("/") or key.endswith("/") \
+            or "//" in key or key in (".", ".."):
+        raise ValueError(f"{what} names must be non-empty relative HDF5 paths such as "
+                         f"'maps/u', got {key!r}")
+    return key
+
+
+def _check_mapping(value, what: str, *, allow_none: bool = True) -> Mapping:
+    if value is None and allow_none:
+        return {}
+    if not isinstance(value, Mapping):
+        raise TypeError(f"{what} must be a dict, got {type(value).__name__}")
+    return value
+
+
+@contextlib.contextmanager
+def hdf5_file(path, *, overwrite: bool = False) -> Iterator[h5py.File]:
+    """An HDF5 file open for writing, put at ``path`` atomically when the block ends.
+
+    The one place where gridstrain creates HDF5 files: :func:`write_hdf5` and
+    :func:`gridstrain.results.save_result` fill the yielded file; if the block
+    raises, nothing appears at ``path``. The file is built in memory (h5py's
+    ``core`` driver, no backing store) and its bytes are written by
+    :func:`write_atomic` when the block ends: the HDF5 library never writes to
+    disk, so that a full disk or a file size limit is one ``OSError`` naming
+    ``path`` (never a crash inside HDF5) and leaves nothing behind.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        Destination (``.h5``).
+    overwrite : bool
+        Replace an existing file.
+
+    Yields
+    ------
+    h5py.File
+        A new, empty file in memory.
+    """
+    dest = _check_destination(path, overwrite)  # refused before the file is built
+    name = f"gridstrain-{os.getpid()}-{secrets.token_hex(8)}.h5"
+    with h5py.File(name, "w", driver="core", backing_store=False) as h5:
+        yield h5
+        h5.flush()
+        image = h5.id.get_file_image()
+    write_atomic(dest, image, overwrite=overwrite)
+
+
+def write_hdf5(path, datasets: Mapping[str, np.ndarray], attrs: Mapping | None = None, *,
+               groups: Mapping[str, Mapping] | None = None,
+               units: Mapping[str, str] | None = None, overwrite: bool = False,
+               compression: str | None = "gzip") -> Path:
+    """Write arrays and metadata to an HDF5 file, atomically.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        Destination (``.h5``); see :func:`atomic_path` for ``overwrite``.
+    datasets : dict of str to ndarray
+        Arrays of booleans, integers, floats or complex numbers. A name may hold
+        slashes (``"maps/u"``) to place the dataset in a group. Arrays of two or
+        more elements are chunked, compressed and checksummed (Fletcher-32).
+    attrs : dict, optional
+        Attributes of the file (root group). Strings, numbers and numeric arrays
+        are stored natively; lists, tuples, dicts and ``None`` as JSON text
+        (decoded by :func:`read_hdf5`; tuples come back as lists).
+    groups : dict of str to dict, optional
+        Attributes of groups, by group path (``{"parameters": {"sigma": 5.0}}``),
+        encoded as ``attrs``; the groups are created if no dataset creates them.
+    units : dict of str to str, optional
+        Unit of each named dataset (``{"maps/u": "px", "maps/eps_xx": "1"}``),
+        stored as the dataset attribute ``units``.
+    overwrite : bool
+        Replace an existing file.
+    compression : {"gzip", "lzf", None}
+        Lossless filter: ``"gzip"`` (level 4, readable everywhere), ``"lzf"``
+        (faster, h5py only) or ``None``.
+
+    Returns
+    -------
+    pathlib.Path
+        ``path``.
+    """
+    datasets = _check_mapping(datasets, "datasets", allow_none=False)
+    attrs = _check_mapping(attrs, "attrs")
+    groups = _check_mapping(groups, "groups")
+    units = _check_mapping(units, "units")
+    if compression not in ("gzip", "lzf", None):
+        raise ValueError(f"compression must be one of 'gzip', 'lzf', None, got "
+                         f"{compression!r}")
+    # validate everything before creating any file
+    arrays = {}
+    for key, value in datasets.items():
+        _check_h5_name(key, "datasets")
+        arr = np.asarray(value)
+        if arr.dtype.kind not in "biufc":
+            raise TypeError(f"datasets[{key!r}] must be a numeric or boolean array, got "
+                            f"dtype {arr.dtype}")
+        arrays[key] = arr
+    for key in arrays:
+        parts = key.split("/")
+        for i in range(1, len(parts)):
+            if "/".join(parts[:i]) in arrays:
+                raise ValueError(f"datasets[{key!r}] would sit inside dataset "
+                                 f"{'/'.join(parts[:i])!r}")
+    for key, value in units.items():
+        if key not in arrays:
+            raise ValueError(f"units[{key!r}] names no dataset; datasets are "
+                             f"{sorted(arrays)}")
+        if not isinstance(value, str):
+            raise TypeError(f"units[{key!r}] must be a string, got {value!r}")
+    for key, value in attrs.items():
+        _encode_attr(key, value, "attrs")
+    for g, gattrs in groups.items():
+        _check_h5_name(g, "groups")
+        if g in arrays:
+            raise ValueError(f"groups[{g!r}] is also a dataset name")
+        for key, value in _check_mapping(gattrs, f"groups[{g!r}]", allow_none=False).items():
+            _encode_attr(key, value, f"groups[{g!r}]")
+
+    dest = _as_path(path, "path")
+    with hdf5_file(dest, overwrite=overwrite) as h5:
+        _write_attrs(h5, attrs, "attrs")
+        for key, arr in arrays.items():
+            if arr.ndim > 0 and arr.size > 1 and compression is not None:
+                opts = {"chunks": True, "compression": compression, "shuffle": True,
+                        "fletcher32": True}
+                if compression == "gzip":
+                    opts["compression_opts"] = 4
+                dset = h5.create_dataset(key, data=arr, **opts)
+            else:
+                dset = h5.create_dataset(key, data=arr)
+            if key in units:
+                dset.attrs[_UNITS_ATTR] = units[key]
+        for g, gattrs in groups.items():
+            _write_attrs(h5.require_group(g), gattrs, f"groups[{g!r}]")
+    return dest
+
+
+def read_hdf5(path) -> dict:
+    """Read a file written by :func:`write_hdf5` (or any simple HDF5 file).
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+
+    Returns
+    -------
+    dict
+        ``{"datasets": {name: ndarray}, "attrs": {...}, "groups": {name: {...}},
+        "units": {name: str}}``, the arguments of :func:`write_hdf5`: dataset and
+        group names are full paths (``"maps/u"``), every group is listed (with
+        ``{}`` when it has no attribute), JSON attributes are decoded.
+    """
+    p = _as_path(path, "path")
+    if not p.exists():
+        raise FileNotFoundError(f"HDF5 file {p} does not exist")
+    try:
+        h5 = h5py.File(p, "r")
+    except OSError as exc:
+        raise OSError(f"cannot read {p} as an HDF5 file ({exc})") from exc
+    out = {"datasets": {}, "attrs": {}, "groups": {}, "units": {}}
+    with h5:
+        out["attrs"] = _read_attrs(h5)
+
+        def visit(key, obj):
+            if isinstance(obj, h5py.Dataset):
+                out["datasets"][key] = np.asarray(obj[()])
+                if _UNITS_ATTR in obj.attrs:
+                    u = obj.attrs[_UNITS_ATTR]
+                    out["units"][key] = u.decode() if isinstance(u, bytes) else str(u)
+            elif isinstance(obj, h5py.Group):
+                out["groups"][key] = _read_attrs(obj)
+
+        h5.visititems(visit)
+    return out
+
+
+def read_noise_model(path):
+    """The camera noise model saved by ``gridstrain noise -o FILE.h5`` (or ``.json``).
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+
+    Returns
+    -------
+    gridstrain.noise.NoiseModel
+        ``K``, ``L`` in the stored grey levels of the images it was estimated on,
+        with their ``scale`` and ``bit_depth``.
+
+    Raises
+    ------
+    ValueError
+        The file is not a noise result, or holds an unusable model (``K <= 0``).
+    """
+    from ..noise import NOISE_RESULT_KIND, NoiseModel
+
+    p = _as_path(path, "path")
+    if not p.is_file():
+        raise FileNotFoundError(f"noise file {p} does not exist")
+    if p.suffix.lower() == ".json":
+        try:
+            attrs = json.loads(p.read_text())
+        except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+            raise ValueError(f"noise file {p} is not JSON ({exc})") from None
+    else:
+        attrs = read_hdf5(p)["attrs"]
+    d = attrs.get("noise_model") if isinstance(attrs, dict) else None
+    if not isinstance(attrs, dict) or attrs.get("result_kind") != NOISE_RESULT_KIND \
+            or not isinstance(d, dict):
+        raise ValueError(f"noise file {p} is not a noise result of 'gridstrain noise -o' "
+                         "(no noise_model in it)")
+    try:
+        model = NoiseModel(K=d["K"], L=d["L"], K_ci=d.get("K_ci"), L_ci=d.get("L_ci"),
+                           scale=d.get("scale", 1.0), n_frames=d.get("n_frames"),
+                           n_pixels=d.get("n_pixels"), reduced_chi2=d.get("reduced_chi2"),
+                           method=str(d.get("method", "stack")),
+                           filter_gain=d.get("filter_gain"), bit_depth=d.get("bit_depth"))
+    except (KeyError, TypeError, ValueError) as exc:
+        raise ValueError(f"noise file {p}: unusable noise model ({exc})") from None
+    if not model.K > 0:
+        raise ValueError(f"noise file {p}: K must be positive, got {model.K!r}")
+    return model
+
+
+def _column_format(dtype: np.dtype, digits: int | None) -> str:
+    if dtype.kind in "biu":
+        return "%d"
+    if digits is not None:
+        return f"%.{digits}g"
+    # shortest text that reads back to the same float64 (Python's repr); float32
+    # needs 9 significant digits to round-trip
+    return "%r" if dtype.itemsize >= 8 else "%.9g"
+
+
+def write_csv(path, columns: Mapping[str, np.ndarray], *, overwrite: bool = False,
+              digits: int | None = None, chunk_rows: int = 65536) -> Path:
+    """Write named columns to a CSV file, atomically.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        Destination (``.csv``); see :func:`atomic_path` for ``overwrite``.
+    columns : dict of str to array_like
+        Arrays of one shape; each is flattened in C order (row by row for an
+        (H, W) map) into one column. Booleans are written 0/1.
+    overwrite : bool
+        Replace an existing file.
+    digits : int, optional
+        Significant digits of floats. By default values read back exactly: float64
+        as the shortest round-trip decimal, float32 with 9 digits. NaN is ``nan``.
+    chunk_rows : int
+        Rows formatted at once: memory is bounded by this, not by the row count.
+
+    Returns
+    -------
+    pathlib.Path
+        ``path``.
+
+    Notes
+    -----
+    One header line holds the column names, separated by commas; no index column,
+    no quoting (names may not contain commas, quotes or line breaks).
+    """
+    columns = _check_mapping(columns, "columns", allow_none=False)
+    if not columns:
+        raise ValueError("columns must hold at least one column, got an empty dict")
+    if digits is not None and (isinstance(digits, bool) or not isinstance(digits, int)
+                               or not 1 <= digits <= 17):
+        raise ValueError(f"digits must be an integer in [1, 17] or None, got {digits!r}")
+    if isinstance(chunk_rows, bool) or not isinstance(chunk_rows, int) or chunk_rows < 1:
+        raise ValueError(f"chunk_rows must be a positive integer, got {chunk_rows!r}")
+    names, arrays = [], []
+    first = None
+    for key, value in columns.items():
+        if not isinstance(key, str) or not key or re.search(r"[,\"'\r\n]", key):
+            raise ValueError("column names must be non-empty strings without commas, "
+                             f"quotes or line breaks, got {key!r}")
+        arr = np.asarray(value)
+        if arr.dtype.kind not in "biuf":
+            raise TypeError(f"columns[{key!r}] must be a real numeric or boolean array, "
+                            f"got dtype {arr.dtype}")
+        if first is None:
+            first = (key, arr.shape)
+        elif arr.shape != first[1]:
+            raise ValueError(f"columns[{key!r}] has shape {arr.shape}, expected "
+                             f"{first[1]} like columns[{first[0]!r}]")
+        names.append(key)
+        arrays.append(arr.reshape(-1))
+    line = ",".join(_column_format(a.dtype, digits) for a in arrays) + "\n"
+    n = arrays[0].size
+    dest = _as_path(path, "path")
+    with atomic_path(dest, overwrite=overwrite) as tmp, \
+            open(tmp, "x", encoding="utf-8", newline="\n") as fh:
+        fh.write(",".join(names) + "\n")
+        for start in range(0, n, chunk_rows):
+            # tolist gives Python ints and floats: "%r" of a float is then the
+            # shortest exact decimal, and bools format as 0/1 through "%d"
+            cols = [a[start:start + chunk_rows].tolist() for a in arrays]
+            fh.write("".join(line % row for row in zip(*cols, strict=True)))
+    return dest
+
+
+def write_tiff_series(directory, frames: Iterable, *, prefix: str = "frame",
+                      dtype=np.uint16, start: int = 0, digits: int | None = None,
+                      overwrite: bool = False) -> tuple[Path, ...]:
+    """Write frames as numbered single-page TIFFs, as a camera fills a folder.
+
+    Parameters
+    ----------
+    directory : str or os.PathLike
+        Destination folder, created if missing (its parent must exist).
+    frames : iterable of (H, W) array_like
+        Grey levels; consumed one at a time (a generator keeps memory low).
+    prefix : str
+        File name prefix: ``{prefix}{number}.tif``.
+    dtype : {numpy.uint16, numpy.uint8, numpy.float32, numpy.float64}
+        Stored type. Integer types round to the nearest grey level and refuse
+        values outside their range (clip beforehand to simulate saturation; multiply
+        12-bit values by 16 beforehand to mimic PCO files).
+    start : int
+        Number of the first file.
+    digits : int, optional
+        Zero-padded width of the numbers; default: enough for ``len(frames)``, at
+        least 4 (6 when ``frames`` has no length).
+    overwrite : bool
+        Replace existing files of the same names.
+
+    Returns
+    -------
+    tuple of pathlib.Path
+        The files written, in order. Each is written atomically; if a frame is
+        refused, the files written before it stay.
+    """
+    if not isinstance(prefix, str) or "/" in prefix or os.sep in prefix:
+        raise ValueError(f"prefix must be a file name prefix without path separators, "
+                         f"got {prefix!r}")
+    try:
+        dt = np.dtype(dtype)
+    except TypeError:
+        dt = None
+    allowed = tuple(np.dtype(t) for t in (np.uint8, np.uint16, np.float32, np.float64))
+    if dt not in allowed:
+        raise ValueError(f"dtype must be one of uint8, uint16, float32, float64, got "
+                         f"{dtype!r}")
+    if isinstance(start, bool) or not isinstance(start, int) or start < 0:
+        raise ValueError(f"start must be a non-negative integer, got {start!r}")
+    if digits is None:
+        digits = max(4, len(str(start + len(frames) - 1))) if hasattr(frames, "__len__") \
+            else 6
+    elif isinstance(digits, bool) or not isinstance(digits, int) or digits < 1:
+        raise ValueError(f"digits must be a positive integer, got {digits!r}")
+    folder = _as_path(directory, "directory")
+    if not folder.is_dir():
+        if not folder.parent.is_dir():
+            raise FileNotFoundError(f"cannot create directory {folder}: its parent "
+                                    f"{folder.parent} does not exist")
+        folder.mkdir()
+    written = []
+    for k, frame in enumerate(frames):
+        arr = np.asarray(frame)
+        label = f"frames[{k}]"
+        if arr.ndim != 2 or arr.dtype.kind not in "buif":
+            raise ValueError(f"{label} must be a 2-D numeric array, got {arr.dtype} "
+                             f"array of shape {arr.shape}")
+        if arr.dtype.kind == "f" and not np.all(np.isfinite(arr)):
+            raise ValueError(f"{label} has NaN or infinite values")
+        if dt.kind == "u":
+            if arr.dtype.kind == "f":
+                arr = np.rint(arr)
+            lo, hi = np.iinfo(dt).min, np.iinfo(dt).max
+            if arr.size and (arr.min() < lo or arr.max() > hi):
+                raise ValueError(f"{label} has values in [{arr.min()}, {arr.max()}], "
+                                 f"outside the {dt} range [{lo}, {hi}]")
+        out = arr.astype(dt, copy=False)
+        dest = folder / f"{prefix}{start + k:0{digits}d}.tif"
+        write_atomic(dest, lambda fh, out=out: tifffile.imwrite(fh, out,
+                                                                photometric="minisblack"),
+                     overwrite=overwrite)
+        written.append(dest)
+    return tuple(written)
+
+
+
+# --------------------------------------------------------------------------- directories
+
+#: Name of the file listing what gridstrain wrote in an output directory.
+MARKER_NAME = ".gridstrain"
+
+
+def _stamp(path: Path) -> list[int]:
+    st = os.lstat(path)
+    return [int(st.st_size), int(st.st_mtime_ns)]
+
+
+class OutputDirectory:
+    """A directory of outputs in which gridstrain replaces only its own files.
+
+    Every file written through :meth:`write` (or declared by :meth:`record`) is
+    listed, with its size and modification time, in a marker file
+    (:data:`MARKER_NAME`, JSON) in the directory. A later run may replace those
+    files, with ``overwrite``, if they are unchanged; any other file of the
+    planned names is never replaced, deleted or written over, whatever
+    ``overwrite`` says. Files of other names are left alone.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The directory; created by :meth:`prepare` if missing.
+    names : iterable of str
+        Relative paths (``"maps.h5"``, ``"ref/frame000000.tif"``) this run will write.
+    overwrite : bool
+        Replace the files an earlier run wrote and listed in the marker (all of them,
+        so that an earlier, longer series leaves no frame behind).
+    exclusive : iterable of str
+        Sub-directories that must hold gridstrain's files only (a folder of frames
+        read back as a series: a foreign image there would join it).
+    parents : bool
+        Create missing parent directories (otherwise the parent must exist).
+    adopt : bool
+        Accept an existing, non-empty directory without a marker (the new files
+        are then added beside the others). False refuses it.
+    what : str
+        What the directory is, for messages.
+
+    Raises
+    ------
+    FileExistsError
+        A planned file exists that gridstrain did not write (or that changed
+        since), a foreign file sits in an ``exclusive`` sub-directory, or the
+        directory holds an earlier run's files and ``overwrite`` is False.
+    NotADirectoryError, FileNotFoundError
+        ``path`` is a file, or its parent does not exist.
+
+    Notes
+    -----
+    Every refusal happens on construction and again in :meth:`prepare`, before
+    any file is touched.
+    """
+
+    def __init__(self, path, names, *, overwrite: bool = False, exclusive=(),
+                 parents: bool = False, adopt: bool = True,
+                 what: str = "output directory"):
+        self.what = _check_name(what)
+        self.path = _as_path(path, what)
+        self.names = tuple(self._rel(n) for n in names)
+        self.exclusive = tuple(self._rel(d) for d in exclusive)
+        self.overwrite = bool(overwrite)
+        self.parents = bool(parents)
+        self.adopt = bool(adopt)
+        self._check()
+
+    @property
+    def marker(self) -> Path:
+        """The marker file."""
+        return self.path / MARKER_NAME
+
+    def _rel(self, name) -> str:
+        if not isinstance(name, str) or not name:
+            raise TypeError(f"{self.what}: file names must be non-empty strings, got "
+                            f"{name!r}")
+        parts = Path(name).parts
+        if Path(name).is_absolute() or ".." in parts or name == MARKER_NAME:
+            raise ValueError(f"{self.what}: {name!r} is not a plain relative file name")
+        return Path(*parts).as_posix()
+
+    def _manifest(self) -> dict[str, list[int]]:
+        if not self.marker.is_file():
+            return {}
+        try:
+            data = json.loads(self.marker.read_text(encoding="utf-8"))
+            files = data["files"]
+            out = {}
+            for k, v in files.items():
+                rel = self._rel(k)
+                if not (isinstance(v, list) and len(v) == 2
+                        and all(isinstance(x, int) for x in v)):
+                    raise ValueError(k)
+                out[rel] = v
+            return out
+        except (OSError, ValueError, KeyError, TypeError, AttributeError):
+            raise ValueError(f"{self.marker} is not a gridstrain manifest; refusing to "
+                             f"write into {self.path} (move the file away)") from None
+
+    def _check(self) -> dict[str, list[int]]:
+        """The earlier files to remove; raise on anything that is not ours."""
+        p = self.path
+        if p.exists() and not p.is_dir():
+            raise NotADirectoryError(f"{self.what} {p} is a file")
+        if not p.exists():
+            if not self.parents and not p.parent.is_dir():
+                raise FileNotFoundError(f"cannot create {self.what} {p}: its parent "
+                                        f"{p.parent} does not exist")
+            return {}
+        if not self.adopt and not self.marker.exists() and any(p.iterdir()):
+            raise FileExistsError(f"{self.what} {p} already exists and was not written by "
+                                  "gridstrain (it has no .gridstrain marker); choose a new "
+                                  "folder, nothing there is replaced")
+        manifest = self._manifest()
+        ours = {}
+        for rel, stamp in manifest.items():
+            f = p / rel
+            if not (f.exists() or f.is_symlink()):
+                continue
+            if not f.is_file() or f.is_symlink() or _stamp(f) != stamp:
+                raise FileExistsError(f"{f} has changed since gridstrain wrote it; "
+                                      f"refusing to replace it (move it away or choose "
+                                      f"another {self.what})")
+            ours[rel] = stamp
+        for rel in self.names:
+            f = p / rel
+            if (f.exists() or f.is_symlink()) and rel not in ours:
+                raise FileExistsError(f"{f} exists and was not written by gridstrain; "
+                                      f"refusing to replace it (move it away or choose "
+                                      f"another {self.what})")
+        for d in self.exclusive:
+            sub = p / d
+            if sub.is_dir():
+                for e in sorted(sub.iterdir()):
+                    if not e.name.startswith(".") and f"{d}/{e.name}" not in ours:
+                        raise FileExistsError(
+                            f"{e} was not written by gridstrain, and {sub} must hold "
+                            f"gridstrain's files only; move it away or choose another "
+                            f"{self.what}")
+            elif sub.exists() or sub.is_symlink():
+                raise FileExistsError(f"{sub} exists and is not a directory; move it away "
+                                      f"or choose another {self.what}")
+        if ours and not self.overwrite:
+            first = p / next(iter(ours))
+            raise FileExistsError(f"{self.what} {p} holds the files of an earlier "
+                                  f"gridstrain run ({first}...); pass --overwrite "
+                                  "(overwrite=True) to replace them")
+        return ours
+
+    def prepare(self) -> None:
+        """Create the directory; remove, with ``overwrite``, the earlier run's files.
+
+        Only files listed in the marker and unchanged since are removed; the marker
+        is rewritten first, so that an interruption leaves no file unlisted.
+        """
+        ours = self._check()
+        self.path.mkdir(parents=self.parents, exist_ok=True)
+        for rel in {*self.names, *self.exclusive}:
+            parent = (self.path / rel) if rel in self.exclusive else (self.path / rel).parent
+            parent.mkdir(parents=True, exist_ok=True)
+        for rel in ours:
+            with contextlib.suppress(FileNotFoundError):
+                (self.path / rel).unlink()
+        self._save({})
+
+    def _save(self, files: dict) -> None:
+        from .. import __version__
+
+        text = json.dumps({"gridstrain": __version__,
+                           "note": "files written by gridstrain, which replaces only these",
+                           "files": files}, indent=1)
+        write_atomic(self.marker, text.encode("utf-8"), overwrite=True)
+
+    def record(self, *paths) -> None:
+        """Add files written in the directory to the marker."""
+        files = self._manifest()
+        for f in paths:
+            rel = Path(os.fspath(f)).resolve().relative_to(self.path.resolve()).as_posix()
+            files[self._rel(rel)] = _stamp(self.path / rel)
+        self._save(files)
+
+    def write(self, name: str, data) -> Path:
+        """Write ``name`` with :func:`write_atomic` and list it in the marker."""
+        dest = write_atomic(self.path / self._rel(name), data, overwrite=False)
+        self.record(dest)
+        return dest
