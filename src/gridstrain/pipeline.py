@@ -884,7 +884,9 @@ _ADVICE = (("uniform", "remove the blank frames"), ("shows no grid", "remove the
            ("low grid contrast", "remove the dark or blurred frames"),
            ("rigid shift", "measure the frames before and after the slip as two series"),
            ("non-rigid", "move the frames of another state to their own series"),
-           ("pixels saturated", "shorten the exposure or mask the saturated area"))
+           ("pixels saturated", "shorten the exposure, mask the saturated area, or accept "
+            "more clipped pixels with max_saturation= (--max-saturation FRACTION: photos of "
+            "white paper clip between the lines, and the phase stays measurable there)"))
 
 
 def _advice(sc, bad) -> str:
