@@ -511,3 +511,13 @@ def test_stalled_cluster_times_out_with_a_message(client):
             pending.result(timeout=0.5)
     finally:
         distributed.Event(name, client=client).set()
+
+
+@pytest.mark.parametrize("n_frames", [1, 7, 16, 17, 100])
+def test_method_b_tasks_take_chunks_of_frames(n_frames):
+    chunks = gd._frame_chunks(n_frames)
+    # every frame exactly once, in order, in at most _METHOD_B_TASKS even chunks
+    assert [t for a, b in chunks for t in range(a, b)] == list(range(n_frames))
+    assert len(chunks) == min(n_frames, gd._METHOD_B_TASKS)
+    sizes = [b - a for a, b in chunks]
+    assert max(sizes) - min(sizes) <= 1

@@ -40,6 +40,7 @@ Conventions are those of :mod:`gridstrain.conventions`.
 from __future__ import annotations
 
 import contextlib
+import itertools
 import numbers
 import os
 from collections.abc import Iterable, Iterator, Sequence
@@ -73,6 +74,9 @@ _INSTALL = ("install the distributed extra: pip install 'gridstrain[distributed]
 # derivatives, the valid map, the frame sum), 0.4 GB for a 2048 x 2048 camera: a
 # reduction task holds 4 of them and their sum, 2 GB, which a worker can afford.
 _SPLIT_EVERY = 4
+# Method B's tasks per series: enough to keep 16 worker threads busy on one series
+# (every series of a run is submitted at once, so more threads still find work)
+_METHOD_B_TASKS = 16
 # Frames read per task for the pipeline's statistics: a few additions per pixel
 # and frame are too little work for one task each (a task costs ~1 ms on the
 # distributed scheduler).
@@ -780,8 +784,24 @@ def _series_block_sums(series, start, stop, lattice, sigma, mask, margin):
     return _phase_sums(frames, lattice, sigma, mask, margin, with_total=False)
 
 
+def _frame_chunks(n_frames: int) -> list[tuple[int, int]]:
+    """``(start, stop)`` of at most :data:`_METHOD_B_TASKS` consecutive chunks of frames.
+
+    Each task sums its chunk on the worker and ships one set of float64 sums
+    (80 bytes a pixel) back, not one per frame: with one frame per task the
+    reduction moved T sets through the network and two workers were barely faster
+    than one. The chunks depend on the number of frames only, never on the
+    cluster's size at the moment: the graph, and so the order of the sums and the
+    result bit for bit, is the same however many workers are alive (one that dies
+    and is restarted changes nothing).
+    """
+    k = max(1, min(n_frames, _METHOD_B_TASKS))
+    bounds = np.linspace(0, n_frames, k + 1).round().astype(int)
+    return [(int(a), int(b)) for a, b in itertools.pairwise(bounds) if b > a]
+
+
 def _submit_method_b(client, series, lattice, sigma, mask, margin) -> _Pending:
-    """Submit method B over ``series``, one frame per task (internal).
+    """Submit method B over ``series``, in chunks of frames (internal).
 
     ``result()`` gives the :class:`StackResult` that
     :func:`gridstrain.stacks.method_b` gives for the frames read as float64.
@@ -789,7 +809,8 @@ def _submit_method_b(client, series, lattice, sigma, mask, margin) -> _Pending:
     dask, _ = _dask()
     s, m = _scatter(client, series), _scatter(client, mask)
     leaf = dask.delayed(_series_block_sums, pure=True)
-    parts = [leaf(s, t, t + 1, lattice, sigma, m, margin) for t in range(series.n_frames)]
+    parts = [leaf(s, a, b, lattice, sigma, m, margin)
+             for a, b in _frame_chunks(series.n_frames)]
     result = dask.delayed(_method_b_result, pure=True)(_tree(parts, _add_sums, _SPLIT_EVERY))
     return _Pending(client.compute(result), (s, m),
                     f"method B on {getattr(series, 'name', 'a series')}")
