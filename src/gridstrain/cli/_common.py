@@ -9,6 +9,7 @@ import math
 import sys
 from pathlib import Path
 
+from ..io._files import _check_destination
 from ..lattice import Lattice
 
 
@@ -61,13 +62,7 @@ def check_output_file(path: Path, what: str, overwrite: bool, inputs=frozenset()
     if path.resolve() in inputs:
         raise ValueError(f"{what} {path} is one of the input files; inputs are never "
                          "modified")
-    if not path.parent.is_dir():
-        raise FileNotFoundError(f"{what} directory {path.parent} does not exist (for {path})")
-    if path.is_dir():
-        raise IsADirectoryError(f"{what} {path} is a directory")
-    if path.exists() and not overwrite:
-        raise FileExistsError(f"{what} {path} already exists (pass --overwrite to replace "
-                              "it)")
+    _check_destination(path, overwrite, what=what, how="--overwrite")
 
 
 @contextlib.contextmanager

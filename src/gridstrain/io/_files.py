@@ -31,17 +31,22 @@ def _fsync(path: Path) -> None:
         os.close(fd)
 
 
-def _check_destination(path, overwrite: bool) -> Path:
-    """The destination of :func:`atomic_path`, checked before anything is written."""
+def _check_destination(path, overwrite: bool, *, what: str = "output file",
+                       how: str = "overwrite=True") -> Path:
+    """The destination of :func:`atomic_path`, checked before anything is written.
+
+    ``what`` names the file in the messages and ``how`` says how to allow replacing
+    it (the command line passes ``--overwrite``).
+    """
     dest = _as_path(path, "path")
     parent = dest.parent
     if not parent.is_dir():
-        raise FileNotFoundError(f"output directory {parent} does not exist (for {dest})")
+        raise FileNotFoundError(f"output directory {parent} does not exist (for the {what} "
+                                f"{dest})")
     if dest.is_dir():
-        raise IsADirectoryError(f"output path {dest} is a directory")
+        raise IsADirectoryError(f"{what} {dest} is a directory")
     if dest.exists() and not overwrite:
-        raise FileExistsError(f"output file {dest} already exists (pass overwrite=True "
-                              "to replace it)")
+        raise FileExistsError(f"{what} {dest} already exists (pass {how} to replace it)")
     return dest
 
 
