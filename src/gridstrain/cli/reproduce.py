@@ -10,11 +10,6 @@ from .._progress import bar
 from ..synthetic import PROFILES
 
 
-def _fixed(v, digits: int) -> str:
-    """Fixed-point figure, or "n/a" where the run's T values gave none."""
-    return "n/a" if v is None else f"{v:.{digits}f}"
-
-
 def register(subparsers) -> None:
     """Add the ``reproduce`` sub-command to ``subparsers``."""
     p = subparsers.add_parser(
@@ -59,7 +54,8 @@ def register(subparsers) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Run ``gridstrain reproduce`` with parsed ``args``; returns the exit code."""
-    from ..paper.experiment import reproduce  # heavy imports only when the command runs
+    # heavy imports only when the command runs
+    from ..paper.experiment import _fixed, reproduce
 
     t0 = time.perf_counter()
     res = reproduce(args.out, quick=args.quick, overwrite=args.overwrite, seed=args.seed,
