@@ -21,8 +21,8 @@ from pathlib import Path
 
 import numpy as np
 
+from ._validation import as_path
 from .io import write_atomic
-from .io._series import _as_path
 from .pipeline import MAP_FIELDS, SeriesResult
 from .plotting import plot_history, plot_shifts, plot_states
 from .results import load, read_attrs
@@ -247,8 +247,8 @@ def write_report(result_path, html_path, *, overwrite: bool = False) -> Path:
     -------
     pathlib.Path
     """
-    src = _as_path(result_path, "result_path")
+    src = as_path(result_path, "result_path")
     result = load(src)
     text = render_report(result, attrs=read_attrs(src), title=f"gridstrain: {src.name}")
-    dest = _as_path(html_path, "html_path")
+    dest = as_path(html_path, "html_path")
     return write_atomic(dest, text.encode("utf-8"), overwrite=overwrite)

@@ -63,8 +63,8 @@ import h5py
 import numpy as np
 
 from . import __version__
+from ._validation import as_path
 from .io import hdf5_file, write_atomic, write_csv
-from .io._series import _as_path
 from .pipeline import MAP_FIELDS, SeriesResult, _check_pixel_size
 
 __all__ = [
@@ -376,7 +376,7 @@ def save_result(result: SeriesResult, path, *, pixel_size: float | None = None,
         extra = [(k, v) for k, v in attrs.items() if _root_attr(v) is None]
         if extra:
             _encode(g, [("attrs", dict(extra))], memo)
-    return _as_path(path, "path")
+    return as_path(path, "path")
 
 
 def _write_root(h5, result, ps, unit, attrs, H, W, n, n_series, lat) -> None:
@@ -513,7 +513,7 @@ def _write_metrology(h5, result) -> None:
 
 
 def _open(path) -> h5py.File:
-    p = _as_path(path, "path")
+    p = as_path(path, "path")
     if not p.is_file():
         raise FileNotFoundError(f"result file {p} does not exist")
     try:
@@ -614,7 +614,7 @@ def to_xarray(result_or_path, *, pixel_size: float | None = None, unit: str | No
                             unit=unit)
             with xr.open_dataset(p, engine="h5netcdf") as ds:
                 return ds.load()
-    with xr.open_dataset(_as_path(result_or_path, "path"), engine="h5netcdf") as ds:
+    with xr.open_dataset(as_path(result_or_path, "path"), engine="h5netcdf") as ds:
         return ds.load()
 
 
@@ -662,7 +662,7 @@ def export_mat(result: SeriesResult, path, *, pixel_size: float | None = None,
     data["k1"], data["k2"] = np.array(result.lattice.k1), np.array(result.lattice.k2)
     data["sigma"], data["method"] = result.sigma, result.method
     data["mask"] = result.mask
-    dest = _as_path(path, "path")
+    dest = as_path(path, "path")
     # built in memory, then written: a full disk is one line naming the file
     return write_atomic(dest, lambda fh: savemat(fh, data, do_compression=True,
                                                  oned_as="column"), overwrite=overwrite)
@@ -712,7 +712,7 @@ def export_vtk(result: SeriesResult, path, *, pixel_size: float | None = None,
             f'    <Piece Extent="{extent}">\n      <PointData>\n'
             + "".join(arrays) + "      </PointData>\n    </Piece>\n  </ImageData>\n"
             "</VTKFile>\n")
-    dest = _as_path(path, "path")
+    dest = as_path(path, "path")
     return write_atomic(dest, text.encode("ascii"), overwrite=overwrite)
 
 
@@ -771,7 +771,7 @@ def export(result: SeriesResult, stem, formats, *, pixel_size: float | None = No
         if f not in writers:
             raise ValueError(f"export format must be one of {', '.join(writers)}, got "
                              f"{f!r}")
-    stem = _as_path(stem, "stem")
+    stem = as_path(stem, "stem")
     for f in formats:
         fn, ext = writers[f]
         out[f] = fn(result, stem.with_name(stem.name + ext), pixel_size=pixel_size,
