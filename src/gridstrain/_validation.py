@@ -188,7 +188,10 @@ def as_pair(value, name: str) -> tuple[float, float]:
 
 
 def check_shape(shape, name: str = "shape", *, minimum: int = 1) -> tuple[int, int]:
-    """Return ``shape`` as ``(H, W)``, two integers of at least ``minimum`` px."""
+    """Return ``shape`` (a tuple, list or 1-D array) as ``(H, W)``, two integers of at
+    least ``minimum`` px."""
+    if isinstance(shape, np.ndarray) and shape.ndim == 1:
+        shape = tuple(shape.tolist())
     if (not isinstance(shape, tuple | list) or len(shape) != 2
             or any(isinstance(s, bool) or not isinstance(s, numbers.Integral) for s in shape)):
         raise TypeError(f"{name} must be a pair of integers (H, W), got {shape!r}")
