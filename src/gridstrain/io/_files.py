@@ -179,8 +179,7 @@ def _json_default(obj):
 
 def _encode_attr(key, value, where: str):
     """``(value to store, stored as JSON?)`` for one HDF5 attribute."""
-    if not isinstance(key, str) or not key:
-        raise TypeError(f"{where} keys must be non-empty strings, got {key!r}")
+    check_name(key, f"{where} keys")
     if key == _JSON_ATTRS:
         raise ValueError(f"{where}[{key!r}]: the name {_JSON_ATTRS!r} is reserved")
     label = f"{where}[{key!r}]"
@@ -707,9 +706,7 @@ class OutputDirectory:
         return self.path / MARKER_NAME
 
     def _rel(self, name) -> str:
-        if not isinstance(name, str) or not name:
-            raise TypeError(f"{self.what}: file names must be non-empty strings, got "
-                            f"{name!r}")
+        check_name(name, f"{self.what}: file names")
         parts = Path(name).parts
         if Path(name).is_absolute() or ".." in parts or name == MARKER_NAME:
             raise ValueError(f"{self.what}: {name!r} is not a plain relative file name")
