@@ -7,6 +7,8 @@ from __future__ import annotations
 
 import numbers
 import os
+from collections.abc import Mapping
+from pathlib import Path
 
 import numpy as np
 
@@ -132,3 +134,142 @@ def check_workers(workers) -> int:
     if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
         raise ValueError(f"workers must be a positive integer or None, got {workers!r}")
     return workers
+
+
+# ------------------------------------------------------------------ scalars, pairs, lists
+
+
+def check_finite(value, name: str) -> float:
+    """Return ``value`` as a finite real float (any sign)."""
+    if isinstance(value, bool) or not isinstance(value, numbers.Real):
+        raise TypeError(f"{name} must be a finite number, got {value!r}")
+    v = float(value)
+    if not np.isfinite(v):
+        raise ValueError(f"{name} must be finite, got {value!r}")
+    return v
+
+
+def check_int(value, name: str, *, minimum: int | None = None) -> int:
+    """Return ``value`` as an ``int`` (Python or NumPy integer, not bool), at least
+    ``minimum`` when given."""
+    if isinstance(value, bool) or not isinstance(value, numbers.Integral):
+        raise TypeError(f"{name} must be an integer, got {value!r}")
+    if minimum is not None and value < minimum:
+        raise ValueError(f"{name} must be an integer >= {minimum}, got {value!r}")
+    return int(value)
+
+
+def check_fraction(value, name: str) -> float:
+    """Return ``value`` as a float in [0, 1]."""
+    if isinstance(value, bool) or not isinstance(value, numbers.Real):
+        raise TypeError(f"{name} must be a number in [0, 1], got {value!r}")
+    v = float(value)
+    if not 0.0 <= v <= 1.0:
+        raise ValueError(f"{name} must be in [0, 1], got {value!r}")
+    return v
+
+
+def as_pair(value, name: str) -> tuple[float, float]:
+    """Return ``value`` (two real numbers: a tuple, list or array) as a pair of finite
+    floats."""
+    try:
+        items = (list(value) if isinstance(value, tuple | list)
+                 else list(np.asarray(value).ravel()) if np.ndim(value) == 1 else None)
+    except (TypeError, ValueError):
+        items = None
+    if (items is None or len(items) != 2
+            or any(isinstance(v, bool | np.bool_) or not isinstance(v, numbers.Real)
+                   for v in items)):
+        raise TypeError(f"{name} must be a pair of numbers, got {value!r}")
+    a, b = (float(v) for v in items)
+    if not (np.isfinite(a) and np.isfinite(b)):
+        raise ValueError(f"{name} must be finite, got {value!r}")
+    return a, b
+
+
+def check_shape(shape, name: str = "shape", *, minimum: int = 1) -> tuple[int, int]:
+    """Return ``shape`` (a tuple, list or 1-D array) as ``(H, W)``, two integers of at
+    least ``minimum`` px."""
+    if isinstance(shape, np.ndarray) and shape.ndim == 1:
+        shape = tuple(shape.tolist())
+    if (not isinstance(shape, tuple | list) or len(shape) != 2
+            or any(isinstance(s, bool) or not isinstance(s, numbers.Integral) for s in shape)):
+        raise TypeError(f"{name} must be a pair of integers (H, W), got {shape!r}")
+    rows, cols = int(shape[0]), int(shape[1])
+    if min(rows, cols) < minimum:
+        raise ValueError(f"{name} must be at least {minimum} x {minimum} px (H, W), got "
+                         f"{shape!r}")
+    return rows, cols
+
+
+def as_int_tuple(values, name: str, *, minimum: int | None = None) -> tuple[int, ...]:
+    """Return ``values`` (an iterable of integers, at least one) as a tuple of ints, in
+    the order given, each at least ``minimum``."""
+    try:
+        if isinstance(values, str | bytes):  # iterable, but of characters
+            raise TypeError
+        items = list(values)
+    except TypeError:
+        raise TypeError(f"{name} must be a list of integers, got {values!r}") from None
+    if not items:
+        raise ValueError(f"{name} must hold at least one integer, got {values!r}")
+    return tuple(check_int(v, f"{name} values", minimum=minimum) for v in items)
+
+
+# ------------------------------------------------------------------ objects
+
+
+def check_name(value, name: str = "name") -> str:
+    """Return ``value`` if it is a non-empty string."""
+    if not isinstance(value, str) or not value:
+        raise TypeError(f"{name} must be a non-empty string, got {value!r}")
+    return value
+
+
+def as_path(value, name: str = "path") -> Path:
+    """Return ``value`` (``str`` or ``os.PathLike``) as a Path, ``~`` expanded."""
+    if isinstance(value, str | os.PathLike):
+        return Path(os.path.expanduser(os.fspath(value)))
+    raise TypeError(f"{name} must be a path (str or os.PathLike), got "
+                    f"{type(value).__name__}")
+
+
+def check_mapping(value, name: str, *, allow_none: bool = False) -> Mapping:
+    """Return ``value`` if it is a mapping (``None`` gives ``{}`` with ``allow_none``)."""
+    if value is None and allow_none:
+        return {}
+    if not isinstance(value, Mapping):
+        raise TypeError(f"{name} must be a dict, got {type(value).__name__}")
+    return value
+
+
+def check_instance(value, cls: type, name: str):
+    """Return ``value`` if it is an instance of ``cls``."""
+    if not isinstance(value, cls):
+        raise TypeError(f"{name} must be a {cls.__name__}, got {type(value).__name__}")
+    return value
+
+
+def check_callable(value, name: str = "progress"):
+    """Return ``value`` if it is callable or ``None``."""
+    if value is not None and not callable(value):
+        raise TypeError(f"{name} must be callable or None, got {value!r}")
+    return value
+
+
+def check_float_dtype(dtype, name: str = "dtype", *, allow_none: bool = True
+                      ) -> np.dtype | None:
+    """Return ``dtype`` as ``numpy.float32`` or ``numpy.float64`` (or ``None``, which
+    means "the stored type", with ``allow_none``)."""
+    if dtype is None and allow_none:
+        return None
+    allowed = "float32, float64 or None" if allow_none else "float32 or float64"
+    if dtype is None:  # np.dtype(None) would silently mean float64
+        raise ValueError(f"{name} must be {allowed}, got None")
+    try:
+        dt = np.dtype(dtype)
+    except TypeError:
+        dt = None
+    if dt not in (np.dtype(np.float32), np.dtype(np.float64)):
+        raise ValueError(f"{name} must be {allowed}, got {dtype!r}")
+    return dt
