@@ -637,19 +637,24 @@ def deformation(reference: PhaseMaps, deformed: PhaseMaps, *, lagrangian: bool =
         D_cur = deformed.dphi.astype(np.float64)
         G = -np.tensordot(np.linalg.inv(K), D_cur - D_ref, axes=1) / (2 * np.pi)  # eq. (35)
 
-    strain = np.stack([G[0, 0], G[1, 1], 0.5 * (G[0, 1] + G[1, 0])])
-    rotation = 0.5 * (G[1, 0] - G[0, 1])
     # computed in float64, returned in the maps' precision (gridstrain.conventions)
     dt = np.result_type(reference.dphi.dtype, deformed.dphi.dtype)
-    u = np.where(valid, u, np.nan).astype(dt, copy=False)
-    strain = np.where(valid, strain, np.nan).astype(dt, copy=False)
-    rotation = np.where(valid, rotation, np.nan).astype(dt, copy=False)
+    u, strain, rotation = _small_strain_maps(u, G, valid, dt)
     gmed, order = _fringe_order_record(g, source, coarse)
     return Measurement(u=u, strain=strain, rotation=rotation, valid=valid, lattice=lattice,
                        sigma=reference.sigma, lagrangian=bool(lagrangian),
                        iterations=iterations, step_rms=step, guess=gmed,
                        guess_source=source, reference=reference, deformed=deformed,
                        fringe_order=order)
+
+
+def _small_strain_maps(u, G, valid, dtype):
+    """``u``, the small-strain tensor ``(e_xx, e_yy, e_xy)`` and the rotation from the
+    gradient ``G`` ((2, 2, H, W)), NaN outside ``valid``, in ``dtype``."""
+    strain = np.stack([G[0, 0], G[1, 1], 0.5 * (G[0, 1] + G[1, 0])])
+    rotation = 0.5 * (G[1, 0] - G[0, 1])
+    return tuple(np.where(valid, a, np.nan).astype(dtype, copy=False)
+                 for a in (u, strain, rotation))
 
 
 def _unwrapped_displacement(reference, deformed, valid, K, g) -> np.ndarray:
