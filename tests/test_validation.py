@@ -19,6 +19,7 @@ from gridstrain._validation import (
     check_int,
     check_nonnegative,
     check_range,
+    check_same_shape,
     check_shape,
     check_type,
 )
@@ -194,3 +195,10 @@ def test_shifts():
         as_shifts([0.1, math.inf], "alphas", ndim=1)
     with pytest.raises(TypeError, match="shifts must be a real numeric array"):
         as_shifts([["a", "b"]])
+
+
+def test_same_shape_names_both_shapes():
+    check_same_shape((4, 5), np.zeros((4, 5)).shape, "deformed", "reference")
+    with pytest.raises(ValueError, match=r"^deformed must have the shape of reference "
+                                         r"\(4, 5\), got \(4, 6\)$"):
+        check_same_shape((4, 6), (4, 5), "deformed", "reference")

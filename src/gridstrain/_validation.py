@@ -26,6 +26,7 @@ __all__ = [
     "check_nonnegative",
     "check_positive",
     "check_range",
+    "check_same_shape",
     "check_shape",
     "check_sigma",
     "check_type",
@@ -379,6 +380,29 @@ def check_shape(value, name: str = "shape") -> tuple[int, int]:
 
 
 # ----------------------------------------------------------------- objects and arrays
+
+def check_same_shape(shape, expected, name: str, of: str) -> None:
+    """Raise unless the shape ``shape`` of ``name`` equals ``expected``, that of ``of``.
+
+    Parameters
+    ----------
+    shape, expected : tuple of int
+        The shape received and the shape it must have.
+    name : str
+        The parameter's name, used in the error message.
+    of : str
+        What ``expected`` is the shape of, for the message (``"reference"``,
+        ``"the frames"``).
+
+    Raises
+    ------
+    ValueError
+        ``"deformed must have the shape of reference (512, 512), got (512, 511)"``.
+    """
+    if tuple(shape) != tuple(expected):
+        raise ValueError(f"{name} must have the shape of {of} {tuple(expected)}, "
+                         f"got {tuple(shape)}")
+
 
 def check_type(value, name: str, cls: type, *, allow_none: bool = False):
     """Return ``value`` if it is an instance of ``cls`` (or ``None`` if allowed).

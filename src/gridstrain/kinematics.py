@@ -14,7 +14,15 @@ from scipy import fft as sfft
 from scipy import ndimage
 from skimage.restoration import unwrap_phase
 
-from ._validation import as_image, as_pair, check_int, check_mask, check_positive, check_type
+from ._validation import (
+    as_image,
+    as_pair,
+    check_int,
+    check_mask,
+    check_positive,
+    check_same_shape,
+    check_type,
+)
 from .lattice import Lattice, detect_lattice
 from .wft import DEFAULT_MARGIN, PhaseMaps, wft
 
@@ -316,9 +324,7 @@ def coarse_displacement(reference, deformed, lattice: Lattice, *, mask=None,
     """
     ref = as_image(reference, "reference").astype(np.float64)
     cur = as_image(deformed, "deformed").astype(np.float64)
-    if ref.shape != cur.shape:
-        raise ValueError(f"deformed must have the shape of reference {ref.shape}, "
-                         f"got {cur.shape}")
+    check_same_shape(cur.shape, ref.shape, "deformed", "reference")
     m = check_mask(mask, ref.shape)
     check_type(lattice, "lattice", Lattice)
     if phase_shift is not None:
@@ -613,9 +619,7 @@ def deformation(reference: PhaseMaps, deformed: PhaseMaps, *, lagrangian: bool =
     """
     check_type(reference, "reference", PhaseMaps)
     check_type(deformed, "deformed", PhaseMaps)
-    if reference.shape != deformed.shape:
-        raise ValueError(f"deformed maps must have the shape of the reference "
-                         f"{reference.shape}, got {deformed.shape}")
+    check_same_shape(deformed.shape, reference.shape, "deformed maps", "the reference")
     if reference.lattice != deformed.lattice:
         raise ValueError("reference and deformed maps must use the same lattice")
     tol = check_positive(tol, "tol")
@@ -802,9 +806,7 @@ def measure(reference, deformed, *, lattice: Lattice | None = None,
     """
     ref = as_image(reference, "reference")
     cur = as_image(deformed, "deformed")
-    if ref.shape != cur.shape:
-        raise ValueError(f"deformed must have the shape of reference {ref.shape}, "
-                         f"got {cur.shape}")
+    check_same_shape(cur.shape, ref.shape, "deformed", "reference")
     m = check_mask(mask, ref.shape)
     if check_type(lattice, "lattice", Lattice, allow_none=True) is None:
         lattice = detect_lattice(ref, mask=m)

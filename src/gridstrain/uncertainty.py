@@ -23,6 +23,7 @@ from ._validation import (
     check_int,
     check_nonnegative,
     check_positive,
+    check_same_shape,
     check_type,
 )
 from .theory import window_energy
@@ -158,17 +159,14 @@ def predict_uncertainty(reference: PhaseMaps, deformed: PhaseMaps, *, variance_r
     """
     check_type(reference, "reference", PhaseMaps)
     check_type(deformed, "deformed", PhaseMaps)
-    if reference.shape != deformed.shape:
-        raise ValueError(f"deformed maps must have the shape of the reference "
-                         f"{reference.shape}, got {deformed.shape}")
+    check_same_shape(deformed.shape, reference.shape, "deformed maps", "the reference")
     shape = reference.shape
     v_ref = _as_map(variance_ref, shape, "variance_ref")
     v_def = _as_map(variance_def, shape, "variance_def")
     if valid is None:
         valid = reference.valid & deformed.valid
     valid = np.asarray(valid, dtype=bool)
-    if valid.shape != shape:
-        raise ValueError(f"valid must have shape {shape}, got {valid.shape}")
+    check_same_shape(valid.shape, shape, "valid", "the maps")
     g2, dg2 = window_energy(reference.sigma)
 
     phase_std = np.empty((2, 2, *shape))

@@ -25,7 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import theory
-from ._validation import as_image, check_type
+from ._validation import as_image, check_same_shape, check_type
 from .lattice import Lattice
 
 __all__ = ["VibrationReport", "frame_shifts", "vibration_report"]
@@ -212,9 +212,7 @@ def frame_shifts(frames, lattice: Lattice, *, reference=None) -> np.ndarray:
     ref = None
     if reference is not None:
         ref_img = as_image(reference, "reference").astype(np.float64, copy=False)
-        if ref_img.shape != probe.shape:
-            raise ValueError(f"reference must have the frames' shape {probe.shape}, "
-                             f"got {ref_img.shape}")
+        check_same_shape(ref_img.shape, probe.shape, "reference", "the frames")
         probe.check(ref_img, "reference")
         ref = probe(ref_img)
     return _shifts_from_coefficients(coeffs, lattice, ref)
