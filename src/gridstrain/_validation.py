@@ -1,6 +1,20 @@
 """Argument checks shared by the public functions.
 
 Every error names the parameter, says what was expected and what was received.
+A wrong kind of value (a string, ``None``, a bool where a number is wanted, an
+array of strings) is a ``TypeError``; a value of the right kind that is out of
+range (NaN, infinity, a negative count, a shape that does not match) is a
+``ValueError``. Python and numpy scalars are accepted alike; ``bool`` never counts
+as a number. Each check returns the converted value, so that a call site reads
+``sigma = check_positive(sigma, "sigma")``.
+
+Scalars: :func:`check_finite`, :func:`check_nonnegative`, :func:`check_positive`,
+:func:`check_range`, :func:`check_fraction`, :func:`check_frequency`,
+:func:`check_int`, :func:`check_choice`, :func:`check_sigma`,
+:func:`check_workers`. Shapes and objects: :func:`check_shape`,
+:func:`check_same_shape`, :func:`check_type`. Arrays: :func:`as_float_array`,
+:func:`as_pair`, :func:`as_shifts`, :func:`as_image`, :func:`image_array`,
+:func:`check_mask`, with the dtype policy of :func:`float_dtype`.
 """
 
 from __future__ import annotations
