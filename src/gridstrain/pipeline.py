@@ -145,10 +145,11 @@ from ._validation import (
     check_mask,
     check_positive,
     check_sigma,
+    check_workers,
 )
+from .accumulate import PassPlan, SeriesPass
 from .io import (
     FrameSeries,
-    check_saturation_limit,
     open_series,
     read_mask,
 )
@@ -162,8 +163,8 @@ from .kinematics import (
 )
 from .lattice import Lattice, detect_lattice
 from .noise import NoiseModel, estimate_noise_image
-from .screening import FrameScreen, screen_frames
-from .stacks import method_b, method_c
+from .screening import FrameScreen
+from .stacks import _FrameOrder, _map_bounded, method_b
 from .uncertainty import aliasing_bias, metrology, predict_uncertainty, smoothing_bias
 from .wft import DEFAULT_MARGIN, PhaseMaps, finite_derivatives, wft
 
@@ -829,18 +830,16 @@ class _Screened:
     warnings: tuple[str, ...]
 
 
-def _screen_series(s, lattice: Lattice, mask, max_saturation: float, outliers: str,
-                   report: Progress) -> _Screened:
-    """Read every frame of ``s`` once: rigid shifts and the screening
-    (:func:`gridstrain.screening.screen_frames`), then exclude, refuse or keep
-    the flagged frames as ``outliers`` says. A strict minority is excluded; when half
-    the frames or more are flagged the series is refused whatever the policy but
-    "warn": the good frames cannot be told from the bad."""
+def _screen_pass(s, acc: SeriesPass, max_saturation: float, outliers: str):
+    """The screening of the frames of ``s`` from its pass (:meth:`SeriesPass.screen`),
+    and the pass once the flagged frames are excluded, refused or kept as ``outliers``
+    says: ``(_Screened, pass)``. A strict minority is excluded (read a second time
+    to take them out of the sums); when half the frames or more are flagged the
+    series is refused whatever the policy but "warn": the good frames cannot be told
+    from the bad."""
     n = s.n_frames
     try:
-        sc = screen_frames(_counting(s.frames(dtype=np.float64), n, report, "screening"),
-                           lattice, saturation_level=s.saturation_level, scale=s.scale,
-                           mask=mask, max_saturation=max_saturation)
+        sc = acc.screen(max_saturation=max_saturation)
     except ValueError as exc:
         raise ValueError(f"{s.name}: {exc}") from None
     bad = sc.flagged
@@ -858,6 +857,8 @@ def _screen_series(s, lattice: Lattice, mask, max_saturation: float, outliers: s
                          "to measure anyway")
     if bad and outliers == "exclude":
         warnings.append(f"{s.name}: excluded {len(bad)} of {n} frames: {listed}")
+        for t in bad:  # the second read of a frame: only for the excluded ones
+            acc.remove(t, next(iter(s.frames(dtype=np.float64, start=t, stop=t + 1))))
     elif bad:
         warnings.append(f"{s.name}: kept {len(bad)} flagged frame(s) of {n} (outliers="
                         f"'warn'): {listed}; the noise floor and uncertainty maps of the "
@@ -876,7 +877,7 @@ def _screen_series(s, lattice: Lattice, mask, max_saturation: float, outliers: s
                      excluded=tuple(s._number(t) for t in bad if outliers == "exclude"),
                      kept_flagged=bool(bad) and outliers == "warn",
                      saturation=float(sat[worst]), clip_level=level,
-                     warnings=tuple(warnings))
+                     warnings=tuple(warnings)), acc
 
 
 # What the user can do about a flagged frame, by what its reason says.
@@ -940,64 +941,90 @@ class _Stats:
     saturation: float
 
 
-def _regressors(shifts: np.ndarray):
-    """Centred shifts ``c`` (T, 2), their scatter matrix, whether to regress them out."""
-    T = shifts.shape[0]
-    c = shifts - shifts.mean(axis=0)  # centred regressors (T, 2)
-    S_aa = c.T @ c
-    # rank of the shift regressors: 0 without vibration, 2 normally
-    rank = int(np.linalg.matrix_rank(S_aa, tol=1e-12 * max(float(np.trace(S_aa)), 1e-300)))
-    return c, S_aa, T - 1 - 2 >= 1 and rank == 2
+# Reference frames averaged for the lattice's detection (or its check), spread over
+# the series: the lattice must be known before the pass that measures the shifts,
+# so these frames are the only ones read twice in a clean series.
+_LATTICE_FRAMES = 8
+# The cost of a transform, in frames read (progress only).
+_WFT_COST = 4.0
 
 
-def _statistics(series, shifts: np.ndarray, mask: np.ndarray | None,
-                max_saturation: float, report: Progress) -> _Stats:
-    """Mean, vibration-corrected temporal variance and saturation, in one pass."""
-    T = series.n_frames
-    c, _, regress = _regressors(shifts)
-    first = None
-    s1 = s2 = sva = None
-    worst = 0.0
-    check = isinstance(series, FrameSeries)
-    for t, frame in enumerate(series.frames(dtype=np.float64)):
-        if check:
-            worst = max(worst, check_saturation_limit(frame, series, mask=mask,
-                                                      max_fraction=max_saturation,
-                                                      index=t))
-        if first is None:
-            # accumulate differences to the first frame: the sums of squares then
-            # hold noise-sized numbers, not grey levels squared
-            first = frame
-            s1 = np.zeros_like(frame)
-            s2 = np.zeros_like(frame)
-            sva = np.zeros((2, *frame.shape)) if regress else None
-        d = frame - first
-        s1 += d
-        s2 += d * d
-        if regress:
-            sva += c[t][:, None, None] * d
-        report((t + 1) / T, f"statistics {t + 1}/{T}")
-    return _finish_statistics(first, s1, s2, sva, shifts, worst)
+def _pass_cost(method: str) -> float:
+    """Progress weight of one frame of a pass."""
+    return 1.0 + (_WFT_COST if method == "B" else 0.0) + (0.5 if method == "C" else 0.0)
 
 
-def _finish_statistics(first, s1, s2, sva, shifts, worst) -> _Stats:
-    """The statistics from the sums over the frames of ``d = frame - first``,
-    ``d * d`` and ``c_t d`` (None without regression)."""
-    T = shifts.shape[0]
-    _, S_aa, regress = _regressors(shifts)
-    mean = first + s1 / T
-    if T < 2:
-        return _Stats(mean, None, "unavailable (a single frame)", worst)
-    svv = s2 - s1 * s1 / T
-    if regress:
-        P = np.linalg.inv(S_aa)
-        svv = svv - np.einsum("ihw,ij,jhw->hw", sva, P, sva)
-        dof = T - 3
-        how = f"temporal variance, shifts regressed out ({dof} dof)"
-    else:
-        dof = T - 1
-        how = f"temporal variance, vibrations not removed ({dof} dof)"
-    return _Stats(mean, np.maximum(svv, 0.0) / dof, how, worst)
+def _lattice_image(ref, report: Progress) -> np.ndarray:
+    """Mean of at most :data:`_LATTICE_FRAMES` frames spread over the reference."""
+    T = ref.n_frames
+    idx = np.unique(np.linspace(0, T - 1, min(T, _LATTICE_FRAMES)).round().astype(int))
+    sub = ref if idx.size == T else ref.subset([int(i) for i in idx])
+    return sub.mean(progress=report)
+
+
+def _detect(image: np.ndarray, ref, mask: np.ndarray, margin: float) -> Lattice:
+    """The lattice detected on ``image``, or an error naming what to do."""
+    try:
+        lattice = detect_lattice(image, mask=mask)
+    except ValueError as exc:
+        # frames smaller than a common 5-px pitch needs: say so first
+        need = _min_side(2.0, margin)
+        if min(ref.shape) < _min_side(5.0, margin):
+            raise ValueError(f"reference: no grid detected on frames of {ref.shape[0]} "
+                             f"x {ref.shape[1]} px, too small for the grid method: a "
+                             f"window of sigma >= the pitch with its band of margin = "
+                             f"{margin:g} sigmas needs {need} px for a 2-px pitch, "
+                             f"{_min_side(5.0, margin)} px for a 5-px pitch") from None
+        raise ValueError(f"reference: {exc}") from None
+    _check_pitch_fits(ref.shape, lattice.pitch, margin)
+    return lattice
+
+
+def _plan(s, lattice: Lattice, method: str, sigma: float, margin: float,
+          mask: np.ndarray, is_ref: bool) -> PassPlan:
+    """What the pass over series ``s`` gathers. Method B's transforms use the
+    reference's mask (the states': the whole frame), as its phase maps do; regions
+    without a grid, known only from the mean image, may change that afterwards."""
+    return PassPlan(lattice=lattice, n_frames=s.n_frames, method=method, sigma=sigma,
+                    margin=margin,
+                    transform_mask=(mask if is_ref else np.ones(s.shape, dtype=bool))
+                    if method == "B" else None,
+                    saturation_level=s.saturation_level, scale=int(s.scale),
+                    count_mask=mask)
+
+
+def _run_pass(s, plan: PassPlan, report: Progress) -> SeriesPass:
+    """One pass over the frames of ``s`` on this machine. Method B's transforms run
+    on threads (the usable cores), adding their sums in frame order (the result
+    does not depend on the number of threads); the rest follows the reading."""
+    n = s.n_frames
+    workers = check_workers(None) if plan.method == "B" else 1
+    order = _FrameOrder() if workers > 1 else None
+    box: list = []
+
+    def read():
+        for t, frame in enumerate(s.frames(dtype=np.float64)):
+            if not box:
+                box.append(SeriesPass(plan, frame))
+            box[0].add(t, frame, transform=False)
+            yield t, frame
+
+    def transform(item):
+        t, frame = item
+        if plan.method == "B":
+            try:
+                box[0].add_transform(t, frame, order=order)
+            except BaseException:
+                if order is not None:
+                    order.fail(t)  # the frames after this one must not wait for it
+                raise
+        return t
+
+    for t in _map_bounded(transform, read(), workers):
+        report((t + 1) / n, f"frame {t + 1}/{n}")
+    if not box:
+        raise ValueError(f"{s.name}: no frame")
+    return box[0]
 
 
 # --------------------------------------------------------------------------- phase maps
@@ -1075,11 +1102,20 @@ def _phase_maps_a(image, lattice, sigma, mask, margin):
     return finite_derivatives(pm), m
 
 
-def _phase_maps_b(series, lattice, sigma, mask, margin, report):
-    """Method B (§2.3) on the series' frames, streamed."""
-    n = series.n_frames
-    frames = _counting(series.frames(dtype=np.float64), n, report, "method B: transform")
-    return finite_derivatives(method_b(frames, lattice, sigma=sigma, mask=mask, margin=margin).maps)
+def _method_b_maps(s, sc: _Screened, acc: SeriesPass, used: np.ndarray,
+                   report: Progress) -> PhaseMaps:
+    """Method B's maps of series ``s`` from its pass; the kept frames are transformed
+    again (a second read) only when the mean image showed regions without a grid,
+    which change the windows' support near them."""
+    plan = acc.plan
+    if np.array_equal(used, plan.transform_mask):
+        return finite_derivatives(acc.method_b().maps)
+    kept = sc.series
+    n = kept.n_frames
+    frames = _counting(kept.frames(dtype=np.float64), n, report,
+                       "method B, without the regions showing no grid")
+    return finite_derivatives(method_b(frames, plan.lattice, sigma=plan.sigma, mask=used,
+                                       margin=plan.margin).maps)
 
 
 # Method A's averaged grid keeps this fraction of its contrast or less (eq. 14): its
@@ -1099,15 +1135,6 @@ def _contrast_notes(vib) -> list[str]:
                        f"method A's strain noise is {1 / c - 1:.1%} above that of method C, "
                        "which realigns the frames before averaging (--method C)")
     return out
-
-
-def _phase_maps_c(series, lattice, sigma, mask, margin, shifts, report):
-    """Method C (vibration-compensated averaging) on the series' frames, streamed,
-    with the shifts of the series pass; returns the maps and the warnings."""
-    n = series.n_frames
-    frames = _counting(series.frames(dtype=np.float64), n, report, "method C: sums")
-    res = method_c(frames, lattice, shifts=shifts, sigma=sigma, mask=mask, margin=margin)
-    return finite_derivatives(res.maps), [f"{series.name}: {w}" for w in res.warnings]
 
 
 def _in_precision(maps: list, series: list) -> list:
@@ -1314,32 +1341,28 @@ def _theory_floor(var_ref, T_ref, mod_ref, var_s, T_s, mod_s, sigma, lattice):
     return su, se
 
 
-def _split_floor(ref_series, lattice, sigma, mask, margin, report, shifts=None):
-    """Spatial std of a half-against-half measurement of the reference (method A,
-    or method C with ``shifts``)."""
-    T = ref_series.n_frames
-    T1 = T // 2
+def _split_floor(acc: SeriesPass, lattice, sigma, mask, margin, method: str, report):
+    """Spatial std of a half-against-half measurement of the reference, from the
+    halves' sums of its pass (method A, or method C when it was the method)."""
     halves = []
-    for k, (start, stop) in enumerate(((0, T1), (T1, T))):
-        if shifts is None:
-            img = ref_series.mean(start=start, stop=stop)
+    for h in (0, 1):
+        if method == "C":
+            halves.append(acc.method_c(sigma=sigma, mask=mask, margin=margin,
+                                       halves=(h,)).maps)
+        else:
+            img = acc.half_means()[h]
             halves.append(wft(img, lattice, sigma=sigma, mask=mask, margin=margin,
                               workers=None))
-        else:
-            halves.append(method_c(ref_series.frames(dtype=np.float64, start=start,
-                                                     stop=stop), lattice,
-                                   shifts=shifts[start:stop], sigma=sigma, mask=mask,
-                                   margin=margin).maps)
-        report((k + 1) / 3, f"half {k + 1} of the reference")
+        report((h + 1) / 3, f"half {h + 1} of the reference")
     m = deformation(finite_derivatives(halves[0]), finite_derivatives(halves[1]),
                     lagrangian=False, guess=None)
     report(1.0, "half against half")
     v = m.valid
     if int(v.sum()) < 2:
-        return np.full(2, np.nan), np.full(3, np.nan), (T1, T - T1)
+        return np.full(2, np.nan), np.full(3, np.nan)
     su = np.array([float(np.std(c[v], ddof=1)) for c in m.u])
     se = np.array([float(np.std(c[v], ddof=1)) for c in m.strain])
-    return su, se, (T1, T - T1)
+    return su, se
 
 
 # --------------------------------------------------------------------------- pipeline
@@ -1458,11 +1481,13 @@ def measure_series(reference, states, *, lattice: Lattice | None = None,
 
     Notes
     -----
-    Frames are read one at a time, never held whole. Every frame is read once for
-    the screening and the shifts, once for the statistics and, with method B, once
-    for its transform; the reference's frames twice more (the mean that detects or
-    checks the lattice, before the screening, and the two halves of the noise
-    floor).
+    Frames are read one at a time, never held whole, in one pass per series
+    (:class:`gridstrain.accumulate.SeriesPass`: screening, shifts, mean, variance,
+    the noise floor's halves, method B's transforms or method C's sums). Read twice:
+    at most 8 reference frames (their mean detects or checks the lattice, which the
+    pass needs), the frames the screening excludes (taken out of the sums), and,
+    with method B, a series whose mean image shows regions without a grid (they
+    change the windows' support: the kept frames are transformed again).
 
     Examples
     --------
@@ -1522,17 +1547,15 @@ def measure_series(reference, states, *, lattice: Lattice | None = None,
     else:
         m = check_mask(mask, ref.shape)
 
-    # the plan: frame passes cost 1 per frame, a transform ~4 frames' worth
-    wft_cost = 4.0
+    # the plan: reading a frame costs 1, a transform ~4 frames' worth
+    wft_cost = _WFT_COST
     n_states = len(series) - 1
     detect = lattice is None
-    total = ref.n_frames + 1.0
+    total = min(ref.n_frames, _LATTICE_FRAMES) + 1.0
     for s in series:
-        total += 2 * s.n_frames + (s.n_frames * wft_cost if method == "B" else 0) \
-            + (s.n_frames if method == "C" else 0) \
-            + 2 * wft_cost
+        total += s.n_frames * _pass_cost(method) + 2 * wft_cost
     total += n_states * (3 * wft_cost if lagrangian else wft_cost)
-    total += ref.n_frames + 2 * wft_cost + wft_cost
+    total += 3 * wft_cost
     steps = _Steps(progress, total)
     # how the frames were read (colour converted, lossy JPEG), series by series
     warnings: list[str] = [n for s in series for n in getattr(s, "notes", ())]
@@ -1542,22 +1565,10 @@ def measure_series(reference, states, *, lattice: Lattice | None = None,
             raise ValueError(f"guess for {series[i + 1].name} must be a (u_x, u_y) pair or "
                              f"a field of shape {(2, *ref.shape)}, got shape {g.shape}")
 
-    # the lattice, detected on the mean reference image or checked against it
-    mean_ref = ref.mean(progress=steps.sub(ref.n_frames, ""))
+    # the lattice, detected on (or checked against) the mean of a few reference frames
+    mean_ref = _lattice_image(ref, steps.sub(min(ref.n_frames, _LATTICE_FRAMES), ""))
     if detect:
-        try:
-            lattice = detect_lattice(mean_ref, mask=m)
-        except ValueError as exc:
-            # frames smaller than a common 5-px pitch needs: say so first
-            need = _min_side(2.0, margin)
-            if min(ref.shape) < _min_side(5.0, margin):
-                raise ValueError(f"reference: no grid detected on frames of {ref.shape[0]} "
-                                 f"x {ref.shape[1]} px, too small for the grid method: a "
-                                 f"window of sigma >= the pitch with its band of margin = "
-                                 f"{margin:g} sigmas needs {need} px for a 2-px pitch, "
-                                 f"{_min_side(5.0, margin)} px for a 5-px pitch") from None
-            raise ValueError(f"reference: {exc}") from None
-        _check_pitch_fits(ref.shape, lattice.pitch, margin)
+        lattice = _detect(mean_ref, ref, m, margin)
     if sigma_pitches is not None:
         sigma = sigma_pitches * lattice.pitch
     sigma = check_sigma(sigma, lattice.pitch)
@@ -1566,53 +1577,45 @@ def measure_series(reference, states, *, lattice: Lattice | None = None,
         _check_given_lattice(mean_ref, lattice, sigma, m, margin)
     steps.step(1.0, "lattice")
 
-    # every frame screened against its series (one read), the flagged ones handled
-    # before any average; the rest of the pipeline sees the frames kept only
-    screens = [_screen_series(s, lattice, m, max_saturation, outliers,
-                              steps.sub(s.n_frames, s.name)) for s in series]
-    series = [sc.series for sc in screens]
-    ref = series[0]
-    warnings += [w for sc in screens for w in sc.warnings]
-
-    vib, stats, maps, masks = [], [], [], []
+    # one pass over every series: screening, shifts, statistics, the halves of the
+    # noise floor and method B's or C's sums; the flagged frames are then taken out
+    plans = [_plan(s, lattice, method, sigma, margin, m, s is ref) for s in series]
+    vib, stats, maps, masks, screens = [], [], [], [], []
     with _connect(scheduler) as client:
-        for s, sc in zip(series, screens, strict=True):
-            n = s.n_frames
-            shifts = sc.shifts
-            vib.append(_diagnose(s.name, shifts, "gridstrain.vibration.frame_shifts",
-                                 lattice, method))
-            # the screening judged the saturation: the pass below only measures it
-            if client is None:
-                stats.append(_statistics(s, shifts, m, 1.0, steps.sub(n, s.name)))
-            else:  # a future: the cluster works while this machine reads the next series
-                c, _, regress = _regressors(shifts)
-                stats.append(_dist()._submit_statistics(client, s, c if regress else None, m,
-                                                        1.0))
+        pending = None if client is None else [
+            _dist()._submit_pass(client, s, plan) for s, plan in zip(series, plans,
+                                                                      strict=True)]
         for k, s in enumerate(series):
             n = s.n_frames
-            if client is not None:
-                first, s1, s2, sva, worst = stats[k].result(timeout)
-                stats[k] = _finish_statistics(first, s1, s2, sva, vib[k].shifts, worst)
-                steps.step(n, f"{s.name}: statistics")
-            st = stats[k]
+            if client is None:
+                acc = _run_pass(s, plans[k], steps.sub(n * _pass_cost(method), s.name))
+            else:  # the cluster worked while this machine read the other series
+                acc = pending[k].result(timeout)
+                pending[k] = None
+                steps.step(n * _pass_cost(method), f"{s.name}: one pass")
+            sc, acc = _screen_pass(s, acc, max_saturation, outliers)
+            screens.append(sc)
+            warnings.extend(sc.warnings)
+            vib.append(_diagnose(s.name, sc.shifts, "gridstrain.vibration.frame_shifts",
+                                 lattice, method))
+            st = acc.statistics()
+            stats.append(_Stats(st.mean, st.variance, st.method, sc.saturation))
             base = m if s is ref else None
             pm, used = _phase_maps_a(st.mean, lattice, sigma, base, margin)
             steps.step(2 * wft_cost, f"{s.name}: phase maps")
-            if method == "C":  # on this machine: one pass, two sums per pixel
-                pm, notes = _phase_maps_c(s, lattice, sigma, used, margin, vib[k].shifts,
-                                          steps.sub(n, s.name))
-                warnings.extend(notes)
-            elif method == "B" and client is None:
-                pm = _phase_maps_b(s, lattice, sigma, used, margin,
-                                   steps.sub(n * wft_cost, s.name))
-            elif method == "B":  # a future, gathered once every series is submitted
-                pm = _dist()._submit_method_b(client, s, lattice, sigma, used, margin)
+            if method == "C":
+                res = acc.method_c(sigma=sigma, mask=used, margin=margin)
+                pm = finite_derivatives(res.maps)
+                warnings.extend(f"{s.name}: {w}" for w in res.warnings)
+            elif method == "B":
+                pm = _method_b_maps(s, sc, acc, used, steps.sub(n * wft_cost, s.name))
             maps.append(pm)
             masks.append(used)
-        if client is not None and method == "B":
-            for k, s in enumerate(series):
-                maps[k] = finite_derivatives(maps[k].result(timeout).maps)
-                steps.step(s.n_frames * wft_cost, f"{s.name}: method B")
+            if k == 0:
+                ref_pass = acc
+            del acc
+    series = [sc.series for sc in screens]
+    ref = series[0]
 
     if method == "A":
         warnings.extend(_contrast_notes(vib))
@@ -1637,16 +1640,16 @@ def measure_series(reference, states, *, lattice: Lattice | None = None,
     sp_u = np.full((n_states, 2), np.nan)
     sp_e = np.full((n_states, 3), np.nan)
     vib_u = np.full((n_states, 2), np.nan)
-    if ref.n_frames >= 2:
-        su, se, (T1, T2) = _split_floor(ref, lattice, sigma, masks[0], margin,
-                                        steps.sub(ref.n_frames + 3 * wft_cost,
-                                                  "noise floor"),
-                                        vib[0].shifts if method == "C" else None)
+    T1, T2 = ref_pass.half_counts()
+    if min(T1, T2) >= 1:
+        su, se = _split_floor(ref_pass, lattice, sigma, masks[0], margin, method,
+                              steps.sub(3 * wft_cost, "noise floor"))
     else:
         su, se, (T1, T2) = np.full(2, np.nan), np.full(3, np.nan), (1, 1)
         warnings.append("a single reference frame: no split-halves noise estimate (measure "
                         "a second image of the unloaded specimen as a state: its maps are "
                         "the noise floor)")
+    del ref_pass
     for i in range(n_states):
         th_u[i], th_e[i] = _theory_floor(var[0], T[0], mods[0], var[i + 1], T[i + 1],
                                          mods[i + 1], sigma, lattice)
