@@ -32,7 +32,7 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.colors import Normalize
 from matplotlib.figure import Figure
 
-from ._validation import check_choice, check_finite, check_instance, check_positive
+from ._validation import check_choice, check_finite, check_positive, check_type
 from .io import OutputDirectory, write_atomic
 from .pipeline import SeriesResult, _check_pixel_size
 
@@ -248,7 +248,7 @@ def save_figures(result, directory, *, pixel_size: float | None = None,
         the vibrations (``vibration_reference.png``, ``vibration_state0.png``...),
         in the order of :func:`figure_names`.
     """
-    check_instance(result, SeriesResult, "result")
+    check_type(result, "result", SeriesResult)
     ps, unit = _check_pixel_size(pixel_size, unit)
     names = figure_names(result.n_states)
     out = OutputDirectory(directory, names, overwrite=overwrite, what="figures directory")

@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ._validation import as_path, check_instance
+from ._validation import as_path, check_type
 from .io import write_atomic
 from .pipeline import MAP_FIELDS, SeriesResult
 from .plotting import plot_history, plot_shifts, plot_states
@@ -82,7 +82,7 @@ def render_report(result: SeriesResult, *, attrs: dict | None = None,
     ``attrs`` are the result file's root attributes (:func:`gridstrain.results.
     read_attrs`): pixel size, unit, creation date, the stored configuration.
     """
-    check_instance(result, SeriesResult, "result")
+    check_type(result, "result", SeriesResult)
     a = dict(attrs or {})
     ps, unit = a.get("pixel_size"), a.get("unit")
     if ps is None or unit is None:

@@ -63,7 +63,7 @@ import h5py
 import numpy as np
 
 from . import __version__
-from ._validation import as_path, check_instance, check_mapping
+from ._validation import as_path, check_mapping, check_type
 from .io import hdf5_file, write_atomic, write_csv
 from .pipeline import MAP_FIELDS, SeriesResult, _check_pixel_size
 
@@ -354,7 +354,7 @@ def save_result(result: SeriesResult, path, *, pixel_size: float | None = None,
     The layout is described in :mod:`gridstrain.results`; ``xarray.open_dataset``
     opens it, :func:`load` reads it back.
     """
-    check_instance(result, SeriesResult, "result")
+    check_type(result, "result", SeriesResult)
     ps, unit = _check_pixel_size(pixel_size, unit)
     attrs = check_mapping(attrs, "attrs", allow_none=True)
     H, W = result.shape
@@ -665,7 +665,7 @@ def export_mat(result: SeriesResult, path, *, pixel_size: float | None = None,
     """
     from scipy.io import savemat
 
-    check_instance(result, SeriesResult, "result")
+    check_type(result, "result", SeriesResult)
     ps, unit = _phys(result, pixel_size, unit)
     H, W = result.shape
 
@@ -717,7 +717,7 @@ def export_vtk(result: SeriesResult, path, *, pixel_size: float | None = None,
     unless the camera looks along +z with y down). Point arrays ``<map>_<state>``
     (``exx_state_0``...), NaN where not valid, and ``valid_<state>`` (0/1).
     """
-    check_instance(result, SeriesResult, "result")
+    check_type(result, "result", SeriesResult)
     ps, unit = _phys(result, pixel_size, unit)
     s = 1.0 if ps is None else ps
     H, W = result.shape
@@ -765,7 +765,7 @@ def save_csv(result: SeriesResult, path, *, pixel_size: float | None = None,
         Significant digits of floats (default 7); ``None`` writes each float64 as
         its shortest exact decimal.
     """
-    check_instance(result, SeriesResult, "result")
+    check_type(result, "result", SeriesResult)
     ps, unit = _phys(result, pixel_size, unit)
     st, yy, xx = np.nonzero(result.valid)
     cols = {"state": st, "x [px]": xx, "y [px]": yy}

@@ -22,11 +22,11 @@ from .._validation import (
     check_callable,
     check_float_dtype,
     check_fraction,
-    check_instance,
     check_int,
     check_mask,
     check_name,
     check_shape,
+    check_type,
 )
 
 #: File name extensions read as images (compared case-insensitively). JPEG files are
@@ -432,7 +432,7 @@ class FrameSeries:
                 f"files={len(self.paths)}, first={str(first)!r})")
 
     def _index(self, i) -> int:
-        i = check_int(i, "frame index")
+        i = check_int(i, "frame index", minimum=None)
         n = self.n_frames
         j = i + n if i < 0 else i
         if not 0 <= j < n:
@@ -582,8 +582,8 @@ class FrameSeries:
 
     def _range(self, start, stop) -> range:
         n = self.n_frames
-        start = check_int(start, "start")
-        stop = n if stop is None else check_int(stop, "stop")
+        start = check_int(start, "start", minimum=None)
+        stop = n if stop is None else check_int(stop, "stop", minimum=None)
         if not 0 <= start < stop <= n:
             raise ValueError(f"{self.name}: frame range must satisfy 0 <= start < stop <= "
                              f"{n}, got start={start}, stop={stop}")
@@ -815,7 +815,7 @@ def check_saturation(frame, series: FrameSeries, *, mask=None,
         Saturated pixels (value >= saturation level) over counted pixels, in
         [0, 1]. Always 0.0 for float series, whose saturation level is unknown.
     """
-    check_instance(series, FrameSeries, "series")
+    check_type(series, "series", FrameSeries)
     arr = np.asarray(frame)
     if arr.shape != series.shape:
         raise ValueError(f"frame must have the series shape {series.shape}, got {arr.shape}")
