@@ -201,7 +201,9 @@ class Measurement:
 
     def __post_init__(self):
         for name in ("u", "strain", "rotation", "valid"):
-            getattr(self, name).flags.writeable = False
+            arr = getattr(self, name)
+            if isinstance(arr, np.ndarray):  # maps read from a file are read-only already
+                arr.flags.writeable = False
 
     @property
     def ux(self) -> np.ndarray:

@@ -142,6 +142,7 @@ from ._progress import null_progress
 from ._validation import (
     SIGMA_PITCH_RTOL,
     check_choice,
+    check_float_dtype,
     check_mask,
     check_positive,
     check_sigma,
@@ -345,6 +346,10 @@ class SeriesResult:
     strain : (n_states, 3, H, W) float ndarray
         ``(e_xx, e_yy, e_xy)`` per state, dimensionless (tensor shear).
     valid : (n_states, H, W) bool ndarray
+        With ``measure_series(..., output=...)`` these three, the uncertainty maps
+        and the measurements' maps are :class:`gridstrain.results.StoredMaps`:
+        read from the result file when indexed (``result.u[i]`` reads state
+        ``i``), ``numpy.asarray`` reading the whole.
     lattice : Lattice
     lattice_detected : bool
         Whether the lattice was detected (True) or given.
@@ -442,7 +447,9 @@ class SeriesResult:
 
     def __post_init__(self):
         for name in ("u", "strain", "valid", "mask", "reference_image"):
-            getattr(self, name).flags.writeable = False
+            arr = getattr(self, name)
+            if isinstance(arr, np.ndarray):  # maps read from a file are read-only already
+                arr.flags.writeable = False
 
     @property
     def n_states(self) -> int:
@@ -1354,7 +1361,8 @@ def measure_series(reference, states, *, lattice: Lattice | None = None,
                    max_saturation: float = _MAX_SATURATION, outliers: str = "exclude",
                    progress: Progress | None = None, scheduler=None, noise_model=None,
                    sigma_pitches: float | None = None,
-                   timeout: float | None = None) -> SeriesResult:
+                   timeout: float | None = None, output=None,
+                   dtype=None) -> SeriesResult:
     """Displacement and strain maps of loaded states from series of grid images.
 
     Parameters
@@ -1447,6 +1455,19 @@ def measure_series(reference, states, *, lattice: Lattice | None = None,
     timeout : float, optional
         With a scheduler: the longest wait, s, for the cluster's result of one
         series (TimeoutError past it: a stalled cluster). None waits for ever.
+    output : str, os.PathLike or gridstrain.results.ResultFile, optional
+        Write the result file (:func:`gridstrain.results.save_result`'s layout)
+        while measuring: each state's maps go to the file as soon as they are
+        measured and leave memory, so that memory holds one state and the
+        reference whatever the number of states. The returned result reads its maps
+        from the file (see ``u``). The file is put at its path when the measurement
+        ends, atomically; nothing is there if it fails. The measurements' phase maps
+        are not kept.
+    dtype : {None, "float32", "float64"}
+        Precision of the returned (and written) maps; None: that of the
+        measurement (:mod:`gridstrain.conventions`). Everything is computed as
+        without it; see :class:`gridstrain.results.ResultFile` for what float32
+        keeps.
 
     Returns
     -------
@@ -1508,6 +1529,15 @@ def measure_series(reference, states, *, lattice: Lattice | None = None,
     given_model = _check_noise_model(noise_model)
     if sigma is not None and lattice is not None:
         sigma = check_sigma(sigma, lattice.pitch)
+    dtype = check_float_dtype(dtype, "dtype")
+    if output is not None:
+        from .results import ResultFile  # h5py only when a file is written
+
+        output = output if isinstance(output, ResultFile) else ResultFile(output)
+        if dtype is not None and output.dtype is not None and output.dtype != dtype:
+            raise ValueError(f"dtype={dtype} and output's dtype={output.dtype} disagree")
+        dtype = output.dtype if dtype is None else dtype
+        output = dataclasses.replace(output, dtype=dtype)
 
     ref = _as_series(reference, "reference", bit_depth)
     raw_states = _as_states(states)
@@ -1563,8 +1593,8 @@ def measure_series(reference, states, *, lattice: Lattice | None = None,
     _check_model_units(given_model, series)
     f32 = all(np.dtype(s.dtype) == np.float32 for s in series)
     kin = 3 * wft_cost if lagrangian else wft_cost
-    sink = _InMemory(n_states)
-    with _connect(scheduler) as client:
+    sink = _InMemory(n_states, dtype) if output is None else _streamed(output, n_states)
+    with sink, _connect(scheduler) as client:
         pending = None if client is None else [
             _dist()._submit_pass(client, s, plan) for s, plan in zip(series, plans,
                                                                       strict=True)]
@@ -1599,37 +1629,40 @@ def measure_series(reference, states, *, lattice: Lattice | None = None,
             res, rec, notes = tracker.measure(c.maps, c.stats.mean, guesses[i], c.name)
             warnings.extend(notes)
             steps.step(kin, f"{c.name}: kinematics")
+            if output is not None and not res.valid.any():  # never a file
+                raise ValueError(empty_state_message(c.name, margin, sigma, rec.guess,
+                                                     rec.source))
             sink.add(i, *floor.state(c, res, rec, alias, warnings))
             done.append(c.summary())
             del c, res
-    warnings.extend(tracker.finish())
-    if method == "A":
-        warnings.extend(_contrast_notes([d.vib for d in done]))
-    for d in done:
-        warnings.extend(d.saturation_warnings)
-    progress(1.0, "done")
+        warnings.extend(tracker.finish())
+        if method == "A":
+            warnings.extend(_contrast_notes([d.vib for d in done]))
+        for d in done:
+            warnings.extend(d.saturation_warnings)
+        progress(1.0, "done")
 
-    parameters = {"sigma": float(sigma), "method": method, "lagrangian": bool(lagrangian),
-                  "guess": _guess_parameter(guess),
-                  "order": order, "margin": float(margin), "max_saturation":
-                  float(max_saturation), "bit_depth": bit_depth, "outliers": outliers,
-                  "lattice": None if detect else {"k1": list(lattice.k1),
-                                                  "k2": list(lattice.k2)},
-                  "noise_model": None if given_model is None else given_model.as_dict(),
-                  "sigma_pitches": sigma_pitches}
-    nf = floor.noise_floor(done, noise.info(done))
-    return sink.result(
-        lattice=lattice, lattice_detected=detect, sigma=float(sigma), method=method,
-        lagrangian=bool(lagrangian), margin=float(margin), mask=r.mask.copy(),
-        reference_image=np.array(r.stats.mean), names=tuple(d.name for d in done),
-        sources=tuple(d.sources for d in done), n_frames=tuple(d.T for d in done),
-        bit_depth=tuple(d.bit_depth for d in done), scale=tuple(d.scale for d in done),
-        saturation=tuple(d.saturation for d in done),
-        excluded=tuple(d.excluded for d in done),
-        screening=tuple(d.screening for d in done), vibration=tuple(d.vib for d in done),
-        noise=nf, parameters=parameters, warnings=tuple(warnings),
-        metrology=metrology(sink.floors, float(sigma)),
-        systematic={"aliasing": alias, "smoothing": sink.smoothing})
+        parameters = {
+            "sigma": float(sigma), "method": method, "lagrangian": bool(lagrangian),
+            "guess": _guess_parameter(guess), "order": order, "margin": float(margin),
+            "max_saturation": float(max_saturation), "bit_depth": bit_depth,
+            "outliers": outliers,
+            "lattice": None if detect else {"k1": list(lattice.k1), "k2": list(lattice.k2)},
+            "noise_model": None if given_model is None else given_model.as_dict(),
+            "sigma_pitches": sigma_pitches, "dtype": None if dtype is None else str(dtype)}
+        nf = floor.noise_floor(done, noise.info(done))
+        return sink.result(
+            lattice=lattice, lattice_detected=detect, sigma=float(sigma), method=method,
+            lagrangian=bool(lagrangian), margin=float(margin), mask=r.mask.copy(),
+            reference_image=np.array(r.stats.mean), names=tuple(d.name for d in done),
+            sources=tuple(d.sources for d in done), n_frames=tuple(d.T for d in done),
+            bit_depth=tuple(d.bit_depth for d in done), scale=tuple(d.scale for d in done),
+            saturation=tuple(d.saturation for d in done),
+            excluded=tuple(d.excluded for d in done),
+            screening=tuple(d.screening for d in done), vibration=tuple(d.vib for d in done),
+            noise=nf, parameters=parameters, warnings=tuple(warnings),
+            metrology=metrology(sink.floors, float(sigma)),
+            systematic={"aliasing": alias, "smoothing": sink.smoothing})
 
 
 # --------------------------------------------------------------------------- one series
@@ -1933,16 +1966,46 @@ def _systematic_warnings(name: str, m: Measurement, fl: dict, alias: dict, smoot
     return out
 
 
+def empty_state_message(name: str, margin: float, sigma: float, guess, source: str) -> str:
+    """Why a state without a single valid pixel is refused (never a written result)."""
+    return (f"{name}: no valid pixel, nothing written: the mask, the band of margin = "
+            f"{margin:g} sigmas (sigma {sigma:.4g} px), the grid's modulus and the "
+            f"displacement (guess {guess[0]:.4g}, {guess[1]:.4g} px, {source}) leave no "
+            "pixel to measure")
+
+
+def _streamed(output, n_states: int):
+    from .results import _Streamed  # h5py only when a file is written
+
+    return _Streamed(output, n_states)
+
+
+def _as_dtype(res: Measurement, unc, dtype):
+    """The maps of a state in ``dtype`` (None: as they are)."""
+    if dtype is None or res.u.dtype == dtype:
+        return res, unc
+    res = dataclasses.replace(res, u=res.u.astype(dtype), strain=res.strain.astype(dtype),
+                              rotation=res.rotation.astype(dtype))
+    return res, None if unc is None else {k: v.astype(dtype) for k, v in unc.items()}
+
+
 class _InMemory:
     """Collects the states' maps for a :class:`SeriesResult` held in memory."""
 
-    def __init__(self, n_states: int):
-        self.n = n_states
+    def __init__(self, n_states: int, dtype=None):
+        self.n, self.dtype = n_states, dtype
         self.measurements, self.orders, self.unc = [], [], []
         self.floors, self.smoothing = [], []
 
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        return False
+
     def add(self, i: int, res: Measurement, rec: FringeOrder, unc, floors: dict,
             smooth: dict) -> None:
+        res, unc = _as_dtype(res, unc, self.dtype)
         self.measurements.append(res)
         self.orders.append(rec)
         self.unc.append(unc)

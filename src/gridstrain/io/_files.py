@@ -281,6 +281,120 @@ def hdf5_file(path, *, overwrite: bool = False) -> Iterator[h5py.File]:
     write_atomic(dest, image, overwrite=overwrite)
 
 
+class _FdFile(io.RawIOBase):
+    """A binary file on a descriptor, read and written with this module's ``os`` calls
+    only (so that every byte HDF5 writes goes through the same calls as
+    :func:`write_atomic`'s).
+
+    A write that fails (a full disk, a size limit, a signal's exception) is recorded
+    and, like every write after it, reported to HDF5 as done: the library must
+    never see a failing file (it would keep it open, and tear it down at exit from
+    a closed descriptor); the writer raises the recorded error once HDF5 returns
+    (:meth:`HDF5Stream.check`), and the file is discarded.
+    """
+
+    def __init__(self, path: Path):
+        super().__init__()
+        self.fd = os.open(path, os.O_RDWR | os.O_CREAT | os.O_EXCL, 0o666)
+        self.error: BaseException | None = None
+
+    def readable(self) -> bool:
+        return True
+
+    def writable(self) -> bool:
+        return True
+
+    def seekable(self) -> bool:
+        return True
+
+    def readinto(self, b) -> int:
+        return os.readv(self.fd, [b])
+
+    def write(self, b) -> int:
+        view = memoryview(b).cast("B")
+        if self.error is None:
+            try:
+                done = 0
+                while done < len(view):
+                    done += os.write(self.fd, view[done:])
+            except BaseException as exc:
+                self.error = exc
+        return len(view)
+
+    def seek(self, offset: int, whence: int = 0) -> int:
+        return os.lseek(self.fd, offset, whence)
+
+    def tell(self) -> int:
+        return os.lseek(self.fd, 0, os.SEEK_CUR)
+
+    def truncate(self, size=None) -> int:
+        size = self.tell() if size is None else size
+        if self.error is None:
+            os.ftruncate(self.fd, size)
+        return size
+
+    def close(self) -> None:
+        if not self.closed:
+            os.close(self.fd)
+        super().close()
+
+
+class HDF5Stream:
+    """An HDF5 file being written to disk (see :func:`hdf5_stream`).
+
+    Attributes
+    ----------
+    file : h5py.File
+        The file to fill.
+    """
+
+    def __init__(self, file: h5py.File, raw: _FdFile):
+        self.file = file
+        self._raw = raw
+
+    def check(self) -> None:
+        """Raise the error of a write that failed since the file was opened."""
+        if self._raw.error is not None:
+            raise self._raw.error
+
+
+@contextlib.contextmanager
+def hdf5_stream(path, *, overwrite: bool = False) -> Iterator[HDF5Stream]:
+    """An HDF5 file written to disk as it is filled, put at ``path`` atomically when
+    the block ends.
+
+    For files too large to build in memory (:func:`hdf5_file`): a result written
+    state by state. The file goes to a temporary file next to ``path``
+    (:func:`atomic_path`) through h5py's file-object driver, whose every write is
+    an ``os.write`` of this module. A write that fails (a full disk, a file size
+    limit, a signal) is raised as itself (one ``OSError`` naming ``path`` for lack
+    of room) at the next :meth:`HDF5Stream.check` or when the block ends, and the
+    temporary file is removed: nothing appears at ``path``.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        Destination (``.h5`` or ``.nc``).
+    overwrite : bool
+        Replace an existing file.
+
+    Yields
+    ------
+    HDF5Stream
+        Its ``file`` is a new, empty :class:`h5py.File`.
+    """
+    with atomic_path(path, overwrite=overwrite) as tmp:
+        raw = _FdFile(tmp)
+        try:
+            with h5py.File(raw, "w") as h5:
+                stream = HDF5Stream(h5, raw)
+                yield stream
+                stream.check()
+            stream.check()  # the last writes happen when the file closes
+        finally:
+            raw.close()
+
+
 def write_hdf5(path, datasets: Mapping[str, np.ndarray], attrs: Mapping | None = None, *,
                groups: Mapping[str, Mapping] | None = None,
                units: Mapping[str, str] | None = None, overwrite: bool = False,
