@@ -8,7 +8,7 @@ For each image size and precision it prints the per-frame time of
 
 * ``exact``: :func:`gridstrain.wft`, both phases and the four exact phase derivatives;
 * ``central``: the same with central-difference derivatives (the private
-  ``gridstrain.wft._wft(..., derivatives="central")``), which costs no FFT beyond
+  ``gridstrain._wft._wft(..., derivatives="central")``), which costs no FFT beyond
   those of the phases but breaks the 1e-7 rad/px derivative bound (printed below);
 * ``floor``: one ``rfft2`` and two complex ``ifft2`` of the padded size wft uses,
   with the same library (scipy.fft) -- the least any FFT implementation of the
@@ -38,7 +38,7 @@ from scipy import fft as sfft
 
 from _common import grid_test_image, interleaved, machine
 from gridstrain import wft
-from gridstrain.wft import _PAD_SIGMAS, _wft
+from gridstrain._wft import _PAD_SIGMAS, _wft
 
 _fft = importlib.import_module("gridstrain._fft")
 
