@@ -1,8 +1,9 @@
 """Windowed Fourier transform of grid images: phases and phase derivatives.
 
-The implementation behind the public module :mod:`gridstrain.wft`. Implements the paper's eqs. (22)-(25) for any two wave vectors; the conventions
-(absolute carrier, centred unit-sum Gaussian, mean removal and zero extension) are
-those of :mod:`gridstrain.conventions`.
+The implementation behind the public module :mod:`gridstrain.wft`: the paper's
+eqs. (22)-(25) for any two wave vectors, with the conventions (absolute carrier,
+centred unit-sum Gaussian, mean removal and zero extension) of
+:mod:`gridstrain.conventions`.
 """
 
 from __future__ import annotations
