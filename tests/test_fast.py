@@ -115,7 +115,7 @@ def test_blocks_of_rows_give_the_same_maps(monkeypatch):
     np.testing.assert_array_equal(blocks.valid, whole.valid)
 
 
-@pytest.mark.parametrize("derivatives", ["exact", "central"])
+@pytest.mark.parametrize("derivatives", ["exact", "fast", "central"])
 def test_two_threads_give_the_same_maps(derivatives):
     # one wave vector per thread, each on its own scratch arrays: the same arithmetic
     # on the same numbers, so identical bits (a shared buffer would show here)
