@@ -7,6 +7,9 @@ Run from the repository root::
 For each image size and precision it prints the per-frame time of
 
 * ``exact``: :func:`gridstrain.wft`, both phases and the four exact phase derivatives;
+* ``fast``: ``gridstrain.wft(..., derivatives="fast")``, one inverse transform per
+  wave vector and the derivatives from ``Psi`` by a least-squares differentiator
+  (their difference from the exact ones is printed below);
 * ``central``: the same with central-difference derivatives (the private
   ``gridstrain._wft._wft(..., derivatives="central")``), which costs no FFT beyond
   those of the phases but breaks the 1e-7 rad/px derivative bound (printed below);
