@@ -23,7 +23,8 @@ PACKAGE = Path(gridstrain.__file__).resolve().parent
 
 CORE = {
     "conventions", "_validation", "_progress", "_fft", "lattice", "_wft", "wft", "kinematics",
-    "stacks", "vibration", "screening", "noise", "uncertainty", "theory", "synthetic",
+    "stacks", "vibration", "screening", "accumulate", "noise", "uncertainty", "theory",
+    "synthetic",
     "kirsch",
 }
 

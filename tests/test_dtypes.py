@@ -195,14 +195,10 @@ def _dask(dt):
     pytest.importorskip("distributed")
     from gridstrain import distributed
 
-    ref, cur = _ref_cur(dt)
+    ref, _ = _ref_cur(dt)
     assert distributed.mean_image_dask(ref).compute().dtype == np.float64
     _check_maps(distributed.method_a_dask(ref, LAT).maps, dt)
     _check_maps(distributed.method_b_dask(ref, LAT).maps, dt)
-    for method in ("A", "B"):
-        (m,) = distributed.measure_states_dask(ref, [cur], lattice=LAT, method=method,
-                                               guess=None)
-        _check_measurement(m, dt)
 
 
 def _estimate_noise_image(dt):
@@ -257,7 +253,7 @@ ENTRY_POINTS = {
     "vibration_report": _vibration_report, "screen_frames": _screen_frames,
     "anscombe": _anscombe, "inverse_anscombe": _anscombe, "estimate_noise": _estimate_noise,
     "detect_lattice": _detect_lattice, "mean_image_dask": _dask, "method_a_dask": _dask,
-    "method_b_dask": _dask, "measure_states_dask": _dask,
+    "method_b_dask": _dask,
     "estimate_noise_image": _estimate_noise_image, "aliasing_bias": _aliasing_bias,
     "smoothing_bias": _smoothing_bias,
 }

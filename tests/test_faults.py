@@ -465,7 +465,7 @@ def test_killed_scheduler_is_one_line_within_bounded_time(data, tmp_path):
                 break
             except OSError:
                 time.sleep(0.1)
-        real = gd._submit_statistics
+        real = gd._submit_pass
 
         def submit(client, *a, **k):
             pending = real(client, *a, **k)
@@ -473,7 +473,7 @@ def test_killed_scheduler_is_one_line_within_bounded_time(data, tmp_path):
             sched.wait()
             return pending
 
-        gd._submit_statistics = submit
+        gd._submit_pass = submit
         try:
             rc = main(["measure", {str(data / 'ref.tif')!r}, {str(data / 'load.tif')!r},
                        "-o", {str(out / 'o.h5')!r}, "--quiet",

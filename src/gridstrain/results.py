@@ -63,8 +63,8 @@ import h5py
 import numpy as np
 
 from . import __version__
+from ._validation import as_path, check_mapping, check_type
 from .io import hdf5_file, write_atomic, write_csv
-from .io._series import _as_path
 from .pipeline import MAP_FIELDS, SeriesResult, _check_pixel_size
 
 __all__ = [
@@ -354,12 +354,9 @@ def save_result(result: SeriesResult, path, *, pixel_size: float | None = None,
     The layout is described in :mod:`gridstrain.results`; ``xarray.open_dataset``
     opens it, :func:`load` reads it back.
     """
-    if not isinstance(result, SeriesResult):
-        raise TypeError(f"result must be a SeriesResult, got {type(result).__name__}")
+    check_type(result, "result", SeriesResult)
     ps, unit = _check_pixel_size(pixel_size, unit)
-    attrs = {} if attrs is None else attrs
-    if not isinstance(attrs, Mapping):
-        raise TypeError(f"attrs must be a dict, got {type(attrs).__name__}")
+    attrs = check_mapping(attrs, "attrs", allow_none=True)
     H, W = result.shape
     n, n_series = result.n_states, len(result.names)
     lat = result.lattice
@@ -376,10 +373,27 @@ def save_result(result: SeriesResult, path, *, pixel_size: float | None = None,
         extra = [(k, v) for k, v in attrs.items() if _root_attr(v) is None]
         if extra:
             _encode(g, [("attrs", dict(extra))], memo)
-    return _as_path(path, "path")
+    return as_path(path, "path")
 
 
 def _write_root(h5, result, ps, unit, attrs, H, W, n, n_series, lat) -> None:
+    """The CF variables and root attributes of a result file (see the module's layout)."""
+    _write_dimensions(h5, result, H, W)
+    _write_maps(h5, result, ps, unit, H, W)
+    _write_vibrations(h5, result, n_series)
+    _write_noise(h5, result, lat)
+    _write_metrology(h5, result)
+    root = _root_attributes(result, ps, unit, lat)
+    for key, value in attrs.items():
+        root[_check_key(key, "attrs")] = value
+    for key, value in root.items():
+        stored = _root_attr(value)
+        if stored is not None:
+            h5.attrs[key] = stored
+
+
+def _write_dimensions(h5, result, H: int, W: int) -> None:
+    """The coordinate variables every other variable is laid out on."""
     T = max(result.n_frames)
     _dim(h5, "state", np.array(result.names[1:]), None, "loaded state")
     _dim(h5, "y", np.arange(H, dtype=np.float64), "px", "row (y, downwards)")
@@ -391,6 +405,11 @@ def _write_root(h5, result, ps, unit, attrs, H, W, n, n_series, lat) -> None:
          "strain component")
     _dim(h5, "wave_vector", np.array(["k1", "k2"]), None, "wave vector of the grid")
     _dim(h5, "axis", np.array(["x", "y"]), None, "image axis")
+
+
+def _write_maps(h5, result, ps, unit, H: int, W: int) -> None:
+    """Maps of every state (px values, and physical ones with a pixel size), their
+    predicted standard deviations, the mean reference frame and the mask."""
     maps = ("state", "y", "x")
     coords = ""
     if ps is not None:
@@ -416,6 +435,11 @@ def _write_root(h5, result, ps, unit, attrs, H, W, n, n_series, lat) -> None:
          "mean reference frame, raw grey levels", **extra)
     _var(h5, "mask", result.mask, ("y", "x"), None,
          "specimen mask used (given mask less regions without a grid)", **extra)
+
+
+def _write_vibrations(h5, result, n_series: int) -> None:
+    """The frame shifts of every series and their statistics."""
+    T = max(result.n_frames)
     # vibrations, padded with NaN after the last frame of a shorter series
     shifts = np.full((n_series, T, 2), np.nan)
     for i, v in enumerate(result.vibration):
@@ -433,6 +457,11 @@ def _write_root(h5, result, ps, unit, attrs, H, W, n, n_series, lat) -> None:
     _var(h5, "vibration_phase_offset_std",
          np.array([v.phase_offset_std for v in result.vibration]),
          ("series", "wave_vector"), "rad", "std of the vibration phase offset (eq. 31)")
+
+
+def _write_noise(h5, result, lat) -> None:
+    """The noise floor of every state, the sensor noise and modulus of every series,
+    and the wave vectors."""
     nf = result.noise
     for name, dims, u, text in (
             ("theory_u", ("state", "u_component"), "px", "noise floor, theory"),
@@ -450,7 +479,11 @@ def _write_root(h5, result, ps, unit, attrs, H, W, n, n_series, lat) -> None:
          "median modulus |Psi| of the phase maps, raw grey levels")
     _var(h5, "lattice_k", np.array([lat.k1, lat.k2]), ("wave_vector", "axis"),
          "cycles/px", "wave vectors of the grid")
-    _write_metrology(h5, result)
+
+
+def _root_attributes(result, ps, unit, lat) -> dict:
+    """The file's root attributes (CF and gridstrain's), before the caller's ``attrs``."""
+    nf = result.noise
     root = {
         "Conventions": "CF-1.10",
         "title": "gridstrain displacement and strain maps",
@@ -475,12 +508,7 @@ def _write_root(h5, result, ps, unit, attrs, H, W, n, n_series, lat) -> None:
     }
     if ps is not None:
         root.update(pixel_size=ps, unit=unit)
-    for key, value in attrs.items():
-        root[_check_key(key, "attrs")] = value
-    for key, value in root.items():
-        stored = _root_attr(value)
-        if stored is not None:
-            h5.attrs[key] = stored
+    return root
 
 
 def _write_metrology(h5, result) -> None:
@@ -513,7 +541,7 @@ def _write_metrology(h5, result) -> None:
 
 
 def _open(path) -> h5py.File:
-    p = _as_path(path, "path")
+    p = as_path(path, "path")
     if not p.is_file():
         raise FileNotFoundError(f"result file {p} does not exist")
     try:
@@ -614,7 +642,7 @@ def to_xarray(result_or_path, *, pixel_size: float | None = None, unit: str | No
                             unit=unit)
             with xr.open_dataset(p, engine="h5netcdf") as ds:
                 return ds.load()
-    with xr.open_dataset(_as_path(result_or_path, "path"), engine="h5netcdf") as ds:
+    with xr.open_dataset(as_path(result_or_path, "path"), engine="h5netcdf") as ds:
         return ds.load()
 
 
@@ -637,8 +665,7 @@ def export_mat(result: SeriesResult, path, *, pixel_size: float | None = None,
     """
     from scipy.io import savemat
 
-    if not isinstance(result, SeriesResult):
-        raise TypeError(f"result must be a SeriesResult, got {type(result).__name__}")
+    check_type(result, "result", SeriesResult)
     ps, unit = _phys(result, pixel_size, unit)
     H, W = result.shape
 
@@ -662,7 +689,7 @@ def export_mat(result: SeriesResult, path, *, pixel_size: float | None = None,
     data["k1"], data["k2"] = np.array(result.lattice.k1), np.array(result.lattice.k2)
     data["sigma"], data["method"] = result.sigma, result.method
     data["mask"] = result.mask
-    dest = _as_path(path, "path")
+    dest = as_path(path, "path")
     # built in memory, then written: a full disk is one line naming the file
     return write_atomic(dest, lambda fh: savemat(fh, data, do_compression=True,
                                                  oned_as="column"), overwrite=overwrite)
@@ -690,8 +717,7 @@ def export_vtk(result: SeriesResult, path, *, pixel_size: float | None = None,
     unless the camera looks along +z with y down). Point arrays ``<map>_<state>``
     (``exx_state_0``...), NaN where not valid, and ``valid_<state>`` (0/1).
     """
-    if not isinstance(result, SeriesResult):
-        raise TypeError(f"result must be a SeriesResult, got {type(result).__name__}")
+    check_type(result, "result", SeriesResult)
     ps, unit = _phys(result, pixel_size, unit)
     s = 1.0 if ps is None else ps
     H, W = result.shape
@@ -712,7 +738,7 @@ def export_vtk(result: SeriesResult, path, *, pixel_size: float | None = None,
             f'    <Piece Extent="{extent}">\n      <PointData>\n'
             + "".join(arrays) + "      </PointData>\n    </Piece>\n  </ImageData>\n"
             "</VTKFile>\n")
-    dest = _as_path(path, "path")
+    dest = as_path(path, "path")
     return write_atomic(dest, text.encode("ascii"), overwrite=overwrite)
 
 
@@ -739,8 +765,7 @@ def save_csv(result: SeriesResult, path, *, pixel_size: float | None = None,
         Significant digits of floats (default 7); ``None`` writes each float64 as
         its shortest exact decimal.
     """
-    if not isinstance(result, SeriesResult):
-        raise TypeError(f"result must be a SeriesResult, got {type(result).__name__}")
+    check_type(result, "result", SeriesResult)
     ps, unit = _phys(result, pixel_size, unit)
     st, yy, xx = np.nonzero(result.valid)
     cols = {"state": st, "x [px]": xx, "y [px]": yy}
@@ -771,7 +796,7 @@ def export(result: SeriesResult, stem, formats, *, pixel_size: float | None = No
         if f not in writers:
             raise ValueError(f"export format must be one of {', '.join(writers)}, got "
                              f"{f!r}")
-    stem = _as_path(stem, "stem")
+    stem = as_path(stem, "stem")
     for f in formats:
         fn, ext = writers[f]
         out[f] = fn(result, stem.with_name(stem.name + ext), pixel_size=pixel_size,

@@ -25,7 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import theory
-from ._validation import as_image
+from ._validation import as_image, check_same_shape, check_type
 from .lattice import Lattice
 
 __all__ = ["VibrationReport", "frame_shifts", "vibration_report"]
@@ -207,15 +207,12 @@ def frame_shifts(frames, lattice: Lattice, *, reference=None) -> np.ndarray:
     >>> frame_shifts(shifted, lat).round(4)[:, 0]
     array([-0.1,  0. ,  0.1])
     """
-    if not isinstance(lattice, Lattice):
-        raise TypeError(f"lattice must be a Lattice, got {type(lattice).__name__}")
+    check_type(lattice, "lattice", Lattice)
     coeffs, probe = _frame_coefficients(frames, lattice)
     ref = None
     if reference is not None:
         ref_img = as_image(reference, "reference").astype(np.float64, copy=False)
-        if ref_img.shape != probe.shape:
-            raise ValueError(f"reference must have the frames' shape {probe.shape}, "
-                             f"got {ref_img.shape}")
+        check_same_shape(ref_img.shape, probe.shape, "reference", "the frames")
         probe.check(ref_img, "reference")
         ref = probe(ref_img)
     return _shifts_from_coefficients(coeffs, lattice, ref)
