@@ -67,7 +67,8 @@ class PhaseMaps:
     dphi : (2, 2, H, W) float ndarray
         Phase derivatives, rad/px: ``dphi[j, 0] = d phi_j / dx`` and
         ``dphi[j, 1] = d phi_j / dy``, computed from the analytic derivative of the
-        window, without unwrapping.
+        window (or, with ``wft(..., derivatives="fast")``, a least-squares
+        differentiator of ``Psi``), without unwrapping.
     valid : (H, W) bool ndarray
         Pixels whose window lies inside the image and the mask (up to ``margin``
         standard deviations) and whose moduli show a grid.
