@@ -863,6 +863,7 @@ def _one_wave_vector_fast(V, k, sigma, H, W, nx, psi, dphi, mod, work, *, taps,
     src_buf = work.get("ysrc", (h_max + 2 * m + _YROWS, W), cdtype)
     dy = work.get("dy", (h_max + m + _YROWS, W), cdtype)
     cc = work.get("cc", ((h_max + m + _YROWS) * W,), cdtype)
+    rinv = work.get("rinv", ((h_max + m + _YROWS) * W,), rdtype)
     it = np.dtype(rdtype).itemsize
 
     def rows_of_psi(lo, hi):
@@ -876,15 +877,17 @@ def _one_wave_vector_fast(V, k, sigma, H, W, nx, psi, dphi, mod, work, *, taps,
         return out
 
     def along_y(y0, y1):
-        # rows y0..y1: d phi/dy = Im(conj(psi) D psi) times 1/|psi|^2, which
-        # dphi[1, y0:y1] holds
+        # rows y0..y1: d phi/dy = Im(conj(psi) D psi) / |psi|^2
         n = -(-(y1 - y0) // _YROWS) * _YROWS
         src = rows_of_psi(y0 - m, y0 + n + m)
         _filter_rows(Ty, src.view(rdtype), dy[:n].view(rdtype))
         c = cc[:(y1 - y0) * W].reshape(y1 - y0, W)
         np.conjugate(psi[y0:y1], out=c)
         np.multiply(dy[:y1 - y0], c, out=c)
-        np.multiply(dphi[1, y0:y1], c.imag, out=dphi[1, y0:y1])
+        inv = rinv[:(y1 - y0) * W].reshape(y1 - y0, W)
+        np.square(mod[y0:y1], out=inv)
+        np.reciprocal(inv, out=inv)  # inf where Psi = 0: d phi is NaN there, as 0/0
+        np.multiply(c.imag, inv, out=dphi[1, y0:y1])
 
     done = 0  # rows whose y derivative is computed
     Ne = H + 2 * m
@@ -911,7 +914,7 @@ def _one_wave_vector_fast(V, k, sigma, H, W, nx, psi, dphi, mod, work, *, taps,
             i0, i1 = y0 - e0 + m, y1 - e0 + m
             np.copyto(psi[y0:y1], P[m:m + W, i0:i1].T)
             np.abs(psi[y0:y1], out=mod[y0:y1])
-            inv = dphi[1, y0:y1]
+            inv = rinv[:(y1 - y0) * W].reshape(y1 - y0, W)
             np.square(mod[y0:y1], out=inv)
             np.reciprocal(inv, out=inv)  # inf where Psi = 0: d phi is NaN there, as 0/0
             # along x: a matrix product per tile of _TILE output rows of the block
