@@ -301,9 +301,10 @@ def wft(image, lattice: Lattice, *, sigma: float | None = None, mask=None,
     even on pure noise (measured: 1e-8), and measures 2e-10 to 5e-10 rad/px on
     noisy grid images (tests/test_wft.py). In float32, differences of neighbouring
     samples amplify the rounding of ``Psi``: 3e-7 rad/px on a grid image, against
-    3e-8 for the exact float32 path. A narrower window would need more taps than the exact
-    path costs: the exact derivatives are then computed. About 15 % faster than
-    the exact path at 1040 x 1376 px, sigma = 5 px (``benchmarks/bench_wft.py``).
+    3e-8 for the exact float32 path. A window narrower than about 3.5 px would need
+    more taps than the exact path costs: the exact derivatives are then computed.
+    10 to 15 % faster than the exact path at 1040 x 1376 px, sigma = 5 px
+    (``benchmarks/bench_wft.py``).
 
     Near the border or a mask edge the window is cut: results there are biased
     (for a noise-free grid at sigma = pitch, phase errors of 3e-3 rad at 2 sigma
