@@ -21,8 +21,7 @@ import pytest
 
 import gridstrain
 from gridstrain import Lattice, pipeline, screening, stacks, uncertainty
-
-gridstrain_wft = importlib.import_module("gridstrain.wft")  # the module, not the function
+from gridstrain.wft import wft_complex
 
 LAT = Lattice.from_pitch(5.0)
 N = 64
@@ -233,7 +232,7 @@ def _wft_complex(dt):
     # dt: the caller names the precision of the maps (that of its frames)
     ref, _ = _ref_cur(dt)
     z = np.stack([ref[0], ref[0]]).astype(np.complex128)
-    _check_maps(gridstrain_wft.wft_complex(z, LAT, dtype=_precision(dt)), dt)
+    _check_maps(wft_complex(z, LAT, dtype=_precision(dt)), dt)
 
 
 def _smoothing_bias(dt):
