@@ -141,11 +141,14 @@ from . import theory
 from ._progress import null_progress
 from ._validation import (
     SIGMA_PITCH_RTOL,
+    check_callable,
     check_choice,
     check_float_dtype,
+    check_fraction,
     check_mask,
     check_positive,
     check_sigma,
+    check_type,
     check_workers,
 )
 from .accumulate import PassPlan, SeriesPass
@@ -1501,14 +1504,68 @@ def measure_series(reference, states, *, lattice: Lattice | None = None,
     >>> round(float(np.nanmean(res.strain[0, 0])), 6)
     0.001
     """
-    progress = null_progress if progress is None else progress
-    if not callable(progress):
-        raise TypeError(f"progress must be callable or None, got {progress!r}")
+    o = _setup(method=method, outliers=outliers, margin=margin, sigma=sigma, order=order,
+               sigma_pitches=sigma_pitches, max_saturation=max_saturation, lattice=lattice,
+               scheduler=scheduler, timeout=timeout, noise_model=noise_model, dtype=dtype,
+               output=output, lagrangian=lagrangian, bit_depth=bit_depth, guess=guess)
+    progress = null_progress if check_callable(progress, "progress") is None else progress
+    series, guesses, m = _inputs(reference, states, guess, mask, o)
+    steps = _Steps(progress, _total_cost(series, o))
+    # how the frames were read (colour converted, lossy JPEG), series by series
+    warnings: list[str] = [n for s in series for n in getattr(s, "notes", ())]
+    warnings += _glob_warning(series)
+    o = _window(series[0], m, o, steps)
+    return _measure(series, guesses, m, o, steps, warnings, progress)
+
+
+@dataclass(frozen=True, eq=False)
+class _Setup:
+    """A measurement's options, checked once at the door and passed inward; the
+    lattice and ``sigma`` are completed by :func:`_window` once the reference is
+    seen."""
+
+    method: str
+    outliers: str
+    margin: float
+    sigma: float | None
+    order: str
+    sigma_pitches: float | None
+    max_saturation: float
+    lattice: Lattice | None
+    detected: bool
+    scheduler: object
+    timeout: float | None
+    noise_model: NoiseModel | None
+    dtype: np.dtype | None
+    output: object
+    lagrangian: bool
+    bit_depth: int | None
+    guess: object
+
+    def parameters(self) -> dict:
+        """The options as the result records them."""
+        lat = self.lattice
+        return {
+            "sigma": float(self.sigma), "method": self.method,
+            "lagrangian": bool(self.lagrangian), "guess": _guess_parameter(self.guess),
+            "order": self.order, "margin": float(self.margin),
+            "max_saturation": float(self.max_saturation), "bit_depth": self.bit_depth,
+            "outliers": self.outliers,
+            "lattice": None if self.detected else {"k1": list(lat.k1), "k2": list(lat.k2)},
+            "noise_model": None if self.noise_model is None else self.noise_model.as_dict(),
+            "sigma_pitches": self.sigma_pitches,
+            "dtype": None if self.dtype is None else str(self.dtype)}
+
+
+def _setup(*, method, outliers, margin, sigma, order, sigma_pitches, max_saturation,
+           lattice, scheduler, timeout, noise_model, dtype, output, lagrangian, bit_depth,
+           guess) -> _Setup:
+    """The options of :func:`measure_series`, checked."""
     check_choice(method, "method", ("A", "B", "C"))
     check_choice(outliers, "outliers", OUTLIER_POLICIES)
+    check_choice(order, "order", ORDERS)
     margin = check_positive(margin, "margin")
     sigma = check_positive(sigma, "sigma", allow_none=True)
-    check_choice(order, "order", ORDERS)
     if sigma_pitches is not None:
         if sigma is not None:
             raise ValueError(f"give sigma or sigma_pitches, not both (got sigma={sigma!r}, "
@@ -1518,15 +1575,8 @@ def measure_series(reference, states, *, lattice: Lattice | None = None,
             raise ValueError(f"sigma_pitches must be at least 1 (the window must hold one "
                              f"period), got {sigma_pitches!r}")
         sigma_pitches = max(sigma_pitches, 1.0)
-    if isinstance(max_saturation, bool) or not isinstance(max_saturation, numbers.Real) \
-            or not 0 <= max_saturation <= 1:
-        raise ValueError(f"max_saturation must be a fraction in [0, 1], got "
-                         f"{max_saturation!r}")
-    if lattice is not None and not isinstance(lattice, Lattice):
-        raise TypeError(f"lattice must be a Lattice or None, got {type(lattice).__name__}")
-    scheduler = _check_scheduler(scheduler)
-    timeout = check_positive(timeout, "timeout", allow_none=True)
-    given_model = _check_noise_model(noise_model)
+    max_saturation = check_fraction(max_saturation, "max_saturation")
+    check_type(lattice, "lattice", Lattice, allow_none=True)
     if sigma is not None and lattice is not None:
         sigma = check_sigma(sigma, lattice.pitch)
     dtype = check_float_dtype(dtype, "dtype")
@@ -1538,63 +1588,80 @@ def measure_series(reference, states, *, lattice: Lattice | None = None,
             raise ValueError(f"dtype={dtype} and output's dtype={output.dtype} disagree")
         dtype = output.dtype if dtype is None else dtype
         output = dataclasses.replace(output, dtype=dtype)
+    return _Setup(method=method, outliers=outliers, margin=margin, sigma=sigma, order=order,
+                  sigma_pitches=sigma_pitches, max_saturation=max_saturation,
+                  lattice=lattice, detected=lattice is None,
+                  scheduler=_check_scheduler(scheduler),
+                  timeout=check_positive(timeout, "timeout", allow_none=True),
+                  noise_model=_check_noise_model(noise_model), dtype=dtype, output=output,
+                  lagrangian=bool(lagrangian), bit_depth=bit_depth, guess=guess)
 
-    ref = _as_series(reference, "reference", bit_depth)
+
+def _inputs(reference, states, guess, mask, o: _Setup) -> tuple[list, list, np.ndarray]:
+    """The series (reference first), one guess per state and the mask, checked
+    against each other."""
+    ref = _as_series(reference, "reference", o.bit_depth)
     raw_states = _as_states(states)
-    guesses = _check_guess(guess, len(raw_states), order)
-    series = [ref] + [_as_series(s, name, bit_depth)
+    guesses = _check_guess(guess, len(raw_states), o.order)
+    series = [ref] + [_as_series(s, name, o.bit_depth)
                       for s, name in zip(raw_states, state_names(raw_states), strict=True)]
     for s in series[1:]:
         if s.shape != ref.shape:
             raise ValueError(f"{s.name}: frames are {s.shape} (H, W) but the reference "
                              f"frames are {ref.shape}")
-    _check_fit(ref.shape, sigma, margin, guesses)
-    if lattice is not None:
-        _check_pitch_fits(ref.shape, lattice.pitch, margin)
+    _check_fit(ref.shape, o.sigma, o.margin, guesses)
+    if o.lattice is not None:
+        _check_pitch_fits(ref.shape, o.lattice.pitch, o.margin)
     if isinstance(mask, str | os.PathLike):
         m = read_mask(mask, ref.shape)
     else:
         m = check_mask(mask, ref.shape)
-
-    # the plan: reading a frame costs 1, a transform ~4 frames' worth
-    wft_cost = _WFT_COST
-    n_states = len(series) - 1
-    detect = lattice is None
-    total = min(ref.n_frames, _LATTICE_FRAMES) + 1.0
-    for s in series:
-        total += s.n_frames * _pass_cost(method) + 2 * wft_cost
-    total += n_states * (3 * wft_cost if lagrangian else wft_cost)
-    total += 3 * wft_cost
-    steps = _Steps(progress, total)
-    # how the frames were read (colour converted, lossy JPEG), series by series
-    warnings: list[str] = [n for s in series for n in getattr(s, "notes", ())]
-    warnings += _glob_warning(series)
     for i, g in enumerate(guesses):
         if isinstance(g, np.ndarray) and g.shape != (2, *ref.shape):
             raise ValueError(f"guess for {series[i + 1].name} must be a (u_x, u_y) pair or "
                              f"a field of shape {(2, *ref.shape)}, got shape {g.shape}")
+    return series, guesses, m
 
-    # the lattice, detected on (or checked against) the mean of a few reference frames
+
+def _total_cost(series: list, o: _Setup) -> float:
+    """The measurement's cost for its progress: reading a frame costs 1, a transform
+    about 4 frames' worth."""
+    total = min(series[0].n_frames, _LATTICE_FRAMES) + 1.0
+    for s in series:
+        total += s.n_frames * _pass_cost(o.method) + 2 * _WFT_COST
+    total += (len(series) - 1) * (3 * _WFT_COST if o.lagrangian else _WFT_COST)
+    return total + 3 * _WFT_COST
+
+
+def _window(ref, m: np.ndarray, o: _Setup, steps: _Steps) -> _Setup:
+    """The options completed with the lattice, detected on (or checked against) the
+    mean of a few reference frames, and the window's ``sigma``."""
     mean_ref = _lattice_image(ref, steps.sub(min(ref.n_frames, _LATTICE_FRAMES), ""))
-    if detect:
-        lattice = _detect(mean_ref, ref, m, margin)
-    if sigma_pitches is not None:
-        sigma = sigma_pitches * lattice.pitch
+    lattice = _detect(mean_ref, ref, m, o.margin) if o.detected else o.lattice
+    sigma = o.sigma if o.sigma_pitches is None else o.sigma_pitches * lattice.pitch
     sigma = check_sigma(sigma, lattice.pitch)
-    _check_fit(ref.shape, sigma, margin)
-    if not detect:
-        _check_given_lattice(mean_ref, lattice, sigma, m, margin)
+    _check_fit(ref.shape, sigma, o.margin)
+    if not o.detected:
+        _check_given_lattice(mean_ref, lattice, sigma, m, o.margin)
     steps.step(1.0, "lattice")
+    return dataclasses.replace(o, lattice=lattice, sigma=float(sigma))
 
-    # one pass over every series (screening, shifts, statistics, the halves of the
-    # noise floor, method B's or C's sums), the flagged frames then taken out; the
-    # states are measured one after the other, each dropped once measured
-    plans = [_plan(s, lattice, method, sigma, margin, m, s is ref) for s in series]
-    _check_model_units(given_model, series)
+
+def _measure(series: list, guesses: list, m: np.ndarray, o: _Setup, steps: _Steps,
+             warnings: list, progress: Progress) -> SeriesResult:
+    """One pass over every series (screening, shifts, statistics, the halves of the
+    noise floor, method B's or C's sums), the flagged frames then taken out; the
+    states measured one after the other, each dropped once measured."""
+    lattice, sigma, method = o.lattice, o.sigma, o.method
+    n_states = len(series) - 1
+    plans = [_plan(s, lattice, method, sigma, o.margin, m, k == 0)
+             for k, s in enumerate(series)]
+    _check_model_units(o.noise_model, series)
     f32 = all(np.dtype(s.dtype) == np.float32 for s in series)
-    kin = 3 * wft_cost if lagrangian else wft_cost
-    sink = _InMemory(n_states, dtype) if output is None else _streamed(output, n_states)
-    with sink, _connect(scheduler) as client:
+    kin = 3 * _WFT_COST if o.lagrangian else _WFT_COST
+    sink = _InMemory(n_states, o.dtype) if o.output is None else _streamed(o.output,
+                                                                           n_states)
+    with sink, _connect(o.scheduler) as client:
         pending = None if client is None else [
             _dist()._submit_pass(client, s, plan) for s, plan in zip(series, plans,
                                                                       strict=True)]
@@ -1605,22 +1672,22 @@ def measure_series(reference, states, *, lattice: Lattice | None = None,
             if client is None:
                 acc = _run_pass(s, plans[k], steps.sub(n * _pass_cost(method), s.name))
             else:  # the cluster worked while this machine read the other series
-                acc = pending[k].result(timeout)
+                acc = pending[k].result(o.timeout)
                 pending[k] = None
                 steps.step(n * _pass_cost(method), f"{s.name}: one pass")
-            out = _one_series(s, acc, m if k == 0 else None, max_saturation, outliers,
+            out = _one_series(s, acc, m if k == 0 else None, o.max_saturation, o.outliers,
                               method, f32, steps)
             warnings.extend(out.warnings)
             return out, acc
 
         r, ref_pass = one(0)
-        noise = _Noise(given_model, lattice, r.mask, warnings)
+        noise = _Noise(o.noise_model, lattice, r.mask, warnings)
         r = noise.complete(r)
-        floor = _ReferenceFloor(r, ref_pass, lattice, sigma, margin, method,
-                                steps.sub(3 * wft_cost, "noise floor"), warnings)
+        floor = _ReferenceFloor(r, ref_pass, lattice, sigma, o.margin, method,
+                                steps.sub(3 * _WFT_COST, "noise floor"), warnings)
         del ref_pass
-        tracker = _Tracker(r.maps, r.stats.mean, r.mask, lattice, order, lagrangian)
-        alias = aliasing_bias(r.stats.mean, lattice, sigma=float(sigma), mask=r.mask)
+        tracker = _Tracker(r.maps, r.stats.mean, r.mask, lattice, o.order, o.lagrangian)
+        alias = aliasing_bias(r.stats.mean, lattice, sigma=sigma, mask=r.mask)
         done = [r.summary()]
         for i in range(n_states):
             c, acc = one(i + 1)
@@ -1629,8 +1696,8 @@ def measure_series(reference, states, *, lattice: Lattice | None = None,
             res, rec, notes = tracker.measure(c.maps, c.stats.mean, guesses[i], c.name)
             warnings.extend(notes)
             steps.step(kin, f"{c.name}: kinematics")
-            if output is not None and not res.valid.any():  # never a file
-                raise ValueError(empty_state_message(c.name, margin, sigma, rec.guess,
+            if o.output is not None and not res.valid.any():  # never a file
+                raise ValueError(empty_state_message(c.name, o.margin, sigma, rec.guess,
                                                      rec.source))
             sink.add(i, *floor.state(c, res, rec, alias, warnings))
             done.append(c.summary())
@@ -1641,27 +1708,17 @@ def measure_series(reference, states, *, lattice: Lattice | None = None,
         for d in done:
             warnings.extend(d.saturation_warnings)
         progress(1.0, "done")
-
-        parameters = {
-            "sigma": float(sigma), "method": method, "lagrangian": bool(lagrangian),
-            "guess": _guess_parameter(guess), "order": order, "margin": float(margin),
-            "max_saturation": float(max_saturation), "bit_depth": bit_depth,
-            "outliers": outliers,
-            "lattice": None if detect else {"k1": list(lattice.k1), "k2": list(lattice.k2)},
-            "noise_model": None if given_model is None else given_model.as_dict(),
-            "sigma_pitches": sigma_pitches, "dtype": None if dtype is None else str(dtype)}
-        nf = floor.noise_floor(done, noise.info(done))
         return sink.result(
-            lattice=lattice, lattice_detected=detect, sigma=float(sigma), method=method,
-            lagrangian=bool(lagrangian), margin=float(margin), mask=r.mask.copy(),
+            lattice=lattice, lattice_detected=o.detected, sigma=sigma, method=method,
+            lagrangian=o.lagrangian, margin=float(o.margin), mask=r.mask.copy(),
             reference_image=np.array(r.stats.mean), names=tuple(d.name for d in done),
             sources=tuple(d.sources for d in done), n_frames=tuple(d.T for d in done),
             bit_depth=tuple(d.bit_depth for d in done), scale=tuple(d.scale for d in done),
             saturation=tuple(d.saturation for d in done),
             excluded=tuple(d.excluded for d in done),
             screening=tuple(d.screening for d in done), vibration=tuple(d.vib for d in done),
-            noise=nf, parameters=parameters, warnings=tuple(warnings),
-            metrology=metrology(sink.floors, float(sigma)),
+            noise=floor.noise_floor(done, noise.info(done)), parameters=o.parameters(),
+            warnings=tuple(warnings), metrology=metrology(sink.floors, sigma),
             systematic={"aliasing": alias, "smoothing": sink.smoothing})
 
 
