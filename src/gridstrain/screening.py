@@ -400,7 +400,7 @@ def decide(records, probe: FrameProbe, *, max_saturation: float = 0.01) -> Frame
     if not grid.any():
         raise ValueError(f"no frame shows a grid at the lattice's wave vectors: the carrier "
                          f"stands at most {float(prom.min(axis=1).max()):.3g} times above the "
-                         "level of white noise (a grid gives 0.24 per px of side); check the "
+                         "level of white noise (a grid gives tens to hundreds); check the "
                          "lattice")
     T = coeffs.shape[0]
     mod = np.abs(coeffs)
