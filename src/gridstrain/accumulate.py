@@ -351,6 +351,18 @@ class SeriesPass:
             how = f"temporal variance, vibrations not removed ({dof} dof)"
         return SeriesStatistics(mean, np.maximum(svv, 0.0) / dof, how, T)
 
+    def release(self, *, keep_halves: bool = False) -> None:
+        """Free the pixel sums once :meth:`statistics` is taken, keeping what the
+        results still to come need: method B's transforms, method C's realigned
+        sums, and with ``keep_halves`` the halves' sums (:meth:`half_means`).
+        Afterwards only those results can be asked for."""
+        self._flush()
+        self.sq = self._tmp = None
+        self._buf = np.empty((1, 0))
+        if self.plan.method == "C":
+            return  # its rows follow the halves' sums in the same array
+        self.lin = np.array(self.lin[:2]) if keep_halves else None
+
     def half_counts(self) -> tuple[int, int]:
         """Frames kept in each half."""
         kept = self.kept
