@@ -14,7 +14,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import linalg, ndimage, stats
+from scipy import linalg, ndimage
 
 from ._progress import Progress, null_progress
 from ._validation import (
@@ -63,7 +63,7 @@ _MIN_PER_BIN = 20
 # accumulation is one matrix product per buffer instead of one pass per regressor.
 _BUFFER_BYTES = 64 * 2**20
 # Two-sided 95 % normal quantile, for the confidence intervals.
-_Z95 = float(stats.norm.ppf(0.975))
+_Z95 = 1.959963984540054  # the 97.5 % quantile of the normal distribution
 
 
 def anscombe(image, *, K: float, L: float) -> np.ndarray:
@@ -610,6 +610,8 @@ def _truncation_moments(dof, lo, hi):
     ``E[X^2; ...] = (nu + 2) / nu F_{nu+4}``.
     """
     def mass(nu):
+        from scipy import stats  # scipy.stats costs 0.2 s to import: when needed
+
         return stats.chi2.cdf(hi * dof, nu) - stats.chi2.cdf(lo * dof, nu)
 
     p = mass(dof)
@@ -670,6 +672,8 @@ def _fit_variance(level, var, dof, n_bins):
     idx = np.clip(np.searchsorted(edges, level, side="right") - 1, 0, nb - 1)
 
     # Robust start: per-bin medians, corrected by the median of chi2_dof / dof.
+    from scipy import stats  # scipy.stats costs 0.2 s to import: when needed
+
     med_corr = float(stats.chi2.median(dof)) / dof
     counts = np.bincount(idx, minlength=nb)
     order = np.argsort(idx, kind="stable")
@@ -809,6 +813,8 @@ def _clipped_variance(r: np.ndarray) -> float:
     """Variance of zero-mean Gaussian samples ``r`` with outliers rejected."""
     c = _CLIP
     # E[X^2 | |X| <= c] / Var for a standard normal
+    from scipy import stats  # scipy.stats costs 0.2 s to import: when needed
+
     kappa = 1 - 2 * c * stats.norm.pdf(c) / (2 * stats.norm.cdf(c) - 1)
     s2 = (float(np.median(np.abs(r))) / stats.norm.ppf(0.75)) ** 2
     for _ in range(20):
