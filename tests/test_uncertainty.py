@@ -2,6 +2,7 @@
 
 import numpy as np
 import pytest
+from numpy.testing import assert_allclose, assert_array_equal
 
 from gridstrain import Lattice, synthetic, wft
 from gridstrain.stacks import method_b, method_c
@@ -135,3 +136,23 @@ def test_variance_stabilisation_before_the_wft_would_bias_the_displacement():
     # plain: the edge bias at 4 sigma only (~5e-6 px); stabilised: we measure -7e-3 px
     assert abs(np.nanmean(plain.ux) - 0.3) < 1e-5
     assert abs(np.nanmean(gat.ux) - 0.3) > 1e-3
+
+
+def test_displacement_strain_std_is_predict_uncertainty_without_its_phase_maps():
+    """The pipeline's lean path (two variance maps instead of twenty) gives the same
+    u and strain standard deviations as the full prediction, to float rounding."""
+    from gridstrain.uncertainty import displacement_strain_std
+
+    lat = Lattice.from_pitch(5.0)
+    rng = np.random.default_rng(4)
+    a = synthetic.grid_image((96, 112), lat) + rng.normal(0, 0.01, (96, 112))
+    b = synthetic.grid_image((96, 112), lat) + rng.normal(0, 0.01, (96, 112))
+    pa, pb = wft(a, lat), wft(b, lat)
+    v = 1e-4 * (1 + rng.random(a.shape))  # a varying sensor variance, grey levels^2
+    valid = pa.valid & pb.valid
+    full = predict_uncertainty(pa, pb, variance_ref=v, variance_def=2 * v, valid=valid)
+    u, e = displacement_strain_std(pa, pb, variance_ref=v, variance_def=2 * v, valid=valid)
+    assert_array_equal(np.isnan(u), np.isnan(full.u_std))
+    # the same sums in another order: a few ulps
+    assert_allclose(u[:, valid], full.u_std[:, valid], rtol=1e-14)
+    assert_allclose(e[:, valid], full.strain_std[:, valid], rtol=1e-14)

@@ -169,7 +169,12 @@ from .lattice import Lattice, detect_lattice
 from .noise import NoiseModel, estimate_noise_image
 from .screening import FrameScreen
 from .stacks import _FrameOrder, _map_bounded, method_b
-from .uncertainty import aliasing_bias, metrology, predict_uncertainty, smoothing_bias
+from .uncertainty import (
+    aliasing_bias,
+    displacement_strain_std,
+    metrology,
+    smoothing_bias,
+)
 from .wft import DEFAULT_MARGIN, PhaseMaps, finite_derivatives, wft
 
 __all__ = [
@@ -1978,10 +1983,11 @@ class _ReferenceFloor:
         v_def = local if local is not None else self.local_ref
         if v_ref is None:
             return None
-        unc = predict_uncertainty(self.r.maps, c.maps, variance_ref=v_ref / self.sr.T,
-                                  variance_def=v_def / c.series.n_frames, valid=res.valid)
+        u_std, strain_std = displacement_strain_std(
+            self.r.maps, c.maps, variance_ref=v_ref / self.sr.T,
+            variance_def=v_def / c.series.n_frames, valid=res.valid)
         names = ("ux_std", "uy_std", "exx_std", "eyy_std", "exy_std")
-        return dict(zip(names, (*unc.u_std, *unc.strain_std), strict=True))
+        return dict(zip(names, (*u_std, *strain_std), strict=True))
 
     def noise_floor(self, done: list, model_info: dict) -> NoiseFloor:
         n = len(done) - 1
