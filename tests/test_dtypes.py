@@ -139,6 +139,14 @@ def _predict_uncertainty(dt):
     assert all(np.asarray(a).dtype == np.float64 for a in (*u.u_std, *u.strain_std))
 
 
+def _displacement_strain_std(dt):
+    ref, cur = _ref_cur(dt)
+    pa, pb = gridstrain.wft(ref[0], LAT), gridstrain.wft(cur[0], LAT)
+    u, e = uncertainty.displacement_strain_std(pa, pb, variance_ref=4.0, variance_def=4.0,
+                                               valid=pa.valid & pb.valid)
+    assert u.dtype == e.dtype == np.float64  # as predict_uncertainty's
+
+
 def _noise_variance_map(dt):
     ref, _ = _ref_cur(dt)
     v = uncertainty.noise_variance_map(ref[0], K=0.3, L=4.0, sigma=5.0)
@@ -249,6 +257,7 @@ ENTRY_POINTS = {
     "mean_image": _mean_image, "measure": _measure, "deformation": _deformation,
     "coarse_displacement": _coarse_displacement, "measure_series": _measure_series,
     "predict_uncertainty": _predict_uncertainty, "noise_variance_map": _noise_variance_map,
+    "displacement_strain_std": _displacement_strain_std,
     "noise_floor": _noise_floor, "frame_shifts": _frame_shifts,
     "vibration_report": _vibration_report, "screen_frames": _screen_frames,
     "anscombe": _anscombe, "inverse_anscombe": _anscombe, "estimate_noise": _estimate_noise,
