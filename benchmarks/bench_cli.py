@@ -73,6 +73,27 @@ def fft_floor_cpu(shape, sigma: float, dtype, repeat: int) -> float:
     return min(times)
 
 
+def profile(cli, measure_args, env, n: int, tmp: str) -> None:
+    """Run ``measure`` under cProfile and print its ``n`` heaviest gridstrain functions."""
+    import pstats
+
+    stats_file = str(Path(tmp) / "measure.prof")
+    module = cli[cli.index("-m") + 1]
+    run_child([sys.executable, "-m", "cProfile", "-o", stats_file, "-m", module, "measure",
+               *measure_args], env)
+    stats = pstats.Stats(stats_file)
+    rows = [(v[3], v[2], v[1], k) for k, v in stats.stats.items()
+            if "gridstrain" in k[0] and "/cli/" not in k[0]]
+    rows.sort(reverse=True)
+    print()
+    print(f"profile of measure {' '.join(measure_args[-2:])} (main thread; total "
+          f"{stats.total_tt:.2f} s):")
+    print(f"{'cumulative s':>12} {'own s':>8} {'calls':>7}  function")
+    for cum, own, calls, (path, line, func) in rows[:n]:
+        where = path.split("gridstrain/", 1)[-1]
+        print(f"{cum:>12.2f} {own:>8.2f} {calls:>7}  {func} ({where}:{line})")
+
+
 def best(runs: list[dict]) -> dict:
     return {"cpu": min(r["cpu"] for r in runs), "wall": min(r["wall"] for r in runs)}
 
@@ -94,6 +115,9 @@ def main(argv=None):
     ap.add_argument("--fft-repeat", type=int, default=7, help="calls of the FFT floor")
     ap.add_argument("--quick", action="store_true",
                     help="10 frames of 256x320 per series, to check the script")
+    ap.add_argument("--profile", type=int, default=0, metavar="N",
+                    help="also run each method under cProfile and print its N gridstrain "
+                         "functions of largest cumulative time (main thread only)")
     ap.add_argument("--tmp", default=None, help="folder for the series (default: system temp)")
     args = ap.parse_args(argv)
     if args.quick:
@@ -140,6 +164,10 @@ def main(argv=None):
             for name, cmd in start.items():
                 st[name].append(run_child(cmd, env))
         print(f"after the runs:  {load()}")
+        if args.profile:
+            for m in args.methods:
+                profile(cli, [str(ref), str(state), "-o", out, "--quiet", "--overwrite",
+                              "--method", m, *extra], env, args.profile, tmp)
 
     floor_a = read["cpu"] + 2 * t_fft
     floor_b = 2 * T * t_fft

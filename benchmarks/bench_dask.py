@@ -3,6 +3,7 @@
 Run from the repository root (needs ``pip install "gridstrain[distributed]"``)::
 
     PYTHONPATH=src python benchmarks/bench_dask.py [--frames 100] [--size 1040x1376]
+    PYTHONPATH=src python benchmarks/bench_dask.py --cli       # through the command line
     PYTHONPATH=src python benchmarks/bench_dask.py --quick     # small, under a minute
 
 It writes a reference series and one loaded series of T uint16 TIFF frames each
@@ -18,15 +19,20 @@ maps)
   (``gridstrain.distributed.connect("local", n_workers=n)``: processes, loopback
   interface, dashboard on a free port), passed as ``scheduler=client``.
 
+With ``--cli`` each run is instead ``gridstrain measure REF STATE -o out.h5 --method
+B`` in a child process, given ``--scheduler tcp://127.0.0.1:PORT`` of the cluster
+started here (its result read back with :func:`gridstrain.load`).
+
 The cluster is started and every worker imports gridstrain before the clock
 starts (the start-up is printed apart). Parallelism is what is measured, so the
-figure is the wall-clock time; the CPU time of this process and of the workers
-(psutil) is printed beside it, and the load average before each run: on a machine
-shared with other work the wall times of a 2-core run mean little when the load
-is above 0. Targets: 1 worker / 2 workers >= 1.7 (speed-up), in-process / 2
-workers >= 1 (the cluster not slower than threads). Every run's displacement is
+figure is the wall-clock time; the CPU time of this process (or of the command
+line's child) and of the workers (``os.times`` on each) is printed beside it, and
+the load average before each run: on a machine shared with other work the wall
+times of a 2-core run mean little when the load is above 0. Targets: 1 worker /
+2 workers >= 1.7 (speed-up), in-process / 2 workers >= 1 (the cluster not slower
+than threads). Every run's displacement is
 compared with the in-process one (max |du| over the pixels valid in both: sums
-added in another order, about 1e-12 px).
+added in another order: ~1e-15 px).
 """
 
 from __future__ import annotations
@@ -44,7 +50,7 @@ import warnings
 
 import numpy as np
 
-from _common import child_env, load, machine, write_states
+from _common import child_env, cli_command, load, machine, run_child, write_states
 from bench_wft import parse_size
 
 
@@ -80,18 +86,34 @@ def _worker_cpu(client) -> float:
     return sum(client.run(_cpu_seconds).values())
 
 
-def timed_measure(measure, ref, state, client=None) -> dict:
-    kw = {"method": "B"}
-    if client is not None:
-        kw["scheduler"] = client
+def timed_measure(ref, state, client=None, *, cli=None, out=None) -> dict:
+    """One method-B measurement: through the API, or the command line when ``cli`` is given.
+
+    The wall time, the CPU time here (this process, or the command line's child) and
+    that of the workers, the load before, and the result (read back from the
+    output file for the command line).
+    """
+    import gridstrain
+
     before = load()
     w0 = _worker_cpu(client) if client is not None else 0.0
-    c0, t0 = _cpu_seconds(), time.perf_counter()
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        res = measure(ref, state, **kw)
-    wall = time.perf_counter() - t0
-    cpu = _cpu_seconds() - c0
+    if cli is None:
+        kw = {"method": "B"}
+        if client is not None:
+            kw["scheduler"] = client
+        c0, t0 = _cpu_seconds(), time.perf_counter()
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            res = gridstrain.measure_series(ref, state, **kw)
+        wall, cpu = time.perf_counter() - t0, _cpu_seconds() - c0
+    else:
+        cmd = [*cli, "measure", ref, state, "-o", out, "--quiet", "--overwrite",
+               "--method", "B"]
+        if client is not None:
+            cmd += ["--scheduler", client.scheduler.address]
+        r = run_child(cmd, child_env())
+        wall, cpu = r["wall"], r["cpu"]
+        res = gridstrain.load(out)
     workers = _worker_cpu(client) - w0 if client is not None else 0.0
     return {"wall": wall, "cpu": cpu, "workers_cpu": workers, "load": before, "result": res}
 
@@ -114,6 +136,10 @@ def main(argv=None):
     ap.add_argument("--repeat", type=int, default=1, help="runs of each, best kept (default 1)")
     ap.add_argument("--quick", action="store_true",
                     help="12 frames of 256x320 per series, to check the script")
+    ap.add_argument("--cli", action="store_true",
+                    help="run the command line in a child process instead of the API: "
+                         "gridstrain measure REF STATE --method B [--scheduler ADDRESS of "
+                         "the cluster started here]")
     ap.add_argument("--tmp", default=None, help="folder for the series (default: system temp)")
     args = ap.parse_args(argv)
     if args.quick:
@@ -127,17 +153,23 @@ def main(argv=None):
     os.environ["PYTHONPATH"] = child_env()["PYTHONPATH"]
     from gridstrain import measure_series
 
+    if "scheduler" not in inspect.signature(measure_series).parameters:
+        print("this gridstrain's measure_series takes no scheduler")
+        return 1
+    cli = cli_command() if args.cli else None
     T, (H, W) = args.frames, args.size
     print(f"machine: {machine()}")
-    print(f"method B, 2 series (reference, one loaded state) x {T} frames of {H}x{W} uint16 "
+    print(f"{'gridstrain measure (child process)' if cli else 'measure_series'}: "
+          f"method B, 2 series (reference, one loaded state) x {T} frames of {H}x{W} uint16 "
           f"TIFF, pitch {args.pitch:g} px")
     runs = {}
     with tempfile.TemporaryDirectory(prefix="gridstrain-bench-dask-", dir=args.tmp) as tmp:
         t0 = time.perf_counter()
         ref, state = (str(f) for f in write_states(tmp, args.size, T, 1, pitch=args.pitch))
         print(f"(wrote {2 * T} frames in {time.perf_counter() - t0:.1f} s)")
+        out = os.path.join(tmp, "out.h5")
         name = "in-process (threads)"
-        runs[name] = [timed_measure(measure_series, ref, state) for _ in range(args.repeat)]
+        runs[name] = [timed_measure(ref, state, cli=cli, out=out) for _ in range(args.repeat)]
         for n in args.workers:
             t0 = time.perf_counter()
             with local_client(n) as client:
@@ -146,13 +178,14 @@ def main(argv=None):
                 print(f"(cluster of {n} worker(s) x 1 thread started in "
                       f"{time.perf_counter() - t0:.1f} s)")
                 runs[f"LocalCluster {n} x 1"] = [
-                    timed_measure(measure_series, ref, state, client)
+                    timed_measure(ref, state, client, cli=cli, out=out)
                     for _ in range(args.repeat)]
 
     best = {k: min(v, key=lambda r: r["wall"]) for k, v in runs.items()}
     base = best["in-process (threads)"]
     print()
-    print(f"{'run':<24} {'wall s':>8} {'CPU here s':>11} {'CPU workers s':>14} "
+    here = "CPU child s" if cli else "CPU here s"
+    print(f"{'run':<24} {'wall s':>8} {here:>11} {'CPU workers s':>14} "
           f"{'max |du| px':>12} {'valid differ':>12}  load before")
     for k, r in best.items():
         du, nv = max_du(r["result"], base["result"])
