@@ -23,8 +23,9 @@ With ``--cli`` each run is instead ``gridstrain measure REF STATE -o out.h5 --me
 B`` in a child process, given ``--scheduler tcp://127.0.0.1:PORT`` of the cluster
 started here (its result read back with :func:`gridstrain.load`).
 
-The cluster is started and every worker imports gridstrain before the clock
-starts (the start-up is printed apart). Parallelism is what is measured, so the
+The clusters are started and every worker imports gridstrain before the clock
+starts (the start-up is printed apart); the runs are interleaved, ``--repeat``
+times, the best wall time kept. Parallelism is what is measured, so the
 figure is the wall-clock time; the CPU time of this process (or of the command
 line's child) and of the workers (``os.times`` on each) is printed beside it, and
 the load average before each run: on a machine shared with other work the wall
@@ -133,7 +134,9 @@ def main(argv=None):
     ap.add_argument("--pitch", type=float, default=5.0, help="grid pitch, px (default 5)")
     ap.add_argument("--workers", type=int, nargs="+", default=[1, 2],
                     help="local clusters to run, by number of worker processes (default 1 2)")
-    ap.add_argument("--repeat", type=int, default=1, help="runs of each, best kept (default 1)")
+    ap.add_argument("--repeat", type=int, default=1,
+                    help="interleaved runs of each, best wall time kept (default 1; 3 on "
+                         "a machine shared with other work)")
     ap.add_argument("--quick", action="store_true",
                     help="12 frames of 256x320 per series, to check the script")
     ap.add_argument("--cli", action="store_true",
@@ -168,18 +171,22 @@ def main(argv=None):
         ref, state = (str(f) for f in write_states(tmp, args.size, T, 1, pitch=args.pitch))
         print(f"(wrote {2 * T} frames in {time.perf_counter() - t0:.1f} s)")
         out = os.path.join(tmp, "out.h5")
-        name = "in-process (threads)"
-        runs[name] = [timed_measure(ref, state, cli=cli, out=out) for _ in range(args.repeat)]
-        for n in args.workers:
-            t0 = time.perf_counter()
-            with local_client(n) as client:
+        # every cluster up at once (idle workers cost memory only), the runs interleaved
+        # so that a change of the machine's load spreads over all of them
+        with contextlib.ExitStack() as stack:
+            clients = {"in-process (threads)": None}
+            for n in args.workers:
+                t0 = time.perf_counter()
+                client = stack.enter_context(local_client(n))
                 client.run(_import, "gridstrain.distributed")
                 client.run(_import, "gridstrain.pipeline")
                 print(f"(cluster of {n} worker(s) x 1 thread started in "
                       f"{time.perf_counter() - t0:.1f} s)")
-                runs[f"LocalCluster {n} x 1"] = [
-                    timed_measure(ref, state, client, cli=cli, out=out)
-                    for _ in range(args.repeat)]
+                clients[f"LocalCluster {n} x 1"] = client
+            for _ in range(args.repeat):
+                for name, client in clients.items():
+                    runs.setdefault(name, []).append(
+                        timed_measure(ref, state, client, cli=cli, out=out))
 
     best = {k: min(v, key=lambda r: r["wall"]) for k, v in runs.items()}
     base = best["in-process (threads)"]
