@@ -198,8 +198,23 @@ def main(argv=None):
         du, nv = max_du(r["result"], base["result"])
         print(f"{k:<24} {r['wall']:>8.2f} {r['cpu']:>11.2f} {r['workers_cpu']:>14.2f} "
               f"{du:>12.1e} {nv:>12d}  {r['load']}")
+    if args.repeat > 1:
+        for k, v in runs.items():
+            walls = ", ".join(f"{r['wall']:.1f}" for r in v)
+            print(f"  {k}: wall of every run {walls} s")
     figures = {k: round(r["wall"], 3) for k, r in best.items()}
+    for k, r in best.items():
+        if r["workers_cpu"] > 0:
+            # the part of the work no number of workers shortens: with it run alone, an
+            # n-worker speed-up is at most (here + workers) / (here + workers / n)
+            share = r["cpu"] / (r["cpu"] + r["workers_cpu"])
+            print(f"{k}: {r['cpu']:.1f} s of CPU stay here, {100 * share:.0f} % of the "
+                  "total")
     one, two = best.get("LocalCluster 1 x 1"), best.get("LocalCluster 2 x 1")
+    if one:
+        here, work = one["cpu"], one["workers_cpu"]
+        print(f"speed-up bound of 2 workers if the work kept here does not overlap the "
+              f"workers': {(here + work) / (here + work / 2):.2f}x")
     print()
     if one and two:
         print(f"speed-up 2 workers / 1 worker (wall): {one['wall'] / two['wall']:.2f}x "
