@@ -7,8 +7,11 @@ Run from the repository root::
 For each image size and precision it prints the per-frame time of
 
 * ``exact``: :func:`gridstrain.wft`, both phases and the four exact phase derivatives;
+* ``fast``: ``gridstrain.wft(..., derivatives="fast")``, one inverse transform per
+  wave vector and the derivatives from ``Psi`` by a least-squares differentiator
+  (their difference from the exact ones is printed below);
 * ``central``: the same with central-difference derivatives (the private
-  ``gridstrain.wft._wft(..., derivatives="central")``), which costs no FFT beyond
+  ``gridstrain._wft._wft(..., derivatives="central")``), which costs no FFT beyond
   those of the phases but breaks the 1e-7 rad/px derivative bound (printed below);
 * ``floor``: one ``rfft2`` and two complex ``ifft2`` of the padded size wft uses,
   with the same library (scipy.fft) -- the least any FFT implementation of the
@@ -38,7 +41,7 @@ from scipy import fft as sfft
 
 from _common import grid_test_image, interleaved, machine
 from gridstrain import wft
-from gridstrain.wft import _PAD_SIGMAS, _wft
+from gridstrain._wft import _PAD_SIGMAS, _wft
 
 _fft = importlib.import_module("gridstrain._fft")
 
@@ -177,10 +180,10 @@ def main(argv=None):
           "(wft's workers, the floor's FFT workers); "
           f"pitch = sigma = {args.pitch:g} px; "
           f"best of {args.repeat} interleaved runs")
-    names = ["exact", "central", "floor"] + ([] if args.no_naive else ["naive"])
+    names = ["exact", "fast", "central", "floor"] + ([] if args.no_naive else ["naive"])
     header = (f"{'size':>10} {'dtype':>8} " + " ".join(f"{n + ' ms':>16}" for n in names)
-              + f" {'exact/floor':>12} {'central/floor':>14} {'naive/exact':>12} "
-              f"{'peak MiB':>9}")
+              + f" {'exact/floor':>12} {'fast/floor':>12} {'central/floor':>14} "
+              f"{'naive/exact':>12} {'peak MiB':>9}")
     print(header)
     print(f"{'':>19} ratios: best wall (best CPU)")
     print("-" * len(header))
@@ -191,7 +194,10 @@ def main(argv=None):
         for dtype in (np.float64, np.float32):
             img = img64.astype(dtype)
             real, cplx = floor_inputs(shape, sigma, dtype)
-            funcs = {"exact": partial(wft, img, lattice, workers=args.workers),
+            funcs = {"exact": partial(_wft, img, lattice, derivatives="exact",
+                                      workers=args.workers),
+                     "fast": partial(_wft, img, lattice, derivatives="fast",
+                                     workers=args.workers),
                      "central": partial(_wft, img, lattice, derivatives="central",
                                         workers=args.workers),
                      "floor": partial(floor, real, cplx, args.workers)}
@@ -206,13 +212,19 @@ def main(argv=None):
             cells = " ".join(f"{t[n][0] * 1e3:7.1f} ({t[n][1] * 1e3:6.1f})" for n in names)
             naive = ratio("naive", "exact") if "naive" in t else "-"
             print(f"{shape[0]:>4}x{shape[1]:<5} {np.dtype(dtype).name:>8} {cells} "
-                  f"{ratio('exact', 'floor'):>12} {ratio('central', 'floor'):>14} "
+                  f"{ratio('exact', 'floor'):>12} {ratio('fast', 'floor'):>12} "
+                  f"{ratio('central', 'floor'):>14} "
                   f"{naive:>12} {peak:>9.0f}")
-        res = wft(img64, lattice)
+        res = _wft(img64, lattice, derivatives="exact")
         cen = _wft(img64, lattice, derivatives="central")
         v = res.valid
-        notes.append(f"{shape[0]}x{shape[1]} float64, max |d phi| difference from exact on valid "
-                     f"pixels: central {np.max(np.abs(cen.dphi - res.dphi)[:, :, v]):.1e} rad/px")
+        fast = {dt: _wft(img64.astype(dt), lattice, derivatives="fast") for dt in (np.float64,
+                                                                               np.float32)}
+        ex32 = _wft(img64.astype(np.float32), lattice, derivatives="exact")
+        notes.append(f"{shape[0]}x{shape[1]}, max |d phi| difference from exact on valid "
+                     f"pixels, rad/px: fast {_worst(fast[np.float64], res):.1e} (float64), "
+                     f"{_worst(fast[np.float32], ex32):.1e} (float32, against float32 exact), "
+                     f"central {np.max(np.abs(cen.dphi - res.dphi)[:, :, v]):.1e}")
         if not args.no_naive:
             _, dphi = naive_wft(img64, lattice, sigma)
             notes[-1] += f", naive {np.max(np.abs(dphi - res.dphi)[:, :, v]):.1e} rad/px"
@@ -224,6 +236,11 @@ def main(argv=None):
           f"at {args.sizes[0][0]}x{args.sizes[0][1]} float64")
     if args.study:
         study(args.sizes[0], args.repeat)
+
+
+def _worst(a, b) -> float:
+    """Largest |d phi| difference between two transforms on b's valid pixels, rad/px."""
+    return float(np.max(np.abs(a.dphi.astype(float) - b.dphi)[:, :, b.valid]))
 
 
 def _floor_mib(args) -> float:

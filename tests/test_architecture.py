@@ -22,8 +22,9 @@ import gridstrain
 PACKAGE = Path(gridstrain.__file__).resolve().parent
 
 CORE = {
-    "conventions", "_validation", "_progress", "_fft", "lattice", "wft", "kinematics",
-    "stacks", "vibration", "screening", "noise", "uncertainty", "theory", "synthetic",
+    "conventions", "_validation", "_progress", "_fft", "lattice", "_wft", "wft", "kinematics",
+    "stacks", "vibration", "screening", "accumulate", "noise", "uncertainty", "theory",
+    "synthetic",
     "kirsch",
 }
 

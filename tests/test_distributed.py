@@ -30,9 +30,9 @@ zarr = pytest.importorskip("zarr")
 import gridstrain  # noqa: E402
 from gridstrain import Lattice, kirsch, stacks, synthetic  # noqa: E402
 from gridstrain import distributed as gd  # noqa: E402
+from gridstrain.accumulate import PassPlan  # noqa: E402
 from gridstrain.cli import main  # noqa: E402
 from gridstrain.io import open_series, read_hdf5  # noqa: E402
-from gridstrain.kinematics import deformation  # noqa: E402
 from gridstrain.pipeline import measure_series  # noqa: E402
 from gridstrain.results import read_attrs  # noqa: E402
 
@@ -257,52 +257,39 @@ def test_method_b_graph_is_a_tree_of_bounded_fan_in():
     assert len(adds) == 3 + 1 + 1
 
 
-@pytest.mark.parametrize("method", ["A", "B"])
+@pytest.mark.parametrize("method", ["A", "B", "C"])
 def test_several_states_at_once_match_single_process(client, method):
+    """The cluster runs the same pass as this machine (gridstrain.accumulate): the
+    maps agree to the rounding of sums added in another order."""
     rng = np.random.default_rng(6)
     ref = _frames(6, rng)
     states = [_frames(5, rng, strain=1e-3), _frames(5, rng, strain=2.5e-3)]
-    got = gd.measure_states_dask(ref, states, lattice=LAT, method=method, client=client)
-    run = stacks.method_a if method == "A" else stacks.method_b
-    r0 = run(ref, LAT)
-    assert len(got) == 2
-    for g, cur, eps in zip(got, states, (1e-3, 2.5e-3), strict=True):
-        r = run(cur, LAT)
-        # the coarse guess from the mean images, as kinematics.measure takes it
-        means = (ref.mean(axis=0), cur.mean(axis=0), np.ones((N, N), dtype=bool))
-        want = deformation(r0.maps, r.maps, guess="auto", _images=means)
-        assert_array_equal(g.valid, want.valid)
-        v = want.valid
+    want = measure_series(ref, states, lattice=LAT, method=method, guess=None)
+    got = measure_series(ref, states, lattice=LAT, method=method, guess=None,
+                         scheduler=client)
+    assert_array_equal(got.valid, want.valid)
+    for i, eps in enumerate((1e-3, 2.5e-3)):
+        v = want.valid[i]
         assert v.mean() > 0.2
-        assert_allclose(g.u[:, v], want.u[:, v], rtol=0, atol=U_TOL)
-        assert_allclose(g.strain[:, v], want.strain[:, v], rtol=0, atol=STRAIN_TOL)
-        assert g.iterations == want.iterations
+        assert_allclose(got.u[i][:, v], want.u[i][:, v], rtol=0, atol=U_TOL)
+        assert_allclose(got.strain[i][:, v], want.strain[i][:, v], rtol=0, atol=STRAIN_TOL)
         # and the physics: the applied uniform strain, to the noise of a few frames
         # (a few 1e-5 at sigma = 5 px with 5-6 frames)
-        assert abs(float(np.mean(g.strain[0][v])) - eps) < 1e-4
-
-
-def test_lattice_detected_on_the_cluster_mean(client):
-    rng = np.random.default_rng(7)
-    ref, cur = _frames(4, rng), _frames(4, rng, strain=1e-3)
-    got = gd.measure_states_dask(ref, cur, client=client)[0]
-    want = gd.measure_states_dask(ref, cur, lattice=got.lattice, client=client)[0]
-    # the detected pitch is the grid's (0.5 % of the 5 px pitch)
-    assert got.lattice.pitch == pytest.approx(5.0, rel=5e-3)
-    assert_array_equal(got.u, want.u)
+        assert abs(float(np.mean(got.strain[i][0][v])) - eps) < 1e-4
+    assert_allclose(got.noise.split_u, want.noise.split_u, rtol=1e-6)
 
 
 # --------------------------------------------------------------------------- pipeline
 
 
 @pytest.mark.parametrize("method", ["A", "B"])
-def test_pipeline_on_the_cluster_matches_single_process(client, method, monkeypatch):
+def test_pipeline_on_the_cluster_matches_single_process(client, method):
     rng = np.random.default_rng(8)
     ref = _frames(11, rng, hole=True)
     states = [_frames(6, rng, strain=1e-3, hole=True),
               _frames(5, rng, strain=2e-3, hole=True)]
-    # 3 frames per statistics task: a reduction tree even on these short series
-    monkeypatch.setattr(gd, "_STATS_FRAMES_PER_TASK", 3)
+    # one frame per task on these short series (at most _PASS_TASKS chunks): a
+    # reduction tree of several levels
     want = measure_series(ref, states, lattice=LAT, method=method)
     got = measure_series(ref, states, lattice=LAT, method=method, scheduler=client)
     assert_array_equal(got.valid, want.valid)
@@ -484,16 +471,20 @@ def test_method_b_survives_a_worker_killed_mid_run(client, tmp_path):
     try:
         frames = _frames(8, np.random.default_rng(8))
         flag = tmp_path / "killed"
-        killed = gd._submit_method_b(client, _DyingSeries(frames, 3, flag), LAT, 5.0,
-                                     None, 4.0).result(timeout=120)
+        plan = PassPlan(lattice=LAT, n_frames=8, method="B", sigma=5.0, margin=4.0)
+        killed = gd._submit_pass(client, _DyingSeries(frames, 3, flag), plan).result(
+            timeout=120)
         assert flag.exists()  # a worker did die, on frame 3
-        calm = gd._submit_method_b(client, _DyingSeries(frames, 3, flag), LAT, 5.0,
-                                   None, 4.0).result(timeout=120)
+        calm = gd._submit_pass(client, _DyingSeries(frames, 3, flag), plan).result(
+            timeout=120)
     finally:
         cloudpickle.unregister_pickle_by_value(sys.modules[__name__])
-    assert killed.n_frames == calm.n_frames == 8
-    assert_array_equal(killed.maps.phase, calm.maps.phase)
-    assert_array_equal(killed.maps.valid, calm.maps.valid)
+    assert killed.kept == calm.kept == list(range(8))
+    kb, cb = killed.method_b(), calm.method_b()
+    assert kb.n_frames == cb.n_frames == 8
+    assert_array_equal(kb.maps.phase, cb.maps.phase)
+    assert_array_equal(kb.maps.valid, cb.maps.valid)
+    assert_array_equal(killed.statistics().mean, calm.statistics().mean)
 
 
 def _blocked(name):
@@ -516,8 +507,8 @@ def test_stalled_cluster_times_out_with_a_message(client):
 @pytest.mark.parametrize("n_frames", [1, 7, 16, 17, 100])
 def test_method_b_tasks_take_chunks_of_frames(n_frames):
     chunks = gd._frame_chunks(n_frames)
-    # every frame exactly once, in order, in at most _METHOD_B_TASKS even chunks
+    # every frame exactly once, in order, in at most _PASS_TASKS even chunks
     assert [t for a, b in chunks for t in range(a, b)] == list(range(n_frames))
-    assert len(chunks) == min(n_frames, gd._METHOD_B_TASKS)
+    assert len(chunks) == min(n_frames, gd._PASS_TASKS)
     sizes = [b - a for a, b in chunks]
     assert max(sizes) - min(sizes) <= 1

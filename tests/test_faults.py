@@ -423,19 +423,21 @@ def test_an_all_invalid_result_is_never_written(data, tmp_path, capsys, monkeypa
     """Whatever the cause, a state without one valid pixel is an error, not a file."""
     import dataclasses
 
-    import gridstrain.cli.measure as cm
+    import gridstrain.pipeline as gp
 
-    real = cm.measure_series
+    real = gp._Tracker.measure
 
-    def all_invalid(*a, **k):
-        res = real(*a, **k)
-        return dataclasses.replace(res, valid=np.zeros_like(res.valid))
+    def all_invalid(self, *a, **k):  # a state measured, none of its pixels valid
+        res, rec, notes = real(self, *a, **k)
+        return dataclasses.replace(res, valid=np.zeros_like(res.valid)), rec, notes
 
-    monkeypatch.setattr(cm, "measure_series", all_invalid)
-    rc = _run(["measure", data / "ref.tif", data / "load.tif", "-o", tmp_path / "o.h5",
-               "--quiet"])
-    line = _one_line_failure(capsys, rc, tmp_path)
-    assert "load: no valid pixel, nothing written" in line  # the state, by its file
+    monkeypatch.setattr(gp._Tracker, "measure", all_invalid)
+    # each state written as it is measured, and with every state held to the end
+    for extra in ([], ["--phase-maps"]):
+        rc = _run(["measure", data / "ref.tif", data / "load.tif", "-o", tmp_path / "o.h5",
+                   "--quiet", *extra])
+        line = _one_line_failure(capsys, rc, tmp_path)
+        assert "load: no valid pixel, nothing written" in line  # the state, by its file
 
 
 def test_killed_scheduler_is_one_line_within_bounded_time(data, tmp_path):
@@ -465,7 +467,7 @@ def test_killed_scheduler_is_one_line_within_bounded_time(data, tmp_path):
                 break
             except OSError:
                 time.sleep(0.1)
-        real = gd._submit_statistics
+        real = gd._submit_pass
 
         def submit(client, *a, **k):
             pending = real(client, *a, **k)
@@ -473,7 +475,7 @@ def test_killed_scheduler_is_one_line_within_bounded_time(data, tmp_path):
             sched.wait()
             return pending
 
-        gd._submit_statistics = submit
+        gd._submit_pass = submit
         try:
             rc = main(["measure", {str(data / 'ref.tif')!r}, {str(data / 'load.tif')!r},
                        "-o", {str(out / 'o.h5')!r}, "--quiet",

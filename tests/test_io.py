@@ -431,7 +431,7 @@ def test_read_mask(tmp_path):
     iio.imwrite(tmp_path / "zero.png", np.zeros(SHAPE, np.uint8))
     with pytest.raises(ValueError, match="selects no pixel"):
         read_mask(tmp_path / "zero.png", SHAPE)
-    with pytest.raises(TypeError, match="shape must be a pair"):
+    with pytest.raises(ValueError, match="shape must be two positive integers"):
         read_mask(tmp_path / "m.png", 24)
 
 

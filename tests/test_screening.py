@@ -378,3 +378,20 @@ def test_white_paper_clipping_between_the_lines_points_to_max_saturation():
     assert any("saturated" in w for w in res.warnings)
     # and that systematic error is stated, not silent
     assert any("alias onto the carrier" in w for w in res.warnings)
+
+
+def test_a_large_dark_hole_is_not_taken_for_noise():
+    """A 128-px frame of a plate whose hole (radius 32 px, a dark background at 5 % of
+    the grid's level) fills a fifth of it: the grid's carrier must stand out of the
+    frame's noise level, which the hole's slowly varying darkness must not inflate
+    (it once made every frame 'show no grid'). Numpy-only frames: a cosine grid of
+    pitch 5 px along x and y, Gaussian noise of 2 grey levels."""
+    rng = np.random.default_rng(3)
+    y, x = np.mgrid[0:128, 0:128].astype(float)
+    grid = 2000 + 600 * (np.cos(2 * np.pi * x / 5) + np.cos(2 * np.pi * y / 5))
+    hole = (x - 80) ** 2 + (y - 50) ** 2 < 32**2
+    frames = [np.where(hole, 100.0, grid) + rng.normal(0, 2, grid.shape) for _ in range(6)]
+    sc = screen_frames(frames, Lattice.from_pitch(5.0))
+    assert sc.flagged == ()
+    # the grid stands tens of times above the noise, far from the limit of 5
+    assert float(sc.prominence.min()) > 20

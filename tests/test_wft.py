@@ -157,3 +157,140 @@ def test_input_is_not_modified():
     before = img.copy()
     wft(img, lat)
     np.testing.assert_array_equal(img, before)
+
+
+# --- derivatives="fast": Psi alone, differentiated by a short least-squares filter ---
+
+def _noisy(img, seed, sd=20.0):
+    """Gaussian read noise of ``sd`` grey levels (a 12-bit camera's few tens)."""
+    return img + np.random.default_rng(seed).normal(0.0, sd, img.shape)
+
+
+def _fast_cases():
+    """(lattice, image, sigma, mask): the situations the filter must hold in."""
+    lat5, img5 = _modulated_grid((160, 176), angle=0.0)
+    lat_r, img_r = _modulated_grid((150, 131), angle=23.0)
+    lat4, img4 = _modulated_grid((140, 150), angle=-12.0, pitch=4.0)
+    hole = np.ones((160, 176), bool)
+    yy, xx = np.mgrid[0:160, 0:176]
+    hole[(yy - 70) ** 2 + (xx - 90) ** 2 < 18**2] = False
+    return {
+        # carrier on FFT bins, no residual demodulation
+        "aligned": (lat5, _noisy(img5, 1), None, None),
+        # off-bin carrier along both axes, window wider than the pitch
+        "rotated": (lat_r, _noisy(img_r, 2), 7.3, None),
+        # sigma = 4: six taps; the noise is large against the grid's modulus
+        "pitch 4": (lat4, _noisy(img4, 3, sd=150.0), None, None),
+        "masked": (lat5, _noisy(img5, 4), None, hole),
+        # no grid at all: white noise is the filter's worst case (a flat spectrum)
+        "pure noise": (lat5, np.random.default_rng(5).normal(100.0, 20.0, (160, 176)), None,
+                       None),
+    }
+
+
+@pytest.mark.parametrize("case", list(_fast_cases()))
+@pytest.mark.parametrize("dtype", [np.float64, np.float32])
+def test_fast_derivatives_are_within_the_bound_of_the_exact_ones(case, dtype):
+    from gridstrain._wft import _wft
+
+    lat, img, sigma, mask = _fast_cases()[case]
+    exact = _wft(img, lat, sigma=sigma, mask=mask, derivatives="exact")  # float64 truth
+    same = _wft(img.astype(dtype), lat, sigma=sigma, mask=mask, derivatives="exact")
+    fast = wft(img.astype(dtype), lat, sigma=sigma, mask=mask, derivatives="fast")
+    assert fast.dphi.dtype == dtype
+    assert fast.psi.dtype == same.psi.dtype
+    # only the derivatives change: the same transform, the same validity
+    np.testing.assert_array_equal(fast.psi, same.psi)
+    np.testing.assert_array_equal(fast.valid, same.valid)
+    v = exact.valid
+    assert v.sum() > 1000
+    err = np.max(np.abs(fast.dphi.astype(float) - exact.dphi)[:, :, v])
+    if dtype == np.float64:
+        # the filter is designed for 2e-9 rad/px per unit of |Psi|; a valid modulus is
+        # at least a quarter of the median and a noise peak ~5 rms: 4e-8 rad/px at
+        # worst, inside the 1e-7 rad/px bound (we measure 2e-10 to 5e-10 on grids,
+        # 1.2e-8 on pure noise)
+        assert err < 4e-8
+    else:
+        # float32 bound: 1e-6 rad/px. Differences of neighbouring samples cancel, so
+        # float32 rounding of Psi (6e-8 relative) gives ~3e-7 rad/px on a grid, where
+        # the exact float32 path gives 3e-8. On pure noise the exact float32 path's
+        # own rounding already reaches 2e-6 at the faintest valid pixels: there the
+        # fast one must not do worse than half as much again.
+        own = np.max(np.abs(same.dphi.astype(float) - exact.dphi)[:, :, v])
+        assert err < (1e-6 if case != "pure noise" else 1.5 * own)
+
+
+def test_fast_derivatives_against_the_direct_sum():
+    lat, img = _modulated_grid()
+    res = wft(img, lat, sigma=5.0, derivatives="fast")
+    rng = np.random.default_rng(7)
+    pts = rng.integers(40, 88, size=(10, 2))
+    worst = 0.0
+    for py, px in pts:
+        for j, k in enumerate((lat.k1, lat.k2)):
+            _, dx, dy = _direct(img, k, 5.0, px, py)
+            worst = max(worst, abs(res.dphi[j, 0, py, px] - dx), abs(res.dphi[j, 1, py, px] - dy))
+    # a noise-free grid: the filter's error is that of its fit near the carrier, where
+    # it is best (we measure 6e-11 rad/px); 1e-9 is the exact path's bound here
+    assert worst < 1e-9
+
+
+def test_fast_differentiator_on_sampled_tones():
+    """The filter applied in space to e^(2 i pi nu x) against the analytic derivative.
+
+    Independent of the package's transfer function: ``G(nu) = exp(-2 pi^2 sigma^2
+    nu^2)`` (the unsampled Gaussian's; the sampled one differs by < 1e-20 where
+    G > 1e-16 at sigma >= 3.5), and the derivative of the tone's phase is 2 pi nu.
+    A tone of Psi's amplitude at nu leaves Psi with amplitude G(nu), so the error it
+    causes is |D(nu) - 2 pi nu| G(nu), which the design keeps below 2e-9 rad/px.
+    """
+    from gridstrain._wft import _differentiator
+
+    x = np.arange(-20, 21)
+    for sigma in (3.5, 5.0, 7.3, 12.0):
+        taps, _, _ = _differentiator(sigma, np.dtype(np.float64))
+        m = taps.size
+        worst = 0.0
+        for nu in np.linspace(-0.5, 0.5, 1001):
+            tone = np.exp(2j * np.pi * nu * x)
+            c = 20  # the sample at x = 0
+            d = sum(a * (tone[c + n] - tone[c - n]) for n, a in enumerate(taps, start=1))
+            rate = (d / tone[c]).imag  # d phi / dx that the filter measures, rad/px
+            g = np.exp(-2 * np.pi**2 * sigma**2 * nu**2)
+            worst = max(worst, abs(rate - 2 * np.pi * nu) * g)
+        # design tolerance 2e-9 rad/px on its own grid of 4001 frequencies
+        assert worst < 2.2e-9, (sigma, m, worst)
+
+
+def test_fast_falls_back_to_exact_for_a_narrow_window():
+    # at sigma = 2.5 px a short filter cannot match the exact one to 1e-9: the exact
+    # derivatives are computed, identical bits
+    lat = Lattice.from_pitch(2.5, angle=10.0)
+    img = _noisy(synthetic.grid_image((64, 72), lat, amplitude=1000.0), 6)
+    fast = wft(img, lat, derivatives="fast")
+    exact = wft(img, lat)
+    np.testing.assert_array_equal(fast.dphi, exact.dphi)
+
+
+def test_fast_derivatives_do_not_depend_on_the_blocks(monkeypatch):
+    import gridstrain._wft as impl
+
+    lat, img, sigma, _ = _fast_cases()["rotated"]
+    whole = wft(img, lat, sigma=sigma, derivatives="fast")
+    monkeypatch.setattr(impl, "_FAST_CHUNK_BYTES", 1)  # blocks of 8 rows
+    blocks = wft(img, lat, sigma=sigma, derivatives="fast")
+    np.testing.assert_array_equal(blocks.psi, whole.psi)
+    np.testing.assert_array_equal(blocks.valid, whole.valid)
+    # the same sums in another grouping of the matrix products: rounding only
+    np.testing.assert_allclose(blocks.dphi, whole.dphi, rtol=0, atol=1e-13)
+
+
+def test_derivatives_option_is_checked():
+    from gridstrain._wft import _wft
+
+    lat, img = _modulated_grid((64, 64))
+    with pytest.raises(ValueError, match="derivatives"):
+        wft(img, lat, derivatives="central")  # private: not offered to users
+    with pytest.raises(ValueError, match="sink"):
+        _wft(img, lat, derivatives="fast", sink=lambda *a: None)

@@ -23,7 +23,7 @@ _LAZY = {
     "Lattice": "lattice",
     "Measurement": "kinematics",
     "NoiseModel": "noise",
-    "PhaseMaps": "wft",
+    "PhaseMaps": "_wft",
     "Uncertainty": "uncertainty",
     "VibrationReport": "vibration",
     "anscombe": "noise",
@@ -37,7 +37,7 @@ _LAZY = {
     "measure": "kinematics",
     "predict_uncertainty": "uncertainty",
     "vibration_report": "vibration",
-    "wft": "wft",
+    "wft": "_wft",
     # the series workflow and the result files (they pull in h5py and matplotlib)
     "SeriesResult": "pipeline",
     "load": "results",
@@ -66,16 +66,17 @@ def __dir__() -> list[str]:
 
 
 class _Package(types.ModuleType):
-    """The package module: a public function keeps its name when its submodule loads.
+    """The package module: a public name stays what it is when a submodule of that name loads.
 
     The import system binds every submodule it loads to the package under the
-    submodule's name; :func:`wft` lives in :mod:`gridstrain.wft`, and the function,
-    not the module, is the package's ``wft`` (as with an eager ``from .wft import
-    wft``), whichever of the two is imported first.
+    submodule's name. :func:`wft` is implemented in ``gridstrain._wft`` and also
+    exported by the public module :mod:`gridstrain.wft`, named after it: the
+    function, not that module, is the package's ``wft`` (as with an eager ``from
+    .wft import wft``), whichever of the two is imported first.
     """
 
     def __setattr__(self, name, value):
-        if isinstance(value, types.ModuleType) and _LAZY.get(name) == name:
+        if isinstance(value, types.ModuleType) and name in _LAZY:
             value = getattr(value, name)
         super().__setattr__(name, value)
 

@@ -27,12 +27,12 @@ Method B (paper §2.3)
     :func:`gridstrain.stacks.method_b` up to the rounding of the additions, which
     happen in another order (about 1e-16 relative).
 
-Several load steps at once
-    :func:`measure_states_dask` builds the graphs of the reference and of every
-    loaded state and computes them together, then runs the kinematics
-    (:func:`gridstrain.kinematics.deformation`) on this machine.
-    :func:`gridstrain.pipeline.measure_series` takes ``scheduler=`` for the full
-    pipeline (vibrations, noise floor, uncertainty maps), see :func:`connect`.
+Series of load steps
+    :func:`gridstrain.pipeline.measure_series` takes ``scheduler=`` (see
+    :func:`connect`): each series' one pass (:class:`gridstrain.accumulate.SeriesPass`:
+    screening, shifts, statistics, the noise floor's halves, method B's or C's
+    sums) runs in tasks of chunks of frames, merged on the workers; the same
+    pass, and so the same result to the rounding of the sums, as on one machine.
 
 Conventions are those of :mod:`gridstrain.conventions`.
 """
@@ -43,26 +43,24 @@ import contextlib
 import itertools
 import numbers
 import os
-from collections.abc import Iterable, Iterator, Sequence
-from dataclasses import dataclass
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 
 import numpy as np
 
-from ._validation import check_choice, check_mask, check_positive, float_dtype
-from .io import FrameSeries, check_saturation_limit, open_series
+from ._validation import check_mask, check_positive, float_dtype
+from .accumulate import SeriesPass
+from .io import FrameSeries, open_series
 from .io._series import _check_out_dtype
-from .kinematics import Measurement, deformation
-from .lattice import Lattice, detect_lattice
+from .lattice import Lattice
 from .stacks import StackResult, _PhaseMean
-from .wft import DEFAULT_MARGIN, finite_derivatives, wft
+from .wft import DEFAULT_MARGIN, wft
 
 __all__ = [
     "MissingDistributedError",
     "as_dask_stack",
     "connect",
     "mean_image_dask",
-    "measure_states_dask",
     "method_a_dask",
     "method_b_dask",
 ]
@@ -74,13 +72,9 @@ _INSTALL = ("install the distributed extra: pip install 'gridstrain[distributed]
 # derivatives, the valid map, the frame sum), 0.4 GB for a 2048 x 2048 camera: a
 # reduction task holds 4 of them and their sum, 2 GB, which a worker can afford.
 _SPLIT_EVERY = 4
-# Method B's tasks per series: enough to keep 16 worker threads busy on one series
+# Tasks of a series' pass: enough to keep 16 worker threads busy on one series
 # (every series of a run is submitted at once, so more threads still find work)
-_METHOD_B_TASKS = 16
-# Frames read per task for the pipeline's statistics: a few additions per pixel
-# and frame are too little work for one task each (a task costs ~1 ms on the
-# distributed scheduler).
-_STATS_FRAMES_PER_TASK = 16
+_PASS_TASKS = 16
 
 
 class MissingDistributedError(ImportError, ValueError):
@@ -454,54 +448,28 @@ def method_a_dask(stack, lattice: Lattice, *, sigma: float | None = None, mask=N
 # --------------------------------------------------------------------------- method B
 
 
-@dataclass
-class _PhaseSums:
-    """Partial sums of method B over some frames: gridstrain.stacks.method_b's own
-    accumulator, and the sum of the frames themselves when the mean is wanted."""
-
-    acc: _PhaseMean
-    total: np.ndarray | None  # (H, W) float64, sum of the frames (for the mean image)
-
-
-def _phase_sums(frames: Iterable, lattice, sigma, mask, margin, with_total) -> _PhaseSums:
-    """Method B's sums over ``frames``, one transform at a time (one task)."""
-    acc, total = _PhaseMean(), None
-    for frame in frames:
+def _block_sums(block: np.ndarray, lattice, sigma, mask, margin) -> _PhaseMean:
+    """Method B's sums over the frames of ``block``, one transform at a time (one
+    task)."""
+    acc = _PhaseMean()
+    for frame in block:
         acc.add_frame(frame, lattice, sigma=sigma, mask=mask, margin=margin)
-        if with_total:
-            total = np.array(frame, dtype=np.float64) if total is None else total + frame
     if acc.n == 0:
         raise ValueError("frames must hold at least one image, got none")
-    return _PhaseSums(acc, total)
+    return acc
 
 
-def _block_sums(block: np.ndarray, lattice, sigma, mask, margin, with_total) -> _PhaseSums:
-    return _phase_sums(block, lattice, sigma, mask, margin, with_total)
-
-
-def _add_sums(*parts: _PhaseSums) -> _PhaseSums:
+def _add_sums(*parts: _PhaseMean) -> _PhaseMean:
     """Sum of partial sums (a node of the reduction tree); the inputs are not changed."""
-    acc = parts[0].acc
-    total = None if parts[0].total is None else parts[0].total.copy()
+    acc = parts[0]
     for p in parts[1:]:
-        acc = acc.merge(p.acc)
-        if total is not None:
-            total += p.total
-    return _PhaseSums(acc, total)
+        acc = acc.merge(p)
+    return acc
 
 
-def _method_b_result(sums: _PhaseSums) -> StackResult:
+def _method_b_result(acc: _PhaseMean) -> StackResult:
     """gridstrain.stacks.method_b's result from the sums over every frame."""
-    return sums.acc.result()
-
-
-def _method_b_with_mean(acc: _PhaseSums) -> tuple[StackResult, np.ndarray]:
-    """Method B's result and the mean frame, float64 (for the coarse guess)."""
-    return _method_b_result(acc), acc.total / acc.acc.n
-
-
-def _method_a_with_mean(mean: np.ndarray, lattice, sigma, mask, margin, n: int, dtype):
-    return _method_a_result(mean, lattice, sigma, mask, margin, n, dtype), mean
+    return acc.result()
 
 
 def _tree(parts: list, combine, split_every: int):
@@ -514,15 +482,13 @@ def _tree(parts: list, combine, split_every: int):
     return parts[0]
 
 
-def _method_b_graph(arr, lattice, sigma, mask, margin, split_every, with_mean):
+def _method_b_graph(arr, lattice, sigma, mask, margin, split_every):
     dask, _ = _dask()
     # one key for the mask: the tasks refer to it instead of each carrying a copy
     m = None if mask is None else dask.delayed(mask, pure=True)
     leaf = dask.delayed(_block_sums, pure=True)
-    parts = [leaf(block, lattice, sigma, m, margin, with_mean)
-             for block in arr.to_delayed().ravel()]
-    finish = _method_b_with_mean if with_mean else _method_b_result
-    return dask.delayed(finish, pure=True)(_tree(parts, _add_sums, split_every))
+    parts = [leaf(block, lattice, sigma, m, margin) for block in arr.to_delayed().ravel()]
+    return dask.delayed(_method_b_result, pure=True)(_tree(parts, _add_sums, split_every))
 
 
 def method_b_dask(stack, lattice: Lattice, *, sigma: float | None = None, mask=None,
@@ -564,153 +530,14 @@ def method_b_dask(stack, lattice: Lattice, *, sigma: float | None = None, mask=N
     arr = _stack(stack)
     sigma, m, margin = _check_common(lattice, sigma, mask, margin, arr.shape[1:])
     k = _check_split_every(split_every)
-    graph = _method_b_graph(arr, lattice, sigma, m, margin, k, with_mean=False)
+    graph = _method_b_graph(arr, lattice, sigma, m, margin, k)
     return _compute([graph], client)[0] if compute else graph
 
 
 # --------------------------------------------------------------------------- states
 
 
-def measure_states_dask(reference, states, *, lattice: Lattice | None = None,
-                        method: str = "A", sigma: float | None = None, mask=None,
-                        margin: float = DEFAULT_MARGIN, lagrangian: bool = True,
-                        guess="auto", chunk_frames: int = 1,
-                        split_every: int | None = None,
-                        client=None) -> tuple[Measurement, ...]:
-    """Displacement and strain of several loaded states, their stacks computed together.
-
-    Parameters
-    ----------
-    reference : anything :func:`as_dask_stack` takes
-        The reference series.
-    states : series or sequence of series
-        The loaded states, each like ``reference`` (a list of file names is read
-        as a list of states).
-    lattice : Lattice, optional
-        Detected on the mean reference image (computed first) by default.
-    method : {"A", "B"}
-        Averaging method (:func:`method_a_dask`, :func:`method_b_dask`).
-    sigma : float, optional
-        Window standard deviation, px (default: the pitch).
-    mask : (H, W) bool array_like, optional
-        True on the specimen, in the reference configuration; the states'
-        frames are transformed whole, their validity coming from their moduli
-        (as :func:`gridstrain.kinematics.measure`).
-    margin : float
-        Invalid band along borders and mask edges, in units of ``sigma``.
-    lagrangian : bool
-        Large-displacement correction (:func:`gridstrain.kinematics.deformation`).
-    guess : "auto", None or (2,) array_like
-        Initial displacement fixing the fringe order, px; "auto" uses the mean
-        images' features when conclusive
-        (:func:`gridstrain.kinematics.coarse_displacement`), else the smallest
-        displacement; each state's :attr:`Measurement.fringe_order` says which.
-    chunk_frames : int
-        Frames per task (:func:`as_dask_stack`).
-    split_every : int, optional
-        Partial sums added per task of the reduction trees (default 4).
-    client : distributed.Client, optional
-        Where to compute (default: Dask's current scheduler).
-
-    Returns
-    -------
-    tuple of Measurement
-        One per state, in order, with the stacks' phase maps in ``reference`` and
-        ``deformed``.
-
-    Notes
-    -----
-    This is the stacks and the kinematics only. :func:`gridstrain.pipeline.measure_series`
-    with ``scheduler=`` adds the vibration diagnostics, the noise floor, the
-    automatic masking of regions without a grid and the uncertainty maps.
-    """
-    dask, da = _dask()
-    check_choice(method, "method", ("A", "B"))
-    if isinstance(states, str | os.PathLike | FrameSeries | np.ndarray | da.Array) \
-            or _is_zarr_array(states):
-        states = [states]
-    elif not isinstance(states, Sequence) or not states:
-        raise ValueError(f"states must be a series or a non-empty sequence of series, got "
-                         f"{states!r}")
-    if lattice is not None and not isinstance(lattice, Lattice):
-        raise TypeError(f"lattice must be a Lattice or None, got {type(lattice).__name__}")
-    if isinstance(guess, str):
-        check_choice(guess, "guess", ("auto",))
-    k = _check_split_every(split_every)
-    ref = as_dask_stack(reference, chunk_frames=chunk_frames, name="reference")
-    cur = [as_dask_stack(s, chunk_frames=chunk_frames, name=f"state {i}")
-           for i, s in enumerate(states)]
-    for i, c in enumerate(cur):
-        if c.shape[1:] != ref.shape[1:]:
-            raise ValueError(f"state {i}: frames are {c.shape[1:]} (H, W) but the reference "
-                             f"frames are {ref.shape[1:]}")
-    sigma, m, margin = _check_options(sigma, mask, margin, ref.shape[1:])
-
-    ref_mean = None
-    if lattice is None:
-        ref_mean = _compute([mean_image_dask(ref, split_every=k)], client)[0]
-        lattice = detect_lattice(ref_mean, mask=m)
-    graphs = []
-    for i, c in enumerate([ref, *cur]):
-        mk = m if i == 0 else None
-        if method == "A":
-            mean = ref_mean if i == 0 and ref_mean is not None \
-                else mean_image_dask(c, split_every=k)
-            graphs.append(dask.delayed(_method_a_with_mean, pure=True)(
-                mean, lattice, sigma, mk, margin, int(c.shape[0]), float_dtype(c.dtype)))
-        else:
-            graphs.append(_method_b_graph(c, lattice, sigma, mk, margin, k, with_mean=True))
-    # every series at once: the scheduler interleaves their tasks
-    results = _compute(graphs, client)
-
-    (r0, mean0), out = results[0], []
-    img_mask = np.ones(r0.maps.shape, dtype=bool) if m is None else m
-    for r, mean in results[1:]:
-        out.append(deformation(finite_derivatives(r0.maps), finite_derivatives(r.maps),
-                               lagrangian=lagrangian, guess=guess,
-                               _images=(mean0, mean, img_mask)))
-    return tuple(out)
-
-
 # --------------------------------------------------------------------------- pipeline
-
-
-def _series_sums(series, start, stop, first, c, mask, max_saturation, check):
-    """The pipeline's streamed sums over frames ``start:stop`` (one task).
-
-    Differences to the first frame ``d``, their squares, and ``c_t d`` with ``c``
-    the centred shifts of these frames (or None), and the largest saturated
-    fraction: the terms gridstrain.pipeline's statistics pass adds, frame by frame.
-    """
-    s1 = np.zeros(first.shape)
-    s2 = np.zeros(first.shape)
-    sva = None if c is None else np.zeros((2, *first.shape))
-    worst = 0.0
-    for k, frame in enumerate(series.frames(dtype=np.float64, start=start, stop=stop)):
-        if check:
-            worst = max(worst, check_saturation_limit(frame, series, mask=mask,
-                                                      max_fraction=max_saturation,
-                                                      index=start + k))
-        d = frame - first
-        s1 += d
-        s2 += d * d
-        if sva is not None:
-            sva += c[k][:, None, None] * d
-    return s1, s2, sva, worst
-
-
-def _add_series_sums(*parts):
-    s1 = parts[0][0].copy()
-    s2 = parts[0][1].copy()
-    sva = None if parts[0][2] is None else parts[0][2].copy()
-    worst = parts[0][3]
-    for p in parts[1:]:
-        s1 += p[0]
-        s2 += p[1]
-        if sva is not None:
-            sva += p[2]
-        worst = max(worst, p[3])
-    return s1, s2, sva, worst
 
 
 def _first_frame(series) -> np.ndarray:
@@ -757,35 +584,41 @@ def _scatter(client, obj):
     return None if obj is None else client.scatter(obj, hash=False, broadcast=True)
 
 
-def _submit_statistics(client, series, c, mask, max_saturation: float) -> _Pending:
-    """Submit the pipeline's statistics pass over ``series`` (internal).
+def _chunk_pass(series, start: int, stop: int, plan, origin) -> SeriesPass:
+    """One task: the pass over frames ``start:stop`` of ``series``."""
+    acc = SeriesPass(plan, origin)
+    for k, frame in enumerate(series.frames(dtype=np.float64, start=start, stop=stop)):
+        acc.add(start + k, frame)
+    return acc
 
-    ``result()`` gives ``(first, s1, s2, sva, worst)``: the first frame, the sums
-    over the frames of ``d = frame - first``, ``d * d``, ``c_t d`` (None when
-    ``c`` is None) and the largest saturated fraction, the quantities
-    :func:`gridstrain.pipeline._statistics` accumulates, here tree-reduced.
+
+def _merge_passes(*parts: SeriesPass) -> SeriesPass:
+    out = parts[0]
+    for p in parts[1:]:
+        out = out.merge(p)
+    return out
+
+
+def _submit_pass(client, series, plan) -> _Pending:
+    """Submit the pass over ``series`` (:class:`gridstrain.accumulate.SeriesPass`),
+    in chunks of frames merged on the workers (internal).
+
+    ``result()`` gives the merged pass, as one pass over all the frames on this
+    machine gives it (to the rounding of sums added in another order). The first
+    frame, the origin of every chunk's sums, is read here.
     """
     dask, _ = _dask()
-    s, m = _scatter(client, series), _scatter(client, mask)
-    first = dask.delayed(_first_frame, pure=True)(s)
-    leaf = dask.delayed(_series_sums, pure=True)
-    check = isinstance(series, FrameSeries)
-    T = series.n_frames
-    step = _STATS_FRAMES_PER_TASK
-    parts = [leaf(s, a, min(a + step, T), first, None if c is None else c[a:a + step], m,
-                  max_saturation, check) for a in range(0, T, step)]
-    total = _tree(parts, _add_series_sums, _SPLIT_EVERY)
-    return _Pending(client.compute(dask.delayed(_with_first, pure=True)(first, total)),
-                    (s, m), f"the statistics of {getattr(series, 'name', 'a series')}")
-
-
-def _series_block_sums(series, start, stop, lattice, sigma, mask, margin):
-    frames = series.frames(dtype=np.float64, start=start, stop=stop)
-    return _phase_sums(frames, lattice, sigma, mask, margin, with_total=False)
+    origin = _first_frame(series)
+    s, p, o = _scatter(client, series), _scatter(client, plan), _scatter(client, origin)
+    leaf = dask.delayed(_chunk_pass, pure=True)
+    parts = [leaf(s, a, b, p, o) for a, b in _frame_chunks(series.n_frames)]
+    total = _tree(parts, _merge_passes, _SPLIT_EVERY)
+    return _Pending(client.compute(total), (s, p, o),
+                    f"the pass over {getattr(series, 'name', 'a series')}")
 
 
 def _frame_chunks(n_frames: int) -> list[tuple[int, int]]:
-    """``(start, stop)`` of at most :data:`_METHOD_B_TASKS` consecutive chunks of frames.
+    """``(start, stop)`` of at most :data:`_PASS_TASKS` consecutive chunks of frames.
 
     Each task sums its chunk on the worker and ships one set of float64 sums
     (80 bytes a pixel) back, not one per frame: with one frame per task the
@@ -795,25 +628,9 @@ def _frame_chunks(n_frames: int) -> list[tuple[int, int]]:
     result bit for bit, is the same however many workers are alive (one that dies
     and is restarted changes nothing).
     """
-    k = max(1, min(n_frames, _METHOD_B_TASKS))
+    k = max(1, min(n_frames, _PASS_TASKS))
     bounds = np.linspace(0, n_frames, k + 1).round().astype(int)
     return [(int(a), int(b)) for a, b in itertools.pairwise(bounds) if b > a]
-
-
-def _submit_method_b(client, series, lattice, sigma, mask, margin) -> _Pending:
-    """Submit method B over ``series``, in chunks of frames (internal).
-
-    ``result()`` gives the :class:`StackResult` that
-    :func:`gridstrain.stacks.method_b` gives for the frames read as float64.
-    """
-    dask, _ = _dask()
-    s, m = _scatter(client, series), _scatter(client, mask)
-    leaf = dask.delayed(_series_block_sums, pure=True)
-    parts = [leaf(s, a, b, lattice, sigma, m, margin)
-             for a, b in _frame_chunks(series.n_frames)]
-    result = dask.delayed(_method_b_result, pure=True)(_tree(parts, _add_sums, _SPLIT_EVERY))
-    return _Pending(client.compute(result), (s, m),
-                    f"method B on {getattr(series, 'name', 'a series')}")
 
 
 def _check_scheduler(scheduler):

@@ -14,7 +14,15 @@ from scipy import fft as sfft
 from scipy import ndimage
 from skimage.restoration import unwrap_phase
 
-from ._validation import as_image, check_mask, check_positive
+from ._validation import (
+    as_image,
+    as_pair,
+    check_int,
+    check_mask,
+    check_positive,
+    check_same_shape,
+    check_type,
+)
 from .lattice import Lattice, detect_lattice
 from .wft import DEFAULT_MARGIN, PhaseMaps, wft
 
@@ -193,7 +201,9 @@ class Measurement:
 
     def __post_init__(self):
         for name in ("u", "strain", "rotation", "valid"):
-            getattr(self, name).flags.writeable = False
+            arr = getattr(self, name)
+            if isinstance(arr, np.ndarray):  # maps read from a file are read-only already
+                arr.flags.writeable = False
 
     @property
     def ux(self) -> np.ndarray:
@@ -316,17 +326,11 @@ def coarse_displacement(reference, deformed, lattice: Lattice, *, mask=None,
     """
     ref = as_image(reference, "reference").astype(np.float64)
     cur = as_image(deformed, "deformed").astype(np.float64)
-    if ref.shape != cur.shape:
-        raise ValueError(f"deformed must have the shape of reference {ref.shape}, "
-                         f"got {cur.shape}")
+    check_same_shape(cur.shape, ref.shape, "deformed", "reference")
     m = check_mask(mask, ref.shape)
-    if not isinstance(lattice, Lattice):
-        raise TypeError(f"lattice must be a Lattice, got {type(lattice).__name__}")
+    check_type(lattice, "lattice", Lattice)
     if phase_shift is not None:
-        phase_shift = np.asarray(phase_shift, dtype=float)
-        if phase_shift.shape != (2,) or not np.all(np.isfinite(phase_shift)):
-            raise ValueError(f"phase_shift must be a finite (u_x, u_y) pair, got "
-                             f"{phase_shift!r}")
+        phase_shift = as_pair(phase_shift, "phase_shift", labels="(u_x, u_y)", unit="px")
     best = _correlate(ref, cur, lattice, m, phase_shift)
     if not m.all() and not best.confident:
         # The mask often hides the best features (the hole, the specimen's edges),
@@ -615,25 +619,54 @@ def deformation(reference: PhaseMaps, deformed: PhaseMaps, *, lagrangian: bool =
     ``G = -(1/2pi) K^-1 (D_def - D_ref)``, which is what is used without the
     correction.
     """
-    for name, pm in (("reference", reference), ("deformed", deformed)):
-        if not isinstance(pm, PhaseMaps):
-            raise TypeError(f"{name} must be PhaseMaps, got {type(pm).__name__}")
-    if reference.shape != deformed.shape:
-        raise ValueError(f"deformed maps must have the shape of the reference "
-                         f"{reference.shape}, got {deformed.shape}")
+    check_type(reference, "reference", PhaseMaps)
+    check_type(deformed, "deformed", PhaseMaps)
+    check_same_shape(deformed.shape, reference.shape, "deformed maps", "the reference")
     if reference.lattice != deformed.lattice:
         raise ValueError("reference and deformed maps must use the same lattice")
     tol = check_positive(tol, "tol")
-    if not isinstance(max_iter, int) or max_iter < 1:
-        raise ValueError(f"max_iter must be a positive integer, got {max_iter!r}")
+    max_iter = check_int(max_iter, "max_iter")
 
     lattice = reference.lattice
     K = lattice.K
-    shape = reference.shape
     g, source, coarse = _guess_field(guess, reference, deformed, _images)
-
-    # eq. (34): wrapped phase difference, unwrapped over the valid region
     valid = reference.valid & deformed.valid & np.all(np.isfinite(reference.dphi), axis=(0, 1))
+    u = _unwrapped_displacement(reference, deformed, valid, K, g)
+
+    iterations, step = 0, 0.0
+    D_ref = reference.dphi.astype(np.float64, copy=False)
+    if lagrangian:
+        u, iterations, step = _lagrangian_fixed_point(u, reference, deformed, valid, tol,
+                                                      max_iter)
+        G, valid = _lagrangian_gradient(u, reference, deformed, D_ref)
+    else:
+        D_cur = deformed.dphi.astype(np.float64)
+        G = -np.tensordot(np.linalg.inv(K), D_cur - D_ref, axes=1) / (2 * np.pi)  # eq. (35)
+
+    # computed in float64, returned in the maps' precision (gridstrain.conventions)
+    dt = np.result_type(reference.dphi.dtype, deformed.dphi.dtype)
+    u, strain, rotation = _small_strain_maps(u, G, valid, dt)
+    gmed, order = _fringe_order_record(g, source, coarse)
+    return Measurement(u=u, strain=strain, rotation=rotation, valid=valid, lattice=lattice,
+                       sigma=reference.sigma, lagrangian=bool(lagrangian),
+                       iterations=iterations, step_rms=step, guess=gmed,
+                       guess_source=source, reference=reference, deformed=deformed,
+                       fringe_order=order)
+
+
+def _small_strain_maps(u, G, valid, dtype):
+    """``u``, the small-strain tensor ``(e_xx, e_yy, e_xy)`` and the rotation from the
+    gradient ``G`` ((2, 2, H, W)), NaN outside ``valid``, in ``dtype``."""
+    strain = np.stack([G[0, 0], G[1, 1], 0.5 * (G[0, 1] + G[1, 0])])
+    rotation = 0.5 * (G[1, 0] - G[0, 1])
+    return tuple(np.where(valid, a, np.nan).astype(dtype, copy=False)
+                 for a in (u, strain, rotation))
+
+
+def _unwrapped_displacement(reference, deformed, valid, K, g) -> np.ndarray:
+    """(2, H, W) displacement of eq. (34) from the unwrapped phase difference, each
+    connected valid region shifted by the whole periods that bring it closest to
+    the guess ``g`` ((2, H, W), px)."""
     dphase = np.angle(deformed.psi * np.conj(reference.psi)).astype(np.float64)
     labels, n_regions = ndimage.label(valid)
     if n_regions == 0:
@@ -647,68 +680,78 @@ def deformation(reference: PhaseMaps, deformed: PhaseMaps, *, lagrangian: bool =
         n = np.rint(np.median((K @ (u[:, sel] - g[:, sel])), axis=1))
         if np.any(n):
             u[:, sel] -= np.linalg.solve(K, n)[:, None]
+    return u
 
+
+def _lagrangian_fixed_point(u, reference, deformed, valid, tol, max_iter):
+    """Solve ``u(X) = -(1/2pi) K^-1 (phi_def(X + u) - phi_ref(X))`` by fixed point
+    from ``u``, the residual wrapped at every step; returns ``u``, the number of
+    iterations and the RMS of the last step over the valid pixels, px."""
+    shape = reference.shape
+    K = reference.lattice.K
+    yy, xx = np.mgrid[0:shape[0], 0:shape[1]].astype(np.float64)
+    conj_ref = np.conj(reference.psi.astype(np.complex128, copy=False))
+    psi_cur = [_Spline(p.astype(np.complex128, copy=False)) for p in deformed.psi]
+    two_pi_K = 2 * np.pi * K
+    nv = max(int(valid.sum()), 1)
     iterations, step = 0, 0.0
-    D_ref = reference.dphi.astype(np.float64, copy=False)
-    if lagrangian:
-        yy, xx = np.mgrid[0:shape[0], 0:shape[1]].astype(np.float64)
-        conj_ref = np.conj(reference.psi.astype(np.complex128, copy=False))
-        psi_cur = [_Spline(p.astype(np.complex128, copy=False)) for p in deformed.psi]
-        two_pi_K = 2 * np.pi * K
-        nv = max(int(valid.sum()), 1)
-        for iterations in range(1, max_iter + 1):  # noqa: B007
-            coords = np.stack([yy + u[1], xx + u[0]])
-            r = np.empty_like(u)
-            for j in range(2):
-                # residual phi_def(X + u) - phi_ref(X) + 2 pi k.u, wrapped to (-pi, pi]:
-                # the carrier's phase added as a real number rather than as exp(i .)
-                r[j] = np.angle(psi_cur[j](coords) * conj_ref[j])
-                r[j] += two_pi_K[j, 0] * u[0] + two_pi_K[j, 1] * u[1]
-                r[j] = np.pi - np.mod(np.pi - r[j], 2 * np.pi)
-            du = -_solve(K, r) / (2 * np.pi)
-            u = u + np.where(valid, du, 0.0)
-            step = math.sqrt(float(np.sum(du[:, valid] ** 2)) / nv)
-            if step < tol:
-                break
+    for iterations in range(1, max_iter + 1):  # noqa: B007
         coords = np.stack([yy + u[1], xx + u[0]])
-        inside = ((coords[0] >= 0) & (coords[0] <= shape[0] - 1)
-                  & (coords[1] >= 0) & (coords[1] <= shape[1] - 1))
-        cur_valid = ndimage.map_coordinates(deformed.valid.astype(np.float64), coords,
-                                            order=1, mode="constant", cval=0.0)
-        valid = reference.valid & inside & (cur_valid > 0.999)
-        D_cur = np.empty((2, 2, *shape))
-        # Where Psi is exactly 0 (deep in a masked area) its derivatives are undefined;
-        # a spline's prefilter would spread one NaN over whole rows, so zero them (the
-        # pixels are invalid anyway).
-        dphi_cur = np.nan_to_num(deformed.dphi.astype(np.float64), nan=0.0, posinf=0.0,
-                                 neginf=0.0)
+        r = np.empty_like(u)
         for j in range(2):
-            for m in range(2):
-                D_cur[j, m] = _Spline(dphi_cur[j, m])(coords)
-        # exact Lagrangian gradient: (2 pi K + D_cur) G = D_ref - D_cur, by Cramer's
-        # rule map by map rather than through (2, 2, H, W) temporaries
-        a00 = 2 * np.pi * K[0, 0] + D_cur[0, 0]
-        a01 = 2 * np.pi * K[0, 1] + D_cur[0, 1]
-        a10 = 2 * np.pi * K[1, 0] + D_cur[1, 0]
-        a11 = 2 * np.pi * K[1, 1] + D_cur[1, 1]
-        B = np.subtract(D_ref, D_cur, out=D_cur)
-        rdet = 1.0 / (a00 * a11 - a01 * a10)
-        G = np.empty((2, 2, *shape))
-        G[0, 0] = (a11 * B[0, 0] - a01 * B[1, 0]) * rdet
-        G[0, 1] = (a11 * B[0, 1] - a01 * B[1, 1]) * rdet
-        G[1, 0] = (a00 * B[1, 0] - a10 * B[0, 0]) * rdet
-        G[1, 1] = (a00 * B[1, 1] - a10 * B[0, 1]) * rdet
-    else:
-        D_cur = deformed.dphi.astype(np.float64)
-        G = -np.tensordot(np.linalg.inv(K), D_cur - D_ref, axes=1) / (2 * np.pi)  # eq. (35)
+            # residual phi_def(X + u) - phi_ref(X) + 2 pi k.u, wrapped to (-pi, pi]:
+            # the carrier's phase added as a real number rather than as exp(i .)
+            r[j] = np.angle(psi_cur[j](coords) * conj_ref[j])
+            r[j] += two_pi_K[j, 0] * u[0] + two_pi_K[j, 1] * u[1]
+            r[j] = np.pi - np.mod(np.pi - r[j], 2 * np.pi)
+        du = -_solve(K, r) / (2 * np.pi)
+        u = u + np.where(valid, du, 0.0)
+        step = math.sqrt(float(np.sum(du[:, valid] ** 2)) / nv)
+        if step < tol:
+            break
+    return u, iterations, step
 
-    strain = np.stack([G[0, 0], G[1, 1], 0.5 * (G[0, 1] + G[1, 0])])
-    rotation = 0.5 * (G[1, 0] - G[0, 1])
-    # computed in float64, returned in the maps' precision (gridstrain.conventions)
-    dt = np.result_type(reference.dphi.dtype, deformed.dphi.dtype)
-    u = np.where(valid, u, np.nan).astype(dt, copy=False)
-    strain = np.where(valid, strain, np.nan).astype(dt, copy=False)
-    rotation = np.where(valid, rotation, np.nan).astype(dt, copy=False)
+
+def _lagrangian_gradient(u, reference, deformed, D_ref):
+    """Exact Lagrangian displacement gradient ``G`` ((2, 2, H, W)) with the deformed
+    state's derivatives taken at ``X + u``, and the pixels valid in both states."""
+    shape = reference.shape
+    K = reference.lattice.K
+    yy, xx = np.mgrid[0:shape[0], 0:shape[1]].astype(np.float64)
+    coords = np.stack([yy + u[1], xx + u[0]])
+    inside = ((coords[0] >= 0) & (coords[0] <= shape[0] - 1)
+              & (coords[1] >= 0) & (coords[1] <= shape[1] - 1))
+    cur_valid = ndimage.map_coordinates(deformed.valid.astype(np.float64), coords,
+                                        order=1, mode="constant", cval=0.0)
+    valid = reference.valid & inside & (cur_valid > 0.999)
+    D_cur = np.empty((2, 2, *shape))
+    # Where Psi is exactly 0 (deep in a masked area) its derivatives are undefined;
+    # a spline's prefilter would spread one NaN over whole rows, so zero them (the
+    # pixels are invalid anyway).
+    dphi_cur = np.nan_to_num(deformed.dphi.astype(np.float64), nan=0.0, posinf=0.0,
+                             neginf=0.0)
+    for j in range(2):
+        for m in range(2):
+            D_cur[j, m] = _Spline(dphi_cur[j, m])(coords)
+    # exact Lagrangian gradient: (2 pi K + D_cur) G = D_ref - D_cur, by Cramer's
+    # rule map by map rather than through (2, 2, H, W) temporaries
+    a00 = 2 * np.pi * K[0, 0] + D_cur[0, 0]
+    a01 = 2 * np.pi * K[0, 1] + D_cur[0, 1]
+    a10 = 2 * np.pi * K[1, 0] + D_cur[1, 0]
+    a11 = 2 * np.pi * K[1, 1] + D_cur[1, 1]
+    B = np.subtract(D_ref, D_cur, out=D_cur)
+    rdet = 1.0 / (a00 * a11 - a01 * a10)
+    G = np.empty((2, 2, *shape))
+    G[0, 0] = (a11 * B[0, 0] - a01 * B[1, 0]) * rdet
+    G[0, 1] = (a11 * B[0, 1] - a01 * B[1, 1]) * rdet
+    G[1, 0] = (a00 * B[1, 0] - a10 * B[0, 0]) * rdet
+    G[1, 1] = (a00 * B[1, 1] - a10 * B[0, 1]) * rdet
+    return G, valid
+
+
+def _fringe_order_record(g, source, coarse):
+    """The guess's median ``(u_x, u_y)`` and the FringeOrder record of how the fringe
+    order was chosen."""
     gmed = tuple(float(np.median(c)) for c in g) if source != "zero" else (0.0, 0.0)
     if source == "user":
         order = FringeOrder("user", True, gmed, "the given guess")
@@ -719,11 +762,7 @@ def deformation(reference: PhaseMaps, deformed: PhaseMaps, *, lagrangian: bool =
                                f"image features undecided ({coarse.reason})")
     else:
         order = FringeOrder("smallest displacement", False, gmed, "guess=None")
-    return Measurement(u=u, strain=strain, rotation=rotation, valid=valid, lattice=lattice,
-                       sigma=reference.sigma, lagrangian=bool(lagrangian),
-                       iterations=iterations, step_rms=step, guess=gmed,
-                       guess_source=source, reference=reference, deformed=deformed,
-                       fringe_order=order)
+    return gmed, order
 
 
 def measure(reference, deformed, *, lattice: Lattice | None = None,
@@ -769,14 +808,10 @@ def measure(reference, deformed, *, lattice: Lattice | None = None,
     """
     ref = as_image(reference, "reference")
     cur = as_image(deformed, "deformed")
-    if ref.shape != cur.shape:
-        raise ValueError(f"deformed must have the shape of reference {ref.shape}, "
-                         f"got {cur.shape}")
+    check_same_shape(cur.shape, ref.shape, "deformed", "reference")
     m = check_mask(mask, ref.shape)
-    if lattice is None:
+    if check_type(lattice, "lattice", Lattice, allow_none=True) is None:
         lattice = detect_lattice(ref, mask=m)
-    elif not isinstance(lattice, Lattice):
-        raise TypeError(f"lattice must be a Lattice or None, got {type(lattice).__name__}")
     pm_ref = wft(ref, lattice, sigma=sigma, mask=m, margin=margin, workers=None)
     # the deformed specimen has moved: its mask is not the reference's, so the
     # deformed image is transformed whole and validity comes from its own moduli

@@ -33,11 +33,9 @@ stresses in that unit.
 
 from __future__ import annotations
 
-import numbers
-
 import numpy as np
 
-from ._validation import check_choice, check_positive
+from ._validation import as_pair, check_choice, check_finite, check_positive, check_range
 
 __all__ = [
     "ALUMINIUM_POISSON_RATIO",
@@ -53,21 +51,9 @@ ALUMINIUM_YOUNGS_MODULUS = 70e3
 ALUMINIUM_POISSON_RATIO = 0.33
 
 
-def _check_real(value, name: str) -> float:
-    if isinstance(value, bool) or not isinstance(value, numbers.Real) \
-            or not np.isfinite(float(value)):
-        raise ValueError(f"{name} must be a finite number, got {value!r}")
-    return float(value)
-
-
 def _polar(x, y, radius, centre):
     a = check_positive(radius, "radius")
-    try:
-        cx, cy = (float(c) for c in centre)
-    except (TypeError, ValueError):
-        raise ValueError(f"centre must be an (x, y) pair in px, got {centre!r}") from None
-    if not (np.isfinite(cx) and np.isfinite(cy)):
-        raise ValueError(f"centre must be finite, got {centre!r}")
+    cx, cy = (float(c) for c in as_pair(centre, "centre", unit="px"))
     X = np.asarray(x, dtype=np.float64) - cx
     Y = np.asarray(y, dtype=np.float64) - cy
     if X.shape != Y.shape:
@@ -105,7 +91,7 @@ def stress(x, y, *, radius: float, remote_stress: float = 1.0,
     s_xx, s_yy, s_xy : ndarray
         In the unit of ``remote_stress``; NaN inside the hole (``r < a``).
     """
-    S = _check_real(remote_stress, "remote_stress")
+    S = check_finite(remote_stress, "remote_stress")
     a, _X, _Y, r2, c2, s2 = _polar(x, y, radius, centre)
     with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
         p2 = a * a / r2
@@ -150,9 +136,7 @@ def strain(x, y, *, radius: float, remote_stress: float = 1.0,
 
 def _elastic(youngs_modulus, poisson_ratio) -> tuple[float, float]:
     E = check_positive(youngs_modulus, "youngs_modulus")
-    nu = _check_real(poisson_ratio, "poisson_ratio")
-    if not -1.0 < nu <= 0.5:
-        raise ValueError(f"poisson_ratio must be in (-1, 0.5], got {poisson_ratio!r}")
+    nu = check_range(poisson_ratio, "poisson_ratio", -1.0, 0.5, include_low=False)
     return E, nu
 
 
@@ -186,7 +170,7 @@ def displacement(x, y, *, radius: float, remote_stress: float = 1.0,
     >>> round(float(ux[0]), 4)
     1.0003
     """
-    S = _check_real(remote_stress, "remote_stress")
+    S = check_finite(remote_stress, "remote_stress")
     E, nu = _elastic(youngs_modulus, poisson_ratio)
     _inside(inside)
     a, X, Y, r2, c2, s2 = _polar(x, y, radius, centre)

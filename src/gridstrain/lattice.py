@@ -12,7 +12,7 @@ import numpy as np
 from scipy import fft as sfft
 from scipy import ndimage
 
-from ._validation import as_image, check_mask, check_positive
+from ._validation import as_image, as_pair, check_finite, check_mask, check_positive
 
 __all__ = ["Lattice", "detect_lattice"]
 
@@ -62,10 +62,7 @@ class Lattice:
 
     def __post_init__(self):
         for name in ("k1", "k2"):
-            v = np.asarray(getattr(self, name), dtype=float)
-            if v.shape != (2,) or not np.all(np.isfinite(v)):
-                raise ValueError(f"{name} must be a finite (kx, ky) pair in cycles/px, "
-                                 f"got {getattr(self, name)!r}")
+            v = as_pair(getattr(self, name), name, labels="(kx, ky)", unit="cycles/px")
             norm = float(np.hypot(*v))
             if not 0 < norm < 0.5:
                 raise ValueError(f"{name} must have a norm in (0, 0.5) cycles/px (a pitch "
@@ -88,10 +85,7 @@ class Lattice:
         """
         p1 = check_positive(pitch, "pitch")
         p2 = check_positive(pitch2, "pitch2", allow_none=True) or p1
-        if isinstance(angle, bool) or not isinstance(angle, int | float) or not math.isfinite(
-                angle):
-            raise ValueError(f"angle must be a finite number of degrees, got {angle!r}")
-        a = math.radians(angle)
+        a = math.radians(check_finite(angle, "angle"))
         c, s = math.cos(a), math.sin(a)
         return cls((c / p1 + 0.0, s / p1 + 0.0), (-s / p2 + 0.0, c / p2 + 0.0))
 
@@ -188,8 +182,34 @@ def detect_lattice(image, *, mask=None, max_pitch: float | None = None) -> Latti
     """
     img = as_image(image)
     m = check_mask(mask, img.shape)
+    data, r0, c0 = _windowed_crop(img, m)
+    h, w = data.shape
+    if max_pitch is None:
+        max_pitch = min(h, w) / 4.0
+    max_pitch = check_positive(max_pitch, "max_pitch")
+    spec, fx, fy, fr, allowed = _peak_candidates(data, max_pitch)
+    if not allowed.any():
+        raise ValueError(f"image of shape {img.shape} is too small to detect a lattice")
+    # The refinement is done in crop coordinates; a wave vector does not depend on the
+    # origin, so it applies to the whole image.
+    x = np.arange(c0, c0 + w, dtype=float)
+    y = np.arange(r0, r0 + h, dtype=float)
+    ka, kb = _two_families(data, spec, fx, fy, fr, allowed, x - c0, y - r0)
+    # k1: the one closer to the x axis, oriented with kx > 0
+    if abs(kb[0]) * np.hypot(*ka) > abs(ka[0]) * np.hypot(*kb):
+        ka, kb = kb, ka
+    if ka[0] < 0:
+        ka = -ka
+    if ka[0] * kb[1] - ka[1] * kb[0] < 0:
+        kb = -kb
+    return Lattice(tuple(ka), tuple(kb))
+
+
+def _windowed_crop(img, m):
+    """The central crop (at most 1024 px a side) of the image, mean removed over the
+    mask, masked pixels zeroed, times a 2-D Hann window; and the crop's origin
+    ``(r0, c0)`` in the image."""
     H, W = img.shape
-    # central crop
     h, w = min(H, _MAX_DETECT_SIZE), min(W, _MAX_DETECT_SIZE)
     r0, c0 = (H - h) // 2, (W - w) // 2
     sub = img[r0:r0 + h, c0:c0 + w].astype(np.float64)
@@ -201,10 +221,14 @@ def detect_lattice(image, *, mask=None, max_pitch: float | None = None) -> Latti
     data = np.where(msub, sub - mean, 0.0) * np.outer(_window(h), _window(w))
     if not np.any(data):
         raise ValueError("image is uniform over the mask: no grid to detect")
-    if max_pitch is None:
-        max_pitch = min(h, w) / 4.0
-    max_pitch = check_positive(max_pitch, "max_pitch")
+    return data, r0, c0
 
+
+def _peak_candidates(data, max_pitch):
+    """Magnitude spectrum of ``data`` (real FFT), its frequency grids ``fx``, ``fy``
+    and ``|f|``, and the bins that may be a grid's peak: local maxima of frequency
+    between ``1 / max_pitch`` and Nyquist, one of each ``+-k`` pair."""
+    h, w = data.shape
     spec = np.abs(sfft.rfft2(data))
     fy = sfft.fftfreq(h)[:, None]
     fx = sfft.rfftfreq(w)[None, :]
@@ -215,11 +239,13 @@ def detect_lattice(image, *, mask=None, max_pitch: float | None = None) -> Latti
     # only local maxima are peaks: the rim of a smooth image's low-frequency content,
     # cut by the pitch limit, is not one
     allowed &= spec == ndimage.maximum_filter(spec, size=3, mode="wrap")
-    if not allowed.any():
-        raise ValueError(f"image of shape {img.shape} is too small to detect a lattice")
+    return spec, fx, fy, fr, allowed
 
-    x = np.arange(c0, c0 + w, dtype=float)
-    y = np.arange(r0, r0 + h, dtype=float)
+
+def _two_families(data, spec, fx, fy, fr, allowed, x, y):
+    """The refined wave vectors of the two strongest non-parallel peaks, each
+    checked to stand out of the spectrum (ValueError otherwise)."""
+    h, w = data.shape
     found: list[np.ndarray] = []
     first_peak = 0.0
     search = allowed.copy()
@@ -243,7 +269,7 @@ def detect_lattice(image, *, mask=None, max_pitch: float | None = None) -> Latti
                 "in another direction); pass the lattice explicitly")
         if not found:
             first_peak = float(spec[iy, ix])
-        found.append(_refine(data, k0, x - c0, y - r0, h, w))
+        found.append(_refine(data, k0, x, y, h, w))
         # exclude everything parallel to the peak just found (its harmonics)
         ang = np.degrees(np.arctan2(fy, fx))
         a0 = math.degrees(math.atan2(k0[1], k0[0]))
@@ -251,17 +277,7 @@ def detect_lattice(image, *, mask=None, max_pitch: float | None = None) -> Latti
         search &= d > _PARALLEL_DEG
     if len(found) < 2:
         raise ValueError("image shows only one family of lines; pass the lattice explicitly")
-    # The refinement was done in crop coordinates; a wave vector does not depend on the
-    # origin, so it applies to the whole image.
-    ka, kb = found
-    # k1: the one closer to the x axis, oriented with kx > 0
-    if abs(kb[0]) * np.hypot(*ka) > abs(ka[0]) * np.hypot(*kb):
-        ka, kb = kb, ka
-    if ka[0] < 0:
-        ka = -ka
-    if ka[0] * kb[1] - ka[1] * kb[0] < 0:
-        kb = -kb
-    return Lattice(tuple(ka), tuple(kb))
+    return found
 
 
 def _prominence(spec: np.ndarray, fr: np.ndarray, iy: int, ix: int, n: int) -> float:

@@ -11,14 +11,22 @@ Coordinates follow :mod:`gridstrain.conventions`.
 from __future__ import annotations
 
 import math
-import numbers
 from dataclasses import dataclass
 
 import numpy as np
 from scipy import linalg, ndimage, stats
 
 from ._progress import Progress, null_progress
-from ._validation import as_image, check_mask, check_positive, float_dtype
+from ._validation import (
+    as_float_array,
+    as_image,
+    as_shifts,
+    check_finite,
+    check_int,
+    check_mask,
+    check_positive,
+    check_type,
+)
 from .lattice import Lattice, detect_lattice
 from .vibration import _as_frame, _CarrierProbe, _iter_frames, _streaming_shift
 from .wft import wft
@@ -56,26 +64,6 @@ _MIN_PER_BIN = 20
 _BUFFER_BYTES = 64 * 2**20
 # Two-sided 95 % normal quantile, for the confidence intervals.
 _Z95 = float(stats.norm.ppf(0.975))
-
-
-def _check_finite(value, name: str) -> float:
-    if isinstance(value, bool) or not isinstance(value, numbers.Real):
-        raise TypeError(f"{name} must be a finite number, got {value!r}")
-    if not math.isfinite(value):
-        raise ValueError(f"{name} must be a finite number, got {value!r}")
-    return float(value)
-
-
-def _check_noise_params(K, L) -> tuple[float, float]:
-    return check_positive(K, "K"), _check_finite(L, "L")
-
-
-def _as_float_array(image, name: str) -> np.ndarray:
-    arr = np.asarray(image)
-    if arr.dtype == bool or not (np.issubdtype(arr.dtype, np.integer)
-                                 or np.issubdtype(arr.dtype, np.floating)):
-        raise TypeError(f"{name} must be a real numeric array, got dtype {arr.dtype}")
-    return arr.astype(float_dtype(arr.dtype), copy=False)
 
 
 def anscombe(image, *, K: float, L: float) -> np.ndarray:
@@ -133,8 +121,8 @@ def anscombe(image, *, K: float, L: float) -> np.ndarray:
     >>> round(float(anscombe(z, K=0.28, L=5.0).std()), 2)
     1.0
     """
-    K, L = _check_noise_params(K, L)
-    z = _as_float_array(image, "image")
+    K, L = check_positive(K, "K"), check_finite(L, "L")
+    z = as_float_array(image, "image")
     arg = z * z.dtype.type(K) + z.dtype.type(0.375 * K * K + L)
     return z.dtype.type(2.0 / K) * np.sqrt(np.maximum(arg, 0))
 
@@ -186,8 +174,8 @@ def inverse_anscombe(image, *, K: float, L: float) -> np.ndarray:
        transformation for Poisson-Gaussian noise", IEEE Trans. Image Process. 22
        (2013) 91-103. doi:10.1109/TIP.2012.2202675
     """
-    K, L = _check_noise_params(K, L)
-    D = _as_float_array(image, "image")
+    K, L = check_positive(K, "K"), check_finite(L, "L")
+    D = as_float_array(image, "image")
     if np.any(~(D > 0)):
         raise ValueError("image must hold positive values (the range of anscombe), got "
                          f"a minimum of {np.nanmin(D) if D.size else 'nothing'!r} or NaN")
@@ -258,7 +246,7 @@ class NoiseModel:
 
     def __post_init__(self):
         for name in ("K", "L"):
-            object.__setattr__(self, name, _check_finite(getattr(self, name), name))
+            object.__setattr__(self, name, check_finite(getattr(self, name), name))
         object.__setattr__(self, "scale", check_positive(self.scale, "scale"))
         for name in ("levels", "variances", "variance_errors"):
             arr = getattr(self, name)
@@ -451,21 +439,15 @@ def estimate_noise(frames, lattice: Lattice | None = None, *, shifts=None,
     Saturated pixels must be excluded with ``saturation``: clipping lowers their
     variance and drags the fit.
     """
-    if lattice is not None and not isinstance(lattice, Lattice):
-        raise TypeError(f"lattice must be a Lattice or None, got {type(lattice).__name__}")
+    lattice = check_type(lattice, "lattice", Lattice, allow_none=True)
     if isinstance(degree, bool) or degree not in (0, 1, 2, 3, 4):
         raise ValueError(f"degree must be 0, 1, 2, 3 or 4, got {degree!r}")
-    if isinstance(n_bins, bool) or not isinstance(n_bins, numbers.Integral) or n_bins < 3:
-        raise ValueError(f"n_bins must be an integer of at least 3, got {n_bins!r}")
+    n_bins = check_int(n_bins, "n_bins", minimum=3)
     scale = check_positive(scale, "scale")
-    if saturation is not None:
-        saturation = check_positive(saturation, "saturation")
+    saturation = check_positive(saturation, "saturation", allow_none=True)
     n_total = len(frames) if hasattr(frames, "__len__") else None
     if shifts is not None:
-        shifts = np.asarray(shifts, dtype=np.float64)
-        if shifts.ndim != 2 or shifts.shape[1] != 2 or not np.all(np.isfinite(shifts)):
-            raise ValueError(f"shifts must be a finite (T, 2) array of px, got shape "
-                             f"{shifts.shape}")
+        shifts = as_shifts(shifts)
         # Centred, the monomials are far from collinear (the fit itself does not
         # depend on the origin, but its conditioning does).
         shifts = shifts - shifts.mean(axis=0)
@@ -474,7 +456,45 @@ def estimate_noise(frames, lattice: Lattice | None = None, *, shifts=None,
                              f"{n_total} frames")
     progress = null_progress if progress is None else progress
     p = _n_regressors(degree)
+    acc = _accumulate_stack(frames, lattice, shifts, degree, n_total, progress)
+    T = acc["T"]
+    if shifts is not None and shifts.shape[0] != T:
+        raise ValueError(f"shifts has {shifts.shape[0]} rows but frames hold {T} frames")
+    dof = T - p
+    if dof < 3:
+        raise ValueError(f"frames must hold at least {p + 3} frames for degree {degree} "
+                         f"({p} regressors), got {T}")
 
+    shape = acc["v0"].shape
+    rss, level_d, fit_max = _project(acc["X"], acc["B"].reshape(p, *shape),
+                                     acc["S2"].reshape(shape), degree,
+                                     want_max=saturation is not None)
+    var = (rss / dof).ravel()
+    level = (acc["v0"] + level_d).ravel()
+    ok = np.isfinite(var) & (var > 0)
+    if saturation is not None:
+        ok &= _unsaturated(acc["v0"].ravel() + fit_max, acc["vmax"].ravel(), level, var, ok,
+                           saturation)
+    progress(0.95, "noise: fitting Var = K l + L")
+    fit = _fit_variance(level[ok], var[ok], dof, n_bins)
+    progress(1.0, "noise: done")
+    return NoiseModel(K=fit["K"], L=fit["L"], K_ci=fit["K_ci"], L_ci=fit["L_ci"],
+                      scale=scale, n_frames=T, n_pixels=fit["n_pixels"], dof=dof,
+                      reduced_chi2=fit["reduced_chi2"], levels=fit["levels"],
+                      variances=fit["variances"], variance_errors=fit["errors"])
+
+
+def _accumulate_stack(frames, lattice, shifts, degree, n_total, progress) -> dict:
+    """Stream the frames once into the sums the per-pixel regression needs.
+
+    Returns a dict with ``T`` (frames read), ``X`` ((T, p) design matrix of the
+    shifts' monomials), ``B`` ((p, H W) ``X^T d``), ``S2`` ((H W,) ``sum d^2``), with
+    ``d`` the frames minus the first frame ``v0`` ((H, W)), and ``vmax`` ((H, W)
+    the highest value each pixel reached). Shifts come from ``shifts`` (centred),
+    are zero for ``degree == 0``, or are measured on the fly from the carrier
+    phase (lattice detected on the first frame if None).
+    """
+    p = _n_regressors(degree)
     shape = v0 = B = S2 = vmax = shift_fn = None
     rows = []
     T = 0
@@ -514,35 +534,18 @@ def estimate_noise(frames, lattice: Lattice | None = None, *, shifts=None,
         _flush(B, S2, np.array(rows[T - nbuf:]), buf[:nbuf])
     if T == 0:
         raise ValueError("frames must hold at least one frame, got none")
-    if shifts is not None and shifts.shape[0] != T:
-        raise ValueError(f"shifts has {shifts.shape[0]} rows but frames hold {T} frames")
-    dof = T - p
-    if dof < 3:
-        raise ValueError(f"frames must hold at least {p + 3} frames for degree {degree} "
-                         f"({p} regressors), got {T}")
+    return {"T": T, "X": np.array(rows), "B": B, "S2": S2, "v0": v0, "vmax": vmax}
 
-    B = B.reshape(p, *shape)
-    S2 = S2.reshape(shape)
-    rss, level_d, fit_max = _project(np.array(rows), B, S2, degree,
-                                     want_max=saturation is not None)
-    var = (rss / dof).ravel()
-    level = (v0 + level_d).ravel()
-    ok = np.isfinite(var) & (var > 0)
-    if saturation is not None:
-        ok &= vmax.ravel() < saturation  # clipped pixels, whatever the model says
-        top = (v0.ravel() + fit_max)
-        # noise scale near saturation: a median over the brightest tenth of the
-        # unclipped pixels, a global figure that no single pixel's draw can move
-        bright = ok & (level >= np.quantile(level[ok], 0.9)) if ok.any() else ok
-        sigma_hi = math.sqrt(float(np.median(var[bright]))) if bright.any() else 0.0
-        ok &= top + _SATURATION_SIGMAS * sigma_hi < saturation
-    progress(0.95, "noise: fitting Var = K l + L")
-    fit = _fit_variance(level[ok], var[ok], dof, n_bins)
-    progress(1.0, "noise: done")
-    return NoiseModel(K=fit["K"], L=fit["L"], K_ci=fit["K_ci"], L_ci=fit["L_ci"],
-                      scale=scale, n_frames=T, n_pixels=fit["n_pixels"], dof=dof,
-                      reduced_chi2=fit["reduced_chi2"], levels=fit["levels"],
-                      variances=fit["variances"], variance_errors=fit["errors"])
+
+def _unsaturated(top, vmax, level, var, ok, saturation) -> np.ndarray:
+    """(n,) bool: pixels that never clipped and whose highest fitted level ``top``
+    stays 5 noise standard deviations below ``saturation`` (see estimate_noise)."""
+    ok = ok & (vmax < saturation)  # clipped pixels, whatever the model says
+    # noise scale near saturation: a median over the brightest tenth of the
+    # unclipped pixels, a global figure that no single pixel's draw can move
+    bright = ok & (level >= np.quantile(level[ok], 0.9)) if ok.any() else ok
+    sigma_hi = math.sqrt(float(np.median(var[bright]))) if bright.any() else 0.0
+    return ok & (top + _SATURATION_SIGMAS * sigma_hi < saturation)
 
 
 def _flush(B, S2, X, D):
@@ -908,44 +911,26 @@ def estimate_noise_image(image, lattice: Lattice | None = None, *, mask=None,
     if min(H, W) < 160:
         raise ValueError(f"image must be at least 160 x 160 px to estimate its noise, got "
                          f"{H} x {W}")
-    if lattice is not None and not isinstance(lattice, Lattice):
-        raise TypeError(f"lattice must be a Lattice or None, got {type(lattice).__name__}")
-    if isinstance(n_bins, bool) or not isinstance(n_bins, numbers.Integral) or n_bins < 3:
-        raise ValueError(f"n_bins must be an integer of at least 3, got {n_bins!r}")
+    lattice = check_type(lattice, "lattice", Lattice, allow_none=True)
+    n_bins = check_int(n_bins, "n_bins", minimum=3)
     scale = check_positive(scale, "scale")
     m = check_mask(mask, img.shape)
-    if saturation is not None:
-        saturation = check_positive(saturation, "saturation")
+    saturation = check_positive(saturation, "saturation", allow_none=True)
     bad = ~m | (img <= 0)
     if saturation is not None:
         bad |= img >= saturation
     if lattice is None:
         lattice = detect_lattice(img, mask=m)
-    # regions without a grid: their borders are steps the filter does not remove
-    pm = wft(img, lattice, mask=m, margin=1.0)
-    mod = pm.modulus
-    sel = pm.valid if pm.valid.any() else m
-    nogrid = np.zeros(img.shape, dtype=bool)
-    for j in range(2):
-        nogrid |= mod[j] < 0.25 * float(np.median(mod[j][sel]))
+    edge = _gridless_borders(img, lattice, m)
     # the kernel of a Gaussian notch of frequency std s is a Gaussian envelope of
     # 1 / (2 pi s) px (its square, of the double notch, is narrower): beyond 4.5 of
     # them a pixel's residual no longer sees an edge, a hole or a clipped pixel
     # on small images the notches widen so that the reach stays a sixth of the side
     notch = max(_NOTCH_STD, 4.5 / (2 * math.pi * min(H, W) / 6))
     reach = math.ceil(4.5 / (2 * math.pi * notch))
-    # the modulus marks a gridless region's border to within about two pitches
-    band = math.ceil(2 * lattice.pitch)
-    edge = ndimage.binary_dilation(nogrid, iterations=band) & ndimage.binary_dilation(
-        ~nogrid, iterations=band)
-    usable = ~bad & ~edge
     tile = min(_TILE, 1 << math.floor(math.log2(min(H, W) / 2)))
-    Hf, _ = _residual_filter(img.shape, lattice, _tile_spectrum(img, usable, tile), notch)
-    h = np.real(np.fft.ifft2(Hf))
-    G = float(np.mean(Hf * Hf))  # Parseval: sum h^2, the white-noise power passed
-    F = np.fft.fft2(img)
-    r = np.real(np.fft.ifft2(F * Hf))
-    lam = np.real(np.fft.ifft2(F * np.fft.fft2(h * h))) / G
+    Hf, _ = _residual_filter(img.shape, lattice, _tile_spectrum(img, ~bad & ~edge, tile), notch)
+    r, lam, G = _filtered_residual(img, Hf)
     ok = ~ndimage.binary_dilation(bad | edge, iterations=reach)
     ok[:reach] = ok[-reach:] = False
     ok[:, :reach] = ok[:, -reach:] = False
@@ -959,7 +944,46 @@ def estimate_noise_image(image, lattice: Lattice | None = None, *, mask=None,
     # correlation of neighbouring residuals: Var(mean of n r^2) = 2 V^2 R / n
     A = np.abs(Hf) ** 2
     R = float(A.size * np.sum(A * A) / np.sum(A) ** 2)
-    lv, rv = lam[ok], r[ok]
+    lb, vb, nbin = _binned_variances(lam[ok], r[ok], n_bins, G)
+    K, L, cov, chi2, err = _fit_binned(lb, vb, nbin, R)
+    red, (sK, sL) = _intervals(cov, chi2, lb.size)
+    return NoiseModel(K=K, L=L, K_ci=(K - sK, K + sK), L_ci=(L - sL, L + sL), scale=scale,
+                      n_frames=1, n_pixels=int(np.count_nonzero(ok)), dof=None,
+                      reduced_chi2=red, levels=lb, variances=vb, variance_errors=err,
+                      method="single image", filter_gain=G)
+
+
+def _gridless_borders(img, lattice, mask) -> np.ndarray:
+    """(H, W) bool: the borders of the regions without a grid (fundamental modulus
+    below a quarter of its median), steps the grid-removal filter does not remove."""
+    pm = wft(img, lattice, mask=mask, margin=1.0)
+    mod = pm.modulus
+    sel = pm.valid if pm.valid.any() else mask
+    nogrid = np.zeros(img.shape, dtype=bool)
+    for j in range(2):
+        nogrid |= mod[j] < 0.25 * float(np.median(mod[j][sel]))
+    # the modulus marks a gridless region's border to within about two pitches
+    band = math.ceil(2 * lattice.pitch)
+    return ndimage.binary_dilation(nogrid, iterations=band) & ndimage.binary_dilation(
+        ~nogrid, iterations=band)
+
+
+def _filtered_residual(img, Hf):
+    """Residual ``r = h * img`` of the grid-removal filter of transfer ``Hf``, the
+    local level ``lambda = (h^2 * img) / G`` and the filter's white-noise gain
+    ``G = sum h^2`` (Parseval)."""
+    h = np.real(np.fft.ifft2(Hf))
+    G = float(np.mean(Hf * Hf))  # Parseval: sum h^2, the white-noise power passed
+    F = np.fft.fft2(img)
+    r = np.real(np.fft.ifft2(F * Hf))
+    lam = np.real(np.fft.ifft2(F * np.fft.fft2(h * h))) / G
+    return r, lam, G
+
+
+def _binned_variances(lv, rv, n_bins, G):
+    """Per bin of equal counts by level ``lv``: mean level, clipped variance of the
+    residuals ``rv`` divided by the filter gain ``G``, and the pixel count (bins of
+    fewer than 50 pixels are dropped)."""
     edges = np.unique(np.quantile(lv, np.linspace(0, 1, n_bins + 1)))
     nb = edges.size - 1
     if nb < 3:
@@ -978,6 +1002,13 @@ def estimate_noise_image(image, lattice: Lattice | None = None, *, mask=None,
     lb, vb, nbin = np.array(lb), np.array(vb), np.array(nbin, dtype=np.float64)
     if lb.size < 3:
         raise ValueError("too few intensity bins to fit Var = K l + L")
+    return lb, vb, nbin
+
+
+def _fit_binned(lb, vb, nbin, R):
+    """``K``, ``L``, their covariance, the chi-square and the bin errors of the
+    weighted fit of ``Var = K l + L`` to the bin variances, the weights from the
+    chi-square law with the residuals' correlation factor ``R``, iterated."""
     K, L = np.polyfit(lb, vb, 1)
     for _ in range(20):
         model = np.maximum(K * lb + L, 1e-6 * float(np.median(vb)))
@@ -990,8 +1021,4 @@ def estimate_noise_image(image, lattice: Lattice | None = None, *, mask=None,
     if not K > 0:
         raise ValueError(f"no signal-dependent noise found in the image (fitted K = {K:.3g}); "
                          "it may be processed (denoised, compressed) or hold no grid")
-    red, (sK, sL) = _intervals(cov, chi2, lb.size)
-    return NoiseModel(K=K, L=L, K_ci=(K - sK, K + sK), L_ci=(L - sL, L + sL), scale=scale,
-                      n_frames=1, n_pixels=int(np.count_nonzero(ok)), dof=None,
-                      reduced_chi2=red, levels=lb, variances=vb, variance_errors=err,
-                      method="single image", filter_gain=G)
+    return K, L, cov, chi2, err

@@ -141,14 +141,19 @@ from . import theory
 from ._progress import null_progress
 from ._validation import (
     SIGMA_PITCH_RTOL,
+    check_callable,
     check_choice,
+    check_float_dtype,
+    check_fraction,
     check_mask,
     check_positive,
     check_sigma,
+    check_type,
+    check_workers,
 )
+from .accumulate import PassPlan, SeriesPass
 from .io import (
     FrameSeries,
-    check_saturation_limit,
     open_series,
     read_mask,
 )
@@ -162,8 +167,8 @@ from .kinematics import (
 )
 from .lattice import Lattice, detect_lattice
 from .noise import NoiseModel, estimate_noise_image
-from .screening import FrameScreen, screen_frames
-from .stacks import method_b, method_c
+from .screening import FrameScreen
+from .stacks import _FrameOrder, _map_bounded, method_b
 from .uncertainty import aliasing_bias, metrology, predict_uncertainty, smoothing_bias
 from .wft import DEFAULT_MARGIN, PhaseMaps, finite_derivatives, wft
 
@@ -344,6 +349,10 @@ class SeriesResult:
     strain : (n_states, 3, H, W) float ndarray
         ``(e_xx, e_yy, e_xy)`` per state, dimensionless (tensor shear).
     valid : (n_states, H, W) bool ndarray
+        With ``measure_series(..., output=...)`` these three, the uncertainty maps
+        and the measurements' maps are :class:`gridstrain.results.StoredMaps`:
+        read from the result file when indexed (``result.u[i]`` reads state
+        ``i``), ``numpy.asarray`` reading the whole.
     lattice : Lattice
     lattice_detected : bool
         Whether the lattice was detected (True) or given.
@@ -441,7 +450,9 @@ class SeriesResult:
 
     def __post_init__(self):
         for name in ("u", "strain", "valid", "mask", "reference_image"):
-            getattr(self, name).flags.writeable = False
+            arr = getattr(self, name)
+            if isinstance(arr, np.ndarray):  # maps read from a file are read-only already
+                arr.flags.writeable = False
 
     @property
     def n_states(self) -> int:
@@ -829,18 +840,16 @@ class _Screened:
     warnings: tuple[str, ...]
 
 
-def _screen_series(s, lattice: Lattice, mask, max_saturation: float, outliers: str,
-                   report: Progress) -> _Screened:
-    """Read every frame of ``s`` once: rigid shifts and the screening
-    (:func:`gridstrain.screening.screen_frames`), then exclude, refuse or keep
-    the flagged frames as ``outliers`` says. A strict minority is excluded; when half
-    the frames or more are flagged the series is refused whatever the policy but
-    "warn": the good frames cannot be told from the bad."""
+def _screen_pass(s, acc: SeriesPass, max_saturation: float, outliers: str):
+    """The screening of the frames of ``s`` from its pass (:meth:`SeriesPass.screen`),
+    and the pass once the flagged frames are excluded, refused or kept as ``outliers``
+    says: ``(_Screened, pass)``. A strict minority is excluded (read a second time
+    to take them out of the sums); when half the frames or more are flagged the
+    series is refused whatever the policy but "warn": the good frames cannot be told
+    from the bad."""
     n = s.n_frames
     try:
-        sc = screen_frames(_counting(s.frames(dtype=np.float64), n, report, "screening"),
-                           lattice, saturation_level=s.saturation_level, scale=s.scale,
-                           mask=mask, max_saturation=max_saturation)
+        sc = acc.screen(max_saturation=max_saturation)
     except ValueError as exc:
         raise ValueError(f"{s.name}: {exc}") from None
     bad = sc.flagged
@@ -858,6 +867,8 @@ def _screen_series(s, lattice: Lattice, mask, max_saturation: float, outliers: s
                          "to measure anyway")
     if bad and outliers == "exclude":
         warnings.append(f"{s.name}: excluded {len(bad)} of {n} frames: {listed}")
+        for t in bad:  # the second read of a frame: only for the excluded ones
+            acc.remove(t, next(iter(s.frames(dtype=np.float64, start=t, stop=t + 1))))
     elif bad:
         warnings.append(f"{s.name}: kept {len(bad)} flagged frame(s) of {n} (outliers="
                         f"'warn'): {listed}; the noise floor and uncertainty maps of the "
@@ -876,7 +887,7 @@ def _screen_series(s, lattice: Lattice, mask, max_saturation: float, outliers: s
                      excluded=tuple(s._number(t) for t in bad if outliers == "exclude"),
                      kept_flagged=bool(bad) and outliers == "warn",
                      saturation=float(sat[worst]), clip_level=level,
-                     warnings=tuple(warnings))
+                     warnings=tuple(warnings)), acc
 
 
 # What the user can do about a flagged frame, by what its reason says.
@@ -910,25 +921,6 @@ def _saturation_warning(s, sc: _Screened, saturation: float) -> list[str]:
     return [f"{s.name}: up to {saturation:.2%} of a frame's pixels are saturated{at}"]
 
 
-def _void_precision(noise: NoiseFloor, uncertainty, screens) -> tuple:
-    """NaN noise floor and uncertainty maps for every state measured with frames that
-    were flagged but kept: their precision is not known."""
-    states = [i for i in range(noise.theory_u.shape[0])
-              if screens[0].kept_flagged or screens[i + 1].kept_flagged]
-    if not states:
-        return noise, uncertainty
-    arrays = {}
-    for name in ("theory_u", "theory_strain", "split_u", "split_strain", "vibration_u"):
-        a = np.array(getattr(noise, name))
-        a[states] = np.nan
-        arrays[name] = a
-    if uncertainty is not None:
-        uncertainty = {k: np.array(v) for k, v in uncertainty.items()}
-        for v in uncertainty.values():
-            v[states] = np.nan
-    return dataclasses.replace(noise, **arrays), uncertainty
-
-
 # --------------------------------------------------------------------------- statistics
 
 
@@ -940,64 +932,90 @@ class _Stats:
     saturation: float
 
 
-def _regressors(shifts: np.ndarray):
-    """Centred shifts ``c`` (T, 2), their scatter matrix, whether to regress them out."""
-    T = shifts.shape[0]
-    c = shifts - shifts.mean(axis=0)  # centred regressors (T, 2)
-    S_aa = c.T @ c
-    # rank of the shift regressors: 0 without vibration, 2 normally
-    rank = int(np.linalg.matrix_rank(S_aa, tol=1e-12 * max(float(np.trace(S_aa)), 1e-300)))
-    return c, S_aa, T - 1 - 2 >= 1 and rank == 2
+# Reference frames averaged for the lattice's detection (or its check), spread over
+# the series: the lattice must be known before the pass that measures the shifts,
+# so these frames are the only ones read twice in a clean series.
+_LATTICE_FRAMES = 8
+# The cost of a transform, in frames read (progress only).
+_WFT_COST = 4.0
 
 
-def _statistics(series, shifts: np.ndarray, mask: np.ndarray | None,
-                max_saturation: float, report: Progress) -> _Stats:
-    """Mean, vibration-corrected temporal variance and saturation, in one pass."""
-    T = series.n_frames
-    c, _, regress = _regressors(shifts)
-    first = None
-    s1 = s2 = sva = None
-    worst = 0.0
-    check = isinstance(series, FrameSeries)
-    for t, frame in enumerate(series.frames(dtype=np.float64)):
-        if check:
-            worst = max(worst, check_saturation_limit(frame, series, mask=mask,
-                                                      max_fraction=max_saturation,
-                                                      index=t))
-        if first is None:
-            # accumulate differences to the first frame: the sums of squares then
-            # hold noise-sized numbers, not grey levels squared
-            first = frame
-            s1 = np.zeros_like(frame)
-            s2 = np.zeros_like(frame)
-            sva = np.zeros((2, *frame.shape)) if regress else None
-        d = frame - first
-        s1 += d
-        s2 += d * d
-        if regress:
-            sva += c[t][:, None, None] * d
-        report((t + 1) / T, f"statistics {t + 1}/{T}")
-    return _finish_statistics(first, s1, s2, sva, shifts, worst)
+def _pass_cost(method: str) -> float:
+    """Progress weight of one frame of a pass."""
+    return 1.0 + (_WFT_COST if method == "B" else 0.0) + (0.5 if method == "C" else 0.0)
 
 
-def _finish_statistics(first, s1, s2, sva, shifts, worst) -> _Stats:
-    """The statistics from the sums over the frames of ``d = frame - first``,
-    ``d * d`` and ``c_t d`` (None without regression)."""
-    T = shifts.shape[0]
-    _, S_aa, regress = _regressors(shifts)
-    mean = first + s1 / T
-    if T < 2:
-        return _Stats(mean, None, "unavailable (a single frame)", worst)
-    svv = s2 - s1 * s1 / T
-    if regress:
-        P = np.linalg.inv(S_aa)
-        svv = svv - np.einsum("ihw,ij,jhw->hw", sva, P, sva)
-        dof = T - 3
-        how = f"temporal variance, shifts regressed out ({dof} dof)"
-    else:
-        dof = T - 1
-        how = f"temporal variance, vibrations not removed ({dof} dof)"
-    return _Stats(mean, np.maximum(svv, 0.0) / dof, how, worst)
+def _lattice_image(ref, report: Progress) -> np.ndarray:
+    """Mean of at most :data:`_LATTICE_FRAMES` frames spread over the reference."""
+    T = ref.n_frames
+    idx = np.unique(np.linspace(0, T - 1, min(T, _LATTICE_FRAMES)).round().astype(int))
+    sub = ref if idx.size == T else ref.subset([int(i) for i in idx])
+    return sub.mean(progress=report)
+
+
+def _detect(image: np.ndarray, ref, mask: np.ndarray, margin: float) -> Lattice:
+    """The lattice detected on ``image``, or an error naming what to do."""
+    try:
+        lattice = detect_lattice(image, mask=mask)
+    except ValueError as exc:
+        # frames smaller than a common 5-px pitch needs: say so first
+        need = _min_side(2.0, margin)
+        if min(ref.shape) < _min_side(5.0, margin):
+            raise ValueError(f"reference: no grid detected on frames of {ref.shape[0]} "
+                             f"x {ref.shape[1]} px, too small for the grid method: a "
+                             f"window of sigma >= the pitch with its band of margin = "
+                             f"{margin:g} sigmas needs {need} px for a 2-px pitch, "
+                             f"{_min_side(5.0, margin)} px for a 5-px pitch") from None
+        raise ValueError(f"reference: {exc}") from None
+    _check_pitch_fits(ref.shape, lattice.pitch, margin)
+    return lattice
+
+
+def _plan(s, lattice: Lattice, method: str, sigma: float, margin: float,
+          mask: np.ndarray, is_ref: bool) -> PassPlan:
+    """What the pass over series ``s`` gathers. Method B's transforms use the
+    reference's mask (the states': the whole frame), as its phase maps do; regions
+    without a grid, known only from the mean image, may change that afterwards."""
+    return PassPlan(lattice=lattice, n_frames=s.n_frames, method=method, sigma=sigma,
+                    margin=margin,
+                    transform_mask=(mask if is_ref else np.ones(s.shape, dtype=bool))
+                    if method == "B" else None,
+                    saturation_level=s.saturation_level, scale=int(s.scale),
+                    count_mask=mask)
+
+
+def _run_pass(s, plan: PassPlan, report: Progress) -> SeriesPass:
+    """One pass over the frames of ``s`` on this machine. Method B's transforms run
+    on threads (the usable cores), adding their sums in frame order (the result
+    does not depend on the number of threads); the rest follows the reading."""
+    n = s.n_frames
+    workers = check_workers(None) if plan.method == "B" else 1
+    order = _FrameOrder() if workers > 1 else None
+    box: list = []
+
+    def read():
+        for t, frame in enumerate(s.frames(dtype=np.float64)):
+            if not box:
+                box.append(SeriesPass(plan, frame))
+            box[0].add(t, frame, transform=False)
+            yield t, frame
+
+    def transform(item):
+        t, frame = item
+        if plan.method == "B":
+            try:
+                box[0].add_transform(t, frame, order=order)
+            except BaseException:
+                if order is not None:
+                    order.fail(t)  # the frames after this one must not wait for it
+                raise
+        return t
+
+    for t in _map_bounded(transform, read(), workers):
+        report((t + 1) / n, f"frame {t + 1}/{n}")
+    if not box:
+        raise ValueError(f"{s.name}: no frame")
+    return box[0]
 
 
 # --------------------------------------------------------------------------- phase maps
@@ -1075,11 +1093,20 @@ def _phase_maps_a(image, lattice, sigma, mask, margin):
     return finite_derivatives(pm), m
 
 
-def _phase_maps_b(series, lattice, sigma, mask, margin, report):
-    """Method B (§2.3) on the series' frames, streamed."""
-    n = series.n_frames
-    frames = _counting(series.frames(dtype=np.float64), n, report, "method B: transform")
-    return finite_derivatives(method_b(frames, lattice, sigma=sigma, mask=mask, margin=margin).maps)
+def _method_b_maps(s, sc: _Screened, acc: SeriesPass, used: np.ndarray,
+                   report: Progress) -> PhaseMaps:
+    """Method B's maps of series ``s`` from its pass; the kept frames are transformed
+    again (a second read) only when the mean image showed regions without a grid,
+    which change the windows' support near them."""
+    plan = acc.plan
+    if np.array_equal(used, plan.transform_mask):
+        return finite_derivatives(acc.method_b().maps)
+    kept = sc.series
+    n = kept.n_frames
+    frames = _counting(kept.frames(dtype=np.float64), n, report,
+                       "method B, without the regions showing no grid")
+    return finite_derivatives(method_b(frames, plan.lattice, sigma=plan.sigma, mask=used,
+                                       margin=plan.margin).maps)
 
 
 # Method A's averaged grid keeps this fraction of its contrast or less (eq. 14): its
@@ -1099,24 +1126,6 @@ def _contrast_notes(vib) -> list[str]:
                        f"method A's strain noise is {1 / c - 1:.1%} above that of method C, "
                        "which realigns the frames before averaging (--method C)")
     return out
-
-
-def _phase_maps_c(series, lattice, sigma, mask, margin, shifts, report):
-    """Method C (vibration-compensated averaging) on the series' frames, streamed,
-    with the shifts of the series pass; returns the maps and the warnings."""
-    n = series.n_frames
-    frames = _counting(series.frames(dtype=np.float64), n, report, "method C: sums")
-    res = method_c(frames, lattice, shifts=shifts, sigma=sigma, mask=mask, margin=margin)
-    return finite_derivatives(res.maps), [f"{series.name}: {w}" for w in res.warnings]
-
-
-def _in_precision(maps: list, series: list) -> list:
-    """The phase maps in the precision of the input (gridstrain.conventions): float32
-    when every series holds float32 frames; they were computed in float64."""
-    if not all(np.dtype(s.dtype) == np.float32 for s in series):
-        return maps
-    return [dataclasses.replace(pm, psi=pm.psi.astype(np.complex64),
-                                dphi=pm.dphi.astype(np.float32)) for pm in maps]
 
 
 # --------------------------------------------------------------------------- Dask
@@ -1188,35 +1197,41 @@ def _what_to_do(lattice: Lattice) -> str:
             "intermediate image to the series, or image a grid with printed features")
 
 
-def _track(maps, means, mask, lattice, guesses, order, names, lagrangian, report):
-    """Measure every state and fix its fringe order (see :class:`FringeOrder`).
+class _Tracker:
+    """Measure the states one after the other and fix each one's fringe order (see
+    :class:`FringeOrder`): in series order, a state's guess is the previous state's
+    field, which is all that is kept of it."""
 
-    Returns the measurements, their :class:`FringeOrder` records and warnings.
-    """
-    measurements, records, warnings = [], [], []
-    prev = None  # (filled field, valid, confirmed, name) of the last state measured
-    inherited = []  # states followed from an unconfirmed one
-    for i, g in enumerate(guesses):
-        ref_pm, pm, name = maps[0], maps[i + 1], names[i + 1]
+    def __init__(self, ref_pm: PhaseMaps, mean_ref: np.ndarray, mask: np.ndarray,
+                 lattice: Lattice, order: str, lagrangian: bool):
+        self.ref_pm, self.mean_ref, self.mask = ref_pm, mean_ref, mask
+        self.lattice, self.order, self.lagrangian = lattice, order, lagrangian
+        self.prev = None  # (filled field, valid, confirmed, name) of the last state
+        self.inherited: list[str] = []  # states followed from an unconfirmed one
+
+    def measure(self, pm: PhaseMaps, mean: np.ndarray, g, name: str):
+        """``(Measurement, FringeOrder, warnings)`` of the next state."""
+        ref_pm = self.ref_pm
+        warnings: list[str] = []
         est = None
         if isinstance(g, str):  # automatic: the previous state, else image features
-            est = coarse_displacement(means[0], means[i + 1], lattice, mask=mask,
+            est = coarse_displacement(self.mean_ref, mean, self.lattice, mask=self.mask,
                                       phase_shift=_phase_shift(ref_pm, pm))
-        if isinstance(g, str) and order == "series" and prev is not None:
-            field, before, prev_ok, prev_name = prev
-            res = deformation(ref_pm, pm, lagrangian=lagrangian, guess=field)
-            step = _largest_step(res, field, lattice, before)
+        if isinstance(g, str) and self.order == "series" and self.prev is not None:
+            field, before, prev_ok, prev_name = self.prev
+            res = deformation(ref_pm, pm, lagrangian=self.lagrangian, guess=field)
+            step = _largest_step(res, field, self.lattice, before)
             gmed = res.guess
-            if est.confident and _order_offset(res, est.shift, lattice) < 0.5:
+            if est.confident and _order_offset(res, est.shift, self.lattice) < 0.5:
                 rec = _from_estimate(est, "previous state", True, gmed,
                                      f"followed from {prev_name} (step {step:.2f} period); "
                                      f"image features agree ({est.reason})", step)
             elif est.confident and (step > _MAX_STEP
-                                    or np.max(np.abs(lattice.K @ est.shift)) >= 0.5):
+                                    or np.max(np.abs(self.lattice.K @ est.shift)) >= 0.5):
                 # conclusive features that moved with the specimen beat the assumption
                 # of a step below half a period: the step was larger
                 followed = _median_u(res)
-                res = deformation(ref_pm, pm, lagrangian=lagrangian, guess=est.shift)
+                res = deformation(ref_pm, pm, lagrangian=self.lagrangian, guess=est.shift)
                 rec = _from_estimate(est, "image features", True, res.guess,
                                      f"{est.reason}; followed from {prev_name} it would "
                                      f"have been {followed}", step)
@@ -1244,18 +1259,18 @@ def _track(maps, means, mask, lattice, guesses, order, names, lagrangian, report
                 warnings.append(f"{name}: the displacement changed by up to {step:.2f} "
                                 f"period since {prev_name}, more than the {_MAX_STEP} a load "
                                 "step can be followed with: fringe order not confirmed; "
-                                + _what_to_do(lattice))
+                                + _what_to_do(self.lattice))
             else:
                 rec = _from_estimate(est, "previous state", prev_ok, gmed,
                                      f"followed from {prev_name} (step {step:.2f} period)"
                                      + ("" if prev_ok else ", itself not confirmed"), step)
                 if not prev_ok:
-                    inherited.append(name)
+                    self.inherited.append(name)
         elif isinstance(g, str) and est.confident:
-            res = deformation(ref_pm, pm, lagrangian=lagrangian, guess=est.shift)
+            res = deformation(ref_pm, pm, lagrangian=self.lagrangian, guess=est.shift)
             rec = _from_estimate(est, "image features", True, res.guess, est.reason)
         elif isinstance(g, str) or g is None:
-            res = deformation(ref_pm, pm, lagrangian=lagrangian, guess=None)
+            res = deformation(ref_pm, pm, lagrangian=self.lagrangian, guess=None)
             if g is None:
                 rec = FringeOrder("smallest displacement", False, (0.0, 0.0),
                                   "guess=None: the order closest to zero, as asked")
@@ -1264,21 +1279,22 @@ def _track(maps, means, mask, lattice, guesses, order, names, lagrangian, report
                                      f"image features undecided: {est.reason}")
                 warnings.append(f"{name}: fringe order not confirmed ({est.reason}); the "
                                 f"smallest displacement the phases allow was taken (median "
-                                f"{_median_u(res)}); " + _what_to_do(lattice))
+                                f"{_median_u(res)}); " + _what_to_do(self.lattice))
         else:
-            res = deformation(ref_pm, pm, lagrangian=lagrangian, guess=g)
+            res = deformation(ref_pm, pm, lagrangian=self.lagrangian, guess=g)
             rec = FringeOrder("user", True, res.guess, "the given guess")
         # the measurement carries the series' record, not the pair's view of its guess
         res = dataclasses.replace(res, fringe_order=rec)
-        measurements.append(res)
-        records.append(rec)
         filled = _filled(res.u, res.valid)
-        prev = None if filled is None else (filled, res.valid, rec.confirmed, name)
-        report(i + 1)
-    if inherited:
-        warnings.append(f"{', '.join(inherited)}: followed from a state whose fringe order "
-                        "is not confirmed; they share its uncertainty")
-    return measurements, records, warnings
+        self.prev = None if filled is None else (filled, res.valid, rec.confirmed, name)
+        return res, rec, warnings
+
+    def finish(self) -> list[str]:
+        """The warnings that concern several states."""
+        if not self.inherited:
+            return []
+        return [f"{', '.join(self.inherited)}: followed from a state whose fringe order "
+                "is not confirmed; they share its uncertainty"]
 
 
 # --------------------------------------------------------------------------- noise
@@ -1314,32 +1330,28 @@ def _theory_floor(var_ref, T_ref, mod_ref, var_s, T_s, mod_s, sigma, lattice):
     return su, se
 
 
-def _split_floor(ref_series, lattice, sigma, mask, margin, report, shifts=None):
-    """Spatial std of a half-against-half measurement of the reference (method A,
-    or method C with ``shifts``)."""
-    T = ref_series.n_frames
-    T1 = T // 2
+def _split_floor(acc: SeriesPass, lattice, sigma, mask, margin, method: str, report):
+    """Spatial std of a half-against-half measurement of the reference, from the
+    halves' sums of its pass (method A, or method C when it was the method)."""
     halves = []
-    for k, (start, stop) in enumerate(((0, T1), (T1, T))):
-        if shifts is None:
-            img = ref_series.mean(start=start, stop=stop)
+    for h in (0, 1):
+        if method == "C":
+            halves.append(acc.method_c(sigma=sigma, mask=mask, margin=margin,
+                                       halves=(h,)).maps)
+        else:
+            img = acc.half_means()[h]
             halves.append(wft(img, lattice, sigma=sigma, mask=mask, margin=margin,
                               workers=None))
-        else:
-            halves.append(method_c(ref_series.frames(dtype=np.float64, start=start,
-                                                     stop=stop), lattice,
-                                   shifts=shifts[start:stop], sigma=sigma, mask=mask,
-                                   margin=margin).maps)
-        report((k + 1) / 3, f"half {k + 1} of the reference")
+        report((h + 1) / 3, f"half {h + 1} of the reference")
     m = deformation(finite_derivatives(halves[0]), finite_derivatives(halves[1]),
                     lagrangian=False, guess=None)
     report(1.0, "half against half")
     v = m.valid
     if int(v.sum()) < 2:
-        return np.full(2, np.nan), np.full(3, np.nan), (T1, T - T1)
+        return np.full(2, np.nan), np.full(3, np.nan)
     su = np.array([float(np.std(c[v], ddof=1)) for c in m.u])
     se = np.array([float(np.std(c[v], ddof=1)) for c in m.strain])
-    return su, se, (T1, T - T1)
+    return su, se
 
 
 # --------------------------------------------------------------------------- pipeline
@@ -1352,7 +1364,8 @@ def measure_series(reference, states, *, lattice: Lattice | None = None,
                    max_saturation: float = _MAX_SATURATION, outliers: str = "exclude",
                    progress: Progress | None = None, scheduler=None, noise_model=None,
                    sigma_pitches: float | None = None,
-                   timeout: float | None = None) -> SeriesResult:
+                   timeout: float | None = None, output=None,
+                   dtype=None) -> SeriesResult:
     """Displacement and strain maps of loaded states from series of grid images.
 
     Parameters
@@ -1445,6 +1458,19 @@ def measure_series(reference, states, *, lattice: Lattice | None = None,
     timeout : float, optional
         With a scheduler: the longest wait, s, for the cluster's result of one
         series (TimeoutError past it: a stalled cluster). None waits for ever.
+    output : str, os.PathLike or gridstrain.results.ResultFile, optional
+        Write the result file (:func:`gridstrain.results.save_result`'s layout)
+        while measuring: each state's maps go to the file as soon as they are
+        measured and leave memory, so that memory holds one state and the
+        reference whatever the number of states. The returned result reads its maps
+        from the file (see ``u``). The file is put at its path when the measurement
+        ends, atomically; nothing is there if it fails. The measurements' phase maps
+        are not kept.
+    dtype : {None, "float32", "float64"}
+        Precision of the returned (and written) maps; None: that of the
+        measurement (:mod:`gridstrain.conventions`). Everything is computed as
+        without it; see :class:`gridstrain.results.ResultFile` for what float32
+        keeps.
 
     Returns
     -------
@@ -1458,11 +1484,13 @@ def measure_series(reference, states, *, lattice: Lattice | None = None,
 
     Notes
     -----
-    Frames are read one at a time, never held whole. Every frame is read once for
-    the screening and the shifts, once for the statistics and, with method B, once
-    for its transform; the reference's frames twice more (the mean that detects or
-    checks the lattice, before the screening, and the two halves of the noise
-    floor).
+    Frames are read one at a time, never held whole, in one pass per series
+    (:class:`gridstrain.accumulate.SeriesPass`: screening, shifts, mean, variance,
+    the noise floor's halves, method B's transforms or method C's sums). Read twice:
+    at most 8 reference frames (their mean detects or checks the lattice, which the
+    pass needs), the frames the screening excludes (taken out of the sums), and,
+    with method B, a series whose mean image shows regions without a grid (they
+    change the windows' support: the kept frames are transformed again).
 
     Examples
     --------
@@ -1476,14 +1504,68 @@ def measure_series(reference, states, *, lattice: Lattice | None = None,
     >>> round(float(np.nanmean(res.strain[0, 0])), 6)
     0.001
     """
-    progress = null_progress if progress is None else progress
-    if not callable(progress):
-        raise TypeError(f"progress must be callable or None, got {progress!r}")
+    o = _setup(method=method, outliers=outliers, margin=margin, sigma=sigma, order=order,
+               sigma_pitches=sigma_pitches, max_saturation=max_saturation, lattice=lattice,
+               scheduler=scheduler, timeout=timeout, noise_model=noise_model, dtype=dtype,
+               output=output, lagrangian=lagrangian, bit_depth=bit_depth, guess=guess)
+    progress = null_progress if check_callable(progress, "progress") is None else progress
+    series, guesses, m = _inputs(reference, states, guess, mask, o)
+    steps = _Steps(progress, _total_cost(series, o))
+    # how the frames were read (colour converted, lossy JPEG), series by series
+    warnings: list[str] = [n for s in series for n in getattr(s, "notes", ())]
+    warnings += _glob_warning(series)
+    o = _window(series[0], m, o, steps)
+    return _measure(series, guesses, m, o, steps, warnings, progress)
+
+
+@dataclass(frozen=True, eq=False)
+class _Setup:
+    """A measurement's options, checked once at the door and passed inward; the
+    lattice and ``sigma`` are completed by :func:`_window` once the reference is
+    seen."""
+
+    method: str
+    outliers: str
+    margin: float
+    sigma: float | None
+    order: str
+    sigma_pitches: float | None
+    max_saturation: float
+    lattice: Lattice | None
+    detected: bool
+    scheduler: object
+    timeout: float | None
+    noise_model: NoiseModel | None
+    dtype: np.dtype | None
+    output: object
+    lagrangian: bool
+    bit_depth: int | None
+    guess: object
+
+    def parameters(self) -> dict:
+        """The options as the result records them."""
+        lat = self.lattice
+        return {
+            "sigma": float(self.sigma), "method": self.method,
+            "lagrangian": bool(self.lagrangian), "guess": _guess_parameter(self.guess),
+            "order": self.order, "margin": float(self.margin),
+            "max_saturation": float(self.max_saturation), "bit_depth": self.bit_depth,
+            "outliers": self.outliers,
+            "lattice": None if self.detected else {"k1": list(lat.k1), "k2": list(lat.k2)},
+            "noise_model": None if self.noise_model is None else self.noise_model.as_dict(),
+            "sigma_pitches": self.sigma_pitches,
+            "dtype": None if self.dtype is None else str(self.dtype)}
+
+
+def _setup(*, method, outliers, margin, sigma, order, sigma_pitches, max_saturation,
+           lattice, scheduler, timeout, noise_model, dtype, output, lagrangian, bit_depth,
+           guess) -> _Setup:
+    """The options of :func:`measure_series`, checked."""
     check_choice(method, "method", ("A", "B", "C"))
     check_choice(outliers, "outliers", OUTLIER_POLICIES)
+    check_choice(order, "order", ORDERS)
     margin = check_positive(margin, "margin")
     sigma = check_positive(sigma, "sigma", allow_none=True)
-    check_choice(order, "order", ORDERS)
     if sigma_pitches is not None:
         if sigma is not None:
             raise ValueError(f"give sigma or sigma_pitches, not both (got sigma={sigma!r}, "
@@ -1493,212 +1575,230 @@ def measure_series(reference, states, *, lattice: Lattice | None = None,
             raise ValueError(f"sigma_pitches must be at least 1 (the window must hold one "
                              f"period), got {sigma_pitches!r}")
         sigma_pitches = max(sigma_pitches, 1.0)
-    if isinstance(max_saturation, bool) or not isinstance(max_saturation, numbers.Real) \
-            or not 0 <= max_saturation <= 1:
-        raise ValueError(f"max_saturation must be a fraction in [0, 1], got "
-                         f"{max_saturation!r}")
-    if lattice is not None and not isinstance(lattice, Lattice):
-        raise TypeError(f"lattice must be a Lattice or None, got {type(lattice).__name__}")
-    scheduler = _check_scheduler(scheduler)
-    timeout = check_positive(timeout, "timeout", allow_none=True)
-    given_model = _check_noise_model(noise_model)
+    max_saturation = check_fraction(max_saturation, "max_saturation")
+    check_type(lattice, "lattice", Lattice, allow_none=True)
     if sigma is not None and lattice is not None:
         sigma = check_sigma(sigma, lattice.pitch)
+    dtype = check_float_dtype(dtype, "dtype")
+    if output is not None:
+        from .results import ResultFile  # h5py only when a file is written
 
-    ref = _as_series(reference, "reference", bit_depth)
+        output = output if isinstance(output, ResultFile) else ResultFile(output)
+        if dtype is not None and output.dtype is not None and output.dtype != dtype:
+            raise ValueError(f"dtype={dtype} and output's dtype={output.dtype} disagree")
+        dtype = output.dtype if dtype is None else dtype
+        output = dataclasses.replace(output, dtype=dtype)
+    return _Setup(method=method, outliers=outliers, margin=margin, sigma=sigma, order=order,
+                  sigma_pitches=sigma_pitches, max_saturation=max_saturation,
+                  lattice=lattice, detected=lattice is None,
+                  scheduler=_check_scheduler(scheduler),
+                  timeout=check_positive(timeout, "timeout", allow_none=True),
+                  noise_model=_check_noise_model(noise_model), dtype=dtype, output=output,
+                  lagrangian=bool(lagrangian), bit_depth=bit_depth, guess=guess)
+
+
+def _inputs(reference, states, guess, mask, o: _Setup) -> tuple[list, list, np.ndarray]:
+    """The series (reference first), one guess per state and the mask, checked
+    against each other."""
+    ref = _as_series(reference, "reference", o.bit_depth)
     raw_states = _as_states(states)
-    guesses = _check_guess(guess, len(raw_states), order)
-    series = [ref] + [_as_series(s, name, bit_depth)
+    guesses = _check_guess(guess, len(raw_states), o.order)
+    series = [ref] + [_as_series(s, name, o.bit_depth)
                       for s, name in zip(raw_states, state_names(raw_states), strict=True)]
     for s in series[1:]:
         if s.shape != ref.shape:
             raise ValueError(f"{s.name}: frames are {s.shape} (H, W) but the reference "
                              f"frames are {ref.shape}")
-    _check_fit(ref.shape, sigma, margin, guesses)
-    if lattice is not None:
-        _check_pitch_fits(ref.shape, lattice.pitch, margin)
+    _check_fit(ref.shape, o.sigma, o.margin, guesses)
+    if o.lattice is not None:
+        _check_pitch_fits(ref.shape, o.lattice.pitch, o.margin)
     if isinstance(mask, str | os.PathLike):
         m = read_mask(mask, ref.shape)
     else:
         m = check_mask(mask, ref.shape)
-
-    # the plan: frame passes cost 1 per frame, a transform ~4 frames' worth
-    wft_cost = 4.0
-    n_states = len(series) - 1
-    detect = lattice is None
-    total = ref.n_frames + 1.0
-    for s in series:
-        total += 2 * s.n_frames + (s.n_frames * wft_cost if method == "B" else 0) \
-            + (s.n_frames if method == "C" else 0) \
-            + 2 * wft_cost
-    total += n_states * (3 * wft_cost if lagrangian else wft_cost)
-    total += ref.n_frames + 2 * wft_cost + wft_cost
-    steps = _Steps(progress, total)
-    # how the frames were read (colour converted, lossy JPEG), series by series
-    warnings: list[str] = [n for s in series for n in getattr(s, "notes", ())]
-    warnings += _glob_warning(series)
     for i, g in enumerate(guesses):
         if isinstance(g, np.ndarray) and g.shape != (2, *ref.shape):
             raise ValueError(f"guess for {series[i + 1].name} must be a (u_x, u_y) pair or "
                              f"a field of shape {(2, *ref.shape)}, got shape {g.shape}")
+    return series, guesses, m
 
-    # the lattice, detected on the mean reference image or checked against it
-    mean_ref = ref.mean(progress=steps.sub(ref.n_frames, ""))
-    if detect:
-        try:
-            lattice = detect_lattice(mean_ref, mask=m)
-        except ValueError as exc:
-            # frames smaller than a common 5-px pitch needs: say so first
-            need = _min_side(2.0, margin)
-            if min(ref.shape) < _min_side(5.0, margin):
-                raise ValueError(f"reference: no grid detected on frames of {ref.shape[0]} "
-                                 f"x {ref.shape[1]} px, too small for the grid method: a "
-                                 f"window of sigma >= the pitch with its band of margin = "
-                                 f"{margin:g} sigmas needs {need} px for a 2-px pitch, "
-                                 f"{_min_side(5.0, margin)} px for a 5-px pitch") from None
-            raise ValueError(f"reference: {exc}") from None
-        _check_pitch_fits(ref.shape, lattice.pitch, margin)
-    if sigma_pitches is not None:
-        sigma = sigma_pitches * lattice.pitch
+
+def _total_cost(series: list, o: _Setup) -> float:
+    """The measurement's cost for its progress: reading a frame costs 1, a transform
+    about 4 frames' worth."""
+    total = min(series[0].n_frames, _LATTICE_FRAMES) + 1.0
+    for s in series:
+        total += s.n_frames * _pass_cost(o.method) + 2 * _WFT_COST
+    total += (len(series) - 1) * (3 * _WFT_COST if o.lagrangian else _WFT_COST)
+    return total + 3 * _WFT_COST
+
+
+def _window(ref, m: np.ndarray, o: _Setup, steps: _Steps) -> _Setup:
+    """The options completed with the lattice, detected on (or checked against) the
+    mean of a few reference frames, and the window's ``sigma``."""
+    mean_ref = _lattice_image(ref, steps.sub(min(ref.n_frames, _LATTICE_FRAMES), ""))
+    lattice = _detect(mean_ref, ref, m, o.margin) if o.detected else o.lattice
+    sigma = o.sigma if o.sigma_pitches is None else o.sigma_pitches * lattice.pitch
     sigma = check_sigma(sigma, lattice.pitch)
-    _check_fit(ref.shape, sigma, margin)
-    if not detect:
-        _check_given_lattice(mean_ref, lattice, sigma, m, margin)
+    _check_fit(ref.shape, sigma, o.margin)
+    if not o.detected:
+        _check_given_lattice(mean_ref, lattice, sigma, m, o.margin)
     steps.step(1.0, "lattice")
+    return dataclasses.replace(o, lattice=lattice, sigma=float(sigma))
 
-    # every frame screened against its series (one read), the flagged ones handled
-    # before any average; the rest of the pipeline sees the frames kept only
-    screens = [_screen_series(s, lattice, m, max_saturation, outliers,
-                              steps.sub(s.n_frames, s.name)) for s in series]
-    series = [sc.series for sc in screens]
-    ref = series[0]
-    warnings += [w for sc in screens for w in sc.warnings]
 
-    vib, stats, maps, masks = [], [], [], []
-    with _connect(scheduler) as client:
-        for s, sc in zip(series, screens, strict=True):
+def _measure(series: list, guesses: list, m: np.ndarray, o: _Setup, steps: _Steps,
+             warnings: list, progress: Progress) -> SeriesResult:
+    """One pass over every series (screening, shifts, statistics, the halves of the
+    noise floor, method B's or C's sums), the flagged frames then taken out; the
+    states measured one after the other, each dropped once measured."""
+    lattice, sigma, method = o.lattice, o.sigma, o.method
+    n_states = len(series) - 1
+    plans = [_plan(s, lattice, method, sigma, o.margin, m, k == 0)
+             for k, s in enumerate(series)]
+    _check_model_units(o.noise_model, series)
+    f32 = all(np.dtype(s.dtype) == np.float32 for s in series)
+    kin = 3 * _WFT_COST if o.lagrangian else _WFT_COST
+    sink = _InMemory(n_states, o.dtype) if o.output is None else _streamed(o.output,
+                                                                           n_states)
+    with sink, _connect(o.scheduler) as client:
+        pending = None if client is None else [
+            _dist()._submit_pass(client, s, plan) for s, plan in zip(series, plans,
+                                                                      strict=True)]
+
+        def one(k):
+            s = series[k]
             n = s.n_frames
-            shifts = sc.shifts
-            vib.append(_diagnose(s.name, shifts, "gridstrain.vibration.frame_shifts",
-                                 lattice, method))
-            # the screening judged the saturation: the pass below only measures it
             if client is None:
-                stats.append(_statistics(s, shifts, m, 1.0, steps.sub(n, s.name)))
-            else:  # a future: the cluster works while this machine reads the next series
-                c, _, regress = _regressors(shifts)
-                stats.append(_dist()._submit_statistics(client, s, c if regress else None, m,
-                                                        1.0))
-        for k, s in enumerate(series):
-            n = s.n_frames
-            if client is not None:
-                first, s1, s2, sva, worst = stats[k].result(timeout)
-                stats[k] = _finish_statistics(first, s1, s2, sva, vib[k].shifts, worst)
-                steps.step(n, f"{s.name}: statistics")
-            st = stats[k]
-            base = m if s is ref else None
-            pm, used = _phase_maps_a(st.mean, lattice, sigma, base, margin)
-            steps.step(2 * wft_cost, f"{s.name}: phase maps")
-            if method == "C":  # on this machine: one pass, two sums per pixel
-                pm, notes = _phase_maps_c(s, lattice, sigma, used, margin, vib[k].shifts,
-                                          steps.sub(n, s.name))
-                warnings.extend(notes)
-            elif method == "B" and client is None:
-                pm = _phase_maps_b(s, lattice, sigma, used, margin,
-                                   steps.sub(n * wft_cost, s.name))
-            elif method == "B":  # a future, gathered once every series is submitted
-                pm = _dist()._submit_method_b(client, s, lattice, sigma, used, margin)
-            maps.append(pm)
-            masks.append(used)
-        if client is not None and method == "B":
-            for k, s in enumerate(series):
-                maps[k] = finite_derivatives(maps[k].result(timeout).maps)
-                steps.step(s.n_frames * wft_cost, f"{s.name}: method B")
+                acc = _run_pass(s, plans[k], steps.sub(n * _pass_cost(method), s.name))
+            else:  # the cluster worked while this machine read the other series
+                acc = pending[k].result(o.timeout)
+                pending[k] = None
+                steps.step(n * _pass_cost(method), f"{s.name}: one pass")
+            out = _one_series(s, acc, m if k == 0 else None, o.max_saturation, o.outliers,
+                              method, f32, steps)
+            warnings.extend(out.warnings)
+            return out, acc
 
-    if method == "A":
-        warnings.extend(_contrast_notes(vib))
-    stats, model_info = _noise_models(stats, series, given_model, lattice, masks[0],
-                                      warnings)
-    maps = _in_precision(maps, series)
-    mean_ref = stats[0].mean
-    kin = 3 * wft_cost if lagrangian else wft_cost
-    measurements, orders, notes = _track(
-        maps, [st.mean for st in stats], masks[0], lattice, guesses, order,
-        [s.name for s in series], lagrangian,
-        lambda k: steps.step(kin, f"{series[k].name}: kinematics"))
-    warnings += notes
+        r, ref_pass = one(0)
+        noise = _Noise(o.noise_model, lattice, r.mask, warnings)
+        r = noise.complete(r)
+        floor = _ReferenceFloor(r, ref_pass, lattice, sigma, o.margin, method,
+                                steps.sub(3 * _WFT_COST, "noise floor"), warnings)
+        del ref_pass
+        tracker = _Tracker(r.maps, r.stats.mean, r.mask, lattice, o.order, o.lagrangian)
+        alias = aliasing_bias(r.stats.mean, lattice, sigma=sigma, mask=r.mask)
+        done = [r.summary()]
+        for i in range(n_states):
+            c, acc = one(i + 1)
+            del acc
+            c = noise.complete(c)
+            res, rec, notes = tracker.measure(c.maps, c.stats.mean, guesses[i], c.name)
+            warnings.extend(notes)
+            steps.step(kin, f"{c.name}: kinematics")
+            if o.output is not None and not res.valid.any():  # never a file
+                raise ValueError(empty_state_message(c.name, o.margin, sigma, rec.guess,
+                                                     rec.source))
+            sink.add(i, *floor.state(c, res, rec, alias, warnings))
+            done.append(c.summary())
+            del c, res
+        warnings.extend(tracker.finish())
+        if method == "A":
+            warnings.extend(_contrast_notes([d.vib for d in done]))
+        for d in done:
+            warnings.extend(d.saturation_warnings)
+        progress(1.0, "done")
+        return sink.result(
+            lattice=lattice, lattice_detected=o.detected, sigma=sigma, method=method,
+            lagrangian=o.lagrangian, margin=float(o.margin), mask=r.mask.copy(),
+            reference_image=np.array(r.stats.mean), names=tuple(d.name for d in done),
+            sources=tuple(d.sources for d in done), n_frames=tuple(d.T for d in done),
+            bit_depth=tuple(d.bit_depth for d in done), scale=tuple(d.scale for d in done),
+            saturation=tuple(d.saturation for d in done),
+            excluded=tuple(d.excluded for d in done),
+            screening=tuple(d.screening for d in done), vibration=tuple(d.vib for d in done),
+            noise=floor.noise_floor(done, noise.info(done)), parameters=o.parameters(),
+            warnings=tuple(warnings), metrology=metrology(sink.floors, sigma),
+            systematic={"aliasing": alias, "smoothing": sink.smoothing})
 
-    # noise floor
-    var = [float(np.mean(st.variance[pm.valid])) if st.variance is not None and pm.valid.any()
-           else math.nan for st, pm in zip(stats, maps, strict=True)]
-    mods = np.array([_median_modulus(pm, pm.valid) for pm in maps])
-    T = [s.n_frames for s in series]
-    th_u = np.full((n_states, 2), np.nan)
-    th_e = np.full((n_states, 3), np.nan)
-    sp_u = np.full((n_states, 2), np.nan)
-    sp_e = np.full((n_states, 3), np.nan)
-    vib_u = np.full((n_states, 2), np.nan)
-    if ref.n_frames >= 2:
-        su, se, (T1, T2) = _split_floor(ref, lattice, sigma, masks[0], margin,
-                                        steps.sub(ref.n_frames + 3 * wft_cost,
-                                                  "noise floor"),
-                                        vib[0].shifts if method == "C" else None)
-    else:
-        su, se, (T1, T2) = np.full(2, np.nan), np.full(3, np.nan), (1, 1)
-        warnings.append("a single reference frame: no split-halves noise estimate (measure "
-                        "a second image of the unloaded specimen as a state: its maps are "
-                        "the noise floor)")
-    for i in range(n_states):
-        th_u[i], th_e[i] = _theory_floor(var[0], T[0], mods[0], var[i + 1], T[i + 1],
-                                         mods[i + 1], sigma, lattice)
-        scale = math.sqrt((1 / T[0] + 1 / T[i + 1]) / (1 / T1 + 1 / T2))
-        sp_u[i], sp_e[i] = su * scale, se * scale
-        offs = [np.array(v.phase_offset_std) for v in (vib[0], vib[i + 1])]
-        if all(np.all(np.isfinite(o)) for o in offs):
-            # the offsets are phases: eq. (34) turns them into a rigid translation
-            vib_u[i] = theory.displacement_noise_std(offs[0], offs[1], lattice)
-    noise = NoiseFloor(sigma=float(sigma), resolution=FWHM_PER_SIGMA * float(sigma),
-                       sensor_variance=tuple(var),
-                       variance_method=tuple(st.variance_method for st in stats),
-                       modulus=mods, theory_u=th_u, theory_strain=th_e, split_u=sp_u,
-                       split_strain=sp_e, vibration_u=vib_u, model=model_info)
-    saturation = tuple(max(st.saturation, sc.saturation)
-                       for st, sc in zip(stats, screens, strict=True))
-    for s, sc, sat in zip(series, screens, saturation, strict=True):
-        warnings += _saturation_warning(s, sc, sat)
-    uncertainty = _uncertainty_maps(stats, maps, measurements, T, float(sigma))
-    noise, uncertainty = _void_precision(noise, uncertainty, screens)
-    metrology, systematic = _figures(noise, uncertainty, measurements, mean_ref, lattice,
-                                     float(sigma), masks[0], warnings,
-                                     [s.name for s in series[1:]])
-    progress(1.0, "done")
 
-    parameters = {"sigma": float(sigma), "method": method, "lagrangian": bool(lagrangian),
-                  "guess": _guess_parameter(guess),
-                  "order": order, "margin": float(margin), "max_saturation":
-                  float(max_saturation), "bit_depth": bit_depth, "outliers": outliers,
-                  "lattice": None if detect else {"k1": list(lattice.k1),
-                                                  "k2": list(lattice.k2)},
-                  "noise_model": None if given_model is None else given_model.as_dict(),
-                  "sigma_pitches": sigma_pitches}
-    u = np.stack([r.u for r in measurements])
-    strain = np.stack([r.strain for r in measurements])
-    valid = np.stack([r.valid for r in measurements])
-    return SeriesResult(
-        u=u, strain=strain, valid=valid, lattice=lattice, lattice_detected=detect,
-        sigma=float(sigma), method=method, lagrangian=bool(lagrangian),
-        margin=float(margin), mask=masks[0].copy(), reference_image=np.array(mean_ref),
-        names=tuple(s.name for s in series),
-        sources=tuple(tuple(str(p) for p in s.paths) for s in series),
-        n_frames=tuple(T), bit_depth=tuple(s.bit_depth for s in series),
-        scale=tuple(int(s.scale) for s in series),
-        saturation=saturation, excluded=tuple(sc.excluded for sc in screens),
-        screening=tuple(sc.screen for sc in screens),
-        measurements=tuple(measurements),
-        guesses=tuple(tuple(float(v) for v in r.guess) for r in orders),
-        guess_sources=tuple(r.source for r in orders), vibration=tuple(vib), noise=noise,
-        parameters=parameters, warnings=tuple(warnings), uncertainty=uncertainty,
-        metrology=metrology, systematic=systematic,
-        fringe_orders=tuple(orders))
+# --------------------------------------------------------------------------- one series
+
+
+@dataclass(frozen=True, eq=False)
+class _Summary:
+    """What the result keeps of a series once its maps are dropped."""
+
+    name: str
+    sources: tuple
+    T: int
+    bit_depth: int | None
+    scale: int
+    saturation: float
+    excluded: tuple
+    screening: FrameScreen
+    vib: VibrationDiagnostics
+    variance: float  # mean per-frame noise variance over the valid pixels
+    variance_method: str
+    modulus: np.ndarray  # (2,) median |Psi|
+    kept_flagged: bool
+    saturation_warnings: tuple
+
+
+@dataclass(frozen=True, eq=False)
+class _Measured:
+    """One series measured: its kept frames, screening, statistics and phase maps."""
+
+    series: object
+    screen: _Screened
+    vib: VibrationDiagnostics
+    stats: _Stats
+    maps: PhaseMaps
+    mask: np.ndarray  # the pixels the maps were computed on
+    warnings: tuple
+
+    @property
+    def name(self) -> str:
+        return self.series.name
+
+    def summary(self) -> _Summary:
+        s, sc, st, pm = self.series, self.screen, self.stats, self.maps
+        var = float(np.mean(st.variance[pm.valid])) if st.variance is not None \
+            and pm.valid.any() else math.nan
+        sat = max(st.saturation, sc.saturation)
+        return _Summary(name=s.name, sources=tuple(str(p) for p in s.paths), T=s.n_frames,
+                        bit_depth=s.bit_depth, scale=int(s.scale), saturation=sat,
+                        excluded=sc.excluded, screening=sc.screen, vib=self.vib,
+                        variance=var, variance_method=st.variance_method,
+                        modulus=_median_modulus(pm, pm.valid),
+                        kept_flagged=sc.kept_flagged,
+                        saturation_warnings=tuple(_saturation_warning(s, sc, sat)))
+
+
+def _one_series(s, acc: SeriesPass, base, max_saturation: float, outliers: str,
+                method: str, f32: bool, steps: _Steps) -> _Measured:
+    """Screening, statistics and phase maps of series ``s`` from its pass; ``base``
+    is the mask of the reference (None for a state: its configuration is deformed)."""
+    plan = acc.plan
+    sc, acc = _screen_pass(s, acc, max_saturation, outliers)
+    notes = list(sc.warnings)
+    vib = _diagnose(s.name, sc.shifts, "gridstrain.vibration.frame_shifts", plan.lattice,
+                    method)
+    st = acc.statistics()
+    stats = _Stats(st.mean, st.variance, st.method, sc.saturation)
+    pm, used = _phase_maps_a(st.mean, plan.lattice, plan.sigma, base, plan.margin)
+    steps.step(2 * _WFT_COST, f"{s.name}: phase maps")
+    if method == "C":
+        res = acc.method_c(sigma=plan.sigma, mask=used, margin=plan.margin)
+        pm = finite_derivatives(res.maps)
+        notes.extend(f"{s.name}: {w}" for w in res.warnings)
+    elif method == "B":
+        pm = _method_b_maps(s, sc, acc, used, steps.sub(0.0, s.name))
+    if f32:  # float32 maps from float32 frames (gridstrain.conventions)
+        pm = dataclasses.replace(pm, psi=pm.psi.astype(np.complex64),
+                                 dphi=pm.dphi.astype(np.float32))
+    return _Measured(series=sc.series, screen=sc, vib=vib, stats=stats, maps=pm,
+                     mask=used, warnings=tuple(notes))
 
 
 def _check_noise_model(noise_model):
@@ -1718,125 +1818,271 @@ def _check_noise_model(noise_model):
     return NoiseModel(K=K, L=float(L), method="given")
 
 
-def _noise_models(stats, series, given, lattice, mask, warnings):
-    """Per-frame noise variance maps of every series, and where they came from.
-
-    A given camera model sets every series' variance to ``K mean + L``; otherwise
-    the series of one frame get the model estimated from one image (the first such
-    series: the camera is the same), and the others keep their temporal variance.
-    """
-    def from_model(st, model, how):
-        var = np.maximum(model.K * st.mean + model.L, 0.0)
-        return _Stats(st.mean, var, how, st.saturation)
-
-    def describe(model, what):
-        return (f"{what}: Var = K l + L, K = {model.K:.4g}, L = {model.L:.4g} (stored grey "
-                "levels)")
-
+def _check_model_units(given, series) -> None:
+    """Refuse a given noise model in other units than the series' grey levels."""
+    if given is None:
+        return
     for s in series:
-        if given is not None and s.bit_depth is not None and given.bit_depth is not None \
+        if s.bit_depth is not None and given.bit_depth is not None \
                 and given.bit_depth != s.bit_depth:
             raise ValueError(f"noise model: estimated on {given.bit_depth}-bit images but "
                              f"{s.name} is {s.bit_depth}-bit; estimate it on this camera's "
                              "images or give --noise-model K L in their stored units")
-        if given is not None and given.method != "given" and given.scale != s.scale:
+        if given.method != "given" and given.scale != s.scale:
             raise ValueError(f"noise model: estimated on images stored x{given.scale:g} but "
                              f"{s.name} is stored x{s.scale:g}; its K and L are in other "
                              "units")
-    if given is not None:
-        how = describe(given, f"camera model ({given.method})")
-        return ([from_model(st, given, how) for st in stats],
-                {"source": f"given ({given.method})", **given.as_dict()})
-    single = [k for k, st in enumerate(stats) if st.variance is None]
-    if not single:
-        return stats, {"source": "stack"}
-    k0 = single[0]
-    s0 = series[k0]
-    try:
-        model = estimate_noise_image(stats[k0].mean, lattice,
-                                     mask=mask if k0 == 0 else None,
-                                     saturation=s0.saturation_level, scale=s0.scale)
-    except ValueError as exc:
-        warnings.append(f"{s0.name}: the noise could not be estimated from its single image "
-                        f"({exc}); the single-frame series get no uncertainty of their "
-                        "own (give --noise or --noise-model)")
-        return stats, {"source": "unavailable"}
-    model = dataclasses.replace(model, bit_depth=s0.bit_depth)
-    how = describe(model, f"single image ({s0.name})")
-    out = [from_model(st, model, how) if k in single else st for k, st in enumerate(stats)]
-    source = "single image" if len(single) == len(stats) else "stack and single image"
-    return out, {"source": source, "estimated_on": s0.name, **model.as_dict()}
 
 
-def _figures(noise, uncertainty, measurements, mean_ref, lattice, sigma, mask, warnings,
-             names):
-    """Metrological figures and the systematic errors, warning where they can matter."""
-    n = len(measurements)
-    floors = {}
-    for i in range(n):
-        if uncertainty is not None and measurements[i].valid.any():
-            v = measurements[i].valid
-            floors[i] = {k.removesuffix("_std"): float(np.median(a[i][v]))
-                         for k, a in uncertainty.items()}
+def _describe_model(model, what: str) -> str:
+    return (f"{what}: Var = K l + L, K = {model.K:.4g}, L = {model.L:.4g} (stored grey "
+            "levels)")
+
+
+class _Noise:
+    """The per-frame noise variance map of each series, series by series.
+
+    A given camera model sets every series' variance to ``K mean + L``; otherwise
+    the series of two frames or more keep their temporal variance, and those of one
+    frame get the model estimated from one image (:func:`estimate_noise_image`),
+    on the first such series met (the camera is the same).
+    """
+
+    def __init__(self, given, lattice: Lattice, ref_mask: np.ndarray, warnings: list):
+        self.given, self.lattice, self.ref_mask = given, lattice, ref_mask
+        self.warnings = warnings
+        self.model = self.how = self.estimated_on = None
+        self.failed = False
+        self.singles = 0
+        self._first = True
+
+    @staticmethod
+    def _from_model(r: _Measured, model, how: str) -> _Measured:
+        st = r.stats
+        var = np.maximum(model.K * st.mean + model.L, 0.0)
+        return dataclasses.replace(r, stats=_Stats(st.mean, var, how, st.saturation))
+
+    def complete(self, r: _Measured) -> _Measured:
+        """``r`` with its noise variance map."""
+        is_ref, self._first = self._first, False
+        if self.given is not None:
+            return self._from_model(r, self.given, _describe_model(
+                self.given, f"camera model ({self.given.method})"))
+        if r.stats.variance is not None:
+            return r
+        self.singles += 1
+        if self.model is None and not self.failed:
+            s0 = r.series
+            try:
+                model = estimate_noise_image(r.stats.mean, self.lattice,
+                                             mask=self.ref_mask if is_ref else None,
+                                             saturation=s0.saturation_level, scale=s0.scale)
+            except ValueError as exc:
+                self.warnings.append(
+                    f"{s0.name}: the noise could not be estimated from its single image "
+                    f"({exc}); the single-frame series get no uncertainty of their own "
+                    "(give --noise or --noise-model)")
+                self.failed = True
+                return r
+            self.model = dataclasses.replace(model, bit_depth=s0.bit_depth)
+            self.estimated_on = s0.name
+            self.how = _describe_model(self.model, f"single image ({s0.name})")
+        return r if self.failed else self._from_model(r, self.model, self.how)
+
+    def info(self, done: list) -> dict:
+        """Where the variances came from (``NoiseFloor.model``)."""
+        if self.given is not None:
+            return {"source": f"given ({self.given.method})", **self.given.as_dict()}
+        if self.singles == 0:
+            return {"source": "stack"}
+        if self.failed:
+            return {"source": "unavailable"}
+        source = "single image" if self.singles == len(done) else "stack and single image"
+        return {"source": source, "estimated_on": self.estimated_on, **self.model.as_dict()}
+
+
+class _ReferenceFloor:
+    """The noise floor and uncertainty of every state against the reference.
+
+    Holds the reference's maps and the half-against-half measurement of its frames;
+    :meth:`state` gives one state's floors, uncertainty maps and systematic-error
+    figures (with their warnings), :meth:`noise_floor` the table of them all.
+    """
+
+    def __init__(self, r: _Measured, ref_pass: SeriesPass, lattice: Lattice, sigma: float,
+                 margin: float, method: str, report: Progress, warnings: list):
+        self.r, self.lattice, self.sigma = r, lattice, float(sigma)
+        T1, T2 = ref_pass.half_counts()
+        if min(T1, T2) >= 1:
+            self.su, self.se = _split_floor(ref_pass, lattice, sigma, r.mask, margin, method,
+                                            report)
         else:
-            floors[i] = {"ux": float(noise.theory_u[i][0]), "uy": float(noise.theory_u[i][1]),
-                         "exx": float(noise.theory_strain[i][0]),
-                         "eyy": float(noise.theory_strain[i][1]),
-                         "exy": float(noise.theory_strain[i][2])}
-    metro = metrology([floors[i] for i in range(n)], sigma)
-    alias = aliasing_bias(mean_ref, lattice, sigma=sigma, mask=mask)
-    smooth = [smoothing_bias(m.strain, m.valid, sigma=sigma) for m in measurements]
-    for i, m in enumerate(measurements):
-        name = names[i]
-        fl = floors[i]
-        known = [fl[k] for k in ("ux", "uy") if math.isfinite(fl[k])]
-        u_noise = max(known) if known else 0.0
-        noise_txt = f"{u_noise:.2g} px" if known else "unknown"
-        if alias["u_px"] > max(u_noise, _ALIAS_MIN_PX):
-            how = ("estimated from the harmonics seen in the reference image"
-                   if alias["observable"] else "bound for sharp lines; the line profile "
-                   "cannot be seen at this pitch")
-            e_max = float(np.max(np.abs(m.strain[:, m.valid]))) if m.valid.any() else 0.0
-            warnings.append(f"{name}: harmonics of the grid's lines can alias onto the carrier "
-                            f"at pitch {lattice.pitch:.3g} px: displacement error up to "
-                            f"{alias['u_px']:.2g} px and strain error up to "
-                            f"{alias['strain_per_strain'] * e_max:.2g} ({how}), above the noise "
-                            f"({noise_txt}); use a larger sigma, a pitch away from 4 px "
-                            "or a smoother (defocused) grid")
-        for j, comp in enumerate(("exx", "eyy", "exy")):
-            b = smooth[i]["p95"][j]
-            e_noise = fl[comp]
-            # noise alone gives a 95th percentile of ~0.6 noise std: twice it is signal
-            if b is not None and math.isfinite(e_noise) and b > 2 * e_noise and b > 1e-6:
-                warnings.append(f"{name}: the window smooths the {comp} gradients: bias "
-                                f"sigma^2/2 lap(e) reaches {b:.2g} (95th percentile) against "
-                                f"a noise std of {e_noise:.2g}; a smaller sigma resolves them "
-                                "better at the cost of noise")
-    return metro, {"aliasing": alias, "smoothing": smooth}
+            self.su, self.se, (T1, T2) = np.full(2, np.nan), np.full(3, np.nan), (1, 1)
+            warnings.append("a single reference frame: no split-halves noise estimate "
+                            "(measure a second image of the unloaded specimen as a state: "
+                            "its maps are the noise floor)")
+        self.T1, self.T2 = T1, T2
+        self.sr = r.summary()
+        self.local_ref = self._local(r)
+        self.rows: dict[str, list] = {k: [] for k in ("theory_u", "theory_strain", "split_u",
+                                                      "split_strain", "vibration_u")}
 
-
-def _uncertainty_maps(stats, maps, measurements, T, sigma):
-    """Per-pixel std maps of every state, or None without a measured variance."""
-    local = []
-    for st in stats:
-        if st.variance is None:
-            local.append(None)
-            continue
+    def _local(self, r: _Measured):
+        if r.stats.variance is None:
+            return None
         # the weight of a pixel's noise in Psi is g^2, a Gaussian of std sigma / sqrt 2
-        local.append(ndimage.gaussian_filter(st.variance, sigma / math.sqrt(2),
-                                             mode="nearest", truncate=5.0))
-    if all(v is None for v in local):
-        return None
-    out = {name: [] for name in ("ux_std", "uy_std", "exx_std", "eyy_std", "exy_std")}
-    for i, res in enumerate(measurements, start=1):
+        return ndimage.gaussian_filter(r.stats.variance, self.sigma / math.sqrt(2),
+                                       mode="nearest", truncate=5.0)
+
+    def state(self, c: _Measured, res: Measurement, rec: FringeOrder, alias: dict,
+              warnings: list) -> tuple:
+        """``(measurement, fringe order, uncertainty maps or None, floors, smoothing)``
+        of state ``c``."""
+        ref, sc = self.sr, c.summary()
+        th_u, th_e = _theory_floor(ref.variance, ref.T, ref.modulus, sc.variance, sc.T,
+                                   sc.modulus, self.sigma, self.lattice)
+        scale = math.sqrt((1 / ref.T + 1 / sc.T) / (1 / self.T1 + 1 / self.T2))
+        vib_u = np.full(2, np.nan)
+        offs = [np.array(v.phase_offset_std) for v in (ref.vib, sc.vib)]
+        if all(np.all(np.isfinite(o)) for o in offs):
+            # the offsets are phases: eq. (34) turns them into a rigid translation
+            vib_u = theory.displacement_noise_std(offs[0], offs[1], self.lattice)
+        row = {"theory_u": th_u, "theory_strain": th_e, "split_u": self.su * scale,
+               "split_strain": self.se * scale, "vibration_u": vib_u}
+        unc = self._uncertainty(c, res)
+        if ref.kept_flagged or sc.kept_flagged:
+            # frames flagged but kept: the precision of this state is not known
+            row = {k: np.full_like(np.asarray(v, dtype=float), np.nan) for k, v in row.items()}
+            if unc is not None:
+                unc = {k: np.full_like(v, np.nan) for k, v in unc.items()}
+        for k, v in row.items():
+            self.rows[k].append(np.asarray(v, dtype=float))
+        if unc is not None and res.valid.any():
+            floors = {k.removesuffix("_std"): float(np.median(a[res.valid]))
+                      for k, a in unc.items()}
+        else:
+            floors = {"ux": float(row["theory_u"][0]), "uy": float(row["theory_u"][1]),
+                      "exx": float(row["theory_strain"][0]),
+                      "eyy": float(row["theory_strain"][1]),
+                      "exy": float(row["theory_strain"][2])}
+        smooth = smoothing_bias(res.strain, res.valid, sigma=self.sigma)
+        warnings.extend(_systematic_warnings(c.name, res, floors, alias, smooth,
+                                             self.lattice))
+        return res, rec, unc, floors, smooth
+
+    def _uncertainty(self, c: _Measured, res: Measurement):
+        local = self._local(c)
         # a single-frame series is taken as noisy per frame as the other one
-        v_ref = local[0] if local[0] is not None else local[i]
-        v_def = local[i] if local[i] is not None else local[0]
-        unc = predict_uncertainty(maps[0], maps[i], variance_ref=v_ref / T[0],
-                                  variance_def=v_def / T[i], valid=res.valid)
-        for name, arr in zip(out, (*unc.u_std, *unc.strain_std), strict=True):
-            out[name].append(arr)
-    return {name: np.stack(arrs) for name, arrs in out.items()}
+        v_ref = self.local_ref if self.local_ref is not None else local
+        v_def = local if local is not None else self.local_ref
+        if v_ref is None:
+            return None
+        unc = predict_uncertainty(self.r.maps, c.maps, variance_ref=v_ref / self.sr.T,
+                                  variance_def=v_def / c.series.n_frames, valid=res.valid)
+        names = ("ux_std", "uy_std", "exx_std", "eyy_std", "exy_std")
+        return dict(zip(names, (*unc.u_std, *unc.strain_std), strict=True))
+
+    def noise_floor(self, done: list, model_info: dict) -> NoiseFloor:
+        n = len(done) - 1
+        rows = {k: np.array(v, dtype=float).reshape(n, 2 if k.endswith("_u") else 3)
+                for k, v in self.rows.items()}
+        return NoiseFloor(sigma=self.sigma, resolution=FWHM_PER_SIGMA * self.sigma,
+                          sensor_variance=tuple(d.variance for d in done),
+                          variance_method=tuple(d.variance_method for d in done),
+                          modulus=np.array([d.modulus for d in done]), model=model_info,
+                          **rows)
+
+
+def _systematic_warnings(name: str, m: Measurement, fl: dict, alias: dict, smooth: dict,
+                         lattice: Lattice) -> list[str]:
+    """Warnings for the systematic errors of one state that can exceed its noise."""
+    out = []
+    known = [fl[k] for k in ("ux", "uy") if math.isfinite(fl[k])]
+    u_noise = max(known) if known else 0.0
+    noise_txt = f"{u_noise:.2g} px" if known else "unknown"
+    if alias["u_px"] > max(u_noise, _ALIAS_MIN_PX):
+        how = ("estimated from the harmonics seen in the reference image"
+               if alias["observable"] else "bound for sharp lines; the line profile "
+               "cannot be seen at this pitch")
+        e_max = float(np.max(np.abs(m.strain[:, m.valid]))) if m.valid.any() else 0.0
+        out.append(f"{name}: harmonics of the grid's lines can alias onto the carrier "
+                   f"at pitch {lattice.pitch:.3g} px: displacement error up to "
+                   f"{alias['u_px']:.2g} px and strain error up to "
+                   f"{alias['strain_per_strain'] * e_max:.2g} ({how}), above the noise "
+                   f"({noise_txt}); use a larger sigma, a pitch away from 4 px "
+                   "or a smoother (defocused) grid")
+    for j, comp in enumerate(("exx", "eyy", "exy")):
+        b = smooth["p95"][j]
+        e_noise = fl[comp]
+        # noise alone gives a 95th percentile of ~0.6 noise std: twice it is signal
+        if b is not None and math.isfinite(e_noise) and b > 2 * e_noise and b > 1e-6:
+            out.append(f"{name}: the window smooths the {comp} gradients: bias "
+                       f"sigma^2/2 lap(e) reaches {b:.2g} (95th percentile) against "
+                       f"a noise std of {e_noise:.2g}; a smaller sigma resolves them "
+                       "better at the cost of noise")
+    return out
+
+
+def empty_state_message(name: str, margin: float, sigma: float, guess, source: str) -> str:
+    """Why a state without a single valid pixel is refused (never a written result)."""
+    return (f"{name}: no valid pixel, nothing written: the mask, the band of margin = "
+            f"{margin:g} sigmas (sigma {sigma:.4g} px), the grid's modulus and the "
+            f"displacement (guess {guess[0]:.4g}, {guess[1]:.4g} px, {source}) leave no "
+            "pixel to measure")
+
+
+def _streamed(output, n_states: int):
+    from .results import _Streamed  # h5py only when a file is written
+
+    return _Streamed(output, n_states)
+
+
+def _as_dtype(res: Measurement, unc, dtype):
+    """The maps of a state in ``dtype`` (None: as they are)."""
+    if dtype is None or res.u.dtype == dtype:
+        return res, unc
+    res = dataclasses.replace(res, u=res.u.astype(dtype), strain=res.strain.astype(dtype),
+                              rotation=res.rotation.astype(dtype))
+    return res, None if unc is None else {k: v.astype(dtype) for k, v in unc.items()}
+
+
+class _InMemory:
+    """Collects the states' maps for a :class:`SeriesResult` held in memory."""
+
+    def __init__(self, n_states: int, dtype=None):
+        self.n, self.dtype = n_states, dtype
+        self.measurements, self.orders, self.unc = [], [], []
+        self.floors, self.smoothing = [], []
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        return False
+
+    def add(self, i: int, res: Measurement, rec: FringeOrder, unc, floors: dict,
+            smooth: dict) -> None:
+        res, unc = _as_dtype(res, unc, self.dtype)
+        self.measurements.append(res)
+        self.orders.append(rec)
+        self.unc.append(unc)
+        self.floors.append(floors)
+        self.smoothing.append(smooth)
+
+    def result(self, **fields) -> SeriesResult:
+        ms = self.measurements
+        uncertainty = None
+        have = [a for a in self.unc if a is not None]
+        if have:
+            uncertainty = {k: np.stack([a[k] if a is not None else
+                                        np.full_like(have[0][k], np.nan) for a in self.unc])
+                           for k in have[0]}
+        return SeriesResult(
+            u=np.stack([r.u for r in ms]), strain=np.stack([r.strain for r in ms]),
+            valid=np.stack([r.valid for r in ms]), measurements=tuple(ms),
+            guesses=tuple(tuple(float(v) for v in r.guess) for r in self.orders),
+            guess_sources=tuple(r.source for r in self.orders),
+            fringe_orders=tuple(self.orders), uncertainty=uncertainty, **fields)
 
 
 # --------------------------------------------------------------------------- saving

@@ -32,6 +32,7 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.colors import Normalize
 from matplotlib.figure import Figure
 
+from ._validation import check_choice, check_finite, check_positive, check_type
 from .io import OutputDirectory, write_atomic
 from .pipeline import SeriesResult, _check_pixel_size
 
@@ -109,22 +110,15 @@ def plot_map(values, *, valid=None, background=None, label: str = "", unit: str 
     -------
     matplotlib.figure.Figure
     """
-    offset = float(offset)
-    if not math.isfinite(offset):
-        raise ValueError(f"offset must be finite, got {offset!r}")
+    offset = check_finite(offset, "offset")
     v = np.asarray(values, dtype=np.float64) - offset
     if v.ndim != 2:
         raise ValueError(f"values must be a 2-D map (H, W), got shape {v.shape}")
     ok = np.isfinite(v)
     if valid is not None:
-        vm = np.asarray(valid, dtype=bool)
-        if vm.shape != v.shape:
-            raise ValueError(f"valid must have the shape of values {v.shape}, got "
-                             f"{vm.shape}")
-        ok &= vm
-    lim = _symmetric_limit(v, ok) if limit is None else float(limit)
-    if not math.isfinite(lim) or lim <= 0:
-        raise ValueError(f"limit must be a finite positive number, got {limit!r}")
+        ok &= _same_shape(np.asarray(valid, dtype=bool), v.shape, "valid")
+    limit = check_positive(limit, "limit", allow_none=True)
+    lim = _symmetric_limit(v, ok) if limit is None else limit
     H, W = v.shape
     s = 1.0 if pixel_size is None else float(pixel_size)
     axis_unit = "px" if pixel_size is None else length_unit
@@ -133,10 +127,7 @@ def plot_map(values, *, valid=None, background=None, label: str = "", unit: str 
     fig = _new_figure(6.4, max(3.0, 5.2 * aspect + 1.0))
     ax = fig.add_subplot()
     if background is not None:
-        bg = np.asarray(background, dtype=np.float64)
-        if bg.shape != v.shape:
-            raise ValueError(f"background must have the shape of values {v.shape}, got "
-                             f"{bg.shape}")
+        bg = _same_shape(np.asarray(background, dtype=np.float64), v.shape, "background")
         lo, hi = np.percentile(bg[np.isfinite(bg)], _GREY_PERCENTILES)
         ax.imshow(bg, cmap="gray", vmin=lo, vmax=hi if hi > lo else lo + 1, extent=extent,
                   interpolation="nearest")
@@ -148,14 +139,25 @@ def plot_map(values, *, valid=None, background=None, label: str = "", unit: str 
     ax.set_ylabel(f"y ({axis_unit})")
     if title:
         ax.set_title(title, fontsize=10)
-    cbar = fig.colorbar(im, ax=ax, shrink=0.9)
+    _colour_bar(fig.colorbar(im, ax=ax, shrink=0.9), label, unit, offset)
+    return fig
+
+
+def _same_shape(arr: np.ndarray, shape: tuple[int, ...], name: str) -> np.ndarray:
+    """``arr``, refused unless it has the shape of the values drawn."""
+    if arr.shape != shape:
+        raise ValueError(f"{name} must have the shape of values {shape}, got {arr.shape}")
+    return arr
+
+
+def _colour_bar(cbar, label: str, unit: str, offset: float) -> None:
+    """Label a map's colour bar with the quantity, its unit and the offset removed."""
     text = f"{label} ({unit})" if unit else f"{label} (dimensionless)"
     if offset != 0:
         text += f", mean {offset:.4g}{' ' + unit if unit else ''} removed"
     cbar.set_label(text)
     cbar.formatter.set_powerlimits((-2, 3))
     cbar.update_ticks()
-    return fig
 
 
 def plot_shifts(shifts, *, title: str = "") -> Figure:
@@ -246,8 +248,7 @@ def save_figures(result, directory, *, pixel_size: float | None = None,
         the vibrations (``vibration_reference.png``, ``vibration_state0.png``...),
         in the order of :func:`figure_names`.
     """
-    if not isinstance(result, SeriesResult):
-        raise TypeError(f"result must be a SeriesResult, got {type(result).__name__}")
+    check_type(result, "result", SeriesResult)
     ps, unit = _check_pixel_size(pixel_size, unit)
     names = figure_names(result.n_states)
     out = OutputDirectory(directory, names, overwrite=overwrite, what="figures directory")
@@ -317,9 +318,7 @@ def quantity(result, name: str, *, pixel_size: float | None = None,
     Strains (and their std) in µε with ``microstrain``, rotations in mrad,
     displacements in ``unit`` with a pixel size, else px.
     """
-    check = tuple(QUANTITIES)
-    if name not in check:
-        raise ValueError(f"name must be one of {', '.join(check)}, got {name!r}")
+    check_choice(name, "name", tuple(QUANTITIES))
     if name == "rotation":
         return np.stack([m.rotation for m in result.measurements]) * 1e3, "mrad"
     if name.endswith("_std"):
@@ -350,9 +349,7 @@ def state_norm(values, valid, *, limits: str = "common"):
     """
     from matplotlib.colors import TwoSlopeNorm
 
-    check = tuple(LIMITS)
-    if limits not in check:
-        raise ValueError(f"limits must be one of {', '.join(check)}, got {limits!r}")
+    check_choice(limits, "limits", tuple(LIMITS))
     v = np.asarray(values)[np.asarray(valid) & np.isfinite(values)]
     if v.size == 0:
         return Normalize(-1.0, 1.0), True

@@ -21,8 +21,8 @@ from pathlib import Path
 
 import numpy as np
 
+from ._validation import as_path, check_type
 from .io import write_atomic
-from .io._series import _as_path
 from .pipeline import MAP_FIELDS, SeriesResult
 from .plotting import plot_history, plot_shifts, plot_states
 from .results import load, read_attrs
@@ -82,30 +82,53 @@ def render_report(result: SeriesResult, *, attrs: dict | None = None,
     ``attrs`` are the result file's root attributes (:func:`gridstrain.results.
     read_attrs`): pixel size, unit, creation date, the stored configuration.
     """
-    if not isinstance(result, SeriesResult):
-        raise TypeError(f"result must be a SeriesResult, got {type(result).__name__}")
+    check_type(result, "result", SeriesResult)
     a = dict(attrs or {})
     ps, unit = a.get("pixel_size"), a.get("unit")
     if ps is None or unit is None:
         ps = unit = None
-    H, W = result.shape
-    lat = result.lattice
-    out = [f"<!DOCTYPE html><html lang='en'><head><meta charset='utf-8'>"
-           f"<title>{html.escape(title)}</title><style>{_STYLE}</style></head><body>",
-           f"<h1>{html.escape(title)}</h1>",
-           f"<p>{result.n_states} loaded state(s) against the reference, {H} × {W} px, "
-           f"method {result.method}, σ = {result.sigma:.4g} px (spatial resolution "
-           f"{result.noise.resolution:.3g} px FWHM"
-           + (f" = {result.noise.resolution * ps:.3g} {html.escape(unit)}" if ps else "")
-           + f"), large-displacement correction {'on' if result.lagrangian else 'off'}. "
-           f"Written by gridstrain {html.escape(str(a.get('gridstrain_version', '?')))} "
-           f"on {html.escape(str(a.get('created', '?')))}.</p>"]
-
+    out = _head(result, a, ps, unit, title)
     if result.warnings:
         out.append("<h2>Warnings</h2>")
         out += [f'<p class="warn">{html.escape(w)}</p>' for w in result.warnings]
+    out += _inputs_section(result)
+    out += _lattice_section(result)
+    out += _vibration_section(result)
+    out += _noise_section(result)
+    out += _maps_section(result, ps, unit)
+    if result.uncertainty:
+        out.append("<h2>Uncertainty maps</h2><p>Predicted standard deviation of each map "
+                   "at each pixel, from the noise measured in the frames.</p>")
+        for name in result.uncertainty:
+            if name in ("ux_std", "uy_std", "exx_std", "eyy_std", "exy_std"):
+                out.append(_figure(plot_states(result, name, pixel_size=ps, unit=unit),
+                                   f"uncertainty map of {name}"))
+    extra = _extra_fields(result)
+    if extra:
+        out.append("<h2>Other results</h2>")
+        out += [f"<h3>{html.escape(k)}</h3><pre>{html.escape(v)}</pre>" for k, v in extra]
+    out += _provenance_section(result, a)
+    out.append("</body></html>\n")
+    return "\n".join(out)
 
-    out.append("<h2>Inputs</h2>")
+
+def _head(result, a: dict, ps, unit, title: str) -> list[str]:
+    """The page's head, title and the one-paragraph description of the run."""
+    H, W = result.shape
+    return [f"<!DOCTYPE html><html lang='en'><head><meta charset='utf-8'>"
+            f"<title>{html.escape(title)}</title><style>{_STYLE}</style></head><body>",
+            f"<h1>{html.escape(title)}</h1>",
+            f"<p>{result.n_states} loaded state(s) against the reference, {H} × {W} px, "
+            f"method {result.method}, σ = {result.sigma:.4g} px (spatial resolution "
+            f"{result.noise.resolution:.3g} px FWHM"
+            + (f" = {result.noise.resolution * ps:.3g} {html.escape(unit)}" if ps else "")
+            + f"), large-displacement correction {'on' if result.lagrangian else 'off'}. "
+            f"Written by gridstrain {html.escape(str(a.get('gridstrain_version', '?')))} "
+            f"on {html.escape(str(a.get('created', '?')))}.</p>"]
+
+
+def _inputs_section(result) -> list[str]:
+    """Every image series: frames, bit depth, saturation and files."""
     rows = []
     for name, files, T, bits, scale, sat in zip(
             result.names, result.sources, result.n_frames, result.bit_depth, result.scale,
@@ -115,34 +138,46 @@ def render_report(result: SeriesResult, *, attrs: dict | None = None,
         depth = "float" if bits is None else f"{bits}-bit" + (f" ×{scale}" if scale != 1
                                                                else "")
         rows.append([html.escape(name), str(T), depth, f"{sat:.2%}", where])
-    out.append(_table(["series", "frames", "data", "saturated", "files"], rows, left=(0, 4)))
+    return ["<h2>Inputs</h2>",
+            _table(["series", "frames", "data", "saturated", "files"], rows, left=(0, 4))]
 
-    out.append("<h2>Lattice</h2>")
-    out.append(_table(["wave vector", "kx (cycles/px)", "ky (cycles/px)", "pitch (px)",
-                       "angle (deg)"],
-                      [[k, _num(v[0], ".6g"), _num(v[1], ".6g"), _num(p, ".5f"),
-                        _num(ang, ".3f")] for k, v, p, ang in
-                       zip(("k1", "k2"), (lat.k1, lat.k2), lat.pitches, lat.angles,
-                           strict=True)]))
+
+def _lattice_section(result) -> list[str]:
+    """The wave vectors, pitches and angles, and whether they were detected."""
+    lat = result.lattice
     how = "Detected on the mean reference image" if result.lattice_detected else "Given"
-    out.append(f"<p>{how}; validity margin {result.margin:g} σ.</p>")
+    return ["<h2>Lattice</h2>",
+            _table(["wave vector", "kx (cycles/px)", "ky (cycles/px)", "pitch (px)",
+                    "angle (deg)"],
+                   [[k, _num(v[0], ".6g"), _num(v[1], ".6g"), _num(p, ".5f"),
+                     _num(ang, ".3f")] for k, v, p, ang in
+                    zip(("k1", "k2"), (lat.k1, lat.k2), lat.pitches, lat.angles,
+                        strict=True)]),
+            f"<p>{how}; validity margin {result.margin:g} σ.</p>"]
 
-    out.append("<h2>Vibrations</h2>")
-    out.append(_table(["series", "std α (px)", "std β (px)", "contrast k1", "contrast k2",
-                       "phase offset std k1 (rad)", "k2 (rad)"],
-                      [[html.escape(v.name), _num(v.std[0]), _num(v.std[1]),
-                        _num(v.contrast_factor[0], ".5f"), _num(v.contrast_factor[1], ".5f"),
-                        _num(v.phase_offset_std[0]), _num(v.phase_offset_std[1])]
-                       for v in result.vibration]))
+
+def _vibration_section(result) -> list[str]:
+    """The vibrations of every series: a table, and the shifts of each stack."""
+    out = ["<h2>Vibrations</h2>",
+           _table(["series", "std α (px)", "std β (px)", "contrast k1", "contrast k2",
+                   "phase offset std k1 (rad)", "k2 (rad)"],
+                  [[html.escape(v.name), _num(v.std[0]), _num(v.std[1]),
+                    _num(v.contrast_factor[0], ".5f"), _num(v.contrast_factor[1], ".5f"),
+                    _num(v.phase_offset_std[0]), _num(v.phase_offset_std[1])]
+                   for v in result.vibration])]
     for v in result.vibration:
         if v.n_frames > 1:
             out.append(_figure(plot_shifts(v.shifts, title=f"{v.name}: rigid shift of each "
                                            "frame"), f"vibrations of {v.name}"))
+    return out
 
+
+def _noise_section(result) -> list[str]:
+    """The noise floor of every state, and the sensor noise of every series."""
     nf = result.noise
-    out.append("<h2>Noise floor</h2><p>One standard deviation of the random error at a "
-               "pixel. Theory: windowed-Fourier noise with the sensor variance measured in "
-               "the frames; halves: the reference split in two, scaled.</p>")
+    out = ["<h2>Noise floor</h2><p>One standard deviation of the random error at a "
+           "pixel. Theory: windowed-Fourier noise with the sensor variance measured in "
+           "the frames; halves: the reference split in two, scaled.</p>"]
     rows = []
     for i in range(result.n_states):
         for label, u, e in (("theory", nf.theory_u[i], nf.theory_strain[i]),
@@ -159,11 +194,16 @@ def render_report(result: SeriesResult, *, attrs: dict | None = None,
                       [[html.escape(n), _num(v), html.escape(m), _num(mod[0]), _num(mod[1])]
                        for n, v, m, mod in zip(result.names, nf.sensor_variance,
                                                nf.variance_method, nf.modulus, strict=True)]))
+    return out
 
-    out.append("<h2>Maps</h2><p>Every state on the same colour limits; strains in µε "
-               "(10⁻⁶), displacements in "
-               + (html.escape(unit) if ps else "px")
-               + "; outside the valid region the reference image shows through.</p>")
+
+def _maps_section(result, ps, unit) -> list[str]:
+    """The maps of every state, their means over the valid region, and the strain
+    history."""
+    out = ["<h2>Maps</h2><p>Every state on the same colour limits; strains in µε "
+           "(10⁻⁶), displacements in "
+           + (html.escape(unit) if ps else "px")
+           + "; outside the valid region the reference image shows through.</p>"]
     for name in (*MAP_FIELDS, "rotation"):
         out.append(_figure(plot_states(result, name, pixel_size=ps, unit=unit),
                            f"map of {name}"))
@@ -182,31 +222,20 @@ def render_report(result: SeriesResult, *, attrs: dict | None = None,
     if result.n_states > 1:
         out.append(_figure(plot_history(result), "strain of the states",
                            "Strain of every state, mean over the valid pixels."))
+    return out
 
-    if result.uncertainty:
-        out.append("<h2>Uncertainty maps</h2><p>Predicted standard deviation of each map "
-                   "at each pixel, from the noise measured in the frames.</p>")
-        for name in result.uncertainty:
-            if name in ("ux_std", "uy_std", "exx_std", "eyy_std", "exy_std"):
-                out.append(_figure(plot_states(result, name, pixel_size=ps, unit=unit),
-                                   f"uncertainty map of {name}"))
 
-    extra = _extra_fields(result)
-    if extra:
-        out.append("<h2>Other results</h2>")
-        out += [f"<h3>{html.escape(k)}</h3><pre>{html.escape(v)}</pre>" for k, v in extra]
-
-    out.append("<h2>Provenance</h2>")
+def _provenance_section(result, a: dict) -> list[str]:
+    """Every parameter of the run, the configuration that replays it, the conventions."""
     params = [[html.escape(str(k)), html.escape(repr(v))]
               for k, v in result.parameters.items()]
-    out.append(_table(["parameter", "value"], params, left=(0, 1)))
+    out = ["<h2>Provenance</h2>", _table(["parameter", "value"], params, left=(0, 1))]
     if a.get("config"):
         out.append("<p>The configuration of this run (replay it with <code>gridstrain "
                    "measure --config RESULT.h5 -o OUT.h5</code>):</p>"
                    f"<pre>{html.escape(str(a['config']), quote=False)}</pre>")
     out.append(f"<p>Conventions: {html.escape(str(a.get('conventions', '')))}</p>")
-    out.append("</body></html>\n")
-    return "\n".join(out)
+    return out
 
 
 def _fringe_order(result, i: int) -> str:
@@ -247,8 +276,8 @@ def write_report(result_path, html_path, *, overwrite: bool = False) -> Path:
     -------
     pathlib.Path
     """
-    src = _as_path(result_path, "result_path")
+    src = as_path(result_path, "result_path")
     result = load(src)
     text = render_report(result, attrs=read_attrs(src), title=f"gridstrain: {src.name}")
-    dest = _as_path(html_path, "html_path")
+    dest = as_path(html_path, "html_path")
     return write_atomic(dest, text.encode("utf-8"), overwrite=overwrite)

@@ -57,14 +57,15 @@ import re
 import struct
 import zlib
 from collections.abc import Mapping
+from dataclasses import dataclass
 from pathlib import Path
 
 import h5py
 import numpy as np
 
 from . import __version__
-from .io import hdf5_file, write_atomic, write_csv
-from .io._series import _as_path
+from ._validation import as_path, check_float_dtype, check_mapping, check_type
+from .io import hdf5_file, hdf5_stream, write_atomic, write_csv
 from .pipeline import MAP_FIELDS, SeriesResult, _check_pixel_size
 
 __all__ = [
@@ -280,6 +281,12 @@ def _var(h5, name, data, dims, units, long_name, **attrs) -> h5py.Dataset:
     arr = np.asarray(data)
     ds = _dataset(h5, name, arr) if arr.dtype.kind != "O" else \
         h5.create_dataset(name, data=arr.astype(h5py.string_dtype()))
+    return _describe(ds, dims, units, long_name, **attrs)
+
+
+def _describe(ds, dims, units, long_name, **attrs) -> h5py.Dataset:
+    """Attach the dimensions ``dims`` (variables of the file) and the CF attributes."""
+    h5 = ds.file
     for i, d in enumerate(dims):
         ds.dims[i].attach_scale(h5[d])
     if units is not None:
@@ -354,32 +361,52 @@ def save_result(result: SeriesResult, path, *, pixel_size: float | None = None,
     The layout is described in :mod:`gridstrain.results`; ``xarray.open_dataset``
     opens it, :func:`load` reads it back.
     """
-    if not isinstance(result, SeriesResult):
-        raise TypeError(f"result must be a SeriesResult, got {type(result).__name__}")
+    check_type(result, "result", SeriesResult)
     ps, unit = _check_pixel_size(pixel_size, unit)
-    attrs = {} if attrs is None else attrs
-    if not isinstance(attrs, Mapping):
-        raise TypeError(f"attrs must be a dict, got {type(attrs).__name__}")
+    attrs = check_mapping(attrs, "attrs", allow_none=True)
     H, W = result.shape
-    n, n_series = result.n_states, len(result.names)
-    lat = result.lattice
+    n_series = len(result.names)
     with hdf5_file(path, overwrite=overwrite) as h5:
-        _write_root(h5, result, ps, unit, attrs, H, W, n, n_series, lat)
-        g = h5.create_group(_GROUP, track_order=True)
-        g.attrs["format_version"] = np.int64(FORMAT_VERSION)
-        memo: dict = {}
-        skip = dict(_ROOT_FIELDS)
-        if not phase_maps:
-            skip["Measurement"] = (*skip["Measurement"], "reference", "deformed")
-        g.attrs["phase_maps"] = bool(phase_maps)
-        _encode(g, [("result", result)], memo, skip)
-        extra = [(k, v) for k, v in attrs.items() if _root_attr(v) is None]
-        if extra:
-            _encode(g, [("attrs", dict(extra))], memo)
-    return _as_path(path, "path")
+        _write_dimensions(h5, result, H, W)
+        _write_maps(h5, result, ps, unit, H, W)
+        _write_tables(h5, result, ps, unit, attrs, n_series)
+        _write_group(h5, result, attrs, phase_maps=phase_maps)
+    return as_path(path, "path")
 
 
-def _write_root(h5, result, ps, unit, attrs, H, W, n, n_series, lat) -> None:
+def _write_group(h5, result, attrs: Mapping, *, phase_maps: bool) -> None:
+    """The ``gridstrain`` group: the whole result, less the maps of the root."""
+    g = h5.create_group(_GROUP, track_order=True)
+    g.attrs["format_version"] = np.int64(FORMAT_VERSION)
+    memo: dict = {}
+    skip = dict(_ROOT_FIELDS)
+    if not phase_maps:
+        skip["Measurement"] = (*skip["Measurement"], "reference", "deformed")
+    g.attrs["phase_maps"] = bool(phase_maps)
+    _encode(g, [("result", result)], memo, skip)
+    extra = [(k, v) for k, v in attrs.items() if _root_attr(v) is None]
+    if extra:
+        _encode(g, [("attrs", dict(extra))], memo)
+
+
+def _write_tables(h5, result, ps, unit, attrs: Mapping, n_series: int) -> None:
+    """The variables of the series and states (vibrations, noise floor, metrology) and
+    the root attributes (see the module's layout)."""
+    lat = result.lattice
+    _write_vibrations(h5, result, n_series)
+    _write_noise(h5, result, lat)
+    _write_metrology(h5, result)
+    root = _root_attributes(result, ps, unit, lat)
+    for key, value in attrs.items():
+        root[_check_key(key, "attrs")] = value
+    for key, value in root.items():
+        stored = _root_attr(value)
+        if stored is not None:
+            h5.attrs[key] = stored
+
+
+def _write_dimensions(h5, result, H: int, W: int) -> None:
+    """The coordinate variables every other variable is laid out on."""
     T = max(result.n_frames)
     _dim(h5, "state", np.array(result.names[1:]), None, "loaded state")
     _dim(h5, "y", np.arange(H, dtype=np.float64), "px", "row (y, downwards)")
@@ -391,31 +418,97 @@ def _write_root(h5, result, ps, unit, attrs, H, W, n, n_series, lat) -> None:
          "strain component")
     _dim(h5, "wave_vector", np.array(["k1", "k2"]), None, "wave vector of the grid")
     _dim(h5, "axis", np.array(["x", "y"]), None, "image axis")
-    maps = ("state", "y", "x")
+
+
+_MAPS = ("state", "y", "x")
+
+
+def _map_specs(unc_names) -> list[tuple[str, str | None, str, dict]]:
+    """``(name, units, long name, extra attributes)`` of every per-state map."""
+    out = [(name, u, LONG_NAMES[name], {}) for name, u in MAP_FIELDS.items()]
+    out.append(("rotation", "rad", LONG_NAMES["rotation"], {}))
+    out.append(("valid", None, LONG_NAMES["valid"], {}))
+    for name in unc_names:
+        base = name.removesuffix("_std")
+        out.append((name, MAP_FIELDS.get(base, "1"),
+                    f"predicted standard deviation of {base} (1 sigma)",
+                    {"uncertainty_of": base}))
+    return out
+
+
+def _state_arrays(res, unc: dict | None) -> dict[str, np.ndarray]:
+    """The maps of one state, by variable name."""
+    out = {name: res.u[j] for j, name in enumerate(("ux", "uy"))}
+    out.update({name: res.strain[j] for j, name in enumerate(("exx", "eyy", "exy"))})
+    out["rotation"], out["valid"] = res.rotation, res.valid
+    out.update(unc or {})
+    return out
+
+
+def _describe_maps(h5, ps, unit, H: int, W: int, unc_names) -> None:
+    """Attach the dimensions and the CF attributes to the per-state maps (created
+    already), and write the coordinates in physical units."""
     coords = ""
     if ps is not None:
         _var(h5, "x_phys", np.arange(W) * ps, ("x",), unit, "x on the specimen")
         _var(h5, "y_phys", np.arange(H) * ps, ("y",), unit, "y on the specimen")
         coords = "x_phys y_phys"
     extra = {"coordinates": coords} if coords else {}
-    for name, u in MAP_FIELDS.items():
-        _var(h5, name, result.get_map(name), maps, u, LONG_NAMES[name], **extra)
-    rot = np.stack([m.rotation for m in result.measurements])
-    _var(h5, "rotation", rot, maps, "rad", LONG_NAMES["rotation"], **extra)
-    _var(h5, "valid", result.valid, maps, None, LONG_NAMES["valid"], **extra)
+    specs = _map_specs(unc_names)
     if ps is not None:
-        for name in ("ux", "uy"):
-            _var(h5, f"{name}_phys", result.get_map(name) * ps, maps, unit,
-                 LONG_NAMES[name], **extra)
-    for name, arr in (result.uncertainty or {}).items():
-        base = name.removesuffix("_std")
-        _var(h5, name, np.asarray(arr), maps, MAP_FIELDS.get(base, "1"),
-             f"predicted standard deviation of {base} (1 sigma)", uncertainty_of=base,
-             **extra)
+        specs += [(f"{n}_phys", unit, LONG_NAMES[n], {}) for n in ("ux", "uy")]
+    for name, units, long_name, more in specs:
+        _describe(h5[name], _MAPS, units, long_name, **more, **extra)
+
+
+def _write_maps(h5, result, ps, unit, H: int, W: int) -> None:
+    """Maps of every state (px values, and physical ones with a pixel size), their
+    predicted standard deviations, the mean reference frame and the mask."""
+    unc = result.uncertainty or {}
+    for k, m in enumerate(result.measurements):
+        arrays = _state_arrays(m, {n: a[k] for n, a in unc.items()})
+        if k == 0:
+            _create_maps(h5, arrays, result.n_states, ps)
+        _put_state(h5, k, arrays, ps)
+    _describe_maps(h5, ps, unit, H, W, list(unc))
+    _write_images(h5, result, ps)
+
+
+def _write_images(h5, result, ps) -> None:
+    """The mean reference frame and the mask."""
+    extra = {"coordinates": "x_phys y_phys"} if ps is not None else {}
     _var(h5, "reference_image", result.reference_image, ("y", "x"), "1",
          "mean reference frame, raw grey levels", **extra)
     _var(h5, "mask", result.mask, ("y", "x"), None,
          "specimen mask used (given mask less regions without a grid)", **extra)
+
+
+def _create_maps(h5, arrays: dict, n: int, ps, dtype=None) -> None:
+    """Empty (n, H, W) variables for the maps of ``arrays`` (one state's), chunked by
+    state and compressed; NaN (False for ``valid``) until a state is written."""
+    for name, arr in arrays.items():
+        if name in h5:
+            continue
+        dt = np.dtype(bool) if arr.dtype == bool else np.dtype(dtype or arr.dtype)
+        fill = False if dt.kind == "b" else np.nan
+        h5.create_dataset(name, shape=(n, *arr.shape), dtype=dt, chunks=(1, *arr.shape),
+                          fillvalue=fill, **_FILTERS)
+        if ps is not None and name in ("ux", "uy"):
+            h5.create_dataset(f"{name}_phys", shape=(n, *arr.shape), dtype=dt,
+                              chunks=(1, *arr.shape), fillvalue=np.nan, **_FILTERS)
+
+
+def _put_state(h5, k: int, arrays: dict, ps) -> None:
+    """Write state ``k``'s maps into the variables of :func:`_create_maps`."""
+    for name, arr in arrays.items():
+        h5[name][k] = arr
+        if ps is not None and name in ("ux", "uy"):
+            h5[f"{name}_phys"][k] = np.asarray(arr) * ps
+
+
+def _write_vibrations(h5, result, n_series: int) -> None:
+    """The frame shifts of every series and their statistics."""
+    T = max(result.n_frames)
     # vibrations, padded with NaN after the last frame of a shorter series
     shifts = np.full((n_series, T, 2), np.nan)
     for i, v in enumerate(result.vibration):
@@ -433,6 +526,11 @@ def _write_root(h5, result, ps, unit, attrs, H, W, n, n_series, lat) -> None:
     _var(h5, "vibration_phase_offset_std",
          np.array([v.phase_offset_std for v in result.vibration]),
          ("series", "wave_vector"), "rad", "std of the vibration phase offset (eq. 31)")
+
+
+def _write_noise(h5, result, lat) -> None:
+    """The noise floor of every state, the sensor noise and modulus of every series,
+    and the wave vectors."""
     nf = result.noise
     for name, dims, u, text in (
             ("theory_u", ("state", "u_component"), "px", "noise floor, theory"),
@@ -450,7 +548,11 @@ def _write_root(h5, result, ps, unit, attrs, H, W, n, n_series, lat) -> None:
          "median modulus |Psi| of the phase maps, raw grey levels")
     _var(h5, "lattice_k", np.array([lat.k1, lat.k2]), ("wave_vector", "axis"),
          "cycles/px", "wave vectors of the grid")
-    _write_metrology(h5, result)
+
+
+def _root_attributes(result, ps, unit, lat) -> dict:
+    """The file's root attributes (CF and gridstrain's), before the caller's ``attrs``."""
+    nf = result.noise
     root = {
         "Conventions": "CF-1.10",
         "title": "gridstrain displacement and strain maps",
@@ -475,12 +577,7 @@ def _write_root(h5, result, ps, unit, attrs, H, W, n, n_series, lat) -> None:
     }
     if ps is not None:
         root.update(pixel_size=ps, unit=unit)
-    for key, value in attrs.items():
-        root[_check_key(key, "attrs")] = value
-    for key, value in root.items():
-        stored = _root_attr(value)
-        if stored is not None:
-            h5.attrs[key] = stored
+    return root
 
 
 def _write_metrology(h5, result) -> None:
@@ -509,11 +606,218 @@ def _write_metrology(h5, result) -> None:
             sy["aliasing"]["strain_per_strain"])
 
 
+# --------------------------------------------------------------------------- streaming
+
+
+@dataclass(frozen=True)
+class ResultFile:
+    """Where and how :func:`gridstrain.pipeline.measure_series` writes its result
+    while it measures (``output=``): each state's maps go to the file as soon as they
+    are measured and leave memory, so that memory does not grow with the number of
+    states. The file is the one :func:`save_result` writes (put at ``path``
+    atomically when the measurement ends; nothing there if it fails).
+
+    Attributes
+    ----------
+    path : str or os.PathLike
+        Destination (``.h5`` or ``.nc``).
+    pixel_size, unit, overwrite, attrs
+        As for :func:`save_result`.
+    dtype : {None, "float32", "float64"}
+        Precision of the stored maps; None keeps that of the measurement
+        (:mod:`gridstrain.conventions`). float32 halves the file and keeps a
+        displacement below 1024 px to 3.1e-5 px (half the spacing of float32 numbers
+        below 1024, 2^-14) and a strain below 1 to 3e-8; the measurement itself is
+        computed as without it.
+    """
+
+    path: object
+    pixel_size: float | None = None
+    unit: str | None = None
+    overwrite: bool = False
+    attrs: Mapping | None = None
+    dtype: object = None
+
+    def __post_init__(self):
+        as_path(self.path, "path")
+        ps, unit = _check_pixel_size(self.pixel_size, self.unit)
+        object.__setattr__(self, "pixel_size", ps)
+        object.__setattr__(self, "unit", unit)
+        object.__setattr__(self, "attrs", dict(check_mapping(self.attrs, "attrs",
+                                                             allow_none=True)))
+        object.__setattr__(self, "dtype", check_float_dtype(self.dtype, "dtype"))
+
+
+class StoredMaps(np.lib.mixins.NDArrayOperatorsMixin):
+    """Maps of a result file, read from it when indexed: a read-only array of shape
+    ``(n_states, [components,] H, W)`` (or of one state) whose ``[i]`` reads state
+    ``i`` only, so that a long series is looked at state by state without being
+    loaded. ``numpy.asarray``, NumPy's functions and operators, and the methods of
+    an array (``.mean()``, ``.reshape()``...) read the whole.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The result file.
+    names : str or tuple of str
+        The variable, or the variables stacked along the component axis.
+    state : int, optional
+        One state only (no state axis).
+    """
+
+    def __init__(self, path, names, *, state: int | None = None, layout=None):
+        self.path = as_path(path, "path")
+        self._names = names
+        self._state = state
+        if layout is None:  # (n_states, H, W, dtype) of the variables
+            with h5py.File(self.path, "r") as h5:
+                first = h5[names if isinstance(names, str) else names[0]]
+                layout = (*first.shape, first.dtype)
+        n, H, W, self.dtype = layout
+        comp = () if isinstance(names, str) else (len(names),)
+        self.shape = (*(() if state is not None else (n,)), *comp, H, W)
+
+    @property
+    def ndim(self) -> int:
+        return len(self.shape)
+
+    @property
+    def size(self) -> int:
+        return int(np.prod(self.shape))
+
+    def __len__(self) -> int:
+        return self.shape[0]
+
+    def _read(self, states) -> np.ndarray:
+        with h5py.File(self.path, "r") as h5:
+            if isinstance(self._names, str):
+                return np.asarray(h5[self._names][states])
+            axis = 0 if isinstance(states, numbers.Integral) else 1
+            return np.stack([np.asarray(h5[n][states]) for n in self._names], axis=axis)
+
+    def __getitem__(self, key):
+        key = key if isinstance(key, tuple) else (key,)
+        if self._state is not None:
+            return self._read(self._state)[key]
+        first, rest = key[0], key[1:]
+        if isinstance(first, numbers.Integral) and not isinstance(first, bool):
+            i = int(first)
+            if not -self.shape[0] <= i < self.shape[0]:
+                raise IndexError(f"state {i} out of range for {self.shape[0]} states")
+            out = self._read(i % self.shape[0])
+        elif isinstance(first, slice):
+            out = self._read(first)
+            return out[(slice(None), *rest)] if rest else out
+        else:  # anything else: from the whole
+            return np.asarray(self)[key]
+        return out[rest] if rest else out
+
+    def __array_ufunc__(self, ufunc, method, *inputs, **kwargs):
+        inputs = tuple(np.asarray(x) if isinstance(x, StoredMaps) else x for x in inputs)
+        return getattr(ufunc, method)(*inputs, **kwargs)
+
+    def __getattr__(self, name):
+        # an array's other attributes and methods, on the whole read from the file
+        if name.startswith("_") or not hasattr(np.ndarray, name):
+            raise AttributeError(f"'StoredMaps' object has no attribute {name!r}")
+        return getattr(np.asarray(self), name)
+
+    def __array__(self, dtype=None, copy=None):
+        arr = self._read(self._state if self._state is not None else slice(None))
+        return arr if dtype is None else arr.astype(dtype)
+
+    def __iter__(self):
+        for i in range(len(self)):
+            yield self[i]
+
+    def __repr__(self) -> str:
+        return f"StoredMaps({self._names!r}, shape={self.shape}, file={str(self.path)!r})"
+
+
+class _Streamed:
+    """The sink of :func:`gridstrain.pipeline.measure_series` that writes each state
+    into a :class:`ResultFile` as it comes (see :class:`ResultFile`)."""
+
+    def __init__(self, spec: ResultFile, n_states: int):
+        self.spec, self.n = spec, n_states
+        self.path = as_path(spec.path, "path")
+        self._cm = hdf5_stream(self.path, overwrite=spec.overwrite)
+        self.stream = self._cm.__enter__()
+        self.h5 = self.stream.file
+        self.measurements, self.orders, self.floors, self.smoothing = [], [], [], []
+        self.unc_names: list[str] = []
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        if exc[0] is not None and self._cm is not None:
+            cm, self._cm = self._cm, None
+            cm.__exit__(*exc)  # the temporary file is removed
+        return False
+
+    def add(self, i: int, res, rec, unc, floors: dict, smooth: dict) -> None:
+        try:
+            self._add(i, res, rec, unc, floors, smooth)
+        except BaseException as exc:
+            self.__exit__(type(exc), exc, exc.__traceback__)
+            raise
+
+    def _add(self, i: int, res, rec, unc, floors: dict, smooth: dict) -> None:
+        arrays = _state_arrays(res, unc)
+        if unc and not self.unc_names:
+            self.unc_names = list(unc)
+        _create_maps(self.h5, arrays, self.n, self.spec.pixel_size, self.spec.dtype)
+        _put_state(self.h5, i, arrays, self.spec.pixel_size)
+        self.stream.check()  # a full disk is reported now, not after the last state
+        # the measurement without its maps (they are in the file) and phase maps
+        self.measurements.append(dataclasses.replace(
+            res, **dict.fromkeys(("u", "strain", "rotation", "valid"), _EMPTY),
+            reference=None, deformed=None))
+        self.orders.append(rec)
+        self.floors.append(floors)
+        self.smoothing.append(smooth)
+
+    def result(self, **fields) -> SeriesResult:
+        spec, h5 = self.spec, self.h5
+        # the result's maps are those of the file, read from it once it is in place
+        def lazy(names, state=None):
+            first = h5[names if isinstance(names, str) else names[0]]
+            return StoredMaps(self.path, names, state=state,
+                              layout=(*first.shape, first.dtype))
+
+        ms = tuple(dataclasses.replace(m, u=lazy(("ux", "uy"), i),
+                                       strain=lazy(("exx", "eyy", "exy"), i),
+                                       rotation=lazy("rotation", i), valid=lazy("valid", i))
+                   for i, m in enumerate(self.measurements))
+        result = SeriesResult(
+            u=lazy(("ux", "uy")), strain=lazy(("exx", "eyy", "exy")), valid=lazy("valid"),
+            measurements=ms,
+            guesses=tuple(tuple(float(v) for v in r.guess) for r in self.orders),
+            guess_sources=tuple(r.source for r in self.orders),
+            fringe_orders=tuple(self.orders),
+            uncertainty={k: lazy(k) for k in self.unc_names} or None, **fields)
+        H, W = result.shape
+        ps, unit = spec.pixel_size, spec.unit
+        _write_dimensions(h5, result, H, W)
+        _describe_maps(h5, ps, unit, H, W, self.unc_names)
+        _write_images(h5, result, ps)
+        _write_tables(h5, result, ps, unit, spec.attrs, len(result.names))
+        _write_group(h5, result, spec.attrs, phase_maps=False)
+        cm, self._cm = self._cm, None
+        cm.__exit__(None, None, None)  # closed, and put at its path
+        return result
+
+
+_EMPTY = np.zeros((0, 0))
+_EMPTY.flags.writeable = False
+
+
 # --------------------------------------------------------------------------- load
 
 
 def _open(path) -> h5py.File:
-    p = _as_path(path, "path")
+    p = as_path(path, "path")
     if not p.is_file():
         raise FileNotFoundError(f"result file {p} does not exist")
     try:
@@ -614,7 +918,7 @@ def to_xarray(result_or_path, *, pixel_size: float | None = None, unit: str | No
                             unit=unit)
             with xr.open_dataset(p, engine="h5netcdf") as ds:
                 return ds.load()
-    with xr.open_dataset(_as_path(result_or_path, "path"), engine="h5netcdf") as ds:
+    with xr.open_dataset(as_path(result_or_path, "path"), engine="h5netcdf") as ds:
         return ds.load()
 
 
@@ -637,8 +941,7 @@ def export_mat(result: SeriesResult, path, *, pixel_size: float | None = None,
     """
     from scipy.io import savemat
 
-    if not isinstance(result, SeriesResult):
-        raise TypeError(f"result must be a SeriesResult, got {type(result).__name__}")
+    check_type(result, "result", SeriesResult)
     ps, unit = _phys(result, pixel_size, unit)
     H, W = result.shape
 
@@ -662,7 +965,7 @@ def export_mat(result: SeriesResult, path, *, pixel_size: float | None = None,
     data["k1"], data["k2"] = np.array(result.lattice.k1), np.array(result.lattice.k2)
     data["sigma"], data["method"] = result.sigma, result.method
     data["mask"] = result.mask
-    dest = _as_path(path, "path")
+    dest = as_path(path, "path")
     # built in memory, then written: a full disk is one line naming the file
     return write_atomic(dest, lambda fh: savemat(fh, data, do_compression=True,
                                                  oned_as="column"), overwrite=overwrite)
@@ -690,8 +993,7 @@ def export_vtk(result: SeriesResult, path, *, pixel_size: float | None = None,
     unless the camera looks along +z with y down). Point arrays ``<map>_<state>``
     (``exx_state_0``...), NaN where not valid, and ``valid_<state>`` (0/1).
     """
-    if not isinstance(result, SeriesResult):
-        raise TypeError(f"result must be a SeriesResult, got {type(result).__name__}")
+    check_type(result, "result", SeriesResult)
     ps, unit = _phys(result, pixel_size, unit)
     s = 1.0 if ps is None else ps
     H, W = result.shape
@@ -712,7 +1014,7 @@ def export_vtk(result: SeriesResult, path, *, pixel_size: float | None = None,
             f'    <Piece Extent="{extent}">\n      <PointData>\n'
             + "".join(arrays) + "      </PointData>\n    </Piece>\n  </ImageData>\n"
             "</VTKFile>\n")
-    dest = _as_path(path, "path")
+    dest = as_path(path, "path")
     return write_atomic(dest, text.encode("ascii"), overwrite=overwrite)
 
 
@@ -739,8 +1041,7 @@ def save_csv(result: SeriesResult, path, *, pixel_size: float | None = None,
         Significant digits of floats (default 7); ``None`` writes each float64 as
         its shortest exact decimal.
     """
-    if not isinstance(result, SeriesResult):
-        raise TypeError(f"result must be a SeriesResult, got {type(result).__name__}")
+    check_type(result, "result", SeriesResult)
     ps, unit = _phys(result, pixel_size, unit)
     st, yy, xx = np.nonzero(result.valid)
     cols = {"state": st, "x [px]": xx, "y [px]": yy}
@@ -771,7 +1072,7 @@ def export(result: SeriesResult, stem, formats, *, pixel_size: float | None = No
         if f not in writers:
             raise ValueError(f"export format must be one of {', '.join(writers)}, got "
                              f"{f!r}")
-    stem = _as_path(stem, "stem")
+    stem = as_path(stem, "stem")
     for f in formats:
         fn, ext = writers[f]
         out[f] = fn(result, stem.with_name(stem.name + ext), pixel_size=pixel_size,

@@ -280,40 +280,127 @@ def screen_frames(frames, lattice: Lattice, *, saturation_level: float | None = 
     if not 0 <= max_saturation <= 1:
         raise ValueError(f"max_saturation must be a fraction in [0, 1], got {max_saturation!r}")
     m = None if mask is None else np.asarray(mask, dtype=bool)
-    coeffs, prom, sat, clip, tile_c, uniform = [], [], [], [], [], []
-    probe, tiles, tile_probes, shape = None, [], {}, None
+    probe, shape, records = None, None, []
     for t, frame in _iter_frames(frames):
         arr = _as_frame(frame, shape, t)
         if probe is None:
             shape = arr.shape
-            probe = _CarrierProbe(lattice, shape)
-            tiles = _tiles(shape, lattice)
             if m is not None and m.shape != shape:
                 raise ValueError(f"mask must have the frames' shape {shape}, got {m.shape}")
-        c = probe(arr)
-        coeffs.append(c)
-        uniform.append(bool(arr.min() == arr.max()))
-        prom.append(probe.prominence(arr, c))
-        f, lev = _clipped(arr, saturation_level, scale, m)
-        sat.append(f)
-        clip.append(lev)
-        row = []
-        for ys, xs in tiles:
-            sub = arr[ys, xs]
-            tp = tile_probes.get(sub.shape)
-            if tp is None:
-                tp = tile_probes[sub.shape] = _CarrierProbe(lattice, sub.shape)
-            row.append(tp(sub))
-        tile_c.append(row)
+            probe = FrameProbe(lattice, shape, saturation_level=saturation_level,
+                               scale=scale, mask=m)
+        records.append(probe(arr))
     if probe is None:
         raise ValueError("frames must hold at least one frame, got none")
-    coeffs = np.array(coeffs)
-    prom = np.array(prom)
+    return decide(records, probe, max_saturation=max_saturation)
+
+
+@dataclass(frozen=True, eq=False)
+class FrameRecord:
+    """What :class:`FrameProbe` measures on one frame (a few numbers, whatever its size).
+
+    Attributes
+    ----------
+    coefficients : (2,) complex128 ndarray
+        Carrier coefficient of each wave vector over the whole frame.
+    uniform : bool
+        Whether the frame has a single grey level.
+    prominence : (2,) float64 ndarray
+        Carrier modulus over the frame's white-noise level.
+    saturated : float
+        Fraction of the (masked) pixels at the clipping level.
+    clip_level : float
+        The clipping level, raw grey levels (NaN: not clipped).
+    tiles : (n_tiles, 2) complex128 ndarray
+        Carrier coefficients of the residual test's tiles.
+    """
+
+    coefficients: np.ndarray
+    uniform: bool
+    prominence: np.ndarray
+    saturated: float
+    clip_level: float
+    tiles: np.ndarray
+
+
+class FrameProbe:
+    """Per-frame measurements of the screening, one frame at a time.
+
+    Records of frames probed by equal probes (same lattice, shape, levels and
+    mask), in any order and on any machine, are decided together by
+    :func:`decide`: the probe is what a streamed or distributed pass over a
+    series needs (:mod:`gridstrain.accumulate`).
+
+    Parameters
+    ----------
+    lattice : Lattice
+    shape : (2,) tuple of int
+        ``(H, W)`` of the frames.
+    saturation_level, scale, mask
+        As for :func:`screen_frames`.
+    """
+
+    def __init__(self, lattice: Lattice, shape: tuple[int, int], *,
+                 saturation_level: float | None = None, scale: int = 1, mask=None):
+        self.lattice = lattice
+        self.shape = tuple(shape)
+        self.saturation_level = saturation_level
+        self.scale = scale
+        self.mask = mask
+        self.carrier = _CarrierProbe(lattice, self.shape)
+        self.tiles = _tiles(self.shape, lattice)
+        self._tile_probes: dict = {}
+
+    def __call__(self, arr: np.ndarray) -> FrameRecord:
+        """The record of one float64 frame (H, W)."""
+        c = self.carrier(arr)
+        f, lev = _clipped(arr, self.saturation_level, self.scale, self.mask)
+        row = []
+        for ys, xs in self.tiles:
+            sub = arr[ys, xs]
+            tp = self._tile_probes.get(sub.shape)
+            if tp is None:
+                tp = self._tile_probes[sub.shape] = _CarrierProbe(self.lattice, sub.shape)
+            row.append(tp(sub))
+        return FrameRecord(coefficients=c, uniform=bool(arr.min() == arr.max()),
+                           prominence=self.carrier.prominence(arr, c), saturated=f,
+                           clip_level=lev,
+                           tiles=np.array(row, dtype=np.complex128).reshape(-1, 2))
+
+
+def decide(records, probe: FrameProbe, *, max_saturation: float = 0.01) -> FrameScreen:
+    """The screening's verdicts on a series from its frames' records, in frame order.
+
+    Parameters
+    ----------
+    records : sequence of FrameRecord
+        One per frame of the series, in the series' order.
+    probe : FrameProbe
+        The probe that made them.
+    max_saturation : float
+        As for :func:`screen_frames`.
+
+    Returns
+    -------
+    FrameScreen
+
+    Raises
+    ------
+    ValueError
+        No record, or no frame showing a grid at the lattice's wave vectors.
+    """
+    if not records:
+        raise ValueError("frames must hold at least one frame, got none")
+    lattice, tiles, scale = probe.lattice, probe.tiles, probe.scale
+    saturation_level = probe.saturation_level
+    coeffs = np.array([r.coefficients for r in records])
+    prom = np.array([r.prominence for r in records])
+    uniform = [r.uniform for r in records]
     grid = np.all(prom >= _MIN_PROMINENCE, axis=1) & ~np.array(uniform)
     if not grid.any():
         raise ValueError(f"no frame shows a grid at the lattice's wave vectors: the carrier "
                          f"stands at most {float(prom.min(axis=1).max()):.3g} times above the "
-                         "level of white noise (a grid gives 0.24 per px of side); check the "
+                         "level of white noise (a grid gives tens to hundreds); check the "
                          "lattice")
     T = coeffs.shape[0]
     mod = np.abs(coeffs)
@@ -321,10 +408,10 @@ def screen_frames(frames, lattice: Lattice, *, saturation_level: float | None = 
     dev, slip = _deviation(coeffs, grid, lattice)
     centres = np.array([((xs.start + xs.stop - 1) / 2, (ys.start + ys.stop - 1) / 2)
                         for ys, xs in tiles]).reshape(len(tiles), 2)
-    residual = _residual(coeffs, np.array(tile_c).reshape(T, len(tiles), 2), centres, grid,
-                         lattice)
-    sat = np.array(sat)
-    clip = np.array(clip)
+    tile_c = np.array([r.tiles for r in records]).reshape(T, len(tiles), 2)
+    residual = _residual(coeffs, tile_c, centres, grid, lattice)
+    sat = np.array([r.saturated for r in records], dtype=np.float64)
+    clip = np.array([r.clip_level for r in records], dtype=np.float64)
     reasons = []
     res_ok = residual[grid & np.isfinite(residual)]
     res_median = float(np.median(res_ok)) if res_ok.size >= 3 else math.nan

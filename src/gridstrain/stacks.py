@@ -255,18 +255,21 @@ class _PhaseMean:
         self.unit = np.zeros((2, H, W), dtype=np.complex128)
         self.mod = np.zeros((2, H, W), dtype=np.float64)
         self.dphi = np.zeros((2, 2, H, W), dtype=np.float64)
-        self.valid = np.ones((H, W), dtype=bool)
+        # frames in which each pixel is invalid: a count, so that a frame taken out
+        # again (remove=True) takes its invalid pixels with it
+        self.invalid = np.zeros((H, W), dtype=np.int32)
         self.lattice = lattice
         self.sigma = float(lattice.pitch if sigma is None else sigma)
         self.dtype = np.dtype(dtype)
 
     def add_frame(self, img, lattice: Lattice, *, sigma=None, mask=None,
                   margin: float = DEFAULT_MARGIN, index: int = 0,
-                  order: _FrameOrder | None = None) -> None:
+                  order: _FrameOrder | None = None, remove: bool = False) -> None:
         """Add the WFT of ``img`` (as :func:`~gridstrain.wft.wft` computes it).
 
         With ``order``, ``index`` is the frame's rank in the stack (from 0), and its
-        blocks are added after those of frame ``index - 1``.
+        blocks are added after those of frame ``index - 1``. ``remove=True`` takes
+        out a frame added before (its contributions are subtracted).
         """
         img = as_image(img, "frame")
         H, W = img.shape
@@ -297,17 +300,26 @@ class _PhaseMean:
                 dphi[:, mod == 0] = 0
             if order is not None:
                 order.wait((j, r0), index)
-            unit[j, r0:r1] += u
-            self.mod[j, r0:r1] += mod
-            self.dphi[j, :, r0:r1] += dphi
+            if remove:
+                unit[j, r0:r1] -= u
+                self.mod[j, r0:r1] -= mod
+                self.dphi[j, :, r0:r1] -= dphi
+            else:
+                unit[j, r0:r1] += u
+                self.mod[j, r0:r1] += mod
+                self.dphi[j, :, r0:r1] += dphi
             if order is not None:
                 order.release((j, r0), index)
 
         valid = _wft(img, lattice, sigma=sigma, mask=mask, margin=margin, sink=sink,
                      work=work, checked=True)
         with self._lock:
-            self.valid &= valid
-            self.n += 1
+            if remove:
+                self.invalid -= ~valid
+                self.n -= 1
+            else:
+                self.invalid += ~valid
+                self.n += 1
 
     def merge(self, other: _PhaseMean) -> _PhaseMean:
         """A new accumulator holding the sums of ``self`` and ``other`` (both
@@ -317,7 +329,7 @@ class _PhaseMean:
         out.unit = self.unit + other.unit
         out.mod = self.mod + other.mod
         out.dphi = self.dphi + other.dphi
-        out.valid = self.valid & other.valid
+        out.invalid = self.invalid + other.invalid
         out.lattice, out.sigma = self.lattice, self.sigma
         out.dtype = np.promote_types(self.dtype, other.dtype)
         return out
@@ -329,7 +341,7 @@ class _PhaseMean:
             direction = np.where(r > 0, mean_unit / r, 0)
         psi = (direction * (self.mod / self.n)).astype(np.result_type(self.dtype, np.complex64))
         dphi = (self.dphi / self.n).astype(self.dtype)
-        valid = self.valid & np.all(r > 0, axis=0)
+        valid = (self.invalid == 0) & np.all(r > 0, axis=0)
         maps = PhaseMaps(psi=psi, dphi=dphi, valid=valid.copy(), lattice=self.lattice,
                          sigma=self.sigma)
         return StackResult(maps=maps, n_frames=self.n, method="B", resultant=r)
@@ -621,36 +633,49 @@ class _MethodC:
                     f"frames are realigned with the wrong phases. Check that the shifts "
                     f"follow eq. (2) (frame t is s(x + a_t)) and are in px, or let "
                     f"method C measure them")
-        residual = None
-        if n > 1 and len(self.parts) == n:
-            P = np.array(self.parts)  # (n, 4, 2)
-            R = P - P.mean(axis=1, keepdims=True)  # departure from the frame's shift
-            R -= R.mean(axis=0)  # static differences: the grid's own modulation
-            residual = float(np.sqrt(np.mean(np.sum(R**2, axis=2))))
-            miss = 2 * math.pi * float(np.max(np.hypot(K[:, 0], K[:, 1]))) * residual
-            if miss > _MAX_WEIGHT_PHASE_ERROR:
-                worst = int(np.argmax(np.sum(R**2, axis=(1, 2))))
-                warnings.append(
-                    f"method C: the frames' motion is not a rigid translation: the "
-                    f"quadrants of a frame move apart by {residual:.3g} px RMS (worst: "
-                    f"frame {worst}), i.e. {miss:.3g} rad on the carrier. Only the "
-                    f"translation is compensated; the rest (rotation, non-rigid "
-                    f"vibration) averages as under method A, with its contrast loss "
-                    f"and phase offsets that now vary across the field")
-        s = float(self.lattice.pitch if sigma is None else sigma)
-        spread = float(np.sqrt(np.mean(np.sum((used - used.mean(axis=0)) ** 2, axis=1)) / 2))
-        widening = math.sqrt(1 + spread**2 / s**2) - 1
-        if widening > _MAX_WINDOW_WIDENING:
+        return _compensated_result(lambda c: self.acc.averages(c), centre, n, self.acc.dtype,
+                                   used, self.parts, self.lattice, sigma=sigma, mask=mask,
+                                   margin=margin, warnings=warnings)
+
+
+def _compensated_result(averages, centre, n: int, dtype, used: np.ndarray, parts: list,
+                        lattice: Lattice, *, sigma, mask, margin, warnings: list) -> StackResult:
+    """Method C's maps from its realigned sums: ``averages(centre)`` gives the two
+    weighted means (2, H, W) turned by ``exp(+i centre)``; ``used`` (n, 2) are the
+    shifts the weights used, ``parts`` the frames' quadrant shifts (n, 4, 2) for
+    the rigidity check (or fewer than ``n``: not checked)."""
+    K = lattice.K
+    warnings = list(warnings)
+    residual = None
+    if n > 1 and len(parts) == n:
+        P = np.array(parts)  # (n, 4, 2)
+        R = P - P.mean(axis=1, keepdims=True)  # departure from the frame's shift
+        R -= R.mean(axis=0)  # static differences: the grid's own modulation
+        residual = float(np.sqrt(np.mean(np.sum(R**2, axis=2))))
+        miss = 2 * math.pi * float(np.max(np.hypot(K[:, 0], K[:, 1]))) * residual
+        if miss > _MAX_WEIGHT_PHASE_ERROR:
+            worst = int(np.argmax(np.sum(R**2, axis=(1, 2))))
             warnings.append(
-                f"method C: vibrations of {spread:.3g} px RMS move the phase maps under the "
-                f"window: the maps are those of a window {widening:.1%} wider than sigma = "
-                f"{s:.3g} px (variance sigma^2 + Var(a)); the spatial resolution is "
-                f"that much coarser (as for methods A and B)")
-        maps = wft_complex(self.acc.averages(centre), self.lattice, sigma=sigma, mask=mask,
-                           margin=margin, dtype=self.acc.dtype)
-        return StackResult(maps=maps, n_frames=n, method="C",
-                           shifts=np.array(used, dtype=np.float64), motion_residual=residual,
-                           warnings=tuple(warnings))
+                f"method C: the frames' motion is not a rigid translation: the "
+                f"quadrants of a frame move apart by {residual:.3g} px RMS (worst: "
+                f"frame {worst}), i.e. {miss:.3g} rad on the carrier. Only the "
+                f"translation is compensated; the rest (rotation, non-rigid "
+                f"vibration) averages as under method A, with its contrast loss "
+                f"and phase offsets that now vary across the field")
+    s = float(lattice.pitch if sigma is None else sigma)
+    spread = float(np.sqrt(np.mean(np.sum((used - used.mean(axis=0)) ** 2, axis=1)) / 2))
+    widening = math.sqrt(1 + spread**2 / s**2) - 1
+    if widening > _MAX_WINDOW_WIDENING:
+        warnings.append(
+            f"method C: vibrations of {spread:.3g} px RMS move the phase maps under the "
+            f"window: the maps are those of a window {widening:.1%} wider than sigma = "
+            f"{s:.3g} px (variance sigma^2 + Var(a)); the spatial resolution is "
+            f"that much coarser (as for methods A and B)")
+    maps = wft_complex(averages(centre), lattice, sigma=sigma, mask=mask, margin=margin,
+                       dtype=dtype)
+    return StackResult(maps=maps, n_frames=n, method="C",
+                       shifts=np.array(used, dtype=np.float64), motion_residual=residual,
+                       warnings=tuple(warnings))
 
 
 def _check_shifts(shifts) -> np.ndarray:

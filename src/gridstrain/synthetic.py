@@ -10,7 +10,14 @@ from collections.abc import Callable
 
 import numpy as np
 
-from ._validation import check_choice, check_positive
+from ._validation import (
+    check_choice,
+    check_fraction,
+    check_int,
+    check_nonnegative,
+    check_positive,
+    check_shape,
+)
 from .lattice import Lattice
 
 __all__ = [
@@ -128,15 +135,11 @@ def grid_image(shape, lattice: Lattice, *, amplitude: float = 1.0, contrast: flo
     -------
     (H, W) ndarray
     """
-    H, W = (int(s) for s in shape)
-    if H < 1 or W < 1:
-        raise ValueError(f"shape must be two positive integers, got {shape!r}")
+    H, W = check_shape(shape)
     check_positive(amplitude, "amplitude")
-    if not 0 <= contrast <= 1:
-        raise ValueError(f"contrast must be in [0, 1], got {contrast!r}")
+    check_fraction(contrast, "contrast")
     check_choice(kind, "kind", ("grid", "checkerboard"))
-    if not isinstance(oversample, int) or oversample < 1:
-        raise ValueError(f"oversample must be a positive integer, got {oversample!r}")
+    oversample = check_int(oversample, "oversample")
     ell = line_profile(profile)
     offsets = (np.arange(oversample) + 0.5) / oversample - 0.5
     out = np.zeros((H, W), dtype=np.float64)
@@ -192,8 +195,7 @@ def add_noise(image, *, K: float = 0.28, L: float = 5.0, rng=None, bits: int | N
     """
     rng = np.random.default_rng(rng)
     K = check_positive(K, "K")
-    if L < 0 or not np.isfinite(L):
-        raise ValueError(f"L must be a finite non-negative variance, got {L!r}")
+    check_nonnegative(L, "L")  # checked, not converted: the draws stay those of a given seed
     lam = np.asarray(image, dtype=np.float64)
     if np.any(lam < 0):
         raise ValueError("image must be non-negative grey levels to add Poisson noise")

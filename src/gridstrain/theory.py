@@ -70,12 +70,25 @@ Engineering 66 (2015) 210-222. doi:10.1016/j.optlaseng.2014.09.013
 from __future__ import annotations
 
 import math
-import numbers
 
 import numpy as np
 from scipy import fft as sfft
 
-from ._validation import as_image, check_choice, check_positive
+from ._validation import (
+    as_float_array,
+    as_image,
+    as_shifts,
+    check_choice,
+    check_finite,
+    check_fraction,
+    check_frequency,
+    check_int,
+    check_nonnegative,
+    check_positive,
+    check_range,
+    check_shape,
+    check_type,
+)
 from .lattice import Lattice
 from .synthetic import line_profile
 
@@ -114,50 +127,9 @@ _WINDOW_SUM_SIGMAS = 12.0
 
 # --------------------------------------------------------------------------- checks
 
-def _check_real(value, name: str) -> float:
-    if isinstance(value, bool) or not isinstance(value, numbers.Real):
-        raise TypeError(f"{name} must be a real number, got {value!r}")
-    v = float(value)
-    if not math.isfinite(v):
-        raise ValueError(f"{name} must be finite, got {value!r}")
-    return v
-
-
-def _check_nonnegative(value, name: str) -> float:
-    v = _check_real(value, name)
-    if v < 0:
-        raise ValueError(f"{name} must be non-negative, got {value!r}")
-    return v
-
-
-def _check_frequency(value, name: str = "frequency") -> float:
-    f = _check_real(value, name)
-    if not 0 < f < 0.5:
-        raise ValueError(f"{name} must be a carrier frequency in (0, 0.5) cycles/px "
-                         f"(a pitch above 2 px), got {value!r}")
-    return f
-
-
-def _check_count(value, name: str) -> int:
-    if isinstance(value, bool) or not isinstance(value, numbers.Integral) or value < 1:
-        raise ValueError(f"{name} must be a positive integer, got {value!r}")
-    return int(value)
-
-
-def _check_lattice(lattice) -> Lattice:
-    if not isinstance(lattice, Lattice):
-        raise TypeError(f"lattice must be a Lattice, got {type(lattice).__name__}")
-    return lattice
-
-
 def _check_cov(cov) -> np.ndarray:
     """A 2x2 symmetric positive semi-definite covariance of (alpha, beta), px^2."""
-    try:
-        c = np.asarray(cov, dtype=float)
-    except TypeError:
-        raise TypeError(f"cov must be a 2x2 array of px^2, got {type(cov).__name__}") from None
-    except ValueError:
-        raise ValueError(f"cov must be a 2x2 array of px^2, got {cov!r}") from None
+    c = as_float_array(cov, "cov", dtype=np.float64)
     if c.shape != (2, 2):
         raise ValueError(f"cov must be the 2x2 covariance [[Var alpha, Cov], [Cov, Var beta]] "
                          f"in px^2, got shape {c.shape}")
@@ -174,31 +146,9 @@ def _check_cov(cov) -> np.ndarray:
     return c
 
 
-def _check_shifts(shifts, name: str, ndim: int) -> np.ndarray:
-    try:
-        a = np.asarray(shifts, dtype=float)
-    except TypeError:
-        raise TypeError(f"{name} must be an array of shifts in px, got "
-                        f"{type(shifts).__name__}") from None
-    except ValueError:
-        raise ValueError(f"{name} must be a regular array of shifts in px") from None
-    want = "(T,)" if ndim == 1 else "(T, 2)"
-    if a.ndim != ndim or a.shape[0] < 1 or (ndim == 2 and a.shape[1] != 2):
-        raise ValueError(f"{name} must have shape {want} with T >= 1, got shape {a.shape}")
-    if not np.all(np.isfinite(a)):
-        raise ValueError(f"{name} must be finite")
-    return a
-
-
 def _check_stds(value, name: str, shape: tuple[int, ...]) -> np.ndarray:
     """A non-negative std broadcast to ``shape`` (scalar, per wave vector, or full)."""
-    try:
-        a = np.asarray(value, dtype=float)
-    except TypeError:
-        raise TypeError(f"{name} must be a number or an array, got "
-                        f"{type(value).__name__}") from None
-    except ValueError:
-        raise ValueError(f"{name} must be a number or a regular array") from None
+    a = as_float_array(value, name, dtype=np.float64)
     if a.ndim == 1 and len(shape) == 2 and a.shape == (shape[0],):
         a = a[:, None]  # one value per wave vector, for both derivative directions
     try:
@@ -246,7 +196,7 @@ def profile_coefficients(profile="sin3", *, n_harmonics: int = 16) -> np.ndarray
     >>> bool(np.isclose(d[3 + 1], -3j / 16))
     True
     """
-    n = _check_count(n_harmonics, "n_harmonics")
+    n = check_int(n_harmonics, "n_harmonics")
     if n > _MAX_HARMONICS:
         raise ValueError(f"n_harmonics must be at most {_MAX_HARMONICS}, got {n_harmonics!r}")
     ell = line_profile(profile)
@@ -310,9 +260,9 @@ def averaged_profile_coefficients(d, frequency: float, mean: float,
     factor is ``exp(-1/2 (3 * 2 pi f)^2 Var(alpha)) = 0.852``.
     """
     c = _check_coefficients(d)
-    f = _check_frequency(frequency)
-    m1 = _check_real(mean, "mean")
-    m2 = _check_nonnegative(mean_square, "mean_square")
+    f = check_frequency(frequency)
+    m1 = check_finite(mean, "mean")
+    m2 = check_nonnegative(mean_square, "mean_square")
     w = 2 * np.pi * f * _harmonics(c)
     return (1 + 1j * w * m1 - 0.5 * w**2 * m2) * c  # eq. (14)
 
@@ -340,8 +290,8 @@ def contrast_factor(frequency: float, variance: float) -> float:
     ``exp(-1/2 (2 pi f)^2 Var(alpha))``; at ``f = 1/5`` and ``Std(alpha) =
     0.15`` px the two are 0.9822 and 0.9824.
     """
-    f = _check_frequency(frequency)
-    var = _check_nonnegative(variance, "variance")
+    f = check_frequency(frequency)
+    var = check_nonnegative(variance, "variance")
     return 1.0 - 0.5 * (2 * np.pi * f) ** 2 * var
 
 
@@ -360,8 +310,8 @@ def exact_contrast_factor(frequency: float, alphas) -> float:
     float
         Dimensionless, in [0, 1].
     """
-    f = _check_frequency(frequency)
-    a = _check_shifts(alphas, "alphas", 1)
+    f = check_frequency(frequency)
+    a = as_shifts(alphas, "alphas", ndim=1)
     return float(abs(np.mean(np.exp(2j * np.pi * f * a))))
 
 
@@ -428,12 +378,10 @@ def _family_terms(lattice: Lattice, cov: np.ndarray, d: np.ndarray, exact: bool)
 
 def _grid_terms(lattice, cov, amplitude, contrast, profile, n_harmonics, exact):
     """Checked eq. (1) grid parameters and each family's bias coefficients."""
-    lattice = _check_lattice(lattice)
+    lattice = check_type(lattice, "lattice", Lattice)
     c = _check_cov(cov)
     A = check_positive(amplitude, "amplitude")
-    gamma = _check_real(contrast, "contrast")
-    if not 0 <= gamma <= 1:
-        raise ValueError(f"contrast must be in [0, 1], got {contrast!r}")
+    gamma = check_fraction(contrast, "contrast")
     d = profile_coefficients(profile, n_harmonics=n_harmonics)
     return lattice, A, gamma, d, _family_terms(lattice, c, d, bool(exact))
 
@@ -479,9 +427,7 @@ def grid_mean_image_bias(shape, lattice: Lattice, cov, *, amplitude: float = 1.0
     a sampled image is wrong: for harmonics above the Nyquist frequency. Phase
     modulations are left out; eqs. (8)-(12) neglect their gradients anyway.
     """
-    H, W = (int(s) for s in shape)
-    if H < 1 or W < 1:
-        raise ValueError(f"shape must be two positive integers, got {shape!r}")
+    H, W = check_shape(shape)
     lattice, A, gamma, d, terms = _grid_terms(lattice, cov, amplitude, contrast, profile,
                                               n_harmonics, exact)
     yy, xx = np.mgrid[0:H, 0:W].astype(np.float64)
@@ -611,8 +557,8 @@ def phase_offset(shifts, frequency: float, *, exact: bool = False,
     >>> round(phase_offset([0.1], 0.2, exact=True), 6)  # 2 pi * 0.2 * 0.1
     0.125664
     """
-    a = _check_shifts(shifts, "shifts", 1)
-    f = _check_frequency(frequency)
+    a = as_shifts(shifts, "shifts", ndim=1)
+    f = check_frequency(frequency)
     check_choice(method, "method", ("A", "B"))
     return float(_offset(2 * np.pi * f * a, bool(exact), method))
 
@@ -637,8 +583,8 @@ def phase_offsets(shifts_xy, lattice: Lattice, *, exact: bool = False,
         ``(delta_1, delta_2)``, rad: :func:`phase_offset` with ``2 pi f alpha_t``
         replaced by the phase shift ``2 pi k_j . (alpha_t, beta_t)``.
     """
-    a = _check_shifts(shifts_xy, "shifts_xy", 2)
-    lattice = _check_lattice(lattice)
+    a = as_shifts(shifts_xy, "shifts_xy", ndim=2)
+    lattice = check_type(lattice, "lattice", Lattice)
     check_choice(method, "method", ("A", "B"))
     theta = 2 * np.pi * a @ lattice.K.T  # (T, 2): 2 pi k_j . a_t
     return _offset(theta, bool(exact), method)
@@ -683,9 +629,9 @@ def phase_offset_std(frequency: float, variance: float, T: int, *,
     The same holds at T = 200. ``tests/test_theory.py`` checks the 0.05 px case
     with 10 000 stacks.
     """
-    f = _check_frequency(frequency)
-    var = _check_nonnegative(variance, "variance")
-    n = _check_count(T, "T")
+    f = check_frequency(frequency)
+    var = check_nonnegative(variance, "variance")
+    n = check_int(T, "T")
     check_choice(method, "method", ("A", "B"))
     w = 2 * np.pi * f
     if method == "B":
@@ -783,7 +729,7 @@ def wft_noise_std(noise_variance: float, modulus: float, sigma: float) -> tuple[
     error 0.3 %) the measured stds differ from these by -0.02 % (phase),
     -0.1 % (``d phi_1 / dx``) and -0.2 % (``d phi_1 / dy``).
     """
-    v = _check_nonnegative(noise_variance, "noise_variance")
+    v = check_nonnegative(noise_variance, "noise_variance")
     mod = check_positive(modulus, "modulus")
     g2, dg2 = window_energy(sigma)
     return math.sqrt(v * g2 / 2) / mod, math.sqrt(v * dg2 / 2) / mod
@@ -857,11 +803,11 @@ def compensated_noise_std(noise_variance: float, modulus: float, sigma: float, T
     order of the window's share of the frame's area. First order in the sensor
     noise, as :func:`wft_noise_std`.
     """
-    v = _check_nonnegative(noise_variance, "noise_variance")
-    n = _check_count(T, "T")
-    f = _check_frequency(frequency)
-    var_a = _check_nonnegative(vibration_variance, "vibration_variance")
-    var_e = _check_nonnegative(shift_error_variance, "shift_error_variance")
+    v = check_nonnegative(noise_variance, "noise_variance")
+    n = check_int(T, "T")
+    f = check_frequency(frequency)
+    var_a = check_nonnegative(vibration_variance, "vibration_variance")
+    var_e = check_nonnegative(shift_error_variance, "shift_error_variance")
     w = 2 * np.pi * f
     contrast = 1.0 - 0.5 * w**2 * var_e  # eq. (14) with alpha_t -> -e_t
     if contrast <= 0:
@@ -896,9 +842,7 @@ def grid_modulus(amplitude: float, contrast: float, *, profile="sin3") -> float:
         paper's grid). An averaged stack multiplies it by :func:`contrast_factor`.
     """
     A = check_positive(amplitude, "amplitude")
-    gamma = _check_real(contrast, "contrast")
-    if not 0 < gamma <= 1:
-        raise ValueError(f"contrast must be in (0, 1], got {contrast!r}")
+    gamma = check_range(contrast, "contrast", 0.0, 1.0, include_low=False)
     d = profile_coefficients(profile, n_harmonics=1)
     return float(A / 2 * gamma * abs(d[2]))
 
@@ -933,10 +877,10 @@ def effective_noise_variance(K: float, L: float, mean_level: float, *, T: int = 
     Vibrations change the mean by second-order terms of zero spatial mean
     (eq. 20). Eq. (20) as printed has ``L / T^2``; the correct term is ``L / T``.
     """
-    k = _check_nonnegative(K, "K")
-    ell = _check_nonnegative(L, "L")
-    m = _check_nonnegative(mean_level, "mean_level")
-    n = _check_count(T, "T")
+    k = check_nonnegative(K, "K")
+    ell = check_nonnegative(L, "L")
+    m = check_nonnegative(mean_level, "mean_level")
+    n = check_int(T, "T")
     return (k * m + ell) / n  # eq. (19)
 
 
@@ -960,7 +904,7 @@ def displacement_noise_std(phase_std_ref, phase_std_def, lattice: Lattice) -> np
         (:mod:`gridstrain.conventions`), all four phase maps independent. For the
         axis-aligned grid ``Std(u_x) = p / (2 pi) sqrt(s_ref^2 + s_def^2)``.
     """
-    lattice = _check_lattice(lattice)
+    lattice = check_type(lattice, "lattice", Lattice)
     r = _check_stds(phase_std_ref, "phase_std_ref", (2,))
     d = _check_stds(phase_std_def, "phase_std_def", (2,))
     M = np.linalg.inv(lattice.K) / (2 * np.pi)
@@ -990,7 +934,7 @@ def strain_noise_std(deriv_std_ref, deriv_std_def, lattice: Lattice) -> np.ndarr
         ``Std(eps_xx) = p / (2 pi) sqrt(s_ref^2 + s_def^2)`` and
         ``Std(eps_xy)`` is that divided by ``sqrt(2)``.
     """
-    lattice = _check_lattice(lattice)
+    lattice = check_type(lattice, "lattice", Lattice)
     r = _check_stds(deriv_std_ref, "deriv_std_ref", (2, 2))
     d = _check_stds(deriv_std_def, "deriv_std_def", (2, 2))
     V = r**2 + d**2  # Var of Delta D[j, m]

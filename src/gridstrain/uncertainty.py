@@ -17,7 +17,15 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import ndimage
 
-from ._validation import as_image, check_positive
+from ._validation import (
+    as_float_array,
+    as_image,
+    check_int,
+    check_nonnegative,
+    check_positive,
+    check_same_shape,
+    check_type,
+)
 from .theory import window_energy
 from .wft import PhaseMaps
 
@@ -96,17 +104,16 @@ def noise_variance_map(mean_image, *, K: float, L: float, sigma: float,
     """
     img = as_image(mean_image, "mean_image", allow_uniform=True).astype(np.float64)
     K = check_positive(K, "K")
-    if not math.isfinite(L) or L < 0:
-        raise ValueError(f"L must be a finite non-negative variance, got {L!r}")
+    L = check_nonnegative(L, "L")
     sigma = check_positive(sigma, "sigma")
-    if not isinstance(frames, int | np.integer) or frames < 1:
-        raise ValueError(f"frames must be a positive integer, got {frames!r}")
+    frames = check_int(frames, "frames")
     local = ndimage.gaussian_filter(img, sigma / math.sqrt(2), mode="nearest", truncate=5.0)
     return (K * np.maximum(local, 0.0) + L) / int(frames)
 
 
 def _as_map(v, shape, name):
-    a = np.asarray(v, dtype=np.float64)
+    """A non-negative variance, scalar or per pixel, as a finite (H, W) float64 map."""
+    a = as_float_array(v, name, dtype=np.float64)
     if a.ndim == 0:
         a = np.full(shape, float(a))
     if a.shape != tuple(shape):
@@ -150,20 +157,16 @@ def predict_uncertainty(reference: PhaseMaps, deformed: PhaseMaps, *, variance_r
     specimen, not of the displacement. A spatially constant phase offset from
     vibrations (Prop. 2.4) is a rigid-body term and is not in these maps.
     """
-    for name, pm in (("reference", reference), ("deformed", deformed)):
-        if not isinstance(pm, PhaseMaps):
-            raise TypeError(f"{name} must be PhaseMaps, got {type(pm).__name__}")
-    if reference.shape != deformed.shape:
-        raise ValueError(f"deformed maps must have the shape of the reference "
-                         f"{reference.shape}, got {deformed.shape}")
+    check_type(reference, "reference", PhaseMaps)
+    check_type(deformed, "deformed", PhaseMaps)
+    check_same_shape(deformed.shape, reference.shape, "deformed maps", "the reference")
     shape = reference.shape
     v_ref = _as_map(variance_ref, shape, "variance_ref")
     v_def = _as_map(variance_def, shape, "variance_def")
     if valid is None:
         valid = reference.valid & deformed.valid
     valid = np.asarray(valid, dtype=bool)
-    if valid.shape != shape:
-        raise ValueError(f"valid must have shape {shape}, got {valid.shape}")
+    check_same_shape(valid.shape, shape, "valid", "the maps")
     g2, dg2 = window_energy(reference.sigma)
 
     phase_std = np.empty((2, 2, *shape))
@@ -244,8 +247,7 @@ def noise_floor(maps: PhaseMaps, mean_image, *, K: float, L: float,
         Medians over the valid pixels of the maps of :func:`predict_uncertainty`,
         for two independent states with the same noise.
     """
-    if not isinstance(maps, PhaseMaps):
-        raise TypeError(f"maps must be PhaseMaps, got {type(maps).__name__}")
+    check_type(maps, "maps", PhaseMaps)
     var = noise_variance_map(mean_image, K=K, L=L, sigma=maps.sigma, frames=frames)
     unc = predict_uncertainty(maps, maps, variance_ref=var, variance_def=var)
     v = unc.valid
@@ -400,14 +402,7 @@ def aliasing_bias(image, lattice, *, sigma: float, mask=None) -> dict:
     """
     img = as_image(image, allow_uniform=True).astype(np.float64)
     sigma = check_positive(sigma, "sigma")
-    H, W = img.shape
-    w = np.outer(np.hanning(H), np.hanning(W))
-    if mask is not None:
-        # a soft edge: a hard one would spread the mean level and the fundamental
-        # over the spectrum, where they would pass for harmonics
-        p = float(np.mean(lattice.pitches))
-        m = ndimage.binary_erosion(np.asarray(mask, dtype=bool), iterations=math.ceil(3 * p))
-        w = w * ndimage.gaussian_filter(m.astype(np.float64), p)
+    w = _aliasing_window(img.shape, lattice, mask)
     ref = img - float(np.sum(img * w) / np.sum(w))
     ks = [np.array(lattice.k1), np.array(lattice.k2)]
     carriers = [s * k for k in ks for s in (1, -1)]
@@ -415,38 +410,8 @@ def aliasing_bias(image, lattice, *, sigma: float, mask=None) -> dict:
     checker = _checkerboard_bound(ref, w, lattice, sigma, carriers, bw)
     if checker is not None:
         return checker
-    phase, strain, sharp, seen = [], [], [], []
-    for k in ks:
-        a1 = abs(_dtft(ref, w, k))
-        mtf1 = abs(np.sinc(k[0]) * np.sinc(k[1]))
-        bound = 0.0
-        strain_b = 0.0
-        ratios = []
-        orders = [n for n in _ALIAS_ORDERS if n * float(np.hypot(*k)) <= _OPTICS_CUTOFF]
-        folded = {m: (m * k + 0.5) % 1.0 - 0.5 for n in orders for m in (n, -n)}
-        folded.update({m: m * k for m in (-1, 1)})
-        for n in orders:
-            f = folded[n]
-            delta = min(float(np.hypot(*(f - c))) for c in carriers)
-            mtf = abs(np.sinc(n * k[0]) * np.sinc(n * k[1])) / mtf1
-            term = (1.0 / n if n % 2 else 0.0) * mtf
-            transfer = math.exp(-2 * math.pi**2 * sigma**2 * delta**2)
-            bound += term * transfer
-            strain_b += (n + 1) * term * transfer
-            # an odd harmonic whose alias is away from the carriers, from zero, from
-            # the Nyquist lines (where it meets its own conjugate) and from every
-            # other harmonic's alias can be measured
-            apart = all(float(np.hypot(*((g - f + 0.5) % 1.0 - 0.5))) > 3 * bw
-                        for m, g in folded.items() if m != n)
-            if n % 2 and term > 0.01 and delta > 3 * bw and np.hypot(*f) > 3 * bw and \
-                    np.all(np.abs(np.abs(f) - 0.5) > 1.5 * bw) and apart and a1 > 0:
-                ratios.append(abs(_dtft(ref, w, n * k)) / a1 / term)
-        # the median: one harmonic caught by a mask edge or texture does not decide
-        c = min(1.0, float(np.median(ratios))) if ratios else 1.0
-        sharp.append(c)
-        seen.append(bool(ratios))
-        phase.append(c * bound)
-        strain.append(c * strain_b)
+    phase, strain, sharp, seen = zip(*(_line_family_bound(ref, w, k, sigma, carriers, bw)
+                                       for k in ks), strict=True)
     p = lattice.pitches
     u = max(phase[j] * p[j] / (2 * math.pi) for j in range(2))
     return {"phase_rad": [float(x) for x in phase], "u_px": float(u),
@@ -455,6 +420,56 @@ def aliasing_bias(image, lattice, *, sigma: float, mask=None) -> dict:
             "method": "harmonics n k folded by the sampling onto the carrier, weighted by "
                       "the window's transfer; sharp-line amplitudes 1/n times the pixel "
                       "integration, scaled by the measured sharpness"}
+
+
+def _aliasing_window(shape, lattice, mask) -> np.ndarray:
+    """(H, W) weights of the spectral estimates: a Hann window, times the mask
+    eroded by three pitches and softened over one."""
+    H, W = shape
+    w = np.outer(np.hanning(H), np.hanning(W))
+    if mask is not None:
+        # a soft edge: a hard one would spread the mean level and the fundamental
+        # over the spectrum, where they would pass for harmonics
+        p = float(np.mean(lattice.pitches))
+        m = ndimage.binary_erosion(np.asarray(mask, dtype=bool), iterations=math.ceil(3 * p))
+        w = w * ndimage.gaussian_filter(m.astype(np.float64), p)
+    return w
+
+
+def _line_family_bound(ref, w, k, sigma, carriers, bw):
+    """Aliasing bound of one family of lines of wave vector ``k`` (see aliasing_bias).
+
+    Returns the phase bound (rad) and the strain bound (per unit strain), both
+    scaled by the sharpness; the sharpness (1 for sharp lines); and whether it was
+    measured (odd harmonics seen away from every carrier) rather than assumed.
+    """
+    a1 = abs(_dtft(ref, w, k))
+    mtf1 = abs(np.sinc(k[0]) * np.sinc(k[1]))
+    bound = 0.0
+    strain_b = 0.0
+    ratios = []
+    orders = [n for n in _ALIAS_ORDERS if n * float(np.hypot(*k)) <= _OPTICS_CUTOFF]
+    folded = {m: (m * k + 0.5) % 1.0 - 0.5 for n in orders for m in (n, -n)}
+    folded.update({m: m * k for m in (-1, 1)})
+    for n in orders:
+        f = folded[n]
+        delta = min(float(np.hypot(*(f - c))) for c in carriers)
+        mtf = abs(np.sinc(n * k[0]) * np.sinc(n * k[1])) / mtf1
+        term = (1.0 / n if n % 2 else 0.0) * mtf
+        transfer = math.exp(-2 * math.pi**2 * sigma**2 * delta**2)
+        bound += term * transfer
+        strain_b += (n + 1) * term * transfer
+        # an odd harmonic whose alias is away from the carriers, from zero, from
+        # the Nyquist lines (where it meets its own conjugate) and from every
+        # other harmonic's alias can be measured
+        apart = all(float(np.hypot(*((g - f + 0.5) % 1.0 - 0.5))) > 3 * bw
+                    for m, g in folded.items() if m != n)
+        if n % 2 and term > 0.01 and delta > 3 * bw and np.hypot(*f) > 3 * bw and \
+                np.all(np.abs(np.abs(f) - 0.5) > 1.5 * bw) and apart and a1 > 0:
+            ratios.append(abs(_dtft(ref, w, n * k)) / a1 / term)
+    # the median: one harmonic caught by a mask edge or texture does not decide
+    c = min(1.0, float(np.median(ratios))) if ratios else 1.0
+    return c * bound, c * strain_b, c, bool(ratios)
 
 
 def _checkerboard_bound(ref, w, lattice, sigma, carriers, bw):

@@ -9,6 +9,7 @@ import math
 import sys
 from pathlib import Path
 
+from .._validation import check_positive
 from ..io._files import _check_destination
 from ..lattice import Lattice
 
@@ -27,9 +28,8 @@ def add_lattice_options(group) -> None:
 
 def positive_option(opts: dict, name: str) -> None:
     """Refuse ``--name`` unless it is absent or a finite positive number."""
-    v = opts.get(name)
-    if v is not None and not (math.isfinite(v) and v > 0):
-        raise ValueError(f"--{name} must be a finite positive number, got {v:g}")
+    if opts.get(name) is not None:
+        check_positive(opts[name], f"--{name}")
 
 
 def lattice_option(opts: dict) -> Lattice | None:

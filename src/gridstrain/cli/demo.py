@@ -24,6 +24,7 @@ import tifffile
 
 from .. import kirsch, synthetic
 from .._progress import bar
+from .._validation import check_int
 from ..io import OutputDirectory, open_series, read_mask, write_hdf5, write_tiff_series
 from ..lattice import Lattice
 from ..pipeline import MAP_FIELDS, measure_series, save_result
@@ -83,8 +84,7 @@ def _check(args) -> None:
     if not 2.5 <= args.pitch <= args.size / 16:
         raise ValueError(f"--pitch must be in [2.5, size/16 = {args.size / 16:g}] px, got "
                          f"{args.pitch:g}")
-    if args.frames < 1:
-        raise ValueError(f"--frames must be at least 1, got {args.frames}")
+    check_int(args.frames, "--frames", minimum=1)
     if not 0 < args.radius <= args.size / 4:
         raise ValueError(f"--radius must be in (0, size/4 = {args.size / 4:g}] px, got "
                          f"{args.radius:g}")
@@ -123,12 +123,53 @@ def run(args) -> int:
     out = Path(args.out).expanduser()
     directory = _prepare(out, args.frames, args.overwrite)
     progress = bar(quiet=args.quiet)
+    centre = ((args.size - 1) / 2, (args.size - 1) / 2)
+    elastic = {"radius": float(args.radius), "remote_stress": float(args.stress),
+               "centre": centre}
+    shifts = _simulate(args, out, directory, elastic, progress)
+    t1 = time.perf_counter()
+    result, maps, figs, report = _measure(out, args.method, directory, progress)
+    t2 = time.perf_counter()
+    truth = _write_truth(args, out, directory, elastic, shifts)
+    errors, shift_err = _errors(result, truth, shifts)
+    demo = shlex.quote(str(out))
+    command = (f"gridstrain measure {demo}/ref {demo}/load -o maps.h5 --mask {demo}/mask.tif "
+               f"--pixel-size {_PIXEL_SIZE:g} --unit {_UNIT} --figures figs")
+    seconds = {"simulate": t1 - t0, "measure_and_write": t2 - t1,
+               "total": time.perf_counter() - t0}
+    if args.json:
+        s = summary(result, outputs={"hdf5": str(maps), "figures": [str(f) for f in figs],
+                                     "report": str(report)},
+                    seconds=seconds["total"], pixel_size=_PIXEL_SIZE, unit=_UNIT)
+        s["demo"] = {"directory": str(out), "rms_error": errors,
+                     "shift_rms_error_px": {"reference": shift_err[0],
+                                            "loaded": shift_err[1]},
+                     "seconds": seconds, "measure_command": command,
+                     "truth": str(out / "truth.h5")}
+        json.dump(jsonable(s), sys.stdout, indent=2, allow_nan=False)
+        sys.stdout.write("\n")
+        return 0
+    if args.quiet:
+        return 0
+    print("\n".join([
+        *_report(args, out, result, errors, shift_err),
+        f"wrote {maps}, the report {report} (open it in a browser) and {len(figs)} "
+        f"figures in {out / 'figures'}; {seconds['total']:.1f} s in all",
+        "",
+        "measure the same series yourself:",
+        f"  {command}",
+    ]))
+    return 0
+
+
+def _simulate(args, out: Path, directory: OutputDirectory, elastic: dict, progress) -> dict:
+    """Write the reference and loaded frame series and the mask; return the true
+    rigid shift of every frame, ``{"reference": (T, 2), "loaded": (T, 2)}``, px."""
     rng = np.random.default_rng(args.seed)
     n, T, a = args.size, args.frames, float(args.radius)
-    centre = ((n - 1) / 2, (n - 1) / 2)
+    centre = elastic["centre"]
     lat = Lattice.from_pitch(args.pitch)
     tx, ty = (float(v) for v in args.translation)
-    elastic = {"radius": a, "remote_stress": float(args.stress), "centre": centre}
 
     def specimen(X, Y):
         # reflectance of the specimen: the grid, or the dark hole (camera black level)
@@ -169,8 +210,12 @@ def run(args) -> int:
     mask = (xx - centre[0]) ** 2 + (yy - centre[1]) ** 2 > (a + 1) ** 2
     directory.write("mask.tif", lambda fh: tifffile.imwrite(
         fh, (mask * 255).astype(np.uint8), photometric="minisblack"))
-    t1 = time.perf_counter()
+    return shifts
 
+
+def _measure(out: Path, method: str, directory: OutputDirectory, progress):
+    """Measure the written series as ``gridstrain measure`` would; write the result,
+    the figures and the report. Returns ``(result, maps file, figures, report)``."""
     ref = open_series(out / "ref", name="reference")
     load = open_series(out / "load", name="load")
     m = read_mask(out / "mask.tif", ref.shape)
@@ -178,7 +223,7 @@ def run(args) -> int:
     def measuring(f, msg):
         progress(0.4 + 0.5 * f, msg)
 
-    result = measure_series(ref, [load], method=args.method, mask=m, progress=measuring)
+    result = measure_series(ref, [load], method=method, mask=m, progress=measuring)
     maps = save_result(result, out / "maps.h5", pixel_size=_PIXEL_SIZE, unit=_UNIT,
                        attrs={"mask_file": str(out / "mask.tif"), "demo": "gridstrain demo"})
     directory.record(maps)
@@ -187,17 +232,25 @@ def run(args) -> int:
                         progress=lambda f, msg: progress(0.9 + 0.1 * f, msg))
     report = write_report(maps, out / "report.html")
     directory.record(report)
-    t2 = time.perf_counter()
+    return result, maps, figs, report
 
-    # the truth at the reference pixels (Lagrangian, conventions)
+
+def _write_truth(args, out: Path, directory: OutputDirectory, elastic: dict,
+                 shifts: dict) -> dict:
+    """The analytic maps at the reference pixels (Lagrangian, conventions), written
+    with the true frame shifts to ``truth.h5``; returns the maps by name."""
+    n = args.size
+    tx, ty = (float(v) for v in args.translation)
+    yy, xx = np.mgrid[0:n, 0:n].astype(np.float64)
     ux, uy = kirsch.displacement(xx, yy, **elastic)
     truth = {"ux": ux + tx, "uy": uy + ty}
     truth.update(zip(("exx", "eyy", "exy"), kirsch.strain(xx, yy, **elastic), strict=True))
     write_hdf5(out / "truth.h5", {**{k: v[None] for k, v in truth.items()},
                                   "shifts_reference": shifts["reference"],
                                   "shifts_loaded": shifts["loaded"]},
-               {"model": "Kirsch plate with a hole, plane stress", "radius_px": a,
-                "centre_px": list(centre), "remote_stress_MPa": float(args.stress),
+               {"model": "Kirsch plate with a hole, plane stress",
+                "radius_px": elastic["radius"], "centre_px": list(elastic["centre"]),
+                "remote_stress_MPa": float(args.stress),
                 "youngs_modulus_MPa": kirsch.ALUMINIUM_YOUNGS_MODULUS,
                 "poisson_ratio": kirsch.ALUMINIUM_POISSON_RATIO,
                 "translation_px": [tx, ty], "vibration_std_px": args.vibration,
@@ -205,6 +258,12 @@ def run(args) -> int:
                units={"ux": "px", "uy": "px", "exx": "1", "eyy": "1", "exy": "1",
                       "shifts_reference": "px", "shifts_loaded": "px"})
     directory.record(out / "truth.h5")
+    return truth
+
+
+def _errors(result, truth: dict, shifts: dict) -> tuple[dict, list[float]]:
+    """RMS error of every map over the valid pixels (and of the displacements about
+    their mean), and of the measured frame shifts of each series, px."""
     v = result.valid[0]
     errors = {}
     for name in MAP_FIELDS:
@@ -216,28 +275,14 @@ def run(args) -> int:
     for vib, key in zip(result.vibration, ("reference", "loaded"), strict=True):
         true = shifts[key] - shifts[key].mean(axis=0)
         shift_err.append(math.sqrt(float(np.mean((vib.shifts - true) ** 2))))
+    return errors, shift_err
 
-    demo = shlex.quote(str(out))
-    command = (f"gridstrain measure {demo}/ref {demo}/load -o maps.h5 --mask {demo}/mask.tif "
-               f"--pixel-size {_PIXEL_SIZE:g} --unit {_UNIT} --figures figs")
-    seconds = {"simulate": t1 - t0, "measure_and_write": t2 - t1,
-               "total": time.perf_counter() - t0}
-    if args.json:
-        s = summary(result, outputs={"hdf5": str(maps), "figures": [str(f) for f in figs],
-                                     "report": str(report)},
-                    seconds=seconds["total"], pixel_size=_PIXEL_SIZE, unit=_UNIT)
-        s["demo"] = {"directory": str(out), "rms_error": errors,
-                     "shift_rms_error_px": {"reference": shift_err[0],
-                                            "loaded": shift_err[1]},
-                     "seconds": seconds, "measure_command": command,
-                     "truth": str(out / "truth.h5")}
-        json.dump(jsonable(s), sys.stdout, indent=2, allow_nan=False)
-        sys.stdout.write("\n")
-        return 0
-    if args.quiet:
-        return 0
+
+def _report(args, out: Path, result, errors: dict, shift_err: list) -> list[str]:
+    """What was simulated, the measurement's report, and its errors against the truth."""
     nf = result.noise
-    lines = [
+    n, T, a = args.size, args.frames, float(args.radius)
+    return [
         f"gridstrain demo: aluminium plate (E = 70 GPa, nu = 0.33) with a hole of radius "
         f"{a:g} px in tension, {args.stress:g} MPa along x",
         f"camera: {n} x {n} px, grid pitch {args.pitch:g} px, 12-bit noise K = {_K:g}, "
@@ -255,12 +300,4 @@ def run(args) -> int:
         f"{nf.theory_strain[0][2]:.2e})",
         f"  per-frame shifts: RMS error {shift_err[0]:.1e} px (reference), "
         f"{shift_err[1]:.1e} px (loaded)",
-        f"wrote {maps}, the report {report} (open it in a browser) and {len(figs)} "
-        f"figures in {out / 'figures'}; "
-        f"{seconds['total']:.1f} s in all",
-        "",
-        "measure the same series yourself:",
-        f"  {command}",
     ]
-    print("\n".join(lines))
-    return 0

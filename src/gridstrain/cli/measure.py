@@ -29,10 +29,11 @@ from ..pipeline import (
     ORDERS,
     OUTLIER_POLICIES,
     SeriesResult,
+    empty_state_message,
     measure_series,
     state_names,
 )
-from ..results import export, save_csv, save_result
+from ..results import ResultFile, export, save_csv, save_result
 from ..wft import DEFAULT_MARGIN
 from ._common import (
     add_lattice_options,
@@ -55,7 +56,7 @@ _CONFIG_KEYS = {
     "bit-depth": "int",
     "scheduler": "str", "outliers": "outliers", "order": "str", "max-saturation": "float",
     "timeout": "float",
-    "sigma-pitches": "float", "noise": "path", "noise-model": "pair",
+    "sigma-pitches": "float", "noise": "path", "noise-model": "pair", "dtype": "str",
 }
 # Left out of the configuration stored in the result: how to run (not what to
 # measure), and the side outputs, which a replay must not write over.
@@ -157,7 +158,13 @@ def register(sub) -> None:
                    "the output, comma-separated (e.g. mat,vtk)")
     o.add_argument("--phase-maps", action="store_true", default=None,
                    help="also store the phase maps of every series in the output (about 3x "
-                   "the file; gridstrain.load then gives them back)")
+                   "the file; gridstrain.load then gives them back). Holds every state's "
+                   "maps in memory until the end: without it each state is written as "
+                   "soon as it is measured")
+    o.add_argument("--dtype", choices=("float32", "float64"), default=None,
+                   help="precision of the stored maps (default: that of the measurement, "
+                   "float64 unless the frames are float32). float32 halves the file and "
+                   "keeps u below 1024 px to 3.1e-5 px and strain to 3e-8")
     o.add_argument("--report", metavar="FILE.html",
                    help="also write a self-contained HTML report of the run")
     o.add_argument("--overwrite", action="store_true", default=None,
@@ -377,12 +384,9 @@ def _refuse_empty(result: SeriesResult) -> None:
     """A state without a single valid pixel is a failure, never a written result."""
     for i in range(result.n_states):
         if not result.valid[i].any():
-            g = result.guesses[i]
-            raise ValueError(
-                f"{result.names[i + 1]}: no valid pixel, nothing written: the mask, the "
-                f"band of margin = {result.margin:g} sigmas (sigma {result.sigma:.4g} px), "
-                f"the grid's modulus and the displacement (guess {g[0]:.4g}, {g[1]:.4g} "
-                f"px, {result.guess_sources[i]}) leave no pixel to measure")
+            raise ValueError(empty_state_message(
+                result.names[i + 1], result.margin, result.sigma, result.guesses[i],
+                result.guess_sources[i]))
 
 
 def _noise_option(opts: dict):
@@ -732,14 +736,6 @@ def _run(args, progress: _Bar) -> int:
     kw = {} if sat is None else {"max_saturation": sat}
     # with a cluster, its failures are one line (cli.main), not Dask's log records
     dask_logs = quiet_dask_logs() if opts.get("scheduler") else contextlib.nullcontext()
-    with dask_logs:
-        result = measure_series(
-            reference, states, lattice=lattice, sigma=opts.get("sigma"),
-            method=opts["method"], mask=mask, lagrangian=not opts["no-lagrangian"],
-            guess=guess, order=order, margin=opts["margin"], outliers=opts["outliers"],
-            progress=progress, scheduler=opts.get("scheduler"), noise_model=noise_model,
-            sigma_pitches=opts.get("sigma-pitches"), timeout=opts["timeout"], **kw)
-    _refuse_empty(result)
     ps, unit = opts.get("pixel-size"), opts.get("unit")
     stored = dict(opts)
     for key in ("reference", "states", "output", "mask"):
@@ -747,9 +743,28 @@ def _run(args, progress: _Bar) -> int:
             stored[key] = _absolute(stored[key])
     extra = {"config": config_text(stored),
              "config_file": args.config or "", "mask_file": opts.get("mask") or ""}
-    out = save_result(result, opts["output"], pixel_size=ps, unit=unit,
-                      overwrite=opts["overwrite"], attrs=extra,
-                      phase_maps=opts["phase-maps"])
+    dtype = opts.get("dtype")
+    if dtype not in (None, "float32", "float64"):
+        raise ValueError(f"--dtype must be float32 or float64, got {dtype!r}")
+    # each state written as soon as it is measured, unless every state's phase maps
+    # are to be stored with them
+    spec = None if opts["phase-maps"] else ResultFile(
+        opts["output"], pixel_size=ps, unit=unit, overwrite=opts["overwrite"], attrs=extra,
+        dtype=dtype)
+    with dask_logs:
+        result = measure_series(
+            reference, states, lattice=lattice, sigma=opts.get("sigma"),
+            method=opts["method"], mask=mask, lagrangian=not opts["no-lagrangian"],
+            guess=guess, order=order, margin=opts["margin"], outliers=opts["outliers"],
+            progress=progress, scheduler=opts.get("scheduler"), noise_model=noise_model,
+            sigma_pitches=opts.get("sigma-pitches"), timeout=opts["timeout"], output=spec,
+            dtype=dtype, **kw)
+    if spec is None:
+        _refuse_empty(result)
+        out = save_result(result, opts["output"], pixel_size=ps, unit=unit,
+                          overwrite=opts["overwrite"], attrs=extra, phase_maps=True)
+    else:
+        out = Path(os.path.expanduser(os.fspath(opts["output"])))
     outputs = {"hdf5": str(out)}
     if opts.get("csv"):
         outputs["csv"] = str(save_csv(result, opts["csv"], overwrite=opts["overwrite"],

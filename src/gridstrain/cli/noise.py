@@ -16,6 +16,7 @@ import numpy as np
 
 from .. import __version__
 from .._progress import bar
+from .._validation import check_int
 from ..io import open_series, write_atomic, write_hdf5
 from ..lattice import detect_lattice
 from ..noise import NOISE_RESULT_KIND, estimate_noise, estimate_noise_image
@@ -63,24 +64,51 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
-    out = None
-    if args.output:
-        out = Path(args.output)
-        if out.suffix.lower() not in (".h5", ".hdf5", ".json"):
-            raise ValueError(f"output {out} must end in .h5, .hdf5 or .json")
-        check_output_file(out, "output file", args.overwrite, frozenset({Path(args.stack)
-                                                                          .resolve()}))
+    out = _output(args)
     lattice_given = lattice_option(vars(args))
-    if args.frames is not None and args.frames < 1:
-        raise ValueError(f"--T must be a positive integer, got {args.frames}")
+    if args.frames is not None:
+        check_int(args.frames, "--T", minimum=1)
     series = open_series(args.stack, name="stack", bit_depth=args.bit_depth)
     progress = bar(quiet=args.quiet or args.json)
     mean = series.mean(progress=lambda f, m: progress(0.3 * f, "mean image"))
     lattice = lattice_given or detect_lattice(mean)
-    degree = args.degree
+    model, vib, degree = _estimate(series, lattice, args.source, args.degree, progress)
+    progress(0.9, "noise floor")
+    T = args.frames or series.n_frames
+    maps = wft(mean, lattice, sigma=args.sigma)
+    floor = noise_floor(maps, mean, K=model.K, L=model.L, frames=T)
+    progress(1.0, "done")
+    summary = _summary(args.stack, series, lattice, model, vib, degree, floor)
+    if out is not None:
+        _write(out, summary, model, vib, args.overwrite)
+    if args.json:
+        print_json(summary)
+        return 0
+    _print_report(series, lattice, model, vib, degree, floor, T)
+    if out is not None:
+        print(f"report written to {out}")
+    return 0
+
+
+def _output(args) -> Path | None:
+    """The ``-o`` file, refused now if its type or destination would fail at the end."""
+    if not args.output:
+        return None
+    out = Path(args.output)
+    if out.suffix.lower() not in (".h5", ".hdf5", ".json"):
+        raise ValueError(f"output {out} must end in .h5, .hdf5 or .json")
+    check_output_file(out, "output file", args.overwrite, frozenset({Path(args.stack)
+                                                                      .resolve()}))
+    return out
+
+
+def _estimate(series, lattice, source: str, degree: int | None, progress):
+    """``(noise model, vibration report or None, vibration model degree or None)``:
+    from the stack's temporal scatter when it has enough frames (or ``source`` says
+    so), else from its first image alone."""
     fits = [d for d in (3, 2, 1) if series.n_frames >= (d + 1) * (d + 2) // 2 + 3]
-    use_stack = args.source == "stack" or (args.source == "auto" and (fits or degree == 0)
-                                          and series.n_frames >= 6)
+    use_stack = source == "stack" or (source == "auto" and (fits or degree == 0)
+                                      and series.n_frames >= 6)
     if degree is None and use_stack:
         # (d + 1)(d + 2) / 2 regressors and 3 degrees of freedom at least
         if not fits:
@@ -98,15 +126,13 @@ def run(args) -> int:
         model = estimate_noise_image(first, lattice, saturation=series.saturation_level,
                                      scale=series.scale)
         degree = None
-    model = dataclasses.replace(model, bit_depth=series.bit_depth)
-    progress(0.9, "noise floor")
-    T = args.frames or series.n_frames
-    maps = wft(mean, lattice, sigma=args.sigma)
-    floor = noise_floor(maps, mean, K=model.K, L=model.L, frames=T)
-    progress(1.0, "done")
+    return dataclasses.replace(model, bit_depth=series.bit_depth), vib, degree
 
-    summary = {
-        "stack": str(args.stack), "n_frames": series.n_frames, "shape": list(series.shape),
+
+def _summary(stack, series, lattice, model, vib, degree, floor) -> dict:
+    """The JSON summary (and the HDF5 attributes) of the noise, vibrations and floor."""
+    return {
+        "stack": str(stack), "n_frames": series.n_frames, "shape": list(series.shape),
         "bit_depth": series.bit_depth, "scale": series.scale,
         "lattice": {"k1": list(lattice.k1), "k2": list(lattice.k2),
                     "pitches_px": list(lattice.pitches), "angles_deg": list(lattice.angles)},
@@ -126,38 +152,42 @@ def run(args) -> int:
                         "phase_std_rad": list(floor.phase_std),
                         "dphi_std_rad_per_px": list(floor.dphi_std)},
     }
-    if out is not None:
-        if out.suffix.lower() == ".json":
-            write_atomic(out, json.dumps(summary, indent=2, default=float).encode("utf-8"),
-                         overwrite=args.overwrite)
-        else:
-            attrs = dict(summary, version=__version__,
-                         created=datetime.now(UTC).isoformat(timespec="seconds"))
-            write_hdf5(out, {"vibration/shifts": np.zeros((0, 2)) if vib is None else vib.shifts,
-                             "noise/levels": _arr(model.levels),
-                             "noise/variances": _arr(model.variances),
-                             "noise/variance_errors": _arr(model.variance_errors)},
-                       attrs, units={"vibration/shifts": "px", "noise/levels": "grey level",
-                                     "noise/variances": "grey level^2",
-                                     "noise/variance_errors": "grey level^2"},
-                       overwrite=args.overwrite)
-    if args.json:
-        print_json(summary)
-        return 0
-    n = summary["noise"]
+
+
+def _write(out: Path, summary: dict, model, vib, overwrite: bool) -> None:
+    """The summary as JSON, or as the attributes of an HDF5 file with the shifts and
+    the noise levels and variances (readable by ``gridstrain measure --noise``)."""
+    if out.suffix.lower() == ".json":
+        write_atomic(out, json.dumps(summary, indent=2, default=float).encode("utf-8"),
+                     overwrite=overwrite)
+        return
+    attrs = dict(summary, version=__version__,
+                 created=datetime.now(UTC).isoformat(timespec="seconds"))
+    write_hdf5(out, {"vibration/shifts": np.zeros((0, 2)) if vib is None else vib.shifts,
+                     "noise/levels": _arr(model.levels),
+                     "noise/variances": _arr(model.variances),
+                     "noise/variance_errors": _arr(model.variance_errors)},
+               attrs, units={"vibration/shifts": "px", "noise/levels": "grey level",
+                             "noise/variances": "grey level^2",
+                             "noise/variance_errors": "grey level^2"},
+               overwrite=overwrite)
+
+
+def _print_report(series, lattice, model, vib, degree, floor, T: int) -> None:
+    """The noise model, vibrations and predicted noise floor, for a person."""
     print(f"stack: {series.n_frames} frames of {series.shape[0]}x{series.shape[1]}, "
           f"bit depth {series.bit_depth}" + (f" stored x{series.scale:g}" if series.scale != 1
                                              else ""))
     print(f"lattice: pitches {fmt(lattice.pitches[0])}/{fmt(lattice.pitches[1])} px, "
           f"angles {fmt(lattice.angles[0])}/{fmt(lattice.angles[1])} deg")
     ci = (lambda c: "" if c is None else f"  (95 % CI {fmt(c[0])} to {fmt(c[1])})")  # noqa: E731
-    how = (f"vibrations regressed out, degree {degree}" if use_stack else
+    how = (f"vibrations regressed out, degree {degree}" if vib is not None else
            "from the first image alone, grid removed by its harmonics")
     print(f"noise Var = K l + L ({how}):")
-    print(f"                      K = {fmt(n['K'])}{ci(model.K_ci)}")
-    print(f"                      L = {fmt(n['L'])}{ci(model.L_ci)}   (stored grey levels)")
+    print(f"                      K = {fmt(model.K)}{ci(model.K_ci)}")
+    print(f"                      L = {fmt(model.L)}{ci(model.L_ci)}   (stored grey levels)")
     if series.scale != 1:
-        print(f"  sensor units:       K = {fmt(n['K_sensor'])}, L = {fmt(n['L_sensor'])}")
+        print(f"  sensor units:       K = {fmt(model.K_sensor)}, L = {fmt(model.L_sensor)}")
     if vib is not None:
         print(f"vibrations: std = ({fmt(vib.std[0])}, {fmt(vib.std[1])}) px; contrast factor "
               f"({fmt(vib.contrast_factor[0])}, {fmt(vib.contrast_factor[1])}); method-A "
@@ -168,9 +198,6 @@ def run(args) -> int:
     print(f"  u_x {fmt(floor.u_std[0])} px   u_y {fmt(floor.u_std[1])} px")
     print(f"  e_xx {fmt(floor.strain_std[0])}   e_yy {fmt(floor.strain_std[1])}   "
           f"e_xy {fmt(floor.strain_std[2])}")
-    if out is not None:
-        print(f"report written to {out}")
-    return 0
 
 
 def _arr(a):

@@ -18,7 +18,8 @@ import h5py
 import numpy as np
 import tifffile
 
-from ._series import _JSON_ATTRS, _UNITS_ATTR, _as_path, _check_name
+from .._validation import as_path, check_int, check_mapping, check_name
+from ._series import _JSON_ATTRS, _UNITS_ATTR
 
 # --------------------------------------------------------------------------- output
 
@@ -38,7 +39,7 @@ def _check_destination(path, overwrite: bool, *, what: str = "output file",
     ``what`` names the file in the messages and ``how`` says how to allow replacing
     it (the command line passes ``--overwrite``).
     """
-    dest = _as_path(path, "path")
+    dest = as_path(path, "path")
     parent = dest.parent
     if not parent.is_dir():
         raise FileNotFoundError(f"output directory {parent} does not exist (for the {what} "
@@ -149,7 +150,7 @@ def write_atomic(path, data, *, overwrite: bool = False) -> Path:
     pathlib.Path
         ``path``.
     """
-    dest = _as_path(path, "path")
+    dest = as_path(path, "path")
     if callable(data):
         buf = io.BytesIO()
         data(buf)
@@ -178,8 +179,7 @@ def _json_default(obj):
 
 def _encode_attr(key, value, where: str):
     """``(value to store, stored as JSON?)`` for one HDF5 attribute."""
-    if not isinstance(key, str) or not key:
-        raise TypeError(f"{where} keys must be non-empty strings, got {key!r}")
+    check_name(key, f"{where} keys")
     if key == _JSON_ATTRS:
         raise ValueError(f"{where}[{key!r}]: the name {_JSON_ATTRS!r} is reserved")
     label = f"{where}[{key!r}]"
@@ -248,14 +248,6 @@ def _check_h5_name(key, what: str) -> str:
     return key
 
 
-def _check_mapping(value, what: str, *, allow_none: bool = True) -> Mapping:
-    if value is None and allow_none:
-        return {}
-    if not isinstance(value, Mapping):
-        raise TypeError(f"{what} must be a dict, got {type(value).__name__}")
-    return value
-
-
 @contextlib.contextmanager
 def hdf5_file(path, *, overwrite: bool = False) -> Iterator[h5py.File]:
     """An HDF5 file open for writing, put at ``path`` atomically when the block ends.
@@ -287,6 +279,120 @@ def hdf5_file(path, *, overwrite: bool = False) -> Iterator[h5py.File]:
         h5.flush()
         image = h5.id.get_file_image()
     write_atomic(dest, image, overwrite=overwrite)
+
+
+class _FdFile(io.RawIOBase):
+    """A binary file on a descriptor, read and written with this module's ``os`` calls
+    only (so that every byte HDF5 writes goes through the same calls as
+    :func:`write_atomic`'s).
+
+    A write that fails (a full disk, a size limit, a signal's exception) is recorded
+    and, like every write after it, reported to HDF5 as done: the library must
+    never see a failing file (it would keep it open, and tear it down at exit from
+    a closed descriptor); the writer raises the recorded error once HDF5 returns
+    (:meth:`HDF5Stream.check`), and the file is discarded.
+    """
+
+    def __init__(self, path: Path):
+        super().__init__()
+        self.fd = os.open(path, os.O_RDWR | os.O_CREAT | os.O_EXCL, 0o666)
+        self.error: BaseException | None = None
+
+    def readable(self) -> bool:
+        return True
+
+    def writable(self) -> bool:
+        return True
+
+    def seekable(self) -> bool:
+        return True
+
+    def readinto(self, b) -> int:
+        return os.readv(self.fd, [b])
+
+    def write(self, b) -> int:
+        view = memoryview(b).cast("B")
+        if self.error is None:
+            try:
+                done = 0
+                while done < len(view):
+                    done += os.write(self.fd, view[done:])
+            except BaseException as exc:
+                self.error = exc
+        return len(view)
+
+    def seek(self, offset: int, whence: int = 0) -> int:
+        return os.lseek(self.fd, offset, whence)
+
+    def tell(self) -> int:
+        return os.lseek(self.fd, 0, os.SEEK_CUR)
+
+    def truncate(self, size=None) -> int:
+        size = self.tell() if size is None else size
+        if self.error is None:
+            os.ftruncate(self.fd, size)
+        return size
+
+    def close(self) -> None:
+        if not self.closed:
+            os.close(self.fd)
+        super().close()
+
+
+class HDF5Stream:
+    """An HDF5 file being written to disk (see :func:`hdf5_stream`).
+
+    Attributes
+    ----------
+    file : h5py.File
+        The file to fill.
+    """
+
+    def __init__(self, file: h5py.File, raw: _FdFile):
+        self.file = file
+        self._raw = raw
+
+    def check(self) -> None:
+        """Raise the error of a write that failed since the file was opened."""
+        if self._raw.error is not None:
+            raise self._raw.error
+
+
+@contextlib.contextmanager
+def hdf5_stream(path, *, overwrite: bool = False) -> Iterator[HDF5Stream]:
+    """An HDF5 file written to disk as it is filled, put at ``path`` atomically when
+    the block ends.
+
+    For files too large to build in memory (:func:`hdf5_file`): a result written
+    state by state. The file goes to a temporary file next to ``path``
+    (:func:`atomic_path`) through h5py's file-object driver, whose every write is
+    an ``os.write`` of this module. A write that fails (a full disk, a file size
+    limit, a signal) is raised as itself (one ``OSError`` naming ``path`` for lack
+    of room) at the next :meth:`HDF5Stream.check` or when the block ends, and the
+    temporary file is removed: nothing appears at ``path``.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        Destination (``.h5`` or ``.nc``).
+    overwrite : bool
+        Replace an existing file.
+
+    Yields
+    ------
+    HDF5Stream
+        Its ``file`` is a new, empty :class:`h5py.File`.
+    """
+    with atomic_path(path, overwrite=overwrite) as tmp:
+        raw = _FdFile(tmp)
+        try:
+            with h5py.File(raw, "w") as h5:
+                stream = HDF5Stream(h5, raw)
+                yield stream
+                stream.check()
+            stream.check()  # the last writes happen when the file closes
+        finally:
+            raw.close()
 
 
 def write_hdf5(path, datasets: Mapping[str, np.ndarray], attrs: Mapping | None = None, *,
@@ -324,14 +430,30 @@ def write_hdf5(path, datasets: Mapping[str, np.ndarray], attrs: Mapping | None =
     pathlib.Path
         ``path``.
     """
-    datasets = _check_mapping(datasets, "datasets", allow_none=False)
-    attrs = _check_mapping(attrs, "attrs")
-    groups = _check_mapping(groups, "groups")
-    units = _check_mapping(units, "units")
+    datasets = check_mapping(datasets, "datasets")
+    attrs = check_mapping(attrs, "attrs", allow_none=True)
+    groups = check_mapping(groups, "groups", allow_none=True)
+    units = check_mapping(units, "units", allow_none=True)
     if compression not in ("gzip", "lzf", None):
         raise ValueError(f"compression must be one of 'gzip', 'lzf', None, got "
                          f"{compression!r}")
     # validate everything before creating any file
+    arrays = _dataset_arrays(datasets)
+    _check_hdf5_metadata(arrays, attrs, groups, units)
+    dest = as_path(path, "path")
+    with hdf5_file(dest, overwrite=overwrite) as h5:
+        _write_attrs(h5, attrs, "attrs")
+        for key, arr in arrays.items():
+            dset = _create_dataset(h5, key, arr, compression)
+            if key in units:
+                dset.attrs[_UNITS_ATTR] = units[key]
+        for g, gattrs in groups.items():
+            _write_attrs(h5.require_group(g), gattrs, f"groups[{g!r}]")
+    return dest
+
+
+def _dataset_arrays(datasets: Mapping) -> dict[str, np.ndarray]:
+    """The arrays of :func:`write_hdf5`'s ``datasets``, their names and types checked."""
     arrays = {}
     for key, value in datasets.items():
         _check_h5_name(key, "datasets")
@@ -346,6 +468,13 @@ def write_hdf5(path, datasets: Mapping[str, np.ndarray], attrs: Mapping | None =
             if "/".join(parts[:i]) in arrays:
                 raise ValueError(f"datasets[{key!r}] would sit inside dataset "
                                  f"{'/'.join(parts[:i])!r}")
+    return arrays
+
+
+def _check_hdf5_metadata(arrays: Mapping, attrs: Mapping, groups: Mapping,
+                         units: Mapping) -> None:
+    """Refuse units naming no dataset, attributes HDF5 cannot hold, and groups that
+    clash with a dataset, before any file is created."""
     for key, value in units.items():
         if key not in arrays:
             raise ValueError(f"units[{key!r}] names no dataset; datasets are "
@@ -358,26 +487,20 @@ def write_hdf5(path, datasets: Mapping[str, np.ndarray], attrs: Mapping | None =
         _check_h5_name(g, "groups")
         if g in arrays:
             raise ValueError(f"groups[{g!r}] is also a dataset name")
-        for key, value in _check_mapping(gattrs, f"groups[{g!r}]", allow_none=False).items():
+        for key, value in check_mapping(gattrs, f"groups[{g!r}]").items():
             _encode_attr(key, value, f"groups[{g!r}]")
 
-    dest = _as_path(path, "path")
-    with hdf5_file(dest, overwrite=overwrite) as h5:
-        _write_attrs(h5, attrs, "attrs")
-        for key, arr in arrays.items():
-            if arr.ndim > 0 and arr.size > 1 and compression is not None:
-                opts = {"chunks": True, "compression": compression, "shuffle": True,
-                        "fletcher32": True}
-                if compression == "gzip":
-                    opts["compression_opts"] = 4
-                dset = h5.create_dataset(key, data=arr, **opts)
-            else:
-                dset = h5.create_dataset(key, data=arr)
-            if key in units:
-                dset.attrs[_UNITS_ATTR] = units[key]
-        for g, gattrs in groups.items():
-            _write_attrs(h5.require_group(g), gattrs, f"groups[{g!r}]")
-    return dest
+
+def _create_dataset(h5, key: str, arr: np.ndarray, compression: str | None):
+    """Dataset ``key`` of ``arr``: chunked, compressed and checksummed (Fletcher-32)
+    when it holds two elements or more and ``compression`` is given."""
+    if arr.ndim > 0 and arr.size > 1 and compression is not None:
+        opts = {"chunks": True, "compression": compression, "shuffle": True,
+                "fletcher32": True}
+        if compression == "gzip":
+            opts["compression_opts"] = 4
+        return h5.create_dataset(key, data=arr, **opts)
+    return h5.create_dataset(key, data=arr)
 
 
 def read_hdf5(path) -> dict:
@@ -395,7 +518,7 @@ def read_hdf5(path) -> dict:
         group names are full paths (``"maps/u"``), every group is listed (with
         ``{}`` when it has no attribute), JSON attributes are decoded.
     """
-    p = _as_path(path, "path")
+    p = as_path(path, "path")
     if not p.exists():
         raise FileNotFoundError(f"HDF5 file {p} does not exist")
     try:
@@ -439,7 +562,7 @@ def read_noise_model(path):
     """
     from ..noise import NOISE_RESULT_KIND, NoiseModel
 
-    p = _as_path(path, "path")
+    p = as_path(path, "path")
     if not p.is_file():
         raise FileNotFoundError(f"noise file {p} does not exist")
     if p.suffix.lower() == ".json":
@@ -506,14 +629,12 @@ def write_csv(path, columns: Mapping[str, np.ndarray], *, overwrite: bool = Fals
     One header line holds the column names, separated by commas; no index column,
     no quoting (names may not contain commas, quotes or line breaks).
     """
-    columns = _check_mapping(columns, "columns", allow_none=False)
+    columns = check_mapping(columns, "columns")
     if not columns:
         raise ValueError("columns must hold at least one column, got an empty dict")
-    if digits is not None and (isinstance(digits, bool) or not isinstance(digits, int)
-                               or not 1 <= digits <= 17):
+    if digits is not None and not 1 <= check_int(digits, "digits") <= 17:
         raise ValueError(f"digits must be an integer in [1, 17] or None, got {digits!r}")
-    if isinstance(chunk_rows, bool) or not isinstance(chunk_rows, int) or chunk_rows < 1:
-        raise ValueError(f"chunk_rows must be a positive integer, got {chunk_rows!r}")
+    chunk_rows = check_int(chunk_rows, "chunk_rows", minimum=1)
     names, arrays = [], []
     first = None
     for key, value in columns.items():
@@ -533,7 +654,7 @@ def write_csv(path, columns: Mapping[str, np.ndarray], *, overwrite: bool = Fals
         arrays.append(arr.reshape(-1))
     line = ",".join(_column_format(a.dtype, digits) for a in arrays) + "\n"
     n = arrays[0].size
-    dest = _as_path(path, "path")
+    dest = as_path(path, "path")
     with atomic_path(dest, overwrite=overwrite) as tmp, \
             open(tmp, "x", encoding="utf-8", newline="\n") as fh:
         fh.write(",".join(names) + "\n")
@@ -587,14 +708,13 @@ def write_tiff_series(directory, frames: Iterable, *, prefix: str = "frame",
     if dt not in allowed:
         raise ValueError(f"dtype must be one of uint8, uint16, float32, float64, got "
                          f"{dtype!r}")
-    if isinstance(start, bool) or not isinstance(start, int) or start < 0:
-        raise ValueError(f"start must be a non-negative integer, got {start!r}")
+    start = check_int(start, "start", minimum=0)
     if digits is None:
         digits = max(4, len(str(start + len(frames) - 1))) if hasattr(frames, "__len__") \
             else 6
-    elif isinstance(digits, bool) or not isinstance(digits, int) or digits < 1:
-        raise ValueError(f"digits must be a positive integer, got {digits!r}")
-    folder = _as_path(directory, "directory")
+    else:
+        digits = check_int(digits, "digits", minimum=1)
+    folder = as_path(directory, "directory")
     if not folder.is_dir():
         if not folder.parent.is_dir():
             raise FileNotFoundError(f"cannot create directory {folder}: its parent "
@@ -685,8 +805,8 @@ class OutputDirectory:
     def __init__(self, path, names, *, overwrite: bool = False, exclusive=(),
                  parents: bool = False, adopt: bool = True,
                  what: str = "output directory"):
-        self.what = _check_name(what)
-        self.path = _as_path(path, what)
+        self.what = check_name(what, "what")
+        self.path = as_path(path, what)
         self.names = tuple(self._rel(n) for n in names)
         self.exclusive = tuple(self._rel(d) for d in exclusive)
         self.overwrite = bool(overwrite)
@@ -700,9 +820,7 @@ class OutputDirectory:
         return self.path / MARKER_NAME
 
     def _rel(self, name) -> str:
-        if not isinstance(name, str) or not name:
-            raise TypeError(f"{self.what}: file names must be non-empty strings, got "
-                            f"{name!r}")
+        check_name(name, f"{self.what}: file names")
         parts = Path(name).parts
         if Path(name).is_absolute() or ".." in parts or name == MARKER_NAME:
             raise ValueError(f"{self.what}: {name!r} is not a plain relative file name")

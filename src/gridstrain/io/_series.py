@@ -6,7 +6,6 @@ import contextlib
 import dataclasses
 import glob
 import logging
-import numbers
 import os
 import re
 from collections.abc import Callable, Iterable, Iterator
@@ -17,6 +16,18 @@ from pathlib import Path
 import numpy as np
 import numpy.typing as npt
 import tifffile
+
+from .._validation import (
+    as_path,
+    check_callable,
+    check_float_dtype,
+    check_fraction,
+    check_int,
+    check_mask,
+    check_name,
+    check_shape,
+    check_type,
+)
 
 #: File name extensions read as images (compared case-insensitively). JPEG files are
 #: read with a note: lossy compression adds noise the noise model does not describe.
@@ -61,18 +72,6 @@ def natural_sort_key(text: str | os.PathLike) -> tuple:
     return (key, s)
 
 
-def _check_name(name) -> str:
-    if not isinstance(name, str) or not name:
-        raise TypeError(f"name must be a non-empty string, got {name!r}")
-    return name
-
-
-def _as_path(value, what: str) -> Path:
-    if isinstance(value, str | os.PathLike):
-        return Path(os.path.expanduser(os.fspath(value)))
-    raise TypeError(f"{what} must be a path (str or os.PathLike), got {type(value).__name__}")
-
-
 def _is_image_name(path: Path) -> bool:
     return path.suffix.lower() in IMAGE_EXTENSIONS
 
@@ -87,28 +86,8 @@ def _check_extension(path: Path, name: str) -> None:
                          f"files are {', '.join(IMAGE_EXTENSIONS)}")
 
 
-def _check_out_dtype(dtype, *, allow_none: bool = True) -> np.dtype | None:
-    if dtype is None and allow_none:
-        return None
-    allowed = "float32, float64 or None" if allow_none else "float32 or float64"
-    if dtype is None:  # np.dtype(None) would silently mean float64
-        raise ValueError(f"dtype must be {allowed}, got None")
-    try:
-        dt = np.dtype(dtype)
-    except TypeError:
-        dt = None
-    if dt not in (np.dtype(np.float32), np.dtype(np.float64)):
-        raise ValueError(f"dtype must be {allowed}, got {dtype!r}")
-    return dt
-
-
-def _check_fraction(value, name: str) -> float:
-    if isinstance(value, bool) or not isinstance(value, numbers.Real):
-        raise TypeError(f"{name} must be a number in [0, 1], got {value!r}")
-    v = float(value)
-    if not 0.0 <= v <= 1.0:
-        raise ValueError(f"{name} must be in [0, 1], got {value!r}")
-    return v
+# The name gridstrain.distributed imports the output-dtype check by.
+_check_out_dtype = check_float_dtype
 
 
 def _page_layout(shape: tuple[int, ...], samples: int) -> tuple[tuple[int, ...], int, int]:
@@ -343,7 +322,7 @@ def _resolve_source(source, name: str) -> tuple[Path, ...]:
             raise ValueError(f"{name}: the list of image files is empty")
         paths = []
         for item in source:
-            p = _as_path(item, f"{name} list items")
+            p = as_path(item, f"{name} list items")
             if not p.exists():
                 raise FileNotFoundError(f"{name}: image file {p} does not exist")
             if p.is_dir():
@@ -353,7 +332,7 @@ def _resolve_source(source, name: str) -> tuple[Path, ...]:
             paths.append(p)
         return tuple(paths)
 
-    p = _as_path(source, name)
+    p = as_path(source, name)
     if p.is_dir():
         entries = [e for e in p.iterdir() if e.is_file() and not e.name.startswith(".")]
         images = sorted((e for e in entries if _is_image_name(e)),
@@ -453,10 +432,9 @@ class FrameSeries:
                 f"files={len(self.paths)}, first={str(first)!r})")
 
     def _index(self, i) -> int:
-        if isinstance(i, bool) or not isinstance(i, numbers.Integral):
-            raise TypeError(f"frame index must be an integer, got {i!r}")
+        i = check_int(i, "frame index", minimum=None)
         n = self.n_frames
-        j = int(i) + n if i < 0 else int(i)
+        j = i + n if i < 0 else i
         if not 0 <= j < n:
             raise ValueError(f"{self.name}: frame index must be in [0, {n}) (or negative "
                              f"from the end), got {i}")
@@ -565,7 +543,7 @@ class FrameSeries:
             Grey levels, raw unless ``to_sensor_units``.
         """
         j = self._index(i)
-        dt = _check_out_dtype(dtype)
+        dt = check_float_dtype(dtype)
         gen = self._iter_raw([j])
         try:
             where, raw = next(gen)
@@ -595,7 +573,7 @@ class FrameSeries:
         (H, W) ndarray
             A new array per frame (the caller may modify it).
         """
-        dt = _check_out_dtype(dtype)
+        dt = check_float_dtype(dtype)
         idx = self._range(start, stop)
         # a plain function returning a generator: arguments are checked on the call,
         # not on the first ``next``
@@ -604,11 +582,8 @@ class FrameSeries:
 
     def _range(self, start, stop) -> range:
         n = self.n_frames
-        for v, what in ((start, "start"), (stop, "stop")):
-            if v is not None and (isinstance(v, bool) or not isinstance(v, numbers.Integral)):
-                raise TypeError(f"{what} must be an integer or None, got {v!r}")
-        stop = n if stop is None else int(stop)
-        start = int(start)
+        start = check_int(start, "start", minimum=None)
+        stop = n if stop is None else check_int(stop, "stop", minimum=None)
         if not 0 <= start < stop <= n:
             raise ValueError(f"{self.name}: frame range must satisfy 0 <= start < stop <= "
                              f"{n}, got start={start}, stop={stop}")
@@ -640,9 +615,8 @@ class FrameSeries:
         (H, W) ndarray of ``dtype``
             Mean grey level, raw unless ``to_sensor_units``.
         """
-        dt = _check_out_dtype(dtype, allow_none=False)
-        if progress is not None and not callable(progress):
-            raise TypeError(f"progress must be callable or None, got {progress!r}")
+        dt = check_float_dtype(dtype, allow_none=False)
+        check_callable(progress, "progress")
         idx = self._range(start, stop)
         acc = np.zeros(self.shape, dtype=np.float64)
         n = len(idx)
@@ -682,11 +656,10 @@ def _depth(dtype: np.dtype, first: list[np.ndarray], declared: int | None, path:
                 np.any(f % _PCO_SCALE) for f in first):
             return 12, _PCO_SCALE, 4095 * _PCO_SCALE
         return bits, 1, int(np.iinfo(dtype).max)
-    if isinstance(declared, bool) or not isinstance(declared, numbers.Integral) \
-            or not 1 <= declared <= bits:
+    declared = check_int(declared, "bit_depth")
+    if not 1 <= declared <= bits:
         raise ValueError(f"bit_depth must be an integer in [1, {bits}] for {dtype} images, "
                          f"got {declared!r}")
-    declared = int(declared)
     if declared == bits:
         return bits, 1, int(np.iinfo(dtype).max)
     shift = 2 ** (bits - declared)
@@ -756,34 +729,55 @@ def open_series(source, *, name: str = "series", bit_depth: int | None = None
     >>> series = open_series("run3/*.tif", name="deformed")  # doctest: +SKIP
     >>> mean = series.mean()  # doctest: +SKIP
     """
-    name = _check_name(name)
+    name = check_name(name, "name")
     paths = _resolve_source(source, name)
     infos = [_scan_file(p, name) for p in paths]
     ref = infos[0]
-    shape, stored = ref.shapes[0], ref.dtypes[0]
-    channels = ref.channels[0]
-    frames, tiff = [], []
+    stored, channels = ref.dtypes[0], ref.channels[0]
+    frames = _frame_table(infos, name)
+    # colour frames are read as their luminance, in float64
+    dtype = np.dtype(np.float64) if channels > 1 else stored
+    series = FrameSeries(name=name, paths=paths, shape=ref.shapes[0], dtype=dtype,
+                         bit_depth=None, scale=1, saturation_level=None, _frames=frames,
+                         _tiff=tuple(info.tiff for info in infos), channels=channels,
+                         notes=_reading_notes(paths, channels, name))
+    first = []
+    if stored.kind == "u":
+        n = min(_DETECT_FRAMES, series.n_frames)
+        first = [raw for _, raw in series._iter_raw(range(n))]
+        if bit_depth is None and ref.bits is not None and ref.bits < 8 * stored.itemsize:
+            bit_depth = ref.bits  # packed data (10-bit, 12-bit TIFFs) say their depth
+    bits, scale, sat = _depth(stored, first, bit_depth, paths[0], name)
+    return dataclasses.replace(series, bit_depth=bits, scale=scale, saturation_level=sat)
+
+
+def _frame_table(infos: list[_FileInfo], name: str) -> tuple[tuple[int, int, int], ...]:
+    """``(file index, page index, pages in that file)`` of every frame, once every page
+    is checked to match the first one's channels, size and pixel type."""
+    ref = infos[0]
+    shape, stored, channels = ref.shapes[0], ref.dtypes[0], ref.channels[0]
+    first = _describe(ref.path, 0, len(ref.shapes))
+    frames = []
     for f, info in enumerate(infos):
         n_pages = len(info.shapes)
         for k, (s, d, c) in enumerate(zip(info.shapes, info.dtypes, info.channels,
                                           strict=True)):
-            if c != channels:
-                raise ValueError(f"{name}: frames with different channels: "
-                                 f"{_describe(info.path, k, n_pages)} has {c} per pixel but "
-                                 f"{_describe(ref.path, 0, len(ref.shapes))} has {channels}")
             where = _describe(info.path, k, n_pages)
+            if c != channels:
+                raise ValueError(f"{name}: frames with different channels: {where} has {c} "
+                                 f"per pixel but {first} has {channels}")
             if s != shape:
                 raise ValueError(f"{name}: frames of different sizes: {where} is {s} but "
-                                 f"{_describe(ref.path, 0, len(ref.shapes))} is {shape} "
-                                 "(H, W)")
+                                 f"{first} is {shape} (H, W)")
             if d != stored:
                 raise ValueError(f"{name}: frames of different pixel types: {where} holds "
-                                 f"{d} but {_describe(ref.path, 0, len(ref.shapes))} "
-                                 f"holds {stored}")
+                                 f"{d} but {first} holds {stored}")
             frames.append((f, k, n_pages))
-        tiff.append(info.tiff)
-    # colour frames are read as their luminance, in float64
-    dtype = np.dtype(np.float64) if channels > 1 else stored
+    return tuple(frames)
+
+
+def _reading_notes(paths: tuple[Path, ...], channels: int, name: str) -> tuple[str, ...]:
+    """What the user should know about how the frames are read (colour, JPEG)."""
     notes = []
     if channels > 1:
         what = {2: "grey and alpha", 3: "RGB", 4: "RGBA"}[channels]
@@ -793,19 +787,7 @@ def open_series(source, *, name: str = "series", bit_depth: int | None = None
     if any(p.suffix.lower() in _JPEG_EXTENSIONS for p in paths):
         notes.append(f"{name}: JPEG files; lossy compression adds block artefacts that "
                      "the noise floor does not model: prefer TIFF or PNG")
-    series = FrameSeries(name=name, paths=paths, shape=shape, dtype=dtype, bit_depth=None,
-                         scale=1, saturation_level=None, _frames=tuple(frames),
-                         _tiff=tuple(tiff), channels=channels, notes=tuple(notes))
-    first = []
-    if stored.kind == "u":
-        n = min(_DETECT_FRAMES, series.n_frames)
-        first = [raw for _, raw in series._iter_raw(range(n))]
-        if bit_depth is None and ref.bits is not None and ref.bits < 8 * stored.itemsize:
-            bit_depth = ref.bits  # packed data (10-bit, 12-bit TIFFs) say their depth
-    bits, scale, sat = _depth(stored, first, bit_depth, paths[0], name)
-    return FrameSeries(name=name, paths=paths, shape=shape, dtype=dtype, bit_depth=bits,
-                       scale=scale, saturation_level=sat, _frames=tuple(frames),
-                       _tiff=tuple(tiff), channels=channels, notes=tuple(notes))
+    return tuple(notes)
 
 
 # --------------------------------------------------------------------------- saturation
@@ -833,27 +815,18 @@ def check_saturation(frame, series: FrameSeries, *, mask=None,
         Saturated pixels (value >= saturation level) over counted pixels, in
         [0, 1]. Always 0.0 for float series, whose saturation level is unknown.
     """
-    if not isinstance(series, FrameSeries):
-        raise TypeError(f"series must be a FrameSeries, got {type(series).__name__}")
+    check_type(series, "series", FrameSeries)
     arr = np.asarray(frame)
     if arr.shape != series.shape:
         raise ValueError(f"frame must have the series shape {series.shape}, got {arr.shape}")
-    m = None
-    if mask is not None:
-        m = np.asarray(mask)
-        if m.shape != series.shape or m.dtype != bool:
-            raise ValueError(f"mask must be a boolean array of shape {series.shape}, got "
-                             f"{m.dtype} array of shape {m.shape}")
+    m = None if mask is None else check_mask(mask, series.shape)
     if series.saturation_level is None:
         return 0.0
     level = series.saturation_level / (series.scale if to_sensor_units else 1)
     sat = arr >= level
     if m is None:
         return float(np.count_nonzero(sat)) / sat.size
-    n = int(np.count_nonzero(m))
-    if n == 0:
-        raise ValueError("mask selects no pixel")
-    return float(np.count_nonzero(sat & m)) / n
+    return float(np.count_nonzero(sat & m)) / int(np.count_nonzero(m))
 
 
 def check_saturation_limit(frame, series: FrameSeries, *, max_fraction: float = 0.01,
@@ -880,7 +853,7 @@ def check_saturation_limit(frame, series: FrameSeries, *, max_fraction: float = 
         The saturated fraction (at most ``max_fraction``), so that the caller can
         warn about any non-zero value.
     """
-    max_fraction = _check_fraction(max_fraction, "max_fraction")
+    max_fraction = check_fraction(max_fraction, "max_fraction")
     frac = check_saturation(frame, series, mask=mask, to_sensor_units=to_sensor_units)
     if frac > max_fraction:
         where = series.describe_frame(index) if index is not None else "a frame"
@@ -918,13 +891,9 @@ def read_mask(path, shape, *, name: str = "mask") -> np.ndarray:
     (H, W) bool ndarray
         ``True`` on the specimen (:mod:`gridstrain.conventions`, Masks).
     """
-    name = _check_name(name)
-    p = _as_path(path, name)
-    if (not isinstance(shape, tuple | list) or len(shape) != 2
-            or not all(isinstance(s, numbers.Integral) and not isinstance(s, bool)
-                       and s > 0 for s in shape)):
-        raise TypeError(f"shape must be a pair of positive integers (H, W), got {shape!r}")
-    shape = (int(shape[0]), int(shape[1]))
+    name = check_name(name, "name")
+    p = as_path(path, name)
+    shape = check_shape(shape, "shape")
     if not p.exists():
         raise FileNotFoundError(f"{name}: {p} does not exist")
     if p.is_dir():

@@ -44,7 +44,14 @@ from collections.abc import Iterator
 import numpy as np
 from scipy import ndimage
 
-from .._validation import check_positive
+from .._validation import (
+    as_image,
+    as_pair,
+    check_fraction,
+    check_int,
+    check_positive,
+    check_shape,
+)
 from ..synthetic import add_noise, line_profile
 
 __all__ = [
@@ -72,16 +79,6 @@ _PHI2_PIECES = ((0.3, 1.0), (-0.6, 0.2), (0.8, -0.8), (0.1, 0.3))
 # The paper's default parameters (§3.2); README notes give K and L.
 _DEFAULTS = {"amplitude": 4096.0, "contrast": 0.9, "pitch": 5.0, "profile": "sin3",
              "K": 0.28, "L": 5.0}
-
-
-def _shape(shape) -> tuple[int, int]:
-    try:
-        H, W = (int(s) for s in shape)
-    except (TypeError, ValueError):
-        raise TypeError(f"shape must be a pair of integers (H, W), got {shape!r}") from None
-    if H < 8 or W < 8:
-        raise ValueError(f"shape must be at least (8, 8), got {shape!r}")
-    return H, W
 
 
 def _phi2_profile(H: int):
@@ -135,7 +132,7 @@ def paper_phases(shape, *, max_derivative: float = MAX_DERIVATIVE):
     >>> round(float(np.abs(der).max()), 6), round(float(phases[0].max()), 3)
     (0.005, 0.06)
     """
-    H, W = _shape(shape)
+    H, W = check_shape(shape, "shape", minimum=8)
     max_derivative = check_positive(max_derivative, "max_derivative")
     y = np.arange(H, dtype=float)[:, None]
     x = np.arange(W, dtype=float)[None, :]
@@ -170,20 +167,17 @@ def vibration_cases() -> dict[int, tuple[float, float]]:
 
 
 def _stds(case) -> tuple[float, float]:
-    if isinstance(case, bool):
-        raise TypeError(f"case must be 1, 2, 3, 4 or a (sigma_alpha, sigma_beta) pair, "
-                        f"got {case!r}")
-    if isinstance(case, int | np.integer):
+    if isinstance(case, int | np.integer) and not isinstance(case, bool):
         cases = vibration_cases()
         if int(case) not in cases:
             raise ValueError(f"case must be one of {sorted(cases)}, got {case!r}")
         return cases[int(case)]
     try:
-        sa, sb = (float(v) for v in case)
-    except (TypeError, ValueError):
+        sa, sb = as_pair(case, "case")
+    except TypeError:
         raise TypeError(f"case must be 1, 2, 3, 4 or a (sigma_alpha, sigma_beta) pair, "
                         f"got {case!r}") from None
-    if not (math.isfinite(sa) and math.isfinite(sb)) or sa < 0 or sb < 0:
+    if sa < 0 or sb < 0:
         raise ValueError(f"case standard deviations must be finite and >= 0, got {case!r}")
     return sa, sb
 
@@ -207,42 +201,30 @@ def draw_shifts(T: int, case, *, rng=None) -> np.ndarray:
         independent Gaussians. They are ``rng.standard_normal((T, 2))`` scaled
         column by column, so one seed gives proportional shifts in every case.
     """
-    if isinstance(T, bool) or not isinstance(T, int | np.integer) or T < 1:
-        raise ValueError(f"T must be a positive integer, got {T!r}")
+    T = check_int(T, "T", minimum=1)
     stds = np.array(_stds(case))
     rng = np.random.default_rng(rng)
-    return rng.standard_normal((int(T), 2)) * stds
+    return rng.standard_normal((T, 2)) * stds
 
 
 def _params(amplitude, contrast, pitch, profile):
     amplitude = check_positive(amplitude, "amplitude")
-    if isinstance(contrast, bool) or not isinstance(contrast, int | float) or not (
-            0 <= contrast <= 1):
-        raise ValueError(f"contrast must be in [0, 1], got {contrast!r}")
+    contrast = check_fraction(contrast, "contrast")
     pitch = check_positive(pitch, "pitch")
     if pitch <= 2:
         raise ValueError(f"pitch must be above 2 px (Nyquist), got {pitch!r}")
-    return amplitude, float(contrast), pitch, line_profile(profile)
+    return amplitude, contrast, pitch, line_profile(profile)
 
 
-def _check_phases(phases) -> np.ndarray:
+def _phase_pair(phases) -> np.ndarray:
+    """``phases`` as a (2, H, W) float64 array, each map checked as an image."""
     p = np.asarray(phases, dtype=float)
-    if p.ndim != 3 or p.shape[0] != 2 or min(p.shape[1:]) < 8:
+    if p.ndim != 3 or p.shape[0] != 2:
         raise ValueError(f"phases must be a (2, H, W) array with H, W >= 8, got shape "
                          f"{p.shape}")
-    if not np.all(np.isfinite(p)):
-        raise ValueError("phases must be finite")
+    for j in range(2):  # at least 8 x 8, finite; a uniform phase is a plain grid
+        as_image(p[j], f"phases[{j}]", allow_uniform=True)
     return p
-
-
-def _shift(shift) -> tuple[float, float]:
-    try:
-        a, b = (float(v) for v in shift)
-    except (TypeError, ValueError):
-        raise TypeError(f"shift must be an (alpha, beta) pair in px, got {shift!r}") from None
-    if not (math.isfinite(a) and math.isfinite(b)):
-        raise ValueError(f"shift must be finite, got {shift!r}")
-    return a, b
 
 
 def clean_frame(phases, shift=(0.0, 0.0), *, amplitude: float = 4096.0,
@@ -271,8 +253,8 @@ def clean_frame(phases, shift=(0.0, 0.0), *, amplitude: float = 4096.0,
         Eq. (1) at ``(x + alpha, y + beta)``, grey levels: exact carrier,
         bilinearly interpolated phases (edge values repeated beyond the map).
     """
-    p = _check_phases(phases)
-    a, b = _shift(shift)
+    p = _phase_pair(phases)
+    a, b = as_pair(shift, "shift")
     A, gamma, pitch, ell = _params(amplitude, contrast, pitch, profile)
     H, W = p.shape[1:]
     f = 1.0 / pitch
@@ -343,7 +325,7 @@ def iter_frames(phases, shifts, *, rng=None, **params) -> Iterator[np.ndarray]:
     ------
     (H, W) float64 ndarray
     """
-    p = _check_phases(phases)
+    p = _phase_pair(phases)
     sh = np.asarray(shifts, dtype=float)
     if sh.ndim != 2 or sh.shape[1] != 2:
         raise ValueError(f"shifts must be a (T, 2) array, got shape {sh.shape}")
@@ -382,13 +364,9 @@ def mean_image_bias(phases, variance, *, covariance: float = 0.0, amplitude: flo
     moves by ``(2 pi 3 f sigma)^2 / 2 = 0.16`` at ``sigma = 0.15`` px, where the
     exact Gaussian average is a few per cent smaller.
     """
-    p = _check_phases(phases)
-    try:
-        va, vb = (float(v) for v in variance)
-    except (TypeError, ValueError):
-        raise TypeError(f"variance must be a (Var alpha, Var beta) pair, got "
-                        f"{variance!r}") from None
-    if va < 0 or vb < 0 or not (math.isfinite(va) and math.isfinite(vb)):
+    p = _phase_pair(phases)
+    va, vb = as_pair(variance, "variance")
+    if va < 0 or vb < 0:
         raise ValueError(f"variance must be finite and >= 0, got {variance!r}")
     del covariance  # eq. (12): the cross derivative is zero for the grid of eq. (1)
     A, gamma, pitch, ell = _params(amplitude, contrast, pitch, profile)

@@ -60,7 +60,6 @@ import datetime as _dt
 import itertools
 import json
 import math
-import os
 import time
 from pathlib import Path
 
@@ -68,7 +67,15 @@ import numpy as np
 
 from .. import __version__
 from .._progress import Progress, null_progress
-from .._validation import check_positive
+from .._validation import (
+    as_int_tuple,
+    check_choice,
+    check_finite,
+    check_int,
+    check_positive,
+    check_shape,
+    check_workers,
+)
 from ..io import OutputDirectory
 from ..lattice import Lattice
 from ..stacks import _MeanImage, _MethodC, _offsets, _PhaseMean, method_a, method_b, method_c
@@ -174,24 +181,11 @@ def _slope(T, y) -> float | None:
     return float(np.polyfit(np.log(T[ok]), np.log(y[ok]), 1)[0])
 
 
-def _check_counts(values, name):
+def _stack_sizes(values, name):
+    """The stack sizes ``values`` (positive integers), sorted, each once; None stays."""
     if values is None:
         return None
-    try:
-        items = list(values)
-    except TypeError:
-        raise TypeError(f"{name} must be a list of positive integers, got {values!r}") from None
-    if not items or any(isinstance(v, bool) or not isinstance(v, int | np.integer) or v < 1
-                        for v in items):
-        raise ValueError(f"{name} must be a non-empty list of positive integers, got "
-                         f"{values!r}")
-    return tuple(sorted({int(v) for v in items}))
-
-
-def _check_int(value, name, minimum):
-    if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < minimum:
-        raise ValueError(f"{name} must be an integer >= {minimum}, got {value!r}")
-    return int(value)
+    return tuple(sorted(set(as_int_tuple(values, name, minimum=1))))
 
 
 # ----------------------------------------------------------------------- the jobs
@@ -376,150 +370,186 @@ def reproduce(out_dir, *, quick: bool = False, overwrite: bool = False, seed: in
     # refused now, not after the run: a folder holding files gridstrain did not write
     directory = OutputDirectory(out, _FILES, overwrite=overwrite, parents=True,
                                 adopt=False, what="out_dir")
+    setup = _settings(quick=quick, seed=seed, K=K, L=L, amplitude=amplitude,
+                      contrast=contrast, profile=profile, pitch=pitch, size=size, T=T,
+                      T_b=T_b, repetitions=repetitions, cases=cases, sigma=sigma,
+                      margin=margin, bits=bits, timing_frames=timing_frames)
+    jobs = [(rep, c) for rep in range(setup["repetitions"]) for c in setup["cases"]]
+    # default: the CPUs available, at most one process per (repetition, case) stream
+    workers = min(check_workers(None), len(jobs)) if workers is None else check_workers(
+        workers)
+
+    t_start = time.perf_counter()
+    phases, exact_der, _s, lattice, gt, region = _setup_maps(setup)
+    if region.sum() < 100:
+        raise ValueError(f"size {setup['size']} leaves only {int(region.sum())} pixels once "
+                         f"the {setup['margin']}-px border is excluded; use a larger image")
+    theory, levels = _theory_curves(setup, phases, exact_der, region, lattice)
+    work_total = len(jobs) * setup["Ts"][-1] + setup["timing_frames"]
+    sq = _run_jobs(setup, jobs, workers, progress, work_total)
+    timing = _time_methods(setup, phases, lattice)
+    progress(1.0, "writing the report")
+
+    records = _records(sq, theory, setup["repetitions"])
+    slopes = _slopes(records, setup["cases"])
+    checks = _checks(records, slopes, setup["cases"], levels, timing)
+    parameters = _parameters(setup, phases, exact_der, region, workers)
+    timing["total_run_seconds"] = time.perf_counter() - t_start
+    result = {"parameters": parameters, "records": records, "slopes": slopes,
+              "timing": timing, "checks": checks}
+    _write(directory, result, phases, gt, region, levels)
+    result = dict(result, out_dir=str(out), files=list(_FILES))
+    return result
+
+
+def _settings(*, quick, seed, K, L, amplitude, contrast, profile, pitch, size, T, T_b,
+              repetitions, cases, sigma, margin, bits, timing_frames) -> dict:
+    """The run's settings, checked and completed with the preset's defaults: the
+    ``setup`` every job receives (:func:`_setup_maps`, :func:`_job`)."""
     preset = QUICK if quick else FULL
-    H, W = (int(v) for v in (size if size is not None else preset["size"]))
-    if H < 64 or W < 64:
-        raise ValueError(f"size must be at least 64 x 64 px, got {(H, W)}")
-    Ts = _check_counts(T, "T") or preset["T"]
-    Tbs = _check_counts(T_b, "T_b")
+    H, W = check_shape(size if size is not None else preset["size"], "size", minimum=64)
+    Ts = _stack_sizes(T, "T") or preset["T"]
+    Tbs = _stack_sizes(T_b, "T_b")
     if Tbs is None:
         Tbs = tuple(t for t in preset["T_b"] if t <= Ts[-1]) or (Ts[-1],)
     if Tbs[-1] > Ts[-1]:
         raise ValueError(f"T_b must not exceed the largest T ({Ts[-1]}), got {Tbs[-1]}")
-    R = _check_int(repetitions if repetitions is not None else preset["repetitions"],
-                   "repetitions", 1)
+    R = check_int(repetitions if repetitions is not None else preset["repetitions"],
+                  "repetitions", minimum=1)
     all_cases = _all_cases()
-    case_list = list(all_cases) if cases is None else [_check_int(c, "cases", 1)
-                                                        for c in cases]
-    for c in case_list:
-        if c not in all_cases:
-            raise ValueError(f"cases must be among {sorted(all_cases)}, got {c!r}")
-    case_list = sorted(set(case_list))
-    seed = _check_int(seed, "seed", 0)
+    case_list = list(all_cases) if cases is None else [
+        check_choice(c, "cases", tuple(all_cases)) for c in as_int_tuple(cases, "cases")]
+    seed = check_int(seed, "seed", minimum=0)
     K = check_positive(K, "K")
-    if isinstance(L, bool) or not isinstance(L, int | float) or not (0 <= L < math.inf):
+    if check_finite(L, "L") < 0:
         raise ValueError(f"L must be a finite variance >= 0, got {L!r}")
-    L = float(L)
     amplitude = check_positive(amplitude, "amplitude")
-    if isinstance(contrast, bool) or not isinstance(contrast, int | float) or not (
-            0 < contrast <= 1):
+    if check_positive(contrast, "contrast") > 1:
         raise ValueError(f"contrast must be in (0, 1], got {contrast!r}")
-    if not isinstance(profile, str) or profile not in PROFILES:
-        raise ValueError(f"profile must be one of {sorted(PROFILES)}, got {profile!r}")
+    check_choice(profile, "profile", tuple(sorted(PROFILES)))
     pitch = check_positive(pitch, "pitch")
     sigma = check_positive(sigma, "sigma", allow_none=True) or pitch
-    margin = (math.ceil(4 * sigma) + 1) if margin is None else _check_int(margin, "margin", 0)
-    timing_frames = _check_int(timing_frames, "timing_frames", 1)
+    margin = (math.ceil(4 * sigma) + 1) if margin is None else check_int(margin, "margin",
+                                                                         minimum=0)
+    timing_frames = check_int(timing_frames, "timing_frames", minimum=1)
     if bits is not None:
-        bits = _check_int(bits, "bits", 1)
+        bits = check_int(bits, "bits", minimum=1)
     gen = {"amplitude": amplitude, "contrast": float(contrast), "pitch": pitch,
            "profile": profile}
-    f = 1.0 / pitch
+    return {"size": (H, W), "gen": gen, "K": K, "L": float(L), "bits": bits,
+            "sigma": sigma, "margin": margin, "Ts": Ts, "Tbs": Tbs, "seed": seed,
+            "quick": bool(quick), "repetitions": R, "cases": sorted(set(case_list)),
+            "timing_frames": timing_frames}
 
-    t_start = time.perf_counter()
-    setup = {"size": (H, W), "gen": gen, "K": K, "L": L, "bits": bits, "sigma": sigma,
-             "margin": margin, "Ts": Ts, "Tbs": Tbs, "seed": seed}
-    phases, exact_der, _s, lattice, gt, region = _setup_maps(setup)
-    if region.sum() < 100:
-        raise ValueError(f"size {(H, W)} leaves only {int(region.sum())} pixels once the "
-                         f"{margin}-px border is excluded; use a larger image")
 
-    # ---------------------------------------------------------------- theory curves
+def _theory_curves(setup, phases, exact_der, region, lattice) -> tuple[dict, dict]:
+    """The small-noise theory of every (method, case, T): ``theory[method, case, T]``
+    is a row of RMSEs by quantity; ``levels[case]`` the averaged image's bias levels
+    (Prop. 2.1, its closed form, and the exact Gaussian average)."""
     from .. import theory as th  # imported when needed: the closed forms of the paper
 
-    noise_var = th.effective_noise_variance(K, L, amplitude) + (
-        1.0 / 12.0 if bits is not None else 0.0)
-    modulus = th.grid_modulus(amplitude, float(contrast), profile=profile)
-    theory = {}
-    image_terms = {}
-    levels = {}
+    gen, sigma = setup["gen"], setup["sigma"]
+    amplitude, contrast, profile = gen["amplitude"], gen["contrast"], gen["profile"]
+    noise_var = _noise_variance(setup)
+    modulus = th.grid_modulus(amplitude, contrast, profile=profile)
+    f = 1.0 / gen["pitch"]
+    theory, levels = {}, {}
     # mean squares of the phase maps' derivatives over the region, (rad/px)^2
     grad2 = np.array([[np.mean(exact_der[j, a][region] ** 2) for a in range(2)]
                       for j in range(2)])
-    for c in case_list:
-        stds = all_cases[c]
+    for c in setup["cases"]:
+        stds = _all_cases()[c]
         cov = np.diag(np.square(stds))
-        image_terms[c] = _image_terms(phases, region, stds, **gen)
-        levels[c] = {"prop21": math.sqrt(image_terms[c][0]),
+        b2, scat, grad = _image_terms(phases, region, stds, **gen)
+        levels[c] = {"prop21": math.sqrt(b2),
                      "prop21_closed_form": th.mean_image_bias_rms(
                          lattice, cov, amplitude=amplitude, contrast=contrast,
                          profile=profile),
                      "exact_gaussian": th.mean_image_bias_rms(
                          lattice, cov, amplitude=amplitude, contrast=contrast,
                          profile=profile, exact=True)}
-        for method, counts in (("A", Ts), ("B", Tbs), ("C", Ts)):
+        for method, counts in (("A", setup["Ts"]), ("B", setup["Tbs"]), ("C", setup["Ts"])):
             for t in counts:
                 row = {}
                 for j in range(2):
-                    if method == "C":  # full contrast; the offset of the mean position
-                        p_std, d_std, off = th.compensated_noise_std(
-                            noise_var, modulus, sigma, t, frequency=f,
-                            vibration_variance=stds[j] ** 2)
-                        # the modulation moves with the mean position too, phi(x +
-                        # a_bar): a_bar . grad phi is left by the uniform correction
-                        moved = math.sqrt(float(stds[0] ** 2 * grad2[j, 0]
-                                                + stds[1] ** 2 * grad2[j, 1]) / t)
-                        row[f"phi{j + 1}"] = math.hypot(p_std, off, moved)
-                        row[f"phi{j + 1}_corrected"] = math.hypot(p_std, moved)
-                        row[f"dphi{j + 1}_dx"] = row[f"dphi{j + 1}_dy"] = d_std
-                        continue
-                    if method == "A":  # eq. (14): the averaged grid's d_1 is attenuated
-                        mod = modulus * th.contrast_factor(f, stds[j] ** 2)
-                        p_std, d_std = th.wft_noise_std(noise_var / t, mod, sigma)
-                    else:  # independent frames of full contrast, averaged
-                        p_std, d_std = th.wft_noise_std(noise_var, modulus, sigma)
-                        p_std, d_std = p_std / math.sqrt(t), d_std / math.sqrt(t)
-                    # Prop. 2.4 (A) and §2.3 (B); Var(alpha_bar) = Var(alpha) / T
-                    off = th.phase_offset_std(f, stds[j] ** 2, t, method=method)
-                    row[f"phi{j + 1}"] = math.hypot(p_std, off)
-                    row[f"phi{j + 1}_corrected"] = p_std
-                    row[f"dphi{j + 1}_dx"] = d_std
-                    row[f"dphi{j + 1}_dy"] = d_std
+                    row.update(_theory_phase(method, j, t, stds, grad2, noise_var, modulus,
+                                             sigma, f))
                 if method == "A":
-                    b2, scat, grad = image_terms[c]
                     row["image"] = math.sqrt(b2 + (scat + grad + noise_var) / t)
                 theory[method, c, t] = row
+    return theory, levels
 
-    # ----------------------------------------------------------------- experiments
-    jobs = [(rep, c) for rep in range(R) for c in case_list]
-    if workers is None:
-        try:
-            ncpu = len(os.sched_getaffinity(0))
-        except AttributeError:  # not on every platform
-            ncpu = os.cpu_count() or 1
-        workers = min(ncpu, len(jobs))
-    workers = _check_int(workers, "workers", 1)
-    work_total = len(jobs) * Ts[-1] + timing_frames
-    sq = _run_jobs(setup, jobs, workers, progress, work_total)
 
-    # ---------------------------------------------------------------------- timing
+def _noise_variance(setup) -> float:
+    """Sensor noise variance of a frame at the mean grey level ``A``, plus the 1/12 of
+    the rounding to integers when the frames are quantised (grey levels^2)."""
+    from .. import theory as th
+
+    return th.effective_noise_variance(setup["K"], setup["L"], setup["gen"]["amplitude"]) + (
+        1.0 / 12.0 if setup["bits"] is not None else 0.0)
+
+
+def _theory_phase(method, j, t, stds, grad2, noise_var, modulus, sigma, f) -> dict:
+    """Theoretical RMSEs of phase ``j`` (0 or 1) of method ``method`` for ``t`` frames:
+    uncorrected and corrected phase, and both derivatives."""
+    from .. import theory as th
+
+    n = j + 1
+    if method == "C":  # full contrast; the offset of the mean position
+        p_std, d_std, off = th.compensated_noise_std(
+            noise_var, modulus, sigma, t, frequency=f, vibration_variance=stds[j] ** 2)
+        # the modulation moves with the mean position too, phi(x + a_bar): a_bar .
+        # grad phi is left by the uniform correction
+        moved = math.sqrt(float(stds[0] ** 2 * grad2[j, 0] + stds[1] ** 2 * grad2[j, 1]) / t)
+        return {f"phi{n}": math.hypot(p_std, off, moved),
+                f"phi{n}_corrected": math.hypot(p_std, moved),
+                f"dphi{n}_dx": d_std, f"dphi{n}_dy": d_std}
+    if method == "A":  # eq. (14): the averaged grid's d_1 is attenuated
+        mod = modulus * th.contrast_factor(f, stds[j] ** 2)
+        p_std, d_std = th.wft_noise_std(noise_var / t, mod, sigma)
+    else:  # independent frames of full contrast, averaged
+        p_std, d_std = th.wft_noise_std(noise_var, modulus, sigma)
+        p_std, d_std = p_std / math.sqrt(t), d_std / math.sqrt(t)
+    # Prop. 2.4 (A) and §2.3 (B); Var(alpha_bar) = Var(alpha) / T
+    off = th.phase_offset_std(f, stds[j] ** 2, t, method=method)
+    return {f"phi{n}": math.hypot(p_std, off), f"phi{n}_corrected": p_std,
+            f"dphi{n}_dx": d_std, f"dphi{n}_dy": d_std}
+
+
+def _time_methods(setup, phases, lattice) -> dict:
+    """Wall-clock and CPU time of methods A, B and C on one stack of the first case,
+    per 100 images (``total_run_seconds`` is filled in by the caller)."""
+    H, W = setup["size"]
+    n = setup["timing_frames"]
     # a separate stream (seed word 2**32 - 1 is never a repetition index)
-    t_rng = np.random.default_rng([seed, 2**32 - 1])
-    t_shifts = t_rng.standard_normal((timing_frames, 2)) * np.array(all_cases[case_list[0]])
-    timing_stack = list(iter_frames(phases, t_shifts, rng=t_rng, K=K, L=L, bits=bits, **gen))
+    t_rng = np.random.default_rng([setup["seed"], 2**32 - 1])
+    t_shifts = t_rng.standard_normal((n, 2)) * np.array(_all_cases()[setup["cases"][0]])
+    timing_stack = list(iter_frames(phases, t_shifts, rng=t_rng, K=setup["K"], L=setup["L"],
+                                    bits=setup["bits"], **setup["gen"]))
     wall, cpu = {}, {}
     for name, fn in (("A", method_a), ("B", method_b), ("C", method_c)):
         # wall-clock time, and the CPU time of every thread of this process (the
         # figure to compare on a machine shared with other work)
         t0, c0 = time.perf_counter(), time.process_time()
-        fn(timing_stack, lattice, sigma=sigma)
+        fn(timing_stack, lattice, sigma=setup["sigma"])
         wall[name], cpu[name] = time.perf_counter() - t0, time.process_time() - c0
     ta, tb, tc = wall["A"], wall["B"], wall["C"]
-    del timing_stack
-    progress(1.0, "writing the report")
-    scale = 100.0 / timing_frames
-    timing = {"method_A_seconds_per_100_images": ta * scale,
-              "method_B_seconds_per_100_images": tb * scale,
-              "method_C_seconds_per_100_images": tc * scale,
-              "ratio_B_over_A": tb / ta if ta > 0 else None,
-              "ratio_C_over_A": tc / ta if ta > 0 else None,
-              "cpu_seconds_per_100_images": {m: v * scale for m, v in cpu.items()},
-              "cpu_ratio_C_over_A": cpu["C"] / cpu["A"] if cpu["A"] > 0 else None,
-              "cpu_ratio_C_over_B": cpu["C"] / cpu["B"] if cpu["B"] > 0 else None,
-              "image_shape": [H, W], "frames_timed": timing_frames,
-              "total_run_seconds": None}
+    scale = 100.0 / n
+    return {"method_A_seconds_per_100_images": ta * scale,
+            "method_B_seconds_per_100_images": tb * scale,
+            "method_C_seconds_per_100_images": tc * scale,
+            "ratio_B_over_A": tb / ta if ta > 0 else None,
+            "ratio_C_over_A": tc / ta if ta > 0 else None,
+            "cpu_seconds_per_100_images": {m: v * scale for m, v in cpu.items()},
+            "cpu_ratio_C_over_A": cpu["C"] / cpu["A"] if cpu["A"] > 0 else None,
+            "cpu_ratio_C_over_B": cpu["C"] / cpu["B"] if cpu["B"] > 0 else None,
+            "image_shape": [H, W], "frames_timed": n,
+            "total_run_seconds": None}
 
-    # ----------------------------------------------------------------- assemble
+
+def _records(sq, theory, R) -> list[dict]:
+    """One record per (method, case, quantity, T): the RMSE over the ``R`` repetitions
+    (root mean square) beside its theory, in a fixed order."""
     records = []
     for (method, c, q, t), v in sorted(sq.items(), key=lambda kv: (
             kv[0][0], kv[0][1], list(QUANTITIES).index(kv[0][2]), kv[0][3])):
@@ -527,35 +557,50 @@ def reproduce(out_dir, *, quick: bool = False, overwrite: bool = False, seed: in
         records.append({"method": method, "case": c, "quantity": q, "T": t,
                         "rmse": math.sqrt(v / R),
                         "theory": None if th_v is None else float(th_v)})
+    return records
+
+
+def _slopes(records, cases) -> dict:
+    """Fitted log-log slope of the RMSE against T: ``slopes[method][case][quantity]``."""
     slopes: dict = {}
     for method in ("A", "B", "C"):
-        for c in case_list:
+        for c in cases:
             for q in QUANTITIES:
                 rs = [r for r in records if r["method"] == method and r["case"] == c
                       and r["quantity"] == q]
                 if rs:
                     slopes.setdefault(method, {}).setdefault(str(c), {})[q] = _slope(
                         [r["T"] for r in rs], [r["rmse"] for r in rs])
-    checks = _checks(records, slopes, case_list, levels, timing)
-    parameters = {
+    return slopes
+
+
+def _parameters(setup, phases, exact_der, region, workers) -> dict:
+    """The ``parameters`` record of ``results.json``: every setting of the run."""
+    from .. import theory as th
+
+    gen = setup["gen"]
+    H, W = setup["size"]
+    amplitude = gen["amplitude"]
+    return {
         "gridstrain_version": __version__,
         "created": _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"),
-        "quick": bool(quick), "seed": seed, "repetitions": R,
-        "size": [H, W], "pitch_px": pitch, "frequency_cycles_per_px": f,
-        "amplitude_A": amplitude, "contrast_gamma": float(contrast), "profile": profile,
-        "K": K, "L": L, "quantisation_bits": bits, "clip": False,
-        "noise_variance_per_frame": noise_var,
+        "quick": setup["quick"], "seed": setup["seed"], "repetitions": setup["repetitions"],
+        "size": [H, W], "pitch_px": gen["pitch"], "frequency_cycles_per_px": 1.0 / gen["pitch"],
+        "amplitude_A": amplitude, "contrast_gamma": gen["contrast"],
+        "profile": gen["profile"],
+        "K": setup["K"], "L": setup["L"], "quantisation_bits": setup["bits"], "clip": False,
+        "noise_variance_per_frame": _noise_variance(setup),
         "mean_grey_level": amplitude,
-        "cases_px": {str(c): list(all_cases[c]) for c in case_list},
-        "T_method_A": list(Ts), "T_method_B": list(Tbs),
-        "wft_sigma_px": sigma, "border_margin_px": margin,
+        "cases_px": {str(c): list(_all_cases()[c]) for c in setup["cases"]},
+        "T_method_A": list(setup["Ts"]), "T_method_B": list(setup["Tbs"]),
+        "wft_sigma_px": setup["sigma"], "border_margin_px": setup["margin"],
         "analysis_pixels": int(region.sum()),
         "phase_maps": {"max_derivative_rad_per_px": MAX_DERIVATIVE,
                        "measured_max_derivative": float(np.abs(exact_der).max()),
                        "phi1_max_rad": float(phases[0].max()),
                        "phi2_max_rad": float(phases[1].max()),
                        "interpolation": "bilinear (map_coordinates order=1, mode='nearest')"},
-        "grid_modulus": modulus,
+        "grid_modulus": th.grid_modulus(amplitude, gen["contrast"], profile=gen["profile"]),
         "noise_variance_includes": "K A + L + 1/12 (rounding)",
         "workers": workers,
         "common_random_numbers": "cases share the standard-normal draws of the shifts",
@@ -566,12 +611,6 @@ def reproduce(out_dir, *, quick: bool = False, overwrite: bool = False, seed: in
         "method_C_shifts": "measured from the frames (carrier phases of 2 x 2 "
                            "quadrants), centred",
     }
-    timing["total_run_seconds"] = time.perf_counter() - t_start
-    result = {"parameters": parameters, "records": records, "slopes": slopes,
-              "timing": timing, "checks": checks}
-    _write(directory, result, phases, gt, region, levels)
-    result = dict(result, out_dir=str(out), files=list(_FILES))
-    return result
 
 
 # -------------------------------------------------------------------------- checks
@@ -842,12 +881,33 @@ def _at(records, method, case, q, T):
 
 def _summary(result) -> str:
     p = result["parameters"]
-    rec = result["records"]
-    ch = result["checks"]
-    tim = result["timing"]
+    rec, ch = result["records"], result["checks"]
     cases = sorted(int(c) for c in p["cases_px"])
-    methods = sorted({r["method"] for r in rec})
-    lines = [
+    paper = [c for c in cases if c in vibration_cases()] or cases
+    rows = [*_method_rows(ch, sorted({r["method"] for r in rec})),
+            *_figure_rows(rec, paper),
+            *_phase_rows(ch, rec, cases),
+            *_method_c_rows(ch),
+            *_cost_rows(result["timing"], rec, cases)]
+    lines = [*_summary_header(p), *(f"| {a} | {b} |" for a, b in rows)]
+    lines += [
+        "",
+        "Notes. The paper's RMSE numbers depend on its camera parameters (its ref. [22], "
+        "not reproduced); ours use K and L above. The theory curves (dashed in the "
+        "figures) are the small-noise model described in `gridstrain.paper.experiment`. "
+        "Prop. 2.1 truncates the vibration average at second order; the exact Gaussian "
+        "level is given beside it. Corrected phases use eqs. (29)-(30), whose neglected "
+        "third-order term is the residual the paper notes in case 1.",
+        "",
+        f"Total run time {result['timing']['total_run_seconds']:.0f} s.",
+        "",
+    ]
+    return "\n".join(lines)
+
+
+def _summary_header(p) -> list[str]:
+    """Title, the run's settings, and the head of the table of statements."""
+    return [
         "# Reproduction of Sur & Grédiac (2015), §3.2 (synthetic data set)",
         "",
         f"gridstrain {p['gridstrain_version']}, {p['created']}; "
@@ -867,107 +927,128 @@ def _summary(result) -> str:
         "|---|---|",
     ]
 
-    def row(a, b):
-        lines.append(f"| {a} | {b} |")
 
-    paper = [c for c in cases if c in vibration_cases()] or cases
+def _method_rows(ch, methods) -> list[tuple[str, str]]:
+    """(statement, figure) rows on each method's phase derivatives."""
+    rows = []
     for m in methods:
         c = ch[m]
-        row(f"Method {m}: phase-derivative RMSE decreases as 1/sqrt(T) (slope -0.5; "
+        rows.append((
+            f"Method {m}: phase-derivative RMSE decreases as 1/sqrt(T) (slope -0.5; "
             "the paper's cases)",
             f"fitted slopes {_fixed(c['derivative_slopes_min'])} to "
-            f"{_fixed(c['derivative_slopes_max'])}")
-        row(f"Method {m}: derivative RMSE does not depend on the vibrations "
+            f"{_fixed(c['derivative_slopes_max'])}"))
+        rows.append((
+            f"Method {m}: derivative RMSE does not depend on the vibrations "
             "(curves superposed)",
             f"largest spread across cases {100 * c['derivative_spread_across_cases_max']:.1f} % "
             f"({100 * c['derivative_spread_across_cases_over_theory_max']:.1f} % once divided "
-            "by the theory, which for method A includes the contrast loss of eq. 14)")
-        row(f"Method {m}: derivatives follow the small-noise theory (eq. 27)",
+            "by the theory, which for method A includes the contrast loss of eq. 14)"))
+        rows.append((
+            f"Method {m}: derivatives follow the small-noise theory (eq. 27)",
             f"measured/theory {_fixed(c['derivative_rmse_over_theory_min'])} to "
             f"{_fixed(c['derivative_rmse_over_theory_max'])} (mean "
-            f"{_fixed(c['derivative_rmse_over_theory_mean'])})")
+            f"{_fixed(c['derivative_rmse_over_theory_mean'])})"))
+    return rows
+
+
+def _figure_rows(rec, paper) -> list[tuple[str, str]]:
+    """(statement, figure) rows on the paper's figures at T = 200 (method A)."""
     d200 = [_at(rec, "A", c, q, 200) for c in paper for q in _DERIVATIVES]
     d200 = [v for v in d200 if v is not None]
-    row("T = 200: derivative RMSE < 3e-5 rad/px",
-        f"{_fmt(max(d200))} rad/px (largest over cases and derivatives)" if d200 else "n/a")
+    rows = [("T = 200: derivative RMSE < 3e-5 rad/px",
+             f"{_fmt(max(d200))} rad/px (largest over cases and derivatives)" if d200
+             else "n/a")]
     for j, (hi, lo) in enumerate(((0.03, 0.002), (0.01, 0.001))):
         q = f"phi{j + 1}"
         vals = ", ".join(f"case {c}: {_fmt(_at(rec, 'A', c, q, 200))}" for c in paper)
-        row(f"T = 200: {q} RMSE < {hi} rad in any case, < {lo} rad in cases 3-4",
-            f"{vals} rad")
+        rows.append((f"T = 200: {q} RMSE < {hi} rad in any case, < {lo} rad in cases 3-4",
+                     f"{vals} rad"))
+    return rows
+
+
+def _phase_rows(ch, rec, cases) -> list[tuple[str, str]]:
+    """(statement, figure) rows on method A's phases and on the averaged image."""
+    rows = []
     if "A" in ch:
         cs = ch["A"]["corrected_phase_slopes"]
-        row("Corrected phases decrease as 1/sqrt(T), independent of vibrations in "
+        rows.append((
+            "Corrected phases decrease as 1/sqrt(T), independent of vibrations in "
             "cases 3-4; residual error in case 1 and for phi1 in case 2",
             "; ".join(f"case {c}: slopes {_fmt(cs[str(c)]['phi1_corrected'])}/"
                       f"{_fmt(cs[str(c)]['phi2_corrected'])}" for c in cases)
             + "; at the largest T, corrected RMSE: " + ", ".join(
                 f"case {c} {_fmt(_get(rec, 'A', c, 'phi1_corrected')[1][-1])}/"
                 f"{_fmt(_get(rec, 'A', c, 'phi2_corrected')[1][-1])}" for c in cases)
-            + " rad (phi1/phi2)")
+            + " rad (phi1/phi2)"))
         od = ch["A"]["uncorrected_phase_order"]
-        row("Uncorrected phase RMSE: the larger the vibrations, the larger the RMSE",
+        rows.append((
+            "Uncorrected phase RMSE: the larger the vibrations, the larger the RMSE",
             "; ".join(f"{q}: ordered by amplitude at {100 * v['fraction_of_T_ordered']:.0f} % "
                       f"of the T values, geometric means over T "
                       f"{'ordered' if v['geometric_mean_ordered'] else 'NOT ordered'}"
-                      for q, v in od.items()))
+                      for q, v in od.items())))
     img = ch["image_level"]
-    row("Averaged image does not converge to s (Prop. 2.1, Fig. 5c)",
+    rows.append((
+        "Averaged image does not converge to s (Prop. 2.1, Fig. 5c)",
         "; ".join(f"case {c}: RMSE {img[str(c)]['rmse']:.3g} at T = {img[str(c)]['T']} vs "
                   f"Prop. 2.1 level {img[str(c)]['prop21_level']:.3g} (ratio "
                   f"{img[str(c)]['rmse_over_prop21']:.3f}; exact Gaussian level "
-                  f"{img[str(c)]['exact_gaussian_level']:.3g}) grey levels" for c in cases))
+                  f"{img[str(c)]['exact_gaussian_level']:.3g}) grey levels" for c in cases)))
+    return rows
+
+
+def _method_c_rows(ch) -> list[tuple[str, str]]:
+    """(statement, figure) rows comparing method B with A, and method C with both."""
+    rows = []
     if "B_over_A_derivatives_min" in ch:
-        row("Method B gives results comparable to method A",
-            f"derivative RMSE ratio B/A {_fixed(ch['B_over_A_derivatives_min'])} to "
-            f"{_fixed(ch['B_over_A_derivatives_max'])}")
-    if "C_over_B_derivatives_min" in ch:
-        row("Method C (not in the paper): derivatives with method B's precision",
-            f"derivative RMSE ratio C/B {_fixed(ch['C_over_B_derivatives_min'])} to "
-            f"{_fixed(ch['C_over_B_derivatives_max'])}; C/theory "
-            f"{_fixed(ch['C_derivative_rmse_over_theory_min'])} to "
-            f"{_fixed(ch['C_derivative_rmse_over_theory_max'])}")
-        others = ", ".join(f"{m} up to {_fixed(ch[k])}" for m in ("A", "B")
-                           if (k := f"{m}_corrected_phase_rmse_over_theory_max") in ch)
-        row("Method C: phase about the stack's mean position at the noise-only theory "
-            "(no contrast loss, no eq. 29 residual)",
-            f"corrected-phase RMSE / noise-only theory "
-            f"{_fixed(ch['C_corrected_phase_rmse_over_theory_min'])} to "
-            f"{_fixed(ch['C_corrected_phase_rmse_over_theory_max'])} (eqs. 29-30 corrected: "
-            f"{others})")
-        if "C_corrected_phase_case5_over_theory_max" in ch:
-            row("Method C at 0.5 px (case 5): phase about the mean position at the theory",
-                f"corrected-phase RMSE / theory "
-                f"{_fixed(ch['C_corrected_phase_case5_over_theory_min'])} to "
-                f"{_fixed(ch['C_corrected_phase_case5_over_theory_max'])} (T <= 100)")
-        if "C_over_A_derivatives_case5_max" in ch:
-            row("Method C at 0.5 px of vibration (case 5): derivative error below A's",
-                f"C/A derivative RMSE (RMS over the four) at most "
-                f"{_fixed(ch['C_over_A_derivatives_case5_max'])} (30 <= T <= 100; beyond, "
-                "the generator's interpolation error, common to all methods, dominates)")
-    row("Cost: A 8 s, B 118 s per 100 images (Matlab, 2014 Xeon), ratio 15",
-        f"A {tim['method_A_seconds_per_100_images']:.2f} s, B "
-        f"{tim['method_B_seconds_per_100_images']:.2f} s per 100 images of "
-        f"{tim['image_shape'][0]} x {tim['image_shape'][1]} px, ratio "
-        f"{_fmt(tim['ratio_B_over_A'])}; method C "
-        f"{tim['method_C_seconds_per_100_images']:.2f} s, {_fmt(tim['ratio_C_over_A'])} x A "
-        f"(CPU time: C/A {_fmt(tim['cpu_ratio_C_over_A'])}, C/B "
-        f"{_fmt(tim['cpu_ratio_C_over_B'])})")
+        rows.append(("Method B gives results comparable to method A",
+                     f"derivative RMSE ratio B/A {_fixed(ch['B_over_A_derivatives_min'])} to "
+                     f"{_fixed(ch['B_over_A_derivatives_max'])}"))
+    if "C_over_B_derivatives_min" not in ch:
+        return rows
+    rows.append(("Method C (not in the paper): derivatives with method B's precision",
+                 f"derivative RMSE ratio C/B {_fixed(ch['C_over_B_derivatives_min'])} to "
+                 f"{_fixed(ch['C_over_B_derivatives_max'])}; C/theory "
+                 f"{_fixed(ch['C_derivative_rmse_over_theory_min'])} to "
+                 f"{_fixed(ch['C_derivative_rmse_over_theory_max'])}"))
+    others = ", ".join(f"{m} up to {_fixed(ch[k])}" for m in ("A", "B")
+                       if (k := f"{m}_corrected_phase_rmse_over_theory_max") in ch)
+    rows.append(("Method C: phase about the stack's mean position at the noise-only theory "
+                 "(no contrast loss, no eq. 29 residual)",
+                 f"corrected-phase RMSE / noise-only theory "
+                 f"{_fixed(ch['C_corrected_phase_rmse_over_theory_min'])} to "
+                 f"{_fixed(ch['C_corrected_phase_rmse_over_theory_max'])} (eqs. 29-30 "
+                 f"corrected: {others})"))
+    if "C_corrected_phase_case5_over_theory_max" in ch:
+        rows.append(("Method C at 0.5 px (case 5): phase about the mean position at the "
+                     "theory",
+                     f"corrected-phase RMSE / theory "
+                     f"{_fixed(ch['C_corrected_phase_case5_over_theory_min'])} to "
+                     f"{_fixed(ch['C_corrected_phase_case5_over_theory_max'])} (T <= 100)"))
+    if "C_over_A_derivatives_case5_max" in ch:
+        rows.append(("Method C at 0.5 px of vibration (case 5): derivative error below A's",
+                     f"C/A derivative RMSE (RMS over the four) at most "
+                     f"{_fixed(ch['C_over_A_derivatives_case5_max'])} (30 <= T <= 100; "
+                     "beyond, the generator's interpolation error, common to all methods, "
+                     "dominates)"))
+    return rows
+
+
+def _cost_rows(tim, rec, cases) -> list[tuple[str, str]]:
+    """(statement, figure) rows on the cost of the methods and on §4's conclusion."""
     mod = [_at(rec, "A", c, q, 200) for c in cases if max(_all_cases()[c]) < 0.1
            for q in ("phi1", "phi2")]
     mod = [v for v in mod if v is not None]
-    row("§4: moderate vibrations (std < 0.1 px): phase RMSE < 2e-3 rad (T = 200)",
-        f"{_fmt(max(mod))} rad (largest, cases with std < 0.1 px)" if mod else "n/a")
-    lines += [
-        "",
-        "Notes. The paper's RMSE numbers depend on its camera parameters (its ref. [22], "
-        "not reproduced); ours use K and L above. The theory curves (dashed in the "
-        "figures) are the small-noise model described in `gridstrain.paper.experiment`. "
-        "Prop. 2.1 truncates the vibration average at second order; the exact Gaussian "
-        "level is given beside it. Corrected phases use eqs. (29)-(30), whose neglected "
-        "third-order term is the residual the paper notes in case 1.",
-        "",
-        f"Total run time {tim['total_run_seconds']:.0f} s.",
-        "",
+    return [
+        ("Cost: A 8 s, B 118 s per 100 images (Matlab, 2014 Xeon), ratio 15",
+         f"A {tim['method_A_seconds_per_100_images']:.2f} s, B "
+         f"{tim['method_B_seconds_per_100_images']:.2f} s per 100 images of "
+         f"{tim['image_shape'][0]} x {tim['image_shape'][1]} px, ratio "
+         f"{_fmt(tim['ratio_B_over_A'])}; method C "
+         f"{tim['method_C_seconds_per_100_images']:.2f} s, {_fmt(tim['ratio_C_over_A'])} x A "
+         f"(CPU time: C/A {_fmt(tim['cpu_ratio_C_over_A'])}, C/B "
+         f"{_fmt(tim['cpu_ratio_C_over_B'])})"),
+        ("§4: moderate vibrations (std < 0.1 px): phase RMSE < 2e-3 rad (T = 200)",
+         f"{_fmt(max(mod))} rad (largest, cases with std < 0.1 px)" if mod else "n/a"),
     ]
-    return "\n".join(lines)

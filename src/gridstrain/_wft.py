@@ -1,0 +1,979 @@
+"""Windowed Fourier transform of grid images: phases and phase derivatives.
+
+The implementation behind the public module :mod:`gridstrain.wft`: the paper's
+eqs. (22)-(25) for any two wave vectors, with the conventions (absolute carrier,
+centred unit-sum Gaussian, mean removal and zero extension) of
+:mod:`gridstrain.conventions`.
+"""
+
+from __future__ import annotations
+
+import functools
+import itertools
+import math
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.lib.stride_tricks import as_strided
+from scipy import fft as sfft
+from scipy import ndimage
+
+from . import _fft
+from ._validation import (
+    as_image,
+    check_choice,
+    check_mask,
+    check_positive,
+    check_sigma,
+    check_workers,
+)
+from .lattice import Lattice
+
+__all__ = ["DEFAULT_MARGIN", "PhaseMaps", "transfer_function", "wft", "wft_complex"]
+
+# Spatial padding, in window standard deviations, added before the circular FFT
+# convolution: the wrapped-around tail of the Gaussian then weighs exp(-8^2/2) ~ 1e-14.
+_PAD_SIGMAS = 8.0
+# Transfer-function values below this (relative to its peak of 1) are flushed to zero:
+# they would change the result by less than 1e-16 relative, and as denormals they
+# would only slow the FFT down.
+_FLUSH = 1e-16
+# Default width, in window standard deviations, of the band along the image border
+# and around masked pixels where results are declared invalid. Near an edge the
+# window is cut and the conjugate carrier leaks in. Measured on a noise-free grid at
+# sigma = p = 5 (tests/test_wft.py::test_edge_bias_decays_as_a_gaussian): phase
+# error 3.5e-3 rad at 2 sigma, 2.5e-4 at 3 sigma, 7e-6 at 4 sigma, 6e-8 at 5 sigma;
+# strain error 1e-4 at 3 sigma, 4e-6 at 4 sigma. 4 sigma keeps the edge bias below
+# the 1e-5 strain that users resolve.
+DEFAULT_MARGIN = 4.0
+# Pixels whose modulus is below this fraction of the median modulus hold no grid.
+_MIN_MODULUS = 0.25
+# Bytes of one block of rows of the final inverse FFTs (three transforms): small
+# enough for the block and its products to stay in cache between the FFT and the
+# products instead of streaming through memory (2x faster than whole images).
+_CHUNK_BYTES = 2**21
+
+
+@dataclass(frozen=True, eq=False)
+class PhaseMaps:
+    """Windowed Fourier transform of one grid image (or of a stack, averaged).
+
+    Attributes
+    ----------
+    psi : (2, H, W) complex ndarray
+        ``Psi_k1`` and ``Psi_k2`` (eqs. 22-23), demodulated by the absolute carrier,
+        grey levels. Defined at every pixel; trust it only where ``valid``.
+    dphi : (2, 2, H, W) float ndarray
+        Phase derivatives, rad/px: ``dphi[j, 0] = d phi_j / dx`` and
+        ``dphi[j, 1] = d phi_j / dy``, computed from the analytic derivative of the
+        window (or, with ``wft(..., derivatives="fast")``, a least-squares
+        differentiator of ``Psi``), without unwrapping.
+    valid : (H, W) bool ndarray
+        Pixels whose window lies inside the image and the mask (up to ``margin``
+        standard deviations) and whose moduli show a grid.
+    lattice : Lattice
+        The wave vectors used.
+    sigma : float
+        Window standard deviation, px.
+    """
+
+    psi: np.ndarray
+    dphi: np.ndarray
+    valid: np.ndarray
+    lattice: Lattice
+    sigma: float
+
+    def __post_init__(self):
+        for name in ("psi", "dphi", "valid"):
+            getattr(self, name).flags.writeable = False
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        """Image shape ``(H, W)``."""
+        return self.valid.shape
+
+    @property
+    def phase(self) -> np.ndarray:
+        """(2, H, W) wrapped phases ``arg Psi_k`` in (-pi, pi], rad."""
+        return np.angle(self.psi)
+
+    @property
+    def modulus(self) -> np.ndarray:
+        """(2, H, W) moduli ``|Psi_k|``, grey levels."""
+        return np.abs(self.psi)
+
+    def __repr__(self) -> str:
+        H, W = self.shape
+        return (f"PhaseMaps({H}x{W}, sigma={self.sigma:.4g} px, "
+                f"{self.valid.mean():.1%} valid, {self.lattice!r})")
+
+
+def transfer_function(nu, sigma: float, *, derivative: bool = False) -> np.ndarray:
+    """1-D transfer function of the sampled, unit-sum Gaussian window.
+
+    Parameters
+    ----------
+    nu : array_like
+        Frequencies, cycles/px.
+    sigma : float
+        Standard deviation of the window, px.
+    derivative : bool
+        If True, the transfer function of the sampled derivative of the window
+        (``2 i pi nu`` times the Gaussian's), periodised the same way.
+
+    Returns
+    -------
+    ndarray
+        ``sum_j G(nu + j) / sum_j G(j)`` with ``G(nu) = exp(-2 pi^2 sigma^2 nu^2)``:
+        sampling the Gaussian periodises its spectrum, and dividing by its value at 0
+        makes the sampled window sum to exactly 1. Values below 1e-16 are zero.
+    """
+    nu = np.asarray(nu, dtype=float)
+    a = 2.0 * math.pi**2 * sigma**2
+    out = np.zeros(nu.shape, dtype=complex if derivative else float)
+    for j in (-2, -1, 0, 1, 2):  # |j| = 3 weighs exp(-2 pi^2 sigma^2 * 6.25) < 1e-200
+        g = np.exp(-a * (nu + j) ** 2)
+        out += 2j * math.pi * (nu + j) * g if derivative else g
+    norm = sum(math.exp(-a * j * j) for j in (-2, -1, 0, 1, 2))
+    out /= norm
+    out[np.abs(out) < _FLUSH] = 0
+    return out
+
+
+def _axis_band(n: int, k: float, sigma: float):
+    """One axis of the band where the window's transfer function ``G(f - k)`` is non-zero.
+
+    Returns ``(idx, runs, nu, shift)``: the FFT indices of the band; the band as
+    ``(dst, src)`` slice pairs placing entry ``src`` of ``idx`` at ``dst`` in a spectrum
+    shifted down by ``shift`` bins (the bin nearest ``k``, so that the inverse FFT
+    comes out demodulated by ``exp(-2 i pi shift x / n)``); and ``nu = f - k`` on the
+    band, cycles/px.
+    """
+    nu_all = (sfft.fftfreq(n) - k + 0.5) % 1.0 - 0.5
+    idx = np.flatnonzero(transfer_function(nu_all, sigma))
+    shift = round(k * n)
+    pos = (idx - shift) % n
+    # pos is circularly contiguous (the transfer function decreases with |nu|):
+    # cut it into the runs where it increases by one, to copy with slices
+    cuts = np.flatnonzero(np.diff(pos) != 1) + 1
+    bounds = [0, *cuts.tolist(), idx.size]
+    runs = [(slice(int(pos[i]), int(pos[j - 1]) + 1), slice(i, j))
+            for i, j in itertools.pairwise(bounds)]
+    return idx, runs, nu_all[idx], shift
+
+
+def _spectrum_block(V: np.ndarray, rows: np.ndarray, cols: np.ndarray, nx: int) -> np.ndarray:
+    """Block ``rows x cols`` of the full 2-D DFT of a real image, from its rfft2 ``V``.
+
+    Copied run by run with slices: the band's indices are a few arithmetic runs, and
+    fancy indexing would gather element by element.
+    """
+    ny, nh = V.shape
+    out = np.empty((rows.size, cols.size), dtype=V.dtype)
+    neg = cols >= nh
+    # cols is sorted: the positive frequencies come first, the negative ones last
+    n_pos = int(np.count_nonzero(~neg))
+    for conj in (False, True):
+        off = n_pos if conj else 0
+        sel = cols[n_pos:] if conj else cols[:n_pos]
+        # X[r, c] = conj(X[-r, -c]) for a real image
+        r_src = (-rows) % ny if conj else rows
+        c_src = nx - sel if conj else sel
+        for r_out, r_in in _runs(r_src):
+            for c_out, c_in in _runs(c_src):
+                dst = out[r_out, off + c_out.start:off + c_out.stop]
+                if conj:
+                    np.conjugate(V[r_in, c_in], out=dst)
+                else:
+                    dst[...] = V[r_in, c_in]
+    return out
+
+
+def _runs(idx: np.ndarray):
+    """``(position, source)`` slice pairs covering ``idx`` by runs of step +1 or -1."""
+    n = idx.size
+    if n == 0:
+        return
+    step = np.diff(idx)
+    start = 0
+    while start < n:
+        stop = start + 1
+        if stop < n and abs(step[start]) == 1:
+            s = int(step[start])
+            while stop < n and step[stop - 1] == s:
+                stop += 1
+        else:
+            s = 1
+        first, last = int(idx[start]), int(idx[stop - 1])
+        end = last + s
+        yield slice(start, stop), slice(first, None if end < 0 else end, s)
+        start = stop
+
+
+def _median(values: np.ndarray) -> float:
+    """``np.median`` of the finite ``values`` (any shape, a view is fine; not modified).
+
+    One partial sort around the upper middle, then the maximum of the lower half:
+    ``np.median`` partially sorts around both middle elements, which costs about
+    five times as much on the modulus maps of the valid region.
+    """
+    flat = np.array(values, copy=True).reshape(-1)
+    n = flat.size
+    k = n // 2
+    flat.partition(k)
+    if n % 2:
+        return float(flat[k])
+    return float((flat[:k].max() + flat[k]) / 2)
+
+
+def wft(image, lattice: Lattice, *, sigma: float | None = None, mask=None,
+        margin: float = DEFAULT_MARGIN, min_modulus: float = _MIN_MODULUS,
+        workers: int | None = 1, derivatives: str = "exact") -> PhaseMaps:
+    """Windowed Fourier transform of a grid image for the lattice's two wave vectors.
+
+    Parameters
+    ----------
+    image : (H, W) array_like
+        Grid image, grey levels. float32 input is computed in float32, anything
+        else in float64. Not modified.
+    lattice : Lattice
+        The grid's wave vectors (see :func:`detect_lattice`).
+    sigma : float, optional
+        Standard deviation of the Gaussian window, px. Default: the lattice's
+        largest pitch, the paper's choice; smaller values are refused since the
+        window must hold at least one period (paper ref. [23]).
+    mask : (H, W) bool array_like, optional
+        True on the specimen. Masked pixels are replaced by the mean grey level.
+    margin : float
+        Width, in units of ``sigma``, of the band along the border and around
+        masked pixels that is declared invalid (default 4, see Notes).
+    min_modulus : float
+        Pixels whose modulus, for either wave vector, is below this fraction of its
+        median over the pixels at least ``margin`` sigmas inside the image and the
+        mask are invalid (no grid there).
+    workers : int or None
+        Threads (default 1; None: the usable cores). From 2 on, the two wave
+        vectors are transformed at once, each on its own scratch arrays (about
+        1.7x faster on two cores); the result is the same, bit for bit.
+    derivatives : {"exact", "fast"}
+        How the phase derivatives are computed. ``"exact"`` (default): from the
+        analytic derivative of the window, two more inverse transforms per wave
+        vector. ``"fast"``: from ``Psi`` alone, by a short least-squares
+        differentiator of the demodulated map, within 1e-7 rad/px of the exact
+        ones in float64 and 1e-6 rad/px in float32 (see Notes); ``Psi``, the
+        moduli and ``valid`` are the same, bit for bit.
+
+    Returns
+    -------
+    PhaseMaps
+
+    Notes
+    -----
+    ``Psi_k(x) = sum_xi v(xi) g_sigma(xi - x) exp(-2 i pi k.xi)`` is computed as
+    ``exp(-2 i pi k.x)`` times the correlation of the image with the Gabor kernel
+    ``g_sigma(d) exp(-2 i pi k.d)``, whose transfer function ``G(f - k)`` is known
+    in closed form. The window is never truncated. The phase derivatives are
+    ``Im(conj(Psi) dPsi) / |Psi|^2``, exact for the sampled window and free of
+    unwrapping. The FFTs are padded by ``8 sigma`` so that the circular convolution
+    equals the linear one.
+
+    Cost: one real FFT of the image; then, per wave vector, inverse FFTs along y of
+    only the columns where ``G`` is non-zero (a band of about ``2.7 / sigma`` cycle/px)
+    for the window and its y-derivative, and three inverse FFTs along x of the
+    image's rows, for ``Psi``, ``dPsi/dx`` and ``dPsi/dy``, by blocks of rows that
+    stay in cache. The window being separable, this equals the three 2-D inverse
+    FFTs of the filtered spectra at about half their cost. At 1040 x 1376 px,
+    sigma = 5 px, one call takes about 2.7 times one rfft2 and two complex ifft2 of
+    the padded size, the least any FFT method needs for the two phase maps alone
+    (``benchmarks/bench_wft.py``); with ``workers=2``, 95 ms instead of 152 ms on two
+    cores. The FFTs run on the implementation :mod:`gridstrain._fft` chooses
+    (scipy.fft, or MKL with the ``mkl`` extra).
+
+    ``derivatives="fast"`` transforms only ``Psi``, one inverse per wave vector,
+    and differentiates the demodulated map, whose spectrum is ``G`` times the
+    image's: smooth and band-limited, so that an antisymmetric filter of 2m + 1
+    taps, fitted to the exact derivative filter ``dG/G`` by least squares weighted
+    by ``G``, matches it closely. m is the fewest taps whose error, on a tone or on
+    white noise as large as ``Psi``, stays below 2e-9 rad/px (float64; 2e-8 in
+    float32): 5 at sigma = 5 px, 7 at 3.5 px. A valid pixel's modulus is at least
+    ``min_modulus`` times the median, so the error there stays below ~4e-8 rad/px
+    even on pure noise (measured: 1e-8), and measures 2e-10 to 5e-10 rad/px on
+    noisy grid images (tests/test_wft.py). In float32, differences of neighbouring
+    samples amplify the rounding of ``Psi``: 3e-7 rad/px on a grid image, against
+    3e-8 for the exact float32 path. A window narrower than about 3.5 px would need
+    more taps than the exact path costs: the exact derivatives are then computed.
+    10 to 15 % faster than the exact path at 1040 x 1376 px, sigma = 5 px
+    (``benchmarks/bench_wft.py``).
+
+    Near the border or a mask edge the window is cut: results there are biased
+    (for a noise-free grid at sigma = pitch, phase errors of 3e-3 rad at 2 sigma
+    from the edge, 3e-4 rad at 3 sigma, 7e-6 rad at 4 sigma, falling as a Gaussian)
+    and are flagged invalid within ``margin`` sigmas.
+    """
+    check_choice(derivatives, "derivatives", ("exact", "fast"))
+    return _wft(image, lattice, sigma=sigma, mask=mask, margin=margin,
+                min_modulus=min_modulus, derivatives=derivatives,
+                workers=check_workers(workers))
+
+
+def _wft(image, lattice: Lattice, *, sigma: float | None = None, mask=None,
+         margin: float = DEFAULT_MARGIN, min_modulus: float = _MIN_MODULUS,
+         derivatives: str = "exact", sink=None, work=None, workers: int = 1,
+         checked: bool = False):
+    """:func:`wft`, with a choice of phase derivatives.
+
+    ``derivatives="exact"`` (what :func:`wft` does by default):
+    ``Im(conj(Psi) dPsi)/|Psi|^2`` with ``dPsi`` from the analytic derivative of the
+    window, two more inverse FFTs along x and one more along y per wave vector; the
+    reference the other two are tested against.
+
+    ``derivatives="fast"``: ``Psi`` alone, differentiated by a least-squares filter
+    (:func:`wft`'s Notes, :func:`_differentiator`); the exact path where the window
+    is too narrow for a short filter.
+
+    ``derivatives="central"``: ``Im(conj(Psi) (Psi[+1] - Psi[-1])) / (2 |Psi|^2)``,
+    central differences of the demodulated map along each axis, no FFT beyond the
+    one for ``Psi``. Faster (``benchmarks/bench_wft.py``) but a different filter:
+    its bias (about phi'''/6) and its response to the noise differ from the exact
+    derivative by ~1e-6 rad/px on the paper's noise-free fields and by ~5e-5 rad/px
+    on a noisy frame (tests/test_fast.py), far above the 1e-7 rad/px that the exact
+    path meets; it is not used by default.
+
+    ``sink`` (exact derivatives only): instead of keeping the maps, hand each block
+    of rows to ``sink(j, r0, r1, psi, dphi, mod)`` as soon as it is computed -- the
+    wave vector's index, the rows ``r0:r1``, and views of ``psi`` (h, W),
+    ``dphi`` (2, h, W) and the modulus (h, W) that are overwritten by the next
+    block -- and return only the validity map. Method B sums the frames that way,
+    while the blocks are still in cache, without a frame's maps ever being whole.
+    ``work`` (a :class:`_Workspace`) lends the scratch arrays, so that a caller
+    transforming many frames reuses the same pages. ``checked``: ``image`` already
+    went through :func:`~gridstrain._validation.as_image` (a stack's frames do).
+    """
+    check_choice(derivatives, "derivatives", ("exact", "fast", "central"))
+    if sink is not None and derivatives != "exact":
+        raise ValueError("sink needs the exact derivatives")
+    if not isinstance(lattice, Lattice):
+        raise TypeError(f"lattice must be a Lattice, got {type(lattice).__name__}")
+    img = image if checked else as_image(image)
+    m = check_mask(mask, img.shape)
+    sigma = check_sigma(sigma, lattice.pitch)
+    margin = check_positive(margin, "margin")
+    if not 0 <= min_modulus < 1:
+        raise ValueError(f"min_modulus must be in [0, 1), got {min_modulus!r}")
+
+    dtype = img.dtype
+    H, W = img.shape
+    full = bool(m.all())
+    pad = math.ceil(_PAD_SIGMAS * sigma)
+    ny = sfft.next_fast_len(H + pad, real=True)
+    nx = sfft.next_fast_len(W + pad, real=True)
+    V = _padded_rfft2(img, m, full, ny, nx)
+    cdtype = V.dtype
+    # rows per block of the final inverse FFTs (three transforms of nx points each)
+    chunk = max(8, _CHUNK_BYTES // (3 * nx * cdtype.itemsize))
+    # scratch arrays shared by the two wave vectors (and by the frames of a caller
+    # that lends its workspace): fresh pages cost a page fault each
+    work = _Workspace() if work is None else work
+    if sink is None:
+        psi = np.empty((2, H, W), dtype=cdtype)
+        dphi = np.empty((2, 2, H, W), dtype=dtype)
+    else:
+        h = min(chunk, H)
+        psi = work.get("psi", (2, h, W), cdtype)
+        dphi = work.get("dphi", (2, 2, h, W), dtype)
+
+    valid, box = _region(m, full, margin * sigma)
+    mods = [work.get(f"mod{j}", (H, W), dtype) for j in range(2)]
+    fast = _differentiator(float(sigma), dtype) if derivatives == "fast" else None
+    # with two threads, one wave vector each, and scratch arrays of its own
+    works = [work, _Workspace()] if workers > 1 else [work, work]
+
+    def one(j):
+        k = (lattice.k1, lattice.k2)[j]
+        # where Psi = 0 (no signal at all) the derivatives are 0/0: NaN, silently
+        with np.errstate(invalid="ignore", divide="ignore"):
+            if fast is not None:
+                _one_wave_vector_fast(V, k, sigma, H, W, nx, psi[j], dphi[j], mods[j],
+                                      works[j], taps=fast[0],
+                                      chunk=max(8, _FAST_CHUNK_BYTES // (nx * cdtype.itemsize)))
+            elif derivatives == "central":
+                _one_wave_vector_central(V, k, sigma, H, W, nx, psi[j], dphi[j], mods[j],
+                                         works[j])
+            else:
+                out = None if sink is None else (
+                    lambda r0, r1, p, d, md: sink(j, r0, r1, p, d, md))
+                _one_wave_vector(V, k, sigma, H, W, nx, psi[j], dphi[j], mods[j], works[j],
+                                 chunk=chunk, sink=out)
+
+    if workers > 1:
+        with ThreadPoolExecutor(max_workers=2) as pool:
+            list(pool.map(one, range(2)))
+    else:
+        for j in range(2):
+            one(j)
+    valid &= _shows_grid(mods, valid, box, m, min_modulus)
+    if sink is not None:
+        return valid
+    return PhaseMaps(psi=psi, dphi=dphi, valid=valid, lattice=lattice, sigma=float(sigma))
+
+
+def _region(m: np.ndarray, full: bool, radius: float):
+    """Pixels farther than ``radius`` px from the border and the mask's edges, and
+    the box they fill when the mask is full (None otherwise)."""
+    if full:
+        valid, box = _valid_rectangle(*m.shape, radius)
+        return valid, (np.s_[:, :] if box is None else box)
+    return _valid_region(m, radius), None
+
+
+def _shows_grid(mods, valid: np.ndarray, box, m: np.ndarray, min_modulus: float) -> np.ndarray:
+    """Where both moduli reach ``min_modulus`` times their median over the region
+    valid by its distance to the edges (sliced while it is a box, rather than
+    gathered through a mask; the mask when no pixel is far enough from an edge)."""
+    any_valid = bool(valid.any())
+    keep = np.ones(valid.shape, dtype=bool)
+    for mod in mods:
+        values = mod[box] if box is not None else mod[valid] if any_valid else mod[m]
+        keep &= mod >= min_modulus * _median(values)
+    return keep
+
+
+def wft_complex(images, lattice: Lattice, *, sigma: float | None = None, mask=None,
+                margin: float = DEFAULT_MARGIN, min_modulus: float = _MIN_MODULUS,
+                dtype=np.float64) -> PhaseMaps:
+    """Windowed Fourier transform of one complex image per wave vector.
+
+    ``Psi_kj`` is the transform of ``images[j]`` at ``k_j``, with the window, the
+    carrier, the mean removal, the zero extension and the exact derivatives of
+    :func:`wft` (:mod:`gridstrain.conventions`). The transform is linear, so
+    ``wft_complex([v, v])`` equals ``wft(v)`` for a real image ``v``; a complex
+    image arises as a weighted sum of real frames, ``z_j = sum_t w_tj v_t``
+    (:func:`gridstrain.stacks.method_c`), whose transform is ``sum_t w_tj
+    Psi_kj(v_t)``.
+
+    Parameters
+    ----------
+    images : (2, H, W) complex array_like
+        One image per wave vector, grey levels.
+    lattice : Lattice
+        The wave vectors.
+    sigma, mask, margin, min_modulus
+        As in :func:`wft`.
+    dtype : numpy dtype
+        Real dtype of the returned derivatives (float32 or float64); ``psi`` is the
+        matching complex type. Computed in complex128 either way.
+
+    Returns
+    -------
+    PhaseMaps
+
+    Notes
+    -----
+    Cost: one complex FFT of the padded image per wave vector (the spectrum of a
+    complex image has no Hermitian symmetry to halve it), then the band-limited
+    inverse transforms of :func:`wft`.
+    """
+    if not isinstance(lattice, Lattice):
+        raise TypeError(f"lattice must be a Lattice, got {type(lattice).__name__}")
+    z = np.asarray(images)
+    if z.ndim != 3 or z.shape[0] != 2 or min(z.shape[1:]) < 2:
+        raise ValueError(f"images must be a (2, H, W) complex array, one image per wave "
+                         f"vector, got shape {z.shape}")
+    if not np.all(np.isfinite(z)):
+        raise ValueError("images must be finite")
+    H, W = z.shape[1:]
+    m = check_mask(mask, (H, W))
+    sigma = lattice.pitch if sigma is None else check_positive(sigma, "sigma")
+    if sigma < lattice.pitch * (1 - 1e-9):
+        raise ValueError(f"sigma must be at least the pitch ({lattice.pitch:.4g} px) so that "
+                         f"the window holds one period, got {sigma:.4g}")
+    margin = check_positive(margin, "margin")
+    if not 0 <= min_modulus < 1:
+        raise ValueError(f"min_modulus must be in [0, 1), got {min_modulus!r}")
+    full = bool(m.all())
+    pad = math.ceil(_PAD_SIGMAS * sigma)
+    ny = sfft.next_fast_len(H + pad)
+    nx = sfft.next_fast_len(W + pad)
+    chunk = max(8, _CHUNK_BYTES // (3 * nx * 16))
+    psi = np.empty((2, H, W), dtype=np.complex128)
+    dphi = np.empty((2, 2, H, W), dtype=np.float64)
+    mods = [np.empty((H, W), dtype=np.float64) for _ in range(2)]
+    work = _Workspace()
+    for j, k in enumerate((lattice.k1, lattice.k2)):
+        padded = np.zeros((ny, nx), dtype=np.complex128)
+        zj = z[j].astype(np.complex128, copy=False)
+        # the mean carries no phase (conventions); for a weighted sum of frames it is
+        # the mean grey level times the mean weight
+        if full:
+            np.subtract(zj, zj.mean(), out=padded[:H, :W])
+        else:
+            padded[:H, :W] = np.where(m, zj - zj[m].mean(), 0)
+        with _fft.backend():
+            V = sfft.fft2(padded, overwrite_x=True, workers=1)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            _one_wave_vector(V, k, sigma, H, W, nx, psi[j], dphi[j], mods[j], work,
+                             chunk=chunk)
+    valid, box = _region(m, full, margin * sigma)
+    valid &= _shows_grid(mods, valid, box, m, min_modulus)
+    dtype = np.dtype(dtype)
+    return PhaseMaps(psi=psi.astype(np.result_type(dtype, np.complex64), copy=False),
+                     dphi=dphi.astype(dtype, copy=False), valid=valid, lattice=lattice,
+                     sigma=float(sigma))
+
+
+def finite_derivatives(pm: PhaseMaps) -> PhaseMaps:
+    """``pm`` with its undefined derivatives (where ``psi = 0``) set to 0 and invalid.
+
+    Far inside a large masked region the transform is exactly 0 and its phase
+    derivatives are 0/0; a spline's prefilter (the kinematics interpolate the
+    deformed maps) would spread a single NaN over whole rows and columns.
+    """
+    ok = np.isfinite(pm.dphi)
+    if ok.all():
+        return pm
+    return PhaseMaps(psi=pm.psi, dphi=np.where(ok, pm.dphi, 0).astype(pm.dphi.dtype),
+                     valid=pm.valid & ok.all(axis=(0, 1)), lattice=pm.lattice,
+                     sigma=pm.sigma)
+
+
+class _Workspace:
+    """Scratch arrays reused from one wave vector to the next (named flat buffers)."""
+
+    def __init__(self):
+        self._buffers: dict[str, np.ndarray] = {}
+
+    def get(self, name: str, shape, dtype) -> np.ndarray:
+        """An uninitialised C-contiguous array of ``shape``, sharing ``name``'s buffer."""
+        dtype = np.dtype(dtype)
+        size = math.prod(shape)
+        buf = self._buffers.get(name)
+        if buf is None or buf.dtype != dtype or buf.size < size:
+            buf = self._buffers[name] = np.empty(size, dtype=dtype)
+        return buf[:size].reshape(shape)
+
+
+def _padded_rfft2(img: np.ndarray, m: np.ndarray, full: bool, ny: int, nx: int) -> np.ndarray:
+    """rfft2 of the mean-removed image, zero-extended to ``(ny, nx)`` (conventions)."""
+    dtype = img.dtype
+    H, W = img.shape
+    # zero extension written once, rather than the copy rfft2(s=...) would make
+    padded = np.zeros((ny, nx), dtype=dtype)
+    if full:
+        mean = float(np.mean(img, dtype=np.float64))
+        np.subtract(img, dtype.type(mean), out=padded[:H, :W])
+    else:
+        mean = float(np.mean(img[m], dtype=np.float64))
+        padded[:H, :W] = np.where(m, img - dtype.type(mean), dtype.type(0))
+    with _fft.backend():
+        return sfft.rfft2(padded, overwrite_x=True, workers=1)
+
+
+def _ifft(x: np.ndarray, axis: int) -> np.ndarray:
+    """In-place-allowed 1-D inverse FFT along ``axis``, on the chosen implementation."""
+    with _fft.backend():
+        return sfft.ifft(x, axis=axis, overwrite_x=True, workers=1)
+
+
+def _one_wave_vector(V, k, sigma, H, W, nx, psi, dphi, mod, work, *, chunk: int,
+                     sink=None):
+    """Fill ``psi`` (H, W), ``dphi`` (2, H, W) and ``mod`` (H, W) for the wave vector ``k``.
+
+    With ``sink``, ``psi`` and ``dphi`` hold one block of ``chunk`` rows: each block
+    is computed there, then handed to ``sink(r0, r1, psi, dphi, mod)`` (``mod`` is
+    still filled whole: the validity test needs its median).
+
+    The filtered spectrum is non-zero only on a band of rows x cols around ``k``, and
+    the window is separable: one inverse FFT along y of the band's columns for the
+    window and one for its y-derivative, then inverse FFTs along x of the image's
+    rows for ``Psi``, ``dPsi/dx`` and ``dPsi/dy``. Shifting the band down to the bins
+    nearest ``k`` demodulates by the carrier up to a residual of less than half a
+    bin, applied to the y-transform and to ``Psi``.
+    """
+    ny = V.shape[0]
+    cdtype = V.dtype
+    rows, yruns, nuy, sy = _axis_band(ny, k[1], sigma)
+    cols, xruns, nux, sx = _axis_band(nx, k[0], sigma)
+    # a complex image's full spectrum (wft_complex), or a real one's half spectrum
+    block = V[np.ix_(rows, cols)] if V.shape[1] == nx else _spectrum_block(V, rows, cols, nx)
+    # complex transfer values: a complex times real product would go through a
+    # slow mixed-type loop
+    gy = transfer_function(nuy, sigma).astype(cdtype)
+    dgy = transfer_function(nuy, sigma, derivative=True).astype(cdtype)
+    gx = transfer_function(nux, sigma).astype(cdtype)
+    dgx = transfer_function(nux, sigma, derivative=True).astype(cdtype)
+
+    # along y: window and its derivative, for the band's columns only. The x-window
+    # is applied here too, on the small band, so that the blocks along x below are
+    # mostly copies; dPsi/dx then needs dgx / gx (~ 2 i pi nu, finite on the band).
+    block *= gx
+    Y = work.get("Y", (2, ny, cols.size), cdtype)
+    for gap in _gaps(yruns, ny):
+        Y[:, gap] = 0
+    for dst, src in yruns:
+        np.multiply(block[src], gy[src, None], out=Y[0, dst])
+        np.multiply(block[src], dgy[src, None], out=Y[1, dst])
+    ratio = (dgx / gx).astype(cdtype)
+    A = _ifft(Y, 1)[:, :H]
+    ry = sy / ny - k[1]
+    if ry != 0:
+        A *= np.exp(2j * math.pi * ry * np.arange(H)).astype(cdtype)[:, None]
+    rx = sx / nx - k[0]
+    ex = np.exp(2j * math.pi * rx * np.arange(W)).astype(cdtype) if rx != 0 else None
+
+    # along x, by blocks of rows: Psi, dPsi/dx, dPsi/dy. One buffer serves every block
+    # (the in-place FFT overwrites it, so the columns outside the band are re-zeroed).
+    X = work.get("X", (3, min(chunk, H), nx), cdtype)
+    gaps = _gaps(xruns, nx)
+    cc = work.get("cc", (min(chunk, H), W), cdtype)
+    prod = work.get("prod", (2, min(chunk, H), W), cdtype)
+    rinv = work.get("rinv", (min(chunk, H), W), mod.dtype)
+    for r0 in range(0, H, chunk):
+        r1 = min(r0 + chunk, H)
+        h = r1 - r0
+        Xh = X[:, :h]
+        for gap in gaps:
+            Xh[:, :, gap] = 0
+        for dst, src in xruns:
+            Xh[0, :, dst] = A[0, r0:r1, src]
+            np.multiply(A[0, r0:r1, src], ratio[src], out=Xh[1, :, dst])
+            Xh[2, :, dst] = A[1, r0:r1, src]
+        out = _ifft(Xh, 2)
+        c = out[0, :, :W]
+        ps, dp = (psi[r0:r1], dphi[:, r0:r1]) if sink is None else (psi[:h], dphi[:, :h])
+        if ex is None:
+            ps[...] = c
+        else:
+            np.multiply(c, ex, out=ps)
+        np.abs(c, out=mod[r0:r1])
+        # d phi = Im(conj(c) dc) / |c|^2: exact for the sampled window, no unwrapping
+        ch = cc[:h]
+        np.conjugate(c, out=ch)
+        ph = prod[:, :h]
+        np.multiply(out[1:, :, :W], ch, out=ph)
+        # in the maps' own precision: a float32 frame runs float32 loops throughout
+        inv = np.square(mod[r0:r1], out=rinv[:h])
+        np.reciprocal(inv, out=inv)  # inf where Psi = 0: d phi is NaN there, as 0/0
+        np.multiply(ph.imag, inv, out=dp)
+        if sink is not None:
+            sink(r0, r1, ps, dp, mod[r0:r1])
+
+
+def _one_wave_vector_central(V, k, sigma, H, W, nx, psi, dphi, mod, work, *,
+                             chunk: int | None = None):
+    """:func:`_one_wave_vector` with central-difference derivatives (see :func:`_wft`).
+
+    Only ``Psi`` is transformed, by blocks of rows with one more row above and below,
+    and the differences at the image's edge use the transform just outside it (that
+    of the zero-extended image), as the exact path does.
+    """
+    ny = V.shape[0]
+    cdtype = V.dtype
+    if chunk is None:
+        chunk = max(8, _CHUNK_BYTES // (nx * cdtype.itemsize))
+    rows, yruns, nuy, sy = _axis_band(ny, k[1], sigma)
+    cols, xruns, nux, sx = _axis_band(nx, k[0], sigma)
+    block = _spectrum_block(V, rows, cols, nx)
+    block *= transfer_function(nux, sigma).astype(cdtype)
+    gy = transfer_function(nuy, sigma).astype(cdtype)
+    Y = work.get("Y", (ny, cols.size), cdtype)
+    for gap in _gaps(yruns, ny):
+        Y[gap] = 0
+    for dst, src in yruns:
+        np.multiply(block[src], gy[src, None], out=Y[dst])
+    A = _ifft(Y, 0)
+    # rows -1 .. H (row -1 of the periodic transform is row ny - 1), demodulated
+    # along y by the residual (less than half a bin) left by the shift of the band
+    Ae = work.get("Ae", (H + 2, cols.size), cdtype)
+    Ae[0] = A[ny - 1]
+    Ae[1:] = A[:H + 1]
+    ry = sy / ny - k[1]
+    if ry != 0:
+        Ae *= np.exp(2j * math.pi * ry * np.arange(-1, H + 1)).astype(cdtype)[:, None]
+    # along x the residual stays in c; it enters the differences as exp(+-i theta)
+    theta = 2 * math.pi * (sx / nx - k[0])
+    ex = np.exp(1j * theta * np.arange(W)).astype(cdtype) if theta != 0 else None
+    turn = cdtype.type(np.exp(1j * theta))
+    gaps = _gaps(xruns, nx)
+    h_max = min(chunk, H)
+    X = work.get("X", (h_max + 2, nx), cdtype)
+    cc = work.get("cc", (h_max, W), cdtype)
+    prod = work.get("prod", (2, h_max, W), cdtype)
+    for r0 in range(0, H, chunk):
+        r1 = min(r0 + chunk, H)
+        h = r1 - r0
+        Xh = X[:h + 2]
+        for gap in gaps:
+            Xh[:, gap] = 0
+        for dst, src in xruns:
+            Xh[:, dst] = Ae[r0:r1 + 2, src]
+        out = _ifft(Xh, 1)
+        c = out[1:-1, :W]
+        if ex is None:
+            psi[r0:r1] = c
+        else:
+            np.multiply(c, ex, out=psi[r0:r1])
+        np.abs(c, out=mod[r0:r1])
+        ch = cc[:h]
+        np.conjugate(c, out=ch)
+        ph = prod[:, :h]
+        # x: c[x + 1] - c[x - 1], where x = -1 is column nx - 1 of the periodic transform
+        d = ph[0]
+        if ex is None:
+            np.subtract(out[1:-1, 2:W + 1], out[1:-1, :W - 1], out=d[:, 1:])
+            np.subtract(out[1:-1, 1], out[1:-1, nx - 1], out=d[:, 0])
+        else:
+            np.multiply(out[1:-1, 1:W + 1], turn, out=d)
+            d[:, 1:] -= out[1:-1, :W - 1] * np.conj(turn)
+            d[:, 0] -= out[1:-1, nx - 1] * np.conj(turn)
+        np.subtract(out[2:, :W], out[:-2, :W], out=ph[1])
+        ph *= ch
+        # in the maps' own precision: float32 loops for a float32 frame
+        inv = np.square(mod[r0:r1])
+        np.reciprocal(inv, out=inv)
+        inv *= inv.dtype.type(0.5)
+        np.multiply(ph.imag, inv, out=dphi[:, r0:r1])
+
+
+# Phase derivatives from Psi alone ("fast"): a least-squares differentiator of a few
+# taps applied to the demodulated map, whose spectrum is the window's G(nu) times the
+# image's, so smooth and band-limited. Its error, on a tone of Psi's amplitude at any
+# frequency or on white noise (rms), is kept below this many rad/px by the choice of
+# the number of taps; the valid pixels' moduli are at least a quarter of the median
+# (_MIN_MODULUS) and a noise peak may reach 5 rms, so the worst error on a valid pixel
+# stays ~20 times this, 4e-8 rad/px in float64 against the 1e-7 bound, and far less
+# on a real grid (measured in tests/test_wft.py). float32: its own rounding of Psi
+# already gives ~1e-7 rad/px (the exact path's too), so 2e-8 rad/px x 20 suffices.
+_FAST_TOL = {np.dtype(np.float64): 2e-9, np.dtype(np.float32): 2e-8}
+# More taps than this (a window narrower than about 3.5 px in float64) and the
+# differentiator costs more than the extra inverse FFTs of the exact derivatives.
+_FAST_MAX_TAPS = 7
+# Output columns per block of the x differentiator's matrix products, and image rows
+# per product along y: small Toeplitz blocks keep the flops near those of the direct
+# filter, and each product under OpenBLAS's threshold for going multi-threaded.
+_TILE = 8
+_YROWS = 4
+_BLAS_ONE_THREAD = 2**18
+# Bytes of one block of the transposed inverse FFT along x of the fast path.
+_FAST_CHUNK_BYTES = 2**19
+
+
+@functools.lru_cache(maxsize=32)
+def _differentiator(sigma: float, dtype: np.dtype):
+    """Taps ``a_1..a_m`` of the antisymmetric filter ``D psi[x] = sum_n a_n (psi[x+n] -
+    psi[x-n])`` that best matches, weighted by the window's transfer function, the
+    exact derivative filter ``dG/G`` of :func:`_one_wave_vector`; the fewest taps
+    whose errors meet ``_FAST_TOL[dtype]``, or None beyond ``_FAST_MAX_TAPS``.
+
+    Returns ``(taps, sup, rms)``: the worst error on a tone (``max |D - dG/G| G``)
+    and the rms error on white noise, rad/px per unit of ``|Psi|``.
+    """
+    nu = np.linspace(-0.5, 0.5, 4001)
+    g = transfer_function(nu, sigma)
+    r = np.zeros_like(nu)
+    np.divide(transfer_function(nu, sigma, derivative=True).imag, g, out=r, where=g > 0)
+    for m in range(1, _FAST_MAX_TAPS + 1):
+        # D's response is 2 i sum_n a_n sin(2 pi n nu); dG/G is i r(nu)
+        basis = 2 * np.sin(2 * math.pi * np.outer(nu, np.arange(1, m + 1)))
+        taps = np.linalg.lstsq(basis * g[:, None], r * g, rcond=None)[0]
+        err = (basis @ taps - r) * g
+        sup = float(np.max(np.abs(err)))
+        rms = float(np.sqrt(np.sum(err**2) / np.sum(g**2)))
+        if max(sup, rms) <= _FAST_TOL[np.dtype(dtype)]:
+            return taps, sup, rms
+    return None
+
+
+def _banded(taps: np.ndarray, n: int, dtype) -> np.ndarray:
+    """(n, n + 2m) matrix applying the differentiator ``taps`` to n + 2m samples."""
+    m = taps.size
+    T = np.zeros((n, n + 2 * m), dtype=dtype)
+    for i in range(n):
+        T[i, i + m + 1:i + 2 * m + 1] = taps
+        T[i, i:i + m] = -taps[::-1]
+    return T
+
+
+def _filter_rows(T: np.ndarray, src: np.ndarray, out: np.ndarray):
+    """``out[g*n:(g+1)*n] = T @ src[g*n : g*n + n + 2m]`` for every group g of n rows.
+
+    ``src`` (n_groups*n + 2m, L) and ``out`` (n_groups*n, L) real and row-contiguous;
+    one batched matrix product per piece of at most ``_BLAS_ONE_THREAD / (n (n + 2m))``
+    columns, so that OpenBLAS runs each on the calling thread.
+    """
+    n, k = T.shape
+    groups = out.shape[0] // n
+    L = out.shape[1]
+    width = max(64, _BLAS_ONE_THREAD // (n * k))
+    it = src.itemsize
+    for c0 in range(0, L, width):
+        c1 = min(c0 + width, L)
+        s = as_strided(src[:, c0:], shape=(groups, k, c1 - c0),
+                       strides=(n * src.strides[0], src.strides[0], it), writeable=False)
+        o = as_strided(out[:, c0:], shape=(groups, n, c1 - c0),
+                       strides=(n * out.strides[0], out.strides[0], it))
+        np.matmul(T, s, out=o)
+
+
+def _one_wave_vector_fast(V, k, sigma, H, W, nx, psi, dphi, mod, work, *, taps,
+                          chunk: int):
+    """:func:`_one_wave_vector` with the derivatives from ``Psi`` alone (see :func:`_wft`).
+
+    One inverse transform per wave vector: along y for the band's columns, then along
+    x by blocks of rows, transposed (x along the rows of the block) so that the
+    differentiator along x is a matrix product over rows, as the one along y is on
+    the finished rows of ``psi``, a block behind. The transform is demodulated (the
+    carrier's residual too) before it is differentiated, and rows and columns just
+    outside the image come from the periodic transform, as the exact path's do.
+    """
+    ny = V.shape[0]
+    cdtype = V.dtype
+    rdtype = mod.dtype
+    m = taps.size
+    rows, yruns, nuy, sy = _axis_band(ny, k[1], sigma)
+    cols, xruns, nux, sx = _axis_band(nx, k[0], sigma)
+    block = V[np.ix_(rows, cols)] if V.shape[1] == nx else _spectrum_block(V, rows, cols, nx)
+    # the window along x applied on the small band, so that the blocks below are copies
+    block *= transfer_function(nux, sigma).astype(cdtype)
+    gy = transfer_function(nuy, sigma).astype(cdtype)
+    # along y: rows -m .. H + m - 1 of the periodic transform (the y differentiator's
+    # reach beyond the image), as Y[0 : H + 2m]
+    Y = work.get("Y", (m + ny, cols.size), cdtype)
+    for gap in _gaps(yruns, ny):
+        Y[m + gap.start:m + gap.stop] = 0
+    for dst, src in yruns:
+        np.multiply(block[src], gy[src, None], out=Y[m + dst.start:m + dst.stop])
+    _ifft_into(Y[m:], 0)
+    Y[:m] = Y[ny:ny + m]
+    A = Y[:H + 2 * m]
+    ry = sy / ny - k[1]
+    if ry != 0:
+        A *= np.exp(2j * math.pi * ry * np.arange(-m, H + m)).astype(cdtype)[:, None]
+
+    # along x, by blocks of (extended) rows, transposed: XT[m + x, i] for x = -m ..
+    Wt = -(-W // _TILE) * _TILE  # whole tiles of the x differentiator
+    nrow = m + max(nx, Wt + m)
+    rx = sx / nx - k[0]
+    ex = (np.exp(2j * math.pi * rx * np.arange(-m, Wt + m)).astype(cdtype)[:, None]
+          if rx != 0 else None)
+    gaps = _gaps(xruns, nx)
+    Tx = _banded(taps.astype(rdtype), _TILE, rdtype)
+    Ty = _banded(taps.astype(rdtype), _YROWS, rdtype)
+    halo = work.get("halo", (2 * m, W), cdtype)  # psi rows -m..-1, then H..H+m-1
+    h_max = min(chunk, H + 2 * m)
+    src_buf = work.get("ysrc", (h_max + 2 * m + _YROWS, W), cdtype)
+    dy = work.get("dy", (h_max + m + _YROWS, W), cdtype)
+    cc = work.get("cc", ((h_max + m + _YROWS) * W,), cdtype)
+    rinv = work.get("rinv", ((h_max + m + _YROWS) * W,), rdtype)
+    it = np.dtype(rdtype).itemsize
+
+    def rows_of_psi(lo, hi):
+        """psi rows lo..hi-1 (-m <= lo), the halo and zeros beyond, contiguous."""
+        if lo >= 0 and hi <= H:
+            return psi[lo:hi]
+        out = src_buf[:hi - lo]
+        for r in range(lo, hi):
+            out[r - lo] = (halo[m + r] if r < 0 else psi[r] if r < H
+                           else halo[m + r - H] if r < H + m else 0)
+        return out
+
+    def along_y(y0, y1):
+        # rows y0..y1: d phi/dy = Im(conj(psi) D psi) / |psi|^2
+        n = -(-(y1 - y0) // _YROWS) * _YROWS
+        src = rows_of_psi(y0 - m, y0 + n + m)
+        _filter_rows(Ty, src.view(rdtype), dy[:n].view(rdtype))
+        c = cc[:(y1 - y0) * W].reshape(y1 - y0, W)
+        np.conjugate(psi[y0:y1], out=c)
+        np.multiply(dy[:y1 - y0], c, out=c)
+        inv = rinv[:(y1 - y0) * W].reshape(y1 - y0, W)
+        np.square(mod[y0:y1], out=inv)
+        np.reciprocal(inv, out=inv)  # inf where Psi = 0: d phi is NaN there, as 0/0
+        np.multiply(c.imag, inv, out=dphi[1, y0:y1])
+
+    done = 0  # rows whose y derivative is computed
+    Ne = H + 2 * m
+    for e0 in range(0, Ne, chunk):
+        e1 = min(e0 + chunk, Ne)
+        h = e1 - e0
+        XT = work.get("XT", (nrow, h), cdtype)
+        for gap in gaps:
+            XT[m + gap.start:m + gap.stop] = 0
+        XT[m + nx:] = 0
+        for dst, src in xruns:
+            np.copyto(XT[m + dst.start:m + dst.stop], A[e0:e1, src].T)
+        _ifft_into(XT[m:m + nx], 0)
+        XT[:m] = XT[nx:nx + m]  # columns -m..-1 of the periodic transform
+        P = XT[:Wt + 2 * m]
+        if ex is not None:
+            P *= ex
+        for e in range(e0, e1):  # the rows beyond the image, for the y differentiator
+            y = e - m
+            if y < 0 or y >= H:
+                halo[m + y if y < 0 else m + y - H] = P[m:m + W, e - e0]
+        y0, y1 = max(e0 - m, 0), min(e1 - m, H)
+        if y1 > y0:
+            i0, i1 = y0 - e0 + m, y1 - e0 + m
+            np.copyto(psi[y0:y1], P[m:m + W, i0:i1].T)
+            np.abs(psi[y0:y1], out=mod[y0:y1])
+            inv = rinv[:(y1 - y0) * W].reshape(y1 - y0, W)
+            np.square(mod[y0:y1], out=inv)
+            np.reciprocal(inv, out=inv)  # inf where Psi = 0: d phi is NaN there, as 0/0
+            # along x: a matrix product per tile of _TILE output rows of the block
+            Pf = P.view(rdtype)
+            s = as_strided(Pf, shape=(Wt // _TILE, _TILE + 2 * m, 2 * h),
+                           strides=(_TILE * Pf.strides[0], Pf.strides[0], it),
+                           writeable=False)
+            DT = work.get("DT", (Wt, 2 * h), rdtype)
+            np.matmul(Tx, s, out=DT.reshape(Wt // _TILE, _TILE, 2 * h))
+            c = cc[:W * (i1 - i0)].reshape(W, i1 - i0)
+            np.conjugate(P[m:m + W, i0:i1], out=c)
+            np.multiply(DT.view(cdtype)[:W, i0:i1], c, out=c)
+            np.multiply(c.imag.T, inv, out=dphi[0, y0:y1])
+        # along y, a block behind: the rows whose reach is computed, by whole groups of
+        # _YROWS (a group's product reads all its rows: 0 x NaN would be NaN)
+        ylim = H if e1 == Ne else done + max(y1 - m - done, 0) // _YROWS * _YROWS
+        if ylim > done:
+            along_y(done, ylim)
+            done = ylim
+
+
+def _ifft_into(x: np.ndarray, axis: int):
+    """Inverse FFT of ``x`` along ``axis``, written into ``x``."""
+    out = _ifft(x, axis)
+    if not np.shares_memory(out, x):
+        x[...] = out
+
+
+def _gaps(runs, n: int) -> list[slice]:
+    """Slices of ``range(n)`` that no ``dst`` run of :func:`_axis_band` covers."""
+    covered = sorted((d.start, d.stop) for d, _ in runs)
+    gaps, pos = [], 0
+    for start, stop in covered:
+        if start > pos:
+            gaps.append(slice(pos, start))
+        pos = max(pos, stop)
+    if pos < n:
+        gaps.append(slice(pos, n))
+    return gaps
+
+
+def _valid_rectangle(H: int, W: int, radius: float):
+    """:func:`_valid_region` of a full mask, and the box of rows x cols it covers.
+
+    The distance to the nearest pixel outside the image is the distance to the
+    nearest border, so the region is a box; no distance transform is needed.
+    """
+    oky = np.minimum(np.arange(H) + 1, H - np.arange(H)) > radius
+    okx = np.minimum(np.arange(W) + 1, W - np.arange(W)) > radius
+    valid = oky[:, None] & okx[None, :]
+    if not valid.any():
+        return valid, None
+    ys, xs = np.flatnonzero(oky), np.flatnonzero(okx)
+    return valid, np.s_[ys[0]:ys[-1] + 1, xs[0]:xs[-1] + 1]
+
+
+def _valid_region(mask: np.ndarray, radius: float) -> np.ndarray:
+    """Pixels farther than ``radius`` from the border and from any masked pixel."""
+    padded = np.pad(mask, 1, constant_values=False)
+    dist = ndimage.distance_transform_edt(padded)[1:-1, 1:-1]
+    return dist > radius

@@ -1,0 +1,173 @@
+"""One pass over a series (gridstrain.accumulate) against sums written here.
+
+The frames come from tests/independent_grid.py (numpy only): a rotated
+checkerboard under lighting fixed to the camera, with a hole, 12-bit Poisson-
+Gaussian noise stored x16, each frame rigidly shifted by a random vibration.
+"""
+
+from __future__ import annotations
+
+import itertools
+import pickle
+
+import numpy as np
+import pytest
+from numpy.testing import assert_allclose, assert_array_equal
+
+from gridstrain import Lattice, stacks
+from gridstrain.accumulate import PassPlan, SeriesPass
+from gridstrain.screening import screen_frames
+from independent_grid import scene
+
+PITCH, ANGLE = 5.0, 12.0
+SHAPE = (96, 112)
+
+
+def _lattice():
+    th = np.deg2rad(ANGLE)
+    f = 1 / PITCH
+    return Lattice((f * np.cos(th), f * np.sin(th)), (-f * np.sin(th), f * np.cos(th)))
+
+
+def _series(T, seed=0, vib=0.08):
+    rng = np.random.default_rng(seed)
+    shifts = rng.normal(0, vib, (T, 2))
+    frames = []
+    for a in shifts:
+        img, _ = scene(SHAPE, pitch=PITCH, angle=ANGLE, over=2,
+                       displacement=lambda X, Y, a=a: (a[0] + 0 * X, a[1] + 0 * Y))
+        noisy = 2.0 * rng.poisson(img / 2.0) + rng.normal(0, 3.0, img.shape)
+        frames.append(np.clip(np.round(noisy), 0, 4095) * 16)
+    return np.array(frames), shifts
+
+
+@pytest.fixture(scope="module")
+def data():
+    return _series(12)
+
+
+def _pass(frames, method="A", chunks=1, **kw):
+    T = len(frames)
+    plan = PassPlan(lattice=_lattice(), n_frames=T, method=method, sigma=PITCH, **kw)
+    bounds = np.linspace(0, T, chunks + 1).round().astype(int)
+    parts = []
+    for a, b in itertools.pairwise(bounds):
+        p = SeriesPass(plan, frames[0])
+        for t in range(a, b):
+            p.add(t, frames[t])
+        parts.append(pickle.loads(pickle.dumps(p)))  # as a Dask worker ships it
+    out = parts[0]
+    for p in parts[1:]:
+        out = out.merge(p)
+    return out
+
+
+def _direct_variance(frames, shifts):
+    """Per-pixel residual variance of the least-squares fit v_t = m + b . a_t,
+    solved pixel by pixel from the normal equations (T - 3 dof)."""
+    T = len(frames)
+    X = np.column_stack([np.ones(T), shifts])
+    beta, *_ = np.linalg.lstsq(X, frames.reshape(T, -1), rcond=None)
+    r = frames.reshape(T, -1) - X @ beta
+    return (r * r).sum(axis=0).reshape(frames.shape[1:]) / (T - 3)
+
+
+def test_mean_halves_and_variance_are_the_direct_sums(data):
+    frames, _ = data
+    acc = _pass(frames, chunks=3)
+    st = acc.statistics()
+    # float64 sums of 12 grey levels of ~3e4: rounding ~1e-11 grey levels
+    assert_allclose(st.mean, frames.mean(axis=0), rtol=0, atol=1e-9)
+    h = acc.half_means()
+    assert_allclose(h[0], frames[:6].mean(axis=0), rtol=0, atol=1e-9)
+    assert_allclose(h[1], frames[6:].mean(axis=0), rtol=0, atol=1e-9)
+    assert acc.half_counts() == (6, 6)
+    # the regressors are the shifts the pass measured on the carriers; the direct
+    # fit uses the same ones (the pass's claim is the algebra, the shifts are tested
+    # in test_vibration), so they agree to rounding: 1e-9 of a variance of ~1e3
+    a = screen_frames(frames, _lattice()).shifts()
+    want = _direct_variance(frames, a)
+    assert st.n_frames == 12
+    assert "regressed out (9 dof)" in st.method
+    assert_allclose(st.variance, want, rtol=1e-9, atol=1e-6)
+
+
+def test_chunking_does_not_change_the_sums(data):
+    frames, _ = data
+    one, four = _pass(frames, "B", chunks=1), _pass(frames, "B", chunks=4)
+    # sums added in another order: relative rounding of float64, 1e-12 of the values
+    s1, s4 = one.statistics(), four.statistics()
+    assert_allclose(s4.mean, s1.mean, rtol=1e-13)
+    assert_allclose(s4.variance, s1.variance, rtol=1e-9, atol=1e-9)
+    b1, b4 = one.method_b().maps, four.method_b().maps
+    assert_array_equal(b1.valid, b4.valid)
+    v = b1.valid
+    # phases of unit-phasor sums: 1e-12 rad is rounding
+    assert_allclose(b4.phase[:, v], b1.phase[:, v], rtol=0, atol=1e-12)
+    assert_array_equal(one.screen().coefficients, four.screen().coefficients)
+
+
+def test_method_b_and_c_are_those_of_stacks(data):
+    frames, _ = data
+    lat = _lattice()
+    b = _pass(frames, "B", chunks=2).method_b().maps
+    want = stacks.method_b(frames, lat, sigma=PITCH).maps
+    assert_array_equal(b.valid, want.valid)
+    assert_allclose(b.phase[:, b.valid], want.phase[:, want.valid], rtol=0, atol=1e-12)
+    assert_allclose(b.dphi[:, :, b.valid], want.dphi[:, :, want.valid], rtol=0, atol=1e-15)
+    acc = _pass(frames, "C", chunks=3)
+    c = acc.method_c(sigma=PITCH)
+    shifts = screen_frames(frames, lat).shifts()
+    wc = stacks.method_c(frames, lat, shifts=shifts, sigma=PITCH)
+    assert_array_equal(c.maps.valid, wc.maps.valid)
+    v = c.maps.valid
+    # the same realigned sums, one complex turn apart at most: 1e-12 rad
+    assert_allclose(c.maps.phase[:, v], wc.maps.phase[:, v], rtol=0, atol=1e-12)
+    assert_allclose(c.shifts, wc.shifts, rtol=0, atol=1e-12)
+    half = acc.method_c(sigma=PITCH, halves=(1,))
+    wh = stacks.method_c(frames[6:], lat, shifts=shifts[6:], sigma=PITCH)
+    assert_allclose(half.maps.phase[:, v], wh.maps.phase[:, v], rtol=0, atol=1e-12)
+
+
+def test_a_removed_frame_is_as_if_never_added(data):
+    frames, _ = data
+    # a frame of another grey level and another position: what the screening excludes
+    bad = frames.copy()
+    bad[4] = np.roll(bad[4], 2, axis=1) * 0.5
+    acc = _pass(bad, "B", chunks=2)
+    acc.remove(4, bad[4])
+    keep = [t for t in range(12) if t != 4]
+    want = _pass(frames[keep], "B")
+    st, sw = acc.statistics(), want.statistics()
+    assert acc.kept == keep
+    assert acc.half_counts() == (5, 6)
+    # a subtraction of grey levels of ~3e4: rounding well under 1e-8 grey levels
+    assert_allclose(st.mean, sw.mean, rtol=0, atol=1e-8)
+    assert_allclose(st.variance, sw.variance, rtol=1e-7, atol=1e-6)
+    mb, mw = acc.method_b().maps, want.method_b().maps
+    assert_array_equal(mb.valid, mw.valid)
+    assert_allclose(mb.phase[:, mb.valid], mw.phase[:, mw.valid], rtol=0, atol=1e-10)
+    # the halves: frame 4 was in the first half
+    assert_allclose(acc.half_means()[0], frames[[0, 1, 2, 3, 5]].mean(axis=0), atol=1e-8)
+
+
+def test_bad_use_is_refused(data):
+    frames, _ = data
+    plan = PassPlan(lattice=_lattice(), n_frames=3)
+    p = SeriesPass(plan, frames[0])
+    p.add(0, frames[0])
+    with pytest.raises(ValueError, match="frame 0 was added twice"):
+        p.add(0, frames[0])
+    with pytest.raises(ValueError, match="shape"):
+        p.add(1, frames[0][:50])
+    with pytest.raises(ValueError, match="lacks frames"):
+        p.screen()
+    with pytest.raises(ValueError, match="frame 2 is not in the sums"):
+        p.remove(2, frames[2])
+    other = SeriesPass(plan, frames[1])
+    with pytest.raises(ValueError, match="origin"):
+        p.merge(other)
+    with pytest.raises(ValueError, match="method"):
+        PassPlan(lattice=_lattice(), n_frames=3, method="D")
+    with pytest.raises(ValueError, match="method B"):
+        p.method_b()

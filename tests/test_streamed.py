@@ -1,0 +1,128 @@
+"""A result written state by state while measuring (measure_series(output=...)).
+
+Checked against the same measurement held in memory and saved afterwards: the file
+and the maps must be the same, and a failure must leave nothing behind.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from numpy.testing import assert_array_equal
+
+from gridstrain import Lattice, synthetic
+from gridstrain.pipeline import measure_series
+from gridstrain.results import ResultFile, StoredMaps, load, save_result
+
+LAT = Lattice.from_pitch(5.0)
+SHAPE = (96, 112)
+
+
+def _series(T, strain, seed):
+    rng = np.random.default_rng(seed)
+    img = synthetic.grid_image(SHAPE, LAT, displacement=lambda X, Y: (
+        strain * X + 0.3, -0.5 * strain * Y))
+    return np.array([img + rng.normal(0, 0.01, SHAPE) for _ in range(T)])
+
+
+@pytest.fixture(scope="module")
+def data():
+    ref = _series(4, 0.0, 0)
+    states = [_series(3, e, k + 1) for k, e in enumerate((1e-3, 2e-3, 3e-3))]
+    return ref, states
+
+
+@pytest.fixture(scope="module")
+def pair(data, tmp_path_factory):
+    ref, states = data
+    path = tmp_path_factory.mktemp("streamed") / "r.h5"
+    held = measure_series(ref, states, lattice=LAT, guess=None)
+    streamed = measure_series(ref, states, lattice=LAT, guess=None, output=path)
+    return held, streamed, path
+
+
+def test_streamed_maps_are_those_held_in_memory(pair):
+    held, streamed, _path = pair
+    assert isinstance(streamed.u, StoredMaps)
+    assert streamed.u.shape == held.u.shape
+    assert streamed.n_states == 3
+    assert streamed.shape == SHAPE
+    # the same numbers, stored losslessly in float64
+    assert_array_equal(np.asarray(streamed.u), held.u)
+    assert_array_equal(np.asarray(streamed.strain), held.strain)
+    assert_array_equal(np.asarray(streamed.valid), held.valid)
+    for k, v in held.uncertainty.items():
+        assert_array_equal(np.asarray(streamed.uncertainty[k]), v)
+    for a, b in zip(streamed.measurements, held.measurements, strict=True):
+        assert_array_equal(np.asarray(a.rotation), b.rotation)
+        assert a.iterations == b.iterations
+    assert streamed.warnings == held.warnings
+    assert_array_equal(streamed.noise.theory_u, held.noise.theory_u)
+
+
+def test_indexing_reads_like_an_array(pair):
+    held, streamed, _ = pair
+    for key in (1, -1, (2, 0), (slice(None), 1), (slice(0, 2), 0, 5), (0, 1, 7, 9)):
+        assert_array_equal(np.asarray(streamed.u[key]), held.u[key])
+    assert_array_equal(streamed.get_map("exy"), held.get_map("exy"))
+    assert [s.shape for s in streamed.strain] == [(3, *SHAPE)] * 3
+    with pytest.raises(IndexError, match="state 3 out of range for 3 states"):
+        streamed.u[3]
+    # NumPy's operators, functions and an array's methods work on the whole
+    assert_array_equal(streamed.u * 2.0, held.u * 2.0)
+    assert float(streamed.valid.mean()) == float(held.valid.mean())
+    assert_array_equal(np.nonzero(streamed.valid)[2], np.nonzero(held.valid)[2])
+    assert_array_equal(streamed.measurements[1].rotation.reshape(-1),
+                       held.measurements[1].rotation.reshape(-1))
+
+
+def test_the_file_is_the_one_save_result_writes(pair, tmp_path):
+    held, _streamed, path = pair
+    saved = save_result(held, tmp_path / "held.h5")
+    a, b = load(path), load(saved)
+    for name in ("u", "strain", "valid", "mask", "reference_image"):
+        assert_array_equal(getattr(a, name), getattr(b, name))
+    assert a.names == b.names
+    # NaN fields (no correlation with guess=None) compare by their text
+    assert repr(a.fringe_orders) == repr(b.fringe_orders)
+    assert repr(a.metrology) == repr(b.metrology)
+    assert repr(a.noise) == repr(b.noise)
+
+
+def test_float32_keeps_what_it_says(data, tmp_path):
+    ref, states = data
+    held = measure_series(ref, states, lattice=LAT, guess=None)
+    small = measure_series(ref, states, lattice=LAT, guess=None, output=tmp_path / "f.h5",
+                           dtype="float32")
+    u = np.asarray(small.u)
+    assert u.dtype == np.float32
+    assert small.parameters["dtype"] == "float32"
+    v = held.valid
+    # rounding to float32: half the spacing of float32 numbers at |u| < 1 px, 2^-25
+    # (the displacements here stay below 1 px), and 2^-25 of |e| < 0.01 for strain
+    err = np.abs(u - held.u)[:, :, v[0]]
+    assert float(err.max()) <= 2.0**-25
+    assert float(np.abs(np.asarray(small.strain) - held.strain)[:, :, v[0]].max()) \
+        <= 0.01 * 2.0**-24
+
+
+def test_a_failing_state_leaves_no_file(data, tmp_path):
+    ref, states = data
+    bad = np.zeros_like(states[1])  # a state without a grid: refused
+    with pytest.raises(ValueError, match="state 1"):
+        measure_series(ref, [states[0], bad, states[2]], lattice=LAT, guess=None,
+                       output=tmp_path / "r.h5")
+    assert list(tmp_path.iterdir()) == []  # neither the file nor its temporary file
+
+
+def test_an_existing_file_is_kept_without_overwrite(data, tmp_path):
+    ref, states = data
+    (tmp_path / "r.h5").write_bytes(b"mine")
+    with pytest.raises(FileExistsError):
+        measure_series(ref, states[:1], lattice=LAT, guess=None, output=tmp_path / "r.h5")
+    assert (tmp_path / "r.h5").read_bytes() == b"mine"
+    res = measure_series(ref, states[:1], lattice=LAT, guess=None,
+                         output=ResultFile(tmp_path / "r.h5", overwrite=True,
+                                           pixel_size=0.05, unit="mm"))
+    assert load(tmp_path / "r.h5").n_states == 1
+    assert_array_equal(np.asarray(res.u[0]), load(tmp_path / "r.h5").u[0])
