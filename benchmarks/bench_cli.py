@@ -73,7 +73,7 @@ def fft_floor_cpu(shape, sigma: float, dtype, repeat: int) -> float:
     return min(times)
 
 
-def profile(cli, measure_args, env, n: int, tmp: str) -> None:
+def profile(cli, measure_args, env, n: int, tmp: str, label: str) -> None:
     """Run ``measure`` under cProfile and print its ``n`` heaviest gridstrain functions."""
     import pstats
 
@@ -86,7 +86,7 @@ def profile(cli, measure_args, env, n: int, tmp: str) -> None:
             if "gridstrain" in k[0] and "/cli/" not in k[0]]
     rows.sort(reverse=True)
     print()
-    print(f"profile of measure {' '.join(measure_args[-2:])} (main thread; total "
+    print(f"profile of measure {label} (main thread; total "
           f"{stats.total_tt:.2f} s):")
     print(f"{'cumulative s':>12} {'own s':>8} {'calls':>7}  function")
     for cum, own, calls, (path, line, func) in rows[:n]:
@@ -105,9 +105,10 @@ def main(argv=None):
     ap.add_argument("--pitch", type=float, default=5.0, help="grid pitch, px (default 5)")
     ap.add_argument("--methods", nargs="+", default=["A", "B"], choices=["A", "B", "C"],
                     help="methods to run (default A B)")
-    ap.add_argument("--dtype", choices=("float64", "float32"), default="float64",
-                    help="precision of the transforms: passed as --dtype when the command "
-                         "line has that option, else float64 is what it uses")
+    ap.add_argument("--dtype", choices=("float64", "float32"), default=None,
+                    help="passed to measure as --dtype when it has that option (the "
+                         "precision of the stored maps; the transforms of uint16 frames "
+                         "stay float64, and so does the floor)")
     ap.add_argument("--repeat", type=int, default=1,
                     help="runs of each measurement, best kept (default 1)")
     ap.add_argument("--startup-repeat", type=int, default=5,
@@ -127,18 +128,19 @@ def main(argv=None):
     cli = cli_command()
     options = cli_options(cli)
     extra = []
-    dtype = np.dtype("float64")
-    if "--dtype" in options:
-        extra = ["--dtype", args.dtype]
-        dtype = np.dtype(args.dtype)
-    elif args.dtype != "float64":
-        print(f"note: this gridstrain's measure has no --dtype option; it runs in float64, "
-              f"and so does the floor (asked: {args.dtype})")
+    dtype = np.dtype("float64")  # the transforms of integer frames
+    if args.dtype is not None:
+        if "--dtype" in options:
+            extra = ["--dtype", args.dtype]
+        else:
+            print(f"note: this gridstrain's measure has no --dtype option; --dtype "
+                  f"{args.dtype} ignored")
     env = child_env(one_thread=True)
     print(f"machine: {machine()}")
     print(f"command line: {' '.join(Path(c).name if i == 0 else c for i, c in enumerate(cli))}")
     print(f"2 series (reference, one loaded state) x {T} frames of {H}x{W} uint16 TIFF, "
-          f"pitch {args.pitch:g} px, transforms in {dtype.name}")
+          f"pitch {args.pitch:g} px, floor in {dtype.name}"
+          + (f", measure {' '.join(extra)}" if extra else ""))
 
     with tempfile.TemporaryDirectory(prefix="gridstrain-bench-cli-", dir=args.tmp) as tmp:
         t0 = time.perf_counter()
@@ -167,7 +169,8 @@ def main(argv=None):
         if args.profile:
             for m in args.methods:
                 profile(cli, [str(ref), str(state), "-o", out, "--quiet", "--overwrite",
-                              "--method", m, *extra], env, args.profile, tmp)
+                              "--method", m, *extra], env, args.profile, tmp,
+                        f"--method {m}")
 
     floor_a = read["cpu"] + 2 * t_fft
     floor_b = 2 * T * t_fft
