@@ -27,7 +27,9 @@ The clusters are started and every worker imports gridstrain before the clock
 starts (the start-up is printed apart); the runs are interleaved, ``--repeat``
 times, the best wall time kept. Parallelism is what is measured, so the
 figure is the wall-clock time; the CPU time of this process (or of the command
-line's child) and of the workers (``os.times`` on each) is printed beside it, and
+line's child) and of the workers (``os.times`` on each) is printed beside it, with
+the time each worker spent computing tasks (Dask's task stream: a worker busy
+for a small part of the wall time waits for this process or for the machine), and
 the load average before each run: on a machine shared with other work the wall
 times of a 2-core run mean little when the load is above 0. Targets: 1 worker /
 2 workers >= 1.7 (speed-up), in-process / 2 workers >= 1 (the cluster not slower
@@ -91,13 +93,32 @@ def timed_measure(ref, state, client=None, *, cli=None, out=None) -> dict:
     """One method-B measurement: through the API, or the command line when ``cli`` is given.
 
     The wall time, the CPU time here (this process, or the command line's child) and
-    that of the workers, the load before, and the result (read back from the
-    output file for the command line).
+    that of the workers, the time each worker spent computing tasks (Dask's task
+    stream), the load before, and the result (read back from the output file for
+    the command line).
     """
-    import gridstrain
-
     before = load()
     w0 = _worker_cpu(client) if client is not None else 0.0
+    stream = contextlib.nullcontext()
+    if client is not None:
+        from distributed import get_task_stream
+
+        stream = get_task_stream(client=client)
+    with stream as ts:
+        wall, cpu, res = _measure(ref, state, client, cli, out)
+    workers = _worker_cpu(client) - w0 if client is not None else 0.0
+    busy = {}
+    for task in getattr(ts, "data", None) or []:  # seconds each worker computed tasks
+        for ss in task.get("startstops", ()):
+            if ss.get("action") == "compute":
+                busy[task["worker"]] = busy.get(task["worker"], 0.0) + ss["stop"] - ss["start"]
+    return {"wall": wall, "cpu": cpu, "workers_cpu": workers, "load": before, "result": res,
+            "busy": sorted(busy.values(), reverse=True)}
+
+
+def _measure(ref, state, client, cli, out):
+    import gridstrain
+
     if cli is None:
         kw = {"method": "B"}
         if client is not None:
@@ -115,8 +136,7 @@ def timed_measure(ref, state, client=None, *, cli=None, out=None) -> dict:
         r = run_child(cmd, child_env())
         wall, cpu = r["wall"], r["cpu"]
         res = gridstrain.load(out)
-    workers = _worker_cpu(client) - w0 if client is not None else 0.0
-    return {"wall": wall, "cpu": cpu, "workers_cpu": workers, "load": before, "result": res}
+    return wall, cpu, res
 
 
 def max_du(a, b) -> tuple[float, int]:
@@ -209,7 +229,9 @@ def main(argv=None):
             # n-worker speed-up is at most (here + workers) / (here + workers / n)
             share = r["cpu"] / (r["cpu"] + r["workers_cpu"])
             print(f"{k}: {r['cpu']:.1f} s of CPU stay here, {100 * share:.0f} % of the "
-                  "total")
+                  "total; each worker computed tasks "
+                  + ", ".join(f"{b:.1f} s ({100 * b / r['wall']:.0f} %)" for b in r["busy"])
+                  + " of the wall time")
     one, two = best.get("LocalCluster 1 x 1"), best.get("LocalCluster 2 x 1")
     if one:
         here, work = one["cpu"], one["workers_cpu"]
