@@ -232,6 +232,11 @@ def main(argv=None):
                   "total; each worker computed tasks "
                   + ", ".join(f"{b:.1f} s ({100 * b / r['wall']:.0f} %)" for b in r["busy"])
                   + " of the wall time")
+            if r["busy"]:
+                # below ~90 %: the workers' tasks waited for a core (other processes,
+                # this one): the machine, not the cluster, sets the wall time
+                print(f"  the workers had a core for {100 * r['workers_cpu'] / sum(r['busy']):.0f} "
+                      "% of their tasks' time")
     one, two = best.get("LocalCluster 1 x 1"), best.get("LocalCluster 2 x 1")
     if one:
         here, work = one["cpu"], one["workers_cpu"]
