@@ -19,14 +19,18 @@ spinning.
   lattice detected, the fringe order from the cross-correlation, the
   large-displacement correction on;
 * ``openlsa``: OpenLSA (Grédiac, Blaysat & Sur's localized spectrum analysis; GPL,
-  never a gridstrain dependency: install it yourself, ``pip install openlsa``),
+  never a gridstrain dependency: install it yourself, in its own environment since it
+  pins numpy < 2, and pass ``--openlsa-python olsa/bin/python``),
   following its README: lattice from the reference, phases of both images with the
   Gaussian kernel of standard deviation the pitch, temporal unwrapping, fixed-point
   displacement (``min_iter=6``). Its automatic pairing follows the brightest
   blurred point; on this pair it chose one near the border and paired it a period
   away (279 px RMS error), so it is given the point to follow (the centre of the
-  brighter defect) and where that point went (from the imposed field), which
-  gridstrain finds by itself;
+  brighter defect) and where that point went (from the imposed field); so is
+  gridstrain (``--guess``, the displacement there), whose automatic fringe order
+  finds no printed feature at the scale of the pitch on this pair (the defect is a
+  broad reflectance blob) and says so: "fringe order not confirmed", the smallest
+  displacement taken, whole periods off (``--auto`` shows it);
 * ``start-up``: ``gridstrain --help`` against ``python -c "import numpy"``.
 
 Each run's displacement is compared with the imposed field (RMS over the pixels
@@ -152,14 +156,19 @@ def main(argv=None):
     ap.add_argument("--baseline", metavar="SRC",
                     help="also run gridstrain from this source folder (another checkout's "
                          "src/), interleaved with this one")
+    ap.add_argument("--auto", action="store_true",
+                    help="let gridstrain fix the fringe order by itself (on this pair it "
+                         "flags it unconfirmed: the defect is broader than the pitch)")
+    ap.add_argument("--openlsa-python", metavar="PYTHON",
+                    help="the interpreter of a virtual environment holding OpenLSA (it pins "
+                         "numpy < 2: keep it out of gridstrain's environment, e.g. "
+                         "python -m venv olsa && olsa/bin/pip install openlsa tifffile)")
     args = ap.parse_args(argv)
     shape = tuple(int(v) for v in args.size.lower().split("x"))
 
-    try:
-        import openlsa  # noqa: F401
-        have_openlsa = True
-    except ImportError:
-        have_openlsa = False
+    olsa_python = args.openlsa_python or sys.executable
+    have_openlsa = subprocess.run([olsa_python, "-c", "import openlsa"],
+                                  capture_output=True).returncode == 0
 
     env = dict(os.environ, **ONE_THREAD)
     env["PYTHONPATH"] = os.pathsep.join([str(ROOT / "src"), env.get("PYTHONPATH", "")])
@@ -172,11 +181,15 @@ def main(argv=None):
         write_pair(tmp, shape)
         ref, cur = str(tmp / "ref.tif"), str(tmp / "def.tif")
         out = tmp / "out.h5"
+        # both programs are told where the defect went (see the module's notes)
+        row, col = round(FEATURE[1] * shape[0]), round(FEATURE[0] * shape[1])
+        ux, uy = field(shape)(float(col), float(row))
+        guess = [] if args.auto else ["--guess", f"{ux:.3f}", f"{uy:.3f}"]
         cands = {
             "python -c 'import numpy'": [sys.executable, "-c", "import numpy"],
             "gridstrain --help": [sys.executable, "-m", "gridstrain.cli", "--help"],
             "gridstrain measure": [sys.executable, "-m", "gridstrain.cli", "measure", ref, cur,
-                                   "-o", str(out), "--quiet", "--overwrite"],
+                                   "-o", str(out), "--quiet", "--overwrite", *guess],
         }
         if args.baseline:
             cands["gridstrain measure (baseline)"] = [
@@ -185,9 +198,7 @@ def main(argv=None):
                 "from gridstrain.cli import main; sys.exit(main())",
                 "measure", ref, cur, "-o", str(tmp / "base.h5"), "--quiet", "--overwrite"]
         if have_openlsa:
-            row, col = round(FEATURE[1] * shape[0]), round(FEATURE[0] * shape[1])
-            ux, uy = field(shape)(float(col), float(row))
-            cands["openlsa"] = [sys.executable, "-O", "-c", OPENLSA_SCRIPT, ref, cur,
+            cands["openlsa"] = [olsa_python, "-O", "-c", OPENLSA_SCRIPT, ref, cur,
                                 str(tmp / "olsa.npy"),
                                 *(str(v) for v in (row, col, row + uy, col + ux))]
         cpu = {n: [] for n in cands}

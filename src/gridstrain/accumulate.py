@@ -166,6 +166,7 @@ class SeriesPass:
         batch = max(1, min(16, _BATCH_BYTES // (8 * H * W)))
         self._buf = np.empty((batch, H * W), dtype=np.float64)
         self._w: list = []  # pending weight rows
+        self._signs: list = []  # their frames' signs (+1 added, -1 taken out)
         self._tmp = None  # scratch image
         self._rigid = None
         if plan.method == "C":
@@ -226,15 +227,7 @@ class SeriesPass:
         b = len(self._w)
         row = self._buf[b].reshape(self.shape)
         np.subtract(arr, self.origin, out=row)
-        flat = self._buf[b]
-        tmp = self._tmp
-        if tmp is None:
-            tmp = self._tmp = np.empty_like(flat)
-        np.multiply(flat, flat, out=tmp)
-        if sign > 0:
-            self.sq += tmp
-        else:
-            self.sq -= tmp
+        self._signs.append(sign)  # the squares are summed by batch (_flush)
         h = self._half(t)
         a = self._M @ self.theta[t]  # px
         w = np.zeros(self.lin.shape[0])
@@ -254,9 +247,16 @@ class SeriesPass:
         if b == 0:
             return
         W = np.array(self._w)  # (b, rows)
+        D = self._buf[:b]
         # lin^T (HW, rows) += D^T (HW, b) @ W (b, rows), in place (Fortran views)
-        blas.dgemm(1.0, self._buf[:b].T, W, beta=1.0, c=self.lin.T, overwrite_c=True)
+        blas.dgemm(1.0, D.T, W, beta=1.0, c=self.lin.T, overwrite_c=True)
+        # sum_t sign_t d_t^2: the batch read once more, one temporary
+        if self._tmp is None:
+            self._tmp = np.empty(D.shape[1])
+        np.einsum("bi,bi,b->i", D, D, np.array(self._signs), out=self._tmp)
+        self.sq += self._tmp
         self._w.clear()
+        self._signs.clear()
 
     def __getstate__(self):
         # sent between Dask workers: the sums travel, not the batch buffer
@@ -282,7 +282,7 @@ class SeriesPass:
         self._flush()
         other._flush()
         out = copy.copy(self)
-        out._w = []
+        out._w, out._signs = [], []
         out._tmp = None
         out._buf = np.empty(self._buf.shape, dtype=np.float64)
         out.lin = self.lin + other.lin
@@ -350,6 +350,18 @@ class SeriesPass:
             dof = T - 1
             how = f"temporal variance, vibrations not removed ({dof} dof)"
         return SeriesStatistics(mean, np.maximum(svv, 0.0) / dof, how, T)
+
+    def release(self, *, keep_halves: bool = False) -> None:
+        """Free the pixel sums once :meth:`statistics` is taken, keeping what the
+        results still to come need: method B's transforms, method C's realigned
+        sums, and with ``keep_halves`` the halves' sums (:meth:`half_means`).
+        Afterwards only those results can be asked for."""
+        self._flush()
+        self.sq = self._tmp = None
+        self._buf = np.empty((1, 0))
+        if self.plan.method == "C":
+            return  # its rows follow the halves' sums in the same array
+        self.lin = np.array(self.lin[:2]) if keep_halves else None
 
     def half_counts(self) -> tuple[int, int]:
         """Frames kept in each half."""

@@ -1786,6 +1786,7 @@ def _one_series(s, acc: SeriesPass, base, max_saturation: float, outliers: str,
                     method)
     st = acc.statistics()
     stats = _Stats(st.mean, st.variance, st.method, sc.saturation)
+    acc.release(keep_halves=base is not None)  # the reference's halves: its noise floor
     pm, used = _phase_maps_a(st.mean, plan.lattice, plan.sigma, base, plan.margin)
     steps.step(2 * _WFT_COST, f"{s.name}: phase maps")
     if method == "C":

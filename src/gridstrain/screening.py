@@ -349,19 +349,26 @@ class FrameProbe:
         self.mask = mask
         self.carrier = _CarrierProbe(lattice, self.shape)
         self.tiles = _tiles(self.shape, lattice)
-        self._tile_probes: dict = {}
+        # the x sums of the whole frame and of every column of tiles in one product
+        # of the frame with a (W, 5 + 5 n) matrix: the frame is read once
+        cols = sorted({(xs.start, xs.stop) for _, xs in self.tiles})
+        right = np.zeros((self.shape[1], 5 * (1 + len(cols))))
+        right[:, :5] = self.carrier._right
+        self._probes = []
+        for ys, xs in self.tiles:
+            j = cols.index((xs.start, xs.stop))
+            tp = _CarrierProbe(lattice, (ys.stop - ys.start, xs.stop - xs.start))
+            right[xs, 5 * (j + 1):5 * (j + 2)] = tp._right
+            self._probes.append((ys, slice(5 * (j + 1), 5 * (j + 2)), tp))
+        self._right = right
 
     def __call__(self, arr: np.ndarray) -> FrameRecord:
         """The record of one float64 frame (H, W)."""
-        c = self.carrier(arr)
+        # np.dot: BLAS, several times faster than numpy's matmul loop for this shape
+        P = np.dot(arr, self._right)
+        c = self.carrier.from_rows(P[:, :5])
         f, lev = _clipped(arr, self.saturation_level, self.scale, self.mask)
-        row = []
-        for ys, xs in self.tiles:
-            sub = arr[ys, xs]
-            tp = self._tile_probes.get(sub.shape)
-            if tp is None:
-                tp = self._tile_probes[sub.shape] = _CarrierProbe(self.lattice, sub.shape)
-            row.append(tp(sub))
+        row = [tp.from_rows(P[ys, cs]) for ys, cs, tp in self._probes]
         return FrameRecord(coefficients=c, uniform=bool(arr.min() == arr.max()),
                            prominence=self.carrier.prominence(arr, c), saturated=f,
                            clip_level=lev,

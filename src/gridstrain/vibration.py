@@ -99,8 +99,11 @@ class _CarrierProbe:
         """
         wx, wy = self._right[:, 0], self._wy
         wx2 = (wx[:-1] * wx[1:])  # the window between two neighbouring columns
-        d = np.diff(frame, axis=1)
-        var = 0.5 * float((wy * wy) @ np.einsum("ij,ij,j->i", d, d, wx2))
+        # every 4th row (at least 16): a level estimated from 300,000 differences of a
+        # megapixel frame is within 0.3 % (1 / sqrt(n / 2)), 4 times cheaper
+        step = max(1, min(4, frame.shape[0] // 16))
+        d = np.diff(frame[::step], axis=1)
+        var = 0.5 * step * float((wy[::step] ** 2) @ np.einsum("ij,ij,j->i", d, d, wx2))
         scale = float(np.max(np.abs(frame))) if frame.size else 0.0
         # a uniform frame has no differences at all (to the rounding of its level)
         level = math.sqrt(var) if var > 1e-24 * scale * scale * frame.size else 0.0

@@ -94,7 +94,16 @@ def register(sub) -> None:
     p.add_argument("states", metavar="DEF", nargs="*",
                    help="loaded state series, in order (or states = [...] in the config)")
     p.add_argument("-o", "--output", metavar="OUT.h5", help="output HDF5 file")
-    g = p.add_argument_group("grid and window")
+    _window_options(p.add_argument_group("grid and window"))
+    _specimen_options(p.add_argument_group("specimen and kinematics"))
+    _noise_options(p.add_argument_group("noise (default: measured in each series; from the "
+                                        "image itself for single frames)"))
+    _output_options(p.add_argument_group("output"))
+    _dask_options(p.add_argument_group("distributed (needs gridstrain[distributed])"))
+    p.set_defaults(func=run)
+
+
+def _window_options(g) -> None:
     add_lattice_options(g)
     g.add_argument("--sigma", type=float, metavar="PX",
                    help="window standard deviation, px (default and minimum: the pitch)")
@@ -109,7 +118,9 @@ def register(sub) -> None:
     g.add_argument("--margin", type=float, metavar="N",
                    help=f"invalid band at borders and mask edges, in sigmas "
                    f"(default {DEFAULT_MARGIN:g})")
-    k = p.add_argument_group("specimen and kinematics")
+
+
+def _specimen_options(k) -> None:
     k.add_argument("--mask", metavar="FILE",
                    help="specimen mask image (nonzero = specimen), reference configuration")
     k.add_argument("--roi", type=int, nargs=4, metavar=("X0", "Y0", "X1", "Y1"),
@@ -139,15 +150,18 @@ def register(sub) -> None:
                    "a slip, another state's frame, clipped): 'exclude' them with a warning "
                    "(default; a series with half its frames flagged is refused), 'refuse' "
                    "the run, or 'warn' and keep them (noise floor then not stated)")
-    n = p.add_argument_group("noise (default: measured in each series; from the image "
-                             "itself for single frames)")
+
+
+def _noise_options(n) -> None:
     n.add_argument("--noise", metavar="FILE.h5",
                    help="camera noise model written by 'gridstrain noise -o FILE.h5'")
     n.add_argument("--noise-model", type=float, nargs=2, metavar=("K", "L"),
                    help="camera noise Var = K l + L in the STORED grey levels of the images "
                    "(K grey levels, L grey levels^2; for 12-bit data stored x16, 16 and 256 "
                    "times the sensor's)")
-    o = p.add_argument_group("output")
+
+
+def _output_options(o) -> None:
     o.add_argument("--pixel-size", type=float, metavar="SIZE",
                    help="pixel size on the specimen, in --unit (adds ux_phys, uy_phys)")
     o.add_argument("--unit", metavar="UNIT", help="length unit of --pixel-size (e.g. mm)")
@@ -174,7 +188,9 @@ def register(sub) -> None:
                    help="no progress bar and no report")
     o.add_argument("--json", action="store_true", default=None,
                    help="print a JSON summary on stdout instead of the report")
-    d = p.add_argument_group("distributed (needs gridstrain[distributed])")
+
+
+def _dask_options(d) -> None:
     d.add_argument("--scheduler", metavar="ADDRESS",
                    help="compute the statistics and method B's transforms on Dask: "
                    "'local' (a worker per core) or a scheduler's tcp://HOST:PORT, whose "
@@ -182,7 +198,6 @@ def register(sub) -> None:
     d.add_argument("--timeout", type=float, metavar="SECONDS",
                    help=f"with --scheduler, give up on a cluster that returns no result "
                    f"for a series within SECONDS (default {_TIMEOUT:g})")
-    p.set_defaults(func=run)
 
 
 # --------------------------------------------------------------------------- options
@@ -679,22 +694,61 @@ def run(args) -> int:
 
 def _run(args, progress: _Bar) -> int:
     t0 = time.perf_counter()
-    opts = _options(args)
+    opts = _checked(_options(args))
+    progress.configure(opts["quiet"])
+    reference, states, mask = _inputs(opts, args)
+    ps, unit = opts.get("pixel-size"), opts.get("unit")
+    stored = dict(opts)
+    for key in ("reference", "states", "output", "mask"):
+        if stored.get(key):
+            stored[key] = _absolute(stored[key])
+    extra = {"config": config_text(stored),
+             "config_file": args.config or "", "mask_file": opts.get("mask") or ""}
+    # each state written as soon as it is measured, unless every state's phase maps
+    # are to be stored with them
+    spec = None if opts["phase-maps"] else ResultFile(
+        opts["output"], pixel_size=ps, unit=unit, overwrite=opts["overwrite"], attrs=extra,
+        dtype=opts.get("dtype"))
+    guesses = opts.get("guess")
+    guess = "auto" if guesses is None else tuple(guesses[0]) if len(guesses) == 1 \
+        else [tuple(g) for g in guesses]
+    sat = opts.get("max-saturation")
+    kw = {} if sat is None else {"max_saturation": sat}
+    # with a cluster, its failures are one line (cli.main), not Dask's log records
+    dask_logs = quiet_dask_logs() if opts.get("scheduler") else contextlib.nullcontext()
+    with dask_logs:
+        result = measure_series(
+            reference, states, lattice=lattice_option(opts), sigma=opts.get("sigma"),
+            method=opts["method"], mask=mask, lagrangian=not opts["no-lagrangian"],
+            guess=guess, order=opts.get("order", "series"), margin=opts["margin"],
+            outliers=opts["outliers"], progress=progress, scheduler=opts.get("scheduler"),
+            noise_model=_noise_option(opts), sigma_pitches=opts.get("sigma-pitches"),
+            timeout=opts["timeout"], output=spec, dtype=opts.get("dtype"), **kw)
+    if spec is None:
+        _refuse_empty(result)
+        out = save_result(result, opts["output"], pixel_size=ps, unit=unit,
+                          overwrite=opts["overwrite"], attrs=extra, phase_maps=True)
+    else:
+        out = Path(os.path.expanduser(os.fspath(opts["output"])))
+    outputs = _extra_outputs(result, out, opts, progress)
+    _print(result, out, opts, outputs, time.perf_counter() - t0)
+    return 0
+
+
+def _checked(opts: dict) -> dict:
+    """The options, refused with one line each where they cannot be right."""
     for name in ("sigma", "margin", "pixel-size", "sigma-pitches", "timeout"):
         positive_option(opts, name)
     if opts.get("sigma") is not None and opts.get("sigma-pitches") is not None:
         raise ValueError("give --sigma or --sigma-pitches, not both")
-    noise_model = _noise_option(opts)
+    _noise_option(opts)
     if (opts.get("pixel-size") is None) != (opts.get("unit") is None):
         raise ValueError("--pixel-size and --unit go together (e.g. --pixel-size 0.04 "
                          "--unit mm)")
     bits = opts.get("bit-depth")
     if bits is not None and not 1 <= bits <= 32:
         raise ValueError(f"--bit-depth must be between 1 and 32, got {bits}")
-    lattice = lattice_option(opts)
-    quiet, as_json = opts["quiet"], opts["json"]
-    progress.configure(quiet)
-
+    lattice_option(opts)
     order = opts.get("order", "series")
     if order not in ORDERS:
         raise ValueError(f"--order must be one of {', '.join(ORDERS)}, got {order!r}")
@@ -707,7 +761,16 @@ def _run(args, progress: _Bar) -> int:
         raise ValueError(f"--guess given {len(guesses)} times: give it once (the first "
                          f"state, or every state with --order independent) or once per "
                          f"state ({n})")
+    dtype = opts.get("dtype")
+    if dtype not in (None, "float32", "float64"):
+        raise ValueError(f"--dtype must be float32 or float64, got {dtype!r}")
+    return opts
 
+
+def _inputs(opts: dict, args) -> tuple:
+    """The series opened, the mask (with the regions of interest), and the outputs
+    checked against the inputs (never written over an input)."""
+    bits = opts.get("bit-depth")
     reference = open_series(opts["reference"], name="reference", bit_depth=bits)
     states = [open_series(s, name=name, bit_depth=bits)
               for s, name in zip(opts["states"], state_names(opts["states"]), strict=True)]
@@ -726,81 +789,53 @@ def _run(args, progress: _Bar) -> int:
     if args.config:
         inputs.add(Path(os.path.expanduser(args.config)).resolve())
     _check_outputs(opts, len(states), inputs)
+    return reference, states, mask
 
-    if guesses is None:
-        guess = "auto"
-    elif len(guesses) == 1:
-        guess = tuple(guesses[0])
-    else:
-        guess = [tuple(g) for g in guesses]
-    kw = {} if sat is None else {"max_saturation": sat}
-    # with a cluster, its failures are one line (cli.main), not Dask's log records
-    dask_logs = quiet_dask_logs() if opts.get("scheduler") else contextlib.nullcontext()
-    ps, unit = opts.get("pixel-size"), opts.get("unit")
-    stored = dict(opts)
-    for key in ("reference", "states", "output", "mask"):
-        if stored.get(key):
-            stored[key] = _absolute(stored[key])
-    extra = {"config": config_text(stored),
-             "config_file": args.config or "", "mask_file": opts.get("mask") or ""}
-    dtype = opts.get("dtype")
-    if dtype not in (None, "float32", "float64"):
-        raise ValueError(f"--dtype must be float32 or float64, got {dtype!r}")
-    # each state written as soon as it is measured, unless every state's phase maps
-    # are to be stored with them
-    spec = None if opts["phase-maps"] else ResultFile(
-        opts["output"], pixel_size=ps, unit=unit, overwrite=opts["overwrite"], attrs=extra,
-        dtype=dtype)
-    with dask_logs:
-        result = measure_series(
-            reference, states, lattice=lattice, sigma=opts.get("sigma"),
-            method=opts["method"], mask=mask, lagrangian=not opts["no-lagrangian"],
-            guess=guess, order=order, margin=opts["margin"], outliers=opts["outliers"],
-            progress=progress, scheduler=opts.get("scheduler"), noise_model=noise_model,
-            sigma_pitches=opts.get("sigma-pitches"), timeout=opts["timeout"], output=spec,
-            dtype=dtype, **kw)
-    if spec is None:
-        _refuse_empty(result)
-        out = save_result(result, opts["output"], pixel_size=ps, unit=unit,
-                          overwrite=opts["overwrite"], attrs=extra, phase_maps=True)
-    else:
-        out = Path(os.path.expanduser(os.fspath(opts["output"])))
+
+def _extra_outputs(result, out: Path, opts: dict, progress) -> dict:
+    """The CSV, exports, report and figures asked for, by kind."""
+    ps, unit, overwrite = opts.get("pixel-size"), opts.get("unit"), opts["overwrite"]
     outputs = {"hdf5": str(out)}
     if opts.get("csv"):
-        outputs["csv"] = str(save_csv(result, opts["csv"], overwrite=opts["overwrite"],
+        outputs["csv"] = str(save_csv(result, opts["csv"], overwrite=overwrite,
                                       pixel_size=ps, unit=unit))
     if opts.get("export"):
         written = export(result, out.with_suffix(""), opts["export"], pixel_size=ps,
-                         unit=unit, overwrite=opts["overwrite"])
+                         unit=unit, overwrite=overwrite)
         outputs["export"] = {k: str(v) for k, v in written.items()}
     if opts.get("report"):
         from ..report import write_report
 
-        outputs["report"] = str(write_report(out, opts["report"],
-                                             overwrite=opts["overwrite"]))
+        outputs["report"] = str(write_report(out, opts["report"], overwrite=overwrite))
     if opts.get("figures"):
         from ..plotting import save_figures  # matplotlib only when figures are asked
 
         figs = save_figures(result, opts["figures"], pixel_size=ps, unit=unit,
-                            overwrite=opts["overwrite"], progress=progress)
+                            overwrite=overwrite, progress=progress)
         outputs["figures"] = [str(f) for f in figs]
-    seconds = time.perf_counter() - t0
-    if as_json:
+    return outputs
+
+
+def _print(result, out: Path, opts: dict, outputs: dict, seconds: float) -> None:
+    """The report on stdout (or the JSON summary)."""
+    ps, unit = opts.get("pixel-size"), opts.get("unit")
+    if opts["json"]:
         json.dump(jsonable(summary(result, outputs=outputs, seconds=seconds, pixel_size=ps,
                                    unit=unit)), sys.stdout, indent=2, allow_nan=False)
         sys.stdout.write("\n")
-    elif not quiet:
-        lines = report_lines(result, pixel_size=ps, unit=unit)
-        H, W = result.shape
-        lines.append(f"wrote {out} ({', '.join(MAP_FIELDS)}, valid: {result.n_states} x {H} "
-                     f"x {W}) in {seconds:.1f} s")
-        if "csv" in outputs:
-            lines.append(f"wrote {outputs['csv']} (one row per valid pixel)")
-        if "figures" in outputs:
-            lines.append(f"wrote {len(outputs['figures'])} figures into {opts['figures']}")
-        for path in (outputs.get("export") or {}).values():
-            lines.append(f"wrote {path}")
-        if "report" in outputs:
-            lines.append(f"wrote {outputs['report']} (open it in a browser)")
-        print("\n".join(lines))
-    return 0
+        return
+    if opts["quiet"]:
+        return
+    lines = report_lines(result, pixel_size=ps, unit=unit)
+    H, W = result.shape
+    lines.append(f"wrote {out} ({', '.join(MAP_FIELDS)}, valid: {result.n_states} x {H} "
+                 f"x {W}) in {seconds:.1f} s")
+    if "csv" in outputs:
+        lines.append(f"wrote {outputs['csv']} (one row per valid pixel)")
+    if "figures" in outputs:
+        lines.append(f"wrote {len(outputs['figures'])} figures into {opts['figures']}")
+    for path in (outputs.get("export") or {}).values():
+        lines.append(f"wrote {path}")
+    if "report" in outputs:
+        lines.append(f"wrote {outputs['report']} (open it in a browser)")
+    print("\n".join(lines))
