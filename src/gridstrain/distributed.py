@@ -459,8 +459,9 @@ def _block_sums(block: np.ndarray, lattice, sigma, mask, margin) -> _PhaseMean:
     return acc
 
 
-def _add_sums(*parts: _PhaseMean) -> _PhaseMean:
-    """Sum of partial sums (a node of the reduction tree); the inputs are not changed."""
+def _merged(*parts):
+    """Sum of partial sums (a node of a reduction tree: method B's sums or series'
+    passes, anything with a ``merge``); the inputs are not changed."""
     acc = parts[0]
     for p in parts[1:]:
         acc = acc.merge(p)
@@ -488,7 +489,7 @@ def _method_b_graph(arr, lattice, sigma, mask, margin, split_every):
     m = None if mask is None else dask.delayed(mask, pure=True)
     leaf = dask.delayed(_block_sums, pure=True)
     parts = [leaf(block, lattice, sigma, m, margin) for block in arr.to_delayed().ravel()]
-    return dask.delayed(_method_b_result, pure=True)(_tree(parts, _add_sums, split_every))
+    return dask.delayed(_method_b_result, pure=True)(_tree(parts, _merged, split_every))
 
 
 def method_b_dask(stack, lattice: Lattice, *, sigma: float | None = None, mask=None,
@@ -592,12 +593,6 @@ def _chunk_pass(series, start: int, stop: int, plan, origin) -> SeriesPass:
     return acc
 
 
-def _merge_passes(*parts: SeriesPass) -> SeriesPass:
-    out = parts[0]
-    for p in parts[1:]:
-        out = out.merge(p)
-    return out
-
 
 def _submit_pass(client, series, plan) -> _Pending:
     """Submit the pass over ``series`` (:class:`gridstrain.accumulate.SeriesPass`),
@@ -612,7 +607,7 @@ def _submit_pass(client, series, plan) -> _Pending:
     s, p, o = _scatter(client, series), _scatter(client, plan), _scatter(client, origin)
     leaf = dask.delayed(_chunk_pass, pure=True)
     parts = [leaf(s, a, b, p, o) for a, b in _frame_chunks(series.n_frames)]
-    total = _tree(parts, _merge_passes, _SPLIT_EVERY)
+    total = _tree(parts, _merged, _SPLIT_EVERY)
     return _Pending(client.compute(total), (s, p, o),
                     f"the pass over {getattr(series, 'name', 'a series')}")
 
