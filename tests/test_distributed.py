@@ -249,7 +249,7 @@ def test_method_b_graph_is_a_tree_of_bounded_fan_in():
     graph = gd.method_b_dask(st, LAT, split_every=3, compute=False)
     deps = graph.__dask_graph__().get_all_dependencies()
     sums = [k for k in deps if "block_sums" in str(k)]
-    adds = [k for k in deps if "add_sums" in str(k)]
+    adds = [k for k in deps if "merged" in str(k)]
     assert len(sums) == 10
     assert all(len(deps[k]) <= 3 for k in adds)
     # 10 leaves, 3 at a time: sums of 3, 3, 3 (the tenth waits), then of 3 + the
