@@ -200,7 +200,7 @@ def test_float32_frames_give_float32_maps():
 
 
 @pytest.mark.parametrize(("shifts", "match"), [
-    (np.zeros((4, 3)), "shifts must be a \\(T, 2\\) array"),
+    (np.zeros((4, 3)), "shifts must be a finite \\(T, 2\\) array"),
     (np.zeros((3, 2)), "one row per frame"),
     (np.zeros((5, 2)), "one row per frame"),
     ([[0.0, np.nan]] * 4, "finite"),

@@ -279,7 +279,7 @@ def test_prefix_stacks_validation():
         list(prefix_stacks(frames, LAT, [1, 5]))
     with pytest.raises(ValueError, match="increasing"):
         list(prefix_stacks(frames, LAT, [2, 2]))
-    with pytest.raises(TypeError, match="counts"):
+    with pytest.raises(ValueError, match="counts"):
         list(prefix_stacks(frames, LAT, [1.5]))
     with pytest.raises(ValueError, match="method"):
         list(prefix_stacks(frames, LAT, [1], method="D"))

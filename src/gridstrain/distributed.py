@@ -48,10 +48,16 @@ from pathlib import Path
 
 import numpy as np
 
-from ._validation import check_mask, check_positive, float_dtype
+from ._validation import (
+    check_float_dtype,
+    check_int,
+    check_mask,
+    check_positive,
+    check_type,
+    float_dtype,
+)
 from .accumulate import SeriesPass
 from .io import FrameSeries, open_series
-from .io._series import _check_out_dtype
 from .lattice import Lattice
 from .stacks import StackResult, _PhaseMean
 from .wft import DEFAULT_MARGIN, wft
@@ -222,17 +228,11 @@ def _compute(graphs: Sequence, client):
 def _check_split_every(split_every) -> int:
     if split_every is None:
         return _SPLIT_EVERY
-    if isinstance(split_every, bool) or not isinstance(split_every, numbers.Integral) \
-            or split_every < 2:
-        raise ValueError(f"split_every must be an integer >= 2, got {split_every!r}")
-    return int(split_every)
+    return check_int(split_every, "split_every", minimum=2)
 
 
 def _check_chunk(chunk_frames) -> int:
-    if isinstance(chunk_frames, bool) or not isinstance(chunk_frames, numbers.Integral) \
-            or chunk_frames < 1:
-        raise ValueError(f"chunk_frames must be a positive integer, got {chunk_frames!r}")
-    return int(chunk_frames)
+    return check_int(chunk_frames, "chunk_frames", minimum=1)
 
 
 def _is_zarr_path(p: Path) -> bool:
@@ -298,7 +298,7 @@ def as_dask_stack(source, *, chunk_frames: int = 1, dtype=None, name: str = "ser
     """
     _, da = _dask()
     chunk = _check_chunk(chunk_frames)
-    dt = _check_out_dtype(dtype)
+    dt = check_float_dtype(dtype)
     if isinstance(source, FrameSeries):
         return _series_stack(source, chunk, dt)
     if isinstance(source, str | os.PathLike):
@@ -400,8 +400,7 @@ def _check_options(sigma, mask, margin, shape):
 
 
 def _check_common(lattice, sigma, mask, margin, shape):
-    if not isinstance(lattice, Lattice):
-        raise TypeError(f"lattice must be a Lattice, got {type(lattice).__name__}")
+    check_type(lattice, "lattice", Lattice)
     return _check_options(sigma, mask, margin, shape)
 
 

@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import itertools
 import math
-import numbers
 import threading
 from collections import deque
 from collections.abc import Callable, Iterable, Iterator
@@ -29,7 +28,16 @@ import numpy as np
 from scipy.linalg import blas
 
 from ._progress import Progress, null_progress
-from ._validation import as_image, check_choice, check_workers, float_dtype, image_array
+from ._validation import (
+    as_image,
+    as_int_tuple,
+    as_shifts,
+    check_choice,
+    check_type,
+    check_workers,
+    float_dtype,
+    image_array,
+)
 from .lattice import Lattice
 from .vibration import _RigidProbe
 from .wft import DEFAULT_MARGIN, PhaseMaps, _wft, _Workspace, wft, wft_complex
@@ -152,16 +160,7 @@ def _report(progress: Progress, i: int, total: int | None, what: str) -> None:
 
 
 def _check_counts(counts) -> list[int]:
-    try:
-        items = list(counts)
-    except TypeError:
-        raise TypeError(f"counts must be an iterable of positive integers, got "
-                        f"{counts!r}") from None
-    if any(isinstance(c, bool) or not isinstance(c, numbers.Integral) for c in items):
-        raise TypeError(f"counts must be positive integers, got {counts!r}")
-    values = [int(c) for c in items]
-    if not values or any(v < 1 for v in values):
-        raise ValueError(f"counts must be positive integers, got {counts!r}")
+    values = list(as_int_tuple(counts, "counts", minimum=1))
     if any(b <= a for a, b in itertools.pairwise(values)):
         raise ValueError(f"counts must be strictly increasing, got {counts!r}")
     return values
@@ -412,8 +411,7 @@ def method_a(frames, lattice: Lattice, *, sigma: float | None = None, mask=None,
     ``delta`` of eqs. (29)-(30), removable with :func:`correct_phases` when the
     vibrations are known. One transform whatever ``T``.
     """
-    if not isinstance(lattice, Lattice):
-        raise TypeError(f"lattice must be a Lattice, got {type(lattice).__name__}")
+    check_type(lattice, "lattice", Lattice)
     n_workers = check_workers(workers)
     acc = _average(frames, progress or null_progress, "method A")
     maps, avg = acc.transform(lattice, sigma=sigma, mask=mask, workers=n_workers)
@@ -483,8 +481,7 @@ def method_b(frames, lattice: Lattice, *, sigma: float | None = None, mask=None,
     to both methods. Derivatives are already unwrapped quantities (rad/px) and are
     averaged arithmetically (eq. 33).
     """
-    if not isinstance(lattice, Lattice):
-        raise TypeError(f"lattice must be a Lattice, got {type(lattice).__name__}")
+    check_type(lattice, "lattice", Lattice)
     progress = progress or null_progress
     n_workers = check_workers(workers)
     acc = _PhaseMean()
@@ -679,17 +676,7 @@ def _compensated_result(averages, centre, n: int, dtype, used: np.ndarray, parts
 
 
 def _check_shifts(shifts) -> np.ndarray:
-    try:
-        sh = np.array(shifts, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise TypeError(f"shifts must be a (T, 2) array of (alpha, beta) in px, got "
-                        f"{type(shifts).__name__}") from None
-    if sh.ndim != 2 or sh.shape[1] != 2 or sh.shape[0] < 1:
-        raise ValueError(f"shifts must be a (T, 2) array of (alpha, beta) in px, got shape "
-                         f"{sh.shape}")
-    if not np.all(np.isfinite(sh)):
-        raise ValueError("shifts must be finite")
-    return sh
+    return as_shifts(shifts, "shifts")
 
 
 def method_c(frames, lattice: Lattice, *, shifts=None, sigma: float | None = None,
@@ -781,8 +768,7 @@ def method_c(frames, lattice: Lattice, *, shifts=None, sigma: float | None = Non
     wave vector (:func:`~gridstrain.wft.wft_complex`). See
     ``benchmarks/bench_method_c.py``.
     """
-    if not isinstance(lattice, Lattice):
-        raise TypeError(f"lattice must be a Lattice, got {type(lattice).__name__}")
+    check_type(lattice, "lattice", Lattice)
     progress = progress or null_progress
     run = _MethodC(lattice, shifts)
     # frames converted while copied into the batch: one pass instead of three
@@ -830,8 +816,7 @@ def prefix_stacks(frames, lattice: Lattice, counts, *, method: str = "A",
     StackResult
         One per count, in order, as soon as that many frames have been read.
     """
-    if not isinstance(lattice, Lattice):
-        raise TypeError(f"lattice must be a Lattice, got {type(lattice).__name__}")
+    check_type(lattice, "lattice", Lattice)
     check_choice(method, "method", ("A", "B", "C"))
     wanted = _check_counts(counts)
     progress = progress or null_progress

@@ -86,10 +86,6 @@ def _check_extension(path: Path, name: str) -> None:
                          f"files are {', '.join(IMAGE_EXTENSIONS)}")
 
 
-# The name gridstrain.distributed imports the output-dtype check by.
-_check_out_dtype = check_float_dtype
-
-
 def _page_layout(shape: tuple[int, ...], samples: int) -> tuple[tuple[int, ...], int, int]:
     """``((H, W) or the shape, channels, channel axis)`` of a page: colour pages have
     2 (grey and alpha), 3 (RGB) or 4 (RGBA) samples per pixel, last or first axis."""
