@@ -115,3 +115,36 @@ def _not_noise(tmp_path):
     from gridstrain.io import write_hdf5
 
     return write_hdf5(tmp_path / "other.h5", {"x": np.zeros(3)}, {"K": 1.0})
+
+
+def test_a_frame_of_another_state_is_excluded_and_named(tmp_path, capsys):
+    """A static stack with one frame of the loaded specimen (a strain of 3e-3) among
+    them: its change is not a rigid vibration, which the estimate regresses out, and
+    would pass for noise; it is screened out and named."""
+    from gridstrain.noise import estimate_noise
+
+    lat = Lattice.from_pitch(5.0)
+    rng = np.random.default_rng(8)
+    frames = []
+    for t in range(16):
+        a, e = rng.normal(0, 0.05), (3e-3 if t == 5 else 0.0)
+        s = synthetic.grid_image((160, 160), lat, amplitude=2000.0,
+                                 displacement=lambda X, Y, a=a, e=e: (-a + e * (X - 80),
+                                                                      0 * Y))
+        frames.append(synthetic.add_noise(s, rng=rng) * 16)
+    frames = np.array(frames, dtype=np.uint16)
+    path = tmp_path / "foreign.tif"
+    tifffile.imwrite(path, frames)
+    assert main(["noise", str(path), "--json"]) == 0
+    out = capsys.readouterr()
+    summary = json.loads(out.out)
+    assert "frame 5" in out.err
+    assert "another state" in out.err
+    assert summary["n_frames"] == 15
+    assert any("excluded 1 of 16 frames" in w for w in summary["warnings"])
+    # the camera's gain, as without that frame (5 %: the statistical error of 15
+    # frames of 160^2 is about 1 %)
+    assert summary["noise"]["K_sensor"] == pytest.approx(0.28, rel=0.05)
+    # and the frame would have biased it: the same estimate with the frame kept
+    kept = estimate_noise(frames.astype(float), lat, saturation=65535, scale=16)
+    assert abs(kept.K_sensor / 0.28 - 1) > 0.08

@@ -156,3 +156,15 @@ def test_displacement_strain_std_is_predict_uncertainty_without_its_phase_maps()
     # the same sums in another order: a few ulps
     assert_allclose(u[:, valid], full.u_std[:, valid], rtol=1e-14)
     assert_allclose(e[:, valid], full.strain_std[:, valid], rtol=1e-14)
+
+
+def test_a_fitted_negative_L_is_taken_where_the_model_stands():
+    """A noise fit with small read noise can give L < 0 (its interval holds zero):
+    the variance map is K l + L where that is positive, and 0 below (the model is
+    not used outside the levels it was fitted on); it is never refused."""
+    img = np.full((64, 64), 1000.0)
+    img[:, :8] = 1.0  # a dark band where K l + L < 0
+    v = noise_variance_map(img, K=0.5, L=-20.0, sigma=3.0, frames=4)
+    assert v[32, 40] == pytest.approx((0.5 * 1000.0 - 20.0) / 4, rel=1e-12)
+    assert v[32, 0] == 0.0
+    assert np.all(v >= 0)

@@ -20,8 +20,8 @@ from scipy import ndimage
 from ._validation import (
     as_float_array,
     as_image,
+    check_finite,
     check_int,
-    check_nonnegative,
     check_positive,
     check_same_shape,
     check_type,
@@ -105,11 +105,13 @@ def noise_variance_map(mean_image, *, K: float, L: float, sigma: float,
     """
     img = as_image(mean_image, "mean_image", allow_uniform=True).astype(np.float64)
     K = check_positive(K, "K")
-    L = check_nonnegative(L, "L")
+    # a fitted L may come out below zero when the read noise is small (its
+    # interval then holds zero): the model stands at the levels it was fitted on
+    L = check_finite(L, "L")
     sigma = check_positive(sigma, "sigma")
     frames = check_int(frames, "frames")
     local = ndimage.gaussian_filter(img, sigma / math.sqrt(2), mode="nearest", truncate=5.0)
-    return (K * np.maximum(local, 0.0) + L) / int(frames)
+    return np.maximum(K * np.maximum(local, 0.0) + L, 0.0) / int(frames)
 
 
 def _as_map(v, shape, name):

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import sys
 from datetime import UTC, datetime
 from pathlib import Path
 
@@ -20,6 +21,7 @@ from .._validation import check_int
 from ..io import open_series, write_atomic, write_hdf5
 from ..lattice import detect_lattice
 from ..noise import NOISE_RESULT_KIND, estimate_noise, estimate_noise_image
+from ..screening import screen_frames
 from ..uncertainty import noise_floor
 from ..vibration import vibration_report
 from ..wft import wft
@@ -72,6 +74,9 @@ def run(args) -> int:
     progress = bar(quiet=args.quiet or args.json)
     mean = series.mean(progress=lambda f, m: progress(0.3 * f, "mean image"))
     lattice = lattice_given or detect_lattice(mean)
+    series, notes = _screened(series, lattice)
+    if notes:
+        mean = series.mean()
     model, vib, degree = _estimate(series, lattice, args.source, args.degree, progress)
     progress(0.9, "noise floor")
     T = args.frames or series.n_frames
@@ -79,6 +84,9 @@ def run(args) -> int:
     floor = noise_floor(maps, mean, K=model.K, L=model.L, frames=T)
     progress(1.0, "done")
     summary = _summary(args.stack, series, lattice, model, vib, degree, floor)
+    summary["warnings"] = notes
+    for note in notes:  # on stderr, whatever the output: a warning, not a result
+        print(f"gridstrain noise: warning: {note}", file=sys.stderr)
     if out is not None:
         _write(out, summary, model, vib, args.overwrite)
     if args.json:
@@ -100,6 +108,32 @@ def _output(args) -> Path | None:
     check_output_file(out, "output file", args.overwrite, frozenset({Path(args.stack)
                                                                       .resolve()}))
     return out
+
+
+def _screened(series, lattice):
+    """The stack without its frames of no grid, low contrast, a slip or another
+    scene (:func:`gridstrain.screening.screen_frames`), and the warnings naming them.
+    A frame that moved or changed would pass its change for noise: K and L would be
+    too large. Clipped pixels are left to the estimate, which leaves them out.
+    Refused when half the frames or more are flagged (the good ones are then
+    unknown)."""
+    if series.n_frames < 3:
+        return series, []
+    sc = screen_frames(series.frames(), lattice, saturation_level=series.saturation_level,
+                       scale=series.scale, max_saturation=1.0)
+    bad = sc.flagged
+    if not bad:
+        return series, []
+    listed = "; ".join(f"{series.describe_frame(t)}: {', '.join(sc.reasons[t])}"
+                       for t in bad[:5]) + (f"; and {len(bad) - 5} more" if len(bad) > 5
+                                            else "")
+    if 2 * len(bad) >= series.n_frames:
+        raise ValueError(f"stack: {listed} -- {len(bad)} of {series.n_frames} frames "
+                         "flagged (half or more: the good frames cannot be told from the "
+                         "bad); image a static grid and keep the camera still")
+    keep = [t for t in range(series.n_frames) if t not in set(bad)]
+    return series.subset(keep), [f"stack: excluded {len(bad)} of {series.n_frames} "
+                                 f"frames: {listed}"]
 
 
 def _estimate(series, lattice, source: str, degree: int | None, progress):
