@@ -492,3 +492,28 @@ def test_result_is_read_only(noisy_plate):
     assert "T=4" in repr(res.vibration[0])
     # open_series is what the command line uses; a FrameSeries is accepted as is
     assert open_series is not None
+
+
+def test_the_split_floor_is_deformation_without_its_maps():
+    """The noise floor's half-against-half std, computed on the valid pixels alone,
+    equals that of kinematics.deformation(lagrangian=False) on a rotated grid with
+    a masked hole, to float rounding."""
+    from gridstrain import wft
+    from gridstrain.kinematics import deformation
+    from gridstrain.pipeline import _difference_std
+    from gridstrain.wft import finite_derivatives
+
+    th, f = np.deg2rad(12.0), 1 / 5.0
+    lat = Lattice((f * np.cos(th), f * np.sin(th)), (-f * np.sin(th), f * np.cos(th)))
+    rng = np.random.default_rng(0)
+    y, x = np.mgrid[0:128, 0:140]
+    mask = (x - 90) ** 2 + (y - 60) ** 2 > 20**2
+    a, b = (synthetic.grid_image((128, 140), lat) + rng.normal(0, 0.01, (128, 140))
+            for _ in range(2))
+    pa = finite_derivatives(wft(a, lat, mask=mask))
+    pb = finite_derivatives(wft(b, lat, mask=mask))
+    m = deformation(pa, pb, lagrangian=False, guess=None)
+    su, se = _difference_std(pa, pb)
+    v = m.valid
+    np.testing.assert_allclose(su, [np.std(c[v], ddof=1) for c in m.u], rtol=1e-12)
+    np.testing.assert_allclose(se, [np.std(c[v], ddof=1) for c in m.strain], rtol=1e-12)

@@ -1348,15 +1348,31 @@ def _split_floor(acc: SeriesPass, lattice, sigma, mask, margin, method: str, rep
             halves.append(wft(img, lattice, sigma=sigma, mask=mask, margin=margin,
                               workers=None))
         report((h + 1) / 3, f"half {h + 1} of the reference")
-    m = deformation(finite_derivatives(halves[0]), finite_derivatives(halves[1]),
-                    lagrangian=False, guess=None)
+    su, se = _difference_std(finite_derivatives(halves[0]), finite_derivatives(halves[1]))
     report(1.0, "half against half")
-    v = m.valid
-    if int(v.sum()) < 2:
-        return np.full(2, np.nan), np.full(3, np.nan)
-    su = np.array([float(np.std(c[v], ddof=1)) for c in m.u])
-    se = np.array([float(np.std(c[v], ddof=1)) for c in m.strain])
     return su, se
+
+
+def _difference_std(a: PhaseMaps, b: PhaseMaps) -> tuple[np.ndarray, np.ndarray]:
+    """Spatial std (ddof 1) of the displacement (2,) and small strain (3,) between
+    two phase-map sets of a static specimen, over the pixels valid in both: eqs.
+    (34)-(35) without the large-displacement correction, as
+    :func:`gridstrain.kinematics.deformation` gives them with ``lagrangian=False``,
+    on the valid pixels only (the maps differ by noise: no phase wraps, and whole
+    periods would not change a standard deviation)."""
+    valid = a.valid & b.valid & np.all(np.isfinite(a.dphi), axis=(0, 1))
+    if int(valid.sum()) < 2:
+        return np.full(2, np.nan), np.full(3, np.nan)
+    Kinv = np.linalg.inv(a.lattice.K) / (2 * np.pi)
+    dphase = np.stack([np.angle(b.psi[j][valid] * np.conj(a.psi[j][valid]))
+                       for j in range(2)]).astype(np.float64)
+    u = -(Kinv @ dphase)
+    D = np.stack([np.stack([b.dphi[j, m][valid].astype(np.float64) - a.dphi[j, m][valid]
+                            for m in range(2)]) for j in range(2)])  # (2, 2, n)
+    G = -np.tensordot(Kinv, D, axes=1)  # eq. (35), (2, 2, n)
+    strain = (G[0, 0], G[1, 1], 0.5 * (G[0, 1] + G[1, 0]))
+    return (np.array([float(np.std(c, ddof=1)) for c in u]),
+            np.array([float(np.std(c, ddof=1)) for c in strain]))
 
 
 # --------------------------------------------------------------------------- pipeline
