@@ -1702,6 +1702,10 @@ def _measure(series: list, guesses: list, m: np.ndarray, o: _Setup, steps: _Step
             return out, acc
 
         r, ref_pass = one(0)
+        if not r.maps.valid.any():
+            raise ValueError(f"{r.name}: no valid pixel: the mask, the band of margin = "
+                             f"{o.margin:g} sigmas (sigma {sigma:.4g} px) and the grid's "
+                             "modulus leave no pixel to measure")
         noise = _Noise(o.noise_model, lattice, r.mask, warnings)
         r = noise.complete(r)
         floor = _ReferenceFloor(r, ref_pass, lattice, sigma, o.margin, method,
