@@ -694,7 +694,7 @@ def run(args) -> int:
 
 def _run(args, progress: _Bar) -> int:
     t0 = time.perf_counter()
-    opts = _checked(_options(args))
+    opts, lattice, noise_model = _checked(_options(args))
     progress.configure(opts["quiet"])
     reference, states, mask = _inputs(opts, args)
     ps, unit = opts.get("pixel-size"), opts.get("unit")
@@ -718,11 +718,11 @@ def _run(args, progress: _Bar) -> int:
     dask_logs = quiet_dask_logs() if opts.get("scheduler") else contextlib.nullcontext()
     with dask_logs:
         result = measure_series(
-            reference, states, lattice=lattice_option(opts), sigma=opts.get("sigma"),
+            reference, states, lattice=lattice, sigma=opts.get("sigma"),
             method=opts["method"], mask=mask, lagrangian=not opts["no-lagrangian"],
             guess=guess, order=opts.get("order", "series"), margin=opts["margin"],
             outliers=opts["outliers"], progress=progress, scheduler=opts.get("scheduler"),
-            noise_model=_noise_option(opts), sigma_pitches=opts.get("sigma-pitches"),
+            noise_model=noise_model, sigma_pitches=opts.get("sigma-pitches"),
             timeout=opts["timeout"], output=spec, dtype=opts.get("dtype"), **kw)
     if spec is None:
         _refuse_empty(result)
@@ -735,20 +735,21 @@ def _run(args, progress: _Bar) -> int:
     return 0
 
 
-def _checked(opts: dict) -> dict:
-    """The options, refused with one line each where they cannot be right."""
+def _checked(opts: dict) -> tuple:
+    """The options, refused with one line each where they cannot be right, with the
+    lattice and the camera noise model they give (read once)."""
     for name in ("sigma", "margin", "pixel-size", "sigma-pitches", "timeout"):
         positive_option(opts, name)
     if opts.get("sigma") is not None and opts.get("sigma-pitches") is not None:
         raise ValueError("give --sigma or --sigma-pitches, not both")
-    _noise_option(opts)
+    noise_model = _noise_option(opts)
     if (opts.get("pixel-size") is None) != (opts.get("unit") is None):
         raise ValueError("--pixel-size and --unit go together (e.g. --pixel-size 0.04 "
                          "--unit mm)")
     bits = opts.get("bit-depth")
     if bits is not None and not 1 <= bits <= 32:
         raise ValueError(f"--bit-depth must be between 1 and 32, got {bits}")
-    lattice_option(opts)
+    lattice = lattice_option(opts)
     order = opts.get("order", "series")
     if order not in ORDERS:
         raise ValueError(f"--order must be one of {', '.join(ORDERS)}, got {order!r}")
@@ -764,7 +765,7 @@ def _checked(opts: dict) -> dict:
     dtype = opts.get("dtype")
     if dtype not in (None, "float32", "float64"):
         raise ValueError(f"--dtype must be float32 or float64, got {dtype!r}")
-    return opts
+    return opts, lattice, noise_model
 
 
 def _inputs(opts: dict, args) -> tuple:
