@@ -1708,12 +1708,12 @@ def _measure(series: list, guesses: list, m: np.ndarray, o: _Setup, steps: _Step
                              "modulus leave no pixel to measure")
         noise = _Noise(o.noise_model, lattice, r.mask, warnings)
         r = noise.complete(r)
-        floor = _ReferenceFloor(r, ref_pass, lattice, sigma, o.margin, method,
+        done = [r.summary()]
+        floor = _ReferenceFloor(r, done[0], ref_pass, lattice, sigma, o.margin, method,
                                 steps.sub(3 * _WFT_COST, "noise floor"), warnings)
         del ref_pass
         tracker = _Tracker(r.maps, r.stats.mean, r.mask, lattice, o.order, o.lagrangian)
         alias = aliasing_bias(r.stats.mean, lattice, sigma=sigma, mask=r.mask)
-        done = [r.summary()]
         for i in range(n_states):
             c, acc = one(i + 1)
             del acc
@@ -1724,8 +1724,8 @@ def _measure(series: list, guesses: list, m: np.ndarray, o: _Setup, steps: _Step
             if o.output is not None and not res.valid.any():  # never a file
                 raise ValueError(empty_state_message(c.name, o.margin, sigma, rec.guess,
                                                      rec.source))
-            sink.add(i, *floor.state(c, res, rec, alias, warnings))
             done.append(c.summary())
+            sink.add(i, *floor.state(c, done[-1], res, rec, alias, warnings))
             del c, res
         warnings.extend(tracker.finish())
         if method == "A":
@@ -1935,8 +1935,9 @@ class _ReferenceFloor:
     figures (with their warnings), :meth:`noise_floor` the table of them all.
     """
 
-    def __init__(self, r: _Measured, ref_pass: SeriesPass, lattice: Lattice, sigma: float,
-                 margin: float, method: str, report: Progress, warnings: list):
+    def __init__(self, r: _Measured, summary: _Summary, ref_pass: SeriesPass,
+                 lattice: Lattice, sigma: float, margin: float, method: str,
+                 report: Progress, warnings: list):
         self.r, self.lattice, self.sigma = r, lattice, float(sigma)
         T1, T2 = ref_pass.half_counts()
         if min(T1, T2) >= 1:
@@ -1948,7 +1949,7 @@ class _ReferenceFloor:
                             "(measure a second image of the unloaded specimen as a state: "
                             "its maps are the noise floor)")
         self.T1, self.T2 = T1, T2
-        self.sr = r.summary()
+        self.sr = summary
         self.local_ref = self._local(r)
         self.rows: dict[str, list] = {k: [] for k in ("theory_u", "theory_strain", "split_u",
                                                       "split_strain", "vibration_u")}
@@ -1960,11 +1961,11 @@ class _ReferenceFloor:
         return ndimage.gaussian_filter(r.stats.variance, self.sigma / math.sqrt(2),
                                        mode="nearest", truncate=5.0)
 
-    def state(self, c: _Measured, res: Measurement, rec: FringeOrder, alias: dict,
-              warnings: list) -> tuple:
+    def state(self, c: _Measured, sc: _Summary, res: Measurement, rec: FringeOrder,
+              alias: dict, warnings: list) -> tuple:
         """``(measurement, fringe order, uncertainty maps or None, floors, smoothing)``
-        of state ``c``."""
-        ref, sc = self.sr, c.summary()
+        of state ``c`` (summarised in ``sc``)."""
+        ref = self.sr
         th_u, th_e = _theory_floor(ref.variance, ref.T, ref.modulus, sc.variance, sc.T,
                                    sc.modulus, self.sigma, self.lattice)
         scale = math.sqrt((1 / ref.T + 1 / sc.T) / (1 / self.T1 + 1 / self.T2))
