@@ -845,6 +845,33 @@ class _Screened:
     warnings: tuple[str, ...]
 
 
+def outlier_verdict(s, sc: FrameScreen, outliers: str) -> tuple[list[int], list[str]]:
+    """The frames of series ``s`` to keep after its screening ``sc``, and the warnings
+    naming the flagged ones, as ``outliers`` says ("exclude", "refuse" or "warn"; see
+    :func:`measure_series`). A strict minority is excluded; when half the frames or
+    more are flagged the series is refused whatever the policy but "warn": the good
+    frames cannot be told from the bad."""
+    n, bad = s.n_frames, sc.flagged
+    if not bad:
+        return list(range(n)), []
+    listed = "; ".join(f"{s.describe_frame(t)}: {', '.join(sc.reasons[t])}"
+                       for t in bad[:5])
+    if len(bad) > 5:
+        listed += f"; and {len(bad) - 5} more"
+    if outliers != "warn" and (outliers == "refuse" or 2 * len(bad) >= n):
+        why = "" if outliers == "refuse" or len(bad) == n else " (half or more: the " \
+            "good frames cannot be told from the bad)"
+        raise ValueError(f"{s.name}: {listed} -- {len(bad)} of {n} frame(s) flagged{why}; "
+                         f"{_advice(sc, bad)}, or pass outliers='warn' (--outliers warn) "
+                         "to measure anyway")
+    if outliers == "exclude":
+        return ([t for t in range(n) if t not in set(bad)],
+                [f"{s.name}: excluded {len(bad)} of {n} frames: {listed}"])
+    return list(range(n)), [f"{s.name}: kept {len(bad)} flagged frame(s) of {n} (outliers="
+                            f"'warn'): {listed}; the noise floor and uncertainty maps of the "
+                            "states measured with them are not stated (NaN)"]
+
+
 def _screen_pass(s, acc: SeriesPass, max_saturation: float, outliers: str):
     """The screening of the frames of ``s`` from its pass (:meth:`SeriesPass.screen`),
     and the pass once the flagged frames are excluded, refused or kept as ``outliers``
@@ -858,27 +885,10 @@ def _screen_pass(s, acc: SeriesPass, max_saturation: float, outliers: str):
     except ValueError as exc:
         raise ValueError(f"{s.name}: {exc}") from None
     bad = sc.flagged
-    names = {t: s.describe_frame(t) for t in bad}
-    listed = "; ".join(f"{names[t]}: {', '.join(sc.reasons[t])}" for t in bad[:5])
-    if len(bad) > 5:
-        listed += f"; and {len(bad) - 5} more"
-    warnings = []
-    keep = [t for t in range(n) if t not in set(bad)]
-    if bad and outliers != "warn" and (outliers == "refuse" or 2 * len(bad) >= n):
-        why = "" if outliers == "refuse" or len(bad) == n else " (half or more: the " \
-            "good frames cannot be told from the bad)"
-        raise ValueError(f"{s.name}: {listed} -- {len(bad)} of {n} frame(s) flagged{why}; "
-                         f"{_advice(sc, bad)}, or pass outliers='warn' (--outliers warn) "
-                         "to measure anyway")
-    if bad and outliers == "exclude":
-        warnings.append(f"{s.name}: excluded {len(bad)} of {n} frames: {listed}")
+    keep, warnings = outlier_verdict(s, sc, outliers)
+    if outliers == "exclude":
         for t in bad:  # the second read of a frame: only for the excluded ones
             acc.remove(t, next(iter(s.frames(dtype=np.float64, start=t, stop=t + 1))))
-    elif bad:
-        warnings.append(f"{s.name}: kept {len(bad)} flagged frame(s) of {n} (outliers="
-                        f"'warn'): {listed}; the noise floor and uncertainty maps of the "
-                        "states measured with them are not stated (NaN)")
-        keep = list(range(n))
     kept = s if len(keep) == n else s.subset(keep)
     coh = sc.coherence(keep)
     if len(keep) > 1 and coh.min() < _MIN_COHERENCE:

@@ -21,6 +21,7 @@ from .._validation import check_int
 from ..io import open_series, write_atomic, write_hdf5
 from ..lattice import detect_lattice
 from ..noise import NOISE_RESULT_KIND, estimate_noise, estimate_noise_image
+from ..pipeline import outlier_verdict
 from ..screening import screen_frames
 from ..uncertainty import noise_floor
 from ..vibration import vibration_report
@@ -112,28 +113,16 @@ def _output(args) -> Path | None:
 
 def _screened(series, lattice):
     """The stack without its frames of no grid, low contrast, a slip or another
-    scene (:func:`gridstrain.screening.screen_frames`), and the warnings naming them.
-    A frame that moved or changed would pass its change for noise: K and L would be
-    too large. Clipped pixels are left to the estimate, which leaves them out.
-    Refused when half the frames or more are flagged (the good ones are then
-    unknown)."""
+    scene (:func:`gridstrain.screening.screen_frames`), and the warnings naming them
+    (:func:`gridstrain.pipeline.outlier_verdict`, half or more refused). A frame that
+    moved or changed would pass its change for noise: K and L would be too large.
+    Clipped pixels are left to the estimate, which leaves them out."""
     if series.n_frames < 3:
         return series, []
     sc = screen_frames(series.frames(), lattice, saturation_level=series.saturation_level,
                        scale=series.scale, max_saturation=1.0)
-    bad = sc.flagged
-    if not bad:
-        return series, []
-    listed = "; ".join(f"{series.describe_frame(t)}: {', '.join(sc.reasons[t])}"
-                       for t in bad[:5]) + (f"; and {len(bad) - 5} more" if len(bad) > 5
-                                            else "")
-    if 2 * len(bad) >= series.n_frames:
-        raise ValueError(f"stack: {listed} -- {len(bad)} of {series.n_frames} frames "
-                         "flagged (half or more: the good frames cannot be told from the "
-                         "bad); image a static grid and keep the camera still")
-    keep = [t for t in range(series.n_frames) if t not in set(bad)]
-    return series.subset(keep), [f"stack: excluded {len(bad)} of {series.n_frames} "
-                                 f"frames: {listed}"]
+    keep, notes = outlier_verdict(series, sc, "exclude")
+    return (series if len(keep) == series.n_frames else series.subset(keep)), notes
 
 
 def _estimate(series, lattice, source: str, degree: int | None, progress):
