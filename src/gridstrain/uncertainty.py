@@ -180,14 +180,10 @@ def predict_uncertainty(reference: PhaseMaps, deformed: PhaseMaps, *, variance_r
             for j in range(2):
                 phase_std[s, j] = np.sqrt(v * g2 / 2) / mod[j]
                 dphi_std[s, j] = np.sqrt(v * dg2 / 2) / mod[j]
-    M2 = (np.linalg.inv(reference.lattice.K) / (2 * np.pi)) ** 2
-    var_phase = phase_std[0] ** 2 + phase_std[1] ** 2  # (2, H, W), per wave vector
-    var_deriv = dphi_std[0] ** 2 + dphi_std[1] ** 2
-    u_std = np.sqrt(np.tensordot(M2, var_phase, axes=1))
-    var_G = np.tensordot(M2, var_deriv, axes=1)  # same for m = x and m = y
-    strain_std = np.sqrt(np.stack([var_G[0], var_G[1], 0.25 * (var_G[0] + var_G[1])]))
+    u_std, strain_std = displacement_strain_std(reference, deformed, variance_ref=v_ref,
+                                                variance_def=v_def, valid=valid)
     nan = ~valid
-    for a in (u_std, strain_std, phase_std, dphi_std):
+    for a in (phase_std, dphi_std):
         a[..., nan] = np.nan
     return Uncertainty(u_std=u_std, strain_std=strain_std, phase_std=phase_std,
                        dphi_std=dphi_std, valid=valid)
