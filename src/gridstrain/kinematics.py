@@ -640,8 +640,7 @@ def deformation(reference: PhaseMaps, deformed: PhaseMaps, *, lagrangian: bool =
                                                       max_iter)
         G, valid = _lagrangian_gradient(u, reference, deformed, D_ref)
     else:
-        D_cur = deformed.dphi.astype(np.float64)
-        G = -np.tensordot(np.linalg.inv(K), D_cur - D_ref, axes=1) / (2 * np.pi)  # eq. (35)
+        G = _eulerian_gradient(K, deformed.dphi.astype(np.float64) - D_ref)
 
     # computed in float64, returned in the maps' precision (gridstrain.conventions)
     dt = np.result_type(reference.dphi.dtype, deformed.dphi.dtype)
@@ -654,10 +653,22 @@ def deformation(reference: PhaseMaps, deformed: PhaseMaps, *, lagrangian: bool =
                        fringe_order=order)
 
 
+def _eulerian_gradient(K: np.ndarray, dD: np.ndarray) -> np.ndarray:
+    """Displacement gradient (2, 2, ...) from the change ``dD`` (2, 2, ...) of the
+    phase derivatives, without the large-displacement correction (eq. 35)."""
+    return -_solve(K, dD) / (2 * np.pi)
+
+
+def _small_strain(G: np.ndarray) -> np.ndarray:
+    """The small-strain tensor ``(e_xx, e_yy, e_xy)`` (3, ...) of the gradient ``G``
+    (2, 2, ...), tensor shear (:mod:`gridstrain.conventions`)."""
+    return np.stack([G[0, 0], G[1, 1], 0.5 * (G[0, 1] + G[1, 0])])
+
+
 def _small_strain_maps(u, G, valid, dtype):
     """``u``, the small-strain tensor ``(e_xx, e_yy, e_xy)`` and the rotation from the
     gradient ``G`` ((2, 2, H, W)), NaN outside ``valid``, in ``dtype``."""
-    strain = np.stack([G[0, 0], G[1, 1], 0.5 * (G[0, 1] + G[1, 0])])
+    strain = _small_strain(G)
     rotation = 0.5 * (G[1, 0] - G[0, 1])
     return tuple(np.where(valid, a, np.nan).astype(dtype, copy=False)
                  for a in (u, strain, rotation))

@@ -160,8 +160,11 @@ from .io import (
 from .kinematics import (
     FringeOrder,
     Measurement,
+    _eulerian_gradient,
     _from_estimate,
     _phase_shift,
+    _small_strain,
+    _solve,
     coarse_displacement,
     deformation,
 )
@@ -1373,14 +1376,13 @@ def _difference_std(a: PhaseMaps, b: PhaseMaps) -> tuple[np.ndarray, np.ndarray]
     valid = a.valid & b.valid & np.all(np.isfinite(a.dphi), axis=(0, 1))
     if int(valid.sum()) < 2:
         return np.full(2, np.nan), np.full(3, np.nan)
-    Kinv = np.linalg.inv(a.lattice.K) / (2 * np.pi)
+    K = a.lattice.K
     dphase = np.stack([np.angle(b.psi[j][valid] * np.conj(a.psi[j][valid]))
                        for j in range(2)]).astype(np.float64)
-    u = -(Kinv @ dphase)
-    D = np.stack([np.stack([b.dphi[j, m][valid].astype(np.float64) - a.dphi[j, m][valid]
-                            for m in range(2)]) for j in range(2)])  # (2, 2, n)
-    G = -np.tensordot(Kinv, D, axes=1)  # eq. (35), (2, 2, n)
-    strain = (G[0, 0], G[1, 1], 0.5 * (G[0, 1] + G[1, 0]))
+    u = -_solve(K, dphase) / (2 * np.pi)  # eq. (34)
+    dD = np.stack([np.stack([b.dphi[j, m][valid].astype(np.float64) - a.dphi[j, m][valid]
+                             for m in range(2)]) for j in range(2)])  # (2, 2, n)
+    strain = _small_strain(_eulerian_gradient(K, dD))
     return (np.array([float(np.std(c, ddof=1)) for c in u]),
             np.array([float(np.std(c, ddof=1)) for c in strain]))
 
