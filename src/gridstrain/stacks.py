@@ -286,6 +286,7 @@ class _PhaseMean:
         # float64 views (..., 2) of the complex sums: real arithmetic on them avoids
         # numpy's slow mixed complex-by-real loops
         unit = self.unit.view(np.float64).reshape(2, H, W, 2)
+        accumulate = np.subtract if remove else np.add  # a frame taken out, or added
 
         def sink(j, r0, r1, psi, dphi, mod):
             h = r1 - r0
@@ -299,26 +300,17 @@ class _PhaseMean:
                 dphi[:, mod == 0] = 0
             if order is not None:
                 order.wait((j, r0), index)
-            if remove:
-                unit[j, r0:r1] -= u
-                self.mod[j, r0:r1] -= mod
-                self.dphi[j, :, r0:r1] -= dphi
-            else:
-                unit[j, r0:r1] += u
-                self.mod[j, r0:r1] += mod
-                self.dphi[j, :, r0:r1] += dphi
+            for total, part in ((unit[j, r0:r1], u), (self.mod[j, r0:r1], mod),
+                                (self.dphi[j, :, r0:r1], dphi)):
+                accumulate(total, part, out=total)
             if order is not None:
                 order.release((j, r0), index)
 
         valid = _wft(img, lattice, sigma=sigma, mask=mask, margin=margin, sink=sink,
                      work=work, checked=True)
         with self._lock:
-            if remove:
-                self.invalid -= ~valid
-                self.n -= 1
-            else:
-                self.invalid += ~valid
-                self.n += 1
+            accumulate(self.invalid, ~valid, out=self.invalid, casting="unsafe")
+            self.n += -1 if remove else 1
 
     def merge(self, other: _PhaseMean) -> _PhaseMean:
         """A new accumulator holding the sums of ``self`` and ``other`` (both
