@@ -417,7 +417,7 @@ class SeriesPass:
 
         # the shifts the weights realign, centred on the kept frames' mean position
         used_all = (phi - phi.mean(axis=0)) @ self._M.T
-        used = used_all[[kept.index(t) for t in sel]]
+        used = used_all[[self._half(t) in halves for t in kept]]  # sel's rows, in order
         parts = [self.parts[t] for t in sel if t in self.parts]
         dtype = np.float64 if self.dtype is None else self.dtype
         if dtype.kind != "f":
