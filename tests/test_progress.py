@@ -1,6 +1,7 @@
 """The progress bar (a tqdm bar behind a progress(fraction, message) callback)."""
 
 import io
+import threading
 
 from gridstrain._progress import ProgressBar, bar, null_progress
 
@@ -38,3 +39,16 @@ def test_bar_shows_fraction_message_and_time_left():
     report(1.0, "after close: ignored")
     assert "ignored" not in term.getvalue()
     assert term.getvalue().endswith("\n")
+
+
+def test_bar_starts_no_thread_of_its_own():
+    # tqdm's monitor thread would wake every 10 s on its own schedule and redraw
+    # into whatever stream the bar had, possibly closed since: never started
+    before = {t.ident for t in threading.enumerate()}
+    term = _Terminal()
+    with ProgressBar(stream=term, mininterval=0, miniters=5) as report:
+        report(0.5, "half")
+    report(1.0, "done")
+    assert {t.ident for t in threading.enumerate()} <= before
+    assert not any(t.name == "tqdm_monitor" for t in threading.enumerate())
+    assert "50% half" in term.getvalue()

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import sys
 from collections.abc import Callable
+from functools import cache
 
 Progress = Callable[[float, str], None]
 
@@ -41,12 +42,10 @@ class ProgressBar:
     """
 
     def __init__(self, *, stream=None, **tqdm_options):
-        from tqdm.auto import tqdm
-
         opts = {"total": _STEPS, "bar_format": _FORMAT, "leave": True,
                 "file": sys.stderr if stream is None else stream,
                 "dynamic_ncols": True} | tqdm_options
-        self._bar = tqdm(**opts)
+        self._bar = _bar_class()(**opts)
         self._done = 0
 
     def __call__(self, fraction: float, message: str) -> None:
@@ -73,6 +72,16 @@ class ProgressBar:
 
     def __exit__(self, *exc) -> None:
         self.close()
+
+
+@cache
+def _bar_class():
+    """tqdm's bar without its monitor thread: that thread wakes every 10 s to redraw
+    stalled bars, on its own schedule, possibly into a stream that its writer has
+    since closed. Every redraw of ours comes from a progress call."""
+    from tqdm.auto import tqdm
+
+    return type("GridstrainBar", (tqdm,), {"monitor_interval": 0})
 
 
 def progress_bar(**tqdm_options) -> ProgressBar:
