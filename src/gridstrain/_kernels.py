@@ -176,9 +176,9 @@ def phase_derivatives(re, im, taps, y0, y1, base, psi, mod, dx, dy, out0,
     the extended row ``base + i`` (image row ``base + i - m``). The derivative
     of the phase along an axis is ``Im(conj(psi) D psi) / |psi|^2`` with the
     antisymmetric filter ``D psi[x] = sum_n taps[n-1] (psi[x+n] - psi[x-n])``.
-    ``mod`` (H, W) real: the moduli, row y at ``mod[y]``. ``psi`` (h, 2W) real (the
-    complex map's real view), ``dx``, ``dy`` (h, W) real: row y at index ``y - out0``
-    (the whole maps with ``out0 = 0``, or one block of rows). ``tmp`` (4, W) real:
+    ``psi`` (h, 2W) real (the complex map's real view), ``mod``, ``dx``, ``dy``
+    (h, W) real (the moduli and the derivatives): row y at index ``y - out0`` (the
+    whole maps with ``out0 = 0``, or one block of rows). ``tmp`` (4, W) real:
     scratch for one row's filtered values.
 
     Each loop below runs over a contiguous row with few arrays and three taps at a
@@ -201,7 +201,7 @@ def phase_derivatives(re, im, taps, y0, y1, base, psi, mod, dx, dy, out0,
         o = y - out0
         _rate(dx[o], pr, pi, fxr, fxi)
         _rate(dy[o], pr, pi, fyr, fyi)
-        md = mod[y]
+        md = mod[o]
         for x in range(W):
             md[x] = np.sqrt(pr[x] * pr[x] + pi[x] * pi[x])
         ps = psi[o]

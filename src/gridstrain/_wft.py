@@ -392,13 +392,13 @@ def _wft(image, lattice: Lattice, *, sigma: float | None = None, mask=None,
     pad = math.ceil(_PAD_SIGMAS * sigma)
     ny = sfft.next_fast_len(H + pad, real=True)
     nx = sfft.next_fast_len(W + pad, real=True)
-    V = _padded_rfft2(img, m, full, ny, nx)
-    cdtype = V.dtype
-    # rows per block of the final inverse FFTs (three transforms of nx points each)
-    chunk = max(8, _CHUNK_BYTES // (3 * nx * cdtype.itemsize))
     # scratch arrays shared by the two wave vectors (and by the frames of a caller
     # that lends its workspace): fresh pages cost a page fault each
     work = _Workspace() if work is None else work
+    V = _padded_rfft2(img, m, full, ny, nx, work)
+    cdtype = V.dtype
+    # rows per block of the final inverse FFTs (three transforms of nx points each)
+    chunk = max(8, _CHUNK_BYTES // (3 * nx * cdtype.itemsize))
     if sink is None:
         psi = np.empty((2, H, W), dtype=cdtype)
         dphi = np.empty((2, 2, H, W), dtype=dtype)
@@ -408,11 +408,15 @@ def _wft(image, lattice: Lattice, *, sigma: float | None = None, mask=None,
         dphi = work.get("dphi", (2, 2, h, W), dtype)
 
     valid, box = _region(m, full, margin * sigma)
-    mods = [work.get(f"mod{j}", (H, W), dtype) for j in range(2)]
     fast = _differentiator(float(sigma), dtype) if derivatives == "fast" else None
     kern = _kernels() if fast is not None else None
     if sink is not None and kern is None:
         fast = None  # the numpy fast path keeps whole maps: the exact one streams
+    # the moduli, for the validity threshold only: in float32 where the compiled loops
+    # stream blocks to a sink (a threshold at a fraction of the median does not need
+    # more digits, and a stack's threads each keep two)
+    mdtype = np.float32 if sink is not None and kern is not None else dtype
+    mods = [work.get(f"mod{j}", (H, W), mdtype) for j in range(2)]
     # with two threads, one wave vector each, and scratch arrays of its own
     works = [work, _Workspace()] if workers > 1 else [work, work]
 
@@ -587,20 +591,34 @@ class _Workspace:
         return buf[:size].reshape(shape)
 
 
-def _padded_rfft2(img: np.ndarray, m: np.ndarray, full: bool, ny: int, nx: int) -> np.ndarray:
-    """rfft2 of the mean-removed image, zero-extended to ``(ny, nx)`` (conventions)."""
+def _padded_rfft2(img: np.ndarray, m: np.ndarray, full: bool, ny: int, nx: int,
+                  work: _Workspace | None = None) -> np.ndarray:
+    """rfft2 of the mean-removed image, zero-extended to ``(ny, nx)`` (conventions).
+
+    The same two passes as ``scipy.fft.rfft2`` of the zero-extended image (a real
+    transform along x, then a complex one along y), without the extended image:
+    the image's rows are transformed by blocks straight into the spectrum, the
+    rows of the extension are zeros there, and the pass along y runs in place.
+    With ``work``, the spectrum is the workspace's buffer ``"V"`` (a caller that
+    transforms frame after frame reuses its pages).
+    """
     dtype = img.dtype
     H, W = img.shape
-    # zero extension written once, rather than the copy rfft2(s=...) would make
-    padded = np.zeros((ny, nx), dtype=dtype)
-    if full:
-        mean = float(np.mean(img, dtype=np.float64))
-        np.subtract(img, dtype.type(mean), out=padded[:H, :W])
-    else:
-        mean = float(np.mean(img[m], dtype=np.float64))
-        padded[:H, :W] = np.where(m, img - dtype.type(mean), dtype.type(0))
+    cdtype = np.result_type(dtype, np.complex64)
+    shape = (ny, nx // 2 + 1)
+    V = np.empty(shape, dtype=cdtype) if work is None else work.get("V", shape, cdtype)
+    mean = float(np.mean(img if full else img[m], dtype=np.float64))
+    mean = dtype.type(mean)
+    rows = max(1, _CHUNK_BYTES // (nx * dtype.itemsize))
     with _fft.backend():
-        return sfft.rfft2(padded, overwrite_x=True, workers=1)
+        for r0 in range(0, H, rows):
+            r1 = min(r0 + rows, H)
+            block = img[r0:r1] - mean
+            if not full:
+                block[~m[r0:r1]] = 0
+            V[r0:r1] = sfft.rfft(block, n=nx, axis=1, overwrite_x=True, workers=1)
+        V[H:] = 0
+        return sfft.fft(V, axis=0, overwrite_x=True, workers=1)
 
 
 def _ifft(x: np.ndarray, axis: int) -> np.ndarray:
@@ -1010,12 +1028,13 @@ def _one_wave_vector_compiled(V, k, sigma, H, W, nx, psi, dphi, mod, work, *, ta
     modulus and both derivatives. Every loop runs in the frame's precision.
 
     With ``sink`` (``psi`` and ``dphi`` None), each block of finished rows is written
-    to scratch arrays and handed to ``sink(r0, r1, psi, dphi, mod)`` (``mod`` is
-    filled whole, as :func:`_one_wave_vector` does).
+    to scratch arrays and handed to ``sink(r0, r1, psi, dphi, mod)``; the whole
+    ``mod`` (H, W) is filled too, in its own precision (float32 for a sink), for the
+    validity threshold.
     """
     ny = V.shape[0]
     cdtype = V.dtype
-    rdtype = mod.dtype
+    rdtype = np.finfo(cdtype).dtype  # the frame's precision (mod may be float32)
     m = taps.size
     rows, yruns, nuy, sy = _axis_band(ny, k[1], sigma)
     cols, xruns, nux, sx = _axis_band(nx, k[0], sigma)
@@ -1046,9 +1065,11 @@ def _one_wave_vector_compiled(V, k, sigma, H, W, nx, psi, dphi, mod, work, *, ta
     runs = np.array([(d.start, s.start, d.stop - d.start) for d, s in xruns], dtype=np.int64)
     gaps = np.array([(g.start, g.stop) for g in _gaps(xruns, nx)],
                     dtype=np.int64).reshape(-1, 2)
+    full_mod = mod
     if sink is not None:  # one block of finished rows at a time
         psi = work.get("psi_blk", (X.shape[0], W), cdtype)
         dphi = work.get("dphi_blk", (2, X.shape[0], W), rdtype)
+        mod = work.get("mod_blk", (X.shape[0], W), rdtype)
     flat = psi.view(rdtype)  # real and imaginary parts side by side
     done = 0  # rows of the image finished
     Ne = H + 2 * m
@@ -1068,7 +1089,8 @@ def _one_wave_vector_compiled(V, k, sigma, H, W, nx, psi, dphi, mod, work, *, ta
                                mod, dphi[0], dphi[1], out0, tmp)
         if sink is not None:
             h = ylim - done
-            sink(done, ylim, psi[:h], dphi[:, :h], mod[done:ylim])
+            full_mod[done:ylim] = mod[:h]  # kept for the validity threshold
+            sink(done, ylim, psi[:h], dphi[:, :h], mod[:h])
         done = ylim
         # the block's last 2m rows lead the next one's
         h = e1 - e0
