@@ -95,7 +95,8 @@ def fixed_point_step(coef, offset, u, ref, two_pi_k, solve, valid):  # pragma: n
 
     ``coef`` (Hp, Wp, 4): the prefiltered deformed transforms ``Re Psi_1, Im Psi_1,
     Re Psi_2, Im Psi_2``; ``u`` (2, H, W) the displacement, updated at the ``valid``
-    pixels; ``ref`` (4, H, W) the reference transforms in the same order;
+    pixels; ``ref`` (2, H, 2W) the reference transforms ``Psi_1, Psi_2`` as real views
+    (real and imaginary parts side by side);
     ``two_pi_k`` = ``2 pi K`` and ``solve`` = ``-K^-1 / 2 pi`` (2, 2). At ``X``:
     ``r_j = wrap(arg(Psi_j,def(X + u) conj Psi_j,ref(X)) + 2 pi k_j.u)`` and
     ``du = -K^-1 r / 2 pi``, as :func:`gridstrain.kinematics._lagrangian_fixed_point`
@@ -111,10 +112,10 @@ def fixed_point_step(coef, offset, u, ref, two_pi_k, solve, valid):  # pragma: n
             ux = u[0, i, j]
             uy = u[1, i, j]
             p0, p1, p2, p3 = _at4(coef, i + uy + offset, j + ux + offset)
-            c0 = ref[0, i, j]
-            d0 = ref[1, i, j]
-            c1 = ref[2, i, j]
-            d1 = ref[3, i, j]
+            c0 = ref[0, i, 2 * j]
+            d0 = ref[0, i, 2 * j + 1]
+            c1 = ref[1, i, 2 * j]
+            d1 = ref[1, i, 2 * j + 1]
             r0 = math.atan2(p1 * c0 - p0 * d0, p0 * c0 + p1 * d0)
             r1 = math.atan2(p3 * c1 - p2 * d1, p2 * c1 + p3 * d1)
             r0 += two_pi_k[0, 0] * ux + two_pi_k[0, 1] * uy
@@ -142,9 +143,12 @@ _HORIZON = math.ceil(math.log(1e-20) / math.log(-_POLE))
 
 
 @njit(**_OPTIONS)
-def prefilter(src, pad, out):  # pragma: no cover
+def prefilter(src, complex_view, pad, out):  # pragma: no cover
     """Cubic B-spline coefficients of the maps ``src`` (n, H, W), each edge-padded by
-    ``pad``, interleaved into ``out`` (H + 2 pad, W + 2 pad, n).
+    ``pad``, interleaved into ``out`` (H + 2 pad, W + 2 pad, n). With
+    ``complex_view``, ``src`` (n / 2, H, 2W) is the real view of n / 2 complex maps,
+    whose real and imaginary parts are the maps ``2c`` and ``2c + 1``. A value that
+    is not finite is taken as 0.
 
     As ``scipy.ndimage.spline_filter(np.pad(src[p], pad, mode="edge"), 3,
     mode="nearest")`` for each map, to rounding: along each axis the gain, then the
@@ -152,8 +156,8 @@ def prefilter(src, pad, out):  # pragma: no cover
     half-sample symmetric initial values that scipy uses for ``mode="nearest"``.
     Padded sides of at least 16 px (shorter ones differ from scipy by up to 1e-7).
     """
-    nm, H, W = src.shape
-    Hp, Wp = H + 2 * pad, W + 2 * pad
+    Hp, Wp, nm = out.shape
+    H, W = Hp - 2 * pad, Wp - 2 * pad
     z = _POLE
     g = _GAIN * _GAIN
     for i in range(Hp):
@@ -161,7 +165,12 @@ def prefilter(src, pad, out):  # pragma: no cover
         for j in range(Wp):
             sj = min(max(j - pad, 0), W - 1)
             for p in range(nm):
-                out[i, j, p] = g * src[p, si, sj]
+                if complex_view:
+                    v = src[p // 2, si, 2 * sj + p % 2]
+                else:
+                    v = src[p, si, sj]
+                # a NaN or an infinity would spread over whole rows and columns
+                out[i, j, p] = g * v if math.isfinite(v) else 0.0
     s = np.empty((Wp, nm))
     first = np.empty((Wp, nm))
     # along the rows (a row of out is (Wp, nm): the same recursions on its columns)

@@ -614,7 +614,8 @@ class _Spline:
     point's weights once for the four (about ten times faster than four
     ``map_coordinates``, the prefilter three to four times faster than
     ``spline_filter``; the same values to rounding within the padding,
-    ``tests/test_lagrangian_interpolation.py``).
+    ``tests/test_lagrangian_interpolation.py``). A value that is not finite is
+    taken as 0: a NaN would spread over whole rows and columns of coefficients.
     """
 
     def __init__(self, arr: np.ndarray, order: int | None = None):
@@ -628,14 +629,19 @@ class _Spline:
         kern = _load_kernels() if _COMPILED and order == 3 and len(planes) == 4 else None
         self.kern = kern
         if kern is not None:
-            # interleaved (Hp, Wp, 4): a neighbour's four coefficients in one cache line
+            # interleaved (Hp, Wp, 4): a neighbour's four coefficients in one cache line;
+            # read from the maps themselves (a complex map as its real view), not a copy
             self.coef = np.empty((Hp, Wp, 4))
-            kern.prefilter(np.stack(planes).astype(np.float64, copy=False), _SPLINE_PAD,
-                           self.coef)
+            dt = np.complex128 if self.is_complex else np.float64
+            src = np.ascontiguousarray(flat, dtype=dt)
+            kern.prefilter(src.view(np.float64) if self.is_complex else src,
+                           self.is_complex, _SPLINE_PAD, self.coef)
             return
         self.coef = []
         for p in planes:
-            padded = np.pad(p.astype(np.float64, copy=False), _SPLINE_PAD, mode="edge")
+            p = np.nan_to_num(p.astype(np.float64), copy=False, nan=0.0, posinf=0.0,
+                              neginf=0.0)
+            padded = np.pad(p, _SPLINE_PAD, mode="edge")
             self.coef.append(ndimage.spline_filter(padded, order, mode="nearest"))
 
     def __call__(self, coords: np.ndarray) -> np.ndarray:
@@ -696,9 +702,27 @@ def _solve(K: np.ndarray, r: np.ndarray) -> np.ndarray:
     return np.tensordot(np.linalg.inv(K), r, axes=1)
 
 
+class _Handover:
+    """A guess field handed over to :func:`deformation`, which drops it once the
+    fringe order is fixed: a field passed as a plain argument would stay referenced
+    by the caller's call until :func:`deformation` returns (a whole (2, H, W) map
+    through the large-displacement correction, the most memory of the kinematics)."""
+
+    def __init__(self, field):
+        self._field = field
+
+    def take(self):
+        field, self._field = self._field, None
+        return field
+
+
 def _guess_field(guess, reference, deformed, images):
-    """The guess as a (2, H, W) field, its source, and the coarse estimate (or None)."""
+    """The guess as a (2, H, W) field (a constant one broadcast), its source, and
+    the coarse estimate (or None)."""
     shape = reference.shape
+    if isinstance(guess, _Handover):
+        guess = guess.take()
+    zero = np.broadcast_to(np.zeros((2, 1, 1)), (2, *shape))
     if isinstance(guess, str):
         if guess != "auto":
             raise ValueError(f"guess must be 'auto', None, a (u_x, u_y) pair or a (2, H, W) "
@@ -711,9 +735,9 @@ def _guess_field(guess, reference, deformed, images):
         if est.confident:
             shift = np.array(est.shift)
             return np.broadcast_to(shift[:, None, None], (2, *shape)), "auto", est
-        return np.zeros((2, *shape)), "zero", est
+        return zero, "zero", est
     if guess is None:
-        return np.zeros((2, *shape)), "zero", None
+        return zero, "zero", None
     g = np.asarray(guess, dtype=float)
     if g.shape == (2,):
         g = np.broadcast_to(g[:, None, None], (2, *shape))
@@ -840,22 +864,32 @@ def _unwrapped_displacement(reference, deformed, valid, K, g) -> np.ndarray:
     """(2, H, W) displacement of eq. (34) from the unwrapped phase difference, each
     connected valid region shifted by the whole periods that bring it closest to
     the guess ``g`` ((2, H, W), px)."""
-    dphase = np.angle(deformed.psi * np.conj(reference.psi)).astype(np.float64, copy=False)
+    # one wave vector at a time: a complex product of (H, W), not of (2, H, W)
+    dphase = np.empty(reference.psi.shape, dtype=np.float64)
+    for j in range(2):
+        dphase[j] = np.angle(deformed.psi[j] * np.conj(reference.psi[j]))
     labels, n_regions = ndimage.label(valid)
     if n_regions == 0:
         raise ValueError("no valid pixel: the image is smaller than the window and its "
                          "margin, or the mask leaves nothing")
     pairs = (valid[:, 1:] & valid[:, :-1], valid[1:] & valid[:-1])  # both maps' jump checks
-    unwrapped = np.stack([_unwrap(dphase[j], valid, pairs) for j in range(2)])
-    u = -_solve(K, unwrapped) / (2 * np.pi)
+    for j in range(2):  # unwrapped in place
+        dphase[j] = _unwrap(dphase[j], valid, pairs)
+    u = _solve(K, dphase)
+    del dphase
+    np.negative(u, out=u)
+    u /= 2 * np.pi
     # fringe order per connected region, closest to the guess: u -> u - K^-1 n
     constant = g.strides[1:] == (0, 0)  # a (u_x, u_y) pair broadcast: K g once
     for lab in range(1, n_regions + 1):
         sel = valid if n_regions == 1 else labels == lab
+        d = u[:, sel]  # a copy (a boolean index)
         if constant:
-            off = np.median(K @ u[:, sel], axis=1) - K @ g[:, 0, 0]
+            off = np.median(K @ d, axis=1) - K @ g[:, 0, 0]
         else:
-            off = np.median(K @ (u[:, sel] - g[:, sel]), axis=1)
+            d -= g[:, sel]
+            off = np.median(K @ d, axis=1)
+        del d
         n = np.rint(off)
         if np.any(n):
             u[:, sel] -= np.linalg.solve(K, n)[:, None]
@@ -891,8 +925,8 @@ def _lagrangian_fixed_point(u, reference, deformed, valid, tol, max_iter):
             np.ascontiguousarray(deformed.dphi, dtype=np.float64),
             np.ascontiguousarray(deformed.valid), two_pi_K, np.linalg.inv(two_pi_K), start)
         u = start
-        ref = np.stack([p for a in reference.psi for p in (a.real, a.imag)]).astype(
-            np.float64)
+        # the reference's maps as they are (their real view), unless they are complex64
+        ref = np.ascontiguousarray(reference.psi, dtype=np.complex128).view(np.float64)
         solve = np.ascontiguousarray(-np.linalg.inv(K) / (2 * np.pi))
 
         def one_step():
@@ -970,11 +1004,9 @@ def _lagrangian_gradient(u, reference, deformed, D_ref):
     shape = reference.shape
     K = reference.lattice.K
     # Where Psi is exactly 0 (deep in a masked area) its derivatives are undefined;
-    # a spline's prefilter would spread one NaN over whole rows, so zero them (the
-    # pixels are invalid anyway).
-    dphi_cur = np.nan_to_num(deformed.dphi.astype(np.float64), nan=0.0, posinf=0.0,
-                             neginf=0.0)
-    spline = _Spline(dphi_cur)  # the four derivatives, evaluated together
+    # a spline's prefilter would spread one NaN over whole rows: the spline takes them
+    # as zeros (the pixels are invalid anyway)
+    spline = _Spline(deformed.dphi)  # the four derivatives, evaluated together
     if spline.kern is not None:  # one compiled loop: validity, derivatives and G
         G = np.empty((2, 2, *shape))
         valid = np.empty(shape, dtype=bool)

@@ -207,7 +207,7 @@ def displacement_strain_std(reference: PhaseMaps, deformed: PhaseMaps, *, varian
         for pm, v in ((reference, variance_ref), (deformed, variance_def)):
             vg = np.asarray(v, dtype=np.float64) * (g2 / 2)
             for j in range(2):
-                m2 = np.abs(pm.psi[j]).astype(np.float64)
+                m2 = np.abs(pm.psi[j]).astype(np.float64, copy=False)
                 m2 *= m2
                 var_phase[j] += vg / m2
         M2 = (np.linalg.inv(reference.lattice.K) / (2 * np.pi)) ** 2
