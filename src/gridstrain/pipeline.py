@@ -137,7 +137,7 @@ from pathlib import Path
 import numpy as np
 from scipy import ndimage
 
-from . import theory
+from . import _paging, theory
 from ._progress import null_progress
 from ._threads import one_blas_thread
 from ._validation import (
@@ -163,6 +163,7 @@ from .kinematics import (
     Measurement,
     _eulerian_gradient,
     _from_estimate,
+    _Handover,
     _phase_products,
     _phase_shift,
     _small_strain,
@@ -182,6 +183,7 @@ from .uncertainty import (
 )
 from .vibration import VibrationReport
 from .vibration import _report as _vibration_report
+from ._wft import _wft
 from .wft import DEFAULT_MARGIN, PhaseMaps, finite_derivatives, wft
 
 __all__ = [
@@ -978,10 +980,10 @@ def _run_pass(s, plan: PassPlan, report: Progress) -> SeriesPass:
 # --------------------------------------------------------------------------- phase maps
 
 
-def _no_grid(pm: PhaseMaps, mask: np.ndarray) -> np.ndarray:
-    """Pixels of ``mask`` whose modulus shows no grid."""
-    mod = pm.modulus
-    ref = pm.valid if pm.valid.any() else mask
+def _no_grid(mod: np.ndarray, valid: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """Pixels of ``mask`` whose modulus ``mod`` (2, H, W) shows no grid (``valid``:
+    the transform's valid pixels, where the median is taken)."""
+    ref = valid if valid.any() else mask
     out = np.zeros(mask.shape, dtype=bool)
     for j in range(2):
         out |= mod[j] < _NO_GRID_MODULUS * float(np.median(mod[j][ref]))
@@ -1041,13 +1043,35 @@ def _phase_maps_a(image, lattice, sigma, mask, margin):
     """WFT of an averaged image, masking regions without a grid (method A)."""
     m = np.ones(image.shape, dtype=bool) if mask is None else mask
     pm = wft(image, lattice, sigma=sigma, mask=m, margin=margin, workers=None)
-    nogrid = _no_grid(pm, m)
+    nogrid = _no_grid(pm.modulus, pm.valid, m)
     if nogrid.any():
-        m = m & ~nogrid
-        if not m.any():
-            raise ValueError("no pixel shows a grid at the lattice's wave vectors")
+        m = _less(m, nogrid)
         pm = wft(image, lattice, sigma=sigma, mask=m, margin=margin, workers=None)
     return finite_derivatives(pm), m
+
+
+def _less(m: np.ndarray, nogrid: np.ndarray) -> np.ndarray:
+    m = m & ~nogrid
+    if not m.any():
+        raise ValueError("no pixel shows a grid at the lattice's wave vectors")
+    return m
+
+
+def _grid_support(image, lattice, sigma, mask, margin) -> np.ndarray:
+    """The mask :func:`_phase_maps_a` ends with (``mask`` less the regions without a
+    grid), for methods B and C, whose maps come from their own sums: one transform
+    of the averaged image, of which only the moduli are kept (float32, for the
+    threshold), not its maps."""
+    m = np.ones(image.shape, dtype=bool) if mask is None else mask
+    mod = np.empty((2, *image.shape), dtype=np.float32)
+
+    def keep(j, r0, r1, psi, dphi, modulus):
+        mod[j, r0:r1] = modulus
+
+    valid = _wft(image, lattice, sigma=sigma, mask=m, margin=margin, sink=keep,
+                 workers=check_workers(None))
+    nogrid = _no_grid(mod, valid, m)
+    return _less(m, nogrid) if nogrid.any() else m
 
 
 def _method_b_maps(s, sc: _Screened, acc: SeriesPass, used: np.ndarray,
@@ -1191,7 +1215,7 @@ class _Tracker:
             # kinematics (not held here while they run); the step is taken on the
             # previous state's valid pixels, where the field is its u unchanged
             res = deformation(ref_pm, pm, lagrangian=self.lagrangian,
-                              guess=_filled(*get()))
+                              guess=_Handover(_filled(*get())))
             u_prev, before = get()
             step = _largest_step(res, u_prev, self.lattice, before)
             del u_prev, before
@@ -1704,6 +1728,7 @@ def _measure(series: list, guesses: list, m: np.ndarray, o: _Setup, steps: _Step
     kin = 3 * _WFT_COST if o.lagrangian else _WFT_COST
     sink = _InMemory(n_states, o.dtype) if o.output is None else _streamed(o.output,
                                                                            n_states)
+    pager = None  # the reference's maps, paged out during the states' passes
     with sink, _connect(o.scheduler) as client:
         pending = None if client is None else [
             _dist()._submit_pass(client, s, plan) for s, plan in zip(series, plans,
@@ -1712,6 +1737,8 @@ def _measure(series: list, guesses: list, m: np.ndarray, o: _Setup, steps: _Step
         def one(k):
             s = series[k]
             n = s.n_frames
+            if pager is not None:
+                pager.page_out()
             if client is None:
                 acc = _run_pass(s, plans[k], steps.sub(n * _pass_cost(method), s.name))
             else:  # the cluster worked while this machine read the other series
@@ -1730,7 +1757,17 @@ def _measure(series: list, guesses: list, m: np.ndarray, o: _Setup, steps: _Step
                              "modulus leave no pixel to measure")
         noise = _Noise(o.noise_model, lattice, r.mask, warnings)
         r = noise.complete(r)
+        if o.output is not None and n_states and method in ("B", "C"):
+            # nothing reads the reference's maps while a state's frames are transformed,
+            # the pass that needs the most memory: they wait in a temporary file beside
+            # the result, paged in again by the system when the kinematics read them
+            pager = _paging.page({"psi": r.maps.psi, "dphi": r.maps.dphi},
+                                 folder=sink.path.parent)
+            if pager is not None:
+                r = dataclasses.replace(r, maps=dataclasses.replace(r.maps, **pager.arrays))
         done = [r.summary()]
+        if pager is not None:
+            pager.page_out()  # the noise floor transforms the reference's halves
         floor = _ReferenceFloor(r, done[0], ref_pass, lattice, sigma, o.margin, method,
                                 steps.sub(3 * _WFT_COST, "noise floor"), warnings)
         del ref_pass
@@ -1744,6 +1781,8 @@ def _measure(series: list, guesses: list, m: np.ndarray, o: _Setup, steps: _Step
             est = tracker.features(c.maps, c.stats.mean, guesses[i])
             c = c.dropping("mean")  # the image features were its only use
             res, rec, notes = tracker.measure(c.maps, est, guesses[i], c.name)
+            if pager is not None:
+                pager.page_out()  # the uncertainty maps read back the moduli only
             if o.output is not None:
                 # the file keeps no phase maps, and the state's derivatives serve its
                 # kinematics only: freed before its uncertainty maps are made
@@ -1859,16 +1898,17 @@ def _one_series(s, acc: SeriesPass, base, max_saturation: float, outliers: str,
     stats = _Stats(st.mean, st.variance, st.method, sc.saturation)
     del st
     acc.release(keep_halves=base is not None)  # the reference's halves: its noise floor
-    pm, used = _phase_maps_a(stats.mean, plan.lattice, plan.sigma, base, plan.margin)
+    if method == "A":
+        pm, used = _phase_maps_a(stats.mean, plan.lattice, plan.sigma, base, plan.margin)
+    else:  # the mean image gives the mask only
+        used = _grid_support(stats.mean, plan.lattice, plan.sigma, base, plan.margin)
     steps.step(2 * _WFT_COST, f"{s.name}: phase maps")
     if method == "C":
-        pm = None  # method A's maps gave the mask; dropped before C's are made
         res = acc.method_c(sigma=plan.sigma, mask=used, margin=plan.margin)
         pm = finite_derivatives(res.maps)
         notes.extend(f"{s.name}: {w}" for w in res.warnings)
         del res
     elif method == "B":
-        pm = None
         pm = _method_b_maps(s, sc, acc, used, steps.sub(0.0, s.name))
     if f32:  # float32 maps from float32 frames (gridstrain.conventions)
         pm = dataclasses.replace(pm, psi=pm.psi.astype(np.complex64),
