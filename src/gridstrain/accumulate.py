@@ -228,10 +228,6 @@ class SeriesPass:
         self.removed.add(t)
 
     def _sums(self, t: int, arr: np.ndarray, sign: float) -> None:
-        b = len(self._w)
-        row = self._buf[b].reshape(self.shape)
-        np.subtract(arr, self.origin, out=row)
-        self._signs.append(sign)  # the squares are summed by batch (_flush)
         h = self._half(t)
         a = self._M @ self.theta[t]  # px
         w = np.zeros(self.lin.shape[0])
@@ -242,6 +238,12 @@ class SeriesPass:
             w[4 + 4 * h:8 + 4 * h] = sign * np.array([e[0].real, e[0].imag, e[1].real,
                                                       e[1].imag])
             self.wsum[h] += sign * e
+        if t == 0 and np.array_equal(arr, self.origin):
+            return  # the origin itself: d = 0 adds nothing to the pixel sums
+        b = len(self._w)
+        row = self._buf[b].reshape(self.shape)
+        np.subtract(arr, self.origin, out=row)
+        self._signs.append(sign)  # the squares are summed by batch (_flush)
         self._w.append(w)
         if len(self._w) == self._buf.shape[0]:
             self._flush()
