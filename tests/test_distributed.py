@@ -257,6 +257,32 @@ def test_method_b_graph_is_a_tree_of_bounded_fan_in():
     assert len(adds) == 3 + 1 + 1
 
 
+@pytest.mark.parametrize("name", ["a", "b"])
+def test_dask_methods_screen_their_frames_as_the_bare_methods(client, name):
+    """A frame of the loaded state among 10 reference frames (the numpy-only frames of
+    test_screening): named by the cluster's method as by the bare one, chunks of
+    several frames and a tree of records included."""
+    from test_screening import LAT as SLAT
+    from test_screening import STRAIN, grid_frames
+
+    rng = np.random.default_rng(31)
+    stack, _ = grid_frames(10, rng)
+    load, _ = grid_frames(1, rng, strain=STRAIN)
+    stack[6] = load[0]
+    bare = getattr(stacks, f"method_{name}")(stack, SLAT)
+    dask_method = getattr(gd, f"method_{name}_dask")
+    st = gd.as_dask_stack(stack, chunk_frames=3)
+    got = dask_method(st, SLAT, split_every=2, client=client)
+    assert got.screening.flagged == bare.screening.flagged == (6,)
+    assert got.screening.reasons == bare.screening.reasons
+    assert [w for w in got.warnings if "flagged" in w] == \
+        [w for w in bare.warnings if "flagged" in w]
+    quiet = dask_method(st, SLAT, split_every=2, screen=False, client=client)
+    assert quiet.screening is None
+    assert not any("flagged" in w for w in quiet.warnings)
+    assert_array_equal(quiet.maps.psi, got.maps.psi)  # the screening changes no number
+
+
 @pytest.mark.parametrize("method", ["A", "B", "C"])
 def test_several_states_at_once_match_single_process(client, method):
     """The cluster runs the same pass as this machine (gridstrain.accumulate): the

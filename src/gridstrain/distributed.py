@@ -60,7 +60,8 @@ from ._validation import (
 from .accumulate import SeriesPass
 from .io import FrameSeries, open_series
 from .lattice import Lattice
-from .stacks import StackResult, _PhaseMean
+from .screening import FrameProbe
+from .stacks import StackResult, _PhaseMean, _Screener
 from .wft import DEFAULT_MARGIN, wft
 
 __all__ = [
@@ -407,7 +408,7 @@ def _check_common(lattice, sigma, mask, margin, shape):
 
 def method_a_dask(stack, lattice: Lattice, *, sigma: float | None = None, mask=None,
                   margin: float = DEFAULT_MARGIN, split_every: int | None = None,
-                  client=None, compute: bool = True):
+                  screen: bool = True, client=None, compute: bool = True):
     """Method A on Dask: the transform of the tree-reduced mean image (paper §2.2).
 
     Parameters
@@ -424,6 +425,10 @@ def method_a_dask(stack, lattice: Lattice, *, sigma: float | None = None, mask=N
         Invalid band along borders and mask edges, in units of ``sigma``.
     split_every : int, optional
         Chunks added per task of the reduction tree (default 4).
+    screen : bool
+        Probe every frame in the tasks that read it (about 2 ms a megapixel frame)
+        and name the frames the screening flags in the result's ``warnings`` and
+        ``screening``, as :func:`gridstrain.stacks.method_a` does.
     client : distributed.Client, optional
         Where to compute (default: Dask's current scheduler).
     compute : bool
@@ -442,7 +447,41 @@ def method_a_dask(stack, lattice: Lattice, *, sigma: float | None = None, mask=N
     graph = dask.delayed(_method_a_result, pure=True)(mean, lattice, sigma, m, margin,
                                                       int(arr.shape[0]),
                                                       float_dtype(arr.dtype))
+    if screen:
+        # the chunks' own keys: each chunk is read once for the mean and the probe
+        graph = _screened(graph, arr.to_delayed(optimize_graph=False).ravel(), lattice,
+                          arr.shape[1:], _check_split_every(split_every))
     return _compute([graph], client)[0] if compute else graph
+
+
+def _block_records(block: np.ndarray, lattice: Lattice) -> list:
+    """The screening's records of the frames of ``block``, in order (one task)."""
+    probe = FrameProbe(lattice, block.shape[1:])
+    return [probe(np.asarray(frame)) for frame in block]
+
+
+def _joined(*parts) -> list:
+    """The records of consecutive chunks, in order (a node of a reduction tree)."""
+    return [r for part in parts for r in part]
+
+
+def _screened_result(res: StackResult, lattice: Lattice, shape, records) -> StackResult:
+    """``res`` with the screening of its frames' ``records``, in frame order."""
+    screener = _Screener(lattice, True)
+    screener.probe = FrameProbe(lattice, shape)
+    screener.records = list(records)
+    return screener.result(res)
+
+
+def _screened(graph, blocks, lattice: Lattice, shape, split_every: int):
+    """``graph``'s result with the screening of the frames of ``blocks``; the
+    records (a few hundred bytes a frame) gathered by a tree like the sums."""
+    dask, _ = _dask()
+    leaf = dask.delayed(_block_records, pure=True)
+    parts = [leaf(block, lattice) for block in blocks]
+    records = _tree(parts, _joined, split_every) if len(parts) > 1 else \
+        dask.delayed(_joined, pure=True)(*parts)
+    return dask.delayed(_screened_result, pure=True)(graph, lattice, tuple(shape), records)
 
 
 # --------------------------------------------------------------------------- method B
@@ -483,18 +522,22 @@ def _tree(parts: list, combine, split_every: int):
     return parts[0]
 
 
-def _method_b_graph(arr, lattice, sigma, mask, margin, split_every):
+def _method_b_graph(arr, lattice, sigma, mask, margin, split_every, screen: bool = False):
     dask, _ = _dask()
     # one key for the mask: the tasks refer to it instead of each carrying a copy
     m = None if mask is None else dask.delayed(mask, pure=True)
     leaf = dask.delayed(_block_sums, pure=True)
-    parts = [leaf(block, lattice, sigma, m, margin) for block in arr.to_delayed().ravel()]
-    return dask.delayed(_method_b_result, pure=True)(_tree(parts, _merged, split_every))
+    blocks = arr.to_delayed().ravel()
+    parts = [leaf(block, lattice, sigma, m, margin) for block in blocks]
+    graph = dask.delayed(_method_b_result, pure=True)(_tree(parts, _merged, split_every))
+    # the probe reads the chunks the sums read (the same keys: one read each)
+    return _screened(graph, blocks, lattice, arr.shape[1:], split_every) if screen \
+        else graph
 
 
 def method_b_dask(stack, lattice: Lattice, *, sigma: float | None = None, mask=None,
                   margin: float = DEFAULT_MARGIN, split_every: int | None = None,
-                  client=None, compute: bool = True):
+                  screen: bool = True, client=None, compute: bool = True):
     """Method B on Dask: one transform per task, the sums tree-reduced (paper §2.3).
 
     Parameters
@@ -512,6 +555,10 @@ def method_b_dask(stack, lattice: Lattice, *, sigma: float | None = None, mask=N
         Invalid band along borders and mask edges, in units of ``sigma``.
     split_every : int, optional
         Partial sums added per task of the reduction tree (default 4).
+    screen : bool
+        Probe every frame in the tasks that read it and name the frames the
+        screening flags in the result's ``warnings`` and ``screening``, as
+        :func:`gridstrain.stacks.method_b` does.
     client : distributed.Client, optional
         Where to compute (default: Dask's current scheduler).
     compute : bool
@@ -531,7 +578,7 @@ def method_b_dask(stack, lattice: Lattice, *, sigma: float | None = None, mask=N
     arr = _stack(stack)
     sigma, m, margin = _check_common(lattice, sigma, mask, margin, arr.shape[1:])
     k = _check_split_every(split_every)
-    graph = _method_b_graph(arr, lattice, sigma, m, margin, k)
+    graph = _method_b_graph(arr, lattice, sigma, m, margin, k, screen=bool(screen))
     return _compute([graph], client)[0] if compute else graph
 
 
