@@ -250,3 +250,50 @@ def test_numba_is_loaded_only_by_a_transform(compiled):
     transform = ("import numpy as np\nfrom gridstrain import Lattice, wft\n"
                  "wft(np.random.default_rng(0).random((48, 48)), Lattice.from_pitch(5.0))")
     assert "numba" in _loaded_after(transform)
+
+
+@pytest.mark.parametrize("dtype", [np.float64, np.float32])
+def test_compiled_sums_of_method_b_are_the_numpy_sums(compiled, monkeypatch, dtype):
+    # method B's sums of unit phasors, moduli and derivatives, added block by block in
+    # one compiled pass, bit for bit those of the numpy path: with a hole (Psi = 0
+    # deep inside it adds nothing), several blocks, and a frame taken out again
+    import gridstrain.stacks as gs
+
+    frame, mask = _camera_frame(dtype)
+    lat = Lattice.from_pitch(5.0, angle=12.0)
+    rng = np.random.default_rng(12)
+    frames = [(frame + rng.normal(0, 20, frame.shape)).astype(dtype) for _ in range(3)]
+    monkeypatch.setattr(impl, "_COMPILED_CHUNK_BYTES", 2**14)
+
+    def sums(kernels):
+        monkeypatch.setattr(gs, "_kernels", kernels)
+        acc = gs._PhaseMean()
+        for f in frames:
+            acc.add_frame(f, lat, mask=mask)
+        acc.add_frame(frames[1], lat, mask=mask, remove=True)
+        return acc
+
+    loops, plain = sums(lambda: compiled), sums(lambda: None)
+    assert loops.n == plain.n == 2
+    for name in ("unit", "mod", "dphi", "invalid"):
+        np.testing.assert_array_equal(getattr(loops, name), getattr(plain, name))
+
+
+def test_compiled_sums_skip_the_direction_where_psi_is_zero(compiled):
+    # where Psi = 0 there is no phase: its phasor and derivatives (0/0) add nothing,
+    # its modulus adds 0; elsewhere psi / |psi| and the derivatives as they are
+    rng = np.random.default_rng(13)
+    psi = rng.normal(size=(3, 4)) + 1j * rng.normal(size=(3, 4))
+    psi[1, 2] = 0
+    mod = np.abs(psi)
+    dphi = rng.normal(size=(2, 3, 4))
+    dphi[:, 1, 2] = np.nan
+    unit, msum, dsum = np.ones((3, 8)), np.ones((3, 4)), np.ones((2, 3, 4))
+    compiled.add_unit_sums(psi.view(np.float64), mod, dphi, unit, msum, dsum, 1.0, 1.0)
+    phasor = np.where(mod > 0, psi / np.where(mod > 0, mod, 1), 0)
+    np.testing.assert_allclose(unit.view(np.complex128), 1 + 1j + phasor, rtol=1e-15)
+    np.testing.assert_allclose(msum, 1 + mod, rtol=1e-15)
+    np.testing.assert_allclose(dsum, 1 + np.where(mod > 0, dphi, 0), rtol=1e-15)
+    compiled.add_unit_sums(psi.view(np.float64), mod, dphi, unit, msum, dsum, 1.0, -1.0)
+    np.testing.assert_allclose(unit, 1, rtol=1e-15)  # taken out again
+    np.testing.assert_allclose(dsum, 1, rtol=1e-15)

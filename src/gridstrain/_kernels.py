@@ -208,3 +208,50 @@ def phase_derivatives(re, im, taps, y0, y1, base, psi, mod, dx, dy, out0,
         for x in range(W):
             ps[2 * x] = pr[x]
             ps[2 * x + 1] = pi[x]
+
+
+# method B's sums add what the numpy path adds, operation for operation: no fused
+# multiply-add, so that both paths give the same bits
+_exact_jit = njit(**(_OPTIONS | {"fastmath": False})) if AVAILABLE else (lambda func: func)
+
+
+@_exact_jit
+def add_unit_sums(psi, mod, dphi, unit, msum, dsum, one, sign):  # pragma: no cover
+    """Add (``sign`` 1) or take out (-1) one block of a frame's maps to method B's sums.
+
+    ``psi`` (h, 2W) real view of the block's complex map, ``mod`` (h, W) its modulus,
+    ``dphi`` (2, h, W) its derivatives, in the frame's precision; ``unit`` (h, 2W),
+    ``msum`` (h, W), ``dsum`` (2, h, W) float64: the rows of the sums of the unit
+    phasors ``psi / |psi|`` (real view), of the moduli and of the derivatives. Where
+    ``|psi| = 0`` (no signal, no direction) the phasor and the derivatives add 0.
+    As :class:`gridstrain.stacks._PhaseMean`'s numpy path: the phasor is ``psi``
+    times the reciprocal of the modulus, taken in the frame's precision (``one``, 1
+    in that precision) and then in float64.
+    """
+    h, W = mod.shape
+    for y in range(h):
+        for x in range(W):
+            mv = mod[y, x]
+            m = np.float64(mv)
+            if mv > 0:
+                inv = np.float64(one / mv)
+                d0 = np.float64(dphi[0, y, x])
+                d1 = np.float64(dphi[1, y, x])
+            else:
+                inv = 0.0
+                d0 = 0.0
+                d1 = 0.0
+            ur = np.float64(psi[y, 2 * x]) * inv
+            ui = np.float64(psi[y, 2 * x + 1]) * inv
+            if sign > 0:
+                unit[y, 2 * x] += ur
+                unit[y, 2 * x + 1] += ui
+                msum[y, x] += m
+                dsum[0, y, x] += d0
+                dsum[1, y, x] += d1
+            else:
+                unit[y, 2 * x] -= ur
+                unit[y, 2 * x + 1] -= ui
+                msum[y, x] -= m
+                dsum[0, y, x] -= d0
+                dsum[1, y, x] -= d1

@@ -42,6 +42,7 @@ from ._validation import (
 from .lattice import Lattice
 from .screening import FrameProbe, FrameScreen, decide
 from .vibration import _RigidProbe
+from ._wft import _kernels
 from .wft import DEFAULT_MARGIN, PhaseMaps, _wft, _Workspace, wft, wft_complex
 
 __all__ = [
@@ -336,9 +337,20 @@ class _PhaseMean:
         # numpy's slow mixed complex-by-real loops
         unit = self.unit.view(np.float64).reshape(2, H, W, 2)
         accumulate = np.subtract if remove else np.add  # a frame taken out, or added
+        kern = _kernels()
 
         def sink(j, r0, r1, psi, dphi, mod):
             h = r1 - r0
+            if kern is not None:  # one compiled pass, the same sums bit for bit
+                if order is not None:
+                    order.wait((j, r0), index)
+                kern.add_unit_sums(psi.view(psi.real.dtype), mod, dphi,
+                                   unit[j, r0:r1].reshape(h, 2 * W), self.mod[j, r0:r1],
+                                   self.dphi[j, :, r0:r1], mod.dtype.type(1),
+                                   -1.0 if remove else 1.0)
+                if order is not None:
+                    order.release((j, r0), index)
+                return
             # unit phasor psi / |psi|, 0 where psi = 0 (no signal: no direction)
             inv = work.get("inv", (h, W), np.float64)
             inv.fill(0.0)
