@@ -36,3 +36,30 @@ def test_method_b_keeps_blas_on_one_thread_while_it_reads_frames():
     assert seen
     assert all(n == 1 for threads in seen for n in threads)
     assert _blas_threads() == before
+
+
+def test_measure_series_keeps_blas_on_one_thread_throughout(monkeypatch):
+    # its kinematics, noise and uncertainty products too, not only the frame loops:
+    # OpenBLAS's idle threads would spin between them (a third more CPU for a pair)
+    import gridstrain.pipeline as gp
+
+    seen = []
+    inner = gp.deformation
+
+    def spy(*args, **kwargs):
+        seen.append(_blas_threads())
+        return inner(*args, **kwargs)
+
+    monkeypatch.setattr(gp, "deformation", spy)
+    lat = Lattice.from_pitch(5.0)
+    yy, xx = np.mgrid[0:96, 0:96].astype(float)
+
+    def grid(u):
+        return 1000 * (1 + 0.4 * np.cos(2 * np.pi * (xx - u) / 5)
+                       + 0.4 * np.cos(2 * np.pi * yy / 5))
+
+    before = _blas_threads()
+    gp.measure_series(grid(0.0), grid(0.2), lattice=lat, guess=(0.0, 0.0))
+    assert seen
+    assert all(n == 1 for threads in seen for n in threads)
+    assert _blas_threads() == before

@@ -1581,8 +1581,11 @@ def measure_series(reference, states, *, lattice: Lattice | None = None,
     # how the frames were read (colour converted, lossy JPEG), series by series
     warnings: list[str] = [n for s in series for n in getattr(s, "notes", ())]
     warnings += _glob_warning(series)
-    o = _window(series[0], m, o, steps)
-    return _measure(series, guesses, m, o, steps, warnings, progress)
+    # BLAS on the calling thread throughout: its products here are small or memory
+    # bound, and OpenBLAS's own threads would spin between them (gridstrain._threads)
+    with one_blas_thread():
+        o = _window(series[0], m, o, steps)
+        return _measure(series, guesses, m, o, steps, warnings, progress)
 
 
 @dataclass(frozen=True, eq=False)
