@@ -13,7 +13,6 @@ from gridstrain import _paging
 from gridstrain import pipeline as gp
 from gridstrain.pipeline import measure_series
 from gridstrain.results import ResultFile
-
 from test_pipeline import LAT, Plate
 
 
@@ -36,7 +35,8 @@ def test_paged_arrays_keep_their_values_and_leave_no_file(tmp_path):
     assert list(tmp_path.iterdir()) == []  # unlinked at once
     for name, a in arrays.items():
         view = paged.arrays[name]
-        assert view.dtype == a.dtype and view.shape == a.shape
+        assert view.dtype == a.dtype
+        assert view.shape == a.shape
         assert not view.flags.writeable
         assert_array_equal(view, before[name])
         assert_array_equal(a, before[name])  # the originals untouched
@@ -85,7 +85,8 @@ def test_paged_reference_gives_the_same_file(tmp_path, monkeypatch, method):
     monkeypatch.setattr(gp._paging, "page", spy)
     paged = measure_series(ref, [cur, cur], lattice=LAT, method=method,
                            output=ResultFile(tmp_path / "paged.h5"))
-    assert len(made) == 1 and made[0] is not None  # the reference's maps were paged
+    assert len(made) == 1
+    assert made[0] is not None  # the reference's maps were paged
     assert sorted(p.name for p in tmp_path.iterdir()) == ["paged.h5"]
     monkeypatch.setattr(gp._paging, "page", lambda arrays, folder: None)
     kept = measure_series(ref, [cur, cur], lattice=LAT, method=method,

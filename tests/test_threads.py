@@ -2,7 +2,12 @@
 
 from __future__ import annotations
 
+import platform
+import subprocess
+import sys
+
 import numpy as np
+import pytest
 from threadpoolctl import threadpool_info
 
 from gridstrain import Lattice, _threads
@@ -63,3 +68,22 @@ def test_measure_series_keeps_blas_on_one_thread_throughout(monkeypatch):
     assert seen
     assert all(n == 1 for threads in seen for n in threads)
     assert _blas_threads() == before
+
+
+def test_the_command_serves_its_threads_from_one_malloc_arena(monkeypatch):
+    import gridstrain.cli as cli
+
+    if platform.libc_ver()[0] == "glibc":  # glibc takes the setting (in a process of its own)
+        out = subprocess.run([sys.executable, "-c", "from gridstrain._threads import "
+                              "one_malloc_arena as f; print(f())"],
+                             capture_output=True, text=True, check=True)
+        assert out.stdout.strip() == "True"
+    calls = []
+    monkeypatch.setattr(cli, "one_malloc_arena", lambda: calls.append(1) or True)
+    monkeypatch.setattr(sys, "argv", ["gridstrain", "--help"])
+    with pytest.raises(SystemExit):
+        cli.main()  # the command's own process
+    assert calls == [1]
+    with pytest.raises(SystemExit):
+        cli.main(["--help"])  # called from Python: the host's allocator is left alone
+    assert calls == [1]

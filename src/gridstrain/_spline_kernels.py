@@ -165,10 +165,7 @@ def prefilter(src, complex_view, pad, out):  # pragma: no cover
         for j in range(Wp):
             sj = min(max(j - pad, 0), W - 1)
             for p in range(nm):
-                if complex_view:
-                    v = src[p // 2, si, 2 * sj + p % 2]
-                else:
-                    v = src[p, si, sj]
+                v = src[p // 2, si, 2 * sj + p % 2] if complex_view else src[p, si, sj]
                 # a NaN or an infinity would spread over whole rows and columns
                 out[i, j, p] = g * v if math.isfinite(v) else 0.0
     s = np.empty((Wp, nm))

@@ -14,7 +14,9 @@ the libraries' defaults a pair cost a third more CPU time for the same wall time
 from __future__ import annotations
 
 import contextlib
+import ctypes
 import functools
+import sys
 from collections.abc import Iterator
 
 
@@ -35,3 +37,31 @@ def one_blas_thread() -> Iterator[None]:
     """
     with _controller().limit(limits=1, user_api="blas"):
         yield
+
+
+# glibc's mallopt parameter for the largest number of malloc arenas (malloc.h)
+_M_ARENA_MAX = -8
+
+
+def one_malloc_arena() -> bool:
+    """Have glibc's malloc serve every thread from one arena; True where it was set.
+
+    Each thread that allocates gets an arena of its own by default, and the blocks
+    freed there stay with it. Method B's transforming threads start anew for each
+    series, so that a run's resident memory grew with its number of states: 1405
+    MiB with 3 loaded states against 1282 MiB with 1 (50 frames of 2048 x 2048,
+    ``benchmarks/bench_states.py``), and 1308 against 1220 MiB with one arena, for
+    the same time (the threads allocate little: their scratch arrays are reused).
+    The command line sets it for its own process, before any thread starts; the
+    library leaves its host process's allocator alone. Only where the C library is
+    glibc (elsewhere nothing is changed and False is returned).
+    """
+    if not sys.platform.startswith("linux"):
+        return False
+    try:
+        mallopt = ctypes.CDLL(None).mallopt
+    except (OSError, AttributeError):
+        return False
+    mallopt.argtypes = (ctypes.c_int, ctypes.c_int)
+    mallopt.restype = ctypes.c_int
+    return bool(mallopt(_M_ARENA_MAX, 1))

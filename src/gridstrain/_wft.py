@@ -603,7 +603,7 @@ def _padded_rfft2(img: np.ndarray, m: np.ndarray, full: bool, ny: int, nx: int,
     transforms frame after frame reuses its pages).
     """
     dtype = img.dtype
-    H, W = img.shape
+    H = img.shape[0]
     cdtype = np.result_type(dtype, np.complex64)
     shape = (ny, nx // 2 + 1)
     V = np.empty(shape, dtype=cdtype) if work is None else work.get("V", shape, cdtype)

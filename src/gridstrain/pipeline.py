@@ -152,6 +152,7 @@ from ._validation import (
     check_type,
     check_workers,
 )
+from ._wft import _wft
 from .accumulate import PassPlan, SeriesPass
 from .io import (
     FrameSeries,
@@ -183,7 +184,6 @@ from .uncertainty import (
 )
 from .vibration import VibrationReport
 from .vibration import _report as _vibration_report
-from ._wft import _wft
 from .wft import DEFAULT_MARGIN, PhaseMaps, finite_derivatives, wft
 
 __all__ = [

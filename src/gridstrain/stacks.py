@@ -39,10 +39,10 @@ from ._validation import (
     float_dtype,
     image_array,
 )
+from ._wft import _kernels
 from .lattice import Lattice
 from .screening import FrameProbe, FrameScreen, decide
 from .vibration import _RigidProbe
-from ._wft import _kernels
 from .wft import DEFAULT_MARGIN, PhaseMaps, _wft, _Workspace, wft, wft_complex
 
 __all__ = [
