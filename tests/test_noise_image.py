@@ -134,3 +134,28 @@ def test_one_frame_uncertainty_maps_large():
     _, ratios = _empirical_vs_predicted(512, 40, 1)
     for name, ratio in ratios.items():
         assert abs(ratio - 1) < 0.05, (name, ratio)
+
+
+def test_tile_spectrum_by_batches_is_the_median_over_all_tiles(monkeypatch):
+    # the tiles transformed a few at a time (here 3 per batch) give the median, bin
+    # by bin, of every usable tile's Blackman-Harris periodogram taken at once
+    from numpy.lib.stride_tricks import sliding_window_view
+    from scipy import ndimage
+
+    from gridstrain import noise
+
+    rng = np.random.default_rng(41)
+    img = rng.normal(1000.0, 10.0, (160, 224))
+    usable = np.ones(img.shape, dtype=bool)
+    usable[5, 5] = False  # leaves out the tiles that hold it
+    tile = 32
+    monkeypatch.setattr(noise, "_TILE_BATCH_BYTES", 3 * tile * tile * 8)
+    got = noise._tile_spectrum(img, usable, tile)
+    w = noise._blackman_harris(tile)
+    tiles = sliding_window_view(img, (tile, tile))[::16, ::16]
+    ok = sliding_window_view(usable, (tile, tile))[::16, ::16].all(axis=(2, 3))
+    sel = tiles[ok]
+    assert 0 < len(sel) < tiles.shape[0] * tiles.shape[1]
+    per = np.abs(np.fft.fft2((sel - sel.mean(axis=(1, 2), keepdims=True)) * np.outer(w, w)))
+    want = ndimage.uniform_filter(np.median(per**2, axis=0), 3, mode="wrap")
+    np.testing.assert_allclose(got, want, rtol=1e-12)

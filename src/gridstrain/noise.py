@@ -748,6 +748,10 @@ _CLIP_KAPPA = 1 - 2 * _CLIP * math.exp(-_CLIP**2 / 2) / math.sqrt(2 * math.pi) /
     _CLIP / math.sqrt(2))
 
 
+# tiles transformed at once by _tile_spectrum: 256 tiles of 128 x 128
+_TILE_BATCH_BYTES = 2**25
+
+
 def _blackman_harris(n: int) -> np.ndarray:
     # 4-term Blackman-Harris: sidelobes below -92 dB, so the grid's fundamental
     # (1e8 times the noise density on a 12-bit image) does not leak over the band
@@ -756,20 +760,32 @@ def _blackman_harris(n: int) -> np.ndarray:
 
 
 def _tile_spectrum(img: np.ndarray, usable: np.ndarray, tile: int) -> np.ndarray:
-    """(tile, tile) median periodogram over half-overlapping tiles, 3 x 3 smoothed."""
+    """(tile, tile) median periodogram over half-overlapping tiles, 3 x 3 smoothed.
+
+    The tiles (together about 4 times the image) are transformed a batch at a
+    time, each batch's periodograms written straight into the (bins, tiles) table
+    whose rows the median is taken along: the memory is that table, half a tile's
+    bins per tile (about twice the image in float64), whatever the image's size.
+    """
     win = np.outer(_blackman_harris(tile), _blackman_harris(tile))
     step = tile // 2
     blocks = sliding_window_view(img, (tile, tile))[::step, ::step]
     good = sliding_window_view(usable, (tile, tile))[::step, ::step].all(axis=(2, 3))
     # the tiles wholly usable, or all of them when fewer than 4 are (holes
     # everywhere: the median over all tiles is still robust)
-    sel = blocks[good] if np.count_nonzero(good) >= 4 else blocks.reshape(-1, tile, tile)
-    sel = (sel - sel.mean(axis=(1, 2), keepdims=True)) * win
-    # a real tile's periodogram is even: half of it, and the median over the tiles
-    # taken along contiguous rows
-    half = np.abs(sfft.rfft2(sel)) ** 2
-    n, _, wr = half.shape
-    med = np.median(np.ascontiguousarray(half.reshape(n, -1).T), axis=1).reshape(tile, wr)
+    if np.count_nonzero(good) < 4:
+        good = np.ones(good.shape, dtype=bool)
+    where = np.argwhere(good)
+    n, wr = len(where), tile // 2 + 1
+    # a real tile's periodogram is even: half of it, one row of bins per frequency
+    table = np.empty((tile * wr, n))
+    batch = max(1, _TILE_BATCH_BYTES // (tile * tile * 8))
+    for i0 in range(0, n, batch):
+        idx = where[i0:i0 + batch]
+        sel = blocks[idx[:, 0], idx[:, 1]]
+        sel = (sel - sel.mean(axis=(1, 2), keepdims=True)) * win
+        table[:, i0:i0 + len(idx)] = (np.abs(sfft.rfft2(sel)) ** 2).reshape(len(idx), -1).T
+    med = np.median(table, axis=1, overwrite_input=True).reshape(tile, wr)
     spec = np.empty((tile, tile))
     spec[:, :wr] = med
     spec[:, wr:] = med[(-np.arange(tile)) % tile][:, tile - wr:0:-1]
