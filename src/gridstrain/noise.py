@@ -966,6 +966,7 @@ def estimate_noise_image(image, lattice: Lattice | None = None, *, mask=None,
     tile = min(_TILE, 1 << math.floor(math.log2(min(H, W) / 2)))
     Hf, _ = _residual_filter(img.shape, lattice, _tile_spectrum(img, ~bad & ~edge, tile), notch)
     r, lam, G = _filtered_residual(F, Hf, img.shape)
+    del F  # each full-size map is dropped once used: the image's size times 8 at most
     ok = ~ndimage.binary_dilation(bad | edge, iterations=reach)
     ok[:reach] = ok[-reach:] = False
     ok[:, :reach] = ok[:, -reach:] = False
@@ -979,7 +980,9 @@ def estimate_noise_image(image, lattice: Lattice | None = None, *, mask=None,
     # correlation of neighbouring residuals: Var(mean of n r^2) = 2 V^2 R / n
     A = np.abs(Hf) ** 2
     R = float(A.size * np.sum(A * A) / np.sum(A) ** 2)
-    lb, vb, nbin = _binned_variances(lam[ok], r[ok], n_bins, G)
+    box = [lam[ok], r[ok]]
+    del lam, r
+    lb, vb, nbin = _binned_variances(box, n_bins, G)
     K, L, cov, chi2, err = _fit_binned(lb, vb, nbin, R)
     red, (sK, sL) = _intervals(cov, chi2, lb.size)
     return NoiseModel(K=K, L=L, K_ci=(K - sK, K + sK), L_ci=(L - sL, L + sL), scale=scale,
@@ -1060,21 +1063,27 @@ def _filtered_residual(F, Hf, shape):
     return r, lam, G
 
 
-def _binned_variances(lv, rv, n_bins, G):
+def _binned_variances(box: list, n_bins, G):
     """Per bin of equal counts by level ``lv``: mean level, clipped variance of the
     residuals ``rv`` divided by the filter gain ``G``, and the pixel count (bins of
-    fewer than 50 pixels are dropped)."""
+    fewer than 50 pixels are dropped). ``box`` is ``[lv, rv]``, handed over: each
+    is dropped once sorted by bin."""
+    lv = box[0]
     edges = np.unique(np.quantile(lv, np.linspace(0, 1, n_bins + 1)))
     nb = edges.size - 1
     if nb < 3:
         raise ValueError("the image spans too narrow a range of levels to fit "
                          "Var = K l + L")
-    idx = np.clip(np.searchsorted(edges, lv, side="right") - 1, 0, nb - 1)
+    idx = np.clip(np.searchsorted(edges, lv, side="right") - 1, 0, nb - 1).astype(np.int16)
     lb, vb, nbin = [], [], []
     # a stable sort of small integers is a radix sort
-    order = np.argsort(idx.astype(np.int16), kind="stable")
+    order = np.argsort(idx, kind="stable")
     splits = np.cumsum(np.bincount(idx, minlength=nb))[:-1]
-    for lg, rg in zip(np.split(lv[order], splits), np.split(rv[order], splits), strict=True):
+    del idx
+    lv = box.pop(0)[order]
+    rv = box.pop(0)[order]
+    del order
+    for lg, rg in zip(np.split(lv, splits), np.split(rv, splits), strict=True):
         if lg.size < 50:
             continue
         lb.append(float(lg.mean()))
