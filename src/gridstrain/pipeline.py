@@ -1532,7 +1532,10 @@ def measure_series(reference, states, *, lattice: Lattice | None = None,
         reference whatever the number of states. The returned result reads its maps
         from the file (see ``u``). The file is put at its path when the measurement
         ends, atomically; nothing is there if it fails. The measurements' phase maps
-        are not kept.
+        are not kept. With methods B and C, the reference's phase maps wait in an
+        unlinked temporary file in the result's folder while each state's frames
+        are transformed (64 bytes a pixel in float64, paged back in by the system
+        when read; nothing is left behind, whatever ends the process).
     dtype : {None, "float32", "float64"}
         Precision of the returned (and written) maps; None: that of the
         measurement (:mod:`gridstrain.conventions`). Everything is computed as
