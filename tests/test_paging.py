@@ -109,3 +109,8 @@ def test_methods_b_and_c_find_the_regions_without_grid_as_method_a():
     assert not masks["A"][p.r < p.a - 5.0].any()  # the hole is out
     assert_array_equal(masks["B"], masks["A"])
     assert_array_equal(masks["C"], masks["A"])
+
+
+def test_nothing_to_page_keeps_the_arrays_in_memory(tmp_path):
+    assert _paging.page({"a": np.zeros((0, 3))}, folder=tmp_path) is None
+    assert list(tmp_path.iterdir()) == []

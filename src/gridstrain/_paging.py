@@ -39,6 +39,8 @@ class PagedArrays:
     ------
     OSError
         The file cannot be made, its blocks reserved or mapped.
+    ValueError
+        Every array is empty (nothing to page).
     """
 
     def __init__(self, arrays: dict, *, folder):
@@ -47,11 +49,12 @@ class PagedArrays:
         for name, a in arrays.items():
             offsets[name] = total
             total += -(-a.nbytes // page) * page  # each array on its own pages
+        if total == 0:
+            raise ValueError("nothing to page: every array is empty")
         with tempfile.TemporaryFile(dir=folder) as f:
-            if total:
-                os.posix_fallocate(f.fileno(), 0, total)
+            os.posix_fallocate(f.fileno(), 0, total)
             # the mapping outlives the descriptor
-            self._map = mmap.mmap(f.fileno(), max(total, page))
+            self._map = mmap.mmap(f.fileno(), total)
         self.arrays = {}
         for name, a in arrays.items():
             view = np.ndarray(a.shape, dtype=a.dtype, buffer=self._map, offset=offsets[name])
