@@ -748,8 +748,8 @@ _CLIP_KAPPA = 1 - 2 * _CLIP * math.exp(-_CLIP**2 / 2) / math.sqrt(2 * math.pi) /
     _CLIP / math.sqrt(2))
 
 
-# tiles transformed at once by _tile_spectrum: 256 tiles of 128 x 128
-_TILE_BATCH_BYTES = 2**25
+# tiles transformed at once by _tile_spectrum: 16 tiles of 128 x 128
+_TILE_BATCH_BYTES = 2**21
 
 
 def _blackman_harris(n: int) -> np.ndarray:
@@ -939,8 +939,7 @@ def estimate_noise_image(image, lattice: Lattice | None = None, *, mask=None,
     Poissonian-Gaussian noise modeling and fitting for single-image raw-data",
     IEEE Trans. Image Process. 17 (2008) 1737-1754. doi:10.1109/TIP.2008.2001399
     """
-    img = as_image(image)
-    img = img.astype(np.float64)
+    img = as_image(image).astype(np.float64, copy=False)  # read only, never written
     H, W = img.shape
     if min(H, W) < 160:
         raise ValueError(f"image must be at least 160 x 160 px to estimate its noise, got "
@@ -965,8 +964,13 @@ def estimate_noise_image(image, lattice: Lattice | None = None, *, mask=None,
     reach = math.ceil(4.5 / (2 * math.pi * notch))
     tile = min(_TILE, 1 << math.floor(math.log2(min(H, W) / 2)))
     Hf, _ = _residual_filter(img.shape, lattice, _tile_spectrum(img, ~bad & ~edge, tile), notch)
-    r, lam, G = _filtered_residual(F, Hf, img.shape)
-    del F  # each full-size map is dropped once used: the image's size times 8 at most
+    del img  # each full-size map is dropped once used
+    # correlation of neighbouring residuals: Var(mean of n r^2) = 2 V^2 R / n
+    A = np.abs(Hf) ** 2
+    R = float(A.size * np.sum(A * A) / np.sum(A) ** 2)
+    del A
+    r, lam, G = _filtered_residual(F, Hf, (H, W))
+    del F, Hf
     ok = ~ndimage.binary_dilation(bad | edge, iterations=reach)
     ok[:reach] = ok[-reach:] = False
     ok[:, :reach] = ok[:, -reach:] = False
@@ -977,9 +981,6 @@ def estimate_noise_image(image, lattice: Lattice | None = None, *, mask=None,
                          "regions are left out with a band of "
                          f"{reach} px); a larger image or a noise model from a stack "
                          "helps")
-    # correlation of neighbouring residuals: Var(mean of n r^2) = 2 V^2 R / n
-    A = np.abs(Hf) ** 2
-    R = float(A.size * np.sum(A * A) / np.sum(A) ** 2)
     box = [lam[ok], r[ok]]
     del lam, r
     lb, vb, nbin = _binned_variances(box, n_bins, G)
@@ -1030,8 +1031,9 @@ def _gridless_borders(F, shape, lattice, mask) -> np.ndarray:
     nogrid = np.zeros((H, W), dtype=bool)
     for mod in mods:
         full = mod[np.ix_(iy, ix)]
-        ref = full[sel] if sel.any() else full.ravel()
-        nogrid |= full < 0.25 * float(np.median(ref))
+        ref = full[sel] if sel.any() else full.ravel().copy()
+        nogrid |= full < 0.25 * float(np.median(ref, overwrite_input=True))
+        del full, ref
     # the modulus marks a gridless region's border to within about two pitches, and
     # the coarse grid to within half its step
     band_px = math.ceil(2 * lattice.pitch + 0.5 * max(H / h, W / w))
@@ -1056,10 +1058,17 @@ def _filtered_residual(F, Hf, shape):
     ``Hf`` is even (the harmonics come in opposite pairs), so ``h`` is real and its
     half spectrum is enough."""
     half = Hf[:, :F.shape[1]]
-    h = sfft.irfft2(half, s=shape)
     G = float(np.mean(Hf * Hf))  # Parseval: sum h^2, the white-noise power passed
-    r = sfft.irfft2(F * half, s=shape)
-    lam = sfft.irfft2(F * sfft.rfft2(h * h), s=shape) / G
+    # one full-size map at a time beside F: h^2's transform, then each product in place
+    h = sfft.irfft2(half, s=shape)
+    np.multiply(h, h, out=h)
+    spec = sfft.rfft2(h)
+    del h
+    lam = sfft.irfft2(np.multiply(spec, F, out=spec), s=shape)
+    del spec
+    lam /= G
+    spec = np.multiply(F, half)
+    r = sfft.irfft2(spec, s=shape)
     return r, lam, G
 
 
