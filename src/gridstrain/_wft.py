@@ -399,19 +399,19 @@ def _wft(image, lattice: Lattice, *, sigma: float | None = None, mask=None,
     cdtype = V.dtype
     # rows per block of the final inverse FFTs (three transforms of nx points each)
     chunk = max(8, _CHUNK_BYTES // (3 * nx * cdtype.itemsize))
-    if sink is None:
-        psi = np.empty((2, H, W), dtype=cdtype)
-        dphi = np.empty((2, 2, H, W), dtype=dtype)
-    else:
-        h = min(chunk, H)
-        psi = work.get("psi", (2, h, W), cdtype)
-        dphi = work.get("dphi", (2, 2, h, W), dtype)
-
     valid, box = _region(m, full, margin * sigma)
     fast = _differentiator(float(sigma), dtype) if derivatives == "fast" else None
     kern = _kernels() if fast is not None else None
     if sink is not None and kern is None:
         fast = None  # the numpy fast path keeps whole maps: the exact one streams
+    psi = dphi = None  # the compiled loops stream to a sink from blocks of their own
+    if sink is None:
+        psi = np.empty((2, H, W), dtype=cdtype)
+        dphi = np.empty((2, 2, H, W), dtype=dtype)
+    elif kern is None:
+        h = min(chunk, H)
+        psi = work.get("psi", (2, h, W), cdtype)
+        dphi = work.get("dphi", (2, 2, h, W), dtype)
     # the moduli, for the validity threshold only: in float32 where the compiled loops
     # stream blocks to a sink (a threshold at a fraction of the median does not need
     # more digits, and a stack's threads each keep two)
@@ -428,7 +428,8 @@ def _wft(image, lattice: Lattice, *, sigma: float | None = None, mask=None,
                 out = None if sink is None else (
                     lambda r0, r1, p, d, md: sink(j, r0, r1, p, d, md))
                 _one_wave_vector_compiled(V, k, sigma, H, W, nx,
-                                          None if sink else psi[j], None if sink else dphi[j],
+                                          None if psi is None else psi[j],
+                                          None if dphi is None else dphi[j],
                                           mods[j], works[j], taps=fast[0], kern=kern,
                                           sink=out)
             elif fast is not None:
