@@ -61,7 +61,7 @@ from .accumulate import SeriesPass
 from .io import FrameSeries, open_series
 from .lattice import Lattice
 from .screening import FrameProbe
-from .stacks import StackResult, _PhaseMean, _Screener
+from .stacks import StackResult, _PhaseMean, _with_screening
 from .wft import DEFAULT_MARGIN, wft
 
 __all__ = [
@@ -467,10 +467,7 @@ def _joined(*parts) -> list:
 
 def _screened_result(res: StackResult, lattice: Lattice, shape, records) -> StackResult:
     """``res`` with the screening of its frames' ``records``, in frame order."""
-    screener = _Screener(lattice, True)
-    screener.probe = FrameProbe(lattice, shape)
-    screener.records = list(records)
-    return screener.result(res)
+    return _with_screening(res, records, FrameProbe(lattice, shape))
 
 
 def _screened(graph, blocks, lattice: Lattice, shape, split_every: int):
@@ -479,8 +476,7 @@ def _screened(graph, blocks, lattice: Lattice, shape, split_every: int):
     dask, _ = _dask()
     leaf = dask.delayed(_block_records, pure=True)
     parts = [leaf(block, lattice) for block in blocks]
-    records = _tree(parts, _joined, split_every) if len(parts) > 1 else \
-        dask.delayed(_joined, pure=True)(*parts)
+    records = _tree(parts, _joined, split_every)
     return dask.delayed(_screened_result, pure=True)(graph, lattice, tuple(shape), records)
 
 

@@ -202,18 +202,24 @@ class _Screener:
         """``res`` with the screening and a warning naming the flagged frames."""
         if not self.enabled or self.probe is None:
             return res
-        try:
-            sc = decide(self.records, self.probe)
-        except ValueError as exc:  # no frame shows a grid at the lattice's wave vectors
-            return replace(res, warnings=(*res.warnings, f"frames: {exc}"))
-        bad = sc.flagged
-        if not bad:
-            return replace(res, screening=sc)
-        warning = (f"{len(bad)} of {sc.n_frames} frame(s) flagged by the screening and "
-                   f"averaged all the same: {sc.listing()}; leave them out of frames, or "
-                   "measure with gridstrain.measure_series (gridstrain measure), which "
-                   "excludes them")
-        return replace(res, screening=sc, warnings=(*res.warnings, warning))
+        return _with_screening(res, self.records, self.probe)
+
+
+def _with_screening(res: StackResult, records, probe: FrameProbe) -> StackResult:
+    """``res`` with the screening of its frames' ``records`` (in frame order, made by
+    ``probe``) and a warning naming the flagged frames, which it averaged."""
+    try:
+        sc = decide(records, probe)
+    except ValueError as exc:  # no frame shows a grid at the lattice's wave vectors
+        return replace(res, warnings=(*res.warnings, f"frames: {exc}"))
+    bad = sc.flagged
+    if not bad:
+        return replace(res, screening=sc)
+    warning = (f"{len(bad)} of {sc.n_frames} frame(s) flagged by the screening and "
+               f"averaged all the same: {sc.listing()}; leave them out of frames, or "
+               "measure with gridstrain.measure_series (gridstrain measure), which "
+               "excludes them")
+    return replace(res, screening=sc, warnings=(*res.warnings, warning))
 
 
 class _MeanImage:
