@@ -70,6 +70,14 @@ class PagedArrays:
             self._map.madvise(advice)
 
 
+class Unpaged:
+    """What :func:`page` stands for before (or instead of) paging: nothing to give
+    back."""
+
+    def page_out(self) -> None:
+        """Nothing: the arrays are in memory."""
+
+
 def page(arrays: dict, *, folder) -> PagedArrays | None:
     """:class:`PagedArrays` of ``arrays`` in ``folder``, or None where the system
     cannot (no ``posix_fallocate``, a full disk, a file system without mappings)."""

@@ -1734,7 +1734,7 @@ def _measure(series: list, guesses: list, m: np.ndarray, o: _Setup, steps: _Step
     kin = 3 * _WFT_COST if o.lagrangian else _WFT_COST
     sink = _InMemory(n_states, o.dtype) if o.output is None else _streamed(o.output,
                                                                            n_states)
-    pager = None  # the reference's maps, paged out during the states' passes
+    pager = _paging.Unpaged()  # the reference's maps, paged out during states' passes
     with sink, _connect(o.scheduler) as client:
         pending = None if client is None else [
             _dist()._submit_pass(client, s, plan) for s, plan in zip(series, plans,
@@ -1743,8 +1743,7 @@ def _measure(series: list, guesses: list, m: np.ndarray, o: _Setup, steps: _Step
         def one(k):
             s = series[k]
             n = s.n_frames
-            if pager is not None:
-                pager.page_out()
+            pager.page_out()
             if client is None:
                 acc = _run_pass(s, plans[k], steps.sub(n * _pass_cost(method), s.name))
             else:  # the cluster worked while this machine read the other series
@@ -1767,13 +1766,13 @@ def _measure(series: list, guesses: list, m: np.ndarray, o: _Setup, steps: _Step
             # nothing reads the reference's maps while a state's frames are transformed,
             # the pass that needs the most memory: they wait in a temporary file beside
             # the result, paged in again by the system when the kinematics read them
-            pager = _paging.page({"psi": r.maps.psi, "dphi": r.maps.dphi},
+            paged = _paging.page({"psi": r.maps.psi, "dphi": r.maps.dphi},
                                  folder=sink.path.parent)
-            if pager is not None:
-                r = dataclasses.replace(r, maps=dataclasses.replace(r.maps, **pager.arrays))
+            if paged is not None:
+                pager = paged
+                r = dataclasses.replace(r, maps=dataclasses.replace(r.maps, **paged.arrays))
         done = [r.summary()]
-        if pager is not None:
-            pager.page_out()  # the noise floor transforms the reference's halves
+        pager.page_out()  # the noise floor transforms the reference's halves
         floor = _ReferenceFloor(r, done[0], ref_pass, lattice, sigma, o.margin, method,
                                 steps.sub(3 * _WFT_COST, "noise floor"), warnings)
         del ref_pass
@@ -1787,8 +1786,7 @@ def _measure(series: list, guesses: list, m: np.ndarray, o: _Setup, steps: _Step
             est = tracker.features(c.maps, c.stats.mean, guesses[i])
             c = c.dropping("mean")  # the image features were its only use
             res, rec, notes = tracker.measure(c.maps, est, guesses[i], c.name)
-            if pager is not None:
-                pager.page_out()  # the uncertainty maps read back the moduli only
+            pager.page_out()  # the uncertainty maps read back the moduli only
             if o.output is not None:
                 # the file keeps no phase maps, and the state's derivatives serve its
                 # kinematics only: freed before its uncertainty maps are made
