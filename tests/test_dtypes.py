@@ -156,7 +156,9 @@ def _noise_variance_map(dt):
 def _noise_floor(dt):
     ref, _ = _ref_cur(dt)
     nf = uncertainty.noise_floor(gridstrain.wft(ref[0], LAT), ref[0], K=0.3, L=4.0)
-    assert all(isinstance(x, float) for x in (*nf.u_std, *nf.strain_std, nf.level))
+    for a in (nf.theory_u, nf.theory_strain, nf.theory_phase, nf.theory_dphi, nf.modulus):
+        assert a.dtype == np.float64
+    assert all(isinstance(x, float) for x in nf.sensor_variance)
 
 
 def _frame_shifts(dt):

@@ -247,3 +247,32 @@ def test_check_sigma_snaps_within_1e_3_and_refuses_below():
         check_sigma(6.0 * (1 - 1.1e-3), 6.0)
     with pytest.raises(TypeError, match="sigma"):
         check_sigma("6", 6.0)
+
+
+def test_predicted_and_measured_floors_are_one_type_and_agree(pair):
+    from gridstrain import pipeline, uncertainty, wft
+
+    assert pipeline.NoiseFloor is uncertainty.NoiseFloor
+    ref = tifffile.imread(pair / "ref.tif").astype(np.float64)
+    cur = tifffile.imread(pair / "def.tif").astype(np.float64)
+    K, L = 0.28 * 16, 5 * 256  # the camera's model in stored units (x16 storage)
+    lat = Lattice.from_pitch(5.3, angle=10.0)
+    res = measure_series(ref, cur, lattice=lat, guess=(0.0, 0.0), noise_model=(K, L))
+    measured = res.noise
+    predicted = uncertainty.noise_floor(wft(ref, lat, sigma=res.sigma), ref, K=K, L=L)
+    assert isinstance(measured, uncertainty.NoiseFloor)
+    assert isinstance(predicted, uncertainty.NoiseFloor)
+    assert predicted.frames == measured.frames == (1, 1)
+    assert predicted.sigma == measured.sigma
+    # the same theory (eqs. 23-25, 34-35): the measurement evaluates it at the mean
+    # variance and median modulus, the prediction takes the median of its per-pixel
+    # maps; on this uniform sine grid they differ by the modulus' spread (0.8 %)
+    np.testing.assert_allclose(predicted.theory_u, measured.theory_u, rtol=0.03)
+    np.testing.assert_allclose(predicted.theory_strain, measured.theory_strain, rtol=0.03)
+    np.testing.assert_allclose(predicted.modulus, measured.modulus, rtol=0.02)
+    assert np.all(np.isnan(predicted.split_u))
+    assert np.all(np.isnan(predicted.vibration_u))
+    d = predicted.as_dict()
+    assert d["model"] == {"source": "given", "K": K, "L": L}
+    assert d["frames"] == [1, 1]
+    assert len(d["theory_phase"][0]) == 2

@@ -177,6 +177,7 @@ from .noise import NoiseModel, estimate_noise_image
 from .screening import FrameScreen
 from .stacks import _FrameOrder, _map_bounded, method_b
 from .uncertainty import (
+    NoiseFloor,
     aliasing_bias,
     displacement_strain_std,
     metrology,
@@ -237,75 +238,6 @@ _MAX_SATURATION = 0.01
 #: The vibrations of one series: :class:`gridstrain.vibration.VibrationReport`, named
 #: after the series (kept under this name for existing code).
 VibrationDiagnostics = VibrationReport
-
-
-@dataclass(frozen=True, eq=False)
-class NoiseFloor:
-    """Noise floor of the maps of each state (see the module docstring).
-
-    Every ``*_u`` array is ``(n_states, 2)`` for ``(u_x, u_y)`` in px, every
-    ``*_strain`` array ``(n_states, 3)`` for ``(e_xx, e_yy, e_xy)``
-    (dimensionless); NaN where the estimate is unavailable.
-
-    Attributes
-    ----------
-    sigma : float
-        Window standard deviation, px.
-    resolution : float
-        Spatial resolution, the window's FWHM ``2.355 sigma``, px.
-    sensor_variance : (n_series,) tuple of float
-        Per-frame image noise variance of each series (reference first), raw
-        grey levels^2, NaN for a single frame.
-    variance_method : (n_series,) tuple of str
-        How each variance was measured.
-    modulus : (n_series, 2) ndarray
-        Median ``|Psi|`` of each series' phase maps over their valid pixels, raw
-        grey levels.
-    theory_u, theory_strain : ndarray
-        Windowed-Fourier noise theory with the measured variances.
-    split_u, split_strain : ndarray
-        Reference split into halves, scaled to each state's frame counts.
-    vibration_u : ndarray
-        Standard deviation of the constant vibration offset of the displacement
-        (reference and state together), px.
-    model : dict, optional
-        Where the image noise came from: ``source`` ("stack", "single image",
-        "given" or a mix per series), and the camera model ``Var = K l + L`` used
-        where one was (:meth:`gridstrain.noise.NoiseModel.as_dict`).
-    """
-
-    sigma: float
-    resolution: float
-    sensor_variance: tuple[float, ...]
-    variance_method: tuple[str, ...]
-    modulus: np.ndarray
-    theory_u: np.ndarray
-    theory_strain: np.ndarray
-    split_u: np.ndarray
-    split_strain: np.ndarray
-    vibration_u: np.ndarray
-    model: dict | None = None
-
-    def __post_init__(self):
-        for name in ("modulus", "theory_u", "theory_strain", "split_u", "split_strain",
-                     "vibration_u"):
-            getattr(self, name).flags.writeable = False
-
-    def as_dict(self) -> dict:
-        """Plain-Python summary (lists, floats, NaN as None), for JSON and HDF5."""
-        def clean(a):
-            return [None if not math.isfinite(v) else float(v)
-                    for v in np.asarray(a, dtype=float).ravel()]
-
-        out = {"sigma_px": self.sigma, "resolution_fwhm_px": self.resolution,
-               "resolution_definition": "FWHM of the Gaussian window, 2 sqrt(2 ln 2) sigma",
-               "sensor_variance": clean(self.sensor_variance),
-               "variance_method": list(self.variance_method),
-               "modulus": [clean(m) for m in self.modulus]}
-        for name in ("theory_u", "theory_strain", "split_u", "split_strain", "vibration_u"):
-            out[name] = [clean(row) for row in getattr(self, name)]
-        out["model"] = self.model
-        return out
 
 
 @dataclass(frozen=True, eq=False)
@@ -2113,7 +2045,7 @@ class _ReferenceFloor:
                           sensor_variance=tuple(d.variance for d in done),
                           variance_method=tuple(d.variance_method for d in done),
                           modulus=np.array([d.modulus for d in done]), model=model_info,
-                          **rows)
+                          frames=tuple(int(d.T) for d in done), **rows)
 
 
 def _systematic_warnings(name: str, m: Measurement, fl: dict, alias: dict, smooth: dict,

@@ -227,45 +227,103 @@ def displacement_strain_std(reference: PhaseMaps, deformed: PhaseMaps, *, varian
     return u_std, strain_std
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class NoiseFloor:
-    """Predicted noise floor of a measurement between two states of ``T`` frames.
+    """The noise floor of displacement and strain, per state: measured or predicted.
+
+    One type for both: :func:`gridstrain.measure_series` gives the floor of the
+    maps of each loaded state it measured (``SeriesResult.noise``), and
+    :func:`noise_floor` predicts that of a planned measurement (one state against
+    a reference, from a camera model). Every ``*_u`` array is ``(n_states, 2)`` for
+    ``(u_x, u_y)`` in px, every ``*_strain`` array ``(n_states, 3)`` for ``(e_xx,
+    e_yy, e_xy)`` (dimensionless); NaN where the estimate is unavailable. The
+    values are one standard deviation at a pixel.
 
     Attributes
     ----------
-    frames : int
-        ``T`` frames averaged per state.
     sigma : float
         Window standard deviation, px.
-    level : float
-        Median grey level of the specimen (stored units).
-    modulus : (2,) tuple of float
-        Median fringe modulus ``|Psi_j|`` (grey levels).
-    phase_std, dphi_std : (2,) tuple of float
-        Per wave vector, rad and rad/px, for one state.
-    u_std : (2,) tuple of float
-        ``(u_x, u_y)``, px.
-    strain_std : (3,) tuple of float
-        ``(eps_xx, eps_yy, eps_xy)``.
     resolution : float
-        Spatial resolution, px: the full width at half maximum of the window,
-        ``2 sqrt(2 ln 2) sigma`` (two features closer than this are not told apart).
+        Spatial resolution, the window's FWHM ``2 sqrt(2 ln 2) sigma`` (2.355 sigma),
+        px: two features closer than this are not told apart.
+    sensor_variance : (n_series,) tuple of float
+        Per-frame image noise variance of each series (reference first), raw
+        grey levels^2, NaN for a single frame.
+    variance_method : (n_series,) tuple of str
+        How each variance was obtained.
+    modulus : (n_series, 2) ndarray
+        Median ``|Psi|`` of each series' phase maps over their valid pixels, raw
+        grey levels.
+    theory_u, theory_strain : ndarray
+        Windowed-Fourier noise theory (eqs. 23-25, 34-35) with those variances,
+        reference and state together.
+    split_u, split_strain : ndarray
+        Measured: the reference split into halves, scaled to each state's frame
+        counts (NaN for a prediction).
+    vibration_u : ndarray
+        Standard deviation of the constant vibration offset of the displacement
+        (reference and state together), px (NaN for a prediction).
+    model : dict, optional
+        Where the image noise came from: ``source`` ("stack", "single image",
+        "given" or a mix per series), and the camera model ``Var = K l + L`` used
+        where one was (:meth:`gridstrain.noise.NoiseModel.as_dict`).
+    frames : (n_series,) tuple of int, optional
+        Frames averaged in each series (reference first).
+    theory_phase : (n_states, 2) ndarray, optional
+        Per wave vector, the std of one state's phase, rad (given by
+        :func:`noise_floor`; None otherwise).
+    theory_dphi : (n_states, 2) ndarray, optional
+        Per wave vector, the std of one state's phase derivative along x, rad/px
+        (as ``theory_phase``).
     """
 
-    frames: int
     sigma: float
-    level: float
-    modulus: tuple[float, float]
-    phase_std: tuple[float, float]
-    dphi_std: tuple[float, float]
-    u_std: tuple[float, float]
-    strain_std: tuple[float, float, float]
     resolution: float
+    sensor_variance: tuple[float, ...]
+    variance_method: tuple[str, ...]
+    modulus: np.ndarray
+    theory_u: np.ndarray
+    theory_strain: np.ndarray
+    split_u: np.ndarray
+    split_strain: np.ndarray
+    vibration_u: np.ndarray
+    model: dict | None = None
+    frames: tuple[int, ...] | None = None
+    theory_phase: np.ndarray | None = None
+    theory_dphi: np.ndarray | None = None
+
+    def __post_init__(self):
+        for name in ("modulus", "theory_u", "theory_strain", "split_u", "split_strain",
+                     "vibration_u", "theory_phase", "theory_dphi"):
+            a = getattr(self, name)
+            if a is not None:
+                a.flags.writeable = False
+
+    def as_dict(self) -> dict:
+        """Plain-Python summary (lists, floats, NaN as None), for JSON and HDF5."""
+        def clean(a):
+            return [None if not math.isfinite(v) else float(v)
+                    for v in np.asarray(a, dtype=float).ravel()]
+
+        out = {"sigma_px": self.sigma, "resolution_fwhm_px": self.resolution,
+               "resolution_definition": "FWHM of the Gaussian window, 2 sqrt(2 ln 2) sigma",
+               "sensor_variance": clean(self.sensor_variance),
+               "variance_method": list(self.variance_method),
+               "modulus": [clean(m) for m in self.modulus]}
+        for name in ("theory_u", "theory_strain", "split_u", "split_strain", "vibration_u",
+                     "theory_phase", "theory_dphi"):
+            a = getattr(self, name)
+            if a is not None:
+                out[name] = [clean(row) for row in a]
+        if self.frames is not None:
+            out["frames"] = list(self.frames)
+        out["model"] = self.model
+        return out
 
 
 def noise_floor(maps: PhaseMaps, mean_image, *, K: float, L: float,
                 frames: int = 1) -> NoiseFloor:
-    """Predicted std of displacement and strain between two states like ``maps``.
+    """Predicted noise floor of a measurement between two states like ``maps``.
 
     Parameters
     ----------
@@ -281,8 +339,11 @@ def noise_floor(maps: PhaseMaps, mean_image, *, K: float, L: float,
     Returns
     -------
     NoiseFloor
-        Medians over the valid pixels of the maps of :func:`predict_uncertainty`,
-        for two independent states with the same noise.
+        For one state (``n_states = 1``) against a reference, both of ``T``
+        independent frames with the same noise: the medians over the valid pixels
+        of the maps of :func:`predict_uncertainty` (``theory_*``), the image's
+        per-frame variance at its median grey level (``sensor_variance``), the
+        median moduli; ``split_*`` and ``vibration_u`` are NaN (nothing measured).
     """
     check_type(maps, "maps", PhaseMaps)
     var = noise_variance_map(mean_image, K=K, L=L, sigma=maps.sigma, frames=frames)
@@ -295,15 +356,21 @@ def noise_floor(maps: PhaseMaps, mean_image, *, K: float, L: float,
     def med(a):
         return float(np.median(a[v]))
 
+    level = med(img)
+    modulus = [med(np.abs(p)) for p in maps.psi]
+    how = f"camera model Var = K l + L at the median grey level {level:.6g}"
     return NoiseFloor(
-        frames=int(frames), sigma=maps.sigma, level=med(img),
-        modulus=tuple(med(np.abs(p)) for p in maps.psi),
-        phase_std=tuple(med(a) for a in unc.phase_std[0]),
-        dphi_std=tuple(med(a) for a in unc.dphi_std[0]),
-        u_std=tuple(med(a) for a in unc.u_std),
-        strain_std=tuple(med(a) for a in unc.strain_std),
-        resolution=2 * math.sqrt(2 * math.log(2)) * maps.sigma,
-    )
+        sigma=maps.sigma, resolution=2 * math.sqrt(2 * math.log(2)) * maps.sigma,
+        sensor_variance=(float(K * level + L),) * 2, variance_method=(how, how),
+        modulus=np.array([modulus, modulus]),
+        theory_u=np.array([[med(a) for a in unc.u_std]]),
+        theory_strain=np.array([[med(a) for a in unc.strain_std]]),
+        split_u=np.full((1, 2), np.nan), split_strain=np.full((1, 3), np.nan),
+        vibration_u=np.full((1, 2), np.nan),
+        model={"source": "given", "K": float(K), "L": float(L)},
+        frames=(int(frames),) * 2,
+        theory_phase=np.array([[med(a) for a in unc.phase_std[0]]]),
+        theory_dphi=np.array([[med(a) for a in unc.dphi_std[0]]]))
 
 
 # --------------------------------------------------------------------------- metrology

@@ -167,11 +167,12 @@ def _summary(stack, series, lattice, model, vib, degree, floor) -> dict:
             "std_px": vib.std.tolist(), "covariance_px2": vib.covariance.tolist(),
             "contrast_factor": vib.contrast_factor.tolist(),
             "method_a_phase_offset_std_rad": vib.phase_offset_std.tolist()},
-        "noise_floor": {"frames_per_state": floor.frames, "sigma_px": floor.sigma,
+        "noise_floor": {"frames_per_state": floor.frames[1], "sigma_px": floor.sigma,
                         "spatial_resolution_px": floor.resolution,
-                        "u_std_px": list(floor.u_std), "strain_std": list(floor.strain_std),
-                        "phase_std_rad": list(floor.phase_std),
-                        "dphi_std_rad_per_px": list(floor.dphi_std)},
+                        "u_std_px": floor.theory_u[0].tolist(),
+                        "strain_std": floor.theory_strain[0].tolist(),
+                        "phase_std_rad": floor.theory_phase[0].tolist(),
+                        "dphi_std_rad_per_px": floor.theory_dphi[0].tolist()},
     }
 
 
@@ -215,9 +216,9 @@ def _print_report(series, lattice, model, vib, degree, floor, T: int) -> None:
               f"{fmt(vib.phase_offset_std[1])}) rad")
     print(f"predicted noise floor, T = {T} frames per state, sigma = {fmt(floor.sigma)} px "
           f"(spatial resolution {fmt(floor.resolution)} px FWHM):")
-    print(f"  u_x {fmt(floor.u_std[0])} px   u_y {fmt(floor.u_std[1])} px")
-    print(f"  e_xx {fmt(floor.strain_std[0])}   e_yy {fmt(floor.strain_std[1])}   "
-          f"e_xy {fmt(floor.strain_std[2])}")
+    u, e = floor.theory_u[0], floor.theory_strain[0]
+    print(f"  u_x {fmt(u[0])} px   u_y {fmt(u[1])} px")
+    print(f"  e_xx {fmt(e[0])}   e_yy {fmt(e[1])}   e_xy {fmt(e[2])}")
 
 
 def _arr(a):
