@@ -240,3 +240,49 @@ def test_stacks_method_b_is_the_direct_average(data):
     r32 = stacks.method_b(frames.astype(np.float32), lat, sigma=PITCH)
     assert r32.maps.psi.dtype == np.complex64
     assert r32.maps.dphi.dtype == np.float32
+
+
+@pytest.mark.parametrize("compiled", [True, False])
+def test_integer_frames_as_read_give_the_direct_sums(data, compiled, monkeypatch):
+    from gridstrain import _wft
+
+    if compiled and _wft._load_kernels() is None:
+        pytest.skip("the compiled loops need numba (the fast extra)")
+    monkeypatch.setattr(_wft, "_COMPILED", compiled)
+    frames, _ = data
+    raw = frames.astype(np.uint16)  # 12-bit levels stored x16: exact in uint16
+    bad = raw.copy()
+    bad[4] = np.roll(bad[4], 2, axis=1) // 2  # taken out again, as the screening does
+    acc = _pass(bad, chunks=2)
+    # the batch holds the frames as read where the compiled loops sum them
+    assert acc._buf.dtype == (np.uint16 if compiled else np.float64)
+    acc.remove(4, bad[4])
+    keep = [t for t in range(12) if t != 4]
+    st = acc.statistics()
+    # float64 sums of grey levels of ~3e4, one frame taken out: rounding ~1e-11
+    assert_allclose(st.mean, frames[keep].mean(axis=0), rtol=0, atol=1e-9)
+    assert_allclose(acc.half_means()[0], frames[[0, 1, 2, 3, 5]].mean(axis=0), atol=1e-9)
+    assert_allclose(acc.half_means()[1], frames[6:].mean(axis=0), atol=1e-9)
+    a = screen_frames(frames, _lattice()).shifts()[keep]
+    assert_allclose(st.variance, _direct_variance(frames[keep], a), rtol=1e-9, atol=1e-6)
+
+
+def test_compiled_and_numpy_sums_agree_for_method_c(data, monkeypatch):
+    from gridstrain import _wft
+
+    if _wft._load_kernels() is None:
+        pytest.skip("the compiled loops need numba (the fast extra)")
+    frames, _ = data
+    raw = frames.astype(np.uint16)
+    out = {}
+    for compiled in (True, False):
+        monkeypatch.setattr(_wft, "_COMPILED", compiled)
+        acc = _pass(raw, "C", chunks=3)
+        acc.remove(7, raw[7])
+        acc._flush()
+        out[compiled] = acc
+    # the same 12 weighted sums (4 linear rows, 8 realigning ones) added in another
+    # order: float64 rounding, 1e-13 of the largest sum
+    for name in ("lin", "sq"):
+        x, y = getattr(out[True], name), getattr(out[False], name)
+        assert_allclose(x, y, rtol=0, atol=1e-13 * np.abs(y).max())

@@ -255,3 +255,45 @@ def add_unit_sums(psi, mod, dphi, unit, msum, dsum, one, sign):  # pragma: no co
                 msum[y, x] -= m
                 dsum[0, y, x] -= d0
                 dsum[1, y, x] -= d1
+
+
+# the series pass's pixel sums (gridstrain.accumulate): numpy's operations per pixel,
+# without fused multiply-adds, so that a machine with FMA and one without agree
+_SUM_TILE = 1024  # pixels per tile: the tile's sums, origin and differences stay in cache
+
+
+@_exact_jit
+def add_differences(frames, b, origin, w, signs, lin, sq):  # pragma: no cover
+    """Add ``b`` raw frames' differences to the origin to the pass's linear sums and
+    sums of squares.
+
+    ``frames`` (B, N) raw grey levels (integers, the file's type), of which the first
+    ``b`` rows are added; ``origin`` (N,) float64; ``w`` (b, R) float64 the frames'
+    weights (one row per frame); ``signs`` (b,) +1 (added) or -1 (taken out);
+    ``lin`` (R, N) and ``sq`` (N,) float64 sums, updated in place:
+    ``lin[r] += sum_t w[t, r] d_t`` and ``sq += sum_t signs[t] d_t^2`` with ``d_t =
+    frames[t] - origin`` in float64. The pixels are taken by tiles, and each tile's
+    sums meet every frame of the batch while they are in cache: the sums are read
+    and written once per batch, not once per frame.
+    """
+    N = origin.size
+    R = lin.shape[0]
+    d = np.empty(_SUM_TILE)
+    for i0 in range(0, N, _SUM_TILE):
+        n = min(_SUM_TILE, N - i0)
+        for t in range(b):
+            row = frames[t]
+            s = signs[t]
+            for i in range(n):
+                v = np.float64(row[i0 + i]) - origin[i0 + i]
+                d[i] = v
+                if s > 0:
+                    sq[i0 + i] += v * v
+                else:
+                    sq[i0 + i] -= v * v
+            for r in range(R):
+                wr = w[t, r]
+                if wr != 0.0:
+                    out = lin[r]
+                    for i in range(n):
+                        out[i0 + i] += wr * d[i]

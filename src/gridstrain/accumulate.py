@@ -39,6 +39,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.linalg import blas
 
+from ._wft import _kernels
 from .lattice import Lattice
 from .screening import FrameProbe, FrameScreen, decide
 from .stacks import StackResult, _compensated_result, _FrameOrder, _PhaseMean
@@ -163,12 +164,9 @@ class SeriesPass:
         self.sq = np.zeros(H * W, dtype=np.float64)  # sum d^2
         # method C's weights sum: sum_t exp(-i theta_tj) per half, (2 halves, 2)
         self.wsum = np.zeros((2, 2), dtype=np.complex128)
-        batch = max(1, min(16, _BATCH_BYTES // (8 * H * W)))
-        if plan.method == "B":
-            # its transforms dominate its pass: a frame at a time, so that the batch
-            # adds no frame to the transforms' own memory
-            batch = 1
-        self._buf = np.empty((batch, H * W), dtype=np.float64)
+        # the batch: the frames' differences to the origin (float64), or, when the
+        # compiled loops are there, integer frames as read (set by the first frame)
+        self._buf = np.empty((0, H * W), dtype=np.float64)
         self._w: list = []  # pending weight rows
         self._signs: list = []  # their frames' signs (+1 added, -1 taken out)
         self._tmp = None  # scratch image
@@ -185,7 +183,9 @@ class SeriesPass:
 
     def add(self, t: int, frame, *, order: _FrameOrder | None = None,
             transform: bool = True) -> None:
-        """Add frame ``t`` (its index in the series, from 0), (H, W) float array.
+        """Add frame ``t`` (its index in the series, from 0), (H, W) array of grey
+        levels: float, or integers as read from the files (summed by the compiled
+        loops without a float64 copy of the batch, when they are installed).
 
         ``transform=False`` leaves method B's transform to :meth:`add_transform`
         (on another thread, in frame order with ``order``).
@@ -195,9 +195,9 @@ class SeriesPass:
         arr = np.asarray(frame)
         if arr.shape != self.shape:
             raise ValueError(f"frames must have the shape {self.shape}, got {arr.shape}")
-        self.dtype = arr.dtype if self.dtype is None else np.promote_types(self.dtype,
-                                                                             arr.dtype)
-        arr = arr.astype(np.float64, copy=False)
+        fd = arr.dtype if arr.dtype.kind == "f" else np.dtype(np.float64)
+        self.dtype = fd if self.dtype is None else np.promote_types(self.dtype, fd)
+        raw, arr = arr, arr.astype(np.float64, copy=False)
         rec = self.probe(arr)
         self.records[t] = rec
         self.theta[t] = np.angle(rec.coefficients * np.conj(self._c0))  # eq. (2)
@@ -205,7 +205,7 @@ class SeriesPass:
             _, parts = self._rigid(arr)
             if parts is not None:
                 self.parts[t] = parts
-        self._sums(t, arr, 1.0)
+        self._sums(t, raw, 1.0)
         if transform and self.transforms is not None:
             self.add_transform(t, arr, order=order)
 
@@ -221,7 +221,7 @@ class SeriesPass:
         """Take frame ``t`` (added before, read again) out of every sum."""
         if t not in self.records or t in self.removed:
             raise ValueError(f"frame {t} is not in the sums")
-        arr = np.asarray(frame, dtype=np.float64)
+        arr = np.asarray(frame)
         self._sums(t, arr, -1.0)
         if self.transforms is not None:
             self.add_transform(t, arr, remove=True)
@@ -240,13 +240,37 @@ class SeriesPass:
             self.wsum[h] += sign * e
         if t == 0 and np.array_equal(arr, self.origin):
             return  # the origin itself: d = 0 adds nothing to the pixel sums
+        raw = self._raw_dtype(arr)
+        if raw != self._buf.dtype or self._buf.shape[0] == 0:
+            self._flush()
+            self._buf = self._batch(raw)
         b = len(self._w)
         row = self._buf[b].reshape(self.shape)
-        np.subtract(arr, self.origin, out=row)
+        if raw == np.float64:
+            np.subtract(arr, self.origin, out=row)
+        else:
+            np.copyto(row, arr)  # the compiled loop takes the difference (_flush)
         self._signs.append(sign)  # the squares are summed by batch (_flush)
         self._w.append(w)
         if len(self._w) == self._buf.shape[0]:
             self._flush()
+
+    @staticmethod
+    def _raw_dtype(arr: np.ndarray) -> np.dtype:
+        """How a frame waits in the batch: as read (integers of at most 16 bits, the
+        compiled loop there to sum them), else as its float64 difference."""
+        if arr.dtype.kind in "ui" and arr.dtype.itemsize <= 2 and _kernels() is not None:
+            return arr.dtype
+        return np.dtype(np.float64)
+
+    def _batch(self, dtype) -> np.ndarray:
+        """An empty batch of frames of ``dtype``: at most 16 frames and
+        ``_BATCH_BYTES``; method B a frame at a time (its transforms dominate its
+        pass, and the batch adds no frame to their memory)."""
+        H, W = self.shape
+        n = 1 if self.plan.method == "B" else max(
+            1, min(16, _BATCH_BYTES // (np.dtype(dtype).itemsize * H * W)))
+        return np.empty((n, H * W), dtype=dtype)
 
     def _flush(self) -> None:
         b = len(self._w)
@@ -254,6 +278,12 @@ class SeriesPass:
             return
         W = np.array(self._w)  # (b, rows)
         D = self._buf[:b]
+        if D.dtype != np.float64:  # raw frames: the compiled loop (gridstrain._kernels)
+            _kernels().add_differences(self._buf, b, self.origin.reshape(-1), W,
+                                       np.array(self._signs), self.lin, self.sq)
+            self._w.clear()
+            self._signs.clear()
+            return
         # lin^T (HW, rows) += D^T (HW, b) @ W (b, rows), in place (Fortran views)
         blas.dgemm(1.0, D.T, W, beta=1.0, c=self.lin.T, overwrite_c=True)
         # sum_t sign_t d_t^2: the batch read once more, one temporary
@@ -277,14 +307,14 @@ class SeriesPass:
         # sent between Dask workers: the sums travel, not the batch buffer
         self._flush()
         state = self.__dict__.copy()
-        state["_buf"] = self._buf.shape
+        state["_buf"] = (self._buf.shape, self._buf.dtype.str)
         state["_tmp"] = None
         return state
 
     def __setstate__(self, state):
-        shape = state["_buf"]
+        shape, dtype = state["_buf"]
         self.__dict__.update(state)
-        self._buf = np.empty(shape, dtype=np.float64)
+        self._buf = np.empty(shape, dtype=dtype)
 
     def merge(self, other: SeriesPass) -> SeriesPass:
         """A new pass holding the sums of ``self`` and ``other`` (another part of the
@@ -299,7 +329,7 @@ class SeriesPass:
         out = copy.copy(self)
         out._w, out._signs = [], []
         out._tmp = None
-        out._buf = np.empty(self._buf.shape, dtype=np.float64)
+        out._buf = np.empty(self._buf.shape, dtype=self._buf.dtype)
         out.lin = self.lin + other.lin
         out.sq = self.sq + other.sq
         out.wsum = self.wsum + other.wsum

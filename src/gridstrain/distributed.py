@@ -632,7 +632,8 @@ def _chunk_pass(series, start: int, stop: int, plan, origin) -> SeriesPass:
     """One task: the pass over frames ``start:stop`` of ``series``."""
     acc = SeriesPass(plan, origin)
     with one_blas_thread():  # a worker's BLAS threads would spin on the others' cores
-        for k, frame in enumerate(series.frames(dtype=np.float64, start=start, stop=stop)):
+        dtype = np.float64 if plan.method == "B" else None  # as the local pass reads
+        for k, frame in enumerate(series.frames(dtype=dtype, start=start, stop=stop)):
             acc.add(start + k, frame)
     return acc
 

@@ -883,8 +883,12 @@ def _run_pass(s, plan: PassPlan, report: Progress) -> SeriesPass:
     order = _FrameOrder() if workers > 1 else None
     box: list = []
 
+    # methods A and C sum integer frames as read (gridstrain.accumulate); method B's
+    # transforms take them in float64, converted once here
+    dtype = np.float64 if plan.method == "B" else None
+
     def read():
-        for t, frame in enumerate(s.frames(dtype=np.float64)):
+        for t, frame in enumerate(s.frames(dtype=dtype)):
             if not box:
                 box.append(SeriesPass(plan, frame))
             box[0].add(t, frame, transform=False)
