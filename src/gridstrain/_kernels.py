@@ -280,20 +280,22 @@ def add_differences(frames, b, origin, w, signs, lin, sq):  # pragma: no cover
     R = lin.shape[0]
     d = np.empty(_SUM_TILE)
     for i0 in range(0, N, _SUM_TILE):
-        n = min(_SUM_TILE, N - i0)
+        i1 = min(i0 + _SUM_TILE, N)
+        n = i1 - i0
+        # contiguous 1-D views of the tile: what LLVM vectorises
+        o = origin[i0:i1]
+        q = sq[i0:i1]
+        dt = d[:n]
         for t in range(b):
-            row = frames[t]
-            s = signs[t]
+            row = frames[t, i0:i1]
+            s = signs[t]  # +1 or -1: the product is exact, a sum or a difference
             for i in range(n):
-                v = np.float64(row[i0 + i]) - origin[i0 + i]
-                d[i] = v
-                if s > 0:
-                    sq[i0 + i] += v * v
-                else:
-                    sq[i0 + i] -= v * v
+                v = np.float64(row[i]) - o[i]
+                dt[i] = v
+                q[i] += (v * v) * s
             for r in range(R):
                 wr = w[t, r]
                 if wr != 0.0:
-                    out = lin[r]
+                    out = lin[r, i0:i1]
                     for i in range(n):
-                        out[i0 + i] += wr * d[i]
+                        out[i] += wr * dt[i]
