@@ -309,13 +309,14 @@ def test_several_states_at_once_match_single_process(client, method):
 
 
 @pytest.mark.parametrize("method", ["A", "B"])
-def test_pipeline_on_the_cluster_matches_single_process(client, method):
+def test_pipeline_on_the_cluster_matches_single_process(client, method, monkeypatch):
     rng = np.random.default_rng(8)
     ref = _frames(11, rng, hole=True)
     states = [_frames(6, rng, strain=1e-3, hole=True),
               _frames(5, rng, strain=2e-3, hole=True)]
-    # one frame per task on these short series (at most _PASS_TASKS chunks): a
-    # reduction tree of several levels
+    # one frame per task on these short series (the graph is made in this process):
+    # a reduction tree of several levels
+    monkeypatch.setattr(gd, "_MIN_CHUNK_FRAMES", 1)
     want = measure_series(ref, states, lattice=LAT, method=method)
     got = measure_series(ref, states, lattice=LAT, method=method, scheduler=client)
     assert_array_equal(got.valid, want.valid)
@@ -496,11 +497,13 @@ def _pass_here(series, plan):
                         scheduler="synchronous")[0]
 
 
-def test_method_b_survives_a_worker_killed_mid_run(client, tmp_path):
+def test_method_b_survives_a_worker_killed_mid_run(client, tmp_path, monkeypatch):
     """One of the two workers dies on frame 3 of 8: Dask reruns its task on the other
     (the inputs are on every worker) and the result is bit for bit that of a run
     without the death (same graph, same order of the sums)."""
     import cloudpickle
+
+    monkeypatch.setattr(gd, "_MIN_CHUNK_FRAMES", 1)  # one frame per task: a tree
 
     # sent by value, should a worker be unable to import this test module
     cloudpickle.register_pickle_by_value(sys.modules[__name__])
@@ -544,11 +547,13 @@ def test_stalled_cluster_times_out_with_a_message(client):
         distributed.Event(name, client=client).set()
 
 
-@pytest.mark.parametrize("n_frames", [1, 7, 16, 17, 100])
-def test_method_b_tasks_take_chunks_of_frames(n_frames):
+@pytest.mark.parametrize(("n_frames", "tasks"),
+                         [(1, 1), (7, 1), (16, 1), (33, 2), (100, 6), (256, 16), (1000, 16)])
+def test_method_b_tasks_take_chunks_of_frames(n_frames, tasks):
     chunks = gd._frame_chunks(n_frames)
-    # every frame exactly once, in order, in at most _PASS_TASKS even chunks
+    # every frame exactly once, in order, in even chunks of at least
+    # _MIN_CHUNK_FRAMES frames (fewer when the series is shorter), at most _PASS_TASKS
     assert [t for a, b in chunks for t in range(a, b)] == list(range(n_frames))
-    assert len(chunks) == min(n_frames, gd._PASS_TASKS)
+    assert len(chunks) == tasks
     sizes = [b - a for a, b in chunks]
     assert max(sizes) - min(sizes) <= 1

@@ -83,6 +83,10 @@ _SPLIT_EVERY = 4
 # Tasks of a series' pass: enough to keep 16 worker threads busy on one series
 # (every series of a run is submitted at once, so more threads still find work)
 _PASS_TASKS = 16
+# Frames per task at the least: each task ships its sums back (80 bytes a pixel for
+# method B's transforms, 48 for the pixel sums: 191 MB at 1040 x 1376), which
+# costs as much as transforming about 3 frames (pickled, sent, added in the tree)
+_MIN_CHUNK_FRAMES = 16
 
 
 class MissingDistributedError(ImportError, ValueError):
@@ -658,7 +662,9 @@ def _submit_pass(client, series, plan) -> _Pending:
 
 
 def _frame_chunks(n_frames: int) -> list[tuple[int, int]]:
-    """``(start, stop)`` of at most :data:`_PASS_TASKS` consecutive chunks of frames.
+    """``(start, stop)`` of consecutive chunks of frames: at most :data:`_PASS_TASKS`,
+    of :data:`_MIN_CHUNK_FRAMES` frames at least (a series shorter than that is one
+    chunk).
 
     Each task sums its chunk on the worker and ships one set of float64 sums
     (80 bytes a pixel) back, not one per frame: with one frame per task the
@@ -668,7 +674,7 @@ def _frame_chunks(n_frames: int) -> list[tuple[int, int]]:
     result bit for bit, is the same however many workers are alive (one that dies
     and is restarted changes nothing).
     """
-    k = max(1, min(n_frames, _PASS_TASKS))
+    k = max(1, min(n_frames // _MIN_CHUNK_FRAMES, _PASS_TASKS))
     bounds = np.linspace(0, n_frames, k + 1).round().astype(int)
     return [(int(a), int(b)) for a, b in itertools.pairwise(bounds) if b > a]
 
