@@ -110,6 +110,40 @@ def test_method_b_on_identical_frames_is_one_wft():
     np.testing.assert_array_equal(res.maps.valid, ref.valid)
 
 
+def test_method_b_transforms_integer_frames_in_float32_and_keeps_float64_maps(monkeypatch):
+    from gridstrain import stacks
+
+    rng = np.random.default_rng(3)
+    phases, _ = paper_phases((96, 112))
+    # 12-bit frames stored x16 in uint16, each with its own shift and photon noise
+    frames = np.array([np.clip(np.round(0.6 * clean_frame(phases, tuple(rng.normal(0, 0.1, 2)))
+                                        + rng.normal(0, 10, (96, 112))), 0, 4095)
+                       for _ in range(6)]).astype(np.uint16) * 16
+    seen = []
+    transform = stacks._transform_input
+    monkeypatch.setattr(stacks, "_transform_input",
+                        lambda f: seen.append(transform(f)) or seen[-1])
+    got = method_b(frames, LAT, workers=1)
+    assert {img.dtype for img, _ in seen} == {np.dtype(np.float32)}
+    assert {prec for _, prec in seen} == {np.dtype(np.float64)}
+    assert got.maps.psi.dtype == np.complex128
+    assert got.maps.dphi.dtype == np.float64
+    want = method_b(frames.astype(np.float64), LAT, workers=1).maps
+    np.testing.assert_array_equal(got.maps.valid, want.valid)
+    v = want.valid
+    # float32 rounding of each frame's transform (measured here 1.0e-7 rad and 9e-8
+    # rad/px; 1.7e-7 rad and 4e-8 rad/px on 1040 x 1376 frames), four orders below
+    # the phase noise of one frame (~1e-3 rad); 1e-6 is the float32 transform's bound
+    dphase = np.angle(np.exp(1j * (got.maps.phase - want.phase)))[:, v]
+    assert np.abs(dphase).max() < 1e-6
+    assert np.abs(got.maps.dphi[:, :, v] - want.dphi[:, :, v]).max() < 1e-6
+    # float frames keep their precision
+    assert transform(frames[0].astype(np.float32))[0].dtype == np.float32
+    assert transform(frames[0].astype(np.float32))[1] == np.float32
+    assert transform(frames[0].astype(np.float64))[0].dtype == np.float64
+    assert transform(frames[0].astype(np.int32))[0].dtype == np.float64  # > 16 bits
+
+
 def test_method_b_averages_derivatives_and_ands_valid():
     phases, _ = paper_phases((96, 96))
     f1 = clean_frame(phases)

@@ -207,13 +207,13 @@ class SeriesPass:
                 self.parts[t] = parts
         self._sums(t, raw, 1.0)
         if transform and self.transforms is not None:
-            self.add_transform(t, arr, order=order)
+            self.add_transform(t, raw, order=order)
 
     def add_transform(self, t: int, frame, *, order: _FrameOrder | None = None,
                       remove: bool = False) -> None:
         """Add (or take out) method B's transform of frame ``t``; thread-safe."""
         p = self.plan
-        self.transforms.add_frame(np.asarray(frame, dtype=np.float64), p.lattice,
+        self.transforms.add_frame(frame, p.lattice,
                                   sigma=p.sigma, mask=p.transform_mask, margin=p.margin,
                                   index=t, order=order, remove=remove)
 

@@ -73,4 +73,11 @@ Precision
     - Everything else is float64: mean images, per-frame shifts and the
       screening's figures, noise models and variance maps, uncertainty maps and
       noise floors, and every scalar.
+    - One exception inside a computation, never in what it returns: method B
+      transforms each integer frame of at most 16 bits in float32 (its grey levels
+      are exact there), at half the cost of float64, and adds it to its float64
+      sums; its maps are float64 as above. The rounding this leaves, 1.7e-7 rad in
+      phase and 4e-8 rad/px in derivative (30 frames of 1040 x 1376, against
+      float64 transforms), lies four orders of magnitude below the phase noise of
+      one frame (about 1e-3 rad).
 """

@@ -636,8 +636,8 @@ def _chunk_pass(series, start: int, stop: int, plan, origin) -> SeriesPass:
     """One task: the pass over frames ``start:stop`` of ``series``."""
     acc = SeriesPass(plan, origin)
     with one_blas_thread():  # a worker's BLAS threads would spin on the others' cores
-        dtype = np.float64 if plan.method == "B" else None  # as the local pass reads
-        for k, frame in enumerate(series.frames(dtype=dtype, start=start, stop=stop)):
+        # the frames as stored, as the local pass reads them
+        for k, frame in enumerate(series.frames(dtype=None, start=start, stop=stop)):
             acc.add(start + k, frame)
     return acc
 

@@ -763,7 +763,8 @@ def _screen_pass(s, acc: SeriesPass, max_saturation: float, outliers: str):
     keep, warnings = outlier_verdict(s, sc, outliers)
     if outliers == "exclude":
         for t in bad:  # the second read of a frame: only for the excluded ones
-            acc.remove(t, next(iter(s.frames(dtype=np.float64, start=t, stop=t + 1))))
+            # as stored, as the pass read it: taken out exactly as it was added
+            acc.remove(t, next(iter(s.frames(dtype=None, start=t, stop=t + 1))))
     kept = s if len(keep) == n else s.subset(keep)
     coh = sc.coherence(keep)
     if len(keep) > 1 and coh.min() < _MIN_COHERENCE:
@@ -883,12 +884,10 @@ def _run_pass(s, plan: PassPlan, report: Progress) -> SeriesPass:
     order = _FrameOrder() if workers > 1 else None
     box: list = []
 
-    # methods A and C sum integer frames as read (gridstrain.accumulate); method B's
-    # transforms take them in float64, converted once here
-    dtype = np.float64 if plan.method == "B" else None
-
     def read():
-        for t, frame in enumerate(s.frames(dtype=dtype)):
+        # the frames as stored: integer frames are summed as read, and method B
+        # transforms them in float32 (gridstrain.accumulate, gridstrain.stacks)
+        for t, frame in enumerate(s.frames(dtype=None)):
             if not box:
                 box.append(SeriesPass(plan, frame))
             box[0].add(t, frame, transform=False)

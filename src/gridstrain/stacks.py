@@ -279,6 +279,21 @@ class _FrameOrder:
             self._cond.notify_all()
 
 
+def _transform_input(frame) -> tuple[np.ndarray, np.dtype]:
+    """``(image to transform, precision of the maps)`` for one of method B's frames.
+
+    Integer frames of at most 16 bits are exact in float32 and are transformed in
+    float32, at half the cost; their maps stay float64, averaged from float64 sums
+    (:mod:`gridstrain.conventions`, precision). Anything else is transformed in its
+    precision (:func:`gridstrain._validation.as_image`).
+    """
+    raw = image_array(frame, "frame")
+    if raw.dtype.kind in "ui" and raw.dtype.itemsize <= 2:
+        return as_image(raw.astype(np.float32), "frame"), np.dtype(np.float64)
+    img = as_image(raw, "frame")
+    return img, img.dtype
+
+
 class _PhaseMean:
     """Running sums of the frames' WFTs for method B.
 
@@ -326,16 +341,16 @@ class _PhaseMean:
         blocks are added after those of frame ``index - 1``. ``remove=True`` takes
         out a frame added before (its contributions are subtracted).
         """
-        img = as_image(img, "frame")
+        img, precision = _transform_input(img)
         H, W = img.shape
         with self._lock:
             if not hasattr(self, "unit"):
-                self._start((H, W), lattice, sigma, img.dtype)
+                self._start((H, W), lattice, sigma, precision)
             elif self.unit.shape[1:] != (H, W):
                 raise ValueError(f"frames must all have the shape {self.unit.shape[1:]}, "
                                  f"got {(H, W)}")
             # float32 maps only if every frame is float32 (gridstrain.conventions)
-            self.dtype = np.promote_types(self.dtype, img.dtype)
+            self.dtype = np.promote_types(self.dtype, precision)
         work = getattr(self._local, "work", None)
         if work is None:
             work = self._local.work = _Workspace()
@@ -593,7 +608,9 @@ def method_b(frames, lattice: Lattice, *, sigma: float | None = None, mask=None,
     screener = _Screener(lattice, screen)
     # frames probed here, in frame order, while the threads transform the ones before
     with one_blas_thread():  # BLAS's idle threads would spin on the transforms' cores
-        for i, total in _map_bounded(transform, screener.frames(_frames(frames)), n_workers):
+        # integer frames as they are: their transforms run in float32 (_transform_input)
+        items = screener.frames(_frames(frames, convert=False))
+        for i, total in _map_bounded(transform, items, n_workers):
             _report(progress, i, total, "method B")
     if acc.n == 0:
         raise ValueError("frames must hold at least one image, got none")
