@@ -265,11 +265,13 @@ class SeriesPass:
 
     def _batch(self, dtype) -> np.ndarray:
         """An empty batch of frames of ``dtype``: at most 16 frames and
-        ``_BATCH_BYTES``; method B a frame at a time (its transforms dominate its
-        pass, and the batch adds no frame to their memory)."""
+        ``_BATCH_BYTES``. Method B's transforms dominate its pass, and its batch
+        must add little to their memory: 4 raw integer frames (a quarter of one
+        float64 frame each), else one frame."""
         H, W = self.shape
-        n = 1 if self.plan.method == "B" else max(
-            1, min(16, _BATCH_BYTES // (np.dtype(dtype).itemsize * H * W)))
+        dtype = np.dtype(dtype)
+        most = 16 if self.plan.method != "B" else 4 if dtype.itemsize <= 2 else 1
+        n = max(1, min(most, _BATCH_BYTES // (dtype.itemsize * H * W)))
         return np.empty((n, H * W), dtype=dtype)
 
     def _flush(self) -> None:
