@@ -1022,7 +1022,7 @@ def _method_b_maps(s, sc: _Screened, acc: SeriesPass, used: np.ndarray,
     acc.release(keep_halves=acc.lin is not None, keep_method=False)
     kept = sc.series
     n = kept.n_frames
-    frames = _counting(kept.frames(dtype=np.float64), n, report,
+    frames = _counting(kept.frames(dtype=None), n, report,
                        "method B, without the regions showing no grid")
     # the kept frames were screened in the pass: not again
     return finite_derivatives(method_b(frames, plan.lattice, sigma=plan.sigma, mask=used,
