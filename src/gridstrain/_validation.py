@@ -57,14 +57,23 @@ def float_dtype(dtype) -> np.dtype:
     return np.dtype(np.float32) if np.dtype(dtype) == np.float32 else np.dtype(np.float64)
 
 
-def as_image(image, name: str = "image", *, allow_uniform: bool = False) -> np.ndarray:
+def as_image(image, name: str = "image", *, allow_uniform: bool = False,
+             dtype=None) -> np.ndarray:
     """Return ``image`` as a finite real 2-D float array (float32 or float64).
 
-    The input is never modified: a new array is returned when a conversion is
-    needed, and the caller must not write into the result.
+    ``dtype`` overrides the precision of :func:`float_dtype` (for integer images
+    known to be exact in float32). The input is never modified: a new array is
+    returned when a conversion is needed, and the caller must not write into the
+    result.
     """
     arr = image_array(image, name)
-    arr = arr.astype(float_dtype(arr.dtype), copy=False)
+    dt = float_dtype(arr.dtype) if dtype is None else np.dtype(dtype)
+    if arr.dtype.kind in "ui":  # finite whatever its values: checked as stored
+        if not allow_uniform and arr.min() == arr.max():
+            raise ValueError(f"{name} is uniform (every pixel equals "
+                             f"{float(arr.flat[0]):g}): no grid")
+        return arr.astype(dt)
+    arr = arr.astype(dt, copy=False)
     if not np.all(np.isfinite(arr)):
         bad = int(np.count_nonzero(~np.isfinite(arr)))
         raise ValueError(f"{name} must be finite, got {bad} NaN or infinite pixel(s)")

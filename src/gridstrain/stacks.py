@@ -289,7 +289,7 @@ def _transform_input(frame) -> tuple[np.ndarray, np.dtype]:
     """
     raw = image_array(frame, "frame")
     if raw.dtype.kind in "ui" and raw.dtype.itemsize <= 2:
-        return as_image(raw.astype(np.float32), "frame"), np.dtype(np.float64)
+        return as_image(raw, "frame", dtype=np.float32), np.dtype(np.float64)
     img = as_image(raw, "frame")
     return img, img.dtype
 
