@@ -286,3 +286,20 @@ def test_compiled_and_numpy_sums_agree_for_method_c(data, monkeypatch):
     for name in ("lin", "sq"):
         x, y = getattr(out[True], name), getattr(out[False], name)
         assert_allclose(x, y, rtol=0, atol=1e-13 * np.abs(y).max())
+
+
+def test_a_frame_read_as_float_leaves_the_raw_batch_exact(data):
+    # integer frames wait in the batch as read; a frame given as float64 (taken out
+    # again here) flushes them and is summed as its difference: the same sums
+    frames, _ = data
+    raw = frames.astype(np.uint16)
+    acc = SeriesPass(PassPlan(lattice=_lattice(), n_frames=12), raw[0])
+    for t in range(12):
+        acc.add(t, raw[t])  # 11 frames pending in the batch (the origin adds nothing)
+    acc.remove(4, raw[4].astype(np.float64))
+    keep = [t for t in range(12) if t != 4]
+    st = acc.statistics()
+    # grey levels of ~3e4 summed in float64, one taken out: rounding ~1e-11
+    assert_allclose(st.mean, frames[keep].mean(axis=0), rtol=0, atol=1e-9)
+    a = screen_frames(frames, _lattice()).shifts()[keep]
+    assert_allclose(st.variance, _direct_variance(frames[keep], a), rtol=1e-9, atol=1e-6)

@@ -253,3 +253,38 @@ def test_sinusoidal_field_below_half_a_period_with_the_automatic_guess(grid256, 
     # px: the window attenuates the 128-px sinusoid by exp(-2 pi^2 25 / 128^2) = 0.97,
     # 0.01 px of its 0.3-px amplitude; a wrong order would be 5 px
     assert np.max(np.abs(res.u[:, v] - truth[:, v])) < 0.05
+
+
+@pytest.mark.parametrize("field", [False, True])
+def test_fringe_order_is_fixed_per_connected_region_closest_to_the_guess(field):
+    from independent_grid import scene
+
+    shape = (96, 176)
+    lat = Lattice.from_pitch(5.0)
+    true = (6.3, -3.8)  # more than half a period: the phases alone say (1.3, 1.2) px
+
+    def u(X, Y):
+        return true[0] + 0 * X, true[1] + 0 * Y
+
+    ref, _ = scene(shape, pitch=5.0, angle=0.0, kind="sine", hole=False)
+    cur, _ = scene(shape, pitch=5.0, angle=0.0, kind="sine", hole=False, displacement=u)
+    mask = np.ones(shape, bool)
+    mask[:, 76:100] = False  # two regions, each 3 sigma and more from the other
+    left, right = np.s_[:, :60], np.s_[:, 116:]
+    if field:
+        # a guess field right on the left region and a period off in x on the right one
+        g = np.empty((2, *shape))
+        g[0], g[1] = 6.0, -4.0
+        g[0][:, 88:] = 1.0
+        want_right = (true[0] - 5.0, true[1])
+    else:
+        g = (6.0, -4.0)
+        want_right = true
+    res = measure(ref, cur, lattice=lat, mask=mask, guess=g)
+    for region, want in ((left, true), (right, want_right)):
+        v = res.valid[region]
+        assert v.sum() > 1000
+        for c in range(2):
+            # noise-free images, the window 4 sigma from the mask's edges: the
+            # displacement to 1e-3 px, a whole period (5 px) if the order were wrong
+            np.testing.assert_allclose(res.u[c][region][v], want[c], atol=1e-3)
