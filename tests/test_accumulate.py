@@ -303,3 +303,20 @@ def test_a_frame_read_as_float_leaves_the_raw_batch_exact(data):
     assert_allclose(st.mean, frames[keep].mean(axis=0), rtol=0, atol=1e-9)
     a = screen_frames(frames, _lattice()).shifts()[keep]
     assert_allclose(st.variance, _direct_variance(frames[keep], a), rtol=1e-9, atol=1e-6)
+
+
+def test_raw_frames_pending_when_the_compiled_loops_are_switched_off(data, monkeypatch):
+    from gridstrain import _wft
+
+    if _wft._load_kernels() is None:
+        pytest.skip("the compiled loops need numba (the fast extra)")
+    frames, _ = data
+    raw = frames.astype(np.uint16)
+    acc = SeriesPass(PassPlan(lattice=_lattice(), n_frames=12), raw[0])
+    for t in range(12):
+        acc.add(t, raw[t])  # pending as read, for the compiled loop
+    monkeypatch.setattr(_wft, "_COMPILED", False)
+    st = acc.statistics()  # flushed by numpy instead: the same sums
+    assert_allclose(st.mean, frames.mean(axis=0), rtol=0, atol=1e-9)
+    a = screen_frames(frames, _lattice()).shifts()
+    assert_allclose(st.variance, _direct_variance(frames, a), rtol=1e-9, atol=1e-6)

@@ -281,11 +281,15 @@ class SeriesPass:
         W = np.array(self._w)  # (b, rows)
         D = self._buf[:b]
         if D.dtype != np.float64:  # raw frames: the compiled loop (gridstrain._kernels)
-            _kernels().add_differences(self._buf, b, self.origin.reshape(-1), W,
-                                       np.array(self._signs), self.lin, self.sq)
-            self._w.clear()
-            self._signs.clear()
-            return
+            kern = _kernels()
+            if kern is not None:
+                kern.add_differences(self._buf, b, self.origin.reshape(-1), W,
+                                     np.array(self._signs), self.lin, self.sq)
+                self._w.clear()
+                self._signs.clear()
+                return
+            # the compiled loops switched off since the frames came: their differences
+            D = np.subtract(D, self.origin.reshape(-1))
         # lin^T (HW, rows) += D^T (HW, b) @ W (b, rows), in place (Fortran views)
         blas.dgemm(1.0, D.T, W, beta=1.0, c=self.lin.T, overwrite_c=True)
         # sum_t sign_t d_t^2: the batch read once more, one temporary
