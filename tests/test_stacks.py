@@ -122,7 +122,7 @@ def test_method_b_transforms_integer_frames_in_float32_and_keeps_float64_maps(mo
     seen = []
     transform = stacks._transform_input
     monkeypatch.setattr(stacks, "_transform_input",
-                        lambda f: seen.append(transform(f)) or seen[-1])
+                        lambda f, name: seen.append(transform(f, name)) or seen[-1])
     got = method_b(frames, LAT, workers=1)
     assert {img.dtype for img, _ in seen} == {np.dtype(np.float32)}
     assert {prec for _, prec in seen} == {np.dtype(np.float64)}
@@ -319,3 +319,12 @@ def test_prefix_stacks_validation():
         list(prefix_stacks(frames, LAT, [1], method="D"))
     with pytest.raises(TypeError, match="lattice"):
         method_a(frames, 5.0)
+
+
+def test_method_b_names_the_frame_that_is_not_finite():
+    phases, _ = paper_phases((64, 64))
+    frames = [clean_frame(phases) for _ in range(4)]
+    frames[2] = frames[2].copy()
+    frames[2][10, 10] = np.nan
+    with pytest.raises(ValueError, match=r"frames\[2\] must be finite, got 1 NaN"):
+        method_b(frames, LAT, workers=1, screen=False)

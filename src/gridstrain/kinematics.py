@@ -886,8 +886,7 @@ def _unwrapped_displacement(reference, deformed, valid, K, g) -> np.ndarray:
         off = np.empty(2)
         for i in range(2):
             # K_i . (u - g) over the region, in two of the region's arrays at most
-            # (not (2, n) copies of u, g and K (u - g): a state measured from the
-            # previous one's field peaked 110 MiB higher at 2048^2)
+            # (not (2, n) copies of u, g and K (u - g))
             v = u[0][sel]
             v *= K[i, 0]
             w = u[1][sel]

@@ -279,7 +279,7 @@ class _FrameOrder:
             self._cond.notify_all()
 
 
-def _transform_input(frame) -> tuple[np.ndarray, np.dtype]:
+def _transform_input(frame, name: str = "frame") -> tuple[np.ndarray, np.dtype]:
     """``(image to transform, precision of the maps)`` for one of method B's frames.
 
     Integer frames of at most 16 bits are exact in float32 and are transformed in
@@ -287,10 +287,10 @@ def _transform_input(frame) -> tuple[np.ndarray, np.dtype]:
     (:mod:`gridstrain.conventions`, precision). Anything else is transformed in its
     precision (:func:`gridstrain._validation.as_image`).
     """
-    raw = image_array(frame, "frame")
+    raw = image_array(frame, name)
     if raw.dtype.kind in "ui" and raw.dtype.itemsize <= 2:
-        return as_image(raw, "frame", dtype=np.float32), np.dtype(np.float64)
-    img = as_image(raw, "frame")
+        return as_image(raw, name, dtype=np.float32), np.dtype(np.float64)
+    img = as_image(raw, name)
     return img, img.dtype
 
 
@@ -341,7 +341,7 @@ class _PhaseMean:
         blocks are added after those of frame ``index - 1``. ``remove=True`` takes
         out a frame added before (its contributions are subtracted).
         """
-        img, precision = _transform_input(img)
+        img, precision = _transform_input(img, f"frames[{index}]")
         H, W = img.shape
         with self._lock:
             if not hasattr(self, "unit"):
