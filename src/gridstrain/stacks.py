@@ -559,7 +559,9 @@ def method_b(frames, lattice: Lattice, *, sigma: float | None = None, mask=None,
         Threads transforming frames at once (default: the usable cores). The
         frames add their contributions to one set of float64 sums (80 bytes a
         pixel), block of rows by block of rows, in frame order: the result does not
-        depend on ``workers``, bit for bit. Memory: the sums, and per thread one
+        depend on ``workers``, bit for bit. Integer frames of at most 16 bits are
+        transformed in float32, where their grey levels are exact, and the maps are
+        float64 (:mod:`gridstrain.conventions`, precision). Memory: the sums, and per thread one
         frame and the scratch arrays of one transform (about 100 bytes a pixel in
         float64).
     screen : bool
