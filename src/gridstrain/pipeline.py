@@ -177,6 +177,7 @@ from .noise import NoiseModel, estimate_noise_image
 from .screening import FrameScreen
 from .stacks import _FrameOrder, _map_bounded, method_b
 from .uncertainty import (
+    _FWHM,
     NoiseFloor,
     aliasing_bias,
     displacement_strain_std,
@@ -204,7 +205,7 @@ Progress = Callable[[float, str], None]
 
 #: Full width at half maximum of a Gaussian over its standard deviation,
 #: ``2 sqrt(2 ln 2)``: the spatial resolution of the maps is this times sigma.
-FWHM_PER_SIGMA = 2.0 * math.sqrt(2.0 * math.log(2.0))
+FWHM_PER_SIGMA = _FWHM
 #: Names of the maps, in file order, with their units before ``pixel_size``.
 MAP_FIELDS = {"ux": "px", "uy": "px", "exx": "1", "eyy": "1", "exy": "1"}
 
@@ -904,9 +905,10 @@ def _run_pass(s, plan: PassPlan, report: Progress) -> SeriesPass:
                 raise
         return t
 
-    with one_blas_thread():  # BLAS's idle threads would spin on the transforms' cores
-        for t in _map_bounded(transform, read(), workers):
-            report((t + 1) / n, f"frame {t + 1}/{n}")
+    # BLAS is on the calling thread already (measure_series): its idle threads would
+    # spin on the transforms' cores
+    for t in _map_bounded(transform, read(), workers):
+        report((t + 1) / n, f"frame {t + 1}/{n}")
     if not box:
         raise ValueError(f"{s.name}: no frame")
     return box[0]

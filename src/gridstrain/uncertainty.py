@@ -360,7 +360,7 @@ def noise_floor(maps: PhaseMaps, mean_image, *, K: float, L: float,
     modulus = [med(np.abs(p)) for p in maps.psi]
     how = f"camera model Var = K l + L at the median grey level {level:.6g}"
     return NoiseFloor(
-        sigma=maps.sigma, resolution=2 * math.sqrt(2 * math.log(2)) * maps.sigma,
+        sigma=maps.sigma, resolution=_FWHM * maps.sigma,
         sensor_variance=(float(K * level + L),) * 2, variance_method=(how, how),
         modulus=np.array([modulus, modulus]),
         theory_u=np.array([[med(a) for a in unc.u_std]]),
