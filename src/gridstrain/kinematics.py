@@ -883,24 +883,10 @@ def _unwrapped_displacement(reference, deformed, valid, K, g) -> np.ndarray:
     constant = g.strides[1:] == (0, 0)  # a (u_x, u_y) pair broadcast: K g once
     for lab in range(1, n_regions + 1):
         sel = valid if n_regions == 1 else labels == lab
-        off = np.empty(2)
-        for i in range(2):
-            # K_i . (u - g) over the region, in two of the region's arrays at most
-            # (not (2, n) copies of u, g and K (u - g))
-            v = u[0][sel]
-            v *= K[i, 0]
-            w = u[1][sel]
-            w *= K[i, 1]
-            v += w
-            if not constant:
-                for c in range(2):
-                    np.multiply(g[c][sel], K[i, c], out=w)
-                    v -= w
-            del w
-            off[i] = np.median(v, overwrite_input=True)
-            del v
         if constant:
-            off -= K @ g[:, 0, 0]
+            off = np.median(K @ u[:, sel], axis=1) - K @ g[:, 0, 0]
+        else:
+            off = np.median(K @ (u[:, sel] - g[:, sel]), axis=1)
         n = np.rint(off)
         if np.any(n):
             u[:, sel] -= np.linalg.solve(K, n)[:, None]
