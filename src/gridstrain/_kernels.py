@@ -243,18 +243,13 @@ def add_unit_sums(psi, mod, dphi, unit, msum, dsum, one, sign):  # pragma: no co
                 d1 = 0.0
             ur = np.float64(psi[y, 2 * x]) * inv
             ui = np.float64(psi[y, 2 * x + 1]) * inv
-            if sign > 0:
-                unit[y, 2 * x] += ur
-                unit[y, 2 * x + 1] += ui
-                msum[y, x] += m
-                dsum[0, y, x] += d0
-                dsum[1, y, x] += d1
-            else:
-                unit[y, 2 * x] -= ur
-                unit[y, 2 * x + 1] -= ui
-                msum[y, x] -= m
-                dsum[0, y, x] -= d0
-                dsum[1, y, x] -= d1
+            # sign is +1 or -1: each product is exact, so this adds or subtracts
+            # exactly what numpy's add or subtract does
+            unit[y, 2 * x] += ur * sign
+            unit[y, 2 * x + 1] += ui * sign
+            msum[y, x] += m * sign
+            dsum[0, y, x] += d0 * sign
+            dsum[1, y, x] += d1 * sign
 
 
 # the series pass's pixel sums (gridstrain.accumulate): numpy's operations per pixel,

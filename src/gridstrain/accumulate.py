@@ -279,14 +279,15 @@ class SeriesPass:
         if b == 0:
             return
         W = np.array(self._w)  # (b, rows)
+        signs = np.array(self._signs)
+        self._w.clear()
+        self._signs.clear()
         D = self._buf[:b]
         if D.dtype != np.float64:  # raw frames: the compiled loop (gridstrain._kernels)
             kern = _kernels()
             if kern is not None:
-                kern.add_differences(self._buf, b, self.origin.reshape(-1), W,
-                                     np.array(self._signs), self.lin, self.sq)
-                self._w.clear()
-                self._signs.clear()
+                kern.add_differences(self._buf, b, self.origin.reshape(-1), W, signs,
+                                     self.lin, self.sq)
                 return
             # the compiled loops switched off since the frames came: their differences
             D = np.subtract(D, self.origin.reshape(-1))
@@ -295,19 +296,15 @@ class SeriesPass:
         # sum_t sign_t d_t^2: the batch read once more, one temporary
         if b == 1:  # the frame's row is free once in lin: squared in place
             np.multiply(D[0], D[0], out=D[0])
-            (np.add if self._signs[0] > 0 else np.subtract)(self.sq, D[0], out=self.sq)
-            self._w.clear()
-            self._signs.clear()
+            (np.add if signs[0] > 0 else np.subtract)(self.sq, D[0], out=self.sq)
             return
         if self._tmp is None:
             self._tmp = np.empty(D.shape[1])
-        if all(sg > 0 for sg in self._signs):  # frames added, none taken out: no weights
+        if np.all(signs > 0):  # frames added, none taken out: no weights
             np.einsum("bi,bi->i", D, D, out=self._tmp)
         else:
-            np.einsum("bi,bi,b->i", D, D, np.array(self._signs), out=self._tmp)
+            np.einsum("bi,bi,b->i", D, D, signs, out=self._tmp)
         self.sq += self._tmp
-        self._w.clear()
-        self._signs.clear()
 
     def __getstate__(self):
         # sent between Dask workers: the sums travel, not the batch buffer
