@@ -288,21 +288,31 @@ def test_compiled_and_numpy_sums_agree_for_method_c(data, monkeypatch):
         assert_allclose(x, y, rtol=0, atol=1e-13 * np.abs(y).max())
 
 
+def _pending_raw_pass(raw):
+    """A pass with every frame of ``raw`` added: 11 wait in the batch as read (the
+    origin adds nothing), none summed yet."""
+    acc = SeriesPass(PassPlan(lattice=_lattice(), n_frames=len(raw)), raw[0])
+    for t in range(len(raw)):
+        acc.add(t, raw[t])
+    return acc
+
+
+def _assert_direct_sums(st, frames, keep):
+    # grey levels of ~3e4 summed in float64, a frame taken out: rounding ~1e-11
+    assert_allclose(st.mean, frames[keep].mean(axis=0), rtol=0, atol=1e-9)
+    a = screen_frames(frames, _lattice()).shifts()[keep]
+    assert_allclose(st.variance, _direct_variance(frames[keep], a), rtol=1e-9, atol=1e-6)
+
+
 def test_a_frame_read_as_float_leaves_the_raw_batch_exact(data):
     # integer frames wait in the batch as read; a frame given as float64 (taken out
     # again here) flushes them and is summed as its difference: the same sums
     frames, _ = data
     raw = frames.astype(np.uint16)
-    acc = SeriesPass(PassPlan(lattice=_lattice(), n_frames=12), raw[0])
-    for t in range(12):
-        acc.add(t, raw[t])  # 11 frames pending in the batch (the origin adds nothing)
+    acc = _pending_raw_pass(raw)
     acc.remove(4, raw[4].astype(np.float64))
     keep = [t for t in range(12) if t != 4]
-    st = acc.statistics()
-    # grey levels of ~3e4 summed in float64, one taken out: rounding ~1e-11
-    assert_allclose(st.mean, frames[keep].mean(axis=0), rtol=0, atol=1e-9)
-    a = screen_frames(frames, _lattice()).shifts()[keep]
-    assert_allclose(st.variance, _direct_variance(frames[keep], a), rtol=1e-9, atol=1e-6)
+    _assert_direct_sums(acc.statistics(), frames, keep)
 
 
 def test_raw_frames_pending_when_the_compiled_loops_are_switched_off(data, monkeypatch):
@@ -311,12 +321,7 @@ def test_raw_frames_pending_when_the_compiled_loops_are_switched_off(data, monke
     if _wft._load_kernels() is None:
         pytest.skip("the compiled loops need numba (the fast extra)")
     frames, _ = data
-    raw = frames.astype(np.uint16)
-    acc = SeriesPass(PassPlan(lattice=_lattice(), n_frames=12), raw[0])
-    for t in range(12):
-        acc.add(t, raw[t])  # pending as read, for the compiled loop
+    acc = _pending_raw_pass(frames.astype(np.uint16))
     monkeypatch.setattr(_wft, "_COMPILED", False)
-    st = acc.statistics()  # flushed by numpy instead: the same sums
-    assert_allclose(st.mean, frames.mean(axis=0), rtol=0, atol=1e-9)
-    a = screen_frames(frames, _lattice()).shifts()
-    assert_allclose(st.variance, _direct_variance(frames, a), rtol=1e-9, atol=1e-6)
+    # flushed by numpy instead: the same sums
+    _assert_direct_sums(acc.statistics(), frames, list(range(12)))
