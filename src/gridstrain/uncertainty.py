@@ -661,22 +661,34 @@ def smoothing_bias(strain, valid, *, sigma: float) -> dict:
     times the strain noise std (the pipeline warns above twice the noise std).
     The estimate is of the bias of the smoothed field, so it understates
     features narrower than the window.
+
+    It is taken on every ``s``-th row and column, ``s = floor(sigma / 3)``, at
+    ``s^2`` times less cost. The maps are band-limited by the window (transfer
+    ``exp(-2 pi^2 sigma^2 f^2)``): at the Nyquist frequency of that sampling,
+    ``1 / 2s``, less than ``exp(-4.5 pi^2) < 1e-19`` of them is left, so nothing
+    aliases. The five-point Laplacian at a step of ``s`` px underestimates that of
+    a sine of wavenumber ``k`` by ``(k s)^2 / 12``: at ``k = 1 / sigma``, where the
+    estimate of a sine is largest, under 1 % (``s <= sigma / 3``), or 2 % at
+    ``sigma = 2`` px, which is sampled at every pixel.
     """
     sigma = check_positive(sigma, "sigma")
     e = np.asarray(strain, dtype=np.float64)
     v = np.asarray(valid, dtype=bool)
-    inner = ndimage.binary_erosion(v, iterations=max(1, math.ceil(2 * sigma)))
+    s = max(1, int(sigma // 3))
+    e, v = e[:, ::s, ::s], v[::s, ::s]
+    sig = sigma / s  # the window in samples of the decimated maps
+    inner = ndimage.binary_erosion(v, iterations=max(1, math.ceil(2 * sig)))
     p95, mx = [], []
-    wsum = ndimage.gaussian_filter(v.astype(np.float64), sigma)
+    wsum = ndimage.gaussian_filter(v.astype(np.float64), sig)
     np.maximum(wsum, 1e-12, out=wsum)
     for c in e:
         filled = np.where(v, c, 0.0)
-        sm = np.divide(ndimage.gaussian_filter(filled, sigma), wsum, out=filled)
+        sm = np.divide(ndimage.gaussian_filter(filled, sig), wsum, out=filled)
         lap = ndimage.laplace(sm)
         del sm
         b = lap[inner] if inner.any() else np.array([])
         del lap
-        b *= 0.5 * sigma**2
+        b *= 0.5 * sig**2  # sigma^2 / 2 times the Laplacian per px^2 (samples of s px)
         np.abs(b, out=b)
         p95.append(float(np.percentile(b, 95)) if b.size else math.nan)
         mx.append(float(b.max()) if b.size else math.nan)
