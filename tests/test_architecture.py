@@ -25,7 +25,7 @@ CORE = {
     "conventions", "_validation", "_progress", "_fft", "lattice", "_wft", "wft", "kinematics",
     "stacks", "vibration", "screening", "accumulate", "noise", "uncertainty", "theory",
     "synthetic",
-    "kirsch", "_kernels", "_spline_kernels", "_threads",
+    "kirsch", "_kernels", "_spline_kernels", "_threads", "_stats",
 }
 
 

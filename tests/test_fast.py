@@ -18,7 +18,8 @@ import pytest
 from scipy import ndimage
 
 from gridstrain import Lattice, synthetic, wft
-from gridstrain._wft import _median, _spectrum_block, _wft, transfer_function
+from gridstrain._stats import median as _median
+from gridstrain._wft import _spectrum_block, _wft, transfer_function
 from gridstrain.stacks import method_b
 
 
@@ -167,6 +168,17 @@ def test_median_is_numpy_median(n):
     np.testing.assert_array_equal(values, before)  # not modified
     box = rng.random((n + 20, 31))[7:n + 9, 3:30]  # a 2-D view, as the valid box is
     assert _median(box) == np.median(box)
+    f32 = values.astype(np.float32)  # in the values' precision, as numpy's
+    assert _median(f32) == float(np.median(f32))
+    values[n // 3] = np.nan  # a NaN anywhere gives NaN, as numpy's
+    assert np.isnan(_median(values))
+    assert np.isnan(np.median(values))
+    work = box.copy()
+    assert _median(work, overwrite_input=True) == np.median(box)
+
+
+def test_median_of_nothing_is_nan():
+    assert np.isnan(_median(np.array([])))
 
 
 @pytest.mark.parametrize(("ny", "nx", "r0", "nr", "c0", "nc"),

@@ -20,6 +20,7 @@ from scipy import fft as sfft
 from scipy import ndimage
 
 from . import _fft
+from ._stats import median
 from ._validation import (
     as_image,
     check_choice,
@@ -209,22 +210,6 @@ def _runs(idx: np.ndarray):
         end = last + s
         yield slice(start, stop), slice(first, None if end < 0 else end, s)
         start = stop
-
-
-def _median(values: np.ndarray) -> float:
-    """``np.median`` of the finite ``values`` (any shape, a view is fine; not modified).
-
-    One partial sort around the upper middle, then the maximum of the lower half:
-    ``np.median`` partially sorts around both middle elements, which costs about
-    five times as much on the modulus maps of the valid region.
-    """
-    flat = np.array(values, copy=True).reshape(-1)
-    n = flat.size
-    k = n // 2
-    flat.partition(k)
-    if n % 2:
-        return float(flat[k])
-    return float((flat[:k].max() + flat[k]) / 2)
 
 
 def wft(image, lattice: Lattice, *, sigma: float | None = None, mask=None,
@@ -474,7 +459,7 @@ def _shows_grid(mods, valid: np.ndarray, box, m: np.ndarray, min_modulus: float)
     keep = np.ones(valid.shape, dtype=bool)
     for mod in mods:
         values = mod[box] if box is not None else mod[valid] if any_valid else mod[m]
-        keep &= mod >= min_modulus * _median(values)
+        keep &= mod >= min_modulus * median(values)
     return keep
 
 

@@ -15,6 +15,7 @@ from scipy import fft as sfft
 from scipy import ndimage
 from skimage.restoration import unwrap_phase
 
+from ._stats import median
 from ._validation import (
     as_image,
     as_pair,
@@ -884,13 +885,18 @@ def _unwrapped_displacement(reference, deformed, valid, K, g) -> np.ndarray:
     for lab in range(1, n_regions + 1):
         sel = valid if n_regions == 1 else labels == lab
         if constant:
-            off = np.median(K @ u[:, sel], axis=1) - K @ g[:, 0, 0]
+            off = _row_medians(K @ u[:, sel]) - K @ g[:, 0, 0]
         else:
-            off = np.median(K @ (u[:, sel] - g[:, sel]), axis=1)
+            off = _row_medians(K @ (u[:, sel] - g[:, sel]))
         n = np.rint(off)
         if np.any(n):
             u[:, sel] -= np.linalg.solve(K, n)[:, None]
     return u
+
+
+def _row_medians(a: np.ndarray) -> np.ndarray:
+    """``np.median(a, axis=1)`` of a fresh (2, N) product, sorted in place."""
+    return np.array([median(row, overwrite_input=True) for row in a])
 
 
 def _lagrangian_fixed_point(u, reference, deformed, valid, tol, max_iter):

@@ -19,6 +19,7 @@ from scipy import fft as sfft
 from scipy import linalg, ndimage, special
 
 from ._progress import Progress, null_progress
+from ._stats import median
 from ._validation import (
     as_float_array,
     as_image,
@@ -1032,7 +1033,7 @@ def _gridless_borders(F, shape, lattice, mask) -> np.ndarray:
     for mod in mods:
         full = mod[np.ix_(iy, ix)]
         ref = full[sel] if sel.any() else full.ravel().copy()
-        nogrid |= full < 0.25 * float(np.median(ref, overwrite_input=True))
+        nogrid |= full < 0.25 * median(ref, overwrite_input=True)
         del full, ref
     # the modulus marks a gridless region's border to within about two pitches, and
     # the coarse grid to within half its step

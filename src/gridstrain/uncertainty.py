@@ -17,6 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import ndimage
 
+from . import _stats
 from ._validation import (
     as_float_array,
     as_image,
@@ -75,7 +76,7 @@ class Uncertainty:
         v = self.valid
         names = ("ux", "uy", "exx", "eyy", "exy")
         maps = (*self.u_std, *self.strain_std)
-        return {n: float(np.median(m[v])) if v.any() else math.nan for n, m in zip(names, maps,
+        return {n: _stats.median(m[v]) if v.any() else math.nan for n, m in zip(names, maps,
                                                                                   strict=True)}
 
 
@@ -354,7 +355,7 @@ def noise_floor(maps: PhaseMaps, mean_image, *, K: float, L: float,
     img = np.asarray(mean_image, dtype=np.float64)
 
     def med(a):
-        return float(np.median(a[v]))
+        return _stats.median(a[v])
 
     level = med(img)
     modulus = [med(np.abs(p)) for p in maps.psi]

@@ -1,0 +1,42 @@
+"""Order statistics of large maps.
+
+``np.median`` partially sorts around both middle elements of an even-sized array;
+on a 1040 x 1376 modulus or uncertainty map that costs 11 to 14 ms, against 1.5 ms
+for one partial sort around the upper middle (numpy 2.4). The pipeline takes a
+dozen such medians per state (the moduli, the uncertainty floors, the regions
+without a grid), so :func:`median` takes the lower middle as the maximum of the
+lower half instead.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+__all__: list[str] = []
+
+
+def median(values, *, overwrite_input: bool = False) -> float:
+    """``np.median`` of the float ``values`` (any shape, a view is fine).
+
+    Equal to ``float(np.median(values))``: the mean of the two middle values of an
+    even count (in the values' precision), NaN if any value is NaN, NaN (without
+    numpy's warning) when empty. ``values`` is not modified unless
+    ``overwrite_input`` and it is a contiguous array, which is then partially
+    sorted in place instead of copied.
+    """
+    values = np.asarray(values)
+    if overwrite_input and values.flags.c_contiguous:
+        flat = values.reshape(-1)
+    else:
+        flat = np.array(values, copy=True).reshape(-1)
+    n = flat.size
+    if n == 0:
+        return float("nan")
+    k = n // 2
+    flat.partition(k)
+    # a NaN sorts above every number: it is at k or above it
+    if np.isnan(flat[k:]).any():
+        return float("nan")
+    if n % 2:
+        return float(flat[k])
+    return float((flat[:k].max() + flat[k]) / 2)
