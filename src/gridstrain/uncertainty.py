@@ -663,19 +663,19 @@ def smoothing_bias(strain, valid, *, sigma: float) -> dict:
     The estimate is of the bias of the smoothed field, so it understates
     features narrower than the window.
 
-    It is taken on every ``s``-th row and column, ``s = floor(sigma / 3)``, at
+    It is taken on every ``s``-th row and column, ``s = floor(sigma / 2.5)``, at
     ``s^2`` times less cost. The maps are band-limited by the window (transfer
     ``exp(-2 pi^2 sigma^2 f^2)``): at the Nyquist frequency of that sampling,
-    ``1 / 2s``, less than ``exp(-4.5 pi^2) < 1e-19`` of them is left, so nothing
+    ``1 / 2s``, less than ``exp(-3.125 pi^2) < 1e-13`` of them is left, so nothing
     aliases. The five-point Laplacian at a step of ``s`` px underestimates that of
     a sine of wavenumber ``k`` by ``(k s)^2 / 12``: at ``k = 1 / sigma``, where the
-    estimate of a sine is largest, under 1 % (``s <= sigma / 3``), or 2 % at
+    estimate of a sine is largest, under 1.4 % (``s <= sigma / 2.5``), or 2 % at
     ``sigma = 2`` px, which is sampled at every pixel.
     """
     sigma = check_positive(sigma, "sigma")
     e = np.asarray(strain, dtype=np.float64)
     v = np.asarray(valid, dtype=bool)
-    s = max(1, int(sigma // 3))
+    s = max(1, int(sigma // 2.5))
     e, v = e[:, ::s, ::s], v[::s, ::s]
     sig = sigma / s  # the window in samples of the decimated maps
     inner = ndimage.binary_erosion(v, iterations=max(1, math.ceil(2 * sig)))
