@@ -876,27 +876,32 @@ def _unwrapped_displacement(reference, deformed, valid, K, g) -> np.ndarray:
     pairs = (valid[:, 1:] & valid[:, :-1], valid[1:] & valid[:-1])  # both maps' jump checks
     for j in range(2):  # unwrapped in place
         dphase[j] = _unwrap(dphase[j], valid, pairs)
+    # fringe order per connected region, closest to the guess. By eq. (34) the
+    # unwrapped phase in periods is -dphase / 2 pi = K u: the whole periods n that
+    # bring K (u - g) closest to 0 are taken on it, and added back as dphase + 2 pi n
+    # (u -> u - K^-1 n) before the one solve
+    constant = g.strides[1:] == (0, 0)  # a (u_x, u_y) pair broadcast: K g once
+    kg = K @ g[:, 0, 0] if constant else None
+    for lab in range(1, n_regions + 1):
+        sel = valid if n_regions == 1 else labels == lab
+        n = np.empty(2)
+        for j in range(2):
+            t = dphase[j][sel]  # a fresh gather, sorted in place by the median
+            t *= -1 / (2 * np.pi)
+            if constant:
+                n[j] = np.rint(median(t, overwrite_input=True) - kg[j])
+            else:
+                t -= K[j, 0] * g[0][sel] + K[j, 1] * g[1][sel]
+                n[j] = np.rint(median(t, overwrite_input=True))
+            del t
+        for j in range(2):
+            if n[j]:
+                dphase[j][sel] += 2 * np.pi * n[j]
     u = _solve(K, dphase)
     del dphase
     np.negative(u, out=u)
     u /= 2 * np.pi
-    # fringe order per connected region, closest to the guess: u -> u - K^-1 n
-    constant = g.strides[1:] == (0, 0)  # a (u_x, u_y) pair broadcast: K g once
-    for lab in range(1, n_regions + 1):
-        sel = valid if n_regions == 1 else labels == lab
-        if constant:
-            off = _row_medians(K @ u[:, sel]) - K @ g[:, 0, 0]
-        else:
-            off = _row_medians(K @ (u[:, sel] - g[:, sel]))
-        n = np.rint(off)
-        if np.any(n):
-            u[:, sel] -= np.linalg.solve(K, n)[:, None]
     return u
-
-
-def _row_medians(a: np.ndarray) -> np.ndarray:
-    """``np.median(a, axis=1)`` of a fresh (2, N) product, sorted in place."""
-    return np.array([median(row, overwrite_input=True) for row in a])
 
 
 def _lagrangian_fixed_point(u, reference, deformed, valid, tol, max_iter):
