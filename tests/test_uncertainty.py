@@ -205,3 +205,30 @@ def test_smoothing_bias_of_a_sine_is_the_analytic_one(sigma):
     # a uniform component has no Laplacian: zero to rounding (strain 1e-3, rounding
     # 1e-16 per operation, the smoothing sums ~100 terms)
     assert b["max"][2] < 1e-12
+
+
+@pytest.mark.parametrize("box", [None, (0, 120, 0, 150), (10, 95, 23, 140), (40, 60, 50, 70)])
+def test_aliasing_window_of_a_rectangle_is_the_two_dimensional_one(box):
+    """The aliasing estimate's window of a rectangular mask (taken separably) against
+    scipy's 2-D erosion and Gaussian filter of the mask, written here: equal to
+    rounding (1e-12 of the window's peak; float64 sums of 0/1 values and weights)."""
+    from scipy import ndimage
+
+    from gridstrain.uncertainty import _aliasing_window
+
+    H, W = 120, 150
+    lat = Lattice.from_pitch(4.6, angle=10.0)
+    mask = np.ones((H, W), bool)
+    if box is not None:
+        mask[:] = False
+        mask[box[0]:box[1], box[2]:box[3]] = True  # erosion of 14 px leaves 20 x 20 nothing
+    n = int(np.ceil(3 * np.mean(lat.pitches)))
+    want = np.outer(np.hanning(H), np.hanning(W)) * ndimage.gaussian_filter(
+        ndimage.binary_erosion(mask, iterations=n).astype(float), np.mean(lat.pitches))
+    got = _aliasing_window((H, W), lat, mask)
+    assert_allclose(got, want, rtol=0, atol=1e-12 * max(want.max(), 1e-300))
+    # not a rectangle: the 2-D filters themselves
+    mask[60:70, 70:80] = False
+    want = np.outer(np.hanning(H), np.hanning(W)) * ndimage.gaussian_filter(
+        ndimage.binary_erosion(mask, iterations=n).astype(float), np.mean(lat.pitches))
+    assert_allclose(_aliasing_window((H, W), lat, mask), want, rtol=0, atol=1e-15)

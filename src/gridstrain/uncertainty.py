@@ -531,14 +531,40 @@ def _aliasing_window(shape, lattice, mask) -> np.ndarray:
     """(H, W) weights of the spectral estimates: a Hann window, times the mask
     eroded by three pitches and softened over one."""
     H, W = shape
-    w = np.outer(np.hanning(H), np.hanning(W))
-    if mask is not None:
-        # a soft edge: a hard one would spread the mean level and the fundamental
-        # over the spectrum, where they would pass for harmonics
-        p = float(np.mean(lattice.pitches))
-        m = ndimage.binary_erosion(np.asarray(mask, dtype=bool), iterations=math.ceil(3 * p))
-        w = w * ndimage.gaussian_filter(m.astype(np.float64), p)
-    return w
+    hy, hx = np.hanning(H), np.hanning(W)
+    if mask is None:
+        return np.outer(hy, hx)
+    # a soft edge: a hard one would spread the mean level and the fundamental
+    # over the spectrum, where they would pass for harmonics
+    p = float(np.mean(lattice.pitches))
+    n = math.ceil(3 * p)
+    m = np.asarray(mask, dtype=bool)
+    box = _filled_box(m)
+    if box is not None:
+        # a rectangle (the whole image where nothing is masked) is eroded into a
+        # rectangle, whose Gaussian is the product of the two axes' Gaussians: the
+        # 2-D filters' window, to rounding, from two 1-D ones
+        sides = []
+        for (a, b), size in zip(box, shape, strict=True):
+            side = np.zeros(size)
+            side[a + n:max(a + n, b - n)] = 1.0
+            sides.append(ndimage.gaussian_filter1d(side, p))
+        return np.outer(hy * sides[0], hx * sides[1])
+    m = ndimage.binary_erosion(m, iterations=n)
+    return np.outer(hy, hx) * ndimage.gaussian_filter(m.astype(np.float64), p)
+
+
+def _filled_box(m: np.ndarray):
+    """``((r0, r1), (c0, c1))`` when the True pixels of ``m`` fill exactly that
+    rectangle (at least one pixel), None otherwise."""
+    rows = np.flatnonzero(m.any(axis=1))
+    if rows.size == 0:
+        return None
+    cols = np.flatnonzero(m.any(axis=0))
+    r0, r1, c0, c1 = int(rows[0]), int(rows[-1]) + 1, int(cols[0]), int(cols[-1]) + 1
+    if np.count_nonzero(m) != (r1 - r0) * (c1 - c0):
+        return None
+    return (r0, r1), (c0, c1)
 
 
 def _line_family_bound(ref, w, k, sigma, carriers, bw):
