@@ -99,8 +99,10 @@ _UNC_KEYS = ("ux_std", "uy_std", "exx_std", "eyy_std", "exy_std")
 _ROOT_FIELDS = {"SeriesResult": ("u", "strain", "valid", "mask", "reference_image",
                                  "uncertainty"),
                 "Measurement": ("u", "strain", "rotation", "valid")}
-# Lossless filters of the maps (as gridstrain.io.write_hdf5): gzip is read everywhere.
-_FILTERS = {"compression": "gzip", "compression_opts": 4, "shuffle": True,
+# Lossless filters of the images, masks and tables: gzip is read everywhere. Level 1:
+# the 1040 x 1376 reference image in 40 ms and 2.25 MB, against 54 ms and 2.19 MB at
+# level 4 (gridstrain.io.write_hdf5's level, for data written once and kept)
+_FILTERS = {"compression": "gzip", "compression_opts": 1, "shuffle": True,
             "fletcher32": True}
 # The per-state float maps: checksummed, stored as they are (see _create_maps).
 _CHECKSUM = {"fletcher32": True}
