@@ -924,7 +924,7 @@ def _no_grid(mod: np.ndarray, valid: np.ndarray, mask: np.ndarray) -> np.ndarray
     ref = valid if valid.any() else mask
     out = np.zeros(mask.shape, dtype=bool)
     for j in range(2):
-        out |= mod[j] < _NO_GRID_MODULUS * median(mod[j][ref])
+        out |= mod[j] < _NO_GRID_MODULUS * median(mod[j][ref], overwrite_input=True)
     return out & mask
 
 
@@ -967,8 +967,8 @@ def _check_grid(pm: PhaseMaps, image: np.ndarray, mask: np.ndarray, margin: floa
     control = wft(image, turned, sigma=pm.sigma, mask=mask, margin=margin)
     sel = pm.valid if pm.valid.any() else mask
     for j in range(2):
-        grid = median(pm.modulus[j][sel])
-        other = median(control.modulus[j][sel])
+        grid = median(pm.modulus[j][sel], overwrite_input=True)
+        other = median(control.modulus[j][sel], overwrite_input=True)
         ratio = grid / other if other > 0 else math.inf
         if ratio < _MIN_GRID_CONTRAST:
             raise ValueError(f"reference: no grid at the given lattice: the modulus at k{j + 1} "
@@ -1113,14 +1113,14 @@ def _order_offset(res: Measurement, shift, lattice: Lattice) -> float:
     """How far, in periods, the measured median displacement is from ``shift``."""
     if not res.valid.any():
         return math.inf
-    med = np.array([median(c[res.valid]) for c in res.u])
+    med = np.array([median(c[res.valid], overwrite_input=True) for c in res.u])
     return float(np.max(np.abs(lattice.K @ (med - np.asarray(shift)))))
 
 
 def _median_u(res: Measurement) -> str:
     if not res.valid.any():
         return "(n/a)"
-    med = [median(c[res.valid]) for c in res.u]
+    med = [median(c[res.valid], overwrite_input=True) for c in res.u]
     return f"({med[0]:.2f}, {med[1]:.2f}) px"
 
 
@@ -1263,7 +1263,7 @@ def _median_modulus(pm: PhaseMaps, valid: np.ndarray) -> np.ndarray:
     sel = valid if valid.any() else pm.valid
     if not sel.any():
         return np.full(2, np.nan)
-    return np.array([median(mod[j][sel]) for j in range(2)])
+    return np.array([median(mod[j][sel], overwrite_input=True) for j in range(2)])
 
 
 def _theory_floor(var_ref, T_ref, mod_ref, var_s, T_s, mod_s, sigma, lattice):
@@ -2029,7 +2029,7 @@ class _ReferenceFloor:
         for k, v in row.items():
             self.rows[k].append(np.asarray(v, dtype=float))
         if unc is not None and res.valid.any():
-            floors = {k.removesuffix("_std"): median(a[res.valid])
+            floors = {k.removesuffix("_std"): median(a[res.valid], overwrite_input=True)
                       for k, a in unc.items()}
         else:
             floors = {"ux": float(row["theory_u"][0]), "uy": float(row["theory_u"][1]),

@@ -76,8 +76,11 @@ class Uncertainty:
         v = self.valid
         names = ("ux", "uy", "exx", "eyy", "exy")
         maps = (*self.u_std, *self.strain_std)
-        return {n: _stats.median(m[v]) if v.any() else math.nan for n, m in zip(names, maps,
-                                                                                  strict=True)}
+        if not v.any():
+            return dict.fromkeys(names, math.nan)
+        # each m[v] is a fresh gather: partially sorted in place, not copied again
+        return {n: _stats.median(m[v], overwrite_input=True)
+                for n, m in zip(names, maps, strict=True)}
 
 
 def noise_variance_map(mean_image, *, K: float, L: float, sigma: float,
@@ -355,7 +358,7 @@ def noise_floor(maps: PhaseMaps, mean_image, *, K: float, L: float,
     img = np.asarray(mean_image, dtype=np.float64)
 
     def med(a):
-        return _stats.median(a[v])
+        return _stats.median(a[v], overwrite_input=True)
 
     level = med(img)
     modulus = [med(np.abs(p)) for p in maps.psi]
