@@ -18,7 +18,14 @@ runs, each in a fresh interpreter,
   -- plus two FFT floors, for the two transforms of method A (one mean image per
   series);
 * floor B: the number of frames (2T) times the FFT floor of one frame;
-* ``gridstrain --help`` against ``python -c "import numpy"`` (start-up).
+* ``gridstrain --help`` against ``python -c "import numpy"`` (start-up);
+* the same ``measure`` commands on the first half of each series (T / 2 frames, the
+  same paths through the pipeline), and the read-and-sum floor on them: the
+  difference, per frame, is what each further frame costs, printed against what it
+  adds to the floor (reading and summing it for method A, its FFT floor for method
+  B). Floor A holds none of a measurement's fixed costs (imports, lattice, noise
+  floor, kinematics, uncertainty maps, the output file: those of a single pair,
+  about 2 s at 1040x1376), so the ratio of whole runs to it mostly measures those.
 
 With ``--against SRC`` (the ``src`` folder of another checkout, e.g. one made by
 ``git worktree add /tmp/before COMMIT``), the same ``measure`` commands also run on
@@ -161,6 +168,18 @@ def main(argv=None):
         print(f"(wrote {2 * T} frames in {time.perf_counter() - t0:.1f} s; they are read "
               "from the page cache)")
         out = str(Path(tmp) / "out.h5")
+        # the first half of each series: the same run on T / 2 frames (the same
+        # paths: temporal noise, vibrations regressed out), so that what a frame adds
+        # can be told apart from the fixed costs (imports, lattice, kinematics, noise
+        # floor, output)
+        half = T // 2
+        halves = []
+        for folder in (ref, state):
+            h = Path(tmp) / f"{Path(folder).name}_half"
+            h.mkdir()
+            for p in sorted(Path(folder).glob("*.tif"))[:half]:
+                (h / p.name).symlink_to(p)
+            halves.append(str(h))
 
         t_fft = fft_floor_cpu(args.size, args.pitch, dtype, args.fft_repeat)
         # method B transforms uint16 frames in float32 (gridstrain.conventions): the
@@ -169,13 +188,16 @@ def main(argv=None):
         print(f"before the runs: {load()}")
         read = best([run_child([sys.executable, "-c", READ_AND_SUM, str(ref), str(state)],
                                env) for _ in range(max(args.repeat, 2))])
+        read_half = best([run_child([sys.executable, "-c", READ_AND_SUM, *halves], env)
+                          for _ in range(max(args.repeat, 2))])
         runs = {}
         for _ in range(args.repeat):  # interleaved: a slowdown of the machine hits all
             for m in args.methods:
-                cmd = [*cli, "measure", str(ref), str(state), "-o", out, "--quiet",
-                       "--overwrite", "--method", m, *extra]
-                for tag, e in variants.items():
-                    runs.setdefault(m + tag, []).append(run_child(cmd, e))
+                for series, label in (((str(ref), str(state)), ""), (halves, " half")):
+                    cmd = [*cli, "measure", *series, "-o", out, "--quiet",
+                           "--overwrite", "--method", m, *extra]
+                    for tag, e in variants.items():
+                        runs.setdefault(m + tag + label, []).append(run_child(cmd, e))
         start = {"python -c 'import numpy'": [sys.executable, "-c", "import numpy"],
                  "gridstrain --help": [*cli, "--help"]}
         st = {name: [] for name in start}
@@ -202,6 +224,8 @@ def main(argv=None):
     print(f"{'floor A = read and sum + 2 FFT floors':<58} {floor_a:>8.2f}")
     print(f"{f'floor B = {2 * T} x FFT floor':<58} {floor_b:>8.2f}")
     print(f"{'FFT floor in float32, one frame':<58} {t_fft32:>8.3f}")
+    print(f"{'read and sum, each further frame, ms':<58} "
+          f"{1e3 * (read['cpu'] - read_half['cpu']) / (2 * (T - T // 2)):>8.2f}")
     figures = {"fft_floor": t_fft, "fft_floor_float32": t_fft32, "read_and_sum": read["cpu"],
                "floor_a": floor_a, "floor_b": floor_b}
     for m in args.methods:
@@ -220,6 +244,21 @@ def main(argv=None):
                 print(f"{f'   the same / {2 * T} x the float32 FFT floor':<58} {'':>8} "
                       f"{'':>8} {r32:>7.2f}")
                 figures[f"{key}_ratio_float32_floor"] = r32
+            # what a frame adds: the run less the half-series run, per further frame,
+            # against what it adds to the floor (reading and summing it; method B
+            # transforms it too)
+            rh = best(runs[m + tag + " half"])
+            per = (r["cpu"] - rh["cpu"]) / (2 * (T - half))
+            read_per = (read["cpu"] - read_half["cpu"]) / (2 * (T - half))
+            floor_per, fname = (t_fft, "an FFT floor") if m == "B" else (read_per,
+                                                                         "read and sum")
+            print(f"{f'   the same on {half} + {half} frames':<58} {rh['cpu']:>8.2f} "
+                  f"{rh['wall']:>8.2f}")
+            print(f"{f'   each further frame / {fname}, ms':<58} {1e3 * per:>8.2f} "
+                  f"{'':>8} {per / floor_per:>7.2f}")
+            figures[f"{key}_half"] = rh["cpu"]
+            figures[f"{key}_per_frame"] = per
+            figures[f"{key}_per_frame_ratio"] = per / floor_per
     sb = {name: best(v) for name, v in st.items()}
     for name, r in sb.items():
         print(f"{name:<58} {r['cpu']:>8.2f} {r['wall']:>8.2f}")
