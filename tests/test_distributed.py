@@ -548,7 +548,7 @@ def test_stalled_cluster_times_out_with_a_message(client):
 
 
 @pytest.mark.parametrize(("n_frames", "tasks"),
-                         [(1, 1), (7, 1), (16, 1), (33, 2), (100, 6), (256, 16), (1000, 16)])
+                         [(1, 1), (7, 1), (32, 1), (64, 2), (100, 3), (512, 16), (1000, 16)])
 def test_method_b_tasks_take_chunks_of_frames(n_frames, tasks):
     chunks = gd._frame_chunks(n_frames)
     # every frame exactly once, in order, in even chunks of at least

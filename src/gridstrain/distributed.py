@@ -83,10 +83,13 @@ _SPLIT_EVERY = 4
 # Tasks of a series' pass: enough to keep 16 worker threads busy on one series
 # (every series of a run is submitted at once, so more threads still find work)
 _PASS_TASKS = 16
-# Frames per task at the least: each task ships its sums back (80 bytes a pixel for
-# method B's transforms, 48 for the pixel sums: 191 MB at 1040 x 1376), which
-# costs as much as transforming about 3 frames (pickled, sent, added in the tree)
-_MIN_CHUNK_FRAMES = 16
+# Frames per task at the least: each task makes and ships back its sums (80 bytes a
+# pixel for method B's transforms, 48 for the pixel sums: 191 MB at 1040 x 1376),
+# which costs as much as transforming about 3 frames (allocated, pickled, sent,
+# added in the tree). Method B, 100 + 100 frames of 1040 x 1376 on 2 loopback
+# workers of 1 thread: 16 frames (6 tasks a series) took 14.7 s on 1 worker and
+# 10.3 s on 2, 32 frames (3 tasks) 12.8 s and 8.7 s (benchmarks/bench_dask.py)
+_MIN_CHUNK_FRAMES = 32
 
 
 class MissingDistributedError(ImportError, ValueError):
