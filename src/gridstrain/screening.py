@@ -397,6 +397,11 @@ class FrameProbe:
     def __call__(self, arr: np.ndarray) -> FrameRecord:
         """The record of one frame (H, W), float64 (or float32, or integer grey levels:
         the products are taken in float64)."""
+        # the extrema and the clipping on the frame as stored (a 16-bit frame is a
+        # quarter of its float64 copy to read; the values are the same)
+        lo, hi = float(arr.min()), float(arr.max())
+        top = hi if self._count is None else None
+        f, lev = _clipped(arr, self.saturation_level, self.scale, self._count, top=top)
         if arr.dtype != np.float64 and arr.dtype != np.float32:
             arr = arr.astype(np.float64)
         # np.dot: BLAS, several times faster than numpy's matmul loop for this shape;
@@ -404,9 +409,6 @@ class FrameProbe:
         P = [np.dot(arr[:, xs], R) for xs, R in self._blocks]
         whole = P[0][:, :5] if len(P) == 1 else np.add.reduce([p[:, :5] for p in P])
         c = self.carrier.from_rows(whole)
-        lo, hi = float(arr.min()), float(arr.max())
-        top = hi if self._count is None else None
-        f, lev = _clipped(arr, self.saturation_level, self.scale, self._count, top=top)
         tiles = np.empty((len(self.tiles), 2), dtype=np.complex128)
         for Pj, (idx, wy, ey, dc, wsum) in zip(P, self._ysums, strict=False):
             # as _CarrierProbe.from_rows, for the column's tiles together
