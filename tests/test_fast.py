@@ -181,6 +181,13 @@ def test_median_of_nothing_is_nan():
     assert np.isnan(_median(np.array([])))
 
 
+def test_median_of_integers_is_numpy_median():
+    # the two middle values of 16-bit grey levels would overflow their own type
+    values = np.array([65535, 65534, 1, 65533], dtype=np.uint16)
+    assert _median(values) == np.median(values) == 65533.5
+    assert _median(np.array([3, -7, 5], dtype=np.int32)) == 3.0
+
+
 @pytest.mark.parametrize(("ny", "nx", "r0", "nr", "c0", "nc"),
                          [(12, 16, 10, 5, 13, 6), (9, 10, 0, 9, 0, 10), (12, 15, 3, 4, 2, 4)])
 def test_spectrum_block_is_the_full_dft_block(ny, nx, r0, nr, c0, nc):

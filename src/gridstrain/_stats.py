@@ -17,16 +17,18 @@ __all__: list[str] = []
 
 
 def median(values, *, overwrite_input: bool = False) -> float:
-    """``np.median`` of the float ``values`` (any shape, a view is fine).
+    """``np.median`` of ``values`` (any shape, a view is fine).
 
     Equal to ``float(np.median(values))``: the mean of the two middle values of an
-    even count (in the values' precision), NaN if any value is NaN, NaN (without
-    numpy's warning) when empty. ``values`` is not modified unless
-    ``overwrite_input`` and it is a contiguous array, which is then partially
-    sorted in place instead of copied.
+    even count (in a float's own precision, integers in float64), NaN if any value
+    is NaN, NaN (without numpy's warning) when empty. ``values`` is not modified
+    unless ``overwrite_input`` and it is a contiguous float array, which is then
+    partially sorted in place instead of copied.
     """
     values = np.asarray(values)
-    if overwrite_input and values.flags.c_contiguous:
+    if values.dtype.kind != "f":  # integers: their middle pair summed in float64
+        flat = values.astype(np.float64).reshape(-1)
+    elif overwrite_input and values.flags.c_contiguous:
         flat = values.reshape(-1)
     else:
         flat = np.array(values, copy=True).reshape(-1)
