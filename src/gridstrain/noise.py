@@ -972,7 +972,11 @@ def estimate_noise_image(image, lattice: Lattice | None = None, *, mask=None,
     del A
     r, lam, G = _filtered_residual(F, Hf, (H, W))
     del F, Hf
-    ok = ~ndimage.binary_dilation(bad | edge, iterations=reach)
+    bad |= edge
+    # nothing to keep away from (no mask, no clipped pixel, no gridless region): no
+    # dilation, which costs 16 ms at 1040 x 1376 for nothing
+    ok = ~ndimage.binary_dilation(bad, iterations=reach) if bad.any() else \
+        np.ones(bad.shape, dtype=bool)
     ok[:reach] = ok[-reach:] = False
     ok[:, :reach] = ok[:, -reach:] = False
     n_bins = min(n_bins, np.count_nonzero(ok) // 200)
