@@ -19,6 +19,7 @@ from scipy import ndimage
 
 from gridstrain import Lattice, synthetic, wft
 from gridstrain._stats import median as _median
+from gridstrain._stats import row_medians
 from gridstrain._wft import _spectrum_block, _wft, transfer_function
 from gridstrain.stacks import method_b
 
@@ -175,6 +176,18 @@ def test_median_is_numpy_median(n):
     assert np.isnan(np.median(values))
     work = box.copy()
     assert _median(work, overwrite_input=True) == np.median(box)
+
+
+@pytest.mark.parametrize("n", [1, 2, 7, 300, 301])
+def test_row_medians_are_numpy_medians(n):
+    rng = np.random.default_rng(n)
+    table = rng.integers(0, 4, (50, n)).astype(float) + rng.random((50, n)) * (n % 2)
+    table[7, n // 2] = np.nan  # a row with a NaN gives NaN, as numpy's
+    want = np.median(table, axis=1)
+    got = row_medians(table.copy())
+    np.testing.assert_array_equal(got, want)
+    assert np.isnan(got[7])
+    assert row_medians(np.empty((3, 0))).shape == (3,)
 
 
 def test_median_of_nothing_is_nan():

@@ -7,6 +7,7 @@ dozen such medians per state (the moduli, the uncertainty floors, the regions
 without a grid), so :func:`median` takes the lower middle as the maximum of the
 lower half instead. Most of them are of a boolean-mask gather, a fresh array that
 ``overwrite_input=True`` sorts in place rather than copying once more.
+:func:`row_medians` does the same along the rows of a table.
 """
 
 from __future__ import annotations
@@ -43,3 +44,25 @@ def median(values, *, overwrite_input: bool = False) -> float:
     if n % 2:
         return float(flat[k])
     return float((flat[:k].max() + flat[k]) / 2)
+
+
+def row_medians(table: np.ndarray) -> np.ndarray:
+    """``np.median(table, axis=-1)`` of a float array, partially sorting ``table`` in
+    place (it is overwritten, as with ``overwrite_input=True``).
+
+    One partial sort of each row around its upper middle, the lower middle the
+    maximum of the lower half: 6 ms against 24 ms for ``np.median`` on the noise
+    estimate's (8320, 300) table of tile periodograms. Rows holding a NaN give NaN.
+    """
+    n = table.shape[-1]
+    if n == 0:
+        return np.full(table.shape[:-1], np.nan)
+    k = n // 2
+    table.partition(k, axis=-1)
+    mid = table[..., k]
+    out = mid.copy() if n % 2 else (table[..., :k].max(axis=-1) + mid) / 2
+    # a NaN sorts above every number: at k or above it in its row
+    nan = np.isnan(table[..., k:]).any(axis=-1)
+    if nan.any():
+        out[nan] = np.nan
+    return out

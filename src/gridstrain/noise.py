@@ -19,7 +19,7 @@ from scipy import fft as sfft
 from scipy import linalg, ndimage, special
 
 from ._progress import Progress, null_progress
-from ._stats import median
+from ._stats import median, row_medians
 from ._validation import (
     as_float_array,
     as_image,
@@ -786,7 +786,7 @@ def _tile_spectrum(img: np.ndarray, usable: np.ndarray, tile: int) -> np.ndarray
         sel = blocks[idx[:, 0], idx[:, 1]]
         sel = (sel - sel.mean(axis=(1, 2), keepdims=True)) * win
         table[:, i0:i0 + len(idx)] = (np.abs(sfft.rfft2(sel)) ** 2).reshape(len(idx), -1).T
-    med = np.median(table, axis=1, overwrite_input=True).reshape(tile, wr)
+    med = row_medians(table).reshape(tile, wr)
     spec = np.empty((tile, tile))
     spec[:, :wr] = med
     spec[:, wr:] = med[(-np.arange(tile)) % tile][:, tile - wr:0:-1]
