@@ -844,7 +844,7 @@ def _residual_filter(shape, lattice: Lattice, spec: np.ndarray, s: float):
 def _clipped_variance(r: np.ndarray) -> float:
     """Variance of zero-mean Gaussian samples ``r`` with outliers rejected."""
     c, kappa = _CLIP, _CLIP_KAPPA
-    s2 = (float(np.median(np.abs(r))) / _Q75) ** 2
+    s2 = (median(np.abs(r), overwrite_input=True) / _Q75) ** 2
     for _ in range(20):
         keep = r * r <= c * c * s2
         new = float(np.mean(r[keep] ** 2)) / kappa
