@@ -932,7 +932,7 @@ def estimate_noise_image(image, lattice: Lattice | None = None, *, mask=None,
     512 x 688 12-bit images stored x16 (checkerboards rotated 20 and -12 degrees
     at pitches 5.3 and 7.1, sharp lines at pitch 4, a sine grid at 6.2; a hole,
     lighting falling to 40 %): ``K`` within 1.5 % and the variance at the mean
-    level within 0.8 %, in about 0.08 s (0.23 s at 1040 x 1376 px).
+    level within 0.8 %, in about 0.08 s (0.2 s at 1040 x 1376 px).
 
     References
     ----------
