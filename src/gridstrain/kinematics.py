@@ -685,17 +685,37 @@ def _unwrap(wrapped: np.ndarray, valid: np.ndarray, pairs=None) -> np.ndarray:
     # the map so that a field spread over less than 2 pi shows no jump
     sub = wrapped[::4, ::4][valid[::4, ::4]]
     c = float(np.angle(np.sum(np.exp(1j * sub)))) if sub.size else 0.0
-    s = np.mod(wrapped - c + np.pi, 2 * np.pi) - np.pi
+    # s = mod(wrapped - c + pi, 2 pi) - pi, in one buffer
+    s = np.subtract(wrapped, c)
+    s += np.pi
+    np.mod(s, 2 * np.pi, out=s)
+    s -= np.pi
     rows, cols = (valid[:, 1:] & valid[:, :-1], valid[1:] & valid[:-1]) if pairs is None \
         else pairs
-    jumps = (np.any((np.abs(np.diff(s, axis=1)) >= np.pi) & rows)
-             or np.any((np.abs(np.diff(s, axis=0)) >= np.pi) & cols))
+    jumps = _jumps(s, rows, 1) or _jumps(s, cols, 0)
     if not jumps:
-        # wrapped plus whole turns, as scikit-image adds them
-        turns = np.rint((s + c - wrapped) / (2 * np.pi))
-        return np.where(valid, wrapped + 2 * np.pi * turns, 0.0)
+        # wrapped plus whole turns, as scikit-image adds them: rint((s + c - wrapped)
+        # / 2 pi) turns, the same operations in s's buffer
+        s += c
+        s -= wrapped
+        s /= 2 * np.pi
+        np.rint(s, out=s)
+        s *= 2 * np.pi
+        s += wrapped
+        s[~valid] = 0.0
+        return s
     ma = np.ma.masked_array(wrapped, mask=~valid)
     return np.ma.filled(unwrap_phase(ma, rng=0), 0.0)
+
+
+def _jumps(s: np.ndarray, pairs: np.ndarray, axis: int) -> bool:
+    """Whether two neighbours along ``axis`` that ``pairs`` marks differ by pi or more."""
+    d = np.diff(s, axis=axis)
+    np.abs(d, out=d)
+    big = np.greater_equal(d, np.pi)
+    del d
+    big &= pairs
+    return bool(big.any())
 
 
 def _solve(K: np.ndarray, r: np.ndarray) -> np.ndarray:
