@@ -197,7 +197,10 @@ class SeriesPass:
             raise ValueError(f"frames must have the shape {self.shape}, got {arr.shape}")
         fd = arr.dtype if arr.dtype.kind == "f" else np.dtype(np.float64)
         self.dtype = fd if self.dtype is None else np.promote_types(self.dtype, fd)
-        raw, arr = arr, arr.astype(np.float64, copy=False)
+        raw = arr
+        if self._rigid is not None:  # method C: one float64 copy for both probes
+            arr = arr.astype(np.float64, copy=False)
+        # the probe converts an integer frame itself, its extrema taken as stored
         rec = self.probe(arr)
         self.records[t] = rec
         self.theta[t] = np.angle(rec.coefficients * np.conj(self._c0))  # eq. (2)
