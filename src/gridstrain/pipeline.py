@@ -1109,19 +1109,24 @@ def _largest_step(res: Measurement, field: np.ndarray, lattice: Lattice,
     return largest
 
 
+def _median_displacement(res: Measurement) -> np.ndarray | None:
+    """The median ``(u_x, u_y)`` over the valid pixels, px; None when none is valid."""
+    if not res.valid.any():
+        return None
+    return np.array([median(c[res.valid], overwrite_input=True) for c in res.u])
+
+
 def _order_offset(res: Measurement, shift, lattice: Lattice) -> float:
     """How far, in periods, the measured median displacement is from ``shift``."""
-    if not res.valid.any():
+    med = _median_displacement(res)
+    if med is None:
         return math.inf
-    med = np.array([median(c[res.valid], overwrite_input=True) for c in res.u])
     return float(np.max(np.abs(lattice.K @ (med - np.asarray(shift)))))
 
 
 def _median_u(res: Measurement) -> str:
-    if not res.valid.any():
-        return "(n/a)"
-    med = [median(c[res.valid], overwrite_input=True) for c in res.u]
-    return f"({med[0]:.2f}, {med[1]:.2f}) px"
+    med = _median_displacement(res)
+    return "(n/a)" if med is None else f"({med[0]:.2f}, {med[1]:.2f}) px"
 
 
 def _what_to_do(lattice: Lattice) -> str:
