@@ -16,6 +16,10 @@ its wrapping and the update; the Lagrangian gradient) is done in the same loop: 
 four maps about ten times faster than four calls of ``map_coordinates``, the same
 numbers to rounding (``tests/test_lagrangian_interpolation.py`` compares every
 loop with the scipy and numpy path that runs without numba).
+
+Every loop works on a range of rows (the prefilter's second half on a range of
+columns) and releases the GIL: :mod:`gridstrain.kinematics` runs fixed blocks of
+them on the usable cores, with the same result on any number of threads.
 """
 
 from __future__ import annotations
@@ -90,7 +94,8 @@ def cubic4_at(coef, offset, cy, cx, out):  # pragma: no cover
 
 
 @njit(**_OPTIONS)
-def fixed_point_step(coef, offset, u, ref, two_pi_k, solve, valid):  # pragma: no cover
+def fixed_point_step(coef, offset, u, ref, two_pi_k, solve, valid, i0,
+                     i1):  # pragma: no cover
     """One step of the large-displacement fixed point, in place; returns ``sum du^2``.
 
     ``coef`` (Hp, Wp, 4): the prefiltered deformed transforms ``Re Psi_1, Im Psi_1,
@@ -100,12 +105,12 @@ def fixed_point_step(coef, offset, u, ref, two_pi_k, solve, valid):  # pragma: n
     ``two_pi_k`` = ``2 pi K`` and ``solve`` = ``-K^-1 / 2 pi`` (2, 2). At ``X``:
     ``r_j = wrap(arg(Psi_j,def(X + u) conj Psi_j,ref(X)) + 2 pi k_j.u)`` and
     ``du = -K^-1 r / 2 pi``, as :func:`gridstrain.kinematics._lagrangian_fixed_point`
-    computes with numpy.
+    computes with numpy. On the rows ``i0 <= i < i1`` only (rows are independent).
     """
-    _, H, W = u.shape
+    W = u.shape[2]
     two_pi = 2.0 * math.pi
     total = 0.0
-    for i in range(H):
+    for i in range(i0, i1):
         for j in range(W):
             if not valid[i, j]:
                 continue
@@ -143,70 +148,81 @@ _HORIZON = math.ceil(math.log(1e-20) / math.log(-_POLE))
 
 
 @njit(**_OPTIONS)
-def prefilter(src, complex_view, pad, out):  # pragma: no cover
-    """Cubic B-spline coefficients of the maps ``src`` (n, H, W), each edge-padded by
-    ``pad``, interleaved into ``out`` (H + 2 pad, W + 2 pad, n). With
-    ``complex_view``, ``src`` (n / 2, H, 2W) is the real view of n / 2 complex maps,
-    whose real and imaginary parts are the maps ``2c`` and ``2c + 1``. A value that
-    is not finite is taken as 0.
+def prefilter_rows(src, complex_view, pad, out, i0, i1):  # pragma: no cover
+    """First half of the cubic B-spline prefilter: the rows ``i0 <= i < i1`` of ``out``
+    (Hp, Wp, n) filled from the maps ``src`` (n, H, W), edge-padded by ``pad``, and
+    filtered along the columns' axis (each row on its own).
 
-    As ``scipy.ndimage.spline_filter(np.pad(src[p], pad, mode="edge"), 3,
-    mode="nearest")`` for each map, to rounding: along each axis the gain, then the
-    causal and anticausal recursions of the pole ``z = sqrt(3) - 2`` with the
-    half-sample symmetric initial values that scipy uses for ``mode="nearest"``.
-    Padded sides of at least 16 px (shorter ones differ from scipy by up to 1e-7).
+    With ``complex_view``, ``src`` (n / 2, H, 2W) is the real view of n / 2 complex
+    maps, whose real and imaginary parts are the maps ``2c`` and ``2c + 1``. A value
+    that is not finite is taken as 0. :func:`prefilter_columns` on every column after
+    this on every row gives ``scipy.ndimage.spline_filter(np.pad(src[p], pad,
+    mode="edge"), 3, mode="nearest")`` for each map, to rounding: along each axis the
+    gain, then the causal and anticausal recursions of the pole ``z = sqrt(3) - 2``
+    with the half-sample symmetric initial values that scipy uses for
+    ``mode="nearest"``. Padded sides of at least 16 px (shorter ones differ from scipy
+    by up to 1e-7). Rows are independent: blocks of rows may run on several threads.
     """
     Hp, Wp, nm = out.shape
     H, W = Hp - 2 * pad, Wp - 2 * pad
-    z = _POLE
     g = _GAIN * _GAIN
-    for i in range(Hp):
+    s = np.empty(nm)
+    first = np.empty(nm)
+    zn = _POLE ** Wp
+    for i in range(i0, i1):
         si = min(max(i - pad, 0), H - 1)
+        row = out[i]
         for j in range(Wp):
             sj = min(max(j - pad, 0), W - 1)
             for p in range(nm):
                 v = src[p // 2, si, 2 * sj + p % 2] if complex_view else src[p, si, sj]
                 # a NaN or an infinity would spread over whole rows and columns
-                out[i, j, p] = g * v if math.isfinite(v) else 0.0
-    s = np.empty((Wp, nm))
-    first = np.empty((Wp, nm))
-    # along the rows (a row of out is (Wp, nm): the same recursions on its columns)
-    n = Wp
+                row[j, p] = g * v if math.isfinite(v) else 0.0
+        # a row of out is (Wp, nm): the same recursions on its nm columns
+        _recurse(row, Wp, zn, _POLE, s, first)
+
+
+@njit(**_OPTIONS)
+def prefilter_columns(out, j0, j1):  # pragma: no cover
+    """Second half of the prefilter (see :func:`prefilter_rows`): the columns ``j0 <=
+    j < j1`` of ``out`` (Hp, Wp, n), filtered along the rows' axis in place. Columns
+    are independent: blocks of columns may run on several threads."""
+    n = out.shape[0]
+    nm = out.shape[2]
+    z = _POLE
     zn = z ** n
-    for i in range(Hp):
-        _recurse(out[i], n, zn, z, s[0], first[0])
-    # along the columns: the rows of out are the samples, (Wp, nm) each
-    n = Hp
-    zn = z ** n
-    for j in range(Wp):
+    w = j1 - j0
+    s = np.empty((w, nm))
+    first = np.empty((w, nm))
+    for j in range(w):
         for p in range(nm):
-            first[j, p] = out[0, j, p]
-            s[j, p] = out[0, j, p] + zn * out[n - 1, j, p]
+            first[j, p] = out[0, j0 + j, p]
+            s[j, p] = out[0, j0 + j, p] + zn * out[n - 1, j0 + j, p]
     zi = z
     for k in range(1, min(n, _HORIZON)):
-        for j in range(Wp):
+        for j in range(w):
             for p in range(nm):
-                s[j, p] += zi * out[k, j, p]
+                s[j, p] += zi * out[k, j0 + j, p]
         zi *= z
     if zn != 0.0:
         zi = z
         for k in range(1, n):
-            for j in range(Wp):
+            for j in range(w):
                 for p in range(nm):
-                    s[j, p] += zi * zn * out[n - 1 - k, j, p]
+                    s[j, p] += zi * zn * out[n - 1 - k, j0 + j, p]
             zi *= z
-    for j in range(Wp):
+    for j in range(w):
         for p in range(nm):
-            out[0, j, p] = s[j, p] * z / (1.0 - zn * zn) + first[j, p]
+            out[0, j0 + j, p] = s[j, p] * z / (1.0 - zn * zn) + first[j, p]
     for k in range(1, n):
-        for j in range(Wp):
+        for j in range(j0, j1):
             for p in range(nm):
                 out[k, j, p] += z * out[k - 1, j, p]
-    for j in range(Wp):
+    for j in range(j0, j1):
         for p in range(nm):
             out[n - 1, j, p] *= z / (z - 1.0)
     for k in range(n - 2, -1, -1):
-        for j in range(Wp):
+        for j in range(j0, j1):
             for p in range(nm):
                 out[k, j, p] = z * (out[k + 1, j, p] - out[k, j, p])
 
@@ -244,7 +260,7 @@ def _recurse(c, n, zn, z, s, c0):  # pragma: no cover
 
 @njit(**_OPTIONS)
 def lagrangian_gradient(coef, offset, u, cur_valid, ref_valid, d_ref, two_pi_k, g,
-                        valid):  # pragma: no cover
+                        valid, i0, i1):  # pragma: no cover
     """The exact Lagrangian displacement gradient and the pixels valid in both states.
 
     ``coef`` (Hp, Wp, 4): the prefiltered deformed phase derivatives ``D_00, D_01,
@@ -253,10 +269,11 @@ def lagrangian_gradient(coef, offset, u, cur_valid, ref_valid, d_ref, two_pi_k, 
     (2, 2, H, W), ``(2 pi K + D_def(X + u)) G = D_ref - D_def(X + u)`` by Cramer's
     rule, and ``valid`` (H, W): valid in the reference, ``X + u`` inside the image
     and the bilinear interpolation of the deformed validity there above 0.999, as
-    :func:`gridstrain.kinematics._lagrangian_gradient` computes with scipy.
+    :func:`gridstrain.kinematics._lagrangian_gradient` computes with scipy. On the
+    rows ``i0 <= i < i1`` only.
     """
     _, H, W = u.shape
-    for i in range(H):
+    for i in range(i0, i1):
         for j in range(W):
             y = i + u[1, i, j]
             x = j + u[0, i, j]
@@ -295,7 +312,7 @@ def lagrangian_gradient(coef, offset, u, cur_valid, ref_valid, d_ref, two_pi_k, 
 
 
 @njit(**_OPTIONS)
-def newton_start(u0, d, cur_valid, two_pi_k, m_of_d, u):  # pragma: no cover
+def newton_start(u0, d, cur_valid, two_pi_k, m_of_d, u, i0, i1):  # pragma: no cover
     """The fixed point's start and contraction factor, in one pass.
 
     ``u = (2 pi K + D(X))^-1 2 pi K u0`` where ``cur_valid`` and the change is below
@@ -303,13 +320,14 @@ def newton_start(u0, d, cur_valid, two_pi_k, m_of_d, u):  # pragma: no cover
     largest Frobenius norm over ``cur_valid`` of ``M = m_of_d D`` (``m_of_d`` =
     ``(2 pi K)^-1``), inf if one is not finite. ``u0``, ``u`` (2, H, W); ``d``
     (2, 2, H, W); as :func:`gridstrain.kinematics._newton_start` and
-    :func:`gridstrain.kinematics._contraction` compute with numpy.
+    :func:`gridstrain.kinematics._contraction` compute with numpy. On the rows ``i0 <=
+    i < i1`` only.
     """
-    _, H, W = u0.shape
+    W = u0.shape[2]
     two_pi = 2.0 * math.pi
     q = 0.0
     finite = True
-    for i in range(H):
+    for i in range(i0, i1):
         for j in range(W):
             x0 = u0[0, i, j]
             y0 = u0[1, i, j]

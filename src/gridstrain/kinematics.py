@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import functools
 import math
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -24,6 +25,7 @@ from ._validation import (
     check_positive,
     check_same_shape,
     check_type,
+    check_workers,
 )
 from .lattice import Lattice, detect_lattice
 from .wft import DEFAULT_MARGIN, PhaseMaps, wft
@@ -593,6 +595,26 @@ def _phase_products(reference: PhaseMaps, deformed: PhaseMaps, valid: np.ndarray
 _COMPILED = True
 
 
+# The compiled loops run on blocks of this many rows (the prefilter's second half on
+# blocks of this many columns), on the usable cores. The blocks do not depend on the
+# number of cores, nor does the order in which a step's sums are added: the result is
+# the same bit for bit on any number of threads.
+_BLOCK_ROWS = 64
+_BLOCK_COLUMNS = 128
+
+
+def _by_blocks(n: int, size: int, fn) -> list:
+    """``fn(i0, i1)`` for the blocks ``[i0, i1)`` of ``size`` indices that tile
+    ``range(n)``, on up to the usable cores (``fn`` must release the GIL: the
+    compiled loops do); their results in the blocks' order."""
+    blocks = [(i, min(i + size, n)) for i in range(0, n, size)]
+    workers = min(check_workers(None), len(blocks))
+    if workers <= 1:
+        return [fn(*b) for b in blocks]
+    with ThreadPoolExecutor(max_workers=workers) as pool:
+        return list(pool.map(lambda b: fn(*b), blocks))
+
+
 @functools.cache
 def _load_kernels():
     """The module of compiled spline loops, or None when numba cannot be imported."""
@@ -635,8 +657,12 @@ class _Spline:
             self.coef = np.empty((Hp, Wp, 4))
             dt = np.complex128 if self.is_complex else np.float64
             src = np.ascontiguousarray(flat, dtype=dt)
-            kern.prefilter(src.view(np.float64) if self.is_complex else src,
-                           self.is_complex, _SPLINE_PAD, self.coef)
+            src = src.view(np.float64) if self.is_complex else src
+            coef = self.coef
+            _by_blocks(Hp, _BLOCK_ROWS, lambda i0, i1: kern.prefilter_rows(
+                src, self.is_complex, _SPLINE_PAD, coef, i0, i1))
+            _by_blocks(Wp, _BLOCK_COLUMNS,
+                       lambda j0, j1: kern.prefilter_columns(coef, j0, j1))
             return
         self.coef = []
         for p in planes:
@@ -947,19 +973,25 @@ def _lagrangian_fixed_point(u, reference, deformed, valid, tol, max_iter):
     psi_cur = _Spline(deformed.psi)  # both wave vectors' maps, evaluated together
     nv = max(int(valid.sum()), 1)
     if psi_cur.kern is not None:  # the start and each step in one compiled loop
+        kern = psi_cur.kern
         start = np.empty((2, *shape))
-        q = psi_cur.kern.newton_start(
-            np.ascontiguousarray(u, dtype=np.float64),
-            np.ascontiguousarray(deformed.dphi, dtype=np.float64),
-            np.ascontiguousarray(deformed.valid), two_pi_K, np.linalg.inv(two_pi_K), start)
+        u0 = np.ascontiguousarray(u, dtype=np.float64)
+        d = np.ascontiguousarray(deformed.dphi, dtype=np.float64)
+        cur_valid = np.ascontiguousarray(deformed.valid)
+        m_of_d = np.linalg.inv(two_pi_K)
+        q = max(_by_blocks(shape[0], _BLOCK_ROWS, lambda i0, i1: kern.newton_start(
+            u0, d, cur_valid, two_pi_K, m_of_d, start, i0, i1)))
         u = start
         # the reference's maps as they are (their real view), unless they are complex64
         ref = np.ascontiguousarray(reference.psi, dtype=np.complex128).view(np.float64)
         solve = np.ascontiguousarray(-np.linalg.inv(K) / (2 * np.pi))
 
         def one_step():
-            return psi_cur.kern.fixed_point_step(psi_cur.coef, float(_SPLINE_PAD), u, ref,
-                                                 two_pi_K, solve, valid)
+            # the blocks' sums added in the blocks' order, whatever the threads
+            return math.fsum(_by_blocks(shape[0], _BLOCK_ROWS, lambda i0, i1:
+                                        kern.fixed_point_step(psi_cur.coef, float(_SPLINE_PAD),
+                                                              u, ref, two_pi_K, solve, valid,
+                                                              i0, i1)))
     else:
         u = _newton_start(u, deformed, two_pi_K)
         q = _contraction(deformed, K)
@@ -1038,10 +1070,11 @@ def _lagrangian_gradient(u, reference, deformed, D_ref):
     if spline.kern is not None:  # one compiled loop: validity, derivatives and G
         G = np.empty((2, 2, *shape))
         valid = np.empty(shape, dtype=bool)
-        spline.kern.lagrangian_gradient(
-            spline.coef, float(_SPLINE_PAD), np.ascontiguousarray(u, dtype=np.float64),
-            np.ascontiguousarray(deformed.valid), np.ascontiguousarray(reference.valid),
-            np.ascontiguousarray(D_ref, dtype=np.float64), 2 * np.pi * K, G, valid)
+        args = (spline.coef, float(_SPLINE_PAD), np.ascontiguousarray(u, dtype=np.float64),
+                np.ascontiguousarray(deformed.valid), np.ascontiguousarray(reference.valid),
+                np.ascontiguousarray(D_ref, dtype=np.float64), 2 * np.pi * K, G, valid)
+        _by_blocks(shape[0], _BLOCK_ROWS,
+                   lambda i0, i1: spline.kern.lagrangian_gradient(*args, i0, i1))
         return G, valid
     yy, xx = np.mgrid[0:shape[0], 0:shape[1]].astype(np.float64)
     coords = np.stack([yy + u[1], xx + u[0]])
