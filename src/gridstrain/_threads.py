@@ -1,4 +1,5 @@
-"""The thread pools of the libraries gridstrain calls.
+"""The thread pools of the libraries gridstrain calls, and gridstrain's own ordered
+map over threads (:func:`map_bounded`).
 
 The per-frame products of a pass over a series (the screening's carrier sums, the
 rigid-shift probe, the batched sums of the mean and variance) are small BLAS
@@ -17,7 +18,9 @@ import contextlib
 import ctypes
 import functools
 import sys
-from collections.abc import Iterator
+from collections import deque
+from collections.abc import Callable, Iterable, Iterator
+from concurrent.futures import ThreadPoolExecutor
 
 
 @functools.cache
@@ -65,3 +68,21 @@ def one_malloc_arena() -> bool:
     mallopt.argtypes = (ctypes.c_int, ctypes.c_int)
     mallopt.restype = ctypes.c_int
     return bool(mallopt(_M_ARENA_MAX, 1))
+
+
+def map_bounded(fn: Callable, items: Iterable, workers: int) -> Iterator:
+    """``map(fn, items)`` on ``workers`` threads, yielding in order, with at most
+    ``workers`` items in flight (scipy.fft, numpy's large array operations and the
+    compiled loops release the GIL, so the transforms of several frames, or the
+    blocks of rows of one map, overlap)."""
+    if workers == 1:
+        yield from map(fn, items)
+        return
+    with ThreadPoolExecutor(max_workers=workers) as pool:
+        pending: deque = deque()
+        for item in items:
+            while len(pending) >= workers:
+                yield pending.popleft().result()
+            pending.append(pool.submit(fn, item))
+        while pending:
+            yield pending.popleft().result()

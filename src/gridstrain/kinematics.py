@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import functools
 import math
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -17,6 +16,7 @@ from scipy import ndimage
 from skimage.restoration import unwrap_phase
 
 from ._stats import median
+from ._threads import map_bounded
 from ._validation import (
     as_image,
     as_pair,
@@ -608,11 +608,8 @@ def _by_blocks(n: int, size: int, fn) -> list:
     ``range(n)``, on up to the usable cores (``fn`` must release the GIL: the
     compiled loops do); their results in the blocks' order."""
     blocks = [(i, min(i + size, n)) for i in range(0, n, size)]
-    workers = min(check_workers(None), len(blocks))
-    if workers <= 1:
-        return [fn(*b) for b in blocks]
-    with ThreadPoolExecutor(max_workers=workers) as pool:
-        return list(pool.map(lambda b: fn(*b), blocks))
+    return list(map_bounded(lambda b: fn(*b), blocks,
+                            max(min(check_workers(None), len(blocks)), 1)))
 
 
 @functools.cache

@@ -140,7 +140,7 @@ from scipy import ndimage
 from . import _paging, theory
 from ._progress import null_progress
 from ._stats import median
-from ._threads import one_blas_thread
+from ._threads import map_bounded, one_blas_thread
 from ._validation import (
     SIGMA_PITCH_RTOL,
     check_callable,
@@ -176,7 +176,7 @@ from .kinematics import (
 from .lattice import Lattice, detect_lattice
 from .noise import NoiseModel, estimate_noise_image
 from .screening import FrameScreen
-from .stacks import _FrameOrder, _map_bounded, method_b
+from .stacks import _FrameOrder, method_b
 from .uncertainty import (
     _FWHM,
     NoiseFloor,
@@ -908,7 +908,7 @@ def _run_pass(s, plan: PassPlan, report: Progress) -> SeriesPass:
 
     # BLAS is on the calling thread already (measure_series): its idle threads would
     # spin on the transforms' cores
-    for t in _map_bounded(transform, read(), workers):
+    for t in map_bounded(transform, read(), workers):
         report((t + 1) / n, f"frame {t + 1}/{n}")
     if not box:
         raise ValueError(f"{s.name}: no frame")

@@ -19,16 +19,14 @@ from __future__ import annotations
 import itertools
 import math
 import threading
-from collections import deque
-from collections.abc import Callable, Iterable, Iterator
-from concurrent.futures import ThreadPoolExecutor
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy.linalg import blas
 
 from ._progress import Progress, null_progress
-from ._threads import one_blas_thread
+from ._threads import map_bounded, one_blas_thread
 from ._validation import (
     as_image,
     as_int_tuple,
@@ -521,23 +519,6 @@ def method_a(frames, lattice: Lattice, *, sigma: float | None = None, mask=None,
                                        mean_image=avg))
 
 
-def _map_bounded(fn: Callable, items: Iterable, workers: int) -> Iterator:
-    """``map(fn, items)`` on ``workers`` threads, yielding in order, with at most
-    ``workers`` items in flight (scipy.fft and numpy's large array operations release
-    the GIL, so the transforms of several frames overlap)."""
-    if workers == 1:
-        yield from map(fn, items)
-        return
-    with ThreadPoolExecutor(max_workers=workers) as pool:
-        pending: deque = deque()
-        for item in items:
-            while len(pending) >= workers:
-                yield pending.popleft().result()
-            pending.append(pool.submit(fn, item))
-        while pending:
-            yield pending.popleft().result()
-
-
 def method_b(frames, lattice: Lattice, *, sigma: float | None = None, mask=None,
              margin: float = DEFAULT_MARGIN, workers: int | None = None,
              screen: bool = True, progress: Progress | None = None) -> StackResult:
@@ -612,7 +593,7 @@ def method_b(frames, lattice: Lattice, *, sigma: float | None = None, mask=None,
     with one_blas_thread():  # BLAS's idle threads would spin on the transforms' cores
         # integer frames as they are: their transforms run in float32 (_transform_input)
         items = screener.frames(_frames(frames, convert=False))
-        for i, total in _map_bounded(transform, items, n_workers):
+        for i, total in map_bounded(transform, items, n_workers):
             _report(progress, i, total, "method B")
     if acc.n == 0:
         raise ValueError("frames must hold at least one image, got none")
