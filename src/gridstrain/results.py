@@ -47,13 +47,15 @@ Exports
 from __future__ import annotations
 
 import base64
+import contextlib
 import dataclasses
-import importlib
 import math
 import numbers
 import os
 import re
 import struct
+import types
+import typing
 import zlib
 from collections.abc import Mapping
 from dataclasses import dataclass
@@ -197,10 +199,11 @@ def _encode(group: h5py.Group, items, memo: dict, skip: Mapping = _ROOT_FIELDS) 
                 group[key] = h5py.SoftLink(memo[id(value)])
                 continue
             cls = type(value)
+            name = _class_name(cls, f"{group.name}/{key}")
             g = group.create_group(key, track_order=True)
             memo[id(value)] = g.name
             g.attrs[_TYPE] = "dataclass"
-            g.attrs[_CLASS] = f"{cls.__module__}.{cls.__qualname__}"
+            g.attrs[_CLASS] = name
             left = skip.get(cls.__name__, ())
             _encode(g, ((f.name, getattr(value, f.name)) for f in dataclasses.fields(value)
                         if f.init and f.name not in left), memo, skip)
@@ -230,47 +233,292 @@ def _names(group, attr) -> list[str]:
     return [_plain(x) for x in group.attrs[attr]] if attr in group.attrs else []
 
 
+# --------------------------------------------------------------------------- reading safely
+
+
+class _Bad(ValueError):
+    """A result file that does not hold what its layout says, at one field."""
+
+
+def _where(obj, field: str | None = None) -> str:
+    """``FILE: /group/field``, the place a message names."""
+    name = obj.name if field is None else f"{obj.name.rstrip('/')}/{field}"
+    return f"{obj.file.filename}: {name}"
+
+
+def _attr(obj, key: str):
+    """An attribute of ``obj`` as a plain value: a bool, number or string, or a list of
+    them; anything else (references, compound or opaque types) is refused."""
+    try:
+        raw = obj.attrs[key]
+    except (OSError, TypeError, ValueError):  # a type h5py cannot read
+        raise _Bad(f"{_where(obj, key)}: attribute of an unreadable type") from None
+    if isinstance(raw, np.ndarray) and raw.ndim > 1:
+        raise _Bad(f"{_where(obj, key)}: attribute must be a value or a list of values, "
+                   f"got an array of shape {raw.shape}")
+    kind = getattr(raw, "dtype", np.dtype(object)).kind
+    if isinstance(raw, np.ndarray | np.generic) and kind not in "biuf" and not (
+            kind == "O" and all(isinstance(x, str | bytes) for x in np.ravel(raw))):
+        raise _Bad(f"{_where(obj, key)}: attribute of dtype {raw.dtype}, not a number, "
+                   "boolean or string")
+    try:
+        return _plain(raw)
+    except UnicodeDecodeError:
+        raise _Bad(f"{_where(obj, key)}: attribute is not UTF-8 text") from None
+
+
+def _member(group: h5py.Group, key: str):
+    """``group[key]``, never through an external link (another file), a link that
+    leads nowhere, or a dataset whose data lie outside the file."""
+    link = group.get(key, getlink=True)
+    if isinstance(link, h5py.ExternalLink):
+        raise _Bad(f"{_where(group, key)}: a link to another file ({link.filename}); a "
+                   "result file is read alone")
+    try:
+        obj = group[key]
+    except (KeyError, OSError):
+        raise _Bad(f"{_where(group, key)}: a link to nothing") from None
+    if isinstance(obj, h5py.Dataset) and (obj.external or obj.is_virtual):
+        raise _Bad(f"{_where(group, key)}: a dataset stored outside the file; a result "
+                   "file is read alone")
+    if not isinstance(obj, h5py.Dataset | h5py.Group):
+        raise _Bad(f"{_where(group, key)}: not a dataset or a group")
+    return obj
+
+
+def _memory_available() -> int | None:
+    """Bytes this process may still allocate: the smaller of the system's available
+    memory and what its cgroup (v2 or v1) leaves; None where neither is known."""
+    found = []
+    try:
+        with open("/proc/meminfo") as fh:
+            for line in fh:
+                if line.startswith("MemAvailable:"):
+                    found.append(int(line.split()[1]) * 1024)
+    except (OSError, ValueError, IndexError):  # no /proc: the free pages
+        with contextlib.suppress(AttributeError, OSError, ValueError):
+            found.append(os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE"))
+    for limit, usage in (("/sys/fs/cgroup/memory.max", "/sys/fs/cgroup/memory.current"),
+                         ("/sys/fs/cgroup/memory/memory.limit_in_bytes",
+                          "/sys/fs/cgroup/memory/memory.usage_in_bytes")):
+        try:
+            with open(limit) as fh:
+                text = fh.read().strip()
+            with open(usage) as fh:
+                used = int(fh.read().strip())
+        except (OSError, ValueError):
+            continue
+        if text.isdigit() and int(text) < 2**60:  # v1 writes "no limit" as a huge number
+            found.append(max(int(text) - used, 0))
+    return min(found) if found else None
+
+
+def _check_memory(path, needed: int, what: str) -> None:
+    """Refuse, before reading, data that cannot fit in the memory left."""
+    avail = _memory_available()
+    if avail is not None and needed > avail:
+        raise _Bad(f"{path}: {what} need {needed / 2**30:.2f} GiB of memory, more than the "
+                   f"{avail / 2**30:.2f} GiB available")
+
+
+def _read_dataset(ds: h5py.Dataset, *, kinds: str = "biufc") -> np.ndarray:
+    """A dataset's values, once its dtype is known to be a plain number or boolean."""
+    if ds.dtype.kind not in kinds or ds.dtype.fields is not None or ds.dtype.subdtype:
+        raise _Bad(f"{_where(ds)}: dtype {ds.dtype}, expected "
+                   + ("booleans" if kinds == "b" else "numbers"))
+    try:
+        return np.asarray(ds[()])
+    except OSError as exc:  # a checksum or a filter that fails: a damaged file
+        raise _Bad(f"{_where(ds)}: cannot be read ({exc})") from None
+
+
+def _registry() -> dict[str, type]:
+    """The classes a result file may hold, by the name it stores. Nothing else is
+    built from a file, and no name read from one is ever imported."""
+    from ._wft import PhaseMaps
+    from .kinematics import FringeOrder, Measurement
+    from .lattice import Lattice
+    from .screening import FrameScreen
+    from .uncertainty import NoiseFloor
+    from .vibration import VibrationReport
+
+    return {
+        "gridstrain.pipeline.SeriesResult": SeriesResult,
+        "gridstrain.kinematics.Measurement": Measurement,
+        "gridstrain.kinematics.FringeOrder": FringeOrder,
+        "gridstrain.lattice.Lattice": Lattice,
+        "gridstrain.screening.FrameScreen": FrameScreen,
+        "gridstrain.uncertainty.NoiseFloor": NoiseFloor,
+        "gridstrain.vibration.VibrationReport": VibrationReport,
+        "gridstrain._wft.PhaseMaps": PhaseMaps,
+    }
+
+
+def _qualname(cls: type) -> str:
+    return f"{cls.__module__}.{cls.__qualname__}"
+
+
+def _subclasses(classes):
+    for cls in classes:
+        yield cls
+        yield from _subclasses(cls.__subclasses__())
+
+
+def _class_named(name: str):
+    """The registered class stored as ``name``, or a subclass of one that the running
+    program has defined already (a result class extended by its user); None if none.
+    Looked up among classes that exist, never imported."""
+    registry = _registry()
+    if name in registry:
+        return registry[name]
+    for cls in _subclasses(registry.values()):
+        if _qualname(cls) == name and dataclasses.is_dataclass(cls):
+            return cls
+    return None
+
+
+def _class_name(cls: type, where: str) -> str:
+    """The name under which a dataclass is stored; refused unless :func:`load` can
+    build it again."""
+    for name, registered in _registry().items():
+        if registered is cls:
+            return name
+    if _class_named(_qualname(cls)) is cls:
+        return _qualname(cls)
+    raise TypeError(f"{where}: cannot store a {_qualname(cls)}: a result file holds only "
+                    "gridstrain's result classes and their subclasses")
+
+
+def _fits(value, hint) -> bool:
+    """Whether ``value`` has the type annotated ``hint`` (the annotations of the result
+    classes: numbers, strings, arrays, tuples, dicts, optionals, dataclasses); an
+    annotation not understood here accepts anything."""
+    origin, args = typing.get_origin(hint), typing.get_args(hint)
+    if origin in (typing.Union, types.UnionType):
+        return any(_fits(value, a) for a in args)
+    if hint is type(None):
+        return value is None
+    if hint is typing.Any:
+        return True
+    if hint is bool:
+        return isinstance(value, bool)
+    if hint is int:
+        return isinstance(value, int) and not isinstance(value, bool)
+    if hint is float:
+        return isinstance(value, int | float) and not isinstance(value, bool)
+    if hint is str:
+        return isinstance(value, str)
+    if hint is np.ndarray:
+        return isinstance(value, np.ndarray)
+    if origin is tuple or hint is tuple:
+        if not isinstance(value, tuple):
+            return False
+        if len(args) == 2 and args[1] is Ellipsis:
+            return all(_fits(v, args[0]) for v in value)
+        return not args or (len(args) == len(value)
+                            and all(_fits(v, a) for v, a in zip(value, args, strict=True)))
+    if origin is dict or hint is dict:
+        return isinstance(value, dict)
+    if origin is list or hint is list:
+        return isinstance(value, list)
+    if isinstance(hint, type) and dataclasses.is_dataclass(hint):
+        return isinstance(value, hint)
+    return True
+
+
+def _check_fields(cls, group, values: dict) -> None:
+    """The fields stored in ``group``: none unknown, each of its annotated type."""
+    fields = {f.name for f in dataclasses.fields(cls) if f.init}
+    unknown = sorted(set(values) - fields)
+    if unknown:
+        raise _Bad(f"{_where(group)} holds fields {', '.join(unknown)} that this "
+                   f"gridstrain's {cls.__name__} does not have (written by a newer "
+                   "version?)")
+    try:
+        hints = typing.get_type_hints(cls)
+    except Exception:  # annotations this module cannot resolve: no check
+        hints = {}
+    for key, value in values.items():
+        if key in hints and not _fits(value, hints[key]):
+            raise _Bad(f"{_where(group, key)}: expected {_hint_text(hints[key])}, got "
+                       f"{_received(value)}")
+
+
+def _hint_text(hint) -> str:
+    return getattr(hint, "__name__", None) or str(hint).replace("typing.", "")
+
+
+def _received(value) -> str:
+    if isinstance(value, np.ndarray):
+        return f"an array of shape {value.shape}"
+    text = repr(value)
+    return f"{type(value).__name__} {text[:60] + '...' if len(text) > 60 else text}"
+
+
+_KINDS = ("none", "tuple", "list", "dict", "dataclass")
+_READING = object()  # the mark of a group being decoded, to refuse links in a cycle
+
+
 def _decode(group: h5py.Group, memo: dict, fill):
-    """The object written by :func:`_encode` into ``group``."""
-    kind = _plain(group.attrs.get(_TYPE, "dict"))
+    """The object written by :func:`_encode` into ``group``, each value checked: a
+    class only from the registry (:func:`_registry`), each field of its annotated
+    type, datasets of numbers, no link out of the file, no cycle."""
+    kind = _attr(group, _TYPE) if _TYPE in group.attrs else "dict"
+    if kind not in _KINDS:
+        raise _Bad(f"{_where(group, _TYPE)}: {kind!r} is not one of {', '.join(_KINDS)}")
     if kind == "none":
         return None
     tuples = set(_names(group, _TUPLES))
     values = {}
-    for key, raw in group.attrs.items():
+    for key in group.attrs:
         if key in _RESERVED:
             continue
-        v = _plain(raw)
-        values[key] = tuple(v) if key in tuples else v
+        v = _attr(group, key)
+        values[key] = tuple(v) if key in tuples and isinstance(v, list) else v
     for key in group:
         link = group.get(key, getlink=True)
-        target = link.path if isinstance(link, h5py.SoftLink) else group[key].name
+        obj = _member(group, key)
+        target = link.path if isinstance(link, h5py.SoftLink) else obj.name
+        if memo.get(target) is _READING:
+            raise _Bad(f"{_where(group, key)}: a link to a group that holds it (a cycle)")
         if target not in memo:
-            obj = group[key]
+            memo[target] = _READING
             if isinstance(obj, h5py.Dataset):
-                memo[target] = np.asarray(obj[()])
+                memo[target] = _read_dataset(obj)
             else:
                 memo[target] = _decode(obj, memo, fill)
         values[key] = memo[target]
     if kind in ("tuple", "list"):
-        seq = [values[str(i)] for i in range(len(values))]
+        try:
+            seq = [values[str(i)] for i in range(len(values))]
+        except KeyError:
+            raise _Bad(f"{_where(group)}: a {kind} whose members are not named 0, 1, "
+                       "...") from None
         return tuple(seq) if kind == "tuple" else seq
     if kind == "dict":
-        return {k: values[k] for k in _names(group, _KEYS)}
-    qualname = _plain(group.attrs[_CLASS])
-    module, _, name = qualname.rpartition(".")
-    try:
-        cls = getattr(importlib.import_module(module), name)
-    except (ImportError, AttributeError):
-        raise ValueError(f"{group.name} holds a {qualname}, which this gridstrain does "
-                         "not have (written by another version?)") from None
+        keys = _names(group, _KEYS)
+        if sorted(keys) != sorted(values):
+            raise _Bad(f"{_where(group, _KEYS)}: lists {sorted(keys)}, the group holds "
+                       f"{sorted(values)}")
+        return {k: values[k] for k in keys}
+    if _CLASS not in group.attrs:
+        raise _Bad(f"{_where(group, _CLASS)}: missing")
+    qualname = _attr(group, _CLASS)
+    cls = _class_named(qualname) if isinstance(qualname, str) else None
+    if cls is None:
+        raise _Bad(f"{_where(group, _CLASS)}: {qualname!r} is not a class a result file "
+                   "may hold (" + ", ".join(_registry()) + ")")
+    _check_fields(cls, group, values)
     values = fill(cls, group, values)
-    known = {f.name for f in dataclasses.fields(cls) if f.init}
-    unknown = sorted(set(values) - known)
-    if unknown:
-        raise ValueError(f"{group.name} holds fields {', '.join(unknown)} that this "
-                         f"gridstrain's {name} does not have (written by a newer version?)")
-    return cls(**values)
+    missing = [f.name for f in dataclasses.fields(cls) if f.init and f.name not in values
+               and f.default is dataclasses.MISSING
+               and f.default_factory is dataclasses.MISSING]
+    if missing:
+        raise _Bad(f"{_where(group, missing[0])}: missing (a {cls.__name__} needs it)")
+    try:
+        return cls(**values)
+    except (TypeError, ValueError) as exc:
+        raise _Bad(f"{_where(group)}: not a valid {cls.__name__} ({exc})") from None
 
 
 # --------------------------------------------------------------------------- save
@@ -836,20 +1084,124 @@ def _open(path) -> h5py.File:
         h5 = h5py.File(p, "r")
     except OSError:
         raise ValueError(f"{p} is not a gridstrain result file (not HDF5)") from None
-    if _GROUP not in h5 or "format_version" not in h5[_GROUP].attrs:
+    try:
+        group = h5.get(_GROUP, getlink=True)
+        if not isinstance(group, h5py.HardLink) or not isinstance(h5[_GROUP], h5py.Group) \
+                or "format_version" not in h5[_GROUP].attrs:
+            raise _Bad(f"{p} is not a gridstrain result file (no '{_GROUP}' group; files "
+                       "of gridstrain before 0.2 are read with gridstrain.io.read_hdf5)")
+        version = _attr(h5[_GROUP], "format_version")
+        if version != FORMAT_VERSION:
+            raise _Bad(f"{p} is a gridstrain result file of format {version!r}; this "
+                       f"gridstrain reads format {FORMAT_VERSION}")
+    except BaseException:
         h5.close()
-        raise ValueError(f"{p} is not a gridstrain result file (no '{_GROUP}' group; files "
-                         "of gridstrain before 0.2 are read with gridstrain.io.read_hdf5)")
-    version = int(h5[_GROUP].attrs["format_version"])
-    if version != FORMAT_VERSION:
-        h5.close()
-        raise ValueError(f"{p} is a gridstrain result file of format {version}; this "
-                         f"gridstrain reads format {FORMAT_VERSION}")
+        raise
     return h5
+
+
+_MAP_NAMES = ("ux", "uy", "exx", "eyy", "exy", "rotation", "valid")
+
+
+def _map_datasets(h5) -> tuple[dict, dict, tuple]:
+    """The per-state maps, the uncertainty maps and ``(n_states, H, W)``, each checked
+    (a dataset of the file itself, of numbers or booleans, of one shape) before a byte
+    of them is read."""
+    maps = {}
+    for name in _MAP_NAMES:
+        if name not in h5:
+            raise _Bad(f"{_where(h5, name)}: missing (every result file has the maps "
+                       f"{', '.join(_MAP_NAMES)})")
+        maps[name] = _member(h5, name)
+    unc = {}
+    for name in h5:
+        obj = _member(h5, name)
+        if isinstance(obj, h5py.Dataset) and "uncertainty_of" in obj.attrs:
+            unc[name] = obj
+    layout = maps["ux"].shape
+    if len(layout) != 3:
+        raise _Bad(f"{_where(maps['ux'])}: expected (state, y, x) maps, got shape {layout}")
+    for name, ds in (*maps.items(), *unc.items()):
+        if not isinstance(ds, h5py.Dataset) or ds.shape != layout:
+            got = ds.shape if isinstance(ds, h5py.Dataset) else "a group"
+            raise _Bad(f"{_where(ds)}: expected the shape {layout} of ux (state, y, x), "
+                       f"got {got}")
+        want = "b" if name == "valid" else "f"
+        if ds.dtype.kind != want:
+            raise _Bad(f"{_where(ds)}: dtype {ds.dtype}, expected "
+                       + ("bool" if want == "b" else "floating point"))
+    for name, want in (("mask", "b"), ("reference_image", "f")):
+        if name not in h5:
+            raise _Bad(f"{_where(h5, name)}: missing")
+        ds = _member(h5, name)
+        if not isinstance(ds, h5py.Dataset) or ds.shape != layout[1:] \
+                or ds.dtype.kind != want:
+            raise _Bad(f"{_where(ds)}: expected a {layout[1:]} "
+                       + ("bool" if want == "b" else "floating-point") + " image, got "
+                       + (f"shape {ds.shape} dtype {ds.dtype}"
+                          if isinstance(ds, h5py.Dataset) else "a group"))
+    return maps, unc, layout
+
+
+def _declared_bytes(h5) -> int:
+    """The bytes the file's datasets hold once read (what they declare, not what
+    they take compressed on disk)."""
+    total = 0
+
+    def add(_name, obj):
+        nonlocal total
+        if isinstance(obj, h5py.Dataset):
+            total += int(obj.size) * obj.dtype.itemsize
+
+    h5.visititems(add)
+    return total
+
+
+def _check_result(path, result: SeriesResult) -> SeriesResult:
+    """The counts of series and states agree across the fields, and the numbers a
+    reader computes with are finite."""
+    n = result.n_states
+    per = {"names": n + 1, "sources": n + 1, "n_frames": n + 1, "bit_depth": n + 1,
+           "scale": n + 1, "saturation": n + 1, "vibration": n + 1,
+           "measurements": n, "guesses": n, "guess_sources": n}
+    if result.fringe_orders:
+        per["fringe_orders"] = n
+    for name, count in per.items():
+        if len(getattr(result, name)) != count:
+            raise _Bad(f"{path}: /{_GROUP}/result/{name}: expected {count} entries "
+                       f"({n} states, {n + 1} series), got {len(getattr(result, name))}")
+    nf = result.noise
+    for name, shape in (("theory_u", (n, 2)), ("theory_strain", (n, 3)),
+                        ("split_u", (n, 2)), ("split_strain", (n, 3)),
+                        ("vibration_u", (n, 2)), ("modulus", (n + 1, 2))):
+        got = np.shape(getattr(nf, name))
+        if got != shape:
+            raise _Bad(f"{path}: /{_GROUP}/result/noise/{name}: expected shape {shape}, "
+                       f"got {got}")
+    for name, value, positive in (("sigma", result.sigma, True),
+                                  ("margin", result.margin, False),
+                                  ("noise/resolution", nf.resolution, True)):
+        if not math.isfinite(value) or (positive and value <= 0):
+            raise _Bad(f"{path}: /{_GROUP}/result/{name}: expected a finite "
+                       + ("positive " if positive else "") + f"number, got {value!r}")
+    if result.method not in ("A", "B", "C"):
+        raise _Bad(f"{path}: /{_GROUP}/result/method: expected 'A', 'B' or 'C', got "
+                   f"{result.method!r}")
+    for i, v in enumerate(result.vibration):
+        if np.ndim(v.shifts) != 2 or np.shape(v.shifts)[1:] != (2,) \
+                or len(v.shifts) != v.n_frames:
+            raise _Bad(f"{path}: /{_GROUP}/result/vibration/{i}/shifts: expected shape "
+                       f"({v.n_frames}, 2), got {np.shape(v.shifts)}")
+    return result
 
 
 def load(path) -> SeriesResult:
     """Read a result file written by :func:`save_result`.
+
+    Nothing in the file is run or imported: the classes it may hold are a fixed
+    list (gridstrain's result classes, and subclasses of them the program defined
+    already), and every value is checked (type, shape, dtype, the size it declares
+    against the memory available) before it is used.
 
     Parameters
     ----------
@@ -867,46 +1219,89 @@ def load(path) -> SeriesResult:
     FileNotFoundError
         No such file.
     ValueError
-        The file is not a gridstrain result file.
+        The file is not a gridstrain result file, or a field of it is not what
+        the layout says (the message names the file and the field), or it declares
+        more data than the memory available.
     """
     with _open(path) as h5:
-        def arr(name):
-            return np.asarray(h5[name][()])
+        maps, unc, (n, H, W) = _map_datasets(h5)
+        # read once, then copied into the stacks and the measurements
+        _check_memory(h5.filename, 2 * _declared_bytes(h5), "its datasets")
 
-        u = np.stack([arr("ux"), arr("uy")], axis=1)
-        strain = np.stack([arr("exx"), arr("eyy"), arr("exy")], axis=1)
-        valid, rotation = arr("valid"), arr("rotation")
-        unc_keys = [k for k in h5 if "uncertainty_of" in h5[k].attrs]
-        root = {"u": u, "strain": strain, "valid": valid, "mask": arr("mask"),
-                "reference_image": arr("reference_image"),
-                "uncertainty": ({k: arr(k) for k in _UNC_KEYS if k in unc_keys}
-                                | {k: arr(k) for k in unc_keys if k not in _UNC_KEYS})
-                if unc_keys else None}
+        def stack(names):
+            out = np.empty((n, len(names), H, W),
+                           np.result_type(*(maps[k].dtype for k in names)))
+            for j, k in enumerate(names):
+                out[:, j] = _read_dataset(maps[k], kinds="f")
+            return out
+
+        u, strain = stack(("ux", "uy")), stack(("exx", "eyy", "exy"))
+        valid = _read_dataset(maps["valid"], kinds="b")
+        rotation = _read_dataset(maps["rotation"], kinds="f")
+        root = {"u": u, "strain": strain, "valid": valid,
+                "mask": _read_dataset(h5["mask"], kinds="b"),
+                "reference_image": _read_dataset(h5["reference_image"], kinds="f"),
+                "uncertainty": ({k: _read_dataset(unc[k]) for k in _UNC_KEYS if k in unc}
+                                | {k: _read_dataset(unc[k]) for k in unc
+                                   if k not in _UNC_KEYS}) if unc else None}
 
         def fill(cls, group, values):
             if cls.__name__ == "SeriesResult":
                 values.update(root)
             elif cls.__name__ == "Measurement" and group.parent.name.endswith(
                     "/measurements"):
-                i = int(group.name.rsplit("/", 1)[1])
+                i = group.name.rsplit("/", 1)[1]
+                if not i.isdigit() or int(i) >= n:
+                    raise _Bad(f"{_where(group)}: a measurement beyond the {n} states of "
+                               "the maps")
+                i = int(i)
                 values.update(u=u[i].copy(), strain=strain[i].copy(),
                               rotation=rotation[i].copy(), valid=valid[i].copy())
                 values.setdefault("reference", None)  # saved without the phase maps
                 values.setdefault("deformed", None)
             return values
 
-        return _decode(h5[_GROUP]["result"], {}, fill)
+        if "result" not in h5[_GROUP]:
+            raise _Bad(f"{_where(h5[_GROUP], 'result')}: missing")
+        result = _decode(_member(h5[_GROUP], "result"), {}, fill)
+        if not isinstance(result, SeriesResult):
+            raise _Bad(f"{_where(h5[_GROUP], 'result')}: expected a SeriesResult, got "
+                       f"{_received(result)}")
+        return _check_result(h5.filename, result)
+
+
+#: Root attributes whose type a reader relies on (the report, the plots, the replay).
+_ATTR_TYPES = {"pixel_size": float, "unit": str, "config": str, "config_file": str,
+               "mask_file": str, "created": str, "gridstrain_version": str,
+               "conventions": str}
 
 
 def read_attrs(path) -> dict:
     """The root attributes of a result file (pixel size, unit, config...), decoded.
 
-    Lists come back as lists, NaN as NaN; see :func:`save_result`.
+    Lists come back as lists, NaN as NaN; see :func:`save_result`. The attributes
+    a reader computes with are checked: ``pixel_size`` a finite positive number,
+    ``unit``, ``config`` and the provenance strings text.
     """
     with _open(path) as h5:
-        out = {k: _plain(v) for k, v in h5.attrs.items()}
+        out = {k: _attr(h5, k) for k in h5.attrs}
+        for key, kind in _ATTR_TYPES.items():
+            v = out.get(key)
+            if v is None:
+                continue
+            ok = isinstance(v, str) if kind is str else (
+                isinstance(v, int | float) and not isinstance(v, bool)
+                and math.isfinite(v) and v > 0)
+            if not ok:
+                raise _Bad(f"{_where(h5, key)}: expected "
+                           + ("text" if kind is str else "a finite positive number")
+                           + f", got {_received(v)}")
         if "attrs" in h5[_GROUP]:
-            out.update(_decode(h5[_GROUP]["attrs"], {}, lambda c, g, v: v))
+            extra = _decode(_member(h5[_GROUP], "attrs"), {}, lambda c, g, v: v)
+            if not isinstance(extra, dict):
+                raise _Bad(f"{_where(h5[_GROUP], 'attrs')}: expected a dict, got "
+                           f"{_received(extra)}")
+            out.update(extra)
     return out
 
 
