@@ -8,12 +8,16 @@ another file or computing with a value of the wrong kind.
 
 from __future__ import annotations
 
+import json
 import re
+import socket
 import sys
+import tomllib
 
 import h5py
 import numpy as np
 import pytest
+import tifffile
 
 from gridstrain import Lattice
 from gridstrain.cli import main
@@ -149,3 +153,88 @@ def test_the_commands_say_one_line(saved, capsys):
         assert str(saved) in err[0]
         assert "_class" in err[0]
     assert not saved.with_suffix(".html").exists()
+
+
+# --------------------------------------------------------------------------- replay
+
+
+@pytest.fixture(scope="module")
+def series(tmp_path_factory):
+    d = tmp_path_factory.mktemp("series")
+    rng = np.random.default_rng(26)
+    for name, strain in (("ref", 0.0), ("def", 1e-3)):
+        (d / name).mkdir()
+        level, _ = scene((N, N), pitch=5.0, angle=0.0, hole=False, light=False,
+                         displacement=lambda X, Y, e=strain: (e * (X - N / 2), 0.0 * Y))
+        for k in range(2):
+            tifffile.imwrite(d / name / f"f{k}.tif", camera(level, 1.0, 4.0, rng),
+                             photometric="minisblack")
+    return d
+
+
+def test_a_result_file_replays_the_measurement_and_nothing_else(series, tmp_path, capsys):
+    first = tmp_path / "first.h5"
+    assert main(["measure", str(series / "ref"), str(series / "def"), "-o", str(first),
+                 "--pitch", "5", "--sigma", "6", "--quiet"]) == 0
+    # a crafted configuration: run-only keys aimed at the user's files and a cluster
+    victims = {name: tmp_path / name for name in ("victim.csv", "victim.html", "victim.h5")}
+    for path in victims.values():
+        path.write_bytes(b"the user's own file")
+    listener = socket.socket()
+    listener.bind(("127.0.0.1", 0))
+    listener.listen(1)
+    listener.setblocking(False)
+    port = listener.getsockname()[1]
+    config = tomllib.loads(read_attrs(first)["config"])
+    config.update(overwrite=True, csv=str(victims["victim.csv"]),
+                  report=str(victims["victim.html"]), output=str(victims["victim.h5"]),
+                  scheduler=f"tcp://127.0.0.1:{port}", timeout=1.0, quiet=False)
+    text = "\n".join(f"{k} = {json.dumps(v)}" for k, v in config.items()) + "\n"
+    with h5py.File(first, "a") as h5:
+        h5.attrs["config"] = text
+    again = tmp_path / "again.h5"
+    capsys.readouterr()
+    assert main(["measure", "--config", str(first), "-o", str(again), "--sigma", "7"]) == 0
+    err = capsys.readouterr().err
+    for path in victims.values():
+        assert path.read_bytes() == b"the user's own file"
+    with pytest.raises(BlockingIOError):  # nobody knocked
+        listener.accept()
+    listener.close()
+    line = next(x for x in err.splitlines() if x.startswith("replaying"))
+    assert str(first) in line
+    ignored = line.split("ignored run-only ")[1].split(", ")
+    assert set(ignored) == {"overwrite", "csv", "report", "output", "scheduler", "timeout",
+                            "quiet"}
+    assert "sigma from the command line" in line
+    attrs = read_attrs(again)
+    assert "reference" in attrs["config_keys"]
+    assert "sigma" not in attrs["config_keys"]
+    assert set(attrs["config_ignored"]) == set(ignored)
+    stored = tomllib.loads(attrs["config"])
+    assert not set(stored) & {"output", "scheduler", "csv", "report", "overwrite"}
+    assert stored["sigma"] == 7.0
+    # the measurement itself is replayed: same inputs, same lattice
+    assert load(again).names == load(first).names
+    # a measurement key of the wrong type is refused by name
+    with h5py.File(first, "a") as h5:
+        h5.attrs["config"] = text.replace("pitch = 5.0", 'pitch = "5<script>"')
+    assert main(["measure", "--config", str(first), "-o", str(tmp_path / "x.h5"),
+                 "--quiet"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1
+    assert str(first) in err[0]
+    assert "pitch" in err[0]
+
+
+def test_a_toml_file_never_turns_on_overwrite(series, tmp_path, capsys):
+    out = tmp_path / "m.h5"
+    out.write_bytes(b"the user's own file")
+    cfg = tmp_path / "run.toml"
+    cfg.write_text(f'reference = "{series / "ref"}"\nstates = ["{series / "def"}"]\n'
+                   f'output = "{out}"\npitch = 5\noverwrite = true\n')
+    assert main(["measure", "--config", str(cfg), "--quiet"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1
+    assert "--overwrite" in err[0]
+    assert out.read_bytes() == b"the user's own file"

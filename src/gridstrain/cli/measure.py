@@ -15,6 +15,7 @@ import os
 import sys
 import time
 import tomllib
+from dataclasses import dataclass
 from pathlib import Path
 
 import h5py
@@ -58,9 +59,13 @@ _CONFIG_KEYS = {
     "timeout": "float",
     "sigma-pitches": "float", "noise": "path", "noise-model": "pair", "dtype": "str",
 }
-# Left out of the configuration stored in the result: how to run (not what to
-# measure), and the side outputs, which a replay must not write over.
-_RUN_ONLY = ("quiet", "json", "overwrite", "csv", "figures", "report", "timeout")
+# How to run, not what to measure: every output (the result file, the side outputs and
+# what they replace), the terminal's report, the cluster and its patience. Never
+# stored in a result, never taken from one: a result file from someone else replays
+# the measurement and nothing else. A TOML file the user writes may set them, except
+# ``overwrite``, which only --overwrite on the command line turns on.
+_RUN_ONLY = ("output", "csv", "figures", "export", "report", "overwrite", "quiet", "json",
+             "scheduler", "timeout")
 _EXPORTS = ("mat", "vtk", "csv")
 
 # Seconds the command waits for a cluster's result of one series: an hour covers
@@ -285,36 +290,71 @@ def _polygon(values) -> list[list[float]]:
     return out
 
 
-def _read_config(path: str) -> dict:
+@dataclass(frozen=True)
+class _Config:
+    """The options a ``--config`` file gave, and the keys it had that were not taken."""
+
+    path: Path
+    options: dict
+    from_result: bool
+    ignored: tuple = ()
+
+
+def _read_config(path: str) -> _Config:
     p = Path(os.path.expanduser(path))
     if not p.is_file():
         raise FileNotFoundError(f"config file {p} does not exist")
-    if h5py.is_hdf5(p):  # a result file: the configuration of its run
+    from_result = h5py.is_hdf5(p)
+    if from_result:  # a result file: the configuration of its run
         from ..results import read_attrs
 
         text = read_attrs(p).get("config")
         if not isinstance(text, str):
             raise ValueError(f"config {p}: this HDF5 file holds no gridstrain configuration")
-        data = tomllib.loads(text)
+        try:
+            data = tomllib.loads(text)
+        except tomllib.TOMLDecodeError as exc:
+            raise ValueError(f"{p}: /config: not valid TOML ({exc})") from None
     else:
         try:
             with open(p, "rb") as fh:
                 data = tomllib.load(fh)
         except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
             raise ValueError(f"config {p}: not valid TOML ({exc})") from None
-    out = {}
+    where = f"{p}: /config" if from_result else f"config {p}"
+    out, ignored = {}, []
     for key, value in data.items():
         name = key.replace("_", "-")
         if name not in _CONFIG_KEYS:
-            raise ValueError(f"config {p}: unknown key {key!r}; allowed keys are "
+            raise ValueError(f"{where}: unknown key {key!r}; allowed keys are "
                              f"{', '.join(sorted(_CONFIG_KEYS))}")
-        out[name] = _config_value(key, value, _CONFIG_KEYS[name], p.parent, f"config {p}")
-    return out
+        if from_result and name in _RUN_ONLY:
+            ignored.append(name)
+            continue
+        if name == "overwrite":
+            raise ValueError(f"{where}: overwrite is not taken from a file; pass "
+                             "--overwrite on the command line")
+        out[name] = _config_value(key, value, _CONFIG_KEYS[name], p.parent, where)
+    return _Config(p, out, from_result, tuple(ignored))
 
 
-def _options(args) -> dict:
+def _replay_line(config: _Config, opts: dict) -> str:
+    """What a replay took from the result file, what the command line gave instead,
+    and what it left."""
+    taken = [k for k in config.options if opts.get(k) == config.options[k]]
+    line = f"replaying the measurement of {config.path}: " + (
+        ", ".join(taken) if taken else "no option") + " from the file"
+    over = [k for k in config.options if k not in taken]
+    if over:
+        line += f"; {', '.join(over)} from the command line"
+    if config.ignored:
+        line += f"; ignored run-only {', '.join(config.ignored)}"
+    return line
+
+
+def _options(args, config: _Config | None = None) -> dict:
     """The options of the command line over those of the config file."""
-    opts = _read_config(args.config) if args.config else {}
+    opts = dict(config.options) if config else {}
     for name in _CONFIG_KEYS:
         value = getattr(args, name.replace("-", "_"))
         if name == "states" and not value:
@@ -694,8 +734,15 @@ def run(args) -> int:
 
 def _run(args, progress: _Bar) -> int:
     t0 = time.perf_counter()
-    opts, lattice, noise_model = _checked(_options(args))
+    config = _read_config(args.config) if args.config else None
+    opts, lattice, noise_model = _checked(_options(args, config))
     progress.configure(opts["quiet"])
+    replay = {}
+    if config is not None:
+        replay["config_keys"] = [k for k in config.options if opts.get(k) == config.options[k]]
+        replay["config_ignored"] = list(config.ignored)
+        if config.from_result and not opts["quiet"]:
+            print(_replay_line(config, opts), file=sys.stderr)
     reference, states, mask = _inputs(opts, args)
     ps, unit = opts.get("pixel-size"), opts.get("unit")
     stored = dict(opts)
@@ -703,7 +750,8 @@ def _run(args, progress: _Bar) -> int:
         if stored.get(key):
             stored[key] = _absolute(stored[key])
     extra = {"config": config_text(stored),
-             "config_file": args.config or "", "mask_file": opts.get("mask") or ""}
+             "config_file": args.config or "", "mask_file": opts.get("mask") or "",
+             **replay}
     # each state written as soon as it is measured, unless every state's phase maps
     # are to be stored with them
     spec = None if opts["phase-maps"] else ResultFile(
