@@ -5,9 +5,17 @@ single HTML file: no script, no style sheet or font fetched, every figure a PNG
 embedded as a ``data:`` URI, so the page shows the same offline, attached to an
 e-mail or archived with the data. It holds the run's provenance (version, date,
 input files, the configuration that replays the run), the lattice, the
-vibrations of every series, the noise floor, the maps of every state on common
-colour limits (strains in µε), the rotation and uncertainty maps, the strain of
-the states averaged over the valid region, and the warnings.
+vibrations of every series, the noise floor, the maps on common colour limits
+(strains in µε), the rotation and uncertainty maps, the strain of the states
+averaged over the valid region, and the warnings.
+
+A result file may come from anyone: the page is rendered from a template
+(``templates/report.html.j2``) with autoescaping, so every text and number read
+from the file reaches the page escaped, and the page forbids scripts
+(Content-Security-Policy). A long sequence stays one readable page: beyond
+:data:`ALL_STATES_UP_TO` states, the maps are those of a few states (the first,
+evenly spaced ones, the last), the histories show every state, and each state is
+one row of the tables.
 """
 
 from __future__ import annotations
@@ -17,6 +25,7 @@ import dataclasses
 import html
 import io
 import math
+from importlib import resources
 from pathlib import Path
 
 import numpy as np
@@ -27,31 +36,46 @@ from .pipeline import MAP_FIELDS, SeriesResult
 from .plotting import plot_history, plot_shifts, plot_states
 from .results import load, read_attrs
 
-__all__ = ["render_report", "write_report"]
+__all__ = ["ALL_STATES_UP_TO", "render_report", "write_report"]
 
+#: Up to this many states the report draws the maps of every state; beyond, those
+#: of :data:`SHOWN_STATES` states spread over the sequence.
+ALL_STATES_UP_TO = 12
+SHOWN_STATES = 6
 _DPI = 90
-_STYLE = """
-body { font-family: sans-serif; margin: 1.5em auto; max-width: 1100px; color: #222; }
-h1 { font-size: 1.5em; } h2 { font-size: 1.2em; border-bottom: 1px solid #ccc; }
-table { border-collapse: collapse; margin: 0.5em 0; font-size: 0.9em; }
-td, th { border: 1px solid #ccc; padding: 2px 8px; text-align: right; }
-th { background: #f0f0f0; } td.l, th.l { text-align: left; }
-img { max-width: 100%; } pre { background: #f6f6f6; padding: 0.5em; overflow-x: auto; }
-.warn { background: #fff4e0; border-left: 4px solid #e69500; padding: 0.3em 0.6em; }
-figure { margin: 0.5em 0; } figcaption { font-size: 0.85em; color: #555; }
-"""
+# An embedded figure is drawn at most this tall (px): a browser scrolls a page, not
+# one image of a tall specimen's maps.
+_MAX_HEIGHT_PX = 4000
+_TICKS = 12  # state labels on a history's axis, at most
+_UNC = ("ux_std", "uy_std", "exx_std", "eyy_std", "exy_std")
 
 
-def _png(fig) -> str:
+def _template():
+    import jinja2
+
+    text = resources.files(__package__).joinpath("templates/report.html.j2").read_text(
+        encoding="utf-8")
+    env = jinja2.Environment(autoescape=True, undefined=jinja2.StrictUndefined,
+                             keep_trailing_newline=True)
+    env.filters["content"] = _content
+    return env.from_string(text)
+
+
+def _content(text) -> str:
+    """Text escaped for an element's content (``&``, ``<``, ``>``), its quotes kept
+    as they are, so that a configuration reads as written; never for an attribute."""
+    import markupsafe
+
+    return markupsafe.Markup(html.escape(str(text), quote=False))
+
+
+def _figure(fig, alt: str, caption: str = "") -> dict:
+    """A figure as the template draws it: a PNG no taller than the limit, base64."""
+    dpi = min(_DPI, _MAX_HEIGHT_PX / fig.get_figheight())
     buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=_DPI)
-    return base64.b64encode(buf.getvalue()).decode("ascii")
-
-
-def _figure(fig, alt: str, caption: str = "") -> str:
-    cap = f"<figcaption>{html.escape(caption)}</figcaption>" if caption else ""
-    return (f'<figure><img class="figure" alt="{html.escape(alt)}" '
-            f'src="data:image/png;base64,{_png(fig)}">{cap}</figure>')
+    fig.savefig(buf, format="png", dpi=dpi)
+    return {"alt": alt, "caption": caption,
+            "png": base64.b64encode(buf.getvalue()).decode("ascii")}
 
 
 def _num(x, spec: str = ".3g") -> str:
@@ -60,19 +84,41 @@ def _num(x, spec: str = ".3g") -> str:
     try:
         v = float(x)
     except (TypeError, ValueError):
-        return html.escape(str(x))
+        return str(x)
     return "–" if not math.isfinite(v) else format(v, spec)
 
 
-def _table(header, rows, left=(0,)) -> str:
-    """A table; cells are HTML already escaped; the columns ``left`` hold text."""
-    def cell(tag, i, c):
-        return f'<{tag} class="l">{c}</{tag}>' if i in left else f"<{tag}>{c}</{tag}>"
+def _table(header, rows, left=(0,)) -> dict:
+    """A table for the template; the columns ``left`` hold text."""
+    return {"header": list(header), "rows": [[str(c) for c in r] for r in rows],
+            "left": set(left)}
 
-    head = "".join(cell("th", i, html.escape(h)) for i, h in enumerate(header))
-    body = "".join("<tr>" + "".join(cell("td", i, c) for i, c in enumerate(r)) + "</tr>"
-                   for r in rows)
-    return f"<table><tr>{head}</tr>{body}</table>"
+
+def shown_states(n: int) -> list[int]:
+    """The states whose maps the report draws: all of them up to
+    :data:`ALL_STATES_UP_TO`, else the first, the last and evenly spaced ones."""
+    if n <= ALL_STATES_UP_TO:
+        return list(range(n))
+    return _spread(n, SHOWN_STATES)
+
+
+def _spread(n: int, k: int) -> list[int]:
+    """``k`` indices (fewer if ``n`` is small) from 0 to ``n - 1``, evenly spaced."""
+    return np.unique(np.linspace(0, n - 1, k).round().astype(int)).tolist()
+
+
+def _subset(result, states: list[int]):
+    """The result restricted to some states, for the figures of their maps."""
+    if states == list(range(result.n_states)):
+        return result
+    idx = np.array(states)
+    return dataclasses.replace(
+        result, u=np.asarray(result.u[idx]), strain=np.asarray(result.strain[idx]),
+        valid=np.asarray(result.valid[idx]),
+        measurements=tuple(result.measurements[i] for i in states),
+        names=(result.names[0], *(result.names[i + 1] for i in states)),
+        uncertainty=None if result.uncertainty is None else
+        {k: np.asarray(v)[idx] for k, v in result.uncertainty.items()})
 
 
 def render_report(result: SeriesResult, *, attrs: dict | None = None,
@@ -87,155 +133,150 @@ def render_report(result: SeriesResult, *, attrs: dict | None = None,
     ps, unit = a.get("pixel_size"), a.get("unit")
     if ps is None or unit is None:
         ps = unit = None
-    out = _head(result, a, ps, unit, title)
-    if result.warnings:
-        out.append("<h2>Warnings</h2>")
-        out += [f'<p class="warn">{html.escape(w)}</p>' for w in result.warnings]
-    out += _inputs_section(result)
-    out += _lattice_section(result)
-    out += _vibration_section(result)
-    out += _noise_section(result)
-    out += _maps_section(result, ps, unit)
-    if result.uncertainty:
-        out.append("<h2>Uncertainty maps</h2><p>Predicted standard deviation of each map "
-                   "at each pixel, from the noise measured in the frames.</p>")
-        for name in result.uncertainty:
-            if name in ("ux_std", "uy_std", "exx_std", "eyy_std", "exy_std"):
-                out.append(_figure(plot_states(result, name, pixel_size=ps, unit=unit),
-                                   f"uncertainty map of {name}"))
-    extra = _extra_fields(result)
-    if extra:
-        out.append("<h2>Other results</h2>")
-        out += [f"<h3>{html.escape(k)}</h3><pre>{html.escape(v)}</pre>" for k, v in extra]
-    out += _provenance_section(result, a)
-    out.append("</body></html>\n")
-    return "\n".join(out)
+    states = shown_states(result.n_states)
+    shown = _subset(result, states)
+    context = {
+        "title": title, "summary": _summary(result, a, ps, unit),
+        "warnings": list(result.warnings),
+        **_inputs_section(result), **_lattice_section(result),
+        **_vibration_section(result, states), **_noise_section(result),
+        **_maps_section(result, shown, ps, unit), **_states_section(result),
+        "uncertainty": [_figure(plot_states(shown, name, pixel_size=ps, unit=unit),
+                                f"uncertainty map of {name}")
+                        for name in (shown.uncertainty or {}) if name in _UNC],
+        "extra": _extra_fields(result),
+        "parameters": _table(["parameter", "value"],
+                             [[str(k), repr(v)] for k, v in result.parameters.items()],
+                             left=(0, 1)),
+        "config": str(a.get("config") or ""),
+        "conventions": str(a.get("conventions", "")),
+    }
+    return _template().render(context)
 
 
-def _head(result, a: dict, ps, unit, title: str) -> list[str]:
-    """The page's head, title and the one-paragraph description of the run."""
+def _summary(result, a: dict, ps, unit) -> str:
+    """The one-paragraph description of the run."""
     H, W = result.shape
-    return [f"<!DOCTYPE html><html lang='en'><head><meta charset='utf-8'>"
-            f"<title>{html.escape(title)}</title><style>{_STYLE}</style></head><body>",
-            f"<h1>{html.escape(title)}</h1>",
-            f"<p>{result.n_states} loaded state(s) against the reference, {H} × {W} px, "
+    phys = f" = {result.noise.resolution * ps:.3g} {unit}" if ps else ""
+    return (f"{result.n_states} loaded state(s) against the reference, {H} × {W} px, "
             f"method {result.method}, σ = {result.sigma:.4g} px (spatial resolution "
-            f"{result.noise.resolution:.3g} px FWHM"
-            + (f" = {result.noise.resolution * ps:.3g} {html.escape(unit)}" if ps else "")
-            + f"), large-displacement correction {'on' if result.lagrangian else 'off'}. "
-            f"Written by gridstrain {html.escape(str(a.get('gridstrain_version', '?')))} "
-            f"on {html.escape(str(a.get('created', '?')))}.</p>"]
+            f"{result.noise.resolution:.3g} px FWHM{phys}), large-displacement correction "
+            f"{'on' if result.lagrangian else 'off'}. Written by gridstrain "
+            f"{a.get('gridstrain_version', '?')} on {a.get('created', '?')}.")
 
 
-def _inputs_section(result) -> list[str]:
+def _inputs_section(result) -> dict:
     """Every image series: frames, bit depth, saturation and files."""
     rows = []
     for name, files, T, bits, scale, sat in zip(
             result.names, result.sources, result.n_frames, result.bit_depth, result.scale,
             result.saturation, strict=True):
-        where = html.escape(files[0]) + (f" … ({len(files)} files)" if len(files) > 1
-                                         else "") if files else "array in memory"
+        where = files[0] + (f" … ({len(files)} files)" if len(files) > 1 else "") \
+            if files else "array in memory"
         depth = "float" if bits is None else f"{bits}-bit" + (f" ×{scale}" if scale != 1
                                                                else "")
-        rows.append([html.escape(name), str(T), depth, f"{sat:.2%}", where])
-    return ["<h2>Inputs</h2>",
-            _table(["series", "frames", "data", "saturated", "files"], rows, left=(0, 4))]
+        rows.append([name, T, depth, _num(sat, ".2%"), where])
+    return {"inputs": _table(["series", "frames", "data", "saturated", "files"], rows,
+                             left=(0, 4))}
 
 
-def _lattice_section(result) -> list[str]:
+def _lattice_section(result) -> dict:
     """The wave vectors, pitches and angles, and whether they were detected."""
     lat = result.lattice
     how = "Detected on the mean reference image" if result.lattice_detected else "Given"
-    return ["<h2>Lattice</h2>",
-            _table(["wave vector", "kx (cycles/px)", "ky (cycles/px)", "pitch (px)",
-                    "angle (deg)"],
-                   [[k, _num(v[0], ".6g"), _num(v[1], ".6g"), _num(p, ".5f"),
-                     _num(ang, ".3f")] for k, v, p, ang in
-                    zip(("k1", "k2"), (lat.k1, lat.k2), lat.pitches, lat.angles,
-                        strict=True)]),
-            f"<p>{how}; validity margin {result.margin:g} σ.</p>"]
+    return {"lattice": _table(
+                ["wave vector", "kx (cycles/px)", "ky (cycles/px)", "pitch (px)",
+                 "angle (deg)"],
+                [[k, _num(v[0], ".6g"), _num(v[1], ".6g"), _num(p, ".5f"), _num(ang, ".3f")]
+                 for k, v, p, ang in zip(("k1", "k2"), (lat.k1, lat.k2), lat.pitches,
+                                         lat.angles, strict=True)]),
+            "lattice_note": f"{how}; validity margin {result.margin:g} σ."}
 
 
-def _vibration_section(result) -> list[str]:
-    """The vibrations of every series: a table, and the shifts of each stack."""
-    out = ["<h2>Vibrations</h2>",
-           _table(["series", "std α (px)", "std β (px)", "contrast k1", "contrast k2",
-                   "phase offset std k1 (rad)", "k2 (rad)"],
-                  [[html.escape(v.name), _num(v.std[0]), _num(v.std[1]),
-                    _num(v.contrast_factor[0], ".5f"), _num(v.contrast_factor[1], ".5f"),
-                    _num(v.phase_offset_std[0]), _num(v.phase_offset_std[1])]
-                   for v in result.vibration])]
-    for v in result.vibration:
-        if v.n_frames > 1:
-            out.append(_figure(plot_shifts(v.shifts, title=f"{v.name}: rigid shift of each "
-                                           "frame"), f"vibrations of {v.name}"))
-    return out
+def _vibration_section(result, states: list[int]) -> dict:
+    """The vibrations of every series: a table, and the shifts of the reference's and
+    the shown states' stacks."""
+    series = [0, *(i + 1 for i in states)]
+    table = _table(["series", "std α (px)", "std β (px)", "contrast k1", "contrast k2",
+                    "phase offset std k1 (rad)", "k2 (rad)"],
+                   [[v.name, _num(v.std[0]), _num(v.std[1]), _num(v.contrast_factor[0], ".5f"),
+                     _num(v.contrast_factor[1], ".5f"), _num(v.phase_offset_std[0]),
+                     _num(v.phase_offset_std[1])] for v in result.vibration])
+    figures = [_figure(plot_shifts(v.shifts, title=f"{v.name}: rigid shift of each frame"),
+                       f"vibrations of {v.name}")
+               for v in (result.vibration[j] for j in series) if v.n_frames > 1]
+    note = "" if len(series) == len(result.vibration) else (
+        f"Shifts drawn for the reference and the {len(states)} states whose maps are "
+        "shown; the table lists every series.")
+    return {"vibration": table, "vibration_figures": figures, "vibration_note": note}
 
 
-def _noise_section(result) -> list[str]:
-    """The noise floor of every state, and the sensor noise of every series."""
+def _noise_section(result) -> dict:
+    """The noise floor of every state (one row each), and the sensor noise of every
+    series."""
     nf = result.noise
-    out = ["<h2>Noise floor</h2><p>One standard deviation of the random error at a "
-           "pixel. Theory: windowed-Fourier noise with the sensor variance measured in "
-           "the frames; halves: the reference split in two, scaled.</p>"]
-    rows = []
-    for i in range(result.n_states):
-        for label, u, e in (("theory", nf.theory_u[i], nf.theory_strain[i]),
-                            ("reference halves", nf.split_u[i], nf.split_strain[i])):
-            rows.append([f"{html.escape(result.names[i + 1])}, {label}",
-                         _num(u[0]), _num(u[1]),
-                         *(_num(x * 1e6) for x in e)])
-        rows.append([f"{html.escape(result.names[i + 1])}, vibration offset (rigid)",
-                     _num(nf.vibration_u[i][0]), _num(nf.vibration_u[i][1]), "–", "–", "–"])
-    out.append(_table(["", "u_x (px)", "u_y (px)", "ε_xx (µε)", "ε_yy (µε)", "ε_xy (µε)"],
-                      rows))
-    out.append(_table(["series", "sensor variance (grey levels²)", "how", "|Ψ| k1", "|Ψ| k2"],
-                      left=(0, 2), rows=
-                      [[html.escape(n), _num(v), html.escape(m), _num(mod[0]), _num(mod[1])]
-                       for n, v, m, mod in zip(result.names, nf.sensor_variance,
-                                               nf.variance_method, nf.modulus, strict=True)]))
-    return out
+    rows = [[result.names[i + 1], _num(nf.theory_u[i][0]), _num(nf.theory_u[i][1]),
+             *(_num(x * 1e6) for x in nf.theory_strain[i]),
+             *(_num(x * 1e6) for x in nf.split_strain[i]),
+             _num(nf.vibration_u[i][0]), _num(nf.vibration_u[i][1])]
+            for i in range(result.n_states)]
+    noise = _table(["state", "theory u_x (px)", "u_y (px)", "theory ε_xx (µε)", "ε_yy (µε)",
+                    "ε_xy (µε)", "halves ε_xx (µε)", "ε_yy (µε)", "ε_xy (µε)",
+                    "vibration u_x (px)", "u_y (px)"], rows)
+    sensor = _table(["series", "sensor variance (grey levels²)", "how", "|Ψ| k1", "|Ψ| k2"],
+                    [[n, _num(v), m, _num(mod[0]), _num(mod[1])]
+                     for n, v, m, mod in zip(result.names, nf.sensor_variance,
+                                             nf.variance_method, nf.modulus, strict=True)],
+                    left=(0, 2))
+    return {"noise": noise, "sensor": sensor}
 
 
-def _maps_section(result, ps, unit) -> list[str]:
-    """The maps of every state, their means over the valid region, and the strain
-    history."""
-    out = ["<h2>Maps</h2><p>Every state on the same colour limits; strains in µε "
-           "(10⁻⁶), displacements in "
-           + (html.escape(unit) if ps else "px")
-           + "; outside the valid region the reference image shows through.</p>"]
-    for name in (*MAP_FIELDS, "rotation"):
-        out.append(_figure(plot_states(result, name, pixel_size=ps, unit=unit),
-                           f"map of {name}"))
+def _maps_section(result, shown, ps, unit) -> dict:
+    """The maps of the shown states on colour limits common to them."""
+    n, k = result.n_states, shown.n_states
+    which = "Every state" if k == n else (
+        f"{k} of the {n} states (the first, the last and evenly spaced ones; the "
+        "histories and the table below hold every state)")
+    note = (f"{which} on the same colour limits; strains in µε (10⁻⁶), displacements in "
+            f"{unit if ps else 'px'}; outside the valid region the reference image shows "
+            "through.")
+    maps = [_figure(plot_states(shown, name, pixel_size=ps, unit=unit), f"map of {name}")
+            for name in (*MAP_FIELDS, "rotation")]
+    return {"maps_note": note, "maps": maps}
+
+
+def _states_section(result) -> dict:
+    """One row per state (valid fraction, mean of each map over its valid pixels,
+    iterations, fringe order), and the histories of the means."""
     rows = []
     for i, m in enumerate(result.measurements):
-        v = result.valid[i]
-        means = [float(np.mean(result.get_map(k)[i][v])) if v.any() else math.nan
-                 for k in MAP_FIELDS]
-        rows.append([html.escape(result.names[i + 1]), f"{v.mean():.1%}",
-                     _num(means[0], ".4f"), _num(means[1], ".4f"),
-                     *(_num(x * 1e6, ".1f") for x in means[2:]), str(m.iterations),
-                     html.escape(_fringe_order(result, i))])
-    out.append(_table(["state", "valid", "mean u_x (px)", "mean u_y (px)", "mean ε_xx (µε)",
-                       "mean ε_yy (µε)", "mean ε_xy (µε)", "iterations", "fringe order"],
-                      rows, left=(0, 8)))
+        v = np.asarray(result.valid[i])
+        means = [float(np.mean(np.asarray(result.get_map(k)[i])[v])) if v.any()
+                 else math.nan for k in MAP_FIELDS]
+        rows.append([result.names[i + 1], f"{v.mean():.1%}", _num(means[0], ".4f"),
+                     _num(means[1], ".4f"), *(_num(x * 1e6, ".1f") for x in means[2:]),
+                     m.iterations, _fringe_order(result, i)])
+    table = _table(["state", "valid", "mean u_x (px)", "mean u_y (px)", "mean ε_xx (µε)",
+                    "mean ε_yy (µε)", "mean ε_xy (µε)", "iterations", "fringe order"],
+                   rows, left=(0, 8))
+    histories = []
     if result.n_states > 1:
-        out.append(_figure(plot_history(result), "strain of the states",
-                           "Strain of every state, mean over the valid pixels."))
-    return out
+        for names, what in ((("exx", "eyy", "exy"), "Strain"), (("ux", "uy"), "Displacement")):
+            fig = plot_history(result, names=names)
+            _thin_ticks(fig, result.n_states)
+            histories.append(_figure(fig, f"{what.lower()} of the states",
+                                     f"{what} of every state, mean over the valid pixels."))
+    return {"states": table, "histories": histories}
 
 
-def _provenance_section(result, a: dict) -> list[str]:
-    """Every parameter of the run, the configuration that replays it, the conventions."""
-    params = [[html.escape(str(k)), html.escape(repr(v))]
-              for k, v in result.parameters.items()]
-    out = ["<h2>Provenance</h2>", _table(["parameter", "value"], params, left=(0, 1))]
-    if a.get("config"):
-        out.append("<p>The configuration of this run (replay it with <code>gridstrain "
-                   "measure --config RESULT.h5 -o OUT.h5</code>):</p>"
-                   f"<pre>{html.escape(str(a['config']), quote=False)}</pre>")
-    out.append(f"<p>Conventions: {html.escape(str(a.get('conventions', '')))}</p>")
-    return out
+def _thin_ticks(fig, n: int) -> None:
+    """At most :data:`_TICKS` state labels on a history's axis, by state index."""
+    if n <= _TICKS:
+        return
+    ax = fig.axes[0]
+    ticks = _spread(n, _TICKS)
+    ax.set_xticks(ticks, [str(t) for t in ticks], rotation=0, fontsize=8)
+    ax.set_xlabel("state index")
 
 
 def _fringe_order(result, i: int) -> str:
