@@ -268,6 +268,15 @@ def test_report_is_self_contained(result, tmp_path):
     assert 'method = "A"' in text  # the stored configuration
 
 
+def _browse(page, profile, *extra):
+    """Chromium's run on ``page`` (headless, offline, a fresh profile)."""
+    return subprocess.run(
+        [_chromium(), "--headless", "--no-sandbox", "--disable-gpu",
+         "--disable-background-networking", "--disable-component-update", "--disable-sync",
+         "--no-first-run", f"--user-data-dir={profile}", *extra, page.as_uri()],
+        capture_output=True, text=True, timeout=120, check=False)
+
+
 @pytest.mark.skipif(_chromium() is None, reason="headless Chromium is not installed")
 def test_report_renders_in_headless_chromium(tmp_path):
     """The demo's report, as a browser shows it: no console error, the maps drawn."""
@@ -276,13 +285,8 @@ def test_report_renders_in_headless_chromium(tmp_path):
                  "16", "--quiet"]) == 0
     page = demo / "report.html"
     shot = tmp_path / "shot.png"
-    proc = subprocess.run(
-        [_chromium(), "--headless", "--no-sandbox", "--disable-gpu",
-         "--disable-background-networking", "--disable-component-update", "--disable-sync",
-         "--no-first-run", f"--user-data-dir={tmp_path / 'profile'}",
-         "--enable-logging=stderr", "--v=0", "--window-size=1200,4000",
-         f"--screenshot={shot}", "--dump-dom", page.as_uri()],
-        capture_output=True, text=True, timeout=120, check=False)
+    proc = _browse(page, tmp_path / "profile", "--enable-logging=stderr", "--v=0",
+                   "--window-size=1200,4000", f"--screenshot={shot}", "--dump-dom")
     assert proc.returncode == 0, proc.stderr[-2000:]
     console = [line for line in proc.stderr.splitlines()
                if "CONSOLE" in line or "Uncaught" in line]
@@ -290,12 +294,8 @@ def test_report_renders_in_headless_chromium(tmp_path):
     dom = proc.stdout
     assert dom.count('<img class="figure"') >= 6  # five maps, the rotation, vibrations
     assert "map of exx" in dom
-    proc = subprocess.run(
-        [_chromium(), "--headless", "--no-sandbox", "--disable-gpu",
-         "--disable-background-networking", "--disable-component-update", "--disable-sync",
-         "--no-first-run", f"--user-data-dir={tmp_path / 'profile'}",
-         "--window-size=1200,4000", f"--screenshot={shot}", page.as_uri()],
-        capture_output=True, text=True, timeout=120, check=False)
+    proc = _browse(page, tmp_path / "profile", "--window-size=1200,4000",
+                   f"--screenshot={shot}")
     import imageio.v3 as iio
 
     img = iio.imread(shot)
@@ -305,6 +305,92 @@ def test_report_renders_in_headless_chromium(tmp_path):
     rgb = img[..., :3].astype(float)
     colourful = (rgb.max(axis=-1) - rgb.min(axis=-1)) > 80
     assert colourful.mean() > 0.01
+
+
+# Markup that runs script wherever it reaches a page unescaped: as an element, as an
+# attribute (the quotes close alt="..."), in a <pre>
+_PAYLOAD = ("\"'><script>document.documentElement.setAttribute('data-pwned','s')</script>"
+            "<img src=x onerror=\"document.documentElement.setAttribute('data-pwned','i')\">")
+_STRUCTURE = {"_type", "_class", "_keys", "_tuple_attrs", "_list_attrs", "format_version"}
+# Strings the result classes check against their allowed values (a payload there is
+# refused by load, tested below with the numeric fields)
+_CHOICES = {"method", "source", "unit"}
+
+
+def _poison_strings(h5) -> int:
+    """Every text attribute of a result file (names, files, warnings, parameters,
+    sources, the configuration, the provenance...) with the payload appended."""
+    count = 0
+
+    def poison(obj):
+        nonlocal count
+        for key in list(obj.attrs):
+            v = obj.attrs[key]
+            if key in _STRUCTURE or key in _CHOICES:
+                continue
+            if isinstance(v, str):
+                obj.attrs[key] = v + _PAYLOAD
+                count += 1
+            elif isinstance(v, np.ndarray) and v.dtype.kind == "O":
+                obj.attrs[key] = np.array([x + _PAYLOAD for x in v],
+                                          dtype=h5py.string_dtype())
+                count += 1
+
+    poison(h5)
+    h5["gridstrain"].visititems(lambda _name, obj: poison(obj))
+    return count
+
+
+def test_report_escapes_everything_read_from_the_file(result, tmp_path, capsys):
+    """A result file crafted with markup in every string renders as text; the fields
+    that must be numbers (method, frames, bit depth, iterations, pixel size) are
+    refused in one line, before any HTML is written."""
+    path = save_result(result, tmp_path / "r.h5", pixel_size=0.02, unit="mm",
+                       attrs={"config": 'method = "A"\n', "created": "today"})
+    with h5py.File(path, "a") as h5:
+        assert _poison_strings(h5) > 20
+    page = tmp_path / "r.html"
+    assert main(["report", str(path), "-o", str(page)]) == 0, capsys.readouterr().err
+    text = page.read_text(encoding="utf-8")
+    assert "<script" not in text
+    assert re.findall(r"<img (?!class=\"figure\")", text) == []
+    assert "<img src=x" not in text
+    # the payload is there, as text, in the names, the files and the configuration
+    assert text.count("&lt;script&gt;") > 10
+    assert "vibrations of state 0&#34;&#39;&gt;&lt;script&gt;" in text  # in an alt
+    for field, value in (("gridstrain/result", ("method", _PAYLOAD)),
+                         ("gridstrain/result", ("n_frames", _PAYLOAD)),
+                         ("gridstrain/result", ("bit_depth", [_PAYLOAD] * 3)),
+                         ("gridstrain/result/measurements/1", ("iterations", _PAYLOAD)),
+                         ("/", ("pixel_size", _PAYLOAD)), ("/", ("unit", _PAYLOAD))):
+        bad = tmp_path / f"bad_{value[0]}.h5"
+        shutil.copy(path, bad)
+        with h5py.File(bad, "a") as h5:
+            if value[0] in h5[field]:  # a tuple holding None is a group
+                del h5[field][value[0]]
+            h5[field].attrs[value[0]] = value[1]
+        out = bad.with_suffix(".html")
+        assert main(["report", str(bad), "-o", str(out)]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1, err
+        assert str(bad) in err[0]
+        assert value[0] in err[0]
+        assert not out.exists()
+    if _chromium() is None:
+        pytest.skip("headless Chromium is not installed")
+    # no script runs, even without the page's own policy forbidding scripts
+    bare = tmp_path / "bare.html"
+    bare.write_text(re.sub(r"<meta http-equiv=\"Content-Security-Policy\"[^>]*>", "", text),
+                    encoding="utf-8")
+    assert "Content-Security-Policy" not in bare.read_text(encoding="utf-8")
+    control = tmp_path / "control.html"
+    control.write_text(f"<!DOCTYPE html><html><body><p>{_PAYLOAD}</p></body></html>")
+    for page_, pwned in ((bare, False), (page, False), (control, True)):
+        proc = _browse(page_, tmp_path / "profile", "--dump-dom",
+                       "--virtual-time-budget=2000")
+        assert proc.returncode == 0, proc.stderr[-2000:]
+        dom = proc.stdout
+        assert ("data-pwned" in dom.split(">", 2)[1]) is pwned, dom[:300]
 
 
 # --------------------------------------------------------------------------- plot command

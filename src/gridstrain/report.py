@@ -25,6 +25,7 @@ import dataclasses
 import html
 import io
 import math
+import warnings
 from importlib import resources
 from pathlib import Path
 
@@ -133,9 +134,18 @@ def render_report(result: SeriesResult, *, attrs: dict | None = None,
     ps, unit = a.get("pixel_size"), a.get("unit")
     if ps is None or unit is None:
         ps = unit = None
+    with warnings.catch_warnings():
+        # long state names squeeze a figure's margins; it is drawn all the same
+        warnings.filterwarnings("ignore", "Tight layout not applied", UserWarning)
+        context = _context(result, a, ps, unit, title)
+    return _template().render(context)
+
+
+def _context(result, a: dict, ps, unit, title: str) -> dict:
+    """The values the template shows: texts, tables and figures."""
     states = shown_states(result.n_states)
     shown = _subset(result, states)
-    context = {
+    return {
         "title": title, "summary": _summary(result, a, ps, unit),
         "warnings": list(result.warnings),
         **_inputs_section(result), **_lattice_section(result),
@@ -151,7 +161,6 @@ def render_report(result: SeriesResult, *, attrs: dict | None = None,
         "config": str(a.get("config") or ""),
         "conventions": str(a.get("conventions", "")),
     }
-    return _template().render(context)
 
 
 def _summary(result, a: dict, ps, unit) -> str:

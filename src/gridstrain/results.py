@@ -476,6 +476,8 @@ def _decode(group: h5py.Group, memo: dict, fill):
         v = _attr(group, key)
         values[key] = tuple(v) if key in tuples and isinstance(v, list) else v
     for key in group:
+        if key in values:
+            raise _Bad(f"{_where(group, key)}: stored twice (an attribute and a member)")
         link = group.get(key, getlink=True)
         obj = _member(group, key)
         target = link.path if isinstance(link, h5py.SoftLink) else obj.name
@@ -1280,8 +1282,8 @@ def read_attrs(path) -> dict:
     """The root attributes of a result file (pixel size, unit, config...), decoded.
 
     Lists come back as lists, NaN as NaN; see :func:`save_result`. The attributes
-    a reader computes with are checked: ``pixel_size`` a finite positive number,
-    ``unit``, ``config`` and the provenance strings text.
+    a reader computes with are checked: ``pixel_size`` a finite positive number with
+    a short ``unit``, ``config`` and the provenance strings text.
     """
     with _open(path) as h5:
         out = {k: _attr(h5, k) for k in h5.attrs}
@@ -1296,6 +1298,11 @@ def read_attrs(path) -> dict:
                 raise _Bad(f"{_where(h5, key)}: expected "
                            + ("text" if kind is str else "a finite positive number")
                            + f", got {_received(v)}")
+        if out.get("pixel_size") is not None:
+            try:
+                _check_pixel_size(out["pixel_size"], out.get("unit"))
+            except ValueError as exc:
+                raise _Bad(f"{_where(h5, 'unit')}: {exc}") from None
         if "attrs" in h5[_GROUP]:
             extra = _decode(_member(h5[_GROUP], "attrs"), {}, lambda c, g, v: v)
             if not isinstance(extra, dict):
