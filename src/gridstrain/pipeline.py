@@ -768,6 +768,11 @@ def _screen_pass(s, acc: SeriesPass, max_saturation: float, outliers: str):
         sc = acc.screen(max_saturation=max_saturation)
     except ValueError as exc:
         raise ValueError(f"{s.name}: {exc}") from None
+    if sc.trend is not None and sc.trend.sequence:
+        raise ValueError(f"{s.name}: its {n} frames are a sequence, not one static state "
+                         f"({sc.trend.describe()}): averaging them would mix states; "
+                         "measure each frame as a state of its own with --each-frame "
+                         "(each_frame=True)")
     bad = sc.flagged
     keep, warnings = outlier_verdict(s, sc, outliers)
     if outliers == "exclude":
