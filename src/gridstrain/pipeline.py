@@ -176,6 +176,7 @@ from .kinematics import (
 from .lattice import Lattice, detect_lattice
 from .noise import NoiseModel, estimate_noise_image
 from .screening import FrameScreen
+from .sequences import StateInputs, state_inputs
 from .stacks import _FrameOrder, method_b
 from .uncertainty import (
     _FWHM,
@@ -321,6 +322,19 @@ class SeriesResult:
     fringe_orders : tuple of FringeOrder
         How each state's whole number of periods was fixed and whether anything
         confirms it (see :class:`gridstrain.kinematics.FringeOrder`).
+    state_order : {"natural", "reordered", "given"}
+        The order the states were measured in: natural order (folders, globs, a
+        numbered family of files already in it), explicit files put in natural
+        order from the order given, or the order given kept
+        (:mod:`gridstrain.sequences`).
+    load : (n_states,) float64 ndarray, optional
+        The load of each state, in ``load_unit`` (``measure_series(loads=...)``).
+    load_unit : str, optional
+        The unit of ``load`` (``"N"``, ``"kN"``...); None without loads or when
+        they were given without a unit.
+    time : (n_states,) float64 ndarray, optional
+        The time of each state, s: from the loads file's ``time [s]`` column or
+        the frame rate (frame number in the record over the rate).
     """
 
     u: np.ndarray
@@ -353,9 +367,13 @@ class SeriesResult:
     screening: tuple = field(default=(), repr=False)
     metrology: dict | None = None
     systematic: dict | None = None
+    state_order: str = "given"
+    load: np.ndarray | None = None
+    load_unit: str | None = None
+    time: np.ndarray | None = None
 
     def __post_init__(self):
-        for name in ("u", "strain", "valid", "mask", "reference_image"):
+        for name in ("u", "strain", "valid", "mask", "reference_image", "load", "time"):
             arr = getattr(self, name)
             if isinstance(arr, np.ndarray):  # maps read from a file are read-only already
                 arr.flags.writeable = False
@@ -501,17 +519,6 @@ def _as_series(source, name: str, bit_depth):
         return open_series(source, name=name, bit_depth=bit_depth)
     raise TypeError(f"{name} must be a FrameSeries, a path, a glob pattern, a list of "
                     f"files or an array of frames, got {type(source).__name__}")
-
-
-def _as_states(states) -> list:
-    if isinstance(states, FrameSeries | np.ndarray | str | os.PathLike):
-        return [states]
-    if isinstance(states, Sequence) and not isinstance(states, bytes):
-        if not states:
-            raise ValueError("states must hold at least one loaded state, got none")
-        return list(states)
-    raise TypeError(f"states must be a series or a list of series, got "
-                    f"{type(states).__name__}")
 
 
 def _check_one_guess(guess, what: str):
@@ -761,6 +768,11 @@ def _screen_pass(s, acc: SeriesPass, max_saturation: float, outliers: str):
         sc = acc.screen(max_saturation=max_saturation)
     except ValueError as exc:
         raise ValueError(f"{s.name}: {exc}") from None
+    if sc.trend is not None and sc.trend.sequence:
+        raise ValueError(f"{s.name}: its {n} frames are a sequence, not one static state "
+                         f"({sc.trend.describe()}): averaging them would mix states; "
+                         "measure each frame as a state of its own with --each-frame "
+                         "(each_frame=True)")
     bad = sc.flagged
     keep, warnings = outlier_verdict(s, sc, outliers)
     if outliers == "exclude":
@@ -1386,7 +1398,9 @@ def measure_series(reference, states, *, lattice: Lattice | None = None,
                    progress: Progress | None = None, scheduler=None, noise_model=None,
                    sigma_pitches: float | None = None,
                    timeout: float | None = None, output=None,
-                   dtype=None) -> SeriesResult:
+                   dtype=None, each_frame: bool = False,
+                   reference_frames: int | None = None, keep_order: bool = False,
+                   loads=None, frame_rate: float | None = None) -> SeriesResult:
     """Displacement and strain maps of loaded states from series of grid images.
 
     Parameters
@@ -1395,11 +1409,15 @@ def measure_series(reference, states, *, lattice: Lattice | None = None,
         The reference series: a :class:`gridstrain.io.FrameSeries`, anything
         :func:`gridstrain.io.open_series` opens, one ``(H, W)`` frame or a
         ``(T, H, W)`` stack of grey levels.
-    states : series or sequence of series
+    states : series, sequence of series, or StateInputs
         The loaded states, each like ``reference``, in the order they were loaded
         (a list of file names is read as a list of states; wrap it, ``[files]``, to
         make one series of it). States given as paths are named after their folder
-        or file stem.
+        or file stem. Explicit files whose names form one numbered family are
+        measured in natural order (``frame_2`` before ``frame_10``) unless
+        ``keep_order``; :attr:`SeriesResult.state_order` says which order was
+        used. A :class:`gridstrain.sequences.StateInputs` (from
+        :func:`gridstrain.sequences.state_inputs`) is used as it is.
     lattice : Lattice, optional
         The grid's wave vectors; detected on the mean reference image by default.
     sigma : float, optional
@@ -1496,6 +1514,26 @@ def measure_series(reference, states, *, lattice: Lattice | None = None,
         without it; see :class:`gridstrain.results.ResultFile` for what float32
         keeps.
 
+    each_frame : bool
+        Every frame of the states' inputs (a folder, a glob, a list of files, a
+        multi-page TIFF, a ``(T, H, W)`` array) is a state of its own, named after
+        its file (and page): a sequence such as a high-speed record
+        (:mod:`gridstrain.sequences`). Without it a series whose frames drift or
+        deform steadily is refused rather than averaged.
+    reference_frames : int, optional
+        The reference is the first ``reference_frames`` frames of the record given
+        as ``states`` (averaged) and every later frame is a state; ``reference``
+        must then be None. Implies ``each_frame``.
+    keep_order : bool
+        Keep explicit files in the order given even where it is not natural.
+    loads : str, os.PathLike or (n_states,) array_like, optional
+        The load of each state: a CSV file read by :func:`gridstrain.io.read_loads`
+        (its ``load [UNIT]`` and optional ``time [s]`` columns), or the loads
+        themselves (no unit). Stored as :attr:`SeriesResult.load`.
+    frame_rate : float, optional
+        The camera's frame rate, Hz: each state's time is its frame's number in
+        the record over the rate, s (:attr:`SeriesResult.time`).
+
     Returns
     -------
     SeriesResult
@@ -1504,7 +1542,9 @@ def measure_series(reference, states, *, lattice: Lattice | None = None,
     ------
     ValueError, TypeError, OSError
         Bad arguments or input files (the message names the series, the frame
-        and the file); an unreachable scheduler (OSError).
+        and the file); an unreachable scheduler (OSError); a series whose frames
+        form a sequence rather than a static state (measure it with
+        ``each_frame=True``).
 
     Notes
     -----
@@ -1532,17 +1572,60 @@ def measure_series(reference, states, *, lattice: Lattice | None = None,
                sigma_pitches=sigma_pitches, max_saturation=max_saturation, lattice=lattice,
                scheduler=scheduler, timeout=timeout, noise_model=noise_model, dtype=dtype,
                output=output, lagrangian=lagrangian, bit_depth=bit_depth, guess=guess)
+    o = dataclasses.replace(o, each_frame=bool(each_frame or reference_frames is not None),
+                            reference_frames=reference_frames, keep_order=bool(keep_order))
     progress = null_progress if check_callable(progress, "progress") is None else progress
-    series, guesses, m = _inputs(reference, states, guess, mask, o)
+    given = states if isinstance(states, StateInputs) else state_inputs(
+        states, each_frame=each_frame, reference_frames=reference_frames,
+        keep_order=keep_order, bit_depth=o.bit_depth)
+    if given.reference is not None:
+        if reference is not None:
+            raise ValueError("reference must be None with reference_frames (the reference "
+                             "is the record's first frames), got "
+                             f"{type(reference).__name__}")
+        reference = given.reference
+    series, guesses, m = _inputs(reference, given, guess, mask, o)
     steps = _Steps(progress, _total_cost(series, o))
     # how the frames were read (colour converted, lossy JPEG), series by series
     warnings: list[str] = [n for s in series for n in getattr(s, "notes", ())]
-    warnings += _glob_warning(series)
+    warnings += list(given.warnings)
+    if not (each_frame or given.reference is not None or reference_frames):
+        warnings += _glob_warning(series)
+    o = dataclasses.replace(o, state_order=given.order)
+    extra = _loads_and_times(loads, frame_rate, series, o)
     # BLAS on the calling thread throughout: its products here are small or memory
     # bound, and OpenBLAS's own threads would spin between them (gridstrain._threads)
     with one_blas_thread():
         o = _window(series[0], m, o, steps)
-        return _measure(series, guesses, m, o, steps, warnings, progress)
+        return _measure(series, guesses, m, o, steps, warnings, progress, extra)
+
+
+def _loads_and_times(loads, frame_rate, series: list, o: _Setup) -> dict:
+    """``load``, ``load_unit`` and ``time`` of the result, checked against the
+    states before any frame is read."""
+    names = [s.name for s in series[1:]]
+    load = unit = time = None
+    if loads is not None:
+        if isinstance(loads, str | os.PathLike):
+            from .io import read_loads
+
+            table = read_loads(loads, states=names)
+            load, unit, time = table.load, table.unit, table.time
+        else:
+            load = np.array(loads, dtype=np.float64)
+            if load.shape != (len(names),) or not np.all(np.isfinite(load)):
+                raise ValueError(f"loads must hold one finite number per loaded state "
+                                 f"({len(names)}), got shape {load.shape}")
+    if frame_rate is not None:
+        rate = check_positive(frame_rate, "frame_rate")
+        if not o.each_frame:
+            raise ValueError("frame_rate needs one frame per state (each_frame=True, "
+                             f"--each-frame), got frame_rate={frame_rate!r}")
+        if time is not None:
+            raise ValueError(f"give the times by frame_rate or by the loads file's time "
+                             f"column, not both (frame_rate={frame_rate!r})")
+        time = (np.arange(len(names), dtype=np.float64) + (o.reference_frames or 0)) / rate
+    return {"load": load, "load_unit": unit, "time": time}
 
 
 @dataclass(frozen=True, eq=False)
@@ -1568,6 +1651,10 @@ class _Setup:
     lagrangian: bool
     bit_depth: int | None
     guess: object
+    each_frame: bool = False
+    reference_frames: int | None = None
+    keep_order: bool = False
+    state_order: str = "given"
 
     def parameters(self) -> dict:
         """The options as the result records them."""
@@ -1581,7 +1668,9 @@ class _Setup:
             "lattice": None if self.detected else {"k1": list(lat.k1), "k2": list(lat.k2)},
             "noise_model": None if self.noise_model is None else self.noise_model.as_dict(),
             "sigma_pitches": self.sigma_pitches,
-            "dtype": None if self.dtype is None else str(self.dtype)}
+            "dtype": None if self.dtype is None else str(self.dtype),
+            "each_frame": bool(self.each_frame), "reference_frames": self.reference_frames,
+            "keep_order": bool(self.keep_order)}
 
 
 def _setup(*, method, outliers, margin, sigma, order, sigma_pitches, max_saturation,
@@ -1624,11 +1713,20 @@ def _setup(*, method, outliers, margin, sigma, order, sigma_pitches, max_saturat
                   lagrangian=bool(lagrangian), bit_depth=bit_depth, guess=guess)
 
 
-def _inputs(reference, states, guess, mask, o: _Setup) -> tuple[list, list, np.ndarray]:
+def _inputs(reference, given: StateInputs, guess, mask, o: _Setup
+            ) -> tuple[list, list, np.ndarray]:
     """The series (reference first), one guess per state and the mask, checked
     against each other."""
+    if reference is None:
+        raise TypeError("reference must be a series, a path or an array of frames, got "
+                        "None (None only with reference_frames)")
     ref = _as_series(reference, "reference", o.bit_depth)
-    raw_states = _as_states(states)
+    raw_states = list(given.states)
+    if given.permutation is not None and _is_per_state(guess):
+        if len(guess) != len(raw_states):
+            raise ValueError(f"guess must hold one entry per loaded state "
+                             f"({len(raw_states)}), got {len(guess)}")
+        guess = [guess[i] for i in given.permutation]  # in the order measured
     guesses = _check_guess(guess, len(raw_states), o.order)
     series = [ref] + [_as_series(s, name, o.bit_depth)
                       for s, name in zip(raw_states, state_names(raw_states), strict=True)]
@@ -1675,7 +1773,7 @@ def _window(ref, m: np.ndarray, o: _Setup, steps: _Steps) -> _Setup:
 
 
 def _measure(series: list, guesses: list, m: np.ndarray, o: _Setup, steps: _Steps,
-             warnings: list, progress: Progress) -> SeriesResult:
+             warnings: list, progress: Progress, extra: dict) -> SeriesResult:
     """One pass over every series (screening, shifts, statistics, the halves of the
     noise floor, method B's or C's sums), the flagged frames then taken out; the
     states measured one after the other, each dropped once measured."""
@@ -1774,7 +1872,8 @@ def _measure(series: list, guesses: list, m: np.ndarray, o: _Setup, steps: _Step
             screening=tuple(d.screening for d in done), vibration=tuple(d.vib for d in done),
             noise=floor.noise_floor(done, noise.info(done)), parameters=o.parameters(),
             warnings=tuple(warnings), metrology=metrology(sink.floors, sigma),
-            systematic={"aliasing": alias, "smoothing": sink.smoothing})
+            systematic={"aliasing": alias, "smoothing": sink.smoothing},
+            state_order=o.state_order, **extra)
 
 
 # --------------------------------------------------------------------------- one series

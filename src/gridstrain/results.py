@@ -12,7 +12,8 @@ The file
       ``strain_component`` (``exx, eyy, exy``), ``wave_vector`` (``k1, k2``) and
       ``axis`` (``x, y``);
     - coordinates ``x``, ``y`` in px and, with a pixel size, ``x_phys``,
-      ``y_phys`` in its unit;
+      ``y_phys`` in its unit; with loads or times, ``load`` (its unit) and ``time``
+      (s) along ``state``;
     - maps ``(state, y, x)``: ``ux``, ``uy`` (px), ``exx``, ``eyy``, ``exy``
       (``"1"``: strain is dimensionless), ``rotation`` (rad), ``valid`` (bool),
       the per-pixel uncertainty maps ``*_std`` and, with a pixel size,
@@ -667,6 +668,22 @@ def _write_dimensions(h5, result, H: int, W: int) -> None:
          "strain component")
     _dim(h5, "wave_vector", np.array(["k1", "k2"]), None, "wave vector of the grid")
     _dim(h5, "axis", np.array(["x", "y"]), None, "image axis")
+    _write_state_coordinates(h5, result)
+
+
+def _write_state_coordinates(h5, result) -> None:
+    """The load and time of each state, as coordinates along ``state`` (named in the
+    root ``coordinates`` attribute, which xarray reads)."""
+    names = []
+    if result.load is not None:
+        _var(h5, "load", result.load, ("state",), result.load_unit or "1",
+             "load applied to the specimen in each state")
+        names.append("load")
+    if result.time is not None:
+        _var(h5, "time", result.time, ("state",), "s", "time of each state")
+        names.append("time")
+    if names:
+        h5.attrs["coordinates"] = " ".join(names)
 
 
 _MAPS = ("state", "y", "x")

@@ -57,7 +57,7 @@ from .vibration import (
     _shifts_from_coefficients,
 )
 
-__all__ = ["FrameScreen", "screen_frames"]
+__all__ = ["FrameScreen", "Trend", "screen_frames"]
 
 # A rigid shift farther than this fraction of the pitch from the series' centre is a
 # slip: the paper's vibrations (std 0.02 to 0.1 px at pitch 5) stay 10 times below,
@@ -95,8 +95,75 @@ _CLIP_BITS = range(8, 17)
 # Up to this many frames, each frame's tiles are compared with the median of the
 # others; beyond, with the median of all (one frame weighs 1/T in it).
 _LEAVE_ONE_OUT = 64
+# A series is a sequence (frames of a test in progress, not one static state) when a
+# linear trend in frame order explains its rigid shifts or its tiles' non-rigid
+# displacements with a false-alarm probability below this, for frames of one state
+# shaken by independent vibrations (F test of the slopes against the scatter about
+# them) ...
+_TREND_FALSE_ALARM = 1e-6
+# ... and the trend moves the frames by a material amount over the series: a drift
+# of a slip's fraction of a pitch (the frames could no longer be averaged by
+# method A), or a non-rigid growth above the residual floor (px, rms over the tiles).
+_TREND_DRIFT_FRACTION = _SLIP_FRACTION
+_TREND_GROWTH_PX = _RESIDUAL_FLOOR
 # Median absolute deviation of a Gaussian over its standard deviation.
 _MAD_TO_STD = 1.4826
+
+
+@dataclass(frozen=True)
+class Trend:
+    """Whether a series' frames are a sequence: a linear trend in frame order.
+
+    Attributes
+    ----------
+    frames : int
+        Frames tested (the unflagged ones with a grid), ``n``.
+    drift_px : (float, float)
+        The rigid shift's fitted change from the first to the last frame, px.
+    drift_p : float
+        Probability of a trend at least as strong in the shifts of ``n`` frames of
+        one state shaken by independent Gaussian vibrations (F test of the two
+        slopes, 2 and ``2 (n - 2)`` degrees of freedom).
+    growth_px : float
+        The tiles' non-rigid displacement's fitted change over the series, rms over
+        the tiles, px (NaN without tiles).
+    growth_p : float
+        The same test for the non-rigid displacements of the tiles (NaN without).
+    """
+
+    frames: int
+    drift_px: tuple[float, float]
+    drift_p: float
+    growth_px: float
+    growth_p: float
+    pitch: float
+
+    @property
+    def drifting(self) -> bool:
+        """A steady rigid drift of at least a slip's fraction of a pitch."""
+        return self.drift_p < _TREND_FALSE_ALARM and \
+            math.hypot(*self.drift_px) > _TREND_DRIFT_FRACTION * self.pitch
+
+    @property
+    def deforming(self) -> bool:
+        """A non-rigid displacement growing steadily above the residual floor."""
+        return bool(self.growth_p < _TREND_FALSE_ALARM and self.growth_px > _TREND_GROWTH_PX)
+
+    @property
+    def sequence(self) -> bool:
+        """The frames are a sequence, not one static state."""
+        return self.drifting or self.deforming
+
+    def describe(self) -> str:
+        """What the test found, for a message."""
+        out = []
+        if self.deforming:
+            out.append(f"a non-rigid displacement growing by {self.growth_px:.2g} px rms "
+                       f"from the first frame to the last (p = {self.growth_p:.1e})")
+        if self.drifting:
+            out.append(f"a steady rigid drift of {math.hypot(*self.drift_px):.2f} px "
+                       f"(p = {self.drift_p:.1e})")
+        return " and ".join(out)
 
 
 @dataclass(frozen=True, eq=False)
@@ -129,6 +196,9 @@ class FrameScreen:
         Per frame, why it is flagged (empty: a good frame).
     lattice : Lattice
         The wave vectors used.
+    trend : Trend or None
+        The test of the frames unflagged, in order, for a steady drift or a
+        growing deformation (None with fewer than four of them).
     """
 
     coefficients: np.ndarray
@@ -140,6 +210,7 @@ class FrameScreen:
     clip_level: np.ndarray
     reasons: tuple[tuple[str, ...], ...]
     lattice: Lattice
+    trend: Trend | None = None
 
     def __post_init__(self):
         for name in ("coefficients", "deviation", "modulus_ratio", "prominence",
@@ -494,9 +565,11 @@ def decide(records, probe: FrameProbe, *, max_saturation: float = 0.01) -> Frame
                         "of fewer bits?" if below else "")
                      + f"), more than max_saturation={max_saturation:.2%}")
         reasons.append(tuple(r))
+    kept = np.array([grid[t] and not reasons[t] for t in range(T)])
     return FrameScreen(coefficients=coeffs, deviation=dev, modulus_ratio=ratio,
                        prominence=prom, residual=residual, saturated=sat, clip_level=clip,
-                       reasons=tuple(reasons), lattice=lattice)
+                       reasons=tuple(reasons), lattice=lattice,
+                       trend=_trend(coeffs[kept], tile_c[kept], centres, lattice))
 
 
 def _deviation(coeffs: np.ndarray, grid: np.ndarray, lattice: Lattice):
@@ -548,6 +621,15 @@ def _residual(coeffs: np.ndarray, tiles: np.ndarray, centres: np.ndarray,
     d = (psi @ _shift_matrix(lattice).T).reshape(T, 2 * n)
     w = np.min(np.abs(ref_t) ** 2, axis=1)
     w = np.repeat(w / w.sum(), 2)  # per component, (2n,)
+    r = _non_rigid(d, centres, w)
+    out[g] = np.sqrt((w * r[g] ** 2).sum(axis=1))  # rms |residual| over the tiles
+    return out
+
+
+def _non_rigid(d: np.ndarray, centres: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """(T, 2n) tiles' displacements ``d`` (x, y interleaved, px) less each frame's
+    rigid motion fitted with the weights ``w`` (2n,)."""
+    n = centres.shape[0]
     # the frame's rigid motion, a translation and a small rotation omega about the
     # weighted centre (d_x = t_x - omega y, d_y = t_y + omega x), fitted and taken
     # out: a camera that rocks moves no material point against another
@@ -558,7 +640,66 @@ def _residual(coeffs: np.ndarray, tiles: np.ndarray, centres: np.ndarray,
     A = A.reshape(2 * n, 3)
     sw = np.sqrt(w)
     fit = np.linalg.lstsq(A * sw[:, None], (d * sw).T, rcond=None)[0]  # (3, T)
-    r = d - (A @ fit).T
-    out[g] = np.sqrt((w * r[g] ** 2).sum(axis=1))  # rms |residual| over the tiles
+    return d - (A @ fit).T
+
+
+def _slopes_test(y: np.ndarray, dof_per_frame: int) -> tuple[np.ndarray, float]:
+    """Least-squares slopes of the columns of ``y`` (n, q) against the frame order, and
+    the probability of slopes at least as large under no trend: the F test of the
+    slopes' sum of squares against the scatter about the lines, with
+    ``dof_per_frame`` independent columns (equal variances)."""
+    from scipy.stats import f as fisher
+
+    n = y.shape[0]
+    t = np.arange(n) - (n - 1) / 2
+    sxx = float(t @ t)
+    b = (t @ (y - y.mean(axis=0))) / sxx  # (q,)
+    rss = float(((y - y.mean(axis=0) - np.outer(t, b)) ** 2).sum())
+    ess = float((b**2).sum() * sxx)
+    d1, d2 = dof_per_frame, dof_per_frame * (n - 2)
+    if rss <= 0:
+        return b, 0.0 if ess > 0 else 1.0
+    return b, float(fisher.sf((ess / d1) / (rss / d2), d1, d2))
+
+
+def _unwrap_if_smooth(theta: np.ndarray) -> np.ndarray:
+    """The phases (n, 2) unwrapped along the frames where every step from one frame to
+    the next is below pi/2 (a sequence's smooth drift); else as they are, wrapped
+    about their mean (a shaken static series, whose steps would be taken for wraps)."""
+    steps = np.abs(_wrap(np.diff(theta, axis=0)))
+    out = theta.copy()
+    for j in range(theta.shape[1]):
+        if steps[:, j].max(initial=0.0) < np.pi / 2:
+            out[:, j] = np.unwrap(theta[:, j])
     return out
+
+
+def _trend(coeffs: np.ndarray, tiles: np.ndarray, centres: np.ndarray,
+           lattice: Lattice) -> Trend | None:
+    """The trend test of the frames ``coeffs`` (n, 2) and their tiles (n, tiles, 2), in
+    order (see :class:`Trend`)."""
+    n = coeffs.shape[0]
+    if n < 4:
+        return None
+    M = _shift_matrix(lattice)
+    theta = _unwrap_if_smooth(np.angle(coeffs * np.conj(coeffs.mean(axis=0))))
+    shifts = theta @ M.T  # (n, 2) px
+    b, p_drift = _slopes_test(shifts, 2)
+    drift = tuple(float(v) * (n - 1) for v in b)
+    growth, p_growth = math.nan, math.nan
+    k = tiles.shape[1]
+    if k >= 4:
+        ref_t = tiles.mean(axis=0)
+        rigid = np.angle(coeffs * np.conj(coeffs.mean(axis=0)))
+        # the tiles' phases less the frame's: small for frames of one state, however
+        # they vibrate; unwrapped along the frames where a deformation grows past pi
+        psi = np.unwrap(_wrap(np.angle(tiles * np.conj(ref_t)) - rigid[:, None, :]), axis=0)
+        d = (psi @ M.T).reshape(n, 2 * k)
+        w = np.min(np.abs(ref_t) ** 2, axis=1)
+        w = np.repeat(w / w.sum(), 2)
+        r = _non_rigid(d, centres, w) * np.sqrt(w * 2 * k)  # equal variances (weights)
+        bg, p_growth = _slopes_test(r, 2 * k - 3)
+        growth = float(np.sqrt(np.mean(bg**2))) * (n - 1)
+    return Trend(frames=n, drift_px=drift, drift_p=p_drift, growth_px=growth,
+                 growth_p=p_growth, pitch=float(max(lattice.pitches)))
 

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import dataclasses
 import json
 import math
 import os
@@ -23,7 +24,14 @@ import numpy as np
 
 from .. import __version__
 from .._progress import bar
-from ..io import OutputDirectory, open_series, read_mask, read_noise_model, roi_mask
+from ..io import (
+    FrameSeries,
+    OutputDirectory,
+    open_series,
+    read_mask,
+    read_noise_model,
+    roi_mask,
+)
 from ..pipeline import (
     FWHM_PER_SIGMA,
     MAP_FIELDS,
@@ -35,6 +43,7 @@ from ..pipeline import (
     state_names,
 )
 from ..results import ResultFile, export, save_csv, save_result
+from ..sequences import state_inputs
 from ..wft import DEFAULT_MARGIN
 from ._common import (
     add_lattice_options,
@@ -58,6 +67,8 @@ _CONFIG_KEYS = {
     "scheduler": "str", "outliers": "outliers", "order": "str", "max-saturation": "float",
     "timeout": "float",
     "sigma-pitches": "float", "noise": "path", "noise-model": "pair", "dtype": "str",
+    "each-frame": "bool", "reference-frames": "int", "keep-order": "bool", "loads": "path",
+    "frame-rate": "float",
 }
 # How to run, not what to measure: every output (the result file, the side outputs and
 # what they replace), the terminal's report, the cluster and its patience. Never
@@ -101,6 +112,8 @@ def register(sub) -> None:
     p.add_argument("-o", "--output", metavar="OUT.h5", help="output HDF5 file")
     _window_options(p.add_argument_group("grid and window"))
     _specimen_options(p.add_argument_group("specimen and kinematics"))
+    _sequence_options(p.add_argument_group("sequences (one image per load step or camera "
+                                           "frame)"))
     _noise_options(p.add_argument_group("noise (default: measured in each series; from the "
                                         "image itself for single frames)"))
     _output_options(p.add_argument_group("output"))
@@ -155,6 +168,29 @@ def _specimen_options(k) -> None:
                    "a slip, another state's frame, clipped): 'exclude' them with a warning "
                    "(default; a series with half its frames flagged is refused), 'refuse' "
                    "the run, or 'warn' and keep them (noise floor then not stated)")
+
+
+def _sequence_options(q) -> None:
+    q.add_argument("--each-frame", action="store_true", default=None,
+                   help="every frame of the DEF inputs (a folder, a glob, a multi-page "
+                   "TIFF) is a state of its own, named after its file (and page): a "
+                   "high-speed record or a load-step series. Without it a DEF whose "
+                   "frames drift or deform steadily is refused, never averaged")
+    q.add_argument("--reference-frames", type=int, metavar="N",
+                   help="the reference is the first N frames of the record (REF, then any "
+                   "DEF, read as one record), averaged; every later frame is a state "
+                   "(implies --each-frame)")
+    q.add_argument("--keep-order", action="store_true", default=None,
+                   help="keep explicit files in the order given (default: files whose "
+                   "names form one numbered family, as a shell lists frame_1 frame_10 "
+                   "frame_2, are measured in natural order)")
+    q.add_argument("--loads", metavar="FILE.csv",
+                   help="the load of each state: a CSV with a 'load [UNIT]' column, "
+                   "optionally 'time [s]', one row per state in order or a 'state' column "
+                   "naming them")
+    q.add_argument("--frame-rate", type=float, metavar="HZ",
+                   help="the camera's frame rate: each state's time is its frame's number "
+                   "in the record over the rate, s (with --each-frame)")
 
 
 def _noise_options(n) -> None:
@@ -367,10 +403,13 @@ def _options(args, config: _Config | None = None) -> dict:
             if name == "guess":
                 value = [list(v) for v in value]
             opts[name] = list(value) if isinstance(value, tuple) else value
-    if not opts.get("reference") or not opts.get("states"):
+    record = opts.get("reference-frames") is not None
+    if not opts.get("reference") or not (opts.get("states") or record):
         raise ValueError("the inputs are missing: give REF and at least one DEF (or "
-                         "reference = ... and states = [...] in the config file)")
-    for name in ("no-lagrangian", "quiet", "json", "overwrite", "phase-maps"):
+                         "reference = ... and states = [...] in the config file; with "
+                         "--reference-frames N, REF is the record)")
+    for name in ("no-lagrangian", "quiet", "json", "overwrite", "phase-maps", "each-frame",
+                 "keep-order"):
         opts[name] = bool(opts.get(name, False))
     opts.setdefault("method", "A")
     opts.setdefault("outliers", "exclude")
@@ -497,7 +536,7 @@ def report_lines(result: SeriesResult, *, pixel_size: float | None = None,
     a1, a2 = lat.angles
     lines = [
         f"{result.n_states} loaded state(s) against the reference, {H} x {W} px, "
-        f"{_describe_depth(result)}",
+        f"{_describe_depth(result)}; {_ORDER_TEXT[result.state_order]}",
         f"lattice ({'detected' if result.lattice_detected else 'given'}): pitches "
         f"{p1:.4f}/{p2:.4f} px, angles {_angle(a1)}/{_angle(a2)} deg; sigma "
         f"{result.sigma:.4g} px, "
@@ -558,6 +597,11 @@ def report_lines(result: SeriesResult, *, pixel_size: float | None = None,
     for w in result.warnings:
         lines.append(f"warning: {w}")
     return lines
+
+
+_ORDER_TEXT = {"natural": "states in natural order",
+               "reordered": "states put in natural order from the order given",
+               "given": "states in the order given"}
 
 
 def _fringe_line(result: SeriesResult, i: int) -> str:
@@ -651,6 +695,8 @@ def summary(result: SeriesResult, *, outputs: dict, seconds: float,
             "guess_source": result.guess_sources[i],
             "fringe_order": result.fringe_orders[i].as_dict() if result.fringe_orders
             else None,
+            "load": None if result.load is None else num(result.load[i]),
+            "time_s": None if result.time is None else num(result.time[i]),
         })
     lat = result.lattice
     return {
@@ -664,6 +710,7 @@ def summary(result: SeriesResult, *, outputs: dict, seconds: float,
         "reference": {"frames": result.n_frames[0], "files": list(result.sources[0]),
                       "excluded_frames": list(result.excluded[0]) if result.excluded
                       else []},
+        "state_order": result.state_order, "load_unit": result.load_unit,
         "states": states,
         "vibration": [{"series": v.name, "frames": v.n_frames,
                        "std_px": [num(x) for x in v.std],
@@ -746,7 +793,7 @@ def _run(args, progress: _Bar) -> int:
     reference, states, mask = _inputs(opts, args)
     ps, unit = opts.get("pixel-size"), opts.get("unit")
     stored = dict(opts)
-    for key in ("reference", "states", "output", "mask"):
+    for key in ("reference", "states", "output", "mask", "loads"):
         if stored.get(key):
             stored[key] = _absolute(stored[key])
     extra = {"config": config_text(stored),
@@ -766,12 +813,16 @@ def _run(args, progress: _Bar) -> int:
     dask_logs = quiet_dask_logs() if opts.get("scheduler") else contextlib.nullcontext()
     with dask_logs:
         result = measure_series(
-            reference, states, lattice=lattice, sigma=opts.get("sigma"),
+            None if opts.get("reference-frames") is not None else reference, states,
+            lattice=lattice, sigma=opts.get("sigma"),
             method=opts["method"], mask=mask, lagrangian=not opts["no-lagrangian"],
             guess=guess, order=opts.get("order", "series"), margin=opts["margin"],
             outliers=opts["outliers"], progress=progress, scheduler=opts.get("scheduler"),
             noise_model=noise_model, sigma_pitches=opts.get("sigma-pitches"),
-            timeout=opts["timeout"], output=spec, dtype=opts.get("dtype"), **kw)
+            timeout=opts["timeout"], output=spec, dtype=opts.get("dtype"),
+            each_frame=opts["each-frame"], reference_frames=opts.get("reference-frames"),
+            keep_order=opts["keep-order"], loads=opts.get("loads"),
+            frame_rate=opts.get("frame-rate"), **kw)
     if spec is None:
         _refuse_empty(result)
         out = save_result(result, opts["output"], pixel_size=ps, unit=unit,
@@ -805,8 +856,9 @@ def _checked(opts: dict) -> tuple:
     if sat is not None and not (math.isfinite(sat) and 0 <= sat <= 1):
         raise ValueError(f"--max-saturation must be a fraction in [0, 1], got {sat:g}")
     guesses = opts.get("guess")
-    n = len(opts["states"])
-    if guesses is not None and len(guesses) not in (1, n):
+    n = len(opts.get("states") or ())
+    frames = opts["each-frame"] or opts.get("reference-frames") is not None
+    if guesses is not None and not frames and len(guesses) not in (1, n):
         raise ValueError(f"--guess given {len(guesses)} times: give it once (the first "
                          f"state, or every state with --order independent) or once per "
                          f"state ({n})")
@@ -820,9 +872,19 @@ def _inputs(opts: dict, args) -> tuple:
     """The series opened, the mask (with the regions of interest), and the outputs
     checked against the inputs (never written over an input)."""
     bits = opts.get("bit-depth")
-    reference = open_series(opts["reference"], name="reference", bit_depth=bits)
-    states = [open_series(s, name=name, bit_depth=bits)
-              for s, name in zip(opts["states"], state_names(opts["states"]), strict=True)]
+    keep = opts["keep-order"]
+    if opts.get("reference-frames") is not None:  # REF and any DEF: one record
+        record = [opts["reference"], *(opts.get("states") or ())]
+        given = state_inputs(record, reference_frames=opts["reference-frames"],
+                             keep_order=keep, bit_depth=bits)
+        reference = given.reference
+    else:
+        reference = open_series(opts["reference"], name="reference", bit_depth=bits)
+        given = state_inputs(opts["states"], each_frame=opts["each-frame"], keep_order=keep,
+                             bit_depth=bits)
+    states = [s if isinstance(s, FrameSeries) else open_series(s, name=name, bit_depth=bits)
+              for s, name in zip(given.states, state_names(given.states), strict=True)]
+    given = dataclasses.replace(given, states=tuple(states))
     inputs = _input_files([reference, *states])
     mask = None
     if opts.get("mask"):
@@ -837,8 +899,10 @@ def _inputs(opts: dict, args) -> tuple:
             raise ValueError("the region of interest and the mask have no pixel in common")
     if args.config:
         inputs.add(Path(os.path.expanduser(args.config)).resolve())
+    if opts.get("loads"):
+        inputs.add(Path(os.path.expanduser(opts["loads"])).resolve())
     _check_outputs(opts, len(states), inputs)
-    return reference, states, mask
+    return reference, given, mask
 
 
 def _extra_outputs(result, out: Path, opts: dict, progress) -> dict:

@@ -62,6 +62,7 @@ from ._files import (
     write_hdf5,
     write_tiff_series,
 )
+from ._loads import LoadTable, read_loads
 from ._series import (
     IMAGE_EXTENSIONS,
     FrameSeries,
@@ -71,6 +72,7 @@ from ._series import (
     open_series,
     read_mask,
     roi_mask,
+    split_frames,
     to_luminance,
 )
 
@@ -79,6 +81,7 @@ __all__ = [
     "MARKER_NAME",
     "FrameSeries",
     "HDF5Stream",
+    "LoadTable",
     "OutputDirectory",
     "atomic_path",
     "check_saturation",
@@ -89,10 +92,12 @@ __all__ = [
     "open_series",
     "provenance",
     "read_hdf5",
+    "read_loads",
     "read_mask",
     "read_noise_model",
     "roi_mask",
     "space_error",
+    "split_frames",
     "to_luminance",
     "write_atomic",
     "write_csv",

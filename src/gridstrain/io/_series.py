@@ -747,6 +747,35 @@ def open_series(source, *, name: str = "series", bit_depth: int | None = None
     return dataclasses.replace(series, bit_depth=bits, scale=scale, saturation_level=sat)
 
 
+def split_frames(series: FrameSeries) -> list[FrameSeries]:
+    """Every frame of ``series`` as a one-frame series of its own, in order.
+
+    Each is named after its file's stem, with the page for a file of several pages
+    (``"record[7]"``, pages numbered from 0); its messages still number the frame
+    in ``series``. The bit depth found on ``series`` applies to every frame (one
+    detection for the whole record), and its reading notes go with the first only.
+
+    Parameters
+    ----------
+    series : FrameSeries
+
+    Returns
+    -------
+    list of FrameSeries
+        ``series.n_frames`` series of one frame, each holding one file.
+    """
+    check_type(series, "series", FrameSeries)
+    out = []
+    for j, (f, page, n_pages) in enumerate(series._frames):
+        path = series.paths[f]
+        name = f"{path.stem}[{page}]" if n_pages > 1 else path.stem
+        out.append(dataclasses.replace(
+            series, name=name, paths=(path,), _frames=((0, page, n_pages),),
+            _tiff=(series._tiff[f],), _numbers=(series._number(j),),
+            notes=series.notes if j == 0 else ()))
+    return out
+
+
 def _frame_table(infos: list[_FileInfo], name: str) -> tuple[tuple[int, int, int], ...]:
     """``(file index, page index, pages in that file)`` of every frame, once every page
     is checked to match the first one's channels, size and pixel type."""
