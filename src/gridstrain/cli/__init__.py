@@ -32,6 +32,8 @@ from .._threads import one_malloc_arena
 # that they agree)
 _COMMANDS = {
     "demo": "simulate a plate with a hole in tension and measure it",
+    "gauge": "virtual strain gauge and extensometer: mean strain of every state with its "
+             "std",
     "measure": "displacement and strain maps from image series",
     "noise": "estimate the camera noise (and vibrations) from a static stack or a single "
              "image",
