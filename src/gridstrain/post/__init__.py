@@ -6,7 +6,8 @@ Coordinates follow :mod:`gridstrain.conventions` (x the column, y the row, from
 0); strains are dimensionless, loads in the unit the user gives, times in s.
 """
 
+from ._constants import ElasticConstants, elastic_constants
 from ._gauges import GaugeReading, gauge
 from ._loads import read_loads
 
-__all__ = ["GaugeReading", "gauge", "read_loads"]
+__all__ = ["ElasticConstants", "GaugeReading", "elastic_constants", "gauge", "read_loads"]
