@@ -511,3 +511,39 @@ def plot_history(result, *, point=None, region=None, names=("exx", "eyy", "exy")
     ax.legend(fontsize=8)
     fig.tight_layout()
     return fig
+
+
+def plot_stress_strain(constants) -> Figure:
+    """Stress against the axial and transverse strains, with the fitted lines.
+
+    Parameters
+    ----------
+    constants : gridstrain.post.ElasticConstants
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+        Strains in µε with error bars of one stated std; the lines of slope
+        ``1 / E`` and ``-nu / E`` fitted to them, E and nu with their 95 % intervals
+        in the legend.
+    """
+    c = constants
+    fig = _new_figure(6.4, 4.4)
+    ax = fig.add_subplot()
+    axial, trans = ("xx", "yy") if c.axis == "x" else ("yy", "xx")
+    s = np.linspace(0.0, float(np.max(c.stress)) * 1.05, 50)
+    for strain, std, name, slope in (
+            (c.axial, c.axial_std, axial, 1 / c.E),
+            (c.transverse, c.transverse_std, trans, -c.nu / c.E)):
+        line = ax.errorbar(strain * 1e6, c.stress, xerr=std * 1e6, marker="o", ls="none",
+                           capsize=2, label=rf"$\varepsilon_{{{name}}}$")
+        off = float(np.average(strain - slope * c.stress, weights=1 / std**2))
+        ax.plot((slope * s + off) * 1e6, s, color=line[0].get_color(), lw=1)
+    ax.set_xlabel(r"strain (µε)")
+    ax.set_ylabel(f"stress ({c.stress_unit})")
+    ax.set_title(f"E = {c.E:.4g} [{c.E_ci[0]:.4g}, {c.E_ci[1]:.4g}] {c.stress_unit}, "
+                 f"ν = {c.nu:.3f} [{c.nu_ci[0]:.3f}, {c.nu_ci[1]:.3f}] (95 %)", fontsize=9)
+    ax.axvline(0.0, color="0.6", lw=0.8)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    return fig

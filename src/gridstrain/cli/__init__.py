@@ -32,7 +32,11 @@ from .._threads import one_malloc_arena
 # that they agree)
 _COMMANDS = {
     "demo": "simulate a plate with a hole in tension and measure it",
+    "gauge": "virtual strain gauge and extensometer: mean strain of every state with its "
+             "std",
     "measure": "displacement and strain maps from image series",
+    "modulus": "Young's modulus and Poisson's ratio with their intervals, from a gauge and "
+               "the loads",
     "noise": "estimate the camera noise (and vibrations) from a static stack or a single "
              "image",
     "plot": "figures of a result file: maps of every state, strain history",

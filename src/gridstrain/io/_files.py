@@ -619,6 +619,8 @@ def read_noise_model(path):
 
 
 def _column_format(dtype: np.dtype, digits: int | None) -> str:
+    if dtype.kind == "U":
+        return "%s"
     if dtype.kind in "biu":
         return "%d"
     if digits is not None:
@@ -638,7 +640,8 @@ def write_csv(path, columns: Mapping[str, np.ndarray], *, overwrite: bool = Fals
         Destination (``.csv``); see :func:`atomic_path` for ``overwrite``.
     columns : dict of str to array_like
         Arrays of one shape; each is flattened in C order (row by row for an
-        (H, W) map) into one column. Booleans are written 0/1.
+        (H, W) map) into one column. Booleans are written 0/1; text (a numpy
+        ``str`` array, such as state names) as it is, without commas or quotes.
     overwrite : bool
         Replace an existing file.
     digits : int, optional
@@ -670,9 +673,12 @@ def write_csv(path, columns: Mapping[str, np.ndarray], *, overwrite: bool = Fals
             raise ValueError("column names must be non-empty strings without commas, "
                              f"quotes or line breaks, got {key!r}")
         arr = np.asarray(value)
-        if arr.dtype.kind not in "biuf":
-            raise TypeError(f"columns[{key!r}] must be a real numeric or boolean array, "
-                            f"got dtype {arr.dtype}")
+        if arr.dtype.kind == "U" and any(re.search(r"[,\"'\r\n]", t) for t in arr.flat):
+            raise ValueError(f"columns[{key!r}] holds text with a comma, a quote or a line "
+                             "break, which this CSV (no quoting) cannot hold")
+        if arr.dtype.kind not in "biufU":
+            raise TypeError(f"columns[{key!r}] must be a real numeric, boolean or text "
+                            f"array, got dtype {arr.dtype}")
         if first is None:
             first = (key, arr.shape)
         elif arr.shape != first[1]:

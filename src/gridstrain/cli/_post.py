@@ -1,0 +1,75 @@
+"""Options shared by the commands that read a result file's states (gauge, modulus,
+history, animate): the file, its pixel size, the loads and the gauge's region."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+
+def add_result_options(p, *, loads: bool = True) -> None:
+    p.add_argument("result", metavar="RESULT.h5", help="a file written by gridstrain measure")
+    if loads:
+        p.add_argument("--loads", metavar="FILE.csv",
+                       help="load (and time) of each state: a CSV with the columns "
+                       "'load [UNIT]', optionally 'state' and 'time [s]' (default: those "
+                       "stored in the result, if any)")
+
+
+def add_gauge_options(p) -> None:
+    g = p.add_argument_group("the gauge (coordinates in the file's physical unit when it "
+                             "has a pixel size, else px; --px forces px)")
+    g.add_argument("--region", type=float, nargs=4, metavar=("X0", "Y0", "X1", "Y1"),
+                   help="mean over the rectangle x0 <= x < x1, y0 <= y < y1 (default: the "
+                   "whole valid region)")
+    g.add_argument("--point", type=float, nargs=2, metavar=("X", "Y"),
+                   help="the pixel nearest to this point")
+    g.add_argument("--polygon", nargs="+", metavar="X,Y",
+                   help="mean over a polygon, its vertices as x,y (at least 3)")
+    g.add_argument("--px", action="store_true",
+                   help="coordinates in px even when the file has a pixel size")
+
+
+def polygon_option(values):
+    if values is None:
+        return None
+    out = []
+    for v in values:
+        try:
+            x, y = (float(t) for t in v.split(","))
+        except ValueError:
+            raise ValueError(f"--polygon vertices must be x,y pairs such as 10,20, got "
+                             f"{v!r}") from None
+        out.append((x, y))
+    if len(out) < 3:
+        raise ValueError(f"--polygon needs at least 3 vertices, got {len(out)}")
+    return out
+
+
+def open_result(args):
+    """``(result, path, pixel_size, unit, load, load_unit, time)`` of the command's file."""
+    from ..post import read_loads
+    from ..post._loads import state_loads
+    from ..results import load, read_attrs
+
+    src = Path(os.path.expanduser(args.result))
+    result = load(src)
+    attrs = read_attrs(src)
+    ps, unit = attrs.get("pixel_size"), attrs.get("unit")
+    if ps is None or unit is None or getattr(args, "px", False):
+        ps = unit = None
+    if getattr(args, "loads", None):
+        ld, lu, t = read_loads(os.path.expanduser(args.loads), result.names)
+        if t is None:
+            t = state_loads(result)[2]
+    else:
+        ld, lu, t = state_loads(result)
+    return result, src, ps, unit, ld, lu, t
+
+
+def gauge_of(args, result, ps, unit, ld, lu, t, **extra):
+    from ..post import gauge
+
+    return gauge(result, region=args.region, point=args.point,
+                 polygon=polygon_option(args.polygon), pixel_size=ps, unit=unit,
+                 load=ld, load_unit=lu, time=t, **extra)

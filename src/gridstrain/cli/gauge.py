@@ -1,0 +1,40 @@
+"""``gridstrain gauge``: virtual strain gauges and extensometers over the states."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+from ._common import check_output_file
+from ._post import add_gauge_options, add_result_options, gauge_of, open_result
+
+SUMMARY = "virtual strain gauge and extensometer: mean strain of every state with its std"
+
+
+def register(sub) -> None:
+    p = sub.add_parser(
+        "gauge", help=SUMMARY,
+        description="Read a virtual strain gauge (the mean of exx, eyy, exy over the valid "
+        "pixels of a region, a point or a polygon) and optionally an extensometer (the "
+        "engineering strain between two points) on every state, each with its standard "
+        "deviation from the noise, propagated through the window's correlation. Prints a "
+        "table (strains in microstrain); -o writes a CSV (strains dimensionless).")
+    add_result_options(p)
+    add_gauge_options(p)
+    p.add_argument("--extensometer", type=float, nargs=4, metavar=("X0", "Y0", "X1", "Y1"),
+                   help="also the engineering strain between the points (x0, y0), (x1, y1)")
+    p.add_argument("-o", "--output", metavar="FILE.csv", help="write the table as CSV")
+    p.add_argument("--overwrite", action="store_true", help="replace an existing CSV")
+    p.set_defaults(func=run)
+
+
+def run(args) -> int:
+    result, src, ps, unit, ld, lu, t = open_result(args)
+    out = Path(os.path.expanduser(args.output)) if args.output else None
+    if out is not None:
+        check_output_file(out, "gauge CSV", args.overwrite, {src.resolve()})
+    reading = gauge_of(args, result, ps, unit, ld, lu, t, extensometer=args.extensometer)
+    print(reading.table())
+    if out is not None:
+        print(reading.to_csv(out, overwrite=args.overwrite))
+    return 0

@@ -1,0 +1,13 @@
+"""What a test is run for, from the maps of a result: virtual gauges and
+extensometers with their standard deviations, elastic constants, histories over
+time, animations and ParaView time series.
+
+Coordinates follow :mod:`gridstrain.conventions` (x the column, y the row, from
+0); strains are dimensionless, loads in the unit the user gives, times in s.
+"""
+
+from ._constants import ElasticConstants, elastic_constants
+from ._gauges import GaugeReading, gauge
+from ._loads import read_loads
+
+__all__ = ["ElasticConstants", "GaugeReading", "elastic_constants", "gauge", "read_loads"]

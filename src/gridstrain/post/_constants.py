@@ -1,0 +1,171 @@
+"""Young's modulus and Poisson's ratio from a gauge's readings and the loads."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import stats
+
+from .._validation import check_choice, check_positive, check_type
+from ._gauges import GaugeReading
+
+#: Stress units of common load / area pairs; others are written "load/area".
+_STRESS_UNITS = {("N", "mm2"): "MPa", ("kN", "mm2"): "GPa", ("N", "m2"): "Pa",
+                 ("kN", "m2"): "kPa", ("MN", "m2"): "MPa", ("lbf", "in2"): "psi",
+                 ("kN", "cm2"): "10 MPa", ("N", "cm2"): "10 kPa"}
+#: Two-sided coverage of the intervals.
+LEVEL = 0.95
+
+
+@dataclass(frozen=True)
+class ElasticConstants:
+    """Young's modulus and Poisson's ratio fitted on a gauge's readings.
+
+    Attributes
+    ----------
+    E : float
+        Young's modulus, ``stress_unit``.
+    E_ci : (float, float)
+        Its 95 % interval.
+    nu : float
+        Poisson's ratio, dimensionless.
+    nu_ci : (float, float)
+    stress_unit : str
+    axis : {"x", "y"}
+        The loading axis: the axial strain is ``exx`` (or ``eyy``).
+    states : tuple of str
+        The states fitted.
+    stress : (n,) float64 ndarray
+        Load / area of the states fitted.
+    axial, axial_std, transverse, transverse_std : (n,) float64 ndarray
+        The gauge's strains and their std, dimensionless.
+    interval_basis : {"stated std", "residual scatter"}
+        What set the intervals' width (see :func:`elastic_constants`).
+    reduced_chi2 : (float, float)
+        Of the axial and transverse fits, against the stated std.
+    """
+
+    E: float
+    E_ci: tuple[float, float]
+    nu: float
+    nu_ci: tuple[float, float]
+    stress_unit: str
+    axis: str
+    states: tuple[str, ...]
+    stress: np.ndarray
+    axial: np.ndarray
+    axial_std: np.ndarray
+    transverse: np.ndarray
+    transverse_std: np.ndarray
+    interval_basis: str
+    reduced_chi2: tuple[float, float]
+
+    def to_dict(self) -> dict:
+        """The constants as JSON-ready values, units included."""
+        return {"E": self.E, "E_ci": list(self.E_ci), "E_unit": self.stress_unit,
+                "nu": self.nu, "nu_ci": list(self.nu_ci), "nu_unit": "1",
+                "level": LEVEL, "axis": self.axis, "states": list(self.states),
+                "interval_basis": self.interval_basis,
+                "reduced_chi2": list(self.reduced_chi2)}
+
+
+def _fit(x, y, s):
+    """Weighted straight line ``y = a x + b``: slope, its variance, reduced chi2."""
+    w = 1.0 / s**2
+    X = np.stack([x, np.ones_like(x)], axis=1)
+    cov = np.linalg.inv(X.T @ (w[:, None] * X))
+    a, b = cov @ (X.T @ (w * y))
+    dof = x.size - 2
+    chi2 = float(np.sum(w * (y - a * x - b) ** 2)) / dof
+    return float(a), float(cov[0, 0]), chi2
+
+
+def elastic_constants(reading: GaugeReading, *, area: float, area_unit: str = "mm2",
+                      axis: str = "x", strain_range=None) -> ElasticConstants:
+    """Young's modulus and Poisson's ratio from a gauge read on a tensile test.
+
+    Parameters
+    ----------
+    reading : GaugeReading
+        With loads (:func:`gauge`'s ``load``) and uncertainty (its std).
+    area : float
+        The specimen's cross-section, in ``area_unit``.
+    area_unit : str
+        ``"mm2"`` (default), ``"m2"``, ``"cm2"``, ``"in2"``...: with a load in N and
+        an area in mm2 the stress is in MPa.
+    axis : {"x", "y"}
+        Loading direction: ``exx`` (``eyy``) is the axial strain.
+    strain_range : (low, high) floats, optional
+        Fit only the states whose axial strain lies in ``[low, high]``
+        (dimensionless): the linear part of the curve.
+
+    Returns
+    -------
+    ElasticConstants
+
+    Notes
+    -----
+    The load is the exact variable and the strains carry the noise, so both strains
+    are fitted as straight lines of the stress, weighted by the gauge's std:
+    ``axial = stress / E + a0`` and ``transverse = -nu stress / E + t0``; then
+    ``E = 1 / slope_axial`` and ``nu = -slope_transverse / slope_axial`` (the
+    intercepts absorb the reference image's noise, common to every state). The
+    intervals come from the stated std when the fits' residuals agree with it
+    (reduced chi2 <= 1: normal quantile); when the residuals scatter more than the
+    noise explains (a non-linearity, a slipping grip, a bias the std maps do not
+    cover), the slopes' covariance is scaled by the reduced chi2 and Student's
+    quantile with n - 2 degrees of freedom is used: the wider of the two, so that
+    an interval is never narrower than either the noise or the scatter supports.
+    ``E``'s interval is the inverse of the slope's; ``nu``'s is from the ratio's
+    first-order variance, the noises of ``exx`` and ``eyy`` taken as independent.
+    """
+    check_type(reading, "reading", GaugeReading)
+    area = check_positive(area, "area")
+    axis = check_choice(axis, "axis", ("x", "y"))
+    if reading.load is None:
+        raise ValueError("the gauge has no loads: give them (gridstrain modulus --loads "
+                         "FILE.csv, or gauge(..., load=...))")
+    axial, axial_s = (reading.exx, reading.exx_std) if axis == "x" else \
+        (reading.eyy, reading.eyy_std)
+    trans, trans_s = (reading.eyy, reading.eyy_std) if axis == "x" else \
+        (reading.exx, reading.exx_std)
+    keep = np.isfinite(axial) & np.isfinite(trans)
+    if strain_range is not None:
+        lo, hi = (float(v) for v in strain_range)
+        if not lo < hi:
+            raise ValueError(f"strain_range must be (low, high) with low < high, got "
+                             f"{strain_range!r}")
+        keep &= (axial >= lo) & (axial <= hi)
+    if not np.all(np.isfinite(axial_s[keep]) & (axial_s[keep] > 0)):
+        raise ValueError("the gauge has no std (a result without uncertainty maps): a "
+                         "weighted fit needs them")
+    if keep.sum() < 3:
+        raise ValueError(f"a fit needs at least 3 states, got {int(keep.sum())} "
+                         f"(strain_range {strain_range!r})")
+    stress = reading.load[keep] / area
+    a, var_a, chi_a = _fit(stress, axial[keep], axial_s[keep])
+    c, var_c, chi_t = _fit(stress, trans[keep], trans_s[keep])
+    dof = int(keep.sum()) - 2
+    scale = max(chi_a, chi_t)
+    if scale > 1.0:
+        basis, q = "residual scatter", float(stats.t.ppf(0.5 + LEVEL / 2, dof))
+        var_a, var_c = var_a * max(chi_a, 1.0), var_c * max(chi_t, 1.0)
+    else:
+        basis, q = "stated std", float(stats.norm.ppf(0.5 + LEVEL / 2))
+    if a <= 0:
+        raise ValueError(f"the axial strain does not grow with the load (slope {a:.3g} per "
+                         f"unit stress): check --axis and the loads")
+    sa = math.sqrt(var_a)
+    E = 1.0 / a
+    E_ci = (1.0 / (a + q * sa), 1.0 / (a - q * sa) if a > q * sa else math.inf)
+    nu = -c / a
+    s_nu = math.sqrt((var_c + nu**2 * var_a) / a**2)
+    unit = _STRESS_UNITS.get((reading.load_unit, area_unit.replace("²", "2")),
+                             f"{reading.load_unit or 'load'}/{area_unit}")
+    return ElasticConstants(
+        E=E, E_ci=E_ci, nu=nu, nu_ci=(nu - q * s_nu, nu + q * s_nu), stress_unit=unit,
+        axis=axis, states=tuple(np.array(reading.states)[keep].tolist()), stress=stress,
+        axial=axial[keep], axial_std=axial_s[keep], transverse=trans[keep],
+        transverse_std=trans_s[keep], interval_basis=basis, reduced_chi2=(chi_a, chi_t))

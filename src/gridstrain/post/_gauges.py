@@ -1,0 +1,305 @@
+"""Virtual strain gauges and extensometers on the maps of every state."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from .._validation import check_type
+from ..io import roi_mask
+from ..pipeline import SeriesResult, _check_pixel_size
+from . import _correlation
+from ._loads import state_loads
+
+_STRAINS = ("exx", "eyy", "exy")
+
+
+@dataclass(frozen=True)
+class GaugeReading:
+    """What a virtual gauge (and extensometer) read on each loaded state.
+
+    Attributes
+    ----------
+    states : tuple of str
+        The loaded states' names, in order.
+    where : str
+        The gauge, in words (its region and unit).
+    n_pixels : (n_states,) int ndarray
+        Valid pixels averaged in each state.
+    exx, eyy, exy : (n_states,) float64 ndarray
+        Mean strain over the gauge's valid pixels, dimensionless (tensor shear).
+    exx_std, eyy_std, exy_std : (n_states,) float64 ndarray
+        Standard deviation of each mean from the sensor noise: the per-pixel std
+        maps propagated through the correlation the window gives neighbouring
+        pixels (:mod:`gridstrain.post._correlation`). NaN when the result has no
+        uncertainty maps.
+    ux, uy, ux_std, uy_std : (n_states,) float64 ndarray
+        Mean displacement over the gauge and its std, px.
+    load : (n_states,) float64 ndarray or None
+        The load of each state, in ``load_unit``.
+    load_unit : str or None
+    time : (n_states,) float64 ndarray or None
+        Time of each state, s.
+    extensometer : (n_states,) float64 ndarray or None
+        Engineering strain ``(l - L) / L`` between the extensometer's two points.
+    extensometer_std : (n_states,) float64 ndarray or None
+    extensometer_where : str or None
+    """
+
+    states: tuple[str, ...]
+    where: str
+    n_pixels: np.ndarray
+    exx: np.ndarray
+    exx_std: np.ndarray
+    eyy: np.ndarray
+    eyy_std: np.ndarray
+    exy: np.ndarray
+    exy_std: np.ndarray
+    ux: np.ndarray
+    ux_std: np.ndarray
+    uy: np.ndarray
+    uy_std: np.ndarray
+    load: np.ndarray | None = None
+    load_unit: str | None = None
+    time: np.ndarray | None = None
+    extensometer: np.ndarray | None = None
+    extensometer_std: np.ndarray | None = None
+    extensometer_where: str | None = None
+
+    def __post_init__(self):
+        for f in self.__dataclass_fields__:
+            v = getattr(self, f)
+            if isinstance(v, np.ndarray):
+                v.flags.writeable = False
+
+    def columns(self) -> dict[str, np.ndarray]:
+        """The table, column by column, each name followed by its unit in brackets."""
+        cols: dict[str, np.ndarray] = {"state": np.array(self.states, dtype=str)}
+        if self.load is not None:
+            cols[f"load [{self.load_unit or '-'}]"] = self.load
+        if self.time is not None:
+            cols["time [s]"] = self.time
+        for name in _STRAINS:
+            cols[f"{name} [-]"] = getattr(self, name)
+            cols[f"{name}_std [-]"] = getattr(self, f"{name}_std")
+        if self.extensometer is not None:
+            cols["extensometer [-]"] = self.extensometer
+            cols["extensometer_std [-]"] = self.extensometer_std
+        return cols
+
+    def to_csv(self, path, *, overwrite: bool = False):
+        """Write :meth:`columns` to a CSV file, atomically; returns its path.
+
+        Floats with 10 significant digits: a strain to 1e-10, far below any noise.
+        """
+        from ..io import write_csv
+
+        return write_csv(path, self.columns(), overwrite=overwrite, digits=10)
+
+    def table(self) -> str:
+        """The readings as a fixed-width text table: strains in µε."""
+        cols = self.columns()
+        head, rows = [], []
+        for key, arr in cols.items():
+            if key.startswith("state"):
+                text = [str(v) for v in arr]
+            elif key.endswith("[-]"):
+                key = key.replace("[-]", "[µε]")
+                text = [f"{v * 1e6:.1f}" for v in arr]
+            else:
+                text = [f"{v:.6g}" for v in arr]
+            head.append(key)
+            rows.append(text)
+        widths = [max(len(h), *(len(t) for t in col)) for h, col in zip(head, rows,
+                                                                          strict=True)]
+        lines = [self.where + (f"; extensometer {self.extensometer_where}"
+                               if self.extensometer_where else ""),
+                 "  ".join(h.rjust(w) for h, w in zip(head, widths, strict=True))]
+        for r in range(len(self.states)):
+            lines.append("  ".join(col[r].rjust(w) for col, w in zip(rows, widths,
+                                                                        strict=True)))
+        return "\n".join(lines)
+
+    def to_pandas(self):
+        """The table as a ``pandas.DataFrame`` indexed by state (needs pandas)."""
+        import pandas as pd
+
+        cols = self.columns()
+        return pd.DataFrame({k: v for k, v in cols.items() if k != "state"},
+                            index=pd.Index(cols["state"], name="state"))
+
+
+def _check_points(values, name: str, n: int | None) -> np.ndarray:
+    try:
+        arr = np.asarray(values, dtype=np.float64)
+    except (TypeError, ValueError):
+        arr = None
+    if arr is None or not np.all(np.isfinite(arr)) or arr.ndim != 1 or \
+            (n is not None and arr.size != n) or (n is None and (arr.size < 6 or
+                                                                 arr.size % 2)):
+        what = f"{n} finite numbers" if n else "at least 3 (x, y) vertices"
+        raise ValueError(f"{name} must be {what}, got {values!r}")
+    return arr
+
+
+def _region_mask(shape, ps, unit, region, point, polygon):
+    """The gauge's pixels and its description; coordinates in ``unit`` with ``ps``."""
+    given = [n for n, v in (("region", region), ("point", point), ("polygon", polygon))
+             if v is not None]
+    if len(given) > 1:
+        raise ValueError(f"give one of region, point or polygon, got {' and '.join(given)}")
+    H, W = shape
+    s = 1.0 if ps is None else ps
+    u = "px" if ps is None else unit
+    if point is not None:
+        x, y = _check_points(point, "point", 2)
+        c, r = round(x / s), round(y / s)
+        if not (0 <= c < W and 0 <= r < H):
+            raise ValueError(f"point ({x:g}, {y:g}) {u} must lie inside the image "
+                             f"(0 to {W * s:g} by 0 to {H * s:g} {u})")
+        m = np.zeros(shape, dtype=bool)
+        m[r, c] = True
+        return m, f"gauge at the pixel x = {c}, y = {r} px (point {x:g}, {y:g} {u})"
+    if polygon is not None:
+        v = _check_points(np.ravel(polygon), "polygon", None).reshape(-1, 2) / s
+        m = roi_mask(shape, polygon=v)
+        text = " ".join(f"{a * s:g},{b * s:g}" for a, b in v)
+        return m, f"gauge over the polygon {text} {u}"
+    if region is None:
+        region = (0.0, 0.0, W * s, H * s)
+    x0, y0, x1, y1 = _check_points(region, "region", 4)
+    # the pixels whose centre x * s lies in [x0, x1) (and likewise in y)
+    c0, c1 = max(0, math.ceil(x0 / s - 1e-9)), min(W, math.ceil(x1 / s - 1e-9))
+    r0, r1 = max(0, math.ceil(y0 / s - 1e-9)), min(H, math.ceil(y1 / s - 1e-9))
+    if not (c0 < c1 and r0 < r1):
+        raise ValueError(f"region {x0:g} {y0:g} {x1:g} {y1:g} ({u}) holds no pixel of the "
+                         f"{W} x {H} px image (x0 < x1 and y0 < y1 inside 0 to {W * s:g} "
+                         f"by 0 to {H * s:g} {u})")
+    m = np.zeros(shape, dtype=bool)
+    m[r0:r1, c0:c1] = True
+    return m, (f"gauge over x in [{x0:g}, {x1:g}), y in [{y0:g}, {y1:g}) {u} "
+               f"(columns {c0}-{c1 - 1}, rows {r0}-{r1 - 1})")
+
+
+def _bilinear(field, valid, x, y):
+    """``field`` at the point (x, y) px, bilinear; NaN unless its 4 pixels are valid."""
+    H, W = field.shape
+    c0, r0 = math.floor(x), math.floor(y)
+    if not (c0 >= 0 and r0 >= 0 and c0 + 1 < W and r0 + 1 < H):
+        return math.nan
+    blk = field[r0:r0 + 2, c0:c0 + 2].astype(np.float64)
+    if not valid[r0:r0 + 2, c0:c0 + 2].all():
+        return math.nan
+    fx, fy = x - c0, y - r0
+    return float(blk[0, 0] * (1 - fx) * (1 - fy) + blk[0, 1] * fx * (1 - fy)
+                 + blk[1, 0] * (1 - fx) * fy + blk[1, 1] * fx * fy)
+
+
+def _extensometer(result, i, p0, p1, unc):
+    """Engineering strain between two points (px) of state ``i`` and its std."""
+    valid = np.asarray(result.valid[i])
+    ux, uy = np.asarray(result.ux[i]), np.asarray(result.uy[i])
+    d = p1 - p0
+    length = float(np.hypot(*d))
+    a = [np.array([_bilinear(ux, valid, *p), _bilinear(uy, valid, *p)]) for p in (p0, p1)]
+    stretched = d + a[1] - a[0]
+    value = (float(np.hypot(*stretched)) - length) / length
+    if unc is None:
+        return value, math.nan
+    e = d / length
+    # each end's displacement noise projected on the gauge's direction (u_x and u_y
+    # taken as uncorrelated); the two ends correlated through the window
+    var = [float(e[0] ** 2 * _bilinear(np.asarray(unc["ux_std"][i]), valid, *p) ** 2
+                 + e[1] ** 2 * _bilinear(np.asarray(unc["uy_std"][i]), valid, *p) ** 2)
+           for p in (p0, p1)]
+    rho = float(_correlation.displacement_correlation(result.sigma, length ** 2))
+    total = var[0] + var[1] - 2 * rho * math.sqrt(var[0] * var[1])
+    return value, math.sqrt(max(total, 0.0)) / length
+
+
+def gauge(result: SeriesResult, *, region=None, point=None, polygon=None,
+          extensometer=None, pixel_size: float | None = None, unit: str | None = None,
+          load=None, load_unit: str | None = None, time=None) -> GaugeReading:
+    """Mean strain over a region of every state, with its standard deviation.
+
+    Parameters
+    ----------
+    result : SeriesResult
+    region : (x0, y0, x1, y1) floats, optional
+        The pixels whose centre lies in ``x0 <= x < x1``, ``y0 <= y < y1``
+        (:mod:`gridstrain.conventions`: x is the column). Default (no region,
+        point or polygon): the whole image.
+    point : (x, y) floats, optional
+        The pixel nearest to the point.
+    polygon : (N, 2) floats, optional
+        The pixels whose centre lies inside the polygon of vertices ``(x, y)``.
+    extensometer : (x0, y0, x1, y1) floats, optional
+        Two points whose distance is followed: engineering strain ``(l - L) / L``
+        from the displacements interpolated (bilinear) at the points.
+    pixel_size, unit : float, str, optional
+        Coordinates above are in ``unit`` (pixel ``x`` at ``x * pixel_size``);
+        px without them.
+    load, time : (n_states,) array_like, optional
+        The load (in ``load_unit``) and the time (s) of each loaded state.
+        Default: the result's own ``load``, ``load_unit`` and ``time``, if any.
+
+    Returns
+    -------
+    GaugeReading
+
+    Notes
+    -----
+    Only valid pixels are averaged. The standard deviation of the mean is
+    ``sqrt(sum_ij s_i s_j rho_ij) / N``, with ``s`` the per-pixel predicted std
+    maps (:func:`gridstrain.uncertainty.predict_uncertainty`) and ``rho`` the
+    correlation the Gaussian window gives the noise of two pixels
+    (:mod:`gridstrain.post._correlation`). The reference image's noise is common
+    to every state: it shifts all the states' readings alike.
+    """
+    check_type(result, "result", SeriesResult)
+    ps, unit = _check_pixel_size(pixel_size, unit)
+    mask, where = _region_mask(result.shape, ps, unit, region, point, polygon)
+    load, load_unit, time = state_loads(result, load=load, load_unit=load_unit, time=time)
+    n = result.n_states
+    unc = result.uncertainty
+    kernels = {name: _correlation.strain_kernel(result.lattice, result.sigma, name)
+               for name in _STRAINS}
+    kernels["ux"] = kernels["uy"] = _correlation.displacement_kernel(result.sigma)
+    out = {name: np.full(n, np.nan) for name in (*_STRAINS, "ux", "uy")}
+    std = {name: np.full(n, np.nan) for name in out}
+    count = np.zeros(n, dtype=np.int64)
+    ext = ext_std = ext_where = None
+    if extensometer is not None:
+        pts = _check_points(extensometer, "extensometer", 4) / (1.0 if ps is None else ps)
+        p0, p1 = pts[:2], pts[2:]
+        if np.hypot(*(p1 - p0)) < 1.0:
+            raise ValueError(f"extensometer points must be at least 1 px apart, got "
+                             f"{extensometer!r}")
+        ext, ext_std = np.full(n, np.nan), np.full(n, np.nan)
+        u = "px" if ps is None else unit
+        e = np.asarray(extensometer, dtype=float)
+        ext_where = (f"({e[0]:g}, {e[1]:g}) to ({e[2]:g}, {e[3]:g}) {u}, "
+                     f"L = {np.hypot(*(p1 - p0)):.1f} px")
+    for i in range(n):
+        inside = mask & np.asarray(result.valid[i])
+        count[i] = int(inside.sum())
+        for name in out:
+            values = np.asarray(result.get_map(name)[i])
+            ok = inside & np.isfinite(values)
+            if ok.any():
+                out[name][i] = float(np.mean(values[ok], dtype=np.float64))
+                if unc is not None and f"{name}_std" in unc:
+                    s = np.asarray(unc[f"{name}_std"][i])
+                    ok &= np.isfinite(s)
+                    std[name][i] = _correlation.std_of_mean(s, ok, kernels[name])
+        if ext is not None:
+            ext[i], ext_std[i] = _extensometer(result, i, p0, p1, unc)
+    return GaugeReading(
+        states=tuple(result.names[1:]), where=where, n_pixels=count,
+        exx=out["exx"], exx_std=std["exx"], eyy=out["eyy"], eyy_std=std["eyy"],
+        exy=out["exy"], exy_std=std["exy"], ux=out["ux"], ux_std=std["ux"],
+        uy=out["uy"], uy_std=std["uy"], load=load, load_unit=load_unit, time=time,
+        extensometer=ext, extensometer_std=ext_std, extensometer_where=ext_where)
+

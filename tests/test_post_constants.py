@@ -1,0 +1,99 @@
+"""Young's modulus and Poisson's ratio of a generated tensile coupon (``gridstrain modulus``).
+
+Twelve one-image load steps of an aluminium coupon (E = 70 GPa, nu = 0.33, 20 mm^2,
+250 to 3000 N: up to 2140 µε), drawn by the numpy-only generator of
+``tests/independent_grid.py`` (pitch-5.3 checkerboard, 12-bit Poisson-Gaussian
+sensor stored x16), measured by ``gridstrain.measure_series``; the loads come from
+a CSV file.
+"""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from gridstrain import measure_series
+from gridstrain.cli import main
+from gridstrain.post import elastic_constants, gauge, read_loads
+from independent_grid import camera, scene
+
+H, W = 192, 240
+E, NU, AREA = 70e3, 0.33, 20.0  # MPa, -, mm^2
+LOADS = np.linspace(250.0, 3000.0, 12)  # N
+REGION = (40, 40, 200, 152)
+
+
+def _levels(e):
+    return scene((H, W), pitch=5.3, angle=0.0, hole=False, light=False,
+                 displacement=lambda X, Y: (e * (X - W / 2), -NU * e * (Y - H / 2)))[0]
+
+
+@pytest.fixture(scope="module")
+def coupon(tmp_path_factory):
+    d = tmp_path_factory.mktemp("coupon")
+    rng = np.random.default_rng(1)
+    images = [camera(_levels(e), 0.28, 5.0, rng).astype(np.float64)
+              for e in (0.0, *(LOADS / AREA / E))]
+    res = measure_series(images[0], images[1:], noise_model=(16 * 0.28, 256 * 5.0))
+    path = d / "coupon.h5"
+    res.save(path)
+    loads = d / "loads.csv"
+    loads.write_text("state,load [N],time [s]\n" + "".join(
+        f"{name},{float(f)!r},{0.5 * (i + 1)!r}\n"
+        for i, (name, f) in enumerate(zip(res.names[1:], LOADS, strict=True))))
+    return res, path, loads
+
+
+def test_coupon_gives_E_and_nu(coupon):
+    res, _, loads = coupon
+    load, unit, time = read_loads(loads, res.names)
+    g = gauge(res, region=REGION, load=load, load_unit=unit, time=time)
+    truth = LOADS / AREA / E
+    # every row within 3 of its stated std of the truth (measured: at most 1.9)
+    assert np.all(np.abs(g.exx - truth) < 3 * g.exx_std)
+    assert np.all(np.abs(g.eyy + NU * truth) < 3 * g.eyy_std)
+    assert np.all(np.abs(g.exy) < 3 * g.exy_std)
+    c = elastic_constants(g, area=AREA)
+    assert c.stress_unit == "MPa"
+    # targets: E within 2 % with its interval holding the truth (measured 70148 MPa,
+    # [69578, 70728]); nu within 0.01 (measured 0.3272, [0.3170, 0.3375])
+    assert abs(c.E / E - 1) < 0.02
+    assert c.E_ci[0] < E < c.E_ci[1]
+    assert abs(c.nu - NU) < 0.01
+    assert c.nu_ci[0] < NU < c.nu_ci[1]
+    # the intervals are those of the stated std unless the scatter is larger
+    assert (c.interval_basis == "residual scatter") == (max(c.reduced_chi2) > 1)
+
+
+def test_interval_widens_with_the_scatter(coupon):
+    # a non-linearity the noise cannot explain widens the interval (residual scatter)
+    res, _, _ = coupon
+    g = gauge(res, region=REGION, load=LOADS, load_unit="N")
+    c0 = elastic_constants(g, area=AREA)
+    bent = g.__class__(**{**g.__dict__, "exx": g.exx + 3e-4 * np.sin(np.arange(12.0))})
+    c1 = elastic_constants(bent, area=AREA)
+    assert c1.interval_basis == "residual scatter"
+    assert c1.E_ci[1] - c1.E_ci[0] > 3 * (c0.E_ci[1] - c0.E_ci[0])
+
+
+def test_modulus_command(coupon, tmp_path, capsys):
+    _, path, loads = coupon
+    plot = tmp_path / "ss.png"
+    rc = main(["modulus", str(path), "--region", *map(str, REGION), "--area", str(AREA),
+               "--loads", str(loads), "--json", "--plot", str(plot)])
+    assert rc == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["E_unit"] == "MPa"
+    assert out["E_ci"][0] < E < out["E_ci"][1]
+    assert abs(out["nu"] - NU) < 0.01
+    assert plot.stat().st_size > 0
+    # a strain range fits the states inside it only
+    rc = main(["modulus", str(path), "--region", *map(str, REGION), "--area", str(AREA),
+               "--loads", str(loads), "--json", "--strain-range", "0", "1e-3"])
+    assert rc == 0
+    assert len(json.loads(capsys.readouterr().out)["states"]) == 5
+    # no loads: one line, exit 2
+    assert main(["modulus", str(path), "--area", "20"]) == 2
+    assert "no loads" in capsys.readouterr().err
