@@ -120,9 +120,12 @@ def _head(result, a: dict, ps, unit, title: str) -> list[str]:
             f"<h1>{html.escape(title)}</h1>",
             f"<p>{result.n_states} loaded state(s) against the reference, {H} × {W} px, "
             f"method {result.method}, σ = {result.sigma:.4g} px (spatial resolution "
-            f"{result.noise.resolution:.3g} px FWHM"
-            + (f" = {result.noise.resolution * ps:.3g} {html.escape(unit)}" if ps else "")
-            + f"), large-displacement correction {'on' if result.lagrangian else 'off'}. "
+            f"{result.noise.spatial_resolution:.3g} px"
+            + (f" = {result.noise.spatial_resolution * ps:.3g} {html.escape(unit)}"
+               if ps else "")
+            + f", the period damped by 10 %; window FWHM "
+            f"{result.noise.window_fwhm:.3g} px), large-displacement correction "
+            f"{'on' if result.lagrangian else 'off'}. "
             f"Written by gridstrain {html.escape(str(a.get('gridstrain_version', '?')))} "
             f"on {html.escape(str(a.get('created', '?')))}.</p>"]
 
