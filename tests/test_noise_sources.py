@@ -65,8 +65,9 @@ def test_noise_from_one_image_then_measure_with_it(pair, tmp_path, capsys):
     assert summary["uncertainty_median"][0]["exx_std"] > 0
     met = summary["metrology"]
     sigma = summary["sigma_px"]
-    # FWHM and 10-90 % step width of a Gaussian window
-    assert met["spatial_resolution_px"] == pytest.approx(2.3548200450309493 * sigma)
+    # 10 % attenuation period, FWHM and 10-90 % step width of a Gaussian window
+    assert met["spatial_resolution_px"] == pytest.approx(13.688 * sigma, rel=1e-4)
+    assert met["window_fwhm_px"] == pytest.approx(2.3548200450309493 * sigma)
     assert met["step_width_px"] == pytest.approx(2.5631031310892007 * sigma)
     st = met["states"][0]
     d = met["spatial_resolution_px"]

@@ -456,7 +456,10 @@ def test_save_result_layout(noisy_plate, tmp_path):
     assert u["vibration_shifts"] == "px"
     assert_allclose(d["vibration_std"][0], res.vibration[0].std)
     assert_allclose(d["noise_theory_strain"], res.noise.theory_strain)
-    assert_allclose(a["resolution_fwhm_px"], FWHM_PER_SIGMA * res.sigma)
+    assert_allclose(a["window_fwhm_px"], FWHM_PER_SIGMA * res.sigma)
+    # the period of a sine displacement damped by 10 %: exp(-2 pi^2 sigma^2 / d^2) = 0.9
+    d = a["spatial_resolution_px"]
+    assert_allclose(np.exp(-2 * np.pi**2 * res.sigma**2 / d**2), 0.9, rtol=1e-12)
     # the existing file is kept without overwrite, replaced with it
     with pytest.raises(FileExistsError):
         save_result(res, path)

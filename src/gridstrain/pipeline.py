@@ -85,9 +85,11 @@ Noise floor
 
 Spatial resolution
     The maps are the true fields convolved with the Gaussian window
-    (eqs. 24-25). The spatial resolution is stated as the window's full width at
-    half maximum, ``2 sqrt(2 ln 2) sigma = 2.355 sigma`` px; ``sigma`` itself is
-    stored too, for other definitions.
+    (eqs. 24-25). The spatial resolution ``d`` is the field's: the period of a sine
+    displacement the window damps by 10 %, ``pi sigma sqrt(2 / ln(1 / 0.9)) =
+    13.69 sigma`` px (:func:`gridstrain.uncertainty.metrology`); the window's full
+    width at half maximum, ``2.355 sigma``, and ``sigma`` itself are stored beside
+    it under their own names.
 
 Per-pixel uncertainty maps (``ux_std``, ``uy_std``, ``exx_std``, ``eyy_std``,
 ``exy_std``) come from :func:`gridstrain.uncertainty.predict_uncertainty`: the
@@ -109,7 +111,8 @@ Where the noise variance comes from (``NoiseFloor.model``)
 
 Metrological figures (``SeriesResult.metrology``, :func:`gridstrain.uncertainty.metrology`)
     Per state and map: the resolution (median predicted std), the spatial
-    resolution (FWHM) and the 10-90 % width of a step, and the metrological
+    resolution ``d`` (10 % attenuation period), the window's FWHM and the 10-90 %
+    width of a step, and the metrological
     efficiency indicator ``sigma_u d`` (displacement) or ``sigma_e d^2``
     (strain), px^2, independent of ``sigma``.
 
@@ -179,6 +182,7 @@ from .screening import FrameScreen
 from .sequences import StateInputs, state_inputs
 from .stacks import _FrameOrder, method_b
 from .uncertainty import (
+    _D_PER_SIGMA,
     _FWHM,
     NoiseFloor,
     aliasing_bias,
@@ -194,6 +198,7 @@ __all__ = [
     "FWHM_PER_SIGMA",
     "MAP_FIELDS",
     "ORDERS",
+    "SPATIAL_RESOLUTION_PER_SIGMA",
     "NoiseFloor",
     "SeriesResult",
     "VibrationDiagnostics",
@@ -206,8 +211,11 @@ __all__ = [
 Progress = Callable[[float, str], None]
 
 #: Full width at half maximum of a Gaussian over its standard deviation,
-#: ``2 sqrt(2 ln 2)``: the spatial resolution of the maps is this times sigma.
+#: ``2 sqrt(2 ln 2)``: the window's FWHM is this times sigma.
 FWHM_PER_SIGMA = _FWHM
+#: Spatial resolution over sigma, ``pi sqrt(2 / ln(1 / 0.9))`` = 13.69: the period
+#: of a sine displacement the window damps by 10 %.
+SPATIAL_RESOLUTION_PER_SIGMA = _D_PER_SIGMA
 #: Names of the maps, in file order, with their units before ``pixel_size``.
 MAP_FIELDS = {"ux": "px", "uy": "px", "exx": "1", "eyy": "1", "exy": "1"}
 
@@ -312,7 +320,8 @@ class SeriesResult:
         frame per series whose noise could not be estimated, and no model given).
     metrology : dict, optional
         Per state and per map: resolution (median predicted std), spatial
-        resolution (window FWHM and 10-90 % step width, px) and the metrological
+        resolution (10 % attenuation period, window FWHM and 10-90 % step width,
+        px) and the metrological
         efficiency indicator (:func:`gridstrain.uncertainty.metrology`).
     systematic : dict, optional
         Estimated systematic errors that the uncertainty maps do not cover:
@@ -2162,8 +2171,7 @@ class _ReferenceFloor:
         n = len(done) - 1
         rows = {k: np.array(v, dtype=float).reshape(n, 2 if k.endswith("_u") else 3)
                 for k, v in self.rows.items()}
-        return NoiseFloor(sigma=self.sigma, resolution=FWHM_PER_SIGMA * self.sigma,
-                          sensor_variance=tuple(d.variance for d in done),
+        return NoiseFloor(sigma=self.sigma, sensor_variance=tuple(d.variance for d in done),
                           variance_method=tuple(d.variance_method for d in done),
                           modulus=np.array([d.modulus for d in done]), model=model_info,
                           frames=tuple(int(d.T) for d in done), **rows)

@@ -166,10 +166,12 @@ def _context(result, a: dict, ps, unit, title: str) -> dict:
 def _summary(result, a: dict, ps, unit) -> str:
     """The one-paragraph description of the run."""
     H, W = result.shape
-    phys = f" = {result.noise.resolution * ps:.3g} {unit}" if ps else ""
+    d = result.noise.spatial_resolution
+    phys = f" = {d * ps:.3g} {unit}" if ps else ""
     return (f"{result.n_states} loaded state(s) against the reference, {H} × {W} px, "
             f"method {result.method}, σ = {result.sigma:.4g} px (spatial resolution "
-            f"{result.noise.resolution:.3g} px FWHM{phys}), large-displacement correction "
+            f"{d:.3g} px{phys}, the period damped by 10 %; window FWHM "
+            f"{result.noise.window_fwhm:.3g} px), large-displacement correction "
             f"{'on' if result.lagrangian else 'off'}. Written by gridstrain "
             f"{a.get('gridstrain_version', '?')} on {a.get('created', '?')}.")
 

@@ -834,7 +834,8 @@ def _root_attributes(result, ps, unit, lat) -> dict:
         "k1": list(lat.k1), "k2": list(lat.k2), "pitches": list(lat.pitches),
         "angles": list(lat.angles), "lattice_detected": bool(result.lattice_detected),
         "sigma": result.sigma, "method": result.method, "lagrangian": result.lagrangian,
-        "margin": result.margin, "resolution_fwhm_px": nf.resolution,
+        "margin": result.margin, "spatial_resolution_px": nf.spatial_resolution,
+        "window_fwhm_px": nf.window_fwhm,
         "noise_model_source": (nf.model or {}).get("source", "stack"),
         "n_frames_reference": result.n_frames[0],
         "reference_files": list(result.sources[0]),
@@ -858,11 +859,12 @@ def _write_metrology(h5, result) -> None:
             for what, u, text in (
                     ("resolution", unit, "resolution: median predicted std at a pixel"),
                     ("efficiency", "px^2", "metrological efficiency indicator: resolution "
-                     "x d (u) or x d^2 (strain), d the window FWHM")):
+                     "x d (u) or x d^2 (strain), d the 10 % attenuation period")):
                 vals = np.array([[np.nan if st[c][what] is None else st[c][what]
                                   for c in comps] for st in met["states"]], dtype=float)
                 _var(h5, f"{what}_{kind}", vals, ("state", f"{kind}_component"), u, text)
         h5.attrs["spatial_resolution_px"] = float(met["spatial_resolution_px"])
+        h5.attrs["window_fwhm_px"] = float(met["window_fwhm_px"])
         h5.attrs["step_width_px"] = float(met["step_width_px"])
     if sy is not None:
         smooth = np.array([[np.nan if v is None else v for v in s["p95"]]
@@ -1278,6 +1280,9 @@ def load(path) -> SeriesResult:
                               rotation=rotation[i].copy(), valid=valid[i].copy())
                 values.setdefault("reference", None)  # saved without the phase maps
                 values.setdefault("deformed", None)
+            elif cls.__name__ == "NoiseFloor":
+                # files of format 2 stored the window's FWHM; it follows from sigma
+                values.pop("resolution", None)
             return values
 
         if "result" not in h5[_GROUP]:

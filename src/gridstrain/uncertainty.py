@@ -36,6 +36,14 @@ __all__ = ["NoiseFloor", "Uncertainty", "aliasing_bias", "displacement_strain_st
 
 #: Full width at half maximum of a Gaussian over its standard deviation.
 _FWHM = 2.0 * math.sqrt(2.0 * math.log(2.0))
+#: Attenuation of a sine displacement that defines the spatial resolution: its period
+#: is the one the window damps by 10 % (Grédiac, Blaysat & Sur 2017; DIC Challenge 2.0).
+_ATTENUATION = 0.1
+#: Spatial resolution over sigma. The maps are the true fields convolved with the
+#: window ``g`` (eqs. 24-25), whose transfer for a sine of period ``d`` is
+#: ``exp(-2 pi^2 sigma^2 / d^2)``; setting it to ``1 - 0.1`` gives
+#: ``d = pi sigma sqrt(2 / ln(1 / 0.9))`` = 13.69 sigma.
+_D_PER_SIGMA = math.pi * math.sqrt(2.0 / -math.log(1.0 - _ATTENUATION))
 #: Width over which the window's response to a step rises from 10 % to 90 %, over
 #: sigma: the step is smoothed into an error function, 2 x 1.2816 sigma.
 _STEP_10_90 = 2.0 * 1.2815515655446004
@@ -246,10 +254,9 @@ class NoiseFloor:
     Attributes
     ----------
     sigma : float
-        Window standard deviation, px.
-    resolution : float
-        Spatial resolution, the window's FWHM ``2 sqrt(2 ln 2) sigma`` (2.355 sigma),
-        px: two features closer than this are not told apart.
+        Window standard deviation, px. The spatial resolution
+        (:attr:`spatial_resolution`, 13.69 sigma) and the window's FWHM
+        (:attr:`window_fwhm`, 2.355 sigma) follow from it.
     sensor_variance : (n_series,) tuple of float
         Per-frame image noise variance of each series (reference first), raw
         grey levels^2, NaN for a single frame.
@@ -282,7 +289,6 @@ class NoiseFloor:
     """
 
     sigma: float
-    resolution: float
     sensor_variance: tuple[float, ...]
     variance_method: tuple[str, ...]
     modulus: np.ndarray
@@ -303,14 +309,26 @@ class NoiseFloor:
             if a is not None:
                 a.flags.writeable = False
 
+    @property
+    def spatial_resolution(self) -> float:
+        """The period of a sine displacement the window damps by 10 %, px
+        (``13.69 sigma``; :func:`metrology`)."""
+        return _D_PER_SIGMA * self.sigma
+
+    @property
+    def window_fwhm(self) -> float:
+        """Full width at half maximum of the Gaussian window, ``2.355 sigma``, px."""
+        return _FWHM * self.sigma
+
     def as_dict(self) -> dict:
         """Plain-Python summary (lists, floats, NaN as None), for JSON and HDF5."""
         def clean(a):
             return [None if not math.isfinite(v) else float(v)
                     for v in np.asarray(a, dtype=float).ravel()]
 
-        out = {"sigma_px": self.sigma, "resolution_fwhm_px": self.resolution,
-               "resolution_definition": "FWHM of the Gaussian window, 2 sqrt(2 ln 2) sigma",
+        out = {"sigma_px": self.sigma, "spatial_resolution_px": self.spatial_resolution,
+               "window_fwhm_px": self.window_fwhm,
+               "resolution_definition": _DEFINITIONS["spatial_resolution"],
                "sensor_variance": clean(self.sensor_variance),
                "variance_method": list(self.variance_method),
                "modulus": [clean(m) for m in self.modulus]}
@@ -364,7 +382,7 @@ def noise_floor(maps: PhaseMaps, mean_image, *, K: float, L: float,
     modulus = [med(np.abs(p)) for p in maps.psi]
     how = f"camera model Var = K l + L at the median grey level {level:.6g}"
     return NoiseFloor(
-        sigma=maps.sigma, resolution=_FWHM * maps.sigma,
+        sigma=maps.sigma,
         sensor_variance=(float(K * level + L),) * 2, variance_method=(how, how),
         modulus=np.array([modulus, modulus]),
         theory_u=np.array([[med(a) for a in unc.u_std]]),
@@ -378,6 +396,20 @@ def noise_floor(maps: PhaseMaps, mean_image, *, K: float, L: float,
 
 
 # --------------------------------------------------------------------------- metrology
+
+
+_DEFINITIONS = {
+    "resolution": "one standard deviation of the noise at a pixel (median of the predicted "
+                  "std map)",
+    "spatial_resolution": "d, the period of a sine displacement the Gaussian window damps "
+                          "by 10 %: pi sigma sqrt(2 / ln(1 / 0.9)) = 13.69 sigma (Grediac, "
+                          "Blaysat & Sur 2017; DIC Challenge 2.0)",
+    "window_fwhm": "FWHM of the Gaussian window, 2 sqrt(2 ln 2) sigma = 2.355 sigma",
+    "step_width": "distance over which a step rises from 10 % to 90 %, 2.563 sigma",
+    "efficiency": "metrological efficiency indicator: displacement resolution x d (px^2); "
+                  "strain resolution x d^2 (px^2); d the spatial resolution; independent "
+                  "of sigma; lower is better",
+}
 
 
 def metrology(resolutions, sigma: float) -> dict:
@@ -394,28 +426,40 @@ def metrology(resolutions, sigma: float) -> dict:
     Returns
     -------
     dict
-        ``sigma_px``, ``spatial_resolution_px`` (window FWHM, ``2.355 sigma``),
-        ``step_width_px`` (10-90 % rise of the response to a step, ``2.563
-        sigma``), ``definitions`` and ``units``, and ``states``: per state and map,
-        ``resolution`` and ``efficiency``.
+        ``sigma_px``, ``spatial_resolution_px`` (``d``, the period of a sine
+        displacement damped by 10 %, ``13.69 sigma``), ``window_fwhm_px`` (``2.355
+        sigma``), ``step_width_px`` (10-90 % rise of the response to a step,
+        ``2.563 sigma``), ``definitions`` and ``units``, and ``states``: per state
+        and map, ``resolution`` and ``efficiency``.
 
     Notes
     -----
-    The grid-method reviews (Grédiac, Sur & Blaysat, Strain 52 (2016) 205-243,
-    doi:10.1111/str.12182) couple resolution and spatial resolution ``d`` in one
-    *metrological efficiency indicator*, constant for a given camera and grid
-    whatever the window, so that set-ups can be compared on one number (lower is
-    better). With the windowed Fourier transform the displacement noise falls as
-    ``1 / sigma`` and the strain noise as ``1 / sigma^2`` (eqs. 34-35 with
-    :func:`gridstrain.theory.wft_noise_std`), so gridstrain defines
+    The maps are the true fields convolved with the window ``g`` (eqs. 24-25); a
+    sine displacement of period ``d`` comes out multiplied by the window's transfer
+    function ``exp(-2 pi^2 sigma^2 / d^2)``. The grid-method literature and the DIC
+    Challenge 2.0 take as spatial resolution the period damped by 10 % (Grédiac,
+    Blaysat & Sur, "A critical comparison of some metrological parameters
+    characterizing local digital image correlation and grid method", Exp. Mech. 57
+    (2017) 871-903, doi:10.1007/s11340-017-0279-x; Reu et al., "DIC Challenge 2.0",
+    Exp. Mech. 62 (2022) 639-654, doi:10.1007/s11340-021-00806-6), so that
+
+        ``d = pi sigma sqrt(2 / ln(1 / 0.9)) = 13.69 sigma``.
+
+    The same papers couple resolution and spatial resolution in one *metrological
+    efficiency indicator*, constant for a given camera and grid whatever the window
+    (lower is better):
 
     - displacement: ``alpha_u = sigma_u d``, px^2;
-    - strain: ``alpha_e = sigma_e d^2``, px^2;
+    - strain: ``alpha_e = sigma_e d^2``, px^2.
 
-    with ``d`` the FWHM of the window, px. Both are independent of ``sigma``.
+    With the windowed Fourier transform the displacement noise falls as ``1 /
+    sigma`` and the strain noise as ``1 / sigma^2`` (eqs. 34-35 with
+    :func:`gridstrain.theory.wft_noise_std`), so both are independent of
+    ``sigma``. The window's FWHM (``2.355 sigma``) is given beside ``d`` under its
+    own name; figures computed on it are 5.8 (u) and 34 (strain) times smaller.
     """
     sigma = check_positive(sigma, "sigma")
-    d = _FWHM * sigma
+    d = _D_PER_SIGMA * sigma
     states = []
     for res in resolutions:
         entry = {}
@@ -426,16 +470,8 @@ def metrology(resolutions, sigma: float) -> dict:
                            "efficiency": float(r) * d**power if ok else None}
         states.append(entry)
     return {"sigma_px": sigma, "spatial_resolution_px": d,
-            "step_width_px": _STEP_10_90 * sigma,
-            "definitions": {
-                "resolution": "one standard deviation of the noise at a pixel (median "
-                              "of the predicted std map)",
-                "spatial_resolution": "FWHM of the Gaussian window, 2 sqrt(2 ln 2) sigma",
-                "step_width": "distance over which a step rises from 10 % to 90 %, "
-                              "2.563 sigma",
-                "efficiency": "displacement: resolution x d (px^2); strain: resolution "
-                              "x d^2 (px^2); d the spatial resolution; independent of "
-                              "sigma"},
+            "window_fwhm_px": _FWHM * sigma, "step_width_px": _STEP_10_90 * sigma,
+            "definitions": dict(_DEFINITIONS),
             "units": {"ux": "px", "uy": "px", "exx": "1", "eyy": "1", "exy": "1",
                       "efficiency_u": "px^2", "efficiency_strain": "px^2"},
             "states": states}

@@ -37,6 +37,7 @@ from ..pipeline import (
     MAP_FIELDS,
     ORDERS,
     OUTLIER_POLICIES,
+    SPATIAL_RESOLUTION_PER_SIGMA,
     SeriesResult,
     empty_state_message,
     measure_series,
@@ -574,11 +575,12 @@ def report_lines(result: SeriesResult, *, pixel_size: float | None = None,
             es = "  ".join(f"{_fmt(x):<8}" for x in e) if e is not None else \
                 "-         -         -"
             lines.append(f"{head} {_fmt(u[0]):<8}  {_fmt(u[1]):<8}  {es}")
-    res = f"{nf.resolution:.3g} px"
+    res = f"{nf.spatial_resolution:.3g} px"
     if pixel_size is not None:
-        res += f" = {nf.resolution * pixel_size:.3g} {unit}"
-    lines.append(f"spatial resolution: {res} (FWHM of the Gaussian window, "
-                 f"{FWHM_PER_SIGMA:.3f} sigma)")
+        res += f" = {nf.spatial_resolution * pixel_size:.3g} {unit}"
+    lines.append(f"spatial resolution: {res} (period of a sine displacement damped by "
+                 f"10 %, {SPATIAL_RESOLUTION_PER_SIGMA:.2f} sigma; window FWHM "
+                 f"{nf.window_fwhm:.3g} px, {FWHM_PER_SIGMA:.3f} sigma)")
     lines += _noise_source_lines(result)
     lines += _metrology_lines(result)
     lines += _systematic_lines(result)
@@ -636,7 +638,8 @@ def _metrology_lines(result: SeriesResult) -> list[str]:
     if m is None:
         return []
     lines = [f"metrology (sigma {m['sigma_px']:.4g} px: spatial resolution "
-             f"{m['spatial_resolution_px']:.3g} px FWHM, step 10-90 % over "
+             f"d = {m['spatial_resolution_px']:.3g} px (10 % attenuation period), step "
+             f"10-90 % over "
              f"{m['step_width_px']:.3g} px; efficiency = resolution x d for u, x d^2 for "
              "strain, px^2)",
              "                     u_x px    u_y px    e_xx      e_yy      e_xy"]

@@ -168,7 +168,8 @@ def _summary(stack, series, lattice, model, vib, degree, floor) -> dict:
             "contrast_factor": vib.contrast_factor.tolist(),
             "method_a_phase_offset_std_rad": vib.phase_offset_std.tolist()},
         "noise_floor": {"frames_per_state": floor.frames[1], "sigma_px": floor.sigma,
-                        "spatial_resolution_px": floor.resolution,
+                        "spatial_resolution_px": floor.spatial_resolution,
+                        "window_fwhm_px": floor.window_fwhm,
                         "u_std_px": floor.theory_u[0].tolist(),
                         "strain_std": floor.theory_strain[0].tolist(),
                         "phase_std_rad": floor.theory_phase[0].tolist(),
@@ -215,7 +216,8 @@ def _print_report(series, lattice, model, vib, degree, floor, T: int) -> None:
               f"phase offset std ({fmt(vib.phase_offset_std[0])}, "
               f"{fmt(vib.phase_offset_std[1])}) rad")
     print(f"predicted noise floor, T = {T} frames per state, sigma = {fmt(floor.sigma)} px "
-          f"(spatial resolution {fmt(floor.resolution)} px FWHM):")
+          f"(spatial resolution {fmt(floor.spatial_resolution)} px, the period damped by "
+          f"10 %; window FWHM {fmt(floor.window_fwhm)} px):")
     u, e = floor.theory_u[0], floor.theory_strain[0]
     print(f"  u_x {fmt(u[0])} px   u_y {fmt(u[1])} px")
     print(f"  e_xx {fmt(e[0])}   e_yy {fmt(e[1])}   e_xy {fmt(e[2])}")
