@@ -104,6 +104,7 @@ Where the noise variance comes from (``NoiseFloor.model``)
       for the series of a single frame the model ``Var = K l + L`` estimated from
       one image (:func:`gridstrain.noise.estimate_noise_image`, on the first
       single-frame series: the camera is the same), evaluated at the image.
+
     So every state gets its maps, its noise floor and its metrological figures,
     whatever ``T``.
 
