@@ -19,7 +19,7 @@ import gridstrain  # noqa: E402
 
 project = "gridstrain"
 author = "gridstrain developers"
-copyright = "gridstrain developers, BSD-3-Clause"  # noqa: A001
+copyright = "gridstrain developers, BSD-3-Clause"
 version = release = gridstrain.__version__
 
 extensions = [

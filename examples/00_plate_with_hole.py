@@ -4,7 +4,8 @@ A plate with a hole in tension
 
 What gridstrain is for, in one figure: the strain map of an aluminium plate with a
 hole, measured from noisy camera images of the grid bonded to it (eight frames per
-state, averaged), next to the analytic (Kirsch) field. This is ``gridstrain demo`` on smaller images, with a window of sigma = 2 pitches.
+state, averaged), next to the analytic (Kirsch) field. This is ``gridstrain demo``
+on smaller images, with a window of sigma = 2 pitches.
 Run: ``python examples/00_plate_with_hole.py``.
 """
 
