@@ -1,4 +1,8 @@
-"""A folder of TIFFs per load step, measured as a lab would.
+"""
+Load steps from a folder of TIFFs
+=================================
+
+A folder of TIFFs per load step, measured as a lab would.
 
 Writes a reference series (5 frames) and three load steps (one image each) of a
 stretched plate as 16-bit TIFF files, then measures the whole series with
@@ -10,6 +14,7 @@ import sys
 import tempfile
 from pathlib import Path
 
+import matplotlib.pyplot as plt
 import numpy as np
 
 from gridstrain import Lattice, synthetic
@@ -46,3 +51,17 @@ for i, e in enumerate(steps):
 for name, order in zip(result.names[1:], result.fringe_orders, strict=True):
     print(f"{name}: fringe order from {order.source}, "
           f"{'confirmed' if order.confirmed else 'not confirmed'}")
+
+# %%
+# The strain maps of the three steps on common colour limits, and the mean strain
+# of each step against the imposed one.
+fig = result.plot("exx")
+plt.show()
+
+fig, ax = plt.subplots(figsize=(4, 3), layout="constrained")
+ax.plot(steps, [np.nanmean(e) for e in result.exx], "o", label="measured (mean)")
+ax.plot([0, steps[-1]], [0, steps[-1]], "k--", lw=0.8, label="imposed")
+ax.set_xlabel("imposed $\\varepsilon_{xx}$")
+ax.set_ylabel("measured $\\varepsilon_{xx}$")
+ax.legend()
+plt.show()

@@ -1,4 +1,8 @@
-"""Method B on a Dask cluster (needs ``pip install "gridstrain[distributed]"``).
+"""
+Method B on a Dask cluster
+==========================
+
+Method B on a Dask cluster (needs ``pip install "gridstrain[distributed]"``).
 
 The per-frame transforms of a stack run as Dask tasks on a two-worker cluster on
 this machine, and their sums are reduced in a tree; the result equals the

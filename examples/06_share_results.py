@@ -1,4 +1,8 @@
-"""Save a result, open it again, look at it and share it.
+"""
+Save, reopen, export and share a result
+=======================================
+
+Save a result, open it again, look at it and share it.
 
 Measures two load steps of a stretched plate, writes the result file, reads it back
 (with gridstrain and, when installed, with xarray), exports it for MATLAB, ParaView
@@ -10,6 +14,7 @@ import sys
 import tempfile
 from pathlib import Path
 
+import matplotlib.pyplot as plt
 import numpy as np
 
 import gridstrain
@@ -50,3 +55,8 @@ except ImportError:
     print("xarray is not installed (pip install 'gridstrain[xarray]')")
 report = write_report(path, root / "report.html", overwrite=True)
 print(f"report written: {report} (open it in a browser)")
+
+# %%
+# What the report shows first: the maps of every state on common colour limits.
+fig = again.plot("exx")
+plt.show()

@@ -20,12 +20,14 @@ EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 SCRIPTS = sorted(EXAMPLES.glob("*.py"))
 # what each script must print: a line that only a run to the end produces
 EXPECTED = {
+    "00_plate_with_hole.py": "RMS error of exx",
     "01_pair.py": "with sensor noise",
     "02_vibrated_stack.py": "theory sqrt(T)",
     "03_noise_and_uncertainty.py": "measured  std of exx",
     "04_load_steps.py": "mean exx",
     "05_dask.py": "largest difference Dask - in process",
     "06_share_results.py": "report written",
+    "07_choosing_sigma.py": "theory -2",
 }
 
 

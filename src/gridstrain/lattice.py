@@ -30,6 +30,10 @@ _MIN_RELATIVE_PEAK = 0.02
 # Detection works on a central crop of at most this size: enough periods for a
 # sub-bin frequency estimate, and it bounds the cost of the refinement.
 _MAX_DETECT_SIZE = 1024
+# One pixel size serves both directions only if the two families' pitches agree to
+# this relative difference: a grid printed with one pitch, imaged square-on by square
+# pixels, shows pitches equal to far better (the detection's error is ~1e-5).
+_SAME_PITCH = 0.01
 # Newton refinement of a peak: at most this many steps, stopping when one moves the
 # frequency by less than this many FFT bins (1e-9 bin on a 1024 px crop is 1e-12
 # cycle/px, a relative pitch error of 5e-12 at a pitch of 5 px).
@@ -103,6 +107,41 @@ class Lattice:
     def pitch(self) -> float:
         """The larger of the two pitches, px (the default window size)."""
         return max(self.pitches)
+
+    def pixel_size(self, grid_pitch: float) -> float:
+        """Pixel size on the specimen, from the grid's printed pitch.
+
+        Parameters
+        ----------
+        grid_pitch : float
+            The period of the grid's lines on the specimen (its printed pitch), in
+            any length unit: the pixel size comes in that unit.
+
+        Returns
+        -------
+        float
+            ``grid_pitch`` divided by the mean of the two pitches in px.
+
+        Raises
+        ------
+        ValueError
+            When the two pitches differ by more than 1 %: one pixel size cannot
+            serve both directions (a grid with two pitches, pixels that are not
+            square, or an oblique view); give the pixel size itself.
+
+        Examples
+        --------
+        >>> Lattice.from_pitch(5.0).pixel_size(0.2)  # a 0.2-mm grid seen at 5 px
+        0.04
+        """
+        gp = check_positive(grid_pitch, "grid_pitch")
+        p1, p2 = self.pitches
+        if abs(p1 - p2) > _SAME_PITCH * max(p1, p2):
+            raise ValueError(f"grid_pitch: the grid's two pitches differ by "
+                             f"{abs(p1 - p2) / max(p1, p2):.1%} ({p1:.5g} and {p2:.5g} px), "
+                             f"more than {_SAME_PITCH:.0%}: one pixel size cannot serve "
+                             "both directions; give the pixel size itself")
+        return gp / (0.5 * (p1 + p2))
 
     @property
     def angles(self) -> tuple[float, float]:

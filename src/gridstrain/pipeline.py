@@ -106,6 +106,7 @@ Where the noise variance comes from (``NoiseFloor.model``)
       for the series of a single frame the model ``Var = K l + L`` estimated from
       one image (:func:`gridstrain.noise.estimate_noise_image`, on the first
       single-frame series: the camera is the same), evaluated at the image.
+
     So every state gets its maps, its noise floor and its metrological figures,
     whatever ``T``.
 
@@ -203,6 +204,7 @@ __all__ = [
     "SeriesResult",
     "VibrationDiagnostics",
     "measure_series",
+    "reference_lattice",
     "save_csv",
     "save_result",
     "state_names",
@@ -865,6 +867,41 @@ def _lattice_image(ref, report: Progress) -> np.ndarray:
     idx = np.unique(np.linspace(0, T - 1, min(T, _LATTICE_FRAMES)).round().astype(int))
     sub = ref if idx.size == T else ref.subset([int(i) for i in idx])
     return sub.mean(progress=report)
+
+
+def _specimen_mask(mask, shape) -> np.ndarray:
+    """The mask given as an image file or an array, checked against the frames."""
+    if isinstance(mask, str | os.PathLike):
+        return read_mask(mask, shape)
+    return check_mask(mask, shape)
+
+
+def reference_lattice(reference, *, mask=None, margin: float = DEFAULT_MARGIN,
+                      bit_depth: int | None = None) -> Lattice:
+    """The lattice :func:`measure_series` detects on a reference series.
+
+    Parameters
+    ----------
+    reference : path, glob, sequence of (H, W) arrays, (T, H, W) array or FrameSeries
+        The reference series, as for :func:`measure_series`.
+    mask : (H, W) bool array_like, path or None
+        The specimen's pixels (default: all).
+    margin : float
+        Invalid band at the borders, in sigmas: refuses a pitch too large for the
+        frames, as :func:`measure_series` does.
+    bit_depth : int, optional
+        Significant bits of the camera (default: detected).
+
+    Returns
+    -------
+    Lattice
+        Detected on the mean of at most 8 frames spread over the series, the image
+        :func:`measure_series` detects it on. ``lattice.pixel_size(grid_pitch)``
+        then gives the pixel size from the grid's printed pitch.
+    """
+    ref = _as_series(reference, "reference", bit_depth)
+    m = _specimen_mask(mask, ref.shape)
+    return _detect(_lattice_image(ref, null_progress), ref, m, margin)
 
 
 def _detect(image: np.ndarray, ref, mask: np.ndarray, margin: float) -> Lattice:
@@ -1746,10 +1783,7 @@ def _inputs(reference, given: StateInputs, guess, mask, o: _Setup
     _check_fit(ref.shape, o.sigma, o.margin, guesses)
     if o.lattice is not None:
         _check_pitch_fits(ref.shape, o.lattice.pitch, o.margin)
-    if isinstance(mask, str | os.PathLike):
-        m = read_mask(mask, ref.shape)
-    else:
-        m = check_mask(mask, ref.shape)
+    m = _specimen_mask(mask, ref.shape)
     for i, g in enumerate(guesses):
         if isinstance(g, np.ndarray) and g.shape != (2, *ref.shape):
             raise ValueError(f"guess for {series[i + 1].name} must be a (u_x, u_y) pair or "

@@ -41,6 +41,7 @@ from ..pipeline import (
     SeriesResult,
     empty_state_message,
     measure_series,
+    reference_lattice,
     state_names,
 )
 from ..results import ResultFile, export, save_csv, save_result
@@ -60,7 +61,7 @@ _CONFIG_KEYS = {
     "reference": "source", "states": "sources",
     "output": "path", "pitch": "float", "angle": "float", "k1": "pair", "k2": "pair",
     "sigma": "float", "method": "method", "mask": "path", "roi": "roi",
-    "roi-polygon": "polygon", "pixel-size": "float",
+    "roi-polygon": "polygon", "pixel-size": "float", "grid-pitch": "float",
     "unit": "str", "no-lagrangian": "bool", "guess": "pairs", "margin": "float",
     "csv": "path", "figures": "path", "export": "formats", "report": "path",
     "phase-maps": "bool", "quiet": "bool", "json": "bool", "overwrite": "bool",
@@ -206,7 +207,11 @@ def _noise_options(n) -> None:
 def _output_options(o) -> None:
     o.add_argument("--pixel-size", type=float, metavar="SIZE",
                    help="pixel size on the specimen, in --unit (adds ux_phys, uy_phys)")
-    o.add_argument("--unit", metavar="UNIT", help="length unit of --pixel-size (e.g. mm)")
+    o.add_argument("--grid-pitch", type=float, metavar="PITCH",
+                   help="the grid's printed pitch on the specimen, in --unit, instead of "
+                   "--pixel-size: the pixel size is PITCH / the pitch detected in px")
+    o.add_argument("--unit", metavar="UNIT",
+                   help="length unit of --pixel-size or --grid-pitch (e.g. mm)")
     o.add_argument("--csv", metavar="FILE", help="also write one CSV row per valid pixel")
     o.add_argument("--figures", metavar="DIR", help="also write PNG maps into DIR")
     o.add_argument("--export", metavar="FORMATS",
@@ -794,8 +799,10 @@ def _run(args, progress: _Bar) -> int:
         if config.from_result and not opts["quiet"]:
             print(_replay_line(config, opts), file=sys.stderr)
     reference, states, mask = _inputs(opts, args)
-    ps, unit = opts.get("pixel-size"), opts.get("unit")
+    ps, unit = _pixel_size(opts, lattice, reference, mask), opts.get("unit")
     stored = dict(opts)
+    # the side outputs and the summary use the pixel size, however it was given
+    opts["pixel-size"] = ps
     for key in ("reference", "states", "output", "mask", "loads"):
         if stored.get(key):
             stored[key] = _absolute(stored[key])
@@ -840,14 +847,17 @@ def _run(args, progress: _Bar) -> int:
 def _checked(opts: dict) -> tuple:
     """The options, refused with one line each where they cannot be right, with the
     lattice and the camera noise model they give (read once)."""
-    for name in ("sigma", "margin", "pixel-size", "sigma-pitches", "timeout"):
+    for name in ("sigma", "margin", "pixel-size", "grid-pitch", "sigma-pitches", "timeout"):
         positive_option(opts, name)
     if opts.get("sigma") is not None and opts.get("sigma-pitches") is not None:
         raise ValueError("give --sigma or --sigma-pitches, not both")
     noise_model = _noise_option(opts)
-    if (opts.get("pixel-size") is None) != (opts.get("unit") is None):
-        raise ValueError("--pixel-size and --unit go together (e.g. --pixel-size 0.04 "
-                         "--unit mm)")
+    if opts.get("pixel-size") is not None and opts.get("grid-pitch") is not None:
+        raise ValueError("give --pixel-size or --grid-pitch, not both")
+    scale = "--grid-pitch" if opts.get("grid-pitch") is not None else "--pixel-size"
+    if (opts.get(scale[2:]) is None) != (opts.get("unit") is None):
+        raise ValueError(f"{scale} and --unit go together (e.g. --pixel-size 0.04 --unit "
+                         "mm, or --grid-pitch 0.2 --unit mm)")
     bits = opts.get("bit-depth")
     if bits is not None and not 1 <= bits <= 32:
         raise ValueError(f"--bit-depth must be between 1 and 32, got {bits}")
@@ -869,6 +879,20 @@ def _checked(opts: dict) -> tuple:
     if dtype not in (None, "float32", "float64"):
         raise ValueError(f"--dtype must be float32 or float64, got {dtype!r}")
     return opts, lattice, noise_model
+
+
+def _pixel_size(opts: dict, lattice, reference, mask) -> float | None:
+    """``--pixel-size``, or the grid's printed pitch over its pitch in px: that of
+    the lattice given, else of the lattice detected as the measurement does."""
+    grid_pitch = opts.get("grid-pitch")
+    if grid_pitch is None:
+        return opts.get("pixel-size")
+    if lattice is None:
+        lattice = reference_lattice(reference, mask=mask, margin=opts["margin"])
+    try:
+        return lattice.pixel_size(grid_pitch)
+    except ValueError as exc:
+        raise ValueError(f"--grid-pitch: {str(exc).removeprefix('grid_pitch: ')}") from None
 
 
 def _inputs(opts: dict, args) -> tuple:
