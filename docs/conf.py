@@ -13,6 +13,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 # the sources of this checkout, whatever gridstrain is installed
 sys.path.insert(0, str(ROOT / "src"))
+sys.path.insert(0, str(ROOT / "docs"))  # gallery_scraper
 os.environ.setdefault("MPLBACKEND", "Agg")
 
 import gridstrain  # noqa: E402
@@ -63,7 +64,8 @@ sphinx_gallery_conf = {
     "within_subsection_order": "FileNameSortKey",
     "reference_url": {"gridstrain": None},
     "matplotlib_animations": False,
-    "image_scrapers": ("matplotlib",),
+    # the Figure objects gridstrain's plotting returns, then pyplot's figures
+    "image_scrapers": ("gallery_scraper.library_figures", "matplotlib"),
     "capture_repr": ("_repr_html_", "__repr__"),
     "min_reported_time": 1,
 }

@@ -53,11 +53,12 @@ for name, order in zip(result.names[1:], result.fringe_orders, strict=True):
           f"{'confirmed' if order.confirmed else 'not confirmed'}")
 
 # %%
-# The strain maps of the three steps on common colour limits, and the mean strain
-# of each step against the imposed one.
-fig = result.plot("exx")
-plt.show()
+# The strain maps of the three steps on common colour limits (µε), as
+# ``result.plot`` draws them (a matplotlib Figure: ``maps.savefig("exx.png")``).
+maps = result.plot("exx")
 
+# %%
+# The mean strain of each step against the imposed one.
 fig, ax = plt.subplots(figsize=(4, 3), layout="constrained")
 ax.plot(steps, [np.nanmean(e) for e in result.exx], "o", label="measured (mean)")
 ax.plot([0, steps[-1]], [0, steps[-1]], "k--", lw=0.8, label="imposed")

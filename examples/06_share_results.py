@@ -14,7 +14,6 @@ import sys
 import tempfile
 from pathlib import Path
 
-import matplotlib.pyplot as plt
 import numpy as np
 
 import gridstrain
@@ -58,5 +57,6 @@ print(f"report written: {report} (open it in a browser)")
 
 # %%
 # What the report shows first: the maps of every state on common colour limits.
-fig = again.plot("exx")
-plt.show()
+maps = again.plot("exx")
+maps.savefig(root / "exx.png")
+print(f"figure written: {root / 'exx.png'}")
