@@ -104,6 +104,10 @@ def _without_phase_maps(result):
     (lambda h5: h5["gridstrain/result"].attrs.__setitem__(
         "n_frames", np.array([3, 3], np.int64)), "/gridstrain/result/n_frames"),
     (lambda h5: h5.attrs.__setitem__("pixel_size", "0.02<script>"), "/pixel_size"),
+    (lambda h5: _replace(h5, "gridstrain/result", np.zeros(3)), "/gridstrain/result"),
+    # linked from every measurement: named where it is first read
+    (lambda h5: _replace(h5, "gridstrain/result/lattice", np.zeros(3)),
+     "/lattice: expected Lattice"),
 ])
 def test_a_wrong_field_is_one_line_naming_the_file_and_the_field(saved, edit, field):
     with h5py.File(saved, "a") as h5:

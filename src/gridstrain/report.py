@@ -37,7 +37,7 @@ from .pipeline import MAP_FIELDS, SeriesResult
 from .plotting import plot_history, plot_shifts, plot_states
 from .results import load, read_attrs
 
-__all__ = ["ALL_STATES_UP_TO", "render_report", "write_report"]
+__all__ = ["render_report", "write_report"]
 
 #: Up to this many states the report draws the maps of every state; beyond, those
 #: of :data:`SHOWN_STATES` states spread over the sequence.
@@ -95,7 +95,7 @@ def _table(header, rows, left=(0,)) -> dict:
             "left": set(left)}
 
 
-def shown_states(n: int) -> list[int]:
+def _shown_states(n: int) -> list[int]:
     """The states whose maps the report draws: all of them up to
     :data:`ALL_STATES_UP_TO`, else the first, the last and evenly spaced ones."""
     if n <= ALL_STATES_UP_TO:
@@ -143,7 +143,7 @@ def render_report(result: SeriesResult, *, attrs: dict | None = None,
 
 def _context(result, a: dict, ps, unit, title: str) -> dict:
     """The values the template shows: texts, tables and figures."""
-    states = shown_states(result.n_states)
+    states = _shown_states(result.n_states)
     shown = _subset(result, states)
     return {
         "title": title, "summary": _summary(result, a, ps, unit),

@@ -464,6 +464,8 @@ def _decode(group: h5py.Group, memo: dict, fill):
     """The object written by :func:`_encode` into ``group``, each value checked: a
     class only from the registry (:func:`_registry`), each field of its annotated
     type, datasets of numbers, no link out of the file, no cycle."""
+    if not isinstance(group, h5py.Group):
+        raise _Bad(f"{_where(group)}: a dataset where a group is expected")
     kind = _attr(group, _TYPE) if _TYPE in group.attrs else "dict"
     if kind not in _KINDS:
         raise _Bad(f"{_where(group, _TYPE)}: {kind!r} is not one of {', '.join(_KINDS)}")
@@ -1326,7 +1328,10 @@ def read_attrs(path) -> dict:
             except ValueError as exc:
                 raise _Bad(f"{_where(h5, 'unit')}: {exc}") from None
         if "attrs" in h5[_GROUP]:
-            extra = _decode(_member(h5[_GROUP], "attrs"), {}, lambda c, g, v: v)
+            group = _member(h5[_GROUP], "attrs")
+            if isinstance(group, h5py.Group):  # else refused by _decode
+                _check_memory(h5.filename, _declared_bytes(group), "its attributes")
+            extra = _decode(group, {}, lambda c, g, v: v)
             if not isinstance(extra, dict):
                 raise _Bad(f"{_where(h5[_GROUP], 'attrs')}: expected a dict, got "
                            f"{_received(extra)}")

@@ -95,9 +95,10 @@ quoted glob ("run3/*.tif"); one DEF per loaded state. Options may also come from
 --config FILE.toml, whose keys are the long option names (reference = "ref/",
 states = ["load1/", "load2/"], pixel-size = 0.04, method = "B", roi = [10, 10, 300,
 200], roi-polygon = [[10, 10], [300, 20], [150, 200]]...); paths in it are relative
-to the file; options on the command line win. Every result file stores the
-configuration of its run: 'gridstrain measure --config RESULT.h5 -o again.h5'
-measures the same inputs with the same options."""
+to the file; options on the command line win; overwrite only from --overwrite.
+Every result file stores the configuration of its run: 'gridstrain measure --config
+RESULT.h5 -o again.h5' measures the same inputs with the same options, and takes
+nothing else from the file (no output, overwrite, scheduler or timeout)."""
 
 
 def register(sub) -> None:
