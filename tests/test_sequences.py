@@ -229,3 +229,38 @@ def test_cli_each_frame_with_loads_in_the_json(tmp_path):
     assert [st["name"] for st in s["states"]] == [f"frame_{t}" for t in range(1, 5)]
     assert [st["load"] for st in s["states"]] == [0.0, 1.0, 2.0, 3.0]
     assert [st["time_s"] for st in s["states"]] == [0.0, 0.02, 0.04, 0.06]
+
+
+def _video(path, frames, codec, pix):
+    av = pytest.importorskip("av")
+    with av.open(str(path), "w") as c:
+        st = c.add_stream(codec, rate=25)
+        st.height, st.width = frames.shape[1:]
+        st.pix_fmt = pix
+        for f in frames:
+            vf = av.VideoFrame.from_ndarray(f, format="gray")
+            for pk in st.encode(vf if pix == "gray" else vf.reformat(format=pix)):
+                c.mux(pk)
+        for pk in st.encode():
+            c.mux(pk)
+
+
+def test_videos_are_read_frame_by_frame(tmp_path):
+    frames = (record(5, (96, 128), strain=1e-3) // 256).astype(np.uint8)  # 8-bit video
+    _video(tmp_path / "rec.mkv", frames, "ffv1", "gray")
+    inputs = state_inputs(tmp_path / "rec.mkv", each_frame=True)
+    assert [s.name for s in inputs.states] == [f"rec[{k}]" for k in range(5)]
+    # a lossless codec gives back every grey level; read in any order
+    for k in (3, 0, 4):
+        np.testing.assert_array_equal(inputs.states[k].read(0, dtype=None), frames[k])
+    assert not any("lossy" in n for n in inputs.states[0].notes)
+    _video(tmp_path / "rec.mp4", frames, "mpeg4", "yuv420p")
+    s = state_inputs(tmp_path / "rec.mp4", each_frame=True).states[0]
+    assert any("lossy codec(s) mpeg4" in n for n in s.notes)
+
+
+def test_a_missing_video_reader_names_the_extra(tmp_path, monkeypatch):
+    (tmp_path / "rec.avi").write_bytes(b"\0" * 16)
+    monkeypatch.setitem(sys.modules, "av", None)
+    with pytest.raises(ValueError, match=r"gridstrain\[video\]"):
+        state_inputs(tmp_path / "rec.avi", each_frame=True)

@@ -233,14 +233,16 @@ def _reference(frames: list):
     if isinstance(frames[0], np.ndarray):
         return np.stack(frames)
     f0 = frames[0]
-    table, numbers, paths, tiff = [], [], [], []
+    table, numbers, paths, tiff, video = [], [], [], [], []
     for s in frames:
         path = s.paths[0]
         if path not in paths:
             paths.append(path)
             tiff.append(s._tiff[0])
+            video.append(bool(s._video and s._video[0]))
         _, page, n_pages = s._frames[0]
         table.append((paths.index(path), page, n_pages))
         numbers.append(s._numbers[0])
     return dataclasses.replace(f0, name="reference", paths=tuple(paths), _frames=tuple(table),
-                               _tiff=tuple(tiff), _numbers=tuple(numbers))
+                               _tiff=tuple(tiff), _numbers=tuple(numbers),
+                               _video=tuple(video))
