@@ -24,6 +24,7 @@ order the user listed, kept).
 
 from __future__ import annotations
 
+import dataclasses
 import os
 import re
 from collections.abc import Sequence
@@ -128,8 +129,6 @@ def natural_order(sources, *, keep_order: bool = False) -> tuple[list, str, tupl
 
 def _unique(series: list) -> list:
     """The one-frame series with their names made unique (``" (2)"``...)."""
-    import dataclasses
-
     seen = {"reference": 1}
     out = []
     for s in series:
@@ -228,8 +227,6 @@ def state_inputs(states, *, each_frame: bool = False, reference_frames: int | No
 
 def _reference(frames: list):
     """The first frames of the record as one series, named "reference"."""
-    import dataclasses
-
     if isinstance(frames[0], np.ndarray):
         return np.stack(frames)
     f0 = frames[0]
