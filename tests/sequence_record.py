@@ -13,6 +13,7 @@ stored x16. ``static`` frames come first (``e_t = 0``, no drift, vibrations only
 from __future__ import annotations
 
 import numpy as np
+
 from independent_grid import camera, scene
 
 PITCH = 5.0

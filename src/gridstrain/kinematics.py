@@ -6,6 +6,7 @@ Signs, axes and the Lagrangian description are those of
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import math
 from dataclasses import dataclass, field
@@ -348,14 +349,35 @@ def coarse_displacement(reference, deformed, lattice: Lattice, *, mask=None,
     check_type(lattice, "lattice", Lattice)
     if phase_shift is not None:
         phase_shift = as_pair(phase_shift, "phase_shift", labels="(u_x, u_y)", unit="px")
-    best = _correlate(ref, cur, lattice, m, phase_shift)
-    if not m.all() and not best.confident:
-        # The mask often hides the best features (the hole, the specimen's edges),
-        # so the whole images are tried too.
-        whole = _correlate(ref, cur, lattice, np.ones_like(m), phase_shift)
-        if whole.confident or whole.peak_to_alias > best.peak_to_alias:
-            best = whole
-    return best
+    return _CoarseReference(ref, lattice, m).estimate(cur, phase_shift)
+
+
+class _CoarseReference:
+    """The reference's side of :func:`coarse_displacement` (its band-passed image,
+    masks and transforms), computed once and used for every deformed image of a
+    run: what depends on the reference alone is not recomputed per state."""
+
+    def __init__(self, reference: np.ndarray, lattice: Lattice, mask: np.ndarray):
+        self.reference = np.asarray(reference, dtype=np.float64)
+        self.lattice, self.mask = lattice, mask
+        self._sides: dict[bool, _Side] = {}
+
+    def side(self, whole: bool) -> _Side:
+        if whole not in self._sides:
+            m = np.ones_like(self.mask) if whole else self.mask
+            self._sides[whole] = _reference_side(self.reference, self.lattice, m)
+        return self._sides[whole]
+
+    def estimate(self, deformed: np.ndarray, phase_shift) -> CoarseEstimate:
+        """:func:`coarse_displacement` of ``deformed`` (float64, checked)."""
+        best = _correlate(self.side(False), deformed, self.lattice, phase_shift)
+        if not self.mask.all() and not best.confident:
+            # The mask often hides the best features (the hole, the specimen's edges),
+            # so the whole images are tried too.
+            whole = _correlate(self.side(True), deformed, self.lattice, phase_shift)
+            if whole.confident or whole.peak_to_alias > best.peak_to_alias:
+                best = whole
+        return best
 
 
 def _band_pass(img, m, pitch, q=1):
@@ -405,34 +427,91 @@ def _decimation(shape, lattice) -> int:
     return max(q, 1)
 
 
-def _ncc_map(f, g, mf, mg):
-    """Normalised correlation of ``f(x)`` and ``g(x + s)`` over ``mf(x) mg(x + s)``.
+@dataclass(frozen=True, eq=False)
+class _Side:
+    """The reference's band-passed image for one mask, with what the normalised
+    correlation needs of it and of the deformed image's fixed mask (see
+    :func:`_ncc_map`)."""
 
-    Returns the map indexed by ``s`` modulo its shape, and the overlap count.
+    shape: tuple[int, int]  # (H, W) of the whole image
+    win: tuple[slice, slice]  # the central crop correlated
+    q: int  # decimation
+    a: np.ndarray  # band-passed reference, decimated
+    ma: np.ndarray  # its mask, decimated
+    mb: np.ndarray  # the deformed image's mask (its inner band), decimated
+    usable: bool  # enough pixels, not uniform
+    fft_shape: tuple[int, int] = (0, 0)
+    MF: np.ndarray | None = None  # transforms of the reference's mask, f and f^2
+    F: np.ndarray | None = None
+    F2: np.ndarray | None = None
+    n: np.ndarray | None = None  # overlap count at every shift
+    sf: np.ndarray | None = None  # sum of f over the overlap
+    vf: np.ndarray | None = None  # and its centred sum of squares
+    enough: np.ndarray | None = None  # shifts with overlap enough
+
+
+def _reference_side(ref: np.ndarray, lattice: Lattice, m: np.ndarray) -> _Side:
+    # large images: a central crop of at most _MAX_COARSE_SIZE keeps the transform
+    # cheap and still holds hundreds of periods
+    H, W = ref.shape
+    cy, cx = max(0, (H - _MAX_COARSE_SIZE) // 2), max(0, (W - _MAX_COARSE_SIZE) // 2)
+    win = (slice(cy, cy + _MAX_COARSE_SIZE), slice(cx, cx + _MAX_COARSE_SIZE))
+    ref, m = ref[win], m[win]
+    pitch = lattice.pitch
+    q = _decimation(ref.shape, lattice)  # samples of the correlated maps, px
+    a = _band_pass(ref, m, pitch, q)
+    # the band-pass of a pixel within the wide Gaussian's reach of the image border
+    # depends on where the border is (fixed to the camera): leave that band out
+    edge = math.ceil(_BAND_HIGH * pitch)
+    inner = np.zeros_like(m)
+    inner[edge:-edge, edge:-edge] = True
+    if m.all():
+        ma = inner
+    else:
+        ma = ndimage.binary_erosion(m, iterations=max(1, int(_BAND_LOW * pitch) + 1)) & inner
+    ma, mb = ma[::q, ::q], inner[::q, ::q]
+    side = _Side((H, W), win, q, a, ma, mb, usable=bool(ma.sum() >= 16 and np.ptp(a[ma]) > 0))
+    if not side.usable:
+        return side
+    h, w = a.shape
+    shape = (sfft.next_fast_len(2 * h), sfft.next_fast_len(2 * w))
+    mf, mg = ma.astype(np.float64), mb.astype(np.float64)
+    f = (a - a[mf > 0].mean()) * mf
+    F, F2, MF = _tr(f, shape), _tr(f * f, shape), _tr(mf, shape)
+    MG = _tr(mg, shape)
+    n = np.rint(_xc(MF, MG, shape))
+    sf = _xc(F, MG, shape)
+    vf = _xc(F2, MG, shape) - sf * sf / np.maximum(n, 1.0)
+    enough = n >= 0.5 * min(mf.sum(), mg.sum())
+    return dataclasses.replace(side, fft_shape=shape, MF=MF, F=F, F2=F2, n=n, sf=sf, vf=vf,
+                               enough=enough)
+
+
+def _tr(a, shape):
+    return sfft.rfft2(a, s=shape)
+
+
+def _xc(a, b, shape):  # sum_x a(x) b(x + s), from the transforms of a and b
+    return sfft.irfft2(np.conj(a) * b, s=shape)
+
+
+def _ncc_map(side: _Side, g):
+    """Normalised correlation of the reference's ``f(x)`` and ``g(x + s)`` over
+    ``mf(x) mg(x + s)`` (the masks of ``side``).
+
+    Returns the map indexed by ``s`` modulo its shape.
     """
-    H, W = f.shape
-    shape = (sfft.next_fast_len(2 * H), sfft.next_fast_len(2 * W))
-    mf, mg = mf.astype(np.float64), mg.astype(np.float64)
-    f = (f - f[mf > 0].mean()) * mf
+    shape, MF = side.fft_shape, side.MF
+    mg = side.mb.astype(np.float64)
     g = (g - g[mg > 0].mean()) * mg
-
-    def tr(a):
-        return sfft.rfft2(a, s=shape)
-
-    def xc(a, b):  # sum_x a(x) b(x + s)
-        return sfft.irfft2(np.conj(a) * b, s=shape)
-
-    F, F2, MF = tr(f), tr(f * f), tr(mf)
-    G, G2, MG = tr(g), tr(g * g), tr(mg)
-    n = np.rint(xc(MF, MG))
-    nn = np.maximum(n, 1.0)
-    sf, sg = xc(F, MG), xc(MF, G)
-    vf = xc(F2, MG) - sf * sf / nn
-    vg = xc(MF, G2) - sg * sg / nn
-    num = xc(F, G) - sf * sg / nn
-    den = np.sqrt(np.maximum(vf, 0.0) * np.maximum(vg, 0.0))
+    G, G2 = _tr(g, shape), _tr(g * g, shape)
+    nn = np.maximum(side.n, 1.0)
+    sf, sg = side.sf, _xc(MF, G, shape)
+    vg = _xc(MF, G2, shape) - sg * sg / nn
+    num = _xc(side.F, G, shape) - sf * sg / nn
+    den = np.sqrt(np.maximum(side.vf, 0.0) * np.maximum(vg, 0.0))
     scale = max(float(np.max(den)), 1e-300)
-    ok = (n >= 0.5 * min(mf.sum(), mg.sum())) & (den > 1e-9 * scale)
+    ok = side.enough & (den > 1e-9 * scale)
     c = np.full(shape, np.nan)
     c[ok] = num[ok] / den[ok]
     return c
@@ -467,32 +546,16 @@ def _at(c, s):
     return out
 
 
-def _correlate(ref, cur, lattice, m, phase_shift) -> CoarseEstimate:
-    # large images: a central crop of at most _MAX_COARSE_SIZE keeps the transform
-    # cheap and still holds hundreds of periods
-    H, W = ref.shape
-    cy, cx = max(0, (H - _MAX_COARSE_SIZE) // 2), max(0, (W - _MAX_COARSE_SIZE) // 2)
-    win = (slice(cy, cy + _MAX_COARSE_SIZE), slice(cx, cx + _MAX_COARSE_SIZE))
-    ref, cur, m = ref[win], cur[win], m[win]
-    pitch = lattice.pitch
-    q = _decimation(ref.shape, lattice)  # samples of the correlated maps, px
-    a = _band_pass(ref, m, pitch, q)
-    b = _band_pass(cur, np.ones_like(m), pitch, q)
-    # the band-pass of a pixel within the wide Gaussian's reach of the image border
-    # depends on where the border is (fixed to the camera): leave that band out
-    edge = math.ceil(_BAND_HIGH * pitch)
-    inner = np.zeros_like(m)
-    inner[edge:-edge, edge:-edge] = True
-    if m.all():
-        ma = inner
-    else:
-        ma = ndimage.binary_erosion(m, iterations=max(1, int(_BAND_LOW * pitch) + 1)) & inner
-    ma, mb = ma[::q, ::q], inner[::q, ::q]
+def _correlate(side: _Side, cur, lattice, phase_shift) -> CoarseEstimate:
+    H, W = side.shape
+    q = side.q
+    cur = cur[side.win]
+    b = _band_pass(cur, np.ones(cur.shape, dtype=bool), lattice.pitch, q)
     nan = math.nan
-    if ma.sum() < 16 or not (np.ptp(a[ma]) > 0 and np.ptp(b[mb]) > 0):
+    if not (side.usable and np.ptp(b[side.mb]) > 0):
         return CoarseEstimate((0.0, 0.0), (0.0, 0.0), 0.0, nan, nan, nan, False,
                               "the images are too small or uniform once band-passed")
-    c = _ncc_map(a, b, ma, mb)
+    c = _ncc_map(side, b)
     if not np.any(np.isfinite(c)):
         return CoarseEstimate((0.0, 0.0), (0.0, 0.0), 0.0, nan, nan, nan, False,
                               "no overlap to correlate")

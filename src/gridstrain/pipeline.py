@@ -167,6 +167,7 @@ from .io import (
 from .kinematics import (
     FringeOrder,
     Measurement,
+    _CoarseReference,
     _eulerian_gradient,
     _from_estimate,
     _Handover,
@@ -174,7 +175,6 @@ from .kinematics import (
     _phase_shift,
     _small_strain,
     _solve,
-    coarse_displacement,
     deformation,
 )
 from .lattice import Lattice, detect_lattice
@@ -1205,6 +1205,9 @@ class _Tracker:
         self.lattice, self.order, self.lagrangian = lattice, order, lagrangian
         self.prev = None  # (read-back of (u, valid), confirmed, name) of the last state
         self.inherited: list[str] = []  # states followed from an unconfirmed one
+        # the reference's side of the image-feature estimate, made once for all states
+        self.coarse = _CoarseReference(np.asarray(mean_ref, dtype=np.float64), lattice,
+                                       check_mask(mask, mean_ref.shape))
 
     def features(self, pm: PhaseMaps, mean: np.ndarray, g):
         """The image-feature estimate of the next state's displacement
@@ -1212,8 +1215,8 @@ class _Tracker:
         is not automatic: the mean image is not needed afterwards."""
         if not isinstance(g, str):
             return None
-        return coarse_displacement(self.mean_ref, mean, self.lattice, mask=self.mask,
-                                   phase_shift=_phase_shift(self.ref_pm, pm))
+        return self.coarse.estimate(np.asarray(mean, dtype=np.float64),
+                                    _phase_shift(self.ref_pm, pm))
 
     def measure(self, pm: PhaseMaps, est, g, name: str):
         """``(Measurement, FringeOrder, warnings)`` of the next state, with ``est``

@@ -24,6 +24,7 @@ order the user listed, kept).
 
 from __future__ import annotations
 
+import dataclasses
 import os
 import re
 from collections.abc import Sequence
@@ -128,8 +129,6 @@ def natural_order(sources, *, keep_order: bool = False) -> tuple[list, str, tupl
 
 def _unique(series: list) -> list:
     """The one-frame series with their names made unique (``" (2)"``...)."""
-    import dataclasses
-
     seen = {"reference": 1}
     out = []
     for s in series:
@@ -228,19 +227,19 @@ def state_inputs(states, *, each_frame: bool = False, reference_frames: int | No
 
 def _reference(frames: list):
     """The first frames of the record as one series, named "reference"."""
-    import dataclasses
-
     if isinstance(frames[0], np.ndarray):
         return np.stack(frames)
     f0 = frames[0]
-    table, numbers, paths, tiff = [], [], [], []
+    table, numbers, paths, tiff, video = [], [], [], [], []
     for s in frames:
         path = s.paths[0]
         if path not in paths:
             paths.append(path)
             tiff.append(s._tiff[0])
+            video.append(bool(s._video and s._video[0]))
         _, page, n_pages = s._frames[0]
         table.append((paths.index(path), page, n_pages))
         numbers.append(s._numbers[0])
     return dataclasses.replace(f0, name="reference", paths=tuple(paths), _frames=tuple(table),
-                               _tiff=tuple(tiff), _numbers=tuple(numbers))
+                               _tiff=tuple(tiff), _numbers=tuple(numbers),
+                               _video=tuple(video))

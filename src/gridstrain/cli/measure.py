@@ -173,27 +173,33 @@ def _specimen_options(k) -> None:
                    "the run, or 'warn' and keep them (noise floor then not stated)")
 
 
+# The options of a sequence (gridstrain.sequences), as (flag, argparse keywords).
+_SEQUENCE_OPTIONS = (
+    ("--each-frame", {"action": "store_true", "default": None, "help":
+                      "every frame of the DEF inputs (a folder, a glob, a multi-page TIFF, a "
+                      "video) is a state of its own, named after its file (and page): a "
+                      "high-speed record or a load-step series. Without it a DEF whose "
+                      "frames drift or deform steadily is refused, never averaged"}),
+    ("--reference-frames", {"type": int, "metavar": "N", "help":
+                            "the reference is the first N frames of the record (REF, then "
+                            "any DEF, read as one record), averaged; every later frame is a "
+                            "state (implies --each-frame)"}),
+    ("--keep-order", {"action": "store_true", "default": None, "help":
+                      "keep explicit files in the order given (default: files whose names "
+                      "form one numbered family, as a shell lists frame_1 frame_10 "
+                      "frame_2, are measured in natural order)"}),
+    ("--loads", {"metavar": "FILE.csv", "help":
+                 "the load of each state: a CSV with a 'load [UNIT]' column, optionally "
+                 "'time [s]', one row per state in order or a 'state' column naming them"}),
+    ("--frame-rate", {"type": float, "metavar": "HZ", "help":
+                      "the camera's frame rate: each state's time is its frame's number in "
+                      "the record over the rate, s (with --each-frame)"}),
+)
+
+
 def _sequence_options(q) -> None:
-    q.add_argument("--each-frame", action="store_true", default=None,
-                   help="every frame of the DEF inputs (a folder, a glob, a multi-page "
-                   "TIFF) is a state of its own, named after its file (and page): a "
-                   "high-speed record or a load-step series. Without it a DEF whose "
-                   "frames drift or deform steadily is refused, never averaged")
-    q.add_argument("--reference-frames", type=int, metavar="N",
-                   help="the reference is the first N frames of the record (REF, then any "
-                   "DEF, read as one record), averaged; every later frame is a state "
-                   "(implies --each-frame)")
-    q.add_argument("--keep-order", action="store_true", default=None,
-                   help="keep explicit files in the order given (default: files whose "
-                   "names form one numbered family, as a shell lists frame_1 frame_10 "
-                   "frame_2, are measured in natural order)")
-    q.add_argument("--loads", metavar="FILE.csv",
-                   help="the load of each state: a CSV with a 'load [UNIT]' column, "
-                   "optionally 'time [s]', one row per state in order or a 'state' column "
-                   "naming them")
-    q.add_argument("--frame-rate", type=float, metavar="HZ",
-                   help="the camera's frame rate: each state's time is its frame's number "
-                   "in the record over the rate, s (with --each-frame)")
+    for flag, kw in _SEQUENCE_OPTIONS:
+        q.add_argument(flag, **kw)
 
 
 def _noise_options(n) -> None:

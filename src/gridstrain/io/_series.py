@@ -32,6 +32,12 @@ from .._validation import (
 #: File name extensions read as images (compared case-insensitively). JPEG files are
 #: read with a note: lossy compression adds noise the noise model does not describe.
 IMAGE_EXTENSIONS = (".tif", ".tiff", ".png", ".bmp", ".jpg", ".jpeg")
+#: Video files, read frame by frame through PyAV (the ``video`` extra), as the grey
+#: levels of their luma plane (the luminance the codec stored).
+VIDEO_EXTENSIONS = (".avi", ".mp4", ".mov", ".mkv")
+# Video codecs that keep every grey level: any other adds compression artefacts.
+_LOSSLESS_CODECS = {"rawvideo", "ffv1", "huffyuv", "ffvhuff", "utvideo", "png", "tiff",
+                    "qtrle", "r210", "v210", "magicyuv"}
 _TIFF_EXTENSIONS = (".tif", ".tiff")
 _JPEG_EXTENSIONS = (".jpg", ".jpeg")
 
@@ -73,7 +79,11 @@ def natural_sort_key(text: str | os.PathLike) -> tuple:
 
 
 def _is_image_name(path: Path) -> bool:
-    return path.suffix.lower() in IMAGE_EXTENSIONS
+    return path.suffix.lower() in IMAGE_EXTENSIONS + VIDEO_EXTENSIONS
+
+
+def _is_video(path: Path) -> bool:
+    return path.suffix.lower() in VIDEO_EXTENSIONS
 
 
 def _is_tiff(path: Path) -> bool:
@@ -83,7 +93,8 @@ def _is_tiff(path: Path) -> bool:
 def _check_extension(path: Path, name: str) -> None:
     if not _is_image_name(path):
         raise ValueError(f"{name}: {path} has extension {path.suffix!r}; supported image "
-                         f"files are {', '.join(IMAGE_EXTENSIONS)}")
+                         f"files are {', '.join(IMAGE_EXTENSIONS)}, and videos "
+                         f"{', '.join(VIDEO_EXTENSIONS)}")
 
 
 def _page_layout(shape: tuple[int, ...], samples: int) -> tuple[tuple[int, ...], int, int]:
@@ -234,6 +245,57 @@ def _read_tiff_page(tif: tifffile.TiffFile, page: int, where: str, name: str) ->
         raise OSError(f"{name}: cannot read {where}: {hint or exc}") from exc
 
 
+class _VideoCursor:
+    """One decoder left open on the video read last, so that frames read in order
+    (one state after the other) are decoded once each; a frame before the cursor
+    reopens the file."""
+
+    def __init__(self):
+        self.path = self.container = self.frames = None
+        self.next = 0
+
+    def close(self) -> None:
+        if self.container is not None:
+            self.container.close()
+        self.path = self.container = self.frames = None
+        self.next = 0
+
+    def read(self, path: Path, pages: list[int], name: str) -> list[np.ndarray]:
+        if path != self.path or (pages and pages[0] < self.next):
+            self.close()
+            av = _av(name, path)
+            self.container = av.open(str(path))
+            st = self.container.streams.video[0]
+            fmt, _ = _video_format(st)
+            self.frames = (f.to_ndarray(format=fmt) for f in self.container.decode(st))
+            self.path = path
+        out = []
+        for page in pages:
+            while True:
+                arr = next(self.frames, None)
+                if arr is None:
+                    self.close()
+                    raise OSError(f"{name}: {path} ends before frame {page}")
+                self.next += 1
+                if self.next - 1 == page:
+                    out.append(arr)
+                    break
+        return out
+
+
+_CURSOR = _VideoCursor()
+
+
+def _read_video(path: Path, pages: list[int], name: str) -> list[np.ndarray]:
+    try:
+        return _CURSOR.read(path, pages, name)
+    except (OSError, ValueError, MemoryError):
+        raise
+    except Exception as exc:
+        _CURSOR.close()
+        raise OSError(f"{name}: cannot decode {path} ({exc})") from exc
+
+
 def _imageio():
     # imported on first use: only PNG and BMP need it, and it is slow to import
     import imageio.v3 as iio
@@ -258,10 +320,51 @@ class _FileInfo:
     dtypes: tuple[np.dtype, ...]
     channels: tuple[int, ...] = ()  # samples per pixel of each page (1: grey)
     bits: int | None = None  # bits per sample stored in the first TIFF page
+    codec: str | None = None  # a video's codec
+
+
+def _av(name: str, path: Path):
+    try:
+        import av
+    except ImportError:
+        raise ValueError(f"{name}: {path} is a video; reading it needs PyAV: pip install "
+                         "'gridstrain[video]'") from None
+    return av
+
+
+def _video_format(stream) -> tuple[str, np.dtype]:
+    """The grey format frames are converted to, and its pixel type: the luma plane,
+    8 or 16 bits as the stream stores it."""
+    fmt = stream.codec_context.format
+    deep = fmt is not None and any(c.bits > 8 for c in fmt.components)
+    return ("gray16le", np.dtype(np.uint16)) if deep else ("gray", np.dtype(np.uint8))
+
+
+def _scan_video(path: Path, name: str) -> _FileInfo:
+    """The frames of a video: counted by demuxing its packets (no decoding)."""
+    av = _av(name, path)
+    try:
+        with av.open(str(path)) as c:
+            if not c.streams.video:
+                raise ValueError("no video stream")
+            st = c.streams.video[0]
+            shape = (int(st.codec_context.height), int(st.codec_context.width))
+            _, dtype = _video_format(st)
+            codec = st.codec_context.name
+            n = sum(1 for pk in c.demux(st) if pk.size)
+    except (FileNotFoundError, PermissionError, MemoryError):
+        raise
+    except Exception as exc:
+        raise OSError(f"{name}: cannot read {path} as a video ({exc})") from exc
+    if n == 0 or min(shape) <= 1:
+        raise OSError(f"{name}: {path} holds no readable video frame")
+    return _FileInfo(path, False, (shape,) * n, (dtype,) * n, (1,) * n, None, codec)
 
 
 def _scan_file(path: Path, name: str, *, allow_bool: bool = False) -> _FileInfo:
     """Read the headers of ``path`` (no pixel data) and check every page."""
+    if _is_video(path):
+        return _scan_video(path, name)
     if _is_tiff(path):
         with _open_tiff(path, name) as tif:
             with _tiff_log() as log:
@@ -407,6 +510,7 @@ class FrameSeries:
     # (file index, page index, number of pages in that file) of every frame
     _frames: tuple[tuple[int, int, int], ...] = field(default=(), compare=True)
     _tiff: tuple[bool, ...] = field(default=(), compare=False)
+    _video: tuple[bool, ...] = field(default=(), compare=False)
     channels: int = 1
     notes: tuple[str, ...] = ()
     # number of every frame in the series it was taken from (subset); () : 0, 1, ...
@@ -475,7 +579,13 @@ class FrameSeries:
         locs = [(self._number(j), *self._frames[j]) for j in indices]
         for f, group in groupby(locs, key=lambda loc: loc[1]):
             path = self.paths[f]
-            if self._tiff[f]:
+            if self._video and self._video[f]:
+                group = list(group)
+                frames = _read_video(path, [page for _, _, page, _ in group], self.name)
+                for (j, _, page, n_pages), raw in zip(group, frames, strict=True):
+                    where = f"frame {j} ({_describe(path, page, n_pages)})"
+                    yield where, self._checked(raw, where)
+            elif self._tiff[f]:
                 with _open_tiff(path, self.name) as tif:
                     for j, _, page, n_pages in group:
                         where = f"frame {j} ({_describe(path, page, n_pages)})"
@@ -735,8 +845,9 @@ def open_series(source, *, name: str = "series", bit_depth: int | None = None
     dtype = np.dtype(np.float64) if channels > 1 else stored
     series = FrameSeries(name=name, paths=paths, shape=ref.shapes[0], dtype=dtype,
                          bit_depth=None, scale=1, saturation_level=None, _frames=frames,
-                         _tiff=tuple(info.tiff for info in infos), channels=channels,
-                         notes=_reading_notes(paths, channels, name))
+                         _tiff=tuple(info.tiff for info in infos),
+                         _video=tuple(info.codec is not None for info in infos),
+                         channels=channels, notes=_reading_notes(infos, channels, name))
     first = []
     if stored.kind == "u":
         n = min(_DETECT_FRAMES, series.n_frames)
@@ -772,6 +883,7 @@ def split_frames(series: FrameSeries) -> list[FrameSeries]:
         out.append(dataclasses.replace(
             series, name=name, paths=(path,), _frames=((0, page, n_pages),),
             _tiff=(series._tiff[f],), _numbers=(series._number(j),),
+            _video=(series._video[f],) if series._video else (),
             notes=series.notes if j == 0 else ()))
     return out
 
@@ -801,9 +913,19 @@ def _frame_table(infos: list[_FileInfo], name: str) -> tuple[tuple[int, int, int
     return tuple(frames)
 
 
-def _reading_notes(paths: tuple[Path, ...], channels: int, name: str) -> tuple[str, ...]:
-    """What the user should know about how the frames are read (colour, JPEG)."""
+def _reading_notes(infos: list[_FileInfo], channels: int, name: str) -> tuple[str, ...]:
+    """What the user should know about how the frames are read (colour, JPEG, lossy
+    video codecs)."""
+    paths = [info.path for info in infos]
     notes = []
+    lossy = sorted({i.codec for i in infos if i.codec and i.codec not in _LOSSLESS_CODECS})
+    if lossy:
+        notes.append(f"{name}: video frames compressed by the lossy codec(s) "
+                     f"{', '.join(lossy)}; compression artefacts add noise the noise floor "
+                     "does not model and may bias the phase: record with a lossless codec "
+                     "or as TIFF")
+    if any(i.codec for i in infos):
+        notes.append(f"{name}: video frames read as the grey levels of their luma plane")
     if channels > 1:
         what = {2: "grey and alpha", 3: "RGB", 4: "RGBA"}[channels]
         how = ("the grey channel kept" if channels == 2 else "converted to luminance "
