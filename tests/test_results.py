@@ -335,10 +335,11 @@ def test_common_limits_span_every_state(result):
     norm, diverging = state_norm(values, result.valid)
     assert not diverging
     assert (norm.vmin, norm.vmax) == (pytest.approx(v.min()), pytest.approx(v.max()))
-    # a field of both signs keeps white at zero (TwoSlopeNorm)
+    # a field of both signs keeps white at zero, on symmetric limits
     norm, diverging = state_norm(np.array([-1.0, 3.0]), np.array([True, True]))
     assert diverging
     assert norm(0.0) == pytest.approx(0.5)
+    assert norm(-3.0) == pytest.approx(0.0)
 
 
 @pytest.mark.parametrize("argv", [["report", "NOTRESULT"], ["plot", "NOTRESULT"]])
@@ -376,23 +377,25 @@ def test_a_field_this_version_does_not_know_is_refused_by_name(result, tmp_path)
         load(path)
 
 
-def test_measure_figures_share_one_limit_per_quantity(result, tmp_path, monkeypatch):
+def test_measure_figures_share_one_norm_per_quantity(result, tmp_path, monkeypatch):
     from gridstrain import plotting
 
     seen = []
     real = plotting.plot_map
 
     def spy(values, **kw):
-        seen.append((kw["label"], kw["limit"]))
+        seen.append((kw["label"], kw["norm"], kw["unit"]))
         return real(values, **kw)
 
     monkeypatch.setattr(plotting, "plot_map", spy)
     plotting.save_figures(result, tmp_path / "figs")
     by_label = {}
-    for label, limit in seen:
-        by_label.setdefault(label, set()).add(limit)
+    for label, norm, unit in seen:
+        by_label.setdefault(label, set()).add((id(norm), unit))
     assert len(by_label) == 5
     assert all(len(v) == 1 for v in by_label.values())  # the same for both states
-    # e_xx's limit covers the larger strain of state 1 (2 E0 against E0)
-    (exx_limit,) = by_label[r"$\varepsilon_{xx}$"]
-    assert exx_limit > 1.5 * E0
+    # e_xx in µε, its norm covering the larger strain of state 1 (2 E0 against E0)
+    ((_, unit),) = by_label[r"$\varepsilon_{xx}$"]
+    assert unit == "µε"
+    norm = next(n for label, n, _ in seen if label == r"$\varepsilon_{xx}$")
+    assert norm.vmax > 1.5 * E0 * 1e6
