@@ -9,5 +9,7 @@ Coordinates follow :mod:`gridstrain.conventions` (x the column, y the row, from
 from ._constants import ElasticConstants, elastic_constants
 from ._gauges import GaugeReading, gauge
 from ._loads import read_loads
+from ._paraview import export_pvd
 
-__all__ = ["ElasticConstants", "GaugeReading", "elastic_constants", "gauge", "read_loads"]
+__all__ = ["ElasticConstants", "GaugeReading", "elastic_constants", "export_pvd", "gauge",
+           "read_loads"]
