@@ -31,6 +31,7 @@ from .._threads import one_malloc_arena
 # sub-command -> the one-line summary its module's parser declares (a test checks
 # that they agree)
 _COMMANDS = {
+    "animate": "an animation (GIF, MP4) of a map over the states on fixed colour limits",
     "demo": "simulate a plate with a hole in tension and measure it",
     "gauge": "virtual strain gauge and extensometer: mean strain of every state with its "
              "std",

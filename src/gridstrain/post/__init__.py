@@ -6,10 +6,11 @@ Coordinates follow :mod:`gridstrain.conventions` (x the column, y the row, from
 0); strains are dimensionless, loads in the unit the user gives, times in s.
 """
 
+from ._animate import animate
 from ._constants import ElasticConstants, elastic_constants
 from ._gauges import GaugeReading, gauge
 from ._loads import read_loads
 from ._paraview import export_pvd
 
-__all__ = ["ElasticConstants", "GaugeReading", "elastic_constants", "export_pvd", "gauge",
-           "read_loads"]
+__all__ = ["ElasticConstants", "GaugeReading", "animate", "elastic_constants",
+           "export_pvd", "gauge", "read_loads"]
