@@ -72,3 +72,23 @@ def test_missing_video_extra_is_one_line(series_file, tmp_path, capsys, monkeypa
     assert err == ["gridstrain animate: error: MP4 needs PyAV: pip install "
                    "'gridstrain[video]'"]
     assert not (tmp_path / "x.mp4").exists()
+
+
+def test_history_command(series_file, tmp_path, capsys):
+    import csv
+
+    _, path, loads = series_file
+    out = tmp_path / "h.csv"
+    assert main(["history", str(path), "--loads", str(loads), "--window", "3", "--order",
+                 "2", "-o", str(out)]) == 0
+    text = capsys.readouterr().out
+    assert "window 3 states, order 2" in text
+    with open(out, newline="") as fh:
+        rows = list(csv.DictReader(fh))
+    assert len(rows) == 4
+    # exx grows by 5e-4 per 0.1 s: 5e-3 /s, within 4 stated std
+    rate = np.array([float(r["exx_rate [1/s]"]) for r in rows])
+    std = np.array([float(r["exx_rate_std [1/s]"]) for r in rows])
+    assert np.all(np.abs(rate - 5e-3) < 4 * std)
+    assert main(["history", str(path)]) == 2  # no times
+    assert "no times" in capsys.readouterr().err

@@ -35,6 +35,8 @@ _COMMANDS = {
     "demo": "simulate a plate with a hole in tension and measure it",
     "gauge": "virtual strain gauge and extensometer: mean strain of every state with its "
              "std",
+    "history": "strain rate, velocity and acceleration of a gauge over time, smoothed, with "
+               "std",
     "measure": "displacement and strain maps from image series",
     "modulus": "Young's modulus and Poisson's ratio with their intervals, from a gauge and "
                "the loads",
