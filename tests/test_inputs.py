@@ -198,7 +198,7 @@ def test_config_holds_inputs_and_the_result_replays_the_run(series, tmp_path, ca
                    'export = ["mat", "vtk", "csv"]\nreport = "first.html"\nquiet = true\n')
     assert main(["measure", "--config", str(cfg)]) == 0, capsys.readouterr().err
     first = tmp_path / "first.h5"
-    for ext in (".mat", ".vti", ".csv", ".html"):
+    for ext in (".mat", ".pvd", ".csv", ".html"):
         assert first.with_suffix(ext).is_file()
     stored = tomllib.loads(read_attrs(first)["config"])
     assert stored["reference"] == str(series / "ref")

@@ -5,12 +5,20 @@ from __future__ import annotations
 import imageio.v3 as iio
 import numpy as np
 import pytest
+from matplotlib.colors import CenteredNorm
 from numpy.testing import assert_allclose, assert_array_equal
 
 from gridstrain import Lattice, synthetic
 from gridstrain.io import MARKER_NAME
 from gridstrain.pipeline import measure_series
-from gridstrain.plotting import figure_names, plot_map, plot_shifts, save_figure, save_figures
+from gridstrain.plotting import (
+    figure_names,
+    map_norm,
+    plot_map,
+    plot_shifts,
+    save_figure,
+    save_figures,
+)
 
 LAT = Lattice.from_pitch(5.0)
 
@@ -19,24 +27,64 @@ def _images(fig):
     return [im for ax in fig.axes for im in ax.get_images()]
 
 
-def test_map_is_centred_on_zero_and_invalid_is_transparent(rng):
-    values = rng.normal(2e-3, 1e-3, (40, 50))  # mostly positive, like a tensile strain
+def test_map_is_sequential_for_one_sign_and_invalid_is_transparent(rng):
+    values = rng.normal(2e-3, 4e-4, (40, 50))  # a tensile strain: all positive
     valid = np.ones((40, 50), bool)
     valid[10:20, 10:30] = False
     values[~valid] = np.nan
+    values[0, :3] = -3e-4  # a few noise pixels of the other sign: 0.2 % of them
     bg = synthetic.grid_image((40, 50), LAT)
     fig = plot_map(values, valid=valid, background=bg, label="e", unit="")
     grey, data = _images(fig)  # the grid image under the map
     assert grey.get_cmap().name == "gray"
     norm = data.norm
-    assert norm.vmin == -norm.vmax  # white is zero whatever the sign of the field
-    assert_allclose(norm.vmax, np.percentile(np.abs(values[valid]), 99.5), rtol=1e-12)
+    # sequential over the robust range: the negative pixels do not centre the map
+    assert not isinstance(norm, CenteredNorm)
+    assert data.get_cmap().name.startswith("viridis")
+    assert_allclose((norm.vmin, norm.vmax),
+                    np.percentile(values[valid], [0.5, 99.5]), rtol=1e-12)
     arr = data.get_array()
     assert_array_equal(np.ma.getmaskarray(arr), ~valid)
     rgba = data.get_cmap()(np.ma.masked_invalid([np.nan]))
     assert rgba[0, 3] == 0.0  # bad (invalid) pixels are fully transparent
     cbar_label = fig.axes[1].get_ylabel()
     assert "dimensionless" in cbar_label
+
+
+def test_both_signs_that_matter_give_a_diverging_map_ticked_on_both_halves(rng):
+    values = np.linspace(-400.0, 2900.0, 40 * 50).reshape(40, 50)  # 12 % below zero
+    fig = plot_map(values, label="e", unit="µε")
+    (data,) = _images(fig)
+    assert isinstance(data.norm, CenteredNorm)
+    assert data.norm(0.0) == pytest.approx(0.5)  # white is zero
+    assert data.get_cmap().name.startswith("RdBu_r")
+    cbar = fig.axes[1]
+    fig.canvas.draw()
+    ticks = [t for t in cbar.get_yticks() if data.norm.vmin <= t <= data.norm.vmax]
+    assert min(ticks) < 0 < max(ticks)
+    # 3 % below zero is noise, not a sign that matters: sequential
+    assert not isinstance(map_norm(np.linspace(-100.0, 2900.0, 1000)), CenteredNorm)
+
+
+def test_plot_of_many_states_is_at_most_4000_px_tall(rng):
+    from types import SimpleNamespace
+
+    from gridstrain.plotting import chosen_states, plot_states
+
+    n, H, W = 200, 40, 60
+    exx = rng.normal(1e-3, 1e-4, (n, H, W))
+    fake = SimpleNamespace(
+        n_states=n, shape=(H, W), valid=np.ones((n, H, W), bool),
+        reference_image=rng.uniform(0, 1, (H, W)), names=("ref", *(f"s{i}" for i in range(n))),
+        get_map=lambda name: exx, uncertainty=None)
+    picked = chosen_states(n)
+    assert picked[0] == 0
+    assert picked[-1] == n - 1
+    assert len(picked) == 12
+    for dpi in (150, 600):
+        fig = plot_states(fake, "exx", dpi=dpi)
+        assert fig.get_size_inches()[1] * dpi <= 4000
+        assert sum(1 for ax in fig.axes if ax.get_images()) == 12
 
 
 def test_map_axes_in_physical_units_and_offset(rng):

@@ -188,36 +188,62 @@ def _vti_arrays(path) -> tuple[dict, ET.Element]:
         comp = base64.b64decode(text[44:])
         assert len(comp) == csize
         raw = zlib.decompress(comp)
-        dtype = {"Float64": "<f8", "UInt8": "u1"}[da.get("type")]
-        out[da.get("Name")] = np.frombuffer(raw, dtype)
+        dtype = {"Float64": "<f8", "Float32": "<f4", "UInt8": "u1"}[da.get("type")]
+        out[da.get("Name")] = np.frombuffer(raw, dtype).reshape(
+            -1, int(da.get("NumberOfComponents", 1))).squeeze()
     return out, root
 
 
-def test_vtk_export_read_back(result, tmp_path):
-    path = export_vtk(result, tmp_path / "r.vti", pixel_size=0.02, unit="mm")
-    arrays, root = _vti_arrays(path)
+def test_vtk_export_is_a_paraview_time_series(result, tmp_path):
+    path = export_vtk(result, tmp_path / "r.pvd", pixel_size=0.02, unit="mm")
+    assert path.name == "r.pvd"
+    coll = ET.parse(path).getroot()
+    steps = list(coll.iter("DataSet"))
+    # one time step per state (no loads or times stored: their index)
+    assert [float(d.get("timestep")) for d in steps] == list(range(result.n_states))
+    files = [path.parent / d.get("file") for d in steps]
+    assert all(f.is_file() for f in files)
+    arrays, root = _vti_arrays(files[1])
     image = root.find("ImageData")
     assert image.get("WholeExtent") == f"0 {N - 1} 0 {N - 1} 0 0"
     assert image.get("Spacing").split()[:2] == ["0.02", "0.02"]
-    # VTK points run x fastest: the C-order flattening of an [y, x] map
-    assert_array_equal(arrays["exx_state_1"], result.exx[1].ravel())
-    assert_array_equal(arrays["valid_state_0"], result.valid[0].ravel())
+    # upright in ParaView: points run x fastest from the bottom row (y = N - 1) up to
+    # row 0 at Y = 0, i.e. Y = -y * pixel size
+    assert [float(v) for v in image.get("Origin").split()] == [0.0, -(N - 1) * 0.02, 0.0]
+    assert image.find("Piece/PointData").get("Vectors") == "displacement [mm]"
+    disp = arrays["displacement [mm]"].reshape(N, N, 3)[::-1]  # back to [y, x]
+    assert_allclose(disp[..., 0], result.ux[1] * 0.02, rtol=1e-6)  # float32
+    assert_allclose(disp[..., 1], -result.uy[1] * 0.02, rtol=1e-6)  # Y = -y
+    assert_allclose(arrays["exx [-]"].reshape(N, N)[::-1], result.exx[1], rtol=1e-6)
+    assert_allclose(arrays["exy [-]"].reshape(N, N)[::-1], -result.exy[1], rtol=1e-6)
+    assert_array_equal(arrays["valid"].reshape(N, N)[::-1], result.valid[1])
+    # the times become the time values
+    from gridstrain.post import export_pvd
+
+    p2 = export_pvd(result, tmp_path / "t.pvd", time=[0.5, 1.5])
+    assert [float(d.get("timestep")) for d in ET.parse(p2).getroot().iter("DataSet")] == \
+        [0.5, 1.5]
 
 
 def test_vtk_export_in_vtk_reader(result, tmp_path):
-    """Kitware's own XML reader, the one ParaView uses (when vtk is installed)."""
+    """Kitware's own XML readers, those ParaView uses (when vtk is installed)."""
     vtk = pytest.importorskip("vtkmodules.vtkIOXML")
     from vtkmodules.util.numpy_support import vtk_to_numpy
 
-    path = export_vtk(result, tmp_path / "r.vti", pixel_size=0.02, unit="mm")
+    path = export_vtk(result, tmp_path / "r.pvd", pixel_size=0.02, unit="mm")
     reader = vtk.vtkXMLImageDataReader()
-    reader.SetFileName(str(path))
+    reader.SetFileName(str(tmp_path / "r_vti" / "state_00001.vti"))
     reader.Update()
     img = reader.GetOutput()
     assert img.GetDimensions() == (N, N, 1)
     assert_allclose(img.GetSpacing()[:2], (0.02, 0.02))
-    got = vtk_to_numpy(img.GetPointData().GetArray("exx_state_1"))
-    assert_array_equal(got.reshape(N, N), result.exx[1])
+    assert_allclose(img.GetOrigin()[:2], (0.0, -(N - 1) * 0.02))
+    got = vtk_to_numpy(img.GetPointData().GetArray("exx [-]"))
+    assert_allclose(got.reshape(N, N)[::-1], result.exx[1], rtol=1e-6)
+    vec = img.GetPointData().GetVectors()
+    assert vec.GetName() == "displacement [mm]"
+    assert vec.GetNumberOfComponents() == 3
+    assert path.is_file()
 
 
 def test_csv_export_units_in_header_and_values(result, tmp_path):
@@ -228,7 +254,8 @@ def test_csv_export_units_in_header_and_values(result, tmp_path):
                                      "ux [px]", "ux [mm]", "uy [px]", "uy [mm]", "exx [1]"]
     assert "exx_std [1]" in df.columns
     assert len(df) == int(result.valid.sum())
-    s1 = df[df["state"] == 1]
+    assert set(df["state"]) == set(result.names[1:])  # the states' names
+    s1 = df[df["state"] == result.names[2]]
     x, y = s1["x [px]"].to_numpy(), s1["y [px]"].to_numpy()
     # 7 significant digits: half a unit of the 7th digit is at most 5e-7 relative,
     # 2e-9 on these 4e-3 strains and 1e-7 px on sub-pixel displacements, far below
@@ -421,10 +448,11 @@ def test_common_limits_span_every_state(result):
     norm, diverging = state_norm(values, result.valid)
     assert not diverging
     assert (norm.vmin, norm.vmax) == (pytest.approx(v.min()), pytest.approx(v.max()))
-    # a field of both signs keeps white at zero (TwoSlopeNorm)
+    # a field of both signs keeps white at zero, on symmetric limits
     norm, diverging = state_norm(np.array([-1.0, 3.0]), np.array([True, True]))
     assert diverging
     assert norm(0.0) == pytest.approx(0.5)
+    assert norm(-3.0) == pytest.approx(0.0)
 
 
 @pytest.mark.parametrize("argv", [["report", "NOTRESULT"], ["plot", "NOTRESULT"]])
@@ -462,23 +490,25 @@ def test_a_field_this_version_does_not_know_is_refused_by_name(result, tmp_path)
         load(path)
 
 
-def test_measure_figures_share_one_limit_per_quantity(result, tmp_path, monkeypatch):
+def test_measure_figures_share_one_norm_per_quantity(result, tmp_path, monkeypatch):
     from gridstrain import plotting
 
     seen = []
     real = plotting.plot_map
 
     def spy(values, **kw):
-        seen.append((kw["label"], kw["limit"]))
+        seen.append((kw["label"], kw["norm"], kw["unit"]))
         return real(values, **kw)
 
     monkeypatch.setattr(plotting, "plot_map", spy)
     plotting.save_figures(result, tmp_path / "figs")
     by_label = {}
-    for label, limit in seen:
-        by_label.setdefault(label, set()).add(limit)
+    for label, norm, unit in seen:
+        by_label.setdefault(label, set()).add((id(norm), unit))
     assert len(by_label) == 5
     assert all(len(v) == 1 for v in by_label.values())  # the same for both states
-    # e_xx's limit covers the larger strain of state 1 (2 E0 against E0)
-    (exx_limit,) = by_label[r"$\varepsilon_{xx}$"]
-    assert exx_limit > 1.5 * E0
+    # e_xx in µε, its norm covering the larger strain of state 1 (2 E0 against E0)
+    ((_, unit),) = by_label[r"$\varepsilon_{xx}$"]
+    assert unit == "µε"
+    norm = next(n for label, n, _ in seen if label == r"$\varepsilon_{xx}$")
+    assert norm.vmax > 1.5 * E0 * 1e6

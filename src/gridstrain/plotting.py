@@ -5,18 +5,18 @@ through ``pyplot``: no window, no global state, no backend to configure, safe in
 scripts and on servers. Maps follow :mod:`gridstrain.conventions`: ``x`` is the
 column (to the right), ``y`` the row (downwards), as in the image, with no flip.
 
-Map style
-    A diverging colormap (``RdBu_r``) with limits symmetric about 0, so that
-    white is zero and the two signs read alike. Displacement maps are drawn with
-    their mean over the valid pixels removed (and stated on the colour bar): a
-    rigid translation would otherwise fill the map with one colour. The limit is
-    the 99.5th
-    percentile of ``|value|`` over the valid pixels, so that a few outliers do not
-    wash the map out; :func:`save_figures` takes it over the valid pixels of every
-    state, so that the states of a series share their colours. Invalid pixels are
-    transparent over the grid image in grey.
-    Displacements are in px or, with a pixel size, in its unit; strains are
-    dimensionless.
+Map style (one for ``--figures``, ``gridstrain plot`` and the report: :func:`map_norm`)
+    A diverging colormap (``RdBu_r``) centred on zero (white) with symmetric
+    limits only when both signs matter: each holds more than 5 % of the range
+    drawn. Otherwise a sequential colormap (``viridis``) spans the values, so that
+    a tensile strain with a few slightly negative noise pixels is not drawn as if
+    those pixels were as strong as the tension. The colour bar is linear, so both
+    halves of a diverging bar carry ticks. Strains are drawn in µε, rotations in
+    mrad, displacements in px or, with a pixel size, in its unit; displacement
+    maps of :func:`save_figures` have their mean over the valid pixels removed
+    (and stated on the colour bar): a rigid translation would otherwise fill the
+    map with one colour. The states of a series share one norm per quantity.
+    Invalid pixels are transparent over the grid image in grey.
 """
 
 from __future__ import annotations
@@ -29,7 +29,7 @@ from pathlib import Path
 import numpy as np
 from matplotlib import colormaps
 from matplotlib.backends.backend_agg import FigureCanvasAgg
-from matplotlib.colors import Normalize
+from matplotlib.colors import CenteredNorm, Normalize
 from matplotlib.figure import Figure
 
 from ._validation import check_choice, check_finite, check_positive, check_type
@@ -38,8 +38,10 @@ from .pipeline import SeriesResult, _check_pixel_size
 
 __all__ = [
     "figure_names",
+    "map_norm",
     "plot_map",
     "plot_shifts",
+    "plot_stress_strain",
     "save_figure",
     "save_figures",
 ]
@@ -49,6 +51,9 @@ _LIMIT_PERCENTILE = 99.5
 # Grey-level percentiles mapped to black and white in the background image.
 _GREY_PERCENTILES = (1.0, 99.0)
 _DPI = 100
+LIMITS = ("common", "robust")
+# Robust limits: these percentiles of the valid values of all states.
+_ROBUST = (0.5, 99.5)
 
 #: Symbol and kind of each map of :data:`gridstrain.pipeline.MAP_FIELDS`.
 _FIELDS = {
@@ -66,20 +71,62 @@ def _new_figure(width: float, height: float) -> Figure:
     return fig
 
 
-def _symmetric_limit(values: np.ndarray, valid: np.ndarray) -> float:
-    v = np.abs(values[valid & np.isfinite(values)])
+#: Both signs "matter" (diverging map) when each holds more than this fraction of
+#: the range drawn.
+_BOTH_SIGNS = 0.05
+
+
+def map_norm(values, valid=None, *, limits: str = "common") -> Normalize:
+    """The colour norm of a map (or of all the states of a series) in gridstrain's style.
+
+    Parameters
+    ----------
+    values : array_like
+        The values drawn (any shape; NaN ignored).
+    valid : bool array_like, optional
+        The pixels that count (default: the finite ones).
+    limits : {"common", "robust"}
+        The range of the valid values, or their 0.5th to 99.5th percentiles (a few
+        outliers then do not wash the maps out).
+
+    Returns
+    -------
+    matplotlib.colors.Normalize
+        A :class:`~matplotlib.colors.CenteredNorm` about 0 spanning the larger
+        side when each sign holds more than 5 % of the range between the 0.5th
+        and 99.5th percentiles (drawn with the
+        diverging ``RdBu_r``); else a linear
+        :class:`~matplotlib.colors.Normalize` over the range (drawn with the
+        sequential ``viridis``). :func:`colormap` gives the colormap of a norm.
+    """
+    check_choice(limits, "limits", tuple(LIMITS))
+    v = np.asarray(values, dtype=np.float64)
+    ok = np.isfinite(v) if valid is None else np.asarray(valid, dtype=bool) & np.isfinite(v)
+    v = v[ok]
     if v.size == 0:
-        return 1.0
-    lim = float(np.percentile(v, _LIMIT_PERCENTILE))
-    if not math.isfinite(lim) or lim <= 0:
-        lim = float(v.max()) if v.max() > 0 else 1.0
-    return lim
+        return CenteredNorm(0.0, 1.0)
+    # the signs that matter are judged without the outliers: a few noise pixels of
+    # the other sign do not make a one-signed field diverging
+    r_lo, r_hi = (float(x) for x in np.percentile(v, _ROBUST))
+    lo, hi = (float(v.min()), float(v.max())) if limits == "common" else (r_lo, r_hi)
+    if r_lo < 0 < r_hi and min(-r_lo, r_hi) > _BOTH_SIGNS * (r_hi - r_lo):
+        return CenteredNorm(0.0, max(-lo, hi))
+    if hi <= lo:
+        pad = abs(hi) * 1e-6 or 1.0
+        lo, hi = lo - pad, hi + pad
+    return Normalize(lo, hi)
+
+
+def colormap(norm):
+    """``RdBu_r`` for a norm centred on 0, ``viridis`` otherwise; invalid transparent."""
+    name = "RdBu_r" if isinstance(norm, CenteredNorm) else "viridis"
+    return colormaps[name].with_extremes(bad=(0.0, 0.0, 0.0, 0.0))
 
 
 def plot_map(values, *, valid=None, background=None, label: str = "", unit: str = "",
              title: str = "", pixel_size: float | None = None, length_unit: str = "px",
-             limit: float | None = None, offset: float = 0.0) -> Figure:
-    """A map with a diverging colormap centred on 0 over the grid image.
+             limit: float | None = None, offset: float = 0.0, norm=None) -> Figure:
+    """A map over the grid image, in the style of :func:`map_norm`.
 
     Parameters
     ----------
@@ -101,10 +148,13 @@ def plot_map(values, *, valid=None, background=None, label: str = "", unit: str 
     length_unit : str
         Unit of the axes (``"px"`` without ``pixel_size``).
     limit : float, optional
-        Colour limit: the colours span ``[-limit, limit]``. Default: the 99.5th
-        percentile of ``|values - offset|`` over the valid pixels.
+        A diverging map over ``[-limit, limit]``, centred on 0.
     offset : float
         Subtracted from the values before drawing (stated on the colour bar).
+    norm : matplotlib.colors.Normalize, optional
+        The norm (from :func:`map_norm`, shared by the states of a series).
+        Default (neither ``limit`` nor ``norm``): :func:`map_norm` of the valid
+        values, robust limits.
 
     Returns
     -------
@@ -118,7 +168,9 @@ def plot_map(values, *, valid=None, background=None, label: str = "", unit: str 
     if valid is not None:
         ok &= _same_shape(np.asarray(valid, dtype=bool), v.shape, "valid")
     limit = check_positive(limit, "limit", allow_none=True)
-    lim = _symmetric_limit(v, ok) if limit is None else limit
+    if norm is None:
+        norm = CenteredNorm(0.0, limit) if limit is not None else \
+            map_norm(v, ok, limits="robust")
     H, W = v.shape
     s = 1.0 if pixel_size is None else float(pixel_size)
     axis_unit = "px" if pixel_size is None else length_unit
@@ -131,9 +183,8 @@ def plot_map(values, *, valid=None, background=None, label: str = "", unit: str 
         lo, hi = np.percentile(bg[np.isfinite(bg)], _GREY_PERCENTILES)
         ax.imshow(bg, cmap="gray", vmin=lo, vmax=hi if hi > lo else lo + 1, extent=extent,
                   interpolation="nearest")
-    cmap = colormaps["RdBu_r"].with_extremes(bad=(0.0, 0.0, 0.0, 0.0))
     data = np.ma.masked_array(v, mask=~ok)
-    im = ax.imshow(data, cmap=cmap, norm=Normalize(vmin=-lim, vmax=lim), extent=extent,
+    im = ax.imshow(data, cmap=colormap(norm), norm=norm, extent=extent,
                    interpolation="nearest")
     ax.set_xlabel(f"x ({axis_unit})")
     ax.set_ylabel(f"y ({axis_unit})")
@@ -263,26 +314,28 @@ def save_figures(result, directory, *, pixel_size: float | None = None,
     for name, (_symbol, kind) in _FIELDS.items():
         maps, offsets = [], []
         for i in range(result.n_states):
-            values, valid = result.get_map(name)[i], result.valid[i]
+            values, valid = np.asarray(result.get_map(name)[i]), result.valid[i]
             if kind == "displacement" and ps is not None:
                 values = values * ps
+            elif kind == "strain":
+                values = values * 1e6
             off = float(np.mean(values[valid])) if kind == "displacement" and valid.any() \
                 else 0.0
             maps.append(values)
             offsets.append(off)
         centred = np.stack([m - o for m, o in zip(maps, offsets, strict=True)])
-        shown[name] = (maps, offsets, _symmetric_limit(centred, result.valid))
+        shown[name] = (maps, offsets, map_norm(centred, result.valid, limits="robust"))
     for i in range(result.n_states):
         valid = result.valid[i]
         for name, (symbol, kind) in _FIELDS.items():
-            maps, offsets, limit = shown[name]
+            maps, offsets, norm = shown[name]
             values, offset = maps[i], offsets[i]
-            u = (unit if ps is not None else "px") if kind == "displacement" else ""
+            u = (unit if ps is not None else "px") if kind == "displacement" else _MICRO
             title = (f"{symbol}, {result.names[i + 1]}: method {result.method}, "
                      f"$\\sigma$ = {result.sigma:.3g} px, T = {T[0]}/{T[i + 1]}")
             fig = plot_map(values, valid=valid, background=result.reference_image,
                            label=symbol, unit=u, title=title, pixel_size=ps,
-                           length_unit=unit or "px", offset=offset, limit=limit)
+                           length_unit=unit or "px", offset=offset, norm=norm)
             written.append(out.write(f"{name}_state{i}.png", _png(fig)))
             report(len(written) / total, f"figure {len(written)}/{total}")
     for v, fname in zip(result.vibration, names[5 * result.n_states:], strict=True):
@@ -306,9 +359,6 @@ QUANTITIES = {
     "exy_std": (r"std $\varepsilon_{xy}$", "1"),
 }
 _MICRO = "µε"
-LIMITS = ("common", "robust")
-# Robust limits: these percentiles of the valid values of all states.
-_ROBUST = (0.5, 99.5)
 
 
 def quantity(result, name: str, *, pixel_size: float | None = None,
@@ -337,30 +387,22 @@ def quantity(result, name: str, *, pixel_size: float | None = None,
 
 
 def state_norm(values, valid, *, limits: str = "common"):
-    """A matplotlib norm shared by every state.
+    """``(norm, diverging)``: :func:`map_norm` of the valid values of every state."""
+    norm = map_norm(values, valid, limits=limits)
+    return norm, isinstance(norm, CenteredNorm)
 
-    ``"common"`` spans the valid values of all states, ``"robust"`` their 0.5th to
-    99.5th percentiles (a few outliers then do not wash the maps out). Values of
-    both signs get a :class:`~matplotlib.colors.TwoSlopeNorm` centred on 0 (white
-    is zero, each sign uses its whole half of the diverging colormap); values of
-    one sign a linear :class:`~matplotlib.colors.Normalize` over their range, for
-    a sequential colormap, so that a nearly uniform tensile strain still shows
-    its variations. Returns ``(norm, diverging)``.
-    """
-    from matplotlib.colors import TwoSlopeNorm
 
-    check_choice(limits, "limits", tuple(LIMITS))
-    v = np.asarray(values)[np.asarray(valid) & np.isfinite(values)]
-    if v.size == 0:
-        return Normalize(-1.0, 1.0), True
-    lo, hi = (float(v.min()), float(v.max())) if limits == "common" else \
-        (float(x) for x in np.percentile(v, _ROBUST))
-    if lo < 0 < hi:
-        return TwoSlopeNorm(vcenter=0.0, vmin=lo, vmax=hi), True
-    if hi <= lo:
-        pad = abs(hi) * 1e-6 or 1.0
-        lo, hi = lo - pad, hi + pad
-    return Normalize(lo, hi), False
+#: The tallest figure gridstrain draws, px: a page or a screen, not a scroll.
+MAX_HEIGHT_PX = 4000
+#: States drawn by :func:`plot_states` at most (the first, evenly spaced ones, the last).
+MAX_PANELS = 12
+
+
+def chosen_states(n: int, k: int = MAX_PANELS) -> np.ndarray:
+    """Indices of at most ``k`` of ``n`` states: the first, evenly spaced ones, the last."""
+    if n <= k:
+        return np.arange(n)
+    return np.unique(np.round(np.linspace(0, n - 1, k)).astype(int))
 
 
 def _nice_length(span: float) -> float:
@@ -372,8 +414,8 @@ def _nice_length(span: float) -> float:
 
 def plot_states(result, name: str, *, limits: str = "common", microstrain: bool = True,
                 pixel_size: float | None = None, unit: str | None = None,
-                columns: int = 3) -> Figure:
-    """Maps of one quantity for every state, on common colour limits.
+                columns: int = 3, states=None, dpi: float = 150) -> Figure:
+    """Maps of one quantity for a chosen set of states, on common colour limits.
 
     Parameters
     ----------
@@ -382,13 +424,18 @@ def plot_states(result, name: str, *, limits: str = "common", microstrain: bool 
         One of :data:`QUANTITIES` (``"exx"``, ``"ux"``, ``"rotation"``,
         ``"exx_std"``...).
     limits : {"common", "robust"}
-        See :func:`state_norm`.
+        See :func:`map_norm` (over every state, drawn or not).
     microstrain : bool
         Strains in µε (else dimensionless).
     pixel_size, unit : float, str, optional
         Displacements in ``unit`` and a scale bar in it.
     columns : int
         Panels per row.
+    states : sequence of int, optional
+        The states drawn; default :func:`chosen_states` (all of them up to 12).
+    dpi : float
+        The resolution the figure will be saved at: its size is cut so that it is
+        at most :data:`MAX_HEIGHT_PX` tall at that resolution.
 
     Returns
     -------
@@ -402,23 +449,29 @@ def plot_states(result, name: str, *, limits: str = "common", microstrain: bool 
     ps, unit = _check_pixel_size(pixel_size, unit)
     values, drawn = quantity(result, name, pixel_size=ps, unit=unit,
                              microstrain=microstrain)
-    valid = result.valid & np.isfinite(values)
-    norm, diverging = state_norm(values, valid, limits=limits)
-    n = result.n_states
+    valid = np.asarray(result.valid) & np.isfinite(values)
+    norm, _ = state_norm(values, valid, limits=limits)
+    n_all = result.n_states
+    shown = chosen_states(n_all) if states is None else np.asarray(states, dtype=int)
+    if shown.size == 0 or shown.min() < 0 or shown.max() >= n_all:
+        raise ValueError(f"states must be indices of the {n_all} states, got {states!r}")
+    n = shown.size
     cols = max(1, min(int(columns), n))
     rows = math.ceil(n / cols)
     H, W = result.shape
-    fig = _new_figure(3.4 * cols + 1.0, (3.4 * H / W + 0.6) * rows + 0.4)
+    width, height = 3.4 * cols + 1.0, (3.4 * H / W + 0.6) * rows + 0.4
+    shrink = min(1.0, MAX_HEIGHT_PX / (height * float(dpi)))
+    fig = _new_figure(width * shrink, height * shrink)
     axes = np.atleast_1d(fig.subplots(rows, cols, squeeze=False)).ravel()
     bg = result.reference_image
     lo_g, hi_g = np.percentile(bg, _GREY_PERCENTILES)
-    cmap = colormaps["RdBu_r" if diverging else "viridis"].with_extremes(
-        bad=(0.0, 0.0, 0.0, 0.0))
+    cmap = colormap(norm)
     im = None
-    for i, ax in enumerate(axes):
-        if i >= n:
+    for k, ax in enumerate(axes):
+        if k >= n:
             ax.set_axis_off()
             continue
+        i = int(shown[k])
         ax.imshow(bg, cmap="gray", vmin=lo_g, vmax=hi_g if hi_g > lo_g else lo_g + 1,
                   interpolation="nearest")
         im = ax.imshow(np.ma.masked_array(values[i], mask=~valid[i]), cmap=cmap, norm=norm,
@@ -435,7 +488,9 @@ def plot_states(result, name: str, *, limits: str = "common", microstrain: bool 
     symbol = QUANTITIES[name][0]
     cbar = fig.colorbar(im, ax=list(axes[:n]), shrink=0.85)
     cbar.set_label(f"{symbol} ({drawn})" if drawn != "1" else f"{symbol} (dimensionless)")
-    fig.suptitle(f"{symbol}, {limits} colour limits over {n} state(s)", fontsize=10)
+    which = f"{n_all} state(s)" if n == n_all else f"{n} of {n_all} states"
+    fig.suptitle(f"{symbol}, {limits} colour limits over all states; {which} shown",
+                 fontsize=10)
     return fig
 
 
@@ -453,7 +508,8 @@ def _probe(values: np.ndarray, valid: np.ndarray, point, region):
 
 
 def plot_history(result, *, point=None, region=None, names=("exx", "eyy", "exy"),
-                 microstrain: bool = True) -> Figure:
+                 microstrain: bool = True, against: str = "auto", load=None,
+                 load_unit: str | None = None, time=None) -> Figure:
     """Strain (or any quantity) of all states at a point or averaged over a region.
 
     Parameters
@@ -465,16 +521,25 @@ def plot_history(result, *, point=None, region=None, names=("exx", "eyy", "exy")
         Columns ``x0 <= x < x1``, rows ``y0 <= y < y1``; the mean of the valid
         pixels. Default (neither given): the whole image.
     names : sequence of str
-        Quantities of :data:`QUANTITIES`, drawn on one axis per unit.
+        Quantities of :data:`QUANTITIES`, drawn on one axis.
     microstrain : bool
         Strains in µε.
+    against : {"auto", "time", "load", "state"}
+        The horizontal axis: "auto" takes the time, else the load, else the state.
+    load, load_unit, time : optional
+        The states' loads and times (default: the result's own, if any).
 
     Returns
     -------
     matplotlib.figure.Figure
-        One curve per quantity against the state; at a point, error bars of one
-        predicted standard deviation where the result has uncertainty maps.
+        One curve per quantity, with error bars of one standard deviation: the
+        gauge's (:func:`gridstrain.post.gauge`) for strains and displacements.
+        State names label the axis up to 15 states.
     """
+    from .post import gauge
+    from .post._loads import state_loads
+
+    check_choice(against, "against", ("auto", "time", "load", "state"))
     H, W = result.shape
     if point is not None and region is not None:
         raise ValueError("give point or region, not both")
@@ -490,22 +555,35 @@ def plot_history(result, *, point=None, region=None, names=("exx", "eyy", "exy")
             raise ValueError(f"region {x0} {y0} {x1} {y1} must satisfy 0 <= x0 < x1 <= {W} "
                              f"and 0 <= y0 < y1 <= {H}")
         where = f"mean over x in [{x0}, {x1}), y in [{y0}, {y1}) px (valid pixels)"
+    load, load_unit, time = state_loads(result, load=load, load_unit=load_unit, time=time)
+    if against == "auto":
+        against = "time" if time is not None else "load" if load is not None else "state"
+    xs = {"time": time, "load": load}.get(against, np.arange(result.n_states))
+    if xs is None:
+        raise ValueError(f"against={against!r}, but the states have no {against}")
+    reading = None
     fig = _new_figure(6.4, 4.0)
     ax = fig.add_subplot()
-    states = np.arange(result.n_states)
     unit_drawn = None
     for name in names:
         values, unit_drawn = quantity(result, name, microstrain=microstrain)
-        curve = _probe(values, result.valid, point, region)
-        err = None
-        std_name = f"{name}_std"
-        if point is not None and result.uncertainty and std_name in result.uncertainty:
-            err = _probe(quantity(result, std_name, microstrain=microstrain)[0],
-                         result.valid, point, None)
-        ax.errorbar(states, curve, yerr=err, marker="o", capsize=3,
+        scale = 1e6 if unit_drawn == _MICRO else 1.0
+        if name in ("exx", "eyy", "exy", "ux", "uy"):
+            if reading is None:
+                reading = gauge(result, point=point, region=region)
+            curve = getattr(reading, name) * scale
+            err = getattr(reading, f"{name}_std") * scale
+            err = err if np.all(np.isfinite(err)) else None
+        else:
+            curve, err = _probe(values, result.valid, point, region), None
+        ax.errorbar(xs, curve, yerr=err, marker="o", markersize=3, capsize=2,
                     label=QUANTITIES[name][0])
     ax.axhline(0.0, color="0.6", linewidth=0.8)
-    ax.set_xticks(states, list(result.names[1:]), rotation=30, fontsize=8)
+    if against == "state" and result.n_states <= 15:
+        ax.set_xticks(xs, list(result.names[1:]), rotation=30, fontsize=8)
+    else:
+        ax.set_xlabel({"time": "time (s)", "load": f"load ({load_unit or '-'})",
+                       "state": "state"}[against])
     ax.set_ylabel(f"({unit_drawn})")
     ax.set_title(where, fontsize=9)
     ax.legend(fontsize=8)

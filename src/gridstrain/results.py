@@ -1412,51 +1412,17 @@ def export_mat(result: SeriesResult, path, *, pixel_size: float | None = None,
                                                  oned_as="column"), overwrite=overwrite)
 
 
-def _vtk_array(name: str, arr: np.ndarray) -> str:
-    a = np.ascontiguousarray(arr.reshape(-1))
-    raw = a.astype(a.dtype.newbyteorder("<"), copy=False).tobytes()
-    comp = zlib.compress(raw, 6)
-    # zlib-compressed binary: one block, header (count, block size, last size, sizes)
-    header = struct.pack("<4Q", 1, len(raw), len(raw), len(comp))
-    kind = {"f8": "Float64", "f4": "Float32", "u1": "UInt8"}[a.dtype.str[1:]]
-    return (f'        <DataArray type="{kind}" Name="{name}" format="binary">'
-            f"{base64.b64encode(header).decode()}{base64.b64encode(comp).decode()}"
-            "</DataArray>\n")
-
-
 def export_vtk(result: SeriesResult, path, *, pixel_size: float | None = None,
                unit: str | None = None, overwrite: bool = False) -> Path:
-    """Write the maps as VTK XML image data (``.vti``) for ParaView, atomically.
+    """Write the states as a ParaView time series (``.pvd`` and a folder of ``.vti``).
 
-    One point per pixel, spacing ``pixel_size`` (1 without it), origin 0: VTK's
-    point ``(i, j)`` is column ``x = i`` and row ``y = j`` (VTK's y axis is the
-    image's rows, so ParaView, whose y points up, shows the image upside down
-    unless the camera looks along +z with y down). Point arrays ``<map>_<state>``
-    (``exx_state_0``...), NaN where not valid, and ``valid_<state>`` (0/1).
+    See :func:`gridstrain.post.export_pvd`: one ``.vti`` per state as a time step
+    (time, else load, else index), the displacement as one vector in ``unit``,
+    the image upright in ParaView, units in the field names.
     """
-    check_type(result, "result", SeriesResult)
-    ps, unit = _phys(result, pixel_size, unit)
-    s = 1.0 if ps is None else ps
-    H, W = result.shape
-    arrays = []
-    for i in range(result.n_states):
-        key = f"state_{i}"
-        for name in MAP_FIELDS:
-            arrays.append(_vtk_array(f"{name}_{key}", result.get_map(name)[i]))
-        arrays.append(_vtk_array(f"rotation_{key}", result.measurements[i].rotation))
-        for name, arr in (result.uncertainty or {}).items():
-            arrays.append(_vtk_array(f"{name}_{key}", np.asarray(arr)[i]))
-        arrays.append(_vtk_array(f"valid_{key}", result.valid[i].astype(np.uint8)))
-    extent = f"0 {W - 1} 0 {H - 1} 0 0"
-    text = ('<?xml version="1.0"?>\n'
-            '<VTKFile type="ImageData" version="1.0" byte_order="LittleEndian" '
-            'header_type="UInt64" compressor="vtkZLibDataCompressor">\n'
-            f'  <ImageData WholeExtent="{extent}" Origin="0 0 0" Spacing="{s!r} {s!r} 1">\n'
-            f'    <Piece Extent="{extent}">\n      <PointData>\n'
-            + "".join(arrays) + "      </PointData>\n    </Piece>\n  </ImageData>\n"
-            "</VTKFile>\n")
-    dest = as_path(path, "path")
-    return write_atomic(dest, text.encode("ascii"), overwrite=overwrite)
+    from .post import export_pvd
+
+    return export_pvd(result, path, pixel_size=pixel_size, unit=unit, overwrite=overwrite)
 
 
 #: Significant digits of the CSV export: 7 resolves 1e-7 of a value, far below
@@ -1474,7 +1440,7 @@ def save_csv(result: SeriesResult, path, *, pixel_size: float | None = None,
     ``ux [px]``, ``uy [px]`` (and in ``unit``), ``exx [1]``, ``eyy [1]``,
     ``exy [1]`` (dimensionless, tensor shear), ``rotation [rad]``, and the
     uncertainty maps ``ux_std [px]``... when the result has them. ``state``
-    indexes the loaded states in the order given (0 first). Written atomically.
+    holds the state's name. Written atomically.
 
     Parameters
     ----------
@@ -1485,7 +1451,7 @@ def save_csv(result: SeriesResult, path, *, pixel_size: float | None = None,
     check_type(result, "result", SeriesResult)
     ps, unit = _phys(result, pixel_size, unit)
     st, yy, xx = np.nonzero(result.valid)
-    cols = {"state": st, "x [px]": xx, "y [px]": yy}
+    cols = {"state": np.array(result.names[1:], dtype=str)[st], "x [px]": xx, "y [px]": yy}
     if ps is not None:
         cols[f"x [{unit}]"], cols[f"y [{unit}]"] = xx * ps, yy * ps
     for name, u in MAP_FIELDS.items():
@@ -1505,8 +1471,9 @@ def save_csv(result: SeriesResult, path, *, pixel_size: float | None = None,
 
 def export(result: SeriesResult, stem, formats, *, pixel_size: float | None = None,
            unit: str | None = None, overwrite: bool = False) -> dict:
-    """Write ``stem.mat``, ``stem.vti`` and/or ``stem.csv``; returns ``{format: path}``."""
-    writers = {"mat": (export_mat, ".mat"), "vtk": (export_vtk, ".vti"),
+    """Write ``stem.mat``, ``stem.pvd`` (with ``stem_vti/``) and/or ``stem.csv``;
+    returns ``{format: path}``."""
+    writers = {"mat": (export_mat, ".mat"), "vtk": (export_vtk, ".pvd"),
                "csv": (save_csv, ".csv")}
     out = {}
     for f in formats:

@@ -31,9 +31,12 @@ from .._threads import one_malloc_arena
 # sub-command -> the one-line summary its module's parser declares (a test checks
 # that they agree)
 _COMMANDS = {
+    "animate": "an animation (GIF, MP4) of a map over the states on fixed colour limits",
     "demo": "simulate a plate with a hole in tension and measure it",
     "gauge": "virtual strain gauge and extensometer: mean strain of every state with its "
              "std",
+    "history": "strain rate, velocity and acceleration of a gauge over time, smoothed, with "
+               "std",
     "measure": "displacement and strain maps from image series",
     "modulus": "Young's modulus and Poisson's ratio with their intervals, from a gauge and "
                "the loads",

@@ -222,7 +222,8 @@ def _output_options(o) -> None:
     o.add_argument("--csv", metavar="FILE", help="also write one CSV row per valid pixel")
     o.add_argument("--figures", metavar="DIR", help="also write PNG maps into DIR")
     o.add_argument("--export", metavar="FORMATS",
-                   help="also write mat (MATLAB), vtk (ParaView .vti) and/or csv next to "
+                   help="also write mat (MATLAB), vtk (ParaView: a .pvd time series of .vti) "
+                   "and/or csv next to "
                    "the output, comma-separated (e.g. mat,vtk)")
     o.add_argument("--phase-maps", action="store_true", default=None,
                    help="also store the phase maps of every series in the output (about 3x "
@@ -457,7 +458,7 @@ def _check_outputs(opts: dict, n_states: int, inputs: set[Path]) -> None:
 
 
 def _export_path(out: Path, fmt: str) -> Path:
-    return out.with_suffix({"mat": ".mat", "vtk": ".vti", "csv": ".csv"}[fmt])
+    return out.with_suffix({"mat": ".mat", "vtk": ".pvd", "csv": ".csv"}[fmt])
 
 
 def _toml_value(v) -> str:

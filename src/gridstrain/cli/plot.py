@@ -11,10 +11,12 @@ _FORMATS = ("png", "pdf", "svg")
 def register(sub) -> None:
     p = sub.add_parser(
         "plot", help="figures of a result file: maps of every state, strain history",
-        description="Draw the maps of every state of a result file on common colour "
-        "limits (strains in microstrain, the valid region shown over the reference image, "
-        "a scale bar in physical units when the file has a pixel size) and the strain of "
-        "the states at a point or averaged over a region.")
+        description="Draw the maps of a result file's states on common colour limits "
+        "(strains in microstrain, the valid region shown over the reference image, a "
+        "scale bar in physical units when the file has a pixel size; up to 12 states: "
+        "the first, evenly spaced ones and the last; no figure taller than 4000 px) and "
+        "the strain history of every state at a point or averaged over a region, against "
+        "time or load when known, with error bars of one std.")
     p.add_argument("result", metavar="RESULT.h5", help="a file written by gridstrain measure")
     p.add_argument("-o", "--output", metavar="DIR",
                    help="output directory (default: RESULT_figures next to the result)")
@@ -31,6 +33,9 @@ def register(sub) -> None:
     p.add_argument("--region", type=int, nargs=4, metavar=("X0", "Y0", "X1", "Y1"),
                    help="strain history averaged over this rectangle (default: the whole "
                    "valid region)")
+    p.add_argument("--loads", metavar="FILE.csv",
+                   help="load (and time) of each state for the history: a CSV with the "
+                   "columns 'load [UNIT]', optionally 'state' and 'time [s]'")
     p.add_argument("--dpi", type=int, default=150, help="resolution (default 150; 300 for "
                    "print)")
     p.add_argument("--format", choices=_FORMATS, default="png", help="file format")
@@ -62,10 +67,16 @@ def run(args) -> int:
         src.with_name(src.stem + "_figures")
     micro = args.strain_units == "microstrain"
     figures = {f"{n}.{args.format}": (lambda n=n: plot_states(
-        result, n, limits=args.limits, microstrain=micro, pixel_size=ps, unit=unit))
-        for n in names}
+        result, n, limits=args.limits, microstrain=micro, pixel_size=ps, unit=unit,
+        dpi=args.dpi)) for n in names}
+    ld = lu = t = None
+    if args.loads:
+        from ..post import read_loads
+
+        ld, lu, t = read_loads(os.path.expanduser(args.loads), result.names)
     figures[f"history.{args.format}"] = lambda: plot_history(
-        result, point=args.point, region=args.region, microstrain=micro)
+        result, point=args.point, region=args.region, microstrain=micro, load=ld,
+        load_unit=lu, time=t)
     # only figures gridstrain wrote there are replaced (the folder's marker lists them)
     directory = OutputDirectory(out, list(figures), overwrite=args.overwrite,
                                 what="output directory")

@@ -6,8 +6,12 @@ Coordinates follow :mod:`gridstrain.conventions` (x the column, y the row, from
 0); strains are dimensionless, loads in the unit the user gives, times in s.
 """
 
+from ._animate import animate
 from ._constants import ElasticConstants, elastic_constants
 from ._gauges import GaugeReading, gauge
+from ._history import History, history
 from ._loads import read_loads
+from ._paraview import export_pvd
 
-__all__ = ["ElasticConstants", "GaugeReading", "elastic_constants", "gauge", "read_loads"]
+__all__ = ["ElasticConstants", "GaugeReading", "History", "animate", "elastic_constants",
+           "export_pvd", "gauge", "history", "read_loads"]

@@ -1,0 +1,51 @@
+"""``gridstrain animate``: a map of every state as a GIF or MP4 animation."""
+
+from __future__ import annotations
+
+import os
+import sys
+from pathlib import Path
+
+from ._common import check_output_file
+from ._post import add_result_options, open_result
+
+SUMMARY = "an animation (GIF, MP4) of a map over the states on fixed colour limits"
+
+
+def register(sub) -> None:
+    p = sub.add_parser(
+        "animate", help=SUMMARY,
+        description="Draw one quantity of every state as the frames of a GIF (Pillow) or "
+        "an MP4 (PyAV: pip install 'gridstrain[video]'), on colour limits fixed over all "
+        "the states, with each state's name, time and load in its frame.")
+    add_result_options(p)
+    p.add_argument("quantity", help="ux, uy, exx, eyy, exy, rotation, exx_std...")
+    p.add_argument("-o", "--output", required=True, metavar="FILE.mp4|FILE.gif",
+                   help="the animation; its extension chooses the format")
+    p.add_argument("--fps", type=float, default=5.0, help="states per second (default 5)")
+    p.add_argument("--limits", choices=("robust", "common"), default="robust",
+                   help="colour limits over all states: their 0.5-99.5th percentiles "
+                   "(robust, the default) or their full range (common)")
+    p.add_argument("--dpi", type=float, default=100, help="frame resolution (default 100: "
+                   "640 px wide)")
+    p.add_argument("--px", action="store_true",
+                   help="displacements in px even when the file has a pixel size")
+    p.add_argument("--overwrite", action="store_true", help="replace an existing file")
+    p.set_defaults(func=run)
+
+
+def run(args) -> int:
+    from ..post import animate
+
+    out = Path(os.path.expanduser(args.output))
+    result, src, ps, unit, ld, lu, t = open_result(args)
+    check_output_file(out, "animation", args.overwrite, {src.resolve()})
+    try:
+        path = animate(result, args.quantity, out, fps=args.fps, limits=args.limits,
+                       pixel_size=ps, unit=unit, load=ld, load_unit=lu, time=t,
+                       dpi=args.dpi, overwrite=args.overwrite)
+    except ImportError as exc:  # the optional video writer: one line naming the extra
+        print(f"gridstrain animate: error: {exc}", file=sys.stderr)
+        return 2
+    print(path)
+    return 0

@@ -1,0 +1,50 @@
+"""``gridstrain history``: a gauge's strain rate, velocity and acceleration over time."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+from ._common import check_output_file, fmt
+from ._post import add_gauge_options, add_result_options, gauge_of, open_result
+
+SUMMARY = "strain rate, velocity and acceleration of a gauge over time, smoothed, with std"
+
+
+def register(sub) -> None:
+    p = sub.add_parser(
+        "history", help=SUMMARY,
+        description="Smooth a gauge's readings over the states' times with a Savitzky-Golay "
+        "filter (a polynomial of degree --order fitted to --window consecutive states) and "
+        "differentiate it: strain rates, and the velocity and acceleration of the gauge's "
+        "mean displacement, each with its std. The times come from --loads (a 'time [s]' "
+        "column) or the result, evenly spaced.")
+    add_result_options(p)
+    add_gauge_options(p)
+    p.add_argument("--window", type=int, default=5, help="states in the window (odd, "
+                   "default 5)")
+    p.add_argument("--order", type=int, default=2, help="degree of the polynomial (default 2)")
+    p.add_argument("-o", "--output", metavar="FILE.csv", help="write every column as CSV")
+    p.add_argument("--overwrite", action="store_true", help="replace an existing CSV")
+    p.set_defaults(func=run)
+
+
+def run(args) -> int:
+    from ..post import history
+
+    result, src, ps, unit, ld, lu, t = open_result(args)
+    out = Path(os.path.expanduser(args.output)) if args.output else None
+    if out is not None:
+        check_output_file(out, "history CSV", args.overwrite, {src.resolve()})
+    reading = gauge_of(args, result, ps, unit, ld, lu, t)
+    h = history(reading, window=args.window, order=args.order, pixel_size=ps, unit=unit)
+    print(f"{reading.where}; Savitzky-Golay window {h.window} states, order {h.order}")
+    print(f"{'state':>12} {'time [s]':>10} {'exx [µε]':>9} {'d exx/dt [1/s]':>15} "
+          f"{'std':>9} {f'vx [{h.unit}/s]':>12} {f'ax [{h.unit}/s2]':>13}")
+    for i, name in enumerate(h.states):
+        print(f"{name:>12} {h.time[i]:>10.6g} {h.exx[i] * 1e6:>9.1f} "
+              f"{fmt(h.exx_rate[i]):>15} {fmt(h.exx_rate_std[i]):>9} "
+              f"{fmt(h.vx[i]):>12} {fmt(h.ax[i]):>13}")
+    if out is not None:
+        print(h.to_csv(out, overwrite=args.overwrite))
+    return 0
