@@ -194,7 +194,10 @@ def test_sensor_variance_is_the_camera_model(noisy_plate):
 
 def test_vibration_diagnostics(noisy_plate):
     _p, _, _, (a_ref, a_cur), res = noisy_plate
-    for vib, a in zip(res.vibration, (a_ref, a_cur), strict=True):
+    for vib, a, rtol in zip(res.vibration, (a_ref, a_cur), (1e-9, 1e-6), strict=True):
+        # the state is probed at its own carrier (the reference's strained by ~1e-3):
+        # |k| differs by that strain from the reference's k the closed forms below are
+        # written with: 5e-8 on the contrast factor, 1e-3 relative on the offset std
         true = a - a.mean(axis=0)
         # px: the carrier phase of a noisy 192^2 frame measures a shift to ~1e-3 px
         # (sensor noise), plus an error ~0.05 |a| from the fixed apodisation under a
@@ -207,10 +210,10 @@ def test_vibration_diagnostics(noisy_plate):
             var = float(k @ cov @ k) / f**2  # along k_j (the detected grid is ~axial)
             assert_allclose(var, vib.std[j] ** 2, rtol=1e-3)
             assert_allclose(vib.contrast_factor[j], 1 - 0.5 * (2 * math.pi * f) ** 2 * var,
-                            rtol=1e-9)
+                            rtol=rtol)
             assert_allclose(vib.phase_offset_std[j],
                             2 * math.pi * f / (1 - 0.5 * (2 * math.pi * f) ** 2 * var)
-                            * math.sqrt(var / 4), rtol=1e-9)  # eq. (31), T = 4
+                            * math.sqrt(var / 4), rtol=max(rtol, 2e-3))  # eq. (31), T = 4
     # the rigid offset of u combines both series' offsets through eq. (34)
     offs = [np.array(v.phase_offset_std) for v in res.vibration]
     expected = np.array(res.lattice.pitches) / (2 * math.pi) * np.hypot(offs[0], offs[1])

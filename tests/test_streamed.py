@@ -12,9 +12,10 @@ from numpy.testing import assert_allclose, assert_array_equal
 
 from gridstrain import Lattice, stacks, synthetic
 from gridstrain.kinematics import deformation
+from gridstrain.lattice import _Carrier, follow_lattice
 from gridstrain.pipeline import measure_series
 from gridstrain.results import ResultFile, StoredMaps, load, save_result
-from gridstrain.wft import finite_derivatives, wft
+from gridstrain.wft import demodulated_at, finite_derivatives, wft
 
 LAT = Lattice.from_pitch(5.0)
 SHAPE = (96, 112)
@@ -143,25 +144,32 @@ def test_each_state_is_the_direct_measurement_of_its_frames(data, tmp_path, meth
     rule for holes and edges: here a few pixels of the borders' band). The guess is
     automatic (the previous state's field from the second state on): the
     displacements stay below 0.7 px, well within half a period (2.5 px), so every
-    guess gives the same fringe order."""
+    guess gives the same fringe order. A state is transformed at its own carrier,
+    found on its first frame (gridstrain.lattice.follow_lattice), and its maps then
+    brought to the reference's lattice."""
     ref, states = data
     full = np.ones(SHAPE, dtype=bool)
 
-    def maps(frames):
+    def maps(frames, lat=LAT):
         mean = frames.mean(axis=0)
-        pm = wft(mean, LAT, mask=full)
+        pm = wft(mean, lat, mask=full)
         mod = np.abs(pm.psi)
         grid = ~np.any([mod[j] < 0.25 * np.median(mod[j][pm.valid]) for j in range(2)],
                        axis=0)
         if method == "A":
-            return finite_derivatives(wft(mean, LAT, mask=grid))
-        return finite_derivatives(stacks.method_b(frames, LAT, mask=grid).maps)
+            return finite_derivatives(wft(mean, lat, mask=grid))
+        return finite_derivatives(stacks.method_b(frames, lat, mask=grid).maps)
+
+    def state_maps(frames):
+        own = follow_lattice(frames[0], LAT)
+        return demodulated_at(maps(frames, _Carrier(own.k1, own.k2, window_pitch=LAT.pitch)),
+                              LAT)
 
     res = measure_series(ref, states, lattice=LAT, method=method,
                          output=tmp_path / "r.h5")
     m_ref = maps(ref)
     for k, frames in enumerate(states):
-        want = deformation(m_ref, maps(frames), guess=None)
+        want = deformation(m_ref, state_maps(frames), guess=None)
         assert_array_equal(np.asarray(res.valid[k]), want.valid)
         # method A's mean is the pass's origin plus the frames' differences, not
         # numpy's sum: ~1e-16 relative in the image, 1e-12 px and 1e-12 strain are far

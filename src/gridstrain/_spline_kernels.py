@@ -315,11 +315,13 @@ def lagrangian_gradient(coef, offset, u, cur_valid, ref_valid, d_ref, two_pi_k, 
 
 
 @njit(**_OPTIONS)
-def newton_start(u0, d, cur_valid, two_pi_k, m_of_d, u, i0, i1):  # pragma: no cover
+def newton_start(u0, d, cur_valid, two_pi_k, m_of_d, a_med, u, i0, i1):  # pragma: no cover
     """The fixed point's start and contraction factor, in one pass.
 
-    ``u = (2 pi K + D(X))^-1 2 pi K u0`` where ``cur_valid`` and the change is below
-    a tenth of a period along both wave vectors, ``u0`` elsewhere; returns the
+    ``u = (2 pi K + D(X))^-1 2 pi K u0`` where ``cur_valid`` and the change differs
+    from the change with the median derivatives (``a_med u0``, ``a_med = (2 pi K +
+    D_med)^-1 2 pi K``) by less than a tenth of a period along both wave vectors,
+    ``a_med u0`` elsewhere on ``cur_valid``, ``u0`` off it; returns the
     largest Frobenius norm over ``cur_valid`` of ``M = m_of_d D`` (``m_of_d`` =
     ``(2 pi K)^-1``), inf if one is not finite. ``u0``, ``u`` (2, H, W); ``d``
     (2, 2, H, W); as :func:`gridstrain.kinematics._newton_start` and
@@ -360,9 +362,14 @@ def newton_start(u0, d, cur_valid, two_pi_k, m_of_d, u, i0, i1):  # pragma: no c
             rdet = 1.0 / (a00 * a11 - a01 * a10)
             nx = (a11 * b0 - a01 * b1) * rdet
             ny = (a00 * b1 - a10 * b0) * rdet
-            c0 = (two_pi_k[0, 0] * (nx - x0) + two_pi_k[0, 1] * (ny - y0)) / two_pi
-            c1 = (two_pi_k[1, 0] * (nx - x0) + two_pi_k[1, 1] * (ny - y0)) / two_pi
+            mx = a_med[0, 0] * x0 + a_med[0, 1] * y0
+            my = a_med[1, 0] * x0 + a_med[1, 1] * y0
+            c0 = (two_pi_k[0, 0] * (nx - mx) + two_pi_k[0, 1] * (ny - my)) / two_pi
+            c1 = (two_pi_k[1, 0] * (nx - mx) + two_pi_k[1, 1] * (ny - my)) / two_pi
             if abs(c0) < 0.1 and abs(c1) < 0.1:
                 u[0, i, j] = nx
                 u[1, i, j] = ny
+            else:
+                u[0, i, j] = mx
+                u[1, i, j] = my
     return q if finite else math.inf

@@ -12,9 +12,16 @@ import numpy as np
 from scipy import fft as sfft
 from scipy import ndimage
 
-from ._validation import as_image, as_pair, check_finite, check_mask, check_positive
+from ._validation import (
+    as_image,
+    as_pair,
+    check_finite,
+    check_mask,
+    check_positive,
+    check_type,
+)
 
-__all__ = ["Lattice", "detect_lattice"]
+__all__ = ["Lattice", "detect_lattice", "follow_lattice"]
 
 # Two wave vectors closer than this angle (or its supplement) are taken as parallel:
 # harmonics of one family of lines lie on the same line through the origin.
@@ -39,6 +46,8 @@ _SAME_PITCH = 0.01
 # cycle/px, a relative pitch error of 5e-12 at a pitch of 5 px).
 _NEWTON_STEPS = 8
 _NEWTON_TOL = 1e-9
+# Largest relative change of a wave vector that follow_lattice searches.
+_MAX_FOLLOW = 0.3
 
 
 @dataclass(frozen=True)
@@ -175,6 +184,19 @@ def _dtft_power(data: np.ndarray, k: np.ndarray, x: np.ndarray, y: np.ndarray) -
     return float(abs(row @ np.exp(-1j * tx)) ** 2)
 
 
+@dataclass(frozen=True)
+class _Carrier(Lattice):
+    """A state's own wave vectors (:func:`follow_lattice`), transformed with the
+    reference's window: ``pitch`` is the reference's, against which ``sigma`` was
+    chosen and checked (a state stretched by 10 % has a pitch 10 % above it)."""
+
+    window_pitch: float = 0.0
+
+    @property
+    def pitch(self) -> float:
+        return self.window_pitch
+
+
 def detect_lattice(image, *, mask=None, max_pitch: float | None = None) -> Lattice:
     """Detect the two wave vectors of a grid or checkerboard from its spectrum.
 
@@ -242,6 +264,75 @@ def detect_lattice(image, *, mask=None, max_pitch: float | None = None) -> Latti
     if ka[0] * kb[1] - ka[1] * kb[0] < 0:
         kb = -kb
     return Lattice(tuple(ka), tuple(kb))
+
+
+def follow_lattice(image, lattice: Lattice, *, mask=None,
+                   max_change: float = _MAX_FOLLOW) -> Lattice:
+    """The wave vectors of a deformed image's grid near those of ``lattice``.
+
+    A state's grid is the reference's rotated and strained: its carrier moves by
+    ``|dk| = |k| (strain + rotation in rad)`` to first order. Each wave vector is
+    searched for as the strongest spectral peak within ``max_change |k|`` of the
+    given one (or of its opposite) and refined as in :func:`detect_lattice`.
+
+    Parameters
+    ----------
+    image : (H, W) array_like
+        Grid image of a state.
+    lattice : Lattice
+        The reference's lattice.
+    mask : (H, W) bool array_like, optional
+        True on the pixels to use.
+    max_change : float
+        Largest relative change of a wave vector searched (0.3: a rotation of 17
+        degrees, or a homogeneous strain of 30 %, or a mix of both).
+
+    Returns
+    -------
+    Lattice
+        ``k1`` and ``k2`` in the same orientation as the given ones.
+
+    Raises
+    ------
+    ValueError
+        No peak standing out of the spectrum near a given wave vector.
+
+    Notes
+    -----
+    A homogeneous deformation gives a uniform carrier: the probes that read one
+    coefficient per frame over the whole frame (the screening, the vibrations'
+    shifts) lose the grid once the carrier has moved by more than a bin or so,
+    ``|dk| W > 1``, and must follow it.
+    """
+    img = as_image(image)
+    check_type(lattice, "lattice", Lattice)
+    max_change = check_positive(max_change, "max_change")
+    m = check_mask(mask, img.shape)
+    data, _, _ = _windowed_crop(img, m)  # a wave vector does not depend on the origin
+    h, w = data.shape
+    spec = np.abs(sfft.fft2(data))
+    fy = sfft.fftfreq(h)[:, None]
+    fx = sfft.fftfreq(w)[None, :]
+    fr = np.hypot(fx, fy)
+    x = np.arange(w, dtype=float)
+    y = np.arange(h, dtype=float)
+    out = []
+    for j, k in enumerate((lattice.k1, lattice.k2)):
+        kv = np.array(k)
+        radius = max_change * float(np.hypot(*kv))
+        near = (np.hypot(fx - kv[0], fy - kv[1]) <= radius) & (fr < 0.5)
+        if not near.any():
+            raise ValueError(f"image of shape {img.shape} is too small to follow the lattice")
+        score = np.where(near, spec, -1.0)
+        iy, ix = np.unravel_index(int(np.argmax(score)), score.shape)
+        prom = _prominence(spec, fr, iy, ix, min(h, w))
+        if prom < _MIN_PROMINENCE:
+            raise ValueError(
+                f"no grid within {max_change:.0%} of k{j + 1} = ({kv[0]:.4g}, {kv[1]:.4g}) "
+                f"cycles/px: the strongest peak there stands only {prom:.3g} times above "
+                "the spectrum at its frequency (a grid gives > 100)")
+        out.append(_refine(data, np.array([fx[0, ix], fy[iy, 0]]), x, y, h, w))
+    return Lattice(tuple(out[0]), tuple(out[1]))
 
 
 def _windowed_crop(img, m):

@@ -177,7 +177,7 @@ from .kinematics import (
     _solve,
     deformation,
 )
-from .lattice import Lattice, detect_lattice
+from .lattice import Lattice, _Carrier, detect_lattice, follow_lattice
 from .noise import NoiseModel, estimate_noise_image
 from .screening import FrameScreen
 from .sequences import StateInputs, state_inputs
@@ -193,7 +193,7 @@ from .uncertainty import (
 )
 from .vibration import VibrationReport
 from .vibration import _report as _vibration_report
-from .wft import DEFAULT_MARGIN, PhaseMaps, finite_derivatives, wft
+from .wft import DEFAULT_MARGIN, PhaseMaps, demodulated_at, finite_derivatives, wft
 
 __all__ = [
     "FWHM_PER_SIGMA",
@@ -926,13 +926,57 @@ def _plan(s, lattice: Lattice, method: str, sigma: float, margin: float,
           mask: np.ndarray, is_ref: bool) -> PassPlan:
     """What the pass over series ``s`` gathers. Method B's transforms use the
     reference's mask (the states': the whole frame), as its phase maps do; regions
-    without a grid, known only from the mean image, may change that afterwards."""
+    without a grid, known only from the mean image, may change that afterwards.
+    ``lattice``: the series' own wave vectors (:func:`_carrier`)."""
     return PassPlan(lattice=lattice, n_frames=s.n_frames, method=method, sigma=sigma,
                     margin=margin,
                     transform_mask=(mask if is_ref else np.ones(s.shape, dtype=bool))
                     if method == "B" else None,
                     saturation_level=s.saturation_level, scale=int(s.scale),
                     count_mask=mask)
+
+
+# A state whose grid is the reference's stretched by more than this (a principal
+# stretch of its carrier's deformation gradient off 1) is suspect: strains of 10 %
+# and more are measured, but two grids of pitches 13.6 and 15.8 px (16 %) from two
+# experiments are more often a mismatched pair than one homogeneous strain.
+_PLAUSIBLE_STRETCH = 0.15
+
+
+def _carrier(s, lattice: Lattice) -> tuple[Lattice | None, list[str]]:
+    """The wave vectors of state series ``s`` (on its first frame) near the
+    reference's, and a warning when they differ by more than a plausible strain.
+
+    A state rotated or strained homogeneously has moved its carrier by ``|dk| =
+    |k| (strain + rotation)``. The screening and the vibrations' shifts probe each
+    frame's carrier over the whole frame: at the reference's they lose it once ``|dk|
+    W`` reaches a bin (2 degrees on a 200-px frame) and the series would be refused
+    as showing no grid; and a window centred off the carrier biases the phase where
+    the grid's amplitude varies (:func:`gridstrain.wft.demodulated_at`). So each
+    state's pass and transforms use its own carrier, and its maps are brought to
+    the reference's lattice afterwards. None (the reference's) where no peak stands
+    out near it: the screening then says what it sees."""
+    frame = next(iter(s.frames(start=0, stop=1)))
+    try:
+        own = follow_lattice(frame, lattice)
+    except ValueError:
+        return None, []
+    # k_s^T = k_r^T F^-1 for a homogeneous deformation gradient F
+    F = np.linalg.inv(np.linalg.solve(lattice.K, own.K))
+    U, stretch, Vt = np.linalg.svd(F)
+    R = U @ Vt  # the polar decomposition's rotation
+    turn = math.degrees(math.atan2(R[1, 0], R[0, 0]))
+    carrier = _Carrier(own.k1, own.k2, window_pitch=lattice.pitch)
+    if np.max(np.abs(stretch - 1)) <= _PLAUSIBLE_STRETCH:
+        return carrier, []
+    files = ", ".join(str(p) for p in list(s.paths)[:2]) + (", ..." if len(s.paths) > 2
+                                                          else "")
+    return carrier, [f"{s.name}: its grid (pitches {own.pitches[0]:.4g}/{own.pitches[1]:.4g} "
+                 f"px, angles {own.angles[0]:.3g}/{own.angles[1]:.3g} deg) is the "
+                 f"reference's stretched by {stretch.min() - 1:+.1%}/{stretch.max() - 1:+.1%}"
+                 f" and turned by {turn:.3g} deg: more than a plausible strain "
+                 f"({_PLAUSIBLE_STRETCH:.0%}); check that {files} and the reference "
+                 "images are of the same specimen and grid"]
 
 
 def _run_pass(s, plan: PassPlan, report: Progress) -> SeriesPass:
@@ -1825,7 +1869,10 @@ def _measure(series: list, guesses: list, m: np.ndarray, o: _Setup, steps: _Step
     states measured one after the other, each dropped once measured."""
     lattice, sigma, method = o.lattice, o.sigma, o.method
     n_states = len(series) - 1
-    plans = [_plan(s, lattice, method, sigma, o.margin, m, k == 0)
+    carriers = [(None, [])] + [_carrier(s, lattice) for s in series[1:]]
+    for _, notes in carriers:
+        warnings.extend(notes)
+    plans = [_plan(s, carriers[k][0] or lattice, method, sigma, o.margin, m, k == 0)
              for k, s in enumerate(series)]
     _check_model_units(o.noise_model, series)
     f32 = all(np.dtype(s.dtype) == np.float32 for s in series)
@@ -1850,6 +1897,8 @@ def _measure(series: list, guesses: list, m: np.ndarray, o: _Setup, steps: _Step
                 steps.step(n * _pass_cost(method), f"{s.name}: one pass")
             out = _one_series(s, acc, m if k == 0 else None, o.max_saturation, o.outliers,
                               method, f32, steps)
+            if plans[k].lattice != lattice:  # a state at its own carrier (_carrier)
+                out = dataclasses.replace(out, maps=demodulated_at(out.maps, lattice))
             warnings.extend(out.warnings)
             return out, acc
 

@@ -11,13 +11,15 @@ this module, as ``gridstrain.wft`` (see the package's ``__init__``).
 
 from __future__ import annotations
 
-# finite_derivatives, _wft (the transform with a sink, for method B) and _Workspace
+# demodulated_at (a state's maps at the reference's carrier), finite_derivatives, _wft
+# (the transform with a sink, for method B) and _Workspace
 # (its scratch arrays) serve the stacks, the series workflow and the Dask module
 from ._wft import (  # noqa: F401
     DEFAULT_MARGIN,
     PhaseMaps,
     _wft,
     _Workspace,
+    demodulated_at,
     finite_derivatives,
     transfer_function,
     wft,

@@ -1,0 +1,103 @@
+"""Large rotations and homogeneous strains through ``gridstrain measure``.
+
+A state rotated or strained homogeneously has its grid's carrier moved by ``|k|
+(strain + rotation)``: its frames are probed and transformed at its own carrier
+(gridstrain.lattice.follow_lattice) and its maps brought to the reference's
+lattice. Images from the independent generator (tests/independent_grid.py), 12-bit
+Poisson-Gaussian noise, lighting falling to 40 %, 160 x 200 px, pitch 5 px.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import tifffile
+
+from gridstrain import load
+from gridstrain.cli import main
+from gridstrain.lattice import Lattice, follow_lattice
+from independent_grid import camera, scene
+
+H, W = 160, 200
+C = ((W - 1) / 2, (H - 1) / 2)
+
+
+def _rotation(deg):
+    t = np.deg2rad(deg)
+
+    def disp(X, Y):
+        dx, dy = X - C[0], Y - C[1]
+        return ((np.cos(t) - 1) * dx - np.sin(t) * dy, np.sin(t) * dx + (np.cos(t) - 1) * dy)
+    return disp
+
+
+def _strain(e, nu=0.3):
+    def disp(X, Y):
+        return e * (X - C[0]), -nu * e * (Y - C[1])
+    return disp
+
+
+def _pair(tmp_path, disp, *, pitch=5.0, pitch_def=None, seed=1):
+    ref, _ = scene((H, W), pitch=pitch, angle=0, hole=False)
+    cur, _ = scene((H, W), pitch=pitch if pitch_def is None else pitch_def, angle=0,
+                   hole=False, displacement=disp)
+    rng = np.random.default_rng(seed)
+    paths = tmp_path / "ref.tif", tmp_path / "def.tif"
+    for p, img in zip(paths, (ref, cur), strict=True):
+        tifffile.imwrite(p, camera(img, 0.3, 4.0, rng), photometric="minisblack")
+    return paths
+
+
+def _measure(tmp_path, paths):
+    out = tmp_path / "maps.h5"
+    code = main(["measure", str(paths[0]), str(paths[1]), "-o", str(out), "--quiet",
+                 "--overwrite"])
+    assert code == 0
+    return load(out)
+
+
+@pytest.mark.parametrize(("name", "disp"), [
+    ("rotation 2 deg", _rotation(2.0)), ("rotation 5 deg", _rotation(5.0)),
+    ("rotation 10 deg", _rotation(10.0)), ("strain 3.5 %", _strain(0.035)),
+    ("strain 10 %", _strain(0.10)), ("strain -10 %", _strain(-0.10, nu=-1.0))])
+def test_cli_measures_large_rotations_and_strains(tmp_path, name, disp):
+    res = _measure(tmp_path, _pair(tmp_path, disp))
+    v = res.valid[0]
+    assert v.mean() > 0.4  # the 4-sigma borders' band leaves ~58 % of the frame
+    yy, xx = np.mgrid[0:H, 0:W].astype(float)
+    err = np.stack(res.u[0]) - np.stack(disp(xx, yy))
+    std = np.stack([res.uncertainty["ux_std"][0], res.uncertainty["uy_std"][0]])
+    # no whole period off anywhere (a period is 5 px)
+    assert np.abs(err[:, v]).max() < 0.1
+    # the sensor noise alone gives a median |error| of 0.67 x 2.7e-3 px; 0.05 px is
+    # the acceptance figure
+    assert np.median(np.abs(err[:, v])) < 0.05
+    # the stated std holds: a Gaussian leaves 6e-7 of its values beyond 5 std; 2 %
+    # is the acceptance figure (measured: none)
+    assert np.mean(np.any(np.abs(err[:, v]) > 5 * std[:, v], axis=0)) <= 0.02
+
+
+def test_follow_lattice_finds_a_rotated_and_strained_grid():
+    lat = Lattice.from_pitch(5.0)
+    img, _ = scene((H, W), pitch=5.0 * 1.08, angle=7.0, hole=False, light=False)
+    own = follow_lattice(img, lat)
+    # a grid of pitch 5.4 px at 7 degrees: to 1e-3 px and 0.01 degree (noise-free,
+    # the refinement of detect_lattice)
+    assert own.pitches == pytest.approx((5.4, 5.4), abs=1e-3)
+    assert own.angles == pytest.approx((7.0, 97.0), abs=1e-2)
+    with pytest.raises(ValueError, match="no grid within"):
+        follow_lattice(img, Lattice.from_pitch(5.0, angle=45.0), max_change=0.1)
+
+
+def test_a_pair_of_other_grids_is_named(tmp_path, capsys):
+    # a reference of pitch 5 against a state of pitch 5.9: an 18 % stretch, more than
+    # a plausible strain
+    paths = _pair(tmp_path, None, pitch_def=5.9)
+    res = _measure(tmp_path, paths)
+    said = [w for w in res.warnings if "plausible strain" in w]
+    assert len(said) == 1
+    assert str(paths[1]) in said[0]
+    assert "+18.0%" in said[0]
+    # a 10 % strain is not
+    res = _measure(tmp_path, _pair(tmp_path, _strain(0.10)))
+    assert not [w for w in res.warnings if "plausible strain" in w]
