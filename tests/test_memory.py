@@ -28,7 +28,7 @@ def test_sizes(text, nbytes):
 @pytest.mark.parametrize("text", ["", "0", "-1G", "3X", "G", "three", None, True])
 def test_bad_sizes_name_the_option(text):
     with pytest.raises(ValueError, match="--memory-budget must be a positive size"):
-        _memory.parse_size(text, "--memory-budget")
+        _memory.parse_size(text, name="--memory-budget")
 
 
 def _write(path, text):

@@ -56,7 +56,7 @@ class MemoryBudgetError(MemoryError):
     """
 
 
-def parse_size(text, name: str = "memory budget") -> int:
+def parse_size(text, *, name: str = "memory budget") -> int:
     """Bytes in a size written ``3G``, ``500M``, ``1.5GiB``, ``2048K`` or ``1000000``.
 
     Units are binary (K = 1024 bytes, M = 1024**2, G = 1024**3, T = 1024**4), with or

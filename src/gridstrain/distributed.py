@@ -147,7 +147,8 @@ def _local_workers() -> int:
 
 
 @contextlib.contextmanager
-def connect(scheduler, *, n_workers: int | None = None) -> Iterator:
+def connect(scheduler, *, n_workers: int | None = None,
+            timeout: float | None = None) -> Iterator:
     """A ``distributed.Client`` for ``scheduler``, closed on exit if opened here.
 
     Parameters
@@ -162,6 +163,9 @@ def connect(scheduler, *, n_workers: int | None = None) -> Iterator:
     n_workers : int, optional
         Worker processes of a ``"local"`` cluster (default: the cores this process
         may use).
+    timeout : float, optional
+        Seconds to wait for the scheduler at an address (default: Dask's
+        connection timeout).
 
     Yields
     ------
@@ -172,9 +176,9 @@ def connect(scheduler, *, n_workers: int | None = None) -> Iterator:
     MissingDistributedError
         ``distributed`` is not installed.
     OSError
-        No scheduler answers at the address within Dask's connection timeout
-        (``distributed.comm.timeouts.connect`` in the Dask configuration, 30 s by
-        default).
+        No scheduler answers at the address within ``timeout``, by default Dask's
+        connection timeout (``distributed.comm.timeouts.connect`` in the Dask
+        configuration, 30 s by default).
 
     Notes
     -----
@@ -213,7 +217,8 @@ def connect(scheduler, *, n_workers: int | None = None) -> Iterator:
             yield client
         return
     try:
-        client = distributed.Client(address)
+        client = distributed.Client(address) if timeout is None \
+            else distributed.Client(address, timeout=timeout)
     except OSError as exc:
         raise OSError(f"scheduler: cannot reach a Dask scheduler at {address!r} ({exc}); "
                       "check the address and that `dask scheduler` runs there") from None

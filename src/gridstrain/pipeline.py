@@ -1067,11 +1067,12 @@ def _check_scheduler(scheduler):
     return _dist()._check_scheduler(scheduler)
 
 
-def _connect(scheduler):
-    """A distributed.Client for ``scheduler``, or None without one."""
+def _connect(scheduler, timeout: float | None):
+    """A distributed.Client for ``scheduler``, or None without one; connecting waits
+    at most ``timeout`` seconds (None: Dask's connection timeout)."""
     if scheduler is None:
         return contextlib.nullcontext()
-    return _dist().connect(scheduler)
+    return _dist().connect(scheduler, timeout=timeout)
 
 
 # --------------------------------------------------------------------------- kinematics
@@ -1710,7 +1711,7 @@ def _measure(series: list, guesses: list, m: np.ndarray, o: _Setup, steps: _Step
     sink = _InMemory(n_states, o.dtype) if o.output is None else _streamed(o.output,
                                                                            n_states)
     pager = _paging.Unpaged()  # the reference's maps, paged out during states' passes
-    with sink, _connect(o.scheduler) as client:
+    with sink, _connect(o.scheduler, o.timeout) as client:
         pending = None if client is None else [
             _dist()._submit_pass(client, s, plan, timeout=o.timeout)
             for s, plan in zip(series, plans, strict=True)]

@@ -690,7 +690,7 @@ class _Bar:
 
 def _size(text: str) -> int:
     try:
-        return parse_size(text, "--memory-budget")
+        return parse_size(text, name="--memory-budget")
     except ValueError as exc:
         raise argparse.ArgumentTypeError(str(exc)) from None
 

@@ -51,6 +51,9 @@ def _check_destination(path, overwrite: bool, *, what: str = "output file",
     if not parent.is_dir():
         raise FileNotFoundError(f"output directory {parent} does not exist (for the {what} "
                                 f"{dest})")
+    if os.fspath(parent) not in _swept:  # what a killed run left there, once per process
+        _swept.add(os.fspath(parent))
+        sweep_temporary_files(parent)
     if dest.is_dir():
         raise IsADirectoryError(f"{what} {dest} is a directory")
     if dest.exists() and not overwrite:
@@ -228,10 +231,6 @@ def atomic_path(path, *, overwrite: bool = False) -> Iterator[Path]:
         ``path`` is a directory.
     """
     dest = _check_destination(path, overwrite)
-    parent = dest.parent
-    if os.fspath(parent) not in _swept:
-        _swept.add(os.fspath(parent))
-        sweep_temporary_files(parent)
     # a name that nothing else uses; the writer creates the file itself, with the
     # permissions it would give the destination
     tmp = _temporary_name(dest)
