@@ -284,28 +284,36 @@ def test_file_size_limit_is_one_line_and_leaves_nothing(data, tmp_path):
 # ------------------------------------------------------------------ signals and memory
 
 
-@pytest.mark.parametrize(("sig", "rc", "word"), [("SIGTERM", 143, "terminated"),
-                                                 ("SIGINT", 130, "interrupted")])
-def test_signal_during_the_write_cleans_up(data, tmp_path, sig, rc, word):
-    """The signal is sent from inside the first write of the output: no timing."""
-    out = tmp_path / "out"
-    out.mkdir()
+def _signalled_in_first_write(data, out: Path, sig: str, *, written: bool):
+    """``measure`` in its own process, sending itself ``sig`` from inside its first
+    write of the output (after the bytes are written if ``written``): no timing."""
+    first, second = ("real(fd, data)", f"os.kill(os.getpid(), signal.{sig})")
+    if not written:
+        first, second = second, first
     code = textwrap.dedent(f"""
         import os, signal, sys
         import gridstrain.io._files as gio
         from gridstrain.cli import main
         real = os.write
         def write(fd, data):
-            os.kill(os.getpid(), signal.{sig})
-            return real(fd, data)
+            {first}
+            return {second}
         gio.os = type(sys)("os_proxy")
         gio.os.__dict__.update({{k: getattr(os, k) for k in dir(os)}})
         gio.os.write = write
         sys.exit(main(["measure", {str(data / 'ref.tif')!r}, {str(data / 'load.tif')!r},
                        "-o", {str(out / 'o.h5')!r}, "--quiet"]))
     """)
-    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
-                       env=dict(os.environ, PYTHONPATH=SRC), timeout=120)
+    return subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                          env=dict(os.environ, PYTHONPATH=SRC), timeout=120)
+
+
+@pytest.mark.parametrize(("sig", "rc", "word"), [("SIGTERM", 143, "terminated"),
+                                                 ("SIGINT", 130, "interrupted")])
+def test_signal_during_the_write_cleans_up(data, tmp_path, sig, rc, word):
+    out = tmp_path / "out"
+    out.mkdir()
+    r = _signalled_in_first_write(data, out, sig, written=False)
     assert r.returncode == rc, r.stderr
     assert len(r.stderr.strip().splitlines()) == 1, r.stderr
     assert word in r.stderr
@@ -585,22 +593,7 @@ def test_a_killed_run_leaves_a_temporary_file_that_the_next_run_removes(data, tm
     temporary file stays; the next run into that folder removes it and writes."""
     out = tmp_path / "out"
     out.mkdir()
-    code = textwrap.dedent(f"""
-        import os, signal, sys
-        import gridstrain.io._files as gio
-        from gridstrain.cli import main
-        real = os.write
-        def write(fd, data):
-            real(fd, data)
-            os.kill(os.getpid(), signal.SIGKILL)
-        gio.os = type(sys)("os_proxy")
-        gio.os.__dict__.update({{k: getattr(os, k) for k in dir(os)}})
-        gio.os.write = write
-        sys.exit(main(["measure", {str(data / 'ref.tif')!r}, {str(data / 'load.tif')!r},
-                       "-o", {str(out / 'o.h5')!r}, "--quiet"]))
-    """)
-    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
-                       env=dict(os.environ, PYTHONPATH=SRC), timeout=120)
+    r = _signalled_in_first_write(data, out, "SIGKILL", written=True)
     assert r.returncode == -signal.SIGKILL, r.stderr
     left = _leftovers(out)
     assert len(left) == 1
