@@ -559,3 +559,20 @@ def test_method_b_tasks_take_chunks_of_frames(n_frames, tasks):
     assert len(chunks) == tasks
     sizes = [b - a for a, b in chunks]
     assert max(sizes) - min(sizes) <= 1
+
+
+def test_scatter_to_a_frozen_worker_ends_at_the_timeout(client):
+    """A worker stopped (SIGSTOP) while the inputs are sent to every worker: the
+    scatter gives up at the deadline with one line naming --timeout, instead of
+    waiting for the worker for ever. The worker is resumed afterwards."""
+    import signal
+    import time
+
+    pids = client.run(os.getpid)
+    frozen = sorted(pids.values())[0]
+    os.kill(frozen, signal.SIGSTOP)
+    try:
+        with pytest.raises(TimeoutError, match=r"did not take the data of ref.*--timeout"):
+            gd._scatter(client, np.zeros(1 << 20), time.monotonic() + 2.0, "ref")
+    finally:
+        os.kill(frozen, signal.SIGCONT)

@@ -254,10 +254,10 @@ def test_disk_full_is_one_line_and_leaves_nothing(data, tmp_path, capsys, monkey
     assert len(err.strip().splitlines()) == 1, err
     assert "no space left on device (ENOSPC); nothing was written" in err
     assert f"cannot write {out}" in err
-    if what == "figures":  # the folder was created; no figure and no temporary file
-        assert _leftovers(out / "figs") == []
-    else:
-        assert _leftovers(out) == []
+    # no figure, no temporary file, not even the folder the run created; and the
+    # result file the run had completed elsewhere is gone with the rest
+    assert _leftovers(out) == []
+    assert not (tmp_path / "o.h5").exists()
 
 
 def test_file_size_limit_is_one_line_and_leaves_nothing(data, tmp_path):
@@ -284,28 +284,36 @@ def test_file_size_limit_is_one_line_and_leaves_nothing(data, tmp_path):
 # ------------------------------------------------------------------ signals and memory
 
 
-@pytest.mark.parametrize(("sig", "rc", "word"), [("SIGTERM", 143, "terminated"),
-                                                 ("SIGINT", 130, "interrupted")])
-def test_signal_during_the_write_cleans_up(data, tmp_path, sig, rc, word):
-    """The signal is sent from inside the first write of the output: no timing."""
-    out = tmp_path / "out"
-    out.mkdir()
+def _signalled_in_first_write(data, out: Path, sig: str, *, written: bool):
+    """``measure`` in its own process, sending itself ``sig`` from inside its first
+    write of the output (after the bytes are written if ``written``): no timing."""
+    first, second = ("real(fd, data)", f"os.kill(os.getpid(), signal.{sig})")
+    if not written:
+        first, second = second, first
     code = textwrap.dedent(f"""
         import os, signal, sys
         import gridstrain.io._files as gio
         from gridstrain.cli import main
         real = os.write
         def write(fd, data):
-            os.kill(os.getpid(), signal.{sig})
-            return real(fd, data)
+            {first}
+            return {second}
         gio.os = type(sys)("os_proxy")
         gio.os.__dict__.update({{k: getattr(os, k) for k in dir(os)}})
         gio.os.write = write
         sys.exit(main(["measure", {str(data / 'ref.tif')!r}, {str(data / 'load.tif')!r},
                        "-o", {str(out / 'o.h5')!r}, "--quiet"]))
     """)
-    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
-                       env=dict(os.environ, PYTHONPATH=SRC), timeout=120)
+    return subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                          env=dict(os.environ, PYTHONPATH=SRC), timeout=120)
+
+
+@pytest.mark.parametrize(("sig", "rc", "word"), [("SIGTERM", 143, "terminated"),
+                                                 ("SIGINT", 130, "interrupted")])
+def test_signal_during_the_write_cleans_up(data, tmp_path, sig, rc, word):
+    out = tmp_path / "out"
+    out.mkdir()
+    r = _signalled_in_first_write(data, out, sig, written=False)
     assert r.returncode == rc, r.stderr
     assert len(r.stderr.strip().splitlines()) == 1, r.stderr
     assert word in r.stderr
@@ -489,4 +497,224 @@ def test_killed_scheduler_is_one_line_within_bounded_time(data, tmp_path):
     assert r.returncode == 2, r.stderr
     assert len(r.stderr.strip().splitlines()) == 1, r.stderr
     assert "the Dask cluster failed" in r.stderr
+    assert _leftovers(out) == []
+
+
+# ------------------------------------------------------------------ forged markers
+
+
+def _forge_marker(folder: Path, files: dict) -> None:
+    (folder / MARKER_NAME).write_text(json.dumps({"gridstrain": "0.1.0", "files": files}))
+
+
+def _digest_entry(path: Path) -> dict:
+    import hashlib
+
+    data = path.read_bytes()
+    return {"size": len(data), "sha256": hashlib.sha256(data).hexdigest()}
+
+
+def test_forged_marker_through_a_linked_directory_deletes_nothing(data, tmp_path, capsys):
+    """A directory link inside the figures folder, pointing outside, and a marker
+    listing the victim through it with its true size and digest: refused, in one
+    line, before any work; the victim and the link stay."""
+    outside = tmp_path / "outside"
+    outside.mkdir()
+    victim = outside / "exx_state0.png"
+    victim.write_bytes(b"the user's thesis figure")
+    figs = tmp_path / "figs"
+    figs.mkdir()
+    (figs / "sub").symlink_to(outside, target_is_directory=True)
+    (figs / "direct.png").symlink_to(victim)
+    for listed in ("sub/exx_state0.png", "direct.png"):
+        _forge_marker(figs, {listed: _digest_entry(victim)})
+        rc = _run(["measure", data / "ref.tif", data / "load.tif", "--quiet", "--figures",
+                   figs, "-o", tmp_path / "a.h5", "--overwrite"])
+        err = capsys.readouterr().err
+        assert rc == 2, err
+        assert len(err.strip().splitlines()) == 1, err
+        assert "symbolic link" in err
+        assert "never deletes" in err
+        assert victim.read_bytes() == b"the user's thesis figure"
+        assert (figs / "sub").is_symlink()
+        assert (figs / "direct.png").is_symlink()
+        assert not (tmp_path / "a.h5").exists()
+
+
+def test_marker_listing_a_users_file_with_its_stamp_deletes_nothing(tmp_path):
+    """A marker listing the user's file with its exact size and modification time
+    (the stamp older markers held), or with a digest of other content: the file's
+    content is not what gridstrain wrote, so it is never replaced or deleted."""
+    folder = tmp_path / "figs"
+    folder.mkdir()
+    mine = folder / "exx_state0.png"
+    mine.write_bytes(b"mine")
+    st = mine.stat()
+    other = tmp_path / "other"
+    other.write_bytes(b"what gridstrain wrote once")
+    for entry, message in (([st.st_size, st.st_mtime_ns], "without a content digest"),
+                           (_digest_entry(other), "has changed since gridstrain wrote it")):
+        _forge_marker(folder, {"exx_state0.png": entry})
+        with pytest.raises(FileExistsError, match=message) as info:
+            gio.OutputDirectory(folder, ["exx_state0.png"], overwrite=True).prepare()
+        assert "\n" not in str(info.value)
+        assert mine.read_bytes() == b"mine"
+
+
+def test_marker_leaving_the_folder_is_not_a_manifest(tmp_path):
+    folder = tmp_path / "figs"
+    folder.mkdir()
+    (tmp_path / "victim").write_bytes(b"v")
+    _forge_marker(folder, {"../victim": _digest_entry(tmp_path / "victim")})
+    with pytest.raises(ValueError, match="is not a gridstrain manifest"):
+        gio.OutputDirectory(folder, ["a.png"], overwrite=True)
+    assert (tmp_path / "victim").read_bytes() == b"v"
+
+
+def test_own_files_are_replaced_by_their_digest(tmp_path):
+    """What gridstrain wrote and listed is replaced with overwrite, whatever its
+    modification time: the digest, not the stamp, recognises it."""
+    folder = tmp_path / "figs"
+    d = gio.OutputDirectory(folder, ["a.png", "sub/b.png"])
+    d.prepare()
+    d.write("a.png", b"first")
+    d.write("sub/b.png", b"second")
+    os.utime(folder / "a.png", ns=(0, 0))  # a copy (cp -r, unzip) changes the stamp
+    again = gio.OutputDirectory(folder, ["a.png"], overwrite=True)
+    again.prepare()
+    assert sorted(p.name for p in folder.rglob("*") if p.is_file()) == [MARKER_NAME]
+
+
+# ------------------------------------------------------------------ temporary files
+
+
+def test_a_killed_run_leaves_a_temporary_file_that_the_next_run_removes(data, tmp_path):
+    """SIGKILL inside the first write of the output (no clean-up can run): its
+    temporary file stays; the next run into that folder removes it and writes."""
+    out = tmp_path / "out"
+    out.mkdir()
+    r = _signalled_in_first_write(data, out, "SIGKILL", written=True)
+    assert r.returncode == -signal.SIGKILL, r.stderr
+    left = _leftovers(out)
+    assert len(left) == 1
+    assert left[0].startswith(".o.h5.")
+    assert left[0].endswith(".tmp.h5")
+    assert _run(["measure", data / "ref.tif", data / "load.tif", "-o", out / "o.h5",
+                 "--quiet"]) == 0
+    assert _leftovers(out) == ["o.h5"]
+
+
+def test_sweep_keeps_files_of_live_processes_and_others(tmp_path):
+    """Only gridstrain's own pattern, from a process of this machine that ended."""
+    live = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])
+    try:
+        dead = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"],
+                              capture_output=True, text=True, check=True)
+        tag = gio_files._host_tag()
+        names = {"dead": f".o.h5.{int(dead.stdout)}-{tag}-0123456789ab.tmp.h5",
+                 "live": f".o.h5.{live.pid}-{tag}-0123456789ab.tmp.h5",
+                 "other host": f".o.h5.{int(dead.stdout)}-00000000-0123456789ab.tmp.h5",
+                 "user's": "o.h5.tmp.h5"}
+        if tag == "00000000":  # pragma: no cover
+            pytest.skip("this machine's tag is the other host's")
+        for name in names.values():
+            (tmp_path / name).write_bytes(b"x")
+        removed = gio_files.sweep_temporary_files(tmp_path)
+    finally:
+        live.kill()
+        live.wait()
+    assert [p.name for p in removed] == [names["dead"]]
+    assert sorted(_leftovers(tmp_path)) == sorted(n for k, n in names.items() if k != "dead")
+
+
+# ------------------------------------------------------------------ a run that fails
+
+
+class _FailingOs(_OsProxy):
+    """``os`` whose writes to files ending in ``suffix`` fail (ENOSPC)."""
+
+    def __init__(self, suffix: str):
+        super().__init__(Path("/"))
+        self._suffix = suffix
+
+    def open(self, path, flags, *args):
+        fd = os.open(path, flags, *args)
+        if os.fspath(path).endswith(self._suffix):
+            self._fds.add(fd)
+        return fd
+
+
+@pytest.mark.parametrize("failing", [".vti", ".html", ".mat"])
+def test_a_failure_in_the_last_outputs_removes_every_output(data, tmp_path, capsys,
+                                                            monkeypatch, failing):
+    """The disk fills while the exports or the report are written, after the result
+    file and the figures are complete: the run removes all it wrote (result,
+    figures and their folder, exports, report, marker), then says one line."""
+    out = tmp_path / "out"
+    out.mkdir()
+    monkeypatch.setattr(gio_files, "os", _FailingOs(failing))
+    rc = _run(["measure", data / "ref.tif", data / "load.tif", "--quiet", "-o", out / "o.h5",
+               "--export", "csv,mat,vtk", "--report", out / "r.html", "--figures",
+               out / "figs", "--csv", out / "rows.csv"])
+    line = _one_line_failure(capsys, rc, out)
+    assert "no space left on device (ENOSPC)" in line
+
+
+def test_a_failure_keeps_what_was_there_before(data, tmp_path, capsys, monkeypatch):
+    """The files of the folder that the run did not write stay, and so does an
+    existing figures folder (only emptied of what the run added)."""
+    out = tmp_path / "out"
+    (out / "figs").mkdir(parents=True)
+    (out / "notes.txt").write_text("mine")
+    (out / "figs" / "sketch.png").write_bytes(b"mine too")
+    monkeypatch.setattr(gio_files, "os", _FailingOs(".html"))
+    rc = _run(["measure", data / "ref.tif", data / "load.tif", "--quiet", "-o", out / "o.h5",
+               "--figures", out / "figs", "--report", out / "r.html"])
+    assert rc == 2
+    assert len(capsys.readouterr().err.strip().splitlines()) == 1
+    assert _tree(out) == {"notes.txt": b"mine", "figs/sketch.png": b"mine too"}
+
+
+# ------------------------------------------------------------------ signals at any moment
+
+
+_HOLD = """
+import os, sys, time
+import gridstrain.cli.measure as cm
+from gridstrain.cli import main
+real = cm._print
+def hold(*a, **k):  # every output written: held here until the signal comes
+    real(*a, **k)
+    time.sleep(60)
+cm._print = hold
+print("started", flush=True)
+sys.exit(main(sys.argv[1:]))
+"""
+
+
+@pytest.mark.parametrize("delay", [0.1, 0.5, 1.0, 2.5])
+@pytest.mark.parametrize(("sig", "rc", "word"), [(signal.SIGINT, 130, "interrupted"),
+                                                 (signal.SIGTERM, 143, "terminated")])
+def test_a_signal_at_any_moment_is_one_line_and_leaves_nothing(data, tmp_path, delay, sig,
+                                                               rc, word):
+    """The command started in its own process, the signal sent ``delay`` seconds after
+    it started: while the modules load, the series are read, the outputs are
+    written or once they are all written. The outcome does not depend on when:
+    one line, exit 130 (SIGINT) or 143 (SIGTERM), nothing left in the folder."""
+    import time
+
+    out = tmp_path / "out"
+    out.mkdir()
+    argv = ["measure", data / "ref.tif", data / "load.tif", "--quiet", "-o", out / "o.h5",
+            "--figures", out / "figs", "--export", "mat,csv", "--report", out / "r.html"]
+    p = subprocess.Popen([sys.executable, "-c", _HOLD, *map(str, argv)],
+                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                         env=dict(os.environ, PYTHONPATH=SRC))
+    assert p.stdout.readline() == "started\n"
+    time.sleep(delay)
+    p.send_signal(sig)
+    _, err = p.communicate(timeout=120)
+    assert p.returncode == rc, err
+    assert len(err.strip().splitlines()) == 1, err
+    assert word in err
     assert _leftovers(out) == []

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from threadpoolctl import threadpool_info
 
-from gridstrain import Lattice, _threads
+from gridstrain import Lattice, _fft, _threads
 from gridstrain.stacks import method_b
 
 
@@ -20,6 +20,7 @@ def _blas_threads() -> list[int]:
 
 def test_blas_runs_on_one_thread_inside_the_block_and_as_before_after_it():
     np.dot(np.ones((64, 64)), np.ones((64, 64)))  # BLAS loaded
+    _fft.name()  # and the FFT implementation (MKL's threads with the mkl extra)
     before = _blas_threads()
     with _threads.one_blas_thread():
         assert all(n == 1 for n in _blas_threads())

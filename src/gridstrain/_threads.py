@@ -25,9 +25,14 @@ from concurrent.futures import ThreadPoolExecutor
 
 @functools.cache
 def _controller():
-    # imported and built once: it lists the process's loaded BLAS libraries
+    # imported and built once: it lists the BLAS libraries loaded by then, so the FFT
+    # implementation is loaded first (MKL, with the mkl extra, brings its own
+    # threads, which the limit must reach too)
     from threadpoolctl import ThreadpoolController
 
+    from . import _fft
+
+    _fft.name()
     return ThreadpoolController()
 
 

@@ -43,6 +43,7 @@ import contextlib
 import itertools
 import numbers
 import os
+import time
 from collections.abc import Iterator, Sequence
 from pathlib import Path
 
@@ -146,7 +147,8 @@ def _local_workers() -> int:
 
 
 @contextlib.contextmanager
-def connect(scheduler, *, n_workers: int | None = None) -> Iterator:
+def connect(scheduler, *, n_workers: int | None = None,
+            timeout: float | None = None) -> Iterator:
     """A ``distributed.Client`` for ``scheduler``, closed on exit if opened here.
 
     Parameters
@@ -161,6 +163,9 @@ def connect(scheduler, *, n_workers: int | None = None) -> Iterator:
     n_workers : int, optional
         Worker processes of a ``"local"`` cluster (default: the cores this process
         may use).
+    timeout : float, optional
+        Seconds to wait for the scheduler at an address (default: Dask's
+        connection timeout).
 
     Yields
     ------
@@ -171,9 +176,9 @@ def connect(scheduler, *, n_workers: int | None = None) -> Iterator:
     MissingDistributedError
         ``distributed`` is not installed.
     OSError
-        No scheduler answers at the address within Dask's connection timeout
-        (``distributed.comm.timeouts.connect`` in the Dask configuration, 30 s by
-        default).
+        No scheduler answers at the address within ``timeout``, by default Dask's
+        connection timeout (``distributed.comm.timeouts.connect`` in the Dask
+        configuration, 30 s by default).
 
     Notes
     -----
@@ -212,7 +217,8 @@ def connect(scheduler, *, n_workers: int | None = None) -> Iterator:
             yield client
         return
     try:
-        client = distributed.Client(address)
+        client = distributed.Client(address) if timeout is None \
+            else distributed.Client(address, timeout=timeout)
     except OSError as exc:
         raise OSError(f"scheduler: cannot reach a Dask scheduler at {address!r} ({exc}); "
                       "check the address and that `dask scheduler` runs there") from None
@@ -627,12 +633,31 @@ class _Pending:
             self._future = self._scattered = None
 
 
-def _scatter(client, obj):
-    # sent once to the cluster, not with every task; a key of its own (hash=False)
-    # so that releasing it cannot release an equal object scattered by another call.
-    # Copied to every worker (broadcast): a worker lost mid-run takes no input with
-    # it, and Dask reruns its tasks on the others.
-    return None if obj is None else client.scatter(obj, hash=False, broadcast=True)
+def _scatter(client, obj, deadline: float | None = None, what: str = "a series"):
+    """``obj`` sent to every worker, within ``deadline`` (a ``time.monotonic()``
+    instant; None: no limit).
+
+    Sent once to the cluster, not with every task; a key of its own (hash=False)
+    so that releasing it cannot release an equal object scattered by another call.
+    Copied to every worker (broadcast): a worker lost mid-run takes no input with
+    it, and Dask reruns its tasks on the others. A worker that stops answering
+    while the data are sent would hold ``Client.scatter`` for ever (its own
+    ``timeout`` bounds only the wait for workers): the whole call is bounded here.
+    """
+    if obj is None:
+        return None
+    if deadline is None:
+        return client.scatter(obj, hash=False, broadcast=True)
+    left = deadline - time.monotonic()
+    try:
+        if left <= 0:
+            raise TimeoutError
+        return client.sync(client._scatter, obj, hash=False, broadcast=True, timeout=left,
+                           callback_timeout=left)
+    except TimeoutError:
+        raise TimeoutError(f"the Dask cluster did not take the data of {what} within the "
+                           "timeout; check that its workers run (or raise --timeout)"
+                           ) from None
 
 
 def _chunk_pass(series, start: int, stop: int, plan, origin) -> SeriesPass:
@@ -646,17 +671,20 @@ def _chunk_pass(series, start: int, stop: int, plan, origin) -> SeriesPass:
 
 
 
-def _submit_pass(client, series, plan) -> _Pending:
+def _submit_pass(client, series, plan, *, timeout: float | None = None) -> _Pending:
     """Submit the pass over ``series`` (:class:`gridstrain.accumulate.SeriesPass`),
     in chunks of frames merged on the workers (internal).
 
     ``result()`` gives the merged pass, as one pass over all the frames on this
     machine gives it (to the rounding of sums added in another order). The first
-    frame, the origin of every chunk's sums, is read here.
+    frame, the origin of every chunk's sums, is read here. Sending the series'
+    inputs to the workers takes at most ``timeout`` seconds (None: no limit).
     """
     dask, _ = _dask()
     origin = _first_frame(series)
-    s, p, o = _scatter(client, series), _scatter(client, plan), _scatter(client, origin)
+    deadline = None if timeout is None else time.monotonic() + timeout
+    what = getattr(series, "name", "a series")
+    s, p, o = (_scatter(client, x, deadline, what) for x in (series, plan, origin))
     leaf = dask.delayed(_chunk_pass, pure=True)
     parts = [leaf(s, a, b, p, o) for a, b in _frame_chunks(series.n_frames)]
     total = _tree(parts, _merged, _SPLIT_EVERY)

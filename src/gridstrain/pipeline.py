@@ -141,7 +141,7 @@ from pathlib import Path
 import numpy as np
 from scipy import ndimage
 
-from . import _paging, theory
+from . import _memory, _paging, theory
 from ._progress import null_progress
 from ._stats import median
 from ._threads import map_bounded, one_blas_thread
@@ -1169,11 +1169,12 @@ def _check_scheduler(scheduler):
     return _dist()._check_scheduler(scheduler)
 
 
-def _connect(scheduler):
-    """A distributed.Client for ``scheduler``, or None without one."""
+def _connect(scheduler, timeout: float | None):
+    """A distributed.Client for ``scheduler``, or None without one; connecting waits
+    at most ``timeout`` seconds (None: Dask's connection timeout)."""
     if scheduler is None:
         return contextlib.nullcontext()
-    return _dist().connect(scheduler)
+    return _dist().connect(scheduler, timeout=timeout)
 
 
 # --------------------------------------------------------------------------- kinematics
@@ -1678,6 +1679,7 @@ def measure_series(reference, states, *, lattice: Lattice | None = None,
                              f"{type(reference).__name__}")
         reference = given.reference
     series, guesses, m = _inputs(reference, given, guess, mask, o)
+    _check_memory(series, o)
     steps = _Steps(progress, _total_cost(series, o))
     # how the frames were read (colour converted, lossy JPEG), series by series
     warnings: list[str] = [n for s in series for n in getattr(s, "notes", ())]
@@ -1806,6 +1808,26 @@ def _setup(*, method, outliers, margin, sigma, order, sigma_pitches, max_saturat
                   lagrangian=bool(lagrangian), bit_depth=bit_depth, guess=guess)
 
 
+def _check_memory(series: list, o: _Setup) -> None:
+    """Refuse, before the first frame is transformed, a measurement whose estimated
+    peak exceeds the memory available (:mod:`gridstrain._memory`)."""
+    n_states = len(series) - 1
+    held = o.output is None  # every state's maps kept to the end
+    peak = _memory.measurement_bytes(series[0].shape, method=o.method, n_states=n_states,
+                                     held_states=held)
+    H, W = series[0].shape
+    advice = ("measure a smaller region (crop the frames), fewer states at once"
+              + (", each state written as measured (an output file, without "
+                 "--phase-maps)" if held else "")
+              + ", or --memory-budget (memory_budget) if more memory is in fact free")
+    # what the process holds already (interpreter, libraries) is part of the peak
+    # and no longer part of the memory available
+    _memory.check_fits(max(peak - _memory.resident_memory(), 0),
+                       what=f"measuring {n_states} state(s) of {H} x {W} px with method "
+                       f"{o.method} (estimated peak {_memory.format_size(peak)})",
+                       advice=advice)
+
+
 def _inputs(reference, given: StateInputs, guess, mask, o: _Setup
             ) -> tuple[list, list, np.ndarray]:
     """The series (reference first), one guess per state and the mask, checked
@@ -1880,10 +1902,10 @@ def _measure(series: list, guesses: list, m: np.ndarray, o: _Setup, steps: _Step
     sink = _InMemory(n_states, o.dtype) if o.output is None else _streamed(o.output,
                                                                            n_states)
     pager = _paging.Unpaged()  # the reference's maps, paged out during states' passes
-    with sink, _connect(o.scheduler) as client:
+    with sink, _connect(o.scheduler, o.timeout) as client:
         pending = None if client is None else [
-            _dist()._submit_pass(client, s, plan) for s, plan in zip(series, plans,
-                                                                      strict=True)]
+            _dist()._submit_pass(client, s, plan, timeout=o.timeout)
+            for s, plan in zip(series, plans, strict=True)]
 
         def one(k):
             s = series[k]

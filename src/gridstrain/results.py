@@ -47,17 +47,14 @@ Exports
 
 from __future__ import annotations
 
-import base64
 import contextlib
 import dataclasses
 import math
 import numbers
 import os
 import re
-import struct
 import types
 import typing
-import zlib
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path

@@ -133,6 +133,26 @@ def _is_dask_error(exc: BaseException) -> bool:
 
 def main(argv=None) -> int:
     """Entry point of the ``gridstrain`` console script."""
+    try:
+        # from the first instant: a signal while the modules load is one line too
+        with _signals():
+            return _main(argv)
+    except KeyboardInterrupt:
+        print(f"{_where(argv)}: interrupted; no partial output left", file=sys.stderr)
+        return 130
+    except Terminated:
+        print(f"{_where(argv)}: terminated (SIGTERM); no partial output left",
+              file=sys.stderr)
+        return 143
+
+
+def _where(argv) -> str:
+    argv = sys.argv[1:] if argv is None else argv
+    command = next((a for a in argv if not a.startswith("-")), None)
+    return f"gridstrain {command}" if command in _COMMANDS else "gridstrain"
+
+
+def _main(argv) -> int:
     if argv is None:  # the process is the command's own (not a caller's)
         argv = sys.argv[1:]
         one_malloc_arena()
@@ -141,19 +161,24 @@ def main(argv=None) -> int:
     parser = build_parser([command] if command in _COMMANDS else [])
     args = parser.parse_args(argv)
     where = f"gridstrain {args.command}"
+    from ._common import Outputs
+
     try:
-        with _signals():
+        # every output the command committed is removed if it then fails
+        with Outputs():
             return int(args.func(args) or 0)
-    except MemoryError:
-        print(f"{where}: error: out of memory; use fewer or smaller frames, a smaller "
-              "--sigma, method A, or --scheduler to spread the work", file=sys.stderr)
+    except MemoryError as exc:
+        from .._memory import MemoryBudgetError
+
+        if isinstance(exc, MemoryBudgetError):
+            print(f"{where}: error: {_one_line(exc)}", file=sys.stderr)
+        else:
+            print(f"{where}: error: out of memory; use fewer or smaller frames (--roi), "
+                  "--dtype float32, a smaller --sigma, method A, or --scheduler to spread "
+                  "the work", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
-        print(f"{where}: interrupted; no partial output left", file=sys.stderr)
-        return 130
-    except Terminated:
-        print(f"{where}: terminated (SIGTERM); no partial output left", file=sys.stderr)
-        return 143
+    except (KeyboardInterrupt, Terminated):
+        raise
     except BaseException as exc:
         if isinstance(exc, SystemExit | GeneratorExit):
             raise

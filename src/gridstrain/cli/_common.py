@@ -6,6 +6,8 @@ import contextlib
 import json
 import logging
 import math
+import os
+import stat
 import sys
 from pathlib import Path
 
@@ -86,6 +88,55 @@ def quiet_dask_logs():
     finally:
         for lg, level in zip(loggers, levels, strict=True):
             lg.setLevel(level)
+
+
+class Outputs:
+    """The outputs a command commits, removed all together if it then fails.
+
+    A transaction over the files of one run: inside ``with Outputs():`` every file
+    gridstrain renames into place and every directory it creates is recorded
+    (:func:`gridstrain.io._files.watch_outputs`); if the block raises (an error, a
+    full disk half-way through the exports, SIGINT or SIGTERM), they are removed,
+    newest first, before the exception goes on to become the command's one line.
+    A file is removed only if it is still the one this run wrote (same device and
+    inode), a directory only if it is empty.
+    """
+
+    def __init__(self):
+        self.committed: list[tuple[str, Path, tuple[int, int] | None]] = []
+        self._watch = None
+
+    def _record(self, kind: str, path: Path) -> None:
+        try:
+            st = os.lstat(path)
+        except OSError:
+            return
+        self.committed.append((kind, Path(path), (st.st_dev, st.st_ino)))
+
+    def __enter__(self) -> Outputs:
+        from ..io._files import watch_outputs
+
+        self._watch = watch_outputs(self._record)
+        self._watch.__enter__()
+        return self
+
+    def __exit__(self, kind, exc, tb) -> None:
+        self._watch.__exit__(None, None, None)
+        if exc is not None:
+            self.rollback()
+
+    def rollback(self) -> None:
+        """Remove what was committed, newest first."""
+        for kind, path, ident in reversed(self.committed):
+            with contextlib.suppress(OSError):
+                st = os.lstat(path)
+                if (st.st_dev, st.st_ino) != ident:
+                    continue  # replaced since by someone else: not ours to remove
+                if kind == "dir" and stat.S_ISDIR(st.st_mode):
+                    os.rmdir(path)  # fails, and stays, unless empty
+                elif kind == "file" and stat.S_ISREG(st.st_mode):
+                    os.unlink(path)
+        self.committed.clear()
 
 
 def fmt(x: float) -> str:

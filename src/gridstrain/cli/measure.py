@@ -23,6 +23,7 @@ import h5py
 import numpy as np
 
 from .. import __version__
+from .._memory import memory_budget, parse_size
 from .._progress import bar
 from ..io import (
     FrameSeries,
@@ -238,6 +239,10 @@ def _output_options(o) -> None:
                    help="also write a self-contained HTML report of the run")
     o.add_argument("--overwrite", action="store_true", default=None,
                    help="replace existing output files")
+    o.add_argument("--memory-budget", type=_size, metavar="SIZE",
+                   help="memory the run may use, e.g. 3G or 500M (default: the memory "
+                   "available, the least of the system's and the cgroup's limit); a run "
+                   "estimated to need more is refused before it starts")
     o.add_argument("--config", metavar="FILE.toml", help="read options from a TOML file")
     o.add_argument("--quiet", action="store_true", default=None,
                    help="no progress bar and no report")
@@ -786,10 +791,18 @@ class _Bar:
             self.open = False
 
 
+def _size(text: str) -> int:
+    try:
+        return parse_size(text, name="--memory-budget")
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
 def run(args) -> int:
     progress = _Bar(quiet=bool(args.quiet))
     try:
-        return _run(args, progress)
+        with memory_budget(args.memory_budget):
+            return _run(args, progress)
     except BaseException:
         progress.close()
         raise

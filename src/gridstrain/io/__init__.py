@@ -43,9 +43,24 @@ Output
     :func:`provenance` is the record of who wrote a file and when (gridstrain's
     version, the time, and the versions of the libraries the numbers went
     through), written into every result and summary file.
+
+Memory
+    :func:`memory_budget` sets the memory a run may use (default: the least of the
+    system's available memory and the control group's limit,
+    :func:`available_memory`); :func:`check_fits` refuses a need above it with one
+    :class:`MemoryBudgetError` before anything is allocated. :func:`open_series`
+    and :func:`read_mask` check the size a file's header declares before decoding
+    it, so that a small compressed file declaring a huge image is refused.
 """
 
 
+from .._memory import (
+    MemoryBudgetError,
+    available_memory,
+    check_fits,
+    memory_budget,
+    parse_size,
+)
 from ._files import (
     MARKER_NAME,
     HDF5Stream,
@@ -57,6 +72,7 @@ from ._files import (
     read_hdf5,
     read_noise_model,
     space_error,
+    sweep_temporary_files,
     write_atomic,
     write_csv,
     write_hdf5,
@@ -82,14 +98,19 @@ __all__ = [
     "FrameSeries",
     "HDF5Stream",
     "LoadTable",
+    "MemoryBudgetError",
     "OutputDirectory",
     "atomic_path",
+    "available_memory",
+    "check_fits",
     "check_saturation",
     "check_saturation_limit",
     "hdf5_file",
     "hdf5_stream",
+    "memory_budget",
     "natural_sort_key",
     "open_series",
+    "parse_size",
     "provenance",
     "read_hdf5",
     "read_loads",
@@ -98,6 +119,7 @@ __all__ = [
     "roi_mask",
     "space_error",
     "split_frames",
+    "sweep_temporary_files",
     "to_luminance",
     "write_atomic",
     "write_csv",

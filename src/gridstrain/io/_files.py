@@ -6,6 +6,8 @@ from __future__ import annotations
 import contextlib
 import datetime
 import errno
+import functools
+import hashlib
 import io
 import json
 import numbers
@@ -13,6 +15,8 @@ import os
 import platform
 import re
 import secrets
+import socket
+import stat
 import sys
 from collections.abc import Iterable, Iterator, Mapping
 from pathlib import Path
@@ -47,6 +51,9 @@ def _check_destination(path, overwrite: bool, *, what: str = "output file",
     if not parent.is_dir():
         raise FileNotFoundError(f"output directory {parent} does not exist (for the {what} "
                                 f"{dest})")
+    if os.fspath(parent) not in _swept:  # what a killed run left there, once per process
+        _swept.add(os.fspath(parent))
+        sweep_temporary_files(parent)
     if dest.is_dir():
         raise IsADirectoryError(f"{what} {dest} is a directory")
     if dest.exists() and not overwrite:
@@ -54,12 +61,149 @@ def _check_destination(path, overwrite: bool, *, what: str = "output file",
     return dest
 
 
+# --------------------------------------------------------------------------- commits
+
+# What this process commits to disk, told to the observers of watch_outputs() (the
+# command line's transaction): ("file", path) once a file is renamed into place,
+# ("dir", path) once a directory is made.
+_observers: list = []
+
+
+@contextlib.contextmanager
+def watch_outputs(observer) -> Iterator[None]:
+    """Call ``observer(kind, path)`` for every output committed inside the block.
+
+    ``kind`` is ``"file"`` when :func:`atomic_path` has renamed a complete file
+    onto ``path`` (every file gridstrain writes goes through it) and ``"dir"``
+    when :func:`make_directory` has created the directory ``path``. The command
+    line records them to remove them all if the run fails afterwards.
+    """
+    _observers.append(observer)
+    try:
+        yield
+    finally:
+        _observers.remove(observer)
+
+
+def _committed(kind: str, path: Path) -> None:
+    for observer in tuple(_observers):
+        observer(kind, path)
+
+
+def make_directory(path, *, parents: bool = False) -> Path:
+    """Create the directory ``path`` if it is missing (with its missing parents if
+    ``parents``), telling :func:`watch_outputs` of each directory created."""
+    dest = as_path(path, "path")
+    missing = []
+    for d in (dest, *dest.parents):
+        if d.is_dir() or d.is_symlink():
+            break
+        missing.append(d)
+        if not parents:
+            break
+    for d in reversed(missing):
+        try:
+            d.mkdir()
+        except FileExistsError:
+            if not d.is_dir():
+                raise
+            continue
+        _committed("dir", d)
+    return dest
+
+
+# --------------------------------------------------------------------------- temporary files
+
+# A temporary file of atomic_path: ".NAME.PID-HOST-RANDOM.tmpSUFFIX". The process id
+# and a tag of the machine let a later run tell the files of a process that died
+# (killed, or its machine stopped) from those of one still writing.
+_TMP_NAME = re.compile(r"\..+\.(\d+)-([0-9a-f]{8})-[0-9a-f]{12}\.tmp(\.[^./]*)?")
+_swept: set[str] = set()
+
+
+@functools.cache
+def _host_tag() -> str:
+    return hashlib.sha256(socket.gethostname().encode("utf-8", "replace")).hexdigest()[:8]
+
+
+def _temporary_name(dest: Path) -> Path:
+    return dest.parent / (f".{dest.name}.{os.getpid()}-{_host_tag()}-"
+                          f"{secrets.token_hex(6)}.tmp{dest.suffix}")
+
+
+def _process_started(pid: int) -> float | None:
+    """When process ``pid`` started (seconds since the epoch), where /proc says it."""
+    try:
+        with open(f"/proc/{pid}/stat", "rb") as fh:
+            fields = fh.read().rsplit(b")", 1)[1].split()
+        with open("/proc/stat", "rb") as fh:
+            btime = next(int(line.split()[1]) for line in fh if line.startswith(b"btime"))
+        return btime + int(fields[19]) / os.sysconf("SC_CLK_TCK")
+    except (OSError, ValueError, IndexError, StopIteration):
+        return None
+
+
+def _writer_gone(pid: int, written: float) -> bool:
+    """Whether the process that last wrote a file at time ``written`` has ended: no
+    process ``pid``, or one that started after the write (the id was reused)."""
+    if pid == os.getpid():
+        return False
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return True
+    except OSError:  # alive, another user's
+        pass
+    started = _process_started(pid)
+    # /proc's boot time is whole seconds: a second of slack
+    return started is not None and started > written + 1.0
+
+
+def sweep_temporary_files(folder) -> list[Path]:
+    """Remove the temporary files that dead gridstrain processes left in ``folder``.
+
+    Only regular files of this user named as :func:`atomic_path` names them, made
+    on this machine by a process that no longer runs (killed with SIGKILL, or lost
+    with its machine), are removed. Called once per folder and process before the
+    first file is written there.
+
+    Returns
+    -------
+    list of pathlib.Path
+        The files removed.
+    """
+    folder = as_path(folder, "folder")
+    removed = []
+    tag = _host_tag()
+    try:
+        entries = list(os.scandir(folder))
+    except OSError:
+        return removed
+    for e in entries:
+        m = _TMP_NAME.fullmatch(e.name)
+        if m is None or m.group(2) != tag:
+            continue
+        try:
+            st = e.stat(follow_symlinks=False)
+            if not stat.S_ISREG(st.st_mode) or st.st_uid != os.getuid() \
+                    or not _writer_gone(int(m.group(1)), st.st_mtime):
+                continue
+            os.unlink(e.path)
+        except OSError:
+            continue
+        removed.append(Path(e.path))
+    return removed
+
+
 @contextlib.contextmanager
 def atomic_path(path, *, overwrite: bool = False) -> Iterator[Path]:
     """Write a file atomically: yield a temporary path, rename it onto ``path``.
 
     The temporary path is in the destination directory (so that the final
-    :func:`os.replace` is atomic) and does not exist yet: the block creates it. When
+    :func:`os.replace` is atomic) and does not exist yet: the block creates it. Its
+    name holds the process id, so that the next run writing into that directory
+    removes it if the process was killed before it could
+    (:func:`sweep_temporary_files`). When
     the block completes, the file is flushed to disk and renamed onto ``path``;
     if the block raises, the temporary file is removed and ``path`` is untouched.
 
@@ -87,10 +231,9 @@ def atomic_path(path, *, overwrite: bool = False) -> Iterator[Path]:
         ``path`` is a directory.
     """
     dest = _check_destination(path, overwrite)
-    parent = dest.parent
     # a name that nothing else uses; the writer creates the file itself, with the
     # permissions it would give the destination
-    tmp = parent / f".{dest.name}.{secrets.token_hex(6)}.tmp{dest.suffix}"
+    tmp = _temporary_name(dest)
     try:
         yield tmp
         if not tmp.exists():
@@ -100,6 +243,7 @@ def atomic_path(path, *, overwrite: bool = False) -> Iterator[Path]:
             raise FileExistsError(f"output file {dest} appeared while it was being "
                                   "written (pass overwrite=True to replace it)")
         os.replace(tmp, dest)
+        _committed("file", dest)
     except BaseException as exc:
         with contextlib.suppress(FileNotFoundError):
             tmp.unlink()
@@ -753,7 +897,7 @@ def write_tiff_series(directory, frames: Iterable, *, prefix: str = "frame",
         if not folder.parent.is_dir():
             raise FileNotFoundError(f"cannot create directory {folder}: its parent "
                                     f"{folder.parent} does not exist")
-        folder.mkdir()
+        make_directory(folder)
     written = []
     for k, frame in enumerate(frames):
         arr = np.asarray(frame)
@@ -785,21 +929,45 @@ def write_tiff_series(directory, frames: Iterable, *, prefix: str = "frame",
 #: Name of the file listing what gridstrain wrote in an output directory.
 MARKER_NAME = ".gridstrain"
 
+# the digest of each listed file's content, by which a later run recognises it
+_HASH = "sha256"
+_HEX = re.compile(r"[0-9a-f]{64}")
 
-def _stamp(path: Path) -> list[int]:
-    st = os.lstat(path)
-    return [int(st.st_size), int(st.st_mtime_ns)]
+
+def _digest(path: Path) -> tuple[int, str] | None:
+    """``(size, sha256 hex digest)`` of the regular file ``path``, opened without
+    following a symbolic link; None if it is not a regular file."""
+    try:
+        fd = os.open(path, os.O_RDONLY | getattr(os, "O_NOFOLLOW", 0))
+    except OSError:
+        return None
+    try:
+        st = os.fstat(fd)
+        if not stat.S_ISREG(st.st_mode):
+            return None
+        h = hashlib.sha256()
+        while chunk := os.read(fd, 1 << 20):
+            h.update(chunk)
+        return int(st.st_size), h.hexdigest()
+    finally:
+        os.close(fd)
 
 
 class OutputDirectory:
     """A directory of outputs in which gridstrain replaces only its own files.
 
     Every file written through :meth:`write` (or declared by :meth:`record`) is
-    listed, with its size and modification time, in a marker file
+    listed, with its size and the SHA-256 digest of its content, in a marker file
     (:data:`MARKER_NAME`, JSON) in the directory. A later run may replace those
-    files, with ``overwrite``, if they are unchanged; any other file of the
+    files, with ``overwrite``, if their content is unchanged; any other file of the
     planned names is never replaced, deleted or written over, whatever
     ``overwrite`` says. Files of other names are left alone.
+
+    The directory is taken at its real path (symbolic links in ``path`` resolved
+    once), and no symbolic link inside it is ever followed: a listed entry that is
+    a link, or that is reached through a linked directory, or whose real path
+    leaves the directory, is never deleted or replaced, and a planned file is
+    never written through a linked directory.
 
     Parameters
     ----------
@@ -824,9 +992,11 @@ class OutputDirectory:
     Raises
     ------
     FileExistsError
-        A planned file exists that gridstrain did not write (or that changed
-        since), a foreign file sits in an ``exclusive`` sub-directory, or the
-        directory holds an earlier run's files and ``overwrite`` is False.
+        A planned file exists that gridstrain did not write (or whose content
+        changed since), a listed or planned path goes through a symbolic link or
+        out of the directory, a foreign file sits in an ``exclusive``
+        sub-directory, or the directory holds an earlier run's files and
+        ``overwrite`` is False.
     NotADirectoryError, FileNotFoundError
         ``path`` is a file, or its parent does not exist.
 
@@ -840,7 +1010,7 @@ class OutputDirectory:
                  parents: bool = False, adopt: bool = True,
                  what: str = "output directory"):
         self.what = check_name(what, "what")
-        self.path = as_path(path, what)
+        self.path = Path(os.path.realpath(as_path(path, what)))
         self.names = tuple(self._rel(n) for n in names)
         self.exclusive = tuple(self._rel(d) for d in exclusive)
         self.overwrite = bool(overwrite)
@@ -860,7 +1030,31 @@ class OutputDirectory:
             raise ValueError(f"{self.what}: {name!r} is not a plain relative file name")
         return Path(*parts).as_posix()
 
-    def _manifest(self) -> dict[str, list[int]]:
+    def _linked(self, rel: str) -> Path | None:
+        """The first component of ``rel`` (from the directory down) that is a
+        symbolic link or leads out of the directory, or None."""
+        f = self.path
+        for part in rel.split("/"):
+            f = f / part
+            if f.is_symlink():
+                return f
+            if not f.exists():
+                return None
+        real = os.path.realpath(f)
+        if os.path.commonpath([real, self.path]) != os.fspath(self.path):
+            return f
+        return None
+
+    def _refuse_link(self, f: Path, listed: bool) -> FileExistsError:
+        how = "listed in its marker" if listed else "planned"
+        return FileExistsError(f"{f} ({how}) is a symbolic link or lies outside {self.path} "
+                               "by one; gridstrain never deletes or writes through links "
+                               f"(remove the link or choose another {self.what})")
+
+    def _manifest(self) -> dict[str, dict]:
+        if self.marker.is_symlink():
+            raise ValueError(f"{self.marker} is a symbolic link, not a gridstrain "
+                             f"manifest; refusing to write into {self.path} (move it away)")
         if not self.marker.is_file():
             return {}
         try:
@@ -869,16 +1063,38 @@ class OutputDirectory:
             out = {}
             for k, v in files.items():
                 rel = self._rel(k)
-                if not (isinstance(v, list) and len(v) == 2
-                        and all(isinstance(x, int) for x in v)):
+                if isinstance(v, list) or v == {}:  # no digest: nothing to check content by
+                    out[rel] = {}
+                    continue
+                if not (isinstance(v, dict) and isinstance(v.get("size"), int)
+                        and isinstance(v.get(_HASH), str) and _HEX.fullmatch(v[_HASH])):
                     raise ValueError(k)
-                out[rel] = v
+                out[rel] = {"size": v["size"], _HASH: v[_HASH]}
             return out
         except (OSError, ValueError, KeyError, TypeError, AttributeError):
             raise ValueError(f"{self.marker} is not a gridstrain manifest; refusing to "
                              f"write into {self.path} (move the file away)") from None
 
-    def _check(self) -> dict[str, list[int]]:
+    def _listed_unchanged(self, rel: str, entry: dict) -> bool:
+        """Whether listed ``rel`` exists (and is unchanged); raise where it is not
+        gridstrain's to replace."""
+        f = self.path / rel
+        link = self._linked(rel)
+        if link is not None:
+            raise self._refuse_link(link, listed=True)
+        if not f.exists():
+            return False
+        if not entry:
+            raise FileExistsError(f"{f} is listed without a content digest (by an older "
+                                  "gridstrain); refusing to replace it (move it away or "
+                                  f"choose another {self.what})")
+        if _digest(f) != (entry["size"], entry[_HASH]):
+            raise FileExistsError(f"{f} has changed since gridstrain wrote it (its content "
+                                  f"is not the one listed in {MARKER_NAME}); refusing to "
+                                  f"replace it (move it away or choose another {self.what})")
+        return True
+
+    def _check(self) -> dict[str, dict]:
         """The earlier files to remove; raise on anything that is not ours."""
         p = self.path
         if p.exists() and not p.is_dir():
@@ -892,17 +1108,12 @@ class OutputDirectory:
             raise FileExistsError(f"{self.what} {p} already exists and was not written by "
                                   "gridstrain (it has no .gridstrain marker); choose a new "
                                   "folder, nothing there is replaced")
-        manifest = self._manifest()
-        ours = {}
-        for rel, stamp in manifest.items():
-            f = p / rel
-            if not (f.exists() or f.is_symlink()):
-                continue
-            if not f.is_file() or f.is_symlink() or _stamp(f) != stamp:
-                raise FileExistsError(f"{f} has changed since gridstrain wrote it; "
-                                      f"refusing to replace it (move it away or choose "
-                                      f"another {self.what})")
-            ours[rel] = stamp
+        ours = {rel: entry for rel, entry in self._manifest().items()
+                if self._listed_unchanged(rel, entry)}
+        for rel in (*self.names, *self.exclusive):
+            link = self._linked(rel)
+            if link is not None:
+                raise self._refuse_link(link, listed=False)
         for rel in self.names:
             f = p / rel
             if (f.exists() or f.is_symlink()) and rel not in ours:
@@ -918,7 +1129,7 @@ class OutputDirectory:
                             f"{e} was not written by gridstrain, and {sub} must hold "
                             f"gridstrain's files only; move it away or choose another "
                             f"{self.what}")
-            elif sub.exists() or sub.is_symlink():
+            elif sub.exists():
                 raise FileExistsError(f"{sub} exists and is not a directory; move it away "
                                       f"or choose another {self.what}")
         if ours and not self.overwrite:
@@ -931,16 +1142,18 @@ class OutputDirectory:
     def prepare(self) -> None:
         """Create the directory; remove, with ``overwrite``, the earlier run's files.
 
-        Only files listed in the marker and unchanged since are removed; the marker
-        is rewritten first, so that an interruption leaves no file unlisted.
+        Only files listed in the marker, reached without a symbolic link and whose
+        content is unchanged since are removed (each checked again just before);
+        the marker is rewritten first, so that an interruption leaves no file
+        unlisted.
         """
         ours = self._check()
-        self.path.mkdir(parents=self.parents, exist_ok=True)
+        make_directory(self.path, parents=self.parents)
         for rel in {*self.names, *self.exclusive}:
             parent = (self.path / rel) if rel in self.exclusive else (self.path / rel).parent
-            parent.mkdir(parents=True, exist_ok=True)
-        for rel in ours:
-            with contextlib.suppress(FileNotFoundError):
+            make_directory(parent, parents=True)
+        for rel, entry in ours.items():
+            if self._listed_unchanged(rel, entry):
                 (self.path / rel).unlink()
         self._save({})
 
@@ -948,20 +1161,28 @@ class OutputDirectory:
         from .. import __version__
 
         text = json.dumps({"gridstrain": __version__,
-                           "note": "files written by gridstrain, which replaces only these",
+                           "note": "files written by gridstrain, which replaces only these "
+                                   f"and only while their {_HASH} is unchanged",
                            "files": files}, indent=1)
         write_atomic(self.marker, text.encode("utf-8"), overwrite=True)
 
     def record(self, *paths) -> None:
-        """Add files written in the directory to the marker."""
+        """Add files written in the directory to the marker, with their content's digest."""
         files = self._manifest()
         for f in paths:
-            rel = Path(os.fspath(f)).resolve().relative_to(self.path.resolve()).as_posix()
-            files[self._rel(rel)] = _stamp(self.path / rel)
+            rel = self._rel(Path(os.path.realpath(f)).relative_to(self.path).as_posix())
+            found = None if self._linked(rel) else _digest(self.path / rel)
+            if found is None:
+                raise ValueError(f"{self.what}: {f} is not a regular file of {self.path}")
+            files[rel] = {"size": found[0], _HASH: found[1]}
         self._save(files)
 
     def write(self, name: str, data) -> Path:
         """Write ``name`` with :func:`write_atomic` and list it in the marker."""
-        dest = write_atomic(self.path / self._rel(name), data, overwrite=False)
+        rel = self._rel(name)
+        link = self._linked(rel)
+        if link is not None:
+            raise self._refuse_link(link, listed=False)
+        dest = write_atomic(self.path / rel, data, overwrite=False)
         self.record(dest)
         return dest

@@ -17,6 +17,7 @@ import numpy as np
 import numpy.typing as npt
 import tifffile
 
+from .. import _memory
 from .._validation import (
     as_path,
     check_callable,
@@ -851,6 +852,7 @@ def open_series(source, *, name: str = "series", bit_depth: int | None = None
     first = []
     if stored.kind == "u":
         n = min(_DETECT_FRAMES, series.n_frames)
+        _check_decoded(paths[0], ref.shapes[0], stored, channels, n, name)
         first = [raw for _, raw in series._iter_raw(range(n))]
         if bit_depth is None and ref.bits is not None and ref.bits < 8 * stored.itemsize:
             bit_depth = ref.bits  # packed data (10-bit, 12-bit TIFFs) say their depth
@@ -886,6 +888,20 @@ def split_frames(series: FrameSeries) -> list[FrameSeries]:
             _video=(series._video[f],) if series._video else (),
             notes=series.notes if j == 0 else ()))
     return out
+
+
+def _check_decoded(path: Path, shape, dtype: np.dtype, channels: int, n: int,
+                   name: str) -> None:
+    """Refuse, from its header, a file whose frames decode to more than the available
+    memory (a small compressed file may declare an image of many gigabytes)."""
+    H, W = shape
+    frame = H * W * channels * dtype.itemsize
+    _memory.check_fits(n * frame + 8 * H * W,
+                       what=f"{name}: decoding {path} ({H} x {W} px of {dtype}, as its "
+                       "header declares)",
+                       advice="check that the file is the camera's image; crop the frames, "
+                       "or raise --memory-budget (memory_budget) if more memory is in fact "
+                       "free")
 
 
 def _frame_table(infos: list[_FileInfo], name: str) -> tuple[tuple[int, int, int], ...]:
@@ -1053,6 +1069,7 @@ def read_mask(path, shape, *, name: str = "mask") -> np.ndarray:
     if info.shapes[0] != shape:
         raise ValueError(f"{name}: {p} has shape {info.shapes[0]}, expected {shape} (the "
                          "frames' shape (H, W))")
+    _check_decoded(p, shape, info.dtypes[0], info.channels[0], 1, name)
     if info.tiff:
         with _open_tiff(p, name) as tif:
             arr = _read_tiff_page(tif, 0, str(p), name)
