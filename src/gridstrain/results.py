@@ -1200,7 +1200,7 @@ def _check_result(path, result: SeriesResult) -> SeriesResult:
                        f"got {got}")
     for name, value, positive in (("sigma", result.sigma, True),
                                   ("margin", result.margin, False),
-                                  ("noise/resolution", nf.resolution, True)):
+                                  ("noise/sigma", nf.sigma, True)):
         if not math.isfinite(value) or (positive and value <= 0):
             raise _Bad(f"{path}: /{_GROUP}/result/{name}: expected a finite "
                        + ("positive " if positive else "") + f"number, got {value!r}")
