@@ -11,14 +11,14 @@ For each image size and precision it prints the per-frame time of
   loops switched off), one inverse transform per wave vector and the derivatives
   from ``Psi`` by a least-squares differentiator (their difference from the exact
   ones is printed below);
-* ``compiled``: the same filter in the compiled loops of ``gridstrain._kernels``
+* ``compiled``: the same filter in the compiled loops of ``gridstrain.phase._kernels``
   (numba, the ``fast`` extra): what ``wft`` does by default when numba is
   installed (skipped, ``-``, without numba). The first call of a process loads
   numba and compiles the loops, or loads them from numba's disk cache: both are
   timed apart, each in a fresh interpreter, and printed before the table; the
   table's runs follow a warm-up call;
 * ``central``: the same with central-difference derivatives (the private
-  ``gridstrain._wft._wft(..., derivatives="central")``), which costs no FFT beyond
+  ``gridstrain.phase._transform._wft(..., derivatives="central")``), which costs no FFT beyond
   those of the phases but breaks the 1e-7 rad/px derivative bound (printed below);
 * ``floor``: one ``rfft2`` and two complex ``ifft2`` of the padded size wft uses,
   with the same library (scipy.fft) -- the least any FFT implementation of the
@@ -59,10 +59,10 @@ from scipy import fft as sfft
 
 from _common import grid_test_image, interleaved, machine
 from gridstrain import wft
-from gridstrain._wft import _PAD_SIGMAS, _wft
+from gridstrain.phase._transform import _PAD_SIGMAS, _wft
 
 _fft = importlib.import_module("gridstrain._fft")
-_impl = importlib.import_module("gridstrain._wft")
+_impl = importlib.import_module("gridstrain.phase._transform")
 
 
 def numpy_fast(img, lattice, workers):
@@ -79,7 +79,7 @@ import time
 t0 = time.perf_counter()
 import numpy as np
 from gridstrain import Lattice
-from gridstrain._wft import _wft
+from gridstrain.phase._transform import _wft
 lat = Lattice.from_pitch(5.0, angle=3.0)
 img = np.random.default_rng(0).random((96, 112))
 t1 = time.perf_counter()

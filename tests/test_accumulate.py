@@ -244,7 +244,7 @@ def test_stacks_method_b_is_the_direct_average(data):
 
 @pytest.mark.parametrize("compiled", [True, False])
 def test_integer_frames_as_read_give_the_direct_sums(data, compiled, monkeypatch):
-    from gridstrain import _wft
+    from gridstrain.phase import _transform as _wft
 
     if compiled and _wft._load_kernels() is None:
         pytest.skip("the compiled loops need numba (the fast extra)")
@@ -268,7 +268,7 @@ def test_integer_frames_as_read_give_the_direct_sums(data, compiled, monkeypatch
 
 
 def test_compiled_and_numpy_sums_agree_for_method_c(data, monkeypatch):
-    from gridstrain import _wft
+    from gridstrain.phase import _transform as _wft
 
     if _wft._load_kernels() is None:
         pytest.skip("the compiled loops need numba (the fast extra)")
@@ -316,7 +316,7 @@ def test_a_frame_read_as_float_leaves_the_raw_batch_exact(data):
 
 
 def test_raw_frames_pending_when_the_compiled_loops_are_switched_off(data, monkeypatch):
-    from gridstrain import _wft
+    from gridstrain.phase import _transform as _wft
 
     if _wft._load_kernels() is None:
         pytest.skip("the compiled loops need numba (the fast extra)")

@@ -22,10 +22,11 @@ import gridstrain
 PACKAGE = Path(gridstrain.__file__).resolve().parent
 
 CORE = {
-    "conventions", "_validation", "_progress", "_fft", "lattice", "_wft", "wft", "kinematics",
+    "conventions", "_validation", "_progress", "_fft", "lattice", "phase", "phase.lattice",
+    "phase._transform", "phase._kernels", "wft", "kinematics",
     "stacks", "vibration", "screening", "accumulate", "noise", "uncertainty", "theory",
     "synthetic",
-    "kirsch", "_kernels", "_spline_kernels", "_threads", "_stats",
+    "kirsch", "_spline_kernels", "_threads", "_stats",
 }
 
 

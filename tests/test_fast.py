@@ -1,6 +1,6 @@
 """The fast windowed Fourier transform against the plain spectral one, and method B.
 
-gridstrain.wft (implemented in gridstrain._wft) computes, per wave vector, 1-D
+gridstrain.wft (implemented in gridstrain.phase._transform) computes, per wave vector, 1-D
 inverse FFTs of only the band of the spectrum where the window's transfer function
 is non-zero (see its Notes). The oracle here is the textbook spectral evaluation of
 eqs. (22)-(25): full 2-D inverse FFTs of the filtered spectra of the zero-padded
@@ -20,7 +20,7 @@ from scipy import ndimage
 from gridstrain import Lattice, synthetic, wft
 from gridstrain._stats import median as _median
 from gridstrain._stats import row_medians
-from gridstrain._wft import _spectrum_block, _wft, transfer_function
+from gridstrain.phase._transform import _spectrum_block, _wft, transfer_function
 from gridstrain.stacks import method_b
 
 
@@ -105,7 +105,7 @@ def test_matches_full_2d_spectral_reference(case):
 def test_blocks_of_rows_give_the_same_maps(monkeypatch):
     # the final inverse FFTs run by blocks of rows sized for the cache; force blocks
     # of 8 rows (the last one partial) and compare with one block for the image
-    wft_module = importlib.import_module("gridstrain._wft")  # the implementation
+    wft_module = importlib.import_module("gridstrain.phase._transform")  # the implementation
     lat, shape, sigma, _ = CASES["rotated"]
     img = _noisy_grid(shape, lat, seed=2)
     whole = wft(img, lat, sigma=sigma, derivatives="exact")

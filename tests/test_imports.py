@@ -48,15 +48,15 @@ def test_public_names_resolve_on_first_use():
                                    "from gridstrain import wft",
                                    "import gridstrain.wft",
                                    "from gridstrain.wft import wft",
-                                   "import gridstrain._wft"])
+                                   "import gridstrain.phase._transform"])
 def test_wft_is_the_function_whichever_loads_first(first):
     # the public module gridstrain.wft is bound to the package when it loads; the
-    # package's wft must stay the function, the one gridstrain._wft implements
+    # package's wft must stay the function, the one gridstrain.phase._transform implements
     code = (f"{first}\nimport gridstrain\nfrom gridstrain import wft\n"
             "assert callable(wft) and wft.__name__ == 'wft', wft\n"
             "assert gridstrain.wft is wft\n"
             "from gridstrain.wft import wft as w2, PhaseMaps, wft_complex, transfer_function\n"
-            "import gridstrain._wft as impl\n"
+            "import gridstrain.phase._transform as impl\n"
             "assert w2 is wft is impl.wft and PhaseMaps is gridstrain.PhaseMaps\n"
             "assert wft_complex is impl.wft_complex\n"
             "assert transfer_function is impl.transfer_function")

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from gridstrain import Lattice, detect_lattice, synthetic
-from gridstrain import lattice as lattice_module
+from gridstrain.phase import lattice as lattice_module
 
 
 def test_from_pitch_is_the_papers_grid():

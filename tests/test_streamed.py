@@ -12,10 +12,11 @@ from numpy.testing import assert_allclose, assert_array_equal
 
 from gridstrain import Lattice, stacks, synthetic
 from gridstrain.kinematics import deformation
-from gridstrain.lattice import _Carrier, follow_lattice
+from gridstrain.phase._transform import demodulated_at, finite_derivatives
+from gridstrain.phase.lattice import _Carrier, follow_lattice
 from gridstrain.pipeline import measure_series
 from gridstrain.results import ResultFile, StoredMaps, load, save_result
-from gridstrain.wft import demodulated_at, finite_derivatives, wft
+from gridstrain.wft import wft
 
 LAT = Lattice.from_pitch(5.0)
 SHAPE = (96, 112)

@@ -167,12 +167,12 @@ def test_input_is_not_modified():
 
 # --- derivatives="fast": Psi alone, differentiated by a short least-squares filter ---
 # Two implementations of the same filter: numpy, and compiled loops (numba, the
-# "fast" extra; gridstrain._kernels). Each test runs on both where numba is there.
+# "fast" extra; gridstrain.phase._kernels). Each test runs on both where numba is there.
 
 @pytest.fixture(params=["numpy", "compiled"])
 def fast_path(request, monkeypatch):
     """Which implementation ``derivatives="fast"`` runs on."""
-    import gridstrain._wft as impl
+    import gridstrain.phase._transform as impl
 
     if request.param == "compiled":
         pytest.importorskip("numba")
@@ -212,7 +212,7 @@ def _fast_cases():
 @pytest.mark.parametrize("case", list(_fast_cases()))
 @pytest.mark.parametrize("dtype", [np.float64, np.float32])
 def test_fast_derivatives_are_within_the_bound_of_the_exact_ones(case, dtype, fast_path):
-    from gridstrain._wft import _wft
+    from gridstrain.phase._transform import _wft
 
     lat, img, sigma, mask = _fast_cases()[case]
     exact = _wft(img, lat, sigma=sigma, mask=mask, derivatives="exact")  # float64 truth
@@ -274,7 +274,7 @@ def test_fast_differentiator_on_sampled_tones():
     A tone of Psi's amplitude at nu leaves Psi with amplitude G(nu), so the error it
     causes is |D(nu) - 2 pi nu| G(nu), which the design keeps below 2e-9 rad/px.
     """
-    from gridstrain._wft import _differentiator
+    from gridstrain.phase._transform import _differentiator
 
     x = np.arange(-20, 21)
     for sigma in (3.5, 5.0, 7.3, 12.0):
@@ -303,7 +303,7 @@ def test_fast_falls_back_to_exact_for_a_narrow_window(fast_path):
 
 
 def test_fast_derivatives_do_not_depend_on_the_blocks(monkeypatch, fast_path):
-    import gridstrain._wft as impl
+    import gridstrain.phase._transform as impl
 
     lat, img, sigma, _ = _fast_cases()["rotated"]
     whole = wft(img, lat, sigma=sigma, derivatives="fast")
@@ -322,7 +322,7 @@ def test_fast_derivatives_do_not_depend_on_the_blocks(monkeypatch, fast_path):
 
 
 def test_derivatives_option_is_checked():
-    from gridstrain._wft import _wft
+    from gridstrain.phase._transform import _wft
 
     lat, img = _modulated_grid((64, 64))
     with pytest.raises(ValueError, match="derivatives"):

@@ -1,4 +1,4 @@
-"""The compiled fast derivatives (gridstrain._kernels, numba) against the exact ones.
+"""The compiled fast derivatives (gridstrain.phase._kernels, numba) against the exact ones.
 
 ``wft(..., derivatives="fast")`` runs compiled loops when numba is installed (the
 ``fast`` extra) and ``wft``'s default then takes them. The reference is the exact
@@ -20,7 +20,7 @@ import numpy as np
 import pytest
 
 import gridstrain
-import gridstrain._wft as impl
+import gridstrain.phase._transform as impl
 from gridstrain import Lattice, wft
 from independent_grid import camera, scene
 from test_wft import _direct, _modulated_grid
@@ -208,9 +208,9 @@ def test_default_takes_the_compiled_loops_when_numba_is_there(compiled, monkeypa
 
 def test_without_numba_the_numpy_paths_run(monkeypatch):
     # numba missing (an import that fails): the default is the exact path and
-    # "fast" the numpy filter; the loops of gridstrain._kernels stay uncompiled
+    # "fast" the numpy filter; the loops of gridstrain.phase._kernels stay uncompiled
     monkeypatch.setitem(sys.modules, "numba", None)
-    monkeypatch.delitem(sys.modules, "gridstrain._kernels", raising=False)
+    monkeypatch.delitem(sys.modules, "gridstrain.phase._kernels", raising=False)
     monkeypatch.delattr(gridstrain, "_kernels", raising=False)
     impl._load_kernels.cache_clear()
     try:
@@ -242,7 +242,7 @@ def _loaded_after(code: str) -> set[str]:
 
 
 def test_numba_is_loaded_only_by_a_transform(compiled):
-    help_code = ("import contextlib, io\nimport gridstrain._wft\n"
+    help_code = ("import contextlib, io\nimport gridstrain.phase._transform\n"
                  "from gridstrain.cli import main\n"
                  "with contextlib.redirect_stdout(io.StringIO()):\n"
                  "    try:\n        main(['--help'])\n    except SystemExit:\n        pass")

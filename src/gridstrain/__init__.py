@@ -20,16 +20,16 @@ __version__ = "0.1.0"
 _LAZY = {
     "CoarseEstimate": "kinematics",
     "FringeOrder": "kinematics",
-    "Lattice": "lattice",
+    "Lattice": "phase",
     "Measurement": "kinematics",
     "NoiseModel": "noise",
-    "PhaseMaps": "_wft",
+    "PhaseMaps": "phase",
     "Uncertainty": "uncertainty",
     "VibrationReport": "vibration",
     "anscombe": "noise",
     "coarse_displacement": "kinematics",
     "deformation": "kinematics",
-    "detect_lattice": "lattice",
+    "detect_lattice": "phase",
     "estimate_noise": "noise",
     "estimate_noise_image": "noise",
     "frame_shifts": "vibration",
@@ -37,7 +37,7 @@ _LAZY = {
     "measure": "kinematics",
     "predict_uncertainty": "uncertainty",
     "vibration_report": "vibration",
-    "wft": "_wft",
+    "wft": "phase",
     # the series workflow and the result files (they pull in h5py and matplotlib)
     "SeriesResult": "pipeline",
     "load": "results",
@@ -69,7 +69,7 @@ class _Package(types.ModuleType):
     """The package module: a public name stays what it is when a submodule of that name loads.
 
     The import system binds every submodule it loads to the package under the
-    submodule's name. :func:`wft` is implemented in ``gridstrain._wft`` and also
+    submodule's name. :func:`wft` is implemented in ``gridstrain.phase._transform`` and also
     exported by the public module :mod:`gridstrain.wft`, named after it: the
     function, not that module, is the package's ``wft`` (as with an eager ``from
     .wft import wft``), whichever of the two is imported first.

@@ -39,8 +39,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.linalg import blas
 
-from ._wft import _kernels
-from .lattice import Lattice
+from .phase._transform import _kernels
+from .phase.lattice import Lattice
 from .screening import FrameProbe, FrameScreen, decide
 from .stacks import StackResult, _compensated_result, _FrameOrder, _PhaseMean
 from .vibration import _RigidProbe, _shift_matrix
@@ -286,7 +286,7 @@ class SeriesPass:
         self._w.clear()
         self._signs.clear()
         D = self._buf[:b]
-        if D.dtype != np.float64:  # raw frames: the compiled loop (gridstrain._kernels)
+        if D.dtype != np.float64:  # raw frames: the compiled loop (gridstrain.phase._kernels)
             kern = _kernels()
             if kern is not None:
                 kern.add_differences(self._buf, b, self.origin.reshape(-1), W, signs,

@@ -60,7 +60,7 @@ from ._validation import (
 )
 from .accumulate import SeriesPass
 from .io import FrameSeries, open_series
-from .lattice import Lattice
+from .phase.lattice import Lattice
 from .screening import FrameProbe
 from .stacks import StackResult, _PhaseMean, _with_screening
 from .wft import DEFAULT_MARGIN, wft

@@ -28,7 +28,7 @@ from ._validation import (
     check_type,
     check_workers,
 )
-from .lattice import Lattice, detect_lattice
+from .phase.lattice import Lattice, detect_lattice
 from .wft import DEFAULT_MARGIN, PhaseMaps, wft
 
 __all__ = [

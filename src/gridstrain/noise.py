@@ -30,8 +30,8 @@ from ._validation import (
     check_positive,
     check_type,
 )
-from ._wft import _spectrum_block
-from .lattice import Lattice, detect_lattice
+from .phase._transform import _spectrum_block
+from .phase.lattice import Lattice, detect_lattice
 from .vibration import _as_frame, _CarrierProbe, _iter_frames, _streaming_shift
 from .wft import transfer_function
 
@@ -1048,7 +1048,7 @@ def _gridless_borders(F, shape, lattice, mask) -> np.ndarray:
 
 def _spectrum_at(F, rows, cols, W):
     """The full 2-D FFT at ``rows`` x ``cols`` from the real one ``F`` (``rfft2`` of a
-    real image of ``W`` columns), by :func:`gridstrain._wft._spectrum_block`, which
+    real image of ``W`` columns), by :func:`gridstrain.phase._transform._spectrum_block`, which
     takes its columns in increasing order."""
     order = np.argsort(cols, kind="stable")
     out = np.empty((rows.size, cols.size), dtype=F.dtype)

@@ -157,7 +157,6 @@ from ._validation import (
     check_type,
     check_workers,
 )
-from ._wft import _wft
 from .accumulate import PassPlan, SeriesPass
 from .io import (
     FrameSeries,
@@ -177,8 +176,9 @@ from .kinematics import (
     _solve,
     deformation,
 )
-from .lattice import Lattice, _Carrier, detect_lattice, follow_lattice
 from .noise import NoiseModel, estimate_noise_image
+from .phase._transform import _wft, demodulated_at, finite_derivatives
+from .phase.lattice import Lattice, _Carrier, detect_lattice, follow_lattice
 from .screening import FrameScreen
 from .sequences import StateInputs, state_inputs
 from .stacks import _FrameOrder, method_b
@@ -193,7 +193,7 @@ from .uncertainty import (
 )
 from .vibration import VibrationReport
 from .vibration import _report as _vibration_report
-from .wft import DEFAULT_MARGIN, PhaseMaps, demodulated_at, finite_derivatives, wft
+from .wft import DEFAULT_MARGIN, PhaseMaps, wft
 
 __all__ = [
     "FWHM_PER_SIGMA",

@@ -333,9 +333,9 @@ def _read_dataset(ds: h5py.Dataset, *, kinds: str = "biufc") -> np.ndarray:
 def _registry() -> dict[str, type]:
     """The classes a result file may hold, by the name it stores. Nothing else is
     built from a file, and no name read from one is ever imported."""
-    from ._wft import PhaseMaps
     from .kinematics import FringeOrder, Measurement
-    from .lattice import Lattice
+    from .phase._transform import PhaseMaps
+    from .phase.lattice import Lattice
     from .screening import FrameScreen
     from .uncertainty import NoiseFloor
     from .vibration import VibrationReport

@@ -47,7 +47,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .lattice import Lattice
+from .phase.lattice import Lattice
 from .vibration import (
     _MIN_PROMINENCE,
     _as_frame,

@@ -37,11 +37,11 @@ from ._validation import (
     float_dtype,
     image_array,
 )
-from ._wft import _kernels
-from .lattice import Lattice
+from .phase._transform import _kernels, _wft, _Workspace
+from .phase.lattice import Lattice
 from .screening import FrameProbe, FrameScreen, decide
 from .vibration import _RigidProbe
-from .wft import DEFAULT_MARGIN, PhaseMaps, _wft, _Workspace, wft, wft_complex
+from .wft import DEFAULT_MARGIN, PhaseMaps, wft, wft_complex
 
 __all__ = [
     "StackResult",

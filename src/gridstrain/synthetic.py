@@ -18,7 +18,7 @@ from ._validation import (
     check_positive,
     check_shape,
 )
-from .lattice import Lattice
+from .phase.lattice import Lattice
 
 __all__ = [
     "PROFILES",

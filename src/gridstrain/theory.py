@@ -89,7 +89,7 @@ from ._validation import (
     check_shape,
     check_type,
 )
-from .lattice import Lattice
+from .phase.lattice import Lattice
 from .synthetic import line_profile
 
 __all__ = [

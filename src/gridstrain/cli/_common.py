@@ -13,7 +13,7 @@ from pathlib import Path
 
 from .._validation import check_positive
 from ..io._files import _check_destination
-from ..lattice import Lattice
+from ..phase.lattice import Lattice
 
 
 def add_lattice_options(group) -> None:

@@ -26,7 +26,7 @@ from .. import kirsch, synthetic
 from .._progress import bar
 from .._validation import check_int
 from ..io import OutputDirectory, open_series, read_mask, write_hdf5, write_tiff_series
-from ..lattice import Lattice
+from ..phase.lattice import Lattice
 from ..pipeline import MAP_FIELDS, measure_series, save_result
 from ..plotting import figure_names, save_figures
 from ..report import write_report

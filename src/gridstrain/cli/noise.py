@@ -17,8 +17,8 @@ import numpy as np
 from .._progress import bar
 from .._validation import check_int
 from ..io import open_series, provenance, write_atomic, write_hdf5
-from ..lattice import detect_lattice
 from ..noise import NOISE_RESULT_KIND, estimate_noise, estimate_noise_image
+from ..phase.lattice import detect_lattice
 from ..pipeline import outlier_verdict
 from ..screening import screen_frames
 from ..uncertainty import noise_floor

@@ -75,7 +75,7 @@ from .._validation import (
     check_workers,
 )
 from ..io import OutputDirectory, provenance
-from ..lattice import Lattice
+from ..phase.lattice import Lattice
 from ..stacks import _MeanImage, _MethodC, _offsets, _PhaseMean, method_a, method_b, method_c
 from ..synthetic import PROFILES, line_profile
 from ..wft import PhaseMaps, wft

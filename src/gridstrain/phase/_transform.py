@@ -19,9 +19,9 @@ from numpy.lib.stride_tricks import as_strided
 from scipy import fft as sfft
 from scipy import ndimage
 
-from . import _fft
-from ._stats import median
-from ._validation import (
+from .. import _fft
+from .._stats import median
+from .._validation import (
     as_image,
     check_choice,
     check_mask,
@@ -335,7 +335,7 @@ def _wft(image, lattice: Lattice, *, sigma: float | None = None, mask=None,
 
     ``derivatives="fast"``: ``Psi`` alone, differentiated by a least-squares filter
     (:func:`wft`'s Notes, :func:`_differentiator`), in the compiled loops of
-    :mod:`gridstrain._kernels` when numba is there (``_COMPILED``), in numpy
+    :mod:`gridstrain.phase._kernels` when numba is there (``_COMPILED``), in numpy
     otherwise; the exact path where the window is too narrow for a short filter.
 
     ``derivatives="central"``: ``Im(conj(Psi) (Psi[+1] - Psi[-1])) / (2 |Psi|^2)``,
@@ -1005,7 +1005,7 @@ def _one_wave_vector_fast(V, k, sigma, H, W, nx, psi, dphi, mod, work, *, taps,
             done = ylim
 
 
-# Phase derivatives from Psi by the compiled loops of gridstrain._kernels (numba, the
+# Phase derivatives from Psi by the compiled loops of gridstrain.phase._kernels (numba, the
 # "fast" extra), when installed: loaded on the first transform that needs them, never
 # at import. False forces the numpy paths (what a machine without numba runs).
 _COMPILED = True
@@ -1033,7 +1033,7 @@ def _kernels():
 
 def _one_wave_vector_compiled(V, k, sigma, H, W, nx, psi, dphi, mod, work, *, taps,
                               kern, sink=None):
-    """:func:`_one_wave_vector_fast` in compiled loops (:mod:`gridstrain._kernels`).
+    """:func:`_one_wave_vector_fast` in compiled loops (:mod:`gridstrain.phase._kernels`).
 
     The same transform and differentiator: one inverse FFT along y of the band's
     columns (rows -m .. H + m - 1 of the periodic transform), then, by blocks of

@@ -1,6 +1,6 @@
 """Compiled loops of the windowed Fourier transform (numba, the ``fast`` extra).
 
-Imported only by :func:`gridstrain._wft._compiled`, on the first transform that
+Imported only by :func:`gridstrain.phase._transform._compiled`, on the first transform that
 uses them, never when gridstrain is imported: numba's own import takes a few
 hundred milliseconds, and compiling takes seconds the first time (the machine code
 is then cached on disk, ``cache=True``, and loaded in about a tenth of that).
@@ -24,7 +24,7 @@ except ImportError:  # the module stays importable (its doctests are collected)
 __all__: list[str] = []
 
 # whether the loops below are compiled; without numba they stay plain Python
-# functions, which gridstrain._wft never calls (it runs its numpy paths instead)
+# functions, which gridstrain.phase._transform never calls (it runs its numpy paths instead)
 AVAILABLE = njit is not None
 
 # contract: a * b + c as one fused multiply-add (one rounding instead of two); no

@@ -1,0 +1,27 @@
+"""The phase of a grid image: its lattice, the analysis window and the windowed Fourier
+transform (paper eqs. 22-25).
+
+- :mod:`~gridstrain.phase.lattice`: the grid's wave vectors, detected or followed;
+- :mod:`~gridstrain.phase.window`: the Gaussian window (``sigma``, the validity margin
+  and the minimum modulus), checked once;
+- ``_transform``: the transform itself, its fast and compiled derivatives, and
+  ``_kernels`` (numba loops, loaded on the first transform that uses them).
+"""
+
+from __future__ import annotations
+
+from ._transform import (
+    DEFAULT_MARGIN,
+    PhaseMaps,
+    demodulated_at,
+    finite_derivatives,
+    transfer_function,
+    wft,
+    wft_complex,
+)
+from .lattice import Lattice, detect_lattice, follow_lattice
+
+__all__ = [
+    "DEFAULT_MARGIN", "Lattice", "PhaseMaps", "demodulated_at", "detect_lattice",
+    "finite_derivatives", "follow_lattice", "transfer_function", "wft", "wft_complex",
+]
