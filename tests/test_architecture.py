@@ -24,7 +24,8 @@ PACKAGE = Path(gridstrain.__file__).resolve().parent
 CORE = {
     "conventions", "_validation", "_progress", "_fft", "lattice", "phase", "phase.lattice",
     "phase._transform", "phase._kernels", "wft", "kinematics",
-    "stacks", "vibration", "screening", "accumulate", "noise", "uncertainty", "theory",
+    "stacks", "stacks._methods", "stacks.vibration", "stacks.screening", "stacks.accumulate",
+    "vibration", "screening", "accumulate", "noise", "uncertainty", "theory",
     "synthetic",
     "kirsch", "_spline_kernels", "_threads", "_stats",
 }

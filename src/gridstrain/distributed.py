@@ -58,11 +58,11 @@ from ._validation import (
     check_type,
     float_dtype,
 )
-from .accumulate import SeriesPass
 from .io import FrameSeries, open_series
 from .phase.lattice import Lattice
-from .screening import FrameProbe
-from .stacks import StackResult, _PhaseMean, _with_screening
+from .stacks._methods import StackResult, _PhaseMean, _with_screening
+from .stacks.accumulate import SeriesPass
+from .stacks.screening import FrameProbe
 from .wft import DEFAULT_MARGIN, wft
 
 __all__ = [

@@ -32,7 +32,7 @@ from ._validation import (
 )
 from .phase._transform import _spectrum_block
 from .phase.lattice import Lattice, detect_lattice
-from .vibration import _as_frame, _CarrierProbe, _iter_frames, _streaming_shift
+from .stacks.vibration import _as_frame, _CarrierProbe, _iter_frames, _streaming_shift
 from .wft import transfer_function
 
 __all__ = ["NOISE_RESULT_KIND", "NoiseModel", "anscombe", "estimate_noise", "estimate_noise_image",

@@ -157,7 +157,6 @@ from ._validation import (
     check_type,
     check_workers,
 )
-from .accumulate import PassPlan, SeriesPass
 from .io import (
     FrameSeries,
     open_series,
@@ -179,9 +178,12 @@ from .kinematics import (
 from .noise import NoiseModel, estimate_noise_image
 from .phase._transform import _wft, demodulated_at, finite_derivatives
 from .phase.lattice import Lattice, _Carrier, detect_lattice, follow_lattice
-from .screening import FrameScreen
 from .sequences import StateInputs, state_inputs
-from .stacks import _FrameOrder, method_b
+from .stacks._methods import _FrameOrder, method_b
+from .stacks.accumulate import PassPlan, SeriesPass
+from .stacks.screening import FrameScreen
+from .stacks.vibration import VibrationReport
+from .stacks.vibration import _report as _vibration_report
 from .uncertainty import (
     _D_PER_SIGMA,
     _FWHM,
@@ -191,8 +193,6 @@ from .uncertainty import (
     metrology,
     smoothing_bias,
 )
-from .vibration import VibrationReport
-from .vibration import _report as _vibration_report
 from .wft import DEFAULT_MARGIN, PhaseMaps, wft
 
 __all__ = [

@@ -336,9 +336,9 @@ def _registry() -> dict[str, type]:
     from .kinematics import FringeOrder, Measurement
     from .phase._transform import PhaseMaps
     from .phase.lattice import Lattice
-    from .screening import FrameScreen
+    from .stacks.screening import FrameScreen
+    from .stacks.vibration import VibrationReport
     from .uncertainty import NoiseFloor
-    from .vibration import VibrationReport
 
     return {
         "gridstrain.pipeline.SeriesResult": SeriesResult,

@@ -20,9 +20,9 @@ from ..io import open_series, provenance, write_atomic, write_hdf5
 from ..noise import NOISE_RESULT_KIND, estimate_noise, estimate_noise_image
 from ..phase.lattice import detect_lattice
 from ..pipeline import outlier_verdict
-from ..screening import screen_frames
+from ..stacks.screening import screen_frames
+from ..stacks.vibration import vibration_report
 from ..uncertainty import noise_floor
-from ..vibration import vibration_report
 from ..wft import wft
 from ._common import (
     add_lattice_options,

@@ -76,7 +76,15 @@ from .._validation import (
 )
 from ..io import OutputDirectory, provenance
 from ..phase.lattice import Lattice
-from ..stacks import _MeanImage, _MethodC, _offsets, _PhaseMean, method_a, method_b, method_c
+from ..stacks._methods import (
+    _MeanImage,
+    _MethodC,
+    _offsets,
+    _PhaseMean,
+    method_a,
+    method_b,
+    method_c,
+)
 from ..synthetic import PROFILES, line_profile
 from ..wft import PhaseMaps, wft
 from .dataset import (

@@ -9,6 +9,7 @@ centred unit-sum Gaussian, mean removal and zero extension) of
 from __future__ import annotations
 
 import functools
+import importlib
 import itertools
 import math
 from concurrent.futures import ThreadPoolExecutor
@@ -1020,10 +1021,12 @@ def _load_kernels():
     """The module of compiled loops, or None when numba cannot be imported or cannot
     set up its cache (no writable directory: numba refuses at the decorators)."""
     try:
-        from . import _kernels
+        # looked up in sys.modules, not as the package's attribute: a test that
+        # removes the module makes it load again
+        kernels = importlib.import_module("._kernels", __package__)
     except RuntimeError:
         return None
-    return _kernels if _kernels.AVAILABLE else None
+    return kernels if kernels.AVAILABLE else None
 
 
 def _kernels():

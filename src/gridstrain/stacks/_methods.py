@@ -25,9 +25,9 @@ from dataclasses import dataclass, replace
 import numpy as np
 from scipy.linalg import blas
 
-from ._progress import Progress, null_progress
-from ._threads import map_bounded, one_blas_thread
-from ._validation import (
+from .._progress import Progress, null_progress
+from .._threads import map_bounded, one_blas_thread
+from .._validation import (
     as_image,
     as_int_tuple,
     as_shifts,
@@ -37,11 +37,11 @@ from ._validation import (
     float_dtype,
     image_array,
 )
-from .phase._transform import _kernels, _wft, _Workspace
-from .phase.lattice import Lattice
+from ..phase._transform import _kernels, _wft, _Workspace
+from ..phase.lattice import Lattice
+from ..wft import DEFAULT_MARGIN, PhaseMaps, wft, wft_complex
 from .screening import FrameProbe, FrameScreen, decide
 from .vibration import _RigidProbe
-from .wft import DEFAULT_MARGIN, PhaseMaps, wft, wft_complex
 
 __all__ = [
     "StackResult",

@@ -1,0 +1,505 @@
+"""One pass over a series of frames, in sums that merge.
+
+A series holds ``T`` frames of one static state. Everything the measurement needs
+from its frames is gathered in one read of each frame by :class:`SeriesPass`:
+
+- the screening's per-frame record (:class:`gridstrain.screening.FrameProbe`):
+  carrier coefficients, hence the rigid shifts ``a_t`` (eq. 2), contrast, tiles,
+  clipping;
+- the sums giving the mean image, the temporal variance with the shifts regressed
+  out, and the means of the two halves of the series (the noise floor measured
+  half against half);
+- with method B, the sums of the frames' windowed Fourier transforms
+  (:func:`gridstrain.stacks.method_b`);
+- with method C, the frames summed with their carriers realigned by their shifts,
+  per half (:func:`gridstrain.stacks.method_c`).
+
+Passes over parts of a series (chunks of frames, on threads or Dask workers) merge
+exactly (:meth:`SeriesPass.merge`), provided they start from the same *origin*,
+the frame every sum is taken against: the pixel sums are over ``d_t = v_t -
+origin`` (noise-sized numbers, not grey levels squared) and the shifts are phase
+advances of the carrier against the origin's, so that every part measures them on
+the same basis. A frame the screening rejects is taken out again by
+:meth:`SeriesPass.remove` (the only frames read twice).
+
+The regression of the variance. With ``c_t = a_t - mean(a)`` the centred shifts of
+the kept frames, the per-pixel fit ``d_t = m + b . c_t + e_t`` leaves the residual
+sum of squares ``S_dd - S_d^2 / T - s^T S_cc^-1 s`` with ``s = sum_t c_t d_t =
+sum_t a_t d_t - mean(a) S_d``: the sums over ``a_t d_t`` and ``d_t`` are additive
+whatever the frames kept, so the centring is done once, at the end.
+
+Conventions: :mod:`gridstrain.conventions`. Sums are float64 whatever the frames.
+"""
+
+from __future__ import annotations
+
+import copy
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.linalg import blas
+
+from ..phase._transform import _kernels
+from ..phase.lattice import Lattice
+from ..wft import DEFAULT_MARGIN
+from ._methods import StackResult, _compensated_result, _FrameOrder, _PhaseMean
+from .screening import FrameProbe, FrameScreen, decide
+from .vibration import _RigidProbe, _shift_matrix
+
+__all__ = ["PassPlan", "SeriesPass", "SeriesStatistics"]
+
+# Frames batched per matrix product of the linear sums: the batch costs this many
+# bytes at most (as for method C's sums).
+_BATCH_BYTES = 2**26
+_METHODS = ("A", "B", "C")
+
+
+@dataclass(frozen=True, eq=False)
+class PassPlan:
+    """What a pass over one series gathers (picklable: sent to Dask workers).
+
+    Attributes
+    ----------
+    lattice : Lattice
+        The grid's wave vectors.
+    n_frames : int
+        Frames in the series; frame ``t`` is in the first half when ``t <
+        n_frames // 2``.
+    method : {"A", "B", "C"}
+        "B" adds the frames' transforms, "C" their realigned sums.
+    sigma : float, optional
+        Method B's window, px.
+    margin : float
+        Method B's invalid band, in sigmas.
+    transform_mask : (H, W) bool ndarray, optional
+        Method B's mask (the windows' support).
+    saturation_level : float, optional
+        The files' ceiling, raw grey levels (None for float data).
+    scale : int
+        Raw value of one sensor grey level.
+    count_mask : (H, W) bool ndarray, optional
+        Where clipped pixels are counted.
+    """
+
+    lattice: Lattice
+    n_frames: int
+    method: str = "A"
+    sigma: float | None = None
+    margin: float = DEFAULT_MARGIN
+    transform_mask: np.ndarray | None = None
+    saturation_level: float | None = None
+    scale: int = 1
+    count_mask: np.ndarray | None = None
+
+    def __post_init__(self):
+        if self.method not in _METHODS:
+            raise ValueError(f"method must be one of {', '.join(_METHODS)}, got "
+                             f"{self.method!r}")
+        if self.n_frames < 1:
+            raise ValueError(f"n_frames must be at least 1, got {self.n_frames!r}")
+
+
+@dataclass(frozen=True, eq=False)
+class SeriesStatistics:
+    """Per-pixel statistics of the kept frames of a series.
+
+    Attributes
+    ----------
+    mean : (H, W) float64 ndarray
+        Mean image, grey levels.
+    variance : (H, W) float64 ndarray or None
+        Noise variance of one frame, grey levels^2: the temporal variance with the
+        frames' rigid shifts regressed out (``T - 3`` degrees of freedom) when they
+        are of rank 2 and ``T >= 4``, else plain (``T - 1``); None for one frame.
+    method : str
+        How the variance was obtained.
+    n_frames : int
+        Frames kept.
+    """
+
+    mean: np.ndarray
+    variance: np.ndarray | None
+    method: str
+    n_frames: int
+
+
+class SeriesPass:
+    """The mergeable sums of one pass over (part of) a series.
+
+    Parameters
+    ----------
+    plan : PassPlan
+        What to gather.
+    origin : (H, W) array_like
+        The frame the sums are taken against (the series' first frame): every part
+        of a series that is to be merged must use the same.
+
+    Notes
+    -----
+    Memory: six float64 images (the sums and the origin), a batch of frames of at
+    most 64 MiB; method B adds its transform sums (80 bytes a pixel), method C
+    eight float64 images. The per-frame records are a few hundred bytes a frame.
+    """
+
+    def __init__(self, plan: PassPlan, origin):
+        if not isinstance(plan, PassPlan):
+            raise TypeError(f"plan must be a PassPlan, got {type(plan).__name__}")
+        self.plan = plan
+        self.origin = np.array(origin, dtype=np.float64)
+        H, W = self.shape = self.origin.shape
+        lat = plan.lattice
+        self.probe = FrameProbe(lat, self.shape, saturation_level=plan.saturation_level,
+                                scale=plan.scale, mask=plan.count_mask)
+        self._c0 = self.probe.carrier(self.origin)  # the basis of every shift
+        self._M = _shift_matrix(lat)
+        self.records: dict = {}  # t -> FrameRecord
+        self.theta: dict = {}  # t -> (2,) carrier phase advance against the origin, rad
+        self.parts: dict = {}  # t -> (4, 2) quadrant shifts (method C), px
+        self.removed: set = set()
+        self.dtype = None  # float32 while every frame is float32 (gridstrain.conventions)
+        # linear sums, rows: d over each half, a_x d, a_y d, then (method C) per half
+        # the real and imaginary parts of exp(-i theta_j) d for j = 1, 2
+        rows = 4 + (8 if plan.method == "C" else 0)
+        self.lin = np.zeros((rows, H * W), dtype=np.float64)
+        self.sq = np.zeros(H * W, dtype=np.float64)  # sum d^2
+        # method C's weights sum: sum_t exp(-i theta_tj) per half, (2 halves, 2)
+        self.wsum = np.zeros((2, 2), dtype=np.complex128)
+        # the batch: the frames' differences to the origin (float64), or, when the
+        # compiled loops are there, integer frames as read (set by the first frame)
+        self._buf = np.empty((0, H * W), dtype=np.float64)
+        self._w: list = []  # pending weight rows
+        self._signs: list = []  # their frames' signs (+1 added, -1 taken out)
+        self._tmp = None  # scratch image
+        self._rigid = None
+        if plan.method == "C":
+            self._rigid = _RigidProbe(lat, self.shape)
+            self._rigid(self.origin)  # quadrant shifts against the origin
+        self.transforms = _PhaseMean() if plan.method == "B" else None
+
+    # ------------------------------------------------------------------ adding
+
+    def _half(self, t: int) -> int:
+        return 0 if t < self.plan.n_frames // 2 else 1
+
+    def add(self, t: int, frame, *, order: _FrameOrder | None = None,
+            transform: bool = True) -> None:
+        """Add frame ``t`` (its index in the series, from 0), (H, W) array of grey
+        levels: float, or integers as read from the files (summed by the compiled
+        loops without a float64 copy of the batch, when they are installed).
+
+        ``transform=False`` leaves method B's transform to :meth:`add_transform`
+        (on another thread, in frame order with ``order``).
+        """
+        if t in self.records:
+            raise ValueError(f"frame {t} was added twice")
+        arr = np.asarray(frame)
+        if arr.shape != self.shape:
+            raise ValueError(f"frames must have the shape {self.shape}, got {arr.shape}")
+        fd = arr.dtype if arr.dtype.kind == "f" else np.dtype(np.float64)
+        self.dtype = fd if self.dtype is None else np.promote_types(self.dtype, fd)
+        raw = arr
+        if self._rigid is not None:  # method C: one float64 copy for both probes
+            arr = arr.astype(np.float64, copy=False)
+        # the probe converts an integer frame itself, its extrema taken as stored
+        rec = self.probe(arr)
+        self.records[t] = rec
+        self.theta[t] = np.angle(rec.coefficients * np.conj(self._c0))  # eq. (2)
+        if self._rigid is not None:
+            _, parts = self._rigid(arr)
+            if parts is not None:
+                self.parts[t] = parts
+        self._sums(t, raw, 1.0)
+        if transform and self.transforms is not None:
+            self.add_transform(t, raw, order=order)
+
+    def add_transform(self, t: int, frame, *, order: _FrameOrder | None = None,
+                      remove: bool = False) -> None:
+        """Add (or take out) method B's transform of frame ``t``; thread-safe."""
+        p = self.plan
+        self.transforms.add_frame(frame, p.lattice,
+                                  sigma=p.sigma, mask=p.transform_mask, margin=p.margin,
+                                  index=t, order=order, remove=remove)
+
+    def remove(self, t: int, frame) -> None:
+        """Take frame ``t`` (added before, read again) out of every sum."""
+        if t not in self.records or t in self.removed:
+            raise ValueError(f"frame {t} is not in the sums")
+        arr = np.asarray(frame)
+        self._sums(t, arr, -1.0)
+        if self.transforms is not None:
+            self.add_transform(t, arr, remove=True)
+        self.removed.add(t)
+
+    def _sums(self, t: int, arr: np.ndarray, sign: float) -> None:
+        h = self._half(t)
+        a = self._M @ self.theta[t]  # px
+        w = np.zeros(self.lin.shape[0])
+        w[h] = sign
+        w[2:4] = sign * a
+        if self.plan.method == "C":
+            e = np.exp(-1j * self.theta[t])  # undoes the carrier's advance (eq. 2)
+            w[4 + 4 * h:8 + 4 * h] = sign * np.array([e[0].real, e[0].imag, e[1].real,
+                                                      e[1].imag])
+            self.wsum[h] += sign * e
+        if t == 0 and np.array_equal(arr, self.origin):
+            return  # the origin itself: d = 0 adds nothing to the pixel sums
+        raw = self._raw_dtype(arr)
+        if raw != self._buf.dtype or self._buf.shape[0] == 0:
+            self._flush()
+            self._buf = self._batch(raw)
+        b = len(self._w)
+        row = self._buf[b].reshape(self.shape)
+        if raw == np.float64:
+            np.subtract(arr, self.origin, out=row)
+        else:
+            np.copyto(row, arr)  # the compiled loop takes the difference (_flush)
+        self._signs.append(sign)  # the squares are summed by batch (_flush)
+        self._w.append(w)
+        if len(self._w) == self._buf.shape[0]:
+            self._flush()
+
+    @staticmethod
+    def _raw_dtype(arr: np.ndarray) -> np.dtype:
+        """How a frame waits in the batch: as read (integers of at most 16 bits, the
+        compiled loop there to sum them), else as its float64 difference."""
+        if arr.dtype.kind in "ui" and arr.dtype.itemsize <= 2 and _kernels() is not None:
+            return arr.dtype
+        return np.dtype(np.float64)
+
+    def _batch(self, dtype) -> np.ndarray:
+        """An empty batch of frames of ``dtype``: at most 16 frames and
+        ``_BATCH_BYTES``. Method B's transforms dominate its pass, and its batch
+        must add little to their memory: 4 raw integer frames (a quarter of one
+        float64 frame each), else one frame."""
+        H, W = self.shape
+        dtype = np.dtype(dtype)
+        most = 16 if self.plan.method != "B" else 4 if dtype.itemsize <= 2 else 1
+        n = max(1, min(most, _BATCH_BYTES // (dtype.itemsize * H * W)))
+        return np.empty((n, H * W), dtype=dtype)
+
+    def _flush(self) -> None:
+        b = len(self._w)
+        if b == 0:
+            return
+        W = np.array(self._w)  # (b, rows)
+        signs = np.array(self._signs)
+        self._w.clear()
+        self._signs.clear()
+        D = self._buf[:b]
+        if D.dtype != np.float64:  # raw frames: the compiled loop (gridstrain.phase._kernels)
+            kern = _kernels()
+            if kern is not None:
+                kern.add_differences(self._buf, b, self.origin.reshape(-1), W, signs,
+                                     self.lin, self.sq)
+                return
+            # the compiled loops switched off since the frames came: their differences
+            D = np.subtract(D, self.origin.reshape(-1))
+        # lin^T (HW, rows) += D^T (HW, b) @ W (b, rows), in place (Fortran views)
+        blas.dgemm(1.0, D.T, W, beta=1.0, c=self.lin.T, overwrite_c=True)
+        # sum_t sign_t d_t^2: the batch read once more, one temporary
+        if b == 1:  # the frame's row is free once in lin: squared in place
+            np.multiply(D[0], D[0], out=D[0])
+            (np.add if signs[0] > 0 else np.subtract)(self.sq, D[0], out=self.sq)
+            return
+        if self._tmp is None:
+            self._tmp = np.empty(D.shape[1])
+        if np.all(signs > 0):  # frames added, none taken out: no weights
+            np.einsum("bi,bi->i", D, D, out=self._tmp)
+        else:
+            np.einsum("bi,bi,b->i", D, D, signs, out=self._tmp)
+        self.sq += self._tmp
+
+    def __getstate__(self):
+        # sent between Dask workers: the sums travel, not the batch buffer
+        self._flush()
+        state = self.__dict__.copy()
+        state["_buf"] = (self._buf.shape, self._buf.dtype.str)
+        state["_tmp"] = None
+        return state
+
+    def __setstate__(self, state):
+        shape, dtype = state["_buf"]
+        self.__dict__.update(state)
+        self._buf = np.empty(shape, dtype=dtype)
+
+    def merge(self, other: SeriesPass) -> SeriesPass:
+        """A new pass holding the sums of ``self`` and ``other`` (another part of the
+        same series, with the same origin); both are left unchanged."""
+        if not np.array_equal(self.origin, other.origin):
+            raise ValueError("passes over parts of a series must share their origin frame")
+        common = self.records.keys() & other.records.keys()
+        if common:
+            raise ValueError(f"frames {sorted(common)[:5]} are in both parts")
+        self._flush()
+        other._flush()
+        out = copy.copy(self)
+        out._w, out._signs = [], []
+        out._tmp = None
+        out._buf = np.empty(self._buf.shape, dtype=self._buf.dtype)
+        out.lin = self.lin + other.lin
+        out.sq = self.sq + other.sq
+        out.wsum = self.wsum + other.wsum
+        out.records = {**self.records, **other.records}
+        out.theta = {**self.theta, **other.theta}
+        out.parts = {**self.parts, **other.parts}
+        out.removed = self.removed | other.removed
+        if other.dtype is not None:
+            out.dtype = other.dtype if self.dtype is None else np.promote_types(
+                self.dtype, other.dtype)
+        if self.transforms is not None:
+            if self.transforms.n == 0:
+                out.transforms = other.transforms
+            elif other.transforms.n:
+                out.transforms = self.transforms.merge(other.transforms)
+        return out
+
+    # ------------------------------------------------------------------ results
+
+    @property
+    def kept(self) -> list[int]:
+        """Indices of the frames in the sums, in order."""
+        return sorted(set(self.records) - self.removed)
+
+    def screen(self, *, max_saturation: float = 0.01) -> FrameScreen:
+        """The screening of every frame added (:func:`gridstrain.screening.decide`);
+        the pass must hold frames ``0 .. T-1``."""
+        T = self.plan.n_frames
+        if sorted(self.records) != list(range(T)):
+            missing = sorted(set(range(T)) - set(self.records))
+            raise ValueError(f"the pass lacks frames {missing[:5]} of {T}")
+        return decide([self.records[t] for t in range(T)], self.probe,
+                      max_saturation=max_saturation)
+
+    def _kept_shifts(self) -> np.ndarray:
+        kept = self.kept
+        return np.array([self._M @ self.theta[t] for t in kept]).reshape(len(kept), 2)
+
+    def statistics(self) -> SeriesStatistics:
+        """Mean image and noise variance of the kept frames."""
+        if self.sq is None:
+            raise ValueError("the pixel sums were released")
+        self._flush()
+        a = self._kept_shifts()
+        T = a.shape[0]
+        if T == 0:
+            raise ValueError("no frame left in the sums")
+        H, W = self.shape
+        s1 = (self.lin[0] + self.lin[1]).reshape(H, W)
+        mean = self.origin + s1 / T
+        if T < 2:
+            return SeriesStatistics(mean, None, "unavailable (a single frame)", 1)
+        svv = self.sq.reshape(H, W) - s1 * s1 / T
+        abar = a.mean(axis=0)
+        c = a - abar
+        S = c.T @ c
+        rank = int(np.linalg.matrix_rank(S, tol=1e-12 * max(float(np.trace(S)), 1e-300)))
+        if T - 1 - 2 >= 1 and rank == 2:
+            # s = sum_t c_t d_t, from the additive sums (module docstring)
+            s = self.lin[2:4].reshape(2, H, W) - abar[:, None, None] * s1
+            svv = svv - np.einsum("ihw,ij,jhw->hw", s, np.linalg.inv(S), s)
+            dof = T - 3
+            how = f"temporal variance, shifts regressed out ({dof} dof)"
+        else:
+            dof = T - 1
+            how = f"temporal variance, vibrations not removed ({dof} dof)"
+        return SeriesStatistics(mean, np.maximum(svv, 0.0) / dof, how, T)
+
+    def release(self, *, keep_halves: bool = False, keep_method: bool = True) -> None:
+        """Free the pixel sums once :meth:`statistics` is taken, keeping what the
+        results still to come need: with ``keep_method`` method B's transforms and
+        method C's realigned sums, with ``keep_halves`` the halves' sums
+        (:meth:`half_means`; method C's halves are in its realigned sums). May be
+        called again to free more. Afterwards only what was kept can be asked for."""
+        self._flush()
+        self.sq = self._tmp = None
+        self._buf = np.empty((1, 0))
+        if not keep_method:
+            self.transforms = None
+        if self.lin is None:
+            return
+        if self.plan.method == "C" and (keep_method or keep_halves):
+            return  # its rows follow the halves' sums in the same array
+        if not keep_halves:
+            self.lin = self.origin = None  # the origin only completes the sums
+        elif self.lin.shape[0] > 2:
+            self.lin = np.array(self.lin[:2])
+
+    def half_counts(self) -> tuple[int, int]:
+        """Frames kept in each half."""
+        kept = self.kept
+        n1 = sum(1 for t in kept if self._half(t) == 0)
+        return n1, len(kept) - n1
+
+    def half_means(self, halves: tuple = (0, 1)) -> list[np.ndarray]:
+        """The mean images (H, W) of the kept frames of each half of ``halves``."""
+        if self.lin is None:
+            raise ValueError("the halves' sums were released (release(keep_halves=True) "
+                             "keeps them)")
+        self._flush()
+        counts = self.half_counts()
+        return [self.origin + self.lin[h].reshape(self.shape) / counts[h] for h in halves]
+
+    def method_b(self, *, release: bool = False) -> StackResult:
+        """Method B's result over the kept frames (:func:`gridstrain.stacks.method_b`);
+        with ``release`` it is computed in the sums' buffers, which the pass gives up
+        (no second method-B result can be asked for)."""
+        if self.plan.method != "B":
+            raise ValueError("the pass was not planned for method B")
+        if self.transforms is None:
+            raise ValueError("method B's sums were released")
+        if self.transforms.n == 0:
+            raise ValueError("no frame left in the sums")
+        if release:  # the maps take the place of the sums (half the memory)
+            transforms, self.transforms = self.transforms, None
+            return transforms.result(consume=True)
+        return self.transforms.result()
+
+    def method_c(self, *, sigma: float | None = None, mask=None,
+                 margin: float = DEFAULT_MARGIN, halves: tuple = (0, 1)) -> StackResult:
+        """Method C's result over the kept frames of ``halves``
+        (:func:`gridstrain.stacks.method_c`), the frames realigned by their shifts
+        centred on the mean position of all the kept frames."""
+        if self.plan.method != "C":
+            raise ValueError("the pass was not planned for method C")
+        if self.lin is None:
+            raise ValueError("method C's sums were released")
+        self._flush()
+        kept = self.kept
+        sel = [t for t in kept if self._half(t) in halves]
+        if not sel:
+            raise ValueError("no frame left in the sums")
+        H, W = self.shape
+        # the phase of the grid at the kept frames' mean position (eq. 2): the weights
+        # are turned by it rather than recomputed
+        c = np.array([self.records[t].coefficients for t in kept])
+        cbar = c.mean(axis=0)
+        phi = np.angle(c * np.conj(cbar))  # (T, 2), as gridstrain.vibration centres them
+        centre = np.angle(cbar * np.conj(self._c0)) + phi.mean(axis=0)
+        lin = sum(self.lin[4 + 4 * h:8 + 4 * h] for h in halves)  # (4, HW)
+        wsum = sum(self.wsum[h] for h in halves)  # (2,)
+        n = len(sel)
+
+        def averages(turn):
+            z = np.empty((2, H * W), dtype=np.complex128)
+            for j in range(2):
+                # sum_t e_t v_t = sum_t e_t d_t + origin sum_t e_t
+                z[j] = lin[2 * j] + 1j * lin[2 * j + 1]
+                z[j] += wsum[j] * self.origin.ravel()
+                z[j] *= np.exp(1j * turn[j]) / n
+            return z.reshape(2, H, W)
+
+        # the shifts the weights realign, centred on the kept frames' mean position
+        used_all = (phi - phi.mean(axis=0)) @ self._M.T
+        used = used_all[[self._half(t) in halves for t in kept]]  # sel's rows, in order
+        parts = [self.parts[t] for t in sel if t in self.parts]
+        dtype = np.float64 if self.dtype is None else self.dtype
+        if dtype.kind != "f":
+            dtype = np.dtype(np.float64)
+        return _compensated_result(averages, centre, n, dtype, used, parts,
+                                   self.plan.lattice, sigma=sigma, mask=mask, margin=margin,
+                                   warnings=())
+
+    def __repr__(self) -> str:
+        return (f"SeriesPass(frames={len(self.records)}, removed={len(self.removed)}, "
+                f"method={self.plan.method!r}, shape={self.shape})")
+
