@@ -27,7 +27,8 @@ CORE = {
     "stacks", "stacks._methods", "stacks.vibration", "stacks.screening", "stacks.accumulate",
     "vibration", "screening", "accumulate", "noise", "uncertainty", "theory",
     "synthetic",
-    "kirsch", "_spline_kernels", "_threads", "_stats",
+    "kirsch", "kinematics._deformation", "kinematics._fringe_order", "kinematics._spline_kernels",
+    "_threads", "_stats",
 }
 
 

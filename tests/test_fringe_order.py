@@ -20,9 +20,10 @@ import numpy as np
 import pytest
 import tifffile
 
-from gridstrain import Lattice, coarse_displacement, kinematics, wft
+from gridstrain import Lattice, coarse_displacement, wft
 from gridstrain.cli import main
-from gridstrain.kinematics import _phase_shift
+from gridstrain.kinematics import _fringe_order as kinematics
+from gridstrain.kinematics._fringe_order import _phase_shift
 from gridstrain.pipeline import measure_series, state_names
 from gridstrain.results import load, save_result
 

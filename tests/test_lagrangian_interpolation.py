@@ -5,8 +5,9 @@ import pytest
 from scipy import ndimage
 from skimage.restoration import unwrap_phase as _original_unwrap_phase
 
-from gridstrain import Lattice, deformation, kinematics, wft
-from gridstrain.kinematics import _Spline
+from gridstrain import Lattice, deformation, wft
+from gridstrain.kinematics import _deformation as kinematics
+from gridstrain.kinematics._deformation import _Spline
 
 SIGMA = 5.0
 N = 96

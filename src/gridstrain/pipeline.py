@@ -162,18 +162,20 @@ from .io import (
     open_series,
     read_mask,
 )
-from .kinematics import (
-    FringeOrder,
+from .kinematics._deformation import (
     Measurement,
-    _CoarseReference,
     _eulerian_gradient,
-    _from_estimate,
     _Handover,
-    _phase_products,
-    _phase_shift,
     _small_strain,
     _solve,
     deformation,
+)
+from .kinematics._fringe_order import (
+    FringeOrder,
+    _CoarseReference,
+    _from_estimate,
+    _phase_products,
+    _phase_shift,
 )
 from .noise import NoiseModel, estimate_noise_image
 from .phase._transform import _wft, demodulated_at, finite_derivatives

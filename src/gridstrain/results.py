@@ -333,7 +333,8 @@ def _read_dataset(ds: h5py.Dataset, *, kinds: str = "biufc") -> np.ndarray:
 def _registry() -> dict[str, type]:
     """The classes a result file may hold, by the name it stores. Nothing else is
     built from a file, and no name read from one is ever imported."""
-    from .kinematics import FringeOrder, Measurement
+    from .kinematics._deformation import Measurement
+    from .kinematics._fringe_order import FringeOrder
     from .phase._transform import PhaseMaps
     from .phase.lattice import Lattice
     from .stacks.screening import FrameScreen

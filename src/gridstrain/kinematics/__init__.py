@@ -1,0 +1,31 @@
+"""Kinematics: displacement and strain maps from the phases of two states.
+
+- ``_deformation``: the displacement (eq. 34, with the large-displacement correction of
+  the Lagrangian description) and the small-strain tensor (eq. 35), :func:`deformation`
+  and :func:`measure`;
+- ``_fringe_order``: how the whole number of periods of a displacement is fixed
+  (:class:`FringeOrder`) and the image-feature estimate (:func:`coarse_displacement`);
+- :mod:`~gridstrain.kinematics.tracking`: the fringe order followed from state to state
+  along a series;
+- ``_spline_kernels``: the compiled cubic splines (numba), loaded on first use.
+"""
+
+from __future__ import annotations
+
+from ._deformation import Measurement, deformation, measure
+from ._fringe_order import (
+    FRINGE_ORDER_SOURCES,
+    CoarseEstimate,
+    FringeOrder,
+    coarse_displacement,
+)
+
+__all__ = [
+    "FRINGE_ORDER_SOURCES",
+    "CoarseEstimate",
+    "FringeOrder",
+    "Measurement",
+    "coarse_displacement",
+    "deformation",
+    "measure",
+]

@@ -1,0 +1,550 @@
+"""The fringe order of a displacement (the whole number of periods the phases cannot see):
+how it was fixed (:class:`FringeOrder`) and the image-feature estimate that can fix it
+(:func:`coarse_displacement`: band-passed normalised cross-correlation of the two images
+against the aliases one or two periods away).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import fft as sfft
+from scipy import ndimage
+
+from .._validation import (
+    as_image,
+    as_pair,
+    check_mask,
+    check_same_shape,
+    check_type,
+)
+from ..phase.lattice import Lattice
+from ..wft import PhaseMaps
+
+__all__ = ["FRINGE_ORDER_SOURCES", "CoarseEstimate", "FringeOrder", "coarse_displacement"]
+
+# A coarse cross-correlation estimate is trusted only if the low-passed images,
+# aligned, correlate at least this well (Pearson); below it the pattern has no
+# features beyond the periodic grid and the displacement is ambiguous to a period.
+_MIN_COARSE_CORRELATION = 0.5
+
+
+# Band-pass of the coarse estimate, in pitches (see coarse_displacement): a narrow
+# band around the pitch makes a feature's correlation peak narrower than a period.
+# With a wide band (up to 2 or 4 pitches) a hole's edge beat its aliases by only 1.3
+# (up to 1.05 for reflectance blobs 20 px wide), with this one by 2.0.
+_BAND_LOW = 0.5
+
+
+_BAND_HIGH = 1.0
+
+
+# The coarse estimate works on a central crop of at most this size, px.
+_MAX_COARSE_SIZE = 1024
+
+
+# ... and, when the crop is large, on its band-passed images decimated by the largest
+# integer q <= pitch / 2 that leaves at least this many samples per side. The band
+# stops at about 0.8 / pitch (the difference of Gaussians keeps 9 % of its peak
+# there) and the narrow Gaussian, applied before decimating, leaves 4e-4 of what
+# lies at the new Nyquist frequency 1 / (2 q) >= 1 / pitch: the grid's fundamental
+# is not folded back into the band, nothing the band holds is lost, and the
+# correlation costs q^2 times less.
+_COARSE_MIN_SAMPLES = 256
+
+
+# The best candidate must correlate this many times better than any alias a lattice
+# period or two away. Measured (160-px images, 0.1 % noise, 40 % vignette): grids and
+# sharp rotated checkerboards with nothing else, moved by 0 to 13 px, 1.00 to 1.18;
+# sixty printed spots moving with the specimen 2.2 to 3.2, a hole's edge 2.0.
+_MIN_PEAK_TO_ALIAS = 1.5
+
+
+# The correlation peak must lie within this fraction of a period (along each wave
+# vector) of the candidate the phases allow: the peak is good to a pixel, a quarter
+# of a 4-px pitch.
+_MAX_DISAGREEMENT = 0.25
+
+
+#: How a fringe order can be fixed (:attr:`FringeOrder.source`).
+FRINGE_ORDER_SOURCES = ("previous state", "image features", "user", "smallest displacement")
+
+
+@dataclass(frozen=True)
+class FringeOrder:
+    """How the whole number of periods (the fringe order) of a displacement was fixed.
+
+    The phases give the displacement only modulo the lattice periods; the fringe
+    order comes from elsewhere, and this record says from where and whether
+    anything confirms it.
+
+    Attributes
+    ----------
+    source : str
+        One of :data:`FRINGE_ORDER_SOURCES`: ``"previous state"`` (the previous
+        load step's displacement field, incremental tracking), ``"image features"``
+        (a confident :func:`coarse_displacement`), ``"user"`` (a given guess) or
+        ``"smallest displacement"`` (nothing else: the order closest to zero).
+    confirmed : bool
+        True when the order is backed by something besides the phases: the user's
+        guess; image features that clearly pick one candidate and agree with the
+        phases; or tracking from a confirmed previous state with an increment
+        below ``_MAX_STEP`` periods everywhere (a step that is plausibly less than
+        half a period). A state not confirmed may be one or more periods off.
+    guess : (2,) tuple of float
+        Median of the guess field that fixed the order, px.
+    detail : str
+        Why, in words.
+    correlation, peak_to_alias, disagreement : float
+        Of the image-feature estimate (:class:`CoarseEstimate`), NaN when not made.
+    features_shift : (2,) tuple of float or None
+        The image-feature estimate's displacement, px, when made.
+    step : float
+        Largest increment from the previous state along a wave vector, in periods
+        (NaN when not tracked).
+    """
+
+    source: str
+    confirmed: bool
+    guess: tuple[float, float] = (0.0, 0.0)
+    detail: str = ""
+    correlation: float = math.nan
+    peak_to_alias: float = math.nan
+    disagreement: float = math.nan
+    features_shift: tuple[float, float] | None = None
+    step: float = math.nan
+
+    def __post_init__(self):
+        if self.source not in FRINGE_ORDER_SOURCES:
+            raise ValueError(f"source must be one of {FRINGE_ORDER_SOURCES}, got "
+                             f"{self.source!r}")
+
+    def as_dict(self) -> dict:
+        """Plain-Python record (NaN as None), for JSON and HDF5."""
+        def num(x):
+            return float(x) if x is not None and math.isfinite(x) else None
+
+        return {"source": self.source, "confirmed": bool(self.confirmed),
+                "guess_px": [float(v) for v in self.guess], "detail": self.detail,
+                "correlation": num(self.correlation),
+                "peak_to_alias": num(self.peak_to_alias),
+                "disagreement_periods": num(self.disagreement),
+                "features_shift_px": None if self.features_shift is None
+                else [float(v) for v in self.features_shift],
+                "step_periods": num(self.step)}
+
+
+def _from_estimate(est, source, confirmed, guess, detail, step=math.nan) -> FringeOrder:
+    """A :class:`FringeOrder` carrying the figures of a coarse estimate (or none)."""
+    if est is None:
+        return FringeOrder(source, confirmed, guess, detail, step=step)
+    return FringeOrder(source, confirmed, guess, detail, correlation=est.correlation,
+                       peak_to_alias=est.peak_to_alias, disagreement=est.disagreement,
+                       features_shift=est.shift, step=step)
+
+
+@dataclass(frozen=True)
+class CoarseEstimate:
+    """What the images' non-periodic content says about the rigid displacement.
+
+    Attributes
+    ----------
+    shift : (2,) tuple of float
+        ``(u_x, u_y)``, px: the best phase-consistent candidate when the phases
+        were given, otherwise the correlation peak (to the pixel).
+    peak : (2,) tuple of float
+        The correlation peak itself, px (sub-pixel, parabolic).
+    correlation : float
+        Normalised correlation of the band-passed images at ``shift``.
+    alias_correlation : float
+        Best correlation among ``shift``'s aliases ``shift + m a1 + n a2``
+        (``a1``, ``a2`` the lattice periods, ``0 < max(|m|, |n|) <= 2``).
+    peak_to_alias : float
+        ``correlation / max(alias_correlation, 0.01)``.
+    disagreement : float
+        Distance from ``peak`` to ``shift`` in periods (largest over the two wave
+        vectors, ``|K (peak - shift)|``); NaN without phases.
+    confident : bool
+        Whether the estimate fixes the fringe order: content that moves with the
+        specimen, a peak that clearly beats its aliases and agrees with the phases.
+    reason : str
+        Why it is (or is not) confident, in words.
+    """
+
+    shift: tuple[float, float]
+    peak: tuple[float, float]
+    correlation: float
+    alias_correlation: float
+    peak_to_alias: float
+    disagreement: float
+    confident: bool
+    reason: str
+
+
+def coarse_displacement(reference, deformed, lattice: Lattice, *, mask=None,
+                        phase_shift=None) -> CoarseEstimate:
+    """Rigid displacement from the images' non-periodic content, and whether to trust it.
+
+    The images are band-passed by a difference of Gaussians of half a pitch and
+    one pitch: the first removes the grid (its carrier is attenuated by
+    ``exp(-pi^2 / 2)`` ~ 7e-3, and what survives is periodic, so it favours no
+    alias), the second what is fixed to the camera and smooth (lighting,
+    vignetting). What is left is what moves with the specimen: printing defects,
+    dust on it, edges, holes. Their normalised cross-correlation is computed over
+    the overlap of the two images at every shift (masked, so that the image
+    borders neither pad with zeros nor pull the peak towards zero shift).
+
+    The phases fix the displacement modulo the lattice: the candidates are
+    ``phase_shift + m a1 + n a2``. The estimate is *confident* only when (a) the
+    band-passed images correlate (``>= 0.5``) at the best candidate, (b) that
+    candidate beats every alias within two periods by a peak-to-alias ratio of
+    1.5 and (c) the correlation peak itself lies within a quarter period of it. A
+    pattern with nothing but the grid, or smooth content fixed to the camera
+    (lighting, vignetting), fails (a) or (b); when it cannot decide, the caller
+    must not use ``shift``.
+
+    Parameters
+    ----------
+    reference, deformed : (H, W) array_like
+    lattice : Lattice
+    mask : (H, W) bool array_like, optional
+        True on the specimen in the reference image.
+    phase_shift : (2,) array_like, optional
+        The rigid displacement the phases give, px, known modulo the lattice
+        periods (see :func:`deformation`). Without it the candidates are the
+        correlation peak and its aliases, and nothing is checked against phases.
+
+    Returns
+    -------
+    CoarseEstimate
+        ``shift`` with the Lagrangian sign: a specimen moved right gives
+        ``u_x > 0``.
+
+    Notes
+    -----
+    Sharp content fixed to the camera (dust on the lens or sensor, hot pixels)
+    that outweighs the specimen's own features makes the estimate say "no
+    motion"; check (c) catches it unless the specimen moved by a whole number of
+    periods to within a quarter period. Images larger than 1024 px are
+    correlated over their central 1024 x 1024 px; from 512 px on, the
+    band-passed images are decimated by ``q = floor(pitch / 2)`` (at most down
+    to 256 samples a side) before they are correlated: the band holds nothing
+    above about 0.8 / pitch, below the new Nyquist frequency, and the
+    correlation costs ``q^2`` times less. The candidates are then read from the
+    decimated map by cubic splines, the peak located to a fifth of a sample.
+    """
+    ref = as_image(reference, "reference").astype(np.float64)
+    cur = as_image(deformed, "deformed").astype(np.float64)
+    check_same_shape(cur.shape, ref.shape, "deformed", "reference")
+    m = check_mask(mask, ref.shape)
+    check_type(lattice, "lattice", Lattice)
+    if phase_shift is not None:
+        phase_shift = as_pair(phase_shift, "phase_shift", labels="(u_x, u_y)", unit="px")
+    return _CoarseReference(ref, lattice, m).estimate(cur, phase_shift)
+
+
+class _CoarseReference:
+    """The reference's side of :func:`coarse_displacement` (its band-passed image,
+    masks and transforms), computed once and used for every deformed image of a
+    run: what depends on the reference alone is not recomputed per state."""
+
+    def __init__(self, reference: np.ndarray, lattice: Lattice, mask: np.ndarray):
+        self.reference = np.asarray(reference, dtype=np.float64)
+        self.lattice, self.mask = lattice, mask
+        self._sides: dict[bool, _Side] = {}
+
+    def side(self, whole: bool) -> _Side:
+        if whole not in self._sides:
+            m = np.ones_like(self.mask) if whole else self.mask
+            self._sides[whole] = _reference_side(self.reference, self.lattice, m)
+        return self._sides[whole]
+
+    def estimate(self, deformed: np.ndarray, phase_shift) -> CoarseEstimate:
+        """:func:`coarse_displacement` of ``deformed`` (float64, checked)."""
+        best = _correlate(self.side(False), deformed, self.lattice, phase_shift)
+        if not self.mask.all() and not best.confident:
+            # The mask often hides the best features (the hole, the specimen's edges),
+            # so the whole images are tried too.
+            whole = _correlate(self.side(True), deformed, self.lattice, phase_shift)
+            if whole.confident or whole.peak_to_alias > best.peak_to_alias:
+                best = whole
+        return best
+
+
+def _band_pass(img, m, pitch, q=1):
+    """Difference of Gaussians (half a pitch, one pitch), normalised over ``m``,
+    sampled every ``q`` px along both axes."""
+    w = m.astype(np.float64)
+    x = np.where(m, img, 0.0)
+    if q == 1:
+        out = []
+        for s in (_BAND_LOW * pitch, _BAND_HIGH * pitch):
+            # normalised convolution: nothing is assumed beyond the border or the mask
+            num = ndimage.gaussian_filter(x, s, mode="constant", truncate=4.0)
+            den = ndimage.gaussian_filter(w, s, mode="constant", truncate=4.0)
+            out.append(num / np.maximum(den, 1e-12))
+        return out[0] - out[1]
+    # the narrow Gaussian at full resolution is the anti-aliasing filter; the wide one
+    # is the narrow one followed by a Gaussian of std sqrt(s_high^2 - s_low^2), applied
+    # to the decimated sums (numerator and weights alike)
+    s1 = _BAND_LOW * pitch
+    s2 = math.sqrt((_BAND_HIGH * pitch) ** 2 - s1**2) / q
+    num = _smooth_decimate(x, s1, q)
+    num2 = ndimage.gaussian_filter(num, s2, mode="constant", truncate=4.0)
+    if m.all():  # the weights of a whole image: the product of two profiles
+        prof = [ndimage.gaussian_filter1d(np.ones(n), s1, mode="constant", truncate=4.0)[::q]
+                for n in m.shape]
+        den = np.outer(*prof)
+        den2 = np.outer(*(ndimage.gaussian_filter1d(p, s2, mode="constant", truncate=4.0)
+                          for p in prof))
+    else:
+        den = _smooth_decimate(w, s1, q)
+        den2 = ndimage.gaussian_filter(den, s2, mode="constant", truncate=4.0)
+    return num / np.maximum(den, 1e-12) - num2 / np.maximum(den2, 1e-12)
+
+
+def _smooth_decimate(a, s, q):
+    """``a`` smoothed by a Gaussian of std ``s`` px and sampled every ``q`` px: each
+    axis filtered, then decimated, before the other."""
+    a = ndimage.gaussian_filter1d(a, s, axis=0, mode="constant", truncate=4.0)[::q]
+    return ndimage.gaussian_filter1d(a, s, axis=1, mode="constant", truncate=4.0)[:, ::q]
+
+
+def _decimation(shape, lattice) -> int:
+    """The coarse estimate's decimation factor (see ``_COARSE_MIN_SAMPLES``)."""
+    q = int(min(lattice.pitches) // 2)
+    while q > 1 and min(shape) // q < _COARSE_MIN_SAMPLES:
+        q -= 1
+    return max(q, 1)
+
+
+@dataclass(frozen=True, eq=False)
+class _Side:
+    """The reference's band-passed image for one mask, with what the normalised
+    correlation needs of it and of the deformed image's fixed mask (see
+    :func:`_ncc_map`)."""
+
+    shape: tuple[int, int]  # (H, W) of the whole image
+    win: tuple[slice, slice]  # the central crop correlated
+    q: int  # decimation
+    a: np.ndarray  # band-passed reference, decimated
+    ma: np.ndarray  # its mask, decimated
+    mb: np.ndarray  # the deformed image's mask (its inner band), decimated
+    usable: bool  # enough pixels, not uniform
+    fft_shape: tuple[int, int] = (0, 0)
+    MF: np.ndarray | None = None  # transforms of the reference's mask, f and f^2
+    F: np.ndarray | None = None
+    F2: np.ndarray | None = None
+    n: np.ndarray | None = None  # overlap count at every shift
+    sf: np.ndarray | None = None  # sum of f over the overlap
+    vf: np.ndarray | None = None  # and its centred sum of squares
+    enough: np.ndarray | None = None  # shifts with overlap enough
+
+
+def _reference_side(ref: np.ndarray, lattice: Lattice, m: np.ndarray) -> _Side:
+    # large images: a central crop of at most _MAX_COARSE_SIZE keeps the transform
+    # cheap and still holds hundreds of periods
+    H, W = ref.shape
+    cy, cx = max(0, (H - _MAX_COARSE_SIZE) // 2), max(0, (W - _MAX_COARSE_SIZE) // 2)
+    win = (slice(cy, cy + _MAX_COARSE_SIZE), slice(cx, cx + _MAX_COARSE_SIZE))
+    ref, m = ref[win], m[win]
+    pitch = lattice.pitch
+    q = _decimation(ref.shape, lattice)  # samples of the correlated maps, px
+    a = _band_pass(ref, m, pitch, q)
+    # the band-pass of a pixel within the wide Gaussian's reach of the image border
+    # depends on where the border is (fixed to the camera): leave that band out
+    edge = math.ceil(_BAND_HIGH * pitch)
+    inner = np.zeros_like(m)
+    inner[edge:-edge, edge:-edge] = True
+    if m.all():
+        ma = inner
+    else:
+        ma = ndimage.binary_erosion(m, iterations=max(1, int(_BAND_LOW * pitch) + 1)) & inner
+    ma, mb = ma[::q, ::q], inner[::q, ::q]
+    side = _Side((H, W), win, q, a, ma, mb, usable=bool(ma.sum() >= 16 and np.ptp(a[ma]) > 0))
+    if not side.usable:
+        return side
+    h, w = a.shape
+    shape = (sfft.next_fast_len(2 * h), sfft.next_fast_len(2 * w))
+    mf, mg = ma.astype(np.float64), mb.astype(np.float64)
+    f = (a - a[mf > 0].mean()) * mf
+    F, F2, MF = _tr(f, shape), _tr(f * f, shape), _tr(mf, shape)
+    MG = _tr(mg, shape)
+    n = np.rint(_xc(MF, MG, shape))
+    sf = _xc(F, MG, shape)
+    vf = _xc(F2, MG, shape) - sf * sf / np.maximum(n, 1.0)
+    enough = n >= 0.5 * min(mf.sum(), mg.sum())
+    return dataclasses.replace(side, fft_shape=shape, MF=MF, F=F, F2=F2, n=n, sf=sf, vf=vf,
+                               enough=enough)
+
+
+def _tr(a, shape):
+    return sfft.rfft2(a, s=shape)
+
+
+def _xc(a, b, shape):  # sum_x a(x) b(x + s), from the transforms of a and b
+    return sfft.irfft2(np.conj(a) * b, s=shape)
+
+
+def _ncc_map(side: _Side, g):
+    """Normalised correlation of the reference's ``f(x)`` and ``g(x + s)`` over
+    ``mf(x) mg(x + s)`` (the masks of ``side``).
+
+    Returns the map indexed by ``s`` modulo its shape.
+    """
+    shape, MF = side.fft_shape, side.MF
+    mg = side.mb.astype(np.float64)
+    g = (g - g[mg > 0].mean()) * mg
+    G, G2 = _tr(g, shape), _tr(g * g, shape)
+    nn = np.maximum(side.n, 1.0)
+    sf, sg = side.sf, _xc(MF, G, shape)
+    vg = _xc(MF, G2, shape) - sg * sg / nn
+    num = _xc(side.F, G, shape) - sf * sg / nn
+    den = np.sqrt(np.maximum(side.vf, 0.0) * np.maximum(vg, 0.0))
+    scale = max(float(np.max(den)), 1e-300)
+    ok = side.enough & (den > 1e-9 * scale)
+    c = np.full(shape, np.nan)
+    c[ok] = num[ok] / den[ok]
+    return c
+
+
+def _at_cubic(c, s):
+    """Cubic-spline value of the wrapped map ``c`` at shifts ``s`` (..., 2) = (x, y)
+    in samples; NaN where a sample within four of ``s`` is NaN (outside the shifts
+    correlated: set to 0 for the spline's prefilter, whose influence falls by 0.27
+    a sample, so that it stays below 1 % of the map's values four samples away)."""
+    s = np.asarray(s, dtype=float)
+    ok = ndimage.minimum_filter(np.isfinite(c), size=9, mode="wrap")
+    coords = np.stack([s[..., 1].ravel(), s[..., 0].ravel()])
+    vals = ndimage.map_coordinates(np.nan_to_num(c, nan=0.0), coords, order=3,
+                                   mode="grid-wrap").reshape(s.shape[:-1])
+    near = np.rint(s).astype(int)
+    inside = ok[near[..., 1] % c.shape[0], near[..., 0] % c.shape[1]]
+    return np.where(inside, vals, np.nan)
+
+
+def _at(c, s):
+    """Bilinear value of the wrapped map ``c`` at shifts ``s`` (..., 2) = (x, y) px."""
+    s = np.asarray(s, dtype=float)
+    x, y = s[..., 0], s[..., 1]
+    x0, y0 = np.floor(x), np.floor(y)
+    fx, fy = x - x0, y - y0
+    Sy, Sx = c.shape
+    out = 0.0
+    for dy, wy in ((0, 1 - fy), (1, fy)):
+        for dx, wx in ((0, 1 - fx), (1, fx)):
+            out = out + wy * wx * c[(y0.astype(int) + dy) % Sy, (x0.astype(int) + dx) % Sx]
+    return out
+
+
+def _correlate(side: _Side, cur, lattice, phase_shift) -> CoarseEstimate:
+    H, W = side.shape
+    q = side.q
+    cur = cur[side.win]
+    b = _band_pass(cur, np.ones(cur.shape, dtype=bool), lattice.pitch, q)
+    nan = math.nan
+    if not (side.usable and np.ptp(b[side.mb]) > 0):
+        return CoarseEstimate((0.0, 0.0), (0.0, 0.0), 0.0, nan, nan, nan, False,
+                              "the images are too small or uniform once band-passed")
+    c = _ncc_map(side, b)
+    if not np.any(np.isfinite(c)):
+        return CoarseEstimate((0.0, 0.0), (0.0, 0.0), 0.0, nan, nan, nan, False,
+                              "no overlap to correlate")
+    k = int(np.nanargmax(c))
+    iy, ix = np.unravel_index(k, c.shape)
+    Sy, Sx = c.shape
+    py = iy - Sy if iy > Sy // 2 else iy
+    px = ix - Sx if ix > Sx // 2 else ix
+    # sub-pixel peak, one parabola per axis (NaN neighbours leave the integer peak)
+    sub = []
+    for d, (i, S) in enumerate(((ix, Sx), (iy, Sy))):
+        lo = c[iy, (i - 1) % S] if d == 0 else c[(i - 1) % S, ix]
+        hi = c[iy, (i + 1) % S] if d == 0 else c[(i + 1) % S, ix]
+        den = lo - 2 * c[iy, ix] + hi
+        sub.append(0.5 * (lo - hi) / den if np.isfinite(den) and den < 0 else 0.0)
+    peak = q * np.array([px + sub[0], py + sub[1]])  # px
+    P = lattice.periods  # columns a1, a2
+    K = lattice.K
+    span = np.array([W, H], dtype=float)
+    M = math.ceil(float(np.max(span)) / min(lattice.pitches)) + 2
+    mm, nn = np.meshgrid(np.arange(-M, M + 1), np.arange(-M, M + 1), indexing="ij")
+    # with phases, the candidate nearest to the peak anchors the lattice of candidates
+    base = peak if phase_shift is None else \
+        phase_shift + P @ np.rint(K @ (peak - phase_shift))
+    cands = base[None, None, :] + mm[..., None] * P[:, 0] + nn[..., None] * P[:, 1]
+    inside = ((np.abs(cands[..., 0]) < q * (Sx // 2 - 1))
+              & (np.abs(cands[..., 1]) < q * (Sy // 2 - 1)))
+    at = _at if q == 1 else _at_cubic  # a decimated peak spans few samples: cubic
+    vals = np.where(inside, at(c, np.where(inside[..., None], cands, 0.0) / q), np.nan)
+    if not np.any(np.isfinite(vals)):
+        return CoarseEstimate((0.0, 0.0), tuple(map(float, peak)), 0.0, nan, nan, nan,
+                              False, "no candidate within the correlated shifts")
+    j = np.unravel_index(int(np.nanargmax(vals)), vals.shape)
+    best = float(vals[j])
+    near = (np.abs(mm - mm[j]) <= 2) & (np.abs(nn - nn[j]) <= 2)
+    near[j] = False
+    aliases = vals[near & np.isfinite(vals)]
+    alias = float(np.max(aliases)) if aliases.size else nan
+    ratio = best / max(alias, 0.01) if aliases.size else nan
+    shift = cands[j]
+    off = float(np.max(np.abs(K @ (peak - shift)))) if phase_shift is not None else nan
+    if best < _MIN_COARSE_CORRELATION:
+        ok, why = False, (f"correlation {best:.2f} < {_MIN_COARSE_CORRELATION}: nothing "
+                          "but the grid moves with the specimen")
+    elif not ratio >= _MIN_PEAK_TO_ALIAS:
+        ok, why = False, (f"peak-to-alias ratio {ratio:.2f} < {_MIN_PEAK_TO_ALIAS}: a "
+                          "lattice period away correlates almost as well")
+    elif phase_shift is not None and not off <= _MAX_DISAGREEMENT:
+        ok, why = False, (f"the correlation peak lies {off:.2f} period from every "
+                          "displacement the phases allow")
+    else:
+        ok, why = True, (f"correlation {best:.2f}, peak-to-alias ratio {ratio:.2f}"
+                         + (f", {off:.2f} period from the phases"
+                            if phase_shift is not None else ""))
+    return CoarseEstimate(tuple(float(v) for v in shift), tuple(float(v) for v in peak),
+                          best, alias, ratio, off, ok, why)
+
+
+def _phase_shift(reference: PhaseMaps, deformed: PhaseMaps) -> np.ndarray | None:
+    """Rigid displacement the phases give, modulo the lattice, px (None if no pixel).
+
+    The circular mean of each wrapped phase difference over the common valid
+    pixels, through eq. (34): ``u = -K^-1 dphi / 2 pi``.
+    """
+    valid = reference.valid & deformed.valid
+    if not valid.any():
+        return None
+    mean = np.zeros(2, dtype=np.complex128)
+    for _, _, z in _phase_products(reference, deformed, valid):
+        z /= np.maximum(np.abs(z), 1e-300)
+        mean += z.sum(axis=1)
+    return -_solve(reference.lattice.K, np.angle(mean)) / (2 * np.pi)
+
+
+# Pixels per band of rows of _phase_products.
+_PRODUCT_BAND = 2**14
+
+
+def _phase_products(reference: PhaseMaps, deformed: PhaseMaps, valid: np.ndarray):
+    """``(rows, v, z)`` band of rows by band of rows: the rows' slice, their pixels of
+    ``valid`` (bool), and ``z = Psi_def conj(Psi_ref)`` (2, n) there, complex128,
+    whose angle is the wrapped phase difference of eq. (34). The bands' temporaries
+    stay in cache; bands without a valid pixel are skipped."""
+    H, W = valid.shape
+    step = max(1, _PRODUCT_BAND // W)
+    for r0 in range(0, H, step):
+        rows = slice(r0, r0 + step)
+        v = valid[rows]
+        if not v.any():
+            continue
+        z = deformed.psi[:, rows][:, v].astype(np.complex128)
+        z *= np.conj(reference.psi[:, rows][:, v])
+        yield rows, v, z
+
+
+def _solve(K: np.ndarray, r: np.ndarray) -> np.ndarray:
+    """``K^-1 r`` for a 2x2 ``K`` and ``r`` of shape (2, ...)."""
+    return np.tensordot(np.linalg.inv(K), r, axes=1)
