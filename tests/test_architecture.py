@@ -26,7 +26,8 @@ CORE = {
     "phase._transform", "phase._kernels", "wft", "kinematics",
     "stacks", "stacks._methods", "stacks.vibration", "stacks.screening", "stacks.accumulate",
     "vibration", "screening", "accumulate", "noise", "uncertainty", "theory",
-    "synthetic",
+    "synthetic", "uncertainty._maps", "uncertainty._biases", "uncertainty._noise",
+    "uncertainty._noise_image",
     "kirsch", "kinematics._deformation", "kinematics._fringe_order", "kinematics._spline_kernels",
     "_threads", "_stats",
 }

@@ -142,7 +142,7 @@ def test_tile_spectrum_by_batches_is_the_median_over_all_tiles(monkeypatch):
     from numpy.lib.stride_tricks import sliding_window_view
     from scipy import ndimage
 
-    from gridstrain import noise
+    from gridstrain.uncertainty import _noise_image as noise
 
     rng = np.random.default_rng(41)
     img = rng.normal(1000.0, 10.0, (160, 224))

@@ -214,7 +214,7 @@ def test_aliasing_window_of_a_rectangle_is_the_two_dimensional_one(box):
     rounding (1e-12 of the window's peak; float64 sums of 0/1 values and weights)."""
     from scipy import ndimage
 
-    from gridstrain.uncertainty import _aliasing_window
+    from gridstrain.uncertainty._biases import _aliasing_window
 
     H, W = 120, 150
     lat = Lattice.from_pitch(4.6, angle=10.0)

@@ -177,7 +177,6 @@ from .kinematics._fringe_order import (
     _phase_products,
     _phase_shift,
 )
-from .noise import NoiseModel, estimate_noise_image
 from .phase._transform import _wft, demodulated_at, finite_derivatives
 from .phase.lattice import Lattice, _Carrier, detect_lattice, follow_lattice
 from .sequences import StateInputs, state_inputs
@@ -186,15 +185,10 @@ from .stacks.accumulate import PassPlan, SeriesPass
 from .stacks.screening import FrameScreen
 from .stacks.vibration import VibrationReport
 from .stacks.vibration import _report as _vibration_report
-from .uncertainty import (
-    _D_PER_SIGMA,
-    _FWHM,
-    NoiseFloor,
-    aliasing_bias,
-    displacement_strain_std,
-    metrology,
-    smoothing_bias,
-)
+from .uncertainty._biases import aliasing_bias, smoothing_bias
+from .uncertainty._maps import _D_PER_SIGMA, _FWHM, NoiseFloor, displacement_strain_std, metrology
+from .uncertainty._noise import NoiseModel
+from .uncertainty._noise_image import estimate_noise_image
 from .wft import DEFAULT_MARGIN, PhaseMaps, wft
 
 __all__ = [

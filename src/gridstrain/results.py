@@ -339,7 +339,7 @@ def _registry() -> dict[str, type]:
     from .phase.lattice import Lattice
     from .stacks.screening import FrameScreen
     from .stacks.vibration import VibrationReport
-    from .uncertainty import NoiseFloor
+    from .uncertainty._maps import NoiseFloor
 
     return {
         "gridstrain.pipeline.SeriesResult": SeriesResult,

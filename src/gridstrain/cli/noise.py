@@ -17,12 +17,13 @@ import numpy as np
 from .._progress import bar
 from .._validation import check_int
 from ..io import open_series, provenance, write_atomic, write_hdf5
-from ..noise import NOISE_RESULT_KIND, estimate_noise, estimate_noise_image
 from ..phase.lattice import detect_lattice
 from ..pipeline import outlier_verdict
 from ..stacks.screening import screen_frames
 from ..stacks.vibration import vibration_report
-from ..uncertainty import noise_floor
+from ..uncertainty._maps import noise_floor
+from ..uncertainty._noise import NOISE_RESULT_KIND, estimate_noise
+from ..uncertainty._noise_image import estimate_noise_image
 from ..wft import wft
 from ._common import (
     add_lattice_options,

@@ -732,7 +732,7 @@ def read_noise_model(path):
     ValueError
         The file is not a noise result, or holds an unusable model (``K <= 0``).
     """
-    from ..noise import NOISE_RESULT_KIND, NoiseModel
+    from ..uncertainty._noise import NOISE_RESULT_KIND, NoiseModel
 
     p = as_path(path, "path")
     if not p.is_file():
