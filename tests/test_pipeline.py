@@ -16,14 +16,8 @@ from scipy import ndimage
 
 from gridstrain import Lattice, __version__, kirsch, synthetic, theory
 from gridstrain.io import open_series, read_hdf5
-from gridstrain.pipeline import (
-    FWHM_PER_SIGMA,
-    MAP_FIELDS,
-    SeriesResult,
-    measure_series,
-    save_csv,
-    save_result,
-)
+from gridstrain.pipeline import FWHM_PER_SIGMA, measure_series, save_csv, save_result
+from gridstrain.results._result import MAP_FIELDS, SeriesResult
 from gridstrain.results import read_attrs
 
 LAT = Lattice.from_pitch(5.0)

@@ -650,3 +650,17 @@ def check_float_dtype(dtype, name: str = "dtype", *, allow_none: bool = True
     if dt not in (np.dtype(np.float32), np.dtype(np.float64)):
         raise ValueError(f"{name} must be {allowed}, got {dtype!r}")
     return dt
+
+
+def check_pixel_size(pixel_size, unit):
+    """``(pixel_size, unit)`` checked: both None, or a positive size and a short unit name."""
+    if pixel_size is None:
+        if unit is not None:
+            raise ValueError(f"unit needs a pixel_size, got unit={unit!r} without one")
+        return None, None
+    ps = check_positive(pixel_size, "pixel_size")
+    if not isinstance(unit, str) or not unit.strip() or len(unit) > 32 \
+            or not unit.isprintable():
+        raise ValueError(f"unit must be a short name such as 'mm' when pixel_size is "
+                         f"given, got {unit!r}")
+    return ps, unit.strip()

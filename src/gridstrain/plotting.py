@@ -32,9 +32,9 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.colors import CenteredNorm, Normalize
 from matplotlib.figure import Figure
 
-from ._validation import check_choice, check_finite, check_positive, check_type
+from ._validation import check_choice, check_finite, check_pixel_size, check_positive, check_type
 from .io import OutputDirectory, write_atomic
-from .pipeline import SeriesResult, _check_pixel_size
+from .results._result import SeriesResult
 
 __all__ = [
     "figure_names",
@@ -300,7 +300,7 @@ def save_figures(result, directory, *, pixel_size: float | None = None,
         in the order of :func:`figure_names`.
     """
     check_type(result, "result", SeriesResult)
-    ps, unit = _check_pixel_size(pixel_size, unit)
+    ps, unit = check_pixel_size(pixel_size, unit)
     names = figure_names(result.n_states)
     out = OutputDirectory(directory, names, overwrite=overwrite, what="figures directory")
     out.prepare()
@@ -446,7 +446,7 @@ def plot_states(result, name: str, *, limits: str = "common", microstrain: bool 
     """
     from mpl_toolkits.axes_grid1.anchored_artists import AnchoredSizeBar
 
-    ps, unit = _check_pixel_size(pixel_size, unit)
+    ps, unit = check_pixel_size(pixel_size, unit)
     values, drawn = quantity(result, name, pixel_size=ps, unit=unit,
                              microstrain=microstrain)
     valid = np.asarray(result.valid) & np.isfinite(values)

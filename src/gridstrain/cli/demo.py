@@ -27,7 +27,8 @@ from .._progress import bar
 from .._validation import check_int
 from ..io import OutputDirectory, open_series, read_mask, write_hdf5, write_tiff_series
 from ..phase.lattice import Lattice
-from ..pipeline import MAP_FIELDS, measure_series, save_result
+from ..results._result import MAP_FIELDS
+from ..pipeline import measure_series, save_result
 from ..plotting import figure_names, save_figures
 from ..report import write_report
 from .measure import jsonable, report_lines, summary

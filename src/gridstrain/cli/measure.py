@@ -35,17 +35,16 @@ from ..io import (
 )
 from ..pipeline import (
     FWHM_PER_SIGMA,
-    MAP_FIELDS,
     ORDERS,
     OUTLIER_POLICIES,
     SPATIAL_RESOLUTION_PER_SIGMA,
-    SeriesResult,
     empty_state_message,
     measure_series,
     reference_lattice,
     state_names,
 )
-from ..results import ResultFile, export, save_csv, save_result
+from ..results._result import MAP_FIELDS, SeriesResult
+from ..results._file import ResultFile, export, save_csv, save_result
 from ..sequences import state_inputs
 from ..wft import DEFAULT_MARGIN
 from ._common import (
@@ -361,7 +360,7 @@ def _read_config(path: str) -> _Config:
         raise FileNotFoundError(f"config file {p} does not exist")
     from_result = h5py.is_hdf5(p)
     if from_result:  # a result file: the configuration of its run
-        from ..results import read_attrs
+        from ..results._file import read_attrs
 
         text = read_attrs(p).get("config")
         if not isinstance(text, str):

@@ -46,7 +46,7 @@ def register(sub) -> None:
 def run(args) -> int:
     from ..io import OutputDirectory
     from ..plotting import QUANTITIES, plot_history, plot_states
-    from ..results import load, read_attrs
+    from ..results._file import load, read_attrs
 
     if not 20 <= args.dpi <= 1200:
         raise ValueError(f"--dpi must be between 20 and 1200, got {args.dpi}")

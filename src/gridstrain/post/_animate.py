@@ -6,9 +6,9 @@ from pathlib import Path
 
 import numpy as np
 
-from .._validation import as_path, check_choice, check_positive, check_type
+from .._validation import as_path, check_choice, check_pixel_size, check_positive, check_type
 from ..io import atomic_path
-from ..pipeline import SeriesResult, _check_pixel_size
+from ..results._result import SeriesResult
 from ._loads import state_loads
 
 FORMATS = (".gif", ".mp4")
@@ -91,7 +91,7 @@ def animate(result: SeriesResult, name: str, path, *, fps: float = 5.0,
             import av  # noqa: F401
         except ImportError:
             raise ImportError(_VIDEO_EXTRA) from None
-    ps, unit = _check_pixel_size(pixel_size, unit)
+    ps, unit = check_pixel_size(pixel_size, unit)
     load, load_unit, time = state_loads(result, load=load, load_unit=load_unit, time=time)
     base = QUANTITIES[name][1]
     scale, drawn = (1e6, "µε") if base == "1" else \

@@ -7,9 +7,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .._validation import check_type
+from .._validation import check_pixel_size, check_type
 from ..io import roi_mask
-from ..pipeline import SeriesResult, _check_pixel_size
+from ..results._result import SeriesResult
 from . import _correlation
 from ._loads import state_loads
 
@@ -259,7 +259,7 @@ def gauge(result: SeriesResult, *, region=None, point=None, polygon=None,
     to every state: it shifts all the states' readings alike.
     """
     check_type(result, "result", SeriesResult)
-    ps, unit = _check_pixel_size(pixel_size, unit)
+    ps, unit = check_pixel_size(pixel_size, unit)
     mask, where = _region_mask(result.shape, ps, unit, region, point, polygon)
     load, load_unit, time = state_loads(result, load=load, load_unit=load_unit, time=time)
     n = result.n_states

@@ -7,8 +7,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.signal import savgol_filter
 
-from .._validation import check_int, check_type
-from ..pipeline import _check_pixel_size
+from .._validation import check_int, check_pixel_size, check_type
 from ._gauges import GaugeReading
 
 #: Largest departure of a time step from the mean step, relative: the
@@ -158,7 +157,7 @@ def history(reading: GaugeReading, *, window: int = 5, order: int = 2,
     check_type(reading, "reading", GaugeReading)
     window = check_int(window, "window", minimum=3)
     order = check_int(order, "order", minimum=2)
-    ps, unit = _check_pixel_size(pixel_size, unit)
+    ps, unit = check_pixel_size(pixel_size, unit)
     t = reading.time
     if t is None:
         raise ValueError("the gauge has no times: give them (--loads FILE.csv with a "

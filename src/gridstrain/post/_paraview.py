@@ -24,9 +24,9 @@ from xml.sax.saxutils import quoteattr
 
 import numpy as np
 
-from .._validation import check_type
+from .._validation import check_pixel_size, check_type
 from ..io import OutputDirectory, write_atomic
-from ..pipeline import SeriesResult, _check_pixel_size
+from ..results._result import SeriesResult
 from ._loads import state_loads
 
 FRAME = ("X = x * pixel size, Y = -y * pixel size (image rows downwards, ParaView's Y "
@@ -101,7 +101,7 @@ def export_pvd(result: SeriesResult, path, *, pixel_size: float | None = None,
     from pathlib import Path
 
     check_type(result, "result", SeriesResult)
-    ps, unit = _check_pixel_size(pixel_size, unit)
+    ps, unit = check_pixel_size(pixel_size, unit)
     s, u = (1.0, "px") if ps is None else (ps, unit)
     load, load_unit, time = state_loads(result, load=load, load_unit=load_unit, time=time)
     steps, what = (time, "time [s]") if time is not None else \

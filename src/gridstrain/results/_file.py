@@ -62,10 +62,10 @@ from pathlib import Path
 import h5py
 import numpy as np
 
-from . import __version__
-from ._validation import as_path, check_float_dtype, check_mapping, check_type
-from .io import hdf5_file, hdf5_stream, provenance, write_atomic, write_csv
-from .pipeline import MAP_FIELDS, SeriesResult, _check_pixel_size
+from .. import __version__
+from .._validation import as_path, check_float_dtype, check_mapping, check_pixel_size, check_type
+from ..io import hdf5_file, hdf5_stream, provenance, write_atomic, write_csv
+from ._result import MAP_FIELDS, SeriesResult
 
 __all__ = [
     "FORMAT_VERSION",
@@ -333,13 +333,13 @@ def _read_dataset(ds: h5py.Dataset, *, kinds: str = "biufc") -> np.ndarray:
 def _registry() -> dict[str, type]:
     """The classes a result file may hold, by the name it stores. Nothing else is
     built from a file, and no name read from one is ever imported."""
-    from .kinematics._deformation import Measurement
-    from .kinematics._fringe_order import FringeOrder
-    from .phase._transform import PhaseMaps
-    from .phase.lattice import Lattice
-    from .stacks.screening import FrameScreen
-    from .stacks.vibration import VibrationReport
-    from .uncertainty._maps import NoiseFloor
+    from ..kinematics._deformation import Measurement
+    from ..kinematics._fringe_order import FringeOrder
+    from ..phase._transform import PhaseMaps
+    from ..phase.lattice import Lattice
+    from ..stacks.screening import FrameScreen
+    from ..stacks.vibration import VibrationReport
+    from ..uncertainty._maps import NoiseFloor
 
     return {
         "gridstrain.pipeline.SeriesResult": SeriesResult,
@@ -612,7 +612,7 @@ def save_result(result: SeriesResult, path, *, pixel_size: float | None = None,
     opens it, :func:`load` reads it back.
     """
     check_type(result, "result", SeriesResult)
-    ps, unit = _check_pixel_size(pixel_size, unit)
+    ps, unit = check_pixel_size(pixel_size, unit)
     attrs = check_mapping(attrs, "attrs", allow_none=True)
     H, W = result.shape
     n_series = len(result.names)
@@ -910,7 +910,7 @@ class ResultFile:
 
     def __post_init__(self):
         as_path(self.path, "path")
-        ps, unit = _check_pixel_size(self.pixel_size, self.unit)
+        ps, unit = check_pixel_size(self.pixel_size, self.unit)
         object.__setattr__(self, "pixel_size", ps)
         object.__setattr__(self, "unit", unit)
         object.__setattr__(self, "attrs", dict(check_mapping(self.attrs, "attrs",
@@ -1322,7 +1322,7 @@ def read_attrs(path) -> dict:
                            + f", got {_received(v)}")
         if out.get("pixel_size") is not None:
             try:
-                _check_pixel_size(out["pixel_size"], out.get("unit"))
+                check_pixel_size(out["pixel_size"], out.get("unit"))
             except ValueError as exc:
                 raise _Bad(f"{_where(h5, 'unit')}: {exc}") from None
         if "attrs" in h5[_GROUP]:
@@ -1365,7 +1365,7 @@ def to_xarray(result_or_path, *, pixel_size: float | None = None, unit: str | No
 
 
 def _phys(result, pixel_size, unit):
-    return _check_pixel_size(pixel_size, unit)
+    return check_pixel_size(pixel_size, unit)
 
 
 def export_mat(result: SeriesResult, path, *, pixel_size: float | None = None,
@@ -1418,7 +1418,7 @@ def export_vtk(result: SeriesResult, path, *, pixel_size: float | None = None,
     (time, else load, else index), the displacement as one vector in ``unit``,
     the image upright in ParaView, units in the field names.
     """
-    from .post import export_pvd
+    from ..post import export_pvd
 
     return export_pvd(result, path, pixel_size=pixel_size, unit=unit, overwrite=overwrite)
 

@@ -1,0 +1,229 @@
+"""The result of a series measurement: :class:`SeriesResult`, its maps and everything that
+qualifies them (the fringe orders, the noise floor, the screening, the warnings).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .._validation import (
+    check_choice,
+)
+from ..kinematics._deformation import (
+    Measurement,
+)
+from ..kinematics._fringe_order import (
+    FringeOrder,
+)
+from ..phase.lattice import Lattice
+from ..stacks.vibration import VibrationReport
+from ..uncertainty._maps import NoiseFloor
+
+#: Names of the maps, in file order, with their units before ``pixel_size``.
+MAP_FIELDS = {"ux": "px", "uy": "px", "exx": "1", "eyy": "1", "exy": "1"}
+
+
+@dataclass(frozen=True, eq=False)
+class SeriesResult:
+    """Displacement and strain maps of every loaded state against the reference.
+
+    Attributes
+    ----------
+    u : (n_states, 2, H, W) float ndarray
+        ``(u_x, u_y)`` per state, px, Lagrangian; NaN where not ``valid``. float32
+        when every series holds float32 frames, float64 otherwise (precision in
+        :mod:`gridstrain.conventions`).
+    strain : (n_states, 3, H, W) float ndarray
+        ``(e_xx, e_yy, e_xy)`` per state, dimensionless (tensor shear).
+    valid : (n_states, H, W) bool ndarray
+        With ``measure_series(..., output=...)`` these three, the uncertainty maps
+        and the measurements' maps are :class:`gridstrain.results.StoredMaps`:
+        read from the result file when indexed (``result.u[i]`` reads state
+        ``i``), ``numpy.asarray`` reading the whole.
+    lattice : Lattice
+    lattice_detected : bool
+        Whether the lattice was detected (True) or given.
+    sigma : float
+        Window standard deviation, px.
+    method : {"A", "B", "C"}
+    lagrangian : bool
+    margin : float
+        Invalid band along borders and mask edges, in units of ``sigma``.
+    mask : (H, W) bool ndarray
+        The specimen mask used for the reference: the given one, less the regions
+        found without a grid.
+    reference_image : (H, W) float64 ndarray
+        Mean reference frame, raw grey levels (for display).
+    names : tuple of str
+        ``("reference", name of state 0, ...)``: folder or file names
+        (:func:`state_names`).
+    sources : tuple of tuple of str
+        The files of each series (empty for arrays given in memory).
+    n_frames : tuple of int
+        ``T`` of each series, reference first.
+    bit_depth, scale : tuple
+        Of each series (:class:`gridstrain.io.FrameSeries`; ``None``/1 for arrays).
+    saturation : tuple of float
+        Largest saturated fraction of a frame in each series.
+    measurements : tuple of Measurement
+        One per state, with its phase maps and iterations.
+    guesses : tuple of (float, float)
+        The initial displacement that fixed each state's fringe order (median of
+        the guess field), px.
+    guess_sources : tuple of str
+        Where each guess came from: ``fringe_orders[i].source``.
+    vibration : tuple of VibrationReport
+        One per series, reference first.
+    noise : NoiseFloor
+    parameters : dict
+        Every option of the measurement, as given.
+    warnings : tuple of str
+        Things the user should know that did not stop the measurement.
+    excluded : tuple of tuple of int
+        Per series, the numbers of the frames the screening excluded (their files
+        and reasons are in ``warnings``); ``n_frames`` counts the frames kept.
+    screening : tuple of gridstrain.screening.FrameScreen
+        Per series, what the screening measured on every frame (excluded ones
+        included).
+    uncertainty : dict of str to ndarray, optional
+        Per-pixel predicted standard deviations ``"ux_std"``, ``"uy_std"`` (px),
+        ``"exx_std"``, ``"eyy_std"``, ``"exy_std"``, each ``(n_states, H, W)``, NaN
+        where not valid; ``None`` when no noise variance could be had (a single
+        frame per series whose noise could not be estimated, and no model given).
+    metrology : dict, optional
+        Per state and per map: resolution (median predicted std), spatial
+        resolution (10 % attenuation period, window FWHM and 10-90 % step width,
+        px) and the metrological
+        efficiency indicator (:func:`gridstrain.uncertainty.metrology`).
+    systematic : dict, optional
+        Estimated systematic errors that the uncertainty maps do not cover:
+        harmonic aliasing onto the carrier and the window's smoothing of strain
+        gradients (:func:`gridstrain.uncertainty.aliasing_bias`,
+        :func:`gridstrain.uncertainty.smoothing_bias`).
+    fringe_orders : tuple of FringeOrder
+        How each state's whole number of periods was fixed and whether anything
+        confirms it (see :class:`gridstrain.kinematics.FringeOrder`).
+    state_order : {"natural", "reordered", "given"}
+        The order the states were measured in: natural order (folders, globs, a
+        numbered family of files already in it), explicit files put in natural
+        order from the order given, or the order given kept
+        (:mod:`gridstrain.sequences`).
+    load : (n_states,) float64 ndarray, optional
+        The load of each state, in ``load_unit`` (``measure_series(loads=...)``).
+    load_unit : str, optional
+        The unit of ``load`` (``"N"``, ``"kN"``...); None without loads or when
+        they were given without a unit.
+    time : (n_states,) float64 ndarray, optional
+        The time of each state, s: from the loads file's ``time [s]`` column or
+        the frame rate (frame number in the record over the rate).
+    """
+
+    u: np.ndarray
+    strain: np.ndarray
+    valid: np.ndarray
+    lattice: Lattice
+    lattice_detected: bool
+    sigma: float
+    method: str
+    lagrangian: bool
+    margin: float
+    mask: np.ndarray
+    reference_image: np.ndarray
+    names: tuple[str, ...]
+    sources: tuple[tuple[str, ...], ...]
+    n_frames: tuple[int, ...]
+    bit_depth: tuple[int | None, ...]
+    scale: tuple[int, ...]
+    saturation: tuple[float, ...]
+    measurements: tuple[Measurement, ...] = field(repr=False)
+    guesses: tuple[tuple[float, float], ...]
+    guess_sources: tuple[str, ...]
+    vibration: tuple[VibrationReport, ...]
+    noise: NoiseFloor
+    parameters: dict
+    warnings: tuple[str, ...] = ()
+    uncertainty: dict | None = None
+    fringe_orders: tuple[FringeOrder, ...] = ()
+    excluded: tuple[tuple[int, ...], ...] = ()
+    screening: tuple = field(default=(), repr=False)
+    metrology: dict | None = None
+    systematic: dict | None = None
+    state_order: str = "given"
+    load: np.ndarray | None = None
+    load_unit: str | None = None
+    time: np.ndarray | None = None
+
+    def __post_init__(self):
+        for name in ("u", "strain", "valid", "mask", "reference_image", "load", "time"):
+            arr = getattr(self, name)
+            if isinstance(arr, np.ndarray):  # maps read from a file are read-only already
+                arr.flags.writeable = False
+
+    @property
+    def n_states(self) -> int:
+        """Number of loaded states."""
+        return int(self.u.shape[0])
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        """``(H, W)`` of the maps."""
+        return tuple(self.valid.shape[1:])
+
+    def get_map(self, name: str) -> np.ndarray:
+        """The ``(n_states, H, W)`` map of one of :data:`MAP_FIELDS`."""
+        check_choice(name, "name", tuple(MAP_FIELDS))
+        i = tuple(MAP_FIELDS).index(name)
+        return self.u[:, i] if i < 2 else self.strain[:, i - 2]
+
+    @property
+    def ux(self) -> np.ndarray:
+        """(n_states, H, W) displacement along x, px."""
+        return self.u[:, 0]
+
+    @property
+    def uy(self) -> np.ndarray:
+        """(n_states, H, W) displacement along y, px."""
+        return self.u[:, 1]
+
+    @property
+    def exx(self) -> np.ndarray:
+        """(n_states, H, W) normal strain along x."""
+        return self.strain[:, 0]
+
+    @property
+    def eyy(self) -> np.ndarray:
+        """(n_states, H, W) normal strain along y."""
+        return self.strain[:, 1]
+
+    @property
+    def exy(self) -> np.ndarray:
+        """(n_states, H, W) shear strain (tensor component)."""
+        return self.strain[:, 2]
+
+    def save(self, path, **options):
+        """Write this result to its HDF5 file (:func:`gridstrain.results.save_result`)."""
+        from .results._file import save_result as _save
+
+        return _save(self, path, **options)
+
+    def to_xarray(self, **options):
+        """This result as an ``xarray.Dataset`` (:func:`gridstrain.results.to_xarray`);
+        needs ``gridstrain[xarray]``."""
+        from .results._file import to_xarray
+
+        return to_xarray(self, **options)
+
+    def plot(self, name: str = "exx", **options):
+        """Maps of ``name`` for every state on common colour limits
+        (:func:`gridstrain.plotting.plot_states`); returns a matplotlib Figure."""
+        from .plotting import plot_states
+
+        return plot_states(self, name, **options)
+
+    def __repr__(self) -> str:
+        H, W = self.shape
+        valid = ", ".join(f"{v.mean():.1%}" for v in self.valid)
+        return (f"SeriesResult({self.n_states} state(s) of {H}x{W}, method {self.method}, "
+                f"sigma={self.sigma:.4g} px, frames {list(self.n_frames)}, valid {valid})")
