@@ -27,10 +27,10 @@ from .._progress import bar
 from .._validation import check_int
 from ..io import OutputDirectory, open_series, read_mask, write_hdf5, write_tiff_series
 from ..phase.lattice import Lattice
-from ..results._result import MAP_FIELDS
-from ..pipeline import measure_series, save_result
 from ..plotting import figure_names, save_figures
 from ..report import write_report
+from ..results import MAP_FIELDS, save_result
+from ..series import measure_series
 from .measure import jsonable, report_lines, summary
 
 # The simulated camera and specimen (paper §3.2 and README of the paper notes).

@@ -33,19 +33,17 @@ from ..io import (
     read_noise_model,
     roi_mask,
 )
-from ..pipeline import (
-    FWHM_PER_SIGMA,
-    ORDERS,
-    OUTLIER_POLICIES,
-    SPATIAL_RESOLUTION_PER_SIGMA,
-    empty_state_message,
-    measure_series,
-    reference_lattice,
-    state_names,
-)
+from ..results._csv import save_csv
+from ..results._file import ResultFile, save_result
+from ..results._formats import export
 from ..results._result import MAP_FIELDS, SeriesResult
-from ..results._file import ResultFile, export, save_csv, save_result
 from ..sequences import state_inputs
+from ..series._inputs import state_names
+from ..series._loop import ORDERS, measure_series
+from ..series._outliers import OUTLIER_POLICIES
+from ..series._passes import reference_lattice
+from ..series._sinks import empty_state_message
+from ..uncertainty import FWHM_PER_SIGMA, SPATIAL_RESOLUTION_PER_SIGMA
 from ..wft import DEFAULT_MARGIN
 from ._common import (
     add_lattice_options,

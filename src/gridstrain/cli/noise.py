@@ -18,7 +18,7 @@ from .._progress import bar
 from .._validation import check_int
 from ..io import open_series, provenance, write_atomic, write_hdf5
 from ..phase.lattice import detect_lattice
-from ..pipeline import outlier_verdict
+from ..series._outliers import outlier_verdict
 from ..stacks.screening import screen_frames
 from ..stacks.vibration import vibration_report
 from ..uncertainty._maps import noise_floor

@@ -16,12 +16,15 @@ from ._transform import (
     demodulated_at,
     finite_derivatives,
     transfer_function,
+    transform,
     wft,
     wft_complex,
 )
 from .lattice import Lattice, detect_lattice, follow_lattice
+from .window import MIN_MODULUS, Window
 
 __all__ = [
-    "DEFAULT_MARGIN", "Lattice", "PhaseMaps", "demodulated_at", "detect_lattice",
-    "finite_derivatives", "follow_lattice", "transfer_function", "wft", "wft_complex",
+    "DEFAULT_MARGIN", "MIN_MODULUS", "Lattice", "PhaseMaps", "Window", "demodulated_at",
+    "detect_lattice", "finite_derivatives", "follow_lattice", "transfer_function", "transform",
+    "wft", "wft_complex",
 ]

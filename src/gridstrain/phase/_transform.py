@@ -28,9 +28,11 @@ from .._validation import (
     check_mask,
     check_positive,
     check_sigma,
+    check_type,
     check_workers,
 )
 from .lattice import Lattice
+from .window import DEFAULT_MARGIN, MIN_MODULUS, Window
 
 __all__ = ["DEFAULT_MARGIN", "PhaseMaps", "transfer_function", "wft", "wft_complex"]
 
@@ -41,16 +43,6 @@ _PAD_SIGMAS = 8.0
 # they would change the result by less than 1e-16 relative, and as denormals they
 # would only slow the FFT down.
 _FLUSH = 1e-16
-# Default width, in window standard deviations, of the band along the image border
-# and around masked pixels where results are declared invalid. Near an edge the
-# window is cut and the conjugate carrier leaks in. Measured on a noise-free grid at
-# sigma = p = 5 (tests/test_wft.py::test_edge_bias_decays_as_a_gaussian): phase
-# error 3.5e-3 rad at 2 sigma, 2.5e-4 at 3 sigma, 7e-6 at 4 sigma, 6e-8 at 5 sigma;
-# strain error 1e-4 at 3 sigma, 4e-6 at 4 sigma. 4 sigma keeps the edge bias below
-# the 1e-5 strain that users resolve.
-DEFAULT_MARGIN = 4.0
-# Pixels whose modulus is below this fraction of the median modulus hold no grid.
-_MIN_MODULUS = 0.25
 # Bytes of one block of rows of the final inverse FFTs (three transforms): small
 # enough for the block and its products to stay in cache between the FFT and the
 # products instead of streaming through memory (2x faster than whole images).
@@ -214,7 +206,7 @@ def _runs(idx: np.ndarray):
 
 
 def wft(image, lattice: Lattice, *, sigma: float | None = None, mask=None,
-        margin: float = DEFAULT_MARGIN, min_modulus: float = _MIN_MODULUS,
+        margin: float = DEFAULT_MARGIN, min_modulus: float = MIN_MODULUS,
         workers: int | None = 1, derivatives: str = "auto") -> PhaseMaps:
     """Windowed Fourier transform of a grid image for the lattice's two wave vectors.
 
@@ -319,8 +311,18 @@ def wft(image, lattice: Lattice, *, sigma: float | None = None, mask=None,
                 workers=check_workers(workers))
 
 
+def transform(image, lattice: Lattice, window: Window, *, mask=None,
+              workers: int | None = 1, **options):
+    """The transform of ``image`` through a checked :class:`~gridstrain.phase.Window`: the
+    one entry of the series measurement. ``options`` are :func:`_wft`'s
+    (``derivatives``, ``sink``, ``work``, ``checked``); returns what it returns."""
+    check_type(window, "window", Window)
+    return _wft(image, lattice, mask=mask, workers=check_workers(workers),
+                **window.options(), **options)
+
+
 def _wft(image, lattice: Lattice, *, sigma: float | None = None, mask=None,
-         margin: float = DEFAULT_MARGIN, min_modulus: float = _MIN_MODULUS,
+         margin: float = DEFAULT_MARGIN, min_modulus: float = MIN_MODULUS,
          derivatives: str = "auto", sink=None, work=None, workers: int = 1,
          checked: bool = False):
     """:func:`wft`, with a choice of phase derivatives.
@@ -465,7 +467,7 @@ def _shows_grid(mods, valid: np.ndarray, box, m: np.ndarray, min_modulus: float)
 
 
 def wft_complex(images, lattice: Lattice, *, sigma: float | None = None, mask=None,
-                margin: float = DEFAULT_MARGIN, min_modulus: float = _MIN_MODULUS,
+                margin: float = DEFAULT_MARGIN, min_modulus: float = MIN_MODULUS,
                 dtype=np.float64) -> PhaseMaps:
     """Windowed Fourier transform of one complex image per wave vector.
 
@@ -809,7 +811,7 @@ def _one_wave_vector_central(V, k, sigma, H, W, nx, psi, dphi, mod, work, *,
 # image's, so smooth and band-limited. Its error, on a tone of Psi's amplitude at any
 # frequency or on white noise (rms), is kept below this many rad/px by the choice of
 # the number of taps; the valid pixels' moduli are at least a quarter of the median
-# (_MIN_MODULUS) and a noise peak may reach 5 rms, so the worst error on a valid pixel
+# (MIN_MODULUS) and a noise peak may reach 5 rms, so the worst error on a valid pixel
 # stays ~20 times this, 4e-8 rad/px in float64 against the 1e-7 bound, and far less
 # on a real grid (measured in tests/test_wft.py). float32: its own rounding of Psi
 # already gives ~1e-7 rad/px (the exact path's too), so 2e-8 rad/px x 20 suffices.

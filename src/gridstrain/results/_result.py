@@ -4,6 +4,7 @@ qualifies them (the fringe orders, the noise floor, the screening, the warnings)
 
 from __future__ import annotations
 
+import importlib
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -23,6 +24,18 @@ from ..uncertainty._maps import NoiseFloor
 
 #: Names of the maps, in file order, with their units before ``pixel_size``.
 MAP_FIELDS = {"ux": "px", "uy": "px", "exx": "1", "eyy": "1", "exy": "1"}
+
+
+# What a result does with itself, implemented by the file and the figures, which know the
+# result type: found when called, so that the type depends on neither of them.
+_ELSEWHERE = {"save": ("gridstrain.results", "save_result"),
+              "to_xarray": ("gridstrain.results", "to_xarray"),
+              "plot": ("gridstrain.plotting", "plot_states")}
+
+
+def _elsewhere(action: str):
+    module, name = _ELSEWHERE[action]
+    return getattr(importlib.import_module(module), name)
 
 
 @dataclass(frozen=True, eq=False)
@@ -204,23 +217,17 @@ class SeriesResult:
 
     def save(self, path, **options):
         """Write this result to its HDF5 file (:func:`gridstrain.results.save_result`)."""
-        from .results._file import save_result as _save
-
-        return _save(self, path, **options)
+        return _elsewhere("save")(self, path, **options)
 
     def to_xarray(self, **options):
         """This result as an ``xarray.Dataset`` (:func:`gridstrain.results.to_xarray`);
         needs ``gridstrain[xarray]``."""
-        from .results._file import to_xarray
-
-        return to_xarray(self, **options)
+        return _elsewhere("to_xarray")(self, **options)
 
     def plot(self, name: str = "exx", **options):
         """Maps of ``name`` for every state on common colour limits
         (:func:`gridstrain.plotting.plot_states`); returns a matplotlib Figure."""
-        from .plotting import plot_states
-
-        return plot_states(self, name, **options)
+        return _elsewhere("plot")(self, name, **options)
 
     def __repr__(self) -> str:
         H, W = self.shape

@@ -16,6 +16,8 @@ from __future__ import annotations
 
 from ._biases import aliasing_bias, smoothing_bias
 from ._maps import (
+    FWHM_PER_SIGMA,
+    SPATIAL_RESOLUTION_PER_SIGMA,
     NoiseFloor,
     Uncertainty,
     displacement_strain_std,
@@ -25,6 +27,16 @@ from ._maps import (
     predict_uncertainty,
 )
 
-__all__ = ["NoiseFloor", "Uncertainty", "aliasing_bias", "displacement_strain_std",
-           "metrology", "noise_floor", "noise_variance_map", "predict_uncertainty",
-           "smoothing_bias"]
+__all__ = [
+    "FWHM_PER_SIGMA",
+    "SPATIAL_RESOLUTION_PER_SIGMA",
+    "NoiseFloor",
+    "Uncertainty",
+    "aliasing_bias",
+    "displacement_strain_std",
+    "metrology",
+    "noise_floor",
+    "noise_variance_map",
+    "predict_uncertainty",
+    "smoothing_bias",
+]

@@ -34,7 +34,7 @@ __all__ = ["NoiseFloor", "Uncertainty", "displacement_strain_std", "metrology", 
            "noise_variance_map", "predict_uncertainty"]
 
 #: Full width at half maximum of a Gaussian over its standard deviation.
-_FWHM = 2.0 * math.sqrt(2.0 * math.log(2.0))
+FWHM_PER_SIGMA = 2.0 * math.sqrt(2.0 * math.log(2.0))
 #: Attenuation of a sine displacement that defines the spatial resolution: its period
 #: is the one the window damps by 10 % (Grédiac, Blaysat & Sur 2017; DIC Challenge 2.0).
 _ATTENUATION = 0.1
@@ -42,7 +42,7 @@ _ATTENUATION = 0.1
 #: window ``g`` (eqs. 24-25), whose transfer for a sine of period ``d`` is
 #: ``exp(-2 pi^2 sigma^2 / d^2)``; setting it to ``1 - 0.1`` gives
 #: ``d = pi sigma sqrt(2 / ln(1 / 0.9))`` = 13.69 sigma.
-_D_PER_SIGMA = math.pi * math.sqrt(2.0 / -math.log(1.0 - _ATTENUATION))
+SPATIAL_RESOLUTION_PER_SIGMA = math.pi * math.sqrt(2.0 / -math.log(1.0 - _ATTENUATION))
 #: Width over which the window's response to a step rises from 10 % to 90 %, over
 #: sigma: the step is smoothed into an error function, 2 x 1.2816 sigma.
 _STEP_10_90 = 2.0 * 1.2815515655446004
@@ -312,12 +312,12 @@ class NoiseFloor:
     def spatial_resolution(self) -> float:
         """The period of a sine displacement the window damps by 10 %, px
         (``13.69 sigma``; :func:`metrology`)."""
-        return _D_PER_SIGMA * self.sigma
+        return SPATIAL_RESOLUTION_PER_SIGMA * self.sigma
 
     @property
     def window_fwhm(self) -> float:
         """Full width at half maximum of the Gaussian window, ``2.355 sigma``, px."""
-        return _FWHM * self.sigma
+        return FWHM_PER_SIGMA * self.sigma
 
     def as_dict(self) -> dict:
         """Plain-Python summary (lists, floats, NaN as None), for JSON and HDF5."""
@@ -458,7 +458,7 @@ def metrology(resolutions, sigma: float) -> dict:
     own name; figures computed on it are 5.8 (u) and 34 (strain) times smaller.
     """
     sigma = check_positive(sigma, "sigma")
-    d = _D_PER_SIGMA * sigma
+    d = SPATIAL_RESOLUTION_PER_SIGMA * sigma
     states = []
     for res in resolutions:
         entry = {}
@@ -469,7 +469,7 @@ def metrology(resolutions, sigma: float) -> dict:
                            "efficiency": float(r) * d**power if ok else None}
         states.append(entry)
     return {"sigma_px": sigma, "spatial_resolution_px": d,
-            "window_fwhm_px": _FWHM * sigma, "step_width_px": _STEP_10_90 * sigma,
+            "window_fwhm_px": FWHM_PER_SIGMA * sigma, "step_width_px": _STEP_10_90 * sigma,
             "definitions": dict(_DEFINITIONS),
             "units": {"ux": "px", "uy": "px", "exx": "1", "eyy": "1", "exy": "1",
                       "efficiency_u": "px^2", "efficiency_strain": "px^2"},

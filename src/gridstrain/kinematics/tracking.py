@@ -1,0 +1,223 @@
+"""The fringe order followed along a series: each state's whole number of periods taken from
+the previous state's displacement, checked against image features where they are
+conclusive (:class:`FringeTracker`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+from scipy import ndimage
+
+from .._stats import median
+from .._validation import (
+    check_mask,
+)
+from ..phase.lattice import Lattice
+from ..wft import PhaseMaps
+from ._deformation import (
+    Measurement,
+    _Handover,
+    deformation,
+)
+from ._fringe_order import (
+    FringeOrder,
+    _CoarseReference,
+    _from_estimate,
+    _phase_shift,
+)
+
+# A state followed from the previous one is confirmed only if its displacement
+# changed by at most this many periods (along each wave vector) at every pixel: the
+# phase change is taken within half a period of the previous field, and the margin of
+# 0.1 period covers noise and a step that is not quite uniform. A larger change may
+# be a step of more than half a period, followed one period off.
+_MAX_STEP = 0.4
+
+
+def _filled(u: np.ndarray, valid: np.ndarray) -> np.ndarray | None:
+    """``u`` with every invalid pixel given its nearest valid pixel's value."""
+    if not valid.any():
+        return None
+    if valid.all():
+        return np.array(u)
+    idx = ndimage.distance_transform_edt(~valid, return_distances=False,
+                                         return_indices=True)
+    return u[:, idx[0], idx[1]]
+
+
+def _largest_step(res: Measurement, field: np.ndarray, lattice: Lattice,
+                  before: np.ndarray) -> float:
+    """Largest change of the displacement from ``field``, in periods along k1/k2.
+
+    Taken by blocks of rows (about a megapixel each): whole-map differences would
+    add three (2, H, W) temporaries to the kinematics' peak (a state followed from
+    the previous one peaked 56 MiB higher than the first at 2048^2)."""
+    v = res.valid & before
+    if not v.any():
+        return math.inf
+    H, W = v.shape
+    rows = max(1, 2**20 // W)
+    largest = 0.0
+    for r0 in range(0, H, rows):
+        vb = v[r0:r0 + rows]
+        if vb.any():
+            d = res.u[:, r0:r0 + rows][:, vb] - field[:, r0:r0 + rows][:, vb]
+            largest = max(largest, float(np.max(np.abs(lattice.K @ d))))
+    return largest
+
+
+def _median_displacement(res: Measurement) -> np.ndarray | None:
+    """The median ``(u_x, u_y)`` over the valid pixels, px; None when none is valid."""
+    if not res.valid.any():
+        return None
+    return np.array([median(c[res.valid], overwrite_input=True) for c in res.u])
+
+
+def _order_offset(res: Measurement, shift, lattice: Lattice) -> float:
+    """How far, in periods, the measured median displacement is from ``shift``."""
+    med = _median_displacement(res)
+    if med is None:
+        return math.inf
+    return float(np.max(np.abs(lattice.K @ (med - np.asarray(shift)))))
+
+
+def _median_u(res: Measurement) -> str:
+    med = _median_displacement(res)
+    return "(n/a)" if med is None else f"({med[0]:.2f}, {med[1]:.2f}) px"
+
+
+def _what_to_do(lattice: Lattice) -> str:
+    p1, p2 = lattice.pitches
+    return (f"if the specimen moved by more than half a period (periods {p1:.3g}/{p2:.3g} "
+            "px) it is off by whole periods: pass --guess UX UY (guess= in Python), add an "
+            "intermediate image to the series, or image a grid with printed features")
+
+
+class _Tracker:
+    """Measure the states one after the other and fix each one's fringe order (see
+    :class:`FringeOrder`): in series order, a state's guess is the previous state's
+    field (:meth:`follow`), which is all that is kept of it."""
+
+    def __init__(self, ref_pm: PhaseMaps, mean_ref: np.ndarray, mask: np.ndarray,
+                 lattice: Lattice, order: str, lagrangian: bool):
+        self.ref_pm, self.mean_ref, self.mask = ref_pm, mean_ref, mask
+        self.lattice, self.order, self.lagrangian = lattice, order, lagrangian
+        self.prev = None  # (read-back of (u, valid), confirmed, name) of the last state
+        self.inherited: list[str] = []  # states followed from an unconfirmed one
+        # the reference's side of the image-feature estimate, made once for all states
+        self.coarse = _CoarseReference(np.asarray(mean_ref, dtype=np.float64), lattice,
+                                       check_mask(mask, mean_ref.shape))
+
+    def features(self, pm: PhaseMaps, mean: np.ndarray, g):
+        """The image-feature estimate of the next state's displacement
+        (:func:`coarse_displacement`) from its mean image, or None when its guess
+        is not automatic: the mean image is not needed afterwards."""
+        if not isinstance(g, str):
+            return None
+        return self.coarse.estimate(np.asarray(mean, dtype=np.float64),
+                                    _phase_shift(self.ref_pm, pm))
+
+    def measure(self, pm: PhaseMaps, est, g, name: str):
+        """``(Measurement, FringeOrder, warnings)`` of the next state, with ``est``
+        from :meth:`features`."""
+        ref_pm = self.ref_pm
+        warnings: list[str] = []
+        prev, self.prev = self.prev, None  # the next state's guess comes from this one
+        if isinstance(g, str) and self.order == "series" and prev is not None:
+            get, prev_ok, prev_name = prev
+            # the previous field, its invalid pixels filled, is handed over to the
+            # kinematics (not held here while they run); the step is taken on the
+            # previous state's valid pixels, where the field is its u unchanged
+            res = deformation(ref_pm, pm, lagrangian=self.lagrangian,
+                              guess=_Handover(_filled(*get())))
+            u_prev, before = get()
+            step = _largest_step(res, u_prev, self.lattice, before)
+            del u_prev, before
+            gmed = res.guess
+            if est.confident and _order_offset(res, est.shift, self.lattice) < 0.5:
+                rec = _from_estimate(est, "previous state", True, gmed,
+                                     f"followed from {prev_name} (step {step:.2f} period); "
+                                     f"image features agree ({est.reason})", step)
+            elif est.confident and (step > _MAX_STEP
+                                    or np.max(np.abs(self.lattice.K @ est.shift)) >= 0.5):
+                # conclusive features that moved with the specimen beat the assumption
+                # of a step below half a period: the step was larger
+                followed = _median_u(res)
+                res = deformation(ref_pm, pm, lagrangian=self.lagrangian, guess=est.shift)
+                rec = _from_estimate(est, "image features", True, res.guess,
+                                     f"{est.reason}; followed from {prev_name} it would "
+                                     f"have been {followed}", step)
+                warnings.append(f"{name}: image features fix the displacement at "
+                                f"{_median_u(res)}, whole periods from {followed} followed "
+                                f"from {prev_name}: the load step was more than half a "
+                                "period; the features were used")
+            elif est.confident:
+                # the features say "no motion" while the specimen was followed away from
+                # zero: content fixed to the camera (dust, hot pixels) can do that
+                rec = _from_estimate(est, "previous state", False, gmed,
+                                     f"followed from {prev_name}, but image features "
+                                     f"suggest {est.shift[0]:.2f}, {est.shift[1]:.2f} px",
+                                     step)
+                warnings.append(f"{name}: the displacement followed from {prev_name} "
+                                f"(median {_median_u(res)}) and the image features "
+                                f"({est.shift[0]:.2f}, {est.shift[1]:.2f}) px, which may be "
+                                "dust or hot pixels fixed to the camera, disagree by whole "
+                                "periods: fringe order not confirmed; check the order of "
+                                "the states or pass --guess UX UY")
+            elif step > _MAX_STEP:
+                rec = _from_estimate(est, "previous state", False, gmed,
+                                     f"followed from {prev_name}, but the displacement "
+                                     f"changed by up to {step:.2f} period", step)
+                warnings.append(f"{name}: the displacement changed by up to {step:.2f} "
+                                f"period since {prev_name}, more than the {_MAX_STEP} a load "
+                                "step can be followed with: fringe order not confirmed; "
+                                + _what_to_do(self.lattice))
+            else:
+                rec = _from_estimate(est, "previous state", prev_ok, gmed,
+                                     f"followed from {prev_name} (step {step:.2f} period)"
+                                     + ("" if prev_ok else ", itself not confirmed"), step)
+                if not prev_ok:
+                    self.inherited.append(name)
+        elif isinstance(g, str) and est.confident:
+            res = deformation(ref_pm, pm, lagrangian=self.lagrangian, guess=est.shift)
+            rec = _from_estimate(est, "image features", True, res.guess, est.reason)
+        elif isinstance(g, str) or g is None:
+            res = deformation(ref_pm, pm, lagrangian=self.lagrangian, guess=None)
+            if g is None:
+                rec = FringeOrder("smallest displacement", False, (0.0, 0.0),
+                                  "guess=None: the order closest to zero, as asked")
+            else:
+                rec = _from_estimate(est, "smallest displacement", False, (0.0, 0.0),
+                                     f"image features undecided: {est.reason}")
+                warnings.append(f"{name}: fringe order not confirmed ({est.reason}); the "
+                                f"smallest displacement the phases allow was taken (median "
+                                f"{_median_u(res)}); " + _what_to_do(self.lattice))
+        else:
+            res = deformation(ref_pm, pm, lagrangian=self.lagrangian, guess=g)
+            rec = FringeOrder("user", True, res.guess, "the given guess")
+        # the measurement carries the series' record, not the pair's view of its guess
+        res = dataclasses.replace(res, fringe_order=rec)
+        return res, rec, warnings
+
+    def follow(self, res: Measurement, name: str, stored=None) -> None:
+        """Keep what guesses the next state in series order: the displacement and
+        validity of ``res`` (its field is made from them, invalid pixels filled,
+        when the next state is measured). ``stored``: a callable giving them back
+        bit for bit (from the result file), so that they are not in memory while
+        the next state's frames are read."""
+        if not res.valid.any():
+            self.prev = None  # nothing to follow
+            return
+        u, valid = res.u, res.valid
+        get = stored if stored is not None else (lambda: (u, valid))
+        self.prev = (get, res.fringe_order.confirmed, name)
+
+    def finish(self) -> list[str]:
+        """The warnings that concern several states."""
+        if not self.inherited:
+            return []
+        return [f"{', '.join(self.inherited)}: followed from a state whose fringe order "
+                "is not confirmed; they share its uncertainty"]

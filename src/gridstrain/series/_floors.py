@@ -1,0 +1,373 @@
+"""The noise floors of a series measurement: the theory's (the measured sensor noise through
+the transform, eqs. 34-35) and the split reference's (the reference's two halves measured
+against each other), and the systematic errors worth a warning.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import numbers
+from collections.abc import Sequence
+
+import numpy as np
+from scipy import ndimage
+
+from .. import theory
+from .._progress import Progress
+from .._stats import median
+from .._validation import (
+    check_positive,
+)
+from ..kinematics._deformation import (
+    Measurement,
+    _eulerian_gradient,
+    _small_strain,
+    _solve,
+)
+from ..kinematics._fringe_order import (
+    FringeOrder,
+    _phase_products,
+)
+from ..phase._transform import finite_derivatives, transform
+from ..phase.lattice import Lattice
+from ..phase.window import Window
+from ..stacks.accumulate import SeriesPass
+from ..uncertainty._biases import smoothing_bias
+from ..uncertainty._maps import NoiseFloor, displacement_strain_std
+from ..uncertainty._noise import NoiseModel
+from ..uncertainty._noise_image import estimate_noise_image
+from ..wft import PhaseMaps
+from ._records import _Measured, _Stats, _Summary
+
+# Aliasing of the lines' harmonics is flagged only above this displacement error, px
+# (when the noise is lower still): below it no measurement can tell it from noise.
+_ALIAS_MIN_PX = 1e-3
+
+
+
+def _theory_floor(var_ref, T_ref, mod_ref, var_s, T_s, mod_s, sigma, lattice):
+    """(2,) px and (3,) strain from the WFT noise theory; NaN when unavailable."""
+    if not (math.isfinite(var_ref) or math.isfinite(var_s)):
+        return np.full(2, np.nan), np.full(3, np.nan)
+    # a single-frame series is taken as noisy per frame as the other one
+    var_ref = var_ref if math.isfinite(var_ref) else var_s
+    var_s = var_s if math.isfinite(var_s) else var_ref
+    if not (np.all(np.isfinite(mod_ref)) and np.all(np.isfinite(mod_s))):
+        return np.full(2, np.nan), np.full(3, np.nan)
+    ph_r, d_r, ph_s, d_s = [], [], [], []
+    for j in range(2):
+        p, d = theory.wft_noise_std(var_ref / T_ref, float(mod_ref[j]), sigma)  # Prop. 2.3
+        ph_r.append(p)
+        d_r.append(d)
+        p, d = theory.wft_noise_std(var_s / T_s, float(mod_s[j]), sigma)
+        ph_s.append(p)
+        d_s.append(d)
+    su = theory.displacement_noise_std(ph_r, ph_s, lattice)  # eq. (34)
+    se = theory.strain_noise_std(d_r, d_s, lattice)  # eq. (35)
+    return su, se
+
+
+def _split_floor(acc: SeriesPass, lattice, sigma, mask, margin, method: str, report,
+                 mean_maps: PhaseMaps | None = None):
+    """Spatial std of a half-against-half measurement of the reference, from the
+    halves' sums of its pass (method A, or method C when it was the method).
+
+    With ``mean_maps``, the maps of the mean of all the kept frames (method A's
+    reference maps, same mask), only the first half is transformed: the mean is
+    ``m = h1 + (n2 / T) (h2 - h1)`` and the transform is linear, so that to first
+    order in the noise every map of eqs. (34)-(35) moves from ``h1`` to ``m`` by
+    ``n2 / T`` of its move to ``h2``: ``std(h2 - h1) = (T / n2) std(m - h1)``. The
+    phase difference is ``Im log(1 + r)`` with ``r`` the ratio of the halves'
+    difference to the transform (phase noise, 1e-4 to 1e-2 rad), so the second-order
+    term changes the std by about ``|r| n1 / 2T`` of itself, below 0.5 % and below
+    the std's own sampling error (1 % for the 4,500 independent windows of a
+    megapixel map at sigma = 5 px). The large-displacement correction is left out
+    (eqs. 34-35 as printed, :func:`_difference_std`): it would evaluate the second
+    maps at ``x + u`` instead of ``x``, a change of ``-(1/2pi) K^-1 grad(phi) u`` in
+    ``u``, where the carrier's ``2 pi K u`` is already eq. (34)'s own term and what
+    is left is the grid's own phase modulation: its gradient, at most 5e-3 rad/px in
+    the paper's example against ``2 pi / p = 1.26`` rad/px at a 5-px pitch, makes it
+    0.4 % of ``u``. Between two halves of a static series ``u`` is noise (1e-3 px)
+    and their mean vibration shifts (0.02 px at most): 1e-4 px, added in quadrature
+    to a noise floor ten times larger.
+    """
+    n1, n2 = acc.half_counts()
+    window = Window(sigma, margin)
+    if mean_maps is not None and method == "A":
+        img = acc.half_means()[0]
+        h1 = finite_derivatives(transform(img, lattice, window, mask=mask, workers=None))
+        report(2 / 3, "half 1 of the reference")
+        su, se = _difference_std(h1, mean_maps)
+        report(1.0, "half against the whole")
+        scale = (n1 + n2) / n2
+        return su * scale, se * scale
+    halves = []
+    for h in (0, 1):
+        if method == "C":
+            halves.append(acc.method_c(sigma=window.sigma, mask=mask, margin=window.margin,
+                                       halves=(h,)).maps)
+        else:
+            img = acc.half_means()[h]
+            halves.append(transform(img, lattice, window, mask=mask, workers=None))
+        report((h + 1) / 3, f"half {h + 1} of the reference")
+    su, se = _difference_std(finite_derivatives(halves[0]), finite_derivatives(halves[1]))
+    report(1.0, "half against half")
+    return su, se
+
+
+def _difference_std(a: PhaseMaps, b: PhaseMaps) -> tuple[np.ndarray, np.ndarray]:
+    """Spatial std (ddof 1) of the displacement (2,) and small strain (3,) between
+    two phase-map sets of a static specimen, over the pixels valid in both: eqs.
+    (34)-(35) without the large-displacement correction, as
+    :func:`gridstrain.kinematics.deformation` gives them with ``lagrangian=False``,
+    on the valid pixels only (the maps differ by noise: no phase wraps, and whole
+    periods would not change a standard deviation).
+
+    Computed by bands of rows that stay in cache, their means and sums of squared
+    deviations merged exactly (Chan et al.'s pairwise update): no map-sized
+    temporary."""
+    valid = a.valid & b.valid & np.all(np.isfinite(a.dphi), axis=(0, 1))
+    K = a.lattice.K
+    n, mean, m2 = 0, np.zeros(5), np.zeros(5)
+    for rows, v, z in _phase_products(a, b, valid):
+        k = z.shape[1]
+        dD = b.dphi[:, :, rows][:, :, v].astype(np.float64)
+        dD -= a.dphi[:, :, rows][:, :, v]
+        q = np.concatenate([-_solve(K, np.angle(z)) / (2 * np.pi),  # eq. (34)
+                            _small_strain(_eulerian_gradient(K, dD))])  # eq. (35)
+        qm = q.mean(axis=1)
+        qm2 = ((q - qm[:, None]) ** 2).sum(axis=1)
+        delta = qm - mean
+        tot = n + k
+        mean = mean + delta * (k / tot)
+        m2 = m2 + qm2 + delta**2 * (n * k / tot)
+        n = tot
+    if n < 2:
+        return np.full(2, np.nan), np.full(3, np.nan)
+    std = np.sqrt(m2 / (n - 1))
+    return std[:2], std[2:]
+
+
+def _check_noise_model(noise_model):
+    """A NoiseModel from ``noise_model`` (a NoiseModel or a (K, L) pair), or None."""
+    if noise_model is None or isinstance(noise_model, NoiseModel):
+        if noise_model is not None and not noise_model.K > 0:
+            raise ValueError(f"noise_model: K must be positive, got {noise_model.K!r}")
+        return noise_model
+    if isinstance(noise_model, str | bytes) or not isinstance(noise_model, Sequence) \
+            or len(noise_model) != 2:
+        raise TypeError(f"noise_model must be a NoiseModel or a (K, L) pair in stored grey "
+                        f"levels, got {noise_model!r}")
+    K = check_positive(noise_model[0], "noise_model K")
+    L = noise_model[1]
+    if isinstance(L, bool) or not isinstance(L, numbers.Real) or not math.isfinite(L):
+        raise ValueError(f"noise_model L must be a finite number of grey levels^2, got {L!r}")
+    return NoiseModel(K=K, L=float(L), method="given")
+
+
+def _check_model_units(given, series) -> None:
+    """Refuse a given noise model in other units than the series' grey levels."""
+    if given is None:
+        return
+    for s in series:
+        if s.bit_depth is not None and given.bit_depth is not None \
+                and given.bit_depth != s.bit_depth:
+            raise ValueError(f"noise model: estimated on {given.bit_depth}-bit images but "
+                             f"{s.name} is {s.bit_depth}-bit; estimate it on this camera's "
+                             "images or give --noise-model K L in their stored units")
+        if given.method != "given" and given.scale != s.scale:
+            raise ValueError(f"noise model: estimated on images stored x{given.scale:g} but "
+                             f"{s.name} is stored x{s.scale:g}; its K and L are in other "
+                             "units")
+
+
+def _describe_model(model, what: str) -> str:
+    return (f"{what}: Var = K l + L, K = {model.K:.4g}, L = {model.L:.4g} (stored grey "
+            "levels)")
+
+
+class _Noise:
+    """The per-frame noise variance map of each series, series by series.
+
+    A given camera model sets every series' variance to ``K mean + L``; otherwise
+    the series of two frames or more keep their temporal variance, and those of one
+    frame get the model estimated from one image (:func:`estimate_noise_image`),
+    on the first such series met (the camera is the same).
+    """
+
+    def __init__(self, given, lattice: Lattice, ref_mask: np.ndarray, warnings: list):
+        self.given, self.lattice, self.ref_mask = given, lattice, ref_mask
+        self.warnings = warnings
+        self.model = self.how = self.estimated_on = None
+        self.failed = False
+        self.singles = 0
+        self._first = True
+
+    @staticmethod
+    def _from_model(r: _Measured, model, how: str) -> _Measured:
+        st = r.stats
+        var = np.maximum(model.K * st.mean + model.L, 0.0)
+        return dataclasses.replace(r, stats=_Stats(st.mean, var, how, st.saturation))
+
+    def complete(self, r: _Measured) -> _Measured:
+        """``r`` with its noise variance map."""
+        is_ref, self._first = self._first, False
+        if self.given is not None:
+            return self._from_model(r, self.given, _describe_model(
+                self.given, f"camera model ({self.given.method})"))
+        if r.stats.variance is not None:
+            return r
+        self.singles += 1
+        if self.model is None and not self.failed:
+            s0 = r.series
+            try:
+                model = estimate_noise_image(r.stats.mean, self.lattice,
+                                             mask=self.ref_mask if is_ref else None,
+                                             saturation=s0.saturation_level, scale=s0.scale)
+            except ValueError as exc:
+                self.warnings.append(
+                    f"{s0.name}: the noise could not be estimated from its single image "
+                    f"({exc}); the single-frame series get no uncertainty of their own "
+                    "(give --noise or --noise-model)")
+                self.failed = True
+                return r
+            self.model = dataclasses.replace(model, bit_depth=s0.bit_depth)
+            self.estimated_on = s0.name
+            self.how = _describe_model(self.model, f"single image ({s0.name})")
+        return r if self.failed else self._from_model(r, self.model, self.how)
+
+    def info(self, done: list) -> dict:
+        """Where the variances came from (``NoiseFloor.model``)."""
+        if self.given is not None:
+            return {"source": f"given ({self.given.method})", **self.given.as_dict()}
+        if self.singles == 0:
+            return {"source": "stack"}
+        if self.failed:
+            return {"source": "unavailable"}
+        source = "single image" if self.singles == len(done) else "stack and single image"
+        return {"source": source, "estimated_on": self.estimated_on, **self.model.as_dict()}
+
+
+class _ReferenceFloor:
+    """The noise floor and uncertainty of every state against the reference.
+
+    Holds the reference's maps and the half-against-half measurement of its frames;
+    :meth:`state` gives one state's floors, uncertainty maps and systematic-error
+    figures (with their warnings), :meth:`noise_floor` the table of them all.
+    """
+
+    def __init__(self, r: _Measured, summary: _Summary, ref_pass: SeriesPass,
+                 lattice: Lattice, window: Window, method: str, report: Progress,
+                 warnings: list):
+        self.r, self.lattice, self.sigma = r, lattice, window.sigma
+        T1, T2 = ref_pass.half_counts()
+        if min(T1, T2) >= 1:
+            self.su, self.se = _split_floor(ref_pass, lattice, window.sigma, r.mask,
+                                            window.margin, method, report, mean_maps=r.maps)
+        else:
+            self.su, self.se, (T1, T2) = np.full(2, np.nan), np.full(3, np.nan), (1, 1)
+            warnings.append("a single reference frame: no split-halves noise estimate "
+                            "(measure a second image of the unloaded specimen as a state: "
+                            "its maps are the noise floor)")
+        self.T1, self.T2 = T1, T2
+        self.sr = summary
+        self.local_ref = self._local(r)
+        self.r = r.dropping("variance")  # only its smoothed copy is used from here on
+        self.rows: dict[str, list] = {k: [] for k in ("theory_u", "theory_strain", "split_u",
+                                                      "split_strain", "vibration_u")}
+
+    def _local(self, r: _Measured):
+        if r.stats.variance is None:
+            return None
+        # the weight of a pixel's noise in Psi is g^2, a Gaussian of std sigma / sqrt 2
+        return ndimage.gaussian_filter(r.stats.variance, self.sigma / math.sqrt(2),
+                                       mode="nearest", truncate=5.0)
+
+    def state(self, c: _Measured, sc: _Summary, res: Measurement, rec: FringeOrder,
+              alias: dict, warnings: list) -> tuple:
+        """``(measurement, fringe order, uncertainty maps or None, floors, smoothing)``
+        of state ``c`` (summarised in ``sc``)."""
+        ref = self.sr
+        th_u, th_e = _theory_floor(ref.variance, ref.T, ref.modulus, sc.variance, sc.T,
+                                   sc.modulus, self.sigma, self.lattice)
+        scale = math.sqrt((1 / ref.T + 1 / sc.T) / (1 / self.T1 + 1 / self.T2))
+        vib_u = np.full(2, np.nan)
+        offs = [np.array(v.phase_offset_std) for v in (ref.vib, sc.vib)]
+        if all(np.all(np.isfinite(o)) for o in offs):
+            # the offsets are phases: eq. (34) turns them into a rigid translation
+            vib_u = theory.displacement_noise_std(offs[0], offs[1], self.lattice)
+        row = {"theory_u": th_u, "theory_strain": th_e, "split_u": self.su * scale,
+               "split_strain": self.se * scale, "vibration_u": vib_u}
+        unc = self._uncertainty(c, res)
+        if ref.kept_flagged or sc.kept_flagged:
+            # frames flagged but kept: the precision of this state is not known
+            row = {k: np.full_like(np.asarray(v, dtype=float), np.nan) for k, v in row.items()}
+            if unc is not None:
+                unc = {k: np.full_like(v, np.nan) for k, v in unc.items()}
+        for k, v in row.items():
+            self.rows[k].append(np.asarray(v, dtype=float))
+        if unc is not None and res.valid.any():
+            floors = {k.removesuffix("_std"): median(a[res.valid], overwrite_input=True)
+                      for k, a in unc.items()}
+        else:
+            floors = {"ux": float(row["theory_u"][0]), "uy": float(row["theory_u"][1]),
+                      "exx": float(row["theory_strain"][0]),
+                      "eyy": float(row["theory_strain"][1]),
+                      "exy": float(row["theory_strain"][2])}
+        smooth = smoothing_bias(res.strain, res.valid, sigma=self.sigma)
+        warnings.extend(_systematic_warnings(c.name, res, floors, alias, smooth,
+                                             self.lattice))
+        return res, rec, unc, floors, smooth
+
+    def _uncertainty(self, c: _Measured, res: Measurement):
+        local = self._local(c)
+        # a single-frame series is taken as noisy per frame as the other one
+        v_ref = self.local_ref if self.local_ref is not None else local
+        v_def = local if local is not None else self.local_ref
+        if v_ref is None:
+            return None
+        u_std, strain_std = displacement_strain_std(
+            self.r.maps, c.maps, variance_ref=v_ref / self.sr.T,
+            variance_def=v_def / c.series.n_frames, valid=res.valid)
+        names = ("ux_std", "uy_std", "exx_std", "eyy_std", "exy_std")
+        return dict(zip(names, (*u_std, *strain_std), strict=True))
+
+    def noise_floor(self, done: list, model_info: dict) -> NoiseFloor:
+        n = len(done) - 1
+        rows = {k: np.array(v, dtype=float).reshape(n, 2 if k.endswith("_u") else 3)
+                for k, v in self.rows.items()}
+        return NoiseFloor(sigma=self.sigma, sensor_variance=tuple(d.variance for d in done),
+                          variance_method=tuple(d.variance_method for d in done),
+                          modulus=np.array([d.modulus for d in done]), model=model_info,
+                          frames=tuple(int(d.T) for d in done), **rows)
+
+
+def _systematic_warnings(name: str, m: Measurement, fl: dict, alias: dict, smooth: dict,
+                         lattice: Lattice) -> list[str]:
+    """Warnings for the systematic errors of one state that can exceed its noise."""
+    out = []
+    known = [fl[k] for k in ("ux", "uy") if math.isfinite(fl[k])]
+    u_noise = max(known) if known else 0.0
+    noise_txt = f"{u_noise:.2g} px" if known else "unknown"
+    if alias["u_px"] > max(u_noise, _ALIAS_MIN_PX):
+        how = ("estimated from the harmonics seen in the reference image"
+               if alias["observable"] else "bound for sharp lines; the line profile "
+               "cannot be seen at this pitch")
+        e_max = float(np.max(np.abs(m.strain[:, m.valid]))) if m.valid.any() else 0.0
+        out.append(f"{name}: harmonics of the grid's lines can alias onto the carrier "
+                   f"at pitch {lattice.pitch:.3g} px: displacement error up to "
+                   f"{alias['u_px']:.2g} px and strain error up to "
+                   f"{alias['strain_per_strain'] * e_max:.2g} ({how}), above the noise "
+                   f"({noise_txt}); use a larger sigma, a pitch away from 4 px "
+                   "or a smoother (defocused) grid")
+    for j, comp in enumerate(("exx", "eyy", "exy")):
+        b = smooth["p95"][j]
+        e_noise = fl[comp]
+        # noise alone gives a 95th percentile of ~0.6 noise std: twice it is signal
+        if b is not None and math.isfinite(e_noise) and b > 2 * e_noise and b > 1e-6:
+            out.append(f"{name}: the window smooths the {comp} gradients: bias "
+                       f"sigma^2/2 lap(e) reaches {b:.2g} (95th percentile) against "
+                       f"a noise std of {e_noise:.2g}; a smaller sigma resolves them "
+                       "better at the cost of noise")
+    return out

@@ -1,0 +1,427 @@
+"""The passes of a series measurement: the lattice detected or checked on the reference, one
+streamed pass per series (local or on a Dask cluster) and its phase maps (methods A, B, C),
+the regions without a grid masked, progress counted in frames' worth of work.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import math
+from collections.abc import Iterable
+
+import numpy as np
+
+from .._progress import Progress, null_progress
+from .._stats import median
+from .._threads import map_bounded
+from .._validation import (
+    check_workers,
+)
+from ..phase._transform import finite_derivatives, transform
+from ..phase.lattice import Lattice, _Carrier, detect_lattice, follow_lattice
+from ..phase.window import Window, min_side
+from ..stacks._methods import _FrameOrder, method_b
+from ..stacks.accumulate import PassPlan, SeriesPass
+from ..stacks.vibration import VibrationReport
+from ..stacks.vibration import _report as _vibration_report
+from ..wft import DEFAULT_MARGIN, PhaseMaps
+from ._inputs import (
+    _as_series,
+    _check_pitch_fits,
+    _specimen_mask,
+)
+from ._outliers import _screen_pass, _Screened
+from ._records import _Measured, _Stats
+
+# A given lattice must show a modulus this many times larger than at the same
+# frequencies turned by 45 degrees, where a grid or checkerboard has no harmonic:
+# noise alone gives about 1, the mean of a 12-bit grid image hundreds.
+_MIN_GRID_CONTRAST = 5.0
+
+
+class _Steps:
+    """Map the pipeline's steps, weighted by their cost, onto one [0, 1] callback."""
+
+    def __init__(self, progress: Progress, total: float):
+        self._progress = progress
+        self._total = max(float(total), 1e-12)
+        self._done = 0.0
+
+    def sub(self, weight: float, prefix: str) -> Progress:
+        start = self._done
+        self._done += weight
+
+        def report(fraction: float, message: str) -> None:
+            f = min(max(float(fraction), 0.0), 1.0)
+            text = f"{prefix}: {message}" if prefix and message else (prefix or message)
+            self._progress(min((start + f * weight) / self._total, 1.0), text)
+
+        return report
+
+    def step(self, weight: float, message: str) -> None:
+        self._done += weight
+        self._progress(min(self._done / self._total, 1.0), message)
+
+
+def _counting(frames: Iterable, n: int, report: Progress, what: str):
+    """Yield ``frames`` unchanged, reporting after each one."""
+    for k, f in enumerate(frames, start=1):
+        yield f
+        report(k / n, f"{what} {k}/{n}")
+
+
+def _diagnose(name: str, shifts: np.ndarray, estimator: str, lattice: Lattice,
+              method: str) -> VibrationReport:
+    return _vibration_report(shifts, lattice, method=method, name=name, estimator=estimator)
+
+
+# Reference frames averaged for the lattice's detection (or its check), spread over
+# the series: the lattice must be known before the pass that measures the shifts,
+# so these frames are the only ones read twice in a clean series.
+_LATTICE_FRAMES = 8
+
+
+# The cost of a transform, in frames read (progress only).
+_WFT_COST = 4.0
+
+
+def _pass_cost(method: str) -> float:
+    """Progress weight of one frame of a pass."""
+    return 1.0 + (_WFT_COST if method == "B" else 0.0) + (0.5 if method == "C" else 0.0)
+
+
+def _lattice_image(ref, report: Progress) -> np.ndarray:
+    """Mean of at most :data:`_LATTICE_FRAMES` frames spread over the reference."""
+    T = ref.n_frames
+    idx = np.unique(np.linspace(0, T - 1, min(T, _LATTICE_FRAMES)).round().astype(int))
+    sub = ref if idx.size == T else ref.subset([int(i) for i in idx])
+    return sub.mean(progress=report)
+
+
+def reference_lattice(reference, *, mask=None, margin: float = DEFAULT_MARGIN,
+                      bit_depth: int | None = None) -> Lattice:
+    """The lattice :func:`measure_series` detects on a reference series.
+
+    Parameters
+    ----------
+    reference : path, glob, sequence of (H, W) arrays, (T, H, W) array or FrameSeries
+        The reference series, as for :func:`measure_series`.
+    mask : (H, W) bool array_like, path or None
+        The specimen's pixels (default: all).
+    margin : float
+        Invalid band at the borders, in sigmas: refuses a pitch too large for the
+        frames, as :func:`measure_series` does.
+    bit_depth : int, optional
+        Significant bits of the camera (default: detected).
+
+    Returns
+    -------
+    Lattice
+        Detected on the mean of at most 8 frames spread over the series, the image
+        :func:`measure_series` detects it on. ``lattice.pixel_size(grid_pitch)``
+        then gives the pixel size from the grid's printed pitch.
+    """
+    ref = _as_series(reference, "reference", bit_depth)
+    m = _specimen_mask(mask, ref.shape)
+    return _detect(_lattice_image(ref, null_progress), ref, m, margin)
+
+
+def _detect(image: np.ndarray, ref, mask: np.ndarray, margin: float) -> Lattice:
+    """The lattice detected on ``image``, or an error naming what to do."""
+    try:
+        lattice = detect_lattice(image, mask=mask)
+    except ValueError as exc:
+        # frames smaller than a common 5-px pitch needs: say so first
+        need = min_side(2.0, margin)
+        if min(ref.shape) < min_side(5.0, margin):
+            raise ValueError(f"reference: no grid detected on frames of {ref.shape[0]} "
+                             f"x {ref.shape[1]} px, too small for the grid method: a "
+                             f"window of sigma >= the pitch with its band of margin = "
+                             f"{margin:g} sigmas needs {need} px for a 2-px pitch, "
+                             f"{min_side(5.0, margin)} px for a 5-px pitch") from None
+        raise ValueError(f"reference: {exc}") from None
+    _check_pitch_fits(ref.shape, lattice.pitch, margin)
+    return lattice
+
+
+def _plan(s, lattice: Lattice, method: str, window: Window, mask: np.ndarray,
+          is_ref: bool) -> PassPlan:
+    """What the pass over series ``s`` gathers. Method B's transforms use the
+    reference's mask (the states': the whole frame), as its phase maps do; regions
+    without a grid, known only from the mean image, may change that afterwards.
+    ``lattice``: the series' own wave vectors (:func:`_carrier`)."""
+    return PassPlan(lattice=lattice, n_frames=s.n_frames, method=method, sigma=window.sigma,
+                    margin=window.margin,
+                    transform_mask=(mask if is_ref else np.ones(s.shape, dtype=bool))
+                    if method == "B" else None,
+                    saturation_level=s.saturation_level, scale=int(s.scale),
+                    count_mask=mask)
+
+
+# A state whose grid is the reference's stretched by more than this (a principal
+# stretch of its carrier's deformation gradient off 1) is suspect: strains of 10 %
+# and more are measured, but two grids of pitches 13.6 and 15.8 px (16 %) from two
+# experiments are more often a mismatched pair than one homogeneous strain.
+_PLAUSIBLE_STRETCH = 0.15
+
+
+def _carrier(s, lattice: Lattice) -> tuple[Lattice | None, list[str]]:
+    """The wave vectors of state series ``s`` (on its first frame) near the
+    reference's, and a warning when they differ by more than a plausible strain.
+
+    A state rotated or strained homogeneously has moved its carrier by ``|dk| =
+    |k| (strain + rotation)``. The screening and the vibrations' shifts probe each
+    frame's carrier over the whole frame: at the reference's they lose it once ``|dk|
+    W`` reaches a bin (2 degrees on a 200-px frame) and the series would be refused
+    as showing no grid; and a window centred off the carrier biases the phase where
+    the grid's amplitude varies (:func:`gridstrain.wft.demodulated_at`). So each
+    state's pass and transforms use its own carrier, and its maps are brought to
+    the reference's lattice afterwards. None (the reference's) where no peak stands
+    out near it: the screening then says what it sees."""
+    frame = next(iter(s.frames(start=0, stop=1)))
+    try:
+        own = follow_lattice(frame, lattice)
+    except ValueError:
+        return None, []
+    # k_s^T = k_r^T F^-1 for a homogeneous deformation gradient F
+    F = np.linalg.inv(np.linalg.solve(lattice.K, own.K))
+    U, stretch, Vt = np.linalg.svd(F)
+    R = U @ Vt  # the polar decomposition's rotation
+    turn = math.degrees(math.atan2(R[1, 0], R[0, 0]))
+    carrier = _Carrier(own.k1, own.k2, window_pitch=lattice.pitch)
+    if np.max(np.abs(stretch - 1)) <= _PLAUSIBLE_STRETCH:
+        return carrier, []
+    files = ", ".join(str(p) for p in list(s.paths)[:2]) + (", ..." if len(s.paths) > 2
+                                                          else "")
+    return carrier, [f"{s.name}: its grid (pitches {own.pitches[0]:.4g}/{own.pitches[1]:.4g} "
+                 f"px, angles {own.angles[0]:.3g}/{own.angles[1]:.3g} deg) is the "
+                 f"reference's stretched by {stretch.min() - 1:+.1%}/{stretch.max() - 1:+.1%}"
+                 f" and turned by {turn:.3g} deg: more than a plausible strain "
+                 f"({_PLAUSIBLE_STRETCH:.0%}); check that {files} and the reference "
+                 "images are of the same specimen and grid"]
+
+
+def _run_pass(s, plan: PassPlan, report: Progress) -> SeriesPass:
+    """One pass over the frames of ``s`` on this machine. Method B's transforms run
+    on threads (the usable cores), adding their sums in frame order (the result
+    does not depend on the number of threads); the rest follows the reading."""
+    n = s.n_frames
+    workers = check_workers(None) if plan.method == "B" else 1
+    order = _FrameOrder() if workers > 1 else None
+    box: list = []
+
+    def read():
+        # the frames as stored: integer frames are summed as read, and method B
+        # transforms them in float32 (gridstrain.accumulate, gridstrain.stacks)
+        for t, frame in enumerate(s.frames(dtype=None)):
+            if not box:
+                box.append(SeriesPass(plan, frame))
+            box[0].add(t, frame, transform=False)
+            yield t, frame
+
+    def transform(item):
+        t, frame = item
+        if plan.method == "B":
+            try:
+                box[0].add_transform(t, frame, order=order)
+            except BaseException:
+                if order is not None:
+                    order.fail(t)  # the frames after this one must not wait for it
+                raise
+        return t
+
+    # BLAS is on the calling thread already (measure_series): its idle threads would
+    # spin on the transforms' cores
+    for t in map_bounded(transform, read(), workers):
+        report((t + 1) / n, f"frame {t + 1}/{n}")
+    if not box:
+        raise ValueError(f"{s.name}: no frame")
+    return box[0]
+
+
+def _no_grid(mod: np.ndarray, valid: np.ndarray, mask: np.ndarray,
+             min_modulus: float) -> np.ndarray:
+    """Pixels of ``mask`` whose modulus ``mod`` (2, H, W) shows no grid, below
+    ``min_modulus`` times its median (``valid``: the transform's valid pixels, where the
+    median is taken)."""
+    ref = valid if valid.any() else mask
+    out = np.zeros(mask.shape, dtype=bool)
+    for j in range(2):
+        out |= mod[j] < min_modulus * median(mod[j][ref], overwrite_input=True)
+    return out & mask
+
+
+def _check_given_lattice(image: np.ndarray, lattice: Lattice, window: Window,
+                         mask: np.ndarray) -> None:
+    """Refuse a given lattice that the reference image does not show.
+
+    The lattice is detected anyway and each given wave vector must lie within the
+    window's bandwidth of a detected one, ``2 pi sigma |dk| <= 1`` (the window's
+    transfer, hence the modulus, would otherwise drop below exp(-1/2)); a
+    neighbouring pattern's side lobe would otherwise pass for the grid. When the
+    detection itself fails (a pattern it does not handle), the modulus at the
+    given wave vectors must stand above that 45 degrees away.
+    """
+    try:
+        found = detect_lattice(image, mask=mask)
+    except ValueError:
+        pm, used = _phase_maps_a(image, lattice, window, mask)
+        _check_grid(pm, image, used, window)
+        return
+    for j, k in enumerate((lattice.k1, lattice.k2)):
+        kv = np.array(k)
+        dk = min(float(np.hypot(*(kv - s * np.array(f)))) for f in (found.k1, found.k2)
+                 for s in (1, -1))
+        if 2 * math.pi * window.sigma * dk > 1:
+            p1, p2 = found.pitches
+            a1, a2 = found.angles
+            raise ValueError(f"reference: the given lattice is not the grid's: k{j + 1} = "
+                             f"({k[0]:.4g}, {k[1]:.4g}) cycles/px is not among the wave "
+                             f"vectors detected in the image (pitches {p1:.4g}/{p2:.4g} "
+                             f"px, angles {a1:.3g}/{a2:.3g} deg); check --pitch/--angle or "
+                             "--k1/--k2, or let the lattice be detected")
+
+
+def _check_grid(pm: PhaseMaps, image: np.ndarray, mask: np.ndarray, window: Window) -> None:
+    """Refuse a lattice at which the image shows no more than noise."""
+    c, s = math.cos(math.pi / 4), math.sin(math.pi / 4)
+    turned = Lattice(*((k[0] * c - k[1] * s, k[0] * s + k[1] * c)
+                       for k in (pm.lattice.k1, pm.lattice.k2)))
+    control = transform(image, turned, window, mask=mask)
+    sel = pm.valid if pm.valid.any() else mask
+    for j in range(2):
+        grid = median(pm.modulus[j][sel], overwrite_input=True)
+        other = median(control.modulus[j][sel], overwrite_input=True)
+        ratio = grid / other if other > 0 else math.inf
+        if ratio < _MIN_GRID_CONTRAST:
+            raise ValueError(f"reference: no grid at the given lattice: the modulus at k{j + 1} "
+                             f"is only {ratio:.3g} times that 45 degrees away (a grid gives "
+                             "tens to hundreds); check --pitch/--angle or --k1/--k2, or let "
+                             "the lattice be detected")
+
+
+def _phase_maps_a(image, lattice: Lattice, window: Window, mask):
+    """WFT of an averaged image, masking regions without a grid (method A)."""
+    m = np.ones(image.shape, dtype=bool) if mask is None else mask
+    pm = transform(image, lattice, window, mask=m, workers=None)
+    nogrid = _no_grid(pm.modulus, pm.valid, m, window.min_modulus)
+    if nogrid.any():
+        m = _less(m, nogrid)
+        pm = transform(image, lattice, window, mask=m, workers=None)
+    return finite_derivatives(pm), m
+
+
+def _less(m: np.ndarray, nogrid: np.ndarray) -> np.ndarray:
+    m = m & ~nogrid
+    if not m.any():
+        raise ValueError("no pixel shows a grid at the lattice's wave vectors")
+    return m
+
+
+def _grid_support(image, lattice: Lattice, window: Window, mask) -> np.ndarray:
+    """The mask :func:`_phase_maps_a` ends with (``mask`` less the regions without a
+    grid), for methods B and C, whose maps come from their own sums: one transform
+    of the averaged image, of which only the moduli are kept (float32, for the
+    threshold), not its maps."""
+    m = np.ones(image.shape, dtype=bool) if mask is None else mask
+    mod = np.empty((2, *image.shape), dtype=np.float32)
+
+    def keep(j, r0, r1, psi, dphi, modulus):
+        mod[j, r0:r1] = modulus
+
+    valid = transform(image, lattice, window, mask=m, sink=keep, workers=None)
+    nogrid = _no_grid(mod, valid, m, window.min_modulus)
+    return _less(m, nogrid) if nogrid.any() else m
+
+
+def _method_b_maps(s, sc: _Screened, acc: SeriesPass, used: np.ndarray, window: Window,
+                   report: Progress) -> PhaseMaps:
+    """Method B's maps of series ``s`` from its pass (whose transform sums they
+    replace in memory); the kept frames are transformed again (a second read) only
+    when the mean image showed regions without a grid, which change the windows'
+    support near them."""
+    plan = acc.plan
+    if np.array_equal(used, plan.transform_mask):
+        return finite_derivatives(acc.method_b(release=True).maps)
+    # the pass's transform sums are of no use: freed (the halves' sums stay if kept)
+    acc.release(keep_halves=acc.lin is not None, keep_method=False)
+    kept = sc.series
+    n = kept.n_frames
+    frames = _counting(kept.frames(dtype=None), n, report,
+                       "method B, without the regions showing no grid")
+    # the kept frames were screened in the pass: not again
+    return finite_derivatives(method_b(frames, plan.lattice, sigma=window.sigma, mask=used,
+                                       margin=window.margin, screen=False).maps)
+
+
+# Method A's averaged grid keeps this fraction of its contrast or less (eq. 14): its
+# phase-derivative noise is then 2 % or more above method C's, about the precision of
+# the noise floor itself, and worth method C's 2 to 3 times A's cost.
+_SUGGEST_C_CONTRAST = 0.98
+
+
+def _contrast_notes(vib) -> list[str]:
+    """Series whose vibrations cost method A more than method C's extra time."""
+    out = []
+    for v in vib:
+        c = min(v.contrast_factor)
+        if math.isfinite(c) and c < _SUGGEST_C_CONTRAST:
+            out.append(f"{v.name}: vibrations of ({v.std[0]:.3g}, {v.std[1]:.3g}) px std "
+                       f"lower the averaged grid's contrast to {c:.3f} (Prop. 2.2, eq. 14): "
+                       f"method A's strain noise is {1 / c - 1:.1%} above that of method C, "
+                       "which realigns the frames before averaging (--method C)")
+    return out
+
+
+def _dist():
+    """gridstrain.distributed, imported only when a scheduler is given."""
+    from .. import distributed
+
+    return distributed
+
+
+def _check_scheduler(scheduler):
+    if scheduler is None:
+        return None
+    return _dist()._check_scheduler(scheduler)
+
+
+def _connect(scheduler, timeout: float | None):
+    """A distributed.Client for ``scheduler``, or None without one; connecting waits
+    at most ``timeout`` seconds (None: Dask's connection timeout)."""
+    if scheduler is None:
+        return contextlib.nullcontext()
+    return _dist().connect(scheduler, timeout=timeout)
+
+
+def _one_series(s, acc: SeriesPass, base, window: Window, max_saturation: float,
+                outliers: str, method: str, f32: bool, steps: _Steps) -> _Measured:
+    """Screening, statistics and phase maps of series ``s`` from its pass; ``base``
+    is the mask of the reference (None for a state: its configuration is deformed)."""
+    plan = acc.plan
+    sc, acc = _screen_pass(s, acc, max_saturation, outliers)
+    notes = list(sc.warnings)
+    vib = _diagnose(s.name, sc.shifts, "gridstrain.vibration.frame_shifts", plan.lattice,
+                    method)
+    st = acc.statistics()
+    stats = _Stats(st.mean, st.variance, st.method, sc.saturation)
+    del st
+    acc.release(keep_halves=base is not None)  # the reference's halves: its noise floor
+    if method == "A":
+        pm, used = _phase_maps_a(stats.mean, plan.lattice, window, base)
+    else:  # the mean image gives the mask only
+        used = _grid_support(stats.mean, plan.lattice, window, base)
+    steps.step(2 * _WFT_COST, f"{s.name}: phase maps")
+    if method == "C":
+        res = acc.method_c(sigma=window.sigma, mask=used, margin=window.margin)
+        pm = finite_derivatives(res.maps)
+        notes.extend(f"{s.name}: {w}" for w in res.warnings)
+        del res
+    elif method == "B":
+        pm = _method_b_maps(s, sc, acc, used, window, steps.sub(0.0, s.name))
+    if f32:  # float32 maps from float32 frames (gridstrain.conventions)
+        pm = dataclasses.replace(pm, psi=pm.psi.astype(np.complex64),
+                                 dphi=pm.dphi.astype(np.float32))
+    return _Measured(series=sc.series, screen=sc, vib=vib, stats=stats, maps=pm,
+                     mask=used, warnings=tuple(notes))
