@@ -354,6 +354,11 @@ class _Config:
     from_result: bool
     ignored: tuple = ()
 
+    def taken(self, opts: dict) -> list[str]:
+        """The keys of the file whose values the run uses (the command line gave no
+        other)."""
+        return [k for k in self.options if opts.get(k) == self.options[k]]
+
 
 def _read_config(path: str) -> _Config:
     p = Path(os.path.expanduser(path))
@@ -396,7 +401,7 @@ def _read_config(path: str) -> _Config:
 def _replay_line(config: _Config, opts: dict) -> str:
     """What a replay took from the result file, what the command line gave instead,
     and what it left."""
-    taken = [k for k in config.options if opts.get(k) == config.options[k]]
+    taken = config.taken(opts)
     line = f"replaying the measurement of {config.path}: " + (
         ", ".join(taken) if taken else "no option") + " from the file"
     over = [k for k in config.options if k not in taken]
@@ -815,7 +820,7 @@ def _run(args, progress: _Bar) -> int:
     progress.configure(opts["quiet"])
     replay = {}
     if config is not None:
-        replay["config_keys"] = [k for k in config.options if opts.get(k) == config.options[k]]
+        replay["config_keys"] = config.taken(opts)
         replay["config_ignored"] = list(config.ignored)
         if config.from_result and not opts["quiet"]:
             print(_replay_line(config, opts), file=sys.stderr)
