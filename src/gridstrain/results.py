@@ -47,7 +47,6 @@ Exports
 
 from __future__ import annotations
 
-import contextlib
 import dataclasses
 import math
 import numbers
@@ -63,6 +62,7 @@ import h5py
 import numpy as np
 
 from . import __version__
+from ._memory import available_memory, format_size
 from ._validation import as_path, check_float_dtype, check_mapping, check_type
 from .io import hdf5_file, hdf5_stream, provenance, write_atomic, write_csv
 from .pipeline import MAP_FIELDS, SeriesResult, _check_pixel_size
@@ -284,39 +284,12 @@ def _member(group: h5py.Group, key: str):
     return obj
 
 
-def _memory_available() -> int | None:
-    """Bytes this process may still allocate: the smaller of the system's available
-    memory and what its cgroup (v2 or v1) leaves; None where neither is known."""
-    found = []
-    try:
-        with open("/proc/meminfo") as fh:
-            for line in fh:
-                if line.startswith("MemAvailable:"):
-                    found.append(int(line.split()[1]) * 1024)
-    except (OSError, ValueError, IndexError):  # no /proc: the free pages
-        with contextlib.suppress(AttributeError, OSError, ValueError):
-            found.append(os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE"))
-    for limit, usage in (("/sys/fs/cgroup/memory.max", "/sys/fs/cgroup/memory.current"),
-                         ("/sys/fs/cgroup/memory/memory.limit_in_bytes",
-                          "/sys/fs/cgroup/memory/memory.usage_in_bytes")):
-        try:
-            with open(limit) as fh:
-                text = fh.read().strip()
-            with open(usage) as fh:
-                used = int(fh.read().strip())
-        except (OSError, ValueError):
-            continue
-        if text.isdigit() and int(text) < 2**60:  # v1 writes "no limit" as a huge number
-            found.append(max(int(text) - used, 0))
-    return min(found) if found else None
-
-
 def _check_memory(path, needed: int, what: str) -> None:
     """Refuse, before reading, data that cannot fit in the memory left."""
-    avail = _memory_available()
-    if avail is not None and needed > avail:
-        raise _Bad(f"{path}: {what} need {needed / 2**30:.2f} GiB of memory, more than the "
-                   f"{avail / 2**30:.2f} GiB available")
+    avail, source = available_memory()
+    if needed > avail:
+        raise _Bad(f"{path}: {what} need {format_size(needed)} of memory, more than the "
+                   f"{format_size(avail)} available ({source})")
 
 
 def _read_dataset(ds: h5py.Dataset, *, kinds: str = "biufc") -> np.ndarray:
