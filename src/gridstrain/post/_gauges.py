@@ -16,6 +16,14 @@ from ._loads import state_loads
 _STRAINS = ("exx", "eyy", "exy")
 
 
+def freeze_arrays(obj) -> None:
+    """Make the array fields of a frozen dataclass read-only (a result is data)."""
+    for f in obj.__dataclass_fields__:
+        v = getattr(obj, f)
+        if isinstance(v, np.ndarray):
+            v.flags.writeable = False
+
+
 @dataclass(frozen=True)
 class GaugeReading:
     """What a virtual gauge (and extensometer) read on each loaded state.
@@ -69,10 +77,7 @@ class GaugeReading:
     extensometer_where: str | None = None
 
     def __post_init__(self):
-        for f in self.__dataclass_fields__:
-            v = getattr(self, f)
-            if isinstance(v, np.ndarray):
-                v.flags.writeable = False
+        freeze_arrays(self)
 
     def columns(self) -> dict[str, np.ndarray]:
         """The table, column by column, each name followed by its unit in brackets."""

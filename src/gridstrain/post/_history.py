@@ -9,7 +9,7 @@ from scipy.signal import savgol_filter
 
 from .._validation import check_int, check_type
 from ..pipeline import _check_pixel_size
-from ._gauges import GaugeReading
+from ._gauges import GaugeReading, freeze_arrays
 
 #: Largest departure of a time step from the mean step, relative: the
 #: Savitzky-Golay weights assume evenly spaced samples.
@@ -99,10 +99,7 @@ class History:
     ay_std: np.ndarray
 
     def __post_init__(self):
-        for f in self.__dataclass_fields__:
-            v = getattr(self, f)
-            if isinstance(v, np.ndarray):
-                v.flags.writeable = False
+        freeze_arrays(self)
 
     def columns(self) -> dict[str, np.ndarray]:
         """The table, each column name followed by its unit in brackets."""
