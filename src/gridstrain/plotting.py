@@ -37,6 +37,8 @@ from .io import OutputDirectory, write_atomic
 from .pipeline import SeriesResult, _check_pixel_size
 
 __all__ = [
+    "capped_dpi",
+    "chosen_states",
     "figure_names",
     "map_norm",
     "plot_map",
@@ -46,8 +48,6 @@ __all__ = [
     "save_figures",
 ]
 
-# Percentile of |value| over the valid pixels used as the colour limit.
-_LIMIT_PERCENTILE = 99.5
 # Grey-level percentiles mapped to black and white in the background image.
 _GREY_PERCENTILES = (1.0, 99.0)
 _DPI = 100
@@ -398,6 +398,14 @@ MAX_HEIGHT_PX = 4000
 MAX_PANELS = 12
 
 
+def capped_dpi(fig: Figure, dpi: float) -> float:
+    """``dpi``, lowered so that ``fig`` saved at it is at most :data:`MAX_HEIGHT_PX` tall.
+
+    The layout (fonts, panels) stays as drawn; only the resolution drops.
+    """
+    return min(float(dpi), MAX_HEIGHT_PX / float(fig.get_size_inches()[1]))
+
+
 def chosen_states(n: int, k: int = MAX_PANELS) -> np.ndarray:
     """Indices of at most ``k`` of ``n`` states: the first, evenly spaced ones, the last."""
     if n <= k:
@@ -414,7 +422,7 @@ def _nice_length(span: float) -> float:
 
 def plot_states(result, name: str, *, limits: str = "common", microstrain: bool = True,
                 pixel_size: float | None = None, unit: str | None = None,
-                columns: int = 3, states=None, dpi: float = 150) -> Figure:
+                columns: int = 3, states=None) -> Figure:
     """Maps of one quantity for a chosen set of states, on common colour limits.
 
     Parameters
@@ -433,9 +441,7 @@ def plot_states(result, name: str, *, limits: str = "common", microstrain: bool 
         Panels per row.
     states : sequence of int, optional
         The states drawn; default :func:`chosen_states` (all of them up to 12).
-    dpi : float
-        The resolution the figure will be saved at: its size is cut so that it is
-        at most :data:`MAX_HEIGHT_PX` tall at that resolution.
+        Save it at :func:`capped_dpi` to keep it at most 4000 px tall.
 
     Returns
     -------
@@ -459,9 +465,7 @@ def plot_states(result, name: str, *, limits: str = "common", microstrain: bool 
     cols = max(1, min(int(columns), n))
     rows = math.ceil(n / cols)
     H, W = result.shape
-    width, height = 3.4 * cols + 1.0, (3.4 * H / W + 0.6) * rows + 0.4
-    shrink = min(1.0, MAX_HEIGHT_PX / (height * float(dpi)))
-    fig = _new_figure(width * shrink, height * shrink)
+    fig = _new_figure(3.4 * cols + 1.0, (3.4 * H / W + 0.6) * rows + 0.4)
     axes = np.atleast_1d(fig.subplots(rows, cols, squeeze=False)).ravel()
     bg = result.reference_image
     lo_g, hi_g = np.percentile(bg, _GREY_PERCENTILES)
