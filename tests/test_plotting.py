@@ -83,9 +83,9 @@ def test_plot_of_many_states_is_at_most_4000_px_tall(rng):
     assert len(picked) == 12
     fig = plot_states(fake, "exx")
     assert sum(1 for ax in fig.axes if ax.get_images()) == 12
-    assert capped_dpi(fig, 150) == 150  # 12 panels of 40 x 60 px: 2052 px at 150 dpi
-    for dpi in (300, 1200):
-        assert fig.get_size_inches()[1] * capped_dpi(fig, dpi) == pytest.approx(4000)
+    height = fig.get_size_inches()[1]  # 4 rows of panels: 11.9 in
+    assert capped_dpi(fig, 300) == 300  # 3560 px
+    assert height * capped_dpi(fig, 1200) == pytest.approx(4000)  # not 14,240 px
 
 
 def test_map_axes_in_physical_units_and_offset(rng):
