@@ -54,6 +54,11 @@ class GaugeReading:
         Engineering strain ``(l - L) / L`` between the extensometer's two points.
     extensometer_std : (n_states,) float64 ndarray or None
     extensometer_where : str or None
+    reference_share : (n_states,) float64 ndarray or None
+        The part of each state's noise variance that comes from the reference
+        image (:func:`reference_share`): common to every state, it moves all the
+        readings together, so it cancels in differences between states, slopes
+        and rates. None where the result does not tell.
     """
 
     states: tuple[str, ...]
@@ -75,6 +80,7 @@ class GaugeReading:
     extensometer: np.ndarray | None = None
     extensometer_std: np.ndarray | None = None
     extensometer_where: str | None = None
+    reference_share: np.ndarray | None = None
 
     def __post_init__(self):
         freeze_arrays(self)
@@ -134,6 +140,30 @@ class GaugeReading:
         cols = self.columns()
         return pd.DataFrame({k: v for k, v in cols.items() if k != "state"},
                             index=pd.Index(cols["state"], name="state"))
+
+
+def reference_share(result) -> np.ndarray | None:
+    """Per state, the fraction of its maps' noise variance that the reference gives.
+
+    A map's variance adds the reference's and the state's, each the series'
+    per-frame noise variance over its frame count and squared carrier modulus
+    (:func:`gridstrain.uncertainty.predict_uncertainty`); with the whole-image
+    values of :class:`gridstrain.uncertainty.NoiseFloor`, the share is
+    ``w_ref / (w_ref + w_state)``, ``w = variance / (T |Psi|^2)``. None when a
+    value is missing.
+    """
+    noise = getattr(result, "noise", None)
+    try:
+        var = np.asarray(noise.sensor_variance, dtype=np.float64)
+        frames = np.asarray(noise.frames if noise.frames else result.n_frames,
+                            dtype=np.float64)
+        mod2 = np.mean(np.asarray(noise.modulus, dtype=np.float64) ** 2, axis=1)
+    except (AttributeError, TypeError, ValueError):
+        return None
+    w = var / (frames * mod2)
+    if w.shape != (result.n_states + 1,) or not np.all(np.isfinite(w) & (w > 0)):
+        return None
+    return w[0] / (w[0] + w[1:])
 
 
 def _check_points(values, name: str, n: int | None) -> np.ndarray:
@@ -261,7 +291,8 @@ def gauge(result: SeriesResult, *, region=None, point=None, polygon=None,
     maps (:func:`gridstrain.uncertainty.predict_uncertainty`) and ``rho`` the
     correlation the Gaussian window gives the noise of two pixels
     (:mod:`gridstrain.post._correlation`). The reference image's noise is common
-    to every state: it shifts all the states' readings alike.
+    to every state: it shifts all the states' readings alike (its share of each
+    variance is ``reference_share``).
     """
     check_type(result, "result", SeriesResult)
     ps, unit = _check_pixel_size(pixel_size, unit)
@@ -306,5 +337,6 @@ def gauge(result: SeriesResult, *, region=None, point=None, polygon=None,
         exx=out["exx"], exx_std=std["exx"], eyy=out["eyy"], eyy_std=std["eyy"],
         exy=out["exy"], exy_std=std["exy"], ux=out["ux"], ux_std=std["ux"],
         uy=out["uy"], uy_std=std["uy"], load=load, load_unit=load_unit, time=time,
-        extensometer=ext, extensometer_std=ext_std, extensometer_where=ext_where)
+        extensometer=ext, extensometer_std=ext_std, extensometer_where=ext_where,
+        reference_share=reference_share(result))
 
