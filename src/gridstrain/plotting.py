@@ -76,7 +76,7 @@ def _new_figure(width: float, height: float) -> Figure:
 _BOTH_SIGNS = 0.05
 
 
-def map_norm(values, valid=None, *, limits: str = "common") -> Normalize:
+def map_norm(values, *, valid=None, limits: str = "common") -> Normalize:
     """The colour norm of a map (or of all the states of a series) in gridstrain's style.
 
     Parameters
@@ -170,7 +170,7 @@ def plot_map(values, *, valid=None, background=None, label: str = "", unit: str 
     limit = check_positive(limit, "limit", allow_none=True)
     if norm is None:
         norm = CenteredNorm(0.0, limit) if limit is not None else \
-            map_norm(v, ok, limits="robust")
+            map_norm(v, valid=ok, limits="robust")
     H, W = v.shape
     s = 1.0 if pixel_size is None else float(pixel_size)
     axis_unit = "px" if pixel_size is None else length_unit
@@ -324,7 +324,7 @@ def save_figures(result, directory, *, pixel_size: float | None = None,
             maps.append(values)
             offsets.append(off)
         centred = np.stack([m - o for m, o in zip(maps, offsets, strict=True)])
-        shown[name] = (maps, offsets, map_norm(centred, result.valid, limits="robust"))
+        shown[name] = (maps, offsets, map_norm(centred, valid=result.valid, limits="robust"))
     for i in range(result.n_states):
         valid = result.valid[i]
         for name, (symbol, kind) in _FIELDS.items():
@@ -388,7 +388,7 @@ def quantity(result, name: str, *, pixel_size: float | None = None,
 
 def state_norm(values, valid, *, limits: str = "common"):
     """``(norm, diverging)``: :func:`map_norm` of the valid values of every state."""
-    norm = map_norm(values, valid, limits=limits)
+    norm = map_norm(values, valid=valid, limits=limits)
     return norm, isinstance(norm, CenteredNorm)
 
 
@@ -406,7 +406,7 @@ def capped_dpi(fig: Figure, dpi: float) -> float:
     return min(float(dpi), MAX_HEIGHT_PX / float(fig.get_size_inches()[1]))
 
 
-def chosen_states(n: int, k: int = MAX_PANELS) -> np.ndarray:
+def chosen_states(n: int, *, k: int = MAX_PANELS) -> np.ndarray:
     """Indices of at most ``k`` of ``n`` states: the first, evenly spaced ones, the last."""
     if n <= k:
         return np.arange(n)
