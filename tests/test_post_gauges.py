@@ -49,10 +49,12 @@ def test_gauge_std_matches_repeated_noise_draws():
     ref0, cur0 = _strained(0.0, 0.0, 20.0), _strained(EXX, EYY, 20.0)
     rng = np.random.default_rng(3)
     regions = [(40, 40, 120, 70), (60, 80, 70, 90), (20, 30, 23, 100), (100, 95, 101, 96)]
-    means, preds, diffs, diff_preds = [], [], [], []
+    means, preds, diffs, diff_preds, ext = [], [], [], [], []
     for _ in range(40):
         res = _measure([ref0, cur0, cur0], rng)
         row = [gauge(res, region=reg) for reg in regions]
+        e = gauge(res, point=(50, 50), extensometer=(25, 60, 135, 60))
+        ext.append((e.extensometer[0], e.extensometer_std[0]))
         means.append([[g.exx[0], g.eyy[0], g.exy[0]] for g in row])
         preds.append([[g.exx_std[0], g.eyy_std[0], g.exy_std[0]] for g in row])
         diffs.append([[g.exx[1] - g.exx[0], g.eyy[1] - g.eyy[0], g.exy[1] - g.exy[0]]
@@ -74,6 +76,11 @@ def test_gauge_std_matches_repeated_noise_draws():
     ratio = float(np.sqrt(np.mean(np.mean(diff_preds, axis=0)
                                   / np.var(diffs, axis=0, ddof=1))))
     assert 0.85 <= ratio <= 1.15, ratio
+    # the extensometer (110 px): measured 1.02; one quantity over 40 draws scatters
+    # by 11 %, hence 3 times that
+    ext = np.array(ext)
+    ratio = float(np.mean(ext[:, 1]) / np.std(ext[:, 0], ddof=1))
+    assert 0.67 <= ratio <= 1.33, ratio
 
 
 def test_std_of_mean_is_the_double_sum():
@@ -134,6 +141,12 @@ def test_gauge_rows_hold_the_truth_and_the_extensometer_reads_the_stretch(series
         assert abs(g.extensometer[i] - s * EXX) < 4 * g.extensometer_std[i]
     assert g.states == tuple(res.names[1:])
     assert g.n_pixels.min() > 0
+    xr = pytest.importorskip("xarray")
+    ds = g.to_xarray()
+    assert isinstance(ds, xr.Dataset)
+    np.testing.assert_array_equal(ds["exx_std"].values, g.exx_std)
+    assert list(ds["state"].values) == list(g.states)
+    assert ds["extensometer"].attrs["units"] == "1"
 
 
 def test_physical_coordinates_select_the_same_pixels(series_file):

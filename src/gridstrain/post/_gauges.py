@@ -133,6 +133,32 @@ class GaugeReading:
                                                                         strict=True)))
         return "\n".join(lines)
 
+    def to_xarray(self):
+        """The readings as an ``xarray.Dataset`` along ``state`` (needs xarray).
+
+        Each variable carries its ``units`` and ``long_name``; the load and the time,
+        when known, are coordinates of ``state``.
+        """
+        import xarray as xr
+
+        coords = {"state": list(self.states)}
+        if self.load is not None:
+            coords["load"] = ("state", self.load, {"units": self.load_unit or ""})
+        if self.time is not None:
+            coords["time"] = ("state", self.time, {"units": "s"})
+        data = {}
+        for name in (*_STRAINS, "extensometer"):
+            if getattr(self, name) is None:
+                continue
+            data[name] = ("state", getattr(self, name), {"units": "1", "long_name":
+                                                          f"mean {name} over the gauge"})
+            data[f"{name}_std"] = ("state", getattr(self, f"{name}_std"),
+                                   {"units": "1", "long_name": f"std of the mean {name}"})
+        for name in ("ux", "uy"):
+            data[name] = ("state", getattr(self, name), {"units": "px"})
+            data[f"{name}_std"] = ("state", getattr(self, f"{name}_std"), {"units": "px"})
+        return xr.Dataset(data, coords=coords, attrs={"gauge": self.where})
+
     def to_pandas(self):
         """The table as a ``pandas.DataFrame`` indexed by state (needs pandas)."""
         import pandas as pd
