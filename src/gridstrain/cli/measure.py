@@ -54,6 +54,7 @@ from ._common import (
     lattice_option,
     positive_option,
     quiet_dask_logs,
+    xy_pairs,
 )
 
 # The options a TOML configuration file may set: its keys are the long options
@@ -334,15 +335,7 @@ def _formats(value, where: str) -> list[str]:
 
 
 def _polygon(values) -> list[list[float]]:
-    out = []
-    for v in values:
-        try:
-            x, y = (float(c) for c in v.split(","))
-        except ValueError:
-            raise ValueError(f"--roi-polygon vertices must be x,y pairs such as 10,20, got "
-                             f"{v!r}") from None
-        out.append([x, y])
-    return out
+    return xy_pairs(values, "--roi-polygon")
 
 
 @dataclass(frozen=True)
