@@ -174,11 +174,11 @@ def test_loads_file_is_read_strictly(tmp_path):
     np.testing.assert_array_equal(time, [1.0, 2.0])
     p.write_text("load [N]\n1\n2\n")
     assert read_loads(p, names)[0].tolist() == [1.0, 2.0]
-    for bad, match in (("load [N]\n1\n", "one value per loaded state"),
-                       ("state,load [N]\ns1,1\ns3,2\n", "missing"),
-                       ("force [N]\n1\n2\n", "not one of"),
-                       ("load [N],time [ms]\n1,1\n2,2\n", "in s"),
-                       ("load [N]\n1\nx\n", "line 3")):
+    for bad, match in (("load [N]\n1\n", "1 row.* for 2 state"),
+                       ("state,load [N]\ns1,1\ns3,2\n", "'s3' is not one of"),
+                       ("force [N]\n1\n2\n", "no 'load \\[UNIT\\]' column"),
+                       ("load [N],time [ms]\n1,1\n2,2\n", "in seconds"),
+                       ("load [N]\n1\nx\n", "row 3")):
         p.write_text(bad)
         with pytest.raises(ValueError, match=match):
             read_loads(p, names)
