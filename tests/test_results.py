@@ -506,3 +506,39 @@ def test_measure_figures_share_one_norm_per_quantity(result, tmp_path, monkeypat
     assert unit == "µε"
     norm = next(n for label, n, _ in seen if label == r"$\varepsilon_{xx}$")
     assert norm.vmax > 1.5 * E0 * 1e6
+
+
+def test_report_of_a_long_sequence_stays_one_readable_page(tmp_path):
+    """Beyond 12 states: the maps of six states, histories and one row per state."""
+    from matplotlib.figure import Figure
+
+    from gridstrain.report import _figure, render_report
+
+    rng = np.random.default_rng(29)
+    n = 13
+    size = 48
+
+    def frames(strain):
+        img = synthetic.grid_image((size, size), LAT, amplitude=1500.0,
+                                   displacement=lambda X, Y: (strain * X, 0.0 * Y)) + 200.0
+        return np.array([synthetic.add_noise(img, rng=rng) for _ in range(2)])
+
+    res = measure_series(frames(0.0), [frames(1e-4 * (k + 1)) for k in range(n)],
+                         lattice=LAT, order="independent", guess=(0.0, 0.0))
+    text = render_report(res)
+    assert f"6 of the {n} states" in text
+    assert text.count('alt="map of ') == 6  # one figure per map, six states in each
+    assert 'alt="strain of the states"' in text
+    assert 'alt="displacement of the states"' in text
+    # one row per state in the table of states and in that of the noise floor
+    tables = re.findall(r"<table>(.*?)</table>", text, flags=re.S)
+    states = next(t for t in tables if "mean ε_xx" in t)
+    noise = next(t for t in tables if "theory u_x" in t)
+    assert states.count("<tr>") == noise.count("<tr>") == n + 1
+    # the reference's and the six shown states' shifts, not one figure per series
+    assert text.count('alt="vibrations of ') == 7
+    # a tall figure is drawn no taller than 4000 px
+    fig = Figure(figsize=(4.0, 100.0))
+    fig.add_subplot().plot([0, 1])
+    png = base64.b64decode(_figure(fig, "tall")["png"])
+    assert int.from_bytes(png[20:24], "big") <= 4000

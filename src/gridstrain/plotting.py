@@ -37,6 +37,8 @@ from .io import OutputDirectory, write_atomic
 from .results._result import SeriesResult
 
 __all__ = [
+    "capped_dpi",
+    "chosen_states",
     "figure_names",
     "map_norm",
     "plot_map",
@@ -46,8 +48,6 @@ __all__ = [
     "save_figures",
 ]
 
-# Percentile of |value| over the valid pixels used as the colour limit.
-_LIMIT_PERCENTILE = 99.5
 # Grey-level percentiles mapped to black and white in the background image.
 _GREY_PERCENTILES = (1.0, 99.0)
 _DPI = 100
@@ -76,7 +76,7 @@ def _new_figure(width: float, height: float) -> Figure:
 _BOTH_SIGNS = 0.05
 
 
-def map_norm(values, valid=None, *, limits: str = "common") -> Normalize:
+def map_norm(values, *, valid=None, limits: str = "common") -> Normalize:
     """The colour norm of a map (or of all the states of a series) in gridstrain's style.
 
     Parameters
@@ -170,7 +170,7 @@ def plot_map(values, *, valid=None, background=None, label: str = "", unit: str 
     limit = check_positive(limit, "limit", allow_none=True)
     if norm is None:
         norm = CenteredNorm(0.0, limit) if limit is not None else \
-            map_norm(v, ok, limits="robust")
+            map_norm(v, valid=ok, limits="robust")
     H, W = v.shape
     s = 1.0 if pixel_size is None else float(pixel_size)
     axis_unit = "px" if pixel_size is None else length_unit
@@ -324,7 +324,7 @@ def save_figures(result, directory, *, pixel_size: float | None = None,
             maps.append(values)
             offsets.append(off)
         centred = np.stack([m - o for m, o in zip(maps, offsets, strict=True)])
-        shown[name] = (maps, offsets, map_norm(centred, result.valid, limits="robust"))
+        shown[name] = (maps, offsets, map_norm(centred, valid=result.valid, limits="robust"))
     for i in range(result.n_states):
         valid = result.valid[i]
         for name, (symbol, kind) in _FIELDS.items():
@@ -388,7 +388,7 @@ def quantity(result, name: str, *, pixel_size: float | None = None,
 
 def state_norm(values, valid, *, limits: str = "common"):
     """``(norm, diverging)``: :func:`map_norm` of the valid values of every state."""
-    norm = map_norm(values, valid, limits=limits)
+    norm = map_norm(values, valid=valid, limits=limits)
     return norm, isinstance(norm, CenteredNorm)
 
 
@@ -398,7 +398,15 @@ MAX_HEIGHT_PX = 4000
 MAX_PANELS = 12
 
 
-def chosen_states(n: int, k: int = MAX_PANELS) -> np.ndarray:
+def capped_dpi(fig: Figure, dpi: float) -> float:
+    """``dpi``, lowered so that ``fig`` saved at it is at most :data:`MAX_HEIGHT_PX` tall.
+
+    The layout (fonts, panels) stays as drawn; only the resolution drops.
+    """
+    return min(float(dpi), MAX_HEIGHT_PX / float(fig.get_size_inches()[1]))
+
+
+def chosen_states(n: int, *, k: int = MAX_PANELS) -> np.ndarray:
     """Indices of at most ``k`` of ``n`` states: the first, evenly spaced ones, the last."""
     if n <= k:
         return np.arange(n)
@@ -414,7 +422,7 @@ def _nice_length(span: float) -> float:
 
 def plot_states(result, name: str, *, limits: str = "common", microstrain: bool = True,
                 pixel_size: float | None = None, unit: str | None = None,
-                columns: int = 3, states=None, dpi: float = 150) -> Figure:
+                columns: int = 3, states=None) -> Figure:
     """Maps of one quantity for a chosen set of states, on common colour limits.
 
     Parameters
@@ -433,9 +441,7 @@ def plot_states(result, name: str, *, limits: str = "common", microstrain: bool 
         Panels per row.
     states : sequence of int, optional
         The states drawn; default :func:`chosen_states` (all of them up to 12).
-    dpi : float
-        The resolution the figure will be saved at: its size is cut so that it is
-        at most :data:`MAX_HEIGHT_PX` tall at that resolution.
+        Save it at :func:`capped_dpi` to keep it at most 4000 px tall.
 
     Returns
     -------
@@ -459,9 +465,7 @@ def plot_states(result, name: str, *, limits: str = "common", microstrain: bool 
     cols = max(1, min(int(columns), n))
     rows = math.ceil(n / cols)
     H, W = result.shape
-    width, height = 3.4 * cols + 1.0, (3.4 * H / W + 0.6) * rows + 0.4
-    shrink = min(1.0, MAX_HEIGHT_PX / (height * float(dpi)))
-    fig = _new_figure(width * shrink, height * shrink)
+    fig = _new_figure(3.4 * cols + 1.0, (3.4 * H / W + 0.6) * rows + 0.4)
     axes = np.atleast_1d(fig.subplots(rows, cols, squeeze=False)).ravel()
     bg = result.reference_image
     lo_g, hi_g = np.percentile(bg, _GREY_PERCENTILES)
@@ -619,7 +623,7 @@ def plot_stress_strain(constants) -> Figure:
         ax.plot((slope * s + off) * 1e6, s, color=line[0].get_color(), lw=1)
     ax.set_xlabel(r"strain (µε)")
     ax.set_ylabel(f"stress ({c.stress_unit})")
-    ax.set_title(f"E = {c.E:.4g} [{c.E_ci[0]:.4g}, {c.E_ci[1]:.4g}] {c.stress_unit}, "
+    ax.set_title(f"E = {c.E:.5g} [{c.E_ci[0]:.5g}, {c.E_ci[1]:.5g}] {c.stress_unit}, "
                  f"ν = {c.nu:.3f} [{c.nu_ci[0]:.3f}, {c.nu_ci[1]:.3f}] (95 %)", fontsize=9)
     ax.axvline(0.0, color="0.6", lw=0.8)
     ax.legend(fontsize=8)

@@ -139,6 +139,19 @@ class Outputs:
         self.committed.clear()
 
 
+def xy_pairs(values, option: str) -> list[list[float]]:
+    """``["x,y", ...]`` from the command line as ``[[x, y], ...]``; ``option`` names it."""
+    out = []
+    for v in values:
+        try:
+            x, y = (float(c) for c in v.split(","))
+        except ValueError:
+            raise ValueError(f"{option} vertices must be x,y pairs such as 10,20, got "
+                             f"{v!r}") from None
+        out.append([x, y])
+    return out
+
+
 def fmt(x: float) -> str:
     """A number for a table: 3 significant digits, NaN as '-'."""
     return "-" if x is None or (isinstance(x, float) and math.isnan(x)) else f"{x:.3g}"

@@ -6,6 +6,8 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
+from ._common import check_output_file, xy_pairs
+
 
 def add_result_options(p, *, loads: bool = True) -> None:
     p.add_argument("result", metavar="RESULT.h5", help="a file written by gridstrain measure")
@@ -33,16 +35,23 @@ def add_gauge_options(p) -> None:
 def polygon_option(values):
     if values is None:
         return None
-    out = []
-    for v in values:
-        try:
-            x, y = (float(t) for t in v.split(","))
-        except ValueError:
-            raise ValueError(f"--polygon vertices must be x,y pairs such as 10,20, got "
-                             f"{v!r}") from None
-        out.append((x, y))
+    out = xy_pairs(values, "--polygon")
     if len(out) < 3:
         raise ValueError(f"--polygon needs at least 3 vertices, got {len(out)}")
+    return out
+
+
+def add_output_options(p, what: str) -> None:
+    p.add_argument("-o", "--output", metavar="FILE.csv", help=f"write {what} as CSV")
+    p.add_argument("--overwrite", action="store_true", help="replace an existing file")
+
+
+def output_path(args, src: Path, what: str) -> Path | None:
+    """``-o``'s path, refused before any work if it would clobber a file or the input."""
+    if not args.output:
+        return None
+    out = Path(os.path.expanduser(args.output))
+    check_output_file(out, what, args.overwrite, {src.resolve()})
     return out
 
 

@@ -2,11 +2,14 @@
 
 from __future__ import annotations
 
-import os
-from pathlib import Path
-
-from ._common import check_output_file
-from ._post import add_gauge_options, add_result_options, gauge_of, open_result
+from ._post import (
+    add_gauge_options,
+    add_output_options,
+    add_result_options,
+    gauge_of,
+    open_result,
+    output_path,
+)
 
 SUMMARY = "virtual strain gauge and extensometer: mean strain of every state with its std"
 
@@ -23,16 +26,13 @@ def register(sub) -> None:
     add_gauge_options(p)
     p.add_argument("--extensometer", type=float, nargs=4, metavar=("X0", "Y0", "X1", "Y1"),
                    help="also the engineering strain between the points (x0, y0), (x1, y1)")
-    p.add_argument("-o", "--output", metavar="FILE.csv", help="write the table as CSV")
-    p.add_argument("--overwrite", action="store_true", help="replace an existing CSV")
+    add_output_options(p, "the table")
     p.set_defaults(func=run)
 
 
 def run(args) -> int:
     result, src, ps, unit, ld, lu, t = open_result(args)
-    out = Path(os.path.expanduser(args.output)) if args.output else None
-    if out is not None:
-        check_output_file(out, "gauge CSV", args.overwrite, {src.resolve()})
+    out = output_path(args, src, "gauge CSV")
     reading = gauge_of(args, result, ps, unit, ld, lu, t, extensometer=args.extensometer)
     print(reading.table())
     if out is not None:

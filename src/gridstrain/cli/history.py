@@ -2,11 +2,15 @@
 
 from __future__ import annotations
 
-import os
-from pathlib import Path
-
-from ._common import check_output_file, fmt
-from ._post import add_gauge_options, add_result_options, gauge_of, open_result
+from ._common import fmt
+from ._post import (
+    add_gauge_options,
+    add_output_options,
+    add_result_options,
+    gauge_of,
+    open_result,
+    output_path,
+)
 
 SUMMARY = "strain rate, velocity and acceleration of a gauge over time, smoothed, with std"
 
@@ -24,8 +28,7 @@ def register(sub) -> None:
     p.add_argument("--window", type=int, default=5, help="states in the window (odd, "
                    "default 5)")
     p.add_argument("--order", type=int, default=2, help="degree of the polynomial (default 2)")
-    p.add_argument("-o", "--output", metavar="FILE.csv", help="write every column as CSV")
-    p.add_argument("--overwrite", action="store_true", help="replace an existing CSV")
+    add_output_options(p, "every column")
     p.set_defaults(func=run)
 
 
@@ -33,9 +36,7 @@ def run(args) -> int:
     from ..post import history
 
     result, src, ps, unit, ld, lu, t = open_result(args)
-    out = Path(os.path.expanduser(args.output)) if args.output else None
-    if out is not None:
-        check_output_file(out, "history CSV", args.overwrite, {src.resolve()})
+    out = output_path(args, src, "history CSV")
     reading = gauge_of(args, result, ps, unit, ld, lu, t)
     h = history(reading, window=args.window, order=args.order, pixel_size=ps, unit=unit)
     print(f"{reading.where}; Savitzky-Golay window {h.window} states, order {h.order}")

@@ -51,6 +51,7 @@ from ._common import (
     lattice_option,
     positive_option,
     quiet_dask_logs,
+    xy_pairs,
 )
 
 # The options a TOML configuration file may set: its keys are the long options
@@ -331,15 +332,7 @@ def _formats(value, where: str) -> list[str]:
 
 
 def _polygon(values) -> list[list[float]]:
-    out = []
-    for v in values:
-        try:
-            x, y = (float(c) for c in v.split(","))
-        except ValueError:
-            raise ValueError(f"--roi-polygon vertices must be x,y pairs such as 10,20, got "
-                             f"{v!r}") from None
-        out.append([x, y])
-    return out
+    return xy_pairs(values, "--roi-polygon")
 
 
 @dataclass(frozen=True)
@@ -350,6 +343,11 @@ class _Config:
     options: dict
     from_result: bool
     ignored: tuple = ()
+
+    def taken(self, opts: dict) -> list[str]:
+        """The keys of the file whose values the run uses (the command line gave no
+        other)."""
+        return [k for k in self.options if opts.get(k) == self.options[k]]
 
 
 def _read_config(path: str) -> _Config:
@@ -393,7 +391,7 @@ def _read_config(path: str) -> _Config:
 def _replay_line(config: _Config, opts: dict) -> str:
     """What a replay took from the result file, what the command line gave instead,
     and what it left."""
-    taken = [k for k in config.options if opts.get(k) == config.options[k]]
+    taken = config.taken(opts)
     line = f"replaying the measurement of {config.path}: " + (
         ", ".join(taken) if taken else "no option") + " from the file"
     over = [k for k in config.options if k not in taken]
@@ -812,7 +810,7 @@ def _run(args, progress: _Bar) -> int:
     progress.configure(opts["quiet"])
     replay = {}
     if config is not None:
-        replay["config_keys"] = [k for k in config.options if opts.get(k) == config.options[k]]
+        replay["config_keys"] = config.taken(opts)
         replay["config_ignored"] = list(config.ignored)
         if config.from_result and not opts["quiet"]:
             print(_replay_line(config, opts), file=sys.stderr)

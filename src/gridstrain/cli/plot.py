@@ -45,8 +45,8 @@ def register(sub) -> None:
 
 def run(args) -> int:
     from ..io import OutputDirectory
-    from ..plotting import QUANTITIES, plot_history, plot_states
-    from ..results._file import load, read_attrs
+    from ..plotting import QUANTITIES, capped_dpi, plot_history, plot_states
+    from ..results import load, read_attrs
 
     if not 20 <= args.dpi <= 1200:
         raise ValueError(f"--dpi must be between 20 and 1200, got {args.dpi}")
@@ -67,8 +67,8 @@ def run(args) -> int:
         src.with_name(src.stem + "_figures")
     micro = args.strain_units == "microstrain"
     figures = {f"{n}.{args.format}": (lambda n=n: plot_states(
-        result, n, limits=args.limits, microstrain=micro, pixel_size=ps, unit=unit,
-        dpi=args.dpi)) for n in names}
+        result, n, limits=args.limits, microstrain=micro, pixel_size=ps, unit=unit))
+        for n in names}
     ld = lu = t = None
     if args.loads:
         from ..post import read_loads
@@ -84,7 +84,9 @@ def run(args) -> int:
     built = {name: make() for name, make in figures.items()}
     directory.prepare()
     for name, fig in built.items():
-        directory.write(name, lambda fh, fig=fig: fig.savefig(fh, format=args.format,
-                                                              dpi=args.dpi))
+        # no figure taller than 4000 px: a tall one is saved at a lower resolution
+        dpi = capped_dpi(fig, args.dpi)
+        directory.write(name, lambda fh, fig=fig, dpi=dpi: fig.savefig(
+            fh, format=args.format, dpi=dpi))
         print(out / name)
     return 0

@@ -50,7 +50,7 @@ def _number(text: str, path, row: int, column: str) -> float:
     return v
 
 
-def read_loads(path, *, states) -> LoadTable:
+def read_loads(path, *, states, reference: str | None = None) -> LoadTable:
     """Read the load (and the time) of every state from a CSV file.
 
     The first line that is not blank or a ``#`` comment is the header. Columns
@@ -59,7 +59,9 @@ def read_loads(path, *, states) -> LoadTable:
     - ``load [UNIT]`` (required; the unit in brackets, e.g. ``load [kN]``);
     - ``time [s]`` (optional, seconds);
     - ``state`` (optional): the name of the state each row gives, every state
-      once, in any order. Without it, one row per state in the states' order.
+      once, in any order (and, if ``reference`` is given, at most one row naming
+      the reference, which is skipped). Without it, one row per state in the
+      states' order.
 
     Parameters
     ----------
@@ -68,6 +70,9 @@ def read_loads(path, *, states) -> LoadTable:
     states : sequence of str
         The states' names, in the order measured
         (:attr:`gridstrain.pipeline.SeriesResult.names` less the reference).
+    reference : str, optional
+        The reference's name: a row of a ``state`` column naming it (its load is
+        usually zero) is allowed and skipped.
 
     Returns
     -------
@@ -128,12 +133,17 @@ def read_loads(path, *, states) -> LoadTable:
                          "column naming them")
     index = {n: i for i, n in enumerate(names)}
     seen: dict[int, int] = {}
+    skipped = False
     for k, (row, values) in enumerate(body):
         if len(values) != len(header):
             raise ValueError(f"loads file {p}, row {row}: {len(values)} value(s) for the "
                              f"{len(header)} column(s) of the header")
         if "state" in cols:
             name = values[cols["state"]].strip()
+            if reference is not None and name == reference and name not in index \
+                    and not skipped:
+                skipped = True
+                continue
             if name not in index:
                 raise ValueError(f"loads file {p}, row {row}: state {name!r} is not one of "
                                  f"the states measured ({', '.join(names[:3])}"

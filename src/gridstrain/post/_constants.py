@@ -110,9 +110,11 @@ def elastic_constants(reading: GaugeReading, *, area: float, area_unit: str = "m
     The load is the exact variable and the strains carry the noise, so both strains
     are fitted as straight lines of the stress, weighted by the gauge's std:
     ``axial = stress / E + a0`` and ``transverse = -nu stress / E + t0``; then
-    ``E = 1 / slope_axial`` and ``nu = -slope_transverse / slope_axial`` (the
-    intercepts absorb the reference image's noise, common to every state). The
-    intervals come from the stated std when the fits' residuals agree with it
+    ``E = 1 / slope_axial`` and ``nu = -slope_transverse / slope_axial``. The
+    intercepts absorb the reference image's noise, common to every state, so the
+    weights are each state's own noise: the gauge's variance less the reference's
+    share (``GaugeReading.reference_share``; all of it when unknown). The
+    intervals come from that std when the fits' residuals agree with it
     (reduced chi2 <= 1: normal quantile); when the residuals scatter more than the
     noise explains (a non-linearity, a slipping grip, a bias the std maps do not
     cover), the slopes' covariance is scaled by the reduced chi2 and Student's
@@ -141,12 +143,16 @@ def elastic_constants(reading: GaugeReading, *, area: float, area_unit: str = "m
     if not np.all(np.isfinite(axial_s[keep]) & (axial_s[keep] > 0)):
         raise ValueError("the gauge has no std (a result without uncertainty maps): a "
                          "weighted fit needs them")
+    # the reference's noise, common to every state, falls into the intercepts: the
+    # slopes see each state's own noise only
+    own = 1.0 if reading.reference_share is None else \
+        np.sqrt(1.0 - reading.reference_share[keep])
     if keep.sum() < 3:
         raise ValueError(f"a fit needs at least 3 states, got {int(keep.sum())} "
                          f"(strain_range {strain_range!r})")
     stress = reading.load[keep] / area
-    a, var_a, chi_a = _fit(stress, axial[keep], axial_s[keep])
-    c, var_c, chi_t = _fit(stress, trans[keep], trans_s[keep])
+    a, var_a, chi_a = _fit(stress, axial[keep], axial_s[keep] * own)
+    c, var_c, chi_t = _fit(stress, trans[keep], trans_s[keep] * own)
     dof = int(keep.sum()) - 2
     scale = max(chi_a, chi_t)
     if scale > 1.0:

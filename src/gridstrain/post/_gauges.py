@@ -16,6 +16,14 @@ from ._loads import state_loads
 _STRAINS = ("exx", "eyy", "exy")
 
 
+def freeze_arrays(obj) -> None:
+    """Make the array fields of a frozen dataclass read-only (a result is data)."""
+    for f in obj.__dataclass_fields__:
+        v = getattr(obj, f)
+        if isinstance(v, np.ndarray):
+            v.flags.writeable = False
+
+
 @dataclass(frozen=True)
 class GaugeReading:
     """What a virtual gauge (and extensometer) read on each loaded state.
@@ -46,6 +54,11 @@ class GaugeReading:
         Engineering strain ``(l - L) / L`` between the extensometer's two points.
     extensometer_std : (n_states,) float64 ndarray or None
     extensometer_where : str or None
+    reference_share : (n_states,) float64 ndarray or None
+        The part of each state's noise variance that comes from the reference
+        image (:func:`reference_share`): common to every state, it moves all the
+        readings together, so it cancels in differences between states, slopes
+        and rates. None where the result does not tell.
     """
 
     states: tuple[str, ...]
@@ -67,12 +80,10 @@ class GaugeReading:
     extensometer: np.ndarray | None = None
     extensometer_std: np.ndarray | None = None
     extensometer_where: str | None = None
+    reference_share: np.ndarray | None = None
 
     def __post_init__(self):
-        for f in self.__dataclass_fields__:
-            v = getattr(self, f)
-            if isinstance(v, np.ndarray):
-                v.flags.writeable = False
+        freeze_arrays(self)
 
     def columns(self) -> dict[str, np.ndarray]:
         """The table, column by column, each name followed by its unit in brackets."""
@@ -122,6 +133,32 @@ class GaugeReading:
                                                                         strict=True)))
         return "\n".join(lines)
 
+    def to_xarray(self):
+        """The readings as an ``xarray.Dataset`` along ``state`` (needs xarray).
+
+        Each variable carries its ``units`` and ``long_name``; the load and the time,
+        when known, are coordinates of ``state``.
+        """
+        import xarray as xr
+
+        coords = {"state": list(self.states)}
+        if self.load is not None:
+            coords["load"] = ("state", self.load, {"units": self.load_unit or ""})
+        if self.time is not None:
+            coords["time"] = ("state", self.time, {"units": "s"})
+        data = {}
+        for name in (*_STRAINS, "extensometer"):
+            if getattr(self, name) is None:
+                continue
+            data[name] = ("state", getattr(self, name), {"units": "1", "long_name":
+                                                          f"mean {name} over the gauge"})
+            data[f"{name}_std"] = ("state", getattr(self, f"{name}_std"),
+                                   {"units": "1", "long_name": f"std of the mean {name}"})
+        for name in ("ux", "uy"):
+            data[name] = ("state", getattr(self, name), {"units": "px"})
+            data[f"{name}_std"] = ("state", getattr(self, f"{name}_std"), {"units": "px"})
+        return xr.Dataset(data, coords=coords, attrs={"gauge": self.where})
+
     def to_pandas(self):
         """The table as a ``pandas.DataFrame`` indexed by state (needs pandas)."""
         import pandas as pd
@@ -129,6 +166,30 @@ class GaugeReading:
         cols = self.columns()
         return pd.DataFrame({k: v for k, v in cols.items() if k != "state"},
                             index=pd.Index(cols["state"], name="state"))
+
+
+def reference_share(result) -> np.ndarray | None:
+    """Per state, the fraction of its maps' noise variance that the reference gives.
+
+    A map's variance adds the reference's and the state's, each the series'
+    per-frame noise variance over its frame count and squared carrier modulus
+    (:func:`gridstrain.uncertainty.predict_uncertainty`); with the whole-image
+    values of :class:`gridstrain.uncertainty.NoiseFloor`, the share is
+    ``w_ref / (w_ref + w_state)``, ``w = variance / (T |Psi|^2)``. None when a
+    value is missing.
+    """
+    noise = getattr(result, "noise", None)
+    try:
+        var = np.asarray(noise.sensor_variance, dtype=np.float64)
+        frames = np.asarray(noise.frames if noise.frames else result.n_frames,
+                            dtype=np.float64)
+        mod2 = np.mean(np.asarray(noise.modulus, dtype=np.float64) ** 2, axis=1)
+    except (AttributeError, TypeError, ValueError):
+        return None
+    w = var / (frames * mod2)
+    if w.shape != (result.n_states + 1,) or not np.all(np.isfinite(w) & (w > 0)):
+        return None
+    return w[0] / (w[0] + w[1:])
 
 
 def _check_points(values, name: str, n: int | None) -> np.ndarray:
@@ -256,7 +317,8 @@ def gauge(result: SeriesResult, *, region=None, point=None, polygon=None,
     maps (:func:`gridstrain.uncertainty.predict_uncertainty`) and ``rho`` the
     correlation the Gaussian window gives the noise of two pixels
     (:mod:`gridstrain.post._correlation`). The reference image's noise is common
-    to every state: it shifts all the states' readings alike.
+    to every state: it shifts all the states' readings alike (its share of each
+    variance is ``reference_share``).
     """
     check_type(result, "result", SeriesResult)
     ps, unit = check_pixel_size(pixel_size, unit)
@@ -301,5 +363,6 @@ def gauge(result: SeriesResult, *, region=None, point=None, polygon=None,
         exx=out["exx"], exx_std=std["exx"], eyy=out["eyy"], eyy_std=std["eyy"],
         exy=out["exy"], exy_std=std["exy"], ux=out["ux"], ux_std=std["ux"],
         uy=out["uy"], uy_std=std["uy"], load=load, load_unit=load_unit, time=time,
-        extensometer=ext, extensometer_std=ext_std, extensometer_where=ext_where)
+        extensometer=ext, extensometer_std=ext_std, extensometer_where=ext_where,
+        reference_share=reference_share(result))
 

@@ -8,7 +8,7 @@ import numpy as np
 from scipy.signal import savgol_filter
 
 from .._validation import check_int, check_pixel_size, check_type
-from ._gauges import GaugeReading
+from ._gauges import GaugeReading, freeze_arrays
 
 #: Largest departure of a time step from the mean step, relative: the
 #: Savitzky-Golay weights assume evenly spaced samples.
@@ -28,20 +28,31 @@ def _operator_rows(n: int, window: int, order: int, deriv: int, delta: float):
     return E[:h], E[h], E[window - h:]
 
 
-def _apply(x, s, window, order, deriv, delta):
-    """The filtered series and its std, the samples' noises independent."""
+def _apply(x, s, window, order, deriv, delta, share=None):
+    """The filtered series and its std.
+
+    ``s``: each sample's std; ``share``: the part of its variance common to all
+    samples (fully correlated, the reference's), None for independent samples.
+    An output of weights ``w`` has the variance ``sum w_j^2 (1 - f_j) s_j^2 +
+    (sum w_j sqrt(f_j) s_j)^2``.
+    """
     n = x.size
     first, centre, last = _operator_rows(n, window, order, deriv, delta)
     h = window // 2
-    y = np.empty(n)
-    v = np.empty(n)
-    y[:h], v[:h] = first @ x[:window], (first**2) @ (s[:window] ** 2)
-    y[n - h:], v[n - h:] = last @ x[n - window:], (last**2) @ (s[n - window:] ** 2)
+    f = np.zeros(n) if share is None else share
+    own, common = s**2 * (1.0 - f), s * np.sqrt(f)
+    y, v, c = np.empty(n), np.empty(n), np.empty(n)
+    for rows, sl, out in ((first, slice(0, window), slice(0, h)),
+                          (last, slice(n - window, n), slice(n - h, n))):
+        y[out], v[out], c[out] = rows @ x[sl], (rows**2) @ own[sl], rows @ common[sl]
     if n > 2 * h:
-        xs = np.lib.stride_tricks.sliding_window_view(x, window)
-        ss = np.lib.stride_tricks.sliding_window_view(s**2, window)
-        y[h:n - h], v[h:n - h] = xs @ centre, ss @ centre**2
-    return y, np.sqrt(v)
+        def slide(a):
+            return np.lib.stride_tricks.sliding_window_view(a, window)
+
+        mid = slice(h, n - h)
+        y[mid], v[mid], c[mid] = slide(x) @ centre, slide(own) @ centre**2, \
+            slide(common) @ centre
+    return y, np.sqrt(v + c**2)
 
 
 @dataclass(frozen=True)
@@ -98,10 +109,7 @@ class History:
     ay_std: np.ndarray
 
     def __post_init__(self):
-        for f in self.__dataclass_fields__:
-            v = getattr(self, f)
-            if isinstance(v, np.ndarray):
-                v.flags.writeable = False
+        freeze_arrays(self)
 
     def columns(self) -> dict[str, np.ndarray]:
         """The table, each column name followed by its unit in brackets."""
@@ -146,13 +154,14 @@ def history(reading: GaugeReading, *, window: int = 5, order: int = 2,
 
     Notes
     -----
-    The filter (:func:`scipy.signal.savgol_filter`, mode "interp") is linear, so
-    each output's variance is ``sum_j w_j^2 s_j^2`` over its weights ``w``, the
-    states' noises taken as independent. Every state is measured against the same
-    reference image, whose noise is common to all of them: it cancels in a
-    derivative (its weights sum to zero), so the std of the rates, velocity and
-    acceleration are upper bounds, by up to sqrt(2) when each state holds one
-    image like the reference.
+    The filter (:func:`scipy.signal.savgol_filter`, mode "interp") is linear.
+    Every state is measured against the same reference image, whose noise is
+    common to all of them (``GaugeReading.reference_share`` of each variance):
+    with weights ``w``, an output's variance is ``sum_j w_j^2 (1 - f_j) s_j^2 +
+    (sum_j w_j sqrt(f_j) s_j)^2``. The common part cancels in a derivative (its
+    weights sum to zero) and stays whole in the smoothed strain. Without the
+    share, the states are taken as independent, which overstates the std of a
+    derivative by up to sqrt(2).
     """
     check_type(reading, "reading", GaugeReading)
     window = check_int(window, "window", minimum=3)
@@ -172,14 +181,16 @@ def history(reading: GaugeReading, *, window: int = 5, order: int = 2,
         raise ValueError(f"time must be evenly spaced for the Savitzky-Golay filter "
                          f"(steps from {dt.min():.6g} to {dt.max():.6g} s)")
     s = 1.0 if ps is None else ps
+    f = reading.reference_share
     out = {}
     for name in ("exx", "eyy", "exy"):
         x, e = getattr(reading, name), getattr(reading, f"{name}_std")
-        out[name], out[f"{name}_std"] = _apply(x, e, window, order, 0, step)
-        out[f"{name}_rate"], out[f"{name}_rate_std"] = _apply(x, e, window, order, 1, step)
+        out[name], out[f"{name}_std"] = _apply(x, e, window, order, 0, step, f)
+        out[f"{name}_rate"], out[f"{name}_rate_std"] = _apply(x, e, window, order, 1, step,
+                                                              f)
     for comp in ("x", "y"):
         x, e = getattr(reading, f"u{comp}") * s, getattr(reading, f"u{comp}_std") * s
-        out[f"v{comp}"], out[f"v{comp}_std"] = _apply(x, e, window, order, 1, step)
-        out[f"a{comp}"], out[f"a{comp}_std"] = _apply(x, e, window, order, 2, step)
+        out[f"v{comp}"], out[f"v{comp}_std"] = _apply(x, e, window, order, 1, step, f)
+        out[f"a{comp}"], out[f"a{comp}_std"] = _apply(x, e, window, order, 2, step, f)
     return History(states=reading.states, time=t, window=window, order=order,
                    unit=unit or "px", **out)

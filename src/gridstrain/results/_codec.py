@@ -5,7 +5,6 @@ value's type, size and the file's declared sizes are checked before anything is 
 
 from __future__ import annotations
 
-import contextlib
 import dataclasses
 import numbers
 import os
@@ -16,6 +15,7 @@ from collections.abc import Mapping
 import h5py
 import numpy as np
 
+from .._memory import available_memory, format_size
 from ._result import SeriesResult
 
 # Lossless filters of the images, masks and tables: gzip is read everywhere. Level 1:
@@ -205,39 +205,12 @@ def _member(group: h5py.Group, key: str):
     return obj
 
 
-def _memory_available() -> int | None:
-    """Bytes this process may still allocate: the smaller of the system's available
-    memory and what its cgroup (v2 or v1) leaves; None where neither is known."""
-    found = []
-    try:
-        with open("/proc/meminfo") as fh:
-            for line in fh:
-                if line.startswith("MemAvailable:"):
-                    found.append(int(line.split()[1]) * 1024)
-    except (OSError, ValueError, IndexError):  # no /proc: the free pages
-        with contextlib.suppress(AttributeError, OSError, ValueError):
-            found.append(os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE"))
-    for limit, usage in (("/sys/fs/cgroup/memory.max", "/sys/fs/cgroup/memory.current"),
-                         ("/sys/fs/cgroup/memory/memory.limit_in_bytes",
-                          "/sys/fs/cgroup/memory/memory.usage_in_bytes")):
-        try:
-            with open(limit) as fh:
-                text = fh.read().strip()
-            with open(usage) as fh:
-                used = int(fh.read().strip())
-        except (OSError, ValueError):
-            continue
-        if text.isdigit() and int(text) < 2**60:  # v1 writes "no limit" as a huge number
-            found.append(max(int(text) - used, 0))
-    return min(found) if found else None
-
-
 def _check_memory(path, needed: int, what: str) -> None:
     """Refuse, before reading, data that cannot fit in the memory left."""
-    avail = _memory_available()
-    if avail is not None and needed > avail:
-        raise _Bad(f"{path}: {what} need {needed / 2**30:.2f} GiB of memory, more than the "
-                   f"{avail / 2**30:.2f} GiB available")
+    avail, source = available_memory()
+    if needed > avail:
+        raise _Bad(f"{path}: {what} need {format_size(needed)} of memory, more than the "
+                   f"{format_size(avail)} available ({source})")
 
 
 def _read_dataset(ds: h5py.Dataset, *, kinds: str = "biufc") -> np.ndarray:
