@@ -15,7 +15,7 @@ import tifffile
 
 from gridstrain import load
 from gridstrain.cli import main
-from gridstrain.phase.lattice import Lattice, follow_lattice
+from gridstrain.lattice import Lattice, follow_lattice
 from independent_grid import camera, scene
 
 H, W = 160, 200

@@ -7,8 +7,8 @@ import pytest
 from numpy.testing import assert_allclose
 from scipy import stats
 
+from gridstrain.lattice import Lattice
 from gridstrain.noise import NoiseModel, anscombe, estimate_noise, inverse_anscombe
-from gridstrain.phase.lattice import Lattice
 from gridstrain.synthetic import add_noise, grid_image
 
 # Paper defaults, 12-bit grey levels (../shared/paper/README.md).

@@ -16,9 +16,15 @@ from scipy import ndimage
 
 from gridstrain import Lattice, __version__, kirsch, synthetic, theory
 from gridstrain.io import open_series, read_hdf5
-from gridstrain.pipeline import FWHM_PER_SIGMA, measure_series, save_csv, save_result
+from gridstrain.pipeline import (
+    FWHM_PER_SIGMA,
+    MAP_FIELDS,
+    SeriesResult,
+    measure_series,
+    save_csv,
+    save_result,
+)
 from gridstrain.results import read_attrs
-from gridstrain.results._result import MAP_FIELDS, SeriesResult
 
 LAT = Lattice.from_pitch(5.0)
 AMP = 2400.0  # mean grey level, 12-bit: the grid peaks at 1.45 AMP = 3480 < 4095
@@ -505,8 +511,8 @@ def test_the_split_floor_from_one_half_and_the_mean_is_half_against_half():
     and 6 frames) and the frames shaken by 0.05 px."""
     from gridstrain import wft
     from gridstrain.accumulate import PassPlan, SeriesPass
-    from gridstrain.phase._transform import finite_derivatives
     from gridstrain.series._floors import _difference_std, _split_floor
+    from gridstrain.wft import finite_derivatives
 
     lat = Lattice.from_pitch(5.0)
     rng = np.random.default_rng(4)
@@ -539,8 +545,8 @@ def test_the_split_floor_is_deformation_without_its_maps():
     a masked hole, to float rounding."""
     from gridstrain import wft
     from gridstrain.kinematics import deformation
-    from gridstrain.phase._transform import finite_derivatives
     from gridstrain.series._floors import _difference_std
+    from gridstrain.wft import finite_derivatives
 
     th, f = np.deg2rad(12.0), 1 / 5.0
     lat = Lattice((f * np.cos(th), f * np.sin(th)), (-f * np.sin(th), f * np.cos(th)))

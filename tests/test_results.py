@@ -20,10 +20,16 @@ from numpy.testing import assert_allclose, assert_array_equal
 import gridstrain
 from gridstrain import Lattice, synthetic
 from gridstrain.cli import main
-from gridstrain.pipeline import measure_series
-from gridstrain.results import export_mat, export_vtk, load, read_attrs, save_csv, save_result
+from gridstrain.pipeline import MAP_FIELDS, SeriesResult, measure_series
+from gridstrain.results import (
+    export_mat,
+    export_vtk,
+    load,
+    read_attrs,
+    save_csv,
+    save_result,
+)
 from gridstrain.results._file import _nan_equal
-from gridstrain.results._result import MAP_FIELDS, SeriesResult
 
 LAT = Lattice.from_pitch(5.0)
 N = 96

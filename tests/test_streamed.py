@@ -12,11 +12,11 @@ from numpy.testing import assert_allclose, assert_array_equal
 
 from gridstrain import Lattice, stacks, synthetic
 from gridstrain.kinematics import deformation
-from gridstrain.phase._transform import demodulated_at, finite_derivatives
-from gridstrain.phase.lattice import _Carrier, follow_lattice
+from gridstrain.lattice import follow_lattice
+from gridstrain.phase.lattice import _Carrier
 from gridstrain.pipeline import measure_series
 from gridstrain.results import ResultFile, StoredMaps, load, save_result
-from gridstrain.wft import wft
+from gridstrain.wft import demodulated_at, finite_derivatives, wft
 
 LAT = Lattice.from_pitch(5.0)
 SHAPE = (96, 112)

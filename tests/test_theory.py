@@ -16,7 +16,7 @@ from numpy.testing import assert_allclose
 from scipy import integrate
 
 from gridstrain import theory
-from gridstrain.phase.lattice import Lattice
+from gridstrain.lattice import Lattice
 from gridstrain.synthetic import PROFILES, add_noise, grid_image
 from gridstrain.wft import wft
 

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose
 
-from gridstrain.phase.lattice import Lattice
+from gridstrain.lattice import Lattice
 from gridstrain.synthetic import add_noise, grid_image
 from gridstrain.vibration import VibrationReport, frame_shifts, vibration_report
 from gridstrain.wft import wft

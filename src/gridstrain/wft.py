@@ -19,4 +19,8 @@ from .phase._transform import (
     wft_complex,
 )
 
+# a state's maps at the reference's carrier, and the derivatives the kinematics take
+from .phase._transform import demodulated_at as demodulated_at
+from .phase._transform import finite_derivatives as finite_derivatives
+
 __all__ = ["DEFAULT_MARGIN", "PhaseMaps", "transfer_function", "wft", "wft_complex"]
