@@ -431,7 +431,7 @@ def test_an_all_invalid_result_is_never_written(data, tmp_path, capsys, monkeypa
     """Whatever the cause, a state without one valid pixel is an error, not a file."""
     import dataclasses
 
-    import gridstrain.pipeline as gp
+    import gridstrain.kinematics.tracking as gp
 
     real = gp._Tracker.measure
 

@@ -47,7 +47,7 @@ def test_method_b_keeps_blas_on_one_thread_while_it_reads_frames():
 def test_measure_series_keeps_blas_on_one_thread_throughout(monkeypatch):
     # its kinematics, noise and uncertainty products too, not only the frame loops:
     # OpenBLAS's idle threads would spin between them (a third more CPU for a pair)
-    import gridstrain.pipeline as gp
+    import gridstrain.kinematics.tracking as gp
 
     seen = []
     inner = gp.deformation

@@ -8,6 +8,7 @@ import dataclasses
 import math
 import numbers
 from collections.abc import Mapping
+from dataclasses import dataclass
 from pathlib import Path
 
 import h5py
@@ -105,6 +106,7 @@ def save_result(result: SeriesResult, path, *, pixel_size: float | None = None,
 # --------------------------------------------------------------------------- streaming
 
 
+@dataclass(frozen=True)
 class ResultFile:
     """Where and how :func:`gridstrain.pipeline.measure_series` writes its result
     while it measures (``output=``): each state's maps go to the file as soon as they
