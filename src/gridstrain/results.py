@@ -309,7 +309,7 @@ def _registry() -> dict[str, type]:
     from ._wft import PhaseMaps
     from .kinematics import FringeOrder, Measurement
     from .lattice import Lattice
-    from .screening import FrameScreen
+    from .screening import FrameScreen, Trend
     from .uncertainty import NoiseFloor
     from .vibration import VibrationReport
 
@@ -319,6 +319,7 @@ def _registry() -> dict[str, type]:
         "gridstrain.kinematics.FringeOrder": FringeOrder,
         "gridstrain.lattice.Lattice": Lattice,
         "gridstrain.screening.FrameScreen": FrameScreen,
+        "gridstrain.screening.Trend": Trend,
         "gridstrain.uncertainty.NoiseFloor": NoiseFloor,
         "gridstrain.vibration.VibrationReport": VibrationReport,
         "gridstrain._wft.PhaseMaps": PhaseMaps,
