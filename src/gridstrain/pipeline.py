@@ -181,8 +181,9 @@ from .stacks import _FrameOrder, method_b
 from .uncertainty import (
     _FWHM,
     NoiseFloor,
+    _displacement_strain_std,
+    _phase_variance,
     aliasing_bias,
-    displacement_strain_std,
     metrology,
     smoothing_bias,
 )
@@ -2101,6 +2102,7 @@ class _ReferenceFloor:
         self.T1, self.T2 = T1, T2
         self.sr = summary
         self.local_ref = self._local(r)
+        self.var_ref_phase = None  # the reference's phase variance (_uncertainty)
         self.r = r.dropping("variance")  # only its smoothed copy is used from here on
         self.rows: dict[str, list] = {k: [] for k in ("theory_u", "theory_strain", "split_u",
                                                       "split_strain", "vibration_u")}
@@ -2155,9 +2157,14 @@ class _ReferenceFloor:
         v_def = local if local is not None else self.local_ref
         if v_ref is None:
             return None
-        u_std, strain_std = displacement_strain_std(
-            self.r.maps, c.maps, variance_ref=v_ref / self.sr.T,
-            variance_def=v_def / c.series.n_frames, valid=res.valid)
+        if self.local_ref is None:
+            var_ref = _phase_variance(self.r.maps, v_ref / self.sr.T)
+        else:  # the reference's side, the same for every state: made once
+            if self.var_ref_phase is None:
+                self.var_ref_phase = _phase_variance(self.r.maps, v_ref / self.sr.T)
+            var_ref = self.var_ref_phase
+        u_std, strain_std = _displacement_strain_std(
+            var_ref, c.maps, variance_def=v_def / c.series.n_frames, valid=res.valid)
         names = ("ux_std", "uy_std", "exx_std", "eyy_std", "exy_std")
         return dict(zip(names, (*u_std, *strain_std), strict=True))
 
