@@ -305,3 +305,9 @@ def test_the_issues_100_frame_record(tmp_path):
     other = measure_series(ref, tmp_path / "rec.tif", each_frame=True,
                            output=tmp_path / "b.h5")
     np.testing.assert_array_equal(np.asarray(other.u), np.asarray(res.u))
+
+
+def test_outliers_warn_averages_a_sequence_with_a_warning(measured):
+    _, folder, _ = measured
+    res = measure_series(folder / "frame_1.tif", folder, outliers="warn")
+    assert any("are a sequence" in w and "outliers='warn'" in w for w in res.warnings)

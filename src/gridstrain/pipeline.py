@@ -769,13 +769,18 @@ def _screen_pass(s, acc: SeriesPass, max_saturation: float, outliers: str):
         sc = acc.screen(max_saturation=max_saturation)
     except ValueError as exc:
         raise ValueError(f"{s.name}: {exc}") from None
+    sequence = []
     if sc.trend is not None and sc.trend.sequence:
-        raise ValueError(f"{s.name}: its {n} frames are a sequence, not one static state "
-                         f"({sc.trend.describe()}): averaging them would mix states; "
-                         "measure each frame as a state of its own with --each-frame "
-                         "(each_frame=True)")
+        what = (f"{s.name}: its {n} frames are a sequence, not one static state "
+                f"({sc.trend.describe()})")
+        if outliers != "warn":
+            raise ValueError(f"{what}: averaging them would mix states; measure each frame "
+                             "as a state of its own with --each-frame (each_frame=True)")
+        sequence.append(f"{what}; averaged all the same (outliers='warn'): the maps mix "
+                        "the states (--each-frame measures each frame)")
     bad = sc.flagged
     keep, warnings = outlier_verdict(s, sc, outliers)
+    warnings = sequence + warnings
     if outliers == "exclude":
         for t in bad:  # the second read of a frame: only for the excluded ones
             # as stored, as the pass read it: taken out exactly as it was added
@@ -1475,7 +1480,10 @@ def measure_series(reference, states, *, lattice: Lattice | None = None,
         name them in the warnings; a series with half its frames flagged or more
         is refused, the good ones being then unknown. "refuse": raise on any
         flagged frame. "warn": keep them, name them in the warnings, and give the
-        noise floor and uncertainty maps of the states they enter as NaN.
+        noise floor and uncertainty maps of the states they enter as NaN. A series
+        whose frames form a sequence (a steady drift or a growing deformation,
+        :class:`gridstrain.screening.Trend`) is refused, but with "warn", which
+        averages it with a warning.
     progress : callable, optional
         ``progress(fraction, message)``.
     scheduler : str or distributed.Client, optional
