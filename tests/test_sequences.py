@@ -254,6 +254,9 @@ def test_videos_are_read_frame_by_frame(tmp_path):
     for k in (3, 0, 4):
         np.testing.assert_array_equal(inputs.states[k].read(0, dtype=None), frames[k])
     assert not any("lossy" in n for n in inputs.states[0].notes)
+    # the stream's time stamps, at its 25 frames per second
+    np.testing.assert_allclose([s.times[0] for s in inputs.states], np.arange(5) / 25,
+                               atol=1e-12)
     _video(tmp_path / "rec.mp4", frames, "mpeg4", "yuv420p")
     s = state_inputs(tmp_path / "rec.mp4", each_frame=True).states[0]
     assert any("lossy codec(s) mpeg4" in n for n in s.notes)
@@ -311,3 +314,12 @@ def test_outliers_warn_averages_a_sequence_with_a_warning(measured):
     _, folder, _ = measured
     res = measure_series(folder / "frame_1.tif", folder, outliers="warn")
     assert any("are a sequence" in w and "outliers='warn'" in w for w in res.warnings)
+
+
+def test_a_videos_time_stamps_are_the_states_times(tmp_path):
+    frames = (record(4, (96, 96), strain=1e-3) // 256).astype(np.uint8)
+    _video(tmp_path / "rec.mkv", frames, "ffv1", "gray")
+    res = measure_series(None, tmp_path / "rec.mkv", reference_frames=1)
+    assert res.names[1:] == ("rec[1]", "rec[2]", "rec[3]")
+    # frames 1, 2, 3 of a 25 frames-per-second stream
+    np.testing.assert_allclose(res.time, np.arange(1, 4) / 25, atol=1e-12)

@@ -1544,7 +1544,8 @@ def measure_series(reference, states, *, lattice: Lattice | None = None,
         themselves (no unit). Stored as :attr:`SeriesResult.load`.
     frame_rate : float, optional
         The camera's frame rate, Hz: each state's time is its frame's number in
-        the record over the rate, s (:attr:`SeriesResult.time`).
+        the record over the rate, s (:attr:`SeriesResult.time`). Without it (and
+        without a time column), states read from one video get its time stamps.
 
     Returns
     -------
@@ -1637,6 +1638,11 @@ def _loads_and_times(loads, frame_rate, series: list, o: _Setup) -> dict:
             raise ValueError(f"give the times by frame_rate or by the loads file's time "
                              f"column, not both (frame_rate={frame_rate!r})")
         time = (np.arange(len(names), dtype=np.float64) + (o.reference_frames or 0)) / rate
+    elif time is None and o.each_frame:
+        # the camera's own time stamps, where the file holds them (videos)
+        stamps = [getattr(s, "times", None) for s in series[1:]]
+        if all(t is not None and t.size == 1 for t in stamps):
+            time = np.concatenate(stamps)
     return {"load": load, "load_unit": unit, "time": time}
 
 
