@@ -91,3 +91,23 @@ def test_choice_by_environment(monkeypatch):
         with pytest.raises(ImportError, match=r"gridstrain\[mkl\]"):
             _fft.name()
     _fft._backend.cache_clear()
+
+
+def test_an_implementation_with_its_own_functions_is_called_without_uarray(monkeypatch):
+    """Entering scipy.fft.set_backend in every short-lived worker thread crashes scipy's
+    uarray after some tens of thousands of threads (a record of a thousand states):
+    an implementation that has the function (mkl_fft's scipy interface) is called
+    directly, in any thread."""
+
+    class _Direct:
+        @staticmethod
+        def ifft(x, **kwargs):
+            return np.fft.ifft(x, axis=kwargs.get("axis", -1))
+
+    def refuse(*args, **kwargs):
+        raise AssertionError("scipy.fft.set_backend entered")
+
+    monkeypatch.setattr(_fft, "_backend", lambda: _Direct)
+    monkeypatch.setattr(_fft.sfft, "set_backend", refuse)
+    x = np.arange(8.0) + 1j
+    np.testing.assert_array_equal(_fft.call("ifft", x, axis=0), np.fft.ifft(x))
