@@ -137,3 +137,23 @@ def test_every_fft_implementation_gives_the_same_phases_within_rounding(monkeypa
         assert np.max(np.abs(dphase)) < PHASE_TOL
         np.testing.assert_allclose(b.dphi[..., v], a.dphi[..., v], rtol=0, atol=DPHI_TOL)
         np.testing.assert_allclose(np.abs(b.psi[:, v]), np.abs(a.psi[:, v]), rtol=1e-12)
+
+
+def test_an_implementation_with_its_own_functions_is_called_without_uarray(monkeypatch):
+    """Entering scipy.fft.set_backend in every short-lived worker thread crashes scipy's
+    uarray after some tens of thousands of threads (a record of a thousand states):
+    an implementation that has the function (mkl_fft's scipy interface) is called
+    directly, in any thread."""
+
+    class _Direct:
+        @staticmethod
+        def ifft(x, **kwargs):
+            return np.fft.ifft(x, axis=kwargs.get("axis", -1))
+
+    def refuse(*args, **kwargs):
+        raise AssertionError("scipy.fft.set_backend entered")
+
+    monkeypatch.setattr(_fft, "_backend", lambda: _Direct)
+    monkeypatch.setattr(_fft.sfft, "set_backend", refuse)
+    x = np.arange(8.0) + 1j
+    np.testing.assert_array_equal(_fft.call("ifft", x, axis=0), np.fft.ifft(x))

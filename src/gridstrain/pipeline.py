@@ -186,8 +186,9 @@ from .uncertainty import (
     _D_PER_SIGMA,
     _FWHM,
     NoiseFloor,
+    _displacement_strain_std,
+    _phase_variance,
     aliasing_bias,
-    displacement_strain_std,
     metrology,
     smoothing_bias,
 )
@@ -779,13 +780,18 @@ def _screen_pass(s, acc: SeriesPass, max_saturation: float, outliers: str):
         sc = acc.screen(max_saturation=max_saturation)
     except ValueError as exc:
         raise ValueError(f"{s.name}: {exc}") from None
+    sequence = []
     if sc.trend is not None and sc.trend.sequence:
-        raise ValueError(f"{s.name}: its {n} frames are a sequence, not one static state "
-                         f"({sc.trend.describe()}): averaging them would mix states; "
-                         "measure each frame as a state of its own with --each-frame "
-                         "(each_frame=True)")
+        what = (f"{s.name}: its {n} frames are a sequence, not one static state "
+                f"({sc.trend.describe()})")
+        if outliers != "warn":
+            raise ValueError(f"{what}: averaging them would mix states; measure each frame "
+                             "as a state of its own with --each-frame (each_frame=True)")
+        sequence.append(f"{what}; averaged all the same (outliers='warn'): the maps mix "
+                        "the states (--each-frame measures each frame)")
     bad = sc.flagged
     keep, warnings = outlier_verdict(s, sc, outliers)
+    warnings = sequence + warnings
     if outliers == "exclude":
         for t in bad:  # the second read of a frame: only for the excluded ones
             # as stored, as the pass read it: taken out exactly as it was added
@@ -1565,7 +1571,10 @@ def measure_series(reference, states, *, lattice: Lattice | None = None,
         name them in the warnings; a series with half its frames flagged or more
         is refused, the good ones being then unknown. "refuse": raise on any
         flagged frame. "warn": keep them, name them in the warnings, and give the
-        noise floor and uncertainty maps of the states they enter as NaN.
+        noise floor and uncertainty maps of the states they enter as NaN. A series
+        whose frames form a sequence (a steady drift or a growing deformation,
+        :class:`gridstrain.screening.Trend`) is refused, but with "warn", which
+        averages it with a warning.
     progress : callable, optional
         ``progress(fraction, message)``.
     scheduler : str or distributed.Client, optional
@@ -1626,7 +1635,8 @@ def measure_series(reference, states, *, lattice: Lattice | None = None,
         themselves (no unit). Stored as :attr:`SeriesResult.load`.
     frame_rate : float, optional
         The camera's frame rate, Hz: each state's time is its frame's number in
-        the record over the rate, s (:attr:`SeriesResult.time`).
+        the record over the rate, s (:attr:`SeriesResult.time`). Without it (and
+        without a time column), states read from one video get its time stamps.
 
     Returns
     -------
@@ -1720,6 +1730,11 @@ def _loads_and_times(loads, frame_rate, series: list, o: _Setup) -> dict:
             raise ValueError(f"give the times by frame_rate or by the loads file's time "
                              f"column, not both (frame_rate={frame_rate!r})")
         time = (np.arange(len(names), dtype=np.float64) + (o.reference_frames or 0)) / rate
+    elif time is None and o.each_frame:
+        # the camera's own time stamps, where the file holds them (videos)
+        stamps = [getattr(s, "times", None) for s in series[1:]]
+        if all(t is not None and t.size == 1 for t in stamps):
+            time = np.concatenate(stamps)
     return {"load": load, "load_unit": unit, "time": time}
 
 
@@ -2215,6 +2230,7 @@ class _ReferenceFloor:
         self.T1, self.T2 = T1, T2
         self.sr = summary
         self.local_ref = self._local(r)
+        self.var_ref_phase = None  # the reference's phase variance (_uncertainty)
         self.r = r.dropping("variance")  # only its smoothed copy is used from here on
         self.rows: dict[str, list] = {k: [] for k in ("theory_u", "theory_strain", "split_u",
                                                       "split_strain", "vibration_u")}
@@ -2269,9 +2285,14 @@ class _ReferenceFloor:
         v_def = local if local is not None else self.local_ref
         if v_ref is None:
             return None
-        u_std, strain_std = displacement_strain_std(
-            self.r.maps, c.maps, variance_ref=v_ref / self.sr.T,
-            variance_def=v_def / c.series.n_frames, valid=res.valid)
+        if self.local_ref is None:
+            var_ref = _phase_variance(self.r.maps, v_ref / self.sr.T)
+        else:  # the reference's side, the same for every state: made once
+            if self.var_ref_phase is None:
+                self.var_ref_phase = _phase_variance(self.r.maps, v_ref / self.sr.T)
+            var_ref = self.var_ref_phase
+        u_std, strain_std = _displacement_strain_std(
+            var_ref, c.maps, variance_def=v_def / c.series.n_frames, valid=res.valid)
         names = ("ux_std", "uy_std", "exx_std", "eyy_std", "exy_std")
         return dict(zip(names, (*u_std, *strain_std), strict=True))
 
