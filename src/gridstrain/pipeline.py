@@ -158,6 +158,7 @@ from ._validation import (
 )
 from ._wft import _wft
 from .accumulate import PassPlan, SeriesPass
+from .discontinuities import find_discontinuities, without_discontinuities
 from .io import (
     FrameSeries,
     open_series,
@@ -330,6 +331,12 @@ class SeriesResult:
     fringe_orders : tuple of FringeOrder
         How each state's whole number of periods was fixed and whether anything
         confirms it (see :class:`gridstrain.kinematics.FringeOrder`).
+    discontinuities : tuple of tuple of dict
+        Per state, the displacement jumps found (a crack, an edge, a torn grid):
+        their bounding boxes (``rows``, ``cols``: first and last, px), the pixels
+        left out around them (``pixels``, invalid in ``valid``) and the jump
+        (``jump_px``, modulo a pitch); see
+        :func:`gridstrain.discontinuities.find_discontinuities`.
     """
 
     u: np.ndarray
@@ -362,6 +369,7 @@ class SeriesResult:
     screening: tuple = field(default=(), repr=False)
     metrology: dict | None = None
     systematic: dict | None = None
+    discontinuities: tuple = ()
 
     def __post_init__(self):
         for name in ("u", "strain", "valid", "mask", "reference_image"):
@@ -1788,6 +1796,7 @@ def _measure(series: list, guesses: list, m: np.ndarray, o: _Setup, steps: _Step
         del ref_pass
         r = floor.r  # without its variance map: the floor keeps the smoothed one
         tracker = _Tracker(r.maps, r.stats.mean, r.mask, lattice, o.order, o.lagrangian)
+        cracks: list[tuple] = []
         alias = aliasing_bias(r.stats.mean, lattice, sigma=sigma, mask=r.mask)
         for i in range(n_states):
             c, acc = one(i + 1)
@@ -1796,6 +1805,9 @@ def _measure(series: list, guesses: list, m: np.ndarray, o: _Setup, steps: _Step
             est = tracker.features(c.maps, c.stats.mean, guesses[i])
             c = c.dropping("mean")  # the image features were its only use
             res, rec, notes = tracker.measure(c.maps, est, guesses[i], c.name)
+            res, found, said = _discontinuities(res, c.name)
+            cracks.append(found)
+            notes = [*notes, *said]
             pager.page_out()  # the uncertainty maps read back the moduli only
             if o.output is not None:
                 # the file keeps no phase maps, and the state's derivatives serve its
@@ -1830,7 +1842,8 @@ def _measure(series: list, guesses: list, m: np.ndarray, o: _Setup, steps: _Step
             screening=tuple(d.screening for d in done), vibration=tuple(d.vib for d in done),
             noise=floor.noise_floor(done, noise.info(done)), parameters=o.parameters(),
             warnings=tuple(warnings), metrology=metrology(sink.floors, sigma),
-            systematic={"aliasing": alias, "smoothing": sink.smoothing})
+            systematic={"aliasing": alias, "smoothing": sink.smoothing},
+            discontinuities=tuple(cracks))
 
 
 # --------------------------------------------------------------------------- one series
@@ -2123,6 +2136,27 @@ class _ReferenceFloor:
                           variance_method=tuple(d.variance_method for d in done),
                           modulus=np.array([d.modulus for d in done]), model=model_info,
                           frames=tuple(int(d.T) for d in done), **rows)
+
+
+def _discontinuities(res: Measurement, name: str) -> tuple[Measurement, tuple, list[str]]:
+    """``res`` measured again without the pixels whose window straddles a jump of
+    its displacement (:mod:`gridstrain.discontinuities`), the jumps' regions, and
+    the warnings naming them."""
+    disc = find_discontinuities(res)
+    if not disc:
+        return res, (), []
+    before = ndimage.label(res.valid)[1]
+    res = without_discontinuities(res, disc)
+    said = [f"{name}: the displacement jumps (a crack, an edge or a torn grid?) at "
+            f"{disc.describe()}: the {int(disc.band.sum())} pixels whose window straddles "
+            "it are left out"]
+    after = ndimage.label(res.valid)[1]
+    if after > before:
+        said.append(f"{name}: the jump cuts the field into {after} regions whose whole "
+                    "numbers of periods were fixed each on its own (closest to the "
+                    "guess): across an opening of more than half a pitch one of them may "
+                    "be whole periods off; pass a guess or an intermediate state")
+    return res, tuple(disc.regions), said
 
 
 def _systematic_warnings(name: str, m: Measurement, fl: dict, alias: dict, smooth: dict,
