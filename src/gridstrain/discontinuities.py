@@ -25,6 +25,7 @@ from scipy import ndimage
 
 from ._validation import check_positive, check_type
 from .kinematics import Measurement, deformation
+from .uncertainty import _departure
 
 __all__ = ["Discontinuities", "find_discontinuities", "without_discontinuities"]
 
@@ -43,9 +44,6 @@ _MIN_SIGMAS = 10.0
 # noise of a good grid at the line (4 standard deviations occur at 6e-5 of the
 # pixels of a noise map, and only those touching a ridge are taken).
 _FOLLOW_SIGMAS = 4.0
-# The surroundings: a median over this many sigmas, wider than a ridge (about 3
-# sigma) so that a ridge does not pull its own background.
-_BACKGROUND_SIGMAS = 8.0
 # Pixels within this many sigmas of a ridge's core are left out: the window's
 # error there, delta/2 erfc(d / sqrt(2) sigma), reaches the noise beyond it only for
 # jumps of several pixels (1e-3 of delta/2 at the core's edge plus 2 sigma).
@@ -92,30 +90,6 @@ class Discontinuities:
                          "modulo a pitch)" for r in self.regions)
 
 
-def _filled(a: np.ndarray, valid: np.ndarray) -> np.ndarray:
-    """``a`` with its invalid pixels set to the nearest valid pixel's value."""
-    if valid.all():
-        return a
-    idx = ndimage.distance_transform_edt(~valid, return_distances=False,
-                                         return_indices=True)
-    return a[tuple(idx)]
-
-
-def _departure(e: np.ndarray, valid: np.ndarray, sigma: float) -> np.ndarray:
-    """``e`` less its median over ``_BACKGROUND_SIGMAS`` sigmas, taken on a grid of
-    step ``sigma`` (a ridge 2 to 3 sigmas wide holds 3 of the 9 columns of the
-    coarse median's window, which keeps it out of its background at a sigma^2-th of
-    the full median's cost)."""
-    f = _filled(np.asarray(e, dtype=np.float64), valid)
-    step = max(1, int(sigma))
-    coarse = f[::step, ::step]
-    size = max(3, round(_BACKGROUND_SIGMAS * sigma / step) | 1)
-    bg = ndimage.median_filter(coarse, size=size, mode="nearest")
-    zoom = (f.shape[0] / bg.shape[0], f.shape[1] / bg.shape[1])
-    full = ndimage.zoom(bg, zoom, order=1, mode="nearest", grid_mode=True)
-    return f - full[:f.shape[0], :f.shape[1]]
-
-
 def find_discontinuities(m: Measurement, *, min_jump: float = _MIN_JUMP) -> Discontinuities:
     """The ridges of a measurement's strain that a displacement jump leaves.
 
@@ -153,6 +127,7 @@ def find_discontinuities(m: Measurement, *, min_jump: float = _MIN_JUMP) -> Disc
     seeds = np.zeros(valid.shape, dtype=bool)
     low = np.zeros(valid.shape, dtype=bool)
     for c in range(strain.shape[0]):
+        # the surroundings: a median over 8 sigma, wider than a ridge (about 3 sigma)
         d = np.abs(_departure(strain[c], valid, sigma))
         spread = _MAD_TO_STD * float(np.median(d[valid]))
         seeds |= d > max(threshold, _MIN_SIGMAS * spread)
