@@ -27,7 +27,7 @@ from ._validation import (
     check_type,
     check_workers,
 )
-from .lattice import Lattice, _state_carrier, detect_lattice
+from .lattice import Lattice, _reference_carrier, _state_carrier, detect_lattice
 from .wft import DEFAULT_MARGIN, PhaseMaps, demodulated_at, wft
 
 __all__ = [
@@ -1192,7 +1192,7 @@ def measure(reference, deformed, *, lattice: Lattice | None = None,
     # deformed image is transformed whole and validity comes from its own moduli; at
     # its own carrier, a window off it biases the phase where the grid's amplitude
     # varies (gridstrain.wft.demodulated_at)
-    carrier = _state_carrier(cur, lattice)
+    carrier = _state_carrier(cur, lattice, _reference_carrier(ref, lattice))
     pm_cur = wft(cur, carrier, sigma=pm_ref.sigma, margin=margin, workers=None)
     if carrier is not lattice:
         pm_cur = demodulated_at(pm_cur, lattice)

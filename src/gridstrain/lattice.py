@@ -299,19 +299,35 @@ def follow_lattice(image, lattice: Lattice, *, mask=None,
     return Lattice(tuple(out[0]), tuple(out[1]))
 
 
-def _state_carrier(image, lattice: Lattice) -> Lattice:
-    """The lattice to transform a state's ``image`` at: its own carrier
-    (:func:`follow_lattice`) with the reference's window, or ``lattice`` itself
-    where no grid stands out near it or the carrier moved by less than a thousandth
-    of a spectral bin over the image (a strain of 2e-5 at pitch 5 on 256 px: the
-    maps are then those at the reference's carrier, bit for bit)."""
+def _reference_carrier(image, lattice: Lattice) -> np.ndarray | None:
+    """(2, 2) wave vectors of the reference image's grid as :func:`follow_lattice`
+    finds them near ``lattice``, or None."""
+    try:
+        return follow_lattice(image, lattice).K
+    except ValueError:
+        return None
+
+
+def _state_carrier(image, lattice: Lattice, reference) -> Lattice:
+    """The lattice to transform a state's ``image`` at: ``lattice`` moved by the
+    change of the carrier from the reference's (``reference``, from
+    :func:`_reference_carrier`) to the state's, with the reference's window; or
+    ``lattice`` itself where either shows no grid near it or the carrier moved by
+    less than a thousandth of a spectral bin over the image (a strain of 2e-5 at
+    pitch 5 on 256 px: the maps are then those at the reference's carrier, bit for
+    bit). The change, not the state's carrier alone: a given lattice, or printing
+    defects that pull the peak, are not the image's mean frequency."""
+    if reference is None:
+        return lattice
     try:
         own = follow_lattice(image, lattice)
     except ValueError:
         return lattice
-    if np.max(np.abs(own.K - lattice.K)) * max(np.shape(image)) < _SAME_CARRIER_BINS:
+    change = own.K - reference
+    if np.max(np.abs(change)) * max(np.shape(image)) < _SAME_CARRIER_BINS:
         return lattice
-    return _Carrier(own.k1, own.k2, window_pitch=lattice.pitch)
+    k = lattice.K + change
+    return _Carrier(tuple(k[0]), tuple(k[1]), window_pitch=lattice.pitch)
 
 
 def _windowed_crop(img, m):

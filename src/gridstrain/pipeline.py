@@ -177,7 +177,7 @@ from .kinematics import (
     coarse_displacement,
     deformation,
 )
-from .lattice import Lattice, _state_carrier, detect_lattice
+from .lattice import Lattice, _reference_carrier, _state_carrier, detect_lattice
 from .noise import NoiseModel, estimate_noise_image
 from .screening import FrameScreen
 from .stacks import _FrameOrder, method_b
@@ -903,7 +903,7 @@ def _plan(s, lattice: Lattice, method: str, sigma: float, margin: float,
 _PLAUSIBLE_STRETCH = 0.15
 
 
-def _carrier(s, lattice: Lattice) -> tuple[Lattice | None, list[str]]:
+def _carrier(s, lattice: Lattice, reference) -> tuple[Lattice | None, list[str]]:
     """The wave vectors of state series ``s`` (on its first frame) near the
     reference's, and a warning when they differ by more than a plausible strain.
 
@@ -917,7 +917,7 @@ def _carrier(s, lattice: Lattice) -> tuple[Lattice | None, list[str]]:
     the reference's lattice afterwards. None (the reference's) where no peak stands
     out near it (the screening then says what it sees) or the carrier has not moved
     (:func:`gridstrain.lattice._state_carrier`)."""
-    own = _state_carrier(next(iter(s.frames(start=0, stop=1))), lattice)
+    own = _state_carrier(next(iter(s.frames(start=0, stop=1))), lattice, reference)
     if own is lattice:
         return None, []
     # k_s^T = k_r^T F^-1 for a homogeneous deformation gradient F
@@ -1741,7 +1741,9 @@ def _measure(series: list, guesses: list, m: np.ndarray, o: _Setup, steps: _Step
     states measured one after the other, each dropped once measured."""
     lattice, sigma, method = o.lattice, o.sigma, o.method
     n_states = len(series) - 1
-    carriers = [(None, [])] + [_carrier(s, lattice) for s in series[1:]]
+    base = _reference_carrier(next(iter(series[0].frames(start=0, stop=1))), lattice) \
+        if n_states else None
+    carriers = [(None, [])] + [_carrier(s, lattice, base) for s in series[1:]]
     for _, notes in carriers:
         warnings.extend(notes)
     plans = [_plan(s, carriers[k][0] or lattice, method, sigma, o.margin, m, k == 0)
