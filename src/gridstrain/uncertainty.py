@@ -776,10 +776,10 @@ def smoothing_bias(strain, valid, *, sigma: float) -> dict:
     p95, mx, att = [], [], []
     wsum = ndimage.gaussian_filter(v.astype(np.float64), sig)
     np.maximum(wsum, 1e-12, out=wsum)
+    ii, jj = np.nonzero(inner)
+    half = round(_BACKGROUND_SIGMAS * sig / 2)
     for c in e:
         filled = np.where(v, c, 0.0)
-        # the departure from the surroundings, where the bound peaks
-        dep = _departure(c, v, sig, _BACKGROUND_SIGMAS)
         sm = np.divide(ndimage.gaussian_filter(filled, sig), wsum, out=filled)
         lap = ndimage.laplace(sm)
         del sm
@@ -790,9 +790,12 @@ def smoothing_bias(strain, valid, *, sigma: float) -> dict:
         p95.append(float(np.percentile(b, 95)) if b.size else math.nan)
         mx.append(float(b.max()) if b.size else math.nan)
         if b.size:
+            # the departure from the surroundings where the bound peaks
+            i, j = ii[int(np.argmax(b))], jj[int(np.argmax(b))]
+            box = (slice(max(0, i - half), i + half + 1), slice(max(0, j - half), j + half + 1))
+            dep = float(c[i, j]) - float(np.median(c[box][v[box]]))
             peak = _SMOOTHING_FACTOR * mx[-1]
-            att.append(peak / (abs(float(dep[inner][int(np.argmax(b))])) + peak)
-                       if peak > 0 else 0.0)
+            att.append(peak / (abs(dep) + peak) if peak > 0 else 0.0)
         else:
             att.append(math.nan)
 
@@ -812,26 +815,30 @@ def smoothing_bias(strain, valid, *, sigma: float) -> dict:
                           "Laplacian term itself"}
 
 
-def _nearest_filled(a: np.ndarray, valid: np.ndarray) -> np.ndarray:
-    """``a`` with its invalid pixels set to the nearest valid pixel's value."""
+def _nearest_filled(a: np.ndarray, valid: np.ndarray, nearest=None) -> np.ndarray:
+    """``a`` with its invalid pixels set to the nearest valid pixel's value
+    (``nearest``: :func:`_nearest_index` of ``valid``, when known)."""
     if valid.all() or not valid.any():
         return np.where(valid, a, 0.0)
-    idx = ndimage.distance_transform_edt(~valid, return_distances=False,
-                                         return_indices=True)
-    return a[tuple(idx)]
+    return a[_nearest_index(valid) if nearest is None else nearest]
 
 
-def _departure(e: np.ndarray, valid: np.ndarray, sigma: float,
-               sigmas: float = 8.0) -> np.ndarray:
-    """``e`` less its median over ``sigmas`` sigmas around, taken on a grid of step
-    ``sigma`` (a ridge 2 to 3 sigmas wide holds 3 of the 9 columns of an 8-sigma
-    median's window, which keeps it out of its background at a sigma^2-th of the
-    full median's cost); invalid pixels take their nearest valid neighbour's
-    value."""
-    f = _nearest_filled(np.asarray(e, dtype=np.float64), valid)
+def _nearest_index(valid: np.ndarray) -> tuple:
+    """The index of each pixel's nearest valid pixel."""
+    return tuple(ndimage.distance_transform_edt(~valid, return_distances=False,
+                                                return_indices=True))
+
+
+def _departure(e: np.ndarray, valid: np.ndarray, sigma: float, nearest=None) -> np.ndarray:
+    """``e`` less its median over 8 sigma around, taken on a grid of step ``sigma``
+    (a ridge 2 to 3 sigmas wide holds 3 of the 9 columns of the median's window,
+    which keeps it out of its background at a sigma^2-th of the full median's
+    cost); invalid pixels take their nearest valid neighbour's value
+    (``nearest``: :func:`_nearest_index` of ``valid``, when known)."""
+    f = _nearest_filled(np.asarray(e, dtype=np.float64), valid, nearest)
     step = max(1, int(sigma))
     coarse = f[::step, ::step]
-    size = max(3, round(sigmas * sigma / step) | 1)
+    size = max(3, round(8.0 * sigma / step) | 1)
     bg = ndimage.median_filter(coarse, size=size, mode="nearest")
     zoom = (f.shape[0] / bg.shape[0], f.shape[1] / bg.shape[1])
     full = ndimage.zoom(bg, zoom, order=1, mode="nearest", grid_mode=True)
