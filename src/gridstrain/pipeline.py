@@ -778,7 +778,11 @@ def _screen_pass(s, acc: SeriesPass, max_saturation: float, outliers: str):
     try:
         sc = acc.screen(max_saturation=max_saturation)
     except ValueError as exc:
-        raise ValueError(f"{s.name}: {exc}") from None
+        hint = ("; a state whose grid turned by more than 17 degrees or stretched by more "
+                "than 30 % from the reference's is not followed (gridstrain.lattice."
+                "follow_lattice): measure it against an intermediate state"
+                if "shows a grid" in str(exc) else "")
+        raise ValueError(f"{s.name}: {exc}{hint}") from None
     bad = sc.flagged
     keep, warnings = outlier_verdict(s, sc, outliers)
     if outliers == "exclude":
