@@ -25,6 +25,7 @@ from scipy import ndimage
 
 from ._validation import check_positive, check_type
 from .kinematics import Measurement, deformation
+from .screening import _MAD_TO_STD
 from .uncertainty import _departure, _nearest_index
 
 __all__ = ["Discontinuities", "find_discontinuities", "without_discontinuities"]
@@ -48,7 +49,6 @@ _FOLLOW_SIGMAS = 4.0
 # error there, delta/2 erfc(d / sqrt(2) sigma), reaches the noise beyond it only for
 # jumps of several pixels (1e-3 of delta/2 at the core's edge plus 2 sigma).
 _BAND_SIGMAS = 2.0
-_MAD_TO_STD = 1.4826
 
 
 @dataclass(frozen=True, eq=False)
