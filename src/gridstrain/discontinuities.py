@@ -188,6 +188,20 @@ def without_discontinuities(m: Measurement, disc: Discontinuities, *,
                      lattice=ref.lattice, sigma=ref.sigma)
     g = np.array(m.guess, dtype=float) if guess is None else guess
     again = deformation(kept, m.deformed, lagrangian=m.lagrangian, guess=g)
+    # fragments the band cuts off (slivers between it and a border, smaller than a
+    # window's core, pi sigma^2) have their whole periods from a few pixels: left out
+    labels, n = ndimage.label(again.valid)
+    if n > 1:
+        sizes = np.bincount(labels.ravel(), minlength=n + 1)
+        small = np.nonzero(sizes < math.pi * m.sigma**2)[0]
+        small = small[small > 0]
+        if small.size:
+            drop = np.isin(labels, small)
+            valid = again.valid & ~drop
+            u, strain, rotation = (np.where(valid, a, np.nan) for a in
+                                   (again.u, again.strain, again.rotation))
+            again = dataclasses.replace(again, u=u, strain=strain, rotation=rotation,
+                                        valid=valid)
     # the fringe order's record stays that of the whole field
     return dataclasses.replace(again, reference=ref, fringe_order=m.fringe_order,
                                guess_source=m.guess_source)
