@@ -159,6 +159,7 @@ from ._validation import (
 )
 from ._wft import _wft
 from .accumulate import PassPlan, SeriesPass
+from .discontinuities import find_discontinuities, without_discontinuities
 from .io import (
     FrameSeries,
     open_series,
@@ -175,9 +176,10 @@ from .kinematics import (
     _phase_shift,
     _small_strain,
     _solve,
+    coarse_displacement,
     deformation,
 )
-from .lattice import Lattice, _Carrier, detect_lattice, follow_lattice
+from .lattice import Lattice, _reference_carrier, _state_carrier, detect_lattice
 from .noise import NoiseModel, estimate_noise_image
 from .screening import FrameScreen
 from .sequences import StateInputs, state_inputs
@@ -187,6 +189,7 @@ from .uncertainty import (
     _FWHM,
     NoiseFloor,
     _displacement_strain_std,
+    _nearest_filled,
     _phase_variance,
     aliasing_bias,
     metrology,
@@ -347,6 +350,12 @@ class SeriesResult:
     time : (n_states,) float64 ndarray, optional
         The time of each state, s: from the loads file's ``time [s]`` column or
         the frame rate (frame number in the record over the rate).
+    discontinuities : tuple of tuple of dict
+        Per state, the displacement jumps found (a crack, an edge, a torn grid):
+        their bounding boxes (``rows``, ``cols``: first and last, px), the pixels
+        left out around them (``pixels``, invalid in ``valid``) and the jump
+        (``jump_px``, modulo a pitch); see
+        :func:`gridstrain.discontinuities.find_discontinuities`.
     """
 
     u: np.ndarray
@@ -383,6 +392,7 @@ class SeriesResult:
     load: np.ndarray | None = None
     load_unit: str | None = None
     time: np.ndarray | None = None
+    discontinuities: tuple = ()
 
     def __post_init__(self):
         for name in ("u", "strain", "valid", "mask", "reference_image", "load", "time"):
@@ -779,7 +789,11 @@ def _screen_pass(s, acc: SeriesPass, max_saturation: float, outliers: str):
     try:
         sc = acc.screen(max_saturation=max_saturation)
     except ValueError as exc:
-        raise ValueError(f"{s.name}: {exc}") from None
+        hint = ("; a state whose grid turned by more than 17 degrees or stretched by more "
+                "than 30 % from the reference's is not followed (gridstrain.lattice."
+                "follow_lattice): measure it against an intermediate state"
+                if "shows a grid" in str(exc) else "")
+        raise ValueError(f"{s.name}: {exc}{hint}") from None
     sequence = []
     if sc.trend is not None and sc.trend.sequence:
         what = (f"{s.name}: its {n} frames are a sequence, not one static state "
@@ -949,7 +963,7 @@ def _plan(s, lattice: Lattice, method: str, sigma: float, margin: float,
 _PLAUSIBLE_STRETCH = 0.15
 
 
-def _carrier(s, lattice: Lattice) -> tuple[Lattice | None, list[str]]:
+def _carrier(s, lattice: Lattice, reference) -> tuple[Lattice | None, list[str]]:
     """The wave vectors of state series ``s`` (on its first frame) near the
     reference's, and a warning when they differ by more than a plausible strain.
 
@@ -961,23 +975,21 @@ def _carrier(s, lattice: Lattice) -> tuple[Lattice | None, list[str]]:
     the grid's amplitude varies (:func:`gridstrain.wft.demodulated_at`). So each
     state's pass and transforms use its own carrier, and its maps are brought to
     the reference's lattice afterwards. None (the reference's) where no peak stands
-    out near it: the screening then says what it sees."""
-    frame = next(iter(s.frames(start=0, stop=1)))
-    try:
-        own = follow_lattice(frame, lattice)
-    except ValueError:
+    out near it (the screening then says what it sees) or the carrier has not moved
+    (:func:`gridstrain.lattice._state_carrier`)."""
+    own = _state_carrier(next(iter(s.frames(start=0, stop=1))), lattice, reference)
+    if own is lattice:
         return None, []
     # k_s^T = k_r^T F^-1 for a homogeneous deformation gradient F
     F = np.linalg.inv(np.linalg.solve(lattice.K, own.K))
     U, stretch, Vt = np.linalg.svd(F)
     R = U @ Vt  # the polar decomposition's rotation
     turn = math.degrees(math.atan2(R[1, 0], R[0, 0]))
-    carrier = _Carrier(own.k1, own.k2, window_pitch=lattice.pitch)
     if np.max(np.abs(stretch - 1)) <= _PLAUSIBLE_STRETCH:
-        return carrier, []
+        return own, []
     files = ", ".join(str(p) for p in list(s.paths)[:2]) + (", ..." if len(s.paths) > 2
                                                           else "")
-    return carrier, [f"{s.name}: its grid (pitches {own.pitches[0]:.4g}/{own.pitches[1]:.4g} "
+    return own, [f"{s.name}: its grid (pitches {own.pitches[0]:.4g}/{own.pitches[1]:.4g} "
                  f"px, angles {own.angles[0]:.3g}/{own.angles[1]:.3g} deg) is the "
                  f"reference's stretched by {stretch.min() - 1:+.1%}/{stretch.max() - 1:+.1%}"
                  f" and turned by {turn:.3g} deg: more than a plausible strain "
@@ -1906,7 +1918,9 @@ def _measure(series: list, guesses: list, m: np.ndarray, o: _Setup, steps: _Step
     states measured one after the other, each dropped once measured."""
     lattice, sigma, method = o.lattice, o.sigma, o.method
     n_states = len(series) - 1
-    carriers = [(None, [])] + [_carrier(s, lattice) for s in series[1:]]
+    base = _reference_carrier(next(iter(series[0].frames(start=0, stop=1))), lattice) \
+        if n_states else None
+    carriers = [(None, [])] + [_carrier(s, lattice, base) for s in series[1:]]
     for _, notes in carriers:
         warnings.extend(notes)
     plans = [_plan(s, carriers[k][0] or lattice, method, sigma, o.margin, m, k == 0)
@@ -1962,14 +1976,25 @@ def _measure(series: list, guesses: list, m: np.ndarray, o: _Setup, steps: _Step
         del ref_pass
         r = floor.r  # without its variance map: the floor keeps the smoothed one
         tracker = _Tracker(r.maps, r.stats.mean, r.mask, lattice, o.order, o.lagrangian)
+        cracks: list[tuple] = []
         alias = aliasing_bias(r.stats.mean, lattice, sigma=sigma, mask=r.mask)
         for i in range(n_states):
             c, acc = one(i + 1)
             del acc
             c = noise.complete(c)
             est = tracker.features(c.maps, c.stats.mean, guesses[i])
-            c = c.dropping("mean")  # the image features were its only use
             res, rec, notes = tracker.measure(c.maps, est, guesses[i], c.name)
+            if isinstance(guesses[i], str):
+                res, checked, said = _after_warp(res, rec, r.stats.mean, c.stats.mean,
+                                                 r.mask, lattice, c.name)
+                if checked is not rec:  # confirmed now: the doubt said before is void
+                    notes = [n for n in notes if "fringe order not confirmed" not in n]
+                rec = checked
+                notes = [*notes, *said]
+            c = c.dropping("mean")  # the image features were its only use
+            res, found, said = _discontinuities(res, c.name)
+            cracks.append(found)
+            notes = [*notes, *said]
             pager.page_out()  # the uncertainty maps read back the moduli only
             if o.output is not None:
                 # the file keeps no phase maps, and the state's derivatives serve its
@@ -2005,7 +2030,7 @@ def _measure(series: list, guesses: list, m: np.ndarray, o: _Setup, steps: _Step
             noise=floor.noise_floor(done, noise.info(done)), parameters=o.parameters(),
             warnings=tuple(warnings), metrology=metrology(sink.floors, sigma),
             systematic={"aliasing": alias, "smoothing": sink.smoothing},
-            state_order=o.state_order, **extra)
+            state_order=o.state_order, discontinuities=tuple(cracks), **extra)
 
 
 # --------------------------------------------------------------------------- one series
@@ -2306,6 +2331,78 @@ class _ReferenceFloor:
                           frames=tuple(int(d.T) for d in done), **rows)
 
 
+def _after_warp(res: Measurement, rec: FringeOrder, mean_ref: np.ndarray,
+                mean_cur: np.ndarray, mask: np.ndarray, lattice: Lattice, name: str):
+    """``(res, rec, warnings)`` with the fringe order checked on the images' content
+    once the deformed image is warped back by the measured field.
+
+    Image features compared as a rigid shift (:func:`coarse_displacement`) fix the
+    order only when the specimen moved as a whole: under a homogeneous strain of 10
+    % a hole 40 px from the centre moves by 4 px while the field's median does not.
+    Warped back by the measured ``u``, the deformed image's content lies where the
+    reference's does if the order is right, and whole periods away if not. A state
+    followed from the previous one keeps that order (its record says why). The
+    field is extended to the invalid pixels by their nearest valid neighbour's, so
+    that a hole's edge, the strongest feature, is warped with the specimen around
+    it; ``mask`` is the reference's."""
+    v = res.valid
+    if rec.source == "previous state" or not v.any() or res.reference is None:
+        return res, rec, []
+    u = np.stack([_nearest_filled(res.u[k], v) for k in range(2)])
+    H, W = v.shape
+    yy, xx = np.mgrid[0:H, 0:W].astype(np.float64)
+    yy += u[1]
+    xx += u[0]
+    warped = ndimage.map_coordinates(np.asarray(mean_cur, dtype=np.float64), [yy, xx],
+                                     order=1, mode="nearest")
+    del yy, xx
+    est = coarse_displacement(mean_ref, warped, lattice, mask=mask, phase_shift=(0.0, 0.0))
+    if not est.confident:
+        return res, rec, []
+    off = np.rint(lattice.K @ np.array(est.shift))
+    if not off.any():
+        if rec.confirmed:
+            return res, rec, []
+        return res, dataclasses.replace(
+            rec, confirmed=True, source="image features",
+            detail=f"the deformed image warped back by the measured field matches the "
+                   f"reference's content ({est.reason}); {rec.detail}"), []
+    before = _median_u(res)
+    shift = np.linalg.solve(lattice.K, off)  # the whole periods the content is off
+    g = np.array(res.guess, dtype=float) + shift
+    again = deformation(res.reference, res.deformed, lagrangian=res.lagrangian, guess=g)
+    rec = FringeOrder("image features", True, again.guess,
+                      f"the deformed image warped back by the field {before} showed the "
+                      f"reference's content {shift[0]:.2f}, {shift[1]:.2f} px away "
+                      f"({est.reason}); {rec.source} had given it", est.correlation,
+                      est.peak_to_alias, est.disagreement, est.shift)
+    return again, rec, [f"{name}: the displacement was whole periods off ({before}): "
+                        f"warped back by it, the deformed image's content lay "
+                        f"{shift[0]:.2f}, {shift[1]:.2f} px from the reference's; it is "
+                        f"now {_median_u(again)}"]
+
+
+def _discontinuities(res: Measurement, name: str) -> tuple[Measurement, tuple, list[str]]:
+    """``res`` measured again without the pixels whose window straddles a jump of
+    its displacement (:mod:`gridstrain.discontinuities`), the jumps' regions, and
+    the warnings naming them."""
+    disc = find_discontinuities(res)
+    if not disc:
+        return res, (), []
+    before = ndimage.label(res.valid)[1]
+    res = without_discontinuities(res, disc)
+    said = [f"{name}: the displacement jumps (a crack, an edge or a torn grid?) at "
+            f"{disc.describe()}: the {int(disc.band.sum())} pixels whose window straddles "
+            "it are left out"]
+    after = ndimage.label(res.valid)[1]
+    if after > before:
+        said.append(f"{name}: the jump cuts the field into {after} regions whose whole "
+                    "numbers of periods were fixed each on its own (closest to the "
+                    "guess): across an opening of more than half a pitch one of them may "
+                    "be whole periods off; pass a guess or an intermediate state")
+    return res, tuple(disc.regions), said
+
+
 def _systematic_warnings(name: str, m: Measurement, fl: dict, alias: dict, smooth: dict,
                          lattice: Lattice) -> list[str]:
     """Warnings for the systematic errors of one state that can exceed its noise."""
@@ -2325,14 +2422,20 @@ def _systematic_warnings(name: str, m: Measurement, fl: dict, alias: dict, smoot
                    f"({noise_txt}); use a larger sigma, a pitch away from 4 px "
                    "or a smoother (defocused) grid")
     for j, comp in enumerate(("exx", "eyy", "exy")):
-        b = smooth["p95"][j]
+        b, bound = smooth["estimate_max"][j], smooth["max"][j]
         e_noise = fl[comp]
-        # noise alone gives a 95th percentile of ~0.6 noise std: twice it is signal
-        if b is not None and math.isfinite(e_noise) and b > 2 * e_noise and b > 1e-6:
-            out.append(f"{name}: the window smooths the {comp} gradients: bias "
-                       f"sigma^2/2 lap(e) reaches {b:.2g} (95th percentile) against "
-                       f"a noise std of {e_noise:.2g}; a smaller sigma resolves them "
-                       "better at the cost of noise")
+        # noise alone takes the largest sigma^2/2 lap(e) to about 1.1 noise std on a
+        # 200 x 200 field, 1.5 on 2000 x 2000: 2.5 times it is signal
+        if b is None or not math.isfinite(e_noise) or b <= 2.5 * e_noise or b <= 1e-6:
+            continue
+        text = (f"{name}: the window smooths the {comp} gradients: its bias may reach "
+                f"{bound:.2g} ({smooth['factor']:g} x the largest sigma^2/2 lap(e)) against "
+                f"a noise std of {e_noise:.2g}")
+        if smooth["below_resolution"][j]:
+            text += (f"; the sharpest feature is at or below the spatial resolution "
+                     f"({SPATIAL_RESOLUTION_PER_SIGMA * m.sigma:.3g} px): its peak may be "
+                     f"lowered by up to {smooth['attenuation'][j]:.0%}")
+        out.append(text + "; a smaller sigma resolves them better at the cost of noise")
     return out
 
 
