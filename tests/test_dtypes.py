@@ -20,7 +20,7 @@ import numpy as np
 import pytest
 
 import gridstrain
-from gridstrain import Lattice, pipeline, screening, stacks, uncertainty
+from gridstrain import Lattice, lattice, pipeline, screening, stacks, uncertainty
 from gridstrain.wft import wft_complex
 
 LAT = Lattice.from_pitch(5.0)
@@ -201,6 +201,12 @@ def _detect_lattice(dt):
     assert all(isinstance(v, float) for v in (*lat.k1, *lat.k2))
 
 
+def _follow_lattice(dt):
+    _, cur = _ref_cur(dt)
+    lat = lattice.follow_lattice(cur[0], LAT)
+    assert all(isinstance(v, float) for v in (*lat.k1, *lat.k2))
+
+
 def _dask(dt):
     pytest.importorskip("distributed")
     from gridstrain import distributed
@@ -263,7 +269,8 @@ ENTRY_POINTS = {
     "noise_floor": _noise_floor, "frame_shifts": _frame_shifts,
     "vibration_report": _vibration_report, "screen_frames": _screen_frames,
     "anscombe": _anscombe, "inverse_anscombe": _anscombe, "estimate_noise": _estimate_noise,
-    "detect_lattice": _detect_lattice, "mean_image_dask": _dask, "method_a_dask": _dask,
+    "detect_lattice": _detect_lattice, "follow_lattice": _follow_lattice,
+    "mean_image_dask": _dask, "method_a_dask": _dask,
     "method_b_dask": _dask,
     "estimate_noise_image": _estimate_noise_image, "aliasing_bias": _aliasing_bias,
     "smoothing_bias": _smoothing_bias,

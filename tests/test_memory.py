@@ -83,7 +83,7 @@ def test_check_fits_says_need_availability_and_what_to_do():
     check_fits(MiB, what="x")  # a megabyte fits anywhere this runs
     with memory_budget("1G"), pytest.raises(MemoryBudgetError) as info:
         check_fits(3 * GiB, what="decoding f.tif", advice="crop it")
-    assert str(info.value) == ("decoding f.tif needs about 3 GiB of memory, 1 GiB available "
+    assert str(info.value) == ("decoding f.tif needs about 3 GiB more memory, 1 GiB available "
                                "(the memory budget); crop it")
 
 

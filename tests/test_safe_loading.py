@@ -243,3 +243,18 @@ def test_a_toml_file_never_turns_on_overwrite(series, tmp_path, capsys):
     assert len(err) == 1
     assert "--overwrite" in err[0]
     assert out.read_bytes() == b"the user's own file"
+
+
+def test_the_screening_trend_of_a_long_series_is_stored_and_read_back(tmp_path):
+    # series of 4 frames or more carry the sequence test (screening.Trend): a result
+    # class of its own, which the file must accept and rebuild like the others
+    rng = np.random.default_rng(2612)
+    level, _ = scene((N, N), pitch=5.0, angle=0.0, hole=False, light=False)
+    stack = np.array([camera(level, 1.0, 4.0, rng) for _ in range(5)])
+    res = measure_series(stack, [stack[::-1]], lattice=LAT)
+    assert res.screening[0].trend is not None
+    path = save_result(res, tmp_path / "long.h5")
+    back = load(path)
+    assert len(back.screening) == len(res.screening)
+    for got, sent in zip(back.screening, res.screening, strict=True):
+        assert _nan_equal(got.trend, sent.trend)  # NaN growth: no tiles in 64 px

@@ -12,8 +12,7 @@ from numpy.testing import assert_allclose, assert_array_equal
 
 from gridstrain import Lattice, stacks, synthetic
 from gridstrain.kinematics import deformation
-from gridstrain.lattice import follow_lattice
-from gridstrain.phase.lattice import _Carrier
+from gridstrain.phase.lattice import _reference_carrier, _state_carrier
 from gridstrain.pipeline import measure_series
 from gridstrain.results import ResultFile, StoredMaps, load, save_result
 from gridstrain.wft import demodulated_at, finite_derivatives, wft
@@ -162,9 +161,8 @@ def test_each_state_is_the_direct_measurement_of_its_frames(data, tmp_path, meth
         return finite_derivatives(stacks.method_b(frames, lat, mask=grid).maps)
 
     def state_maps(frames):
-        own = follow_lattice(frames[0], LAT)
-        return demodulated_at(maps(frames, _Carrier(own.k1, own.k2, window_pitch=LAT.pitch)),
-                              LAT)
+        own = _state_carrier(frames[0], LAT, _reference_carrier(ref[0], LAT))
+        return demodulated_at(maps(frames, own), LAT)
 
     res = measure_series(ref, states, lattice=LAT, method=method,
                          output=tmp_path / "r.h5")

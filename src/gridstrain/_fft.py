@@ -7,16 +7,17 @@ with scipy.fft's backend mechanism. The environment variable ``GRIDSTRAIN_FFT``
 chooses: ``auto`` (the default: MKL when installed), ``scipy`` or ``mkl``.
 
 Whether MKL is faster depends on the CPU: measure with
-``benchmarks/bench_wft.py`` (it prints the implementation in use). A backend set
-with ``scipy.fft.set_backend`` holds in the calling thread only, so gridstrain
-enters its own choice in every thread that transforms, including its worker
-threads. Every transform is asked for one thread (``workers=1``): gridstrain's
-own ``workers`` options decide how many run at once.
+``benchmarks/bench_wft.py`` (it prints the implementation in use). The transforms
+call the chosen implementation's functions directly (:func:`call`), in whatever
+thread runs them: a backend entered with ``scipy.fft.set_backend`` holds in its
+thread only, and entering one in every short-lived worker thread crashes scipy's
+``uarray`` after a few tens of thousands of threads (a long record's states).
+Every transform is asked for one thread (``workers=1``): gridstrain's own
+``workers`` options decide how many run at once.
 """
 
 from __future__ import annotations
 
-import contextlib
 import os
 from functools import cache
 
@@ -51,7 +52,15 @@ def name() -> str:
     return "scipy" if _backend() is None else "mkl"
 
 
-def backend():
-    """Context in which ``scipy.fft`` calls run on the chosen implementation."""
+def call(name: str, *args, **kwargs):
+    """``scipy.fft.<name>(*args, **kwargs)`` on the chosen implementation: its own
+    function where it has one (the same computation as through scipy's dispatch),
+    else through ``scipy.fft.set_backend`` (a backend that only dispatches)."""
     b = _backend()
-    return contextlib.nullcontext() if b is None else sfft.set_backend(b, only=True)
+    if b is None:
+        return getattr(sfft, name)(*args, **kwargs)
+    fn = getattr(b, name, None)
+    if callable(fn):
+        return fn(*args, **kwargs)
+    with sfft.set_backend(b, only=True):
+        return getattr(sfft, name)(*args, **kwargs)

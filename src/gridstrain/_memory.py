@@ -220,7 +220,7 @@ def check_fits(nbytes: float, *, what: str, advice: str | None = None) -> None:
     if nbytes <= free:
         return
     tail = advice or "raise --memory-budget (memory_budget) if more memory is in fact free"
-    raise MemoryBudgetError(f"{what} needs about {format_size(nbytes)} of memory, "
+    raise MemoryBudgetError(f"{what} needs about {format_size(nbytes)} more memory, "
                             f"{format_size(free)} available ({source}); {tail}")
 
 

@@ -217,8 +217,14 @@ def connect(scheduler, *, n_workers: int | None = None,
             yield client
         return
     try:
-        client = distributed.Client(address) if timeout is None \
-            else distributed.Client(address, timeout=timeout)
+        # an unreachable address fails within Dask's own connect timeout; --timeout
+        # only ever shortens that wait
+        dask, _ = _dask()
+        connect = dask.utils.parse_timedelta(
+            dask.config.get("distributed.comm.timeouts.connect"), default="s")
+        if timeout is not None:
+            connect = min(connect, timeout)
+        client = distributed.Client(address, timeout=connect)
     except OSError as exc:
         raise OSError(f"scheduler: cannot reach a Dask scheduler at {address!r} ({exc}); "
                       "check the address and that `dask scheduler` runs there") from None

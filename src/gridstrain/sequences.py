@@ -203,17 +203,16 @@ def state_inputs(states, *, each_frame: bool = False, reference_frames: int | No
         order = "natural"  # one folder, glob or file: its frames in natural order
     if all(_is_file_path(s) for s in items) and len(items) > 1:
         items = [list(items)]  # one record: one bit-depth detection, one name family
-    frames, first = [], None
+    frames, n_first = [], None
     for k, src in enumerate(items):
-        got = _frames_of(src, f"state {k}" if not isinstance(src, str | os.PathLike)
-                         else Path(os.fspath(src)).name or f"state {k}", bit_depth,
-                         keep_order)
-        if first is None:
-            first = (src, len(got))
+        name = Path(os.fspath(src)).name if isinstance(src, str | os.PathLike) else \
+            "record" if isinstance(src, list | tuple) else ""
+        got = _frames_of(src, name or f"state {k}", bit_depth, keep_order)
+        if n_first is None:
+            n_first = len(got)
         frames.extend(got)
     reference = None
     if reference_frames is not None:
-        src, n_first = first
         if reference_frames >= len(frames):
             raise ValueError(f"reference_frames must leave at least one state: the record "
                              f"has {len(frames)} frame(s), got {reference_frames}")
@@ -230,7 +229,7 @@ def _reference(frames: list):
     if isinstance(frames[0], np.ndarray):
         return np.stack(frames)
     f0 = frames[0]
-    table, numbers, paths, tiff, video = [], [], [], [], []
+    table, numbers, paths, tiff, video, times = [], [], [], [], [], []
     for s in frames:
         path = s.paths[0]
         if path not in paths:
@@ -240,6 +239,8 @@ def _reference(frames: list):
         _, page, n_pages = s._frames[0]
         table.append((paths.index(path), page, n_pages))
         numbers.append(s._numbers[0])
+        times.extend(s._times)
     return dataclasses.replace(f0, name="reference", paths=tuple(paths), _frames=tuple(table),
                                _tiff=tuple(tiff), _numbers=tuple(numbers),
-                               _video=tuple(video))
+                               _video=tuple(video),
+                               _times=tuple(times) if len(times) == len(frames) else ())

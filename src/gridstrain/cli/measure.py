@@ -672,10 +672,12 @@ def _systematic_lines(result: SeriesResult) -> list[str]:
     a = sy["aliasing"]
     how = "measured sharpness" if a["observable"] else "bound for sharp lines"
     lines = [f"systematic: harmonic aliasing up to {_fmt(a['u_px'])} px ({how}); "
-             "window smoothing of strain gradients (95th percentile of sigma^2/2 lap e):"]
+             "window smoothing of strain gradients (bound on the peak error, "
+             f"{sy['smoothing'][0].get('factor', 1) if sy['smoothing'] else 1:g} x the "
+             "largest sigma^2/2 lap e):"]
     for i, sm in enumerate(sy["smoothing"]):
-        lines.append(f"  {result.names[i + 1]:<9} e_xx {_fmt(sm['p95'][0])}  e_yy "
-                     f"{_fmt(sm['p95'][1])}  e_xy {_fmt(sm['p95'][2])}")
+        lines.append(f"  {result.names[i + 1]:<9} e_xx {_fmt(sm['max'][0])}  e_yy "
+                     f"{_fmt(sm['max'][1])}  e_xy {_fmt(sm['max'][2])}")
     return lines
 
 

@@ -146,7 +146,8 @@ def _process_started(pid: int) -> float | None:
 def _writer_gone(pid: int, written: float) -> bool:
     """Whether the process that last wrote a file at time ``written`` has ended: no
     process ``pid``, or one that started after the write (the id was reused)."""
-    if pid == os.getpid():
+    if pid == os.getpid() or os.name != "posix":
+        # (on Windows os.kill would end the process, not probe it)
         return False
     try:
         os.kill(pid, 0)
@@ -185,7 +186,7 @@ def sweep_temporary_files(folder) -> list[Path]:
             continue
         try:
             st = e.stat(follow_symlinks=False)
-            if not stat.S_ISREG(st.st_mode) or st.st_uid != os.getuid() \
+            if not stat.S_ISREG(st.st_mode) or st.st_uid != getattr(os, "getuid", int)() \
                     or not _writer_gone(int(m.group(1)), st.st_mtime):
                 continue
             os.unlink(e.path)

@@ -322,6 +322,7 @@ class _FileInfo:
     channels: tuple[int, ...] = ()  # samples per pixel of each page (1: grey)
     bits: int | None = None  # bits per sample stored in the first TIFF page
     codec: str | None = None  # a video's codec
+    times: tuple[float, ...] = ()  # a video's frame times, s from its first frame
 
 
 def _av(name: str, path: Path):
@@ -352,14 +353,18 @@ def _scan_video(path: Path, name: str) -> _FileInfo:
             shape = (int(st.codec_context.height), int(st.codec_context.width))
             _, dtype = _video_format(st)
             codec = st.codec_context.name
-            n = sum(1 for pk in c.demux(st) if pk.size)
+            pts = [pk.pts for pk in c.demux(st) if pk.size]
+            n = len(pts)
+            # presentation times, in display order (packets come in decoding order)
+            times = () if not n or None in pts or st.time_base is None else tuple(
+                float((t - min(pts)) * st.time_base) for t in sorted(pts))
     except (FileNotFoundError, PermissionError, MemoryError):
         raise
     except Exception as exc:
         raise OSError(f"{name}: cannot read {path} as a video ({exc})") from exc
     if n == 0 or min(shape) <= 1:
         raise OSError(f"{name}: {path} holds no readable video frame")
-    return _FileInfo(path, False, (shape,) * n, (dtype,) * n, (1,) * n, None, codec)
+    return _FileInfo(path, False, (shape,) * n, (dtype,) * n, (1,) * n, None, codec, times)
 
 
 def _scan_file(path: Path, name: str, *, allow_bool: bool = False) -> _FileInfo:
@@ -512,6 +517,8 @@ class FrameSeries:
     _frames: tuple[tuple[int, int, int], ...] = field(default=(), compare=True)
     _tiff: tuple[bool, ...] = field(default=(), compare=False)
     _video: tuple[bool, ...] = field(default=(), compare=False)
+    # each frame's time stamp in its file, s (videos that hold them), else ()
+    _times: tuple[float, ...] = field(default=(), compare=False)
     channels: int = 1
     notes: tuple[str, ...] = ()
     # number of every frame in the series it was taken from (subset); () : 0, 1, ...
@@ -521,6 +528,12 @@ class FrameSeries:
     def n_frames(self) -> int:
         """Number of frames."""
         return len(self._frames)
+
+    @property
+    def times(self) -> np.ndarray | None:
+        """(n_frames,) time stamp of each frame from the start of its file, s, where
+        the file holds them (a video); else None."""
+        return np.array(self._times, dtype=np.float64) if self._times else None
 
     def __len__(self) -> int:
         return len(self._frames)
@@ -848,6 +861,7 @@ def open_series(source, *, name: str = "series", bit_depth: int | None = None
                          bit_depth=None, scale=1, saturation_level=None, _frames=frames,
                          _tiff=tuple(info.tiff for info in infos),
                          _video=tuple(info.codec is not None for info in infos),
+                         _times=_frame_times(infos),
                          channels=channels, notes=_reading_notes(infos, channels, name))
     first = []
     if stored.kind == "u":
@@ -886,6 +900,7 @@ def split_frames(series: FrameSeries) -> list[FrameSeries]:
             series, name=name, paths=(path,), _frames=((0, page, n_pages),),
             _tiff=(series._tiff[f],), _numbers=(series._number(j),),
             _video=(series._video[f],) if series._video else (),
+            _times=(series._times[j],) if series._times else (),
             notes=series.notes if j == 0 else ()))
     return out
 
@@ -902,6 +917,13 @@ def _check_decoded(path: Path, shape, dtype: np.dtype, channels: int, n: int,
                        advice="check that the file is the camera's image; crop the frames, "
                        "or raise --memory-budget (memory_budget) if more memory is in fact "
                        "free")
+
+
+def _frame_times(infos: list[_FileInfo]) -> tuple[float, ...]:
+    """Every frame's time stamp, s, when every file holds them (a single video)."""
+    if len(infos) != 1 or not infos[0].times:
+        return ()
+    return infos[0].times
 
 
 def _frame_table(infos: list[_FileInfo], name: str) -> tuple[tuple[int, int, int], ...]:

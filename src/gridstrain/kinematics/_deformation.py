@@ -25,7 +25,8 @@ from .._validation import (
     check_type,
     check_workers,
 )
-from ..phase.lattice import Lattice, detect_lattice
+from ..phase._transform import demodulated_at
+from ..phase.lattice import Lattice, _reference_carrier, _state_carrier, detect_lattice
 from ..wft import DEFAULT_MARGIN, PhaseMaps, wft
 from ._fringe_order import (
     FringeOrder,
@@ -738,7 +739,12 @@ def measure(reference, deformed, *, lattice: Lattice | None = None,
         lattice = detect_lattice(ref, mask=m)
     pm_ref = wft(ref, lattice, sigma=sigma, mask=m, margin=margin, workers=None)
     # the deformed specimen has moved: its mask is not the reference's, so the
-    # deformed image is transformed whole and validity comes from its own moduli
-    pm_cur = wft(cur, lattice, sigma=sigma, margin=margin, workers=None)
+    # deformed image is transformed whole and validity comes from its own moduli; at
+    # its own carrier, a window off it biases the phase where the grid's amplitude
+    # varies (gridstrain.wft.demodulated_at)
+    carrier = _state_carrier(cur, lattice, _reference_carrier(ref, lattice))
+    pm_cur = wft(cur, carrier, sigma=pm_ref.sigma, margin=margin, workers=None)
+    if carrier is not lattice:
+        pm_cur = demodulated_at(pm_cur, lattice)
     return deformation(pm_ref, pm_cur, lagrangian=lagrangian, guess=guess,
                        _images=(ref, cur, m))

@@ -274,26 +274,15 @@ class _CoarseReference:
         return best
 
 
-def _band_pass(img, m, pitch, q=1):
-    """Difference of Gaussians (half a pitch, one pitch), normalised over ``m``,
-    sampled every ``q`` px along both axes."""
+def _band_weights(m, pitch, q=1) -> tuple[np.ndarray, np.ndarray]:
+    """The normalising weights of :func:`_band_pass` over ``m``, for its narrow and its
+    wide Gaussian (they depend on the mask alone: made once for a fixed mask)."""
     w = m.astype(np.float64)
-    x = np.where(m, img, 0.0)
     if q == 1:
-        out = []
-        for s in (_BAND_LOW * pitch, _BAND_HIGH * pitch):
-            # normalised convolution: nothing is assumed beyond the border or the mask
-            num = ndimage.gaussian_filter(x, s, mode="constant", truncate=4.0)
-            den = ndimage.gaussian_filter(w, s, mode="constant", truncate=4.0)
-            out.append(num / np.maximum(den, 1e-12))
-        return out[0] - out[1]
-    # the narrow Gaussian at full resolution is the anti-aliasing filter; the wide one
-    # is the narrow one followed by a Gaussian of std sqrt(s_high^2 - s_low^2), applied
-    # to the decimated sums (numerator and weights alike)
+        return tuple(ndimage.gaussian_filter(w, s, mode="constant", truncate=4.0)
+                     for s in (_BAND_LOW * pitch, _BAND_HIGH * pitch))
     s1 = _BAND_LOW * pitch
     s2 = math.sqrt((_BAND_HIGH * pitch) ** 2 - s1**2) / q
-    num = _smooth_decimate(x, s1, q)
-    num2 = ndimage.gaussian_filter(num, s2, mode="constant", truncate=4.0)
     if m.all():  # the weights of a whole image: the product of two profiles
         prof = [ndimage.gaussian_filter1d(np.ones(n), s1, mode="constant", truncate=4.0)[::q]
                 for n in m.shape]
@@ -303,6 +292,26 @@ def _band_pass(img, m, pitch, q=1):
     else:
         den = _smooth_decimate(w, s1, q)
         den2 = ndimage.gaussian_filter(den, s2, mode="constant", truncate=4.0)
+    return den, den2
+
+
+def _band_pass(img, m, pitch, q=1, weights=None):
+    """Difference of Gaussians (half a pitch, one pitch), normalised over ``m``,
+    sampled every ``q`` px along both axes; ``weights`` from :func:`_band_weights`."""
+    den, den2 = _band_weights(m, pitch, q) if weights is None else weights
+    x = np.where(m, img, 0.0)
+    if q == 1:
+        # normalised convolution: nothing is assumed beyond the border or the mask
+        num = ndimage.gaussian_filter(x, _BAND_LOW * pitch, mode="constant", truncate=4.0)
+        num2 = ndimage.gaussian_filter(x, _BAND_HIGH * pitch, mode="constant", truncate=4.0)
+        return num / np.maximum(den, 1e-12) - num2 / np.maximum(den2, 1e-12)
+    # the narrow Gaussian at full resolution is the anti-aliasing filter; the wide one
+    # is the narrow one followed by a Gaussian of std sqrt(s_high^2 - s_low^2), applied
+    # to the decimated sums (numerator and weights alike)
+    s1 = _BAND_LOW * pitch
+    s2 = math.sqrt((_BAND_HIGH * pitch) ** 2 - s1**2) / q
+    num = _smooth_decimate(x, s1, q)
+    num2 = ndimage.gaussian_filter(num, s2, mode="constant", truncate=4.0)
     return num / np.maximum(den, 1e-12) - num2 / np.maximum(den2, 1e-12)
 
 
@@ -342,6 +351,7 @@ class _Side:
     sf: np.ndarray | None = None  # sum of f over the overlap
     vf: np.ndarray | None = None  # and its centred sum of squares
     enough: np.ndarray | None = None  # shifts with overlap enough
+    weights: tuple = ()  # the deformed image's band-pass weights (its whole crop)
 
 
 def _reference_side(ref: np.ndarray, lattice: Lattice, m: np.ndarray) -> _Side:
@@ -364,7 +374,8 @@ def _reference_side(ref: np.ndarray, lattice: Lattice, m: np.ndarray) -> _Side:
     else:
         ma = ndimage.binary_erosion(m, iterations=max(1, int(_BAND_LOW * pitch) + 1)) & inner
     ma, mb = ma[::q, ::q], inner[::q, ::q]
-    side = _Side((H, W), win, q, a, ma, mb, usable=bool(ma.sum() >= 16 and np.ptp(a[ma]) > 0))
+    side = _Side((H, W), win, q, a, ma, mb, usable=bool(ma.sum() >= 16 and np.ptp(a[ma]) > 0),
+                  weights=_band_weights(np.ones_like(m), pitch, q))
     if not side.usable:
         return side
     h, w = a.shape
@@ -444,7 +455,8 @@ def _correlate(side: _Side, cur, lattice, phase_shift) -> CoarseEstimate:
     H, W = side.shape
     q = side.q
     cur = cur[side.win]
-    b = _band_pass(cur, np.ones(cur.shape, dtype=bool), lattice.pitch, q)
+    b = _band_pass(cur, np.ones(cur.shape, dtype=bool), lattice.pitch, q,
+                   weights=side.weights)
     nan = math.nan
     if not (side.usable and np.ptp(b[side.mb]) > 0):
         return CoarseEstimate((0.0, 0.0), (0.0, 0.0), 0.0, nan, nan, nan, False,

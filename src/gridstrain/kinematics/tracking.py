@@ -16,6 +16,7 @@ from .._validation import (
     check_mask,
 )
 from ..phase.lattice import Lattice
+from ..uncertainty._biases import _nearest_filled
 from ..wft import PhaseMaps
 from ._deformation import (
     Measurement,
@@ -27,6 +28,7 @@ from ._fringe_order import (
     _CoarseReference,
     _from_estimate,
     _phase_shift,
+    coarse_displacement,
 )
 
 # A state followed from the previous one is confirmed only if its displacement
@@ -221,3 +223,54 @@ class _Tracker:
             return []
         return [f"{', '.join(self.inherited)}: followed from a state whose fringe order "
                 "is not confirmed; they share its uncertainty"]
+
+
+def _after_warp(res: Measurement, rec: FringeOrder, mean_ref: np.ndarray,
+                mean_cur: np.ndarray, mask: np.ndarray, lattice: Lattice, name: str):
+    """``(res, rec, warnings)`` with the fringe order checked on the images' content
+    once the deformed image is warped back by the measured field.
+
+    Image features compared as a rigid shift (:func:`coarse_displacement`) fix the
+    order only when the specimen moved as a whole: under a homogeneous strain of 10
+    % a hole 40 px from the centre moves by 4 px while the field's median does not.
+    Warped back by the measured ``u``, the deformed image's content lies where the
+    reference's does if the order is right, and whole periods away if not. A state
+    followed from the previous one keeps that order (its record says why). The
+    field is extended to the invalid pixels by their nearest valid neighbour's, so
+    that a hole's edge, the strongest feature, is warped with the specimen around
+    it; ``mask`` is the reference's."""
+    v = res.valid
+    if rec.source == "previous state" or not v.any() or res.reference is None:
+        return res, rec, []
+    u = np.stack([_nearest_filled(res.u[k], v) for k in range(2)])
+    H, W = v.shape
+    yy, xx = np.mgrid[0:H, 0:W].astype(np.float64)
+    yy += u[1]
+    xx += u[0]
+    warped = ndimage.map_coordinates(np.asarray(mean_cur, dtype=np.float64), [yy, xx],
+                                     order=1, mode="nearest")
+    del yy, xx
+    est = coarse_displacement(mean_ref, warped, lattice, mask=mask, phase_shift=(0.0, 0.0))
+    if not est.confident:
+        return res, rec, []
+    off = np.rint(lattice.K @ np.array(est.shift))
+    if not off.any():
+        if rec.confirmed:
+            return res, rec, []
+        return res, dataclasses.replace(
+            rec, confirmed=True, source="image features",
+            detail=f"the deformed image warped back by the measured field matches the "
+                   f"reference's content ({est.reason}); {rec.detail}"), []
+    before = _median_u(res)
+    shift = np.linalg.solve(lattice.K, off)  # the whole periods the content is off
+    g = np.array(res.guess, dtype=float) + shift
+    again = deformation(res.reference, res.deformed, lagrangian=res.lagrangian, guess=g)
+    rec = FringeOrder("image features", True, again.guess,
+                      f"the deformed image warped back by the field {before} showed the "
+                      f"reference's content {shift[0]:.2f}, {shift[1]:.2f} px away "
+                      f"({est.reason}); {rec.source} had given it", est.correlation,
+                      est.peak_to_alias, est.disagreement, est.shift)
+    return again, rec, [f"{name}: the displacement was whole periods off ({before}): "
+                        f"warped back by it, the deformed image's content lay "
+                        f"{shift[0]:.2f}, {shift[1]:.2f} px from the reference's; it is "
+                        f"now {_median_u(again)}"]

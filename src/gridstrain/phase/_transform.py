@@ -536,8 +536,7 @@ def wft_complex(images, lattice: Lattice, *, sigma: float | None = None, mask=No
             np.subtract(zj, zj.mean(), out=padded[:H, :W])
         else:
             padded[:H, :W] = np.where(m, zj - zj[m].mean(), 0)
-        with _fft.backend():
-            V = sfft.fft2(padded, overwrite_x=True, workers=1)
+        V = _fft.call("fft2", padded, overwrite_x=True, workers=1)
         with np.errstate(invalid="ignore", divide="ignore"):
             _one_wave_vector(V, k, sigma, H, W, nx, psi[j], dphi[j], mods[j], work,
                              chunk=chunk)
@@ -629,21 +628,19 @@ def _padded_rfft2(img: np.ndarray, m: np.ndarray, full: bool, ny: int, nx: int,
     mean = float(np.mean(img if full else img[m], dtype=np.float64))
     mean = dtype.type(mean)
     rows = max(1, _CHUNK_BYTES // (nx * dtype.itemsize))
-    with _fft.backend():
-        for r0 in range(0, H, rows):
-            r1 = min(r0 + rows, H)
-            block = img[r0:r1] - mean
-            if not full:
-                block[~m[r0:r1]] = 0
-            V[r0:r1] = sfft.rfft(block, n=nx, axis=1, overwrite_x=True, workers=1)
-        V[H:] = 0
-        return sfft.fft(V, axis=0, overwrite_x=True, workers=1)
+    for r0 in range(0, H, rows):
+        r1 = min(r0 + rows, H)
+        block = img[r0:r1] - mean
+        if not full:
+            block[~m[r0:r1]] = 0
+        V[r0:r1] = _fft.call("rfft", block, n=nx, axis=1, overwrite_x=True, workers=1)
+    V[H:] = 0
+    return _fft.call("fft", V, axis=0, overwrite_x=True, workers=1)
 
 
 def _ifft(x: np.ndarray, axis: int) -> np.ndarray:
     """In-place-allowed 1-D inverse FFT along ``axis``, on the chosen implementation."""
-    with _fft.backend():
-        return sfft.ifft(x, axis=axis, overwrite_x=True, workers=1)
+    return _fft.call("ifft", x, axis=axis, overwrite_x=True, workers=1)
 
 
 def _one_wave_vector(V, k, sigma, H, W, nx, psi, dphi, mod, work, *, chunk: int,

@@ -43,6 +43,11 @@ _NEWTON_TOL = 1e-9
 _MAX_FOLLOW = 0.3
 
 
+# A state's carrier closer to the reference's than this many spectral bins of the
+# image is taken as the reference's.
+_SAME_CARRIER_BINS = 1e-3
+
+
 @dataclass(frozen=True)
 class Lattice:
     """Two wave vectors of a periodic pattern, in cycles per pixel.
@@ -326,6 +331,37 @@ def follow_lattice(image, lattice: Lattice, *, mask=None,
                 "the spectrum at its frequency (a grid gives > 100)")
         out.append(_refine(data, np.array([fx[0, ix], fy[iy, 0]]), x, y, h, w))
     return Lattice(tuple(out[0]), tuple(out[1]))
+
+
+def _reference_carrier(image, lattice: Lattice) -> np.ndarray | None:
+    """(2, 2) wave vectors of the reference image's grid as :func:`follow_lattice`
+    finds them near ``lattice``, or None."""
+    try:
+        return follow_lattice(image, lattice).K
+    except ValueError:
+        return None
+
+
+def _state_carrier(image, lattice: Lattice, reference) -> Lattice:
+    """The lattice to transform a state's ``image`` at: ``lattice`` moved by the
+    change of the carrier from the reference's (``reference``, from
+    :func:`_reference_carrier`) to the state's, with the reference's window; or
+    ``lattice`` itself where either shows no grid near it or the carrier moved by
+    less than a thousandth of a spectral bin over the image (a strain of 2e-5 at
+    pitch 5 on 256 px: the maps are then those at the reference's carrier, bit for
+    bit). The change, not the state's carrier alone: a given lattice, or printing
+    defects that pull the peak, are not the image's mean frequency."""
+    if reference is None:
+        return lattice
+    try:
+        own = follow_lattice(image, lattice)
+    except ValueError:
+        return lattice
+    change = own.K - reference
+    if np.max(np.abs(change)) * max(np.shape(image)) < _SAME_CARRIER_BINS:
+        return lattice
+    k = lattice.K + change
+    return _Carrier(tuple(k[0]), tuple(k[1]), window_pitch=lattice.pitch)
 
 
 def _windowed_crop(img, m):

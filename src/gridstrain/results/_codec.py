@@ -231,7 +231,7 @@ def _registry() -> dict[str, type]:
     from ..kinematics._fringe_order import FringeOrder
     from ..phase._transform import PhaseMaps
     from ..phase.lattice import Lattice
-    from ..stacks.screening import FrameScreen
+    from ..stacks.screening import FrameScreen, Trend
     from ..stacks.vibration import VibrationReport
     from ..uncertainty._maps import NoiseFloor
 
@@ -241,6 +241,7 @@ def _registry() -> dict[str, type]:
         "gridstrain.kinematics.FringeOrder": FringeOrder,
         "gridstrain.lattice.Lattice": Lattice,
         "gridstrain.screening.FrameScreen": FrameScreen,
+        "gridstrain.screening.Trend": Trend,
         "gridstrain.uncertainty.NoiseFloor": NoiseFloor,
         "gridstrain.vibration.VibrationReport": VibrationReport,
         "gridstrain._wft.PhaseMaps": PhaseMaps,

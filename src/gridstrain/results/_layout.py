@@ -338,10 +338,11 @@ def _write_metrology(h5, result) -> None:
         h5.attrs["window_fwhm_px"] = float(met["window_fwhm_px"])
         h5.attrs["step_width_px"] = float(met["step_width_px"])
     if sy is not None:
-        smooth = np.array([[np.nan if v is None else v for v in s["p95"]]
+        smooth = np.array([[np.nan if v is None else v for v in s["max"]]
                            for s in sy["smoothing"]], dtype=float)
         _var(h5, "systematic_smoothing_strain", smooth, ("state", "strain_component"), "1",
-             "window smoothing of strain gradients, 95th percentile of sigma^2/2 lap(e)")
+             "window smoothing of strain gradients, bound on the peak error: 3 x the "
+             "largest sigma^2/2 lap(e)")
         h5.attrs["systematic_aliasing_u_px"] = float(sy["aliasing"]["u_px"])
         h5.attrs["systematic_aliasing_strain_per_strain"] = float(
             sy["aliasing"]["strain_per_strain"])

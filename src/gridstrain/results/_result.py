@@ -131,6 +131,12 @@ class SeriesResult:
     time : (n_states,) float64 ndarray, optional
         The time of each state, s: from the loads file's ``time [s]`` column or
         the frame rate (frame number in the record over the rate).
+    discontinuities : tuple of tuple of dict
+        Per state, the displacement jumps found (a crack, an edge, a torn grid):
+        their bounding boxes (``rows``, ``cols``: first and last, px), the pixels
+        left out around them (``pixels``, invalid in ``valid``) and the jump
+        (``jump_px``, modulo a pitch); see
+        :func:`gridstrain.discontinuities.find_discontinuities`.
     """
 
     u: np.ndarray
@@ -167,6 +173,7 @@ class SeriesResult:
     load: np.ndarray | None = None
     load_unit: str | None = None
     time: np.ndarray | None = None
+    discontinuities: tuple = ()
 
     def __post_init__(self):
         for name in ("u", "strain", "valid", "mask", "reference_image", "load", "time"):

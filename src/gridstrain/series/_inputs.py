@@ -272,6 +272,11 @@ def _loads_and_times(loads, frame_rate, series: list, *, each_frame: bool,
             raise ValueError(f"give the times by frame_rate or by the loads file's time "
                              f"column, not both (frame_rate={frame_rate!r})")
         time = (np.arange(len(names), dtype=np.float64) + first_frame) / rate
+    elif time is None and each_frame:
+        # the camera's own time stamps, where the file holds them (videos)
+        stamps = [getattr(s, "times", None) for s in series[1:]]
+        if all(t is not None and t.size == 1 for t in stamps):
+            time = np.concatenate(stamps)
     return {"load": load, "load_unit": unit, "time": time}
 
 

@@ -12,6 +12,7 @@ import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
+from scipy import ndimage
 
 from .. import _paging
 from .._progress import Progress, null_progress
@@ -26,9 +27,11 @@ from .._validation import (
     check_sigma,
     check_type,
 )
-from ..kinematics.tracking import _Tracker
+from ..discontinuities import find_discontinuities, without_discontinuities
+from ..kinematics import Measurement
+from ..kinematics.tracking import _after_warp, _Tracker
 from ..phase._transform import demodulated_at
-from ..phase.lattice import Lattice
+from ..phase.lattice import Lattice, _reference_carrier
 from ..phase.window import Window
 from ..results._result import SeriesResult
 from ..sequences import StateInputs, state_inputs
@@ -169,7 +172,10 @@ def measure_series(reference, states, *, lattice: Lattice | None = None,
         name them in the warnings; a series with half its frames flagged or more
         is refused, the good ones being then unknown. "refuse": raise on any
         flagged frame. "warn": keep them, name them in the warnings, and give the
-        noise floor and uncertainty maps of the states they enter as NaN.
+        noise floor and uncertainty maps of the states they enter as NaN. A series
+        whose frames form a sequence (a steady drift or a growing deformation,
+        :class:`gridstrain.screening.Trend`) is refused, but with "warn", which
+        averages it with a warning.
     progress : callable, optional
         ``progress(fraction, message)``.
     scheduler : str or distributed.Client, optional
@@ -230,7 +236,8 @@ def measure_series(reference, states, *, lattice: Lattice | None = None,
         themselves (no unit). Stored as :attr:`SeriesResult.load`.
     frame_rate : float, optional
         The camera's frame rate, Hz: each state's time is its frame's number in
-        the record over the rate, s (:attr:`SeriesResult.time`).
+        the record over the rate, s (:attr:`SeriesResult.time`). Without it (and
+        without a time column), states read from one video get its time stamps.
 
     Returns
     -------
@@ -429,7 +436,9 @@ def _measure(series: list, guesses: list, m: np.ndarray, o: MeasureOptions, step
     lattice, window, method = o.lattice, o.window, o.method
     sigma = window.sigma
     n_states = len(series) - 1
-    carriers = [(None, [])] + [_carrier(s, lattice) for s in series[1:]]
+    base = _reference_carrier(next(iter(series[0].frames(start=0, stop=1))), lattice) \
+        if n_states else None
+    carriers = [(None, [])] + [_carrier(s, lattice, base) for s in series[1:]]
     for _, notes in carriers:
         warnings.extend(notes)
     plans = [_plan(s, carriers[k][0] or lattice, method, window, m, k == 0)
@@ -485,14 +494,25 @@ def _measure(series: list, guesses: list, m: np.ndarray, o: MeasureOptions, step
         del ref_pass
         r = floor.r  # without its variance map: the floor keeps the smoothed one
         tracker = _Tracker(r.maps, r.stats.mean, r.mask, lattice, o.order, o.lagrangian)
+        cracks: list[tuple] = []
         alias = aliasing_bias(r.stats.mean, lattice, sigma=sigma, mask=r.mask)
         for i in range(n_states):
             c, acc = one(i + 1)
             del acc
             c = noise.complete(c)
             est = tracker.features(c.maps, c.stats.mean, guesses[i])
-            c = c.dropping("mean")  # the image features were its only use
             res, rec, notes = tracker.measure(c.maps, est, guesses[i], c.name)
+            if isinstance(guesses[i], str):
+                res, checked, said = _after_warp(res, rec, r.stats.mean, c.stats.mean,
+                                                 r.mask, lattice, c.name)
+                if checked is not rec:  # confirmed now: the doubt said before is void
+                    notes = [n for n in notes if "fringe order not confirmed" not in n]
+                rec = checked
+                notes = [*notes, *said]
+            c = c.dropping("mean")  # the image features were its only use
+            res, found, said = _discontinuities(res, c.name)
+            cracks.append(found)
+            notes = [*notes, *said]
             pager.page_out()  # the uncertainty maps read back the moduli only
             if o.output is not None:
                 # the file keeps no phase maps, and the state's derivatives serve its
@@ -528,8 +548,25 @@ def _measure(series: list, guesses: list, m: np.ndarray, o: MeasureOptions, step
             noise=floor.noise_floor(done, noise.info(done)), parameters=o.parameters(),
             warnings=tuple(warnings), metrology=metrology(sink.floors, sigma),
             systematic={"aliasing": alias, "smoothing": sink.smoothing},
-            state_order=o.state_order, **extra)
+            state_order=o.state_order, discontinuities=tuple(cracks), **extra)
 
 
-
-
+def _discontinuities(res: Measurement, name: str) -> tuple[Measurement, tuple, list[str]]:
+    """``res`` measured again without the pixels whose window straddles a jump of
+    its displacement (:mod:`gridstrain.discontinuities`), the jumps' regions, and
+    the warnings naming them."""
+    disc = find_discontinuities(res)
+    if not disc:
+        return res, (), []
+    before = ndimage.label(res.valid)[1]
+    res = without_discontinuities(res, disc)
+    said = [f"{name}: the displacement jumps (a crack, an edge or a torn grid?) at "
+            f"{disc.describe()}: the {int(disc.band.sum())} pixels whose window straddles "
+            "it are left out"]
+    after = ndimage.label(res.valid)[1]
+    if after > before:
+        said.append(f"{name}: the jump cuts the field into {after} regions whose whole "
+                    "numbers of periods were fixed each on its own (closest to the "
+                    "guess): across an opening of more than half a pitch one of them may "
+                    "be whole periods off; pass a guess or an intermediate state")
+    return res, tuple(disc.regions), said

@@ -69,14 +69,23 @@ def _screen_pass(s, acc: SeriesPass, max_saturation: float, outliers: str):
     try:
         sc = acc.screen(max_saturation=max_saturation)
     except ValueError as exc:
-        raise ValueError(f"{s.name}: {exc}") from None
+        hint = ("; a state whose grid turned by more than 17 degrees or stretched by more "
+                "than 30 % from the reference's is not followed (gridstrain.lattice."
+                "follow_lattice): measure it against an intermediate state"
+                if "shows a grid" in str(exc) else "")
+        raise ValueError(f"{s.name}: {exc}{hint}") from None
+    sequence = []
     if sc.trend is not None and sc.trend.sequence:
-        raise ValueError(f"{s.name}: its {n} frames are a sequence, not one static state "
-                         f"({sc.trend.describe()}): averaging them would mix states; "
-                         "measure each frame as a state of its own with --each-frame "
-                         "(each_frame=True)")
+        what = (f"{s.name}: its {n} frames are a sequence, not one static state "
+                f"({sc.trend.describe()})")
+        if outliers != "warn":
+            raise ValueError(f"{what}: averaging them would mix states; measure each frame "
+                             "as a state of its own with --each-frame (each_frame=True)")
+        sequence.append(f"{what}; averaged all the same (outliers='warn'): the maps mix "
+                        "the states (--each-frame measures each frame)")
     bad = sc.flagged
     keep, warnings = outlier_verdict(s, sc, outliers)
+    warnings = sequence + warnings
     if outliers == "exclude":
         for t in bad:  # the second read of a frame: only for the excluded ones
             # as stored, as the pass read it: taken out exactly as it was added

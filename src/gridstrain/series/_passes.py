@@ -19,7 +19,7 @@ from .._validation import (
     check_workers,
 )
 from ..phase._transform import finite_derivatives, transform
-from ..phase.lattice import Lattice, _Carrier, detect_lattice, follow_lattice
+from ..phase.lattice import Lattice, _state_carrier, detect_lattice
 from ..phase.window import Window, min_side
 from ..stacks._methods import _FrameOrder, method_b
 from ..stacks.accumulate import PassPlan, SeriesPass
@@ -166,7 +166,7 @@ def _plan(s, lattice: Lattice, method: str, window: Window, mask: np.ndarray,
 _PLAUSIBLE_STRETCH = 0.15
 
 
-def _carrier(s, lattice: Lattice) -> tuple[Lattice | None, list[str]]:
+def _carrier(s, lattice: Lattice, reference) -> tuple[Lattice | None, list[str]]:
     """The wave vectors of state series ``s`` (on its first frame) near the
     reference's, and a warning when they differ by more than a plausible strain.
 
@@ -178,23 +178,21 @@ def _carrier(s, lattice: Lattice) -> tuple[Lattice | None, list[str]]:
     the grid's amplitude varies (:func:`gridstrain.wft.demodulated_at`). So each
     state's pass and transforms use its own carrier, and its maps are brought to
     the reference's lattice afterwards. None (the reference's) where no peak stands
-    out near it: the screening then says what it sees."""
-    frame = next(iter(s.frames(start=0, stop=1)))
-    try:
-        own = follow_lattice(frame, lattice)
-    except ValueError:
+    out near it (the screening then says what it sees) or the carrier has not moved
+    (:func:`gridstrain.lattice._state_carrier`)."""
+    own = _state_carrier(next(iter(s.frames(start=0, stop=1))), lattice, reference)
+    if own is lattice:
         return None, []
     # k_s^T = k_r^T F^-1 for a homogeneous deformation gradient F
     F = np.linalg.inv(np.linalg.solve(lattice.K, own.K))
     U, stretch, Vt = np.linalg.svd(F)
     R = U @ Vt  # the polar decomposition's rotation
     turn = math.degrees(math.atan2(R[1, 0], R[0, 0]))
-    carrier = _Carrier(own.k1, own.k2, window_pitch=lattice.pitch)
     if np.max(np.abs(stretch - 1)) <= _PLAUSIBLE_STRETCH:
-        return carrier, []
+        return own, []
     files = ", ".join(str(p) for p in list(s.paths)[:2]) + (", ..." if len(s.paths) > 2
                                                           else "")
-    return carrier, [f"{s.name}: its grid (pitches {own.pitches[0]:.4g}/{own.pitches[1]:.4g} "
+    return own, [f"{s.name}: its grid (pitches {own.pitches[0]:.4g}/{own.pitches[1]:.4g} "
                  f"px, angles {own.angles[0]:.3g}/{own.angles[1]:.3g} deg) is the "
                  f"reference's stretched by {stretch.min() - 1:+.1%}/{stretch.max() - 1:+.1%}"
                  f" and turned by {turn:.3g} deg: more than a plausible strain "

@@ -110,6 +110,11 @@ _TREND_GROWTH_PX = _RESIDUAL_FLOOR
 _MAD_TO_STD = 1.4826
 
 
+def _p(p: float) -> str:
+    """A false-alarm probability for a message (F's tail is exact to about 1e-16)."""
+    return "p < 1e-16" if p < 1e-16 else f"p = {p:.1e}"
+
+
 @dataclass(frozen=True)
 class Trend:
     """Whether a series' frames are a sequence: a linear trend in frame order.
@@ -159,10 +164,10 @@ class Trend:
         out = []
         if self.deforming:
             out.append(f"a non-rigid displacement growing by {self.growth_px:.2g} px rms "
-                       f"from the first frame to the last (p = {self.growth_p:.1e})")
+                       f"from the first frame to the last ({_p(self.growth_p)})")
         if self.drifting:
             out.append(f"a steady rigid drift of {math.hypot(*self.drift_px):.2f} px "
-                       f"(p = {self.drift_p:.1e})")
+                       f"({_p(self.drift_p)})")
         return " and ".join(out)
 
 

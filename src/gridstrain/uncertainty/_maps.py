@@ -211,17 +211,40 @@ def displacement_strain_std(reference: PhaseMaps, deformed: PhaseMaps, *, varian
     are formed. The arguments are those of :func:`predict_uncertainty`, already
     checked (``valid`` given).
     """
-    g2, dg2 = window_energy(reference.sigma)
-    shape = reference.shape
-    var_phase = np.zeros((2, *shape))
+    return _displacement_strain_std(_phase_variance(reference, variance_ref), deformed,
+                                    variance_def=variance_def, valid=valid)
+
+
+def _phase_variance(maps: PhaseMaps, variance) -> np.ndarray:
+    """(2, H, W) variance of each wave vector's phase in ``maps``, rad^2, from the
+    sensor's per-pixel ``variance`` (eq. 23): one side of
+    :func:`displacement_strain_std`, made once for a reference measured against many
+    states."""
+    g2, _ = window_energy(maps.sigma)
+    out = np.zeros((2, *maps.shape))
     with np.errstate(divide="ignore", invalid="ignore"):
-        for pm, v in ((reference, variance_ref), (deformed, variance_def)):
-            vg = np.asarray(v, dtype=np.float64) * (g2 / 2)
-            for j in range(2):
-                m2 = np.abs(pm.psi[j]).astype(np.float64, copy=False)
-                m2 *= m2
-                var_phase[j] += vg / m2
-        M2 = (np.linalg.inv(reference.lattice.K) / (2 * np.pi)) ** 2
+        vg = np.asarray(variance, dtype=np.float64) * (g2 / 2)
+        for j in range(2):
+            m2 = np.abs(maps.psi[j]).astype(np.float64, copy=False)
+            m2 *= m2
+            out[j] += vg / m2
+    return out
+
+
+def _displacement_strain_std(var_ref_phase: np.ndarray, deformed: PhaseMaps, *,
+                             variance_def, valid) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`displacement_strain_std` with the reference's phase variance given
+    (:func:`_phase_variance`)."""
+    g2, dg2 = window_energy(deformed.sigma)
+    shape = deformed.shape
+    var_phase = var_ref_phase.copy()
+    with np.errstate(divide="ignore", invalid="ignore"):
+        vg = np.asarray(variance_def, dtype=np.float64) * (g2 / 2)
+        for j in range(2):
+            m2 = np.abs(deformed.psi[j]).astype(np.float64, copy=False)
+            m2 *= m2
+            var_phase[j] += vg / m2
+        M2 = (np.linalg.inv(deformed.lattice.K) / (2 * np.pi)) ** 2
         # where Psi = 0 (no signal) the variance is inf, and 0 x inf NaN: invalid pixels
         var_u = np.tensordot(M2, var_phase, axes=1)  # (2, H, W), eq. (34)
     del var_phase
