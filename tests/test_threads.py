@@ -48,6 +48,7 @@ def test_measure_series_keeps_blas_on_one_thread_throughout(monkeypatch):
     # its kinematics, noise and uncertainty products too, not only the frame loops:
     # OpenBLAS's idle threads would spin between them (a third more CPU for a pair)
     import gridstrain.kinematics.tracking as gp
+    from gridstrain.pipeline import measure_series
 
     seen = []
     inner = gp.deformation
@@ -65,7 +66,7 @@ def test_measure_series_keeps_blas_on_one_thread_throughout(monkeypatch):
                        + 0.4 * np.cos(2 * np.pi * yy / 5))
 
     before = _blas_threads()
-    gp.measure_series(grid(0.0), grid(0.2), lattice=lat, guess=(0.0, 0.0))
+    measure_series(grid(0.0), grid(0.2), lattice=lat, guess=(0.0, 0.0))
     assert seen
     assert all(n == 1 for threads in seen for n in threads)
     assert _blas_threads() == before
