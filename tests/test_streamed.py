@@ -12,7 +12,8 @@ from numpy.testing import assert_allclose, assert_array_equal
 
 from gridstrain import Lattice, stacks, synthetic
 from gridstrain.kinematics import deformation
-from gridstrain.phase.lattice import _reference_carrier, _state_carrier
+from gridstrain.phase.lattice import reference_carrier as _reference_carrier
+from gridstrain.phase.lattice import state_carrier as _state_carrier
 from gridstrain.pipeline import measure_series
 from gridstrain.results import ResultFile, StoredMaps, load, save_result
 from gridstrain.wft import demodulated_at, finite_derivatives, wft

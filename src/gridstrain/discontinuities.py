@@ -25,8 +25,8 @@ from scipy import ndimage
 
 from ._validation import check_positive, check_type
 from .kinematics import Measurement, deformation
-from .stacks.screening import _MAD_TO_STD
-from .uncertainty._biases import _departure, _nearest_index
+from .stacks.screening import MAD_TO_STD
+from .uncertainty._biases import local_departure, nearest_index
 
 __all__ = ["Discontinuities", "find_discontinuities", "without_discontinuities"]
 
@@ -126,11 +126,11 @@ def find_discontinuities(m: Measurement, *, min_jump: float = _MIN_JUMP) -> Disc
     height = np.zeros(valid.shape)
     seeds = np.zeros(valid.shape, dtype=bool)
     low = np.zeros(valid.shape, dtype=bool)
-    nearest = None if valid.all() else _nearest_index(valid)
+    nearest = None if valid.all() else nearest_index(valid)
     for c in range(strain.shape[0]):
         # the surroundings: a median over 8 sigma, wider than a ridge (about 3 sigma)
-        d = np.abs(_departure(strain[c], valid, sigma, nearest))
-        spread = _MAD_TO_STD * float(np.median(d[valid]))
+        d = np.abs(local_departure(strain[c], valid, sigma, nearest))
+        spread = MAD_TO_STD * float(np.median(d[valid]))
         seeds |= d > max(threshold, _MIN_SIGMAS * spread)
         low |= d > _FOLLOW_SIGMAS * spread
         np.maximum(height, d, out=height)

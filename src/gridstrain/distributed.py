@@ -60,7 +60,7 @@ from ._validation import (
 )
 from .io import FrameSeries, open_series
 from .phase.lattice import Lattice
-from .stacks._methods import StackResult, _PhaseMean, _with_screening
+from .stacks._methods import StackResult, _PhaseMean, with_screening
 from .stacks.accumulate import SeriesPass
 from .stacks.screening import FrameProbe
 from .wft import DEFAULT_MARGIN, wft
@@ -486,7 +486,7 @@ def _joined(*parts) -> list:
 
 def _screened_result(res: StackResult, lattice: Lattice, shape, records) -> StackResult:
     """``res`` with the screening of its frames' ``records``, in frame order."""
-    return _with_screening(res, records, FrameProbe(lattice, shape))
+    return with_screening(res, records, FrameProbe(lattice, shape))
 
 
 def _screened(graph, blocks, lattice: Lattice, shape, split_every: int):

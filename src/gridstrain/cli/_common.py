@@ -12,7 +12,7 @@ import sys
 from pathlib import Path
 
 from .._validation import check_positive
-from ..io._files import _check_destination
+from ..io._files import check_destination
 from ..phase.lattice import Lattice
 
 
@@ -64,7 +64,7 @@ def check_output_file(path: Path, what: str, overwrite: bool, inputs=frozenset()
     if path.resolve() in inputs:
         raise ValueError(f"{what} {path} is one of the input files; inputs are never "
                          "modified")
-    _check_destination(path, overwrite, what=what, how="--overwrite")
+    check_destination(path, overwrite, what=what, how="--overwrite")
 
 
 @contextlib.contextmanager

@@ -55,7 +55,7 @@ def register(subparsers) -> None:
 def run(args: argparse.Namespace) -> int:
     """Run ``gridstrain reproduce`` with parsed ``args``; returns the exit code."""
     # heavy imports only when the command runs
-    from ..paper.experiment import _fixed, reproduce
+    from ..paper.experiment import fixed_figure, reproduce
 
     t0 = time.perf_counter()
     res = reproduce(args.out, quick=args.quick, overwrite=args.overwrite, seed=args.seed,
@@ -72,19 +72,20 @@ def run(args: argparse.Namespace) -> int:
     for m in ("A", "B", "C"):
         if m in ch:
             c = ch[m]
-            out.write(f"method {m}: derivative slopes {_fixed(c['derivative_slopes_min'], 3)} .. "
-                      f"{_fixed(c['derivative_slopes_max'], 3)}; RMSE/theory "
-                      f"{_fixed(c['derivative_rmse_over_theory_min'], 3)} .. "
-                      f"{_fixed(c['derivative_rmse_over_theory_max'], 3)}; spread across cases "
-                      f"{100 * c['derivative_spread_across_cases_max']:.1f} %\n")
+            out.write(f"method {m}: derivative slopes "
+                      f"{fixed_figure(c['derivative_slopes_min'], 3)} .. "
+                      f"{fixed_figure(c['derivative_slopes_max'], 3)}; RMSE/theory "
+                      f"{fixed_figure(c['derivative_rmse_over_theory_min'], 3)} .. "
+                      f"{fixed_figure(c['derivative_rmse_over_theory_max'], 3)}; spread across "
+                      f"cases {100 * c['derivative_spread_across_cases_max']:.1f} %\n")
     if "B_over_A_derivatives_min" in ch:
-        out.write(f"B/A derivative RMSE {_fixed(ch['B_over_A_derivatives_min'], 3)} .. "
-                  f"{_fixed(ch['B_over_A_derivatives_max'], 3)}; cost ratio B/A "
-                  f"{_fixed(ch['cost_ratio_B_over_A'], 1)}\n")
+        out.write(f"B/A derivative RMSE {fixed_figure(ch['B_over_A_derivatives_min'], 3)} .. "
+                  f"{fixed_figure(ch['B_over_A_derivatives_max'], 3)}; cost ratio B/A "
+                  f"{fixed_figure(ch['cost_ratio_B_over_A'], 1)}\n")
     if "C_over_B_derivatives_min" in ch:
-        out.write(f"C/B derivative RMSE {_fixed(ch['C_over_B_derivatives_min'], 4)} .. "
-                  f"{_fixed(ch['C_over_B_derivatives_max'], 4)}; cost ratio C/A "
-                  f"{_fixed(ch['cost_ratio_C_over_A'], 1)}\n")
+        out.write(f"C/B derivative RMSE {fixed_figure(ch['C_over_B_derivatives_min'], 4)} .. "
+                  f"{fixed_figure(ch['C_over_B_derivatives_max'], 4)}; cost ratio C/A "
+                  f"{fixed_figure(ch['cost_ratio_C_over_A'], 1)}\n")
     for c, v in ch["image_level"].items():
         out.write(f"case {c}: averaged-image RMSE {v['rmse']:.3g} at T = {v['T']}, "
                   f"Prop. 2.1 level {v['prop21_level']:.3g} grey levels\n")

@@ -39,7 +39,7 @@ def _fsync(path: Path) -> None:
         os.close(fd)
 
 
-def _check_destination(path, overwrite: bool, *, what: str = "output file",
+def check_destination(path, overwrite: bool, *, what: str = "output file",
                        how: str = "overwrite=True") -> Path:
     """The destination of :func:`atomic_path`, checked before anything is written.
 
@@ -231,7 +231,7 @@ def atomic_path(path, *, overwrite: bool = False) -> Iterator[Path]:
     IsADirectoryError
         ``path`` is a directory.
     """
-    dest = _check_destination(path, overwrite)
+    dest = check_destination(path, overwrite)
     # a name that nothing else uses; the writer creates the file itself, with the
     # permissions it would give the destination
     tmp = _temporary_name(dest)
@@ -445,7 +445,7 @@ def hdf5_file(path, *, overwrite: bool = False) -> Iterator[h5py.File]:
     h5py.File
         A new, empty file in memory.
     """
-    dest = _check_destination(path, overwrite)  # refused before the file is built
+    dest = check_destination(path, overwrite)  # refused before the file is built
     name = f"gridstrain-{os.getpid()}-{secrets.token_hex(8)}.h5"
     with h5py.File(name, "w", driver="core", backing_store=False) as h5:
         yield h5

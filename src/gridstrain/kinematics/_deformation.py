@@ -26,14 +26,14 @@ from .._validation import (
     check_workers,
 )
 from ..phase._transform import demodulated_at
-from ..phase.lattice import Lattice, _reference_carrier, _state_carrier, detect_lattice
+from ..phase.lattice import Lattice, detect_lattice, reference_carrier, state_carrier
 from ..wft import DEFAULT_MARGIN, PhaseMaps, wft
 from ._fringe_order import (
     FringeOrder,
     _from_estimate,
     _phase_shift,
-    _solve,
     coarse_displacement,
+    solve_k,
 )
 
 __all__ = ["Measurement", "deformation", "measure"]
@@ -418,12 +418,12 @@ def deformation(reference: PhaseMaps, deformed: PhaseMaps, *, lagrangian: bool =
         G, valid = _lagrangian_gradient(u, reference, deformed, D_ref)
     else:
         u = start.pop()
-        G = _eulerian_gradient(K, deformed.dphi.astype(np.float64) - D_ref)
+        G = eulerian_gradient(K, deformed.dphi.astype(np.float64) - D_ref)
     del D_ref
 
     # computed in float64, returned in the maps' precision (gridstrain.conventions)
     dt = np.result_type(reference.dphi.dtype, deformed.dphi.dtype)
-    strain, rotation = _small_strain(G), 0.5 * (G[1, 0] - G[0, 1])
+    strain, rotation = small_strain(G), 0.5 * (G[1, 0] - G[0, 1])
     del G
     u, strain, rotation = _outside_nan(valid, dt, u, strain, rotation)
     return Measurement(u=u, strain=strain, rotation=rotation, valid=valid, lattice=lattice,
@@ -433,13 +433,13 @@ def deformation(reference: PhaseMaps, deformed: PhaseMaps, *, lagrangian: bool =
                        fringe_order=order)
 
 
-def _eulerian_gradient(K: np.ndarray, dD: np.ndarray) -> np.ndarray:
+def eulerian_gradient(K: np.ndarray, dD: np.ndarray) -> np.ndarray:
     """Displacement gradient (2, 2, ...) from the change ``dD`` (2, 2, ...) of the
     phase derivatives, without the large-displacement correction (eq. 35)."""
-    return -_solve(K, dD) / (2 * np.pi)
+    return -solve_k(K, dD) / (2 * np.pi)
 
 
-def _small_strain(G: np.ndarray) -> np.ndarray:
+def small_strain(G: np.ndarray) -> np.ndarray:
     """The small-strain tensor ``(e_xx, e_yy, e_xy)`` (3, ...) of the gradient ``G``
     (2, 2, ...), tensor shear (:mod:`gridstrain.conventions`)."""
     return np.stack([G[0, 0], G[1, 1], 0.5 * (G[0, 1] + G[1, 0])])
@@ -490,7 +490,7 @@ def _unwrapped_displacement(reference, deformed, valid, K, g) -> np.ndarray:
         for j in range(2):
             if n[j]:
                 dphase[j][sel] += 2 * np.pi * n[j]
-    u = _solve(K, dphase)
+    u = solve_k(K, dphase)
     del dphase
     np.negative(u, out=u)
     u /= 2 * np.pi
@@ -558,7 +558,7 @@ def _lagrangian_fixed_point(u, reference, deformed, valid, tol, max_iter):
                 r[j] = np.angle(at[j] * conj_ref[j])
                 r[j] += two_pi_K[j, 0] * u[0] + two_pi_K[j, 1] * u[1]
                 r[j] = np.pi - np.mod(np.pi - r[j], 2 * np.pi)
-            du = -_solve(K, r) / (2 * np.pi)
+            du = -solve_k(K, r) / (2 * np.pi)
             du[:, ~valid] = 0.0
             u[...] += du
             return float(np.sum(du * du))
@@ -622,7 +622,7 @@ def _contraction(deformed, K) -> float:
     if not v.any():
         return 0.0
     D = deformed.dphi[:, :, v].astype(np.float64)
-    M = _solve(K, D) / (2 * np.pi)
+    M = solve_k(K, D) / (2 * np.pi)
     q = float(np.sqrt(np.max(np.sum(M * M, axis=(0, 1)))))
     return q if math.isfinite(q) else math.inf
 
@@ -742,7 +742,7 @@ def measure(reference, deformed, *, lattice: Lattice | None = None,
     # deformed image is transformed whole and validity comes from its own moduli; at
     # its own carrier, a window off it biases the phase where the grid's amplitude
     # varies (gridstrain.wft.demodulated_at)
-    carrier = _state_carrier(cur, lattice, _reference_carrier(ref, lattice))
+    carrier = state_carrier(cur, lattice, reference_carrier(ref, lattice))
     pm_cur = wft(cur, carrier, sigma=pm_ref.sigma, margin=margin, workers=None)
     if carrier is not lattice:
         pm_cur = demodulated_at(pm_cur, lattice)

@@ -530,17 +530,17 @@ def _phase_shift(reference: PhaseMaps, deformed: PhaseMaps) -> np.ndarray | None
     if not valid.any():
         return None
     mean = np.zeros(2, dtype=np.complex128)
-    for _, _, z in _phase_products(reference, deformed, valid):
+    for _, _, z in phase_products(reference, deformed, valid):
         z /= np.maximum(np.abs(z), 1e-300)
         mean += z.sum(axis=1)
-    return -_solve(reference.lattice.K, np.angle(mean)) / (2 * np.pi)
+    return -solve_k(reference.lattice.K, np.angle(mean)) / (2 * np.pi)
 
 
-# Pixels per band of rows of _phase_products.
+# Pixels per band of rows of phase_products.
 _PRODUCT_BAND = 2**14
 
 
-def _phase_products(reference: PhaseMaps, deformed: PhaseMaps, valid: np.ndarray):
+def phase_products(reference: PhaseMaps, deformed: PhaseMaps, valid: np.ndarray):
     """``(rows, v, z)`` band of rows by band of rows: the rows' slice, their pixels of
     ``valid`` (bool), and ``z = Psi_def conj(Psi_ref)`` (2, n) there, complex128,
     whose angle is the wrapped phase difference of eq. (34). The bands' temporaries
@@ -557,6 +557,6 @@ def _phase_products(reference: PhaseMaps, deformed: PhaseMaps, valid: np.ndarray
         yield rows, v, z
 
 
-def _solve(K: np.ndarray, r: np.ndarray) -> np.ndarray:
+def solve_k(K: np.ndarray, r: np.ndarray) -> np.ndarray:
     """``K^-1 r`` for a 2x2 ``K`` and ``r`` of shape (2, ...)."""
     return np.tensordot(np.linalg.inv(K), r, axes=1)

@@ -16,7 +16,7 @@ from .._validation import (
     check_mask,
 )
 from ..phase.lattice import Lattice
-from ..uncertainty._biases import _nearest_filled
+from ..uncertainty._biases import nearest_filled
 from ..wft import PhaseMaps
 from ._deformation import (
     Measurement,
@@ -225,7 +225,7 @@ class _Tracker:
                 "is not confirmed; they share its uncertainty"]
 
 
-def _after_warp(res: Measurement, rec: FringeOrder, mean_ref: np.ndarray,
+def check_after_warp(res: Measurement, rec: FringeOrder, mean_ref: np.ndarray,
                 mean_cur: np.ndarray, mask: np.ndarray, lattice: Lattice, name: str):
     """``(res, rec, warnings)`` with the fringe order checked on the images' content
     once the deformed image is warped back by the measured field.
@@ -242,7 +242,7 @@ def _after_warp(res: Measurement, rec: FringeOrder, mean_ref: np.ndarray,
     v = res.valid
     if rec.source == "previous state" or not v.any() or res.reference is None:
         return res, rec, []
-    u = np.stack([_nearest_filled(res.u[k], v) for k in range(2)])
+    u = np.stack([nearest_filled(res.u[k], v) for k in range(2)])
     H, W = v.shape
     yy, xx = np.mgrid[0:H, 0:W].astype(np.float64)
     yy += u[1]

@@ -77,13 +77,13 @@ from .._validation import (
 from ..io import OutputDirectory, provenance
 from ..phase.lattice import Lattice
 from ..stacks._methods import (
-    _MeanImage,
-    _MethodC,
-    _offsets,
+    MeanImage,
+    MethodC,
     _PhaseMean,
     method_a,
     method_b,
     method_c,
+    phase_offsets,
 )
 from ..synthetic import PROFILES, line_profile
 from ..wft import PhaseMaps, wft
@@ -226,7 +226,7 @@ def _job(setup, rep, case, report=None) -> dict:
     noise = np.random.default_rng(np.random.SeedSequence([setup["seed"], rep, 1000 + case]))
     frames = iter_frames(phases, shifts, rng=noise, K=setup["K"], L=setup["L"],
                          bits=setup["bits"], **setup["gen"])
-    acc_a, acc_b, acc_c = _MeanImage(), _PhaseMean(), _MethodC(lattice)
+    acc_a, acc_b, acc_c = MeanImage(), _PhaseMean(), MethodC(lattice)
     set_a, set_b = set(Ts), set(Tbs)
     out = {}
     for t, frame in enumerate(frames, start=1):
@@ -234,7 +234,7 @@ def _job(setup, rep, case, report=None) -> dict:
         acc_c.add(frame)  # shifts measured from the frames, as in the lab
         if t <= Tbs[-1]:
             acc_b.add_frame(frame, lattice, sigma=sigma)
-        delta = _offsets(shifts[:t], lattice, exact=False)  # eqs. (29)-(30)
+        delta = phase_offsets(shifts[:t], lattice, exact=False)  # eqs. (29)-(30)
         if t in set_a:
             avg = acc_a.mean()
             vals = _rmse_all(wft(avg, lattice, sigma=sigma), gt, region, delta)
@@ -871,7 +871,7 @@ def _fmt(v, digits=3):
     return "n/a" if v is None else f"{v:.{digits}g}"
 
 
-def _fixed(v, digits=3):
+def fixed_figure(v, digits=3):
     """Fixed-point figure, or "n/a" where the run's T values gave none."""
     return "n/a" if v is None else f"{v:.{digits}f}"
 
@@ -941,8 +941,8 @@ def _method_rows(ch, methods) -> list[tuple[str, str]]:
         rows.append((
             f"Method {m}: phase-derivative RMSE decreases as 1/sqrt(T) (slope -0.5; "
             "the paper's cases)",
-            f"fitted slopes {_fixed(c['derivative_slopes_min'])} to "
-            f"{_fixed(c['derivative_slopes_max'])}"))
+            f"fitted slopes {fixed_figure(c['derivative_slopes_min'])} to "
+            f"{fixed_figure(c['derivative_slopes_max'])}"))
         rows.append((
             f"Method {m}: derivative RMSE does not depend on the vibrations "
             "(curves superposed)",
@@ -951,9 +951,9 @@ def _method_rows(ch, methods) -> list[tuple[str, str]]:
             "by the theory, which for method A includes the contrast loss of eq. 14)"))
         rows.append((
             f"Method {m}: derivatives follow the small-noise theory (eq. 27)",
-            f"measured/theory {_fixed(c['derivative_rmse_over_theory_min'])} to "
-            f"{_fixed(c['derivative_rmse_over_theory_max'])} (mean "
-            f"{_fixed(c['derivative_rmse_over_theory_mean'])})"))
+            f"measured/theory {fixed_figure(c['derivative_rmse_over_theory_min'])} to "
+            f"{fixed_figure(c['derivative_rmse_over_theory_max'])} (mean "
+            f"{fixed_figure(c['derivative_rmse_over_theory_mean'])})"))
     return rows
 
 
@@ -1008,33 +1008,33 @@ def _method_c_rows(ch) -> list[tuple[str, str]]:
     rows = []
     if "B_over_A_derivatives_min" in ch:
         rows.append(("Method B gives results comparable to method A",
-                     f"derivative RMSE ratio B/A {_fixed(ch['B_over_A_derivatives_min'])} to "
-                     f"{_fixed(ch['B_over_A_derivatives_max'])}"))
+                     f"derivative RMSE ratio B/A {fixed_figure(ch['B_over_A_derivatives_min'])} to "
+                     f"{fixed_figure(ch['B_over_A_derivatives_max'])}"))
     if "C_over_B_derivatives_min" not in ch:
         return rows
     rows.append(("Method C (not in the paper): derivatives with method B's precision",
-                 f"derivative RMSE ratio C/B {_fixed(ch['C_over_B_derivatives_min'])} to "
-                 f"{_fixed(ch['C_over_B_derivatives_max'])}; C/theory "
-                 f"{_fixed(ch['C_derivative_rmse_over_theory_min'])} to "
-                 f"{_fixed(ch['C_derivative_rmse_over_theory_max'])}"))
-    others = ", ".join(f"{m} up to {_fixed(ch[k])}" for m in ("A", "B")
+                 f"derivative RMSE ratio C/B {fixed_figure(ch['C_over_B_derivatives_min'])} to "
+                 f"{fixed_figure(ch['C_over_B_derivatives_max'])}; C/theory "
+                 f"{fixed_figure(ch['C_derivative_rmse_over_theory_min'])} to "
+                 f"{fixed_figure(ch['C_derivative_rmse_over_theory_max'])}"))
+    others = ", ".join(f"{m} up to {fixed_figure(ch[k])}" for m in ("A", "B")
                        if (k := f"{m}_corrected_phase_rmse_over_theory_max") in ch)
     rows.append(("Method C: phase about the stack's mean position at the noise-only theory "
                  "(no contrast loss, no eq. 29 residual)",
                  f"corrected-phase RMSE / noise-only theory "
-                 f"{_fixed(ch['C_corrected_phase_rmse_over_theory_min'])} to "
-                 f"{_fixed(ch['C_corrected_phase_rmse_over_theory_max'])} (eqs. 29-30 "
+                 f"{fixed_figure(ch['C_corrected_phase_rmse_over_theory_min'])} to "
+                 f"{fixed_figure(ch['C_corrected_phase_rmse_over_theory_max'])} (eqs. 29-30 "
                  f"corrected: {others})"))
     if "C_corrected_phase_case5_over_theory_max" in ch:
         rows.append(("Method C at 0.5 px (case 5): phase about the mean position at the "
                      "theory",
                      f"corrected-phase RMSE / theory "
-                     f"{_fixed(ch['C_corrected_phase_case5_over_theory_min'])} to "
-                     f"{_fixed(ch['C_corrected_phase_case5_over_theory_max'])} (T <= 100)"))
+                     f"{fixed_figure(ch['C_corrected_phase_case5_over_theory_min'])} to "
+                     f"{fixed_figure(ch['C_corrected_phase_case5_over_theory_max'])} (T <= 100)"))
     if "C_over_A_derivatives_case5_max" in ch:
         rows.append(("Method C at 0.5 px of vibration (case 5): derivative error below A's",
                      f"C/A derivative RMSE (RMS over the four) at most "
-                     f"{_fixed(ch['C_over_A_derivatives_case5_max'])} (30 <= T <= 100; "
+                     f"{fixed_figure(ch['C_over_A_derivatives_case5_max'])} (30 <= T <= 100; "
                      "beyond, the generator's interpolation error, common to all methods, "
                      "dominates)"))
     return rows

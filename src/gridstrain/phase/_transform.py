@@ -157,7 +157,7 @@ def _axis_band(n: int, k: float, sigma: float):
     return idx, runs, nu_all[idx], shift
 
 
-def _spectrum_block(V: np.ndarray, rows: np.ndarray, cols: np.ndarray, nx: int) -> np.ndarray:
+def spectrum_block(V: np.ndarray, rows: np.ndarray, cols: np.ndarray, nx: int) -> np.ndarray:
     """Block ``rows x cols`` of the full 2-D DFT of a real image, from its rfft2 ``V``.
 
     Copied run by run with slices: the band's indices are a few arithmetic runs, and
@@ -356,7 +356,7 @@ def _wft(image, lattice: Lattice, *, sigma: float | None = None, mask=None,
     ``dphi`` (2, h, W) and the modulus (h, W) that are overwritten by the next
     block -- and return only the validity map. Method B sums the frames that way,
     while the blocks are still in cache, without a frame's maps ever being whole.
-    ``work`` (a :class:`_Workspace`) lends the scratch arrays, so that a caller
+    ``work`` (a :class:`Workspace`) lends the scratch arrays, so that a caller
     transforming many frames reuses the same pages. ``checked``: ``image`` already
     went through :func:`~gridstrain._validation.as_image` (a stack's frames do).
     """
@@ -382,7 +382,7 @@ def _wft(image, lattice: Lattice, *, sigma: float | None = None, mask=None,
     nx = sfft.next_fast_len(W + pad, real=True)
     # scratch arrays shared by the two wave vectors (and by the frames of a caller
     # that lends its workspace): fresh pages cost a page fault each
-    work = _Workspace() if work is None else work
+    work = Workspace() if work is None else work
     V = _padded_rfft2(img, m, full, ny, nx, work)
     cdtype = V.dtype
     # rows per block of the final inverse FFTs (three transforms of nx points each)
@@ -406,7 +406,7 @@ def _wft(image, lattice: Lattice, *, sigma: float | None = None, mask=None,
     mdtype = np.float32 if sink is not None and kern is not None else dtype
     mods = [work.get(f"mod{j}", (H, W), mdtype) for j in range(2)]
     # with two threads, one wave vector each, and scratch arrays of its own
-    works = [work, _Workspace()] if workers > 1 else [work, work]
+    works = [work, Workspace()] if workers > 1 else [work, work]
 
     def one(j):
         k = (lattice.k1, lattice.k2)[j]
@@ -526,7 +526,7 @@ def wft_complex(images, lattice: Lattice, *, sigma: float | None = None, mask=No
     psi = np.empty((2, H, W), dtype=np.complex128)
     dphi = np.empty((2, 2, H, W), dtype=np.float64)
     mods = [np.empty((H, W), dtype=np.float64) for _ in range(2)]
-    work = _Workspace()
+    work = Workspace()
     for j, k in enumerate((lattice.k1, lattice.k2)):
         padded = np.zeros((ny, nx), dtype=np.complex128)
         zj = z[j].astype(np.complex128, copy=False)
@@ -593,7 +593,7 @@ def finite_derivatives(pm: PhaseMaps) -> PhaseMaps:
                      sigma=pm.sigma)
 
 
-class _Workspace:
+class Workspace:
     """Scratch arrays reused from one wave vector to the next (named flat buffers)."""
 
     def __init__(self):
@@ -610,7 +610,7 @@ class _Workspace:
 
 
 def _padded_rfft2(img: np.ndarray, m: np.ndarray, full: bool, ny: int, nx: int,
-                  work: _Workspace | None = None) -> np.ndarray:
+                  work: Workspace | None = None) -> np.ndarray:
     """rfft2 of the mean-removed image, zero-extended to ``(ny, nx)`` (conventions).
 
     The same two passes as ``scipy.fft.rfft2`` of the zero-extended image (a real
@@ -663,7 +663,7 @@ def _one_wave_vector(V, k, sigma, H, W, nx, psi, dphi, mod, work, *, chunk: int,
     rows, yruns, nuy, sy = _axis_band(ny, k[1], sigma)
     cols, xruns, nux, sx = _axis_band(nx, k[0], sigma)
     # a complex image's full spectrum (wft_complex), or a real one's half spectrum
-    block = V[np.ix_(rows, cols)] if V.shape[1] == nx else _spectrum_block(V, rows, cols, nx)
+    block = V[np.ix_(rows, cols)] if V.shape[1] == nx else spectrum_block(V, rows, cols, nx)
     # complex transfer values: a complex times real product would go through a
     # slow mixed-type loop
     gy = transfer_function(nuy, sigma).astype(cdtype)
@@ -741,7 +741,7 @@ def _one_wave_vector_central(V, k, sigma, H, W, nx, psi, dphi, mod, work, *,
         chunk = max(8, _CHUNK_BYTES // (nx * cdtype.itemsize))
     rows, yruns, nuy, sy = _axis_band(ny, k[1], sigma)
     cols, xruns, nux, sx = _axis_band(nx, k[0], sigma)
-    block = _spectrum_block(V, rows, cols, nx)
+    block = spectrum_block(V, rows, cols, nx)
     block *= transfer_function(nux, sigma).astype(cdtype)
     gy = transfer_function(nuy, sigma).astype(cdtype)
     Y = work.get("Y", (ny, cols.size), cdtype)
@@ -900,7 +900,7 @@ def _one_wave_vector_fast(V, k, sigma, H, W, nx, psi, dphi, mod, work, *, taps,
     m = taps.size
     rows, yruns, nuy, sy = _axis_band(ny, k[1], sigma)
     cols, xruns, nux, sx = _axis_band(nx, k[0], sigma)
-    block = V[np.ix_(rows, cols)] if V.shape[1] == nx else _spectrum_block(V, rows, cols, nx)
+    block = V[np.ix_(rows, cols)] if V.shape[1] == nx else spectrum_block(V, rows, cols, nx)
     # the window along x applied on the small band, so that the blocks below are copies
     block *= transfer_function(nux, sigma).astype(cdtype)
     gy = transfer_function(nuy, sigma).astype(cdtype)

@@ -183,7 +183,7 @@ def _dtft_power(data: np.ndarray, k: np.ndarray, x: np.ndarray, y: np.ndarray) -
 
 
 @dataclass(frozen=True)
-class _Carrier(Lattice):
+class Carrier(Lattice):
     """A state's own wave vectors (:func:`follow_lattice`), transformed with the
     reference's window: ``pitch`` is the reference's, against which ``sigma`` was
     chosen and checked (a state stretched by 10 % has a pitch 10 % above it)."""
@@ -333,7 +333,7 @@ def follow_lattice(image, lattice: Lattice, *, mask=None,
     return Lattice(tuple(out[0]), tuple(out[1]))
 
 
-def _reference_carrier(image, lattice: Lattice) -> np.ndarray | None:
+def reference_carrier(image, lattice: Lattice) -> np.ndarray | None:
     """(2, 2) wave vectors of the reference image's grid as :func:`follow_lattice`
     finds them near ``lattice``, or None."""
     try:
@@ -342,10 +342,10 @@ def _reference_carrier(image, lattice: Lattice) -> np.ndarray | None:
         return None
 
 
-def _state_carrier(image, lattice: Lattice, reference) -> Lattice:
+def state_carrier(image, lattice: Lattice, reference) -> Lattice:
     """The lattice to transform a state's ``image`` at: ``lattice`` moved by the
     change of the carrier from the reference's (``reference``, from
-    :func:`_reference_carrier`) to the state's, with the reference's window; or
+    :func:`reference_carrier`) to the state's, with the reference's window; or
     ``lattice`` itself where either shows no grid near it or the carrier moved by
     less than a thousandth of a spectral bin over the image (a strain of 2e-5 at
     pitch 5 on 256 px: the maps are then those at the reference's carrier, bit for
@@ -361,7 +361,7 @@ def _state_carrier(image, lattice: Lattice, reference) -> Lattice:
     if np.max(np.abs(change)) * max(np.shape(image)) < _SAME_CARRIER_BINS:
         return lattice
     k = lattice.K + change
-    return _Carrier(tuple(k[0]), tuple(k[1]), window_pitch=lattice.pitch)
+    return Carrier(tuple(k[0]), tuple(k[1]), window_pitch=lattice.pitch)
 
 
 def _windowed_crop(img, m):

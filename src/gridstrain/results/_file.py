@@ -231,7 +231,7 @@ class StoredMaps(np.lib.mixins.NDArrayOperatorsMixin):
         return f"StoredMaps({self._names!r}, shape={self.shape}, file={str(self.path)!r})"
 
 
-class _Streamed:
+class StreamedResult:
     """The sink of :func:`gridstrain.pipeline.measure_series` that writes each state
     into a :class:`ResultFile` as it comes (see :class:`ResultFile`)."""
 

@@ -21,13 +21,13 @@ from .._validation import (
 )
 from ..kinematics._deformation import (
     Measurement,
-    _eulerian_gradient,
-    _small_strain,
-    _solve,
+    eulerian_gradient,
+    small_strain,
 )
 from ..kinematics._fringe_order import (
     FringeOrder,
-    _phase_products,
+    phase_products,
+    solve_k,
 )
 from ..phase._transform import finite_derivatives, transform
 from ..phase.lattice import Lattice
@@ -37,8 +37,8 @@ from ..uncertainty._biases import smoothing_bias
 from ..uncertainty._maps import (
     SPATIAL_RESOLUTION_PER_SIGMA,
     NoiseFloor,
-    _displacement_strain_std,
-    _phase_variance,
+    phase_variance,
+    std_from_phase_variance,
 )
 from ..uncertainty._noise import NoiseModel
 from ..uncertainty._noise_image import estimate_noise_image
@@ -135,12 +135,12 @@ def _difference_std(a: PhaseMaps, b: PhaseMaps) -> tuple[np.ndarray, np.ndarray]
     valid = a.valid & b.valid & np.all(np.isfinite(a.dphi), axis=(0, 1))
     K = a.lattice.K
     n, mean, m2 = 0, np.zeros(5), np.zeros(5)
-    for rows, v, z in _phase_products(a, b, valid):
+    for rows, v, z in phase_products(a, b, valid):
         k = z.shape[1]
         dD = b.dphi[:, :, rows][:, :, v].astype(np.float64)
         dD -= a.dphi[:, :, rows][:, :, v]
-        q = np.concatenate([-_solve(K, np.angle(z)) / (2 * np.pi),  # eq. (34)
-                            _small_strain(_eulerian_gradient(K, dD))])  # eq. (35)
+        q = np.concatenate([-solve_k(K, np.angle(z)) / (2 * np.pi),  # eq. (34)
+                            small_strain(eulerian_gradient(K, dD))])  # eq. (35)
         qm = q.mean(axis=1)
         qm2 = ((q - qm[:, None]) ** 2).sum(axis=1)
         delta = qm - mean
@@ -334,12 +334,12 @@ class _ReferenceFloor:
         if v_ref is None:
             return None
         if self.local_ref is None:
-            var_ref = _phase_variance(self.r.maps, v_ref / self.sr.T)
+            var_ref = phase_variance(self.r.maps, v_ref / self.sr.T)
         else:  # the reference's side, the same for every state: made once
             if self.var_ref_phase is None:
-                self.var_ref_phase = _phase_variance(self.r.maps, v_ref / self.sr.T)
+                self.var_ref_phase = phase_variance(self.r.maps, v_ref / self.sr.T)
             var_ref = self.var_ref_phase
-        u_std, strain_std = _displacement_strain_std(
+        u_std, strain_std = std_from_phase_variance(
             var_ref, c.maps, variance_def=v_def / c.series.n_frames, valid=res.valid)
         names = ("ux_std", "uy_std", "exx_std", "eyy_std", "exy_std")
         return dict(zip(names, (*u_std, *strain_std), strict=True))

@@ -29,9 +29,9 @@ from .._validation import (
 )
 from ..discontinuities import find_discontinuities, without_discontinuities
 from ..kinematics import Measurement
-from ..kinematics.tracking import _after_warp, _Tracker
+from ..kinematics.tracking import _Tracker, check_after_warp
 from ..phase._transform import demodulated_at
-from ..phase.lattice import Lattice, _reference_carrier
+from ..phase.lattice import Lattice, reference_carrier
 from ..phase.window import Window
 from ..results._result import SeriesResult
 from ..sequences import StateInputs, state_inputs
@@ -436,7 +436,7 @@ def _measure(series: list, guesses: list, m: np.ndarray, o: MeasureOptions, step
     lattice, window, method = o.lattice, o.window, o.method
     sigma = window.sigma
     n_states = len(series) - 1
-    base = _reference_carrier(next(iter(series[0].frames(start=0, stop=1))), lattice) \
+    base = reference_carrier(next(iter(series[0].frames(start=0, stop=1))), lattice) \
         if n_states else None
     carriers = [(None, [])] + [_carrier(s, lattice, base) for s in series[1:]]
     for _, notes in carriers:
@@ -503,7 +503,7 @@ def _measure(series: list, guesses: list, m: np.ndarray, o: MeasureOptions, step
             est = tracker.features(c.maps, c.stats.mean, guesses[i])
             res, rec, notes = tracker.measure(c.maps, est, guesses[i], c.name)
             if isinstance(guesses[i], str):
-                res, checked, said = _after_warp(res, rec, r.stats.mean, c.stats.mean,
+                res, checked, said = check_after_warp(res, rec, r.stats.mean, c.stats.mean,
                                                  r.mask, lattice, c.name)
                 if checked is not rec:  # confirmed now: the doubt said before is void
                     notes = [n for n in notes if "fringe order not confirmed" not in n]

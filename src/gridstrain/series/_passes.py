@@ -19,12 +19,12 @@ from .._validation import (
     check_workers,
 )
 from ..phase._transform import finite_derivatives, transform
-from ..phase.lattice import Lattice, _state_carrier, detect_lattice
+from ..phase.lattice import Lattice, detect_lattice, state_carrier
 from ..phase.window import Window, min_side
-from ..stacks._methods import _FrameOrder, method_b
+from ..stacks._methods import FrameOrder, method_b
 from ..stacks.accumulate import PassPlan, SeriesPass
 from ..stacks.vibration import VibrationReport
-from ..stacks.vibration import _report as _vibration_report
+from ..stacks.vibration import shift_report as _vibration_report
 from ..wft import DEFAULT_MARGIN, PhaseMaps
 from ._inputs import (
     _as_series,
@@ -180,7 +180,7 @@ def _carrier(s, lattice: Lattice, reference) -> tuple[Lattice | None, list[str]]
     the reference's lattice afterwards. None (the reference's) where no peak stands
     out near it (the screening then says what it sees) or the carrier has not moved
     (:func:`gridstrain.lattice._state_carrier`)."""
-    own = _state_carrier(next(iter(s.frames(start=0, stop=1))), lattice, reference)
+    own = state_carrier(next(iter(s.frames(start=0, stop=1))), lattice, reference)
     if own is lattice:
         return None, []
     # k_s^T = k_r^T F^-1 for a homogeneous deformation gradient F
@@ -206,7 +206,7 @@ def _run_pass(s, plan: PassPlan, report: Progress) -> SeriesPass:
     does not depend on the number of threads); the rest follows the reading."""
     n = s.n_frames
     workers = check_workers(None) if plan.method == "B" else 1
-    order = _FrameOrder() if workers > 1 else None
+    order = FrameOrder() if workers > 1 else None
     box: list = []
 
     def read():

@@ -26,9 +26,9 @@ def empty_state_message(name: str, margin: float, sigma: float, guess, source: s
 
 
 def _streamed(output, n_states: int):
-    from ..results._file import _Streamed
+    from ..results._file import StreamedResult
 
-    return _Streamed(output, n_states)
+    return StreamedResult(output, n_states)
 
 
 def _as_dtype(res: Measurement, unc, dtype):

@@ -37,11 +37,12 @@ from .._validation import (
     float_dtype,
     image_array,
 )
-from ..phase._transform import _kernels, _wft, _Workspace
+from ..phase._transform import Workspace, _kernels, transform
 from ..phase.lattice import Lattice
+from ..phase.window import Window
 from ..wft import DEFAULT_MARGIN, PhaseMaps, wft, wft_complex
 from .screening import FrameProbe, FrameScreen, decide
-from .vibration import _RigidProbe
+from .vibration import RigidProbe
 
 __all__ = [
     "StackResult",
@@ -200,10 +201,10 @@ class _Screener:
         """``res`` with the screening and a warning naming the flagged frames."""
         if not self.enabled or self.probe is None:
             return res
-        return _with_screening(res, self.records, self.probe)
+        return with_screening(res, self.records, self.probe)
 
 
-def _with_screening(res: StackResult, records, probe: FrameProbe) -> StackResult:
+def with_screening(res: StackResult, records, probe: FrameProbe) -> StackResult:
     """``res`` with the screening of its frames' ``records`` (in frame order, made by
     ``probe``) and a warning naming the flagged frames, which it averaged."""
     try:
@@ -220,7 +221,7 @@ def _with_screening(res: StackResult, records, probe: FrameProbe) -> StackResult
     return replace(res, screening=sc, warnings=(*res.warnings, warning))
 
 
-class _MeanImage:
+class MeanImage:
     """Running float64 sum of frames, and the precision of their maps."""
 
     def __init__(self):
@@ -245,7 +246,7 @@ class _MeanImage:
         return wft(avg.astype(self.dtype, copy=False), lattice, **kwargs), avg
 
 
-class _FrameOrder:
+class FrameOrder:
     """Makes the frames of a stack add each block of rows in frame order.
 
     Frame ``i`` may add its block ``key`` once frame ``i - 1`` has added it, so the
@@ -332,7 +333,7 @@ class _PhaseMean:
 
     def add_frame(self, img, lattice: Lattice, *, sigma=None, mask=None,
                   margin: float = DEFAULT_MARGIN, index: int = 0,
-                  order: _FrameOrder | None = None, remove: bool = False) -> None:
+                  order: FrameOrder | None = None, remove: bool = False) -> None:
         """Add the WFT of ``img`` (as :func:`~gridstrain.wft.wft` computes it).
 
         With ``order``, ``index`` is the frame's rank in the stack (from 0), and its
@@ -351,7 +352,7 @@ class _PhaseMean:
             self.dtype = np.promote_types(self.dtype, precision)
         work = getattr(self._local, "work", None)
         if work is None:
-            work = self._local.work = _Workspace()
+            work = self._local.work = Workspace()
         # float64 views (..., 2) of the complex sums: real arithmetic on them avoids
         # numpy's slow mixed complex-by-real loops
         unit = self.unit.view(np.float64).reshape(2, H, W, 2)
@@ -386,8 +387,8 @@ class _PhaseMean:
             if order is not None:
                 order.release((j, r0), index)
 
-        valid = _wft(img, lattice, sigma=sigma, mask=mask, margin=margin, sink=sink,
-                     work=work, checked=True)
+        window = Window.for_lattice(lattice, sigma=sigma, margin=margin)
+        valid = transform(img, lattice, window, mask=mask, sink=sink, work=work, checked=True)
         with self._lock:
             accumulate(self.invalid, ~valid, out=self.invalid, casting="unsafe")
             self.n += -1 if remove else 1
@@ -456,9 +457,9 @@ def mean_image(frames, *, progress: Progress | None = None) -> np.ndarray:
 
 
 def _average(frames, progress: Progress, what: str,
-             screener: _Screener | None = None) -> _MeanImage:
+             screener: _Screener | None = None) -> MeanImage:
     """The streamed float64 sum of ``frames`` (each probed by ``screener``)."""
-    acc = _MeanImage()
+    acc = MeanImage()
     items = _frames(frames)
     with one_blas_thread():  # the screening's small products (gridstrain._threads)
         for i, img, total in (items if screener is None else screener.frames(items)):
@@ -575,7 +576,7 @@ def method_b(frames, lattice: Lattice, *, sigma: float | None = None, mask=None,
     progress = progress or null_progress
     n_workers = check_workers(workers)
     acc = _PhaseMean()
-    order = _FrameOrder() if n_workers > 1 else None
+    order = FrameOrder() if n_workers > 1 else None
 
     def transform(item):
         i, img, total = item
@@ -670,7 +671,7 @@ class _CompensatedMean:
         return z.reshape(2, H, W)
 
 
-class _MethodC:
+class MethodC:
     """Method C over a stream: shifts (measured or given), rigidity, sums, result."""
 
     def __init__(self, lattice: Lattice, shifts=None):
@@ -687,7 +688,7 @@ class _MethodC:
         t = self.acc.n
         row = self.acc.load(img, name)
         if self.probe is None:
-            self.probe = _RigidProbe(self.lattice, img.shape)
+            self.probe = RigidProbe(self.lattice, img.shape)
         shift, parts = self.probe(row)
         self.measured.append(shift)
         if parts is not None:
@@ -725,12 +726,12 @@ class _MethodC:
                     f"frames are realigned with the wrong phases. Check that the shifts "
                     f"follow eq. (2) (frame t is s(x + a_t)) and are in px, or let "
                     f"method C measure them")
-        return _compensated_result(lambda c: self.acc.averages(c), centre, n, self.acc.dtype,
+        return compensated_result(lambda c: self.acc.averages(c), centre, n, self.acc.dtype,
                                    used, self.parts, self.lattice, sigma=sigma, mask=mask,
                                    margin=margin, warnings=warnings)
 
 
-def _compensated_result(averages, centre, n: int, dtype, used: np.ndarray, parts: list,
+def compensated_result(averages, centre, n: int, dtype, used: np.ndarray, parts: list,
                         lattice: Lattice, *, sigma, mask, margin, warnings: list) -> StackResult:
     """Method C's maps from its realigned sums: ``averages(centre)`` gives the two
     weighted means (2, H, W) turned by ``exp(+i centre)``; ``used`` (n, 2) are the
@@ -870,7 +871,7 @@ def method_c(frames, lattice: Lattice, *, shifts=None, sigma: float | None = Non
     """
     check_type(lattice, "lattice", Lattice)
     progress = progress or null_progress
-    run = _MethodC(lattice, shifts)
+    run = MethodC(lattice, shifts)
     screener = _Screener(lattice, screen)
     # frames converted while copied into the batch: one pass instead of three
     with one_blas_thread():  # small per-frame products (gridstrain._threads)
@@ -922,7 +923,7 @@ def prefix_stacks(frames, lattice: Lattice, counts, *, method: str = "A",
     check_choice(method, "method", ("A", "B", "C"))
     wanted = _check_counts(counts)
     progress = progress or null_progress
-    acc = {"A": _MeanImage, "B": _PhaseMean, "C": lambda: _MethodC(lattice)}[method]()
+    acc = {"A": MeanImage, "B": _PhaseMean, "C": lambda: MethodC(lattice)}[method]()
     k = 0
     last = wanted[-1]
     n = 0
@@ -947,7 +948,7 @@ def prefix_stacks(frames, lattice: Lattice, counts, *, method: str = "A",
     raise ValueError(f"frames must hold at least {last} images (the largest count), got {n}")
 
 
-def _offsets(shifts, lattice: Lattice, *, exact: bool) -> np.ndarray:
+def phase_offsets(shifts, lattice: Lattice, *, exact: bool) -> np.ndarray:
     """Phase offsets ``(delta_1, delta_2)`` of a vibrated stack, rad (eqs. 28-30)."""
     sh = np.asarray(shifts, dtype=float)
     if sh.ndim != 2 or sh.shape[1] != 2 or sh.shape[0] < 1:
@@ -993,7 +994,7 @@ def correct_phases(maps, shifts, *, exact: bool = False):
     if not isinstance(maps, PhaseMaps):
         raise TypeError(f"maps must be a PhaseMaps or StackResult, got "
                         f"{type(maps).__name__}")
-    delta = _offsets(shifts, maps.lattice, exact=bool(exact))
+    delta = phase_offsets(shifts, maps.lattice, exact=bool(exact))
     rot = np.exp(-1j * delta).astype(maps.psi.dtype)[:, None, None]
     # dphi and valid are read-only arrays: sharing them cannot alter the input
     return PhaseMaps(psi=maps.psi * rot, dphi=maps.dphi, valid=maps.valid,

@@ -42,9 +42,9 @@ from scipy.linalg import blas
 from ..phase._transform import _kernels
 from ..phase.lattice import Lattice
 from ..wft import DEFAULT_MARGIN
-from ._methods import StackResult, _compensated_result, _FrameOrder, _PhaseMean
+from ._methods import FrameOrder, StackResult, _PhaseMean, compensated_result
 from .screening import FrameProbe, FrameScreen, decide
-from .vibration import _RigidProbe, _shift_matrix
+from .vibration import RigidProbe, shift_matrix
 
 __all__ = ["PassPlan", "SeriesPass", "SeriesStatistics"]
 
@@ -151,7 +151,7 @@ class SeriesPass:
         self.probe = FrameProbe(lat, self.shape, saturation_level=plan.saturation_level,
                                 scale=plan.scale, mask=plan.count_mask)
         self._c0 = self.probe.carrier(self.origin)  # the basis of every shift
-        self._M = _shift_matrix(lat)
+        self._M = shift_matrix(lat)
         self.records: dict = {}  # t -> FrameRecord
         self.theta: dict = {}  # t -> (2,) carrier phase advance against the origin, rad
         self.parts: dict = {}  # t -> (4, 2) quadrant shifts (method C), px
@@ -172,7 +172,7 @@ class SeriesPass:
         self._tmp = None  # scratch image
         self._rigid = None
         if plan.method == "C":
-            self._rigid = _RigidProbe(lat, self.shape)
+            self._rigid = RigidProbe(lat, self.shape)
             self._rigid(self.origin)  # quadrant shifts against the origin
         self.transforms = _PhaseMean() if plan.method == "B" else None
 
@@ -181,7 +181,7 @@ class SeriesPass:
     def _half(self, t: int) -> int:
         return 0 if t < self.plan.n_frames // 2 else 1
 
-    def add(self, t: int, frame, *, order: _FrameOrder | None = None,
+    def add(self, t: int, frame, *, order: FrameOrder | None = None,
             transform: bool = True) -> None:
         """Add frame ``t`` (its index in the series, from 0), (H, W) array of grey
         levels: float, or integers as read from the files (summed by the compiled
@@ -212,7 +212,7 @@ class SeriesPass:
         if transform and self.transforms is not None:
             self.add_transform(t, raw, order=order)
 
-    def add_transform(self, t: int, frame, *, order: _FrameOrder | None = None,
+    def add_transform(self, t: int, frame, *, order: FrameOrder | None = None,
                       remove: bool = False) -> None:
         """Add (or take out) method B's transform of frame ``t``; thread-safe."""
         p = self.plan
@@ -495,7 +495,7 @@ class SeriesPass:
         dtype = np.float64 if self.dtype is None else self.dtype
         if dtype.kind != "f":
             dtype = np.dtype(np.float64)
-        return _compensated_result(averages, centre, n, dtype, used, parts,
+        return compensated_result(averages, centre, n, dtype, used, parts,
                                    self.plan.lattice, sigma=sigma, mask=mask, margin=margin,
                                    warnings=())
 

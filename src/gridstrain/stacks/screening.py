@@ -49,12 +49,12 @@ import numpy as np
 
 from ..phase.lattice import Lattice
 from .vibration import (
-    _MIN_PROMINENCE,
-    _as_frame,
-    _CarrierProbe,
-    _iter_frames,
-    _shift_matrix,
-    _shifts_from_coefficients,
+    MIN_PROMINENCE,
+    CarrierProbe,
+    as_frame,
+    numbered_frames,
+    shift_matrix,
+    shifts_from_coefficients,
 )
 
 __all__ = ["FrameScreen", "Trend", "screen_frames"]
@@ -107,7 +107,7 @@ _TREND_FALSE_ALARM = 1e-6
 _TREND_DRIFT_FRACTION = _SLIP_FRACTION
 _TREND_GROWTH_PX = _RESIDUAL_FLOOR
 # Median absolute deviation of a Gaussian over its standard deviation.
-_MAD_TO_STD = 1.4826
+MAD_TO_STD = 1.4826
 
 
 def _p(p: float) -> str:
@@ -246,7 +246,7 @@ class FrameScreen:
         centred on their mean frame, as :func:`gridstrain.vibration.frame_shifts`
         gives them for those frames alone."""
         idx = np.arange(self.n_frames) if keep is None else np.asarray(keep, dtype=int)
-        return _shifts_from_coefficients(self.coefficients[idx], self.lattice)
+        return shifts_from_coefficients(self.coefficients[idx], self.lattice)
 
     def coherence(self, keep=None) -> np.ndarray:
         """(2,) ``|mean_t c_t| / mean_t |c_t|`` over the frames ``keep``: the fraction
@@ -373,8 +373,8 @@ def screen_frames(frames, lattice: Lattice, *, saturation_level: float | None = 
         raise ValueError(f"max_saturation must be a fraction in [0, 1], got {max_saturation!r}")
     m = None if mask is None else np.asarray(mask, dtype=bool)
     probe, shape, records = None, None, []
-    for t, frame in _iter_frames(frames):
-        arr = _as_frame(frame, shape, t)
+    for t, frame in numbered_frames(frames):
+        arr = as_frame(frame, shape, t)
         if probe is None:
             shape = arr.shape
             if m is not None and m.shape != shape:
@@ -441,7 +441,7 @@ class FrameProbe:
         self.mask = mask
         # a mask that keeps every pixel counts as none: no copy of the frame per frame
         self._count = None if mask is None or np.all(mask) else np.asarray(mask, dtype=bool)
-        self.carrier = _CarrierProbe(lattice, self.shape)
+        self.carrier = CarrierProbe(lattice, self.shape)
         self.tiles = _tiles(self.shape, lattice)
         # One product per column of tiles, of the frame's columns there with a (w, 10)
         # matrix: the whole frame's x sums over those columns (summed over the blocks
@@ -451,7 +451,7 @@ class FrameProbe:
         right = self.carrier._right
         self._blocks = [] if cols else [(slice(None), right)]
         for x0, x1 in cols:
-            tp = _CarrierProbe(lattice, (self.shape[0], x1 - x0))
+            tp = CarrierProbe(lattice, (self.shape[0], x1 - x0))
             self._blocks.append((slice(x0, x1),
                                  np.ascontiguousarray(np.hstack([right[x0:x1], tp._right]))))
         # per column of tiles, the y sums of every tile of the column at once: each
@@ -465,7 +465,7 @@ class FrameProbe:
             dc = np.empty((len(col), 2), dtype=np.complex128)
             wsum = np.empty(len(col))
             for n, (_, ys) in enumerate(col):
-                tp = _CarrierProbe(lattice, (ys.stop - ys.start, x1 - x0))
+                tp = CarrierProbe(lattice, (ys.stop - ys.start, x1 - x0))
                 wy[ys, n], ey[ys, n] = tp._wy, tp._ey
                 dc[n], wsum[n] = tp._dc, tp._wsum
             self._ysums.append(([i for i, _ in col], wy, ey, dc, wsum))
@@ -487,7 +487,7 @@ class FrameProbe:
         c = self.carrier.from_rows(whole)
         tiles = np.empty((len(self.tiles), 2), dtype=np.complex128)
         for Pj, (idx, wy, ey, dc, wsum) in zip(P, self._ysums, strict=False):
-            # as _CarrierProbe.from_rows, for the column's tiles together
+            # as CarrierProbe.from_rows, for the column's tiles together
             m = (Pj[:, 5] @ wy) / wsum  # (n,) window-weighted means
             rows = Pj[:, 6:8] - 1j * Pj[:, 8:10]  # (H, 2)
             tiles[idx] = np.einsum("hnj,hj->nj", ey, rows) - m[:, None] * dc
@@ -525,7 +525,7 @@ def decide(records, probe: FrameProbe, *, max_saturation: float = 0.01) -> Frame
     coeffs = np.array([r.coefficients for r in records])
     prom = np.array([r.prominence for r in records])
     uniform = [r.uniform for r in records]
-    grid = np.all(prom >= _MIN_PROMINENCE, axis=1) & ~np.array(uniform)
+    grid = np.all(prom >= MIN_PROMINENCE, axis=1) & ~np.array(uniform)
     if not grid.any():
         raise ValueError(f"no frame shows a grid at the lattice's wave vectors: the carrier "
                          f"stands at most {float(prom.min(axis=1).max()):.3g} times above the "
@@ -589,10 +589,10 @@ def _deviation(coeffs: np.ndarray, grid: np.ndarray, lattice: Lattice):
     inl = grid & np.all(np.abs(d) <= limit, axis=1)
     d = _wrap(d - d[inl].mean(axis=0))
     if inl.sum() >= 3:  # and their spread, robustly
-        spread = _MAD_TO_STD * np.median(np.abs(d[inl]), axis=0)
+        spread = MAD_TO_STD * np.median(np.abs(d[inl]), axis=0)
         limit = np.maximum(limit, _SLIP_SIGMAS * spread)
     slip = grid & np.any(np.abs(d) > limit, axis=1)
-    dev = d @ _shift_matrix(lattice).T
+    dev = d @ shift_matrix(lattice).T
     dev[~grid] = np.nan
     return dev, slip
 
@@ -623,7 +623,7 @@ def _residual(coeffs: np.ndarray, tiles: np.ndarray, centres: np.ndarray,
     psi = _wrap(psi - ref_psi)
     # each tile's displacement (x, y), px (eq. 2 inverted per tile), weighted by the
     # inverse phase-noise variance |C|^2 of its weaker wave vector
-    d = (psi @ _shift_matrix(lattice).T).reshape(T, 2 * n)
+    d = (psi @ shift_matrix(lattice).T).reshape(T, 2 * n)
     w = np.min(np.abs(ref_t) ** 2, axis=1)
     w = np.repeat(w / w.sum(), 2)  # per component, (2n,)
     r = _non_rigid(d, centres, w)
@@ -686,7 +686,7 @@ def _trend(coeffs: np.ndarray, tiles: np.ndarray, centres: np.ndarray,
     n = coeffs.shape[0]
     if n < 4:
         return None
-    M = _shift_matrix(lattice)
+    M = shift_matrix(lattice)
     theta = _unwrap_if_smooth(np.angle(coeffs * np.conj(coeffs.mean(axis=0))))
     shifts = theta @ M.T  # (n, 2) px
     b, p_drift = _slopes_test(shifts, 2)

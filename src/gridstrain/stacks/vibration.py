@@ -31,9 +31,9 @@ from ..phase.lattice import Lattice
 __all__ = ["VibrationReport", "frame_shifts", "vibration_report"]
 
 # A carrier coefficient must stand this many times above the white-noise level of
-# its frame (see _CarrierProbe.check): noise gives about 1 (a Rayleigh variable,
+# its frame (see CarrierProbe.check): noise gives about 1 (a Rayleigh variable,
 # above 4 once in 3000), the paper's grid 0.24 per pixel of side, i.e. 5 at 21 px.
-_MIN_PROMINENCE = 5.0
+MIN_PROMINENCE = 5.0
 
 
 def _apodisation(n: int) -> np.ndarray:
@@ -47,7 +47,7 @@ def _apodisation(n: int) -> np.ndarray:
     return np.sin(np.pi * (np.arange(n) + 0.5) / n) ** 4
 
 
-class _CarrierProbe:
+class CarrierProbe:
     """Global windowed Fourier coefficients of a frame at ``k1`` and ``k2``.
 
     ``c_j = sum_xi w(xi) (v(xi) - m) exp(-2 i pi k_j . xi)`` with the separable
@@ -121,14 +121,14 @@ class _CarrierProbe:
         scene without the grid, tens to hundreds for a grid.
         """
         prom = self.prominence(frame, self(frame))
-        if np.any(prom < _MIN_PROMINENCE):
+        if np.any(prom < MIN_PROMINENCE):
             raise ValueError(
                 f"{name} shows no grid at the lattice's wave vectors: the carrier stands "
                 f"only {float(prom.min()):.3g} times above the level of white noise "
                 f"(a grid gives tens to hundreds); check the lattice")
 
 
-def _as_frame(frame, shape, t: int) -> np.ndarray:
+def as_frame(frame, shape, t: int) -> np.ndarray:
     arr = as_image(frame, f"frames[{t}]", allow_uniform=True)
     if shape is not None and arr.shape != shape:
         raise ValueError(f"frames must all have the same shape; frames[0] has shape {shape}, "
@@ -136,7 +136,7 @@ def _as_frame(frame, shape, t: int) -> np.ndarray:
     return arr.astype(np.float64, copy=False)
 
 
-def _iter_frames(frames):
+def numbered_frames(frames):
     """Yield ``(t, frame)`` from a (T, H, W) array or an iterable of (H, W) arrays."""
     if isinstance(frames, np.ndarray) and frames.ndim != 3:
         raise ValueError(f"frames must be a (T, H, W) array or an iterable of (H, W) "
@@ -147,7 +147,7 @@ def _iter_frames(frames):
     yield from enumerate(frames)
 
 
-def _shift_matrix(lattice: Lattice) -> np.ndarray:
+def shift_matrix(lattice: Lattice) -> np.ndarray:
     """Matrix mapping the phase changes ``(dphi1, dphi2)`` (rad) to ``(a, b)`` (px)."""
     # dphi_j = 2 pi k_j . (a, b)  =>  (a, b) = K^-1 dphi / (2 pi)
     return np.linalg.inv(lattice.K) / (2 * np.pi)
@@ -227,17 +227,17 @@ def frame_shifts(frames, lattice: Lattice, *, reference=None) -> np.ndarray:
         check_same_shape(ref_img.shape, probe.shape, "reference", "the frames")
         probe.check(ref_img, "reference")
         ref = probe(ref_img)
-    return _shifts_from_coefficients(coeffs, lattice, ref)
+    return shifts_from_coefficients(coeffs, lattice, ref)
 
 
-def _shifts_from_coefficients(coeffs: np.ndarray, lattice: Lattice,
+def shifts_from_coefficients(coeffs: np.ndarray, lattice: Lattice,
                               ref: np.ndarray | None = None) -> np.ndarray:
     """(T, 2) shifts from the (T, 2) carrier coefficients of the frames, against the
     coefficients ``ref`` of a reference image, or centred on the mean frame (None)."""
     centred = ref is None
     ref = coeffs.mean(axis=0) if centred else ref
     dphi = np.angle(coeffs * np.conj(ref))  # (T, 2), eq. (2): +2 pi k.a
-    shifts = dphi @ _shift_matrix(lattice).T
+    shifts = dphi @ shift_matrix(lattice).T
     if centred:
         shifts -= shifts.mean(axis=0)
     return shifts
@@ -247,11 +247,11 @@ def _frame_coefficients(frames, lattice: Lattice):
     coeffs = []
     probe = None
     shape = None
-    for t, frame in _iter_frames(frames):
-        arr = _as_frame(frame, shape, t)
+    for t, frame in numbered_frames(frames):
+        arr = as_frame(frame, shape, t)
         if probe is None:
             shape = arr.shape
-            probe = _CarrierProbe(lattice, shape)
+            probe = CarrierProbe(lattice, shape)
             probe.check(arr, "frames[0]")
         coeffs.append(probe(arr))
     if probe is None:
@@ -352,10 +352,10 @@ def vibration_report(frames, lattice: Lattice) -> VibrationReport:
     T = shifts.shape[0]
     if T < 2:
         raise ValueError(f"frames must hold at least 2 frames to measure vibrations, got {T}")
-    return _report(shifts, lattice)
+    return shift_report(shifts, lattice)
 
 
-def _report(shifts: np.ndarray, lattice: Lattice, *, method: str = "A", name: str = "",
+def shift_report(shifts: np.ndarray, lattice: Lattice, *, method: str = "A", name: str = "",
             estimator: str = "gridstrain.vibration.frame_shifts") -> VibrationReport:
     """The :class:`VibrationReport` of the measured ``shifts`` (T, 2), px."""
     T = shifts.shape[0]
@@ -389,11 +389,11 @@ def _report(shifts: np.ndarray, lattice: Lattice, *, method: str = "A", name: st
 _MIN_QUADRANT = 32
 
 
-class _RigidProbe:
+class RigidProbe:
     """Streamed per-frame shifts from the carrier phases, and their departure from rigid.
 
     The frame is cut into 2 x 2 quadrants and each quadrant's shift is measured
-    from its own carrier coefficients (:class:`_CarrierProbe`), relative to the
+    from its own carrier coefficients (:class:`CarrierProbe`), relative to the
     first frame. The frame's rigid shift is their mean; their spread about it, once
     the static differences between quadrants (the grid's own phase modulation) are
     removed, measures a motion that is not a translation (a rotation turns the
@@ -405,12 +405,12 @@ class _RigidProbe:
     def __init__(self, lattice: Lattice, shape: tuple[int, int]):
         H, W = shape
         self._lattice = lattice
-        self._M = _shift_matrix(lattice)
+        self._M = shift_matrix(lattice)
         h, w = H // 2, W // 2
         if min(h, w) >= _MIN_QUADRANT:
             self.blocks = [np.s_[:h, :w], np.s_[:h, w:2 * w], np.s_[h:2 * h, :w],
                            np.s_[h:2 * h, w:2 * w]]
-            self._probe = _CarrierProbe(lattice, (h, w))
+            self._probe = CarrierProbe(lattice, (h, w))
             # the x sums of the left and the right quadrants in one product
             right = np.zeros((W, 10))
             right[:w, :5] = self._probe._right
@@ -419,7 +419,7 @@ class _RigidProbe:
             self._h = h
         else:
             self.blocks = None
-            self._probe = _CarrierProbe(lattice, (H, W))
+            self._probe = CarrierProbe(lattice, (H, W))
         self._shape = (H, W)
         self._ref = None
 
@@ -432,7 +432,7 @@ class _RigidProbe:
                     self._probe.check(frame[b], "frames[0]")
             except ValueError:
                 self.blocks = None
-                self._probe = _CarrierProbe(self._lattice, self._shape)
+                self._probe = CarrierProbe(self._lattice, self._shape)
         if self.blocks is None:
             if self._ref is None:
                 self._probe.check(frame, "frames[0]")
@@ -450,9 +450,9 @@ class _RigidProbe:
 
 # Kept for the noise estimator, which needs per-frame shifts while streaming (one
 # pass): shifts relative to the first frame, valid under the same half-period rule.
-def _streaming_shift(probe: _CarrierProbe, lattice: Lattice):
+def streaming_shift(probe: CarrierProbe, lattice: Lattice):
     state: dict[str, np.ndarray] = {}
-    M = _shift_matrix(lattice)
+    M = shift_matrix(lattice)
 
     def shift(frame: np.ndarray) -> np.ndarray:
         if "ref" not in state:

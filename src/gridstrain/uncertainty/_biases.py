@@ -357,27 +357,27 @@ def smoothing_bias(strain, valid, *, sigma: float) -> dict:
                           "Laplacian term itself"}
 
 
-def _nearest_filled(a: np.ndarray, valid: np.ndarray, nearest=None) -> np.ndarray:
+def nearest_filled(a: np.ndarray, valid: np.ndarray, nearest=None) -> np.ndarray:
     """``a`` with its invalid pixels set to the nearest valid pixel's value
-    (``nearest``: :func:`_nearest_index` of ``valid``, when known)."""
+    (``nearest``: :func:`nearest_index` of ``valid``, when known)."""
     if valid.all() or not valid.any():
         return np.where(valid, a, 0.0)
-    return a[_nearest_index(valid) if nearest is None else nearest]
+    return a[nearest_index(valid) if nearest is None else nearest]
 
 
-def _nearest_index(valid: np.ndarray) -> tuple:
+def nearest_index(valid: np.ndarray) -> tuple:
     """The index of each pixel's nearest valid pixel."""
     return tuple(ndimage.distance_transform_edt(~valid, return_distances=False,
                                                 return_indices=True))
 
 
-def _departure(e: np.ndarray, valid: np.ndarray, sigma: float, nearest=None) -> np.ndarray:
+def local_departure(e: np.ndarray, valid: np.ndarray, sigma: float, nearest=None) -> np.ndarray:
     """``e`` less its median over 8 sigma around, taken on a grid of step ``sigma``
     (a ridge 2 to 3 sigmas wide holds 3 of the 9 columns of the median's window,
     which keeps it out of its background at a sigma^2-th of the full median's
     cost); invalid pixels take their nearest valid neighbour's value
-    (``nearest``: :func:`_nearest_index` of ``valid``, when known)."""
-    f = _nearest_filled(np.asarray(e, dtype=np.float64), valid, nearest)
+    (``nearest``: :func:`nearest_index` of ``valid``, when known)."""
+    f = nearest_filled(np.asarray(e, dtype=np.float64), valid, nearest)
     step = max(1, int(sigma))
     coarse = f[::step, ::step]
     size = max(3, round(8.0 * sigma / step) | 1)

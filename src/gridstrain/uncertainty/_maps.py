@@ -211,11 +211,11 @@ def displacement_strain_std(reference: PhaseMaps, deformed: PhaseMaps, *, varian
     are formed. The arguments are those of :func:`predict_uncertainty`, already
     checked (``valid`` given).
     """
-    return _displacement_strain_std(_phase_variance(reference, variance_ref), deformed,
+    return std_from_phase_variance(phase_variance(reference, variance_ref), deformed,
                                     variance_def=variance_def, valid=valid)
 
 
-def _phase_variance(maps: PhaseMaps, variance) -> np.ndarray:
+def phase_variance(maps: PhaseMaps, variance) -> np.ndarray:
     """(2, H, W) variance of each wave vector's phase in ``maps``, rad^2, from the
     sensor's per-pixel ``variance`` (eq. 23): one side of
     :func:`displacement_strain_std`, made once for a reference measured against many
@@ -231,10 +231,10 @@ def _phase_variance(maps: PhaseMaps, variance) -> np.ndarray:
     return out
 
 
-def _displacement_strain_std(var_ref_phase: np.ndarray, deformed: PhaseMaps, *,
+def std_from_phase_variance(var_ref_phase: np.ndarray, deformed: PhaseMaps, *,
                              variance_def, valid) -> tuple[np.ndarray, np.ndarray]:
     """:func:`displacement_strain_std` with the reference's phase variance given
-    (:func:`_phase_variance`)."""
+    (:func:`phase_variance`)."""
     g2, dg2 = window_energy(deformed.sigma)
     shape = deformed.shape
     var_phase = var_ref_phase.copy()

@@ -26,7 +26,7 @@ from .._validation import (
     check_type,
 )
 from ..phase.lattice import Lattice, detect_lattice
-from ..stacks.vibration import _as_frame, _CarrierProbe, _iter_frames, _streaming_shift
+from ..stacks.vibration import CarrierProbe, as_frame, numbered_frames, streaming_shift
 
 __all__ = ["NOISE_RESULT_KIND", "NoiseModel", "anscombe", "estimate_noise", "inverse_anscombe"]
 
@@ -504,8 +504,8 @@ def _accumulate_stack(frames, lattice, shifts, degree, n_total, progress) -> dic
     T = 0
     buf = None  # frames minus the first, flushed into B by one matrix product
     nbuf = 0
-    for t, frame in _iter_frames(frames):
-        arr = _as_frame(frame, shape, t)
+    for t, frame in numbered_frames(frames):
+        arr = as_frame(frame, shape, t)
         if shape is None:
             shape = arr.shape
             v0 = arr.copy()
@@ -515,7 +515,7 @@ def _accumulate_stack(frames, lattice, shifts, degree, n_total, progress) -> dic
             buf = np.empty((max(1, min(16, _BUFFER_BYTES // (8 * arr.size))), arr.size))
             if degree > 0 and shifts is None:
                 lat = lattice if lattice is not None else detect_lattice(arr)
-                shift_fn = _streaming_shift(_CarrierProbe(lat, shape), lat)
+                shift_fn = streaming_shift(CarrierProbe(lat, shape), lat)
         if degree == 0:
             a = np.zeros(2)
         elif shifts is not None:

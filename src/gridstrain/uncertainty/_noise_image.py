@@ -20,7 +20,7 @@ from .._validation import (
     check_positive,
     check_type,
 )
-from ..phase._transform import _spectrum_block
+from ..phase._transform import spectrum_block
 from ..phase.lattice import Lattice, detect_lattice
 from ..wft import transfer_function
 from ._noise import _Q75, NoiseModel, _intervals, _settled, _wls
@@ -386,7 +386,7 @@ def _spectrum_at(F, rows, cols, W):
     takes its columns in increasing order."""
     order = np.argsort(cols, kind="stable")
     out = np.empty((rows.size, cols.size), dtype=F.dtype)
-    out[:, order] = _spectrum_block(F, rows, cols[order], W)
+    out[:, order] = spectrum_block(F, rows, cols[order], W)
     return out
 
 
