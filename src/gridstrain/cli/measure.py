@@ -33,16 +33,24 @@ from ..io import (
     read_noise_model,
     roi_mask,
 )
-from ..results._csv import save_csv
-from ..results._file import ResultFile, save_result
-from ..results._formats import export
-from ..results._result import MAP_FIELDS, SeriesResult
+from ..results import (
+    EXPORTS,
+    MAP_FIELDS,
+    ResultFile,
+    SeriesResult,
+    export,
+    save_csv,
+    save_result,
+)
 from ..sequences import state_inputs
-from ..series._inputs import state_names
-from ..series._loop import ORDERS, measure_series
-from ..series._outliers import OUTLIER_POLICIES
-from ..series._passes import reference_lattice
-from ..series._sinks import empty_state_message
+from ..series import (
+    ORDERS,
+    OUTLIER_POLICIES,
+    empty_state_message,
+    measure_series,
+    reference_lattice,
+    state_names,
+)
 from ..uncertainty import FWHM_PER_SIGMA, SPATIAL_RESOLUTION_PER_SIGMA
 from ..wft import DEFAULT_MARGIN
 from ._common import (
@@ -78,7 +86,7 @@ _CONFIG_KEYS = {
 # ``overwrite``, which only --overwrite on the command line turns on.
 _RUN_ONLY = ("output", "csv", "figures", "export", "report", "overwrite", "quiet", "json",
              "scheduler", "timeout")
-_EXPORTS = ("mat", "vtk", "csv")
+_EXPORTS = tuple(EXPORTS)
 
 # Seconds the command waits for a cluster's result of one series: an hour covers
 # thousands of method-B transforms on a few workers, and ends a stalled run.
@@ -458,7 +466,7 @@ def _check_outputs(opts: dict, n_states: int, inputs: set[Path]) -> None:
 
 
 def _export_path(out: Path, fmt: str) -> Path:
-    return out.with_suffix({"mat": ".mat", "vtk": ".pvd", "csv": ".csv"}[fmt])
+    return out.with_suffix(EXPORTS[fmt].suffix)
 
 
 def _toml_value(v) -> str:

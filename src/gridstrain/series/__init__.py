@@ -18,6 +18,7 @@ from ._inputs import state_names
 from ._loop import ORDERS, MeasureOptions, measure_series
 from ._outliers import OUTLIER_POLICIES
 from ._passes import reference_lattice
+from ._sinks import empty_state_message
 
-__all__ = ["ORDERS", "OUTLIER_POLICIES", "MeasureOptions", "measure_series", "reference_lattice",
-           "state_names"]
+__all__ = ["ORDERS", "OUTLIER_POLICIES", "MeasureOptions", "empty_state_message", "measure_series",
+           "reference_lattice", "state_names"]

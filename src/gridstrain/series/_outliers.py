@@ -10,7 +10,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..stacks.accumulate import SeriesPass
-from ..stacks.screening import FrameScreen
+from ..stacks.screening import CHECKS, FrameScreen
 
 #: What ``outliers`` may say to do with the frames the screening flags.
 OUTLIER_POLICIES = ("exclude", "refuse", "warn")
@@ -106,23 +106,14 @@ def _screen_pass(s, acc: SeriesPass, max_saturation: float, outliers: str):
                      warnings=tuple(warnings)), acc
 
 
-# What the user can do about a flagged frame, by what its reason says.
-_ADVICE = (("uniform", "remove the blank frames"), ("shows no grid", "remove the blank frames"),
-           ("low grid contrast", "remove the dark or blurred frames"),
-           ("rigid shift", "measure the frames before and after the slip as two series"),
-           ("non-rigid", "move the frames of another state to their own series"),
-           ("pixels saturated", "shorten the exposure, mask the saturated area, or accept "
-            "more clipped pixels with max_saturation= (--max-saturation FRACTION: photos of "
-            "white paper clip between the lines, and the phase stays measurable there)"))
-
-
 def _advice(sc, bad) -> str:
+    """What to do about the frames ``bad``: the advice of each check they fail."""
     out = []
     for t in bad:
-        for reason in sc.reasons[t]:
-            for key, what in _ADVICE:
-                if key in reason and what not in out:
-                    out.append(what)
+        for flag in sc.flags[t]:
+            what = CHECKS[flag].advice
+            if what not in out:
+                out.append(what)
     return "; ".join(out) or "remove or re-take them"
 
 

@@ -116,6 +116,36 @@ def _p(p: float) -> str:
 
 
 @dataclass(frozen=True)
+class Check:
+    """One check of the screening: the flag it raises on a frame, what to do about the
+    frames it flags, and its threshold (None where the series or the caller sets it)."""
+
+    flag: str
+    advice: str
+    threshold: float | None = None
+
+
+#: The screening's checks, by flag, in the order a frame's reasons are listed: a frame
+#: with a carrier below ``MIN_PROMINENCE`` times white noise shows no grid; a modulus
+#: below ``_LOW_CONTRAST`` of the series' median is a low contrast; a rigid shift of
+#: ``_SLIP_FRACTION`` of a pitch is a slip; a non-rigid residual ``_RESIDUAL_FACTOR``
+#: times the series' median is a frame of another state; the saturated fraction is
+#: the caller's ``max_saturation``.
+CHECKS = {c.flag: c for c in (
+    Check("uniform", "remove the blank frames"),
+    Check("no grid", "remove the blank frames", MIN_PROMINENCE),
+    Check("low contrast", "remove the dark or blurred frames", _LOW_CONTRAST),
+    Check("slip", "measure the frames before and after the slip as two series",
+          _SLIP_FRACTION),
+    Check("other state", "move the frames of another state to their own series",
+          _RESIDUAL_FACTOR),
+    Check("saturated", "shorten the exposure, mask the saturated area, or accept more "
+          "clipped pixels with max_saturation= (--max-saturation FRACTION: photos of white "
+          "paper clip between the lines, and the phase stays measurable there)"),
+)}
+
+
+@dataclass(frozen=True)
 class Trend:
     """Whether a series' frames are a sequence: a linear trend in frame order.
 
@@ -204,6 +234,8 @@ class FrameScreen:
     trend : Trend or None
         The test of the frames unflagged, in order, for a steady drift or a
         growing deformation (None with fewer than four of them).
+    flags : tuple of tuple of str
+        Per frame, the flags of the checks it fails (:data:`CHECKS`), one per reason.
     """
 
     coefficients: np.ndarray
@@ -216,6 +248,7 @@ class FrameScreen:
     reasons: tuple[tuple[str, ...], ...]
     lattice: Lattice
     trend: Trend | None = None
+    flags: tuple[tuple[str, ...], ...] = ()
 
     def __post_init__(self):
         for name in ("coefficients", "deviation", "modulus_ratio", "prominence",
@@ -541,39 +574,46 @@ def decide(records, probe: FrameProbe, *, max_saturation: float = 0.01) -> Frame
     residual = _residual(coeffs, tile_c, centres, grid, lattice)
     sat = np.array([r.saturated for r in records], dtype=np.float64)
     clip = np.array([r.clip_level for r in records], dtype=np.float64)
-    reasons = []
+    reasons, flags = [], []
     res_ok = residual[grid & np.isfinite(residual)]
     res_median = float(np.median(res_ok)) if res_ok.size >= 3 else math.nan
     factor = _RESIDUAL_FACTOR if len(tiles) > _FEW_TILES else _RESIDUAL_FACTOR_FEW_TILES
     res_limit = max(factor * res_median, _RESIDUAL_FLOOR) if res_ok.size >= 3 else math.inf
     for t in range(T):
-        r = []
+        r, f = [], []
         if uniform[t]:
             r.append("uniform (no grey-level variation)")
+            f.append("uniform")
         elif not grid[t]:
+            f.append("no grid")
             r.append(f"shows no grid (its carrier stands {float(prom[t].min()):.3g} times "
                      f"above white noise, a grid's tens to hundreds)")
         elif ratio[t].min() < _LOW_CONTRAST:
+            f.append("low contrast")
             r.append(f"low grid contrast ({float(ratio[t].min()):.2f} of the series' median "
                      "modulus: dark, defocused or occluded?)")
         if grid[t] and slip[t]:
+            f.append("slip")
             r.append(f"rigid shift ({dev[t, 0]:+.2f}, {dev[t, 1]:+.2f}) px from the other "
                      "frames (modulo a pitch): the grid or camera slipped")
         if grid[t] and residual[t] > res_limit:
+            f.append("other state")
             r.append(f"non-rigid displacement {residual[t]:.2g} px rms against the "
                      f"other frames (typical {res_median:.2g} px): a frame of another "
                      "state?")
         if sat[t] > max_saturation:
             below = saturation_level is not None and clip[t] < saturation_level
+            f.append("saturated")
             r.append(f"{sat[t]:.2%} of its pixels saturated (clipped at {clip[t]:g}"
                      + (f"{_level_name(clip[t], scale)}, below the files' range: a camera "
                         "of fewer bits?" if below else "")
                      + f"), more than max_saturation={max_saturation:.2%}")
         reasons.append(tuple(r))
+        flags.append(tuple(f))
     kept = np.array([grid[t] and not reasons[t] for t in range(T)])
     return FrameScreen(coefficients=coeffs, deviation=dev, modulus_ratio=ratio,
                        prominence=prom, residual=residual, saturated=sat, clip_level=clip,
-                       reasons=tuple(reasons), lattice=lattice,
+                       reasons=tuple(reasons), flags=tuple(flags), lattice=lattice,
                        trend=_trend(coeffs[kept], tile_c[kept], centres, lattice))
 
 
