@@ -20,8 +20,9 @@ from scipy import ndimage
 from gridstrain import Lattice, synthetic, wft
 from gridstrain._stats import median as _median
 from gridstrain._stats import row_medians
-from gridstrain.phase._transform import _wft, transfer_function
-from gridstrain.phase._transform import spectrum_block as _spectrum_block
+from gridstrain.phase._spectrum import spectrum_block as _spectrum_block
+from gridstrain.phase._spectrum import transfer_function
+from gridstrain.phase._transform import _wft
 from gridstrain.stacks import method_b
 
 

@@ -25,7 +25,7 @@ from .._validation import (
     check_type,
     check_workers,
 )
-from ..phase._transform import demodulated_at
+from ..phase._maps import demodulated_at
 from ..phase.lattice import Lattice, detect_lattice, reference_carrier, state_carrier
 from ..wft import DEFAULT_MARGIN, PhaseMaps, wft
 from ._fringe_order import (

@@ -10,16 +10,9 @@ transform (paper eqs. 22-25).
 
 from __future__ import annotations
 
-from ._transform import (
-    DEFAULT_MARGIN,
-    PhaseMaps,
-    demodulated_at,
-    finite_derivatives,
-    transfer_function,
-    transform,
-    wft,
-    wft_complex,
-)
+from ._maps import PhaseMaps, demodulated_at, finite_derivatives
+from ._spectrum import transfer_function
+from ._transform import DEFAULT_MARGIN, transform, wft, wft_complex
 from .lattice import Lattice, detect_lattice, follow_lattice
 from .window import MIN_MODULUS, Window
 

@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import functools
 import importlib
-import itertools
 import math
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
@@ -18,10 +17,8 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.lib.stride_tricks import as_strided
 from scipy import fft as sfft
-from scipy import ndimage
 
 from .. import _fft
-from .._stats import median
 from .._validation import (
     as_image,
     check_choice,
@@ -31,6 +28,10 @@ from .._validation import (
     check_type,
     check_workers,
 )
+from ._exact import _ifft, _one_wave_vector, _one_wave_vector_central
+from ._maps import PhaseMaps
+from ._spectrum import _axis_band, spectrum_block, transfer_function
+from ._validity import _gaps, _region, _shows_grid
 from .lattice import Lattice
 from .window import DEFAULT_MARGIN, MIN_MODULUS, Window
 
@@ -39,170 +40,12 @@ __all__ = ["DEFAULT_MARGIN", "PhaseMaps", "transfer_function", "wft", "wft_compl
 # Spatial padding, in window standard deviations, added before the circular FFT
 # convolution: the wrapped-around tail of the Gaussian then weighs exp(-8^2/2) ~ 1e-14.
 _PAD_SIGMAS = 8.0
-# Transfer-function values below this (relative to its peak of 1) are flushed to zero:
-# they would change the result by less than 1e-16 relative, and as denormals they
-# would only slow the FFT down.
-_FLUSH = 1e-16
 # Bytes of one block of rows of the final inverse FFTs (three transforms): small
 # enough for the block and its products to stay in cache between the FFT and the
 # products instead of streaming through memory (2x faster than whole images).
 _CHUNK_BYTES = 2**21
 
 
-@dataclass(frozen=True, eq=False)
-class PhaseMaps:
-    """Windowed Fourier transform of one grid image (or of a stack, averaged).
-
-    Attributes
-    ----------
-    psi : (2, H, W) complex ndarray
-        ``Psi_k1`` and ``Psi_k2`` (eqs. 22-23), demodulated by the absolute carrier,
-        grey levels. Defined at every pixel; trust it only where ``valid``.
-    dphi : (2, 2, H, W) float ndarray
-        Phase derivatives, rad/px: ``dphi[j, 0] = d phi_j / dx`` and
-        ``dphi[j, 1] = d phi_j / dy``, computed from the analytic derivative of the
-        window, or from a least-squares differentiator of ``Psi`` (``wft``'s
-        ``derivatives`` option), without unwrapping.
-    valid : (H, W) bool ndarray
-        Pixels whose window lies inside the image and the mask (up to ``margin``
-        standard deviations) and whose moduli show a grid.
-    lattice : Lattice
-        The wave vectors used.
-    sigma : float
-        Window standard deviation, px.
-    """
-
-    psi: np.ndarray
-    dphi: np.ndarray
-    valid: np.ndarray
-    lattice: Lattice
-    sigma: float
-
-    def __post_init__(self):
-        for name in ("psi", "dphi", "valid"):
-            getattr(self, name).flags.writeable = False
-
-    @property
-    def shape(self) -> tuple[int, int]:
-        """Image shape ``(H, W)``."""
-        return self.valid.shape
-
-    @property
-    def phase(self) -> np.ndarray:
-        """(2, H, W) wrapped phases ``arg Psi_k`` in (-pi, pi], rad."""
-        return np.angle(self.psi)
-
-    @property
-    def modulus(self) -> np.ndarray:
-        """(2, H, W) moduli ``|Psi_k|``, grey levels."""
-        return np.abs(self.psi)
-
-    def __repr__(self) -> str:
-        H, W = self.shape
-        return (f"PhaseMaps({H}x{W}, sigma={self.sigma:.4g} px, "
-                f"{self.valid.mean():.1%} valid, {self.lattice!r})")
-
-
-def transfer_function(nu, sigma: float, *, derivative: bool = False) -> np.ndarray:
-    """1-D transfer function of the sampled, unit-sum Gaussian window.
-
-    Parameters
-    ----------
-    nu : array_like
-        Frequencies, cycles/px.
-    sigma : float
-        Standard deviation of the window, px.
-    derivative : bool
-        If True, the transfer function of the sampled derivative of the window
-        (``2 i pi nu`` times the Gaussian's), periodised the same way.
-
-    Returns
-    -------
-    ndarray
-        ``sum_j G(nu + j) / sum_j G(j)`` with ``G(nu) = exp(-2 pi^2 sigma^2 nu^2)``:
-        sampling the Gaussian periodises its spectrum, and dividing by its value at 0
-        makes the sampled window sum to exactly 1. Values below 1e-16 are zero.
-    """
-    nu = np.asarray(nu, dtype=float)
-    a = 2.0 * math.pi**2 * sigma**2
-    out = np.zeros(nu.shape, dtype=complex if derivative else float)
-    for j in (-2, -1, 0, 1, 2):  # |j| = 3 weighs exp(-2 pi^2 sigma^2 * 6.25) < 1e-200
-        g = np.exp(-a * (nu + j) ** 2)
-        out += 2j * math.pi * (nu + j) * g if derivative else g
-    norm = sum(math.exp(-a * j * j) for j in (-2, -1, 0, 1, 2))
-    out /= norm
-    out[np.abs(out) < _FLUSH] = 0
-    return out
-
-
-def _axis_band(n: int, k: float, sigma: float):
-    """One axis of the band where the window's transfer function ``G(f - k)`` is non-zero.
-
-    Returns ``(idx, runs, nu, shift)``: the FFT indices of the band; the band as
-    ``(dst, src)`` slice pairs placing entry ``src`` of ``idx`` at ``dst`` in a spectrum
-    shifted down by ``shift`` bins (the bin nearest ``k``, so that the inverse FFT
-    comes out demodulated by ``exp(-2 i pi shift x / n)``); and ``nu = f - k`` on the
-    band, cycles/px.
-    """
-    nu_all = (sfft.fftfreq(n) - k + 0.5) % 1.0 - 0.5
-    idx = np.flatnonzero(transfer_function(nu_all, sigma))
-    shift = round(k * n)
-    pos = (idx - shift) % n
-    # pos is circularly contiguous (the transfer function decreases with |nu|):
-    # cut it into the runs where it increases by one, to copy with slices
-    cuts = np.flatnonzero(np.diff(pos) != 1) + 1
-    bounds = [0, *cuts.tolist(), idx.size]
-    runs = [(slice(int(pos[i]), int(pos[j - 1]) + 1), slice(i, j))
-            for i, j in itertools.pairwise(bounds)]
-    return idx, runs, nu_all[idx], shift
-
-
-def spectrum_block(V: np.ndarray, rows: np.ndarray, cols: np.ndarray, nx: int) -> np.ndarray:
-    """Block ``rows x cols`` of the full 2-D DFT of a real image, from its rfft2 ``V``.
-
-    Copied run by run with slices: the band's indices are a few arithmetic runs, and
-    fancy indexing would gather element by element.
-    """
-    ny, nh = V.shape
-    out = np.empty((rows.size, cols.size), dtype=V.dtype)
-    neg = cols >= nh
-    # cols is sorted: the positive frequencies come first, the negative ones last
-    n_pos = int(np.count_nonzero(~neg))
-    for conj in (False, True):
-        off = n_pos if conj else 0
-        sel = cols[n_pos:] if conj else cols[:n_pos]
-        # X[r, c] = conj(X[-r, -c]) for a real image
-        r_src = (-rows) % ny if conj else rows
-        c_src = nx - sel if conj else sel
-        for r_out, r_in in _runs(r_src):
-            for c_out, c_in in _runs(c_src):
-                dst = out[r_out, off + c_out.start:off + c_out.stop]
-                if conj:
-                    np.conjugate(V[r_in, c_in], out=dst)
-                else:
-                    dst[...] = V[r_in, c_in]
-    return out
-
-
-def _runs(idx: np.ndarray):
-    """``(position, source)`` slice pairs covering ``idx`` by runs of step +1 or -1."""
-    n = idx.size
-    if n == 0:
-        return
-    step = np.diff(idx)
-    start = 0
-    while start < n:
-        stop = start + 1
-        if stop < n and abs(step[start]) == 1:
-            s = int(step[start])
-            while stop < n and step[stop - 1] == s:
-                stop += 1
-        else:
-            s = 1
-        first, last = int(idx[start]), int(idx[stop - 1])
-        end = last + s
-        yield slice(start, stop), slice(first, None if end < 0 else end, s)
-        start = stop
 
 
 def wft(image, lattice: Lattice, *, sigma: float | None = None, mask=None,
@@ -426,7 +269,8 @@ def _wft(image, lattice: Lattice, *, sigma: float | None = None, mask=None,
                                       chunk=max(8, _FAST_CHUNK_BYTES // (nx * cdtype.itemsize)))
             elif derivatives == "central":
                 _one_wave_vector_central(V, k, sigma, H, W, nx, psi[j], dphi[j], mods[j],
-                                         works[j])
+                                         works[j],
+                                         chunk=max(8, _CHUNK_BYTES // (nx * cdtype.itemsize)))
             else:
                 out = None if sink is None else (
                     lambda r0, r1, p, d, md: sink(j, r0, r1, p, d, md))
@@ -444,26 +288,6 @@ def _wft(image, lattice: Lattice, *, sigma: float | None = None, mask=None,
         return valid
     return PhaseMaps(psi=psi, dphi=dphi, valid=valid, lattice=lattice, sigma=float(sigma))
 
-
-def _region(m: np.ndarray, full: bool, radius: float):
-    """Pixels farther than ``radius`` px from the border and the mask's edges, and
-    the box they fill when the mask is full (None otherwise)."""
-    if full:
-        valid, box = _valid_rectangle(*m.shape, radius)
-        return valid, (np.s_[:, :] if box is None else box)
-    return _valid_region(m, radius), None
-
-
-def _shows_grid(mods, valid: np.ndarray, box, m: np.ndarray, min_modulus: float) -> np.ndarray:
-    """Where both moduli reach ``min_modulus`` times their median over the region
-    valid by its distance to the edges (sliced while it is a box, rather than
-    gathered through a mask; the mask when no pixel is far enough from an edge)."""
-    any_valid = bool(valid.any())
-    keep = np.ones(valid.shape, dtype=bool)
-    for mod in mods:
-        values = mod[box] if box is not None else mod[valid] if any_valid else mod[m]
-        keep &= mod >= min_modulus * median(values)
-    return keep
 
 
 def wft_complex(images, lattice: Lattice, *, sigma: float | None = None, mask=None,
@@ -548,50 +372,6 @@ def wft_complex(images, lattice: Lattice, *, sigma: float | None = None, mask=No
                      sigma=float(sigma))
 
 
-def demodulated_at(pm: PhaseMaps, lattice: Lattice) -> PhaseMaps:
-    """``pm``'s maps as demodulated by ``lattice``'s carrier rather than its own.
-
-    ``Psi_k(x) = sum_xi v(xi) g(xi - x) exp(-2 i pi k . xi)`` (conventions): moving
-    the carrier from ``k`` to ``k'`` multiplies ``Psi`` by ``exp(2 i pi (k - k') .
-    x)`` and adds ``2 pi (k - k')`` to the phase derivatives, exactly where the
-    grid's amplitude is uniform under the window. Where it is not (lighting, print,
-    a hole's edge), a window centred off the grid's own carrier weighs its sides
-    unequally and biases the phase by about ``2 pi dk . sigma^2 grad ln A``: a
-    homogeneous strain of 10 % under lighting falling by half over 100 px, 0.01 px
-    at sigma = 5 px. Transforming each state at its own carrier
-    (:func:`gridstrain.lattice.follow_lattice`) and bringing the maps to the
-    reference's lattice with this function avoids that bias.
-    """
-    dk = np.array(pm.lattice.K) - np.array(lattice.K)  # (2 wave vectors, (x, y))
-    H, W = pm.shape
-    psi = np.array(pm.psi)  # a copy: the maps are read-only
-    dphi = np.array(pm.dphi)
-    ctype = psi.dtype
-    x = np.arange(W, dtype=np.float64)
-    y = np.arange(H, dtype=np.float64)
-    for j in range(2):
-        psi[j] *= np.exp(2j * np.pi * dk[j, 0] * x).astype(ctype)[None, :]
-        psi[j] *= np.exp(2j * np.pi * dk[j, 1] * y).astype(ctype)[:, None]
-        dphi[j, 0] += 2 * np.pi * dk[j, 0]
-        dphi[j, 1] += 2 * np.pi * dk[j, 1]
-    return PhaseMaps(psi=psi, dphi=dphi, valid=np.array(pm.valid), lattice=lattice,
-                     sigma=pm.sigma)
-
-
-def finite_derivatives(pm: PhaseMaps) -> PhaseMaps:
-    """``pm`` with its undefined derivatives (where ``psi = 0``) set to 0 and invalid.
-
-    Far inside a large masked region the transform is exactly 0 and its phase
-    derivatives are 0/0; a spline's prefilter (the kinematics interpolate the
-    deformed maps) would spread a single NaN over whole rows and columns.
-    """
-    ok = np.isfinite(pm.dphi)
-    if ok.all():
-        return pm
-    return PhaseMaps(psi=pm.psi, dphi=np.where(ok, pm.dphi, 0).astype(pm.dphi.dtype),
-                     valid=pm.valid & ok.all(axis=(0, 1)), lattice=pm.lattice,
-                     sigma=pm.sigma)
-
 
 class Workspace:
     """Scratch arrays reused from one wave vector to the next (named flat buffers)."""
@@ -637,170 +417,6 @@ def _padded_rfft2(img: np.ndarray, m: np.ndarray, full: bool, ny: int, nx: int,
     V[H:] = 0
     return _fft.call("fft", V, axis=0, overwrite_x=True, workers=1)
 
-
-def _ifft(x: np.ndarray, axis: int) -> np.ndarray:
-    """In-place-allowed 1-D inverse FFT along ``axis``, on the chosen implementation."""
-    return _fft.call("ifft", x, axis=axis, overwrite_x=True, workers=1)
-
-
-def _one_wave_vector(V, k, sigma, H, W, nx, psi, dphi, mod, work, *, chunk: int,
-                     sink=None):
-    """Fill ``psi`` (H, W), ``dphi`` (2, H, W) and ``mod`` (H, W) for the wave vector ``k``.
-
-    With ``sink``, ``psi`` and ``dphi`` hold one block of ``chunk`` rows: each block
-    is computed there, then handed to ``sink(r0, r1, psi, dphi, mod)`` (``mod`` is
-    still filled whole: the validity test needs its median).
-
-    The filtered spectrum is non-zero only on a band of rows x cols around ``k``, and
-    the window is separable: one inverse FFT along y of the band's columns for the
-    window and one for its y-derivative, then inverse FFTs along x of the image's
-    rows for ``Psi``, ``dPsi/dx`` and ``dPsi/dy``. Shifting the band down to the bins
-    nearest ``k`` demodulates by the carrier up to a residual of less than half a
-    bin, applied to the y-transform and to ``Psi``.
-    """
-    ny = V.shape[0]
-    cdtype = V.dtype
-    rows, yruns, nuy, sy = _axis_band(ny, k[1], sigma)
-    cols, xruns, nux, sx = _axis_band(nx, k[0], sigma)
-    # a complex image's full spectrum (wft_complex), or a real one's half spectrum
-    block = V[np.ix_(rows, cols)] if V.shape[1] == nx else spectrum_block(V, rows, cols, nx)
-    # complex transfer values: a complex times real product would go through a
-    # slow mixed-type loop
-    gy = transfer_function(nuy, sigma).astype(cdtype)
-    dgy = transfer_function(nuy, sigma, derivative=True).astype(cdtype)
-    gx = transfer_function(nux, sigma).astype(cdtype)
-    dgx = transfer_function(nux, sigma, derivative=True).astype(cdtype)
-
-    # along y: window and its derivative, for the band's columns only. The x-window
-    # is applied here too, on the small band, so that the blocks along x below are
-    # mostly copies; dPsi/dx then needs dgx / gx (~ 2 i pi nu, finite on the band).
-    block *= gx
-    Y = work.get("Y", (2, ny, cols.size), cdtype)
-    for gap in _gaps(yruns, ny):
-        Y[:, gap] = 0
-    for dst, src in yruns:
-        np.multiply(block[src], gy[src, None], out=Y[0, dst])
-        np.multiply(block[src], dgy[src, None], out=Y[1, dst])
-    ratio = (dgx / gx).astype(cdtype)
-    A = _ifft(Y, 1)[:, :H]
-    ry = sy / ny - k[1]
-    if ry != 0:
-        A *= np.exp(2j * math.pi * ry * np.arange(H)).astype(cdtype)[:, None]
-    rx = sx / nx - k[0]
-    ex = np.exp(2j * math.pi * rx * np.arange(W)).astype(cdtype) if rx != 0 else None
-
-    # along x, by blocks of rows: Psi, dPsi/dx, dPsi/dy. One buffer serves every block
-    # (the in-place FFT overwrites it, so the columns outside the band are re-zeroed).
-    X = work.get("X", (3, min(chunk, H), nx), cdtype)
-    gaps = _gaps(xruns, nx)
-    cc = work.get("cc", (min(chunk, H), W), cdtype)
-    prod = work.get("prod", (2, min(chunk, H), W), cdtype)
-    rinv = work.get("rinv", (min(chunk, H), W), mod.dtype)
-    for r0 in range(0, H, chunk):
-        r1 = min(r0 + chunk, H)
-        h = r1 - r0
-        Xh = X[:, :h]
-        for gap in gaps:
-            Xh[:, :, gap] = 0
-        for dst, src in xruns:
-            Xh[0, :, dst] = A[0, r0:r1, src]
-            np.multiply(A[0, r0:r1, src], ratio[src], out=Xh[1, :, dst])
-            Xh[2, :, dst] = A[1, r0:r1, src]
-        out = _ifft(Xh, 2)
-        c = out[0, :, :W]
-        ps, dp = (psi[r0:r1], dphi[:, r0:r1]) if sink is None else (psi[:h], dphi[:, :h])
-        if ex is None:
-            ps[...] = c
-        else:
-            np.multiply(c, ex, out=ps)
-        np.abs(c, out=mod[r0:r1])
-        # d phi = Im(conj(c) dc) / |c|^2: exact for the sampled window, no unwrapping
-        ch = cc[:h]
-        np.conjugate(c, out=ch)
-        ph = prod[:, :h]
-        np.multiply(out[1:, :, :W], ch, out=ph)
-        # in the maps' own precision: a float32 frame runs float32 loops throughout
-        inv = np.square(mod[r0:r1], out=rinv[:h])
-        np.reciprocal(inv, out=inv)  # inf where Psi = 0: d phi is NaN there, as 0/0
-        np.multiply(ph.imag, inv, out=dp)
-        if sink is not None:
-            sink(r0, r1, ps, dp, mod[r0:r1])
-
-
-def _one_wave_vector_central(V, k, sigma, H, W, nx, psi, dphi, mod, work, *,
-                             chunk: int | None = None):
-    """:func:`_one_wave_vector` with central-difference derivatives (see :func:`_wft`).
-
-    Only ``Psi`` is transformed, by blocks of rows with one more row above and below,
-    and the differences at the image's edge use the transform just outside it (that
-    of the zero-extended image), as the exact path does.
-    """
-    ny = V.shape[0]
-    cdtype = V.dtype
-    if chunk is None:
-        chunk = max(8, _CHUNK_BYTES // (nx * cdtype.itemsize))
-    rows, yruns, nuy, sy = _axis_band(ny, k[1], sigma)
-    cols, xruns, nux, sx = _axis_band(nx, k[0], sigma)
-    block = spectrum_block(V, rows, cols, nx)
-    block *= transfer_function(nux, sigma).astype(cdtype)
-    gy = transfer_function(nuy, sigma).astype(cdtype)
-    Y = work.get("Y", (ny, cols.size), cdtype)
-    for gap in _gaps(yruns, ny):
-        Y[gap] = 0
-    for dst, src in yruns:
-        np.multiply(block[src], gy[src, None], out=Y[dst])
-    A = _ifft(Y, 0)
-    # rows -1 .. H (row -1 of the periodic transform is row ny - 1), demodulated
-    # along y by the residual (less than half a bin) left by the shift of the band
-    Ae = work.get("Ae", (H + 2, cols.size), cdtype)
-    Ae[0] = A[ny - 1]
-    Ae[1:] = A[:H + 1]
-    ry = sy / ny - k[1]
-    if ry != 0:
-        Ae *= np.exp(2j * math.pi * ry * np.arange(-1, H + 1)).astype(cdtype)[:, None]
-    # along x the residual stays in c; it enters the differences as exp(+-i theta)
-    theta = 2 * math.pi * (sx / nx - k[0])
-    ex = np.exp(1j * theta * np.arange(W)).astype(cdtype) if theta != 0 else None
-    turn = cdtype.type(np.exp(1j * theta))
-    gaps = _gaps(xruns, nx)
-    h_max = min(chunk, H)
-    X = work.get("X", (h_max + 2, nx), cdtype)
-    cc = work.get("cc", (h_max, W), cdtype)
-    prod = work.get("prod", (2, h_max, W), cdtype)
-    for r0 in range(0, H, chunk):
-        r1 = min(r0 + chunk, H)
-        h = r1 - r0
-        Xh = X[:h + 2]
-        for gap in gaps:
-            Xh[:, gap] = 0
-        for dst, src in xruns:
-            Xh[:, dst] = Ae[r0:r1 + 2, src]
-        out = _ifft(Xh, 1)
-        c = out[1:-1, :W]
-        if ex is None:
-            psi[r0:r1] = c
-        else:
-            np.multiply(c, ex, out=psi[r0:r1])
-        np.abs(c, out=mod[r0:r1])
-        ch = cc[:h]
-        np.conjugate(c, out=ch)
-        ph = prod[:, :h]
-        # x: c[x + 1] - c[x - 1], where x = -1 is column nx - 1 of the periodic transform
-        d = ph[0]
-        if ex is None:
-            np.subtract(out[1:-1, 2:W + 1], out[1:-1, :W - 1], out=d[:, 1:])
-            np.subtract(out[1:-1, 1], out[1:-1, nx - 1], out=d[:, 0])
-        else:
-            np.multiply(out[1:-1, 1:W + 1], turn, out=d)
-            d[:, 1:] -= out[1:-1, :W - 1] * np.conj(turn)
-            d[:, 0] -= out[1:-1, nx - 1] * np.conj(turn)
-        np.subtract(out[2:, :W], out[:-2, :W], out=ph[1])
-        ph *= ch
-        # in the maps' own precision: float32 loops for a float32 frame
-        inv = np.square(mod[r0:r1])
-        np.reciprocal(inv, out=inv)
-        inv *= inv.dtype.type(0.5)
-        np.multiply(ph.imag, inv, out=dphi[:, r0:r1])
 
 
 # Phase derivatives from Psi alone ("fast"): a least-squares differentiator of a few
@@ -1157,44 +773,3 @@ def _ifft_into(x: np.ndarray, axis: int):
         x[...] = out
 
 
-def _gaps(runs, n: int) -> list[slice]:
-    """Slices of ``range(n)`` that no ``dst`` run of :func:`_axis_band` covers."""
-    covered = sorted((d.start, d.stop) for d, _ in runs)
-    gaps, pos = [], 0
-    for start, stop in covered:
-        if start > pos:
-            gaps.append(slice(pos, start))
-        pos = max(pos, stop)
-    if pos < n:
-        gaps.append(slice(pos, n))
-    return gaps
-
-
-def _valid_rectangle(H: int, W: int, radius: float):
-    """:func:`_valid_region` of a full mask (a new array), and the box of rows x cols
-    it covers.
-
-    The distance to the nearest pixel outside the image is the distance to the
-    nearest border, so the region is a box; no distance transform is needed.
-    """
-    valid, box = _rectangle(H, W, float(radius))
-    return valid.copy(), box
-
-
-@functools.lru_cache(maxsize=8)
-def _rectangle(H: int, W: int, radius: float):
-    # the same for every frame of a stack: made once (the caller copies it)
-    oky = np.minimum(np.arange(H) + 1, H - np.arange(H)) > radius
-    okx = np.minimum(np.arange(W) + 1, W - np.arange(W)) > radius
-    valid = oky[:, None] & okx[None, :]
-    if not valid.any():
-        return valid, None
-    ys, xs = np.flatnonzero(oky), np.flatnonzero(okx)
-    return valid, np.s_[ys[0]:ys[-1] + 1, xs[0]:xs[-1] + 1]
-
-
-def _valid_region(mask: np.ndarray, radius: float) -> np.ndarray:
-    """Pixels farther than ``radius`` from the border and from any masked pixel."""
-    padded = np.pad(mask, 1, constant_values=False)
-    dist = ndimage.distance_transform_edt(padded)[1:-1, 1:-1]
-    return dist > radius

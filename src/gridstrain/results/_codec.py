@@ -229,7 +229,7 @@ def _registry() -> dict[str, type]:
     built from a file, and no name read from one is ever imported."""
     from ..kinematics._deformation import Measurement
     from ..kinematics._fringe_order import FringeOrder
-    from ..phase._transform import PhaseMaps
+    from ..phase._maps import PhaseMaps
     from ..phase.lattice import Lattice
     from ..stacks.screening import FrameScreen, Trend
     from ..stacks.vibration import VibrationReport

@@ -29,7 +29,8 @@ from ..kinematics._fringe_order import (
     phase_products,
     solve_k,
 )
-from ..phase._transform import finite_derivatives, transform
+from ..phase._maps import finite_derivatives
+from ..phase._transform import transform
 from ..phase.lattice import Lattice
 from ..phase.window import Window
 from ..stacks.accumulate import SeriesPass

@@ -30,7 +30,7 @@ from .._validation import (
 from ..discontinuities import find_discontinuities, without_discontinuities
 from ..kinematics import Measurement
 from ..kinematics.tracking import _Tracker, check_after_warp
-from ..phase._transform import demodulated_at
+from ..phase._maps import demodulated_at
 from ..phase.lattice import Lattice, reference_carrier
 from ..phase.window import Window
 from ..results._result import SeriesResult

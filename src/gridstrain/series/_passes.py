@@ -18,7 +18,8 @@ from .._threads import map_bounded
 from .._validation import (
     check_workers,
 )
-from ..phase._transform import finite_derivatives, transform
+from ..phase._maps import finite_derivatives
+from ..phase._transform import transform
 from ..phase.lattice import Lattice, detect_lattice, state_carrier
 from ..phase.window import Window, min_side
 from ..stacks._methods import FrameOrder, method_b

@@ -20,7 +20,7 @@ from .._validation import (
     check_positive,
     check_type,
 )
-from ..phase._transform import spectrum_block
+from ..phase._spectrum import spectrum_block
 from ..phase.lattice import Lattice, detect_lattice
 from ..wft import transfer_function
 from ._noise import _Q75, NoiseModel, _intervals, _settled, _wls

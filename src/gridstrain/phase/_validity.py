@@ -1,0 +1,76 @@
+"""Where a transform's maps are valid: away from the borders and the mask's edges by the
+margin, and where the grid's modulus shows.
+"""
+
+from __future__ import annotations
+
+import functools
+
+import numpy as np
+from scipy import ndimage
+
+from .._stats import median
+
+
+def _region(m: np.ndarray, full: bool, radius: float):
+    """Pixels farther than ``radius`` px from the border and the mask's edges, and
+    the box they fill when the mask is full (None otherwise)."""
+    if full:
+        valid, box = _valid_rectangle(*m.shape, radius)
+        return valid, (np.s_[:, :] if box is None else box)
+    return _valid_region(m, radius), None
+
+
+def _shows_grid(mods, valid: np.ndarray, box, m: np.ndarray, min_modulus: float) -> np.ndarray:
+    """Where both moduli reach ``min_modulus`` times their median over the region
+    valid by its distance to the edges (sliced while it is a box, rather than
+    gathered through a mask; the mask when no pixel is far enough from an edge)."""
+    any_valid = bool(valid.any())
+    keep = np.ones(valid.shape, dtype=bool)
+    for mod in mods:
+        values = mod[box] if box is not None else mod[valid] if any_valid else mod[m]
+        keep &= mod >= min_modulus * median(values)
+    return keep
+
+
+def _gaps(runs, n: int) -> list[slice]:
+    """Slices of ``range(n)`` that no ``dst`` run of :func:`_axis_band` covers."""
+    covered = sorted((d.start, d.stop) for d, _ in runs)
+    gaps, pos = [], 0
+    for start, stop in covered:
+        if start > pos:
+            gaps.append(slice(pos, start))
+        pos = max(pos, stop)
+    if pos < n:
+        gaps.append(slice(pos, n))
+    return gaps
+
+
+def _valid_rectangle(H: int, W: int, radius: float):
+    """:func:`_valid_region` of a full mask (a new array), and the box of rows x cols
+    it covers.
+
+    The distance to the nearest pixel outside the image is the distance to the
+    nearest border, so the region is a box; no distance transform is needed.
+    """
+    valid, box = _rectangle(H, W, float(radius))
+    return valid.copy(), box
+
+
+@functools.lru_cache(maxsize=8)
+def _rectangle(H: int, W: int, radius: float):
+    # the same for every frame of a stack: made once (the caller copies it)
+    oky = np.minimum(np.arange(H) + 1, H - np.arange(H)) > radius
+    okx = np.minimum(np.arange(W) + 1, W - np.arange(W)) > radius
+    valid = oky[:, None] & okx[None, :]
+    if not valid.any():
+        return valid, None
+    ys, xs = np.flatnonzero(oky), np.flatnonzero(okx)
+    return valid, np.s_[ys[0]:ys[-1] + 1, xs[0]:xs[-1] + 1]
+
+
+def _valid_region(mask: np.ndarray, radius: float) -> np.ndarray:
+    """Pixels farther than ``radius`` from the border and from any masked pixel."""
+    padded = np.pad(mask, 1, constant_values=False)
+    dist = ndimage.distance_transform_edt(padded)[1:-1, 1:-1]
+    return dist > radius
