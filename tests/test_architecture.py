@@ -37,10 +37,10 @@ CORE = {
 # compiled loops' loader and method B's accumulator are reached by name by the tests of
 # the compiled kernels, and the tracker by the test of a state without a valid pixel
 SHARED_PRIVATE = {
-    ("stacks._methods", "phase._transform._kernels"),
+    ("stacks._accumulators", "phase._transform._kernels"),
     ("stacks.accumulate", "phase._transform._kernels"),
-    ("distributed", "stacks._methods._PhaseMean"),
-    ("paper.experiment", "stacks._methods._PhaseMean"),
+    ("distributed", "stacks._accumulators._PhaseMean"),
+    ("paper.experiment", "stacks._accumulators._PhaseMean"),
     ("series._loop", "kinematics.tracking._Tracker"),
 }
 

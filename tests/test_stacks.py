@@ -111,7 +111,7 @@ def test_method_b_on_identical_frames_is_one_wft():
 
 
 def test_method_b_transforms_integer_frames_in_float32_and_keeps_float64_maps(monkeypatch):
-    from gridstrain.stacks import _methods as stacks
+    from gridstrain.stacks import _accumulators as stacks
 
     rng = np.random.default_rng(3)
     phases, _ = paper_phases((96, 112))

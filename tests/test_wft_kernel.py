@@ -257,7 +257,7 @@ def test_compiled_sums_of_method_b_are_the_numpy_sums(compiled, monkeypatch, dty
     # method B's sums of unit phasors, moduli and derivatives, added block by block in
     # one compiled pass, bit for bit those of the numpy path: with a hole (Psi = 0
     # deep inside it adds nothing), several blocks, and a frame taken out again
-    import gridstrain.stacks._methods as gs
+    import gridstrain.stacks._accumulators as gs
 
     frame, mask = _camera_frame(dtype)
     lat = Lattice.from_pitch(5.0, angle=12.0)

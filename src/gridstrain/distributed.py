@@ -60,7 +60,7 @@ from ._validation import (
 )
 from .io import FrameSeries, open_series
 from .phase.lattice import Lattice
-from .stacks._methods import StackResult, _PhaseMean, with_screening
+from .stacks._accumulators import StackResult, _PhaseMean, with_screening
 from .stacks.accumulate import SeriesPass
 from .stacks.screening import FrameProbe
 from .wft import DEFAULT_MARGIN, wft

@@ -11,12 +11,10 @@ this module, as ``gridstrain.wft`` (see the package's ``__init__``).
 
 from __future__ import annotations
 
-from .phase._maps import PhaseMaps
+from .phase import DEFAULT_MARGIN, PhaseMaps, transfer_function, wft, wft_complex
 
 # a state's maps at the reference's carrier, and the derivatives the kinematics take
-from .phase._maps import demodulated_at as demodulated_at
-from .phase._maps import finite_derivatives as finite_derivatives
-from .phase._spectrum import transfer_function
-from .phase._transform import DEFAULT_MARGIN, wft, wft_complex
+from .phase import demodulated_at as demodulated_at
+from .phase import finite_derivatives as finite_derivatives
 
 __all__ = ["DEFAULT_MARGIN", "PhaseMaps", "transfer_function", "wft", "wft_complex"]

@@ -76,15 +76,8 @@ from .._validation import (
 )
 from ..io import OutputDirectory, provenance
 from ..phase.lattice import Lattice
-from ..stacks._methods import (
-    MeanImage,
-    MethodC,
-    _PhaseMean,
-    method_a,
-    method_b,
-    method_c,
-    phase_offsets,
-)
+from ..stacks._accumulators import MeanImage, MethodC, _PhaseMean
+from ..stacks._methods import method_a, method_b, method_c, phase_offsets
 from ..synthetic import PROFILES, line_profile
 from ..wft import PhaseMaps, wft
 from .dataset import (

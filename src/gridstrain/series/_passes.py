@@ -22,7 +22,8 @@ from ..phase._maps import finite_derivatives
 from ..phase._transform import transform
 from ..phase.lattice import Lattice, detect_lattice, state_carrier
 from ..phase.window import Window, min_side
-from ..stacks._methods import FrameOrder, method_b
+from ..stacks._accumulators import FrameOrder
+from ..stacks._methods import method_b
 from ..stacks.accumulate import PassPlan, SeriesPass
 from ..stacks.vibration import VibrationReport
 from ..stacks.vibration import shift_report as _vibration_report

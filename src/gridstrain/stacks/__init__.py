@@ -11,15 +11,8 @@
 
 from __future__ import annotations
 
-from ._methods import (
-    StackResult,
-    correct_phases,
-    mean_image,
-    method_a,
-    method_b,
-    method_c,
-    prefix_stacks,
-)
+from ._accumulators import StackResult
+from ._methods import correct_phases, mean_image, method_a, method_b, method_c, prefix_stacks
 
 __all__ = [
     "StackResult",

@@ -42,7 +42,7 @@ from scipy.linalg import blas
 from ..phase._transform import _kernels
 from ..phase.lattice import Lattice
 from ..wft import DEFAULT_MARGIN
-from ._methods import FrameOrder, StackResult, _PhaseMean, compensated_result
+from ._accumulators import FrameOrder, StackResult, _PhaseMean, compensated_result
 from .screening import FrameProbe, FrameScreen, decide
 from .vibration import RigidProbe, shift_matrix
 
