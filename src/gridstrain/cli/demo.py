@@ -31,7 +31,7 @@ from ..plotting import figure_names, save_figures
 from ..report import write_report
 from ..results import MAP_FIELDS, save_result
 from ..series import measure_series
-from .measure import jsonable, report_lines, summary
+from ._summary import jsonable, report_lines, summary
 
 # The simulated camera and specimen (paper §3.2 and README of the paper notes).
 _AMPLITUDE = 2400.0  # mean grey level of the grid, 12-bit levels: peaks at 3480 + black
