@@ -79,17 +79,15 @@ from ._files import (
     write_tiff_series,
 )
 from ._loads import LoadTable, read_loads
+from ._readers import IMAGE_EXTENSIONS, natural_sort_key, to_luminance
 from ._series import (
-    IMAGE_EXTENSIONS,
     FrameSeries,
     check_saturation,
     check_saturation_limit,
-    natural_sort_key,
     open_series,
     read_mask,
     roi_mask,
     split_frames,
-    to_luminance,
 )
 
 __all__ = [
