@@ -69,15 +69,13 @@ from ._files import (
     hdf5_file,
     hdf5_stream,
     provenance,
-    read_hdf5,
-    read_noise_model,
     space_error,
     sweep_temporary_files,
     write_atomic,
     write_csv,
     write_hdf5,
-    write_tiff_series,
 )
+from ._hdf5_attrs import read_hdf5, read_noise_model
 from ._loads import LoadTable, read_loads
 from ._readers import IMAGE_EXTENSIONS, natural_sort_key, to_luminance
 from ._series import (
@@ -89,6 +87,7 @@ from ._series import (
     roi_mask,
     split_frames,
 )
+from ._tiff import write_tiff_series
 
 __all__ = [
     "IMAGE_EXTENSIONS",
