@@ -118,6 +118,15 @@ def _dask_config():
     return dask.config
 
 
+def _connect_timeout(timeout: float | None) -> float:
+    """Seconds to wait for a scheduler: Dask's connection timeout, or ``timeout`` if
+    shorter."""
+    dask, _ = _dask()
+    default = dask.utils.parse_timedelta(_dask_config().get("distributed.comm.timeouts.connect"),
+                                         default="seconds")
+    return default if timeout is None else min(float(timeout), default)
+
+
 def _distributed():
     try:
         import distributed
@@ -164,8 +173,8 @@ def connect(scheduler, *, n_workers: int | None = None,
         Worker processes of a ``"local"`` cluster (default: the cores this process
         may use).
     timeout : float, optional
-        Seconds to wait for the scheduler at an address (default: Dask's
-        connection timeout).
+        Seconds to wait for the scheduler at an address, if shorter than Dask's
+        connection timeout.
 
     Yields
     ------
@@ -176,9 +185,9 @@ def connect(scheduler, *, n_workers: int | None = None,
     MissingDistributedError
         ``distributed`` is not installed.
     OSError
-        No scheduler answers at the address within ``timeout``, by default Dask's
-        connection timeout (``distributed.comm.timeouts.connect`` in the Dask
-        configuration, 30 s by default).
+        No scheduler answers at the address within Dask's connection timeout
+        (``distributed.comm.timeouts.connect`` in the Dask configuration, 30 s by
+        default), or within ``timeout`` if shorter.
 
     Notes
     -----
@@ -217,8 +226,7 @@ def connect(scheduler, *, n_workers: int | None = None,
             yield client
         return
     try:
-        client = distributed.Client(address) if timeout is None \
-            else distributed.Client(address, timeout=timeout)
+        client = distributed.Client(address, timeout=_connect_timeout(timeout))
     except OSError as exc:
         raise OSError(f"scheduler: cannot reach a Dask scheduler at {address!r} ({exc}); "
                       "check the address and that `dask scheduler` runs there") from None
