@@ -660,9 +660,13 @@ def _scatter(client, obj, deadline: float | None = None, what: str = "a series")
     try:
         if left <= 0:
             raise TimeoutError
-        return client.sync(client._scatter, obj, hash=False, broadcast=True, timeout=left,
+        # the wait for workers keeps the client's own timeout; the whole call, the
+        # sending included, ends at the deadline
+        return client.sync(client._scatter, obj, hash=False, broadcast=True,
                            callback_timeout=left)
     except TimeoutError:
+        if time.monotonic() < deadline:  # Dask's own (no worker joined in time...)
+            raise
         raise TimeoutError(f"the Dask cluster did not take the data of {what} within the "
                            "timeout; check that its workers run (or raise --timeout)"
                            ) from None
