@@ -59,8 +59,9 @@ from ._validation import (
     float_dtype,
 )
 from .io import FrameSeries, open_series
-from .phase.lattice import Lattice
-from .stacks._accumulators import StackResult, _PhaseMean, with_screening
+from .phase import Lattice
+from .stacks import StackResult
+from .stacks._accumulators import _PhaseMean, with_screening
 from .stacks.accumulate import SeriesPass
 from .stacks.screening import FrameProbe
 from .wft import DEFAULT_MARGIN, wft

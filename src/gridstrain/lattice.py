@@ -5,6 +5,6 @@ Public path of :mod:`gridstrain.phase.lattice`, where the lattice is implemented
 
 from __future__ import annotations
 
-from .phase.lattice import Lattice, detect_lattice, follow_lattice
+from .phase import Lattice, detect_lattice, follow_lattice
 
 __all__ = ["Lattice", "detect_lattice", "follow_lattice"]

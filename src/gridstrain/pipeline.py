@@ -130,7 +130,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from .results._result import MAP_FIELDS, SeriesResult
+from .results import MAP_FIELDS, SeriesResult
 from .series import ORDERS, measure_series, reference_lattice, state_names
 from .stacks.vibration import VibrationReport
 from .uncertainty import FWHM_PER_SIGMA, SPATIAL_RESOLUTION_PER_SIGMA, NoiseFloor

@@ -34,7 +34,7 @@ from matplotlib.figure import Figure
 
 from ._validation import check_choice, check_finite, check_pixel_size, check_positive, check_type
 from .io import OutputDirectory, write_atomic
-from .results._result import SeriesResult
+from .results import SeriesResult
 
 __all__ = [
     "capped_dpi",

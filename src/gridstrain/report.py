@@ -34,8 +34,7 @@ import numpy as np
 from ._validation import as_path, check_type
 from .io import write_atomic
 from .plotting import plot_history, plot_shifts, plot_states
-from .results._file import load, read_attrs
-from .results._result import MAP_FIELDS, SeriesResult
+from .results import MAP_FIELDS, SeriesResult, load, read_attrs
 
 __all__ = ["render_report", "write_report"]
 

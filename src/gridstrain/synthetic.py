@@ -18,7 +18,7 @@ from ._validation import (
     check_positive,
     check_shape,
 )
-from .phase.lattice import Lattice
+from .phase import Lattice
 
 __all__ = [
     "PROFILES",

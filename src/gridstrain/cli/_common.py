@@ -15,7 +15,7 @@ from pathlib import Path
 
 from .._validation import check_positive
 from ..io._files import check_destination
-from ..phase.lattice import Lattice
+from ..phase import Lattice
 
 
 def add_lattice_options(group) -> None:

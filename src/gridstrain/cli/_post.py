@@ -59,7 +59,7 @@ def open_result(args):
     """``(result, path, pixel_size, unit, load, load_unit, time)`` of the command's file."""
     from ..post import read_loads
     from ..post._loads import state_loads
-    from ..results._file import load, read_attrs
+    from ..results import load, read_attrs
 
     src = Path(os.path.expanduser(args.result))
     result = load(src)

@@ -26,7 +26,7 @@ from .. import kirsch, synthetic
 from .._progress import bar
 from .._validation import check_int
 from ..io import OutputDirectory, open_series, read_mask, write_hdf5, write_tiff_series
-from ..phase.lattice import Lattice
+from ..phase import Lattice
 from ..plotting import figure_names, save_figures
 from ..report import write_report
 from ..results import MAP_FIELDS, save_result

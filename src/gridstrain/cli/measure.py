@@ -363,7 +363,7 @@ def _read_config(path: str) -> _Config:
         raise FileNotFoundError(f"config file {p} does not exist")
     from_result = h5py.is_hdf5(p)
     if from_result:  # a result file: the configuration of its run
-        from ..results._file import read_attrs
+        from ..results import read_attrs
 
         text = read_attrs(p).get("config")
         if not isinstance(text, str):

@@ -17,11 +17,11 @@ import numpy as np
 from .._progress import bar
 from .._validation import check_int
 from ..io import open_series, provenance, write_atomic, write_hdf5
-from ..phase.lattice import detect_lattice
+from ..phase import detect_lattice
 from ..series._outliers import outlier_verdict
 from ..stacks.screening import screen_frames
 from ..stacks.vibration import vibration_report
-from ..uncertainty._maps import noise_floor
+from ..uncertainty import noise_floor
 from ..uncertainty._noise import NOISE_RESULT_KIND, estimate_noise
 from ..uncertainty._noise_image import estimate_noise_image
 from ..wft import wft

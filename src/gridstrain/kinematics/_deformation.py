@@ -25,8 +25,8 @@ from .._validation import (
     check_type,
     check_workers,
 )
-from ..phase._maps import demodulated_at
-from ..phase.lattice import Lattice, detect_lattice, reference_carrier, state_carrier
+from ..phase import Lattice, demodulated_at, detect_lattice
+from ..phase.lattice import reference_carrier, state_carrier
 from ..wft import DEFAULT_MARGIN, PhaseMaps, wft
 from ._fringe_order import (
     FringeOrder,

@@ -21,7 +21,7 @@ from .._validation import (
     check_same_shape,
     check_type,
 )
-from ..phase.lattice import Lattice
+from ..phase import Lattice
 from ..wft import PhaseMaps
 
 __all__ = ["FRINGE_ORDER_SOURCES", "CoarseEstimate", "FringeOrder", "coarse_displacement"]

@@ -15,7 +15,7 @@ from .._stats import median
 from .._validation import (
     check_mask,
 )
-from ..phase.lattice import Lattice
+from ..phase import Lattice
 from ..uncertainty._biases import nearest_filled
 from ..wft import PhaseMaps
 from ._deformation import (

@@ -74,9 +74,10 @@ from .._validation import (
     check_workers,
 )
 from ..io import OutputDirectory, provenance
-from ..phase.lattice import Lattice
+from ..phase import Lattice
+from ..stacks import method_a, method_b, method_c
 from ..stacks._accumulators import MeanImage, MethodC, _PhaseMean
-from ..stacks._methods import method_a, method_b, method_c, phase_offsets
+from ..stacks._methods import phase_offsets
 from ..synthetic import PROFILES, line_profile
 from ..wft import PhaseMaps, wft
 from ._cases import _DERIVATIVES, QUANTITIES, _all_cases, _get

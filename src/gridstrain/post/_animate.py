@@ -8,7 +8,7 @@ import numpy as np
 
 from .._validation import as_path, check_choice, check_pixel_size, check_positive, check_type
 from ..io import atomic_path
-from ..results._result import SeriesResult
+from ..results import SeriesResult
 from ._loads import state_loads
 
 FORMATS = (".gif", ".mp4")

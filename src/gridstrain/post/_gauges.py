@@ -9,7 +9,7 @@ import numpy as np
 
 from .._validation import check_pixel_size, check_type
 from ..io import roi_mask
-from ..results._result import SeriesResult
+from ..results import SeriesResult
 from . import _correlation
 from ._loads import state_loads
 

@@ -26,7 +26,7 @@ import numpy as np
 
 from .._validation import check_pixel_size, check_type
 from ..io import OutputDirectory, write_atomic
-from ..results._result import SeriesResult
+from ..results import SeriesResult
 from ._loads import state_loads
 
 FRAME = ("X = x * pixel size, Y = -y * pixel size (image rows downwards, ParaView's Y "

@@ -227,13 +227,11 @@ def _read_dataset(ds: h5py.Dataset, *, kinds: str = "biufc") -> np.ndarray:
 def _registry() -> dict[str, type]:
     """The classes a result file may hold, by the name it stores. Nothing else is
     built from a file, and no name read from one is ever imported."""
-    from ..kinematics._deformation import Measurement
-    from ..kinematics._fringe_order import FringeOrder
-    from ..phase._maps import PhaseMaps
-    from ..phase.lattice import Lattice
+    from ..kinematics import FringeOrder, Measurement
+    from ..phase import Lattice, PhaseMaps
     from ..stacks.screening import FrameScreen, Trend
     from ..stacks.vibration import VibrationReport
-    from ..uncertainty._maps import NoiseFloor
+    from ..uncertainty import NoiseFloor
 
     return {
         "gridstrain.pipeline.SeriesResult": SeriesResult,

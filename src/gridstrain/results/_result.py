@@ -12,15 +12,10 @@ import numpy as np
 from .._validation import (
     check_choice,
 )
-from ..kinematics._deformation import (
-    Measurement,
-)
-from ..kinematics._fringe_order import (
-    FringeOrder,
-)
-from ..phase.lattice import Lattice
+from ..kinematics import FringeOrder, Measurement
+from ..phase import Lattice
 from ..stacks.vibration import VibrationReport
-from ..uncertainty._maps import NoiseFloor
+from ..uncertainty import NoiseFloor
 
 #: Names of the maps, in file order, with their units before ``pixel_size``.
 MAP_FIELDS = {"ux": "px", "uy": "px", "exx": "1", "eyy": "1", "exy": "1"}

@@ -19,28 +19,13 @@ from .._stats import median
 from .._validation import (
     check_positive,
 )
-from ..kinematics._deformation import (
-    Measurement,
-    eulerian_gradient,
-    small_strain,
-)
-from ..kinematics._fringe_order import (
-    FringeOrder,
-    phase_products,
-    solve_k,
-)
-from ..phase._maps import finite_derivatives
-from ..phase._transform import transform
-from ..phase.lattice import Lattice
-from ..phase.window import Window
+from ..kinematics import FringeOrder, Measurement
+from ..kinematics._deformation import eulerian_gradient, small_strain
+from ..kinematics._fringe_order import phase_products, solve_k
+from ..phase import Lattice, Window, finite_derivatives, transform
 from ..stacks.accumulate import SeriesPass
-from ..uncertainty._biases import smoothing_bias
-from ..uncertainty._maps import (
-    SPATIAL_RESOLUTION_PER_SIGMA,
-    NoiseFloor,
-    phase_variance,
-    std_from_phase_variance,
-)
+from ..uncertainty import SPATIAL_RESOLUTION_PER_SIGMA, NoiseFloor, smoothing_bias
+from ..uncertainty._maps import phase_variance, std_from_phase_variance
 from ..uncertainty._noise import NoiseModel
 from ..uncertainty._noise_image import estimate_noise_image
 from ..wft import PhaseMaps

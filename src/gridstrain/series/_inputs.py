@@ -20,7 +20,7 @@ from .._validation import (
     check_positive,
 )
 from ..io import FrameSeries, open_series, read_mask
-from ..phase.lattice import Lattice
+from ..phase import Lattice
 from ..phase.window import min_side
 from ..sequences import StateInputs
 

@@ -30,13 +30,11 @@ from .._validation import (
 from ..discontinuities import find_discontinuities, without_discontinuities
 from ..kinematics import Measurement
 from ..kinematics.tracking import _Tracker, check_after_warp
-from ..phase._maps import demodulated_at
-from ..phase.lattice import Lattice, reference_carrier
-from ..phase.window import Window
-from ..results._result import SeriesResult
+from ..phase import Lattice, Window, demodulated_at
+from ..phase.lattice import reference_carrier
+from ..results import SeriesResult
 from ..sequences import StateInputs, state_inputs
-from ..uncertainty._biases import aliasing_bias
-from ..uncertainty._maps import metrology
+from ..uncertainty import aliasing_bias, metrology
 from ..uncertainty._noise import NoiseModel
 from ..wft import DEFAULT_MARGIN
 from ._floors import _check_model_units, _check_noise_model, _Noise, _ReferenceFloor
@@ -375,7 +373,7 @@ def _setup(*, method, outliers, margin, sigma, order, sigma_pitches, max_saturat
         sigma = check_sigma(sigma, lattice.pitch)
     dtype = check_float_dtype(dtype, "dtype")
     if output is not None:
-        from ..results._file import ResultFile
+        from ..results import ResultFile
 
         output = output if isinstance(output, ResultFile) else ResultFile(output)
         if dtype is not None and output.dtype is not None and output.dtype != dtype:

@@ -18,12 +18,11 @@ from .._threads import map_bounded
 from .._validation import (
     check_workers,
 )
-from ..phase._maps import finite_derivatives
-from ..phase._transform import transform
-from ..phase.lattice import Lattice, detect_lattice, state_carrier
-from ..phase.window import Window, min_side
+from ..phase import Lattice, Window, detect_lattice, finite_derivatives, transform
+from ..phase.lattice import state_carrier
+from ..phase.window import min_side
+from ..stacks import method_b
 from ..stacks._accumulators import FrameOrder
-from ..stacks._methods import method_b
 from ..stacks.accumulate import PassPlan, SeriesPass
 from ..stacks.vibration import VibrationReport
 from ..stacks.vibration import shift_report as _vibration_report

@@ -8,13 +8,8 @@ import dataclasses
 
 import numpy as np
 
-from ..kinematics._deformation import (
-    Measurement,
-)
-from ..kinematics._fringe_order import (
-    FringeOrder,
-)
-from ..results._result import SeriesResult
+from ..kinematics import FringeOrder, Measurement
+from ..results import SeriesResult
 
 
 def empty_state_message(name: str, margin: float, sigma: float, guess, source: str) -> str:

@@ -18,9 +18,8 @@ from .._validation import (
     float_dtype,
     image_array,
 )
-from ..phase._transform import Workspace, _kernels, transform
-from ..phase.lattice import Lattice
-from ..phase.window import Window
+from ..phase import Lattice, Window, transform
+from ..phase._transform import Workspace, _kernels
 from ..wft import DEFAULT_MARGIN, PhaseMaps, wft, wft_complex
 from .screening import FrameProbe, FrameScreen, decide
 from .vibration import RigidProbe

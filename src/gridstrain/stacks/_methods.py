@@ -33,7 +33,7 @@ from .._validation import (
     check_workers,
     image_array,
 )
-from ..phase.lattice import Lattice
+from ..phase import Lattice
 from ..wft import DEFAULT_MARGIN, PhaseMaps
 from ._accumulators import FrameOrder, MeanImage, MethodC, StackResult, _PhaseMean, with_screening
 from .screening import FrameProbe

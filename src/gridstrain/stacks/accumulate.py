@@ -39,8 +39,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.linalg import blas
 
+from ..phase import Lattice
 from ..phase._transform import _kernels
-from ..phase.lattice import Lattice
 from ..wft import DEFAULT_MARGIN
 from ._accumulators import FrameOrder, StackResult, _PhaseMean, compensated_result
 from .screening import FrameProbe, FrameScreen, decide

@@ -47,7 +47,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..phase.lattice import Lattice
+from ..phase import Lattice
 from .vibration import (
     MIN_PROMINENCE,
     CarrierProbe,

@@ -26,7 +26,7 @@ import numpy as np
 
 from .. import theory
 from .._validation import as_image, check_same_shape, check_type
-from ..phase.lattice import Lattice
+from ..phase import Lattice
 
 __all__ = ["VibrationReport", "frame_shifts", "vibration_report"]
 

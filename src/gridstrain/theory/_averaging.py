@@ -25,7 +25,7 @@ from .._validation import (
     check_shape,
     check_type,
 )
-from ..phase.lattice import Lattice
+from ..phase import Lattice
 from ..synthetic import line_profile
 
 # Samples per period used to compute a profile's Fourier coefficients (at least this

@@ -17,7 +17,7 @@ from .._validation import (
     check_range,
     check_type,
 )
-from ..phase.lattice import Lattice
+from ..phase import Lattice
 from ._averaging import _WINDOW_SUM_SIGMAS, _check_stds, profile_coefficients
 
 

@@ -25,7 +25,7 @@ from .._validation import (
     check_positive,
     check_type,
 )
-from ..phase.lattice import Lattice, detect_lattice
+from ..phase import Lattice, detect_lattice
 from ..stacks.vibration import CarrierProbe, as_frame, numbered_frames, streaming_shift
 
 __all__ = ["NOISE_RESULT_KIND", "NoiseModel", "anscombe", "estimate_noise", "inverse_anscombe"]

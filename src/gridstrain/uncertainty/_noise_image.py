@@ -20,8 +20,8 @@ from .._validation import (
     check_positive,
     check_type,
 )
+from ..phase import Lattice, detect_lattice
 from ..phase._spectrum import spectrum_block
-from ..phase.lattice import Lattice, detect_lattice
 from ..wft import transfer_function
 from ._noise import _Q75, NoiseModel, _intervals, _settled, _wls
 
