@@ -144,7 +144,7 @@ class Measurement:
 
 
 # The cubic splines of four maps (both transforms' real and imaginary parts, or the
-# four phase derivatives) evaluated at once by gridstrain._spline_kernels (numba, the
+# four phase derivatives) evaluated at once by gridstrain.kinematics._spline_kernels (numba, the
 # "fast" extra) when installed: loaded on the first correction, never at import.
 # False forces scipy's map_coordinates, one map at a time (what runs without numba).
 _COMPILED = True
