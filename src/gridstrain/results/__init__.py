@@ -54,35 +54,26 @@ Modules
 
 from __future__ import annotations
 
-from ._csv import CSV_DIGITS, save_csv
-from ._file import (
-    FORMAT_VERSION,
-    ResultFile,
-    StoredMaps,
-    load,
-    read_attrs,
-    save_result,
-    to_xarray,
-)
-from ._formats import EXPORTS, ExportFormat, export, export_path
-from ._layout import LONG_NAMES
+from ._csv import CSV_DIGITS as CSV_DIGITS
+from ._csv import save_csv
+from ._file import FORMAT_VERSION, load, read_attrs, save_result, to_xarray
+from ._file import ResultFile as ResultFile
+from ._file import StoredMaps as StoredMaps
+from ._formats import EXPORTS as EXPORTS
+from ._formats import ExportFormat as ExportFormat
+from ._formats import export as export
+from ._formats import export_path as export_path
+from ._layout import LONG_NAMES as LONG_NAMES
 from ._mat import export_mat
-from ._result import MAP_FIELDS, SeriesResult
+from ._result import MAP_FIELDS as MAP_FIELDS
+from ._result import SeriesResult as SeriesResult
 from ._vtk import export_vtk
 
+# the file's functions; the result type and the rest of the face (the streamed file,
+# the export registry) are importable from here and documented where they belong
 __all__ = [
-    "CSV_DIGITS",
-    "EXPORTS",
     "FORMAT_VERSION",
-    "LONG_NAMES",
-    "MAP_FIELDS",
-    "ExportFormat",
-    "ResultFile",
-    "SeriesResult",
-    "StoredMaps",
-    "export",
     "export_mat",
-    "export_path",
     "export_vtk",
     "load",
     "read_attrs",

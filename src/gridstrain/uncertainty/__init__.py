@@ -15,9 +15,9 @@ The noise model's public path is :mod:`gridstrain.noise`.
 from __future__ import annotations
 
 from ._biases import aliasing_bias, smoothing_bias
+from ._maps import FWHM_PER_SIGMA as FWHM_PER_SIGMA
+from ._maps import SPATIAL_RESOLUTION_PER_SIGMA as SPATIAL_RESOLUTION_PER_SIGMA
 from ._maps import (
-    FWHM_PER_SIGMA,
-    SPATIAL_RESOLUTION_PER_SIGMA,
     NoiseFloor,
     Uncertainty,
     displacement_strain_std,
@@ -28,8 +28,6 @@ from ._maps import (
 )
 
 __all__ = [
-    "FWHM_PER_SIGMA",
-    "SPATIAL_RESOLUTION_PER_SIGMA",
     "NoiseFloor",
     "Uncertainty",
     "aliasing_bias",
