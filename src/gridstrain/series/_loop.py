@@ -75,7 +75,7 @@ ORDERS = ("series", "independent")
 _MAX_SATURATION = 0.01
 
 
-# --------------------------------------------------------------------------- pipeline
+# --------------------------------------------------------------------------- the door
 
 
 def measure_series(reference, states, *, lattice: Lattice | None = None,
