@@ -201,6 +201,12 @@ def _detect_lattice(dt):
     assert all(isinstance(v, float) for v in (*lat.k1, *lat.k2))
 
 
+def _reference_lattice(dt):
+    ref, _ = _ref_cur(dt)
+    lat = pipeline.reference_lattice(ref)
+    assert all(isinstance(v, float) for v in (*lat.k1, *lat.k2))
+
+
 def _follow_lattice(dt):
     _, cur = _ref_cur(dt)
     lat = lattice.follow_lattice(cur[0], LAT)
@@ -270,6 +276,7 @@ ENTRY_POINTS = {
     "vibration_report": _vibration_report, "screen_frames": _screen_frames,
     "anscombe": _anscombe, "inverse_anscombe": _anscombe, "estimate_noise": _estimate_noise,
     "detect_lattice": _detect_lattice, "follow_lattice": _follow_lattice,
+    "reference_lattice": _reference_lattice,
     "mean_image_dask": _dask, "method_a_dask": _dask,
     "method_b_dask": _dask,
     "estimate_noise_image": _estimate_noise_image, "aliasing_bias": _aliasing_bias,
