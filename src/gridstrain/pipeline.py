@@ -176,7 +176,6 @@ from .kinematics import (
     _phase_shift,
     _small_strain,
     _solve,
-    coarse_displacement,
     deformation,
 )
 from .lattice import Lattice, _reference_carrier, _state_carrier, detect_lattice
@@ -1985,8 +1984,8 @@ def _measure(series: list, guesses: list, m: np.ndarray, o: _Setup, steps: _Step
             est = tracker.features(c.maps, c.stats.mean, guesses[i])
             res, rec, notes = tracker.measure(c.maps, est, guesses[i], c.name)
             if isinstance(guesses[i], str):
-                res, checked, said = _after_warp(res, rec, r.stats.mean, c.stats.mean,
-                                                 r.mask, lattice, c.name)
+                res, checked, said = _after_warp(res, rec, tracker.coarse, c.stats.mean,
+                                                 lattice, c.name)
                 if checked is not rec:  # confirmed now: the doubt said before is void
                     notes = [n for n in notes if "fringe order not confirmed" not in n]
                 rec = checked
@@ -2331,8 +2330,8 @@ class _ReferenceFloor:
                           frames=tuple(int(d.T) for d in done), **rows)
 
 
-def _after_warp(res: Measurement, rec: FringeOrder, mean_ref: np.ndarray,
-                mean_cur: np.ndarray, mask: np.ndarray, lattice: Lattice, name: str):
+def _after_warp(res: Measurement, rec: FringeOrder, coarse: _CoarseReference,
+                mean_cur: np.ndarray, lattice: Lattice, name: str):
     """``(res, rec, warnings)`` with the fringe order checked on the images' content
     once the deformed image is warped back by the measured field.
 
@@ -2344,7 +2343,8 @@ def _after_warp(res: Measurement, rec: FringeOrder, mean_ref: np.ndarray,
     followed from the previous one keeps that order (its record says why). The
     field is extended to the invalid pixels by their nearest valid neighbour's, so
     that a hole's edge, the strongest feature, is warped with the specimen around
-    it; ``mask`` is the reference's."""
+    it. ``coarse``: the reference's side of :func:`coarse_displacement` (its mean
+    image and mask), the one the states' image features use."""
     v = res.valid
     if rec.source == "previous state" or not v.any() or res.reference is None:
         return res, rec, []
@@ -2356,7 +2356,7 @@ def _after_warp(res: Measurement, rec: FringeOrder, mean_ref: np.ndarray,
     warped = ndimage.map_coordinates(np.asarray(mean_cur, dtype=np.float64), [yy, xx],
                                      order=1, mode="nearest")
     del yy, xx
-    est = coarse_displacement(mean_ref, warped, lattice, mask=mask, phase_shift=(0.0, 0.0))
+    est = coarse.estimate(warped, np.zeros(2))
     if not est.confident:
         return res, rec, []
     off = np.rint(lattice.K @ np.array(est.shift))
