@@ -718,3 +718,25 @@ def test_a_signal_at_any_moment_is_one_line_and_leaves_nothing(data, tmp_path, d
     assert len(err.strip().splitlines()) == 1, err
     assert word in err
     assert _leftovers(out) == []
+
+
+def test_an_interrupt_dropped_by_a_finaliser_is_raised_again():
+    """SIGINT handled while a finaliser runs (Python prints and drops exceptions
+    raised there): the interrupt still ends the command, raised again once the
+    finaliser has returned, and nothing is printed."""
+    import time
+
+    from gridstrain import cli
+
+    class Finalised:
+        def __del__(self):
+            os.kill(os.getpid(), signal.SIGINT)
+            time.sleep(0.05)  # the handler runs here, inside the finaliser
+
+    hook = sys.unraisablehook
+    with pytest.raises(KeyboardInterrupt), cli._signals():  # noqa: PT012
+        Finalised()  # dropped at once: its __del__ runs and the exception is dropped
+        for _ in range(200):  # raised again within a millisecond or so
+            time.sleep(0.01)
+    assert signal.getsignal(signal.SIGALRM) is signal.SIG_DFL
+    assert sys.unraisablehook is hook

@@ -118,6 +118,15 @@ def _dask_config():
     return dask.config
 
 
+def _connect_timeout(timeout: float | None) -> float:
+    """Seconds to wait for a scheduler: Dask's connection timeout, or ``timeout`` if
+    shorter."""
+    dask, _ = _dask()
+    default = dask.utils.parse_timedelta(_dask_config().get("distributed.comm.timeouts.connect"),
+                                         default="seconds")
+    return default if timeout is None else min(float(timeout), default)
+
+
 def _distributed():
     try:
         import distributed
@@ -164,8 +173,8 @@ def connect(scheduler, *, n_workers: int | None = None,
         Worker processes of a ``"local"`` cluster (default: the cores this process
         may use).
     timeout : float, optional
-        Seconds to wait for the scheduler at an address (default: Dask's
-        connection timeout).
+        Seconds to wait for the scheduler at an address, if shorter than Dask's
+        connection timeout.
 
     Yields
     ------
@@ -176,9 +185,9 @@ def connect(scheduler, *, n_workers: int | None = None,
     MissingDistributedError
         ``distributed`` is not installed.
     OSError
-        No scheduler answers at the address within ``timeout``, by default Dask's
-        connection timeout (``distributed.comm.timeouts.connect`` in the Dask
-        configuration, 30 s by default).
+        No scheduler answers at the address within Dask's connection timeout
+        (``distributed.comm.timeouts.connect`` in the Dask configuration, 30 s by
+        default), or within ``timeout`` if shorter.
 
     Notes
     -----
@@ -217,14 +226,7 @@ def connect(scheduler, *, n_workers: int | None = None,
             yield client
         return
     try:
-        # an unreachable address fails within Dask's own connect timeout; --timeout
-        # only ever shortens that wait
-        dask, _ = _dask()
-        connect = dask.utils.parse_timedelta(
-            dask.config.get("distributed.comm.timeouts.connect"), default="s")
-        if timeout is not None:
-            connect = min(connect, timeout)
-        client = distributed.Client(address, timeout=connect)
+        client = distributed.Client(address, timeout=_connect_timeout(timeout))
     except OSError as exc:
         raise OSError(f"scheduler: cannot reach a Dask scheduler at {address!r} ({exc}); "
                       "check the address and that `dask scheduler` runs there") from None
@@ -658,9 +660,13 @@ def _scatter(client, obj, deadline: float | None = None, what: str = "a series")
     try:
         if left <= 0:
             raise TimeoutError
-        return client.sync(client._scatter, obj, hash=False, broadcast=True, timeout=left,
+        # the wait for workers keeps the client's own timeout; the whole call, the
+        # sending included, ends at the deadline
+        return client.sync(client._scatter, obj, hash=False, broadcast=True,
                            callback_timeout=left)
     except TimeoutError:
+        if time.monotonic() < deadline:  # Dask's own (no worker joined in time...)
+            raise
         raise TimeoutError(f"the Dask cluster did not take the data of {what} within the "
                            "timeout; check that its workers run (or raise --timeout)"
                            ) from None

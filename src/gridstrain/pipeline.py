@@ -1846,9 +1846,10 @@ def _check_memory(series: list, o: _Setup) -> None:
               + (", each state written as measured (an output file, without "
                  "--phase-maps)" if held else "")
               + ", or --memory-budget (memory_budget) if more memory is in fact free")
-    # what the process holds already (interpreter, libraries) is part of the peak
-    # and no longer part of the memory available
-    _memory.check_fits(max(peak - _memory.resident_memory(), 0),
+    # the interpreter and libraries, part of the estimate, are loaded already: what
+    # the process holds counts against that fixed part (never against the pixels')
+    fixed = _memory.measurement_bytes((0, 0))
+    _memory.check_fits(peak - min(_memory.resident_memory(), fixed),
                        what=f"measuring {n_states} state(s) of {H} x {W} px with method "
                        f"{o.method} (estimated peak {_memory.format_size(peak)})",
                        advice=advice)

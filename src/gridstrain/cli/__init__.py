@@ -4,10 +4,13 @@ Each sub-command lives in a module ``gridstrain.cli.<name>`` exposing
 ``register(subparsers)``, which adds its parser and sets ``func`` to a callable
 ``func(args) -> int``. User errors (``ValueError``, ``TypeError``, ``OSError``,
 a full disk included) become one line on stderr and exit code 2; the library
-itself never prints. So do a lack of memory and a failing Dask cluster. SIGINT
-(exit 130) and SIGTERM (exit 143) unwind the stack like an exception, so that
-every temporary file is removed before the one-line message; a file size limit
-(SIGXFSZ, ``ulimit -f``) is an error of the write, not a kill.
+itself never prints. So do a lack of memory (a run refused by the memory budget
+says how much it needs) and a failing Dask cluster. SIGINT (exit 130) and SIGTERM
+(exit 143) unwind the stack like an exception, from the moment :func:`main` starts,
+so that every temporary file is removed before the one-line message; a file size
+limit (SIGXFSZ, ``ulimit -f``) is an error of the write, not a kill. A command that
+fails or is interrupted removes every output it had completed
+(:class:`gridstrain.cli._common.Outputs`): its outputs are all there, or none.
 
 Only the module of the sub-command being run is imported: ``gridstrain --help``
 lists the sub-commands from the one-line summaries below, without importing the
@@ -91,6 +94,30 @@ def _interrupt(signum, frame):
     raise KeyboardInterrupt if signum == signal.SIGINT else Terminated
 
 
+# An interrupt raised while Python runs a callback whose exceptions it ignores (a
+# weak reference's or a __del__ run by the garbage collector) would be printed and
+# dropped, and the command would go on: such an interrupt is raised again by a
+# timer signal (SIGALRM) as soon as the callback has returned.
+_dropped: list[type[BaseException]] = []
+
+
+def _again(signum, frame):
+    if _dropped:
+        raise _dropped.pop()
+
+
+def _catch_dropped(previous):
+    def hook(unraisable):
+        exc = unraisable.exc_value
+        if isinstance(exc, KeyboardInterrupt | Terminated) and hasattr(signal, "setitimer"):
+            _dropped.append(type(exc))
+            signal.setitimer(signal.ITIMER_REAL, 0.001)
+            return
+        previous(unraisable)
+
+    return hook
+
+
 @contextlib.contextmanager
 def _signals():
     """SIGINT and SIGTERM raise; SIGXFSZ is ignored (the write fails with EFBIG)."""
@@ -100,10 +127,18 @@ def _signals():
     wanted = {signal.SIGINT: _interrupt, signal.SIGTERM: _interrupt}
     if hasattr(signal, "SIGXFSZ"):
         wanted[signal.SIGXFSZ] = signal.SIG_IGN
+    if hasattr(signal, "setitimer"):
+        wanted[signal.SIGALRM] = _again
     old = {s: signal.signal(s, h) for s, h in wanted.items()}
+    hook = sys.unraisablehook
+    sys.unraisablehook = _catch_dropped(hook)
     try:
         yield
     finally:
+        sys.unraisablehook = hook
+        if hasattr(signal, "setitimer"):
+            signal.setitimer(signal.ITIMER_REAL, 0)
+        _dropped.clear()
         for s, h in old.items():
             signal.signal(s, h)
 
@@ -174,9 +209,8 @@ def _main(argv) -> int:
         if isinstance(exc, MemoryBudgetError):
             print(f"{where}: error: {_one_line(exc)}", file=sys.stderr)
         else:
-            print(f"{where}: error: out of memory; use fewer or smaller frames (--roi), "
-                  "--dtype float32, a smaller --sigma, method A, or --scheduler to spread "
-                  "the work", file=sys.stderr)
+            print(f"{where}: error: out of memory; use fewer or smaller frames, a smaller "
+                  "--sigma, method A, or --scheduler to spread the work", file=sys.stderr)
         return 2
     except (KeyboardInterrupt, Terminated):
         raise

@@ -7,8 +7,10 @@ import json
 import logging
 import math
 import os
+import signal
 import stat
 import sys
+import threading
 from pathlib import Path
 
 from .._validation import check_positive
@@ -90,6 +92,19 @@ def quiet_dask_logs():
             lg.setLevel(level)
 
 
+@contextlib.contextmanager
+def _signals_ignored():
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    old = {s: signal.signal(s, signal.SIG_IGN) for s in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        yield
+    finally:
+        for s, h in old.items():
+            signal.signal(s, h)
+
+
 class Outputs:
     """The outputs a command commits, removed all together if it then fails.
 
@@ -126,7 +141,13 @@ class Outputs:
             self.rollback()
 
     def rollback(self) -> None:
-        """Remove what was committed, newest first."""
+        """Remove what was committed, newest first; SIGINT and SIGTERM wait meanwhile
+        (ignored for the few milliseconds it takes), so that a second Ctrl-C cannot
+        leave half the outputs behind."""
+        with _signals_ignored():
+            self._remove()
+
+    def _remove(self) -> None:
         for kind, path, ident in reversed(self.committed):
             with contextlib.suppress(OSError):
                 st = os.lstat(path)
