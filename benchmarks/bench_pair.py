@@ -11,9 +11,11 @@ homogeneous strain (exx = 2e-3, eyy = -3e-3, exy = 0.5e-3). Each candidate runs 
 fresh interpreter, in turn ``--repeat`` times, and is timed by the CPU time of that
 child process (``resource.getrusage(RUSAGE_CHILDREN)``: user + system, imports,
 reading and writing included), the figure to trust on a machine shared with other
-work; the wall time is printed beside it. The FFT and BLAS libraries are asked for
-one thread (``OMP_NUM_THREADS=1`` and the like) so that CPU time is work, not
-spinning.
+work; the wall time is printed beside it. Two cases, each with its ratio: *tuned*,
+the displacement given (see below) and the FFT and BLAS libraries asked for one thread
+(``OMP_NUM_THREADS=1`` and the like) so that CPU time is work, not spinning; and
+*defaults*, gridstrain with no guess (the lattice detected, the fringe order found by
+itself) and the threads a user gets (``--tuned-only`` leaves it out).
 
 * ``gridstrain``: ``python -m gridstrain.cli measure REF DEF -o out.h5 --quiet``, the
   lattice detected, the fringe order from the cross-correlation, the
