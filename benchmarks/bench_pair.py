@@ -11,9 +11,11 @@ homogeneous strain (exx = 2e-3, eyy = -3e-3, exy = 0.5e-3). Each candidate runs 
 fresh interpreter, in turn ``--repeat`` times, and is timed by the CPU time of that
 child process (``resource.getrusage(RUSAGE_CHILDREN)``: user + system, imports,
 reading and writing included), the figure to trust on a machine shared with other
-work; the wall time is printed beside it. The FFT and BLAS libraries are asked for
-one thread (``OMP_NUM_THREADS=1`` and the like) so that CPU time is work, not
-spinning.
+work; the wall time is printed beside it. Two cases, each with its ratio: *tuned*,
+the displacement given (see below) and the FFT and BLAS libraries asked for one thread
+(``OMP_NUM_THREADS=1`` and the like) so that CPU time is work, not spinning; and
+*defaults*, gridstrain with no guess (the lattice detected, the fringe order found by
+itself) and the threads a user gets (``--tuned-only`` leaves it out).
 
 * ``gridstrain``: ``python -m gridstrain.cli measure REF DEF -o out.h5 --quiet``, the
   lattice detected, the fringe order from the cross-correlation, the
@@ -164,81 +166,105 @@ def main(argv=None):
                     help="the interpreter of a virtual environment holding OpenLSA (it pins "
                          "numpy < 2: keep it out of gridstrain's environment, e.g. "
                          "python -m venv olsa && olsa/bin/pip install openlsa tifffile)")
+    ap.add_argument("--tuned-only", dest="both", action="store_false",
+                    help="only the tuned case (the displacement given, one thread), not "
+                         "also the defaults case (the fringe order found by gridstrain, "
+                         "threads as a user gets them)")
     args = ap.parse_args(argv)
     shape = tuple(int(v) for v in args.size.lower().split("x"))
 
-    olsa_python = args.openlsa_python or sys.executable
-    have_openlsa = subprocess.run([olsa_python, "-c", "import openlsa"],
-                                  capture_output=True).returncode == 0
-
-    env = dict(os.environ, **ONE_THREAD)
-    env["PYTHONPATH"] = os.pathsep.join([str(ROOT / "src"), env.get("PYTHONPATH", "")])
     print(f"machine: {machine()}")
     print(f"pair {shape[0]}x{shape[1]}, checkerboard pitch {PITCH:g} px at {ANGLE:g} deg, "
-          f"u = {SHIFT} px + strain {STRAIN}; one thread; best of {args.repeat} interleaved "
-          "runs, each in a fresh interpreter")
+          f"u = {SHIFT} px + strain {STRAIN}; best of {args.repeat} interleaved runs, each "
+          "in a fresh interpreter")
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
         write_pair(tmp, shape)
-        ref, cur = str(tmp / "ref.tif"), str(tmp / "def.tif")
-        out = tmp / "out.h5"
         # both programs are told where the defect went (see the module's notes)
         row, col = round(FEATURE[1] * shape[0]), round(FEATURE[0] * shape[1])
         ux, uy = field(shape)(float(col), float(row))
-        guess = [] if args.auto else ["--guess", f"{ux:.3f}", f"{uy:.3f}"]
-        cands = {
-            "python -c 'import numpy'": [sys.executable, "-c", "import numpy"],
-            "gridstrain --help": [sys.executable, "-m", "gridstrain.cli", "--help"],
-            "gridstrain measure": [sys.executable, "-m", "gridstrain.cli", "measure", ref, cur,
-                                   "-o", str(out), "--quiet", "--overwrite", *guess],
-        }
-        if args.baseline:
-            cands["gridstrain measure (baseline)"] = [
-                sys.executable, "-c",
-                f"import sys; sys.path.insert(0, {args.baseline!r}); "
-                "from gridstrain.cli import main; sys.exit(main())",
-                "measure", ref, cur, "-o", str(tmp / "base.h5"), "--quiet", "--overwrite",
-                *guess]
-        if have_openlsa:
-            cands["openlsa"] = [olsa_python, "-O", "-c", OPENLSA_SCRIPT, ref, cur,
-                                str(tmp / "olsa.npy"),
-                                *(str(v) for v in (row, col, row + uy, col + ux))]
-        cpu = {n: [] for n in cands}
-        wall = {n: [] for n in cands}
-        user = {n: [] for n in cands}
-        for _ in range(args.repeat):
-            for name, cmd in cands.items():
-                c, w, u = run_child(cmd, env)
-                cpu[name].append(c)
-                wall[name].append(w)
-                user[name].append(u)
-        best = {n: min(v) for n, v in cpu.items()}
-        # the system time (page faults) of one program varies by a fifth and more from
-        # run to run on a virtual machine: the user time is printed beside the total
-        print(f"{'candidate':<28} {'CPU s':>8} {'user s':>8} {'wall s':>8}")
-        for name in cands:
-            print(f"{name:<28} {best[name]:>8.2f} {min(user[name]):>8.2f} "
-                  f"{min(wall[name]):>8.2f}")
+        guess = ["--guess", f"{ux:.3f}", f"{uy:.3f}"]
+        cases = {"tuned": ([] if args.auto else guess, True),
+                 "defaults": ([], False)}
+        if not args.both:
+            cases = {"tuned": cases["tuned"]}
+        ratios = {}
+        for case, (given, one_thread) in cases.items():
+            print(f"\n{case}: " + ("the displacement given, one thread" if given else
+                                   "the fringe order by gridstrain")
+                  + ("" if one_thread else "; threads as a user gets them"))
+            ratios[case] = _case(args, shape, tmp, case, given, one_thread,
+                                 (row, col, row + uy, col + ux))
+        if len(ratios) > 1 and all(r is not None for r in ratios.values()):
+            print("\nCPU time ratio openlsa / gridstrain: "
+                  + ", ".join(f"{c} {r:.2f}" for c, r in ratios.items()))
+
+
+def _case(args, shape, tmp, case, given, one_thread, point):
+    """Time one case's candidates; the CPU time ratio openlsa / gridstrain, or None."""
+    olsa_python = args.openlsa_python or sys.executable
+    have_openlsa = subprocess.run([olsa_python, "-c", "import openlsa"],
+                                  capture_output=True).returncode == 0
+    env = dict(os.environ, **ONE_THREAD) if one_thread else dict(os.environ)
+    env["PYTHONPATH"] = os.pathsep.join([str(ROOT / "src"), env.get("PYTHONPATH", "")])
+    ref, cur = str(tmp / "ref.tif"), str(tmp / "def.tif")
+    out = tmp / f"{case}.h5"
+    cands = {}
+    if one_thread:
+        cands["python -c 'import numpy'"] = [sys.executable, "-c", "import numpy"]
+        cands["gridstrain --help"] = [sys.executable, "-m", "gridstrain.cli", "--help"]
+    cands["gridstrain measure"] = [sys.executable, "-m", "gridstrain.cli", "measure", ref,
+                                   cur, "-o", str(out), "--quiet", "--overwrite", *given]
+    if args.baseline:
+        cands["gridstrain measure (baseline)"] = [
+            sys.executable, "-c",
+            f"import sys; sys.path.insert(0, {args.baseline!r}); "
+            "from gridstrain.cli import main; sys.exit(main())",
+            "measure", ref, cur, "-o", str(tmp / "base.h5"), "--quiet", "--overwrite",
+            *given]
+    if have_openlsa:
+        cands["openlsa"] = [olsa_python, "-O", "-c", OPENLSA_SCRIPT, ref, cur,
+                            str(tmp / "olsa.npy"), *(str(v) for v in point)]
+    cpu = {n: [] for n in cands}
+    wall = {n: [] for n in cands}
+    user = {n: [] for n in cands}
+    for _ in range(args.repeat):
+        for name, cmd in cands.items():
+            c, w, u = run_child(cmd, env)
+            cpu[name].append(c)
+            wall[name].append(w)
+            user[name].append(u)
+    best = {n: min(v) for n, v in cpu.items()}
+    # the system time (page faults) of one program varies by a fifth and more from
+    # run to run on a virtual machine: the user time is printed beside the total
+    print(f"{'candidate':<28} {'CPU s':>8} {'user s':>8} {'wall s':>8}")
+    for name in cands:
+        print(f"{name:<28} {best[name]:>8.2f} {min(user[name]):>8.2f} "
+              f"{min(wall[name]):>8.2f}")
+    if one_thread:
         print(f"start-up: gridstrain --help takes {best['gridstrain --help']:.2f} s CPU, "
               f"{best['gridstrain --help'] - best[next(iter(cands))]:+.2f} s beyond "
               "importing numpy")
 
-        import h5py
+    import h5py
 
-        with h5py.File(out, "r") as f:
-            u_ours, valid = _read_ours(f)
-        print(f"gridstrain: u RMS error {rms_error(u_ours, shape, valid):.2e} px")
-        if have_openlsa:
-            u_olsa = np.load(tmp / "olsa.npy")
-            print(f"openlsa:    u RMS error {rms_error(u_olsa, shape, valid):.2e} px (over "
-                  "gridstrain's valid pixels)")
-            users = min(user["openlsa"]) / min(user["gridstrain measure"])
-            print(f"CPU time ratio openlsa / gridstrain: "
-                  f"{best['openlsa'] / best['gridstrain measure']:.2f} "
-                  f"(user time alone: {users:.2f})")
-        else:
-            print("openlsa: not installed (pip install openlsa; GPL, benchmark only)")
-        print(json.dumps({n: round(v, 3) for n, v in best.items()}))
+    with h5py.File(out, "r") as f:
+        u_ours, valid = _read_ours(f)
+    print(f"gridstrain: u RMS error {rms_error(u_ours, shape, valid):.2e} px")
+    ratio = None
+    if have_openlsa:
+        u_olsa = np.load(tmp / "olsa.npy")
+        print(f"openlsa:    u RMS error {rms_error(u_olsa, shape, valid):.2e} px (over "
+              "gridstrain's valid pixels)")
+        ratio = best["openlsa"] / best["gridstrain measure"]
+        users = min(user["openlsa"]) / min(user["gridstrain measure"])
+        print(f"CPU time ratio openlsa / gridstrain: {ratio:.2f} (user time alone: "
+              f"{users:.2f})")
+    else:
+        print("openlsa: not installed (pip install openlsa; GPL, benchmark only)")
+    print(json.dumps({n: round(v, 3) for n, v in best.items()}))
+    print(f"load average after the case: {os.getloadavg()[0]:.1f}")
+    return ratio
 
 
 def _read_ours(f):

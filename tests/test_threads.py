@@ -75,17 +75,19 @@ def test_measure_series_keeps_blas_on_one_thread_throughout(monkeypatch):
 def test_the_command_serves_its_threads_from_one_malloc_arena(monkeypatch):
     import gridstrain.cli as cli
 
-    if platform.libc_ver()[0] == "glibc":  # glibc takes the setting (in a process of its own)
+    if platform.libc_ver()[0] == "glibc":  # glibc takes the settings (in a process of its own)
         out = subprocess.run([sys.executable, "-c", "from gridstrain._threads import "
-                              "one_malloc_arena as f; print(f())"],
+                              "one_malloc_arena as f, keep_freed_memory as g; "
+                              "print(f(), g())"],
                              capture_output=True, text=True, check=True)
-        assert out.stdout.strip() == "True"
+        assert out.stdout.split() == ["True", "True"]
     calls = []
-    monkeypatch.setattr(cli, "one_malloc_arena", lambda: calls.append(1) or True)
+    monkeypatch.setattr(cli, "one_malloc_arena", lambda: calls.append("arena") or True)
+    monkeypatch.setattr(cli, "keep_freed_memory", lambda: calls.append("keep") or True)
     monkeypatch.setattr(sys, "argv", ["gridstrain", "--help"])
     with pytest.raises(SystemExit):
         cli.main()  # the command's own process
-    assert calls == [1]
+    assert calls == ["arena", "keep"]
     with pytest.raises(SystemExit):
         cli.main(["--help"])  # called from Python: the host's allocator is left alone
-    assert calls == [1]
+    assert calls == ["arena", "keep"]

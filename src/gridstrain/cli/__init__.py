@@ -29,7 +29,7 @@ import sys
 import threading
 
 from .. import __version__
-from .._threads import one_malloc_arena
+from .._threads import keep_freed_memory, one_malloc_arena
 
 # sub-command -> the one-line summary its module's parser declares (a test checks
 # that they agree)
@@ -191,6 +191,7 @@ def _main(argv) -> int:
     if argv is None:  # the process is the command's own (not a caller's)
         argv = sys.argv[1:]
         one_malloc_arena()
+        keep_freed_memory()
     # the top level has no option taking a value: the first word is the sub-command
     command = next((a for a in argv if not a.startswith("-")), None)
     parser = build_parser([command] if command in _COMMANDS else [])

@@ -418,8 +418,7 @@ def _ncc_map(side: _Side, g):
     scale = max(float(np.max(den)), 1e-300)
     ok = side.enough & (den > 1e-9 * scale)
     c = np.full(shape, np.nan)
-    c[ok] = num[ok] / den[ok]
-    return c
+    return np.divide(num, den, out=c, where=ok)
 
 
 def _at_cubic(c, s):

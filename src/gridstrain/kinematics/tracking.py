@@ -28,7 +28,6 @@ from ._fringe_order import (
     _CoarseReference,
     _from_estimate,
     _phase_shift,
-    coarse_displacement,
 )
 
 # A state followed from the previous one is confirmed only if its displacement
@@ -225,8 +224,8 @@ class _Tracker:
                 "is not confirmed; they share its uncertainty"]
 
 
-def check_after_warp(res: Measurement, rec: FringeOrder, mean_ref: np.ndarray,
-                mean_cur: np.ndarray, mask: np.ndarray, lattice: Lattice, name: str):
+def check_after_warp(res: Measurement, rec: FringeOrder, coarse: _CoarseReference,
+                     mean_cur: np.ndarray, lattice: Lattice, name: str):
     """``(res, rec, warnings)`` with the fringe order checked on the images' content
     once the deformed image is warped back by the measured field.
 
@@ -238,7 +237,8 @@ def check_after_warp(res: Measurement, rec: FringeOrder, mean_ref: np.ndarray,
     followed from the previous one keeps that order (its record says why). The
     field is extended to the invalid pixels by their nearest valid neighbour's, so
     that a hole's edge, the strongest feature, is warped with the specimen around
-    it; ``mask`` is the reference's."""
+    it. ``coarse``: the reference's side of :func:`coarse_displacement` (its mean
+    image and mask), the one the states' image features use."""
     v = res.valid
     if rec.source == "previous state" or not v.any() or res.reference is None:
         return res, rec, []
@@ -250,7 +250,7 @@ def check_after_warp(res: Measurement, rec: FringeOrder, mean_ref: np.ndarray,
     warped = ndimage.map_coordinates(np.asarray(mean_cur, dtype=np.float64), [yy, xx],
                                      order=1, mode="nearest")
     del yy, xx
-    est = coarse_displacement(mean_ref, warped, lattice, mask=mask, phase_shift=(0.0, 0.0))
+    est = coarse.estimate(warped, np.zeros(2))
     if not est.confident:
         return res, rec, []
     off = np.rint(lattice.K @ np.array(est.shift))

@@ -490,8 +490,8 @@ def _measure(series: list, guesses: list, m: np.ndarray, o: MeasureOptions, step
             est = tracker.features(c.maps, c.stats.mean, guesses[i])
             res, rec, notes = tracker.measure(c.maps, est, guesses[i], c.name)
             if isinstance(guesses[i], str):
-                res, checked, said = check_after_warp(res, rec, r.stats.mean, c.stats.mean,
-                                                 r.mask, lattice, c.name)
+                res, checked, said = check_after_warp(res, rec, tracker.coarse, c.stats.mean,
+                                                      lattice, c.name)
                 if checked is not rec:  # confirmed now: the doubt said before is void
                     notes = [n for n in notes if "fringe order not confirmed" not in n]
                 rec = checked
