@@ -8,9 +8,7 @@ import pytest
 
 from gridstrain import Lattice, cli
 from gridstrain.io import MARKER_NAME
-from gridstrain.paper._cases import QUANTITIES
-from gridstrain.paper._summary import _at
-from gridstrain.paper.experiment import _shifts, reproduce
+from gridstrain.paper.experiment import QUANTITIES, _at, _shifts, reproduce
 
 TINY = {"size": (96, 96), "T": [1, 4, 16], "T_b": [1, 4], "repetitions": 1,
         "cases": [1, 3], "timing_frames": 3, "workers": 1, "seed": 3}
