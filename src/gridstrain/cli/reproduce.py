@@ -55,8 +55,8 @@ def register(subparsers) -> None:
 def run(args: argparse.Namespace) -> int:
     """Run ``gridstrain reproduce`` with parsed ``args``; returns the exit code."""
     # heavy imports only when the command runs
-    from ..paper import reproduce
     from ..paper._summary import fixed_figure
+    from ..paper.experiment import reproduce
 
     t0 = time.perf_counter()
     res = reproduce(args.out, quick=args.quick, overwrite=args.overwrite, seed=args.seed,
