@@ -740,3 +740,28 @@ def test_an_interrupt_dropped_by_a_finaliser_is_raised_again():
             time.sleep(0.01)
     assert signal.getsignal(signal.SIGALRM) is signal.SIG_DFL
     assert sys.unraisablehook is hook
+
+
+def test_an_interrupt_that_surfaces_as_another_error_is_still_the_interrupt(
+        data, tmp_path, capsys, monkeypatch):
+    """SIGINT landing while an extension module initialises makes its import fail with
+    ImportError (the interrupt is swallowed into it): the signal, not the error it
+    turned into, decides the outcome: one line, exit 130, nothing left."""
+    import gridstrain.cli.measure as cm
+
+    def interrupted_import(*args, **kwargs):
+        try:
+            signal.raise_signal(signal.SIGINT)  # delivered here: the handler raises
+        except KeyboardInterrupt:
+            raise ImportError("initialization failed") from None
+        raise AssertionError("the handler did not raise")
+
+    monkeypatch.setattr(cm, "measure_series", interrupted_import)
+    out = tmp_path / "out"
+    out.mkdir()
+    rc = _run(["measure", data / "ref.tif", data / "load.tif", "--quiet", "-o", out / "o.h5"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 130, err
+    assert len(err) == 1, err
+    assert "interrupted" in err[0]
+    assert _leftovers(out) == []

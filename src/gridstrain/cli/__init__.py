@@ -87,11 +87,25 @@ class Terminated(BaseException):
     """Raised in the main thread by SIGTERM, so that clean-ups run (exit 143)."""
 
 
+# The signal this command received, if any: an interrupt that lands inside an
+# import or a C extension can surface as another error (a module whose
+# initialisation was interrupted raises ImportError); the signal decides the outcome.
+_received: list[int] = []
+
+
 def _interrupt(signum, frame):
     # a second signal must not break the clean-up the first one started
     for s in (signal.SIGINT, signal.SIGTERM):
         signal.signal(s, signal.SIG_IGN)
+    _received.append(signum)
     raise KeyboardInterrupt if signum == signal.SIGINT else Terminated
+
+
+def _as_signal(exc: BaseException) -> None:
+    """Raise the received signal's exception in place of ``exc``, if a signal came."""
+    if _received and not isinstance(exc, KeyboardInterrupt | Terminated):
+        raise (KeyboardInterrupt if _received[0] == signal.SIGINT else Terminated)() \
+            from None
 
 
 # An interrupt raised while Python runs a callback whose exceptions it ignores (a
@@ -124,6 +138,7 @@ def _signals():
     if threading.current_thread() is not threading.main_thread():
         yield
         return
+    _received.clear()
     wanted = {signal.SIGINT: _interrupt, signal.SIGTERM: _interrupt}
     if hasattr(signal, "SIGXFSZ"):
         wanted[signal.SIGXFSZ] = signal.SIG_IGN
@@ -171,7 +186,11 @@ def main(argv=None) -> int:
     try:
         # from the first instant: a signal while the modules load is one line too
         with _signals():
-            return _main(argv)
+            try:
+                return _main(argv)
+            except BaseException as exc:
+                _as_signal(exc)
+                raise
     except KeyboardInterrupt:
         print(f"{_where(argv)}: interrupted; no partial output left", file=sys.stderr)
         return 130
@@ -204,6 +223,7 @@ def _main(argv) -> int:
         with Outputs():
             return int(args.func(args) or 0)
     except MemoryError as exc:
+        _as_signal(exc)
         from .._memory import MemoryBudgetError
 
         if isinstance(exc, MemoryBudgetError):
@@ -215,6 +235,7 @@ def _main(argv) -> int:
     except (KeyboardInterrupt, Terminated):
         raise
     except BaseException as exc:
+        _as_signal(exc)
         if isinstance(exc, SystemExit | GeneratorExit):
             raise
         # a lost connection is an OSError too: the cluster is named first
