@@ -10,7 +10,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..stacks.accumulate import SeriesPass
-from ..stacks.screening import CHECKS, FrameScreen
+from ..stacks.screening import CHECKS, FrameScreen, NoGridError
 
 #: What ``outliers`` may say to do with the frames the screening flags.
 OUTLIER_POLICIES = ("exclude", "refuse", "warn")
@@ -68,12 +68,13 @@ def _screen_pass(s, acc: SeriesPass, max_saturation: float, outliers: str):
     n = s.n_frames
     try:
         sc = acc.screen(max_saturation=max_saturation)
+    except NoGridError as exc:
+        raise ValueError(f"{s.name}: {exc}; a state whose grid turned by more than 17 "
+                         "degrees or stretched by more than 30 % from the reference's is "
+                         "not followed (gridstrain.lattice.follow_lattice): measure it "
+                         "against an intermediate state") from None
     except ValueError as exc:
-        hint = ("; a state whose grid turned by more than 17 degrees or stretched by more "
-                "than 30 % from the reference's is not followed (gridstrain.lattice."
-                "follow_lattice): measure it against an intermediate state"
-                if "shows a grid" in str(exc) else "")
-        raise ValueError(f"{s.name}: {exc}{hint}") from None
+        raise ValueError(f"{s.name}: {exc}") from None
     sequence = []
     if sc.trend is not None and sc.trend.sequence:
         what = (f"{s.name}: its {n} frames are a sequence, not one static state "

@@ -57,7 +57,7 @@ from .vibration import (
     shifts_from_coefficients,
 )
 
-__all__ = ["FrameScreen", "Trend", "screen_frames"]
+__all__ = ["FrameScreen", "NoGridError", "Trend", "screen_frames"]
 
 # A rigid shift farther than this fraction of the pitch from the series' centre is a
 # slip: the paper's vibrations (std 0.02 to 0.1 px at pitch 5) stay 10 times below,
@@ -113,6 +113,10 @@ MAD_TO_STD = 1.4826
 def _p(p: float) -> str:
     """A false-alarm probability for a message (F's tail is exact to about 1e-16)."""
     return "p < 1e-16" if p < 1e-16 else f"p = {p:.1e}"
+
+
+class NoGridError(ValueError):
+    """No frame of a series shows a grid at the lattice's wave vectors."""
 
 
 @dataclass(frozen=True)
@@ -560,7 +564,7 @@ def decide(records, probe: FrameProbe, *, max_saturation: float = 0.01) -> Frame
     uniform = [r.uniform for r in records]
     grid = np.all(prom >= MIN_PROMINENCE, axis=1) & ~np.array(uniform)
     if not grid.any():
-        raise ValueError(f"no frame shows a grid at the lattice's wave vectors: the carrier "
+        raise NoGridError(f"no frame shows a grid at the lattice's wave vectors: the carrier "
                          f"stands at most {float(prom.min(axis=1).max()):.3g} times above the "
                          "level of white noise (a grid gives tens to hundreds); check the "
                          "lattice")
