@@ -17,6 +17,7 @@ import tifffile
 from gridstrain import Lattice, kirsch, synthetic
 from gridstrain.cli import main
 from gridstrain.plotting import figure_names
+from gridstrain.results import load
 
 LAT = Lattice.from_pitch(5.0)
 N, A_HOLE = 128, 14.0
@@ -422,6 +423,20 @@ def test_demo_overwrite_then_measure_its_command(tmp_path, monkeypatch, capsys):
     assert rc == 0, capsys.readouterr().err
     assert (tmp_path / "maps.h5").is_file()
     assert len(list((tmp_path / "figs").glob("*.png"))) == 7
+
+
+def test_demo_result_replays_its_measurement(tmp_path, monkeypatch, capsys):
+    monkeypatch.chdir(tmp_path)
+    assert _run(["demo", "--size", "128", "--radius", "14", "--frames", "2", "--out", "d",
+                 "--quiet"]) == 0
+    rc = _run(["measure", "--config", "d/maps.h5", "-o", "again.h5", "--quiet"])
+    assert rc == 0, capsys.readouterr().err
+    first, again = load(tmp_path / "d" / "maps.h5"), load(tmp_path / "again.h5")
+    assert again.method == first.method
+    # the same frames, mask and options: the same numbers, whatever the run
+    np.testing.assert_array_equal(again.valid, first.valid)
+    for name in ("ux", "uy", "exx"):
+        np.testing.assert_array_equal(again.get_map(name), first.get_map(name))
 
 
 @pytest.mark.parametrize("bad", [["--size", "32"], ["--frames", "0"], ["--radius", "200"],

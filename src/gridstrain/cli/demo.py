@@ -32,6 +32,7 @@ from ..report import write_report
 from ..results import MAP_FIELDS, save_result
 from ..series import measure_series
 from ._summary import jsonable, report_lines, summary
+from .measure import config_text
 
 # The simulated camera and specimen (paper §3.2 and README of the paper notes).
 _AMPLITUDE = 2400.0  # mean grey level of the grid, 12-bit levels: peaks at 3480 + black
@@ -225,8 +226,15 @@ def _measure(out: Path, method: str, directory: OutputDirectory, progress):
         progress(0.4 + 0.5 * f, msg)
 
     result = measure_series(ref, [load], method=method, mask=m, progress=measuring)
+    # the measurement's configuration, so that 'gridstrain measure --config maps.h5'
+    # replays it like any result of 'gridstrain measure'
+    config = config_text({"reference": str((out / "ref").resolve()),
+                          "states": [str((out / "load").resolve())],
+                          "mask": str((out / "mask.tif").resolve()),
+                          "method": method, "pixel-size": _PIXEL_SIZE, "unit": _UNIT})
     maps = save_result(result, out / "maps.h5", pixel_size=_PIXEL_SIZE, unit=_UNIT,
-                       attrs={"mask_file": str(out / "mask.tif"), "demo": "gridstrain demo"})
+                       attrs={"mask_file": str(out / "mask.tif"), "demo": "gridstrain demo",
+                              "config": config})
     directory.record(maps)
     figs = save_figures(result, out / "figures", pixel_size=_PIXEL_SIZE, unit=_UNIT,
                         overwrite=True,
