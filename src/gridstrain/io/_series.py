@@ -23,6 +23,7 @@ from .._validation import (
     check_shape,
     check_type,
 )
+from ._camera import _is_camera, _layout, _read_camera
 from ._readers import (
     _JPEG_EXTENSIONS,
     _LOSSLESS_CODECS,
@@ -120,9 +121,19 @@ class FrameSeries:
 
     @property
     def times(self) -> np.ndarray | None:
-        """(n_frames,) time stamp of each frame from the start of its file, s, where
-        the file holds them (a video); else None."""
+        """(n_frames,) time of each frame, s, where its file says it: from the first
+        frame of a video; from the trigger in a camera record (Phantom cine, Photron
+        MRAW; negative before it), its time stamps or its frame numbers over its frame
+        rate. None otherwise."""
         return np.array(self._times, dtype=np.float64) if self._times else None
+
+    @property
+    def frame_rate(self) -> float | None:
+        """Frames per second recorded, from the header of a camera record (Phantom
+        cine, Photron MRAW) holding every frame; else None."""
+        if len(self.paths) == 1 and _is_camera(self.paths[0]):
+            return _layout(self.paths[0], self.name).frame_rate
+        return None
 
     def __len__(self) -> int:
         return len(self._frames)
@@ -185,6 +196,12 @@ class FrameSeries:
             if self._video and self._video[f]:
                 group = list(group)
                 frames = _read_video(path, [page for _, _, page, _ in group], self.name)
+                for (j, _, page, n_pages), raw in zip(group, frames, strict=True):
+                    where = f"frame {j} ({_describe(path, page, n_pages)})"
+                    yield where, self._checked(raw, where)
+            elif _is_camera(path):
+                group = list(group)
+                frames = _read_camera(path, [page for _, _, page, _ in group], self.name)
                 for (j, _, page, n_pages), raw in zip(group, frames, strict=True):
                     where = f"frame {j} ({_describe(path, page, n_pages)})"
                     yield where, self._checked(raw, where)
@@ -457,8 +474,10 @@ def open_series(source, *, name: str = "series", bit_depth: int | None = None
         n = min(_DETECT_FRAMES, series.n_frames)
         _check_decoded(paths[0], ref.shapes[0], stored, channels, n, name)
         first = [raw for _, raw in series._iter_raw(range(n))]
-        if bit_depth is None and ref.bits is not None and ref.bits < 8 * stored.itemsize:
-            bit_depth = ref.bits  # packed data (10-bit, 12-bit TIFFs) say their depth
+        if bit_depth is None and ref.bits is not None and (
+                ref.camera or ref.bits < 8 * stored.itemsize):
+            # packed data (10-bit, 12-bit TIFFs) and camera records say their depth
+            bit_depth = ref.bits
     bits, scale, sat = _depth(stored, first, bit_depth, paths[0], name)
     return dataclasses.replace(series, bit_depth=bits, scale=scale, saturation_level=sat)
 
