@@ -75,7 +75,7 @@ def pack12(frame: np.ndarray) -> bytes:
 
 
 def _time64(seconds: float | int) -> int:
-    return int(round(seconds * 2**32))
+    return round(seconds * 2**32)
 
 
 def write_cine(path, frames, *, real_bpp: int, bit_count: int = 16, packed: bool = False,
