@@ -419,11 +419,17 @@ def open_series(source, *, name: str = "series", bit_depth: int | None = None
         - a string with ``*``, ``?`` or ``[`` that names no existing path: a glob
           pattern, matches in natural order of their full path, non-image matches
           ignored;
+        - a video (``.avi``/``.mp4``/``.mov``/``.mkv``, the ``video`` extra): one
+          frame per video frame;
+        - a high-speed camera record: a Phantom cine (``.cine``) or a Photron MRAW
+          (``.mraw``, its ``.cihx`` or ``.cih`` header beside it), one frame per
+          recorded frame, grey records only;
         - a list or tuple of image files, read in the order given.
     name : str
         What the series is, for error messages (``"reference"``...).
     bit_depth : int, optional
-        Significant bits of unsigned integer data, when known. By default 16-bit
+        Significant bits of unsigned integer data, when known. By default a camera
+        record's header gives them (``RealBPP``, ``EffectiveBit Depth``) and 16-bit
         files whose first frames hold only multiples of 16 are taken as 12-bit data
         stored x16 (``scale = 16``, saturation 65520); other files use their full
         range. ``bit_depth=12`` also accepts right-aligned 12-bit data (values up to
