@@ -279,3 +279,23 @@ def test_cli_refuses_a_truncated_record_in_one_line(tmp_path, frames):
     assert "rec.cine" in lines[0]
     assert "Traceback" not in p.stderr
     assert not (tmp_path / "a.h5").exists()
+
+
+def test_record_frames_are_read_one_at_a_time(tmp_path, frames):
+    """A damaged last image stops the read only when the loop reaches it: the frames
+    before it were read one by one, not the whole record at once."""
+    path = write_cine(tmp_path / "rec.cine", frames, real_bpp=12, times=None)
+    (table,) = struct.unpack_from("<I", path.read_bytes(), 32)
+    _patch(path, table + 8 * (N - 1), "<q", -1)
+    it = open_series(path).frames(dtype=None)
+    for k in range(N - 1):
+        np.testing.assert_array_equal(next(it), frames[k])
+    with pytest.raises(OSError, match=rf"rec\.cine: image {N - 1} is said to start at byte -1"):
+        next(it)
+
+
+def test_a_folder_reads_the_mraw_not_its_header(tmp_path, frames):
+    write_mraw(tmp_path / "rec.mraw", frames, color_bit=12, header="cihx")
+    s = open_series(tmp_path)
+    assert s.paths == (tmp_path / "rec.mraw",)
+    assert s.n_frames == N

@@ -51,6 +51,7 @@ import os
 import re
 import struct
 import xml.etree.ElementTree as ET
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -118,34 +119,47 @@ def _is_camera(path: Path) -> bool:
 # --------------------------------------------------------------------------- reading
 
 
-def _read_exact(fh, offset: int, n: int, path: Path, what: str, name: str) -> bytes:
+def _read_exact(fh, offset: int, n: int, path: Path, what: str, name: str,
+                into: np.ndarray | None = None) -> bytes | np.ndarray:
+    """``n`` bytes at ``offset`` (into the array ``into`` of ``n`` bytes, if given)."""
     fh.seek(offset)
-    data = fh.read(n)
-    if len(data) != n:
+    if into is None:
+        data = fh.read(n)
+        got = len(data)
+    else:
+        data = into
+        got = fh.readinto(memoryview(into).cast("B"))
+    if got != n:
         raise OSError(f"{name}: {path}: {what} at byte {offset} needs {n} bytes but the "
-                      f"file ends at byte {offset + len(data)} (truncated file?)")
+                      f"file ends at byte {offset + got} (truncated file?)")
     return data
 
 
-def _unpack12(raw: np.ndarray) -> np.ndarray:
-    """Pixels of 12 bits packed two in three bytes, most significant bits first."""
-    b = raw.reshape(-1, 3).astype(np.uint16)
-    out = np.empty((b.shape[0], 2), dtype=np.uint16)
-    out[:, 0] = (b[:, 0] << 4) | (b[:, 1] >> 4)
-    out[:, 1] = ((b[:, 1] & 0x0F) << 8) | b[:, 2]
-    return out.reshape(-1)
+def _unpack12(raw: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    """Pixels of 12 bits packed two in three bytes, most significant bits first.
+
+    The bytes ``AB CD EF`` hold ``0xABC`` and ``0xDEF``: the big-endian words read at
+    bytes 0 and 1 of each triple, ``0xABCD >> 4`` and ``0xCDEF & 0xFFF``.
+    """
+    m = raw.size // 3
+    first = np.ndarray((m,), dtype=">u2", buffer=raw, offset=0, strides=(3,))
+    second = np.ndarray((m,), dtype=">u2", buffer=raw, offset=1, strides=(3,))
+    out = np.empty((m, 2), dtype=np.uint16)
+    np.right_shift(first, 4, out=out[:, 0])
+    np.bitwise_and(second, 0x0FFF, out=out[:, 1])
+    return out.reshape(shape)
 
 
-def _decode(data: bytes, layout: _Layout) -> np.ndarray:
+def _read_frame(fh, at: int, layout: _Layout, k: int, name: str) -> np.ndarray:
+    """Frame ``k``, whose bytes start at ``at``, as an (H, W) array the right way up."""
     H, W = layout.shape
-    if layout.stored == 12:
-        img = _unpack12(np.frombuffer(data, dtype=np.uint8))
-    elif layout.stored == 16:
-        img = np.frombuffer(data, dtype="<u2").astype(np.uint16)
-    else:
-        img = np.frombuffer(data, dtype=np.uint8).copy()
-    img = img.reshape(H, W)
-    return np.ascontiguousarray(img[::-1]) if layout.bottom_up else img
+    wide = layout.stored == 16
+    stored = np.empty(layout.frame_bytes // 2 if wide else layout.frame_bytes,
+                      dtype="<u2" if wide else "u1")
+    _read_exact(fh, at, layout.frame_bytes, layout.path, f"frame {k}", name, into=stored)
+    img = _unpack12(stored, (H, W)) if layout.stored == 12 else stored.reshape(H, W)
+    img = img.astype(layout.dtype, copy=False)  # native byte order
+    return img[::-1].copy() if layout.bottom_up else img
 
 
 def _frame_offset(fh, layout: _Layout, k: int, name: str) -> int:
@@ -172,19 +186,15 @@ def _frame_offset(fh, layout: _Layout, k: int, name: str) -> int:
     return ptr + ann
 
 
-def _read_camera(path: Path, pages: list[int], name: str) -> list[np.ndarray]:
-    """Frames ``pages`` of the record ``path``, read one after the other."""
+def _read_camera(path: Path, pages, name: str) -> Iterator[np.ndarray]:
+    """Frames ``pages`` of the record ``path``, read one at a time from one open file."""
     layout = _layout(path, name)
-    out = []
     with open(path, "rb") as fh:
         if os.fstat(fh.fileno()).st_size != layout.size:
             raise OSError(f"{name}: {path} has changed since the series was opened (its "
                           f"size is no longer {layout.size} bytes)")
         for k in pages:
-            at = _frame_offset(fh, layout, k, name)
-            data = _read_exact(fh, at, layout.frame_bytes, path, f"frame {k}", name)
-            out.append(_decode(data, layout))
-    return out
+            yield _read_frame(fh, _frame_offset(fh, layout, k, name), layout, k, name)
 
 
 # A parsed header, per file and per state of the file (size, modification time): the

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
@@ -200,11 +201,13 @@ class FrameSeries:
                     where = f"frame {j} ({_describe(path, page, n_pages)})"
                     yield where, self._checked(raw, where)
             elif _is_camera(path):
+                # one frame read at a time, as the loop asks for it
                 group = list(group)
-                frames = _read_camera(path, [page for _, _, page, _ in group], self.name)
-                for (j, _, page, n_pages), raw in zip(group, frames, strict=True):
-                    where = f"frame {j} ({_describe(path, page, n_pages)})"
-                    yield where, self._checked(raw, where)
+                frames = _read_camera(path, (page for _, _, page, _ in group), self.name)
+                with contextlib.closing(frames):
+                    for (j, _, page, n_pages), raw in zip(group, frames, strict=True):
+                        where = f"frame {j} ({_describe(path, page, n_pages)})"
+                        yield where, self._checked(raw, where)
             elif self._tiff[f]:
                 with _open_tiff(path, self.name) as tif:
                     for j, _, page, n_pages in group:
