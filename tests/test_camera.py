@@ -62,7 +62,9 @@ def test_cine_frames_bits_rate_and_time_stamps(tmp_path, frames, kind):
         np.testing.assert_array_equal(s.read(k, dtype=None), data[k])
     assert s.frame_rate == RATE
     np.testing.assert_allclose(s.times, _times(), rtol=0, atol=TIME64_RESOLUTION)
-    assert s.times[-FIRST] == 0.0  # the trigger's frame
+    assert s.trigger_frame == -FIRST
+    assert s.times[-FIRST] == 0.0
+    assert s.subset([3, 2]).trigger_frame == 1
 
 
 def test_cine_without_time_block_is_timed_by_its_frame_rate(tmp_path, frames):
@@ -99,6 +101,7 @@ def test_mraw_frames_bits_rate_and_times(tmp_path, frames, bit, header):
     for k in (4, 1, 2):
         np.testing.assert_array_equal(s.read(k, dtype=None), data[k])
     assert s.frame_rate == 20000
+    assert s.trigger_frame == 1
     np.testing.assert_array_equal(s.times, (np.arange(N) - 1) / 20000)
 
 

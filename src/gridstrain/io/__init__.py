@@ -14,7 +14,8 @@ Input
     MRAW records of high-speed cameras from their published layouts, frame by frame,
     every header size and offset checked against the file first, their significant
     bits as the bit depth and their frame times from the trigger
-    (:attr:`FrameSeries.times`, :attr:`FrameSeries.frame_rate`). Colour frames are
+    (:attr:`FrameSeries.times`, :attr:`FrameSeries.frame_rate`,
+    :attr:`FrameSeries.trigger_frame`). Colour frames are
     read as their luminance (:func:`to_luminance`,
     ITU-R BT.709 weights) and JPEG files with a note on their lossy compression
     (:attr:`FrameSeries.notes`). :func:`read_mask` reads a specimen mask, grey,

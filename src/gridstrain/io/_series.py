@@ -136,6 +136,16 @@ class FrameSeries:
             return _layout(self.paths[0], self.name).frame_rate
         return None
 
+    @property
+    def trigger_frame(self) -> int | None:
+        """Index in this series of the frame taken at the trigger, from the header of
+        a camera record holding every frame (its frame numbered 0); else None."""
+        if len(self.paths) == 1 and _is_camera(self.paths[0]):
+            k = _layout(self.paths[0], self.name).trigger_frame
+            pages = [page for _, page, _ in self._frames]
+            return pages.index(k) if k in pages else None
+        return None
+
     def __len__(self) -> int:
         return len(self._frames)
 
