@@ -83,7 +83,6 @@ _P10, _P12L = 256, 1024
 class _Layout:
     """Where the frames of a camera record lie, and what its header says about them."""
 
-    kind: str  # "Phantom cine" or "Photron MRAW"
     path: Path  # the file of the pixels
     size: int  # its size when read, bytes
     shape: tuple[int, int]  # (H, W), px
@@ -346,7 +345,7 @@ def _read_cine(path: Path, size: int, name: str) -> _Layout:
         times = _stamp_times(sec + frac / 2.0**32, path, name)
     else:
         times = _rate_times(fps, first_no, count)
-    layout = _Layout("Phantom cine", path, size, (H, W), count, stored, bits, bottom_up,
+    layout = _Layout(path, size, (H, W), count, stored, bits, bottom_up,
                      fps, first_no, times, off_table)
     # the images must at least fit after the offset table
     _check_extent(layout, table_end, name)
@@ -489,7 +488,7 @@ def _read_mraw(path: Path, size: int, name: str) -> _Layout:
     if count < 1:
         raise OSError(f"{name}: {cih}: the header's 'Total Frame' is {count}; no frame to "
                       "read")
-    layout = _Layout("Photron MRAW", path, size, (H, W), count, stored, bits, False, rate,
+    layout = _Layout(path, size, (H, W), count, stored, bits, False, rate,
                      start, _rate_times(rate, start, count))
     _check_extent(layout, 0, name)
     if count * layout.frame_bytes != size:
