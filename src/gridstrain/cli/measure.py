@@ -96,8 +96,9 @@ _EXAMPLE = """example:
       --pixel-size 0.04 --unit mm --report report.html --export mat,vtk,csv
 
 REF and DEF are each an image file (TIFF, one frame or one per page; PNG, BMP,
-JPEG; colour frames are read as their luminance), a directory of images or a
-quoted glob ("run3/*.tif"); one DEF per loaded state. Options may also come from
+JPEG; colour frames are read as their luminance), a video, a high-speed camera
+record (Phantom .cine; Photron .mraw with its .cihx/.cih beside it), a directory
+of images or a quoted glob ("run3/*.tif"); one DEF per loaded state. Options may also come from
 --config FILE.toml, whose keys are the long option names (reference = "ref/",
 states = ["load1/", "load2/"], pixel-size = 0.04, method = "B", roi = [10, 10, 300,
 200], roi-polygon = [[10, 10], [300, 20], [150, 200]]...); paths in it are relative
@@ -183,8 +184,9 @@ def _specimen_options(k) -> None:
 _SEQUENCE_OPTIONS = (
     ("--each-frame", {"action": "store_true", "default": None, "help":
                       "every frame of the DEF inputs (a folder, a glob, a multi-page TIFF, a "
-                      "video) is a state of its own, named after its file (and page): a "
-                      "high-speed record or a load-step series. Without it a DEF whose "
+                      "video, a Phantom cine or Photron MRAW record) is a state of its "
+                      "own, named after its file (and page): a high-speed record or a "
+                      "load-step series. Without it a DEF whose "
                       "frames drift or deform steadily is refused, never averaged"}),
     ("--reference-frames", {"type": int, "metavar": "N", "help":
                             "the reference is the first N frames of the record (REF, then "
@@ -199,7 +201,8 @@ _SEQUENCE_OPTIONS = (
                  "'time [s]', one row per state in order or a 'state' column naming them"}),
     ("--frame-rate", {"type": float, "metavar": "HZ", "help":
                       "the camera's frame rate: each state's time is its frame's number in "
-                      "the record over the rate, s (with --each-frame)"}),
+                      "the record over the rate, s (with --each-frame; default: the times a "
+                      "video or camera record holds)"}),
 )
 
 

@@ -10,7 +10,13 @@ Input
     bounded by one frame whatever the length of the series). TIFF files are read
     with ``tifffile``, page by page (packed 10/12-bit and LZW, deflate or zstd
     compressed pages through ``imagecodecs``); PNG, BMP and JPEG files with
-    ``imageio``. Colour frames are read as their luminance (:func:`to_luminance`,
+    ``imageio``; videos through PyAV (the ``video`` extra); Phantom cine and Photron
+    MRAW records of high-speed cameras from their published layouts, frame by frame,
+    every header size and offset checked against the file first, their significant
+    bits as the bit depth and their frame times from the trigger
+    (:attr:`FrameSeries.times`, :attr:`FrameSeries.frame_rate`,
+    :attr:`FrameSeries.trigger_frame`). Colour frames are
+    read as their luminance (:func:`to_luminance`,
     ITU-R BT.709 weights) and JPEG files with a note on their lossy compression
     (:attr:`FrameSeries.notes`). :func:`read_mask` reads a specimen mask, grey,
     1-bit or colour (:mod:`gridstrain.conventions`, Masks); :func:`roi_mask`

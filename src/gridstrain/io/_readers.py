@@ -1,6 +1,7 @@
 """Reading the files of a series: TIFF pages (packed, compressed, multi-page), PNG, BMP and
-JPEG images through imageio, videos through PyAV; each file scanned once for its frames,
-shape, dtype and channels, and a source resolved to its files in natural order.
+JPEG images through imageio, videos through PyAV, high-speed camera records (Phantom cine,
+Photron MRAW) from their published layouts; each file scanned once for its frames, shape,
+dtype and channels, and a source resolved to its files in natural order.
 """
 
 from __future__ import annotations
@@ -20,6 +21,7 @@ import tifffile
 from .._validation import (
     as_path,
 )
+from ._camera import CAMERA_EXTENSIONS, _is_camera, _layout
 
 #: File name extensions read as images (compared case-insensitively). JPEG files are
 #: read with a note: lossy compression adds noise the noise model does not describe.
@@ -63,7 +65,7 @@ def natural_sort_key(text: str | os.PathLike) -> tuple:
 
 
 def _is_image_name(path: Path) -> bool:
-    return path.suffix.lower() in IMAGE_EXTENSIONS + VIDEO_EXTENSIONS
+    return path.suffix.lower() in IMAGE_EXTENSIONS + VIDEO_EXTENSIONS + CAMERA_EXTENSIONS
 
 
 def _is_video(path: Path) -> bool:
@@ -77,8 +79,9 @@ def _is_tiff(path: Path) -> bool:
 def _check_extension(path: Path, name: str) -> None:
     if not _is_image_name(path):
         raise ValueError(f"{name}: {path} has extension {path.suffix!r}; supported image "
-                         f"files are {', '.join(IMAGE_EXTENSIONS)}, and videos "
-                         f"{', '.join(VIDEO_EXTENSIONS)}")
+                         f"files are {', '.join(IMAGE_EXTENSIONS)}, videos "
+                         f"{', '.join(VIDEO_EXTENSIONS)}, and camera records "
+                         f"{', '.join(CAMERA_EXTENSIONS)}")
 
 
 def _page_layout(shape: tuple[int, ...], samples: int) -> tuple[tuple[int, ...], int, int]:
@@ -302,7 +305,9 @@ class _FileInfo:
     channels: tuple[int, ...] = ()  # samples per pixel of each page (1: grey)
     bits: int | None = None  # bits per sample stored in the first TIFF page
     codec: str | None = None  # a video's codec
-    times: tuple[float, ...] = ()  # a video's frame times, s from its first frame
+    # frame times: a video's, s from its first frame; a camera record's, s from the trigger
+    times: tuple[float, ...] = ()
+    camera: bool = False  # a camera record, whose header says the significant bits
 
 
 def _av(name: str, path: Path):
@@ -351,6 +356,11 @@ def _scan_file(path: Path, name: str, *, allow_bool: bool = False) -> _FileInfo:
     """Read the headers of ``path`` (no pixel data) and check every page."""
     if _is_video(path):
         return _scan_video(path, name)
+    if _is_camera(path):
+        lay = _layout(path, name)
+        n = lay.n_frames
+        return _FileInfo(path, False, (lay.shape,) * n, (lay.dtype,) * n, (1,) * n, lay.bits,
+                         times=lay.times, camera=True)
     if _is_tiff(path):
         with _open_tiff(path, name) as tif:
             with _tiff_log() as log:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
@@ -23,6 +24,7 @@ from .._validation import (
     check_shape,
     check_type,
 )
+from ._camera import _is_camera, _layout, _read_camera
 from ._readers import (
     _JPEG_EXTENSIONS,
     _LOSSLESS_CODECS,
@@ -120,9 +122,29 @@ class FrameSeries:
 
     @property
     def times(self) -> np.ndarray | None:
-        """(n_frames,) time stamp of each frame from the start of its file, s, where
-        the file holds them (a video); else None."""
+        """(n_frames,) time of each frame, s, where its file says it: from the first
+        frame of a video; from the trigger in a camera record (Phantom cine, Photron
+        MRAW; negative before it), its time stamps or its frame numbers over its frame
+        rate. None otherwise."""
         return np.array(self._times, dtype=np.float64) if self._times else None
+
+    @property
+    def frame_rate(self) -> float | None:
+        """Frames per second recorded, from the header of a camera record (Phantom
+        cine, Photron MRAW) holding every frame; else None."""
+        if len(self.paths) == 1 and _is_camera(self.paths[0]):
+            return _layout(self.paths[0], self.name).frame_rate
+        return None
+
+    @property
+    def trigger_frame(self) -> int | None:
+        """Index in this series of the frame taken at the trigger, from the header of
+        a camera record holding every frame (its frame numbered 0); else None."""
+        if len(self.paths) == 1 and _is_camera(self.paths[0]):
+            k = _layout(self.paths[0], self.name).trigger_frame
+            pages = [page for _, page, _ in self._frames]
+            return pages.index(k) if k in pages else None
+        return None
 
     def __len__(self) -> int:
         return len(self._frames)
@@ -188,6 +210,14 @@ class FrameSeries:
                 for (j, _, page, n_pages), raw in zip(group, frames, strict=True):
                     where = f"frame {j} ({_describe(path, page, n_pages)})"
                     yield where, self._checked(raw, where)
+            elif _is_camera(path):
+                # one frame read at a time, as the loop asks for it
+                group = list(group)
+                frames = _read_camera(path, (page for _, _, page, _ in group), self.name)
+                with contextlib.closing(frames):
+                    for (j, _, page, n_pages), raw in zip(group, frames, strict=True):
+                        where = f"frame {j} ({_describe(path, page, n_pages)})"
+                        yield where, self._checked(raw, where)
             elif self._tiff[f]:
                 with _open_tiff(path, self.name) as tif:
                     for j, _, page, n_pages in group:
@@ -402,11 +432,17 @@ def open_series(source, *, name: str = "series", bit_depth: int | None = None
         - a string with ``*``, ``?`` or ``[`` that names no existing path: a glob
           pattern, matches in natural order of their full path, non-image matches
           ignored;
+        - a video (``.avi``/``.mp4``/``.mov``/``.mkv``, the ``video`` extra): one
+          frame per video frame;
+        - a high-speed camera record: a Phantom cine (``.cine``) or a Photron MRAW
+          (``.mraw``, its ``.cihx`` or ``.cih`` header beside it), one frame per
+          recorded frame, grey records only;
         - a list or tuple of image files, read in the order given.
     name : str
         What the series is, for error messages (``"reference"``...).
     bit_depth : int, optional
-        Significant bits of unsigned integer data, when known. By default 16-bit
+        Significant bits of unsigned integer data, when known. By default a camera
+        record's header gives them (``RealBPP``, ``EffectiveBit Depth``) and 16-bit
         files whose first frames hold only multiples of 16 are taken as 12-bit data
         stored x16 (``scale = 16``, saturation 65520); other files use their full
         range. ``bit_depth=12`` also accepts right-aligned 12-bit data (values up to
@@ -457,8 +493,10 @@ def open_series(source, *, name: str = "series", bit_depth: int | None = None
         n = min(_DETECT_FRAMES, series.n_frames)
         _check_decoded(paths[0], ref.shapes[0], stored, channels, n, name)
         first = [raw for _, raw in series._iter_raw(range(n))]
-        if bit_depth is None and ref.bits is not None and ref.bits < 8 * stored.itemsize:
-            bit_depth = ref.bits  # packed data (10-bit, 12-bit TIFFs) say their depth
+        if bit_depth is None and ref.bits is not None and (
+                ref.camera or ref.bits < 8 * stored.itemsize):
+            # packed data (10-bit, 12-bit TIFFs) and camera records say their depth
+            bit_depth = ref.bits
     bits, scale, sat = _depth(stored, first, bit_depth, paths[0], name)
     return dataclasses.replace(series, bit_depth=bits, scale=scale, saturation_level=sat)
 
