@@ -18,7 +18,7 @@ import pytest
 import tifffile
 
 from gridstrain import Lattice
-from gridstrain.io import read_loads
+from gridstrain.io import _readers, open_series, read_loads
 from gridstrain.pipeline import measure_series
 from gridstrain.results import load
 from gridstrain.screening import screen_frames
@@ -260,6 +260,22 @@ def test_videos_are_read_frame_by_frame(tmp_path):
     _video(tmp_path / "rec.mp4", frames, "mpeg4", "yuv420p")
     s = state_inputs(tmp_path / "rec.mp4", each_frame=True).states[0]
     assert any("lossy codec(s) mpeg4" in n for n in s.notes)
+
+
+def test_a_video_is_decoded_as_its_frames_are_asked_for(tmp_path):
+    frames = (record(6, (64, 96), strain=1e-3) // 256).astype(np.uint8)
+    _video(tmp_path / "rec.mkv", frames, "ffv1", "gray")
+    series = open_series(tmp_path / "rec.mkv")
+    first = series.frames(dtype=None)
+    np.testing.assert_array_equal(next(first), frames[0])
+    # one frame decoded, not the record: a long record is never held whole
+    assert _readers._CURSOR.next == 1
+    # another reader moving the same file's decoder meanwhile does not shift this one
+    other = series.frames(dtype=None)
+    for k in range(4):
+        np.testing.assert_array_equal(next(other), frames[k])
+    for k in range(1, 6):
+        np.testing.assert_array_equal(next(first), frames[k])
 
 
 def test_a_missing_video_reader_names_the_extra(tmp_path, monkeypatch):

@@ -244,17 +244,19 @@ class _VideoCursor:
         self.path = self.container = self.frames = None
         self.next = 0
 
-    def read(self, path: Path, pages: list[int], name: str) -> list[np.ndarray]:
-        if path != self.path or (pages and pages[0] < self.next):
-            self.close()
-            av = _av(name, path)
-            self.container = av.open(str(path))
-            st = self.container.streams.video[0]
-            fmt, _ = _video_format(st)
-            self.frames = (f.to_ndarray(format=fmt) for f in self.container.decode(st))
-            self.path = path
-        out = []
+    def read(self, path: Path, pages: list[int], name: str) -> Iterator[np.ndarray]:
+        """Yield the frames ``pages`` (increasing) one at a time, decoding on demand:
+        a record of any length holds one decoded frame at a time. Another reader of
+        the cursor may have moved it between two frames: it is then opened again."""
         for page in pages:
+            if path != self.path or page < self.next:
+                self.close()
+                av = _av(name, path)
+                self.container = av.open(str(path))
+                st = self.container.streams.video[0]
+                fmt, _ = _video_format(st)
+                self.frames = (f.to_ndarray(format=fmt) for f in self.container.decode(st))
+                self.path = path
             while True:
                 arr = next(self.frames, None)
                 if arr is None:
@@ -262,17 +264,17 @@ class _VideoCursor:
                     raise OSError(f"{name}: {path} ends before frame {page}")
                 self.next += 1
                 if self.next - 1 == page:
-                    out.append(arr)
+                    yield arr
                     break
-        return out
 
 
 _CURSOR = _VideoCursor()
 
 
-def _read_video(path: Path, pages: list[int], name: str) -> list[np.ndarray]:
+def _read_video(path: Path, pages: list[int], name: str) -> Iterator[np.ndarray]:
+    """Yield the frames ``pages`` of the video ``path``, decoded as they are asked for."""
     try:
-        return _CURSOR.read(path, pages, name)
+        yield from _CURSOR.read(path, pages, name)
     except (OSError, ValueError, MemoryError):
         raise
     except Exception as exc:

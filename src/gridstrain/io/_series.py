@@ -205,11 +205,13 @@ class FrameSeries:
         for f, group in groupby(locs, key=lambda loc: loc[1]):
             path = self.paths[f]
             if self._video and self._video[f]:
+                # decoded one frame at a time, as the loop asks for it
                 group = list(group)
                 frames = _read_video(path, [page for _, _, page, _ in group], self.name)
-                for (j, _, page, n_pages), raw in zip(group, frames, strict=True):
-                    where = f"frame {j} ({_describe(path, page, n_pages)})"
-                    yield where, self._checked(raw, where)
+                with contextlib.closing(frames):
+                    for (j, _, page, n_pages), raw in zip(group, frames, strict=True):
+                        where = f"frame {j} ({_describe(path, page, n_pages)})"
+                        yield where, self._checked(raw, where)
             elif _is_camera(path):
                 # one frame read at a time, as the loop asks for it
                 group = list(group)
