@@ -379,17 +379,36 @@ def _reference_side(ref: np.ndarray, lattice: Lattice, m: np.ndarray) -> _Side:
     if not side.usable:
         return side
     h, w = a.shape
-    shape = (sfft.next_fast_len(2 * h), sfft.next_fast_len(2 * w))
     mf, mg = ma.astype(np.float64), mb.astype(np.float64)
+    need = 0.5 * min(mf.sum(), mg.sum())
+    # the shifts with overlap enough reach (ry, rx) samples; on L samples the circular
+    # correlation of two maps of h samples is their linear one over |s| <= L - h, so
+    # transforms of h + ry samples hold them all (a quarter of twice h's area for
+    # unmasked images), the shifts beyond left out
+    big = (sfft.next_fast_len(2 * h), sfft.next_fast_len(2 * w))
+    ry, rx = _reach(np.rint(_xc(_tr(mf, big), _tr(mg, big), big)) >= need)
+    shape = (sfft.next_fast_len(h + ry), sfft.next_fast_len(w + rx))
     f = (a - a[mf > 0].mean()) * mf
     F, F2, MF = _tr(f, shape), _tr(f * f, shape), _tr(mf, shape)
     MG = _tr(mg, shape)
     n = np.rint(_xc(MF, MG, shape))
     sf = _xc(F, MG, shape)
     vf = _xc(F2, MG, shape) - sf * sf / np.maximum(n, 1.0)
-    enough = n >= 0.5 * min(mf.sum(), mg.sum())
+    within = [np.minimum(i, L - i) <= r for i, L, r in
+              ((np.arange(L), L, r) for L, r in zip(shape, (ry, rx), strict=True))]
+    enough = (n >= need) & within[0][:, None] & within[1][None, :]
     return dataclasses.replace(side, fft_shape=shape, MF=MF, F=F, F2=F2, n=n, sf=sf, vf=vf,
                                enough=enough)
+
+
+def _reach(enough: np.ndarray) -> tuple[int, int]:
+    """The largest shift along each axis, in samples, of the ``True`` entries of a map
+    indexed by shifts modulo its shape."""
+    out = []
+    for axis, L in enumerate(enough.shape):
+        i = np.nonzero(enough.any(axis=1 - axis))[0]
+        out.append(int(np.max(np.minimum(i, L - i))))
+    return out[0], out[1]
 
 
 def _tr(a, shape):
@@ -415,7 +434,7 @@ def _ncc_map(side: _Side, g):
     vg = _xc(MF, G2, shape) - sg * sg / nn
     num = _xc(side.F, G, shape) - sf * sg / nn
     den = np.sqrt(np.maximum(side.vf, 0.0) * np.maximum(vg, 0.0))
-    scale = max(float(np.max(den)), 1e-300)
+    scale = max(float(np.max(den, where=side.enough, initial=0.0)), 1e-300)
     ok = side.enough & (den > 1e-9 * scale)
     c = np.full(shape, np.nan)
     return np.divide(num, den, out=c, where=ok)
