@@ -352,6 +352,10 @@ class _Side:
     vf: np.ndarray | None = None  # and its centred sum of squares
     enough: np.ndarray | None = None  # shifts with overlap enough
     weights: tuple = ()  # the deformed image's band-pass weights (its whole crop)
+    # where both masks are one rectangle (no mask given): the reference's (first row,
+    # last row + 1, first column, last column + 1) and the shifts' reach (ry, rx)
+    box: tuple | None = None
+    reach: tuple = (0, 0)
 
 
 def _reference_side(ref: np.ndarray, lattice: Lattice, m: np.ndarray) -> _Side:
@@ -398,7 +402,35 @@ def _reference_side(ref: np.ndarray, lattice: Lattice, m: np.ndarray) -> _Side:
               ((np.arange(L), L, r) for L, r in zip(shape, (ry, rx), strict=True))]
     enough = (n >= need) & within[0][:, None] & within[1][None, :]
     return dataclasses.replace(side, fft_shape=shape, MF=MF, F=F, F2=F2, n=n, sf=sf, vf=vf,
-                               enough=enough)
+                               enough=enough, box=_box(ma) if np.array_equal(ma, mb) else None,
+                               reach=(ry, rx))
+
+
+def _box(m: np.ndarray) -> tuple | None:
+    """``(r0, r1, c0, c1)`` of the rectangle ``m`` fills, or None if it fills none."""
+    rows, cols = np.flatnonzero(m.any(axis=1)), np.flatnonzero(m.any(axis=0))
+    if not rows.size:
+        return None
+    r0, r1, c0, c1 = int(rows[0]), int(rows[-1]) + 1, int(cols[0]), int(cols[-1]) + 1
+    return (r0, r1, c0, c1) if (r1 - r0) * (c1 - c0) == np.count_nonzero(m) else None
+
+
+def _box_sums(v: np.ndarray, box: tuple, reach: tuple, shape: tuple) -> np.ndarray:
+    """``sum_{x in box} v(x + s)`` (``v`` zero beyond its array) for the shifts ``|s| <=
+    reach``, placed at ``s`` modulo ``shape`` (0 elsewhere): the correlation of a
+    rectangle's indicator with ``v``, from ``v``'s summed-area table."""
+    h, w = v.shape
+    table = np.zeros((h + 1, w + 1))
+    np.cumsum(np.cumsum(v, axis=0), axis=1, out=table[1:, 1:])
+    r0, r1, c0, c1 = box
+    sy, sx = np.arange(-reach[0], reach[0] + 1), np.arange(-reach[1], reach[1] + 1)
+    a, b = np.clip(r0 + sy, 0, h), np.clip(r1 + sy, 0, h)
+    c, d = np.clip(c0 + sx, 0, w), np.clip(c1 + sx, 0, w)
+    top, bottom = table[a], table[b]
+    sums = bottom[:, d] - top[:, d] - bottom[:, c] + top[:, c]
+    out = np.zeros(shape)
+    out[np.ix_(sy % shape[0], sx % shape[1])] = sums
+    return out
 
 
 def _reach(enough: np.ndarray) -> tuple[int, int]:
@@ -428,10 +460,17 @@ def _ncc_map(side: _Side, g):
     shape, MF = side.fft_shape, side.MF
     mg = side.mb.astype(np.float64)
     g = (g - g[mg > 0].mean()) * mg
-    G, G2 = _tr(g, shape), _tr(g * g, shape)
+    G = _tr(g, shape)
     nn = np.maximum(side.n, 1.0)
-    sf, sg = side.sf, _xc(MF, G, shape)
-    vg = _xc(MF, G2, shape) - sg * sg / nn
+    if side.box is not None:
+        # the masks are one rectangle: the sums of g and g^2 over the overlap at
+        # every shift come from summed-area tables rather than two more correlations
+        sg = _box_sums(g, side.box, side.reach, shape)
+        vg = _box_sums(g * g, side.box, side.reach, shape)
+    else:
+        sg, vg = _xc(MF, G, shape), _xc(MF, _tr(g * g, shape), shape)
+    vg -= sg * sg / nn
+    sf = side.sf
     num = _xc(side.F, G, shape) - sf * sg / nn
     den = np.sqrt(np.maximum(side.vf, 0.0) * np.maximum(vg, 0.0))
     scale = max(float(np.max(den, where=side.enough, initial=0.0)), 1e-300)
