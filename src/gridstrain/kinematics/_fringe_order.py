@@ -347,9 +347,9 @@ class _Side:
     MF: np.ndarray | None = None  # transforms of the reference's mask, f and f^2
     F: np.ndarray | None = None
     F2: np.ndarray | None = None
-    n: np.ndarray | None = None  # overlap count at every shift
+    n: np.ndarray | None = None  # overlap count at every shift (1 where none)
     sf: np.ndarray | None = None  # sum of f over the overlap
-    vf: np.ndarray | None = None  # and its centred sum of squares
+    vf: np.ndarray | None = None  # and its centred sum of squares (0 where negative)
     enough: np.ndarray | None = None  # shifts with overlap enough
     weights: tuple = ()  # the deformed image's band-pass weights (its whole crop)
     # where both masks are one rectangle (no mask given): the reference's (first row,
@@ -396,11 +396,12 @@ def _reference_side(ref: np.ndarray, lattice: Lattice, m: np.ndarray) -> _Side:
     F, F2, MF = _tr(f, shape), _tr(f * f, shape), _tr(mf, shape)
     MG = _tr(mg, shape)
     n = np.rint(_xc(MF, MG, shape))
-    sf = _xc(F, MG, shape)
-    vf = _xc(F2, MG, shape) - sf * sf / np.maximum(n, 1.0)
     within = [np.minimum(i, L - i) <= r for i, L, r in
               ((np.arange(L), L, r) for L, r in zip(shape, (ry, rx), strict=True))]
     enough = (n >= need) & within[0][:, None] & within[1][None, :]
+    sf = _xc(F, MG, shape)
+    n = np.maximum(n, 1.0)
+    vf = np.maximum(_xc(F2, MG, shape) - sf * sf / n, 0.0)
     return dataclasses.replace(side, fft_shape=shape, MF=MF, F=F, F2=F2, n=n, sf=sf, vf=vf,
                                enough=enough, box=_box(ma) if np.array_equal(ma, mb) else None,
                                reach=(ry, rx))
@@ -429,7 +430,11 @@ def _box_sums(v: np.ndarray, box: tuple, reach: tuple, shape: tuple) -> np.ndarr
     top, bottom = table[a], table[b]
     sums = bottom[:, d] - top[:, d] - bottom[:, c] + top[:, c]
     out = np.zeros(shape)
-    out[np.ix_(sy % shape[0], sx % shape[1])] = sums
+    # shifts 0 .. r first along each axis, -r .. -1 last, as a transform's map holds them
+    (ry, rx), (Ly, Lx) = reach, shape
+    for src_r, dst_r in ((np.s_[ry:], np.s_[:ry + 1]), (np.s_[:ry], np.s_[Ly - ry:])):
+        for src_c, dst_c in ((np.s_[rx:], np.s_[:rx + 1]), (np.s_[:rx], np.s_[Lx - rx:])):
+            out[dst_r, dst_c] = sums[src_r, src_c]
     return out
 
 
@@ -457,11 +462,9 @@ def _ncc_map(side: _Side, g):
 
     Returns the map indexed by ``s`` modulo its shape.
     """
-    shape, MF = side.fft_shape, side.MF
-    mg = side.mb.astype(np.float64)
-    g = (g - g[mg > 0].mean()) * mg
+    shape, MF, nn = side.fft_shape, side.MF, side.n
+    g = np.where(side.mb, g - g[side.mb].mean(), 0.0)
     G = _tr(g, shape)
-    nn = np.maximum(side.n, 1.0)
     if side.box is not None:
         # the masks are one rectangle: the sums of g and g^2 over the overlap at
         # every shift come from summed-area tables rather than two more correlations
@@ -472,7 +475,7 @@ def _ncc_map(side: _Side, g):
     vg -= sg * sg / nn
     sf = side.sf
     num = _xc(side.F, G, shape) - sf * sg / nn
-    den = np.sqrt(np.maximum(side.vf, 0.0) * np.maximum(vg, 0.0))
+    den = np.sqrt(side.vf * np.maximum(vg, 0.0))
     scale = max(float(np.max(den, where=side.enough, initial=0.0)), 1e-300)
     ok = side.enough & (den > 1e-9 * scale)
     c = np.full(shape, np.nan)
