@@ -87,3 +87,58 @@ def test_no_crack_in_a_smooth_strain_concentration(tmp_path):
     res = _measure(tmp_path, disp)
     assert res.discontinuities == ((),)
     assert not any("jumps" in w for w in res.warnings)
+
+
+def _strain_only(strain, valid, sigma=5.0):
+    """A Measurement holding only the maps the search reads (its strain, validity, sigma)."""
+    from gridstrain import Lattice
+    from gridstrain.kinematics import Measurement
+
+    zeros = np.zeros((2, *valid.shape))
+    return Measurement(u=zeros, strain=strain, rotation=zeros[0], valid=valid,
+                       lattice=Lattice.from_pitch(5.0), sigma=sigma, lagrangian=True,
+                       iterations=1, step_rms=0.0, guess=(0.0, 0.0), guess_source="zero",
+                       reference=None, deformed=None)
+
+
+@pytest.mark.parametrize("height", [0.99, 1.01])
+@pytest.mark.parametrize("skip", [True, False])
+def test_the_range_pre_test_never_hides_a_ridge(monkeypatch, height, skip):
+    # one pixel's spike on a constant strain is the tightest case of the range bound:
+    # its departure from the local median is the whole range. A jump of min_jump
+    # (0.25 px) leaves a ridge of 0.25 / (sqrt(2 pi) sigma); the spike stands 1 % below
+    # or above it, so the pre-test may skip only the first, and the full search
+    # (pre-test off) must agree with it on both
+    from gridstrain import discontinuities as dc
+
+    if not skip:
+        monkeypatch.setattr(dc, "_no_seed_possible", lambda *a: False)
+    threshold = 0.25 / (np.sqrt(2 * np.pi) * 5.0)
+    valid = np.zeros((H, W), dtype=bool)
+    valid[20:-20, 20:-20] = True
+    strain = np.full((3, H, W), 1e-3)
+    strain[0, 80, 100] += height * threshold
+    strain[:, ~valid] = np.nan
+    disc = dc.find_discontinuities(_strain_only(strain, valid))
+    if height < 1:
+        assert not disc
+    else:
+        assert len(disc.regions) == 1
+        assert disc.core[80, 100]
+
+
+def test_the_range_pre_test_skips_a_noisy_smooth_field(monkeypatch):
+    # strain noise of 4e-4 (a 12-bit grid at sigma 5 px) over a gradient of 1e-3: its
+    # range stays below the ridge of the smallest jump looked for, 0.02, so no pixel
+    # can seed one and the search is skipped, as the full search would conclude
+    from gridstrain import discontinuities as dc
+
+    rng = np.random.default_rng(5)
+    valid = np.ones((H, W), dtype=bool)
+    xx = np.arange(W)[None, :]
+    strain = 1e-3 * xx / W + 4e-4 * rng.standard_normal((3, H, W))
+    threshold = 0.25 / (np.sqrt(2 * np.pi) * 5.0)
+    assert dc._no_seed_possible(strain, valid, threshold)
+    assert not dc.find_discontinuities(_strain_only(strain, valid))
+    monkeypatch.setattr(dc, "_no_seed_possible", lambda *a: False)
+    assert not dc.find_discontinuities(_strain_only(strain, valid))

@@ -192,6 +192,26 @@ def test_row_medians_are_numpy_medians(n):
     assert row_medians(np.empty((3, 0))).shape == (3,)
 
 
+@pytest.mark.parametrize("n", [2**14, 2**14 + 1, 90_001, 250_000])
+def test_median_of_large_maps_is_numpy_median(n):
+    # from 2**14 values the middle pair is selected among those a subsample brackets:
+    # the same values as numpy's, for noise, ties, sorted data, float32, a view, and
+    # data whose strided subsample misses the middle (every 7th value large)
+    rng = np.random.default_rng(n)
+    cases = [rng.normal(size=n), rng.integers(0, 3, n).astype(float), np.sort(rng.random(n)),
+             rng.normal(size=n).astype(np.float32), np.full(n, 2.5),
+             np.where(np.arange(n) % max(1, n // 2048) == 0, 1e3, rng.random(n)),
+             rng.random((n // 100 + 2, 110))[1:-1, 5:105]]
+    for values in cases:
+        before = values.copy()
+        assert _median(values) == np.median(values)
+        np.testing.assert_array_equal(values, before)  # not modified
+        assert _median(values.copy(), overwrite_input=True) == np.median(values)
+    values = cases[0]
+    values[n // 3] = np.nan
+    assert np.isnan(_median(values))
+
+
 def test_median_of_nothing_is_nan():
     assert np.isnan(_median(np.array([])))
 

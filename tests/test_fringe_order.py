@@ -546,3 +546,52 @@ def test_bad_api_arguments(kw, match):
     img = render((64, 64), 5.0, vignette=0.0)
     with pytest.raises(ValueError, match=match):
         measure_series(img, [img, img], lattice=Lattice.from_pitch(5.0), **kw)
+
+
+@pytest.mark.parametrize("masked", [False, True])
+def test_image_features_correlation_is_the_direct_sum_at_every_shift_with_overlap(masked):
+    # the normalised correlation map of the image-feature estimate, on transforms of h +
+    # reach samples, with summed-area tables for unmasked images and correlations for
+    # masked ones, against the direct sum over the overlap written here, at every shift
+    # with overlap enough
+    rng = np.random.default_rng(8)
+    lat = Lattice.from_pitch(5.0)
+    H, W = 60, 84
+    ref = rng.normal(size=(H, W))
+    cur = np.roll(ref, (3, -5), axis=(0, 1)) + 0.3 * rng.normal(size=(H, W))
+    mask = np.ones((H, W), dtype=bool)
+    if masked:
+        mask[20:35, 30:50] = False  # a hole
+    side = kinematics._reference_side(ref, lat, mask)
+    assert side.q == 1
+    assert (side.box is None) == masked
+    b = kinematics._band_pass(cur, np.ones((H, W), dtype=bool), lat.pitch, 1,
+                              weights=side.weights)
+    c = kinematics._ncc_map(side, b)
+    f, g = side.a, b
+    ma, mb = side.ma, side.mb
+    Sy, Sx = c.shape
+    checked = 0
+    for sy in range(-side.reach[0], side.reach[0] + 1):
+        for sx in range(-side.reach[1], side.reach[1] + 1):
+            if not side.enough[sy % Sy, sx % Sx]:
+                continue
+            # overlap of f's mask at x and g's mask at x + s
+            ys, xs = np.nonzero(ma)
+            ok = (ys + sy >= 0) & (ys + sy < H) & (xs + sx >= 0) & (xs + sx < W)
+            ys, xs = ys[ok], xs[ok]
+            keep = mb[ys + sy, xs + sx]
+            fv, gv = f[ys[keep], xs[keep]], g[ys[keep] + sy, xs[keep] + sx]
+            # g is centred on its whole mask first, f on its own, as the estimate does
+            fv = fv - f[ma].mean()
+            gv = gv - g[mb].mean()
+            num = np.sum(fv * gv) - fv.sum() * gv.sum() / fv.size
+            den = math.sqrt((np.sum(fv**2) - fv.sum() ** 2 / fv.size)
+                            * (np.sum(gv**2) - gv.sum() ** 2 / gv.size))
+            # float64 rounding of sums of a few thousand terms, differenced: ~1e-15
+            assert abs(c[sy % Sy, sx % Sx] - num / den) < 1e-12
+            checked += 1
+    assert checked > 1000
+    peak = np.unravel_index(int(np.nanargmax(c)), c.shape)
+    assert (peak[0] - Sy if peak[0] > Sy // 2 else peak[0]) == 3
+    assert (peak[1] - Sx if peak[1] > Sx // 2 else peak[1]) == -5

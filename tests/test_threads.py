@@ -91,3 +91,51 @@ def test_the_command_serves_its_threads_from_one_malloc_arena(monkeypatch):
     with pytest.raises(SystemExit):
         cli.main(["--help"])  # called from Python: the host's allocator is left alone
     assert calls == ["arena", "keep"]
+
+
+def test_map_leaves_keeps_the_items_order_and_raises_the_first_error():
+    import threading
+    import time
+
+    def slow_square(i):
+        time.sleep(0.002 * (i % 3))  # threads finish out of order
+        return i * i, threading.current_thread().name
+
+    out = _threads.map_leaves(slow_square, range(12), 3)
+    assert [v for v, _ in out] == [i * i for i in range(12)]
+
+    def fails(i):
+        if i == 5:
+            raise ValueError("item 5")
+        return i
+
+    with pytest.raises(ValueError, match="item 5"):
+        _threads.map_leaves(fails, range(8), 2)
+    # the pool is still usable after a failure
+    assert _threads.map_leaves(lambda i: -i, range(4), 2) == [0, -1, -2, -3]
+
+
+def test_map_leaves_callers_progress_while_the_pool_is_busy():
+    # a caller takes items itself: one whose pool thread is held by another caller's
+    # job still finishes all of its items, without waiting for that thread
+    import threading
+    import time
+
+    held, release = threading.Event(), threading.Event()
+
+    def job(i):
+        if threading.current_thread().name.startswith("gridstrain"):
+            held.set()
+            release.wait(10)
+        else:
+            time.sleep(0.05)  # the caller is slow: the pool thread takes an item
+        return i
+
+    blocker = threading.Thread(target=_threads.map_leaves, args=(job, range(2), 2))
+    blocker.start()
+    try:
+        assert held.wait(5)
+        assert _threads.map_leaves(lambda i: 2 * i, range(5), 2) == [0, 2, 4, 6, 8]
+    finally:
+        release.set()
+        blocker.join()

@@ -234,3 +234,30 @@ def test_aliasing_window_of_a_rectangle_is_the_two_dimensional_one(box):
     want = np.outer(np.hanning(H), np.hanning(W)) * ndimage.gaussian_filter(
         ndimage.binary_erosion(mask, iterations=n).astype(float), np.mean(lat.pitches))
     assert_allclose(_aliasing_window((H, W), lat, mask), want, rtol=0, atol=1e-15)
+
+
+def test_nearest_valid_pixel_of_a_rectangle_is_the_distance_transforms():
+    # the valid pixels of a frame without a mask fill a rectangle: the clamped pixel
+    # must be the one the Euclidean distance transform finds, and a region that is
+    # not a rectangle still goes through the transform
+    from scipy import ndimage
+
+    from gridstrain.uncertainty._biases import nearest_filled, nearest_index
+
+    rng = np.random.default_rng(4)
+    a = rng.normal(size=(37, 53))
+    shapes = []
+    for box in (np.s_[5:30, 8:41], np.s_[0:1, 52:53], np.s_[:, 3:9], np.s_[10:11, :]):
+        valid = np.zeros(a.shape, dtype=bool)
+        valid[box] = True
+        shapes.append(valid)
+    notch = shapes[0].copy()
+    notch[5, 8] = False
+    shapes.append(notch)
+    for valid in shapes:
+        want = ndimage.distance_transform_edt(~valid, return_distances=False,
+                                              return_indices=True)
+        got = np.broadcast_arrays(*nearest_index(valid))
+        np.testing.assert_array_equal(got[0], want[0])
+        np.testing.assert_array_equal(got[1], want[1])
+        np.testing.assert_array_equal(nearest_filled(a, valid), a[want[0], want[1]])

@@ -17,7 +17,9 @@ from __future__ import annotations
 import contextlib
 import ctypes
 import functools
+import os
 import sys
+import threading
 from collections import deque
 from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import ThreadPoolExecutor
@@ -122,3 +124,63 @@ def map_bounded(fn: Callable, items: Iterable, workers: int) -> Iterator:
             pending.append(pool.submit(fn, item))
         while pending:
             yield pending.popleft().result()
+
+
+_POOLS: dict[tuple[int, int], ThreadPoolExecutor] = {}
+_POOLS_LOCK = threading.Lock()
+
+
+def _shared_pool(threads: int) -> ThreadPoolExecutor:
+    """A pool of ``threads`` threads kept for this process's life (a process forked
+    from this one makes its own: the threads do not cross a fork)."""
+    key = (os.getpid(), threads)
+    with _POOLS_LOCK:
+        pool = _POOLS.get(key)
+        if pool is None:
+            pool = _POOLS[key] = ThreadPoolExecutor(max_workers=threads,
+                                                    thread_name_prefix="gridstrain")
+        return pool
+
+
+def map_leaves(fn: Callable, items: Iterable, workers: int) -> list:
+    """``[fn(item) for item in items]`` on up to ``workers`` threads: the calling
+    thread and ``workers - 1`` threads of a pool kept between calls.
+
+    For short jobs called many times (the kinematics' blocks of rows, the two wave
+    vectors of a transform), where starting threads for each call would cost a
+    good part of the job. Each thread takes the next item until none is left, so the
+    caller is never slower than alone when the pool's threads are busy with other
+    callers; the results are in the items' order whichever thread computed them.
+    ``fn`` must not itself call :func:`map_leaves` (a leaf: compiled loops, FFTs),
+    or it could wait for a thread that waits for it. The first exception raised is
+    raised again once every thread has stopped.
+    """
+    items = list(items)
+    if workers <= 1 or len(items) <= 1:
+        return [fn(item) for item in items]
+    results: list = [None] * len(items)
+    failed: list[BaseException] = []
+    lock = threading.Lock()
+    order = iter(range(len(items)))
+
+    def take() -> None:
+        while not failed:
+            with lock:
+                i = next(order, None)
+            if i is None:
+                return
+            try:
+                results[i] = fn(items[i])
+            except BaseException as exc:
+                failed.append(exc)
+                return
+
+    helpers = [_shared_pool(workers - 1).submit(take)
+               for _ in range(min(workers, len(items)) - 1)]
+    take()
+    for f in helpers:
+        if not f.cancel():  # one that has not started finds nothing left: not waited for
+            f.result()
+    if failed:
+        raise failed[0]
+    return results

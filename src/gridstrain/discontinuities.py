@@ -123,6 +123,9 @@ def find_discontinuities(m: Measurement, *, min_jump: float = _MIN_JUMP) -> Disc
         return Discontinuities(core=empty, band=empty.copy(), regions=(),
                                threshold=threshold)
     strain = np.asarray(m.strain)
+    if _no_seed_possible(strain, valid, threshold):
+        return Discontinuities(core=empty, band=empty.copy(), regions=(),
+                               threshold=threshold)
     height = np.zeros(valid.shape)
     seeds = np.zeros(valid.shape, dtype=bool)
     low = np.zeros(valid.shape, dtype=bool)
@@ -158,6 +161,23 @@ def find_discontinuities(m: Measurement, *, min_jump: float = _MIN_JUMP) -> Disc
                         "jump_px": h * math.sqrt(2 * math.pi) * sigma})
     return Discontinuities(core=core, band=band, regions=tuple(regions),
                            threshold=threshold)
+
+
+def _no_seed_possible(strain: np.ndarray, valid: np.ndarray, threshold: float) -> bool:
+    """Whether no strain component spreads over ``threshold`` on the valid pixels.
+
+    A departure from the local median is at most the component's range over the
+    valid pixels: the median, and its linear interpolation back to every pixel, are
+    of values taken there (invalid pixels take a valid neighbour's). Below the
+    threshold no pixel can seed a ridge, and the search would find none; the
+    factor 0.999 leaves room for the interpolation's rounding.
+    """
+    for comp in strain:
+        vals = comp[valid]
+        span = float(np.max(vals)) - float(np.min(vals))
+        if not span < 0.999 * threshold:  # NaN included: the search decides
+            return False
+    return True
 
 
 def without_discontinuities(m: Measurement, disc: Discontinuities, *,

@@ -15,7 +15,7 @@ from scipy import ndimage
 from skimage.restoration import unwrap_phase
 
 from .._stats import median
-from .._threads import map_bounded
+from .._threads import map_leaves
 from .._validation import (
     as_image,
     check_int,
@@ -163,8 +163,7 @@ def _by_blocks(n: int, size: int, fn) -> list:
     ``range(n)``, on up to the usable cores (``fn`` must release the GIL: the
     compiled loops do); their results in the blocks' order."""
     blocks = [(i, min(i + size, n)) for i in range(0, n, size)]
-    return list(map_bounded(lambda b: fn(*b), blocks,
-                            max(min(check_workers(None), len(blocks)), 1)))
+    return map_leaves(lambda b: fn(*b), blocks, max(min(check_workers(None), len(blocks)), 1))
 
 
 @functools.cache

@@ -347,11 +347,15 @@ class _Side:
     MF: np.ndarray | None = None  # transforms of the reference's mask, f and f^2
     F: np.ndarray | None = None
     F2: np.ndarray | None = None
-    n: np.ndarray | None = None  # overlap count at every shift
+    n: np.ndarray | None = None  # overlap count at every shift (1 where none)
     sf: np.ndarray | None = None  # sum of f over the overlap
-    vf: np.ndarray | None = None  # and its centred sum of squares
+    vf: np.ndarray | None = None  # and its centred sum of squares (0 where negative)
     enough: np.ndarray | None = None  # shifts with overlap enough
     weights: tuple = ()  # the deformed image's band-pass weights (its whole crop)
+    # where both masks are one rectangle (no mask given): the reference's (first row,
+    # last row + 1, first column, last column + 1) and the shifts' reach (ry, rx)
+    box: tuple | None = None
+    reach: tuple = (0, 0)
 
 
 def _reference_side(ref: np.ndarray, lattice: Lattice, m: np.ndarray) -> _Side:
@@ -379,17 +383,69 @@ def _reference_side(ref: np.ndarray, lattice: Lattice, m: np.ndarray) -> _Side:
     if not side.usable:
         return side
     h, w = a.shape
-    shape = (sfft.next_fast_len(2 * h), sfft.next_fast_len(2 * w))
     mf, mg = ma.astype(np.float64), mb.astype(np.float64)
+    need = 0.5 * min(mf.sum(), mg.sum())
+    # the shifts with overlap enough reach (ry, rx) samples; on L samples the circular
+    # correlation of two maps of h samples is their linear one over |s| <= L - h, so
+    # transforms of h + ry samples hold them all (a quarter of twice h's area for
+    # unmasked images), the shifts beyond left out
+    big = (sfft.next_fast_len(2 * h), sfft.next_fast_len(2 * w))
+    ry, rx = _reach(np.rint(_xc(_tr(mf, big), _tr(mg, big), big)) >= need)
+    shape = (sfft.next_fast_len(h + ry), sfft.next_fast_len(w + rx))
     f = (a - a[mf > 0].mean()) * mf
     F, F2, MF = _tr(f, shape), _tr(f * f, shape), _tr(mf, shape)
     MG = _tr(mg, shape)
     n = np.rint(_xc(MF, MG, shape))
+    within = [np.minimum(i, L - i) <= r for i, L, r in
+              ((np.arange(L), L, r) for L, r in zip(shape, (ry, rx), strict=True))]
+    enough = (n >= need) & within[0][:, None] & within[1][None, :]
     sf = _xc(F, MG, shape)
-    vf = _xc(F2, MG, shape) - sf * sf / np.maximum(n, 1.0)
-    enough = n >= 0.5 * min(mf.sum(), mg.sum())
+    n = np.maximum(n, 1.0)
+    vf = np.maximum(_xc(F2, MG, shape) - sf * sf / n, 0.0)
     return dataclasses.replace(side, fft_shape=shape, MF=MF, F=F, F2=F2, n=n, sf=sf, vf=vf,
-                               enough=enough)
+                               enough=enough, box=_box(ma) if np.array_equal(ma, mb) else None,
+                               reach=(ry, rx))
+
+
+def _box(m: np.ndarray) -> tuple | None:
+    """``(r0, r1, c0, c1)`` of the rectangle ``m`` fills, or None if it fills none."""
+    rows, cols = np.flatnonzero(m.any(axis=1)), np.flatnonzero(m.any(axis=0))
+    if not rows.size:
+        return None
+    r0, r1, c0, c1 = int(rows[0]), int(rows[-1]) + 1, int(cols[0]), int(cols[-1]) + 1
+    return (r0, r1, c0, c1) if (r1 - r0) * (c1 - c0) == np.count_nonzero(m) else None
+
+
+def _box_sums(v: np.ndarray, box: tuple, reach: tuple, shape: tuple) -> np.ndarray:
+    """``sum_{x in box} v(x + s)`` (``v`` zero beyond its array) for the shifts ``|s| <=
+    reach``, placed at ``s`` modulo ``shape`` (0 elsewhere): the correlation of a
+    rectangle's indicator with ``v``, from ``v``'s summed-area table."""
+    h, w = v.shape
+    table = np.zeros((h + 1, w + 1))
+    np.cumsum(np.cumsum(v, axis=0), axis=1, out=table[1:, 1:])
+    r0, r1, c0, c1 = box
+    sy, sx = np.arange(-reach[0], reach[0] + 1), np.arange(-reach[1], reach[1] + 1)
+    a, b = np.clip(r0 + sy, 0, h), np.clip(r1 + sy, 0, h)
+    c, d = np.clip(c0 + sx, 0, w), np.clip(c1 + sx, 0, w)
+    top, bottom = table[a], table[b]
+    sums = bottom[:, d] - top[:, d] - bottom[:, c] + top[:, c]
+    out = np.zeros(shape)
+    # shifts 0 .. r first along each axis, -r .. -1 last, as a transform's map holds them
+    (ry, rx), (Ly, Lx) = reach, shape
+    for src_r, dst_r in ((np.s_[ry:], np.s_[:ry + 1]), (np.s_[:ry], np.s_[Ly - ry:])):
+        for src_c, dst_c in ((np.s_[rx:], np.s_[:rx + 1]), (np.s_[:rx], np.s_[Lx - rx:])):
+            out[dst_r, dst_c] = sums[src_r, src_c]
+    return out
+
+
+def _reach(enough: np.ndarray) -> tuple[int, int]:
+    """The largest shift along each axis, in samples, of the ``True`` entries of a map
+    indexed by shifts modulo its shape."""
+    out = []
+    for axis, L in enumerate(enough.shape):
+        i = np.nonzero(enough.any(axis=1 - axis))[0]
+        out.append(int(np.max(np.minimum(i, L - i))))
+    return out[0], out[1]
 
 
 def _tr(a, shape):
@@ -406,16 +462,21 @@ def _ncc_map(side: _Side, g):
 
     Returns the map indexed by ``s`` modulo its shape.
     """
-    shape, MF = side.fft_shape, side.MF
-    mg = side.mb.astype(np.float64)
-    g = (g - g[mg > 0].mean()) * mg
-    G, G2 = _tr(g, shape), _tr(g * g, shape)
-    nn = np.maximum(side.n, 1.0)
-    sf, sg = side.sf, _xc(MF, G, shape)
-    vg = _xc(MF, G2, shape) - sg * sg / nn
+    shape, MF, nn = side.fft_shape, side.MF, side.n
+    g = np.where(side.mb, g - g[side.mb].mean(), 0.0)
+    G = _tr(g, shape)
+    if side.box is not None:
+        # the masks are one rectangle: the sums of g and g^2 over the overlap at
+        # every shift come from summed-area tables rather than two more correlations
+        sg = _box_sums(g, side.box, side.reach, shape)
+        vg = _box_sums(g * g, side.box, side.reach, shape)
+    else:
+        sg, vg = _xc(MF, G, shape), _xc(MF, _tr(g * g, shape), shape)
+    vg -= sg * sg / nn
+    sf = side.sf
     num = _xc(side.F, G, shape) - sf * sg / nn
-    den = np.sqrt(np.maximum(side.vf, 0.0) * np.maximum(vg, 0.0))
-    scale = max(float(np.max(den)), 1e-300)
+    den = np.sqrt(side.vf * np.maximum(vg, 0.0))
+    scale = max(float(np.max(den, where=side.enough, initial=0.0)), 1e-300)
     ok = side.enough & (den > 1e-9 * scale)
     c = np.full(shape, np.nan)
     return np.divide(num, den, out=c, where=ok)

@@ -16,7 +16,7 @@ from .._validation import (
     check_mask,
 )
 from ..phase import Lattice
-from ..uncertainty._biases import nearest_filled
+from ..uncertainty._biases import nearest_filled, nearest_index
 from ..wft import PhaseMaps
 from ._deformation import (
     Measurement,
@@ -44,9 +44,8 @@ def _filled(u: np.ndarray, valid: np.ndarray) -> np.ndarray | None:
         return None
     if valid.all():
         return np.array(u)
-    idx = ndimage.distance_transform_edt(~valid, return_distances=False,
-                                         return_indices=True)
-    return u[:, idx[0], idx[1]]
+    rows, cols = nearest_index(valid)
+    return u[:, rows, cols]
 
 
 def _largest_step(res: Measurement, field: np.ndarray, lattice: Lattice,

@@ -11,7 +11,6 @@ from __future__ import annotations
 import functools
 import importlib
 import math
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
@@ -19,6 +18,7 @@ from numpy.lib.stride_tricks import as_strided
 from scipy import fft as sfft
 
 from .. import _fft
+from .._threads import map_leaves
 from .._validation import (
     as_image,
     check_choice,
@@ -277,12 +277,7 @@ def _wft(image, lattice: Lattice, *, sigma: float | None = None, mask=None,
                 _one_wave_vector(V, k, sigma, H, W, nx, psi[j], dphi[j], mods[j], works[j],
                                  chunk=chunk, sink=out)
 
-    if workers > 1:
-        with ThreadPoolExecutor(max_workers=2) as pool:
-            list(pool.map(one, range(2)))
-    else:
-        for j in range(2):
-            one(j)
+    map_leaves(one, range(2), min(workers, 2))
     valid &= _shows_grid(mods, valid, box, m, min_modulus)
     if sink is not None:
         return valid

@@ -366,7 +366,19 @@ def nearest_filled(a: np.ndarray, valid: np.ndarray, nearest=None) -> np.ndarray
 
 
 def nearest_index(valid: np.ndarray) -> tuple:
-    """The index of each pixel's nearest valid pixel."""
+    """The index of each pixel's nearest valid pixel (rows, columns), arrays that
+    broadcast to ``valid``'s shape.
+
+    Where the valid pixels fill a rectangle (a frame's band of margin, no mask) the
+    nearest one is the pixel clamped into it, its unique closest point: no distance
+    transform is needed."""
+    rows = np.flatnonzero(valid.any(axis=1))
+    cols = np.flatnonzero(valid.any(axis=0))
+    if rows.size and (rows[-1] - rows[0] + 1) * (cols[-1] - cols[0] + 1) \
+            == np.count_nonzero(valid):
+        H, W = valid.shape
+        return (np.clip(np.arange(H), rows[0], rows[-1])[:, None],
+                np.clip(np.arange(W), cols[0], cols[-1])[None, :])
     return tuple(ndimage.distance_transform_edt(~valid, return_distances=False,
                                                 return_indices=True))
 
