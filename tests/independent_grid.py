@@ -7,6 +7,8 @@ gridstrain.synthetic. Its assumptions:
 - the pixel integrates the light over its area (3 x 3 sub-samples);
 - the lighting is fixed to the camera, a broad Gaussian falling to about 40 %;
 - a hole shows a uniform dark background (level 300 sensor grey levels);
+- optional reflectance ``R(X, Y)`` of the specimen (a factor, a function of the
+  material point: a stain, a wood grain), moving with it;
 - optional print texture: a reflectance factor ``1 + c t`` with ``t`` white noise
   smoothed by a Gaussian (20 px by default), normalised to unit std;
 - the sensor is Poisson-Gaussian: ``K`` times a Poisson count plus normal read
@@ -33,7 +35,7 @@ def _pattern(a, b, kind, edge):
 
 def scene(shape, *, pitch, angle, kind="checker", amplitude=2000.0, contrast=0.9,
            light=True, hole=True, texture=0.0, displacement=None, over=3, seed=0,
-           edge=4.0, texture_scale=20.0):
+           edge=4.0, texture_scale=20.0, reflectance=None):
     """Noise-free expected sensor levels (float), and the hole mask."""
     H, W = shape
     th = np.deg2rad(angle)
@@ -47,6 +49,8 @@ def scene(shape, *, pitch, angle, kind="checker", amplitude=2000.0, contrast=0.9
     a = (np.cos(th) * X + np.sin(th) * Y) / pitch
     b = (-np.sin(th) * X + np.cos(th) * Y) / pitch
     img = amplitude * ((1 - contrast) + contrast * _pattern(a, b, kind, edge))
+    if reflectance is not None:
+        img = img * reflectance(X, Y)
     if light:
         img = img * (0.35 + 0.75 * np.exp(-((x - 0.4 * W) ** 2 + (y - 0.6 * H) ** 2)
                                            / (2 * (0.5 * W) ** 2)))
