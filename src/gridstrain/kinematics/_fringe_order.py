@@ -325,16 +325,19 @@ class _CoarseReference:
         phases' maps of both: the correlation at the pitch (:meth:`estimate`) and,
         where it cannot decide, the content below the grid's frequency compared at
         whole-period offsets of the phases' field."""
-        est = self.estimate(deformed, _phase_shift(reference, current))
-        if est.confident:
-            return est
+        # the phases are smooth over the window (about a pitch): sampled every q px,
+        # their products hold what the rigid shift and the field need
         q = decimation(self.lattice)
         ok = reference.valid[::q, ::q] & current.valid[::q, ::q]
         if not ok.any():
+            return self.estimate(deformed, None)
+        ref_psi = reference.psi[:, ::q, ::q].astype(np.complex128)
+        z = current.psi[:, ::q, ::q] * np.conj(ref_psi)
+        mean = (z / np.maximum(np.abs(z), 1e-300))[:, ok].sum(axis=1)
+        est = self.estimate(deformed, -solve_k(self.lattice.K, np.angle(mean)) / (2 * np.pi))
+        if est.confident:
             return est
-        u = field_from_phases(reference.psi[:, ::q, ::q], current.psi[:, ::q, ::q], ok,
-                              self.lattice)
-        c = self.content(deformed, u, ok)
+        c = self.content(deformed, field_from_phases(z, ok, self.lattice), ok)
         tiles = (c.tiles_agreeing, c.tiles_informative)
         if c.confident:
             return dataclasses.replace(

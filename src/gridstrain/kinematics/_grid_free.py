@@ -60,6 +60,9 @@ _TILES = 3
 _SEARCH = 5
 _REFINE = 2
 
+# Interpolated samples per call, a few megabytes of coordinates.
+_CHUNK = 2**18
+
 
 @dataclass(frozen=True)
 class ContentOrder:
@@ -117,15 +120,14 @@ def decimation(lattice: Lattice) -> int:
     return max(1, int(min(lattice.pitches)))
 
 
-def field_from_phases(ref_psi: np.ndarray, cur_psi: np.ndarray, ok: np.ndarray,
-                      lattice: Lattice) -> np.ndarray:
-    """The displacement (2, h, w) px at the samples, from the complex amplitudes
-    ``psi`` (2, h, w) sampled there: the wrapped phase difference unwrapped over the
-    largest region of ``ok``, eq. (34) at ``x`` taken at ``X`` by two fixed-point
-    steps; its fringe order is the one closest to zero at the median. NaN outside."""
+def field_from_phases(z: np.ndarray, ok: np.ndarray, lattice: Lattice) -> np.ndarray:
+    """The displacement (2, h, w) px at the samples, from ``z = psi_def conj(psi_ref)``
+    (2, h, w) sampled there: the wrapped phase difference unwrapped over ``ok``, eq.
+    (34) (at ``x``: the difference from ``X`` is the gradient times ``u``, 0.03 px
+    at 11 px and 3e-3, far below the half period the test resolves); its fringe order
+    is the one closest to zero at the median. NaN outside ``ok``."""
     from skimage.restoration import unwrap_phase
 
-    z = cur_psi * np.conj(ref_psi)
     dphase = np.stack([unwrap_phase(np.ma.masked_array(np.angle(z[j]), ~ok)).filled(0.0)
                        for j in range(2)])
     K = lattice.K
@@ -178,26 +180,31 @@ def order_from_content(ref_gf: np.ndarray, cur_gf: np.ndarray, u: np.ndarray,
     cx, cy = (xx + u[0] / q), (yy + u[1] / q)
     H2, W2 = cur_gf.shape
 
-    def compared(centre, periods):
-        """The samples whose images at every offset searched lie inside the deformed
-        image, and their tiles."""
+    def compared(centre, periods, step=1):
+        """The samples (every ``step``-th along each axis) whose images at every
+        offset searched lie inside the deformed image, and their tiles."""
         t = P @ np.asarray(centre, dtype=float) / q
         reach = (periods + 1) * period
         with np.errstate(invalid="ignore"):
             s = ok & (cx + t[0] >= reach) & (cx + t[0] <= W2 - 1 - reach) \
                 & (cy + t[1] >= reach) & (cy + t[1] <= H2 - 1 - reach)
+        if step > 1:
+            s &= (yy % step == 0) & (xx % step == 0)
         return s, _Tiles(xx[s], yy[s])
 
     def energies(sel, tiles, offsets):  # (n, 2) in periods -> (n, tiles)
-        base = np.stack([cy[sel], cx[sel]])
-        ref = ref_gf[sel]
+        base = np.stack([cy[sel], cx[sel]])[:, tiles.order]
+        ref = ref_gf[sel][tiles.order]
+        shifts = (offsets @ P.T / q)[:, ::-1]  # (n, 2) as (rows, columns)
         out = np.empty((len(offsets), tiles.n))
-        for i, mn in enumerate(offsets):
-            t = P @ mn / q
-            d = ndimage.map_coordinates(cur_gf, base + t[::-1, None], order=1,
-                                        mode="nearest")
+        per = max(1, _CHUNK // base.shape[1])
+        for i0 in range(0, len(offsets), per):
+            t = shifts[i0:i0 + per]
+            coords = base[:, None, :] + t.T[:, :, None]
+            d = ndimage.map_coordinates(cur_gf, coords.reshape(2, -1), order=1,
+                                        mode="nearest").reshape(len(t), -1)
             d -= ref
-            out[i] = tiles.residual(d)
+            out[i0:i0 + per] = tiles.residuals(d)
         return out
 
     none = ContentOrder(tuple(int(v) for v in around), (math.nan, math.nan), 1.0, 0, 0,
@@ -206,10 +213,11 @@ def order_from_content(ref_gf: np.ndarray, cur_gf: np.ndarray, u: np.ndarray,
     # the samples kept at least); then half periods near the best
     n_ok = int(ok.sum())
     for reach in range(_SEARCH, _REFINE - 1, -1):
-        sel, tiles = compared(around, reach)
-        if sel.sum() >= n_ok / 2:
+        sel = compared(around, reach, 2)[0]
+        if 4 * sel.sum() >= n_ok / 2:
             break
-    if sel.sum() < 16 * _TILES**2:
+    sel, tiles = compared(around, reach, 2)
+    if sel.sum() < 4 * _TILES**2:
         return none
     a = np.arange(-reach, reach + 1)
     whole = np.stack(np.meshgrid(a, a, indexing="ij"), -1).reshape(-1, 2) + np.asarray(around)
@@ -261,32 +269,46 @@ def order_from_content(ref_gf: np.ndarray, cur_gf: np.ndarray, u: np.ndarray,
 
 class _Tiles:
     """The samples split into ``_TILES`` x ``_TILES`` tiles over their bounding box,
-    each with an orthonormal basis of the planes over its samples."""
+    each with an orthonormal basis of the planes over its samples; ``order`` sorts
+    the samples tile by tile."""
 
     def __init__(self, x: np.ndarray, y: np.ndarray):
         def band(v):
             lo, hi = float(v.min()), float(v.max()) + 1e-9
             return np.minimum(((v - lo) / (hi - lo) * _TILES).astype(int), _TILES - 1)
 
-        self.sel, self.basis = [], []
+        self.spans, self.basis = [], []
+        self.order = np.arange(0)
         self.n = 0
-        if x.size < 16:
+        if x.size < 4:
             return
         tid = band(y) * _TILES + band(x)
+        self.order = np.argsort(tid, kind="stable")
+        bounds = np.searchsorted(tid[self.order], np.arange(_TILES**2 + 1))
+        keep = []
         for k in range(_TILES**2):
-            s = np.flatnonzero(tid == k)
-            if s.size < 16:
+            a, b = int(bounds[k]), int(bounds[k + 1])
+            if b - a < 4:
                 continue
-            A = np.stack([np.ones(s.size), x[s] - x[s].mean(), y[s] - y[s].mean()], 1)
-            self.sel.append(s)
+            s = self.order[a:b]
+            A = np.stack([np.ones(b - a), x[s] - x[s].mean(), y[s] - y[s].mean()], 1)
+            self.spans.append((len(keep), a, b))
             self.basis.append(np.linalg.qr(A)[0])
-        self.n = len(self.sel)
+            keep.append(s)
+        self.order = np.concatenate(keep) if keep else np.arange(0)
+        # the spans re-read in the kept order
+        at = 0
+        for i, (_, a, b) in enumerate(self.spans):
+            self.spans[i] = (at, at + b - a)
+            at += b - a
+        self.n = len(self.spans)
 
-    def residual(self, d: np.ndarray) -> np.ndarray:
-        """Per tile, the sum of squares of ``d`` less its least-squares plane."""
-        out = np.empty(self.n)
-        for k, (s, Q) in enumerate(zip(self.sel, self.basis, strict=True)):
-            v = d[s]
-            c = Q.T @ v
-            out[k] = float(v @ v - c @ c)
+    def residuals(self, d: np.ndarray) -> np.ndarray:
+        """Per row of ``d`` (n, samples in ``order``) and tile, the sum of squares
+        less the least-squares plane's."""
+        out = np.empty((d.shape[0], self.n))
+        for k, ((a, b), Q) in enumerate(zip(self.spans, self.basis, strict=True)):
+            v = d[:, a:b]
+            c = v @ Q
+            out[:, k] = np.einsum("ij,ij->i", v, v) - np.einsum("ij,ij->i", c, c)
         return out
