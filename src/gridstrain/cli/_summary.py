@@ -113,6 +113,9 @@ def _fringe_line(result: SeriesResult, i: int) -> str:
                 f"{result.guesses[i][1]:.2f}) px: {result.guess_sources[i]}")
     r = result.fringe_orders[i]
     state = "confirmed" if r.confirmed else "NOT CONFIRMED (may be whole periods off)"
+    if not r.confirmed and r.strain_if_off > 0:
+        state = (f"NOT CONFIRMED (may be whole periods off, and its strain by up to "
+                 f"{r.strain_if_off:.1e})")
     return (f"fringe order: {r.source}, {state}; guess ({r.guess[0]:.2f}, "
             f"{r.guess[1]:.2f}) px; {r.detail}")
 

@@ -30,9 +30,9 @@ from ..phase.lattice import reference_carrier, state_carrier
 from ..wft import DEFAULT_MARGIN, PhaseMaps, wft
 from ._fringe_order import (
     FringeOrder,
+    _CoarseReference,
     _from_estimate,
-    _phase_shift,
-    coarse_displacement,
+    coarse_displacement,  # noqa: F401  (named by the docstrings)
     solve_k,
 )
 
@@ -323,8 +323,9 @@ def _guess_field(guess, reference, deformed, images):
         if images is None:
             raise ValueError("guess='auto' needs the images; pass a guess with phase maps")
         ref_img, cur_img, mask = images
-        est = coarse_displacement(ref_img, cur_img, reference.lattice, mask=mask,
-                                  phase_shift=_phase_shift(reference, deformed))
+        ref_img = np.asarray(ref_img, dtype=np.float64)
+        est = _CoarseReference(ref_img, reference.lattice, check_mask(mask, ref_img.shape)) \
+            .decide(np.asarray(cur_img, dtype=np.float64), reference, deformed)
         if est.confident:
             shift = np.array(est.shift)
             return np.broadcast_to(shift[:, None, None], (2, *shape)), "auto", est

@@ -1,7 +1,8 @@
 """The fringe order of a displacement (the whole number of periods the phases cannot see):
 how it was fixed (:class:`FringeOrder`) and the image-feature estimate that can fix it
 (:func:`coarse_displacement`: band-passed normalised cross-correlation of the two images
-against the aliases one or two periods away).
+against the aliases one or two periods away; where it cannot decide, the content below
+the grid's frequency compared at whole-period offsets, :mod:`._grid_free`).
 """
 
 from __future__ import annotations
@@ -23,6 +24,14 @@ from .._validation import (
 )
 from ..phase import Lattice
 from ..wft import PhaseMaps
+from ._grid_free import (
+    ContentOrder,
+    decimation,
+    field_from_phases,
+    grid_free,
+    order_from_content,
+    smooth_decimate,
+)
 
 __all__ = ["FRINGE_ORDER_SOURCES", "CoarseEstimate", "FringeOrder", "coarse_displacement"]
 
@@ -105,6 +114,19 @@ class FringeOrder:
     step : float
         Largest increment from the previous state along a wave vector, in periods
         (NaN when not tracked).
+    residual_ratio : float
+        Of the image content below the grid's frequency compared at whole-period
+        offsets (:class:`CoarseEstimate`), NaN when not made.
+    tiles_agreeing, tiles_informative : int
+        Of that comparison: the tiles whose content decides, and those of them that
+        pick the order taken.
+    strain_if_off : float
+        For a state not confirmed, how far its strain may be off as well: with the
+        large-displacement correction, a displacement a period ``a`` off reads the
+        deformed phases a period away, and the strain reported at ``X`` is, to first
+        order, the strain at ``X + a``; this is the 95th percentile over the valid
+        pixels of ``max |(a . grad) e|`` over the two lattice periods and the three
+        components (dimensionless; 0 without the correction; NaN when confirmed).
     """
 
     source: str
@@ -116,6 +138,10 @@ class FringeOrder:
     disagreement: float = math.nan
     features_shift: tuple[float, float] | None = None
     step: float = math.nan
+    residual_ratio: float = math.nan
+    tiles_agreeing: int = 0
+    tiles_informative: int = 0
+    strain_if_off: float = math.nan
 
     def __post_init__(self):
         if self.source not in FRINGE_ORDER_SOURCES:
@@ -134,7 +160,11 @@ class FringeOrder:
                 "disagreement_periods": num(self.disagreement),
                 "features_shift_px": None if self.features_shift is None
                 else [float(v) for v in self.features_shift],
-                "step_periods": num(self.step)}
+                "step_periods": num(self.step),
+                "residual_ratio": num(self.residual_ratio),
+                "tiles_agreeing": int(self.tiles_agreeing),
+                "tiles_informative": int(self.tiles_informative),
+                "strain_if_off_by_a_period": num(self.strain_if_off)}
 
 
 def _from_estimate(est, source, confirmed, guess, detail, step=math.nan) -> FringeOrder:
@@ -143,7 +173,9 @@ def _from_estimate(est, source, confirmed, guess, detail, step=math.nan) -> Frin
         return FringeOrder(source, confirmed, guess, detail, step=step)
     return FringeOrder(source, confirmed, guess, detail, correlation=est.correlation,
                        peak_to_alias=est.peak_to_alias, disagreement=est.disagreement,
-                       features_shift=est.shift, step=step)
+                       features_shift=est.shift, step=step,
+                       residual_ratio=est.residual_ratio, tiles_agreeing=est.tiles[0],
+                       tiles_informative=est.tiles[1])
 
 
 @dataclass(frozen=True)
@@ -172,6 +204,13 @@ class CoarseEstimate:
         specimen, a peak that clearly beats its aliases and agrees with the phases.
     reason : str
         Why it is (or is not) confident, in words.
+    residual_ratio : float
+        When the correlation at the pitch could not decide and the phases were
+        given: the content below the grid's frequency compared at whole-period
+        offsets (:mod:`gridstrain.kinematics._grid_free`), the residual of the
+        second-best offset over the best's; NaN when not made.
+    tiles : (2,) tuple of int
+        Of that comparison: tiles agreeing with the order taken, informative tiles.
     """
 
     shift: tuple[float, float]
@@ -182,6 +221,8 @@ class CoarseEstimate:
     disagreement: float
     confident: bool
     reason: str
+    residual_ratio: float = math.nan
+    tiles: tuple[int, int] = (0, 0)
 
 
 def coarse_displacement(reference, deformed, lattice: Lattice, *, mask=None,
@@ -255,12 +296,56 @@ class _CoarseReference:
         self.reference = np.asarray(reference, dtype=np.float64)
         self.lattice, self.mask = lattice, mask
         self._sides: dict[bool, _Side] = {}
+        self._gf = None
 
     def side(self, whole: bool) -> _Side:
         if whole not in self._sides:
             m = np.ones_like(self.mask) if whole else self.mask
             self._sides[whole] = _reference_side(self.reference, self.lattice, m)
         return self._sides[whole]
+
+    def grid_free(self):
+        """The reference's image below the grid's frequency and its sampling, px."""
+        if self._gf is None:
+            q = decimation(self.lattice)
+            self._gf = (grid_free(self.reference, self.lattice, q), q)
+        return self._gf
+
+    def content(self, deformed: np.ndarray, u: np.ndarray, ok: np.ndarray,
+                around=(0, 0)) -> ContentOrder:
+        """:func:`order_from_content` of ``deformed`` with the field ``u`` (2, h, w)
+        and ``ok`` at the reference's grid-free samples."""
+        ref, q = self.grid_free()
+        return order_from_content(ref, grid_free(deformed, self.lattice, q), u, ok,
+                                  self.lattice, q, around=around)
+
+    def decide(self, deformed: np.ndarray, reference: PhaseMaps,
+               current: PhaseMaps) -> CoarseEstimate:
+        """The image-feature estimate of ``deformed`` against the reference, with the
+        phases' maps of both: the correlation at the pitch (:meth:`estimate`) and,
+        where it cannot decide, the content below the grid's frequency compared at
+        whole-period offsets of the phases' field."""
+        # the phases are smooth over the window (about a pitch): sampled every q px,
+        # their products hold what the rigid shift and the field need
+        q = decimation(self.lattice)
+        ok = reference.valid[::q, ::q] & current.valid[::q, ::q]
+        if not ok.any():
+            return self.estimate(deformed, None)
+        ref_psi = reference.psi[:, ::q, ::q].astype(np.complex128)
+        z = current.psi[:, ::q, ::q] * np.conj(ref_psi)
+        mean = (z / np.maximum(np.abs(z), 1e-300))[:, ok].sum(axis=1)
+        est = self.estimate(deformed, -solve_k(self.lattice.K, np.angle(mean)) / (2 * np.pi))
+        if est.confident:
+            return est
+        c = self.content(deformed, field_from_phases(z, ok, self.lattice), ok)
+        tiles = (c.tiles_agreeing, c.tiles_informative)
+        if c.confident:
+            return dataclasses.replace(
+                est, shift=c.shift, confident=True, residual_ratio=c.residual_ratio,
+                tiles=tiles, reason=f"{c.reason} (at the pitch: {est.reason})")
+        return dataclasses.replace(est, residual_ratio=c.residual_ratio, tiles=tiles,
+                                   reason=f"{est.reason}; below the grid's frequency: "
+                                          f"{c.reason}")
 
     def estimate(self, deformed: np.ndarray, phase_shift) -> CoarseEstimate:
         """:func:`coarse_displacement` of ``deformed`` (float64, checked)."""
@@ -290,7 +375,7 @@ def _band_weights(m, pitch, q=1) -> tuple[np.ndarray, np.ndarray]:
         den2 = np.outer(*(ndimage.gaussian_filter1d(p, s2, mode="constant", truncate=4.0)
                           for p in prof))
     else:
-        den = _smooth_decimate(w, s1, q)
+        den = smooth_decimate(w, s1, q)
         den2 = ndimage.gaussian_filter(den, s2, mode="constant", truncate=4.0)
     return den, den2
 
@@ -310,16 +395,9 @@ def _band_pass(img, m, pitch, q=1, weights=None):
     # to the decimated sums (numerator and weights alike)
     s1 = _BAND_LOW * pitch
     s2 = math.sqrt((_BAND_HIGH * pitch) ** 2 - s1**2) / q
-    num = _smooth_decimate(x, s1, q)
+    num = smooth_decimate(x, s1, q)
     num2 = ndimage.gaussian_filter(num, s2, mode="constant", truncate=4.0)
     return num / np.maximum(den, 1e-12) - num2 / np.maximum(den2, 1e-12)
-
-
-def _smooth_decimate(a, s, q):
-    """``a`` smoothed by a Gaussian of std ``s`` px and sampled every ``q`` px: each
-    axis filtered, then decimated, before the other."""
-    a = ndimage.gaussian_filter1d(a, s, axis=0, mode="constant", truncate=4.0)[::q]
-    return ndimage.gaussian_filter1d(a, s, axis=1, mode="constant", truncate=4.0)[:, ::q]
 
 
 def _decimation(shape, lattice) -> int:
@@ -620,3 +698,27 @@ def phase_products(reference: PhaseMaps, deformed: PhaseMaps, valid: np.ndarray)
 def solve_k(K: np.ndarray, r: np.ndarray) -> np.ndarray:
     """``K^-1 r`` for a 2x2 ``K`` and ``r`` of shape (2, ...)."""
     return np.tensordot(np.linalg.inv(K), r, axes=1)
+
+
+def strain_if_off(res) -> float:
+    """How far the strain of ``res`` (a :class:`Measurement`) would move if its
+    displacement were one lattice period off: see :attr:`FringeOrder.strain_if_off`.
+
+    With the large-displacement correction the gradient at ``X`` is built from the
+    deformed phases' derivatives at ``X + u``; a displacement ``u + a`` reads them at
+    the place of the material point ``X + a`` (to first order in the gradient), so
+    the strain reported at ``X`` becomes the strain at ``X + a``: it changes by
+    ``(a . grad) e``, from the measured strain maps (central differences).
+    Without the correction the strain does not depend on the order: 0."""
+    if not res.lagrangian:
+        return 0.0
+    v = res.valid
+    P = res.lattice.periods
+    worst = np.zeros(v.shape)
+    for comp in res.strain:
+        gy, gx = np.gradient(np.asarray(comp, dtype=np.float64))
+        for k in range(2):
+            d = np.abs(P[0, k] * gx + P[1, k] * gy)
+            np.fmax(worst, d, out=worst)
+    vals = worst[v & np.isfinite(worst)]
+    return float(np.percentile(vals, 95)) if vals.size else math.nan

@@ -27,8 +27,9 @@ from ._fringe_order import (
     FringeOrder,
     _CoarseReference,
     _from_estimate,
-    _phase_shift,
+    strain_if_off,
 )
+from ._grid_free import decimation
 
 # A state followed from the previous one is confirmed only if its displacement
 # changed by at most this many periods (along each wave vector) at every pixel: the
@@ -96,6 +97,18 @@ def _what_to_do(lattice: Lattice) -> str:
             "intermediate image to the series, or image a grid with printed features")
 
 
+def with_strain_doubt(res: Measurement, rec: FringeOrder) -> tuple[FringeOrder, str]:
+    """A record not confirmed, with how far the strain may be off too
+    (:func:`strain_if_off`), and the words that say it."""
+    s = strain_if_off(res)
+    rec = dataclasses.replace(rec, strain_if_off=s)
+    if not s > 0:
+        return rec, ""
+    return rec, (f"; its strain may be off too, by up to {s:.1e} (95 % of the pixels: "
+                 "the strain a period away, which the large-displacement correction reads "
+                 "if the displacement is a period off)")
+
+
 class _Tracker:
     """Measure the states one after the other and fix each one's fringe order (see
     :class:`FringeOrder`): in series order, a state's guess is the previous state's
@@ -117,8 +130,7 @@ class _Tracker:
         is not automatic: the mean image is not needed afterwards."""
         if not isinstance(g, str):
             return None
-        return self.coarse.estimate(np.asarray(mean, dtype=np.float64),
-                                    _phase_shift(self.ref_pm, pm))
+        return self.coarse.decide(np.asarray(mean, dtype=np.float64), self.ref_pm, pm)
 
     def measure(self, pm: PhaseMaps, est, g, name: str):
         """``(Measurement, FringeOrder, warnings)`` of the next state, with ``est``
@@ -198,6 +210,10 @@ class _Tracker:
         else:
             res = deformation(ref_pm, pm, lagrangian=self.lagrangian, guess=g)
             rec = FringeOrder("user", True, res.guess, "the given guess")
+        if not rec.confirmed:
+            rec, said = with_strain_doubt(res, rec)
+            if warnings:  # the warning that says why it is not confirmed
+                warnings[-1] += said
         # the measurement carries the series' record, not the pair's view of its guess
         res = dataclasses.replace(res, fringe_order=rec)
         return res, rec, warnings
@@ -220,7 +236,8 @@ class _Tracker:
         if not self.inherited:
             return []
         return [f"{', '.join(self.inherited)}: followed from a state whose fringe order "
-                "is not confirmed; they share its uncertainty"]
+                "is not confirmed; they share its uncertainty (their strain too: each "
+                "state's record says by how much it may be off)"]
 
 
 def check_after_warp(res: Measurement, rec: FringeOrder, coarse: _CoarseReference,
@@ -241,6 +258,13 @@ def check_after_warp(res: Measurement, rec: FringeOrder, coarse: _CoarseReferenc
     v = res.valid
     if rec.source == "previous state" or not v.any() or res.reference is None:
         return res, rec, []
+    if rec.confirmed and rec.tiles_agreeing:
+        return res, rec, []  # fixed by the content at whole-period offsets of the field
+    q = decimation(lattice)
+    c = coarse.content(mean_cur, res.u[:, ::q, ::q].astype(np.float64), v[::q, ::q])
+    if c.confident:
+        t = lattice.periods @ np.array(c.offset, dtype=float)
+        return _recheck(res, rec, t, name, c.reason, _content_record(c))
     u = np.stack([nearest_filled(res.u[k], v) for k in range(2)])
     H, W = v.shape
     yy, xx = np.mgrid[0:H, 0:W].astype(np.float64)
@@ -252,24 +276,38 @@ def check_after_warp(res: Measurement, rec: FringeOrder, coarse: _CoarseReferenc
     est = coarse.estimate(warped, np.zeros(2))
     if not est.confident:
         return res, rec, []
+    # the whole periods the content is off, and the correction they call for
     off = np.rint(lattice.K @ np.array(est.shift))
-    if not off.any():
+    figures = {"correlation": est.correlation, "peak_to_alias": est.peak_to_alias,
+               "disagreement": est.disagreement, "features_shift": est.shift}
+    return _recheck(res, rec, np.linalg.solve(lattice.K, off), name, est.reason, figures)
+
+
+def _content_record(c) -> dict:
+    """The figures of a :class:`ContentOrder` as fields of a :class:`FringeOrder`."""
+    return {"residual_ratio": c.residual_ratio, "tiles_agreeing": c.tiles_agreeing,
+            "tiles_informative": c.tiles_informative}
+
+
+def _recheck(res: Measurement, rec: FringeOrder, t, name: str, reason: str, figures: dict):
+    """``(res, rec, warnings)`` once the warped-back content says that the measured
+    displacement needs ``t`` (px, a lattice vector) added: confirmed if ``t`` is 0,
+    measured again from the guess moved by ``t`` if not."""
+    if not np.any(np.rint(res.lattice.K @ t)):
         if rec.confirmed:
             return res, rec, []
         return res, dataclasses.replace(
-            rec, confirmed=True, source="image features",
+            rec, confirmed=True, source="image features", strain_if_off=math.nan,
             detail=f"the deformed image warped back by the measured field matches the "
-                   f"reference's content ({est.reason}); {rec.detail}"), []
+                   f"reference's content ({reason}); {rec.detail}", **figures), []
     before = _median_u(res)
-    shift = np.linalg.solve(lattice.K, off)  # the whole periods the content is off
-    g = np.array(res.guess, dtype=float) + shift
+    g = np.array(res.guess, dtype=float) + t
     again = deformation(res.reference, res.deformed, lagrangian=res.lagrangian, guess=g)
     rec = FringeOrder("image features", True, again.guess,
                       f"the deformed image warped back by the field {before} showed the "
-                      f"reference's content {shift[0]:.2f}, {shift[1]:.2f} px away "
-                      f"({est.reason}); {rec.source} had given it", est.correlation,
-                      est.peak_to_alias, est.disagreement, est.shift)
+                      f"reference's content {t[0]:.2f}, {t[1]:.2f} px away "
+                      f"({reason}); {rec.source} had given it", **figures)
     return again, rec, [f"{name}: the displacement was whole periods off ({before}): "
                         f"warped back by it, the deformed image's content lay "
-                        f"{shift[0]:.2f}, {shift[1]:.2f} px from the reference's; it is "
+                        f"{t[0]:.2f}, {t[1]:.2f} px from the reference's; it is "
                         f"now {_median_u(again)}"]

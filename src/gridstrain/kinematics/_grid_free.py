@@ -1,0 +1,314 @@
+"""The fringe order from what the images hold below the grid's frequency.
+
+A printed feature as sharp as the pitch fixes the fringe order by a correlation peak
+narrower than a period (:func:`~gridstrain.kinematics.coarse_displacement`). A broad
+reflectance blob, a wood grain or a stain has no such peak: band-passed at the pitch
+they leave nothing but the grid's residue, which correlates equally well a whole
+period away. They still move with the specimen, and the phases already say where
+every point went *modulo* the lattice. So the test here is a choice among whole
+periods, not a search for a peak:
+
+1. both images are low-passed by a Gaussian of one pitch (the grid's fundamental
+   kept at ``exp(-2 pi^2) ~ 3e-9``), sampled every ``q ~ pitch`` px, and their
+   logarithm taken (reflectance and lighting multiply: their logarithms add);
+2. every sample ``X`` of the reference is compared with the deformed image at
+   ``X + u(X) + t``, ``u`` the field the phases give (modulo the lattice) and ``t``
+   a candidate offset on the lattice (``m a1 + n a2``);
+3. the difference's least-squares plane is removed in each of 3 x 3 tiles (lighting
+   fixed to the camera, vignetting included, differs between ``X`` and ``X + u + t``
+   by a plane for any quadratic profile), and what is left, summed over the tile, is
+   the tile's residual ``E_t(t)``.
+
+The right offset leaves noise; a wrong one adds the content's gradient times a
+period. The decision (:func:`order_from_content`) is confident only when
+
+- some tile is *informative*: its best offset, searched on a half-period lattice,
+  is a whole-period one (content fixed to the camera, or moving otherwise than the
+  grid, puts it between two) and every other whole-period offset leaves at least
+  ``_MIN_RESIDUAL_RATIO`` times its residual;
+- every informative tile picks the same offset, and so does the sum over the tiles;
+- that offset is not at the edge of the search.
+
+A competitor at a lattice offset that the grid explains (its periodic residue) adds
+the same residual to every offset and leaves the ratio to the content; a competitor
+the content itself explains (a pattern repeating every two periods) leaves the same
+residual as the best offset, and the test stays undecided. A grid with nothing else
+leaves every ratio near 1: the order stays unconfirmed.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import ndimage
+
+from ..phase import Lattice
+
+# A tile decides only if every other whole-period offset leaves this many times its
+# best residual: with ~500 independent samples a tile's residual varies by ~6 % with
+# the noise, and a grid with nothing else (independent images, moved 0 to 20 px)
+# stays below 1.2.
+_MIN_RESIDUAL_RATIO = 1.5
+
+# Tiles per side.
+_TILES = 3
+
+# Whole periods searched around the smallest displacement the phases allow (first
+# stage, whole periods only), then around the best one on half periods.
+_SEARCH = 5
+_REFINE = 2
+
+# Interpolated samples per call, a few megabytes of coordinates.
+_CHUNK = 2**18
+
+
+@dataclass(frozen=True)
+class ContentOrder:
+    """What the content below the grid's frequency says about the fringe order.
+
+    Attributes
+    ----------
+    offset : (2,) tuple of int
+        The whole periods ``(m, n)`` added to the phases' field: ``t = m a1 + n a2``.
+    shift : (2,) tuple of float
+        The median displacement ``(u_x, u_y)`` of the field with that offset over the
+        compared samples, px: a guess that fixes the order.
+    residual_ratio : float
+        Over all tiles, the residual of the second-best whole-period offset over the
+        best's (1 when nothing decides).
+    tiles_agreeing, tiles_informative : int
+        Informative tiles (see the module's notes) and those that pick ``offset``.
+    confident : bool
+    reason : str
+    """
+
+    offset: tuple[int, int]
+    shift: tuple[float, float]
+    residual_ratio: float
+    tiles_agreeing: int
+    tiles_informative: int
+    confident: bool
+    reason: str
+
+
+def grid_free(image: np.ndarray, lattice: Lattice, q: int) -> np.ndarray:
+    """The logarithm of ``image`` low-passed by a Gaussian of std the longer pitch,
+    sampled every ``q`` px from pixel 0 (normalised near the borders): the grid
+    removed. A hole or an edge stays in it: content that moves with the specimen."""
+    pitch = max(lattice.pitches)
+    x = np.asarray(image, dtype=np.float64)
+    num = smooth_decimate(x, pitch, q)
+    den = np.outer(*(ndimage.gaussian_filter1d(np.ones(n), pitch, mode="constant",
+                                               truncate=4.0)[::q] for n in x.shape))
+    low = num / np.maximum(den, 1e-12)
+    floor = 1e-3 * max(float(np.max(low)), 1e-300)
+    return np.log(np.maximum(low, floor))
+
+
+def smooth_decimate(a, s, q):
+    """``a`` smoothed by a Gaussian of std ``s`` px and sampled every ``q`` px: each
+    axis filtered, then decimated, before the other."""
+    a = ndimage.gaussian_filter1d(a, s, axis=0, mode="constant", truncate=4.0)[::q]
+    return ndimage.gaussian_filter1d(a, s, axis=1, mode="constant", truncate=4.0)[:, ::q]
+
+
+def decimation(lattice: Lattice) -> int:
+    """Samples every ``q`` px: a pitch (the low-pass keeps 7e-3 at the new Nyquist
+    frequency, and nothing the content holds above it)."""
+    return max(1, int(min(lattice.pitches)))
+
+
+def field_from_phases(z: np.ndarray, ok: np.ndarray, lattice: Lattice) -> np.ndarray:
+    """The displacement (2, h, w) px at the samples, from ``z = psi_def conj(psi_ref)``
+    (2, h, w) sampled there: the wrapped phase difference unwrapped over ``ok``, eq.
+    (34) (at ``x``: the difference from ``X`` is the gradient times ``u``, 0.03 px
+    at 11 px and 3e-3, far below the half period the test resolves); its fringe order
+    is the one closest to zero at the median. NaN outside ``ok``."""
+    from skimage.restoration import unwrap_phase
+
+    dphase = np.stack([unwrap_phase(np.ma.masked_array(np.angle(z[j]), ~ok)).filled(0.0)
+                       for j in range(2)])
+    K = lattice.K
+    u = -np.tensordot(np.linalg.inv(K), dphase, axes=1) / (2 * np.pi)
+    n = np.rint(K @ np.median(u[:, ok], axis=1))
+    u -= np.linalg.solve(K, n)[:, None, None]
+    u[:, ~ok] = np.nan
+    return u
+
+
+def largest_region(ok: np.ndarray) -> np.ndarray:
+    """The largest connected region of ``ok``: regions apart may each be whole periods
+    off the others, and the test takes one offset for all it compares."""
+    labels, n = ndimage.label(ok)
+    if n <= 1:
+        return ok
+    sizes = np.bincount(labels.ravel())[1:]
+    return labels == 1 + int(np.argmax(sizes))
+
+
+def order_from_content(ref_gf: np.ndarray, cur_gf: np.ndarray, u: np.ndarray,
+                       ok: np.ndarray, lattice: Lattice, q: int, *,
+                       around=(0, 0)) -> ContentOrder:
+    """Choose the whole periods to add to the field ``u`` from the grid-free images.
+
+    Parameters
+    ----------
+    ref_gf, cur_gf : (h, w) and (h', w') ndarray
+        :func:`grid_free` of the reference and of the deformed image.
+    u : (2, h, w) ndarray
+        The displacement at the reference's samples (pixel ``(q i, q j)``), px, known
+        modulo the lattice.
+    ok : (h, w) bool ndarray
+        Samples where ``u`` and the reference hold.
+    lattice : Lattice
+    q : int
+        The samples' spacing, px.
+    around : (2,) int
+        The whole periods the search is centred on.
+
+    Returns
+    -------
+    ContentOrder
+    """
+    h, w = ref_gf.shape
+    P = lattice.periods
+    period = float(np.max(np.hypot(*P))) / q  # samples
+    yy, xx = np.mgrid[0:h, 0:w].astype(np.float64)
+    ok = largest_region(ok & np.all(np.isfinite(u), axis=0))
+    cx, cy = (xx + u[0] / q), (yy + u[1] / q)
+    H2, W2 = cur_gf.shape
+
+    def compared(centre, periods, step=1):
+        """The samples (every ``step``-th along each axis) whose images at every
+        offset searched lie inside the deformed image, and their tiles."""
+        t = P @ np.asarray(centre, dtype=float) / q
+        reach = (periods + 1) * period
+        with np.errstate(invalid="ignore"):
+            s = ok & (cx + t[0] >= reach) & (cx + t[0] <= W2 - 1 - reach) \
+                & (cy + t[1] >= reach) & (cy + t[1] <= H2 - 1 - reach)
+        if step > 1:
+            s &= (yy % step == 0) & (xx % step == 0)
+        return s, _Tiles(xx[s], yy[s])
+
+    def energies(sel, tiles, offsets):  # (n, 2) in periods -> (n, tiles)
+        base = np.stack([cy[sel], cx[sel]])[:, tiles.order]
+        ref = ref_gf[sel][tiles.order]
+        shifts = (offsets @ P.T / q)[:, ::-1]  # (n, 2) as (rows, columns)
+        out = np.empty((len(offsets), tiles.n))
+        per = max(1, _CHUNK // base.shape[1])
+        for i0 in range(0, len(offsets), per):
+            t = shifts[i0:i0 + per]
+            coords = base[:, None, :] + t.T[:, :, None]
+            d = ndimage.map_coordinates(cur_gf, coords.reshape(2, -1), order=1,
+                                        mode="nearest").reshape(len(t), -1)
+            d -= ref
+            out[i0:i0 + per] = tiles.residuals(d)
+        return out
+
+    none = ContentOrder(tuple(int(v) for v in around), (math.nan, math.nan), 1.0, 0, 0,
+                        False, "too few samples of the images' content to compare")
+    # whole periods first, around the given centre, as far as the images allow (half
+    # the samples kept at least); then half periods near the best
+    n_ok = int(ok.sum())
+    for reach in range(_SEARCH, _REFINE - 1, -1):
+        sel = compared(around, reach, 2)[0]
+        if 4 * sel.sum() >= n_ok / 2:
+            break
+    sel, tiles = compared(around, reach, 2)
+    if sel.sum() < 4 * _TILES**2:
+        return none
+    a = np.arange(-reach, reach + 1)
+    whole = np.stack(np.meshgrid(a, a, indexing="ij"), -1).reshape(-1, 2) + np.asarray(around)
+    e = energies(sel, tiles, whole.astype(float)).sum(axis=1)
+    centre = whole[int(np.argmin(e))]
+    at_edge = bool(np.any(np.abs(centre - np.asarray(around)) >= reach))
+    sel, tiles = compared(centre, _REFINE)
+    if sel.sum() < 16 * _TILES**2:
+        return none
+    b = np.arange(-2 * _REFINE, 2 * _REFINE + 1) / 2
+    half = np.stack(np.meshgrid(b, b, indexing="ij"), -1).reshape(-1, 2) + centre
+    E = energies(sel, tiles, half)
+    integer = np.all(half == np.rint(half), axis=1)
+    edge = np.any(np.abs(half - centre) >= _REFINE, axis=1)
+
+    def verdict(col):
+        """(best index, ratio of the second-best whole offset, best is whole)."""
+        j = int(np.argmin(col))
+        others = integer.copy()
+        others[j] = False
+        ratio = float(np.min(col[others]) / max(col[j], 1e-300))
+        return j, ratio, bool(integer[j])
+
+    j, ratio, whole_best = verdict(E.sum(axis=1))
+    votes = [verdict(E[:, k]) for k in range(tiles.n)]
+    informative = [v for v in votes if v[1] >= _MIN_RESIDUAL_RATIO]
+    agree = sum(v[0] == j and v[2] for v in informative)
+    offset = tuple(int(v) for v in np.rint(half[j]))
+    field = u[:, sel] + (P @ np.rint(half[j]))[:, None]
+    shift = tuple(float(np.median(c)) for c in field)
+    counts = f"{agree} of {len(informative)} informative tiles of {tiles.n} agree"
+    if not informative:
+        why = (f"no tile's content decides (ratio of residuals {ratio:.2f} over all; "
+               f"each tile's below {_MIN_RESIDUAL_RATIO}): nothing but the grid moves "
+               "with the specimen")
+    elif not whole_best:
+        why = ("the content matches best half a period from every offset the phases "
+               "allow: it is fixed to the camera or does not move with the grid")
+    elif agree < len(informative):
+        why = f"the tiles disagree ({counts})"
+    elif edge[j] or at_edge:
+        why = "the best offset lies at the edge of the search"
+    else:
+        return ContentOrder(offset, shift, ratio, agree, len(informative), True,
+                            f"the content below the grid's frequency: {counts}, ratio "
+                            f"of residuals {ratio:.2f}")
+    return ContentOrder(offset, shift, ratio, agree, len(informative), False, why)
+
+
+class _Tiles:
+    """The samples split into ``_TILES`` x ``_TILES`` tiles over their bounding box,
+    each with an orthonormal basis of the planes over its samples; ``order`` sorts
+    the samples tile by tile."""
+
+    def __init__(self, x: np.ndarray, y: np.ndarray):
+        def band(v):
+            lo, hi = float(v.min()), float(v.max()) + 1e-9
+            return np.minimum(((v - lo) / (hi - lo) * _TILES).astype(int), _TILES - 1)
+
+        self.spans, self.basis = [], []
+        self.order = np.arange(0)
+        self.n = 0
+        if x.size < 4:
+            return
+        tid = band(y) * _TILES + band(x)
+        self.order = np.argsort(tid, kind="stable")
+        bounds = np.searchsorted(tid[self.order], np.arange(_TILES**2 + 1))
+        keep = []
+        for k in range(_TILES**2):
+            a, b = int(bounds[k]), int(bounds[k + 1])
+            if b - a < 4:
+                continue
+            s = self.order[a:b]
+            A = np.stack([np.ones(b - a), x[s] - x[s].mean(), y[s] - y[s].mean()], 1)
+            self.spans.append((len(keep), a, b))
+            self.basis.append(np.linalg.qr(A)[0])
+            keep.append(s)
+        self.order = np.concatenate(keep) if keep else np.arange(0)
+        # the spans re-read in the kept order
+        at = 0
+        for i, (_, a, b) in enumerate(self.spans):
+            self.spans[i] = (at, at + b - a)
+            at += b - a
+        self.n = len(self.spans)
+
+    def residuals(self, d: np.ndarray) -> np.ndarray:
+        """Per row of ``d`` (n, samples in ``order``) and tile, the sum of squares
+        less the least-squares plane's."""
+        out = np.empty((d.shape[0], self.n))
+        for k, ((a, b), Q) in enumerate(zip(self.spans, self.basis, strict=True)):
+            v = d[:, a:b]
+            c = v @ Q
+            out[:, k] = np.einsum("ij,ij->i", v, v) - np.einsum("ij,ij->i", c, c)
+        return out

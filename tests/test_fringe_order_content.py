@@ -1,0 +1,156 @@
+"""The fringe order from what the images hold below the grid's frequency.
+
+Broad stains and a wood-like grain move with the specimen but hold nothing as sharp
+as a pitch: the correlation at the pitch sees only the grid's residue, as good a whole
+period away. Compared at whole-period offsets of the phases' field, once the grid is
+low-passed away, they fix the order; a grid with nothing else, or content fixed to the
+camera, must leave it unconfirmed. The images come from ``independent_grid`` (numpy
+only, not :mod:`gridstrain.synthetic`); the lighting is fixed to the camera (a broad
+Gaussian falling to about 40 %) and the sensor is Poisson-Gaussian.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+
+import h5py
+import numpy as np
+import pytest
+import tifffile
+
+from gridstrain import Lattice, wft
+from gridstrain.cli import main
+from gridstrain.kinematics import deformation
+from gridstrain.kinematics._fringe_order import strain_if_off
+from gridstrain.pipeline import measure_series
+from independent_grid import camera, grain, scene, stains
+
+SHAPE = (192, 256)
+PITCH = 5.0
+CENTRE = ((SHAPE[1] - 1) / 2, (SHAPE[0] - 1) / 2)
+# two whole periods and more: the smallest displacement the phases allow is wrong
+SHIFT = (11 * math.cos(0.5), -11 * math.sin(0.5))
+
+
+def _field(shift, exx=1e-3, eyy=-5e-4):
+    def U(X, Y):
+        return shift[0] + exx * (X - CENTRE[0]), shift[1] + eyy * (Y - CENTRE[1])
+
+    return U
+
+
+def _pair(reflectance, *, angle, shift=SHIFT, seed=0, texture=0.0):
+    """Reference and deformed camera images (float grey levels) and the field."""
+    U = _field(shift)
+    kw = {"pitch": PITCH, "angle": angle, "hole": False, "reflectance": reflectance,
+          "texture": texture}
+    rng = np.random.default_rng(seed)
+    ref = camera(scene(SHAPE, **kw)[0], 1.0, 4.0, rng) / 16.0
+    cur = camera(scene(SHAPE, displacement=U, **kw)[0], 1.0, 4.0, rng) / 16.0
+    return ref, cur, U
+
+
+def _errors(u, valid, U):
+    yy, xx = np.mgrid[0:SHAPE[0], 0:SHAPE[1]].astype(float)
+    d = u[:, valid] - np.array(U(xx, yy))[:, valid]
+    return float(np.max(np.abs(d))), float(np.sqrt(np.mean(d * d)))
+
+
+def test_broad_stains_fix_the_order_through_the_cli(tmp_path, capsys):
+    """Two stains of 25 and 17 px std, the specimen moved by 11 px: the order is
+    confirmed by the content below the grid's frequency, and no period is lost."""
+    ref, cur, U = _pair(stains(SHAPE), angle=12.0)
+    for name, img in (("ref", ref), ("def", cur)):
+        tifffile.imwrite(tmp_path / f"{name}.tif", np.rint(img).astype(np.uint16))
+    out = tmp_path / "out.h5"
+    rc = main(["measure", str(tmp_path / "ref.tif"), str(tmp_path / "def.tif"), "-o",
+               str(out), "--json", "--quiet"])
+    assert rc in (0, None)
+    order = json.loads(capsys.readouterr().out)["states"][0]["fringe_order"]
+    assert order["source"] == "image features"
+    assert order["confirmed"] is True
+    # the correlation at the pitch could not decide: the content below it did
+    assert order["peak_to_alias"] < 1.5
+    assert order["residual_ratio"] >= 1.5
+    assert order["tiles_agreeing"] == order["tiles_informative"] >= 1
+    with h5py.File(out, "r") as h5:
+        v = h5["valid"][0]
+        u = np.array([h5["ux"][0], h5["uy"][0]])
+    worst, rms = _errors(u, v, U)
+    # px: a whole period off would be 5 px; the noise of one 12-bit frame leaves a few
+    # hundredths
+    assert worst < 0.5
+    assert rms < 0.05
+
+
+@pytest.mark.parametrize("grain_angle", [90.0, 0.0])
+def test_wood_grain_along_a_lattice_period_fixes_the_order(grain_angle):
+    """A grain 40 px long and 3 px across, along one of the grid's periods: a whole
+    period along the grain correlates almost as well at the pitch."""
+    ref, cur, U = _pair(grain(1, angle=grain_angle), angle=0.0, shift=(0.8, 11.25))
+    res = measure_series(ref, cur)
+    order = res.fringe_orders[0]
+    assert order.confirmed
+    assert order.source == "image features"
+    assert order.residual_ratio >= 1.5
+    worst, rms = _errors(res.u[0], res.valid[0], U)
+    assert worst < 0.5  # px: a period is 5 px
+    assert rms < 0.05
+
+
+@pytest.mark.parametrize(("kind", "texture"), [("featureless", 0.0),
+                                               ("texture fixed to the camera", 0.15)])
+def test_nothing_that_moves_with_the_specimen_leaves_the_order_unconfirmed(kind, texture):
+    """A grid with nothing else (the lighting fixed to the camera), or a print texture
+    fixed to the camera (dust, a stained lens): not confirmed, and the state says by
+    how much its strain may be off too."""
+    ref, cur, _ = _pair(None, angle=12.0, texture=texture, shift=(7.4, 2.0))
+    res = measure_series(ref, cur)
+    order = res.fringe_orders[0]
+    assert not order.confirmed
+    assert order.source == "smallest displacement"
+    # the ratio of residuals of a grid with nothing else: 1.00 to 1.11 measured
+    if kind == "featureless":
+        assert order.residual_ratio < 1.5
+    # a homogeneous strain has no gradient: what is left is the difference of the
+    # strain maps' own errors a period apart, which are correlated over the window
+    # (about a pitch): at most twice those errors (95th percentiles both)
+    v = res.valid[0]
+    e = res.strain[0]
+    err = np.abs(np.stack([e[0][v] - 1e-3, e[1][v] + 5e-4, e[2][v]])).max(axis=0)
+    assert 0 < order.strain_if_off < 2 * np.percentile(err, 95)
+    said = [w for w in res.warnings if "not confirmed" in w]
+    assert len(said) == 1
+    assert "strain may be off too" in said[0]
+
+
+def test_strain_if_off_is_the_strain_a_period_away():
+    """With the large-displacement correction, a displacement one period off reads the
+    deformed phases a period away: under ``u_x = c (X - X0)^2 / 2`` (``e_xx = c (X -
+    X0)``) the strain moves by ``c p`` along the period ``(p, 0)``, and by nothing
+    along ``(0, p)``: what :func:`strain_if_off` predicts from the strain maps."""
+    c = 4e-5  # 1/px: e_xx from -5e-3 to 5e-3 across the image
+
+    def U(X, Y):
+        return 3.0 + 0.5 * c * (X - CENTRE[0]) ** 2, -1.0 + 0 * Y
+
+    kw = {"pitch": PITCH, "angle": 0.0, "hole": False, "light": False}
+    ref, _ = scene(SHAPE, **kw)
+    cur, _ = scene(SHAPE, displacement=U, **kw)
+    lat = Lattice.from_pitch(PITCH)
+    rm, cm = wft(ref, lat), wft(cur, lat)
+    right = deformation(rm, cm, guess=(3.0, -1.0))
+    period = lat.periods[:, int(np.argmax(np.abs(lat.periods[0])))]  # along x
+    off = deformation(rm, cm, guess=(3.0 + period[0], -1.0 + period[1]))
+    v = right.valid & off.valid
+    # px: the order taken is the one asked, a period away
+    assert np.median(off.u[0][v] - right.u[0][v]) == pytest.approx(period[0], abs=1e-3)
+    change = np.median(off.strain[0][v] - right.strain[0][v])
+    # the first-order change: the strain gradient times the period
+    assert change == pytest.approx(c * period[0], rel=0.05)
+    # the 95th percentile of the largest change over both periods and components:
+    # c p everywhere (the window's bias of a linear strain field is nil)
+    assert strain_if_off(right) == pytest.approx(c * PITCH, rel=0.05)
+    # without the correction the strain does not depend on the order
+    assert strain_if_off(deformation(rm, cm, guess=(3.0, -1.0), lagrangian=False)) == 0.0
