@@ -26,7 +26,7 @@ from scipy import ndimage
 from ._validation import as_image, check_mask, check_positive, check_same_shape, check_type
 from .kinematics import FringeOrder, Measurement, coarse_displacement, deformation
 from .stacks.screening import MAD_TO_STD
-from .uncertainty._biases import local_departure, nearest_filled, nearest_index
+from .uncertainty._biases import nearest_filled, nearest_index
 
 __all__ = ["Discontinuities", "Part", "check_parts", "find_discontinuities",
            "without_discontinuities"]
@@ -127,10 +127,9 @@ def find_discontinuities(m: Measurement, *, min_jump: float = _MIN_JUMP) -> Disc
     height = np.zeros(valid.shape)
     seeds = np.zeros(valid.shape, dtype=bool)
     low = np.zeros(valid.shape, dtype=bool)
-    nearest = None if valid.all() else nearest_index(valid)
     for c in range(strain.shape[0]):
         # the surroundings: a median over 8 sigma, wider than a ridge (about 3 sigma)
-        d = np.abs(local_departure(strain[c], valid, sigma, nearest))
+        d = np.abs(_departure(strain[c], valid, sigma))
         spread = MAD_TO_STD * float(np.median(d[valid]))
         seeds |= d > max(threshold, _MIN_SIGMAS * spread)
         low |= d > _FOLLOW_SIGMAS * spread
@@ -140,8 +139,12 @@ def find_discontinuities(m: Measurement, *, min_jump: float = _MIN_JUMP) -> Disc
     if not seeds.any():
         return Discontinuities(core=empty, band=empty.copy(), regions=(),
                                threshold=threshold)
-    lab, _ = ndimage.label(low, structure=np.ones((3, 3)))
-    core = np.isin(lab, np.unique(lab[seeds]))
+    # followed across the holes inside the field as well: where the opening nears
+    # half a pitch the deformed grid's modulus vanishes along the crack, and the hole
+    # that leaves (widened by the transform's margin) may part a ridge from its tip
+    holes = ndimage.binary_fill_holes(valid) & ~valid
+    lab, _ = ndimage.label(low | holes, structure=np.ones((3, 3)))
+    core = np.isin(lab, np.unique(lab[seeds])) & low
     if not core.any():
         return Discontinuities(core=empty, band=empty.copy(), regions=(),
                                threshold=threshold)
@@ -159,6 +162,38 @@ def find_discontinuities(m: Measurement, *, min_jump: float = _MIN_JUMP) -> Disc
                         "jump_px": h * math.sqrt(2 * math.pi) * sigma})
     return Discontinuities(core=core, band=band, regions=tuple(regions),
                            threshold=threshold)
+
+
+# A strain taken for a missing sample by the median of _departure: far beyond any
+# strain, so that it only ranks below or above every sample present.
+_ABSENT = 1e30
+
+
+def _departure(e: np.ndarray, valid: np.ndarray, sigma: float) -> np.ndarray:
+    """``e`` less its median over the valid pixels within 8 sigma around, taken on a
+    grid of step ``sigma`` (a ridge 2 to 3 sigmas wide holds 3 of the 9 columns of
+    the median's window, which keeps it out of its background).
+
+    The invalid samples of a window count alternately (a checkerboard) as far below
+    and far above every strain, so that they shift the median by at most a rank or
+    two of the valid ones instead of pulling it: given their nearest valid value,
+    the samples of a hole beside a narrow strip of a ridge (between the hole and a
+    border) would all take the ridge's value and hide it from its own background.
+    """
+    step = max(1, int(sigma))
+    f = np.asarray(e, dtype=np.float64)[::step, ::step].copy()
+    ok = valid[::step, ::step]
+    if not ok.any():
+        return np.zeros(e.shape)
+    yy, xx = np.indices(f.shape)
+    f[~ok] = np.where((yy + xx) % 2 == 0, -_ABSENT, _ABSENT)[~ok]
+    size = max(3, round(8.0 * sigma / step) | 1)
+    bg = ndimage.median_filter(f, size=size, mode="nearest")
+    known = np.abs(bg) < 0.5 * _ABSENT  # a window short of valid samples: the nearest
+    bg = nearest_filled(bg, known)
+    zoom = (e.shape[0] / bg.shape[0], e.shape[1] / bg.shape[1])
+    full = ndimage.zoom(bg, zoom, order=1, mode="nearest", grid_mode=True)
+    return np.where(valid, e - full[:e.shape[0], :e.shape[1]], 0.0)
 
 
 def without_discontinuities(m: Measurement, disc: Discontinuities, *,
