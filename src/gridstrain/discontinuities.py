@@ -139,18 +139,21 @@ def find_discontinuities(m: Measurement, *, min_jump: float = _MIN_JUMP) -> Disc
     if not seeds.any():
         return Discontinuities(core=empty, band=empty.copy(), regions=(),
                                threshold=threshold)
-    # followed across the holes inside the field as well: where the opening nears
-    # half a pitch the deformed grid's modulus vanishes along the crack, and the hole
-    # that leaves (widened by the transform's margin) may part a ridge from its tip
-    holes = ndimage.binary_fill_holes(valid) & ~valid
+    # followed across the pixels the reference measures and the deformed state does
+    # not as well: where the opening nears half a pitch the deformed grid's modulus
+    # vanishes along the crack, and the hole that leaves (widened by the transform's
+    # margin) may part a ridge from its tip or from a strip along a border. Opened by
+    # a disc of radius sigma: the strips a few pixels wide along the borders, where
+    # the displacement carries the deformed point out of its maps, join nothing
+    inside = ndimage.binary_fill_holes(valid) if m.reference is None else m.reference.valid
+    holes = ndimage.binary_opening(inside & ~valid, structure=_disc(math.ceil(sigma)))
     lab, _ = ndimage.label(low | holes, structure=np.ones((3, 3)))
     core = np.isin(lab, np.unique(lab[seeds])) & low
     if not core.any():
         return Discontinuities(core=empty, band=empty.copy(), regions=(),
                                threshold=threshold)
-    r = math.ceil(_BAND_SIGMAS * sigma)
-    yy, xx = np.mgrid[-r:r + 1, -r:r + 1]
-    band = ndimage.binary_dilation(core, structure=yy**2 + xx**2 <= r * r) & valid
+    band = ndimage.binary_dilation(core, structure=_disc(math.ceil(_BAND_SIGMAS * sigma)))
+    band &= valid
     labels, _ = ndimage.label(band)
     regions = []
     for k, sl in enumerate(ndimage.find_objects(labels), start=1):
@@ -162,6 +165,12 @@ def find_discontinuities(m: Measurement, *, min_jump: float = _MIN_JUMP) -> Disc
                         "jump_px": h * math.sqrt(2 * math.pi) * sigma})
     return Discontinuities(core=core, band=band, regions=tuple(regions),
                            threshold=threshold)
+
+
+def _disc(r: int) -> np.ndarray:
+    """A disc of radius ``r`` px, a structuring element."""
+    yy, xx = np.mgrid[-r:r + 1, -r:r + 1]
+    return yy**2 + xx**2 <= r * r
 
 
 # A strain taken for a missing sample by the median of _departure: far beyond any
