@@ -23,12 +23,13 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import ndimage
 
-from ._validation import check_positive, check_type
-from .kinematics import Measurement, deformation
+from ._validation import as_image, check_mask, check_positive, check_same_shape, check_type
+from .kinematics import FringeOrder, Measurement, coarse_displacement, deformation
 from .stacks.screening import MAD_TO_STD
-from .uncertainty._biases import local_departure, nearest_index
+from .uncertainty._biases import nearest_filled, nearest_index
 
-__all__ = ["Discontinuities", "find_discontinuities", "without_discontinuities"]
+__all__ = ["Discontinuities", "Part", "check_parts", "find_discontinuities",
+           "without_discontinuities"]
 
 # The smallest displacement jump taken as a discontinuity, px: its ridge, ``delta /
 # (sqrt(2 pi) sigma)``, stands 50 times above the strain noise of a 12-bit grid at
@@ -129,10 +130,9 @@ def find_discontinuities(m: Measurement, *, min_jump: float = _MIN_JUMP) -> Disc
     height = np.zeros(valid.shape)
     seeds = np.zeros(valid.shape, dtype=bool)
     low = np.zeros(valid.shape, dtype=bool)
-    nearest = None if valid.all() else nearest_index(valid)
     for c in range(strain.shape[0]):
         # the surroundings: a median over 8 sigma, wider than a ridge (about 3 sigma)
-        d = np.abs(local_departure(strain[c], valid, sigma, nearest))
+        d = np.abs(_departure(strain[c], valid, sigma))
         spread = MAD_TO_STD * float(np.median(d[valid]))
         seeds |= d > max(threshold, _MIN_SIGMAS * spread)
         low |= d > _FOLLOW_SIGMAS * spread
@@ -142,14 +142,21 @@ def find_discontinuities(m: Measurement, *, min_jump: float = _MIN_JUMP) -> Disc
     if not seeds.any():
         return Discontinuities(core=empty, band=empty.copy(), regions=(),
                                threshold=threshold)
-    lab, _ = ndimage.label(low, structure=np.ones((3, 3)))
-    core = np.isin(lab, np.unique(lab[seeds]))
+    # followed across the pixels the reference measures and the deformed state does
+    # not as well: where the opening nears half a pitch the deformed grid's modulus
+    # vanishes along the crack, and the hole that leaves (widened by the transform's
+    # margin) may part a ridge from its tip or from a strip along a border. Opened by
+    # a disc of radius sigma: the strips a few pixels wide along the borders, where
+    # the displacement carries the deformed point out of its maps, join nothing
+    inside = ndimage.binary_fill_holes(valid) if m.reference is None else m.reference.valid
+    holes = ndimage.binary_opening(inside & ~valid, structure=_disc(math.ceil(sigma)))
+    lab, _ = ndimage.label(low | holes, structure=np.ones((3, 3)))
+    core = np.isin(lab, np.unique(lab[seeds])) & low
     if not core.any():
         return Discontinuities(core=empty, band=empty.copy(), regions=(),
                                threshold=threshold)
-    r = math.ceil(_BAND_SIGMAS * sigma)
-    yy, xx = np.mgrid[-r:r + 1, -r:r + 1]
-    band = ndimage.binary_dilation(core, structure=yy**2 + xx**2 <= r * r) & valid
+    band = ndimage.binary_dilation(core, structure=_disc(math.ceil(_BAND_SIGMAS * sigma)))
+    band &= valid
     labels, _ = ndimage.label(band)
     regions = []
     for k, sl in enumerate(ndimage.find_objects(labels), start=1):
@@ -180,6 +187,44 @@ def _no_seed_possible(strain: np.ndarray, valid: np.ndarray, threshold: float) -
     return True
 
 
+def _disc(r: int) -> np.ndarray:
+    """A disc of radius ``r`` px, a structuring element."""
+    yy, xx = np.mgrid[-r:r + 1, -r:r + 1]
+    return yy**2 + xx**2 <= r * r
+
+
+# A strain taken for a missing sample by the median of _departure: far beyond any
+# strain, so that it only ranks below or above every sample present.
+_ABSENT = 1e30
+
+
+def _departure(e: np.ndarray, valid: np.ndarray, sigma: float) -> np.ndarray:
+    """``e`` less its median over the valid pixels within 8 sigma around, taken on a
+    grid of step ``sigma`` (a ridge 2 to 3 sigmas wide holds 3 of the 9 columns of
+    the median's window, which keeps it out of its background).
+
+    The invalid samples of a window count alternately (a checkerboard) as far below
+    and far above every strain, so that they shift the median by at most a rank or
+    two of the valid ones instead of pulling it: given their nearest valid value,
+    the samples of a hole beside a narrow strip of a ridge (between the hole and a
+    border) would all take the ridge's value and hide it from its own background.
+    """
+    step = max(1, int(sigma))
+    f = np.asarray(e, dtype=np.float64)[::step, ::step].copy()
+    ok = valid[::step, ::step]
+    if not ok.any():
+        return np.zeros(e.shape)
+    yy, xx = np.indices(f.shape)
+    f[~ok] = np.where((yy + xx) % 2 == 0, -_ABSENT, _ABSENT)[~ok]
+    size = max(3, round(8.0 * sigma / step) | 1)
+    bg = ndimage.median_filter(f, size=size, mode="nearest")
+    known = np.abs(bg) < 0.5 * _ABSENT  # a window short of valid samples: the nearest
+    bg = nearest_filled(bg, known)
+    zoom = (e.shape[0] / bg.shape[0], e.shape[1] / bg.shape[1])
+    full = ndimage.zoom(bg, zoom, order=1, mode="nearest", grid_mode=True)
+    return np.where(valid, e - full[:e.shape[0], :e.shape[1]], 0.0)
+
+
 def without_discontinuities(m: Measurement, disc: Discontinuities, *,
                             guess=None) -> Measurement:
     """``m`` measured again without the pixels whose window straddles a
@@ -194,7 +239,11 @@ def without_discontinuities(m: Measurement, disc: Discontinuities, *,
     disc : Discontinuities
         From :func:`find_discontinuities`.
     guess : as for :func:`gridstrain.kinematics.deformation`
-        Default: the median displacement ``m`` was fixed with (``m.guess``).
+        Default: the median displacement ``m`` was fixed with (``m.guess``). Where
+        the band cuts the field into parts, each part's whole periods are the ones
+        closest to it (to a field given here, for example the previous state's
+        displacement, pixel by pixel): :func:`check_parts` checks each part on its
+        own image content.
     """
     check_type(m, "m", Measurement)
     check_type(disc, "disc", Discontinuities)
@@ -204,10 +253,14 @@ def without_discontinuities(m: Measurement, disc: Discontinuities, *,
     if not disc:
         return m
     ref = m.reference
-    kept = type(ref)(psi=ref.psi, dphi=ref.dphi, valid=ref.valid & ~disc.band,
+    # within m's valid pixels: a strip valid in both phase maps but not in m (where
+    # the deformed state's point X + u falls outside its maps) would join the parts
+    # the band cuts apart, and the phases would be unwrapped across the crack there
+    kept = type(ref)(psi=ref.psi, dphi=ref.dphi, valid=ref.valid & m.valid & ~disc.band,
                      lattice=ref.lattice, sigma=ref.sigma)
     g = np.array(m.guess, dtype=float) if guess is None else guess
     again = deformation(kept, m.deformed, lagrangian=m.lagrangian, guess=g)
+    del g
     # fragments the band cuts off (slivers between it and a border, smaller than a
     # window's core, pi sigma^2) have their whole periods from a few pixels: left out
     labels, n = ndimage.label(again.valid)
@@ -216,12 +269,179 @@ def without_discontinuities(m: Measurement, disc: Discontinuities, *,
         small = np.nonzero(sizes < math.pi * m.sigma**2)[0]
         small = small[small > 0]
         if small.size:
-            drop = np.isin(labels, small)
-            valid = again.valid & ~drop
-            u, strain, rotation = (np.where(valid, a, np.nan) for a in
-                                   (again.u, again.strain, again.rotation))
-            again = dataclasses.replace(again, u=u, strain=strain, rotation=rotation,
-                                        valid=valid)
+            again = _left_out(again, np.isin(labels, small))
     # the fringe order's record stays that of the whole field
     return dataclasses.replace(again, reference=ref, fringe_order=m.fringe_order,
-                               guess_source=m.guess_source)
+                               guess=m.guess, guess_source=m.guess_source)
+
+
+def _own_field(m: Measurement) -> np.ndarray:
+    """(2, H, W) ``m.u`` with each invalid pixel given its nearest valid pixel's value."""
+    nearest = nearest_index(m.valid)
+    return np.stack([nearest_filled(np.asarray(c, dtype=np.float64), m.valid, nearest)
+                     for c in m.u])
+
+
+def _left_out(m: Measurement, drop: np.ndarray) -> Measurement:
+    """``m`` with the pixels of ``drop`` invalid (NaN in its maps)."""
+    valid = m.valid & ~drop
+    u, strain, rotation = (np.where(valid, a, np.nan) for a in (m.u, m.strain, m.rotation))
+    return dataclasses.replace(m, u=u, strain=strain, rotation=rotation, valid=valid)
+
+
+@dataclass(frozen=True)
+class Part:
+    """A part of the field that a crack cuts off, and how its whole periods were fixed.
+
+    Attributes
+    ----------
+    rows, cols : (2,) tuple of int
+        First and last row and column of the part (its bounding box), px.
+    pixels : int
+        Its valid pixels before the check.
+    confirmed : bool
+        Whether its own image content, the deformed image warped back by its
+        measured field, matches the reference's (:func:`coarse_displacement`
+        restricted to the part): its fringe order is then known.
+    shift_px : (2,) tuple of float
+        The whole periods its content showed the measured field to be off by
+        (added to it), px; zero when confirmed as measured or not confirmed.
+    left_out : bool
+        Whether its pixels were made invalid: not confirmed while another part is.
+    detail : str
+        Why, in words.
+    """
+
+    rows: tuple[int, int]
+    cols: tuple[int, int]
+    pixels: int
+    confirmed: bool
+    shift_px: tuple[float, float] = (0.0, 0.0)
+    left_out: bool = False
+    detail: str = ""
+
+    def as_dict(self) -> dict:
+        """Plain-Python record, for JSON and HDF5."""
+        return {"rows": list(self.rows), "cols": list(self.cols), "pixels": self.pixels,
+                "confirmed": bool(self.confirmed), "shift_px": list(self.shift_px),
+                "left_out": bool(self.left_out), "detail": self.detail}
+
+    def describe(self) -> str:
+        """Where the part lies, in words."""
+        return (f"rows {self.rows[0]}-{self.rows[1]}, columns {self.cols[0]}-"
+                f"{self.cols[1]}")
+
+
+def check_parts(m: Measurement, before, reference_image, deformed_image, *,
+                mask=None) -> tuple[Measurement, tuple[Part, ...]]:
+    """Each part a crack cuts the field into, its fringe order fixed by its own content.
+
+    No continuity joins the two sides of an open crack: the whole periods of
+    each side come from that side's own evidence. For each connected region of
+    ``m.valid`` (when there are more than in ``before``), the deformed image is
+    warped back by the part's measured field and correlated with the reference
+    over that part alone (:func:`gridstrain.kinematics.coarse_displacement`
+    with ``region``). Where the content lies whole periods away, the part is
+    measured again with those periods added; where it cannot tell (a grid
+    without printed features, a part too small to hold any), the part is not
+    confirmed. Unconfirmed parts are left out (invalid) when another part is
+    confirmed, so that every valid pixel shares the record of the state; when
+    none is, all are kept and the record says the order is not confirmed.
+
+    Parameters
+    ----------
+    m : Measurement
+        From :func:`without_discontinuities`, with its phase maps.
+    before : (H, W) bool array_like
+        The valid pixels before the crack was cut out (``m``'s parts are counted
+        against its connected regions).
+    reference_image, deformed_image : (H, W) array_like
+        The states' images (mean images of their stacks), grey levels.
+    mask : (H, W) bool array_like, optional
+        True on the specimen in the reference image.
+
+    Returns
+    -------
+    (Measurement, tuple of Part)
+        ``m`` with its parts' whole periods fixed, its unconfirmed parts left out
+        where another is confirmed, and its ``fringe_order`` saying so; the parts
+        (empty when the crack cuts nothing off).
+    """
+    check_type(m, "m", Measurement)
+    shape = m.valid.shape
+    before = check_mask(before, shape, "before")
+    labels, n = ndimage.label(m.valid)
+    if n <= 1 or n <= ndimage.label(before)[1]:
+        return m, ()
+    if m.reference is None or m.deformed is None:
+        raise ValueError("m must keep its phase maps (reference and deformed) to be "
+                         "measured again")
+    ref = as_image(reference_image, "reference_image").astype(np.float64)
+    cur = as_image(deformed_image, "deformed_image").astype(np.float64)
+    check_same_shape(ref.shape, shape, "reference_image", "the maps")
+    check_same_shape(cur.shape, shape, "deformed_image", "the maps")
+    mask = check_mask(mask, shape)
+    K = m.lattice.K
+    yy, xx = np.mgrid[0:shape[0], 0:shape[1]].astype(np.float64)
+    found = []  # per part: (its pixels, the whole periods off or None, the estimate)
+    for k, sl in enumerate(ndimage.find_objects(labels), start=1):
+        part = labels == k
+        u = [nearest_filled(np.asarray(c, dtype=np.float64), part) for c in m.u]
+        warped = ndimage.map_coordinates(cur, [yy + u[1], xx + u[0]], order=1,
+                                         mode="nearest")
+        del u
+        est = coarse_displacement(ref, warped, m.lattice, mask=mask, phase_shift=(0.0, 0.0),
+                                  region=part)
+        off = np.rint(K @ np.array(est.shift)) if est.confident else None
+        found.append((part, sl, off, est))
+    shifts = [np.zeros(2) if off is None else np.linalg.solve(K, off)
+              for _, _, off, _ in found]
+    again = m
+    if any(np.any(s) for s in shifts):
+        g = _own_field(m)
+        for (part, _, _, _), s in zip(found, shifts, strict=True):
+            g[:, part] += s[:, None]
+        ref = m.reference  # without the crack's band: m's valid pixels, its parts
+        kept = type(ref)(psi=ref.psi, dphi=ref.dphi, valid=ref.valid & m.valid,
+                         lattice=ref.lattice, sigma=ref.sigma)
+        again = deformation(kept, m.deformed, lagrangian=m.lagrangian, guess=g)
+        del g
+        again = dataclasses.replace(again, guess=m.guess, guess_source=m.guess_source)
+    any_confirmed = any(off is not None for _, _, off, _ in found)
+    parts, drop = [], np.zeros(shape, dtype=bool)
+    for (part, sl, off, est), s in zip(found, shifts, strict=True):
+        left_out = any_confirmed and off is None
+        if left_out:
+            drop |= part
+        if off is None:
+            detail = f"not confirmed by its own image features ({est.reason})"
+        elif np.any(s):
+            detail = (f"its content, warped back, lay {s[0]:.2f}, {s[1]:.2f} px away: "
+                      f"whole periods added ({est.reason})")
+        else:
+            detail = f"confirmed by its own image features ({est.reason})"
+        parts.append(Part(rows=(int(sl[0].start), int(sl[0].stop - 1)),
+                          cols=(int(sl[1].start), int(sl[1].stop - 1)),
+                          pixels=int(part.sum()), confirmed=off is not None,
+                          shift_px=(float(s[0]), float(s[1])), left_out=left_out,
+                          detail=detail))
+    if drop.any():
+        again = _left_out(again, drop)
+    again = dataclasses.replace(again, fringe_order=_parts_record(m.fringe_order, parts),
+                                reference=m.reference)
+    return again, tuple(parts)
+
+
+def _parts_record(rec: FringeOrder | None, parts: list[Part]) -> FringeOrder:
+    """The state's fringe-order record once each part was checked on its own."""
+    said = "; ".join(f"{p.describe()}: {p.detail}" + (", left out" if p.left_out else "")
+                     for p in parts)
+    head = f"the crack cuts the field into {len(parts)} parts: {said}"
+    if rec is None:
+        rec = FringeOrder("smallest displacement", False)
+    if any(p.confirmed for p in parts):
+        return dataclasses.replace(rec, source="image features", confirmed=True,
+                                   detail=f"{head}; before: {rec.detail}")
+    return dataclasses.replace(rec, confirmed=False,
+                               detail=f"{head}: their whole periods assume an opening "
+                                      f"below half a pitch across it; {rec.detail}")

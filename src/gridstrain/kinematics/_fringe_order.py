@@ -226,7 +226,7 @@ class CoarseEstimate:
 
 
 def coarse_displacement(reference, deformed, lattice: Lattice, *, mask=None,
-                        phase_shift=None) -> CoarseEstimate:
+                        phase_shift=None, region=None) -> CoarseEstimate:
     """Rigid displacement from the images' non-periodic content, and whether to trust it.
 
     The images are band-passed by a difference of Gaussians of half a pitch and
@@ -257,6 +257,10 @@ def coarse_displacement(reference, deformed, lattice: Lattice, *, mask=None,
         The rigid displacement the phases give, px, known modulo the lattice
         periods (see :func:`deformation`). Without it the candidates are the
         correlation peak and its aliases, and nothing is checked against phases.
+    region : (H, W) bool array_like, optional
+        A part of the reference that moves on its own (one side of a crack): its
+        content alone is correlated (within ``mask``), and the whole images are
+        never tried in its stead, so that the estimate is this part's evidence.
 
     Returns
     -------
@@ -284,6 +288,9 @@ def coarse_displacement(reference, deformed, lattice: Lattice, *, mask=None,
     check_type(lattice, "lattice", Lattice)
     if phase_shift is not None:
         phase_shift = as_pair(phase_shift, "phase_shift", labels="(u_x, u_y)", unit="px")
+    if region is not None:
+        part = _CoarseReference(ref, lattice, m & check_mask(region, ref.shape, "region"))
+        return _correlate(part.side(False), cur, lattice, phase_shift)
     return _CoarseReference(ref, lattice, m).estimate(cur, phase_shift)
 
 

@@ -27,7 +27,7 @@ from .._validation import (
     check_sigma,
     check_type,
 )
-from ..discontinuities import find_discontinuities, without_discontinuities
+from ..discontinuities import check_parts, find_discontinuities, without_discontinuities
 from ..kinematics import Measurement
 from ..kinematics.tracking import _Tracker, check_after_warp
 from ..phase import Lattice, Window, demodulated_at
@@ -35,6 +35,7 @@ from ..phase.lattice import reference_carrier
 from ..results import SeriesResult
 from ..sequences import StateInputs, state_inputs
 from ..uncertainty import aliasing_bias, metrology
+from ..uncertainty._biases import nearest_filled, nearest_index
 from ..uncertainty._noise import NoiseModel
 from ..wft import DEFAULT_MARGIN
 from ._floors import _check_model_units, _check_noise_model, _Noise, _ReferenceFloor
@@ -487,6 +488,7 @@ def _measure(series: list, guesses: list, m: np.ndarray, o: MeasureOptions, step
             c, acc = one(i + 1)
             del acc
             c = noise.complete(c)
+            prev = tracker.prev  # the previous state's field, read back by a crack's parts
             est = tracker.features(c.maps, c.stats.mean, guesses[i])
             res, rec, notes = tracker.measure(c.maps, est, guesses[i], c.name)
             if isinstance(guesses[i], str):
@@ -496,8 +498,16 @@ def _measure(series: list, guesses: list, m: np.ndarray, o: MeasureOptions, step
                     notes = [n for n in notes if "fringe order not confirmed" not in n]
                 rec = checked
                 notes = [*notes, *said]
+            # each part a crack cuts off is checked on its own image content
+            images = (tracker.mean_ref, c.stats.mean, tracker.mask) \
+                if isinstance(guesses[i], str) else None
+            confirmed = rec.confirmed
+            follow = prev[0] if prev is not None and rec.source == "previous state" else None
+            res, rec, found, said = _discontinuities(res, rec, c.name, images, follow)
+            del prev, follow
+            if rec.confirmed and not confirmed:  # each part by its own features now
+                notes = [n for n in notes if "fringe order not confirmed" not in n]
             c = c.dropping("mean")  # the image features were its only use
-            res, found, said = _discontinuities(res, c.name)
             cracks.append(found)
             notes = [*notes, *said]
             pager.page_out()  # the uncertainty maps read back the moduli only
@@ -538,22 +548,62 @@ def _measure(series: list, guesses: list, m: np.ndarray, o: MeasureOptions, step
             state_order=o.state_order, discontinuities=tuple(cracks), **extra)
 
 
-def _discontinuities(res: Measurement, name: str) -> tuple[Measurement, tuple, list[str]]:
-    """``res`` measured again without the pixels whose window straddles a jump of
-    its displacement (:mod:`gridstrain.discontinuities`), the jumps' regions, and
-    the warnings naming them."""
+def _discontinuities(res: Measurement, rec, name: str, images, follow) -> tuple:
+    """``(res, rec, regions, warnings)``: ``res`` measured again without the pixels
+    whose window straddles a jump of its displacement
+    (:mod:`gridstrain.discontinuities`), each part the jump cuts the field into
+    followed from the previous state's field pixel by pixel when ``follow`` (a
+    callable giving back its ``(u, valid)``) is given and checked on its own
+    content when ``images`` (reference, deformed, mask) are, the fringe order's
+    record, the jumps' regions, and the warnings naming them."""
     disc = find_discontinuities(res)
     if not disc:
-        return res, (), []
-    before = ndimage.label(res.valid)[1]
-    res = without_discontinuities(res, disc)
+        return res, rec, (), []
+    before = res.valid
+    guess = None
+    if follow is not None:
+        u, valid = follow()
+        nearest = nearest_index(valid)
+        guess = np.stack([nearest_filled(np.asarray(c, dtype=np.float64), valid, nearest)
+                          for c in u])
+        del u, valid, nearest
+    res = without_discontinuities(dataclasses.replace(res, fringe_order=rec), disc,
+                                  guess=guess)
+    del guess
     said = [f"{name}: the displacement jumps (a crack, an edge or a torn grid?) at "
             f"{disc.describe()}: the {int(disc.band.sum())} pixels whose window straddles "
             "it are left out"]
+    if images is not None:
+        res, parts = check_parts(res, before, images[0], images[1], mask=images[2])
+        said.extend(_parts_notes(parts, name, res.lattice))
+        return res, res.fringe_order, tuple(disc.regions), said
     after = ndimage.label(res.valid)[1]
-    if after > before:
-        said.append(f"{name}: the jump cuts the field into {after} regions whose whole "
+    if after > ndimage.label(before)[1]:
+        said.append(f"{name}: the jump cuts the field into {after} parts whose whole "
                     "numbers of periods were fixed each on its own (closest to the "
                     "guess): across an opening of more than half a pitch one of them may "
                     "be whole periods off; pass a guess or an intermediate state")
-    return res, tuple(disc.regions), said
+    return res, rec, tuple(disc.regions), said
+
+
+def _parts_notes(parts: tuple, name: str, lattice) -> list[str]:
+    """The warnings that say how each part a crack cut off was fixed."""
+    if not parts:
+        return []
+    out = []
+    for p in parts:
+        if p.left_out:
+            out.append(f"{name}: the part of the field at {p.describe()}, cut off by the "
+                       f"jump, has no image features of its own to fix its whole periods "
+                       f"({p.detail}): left out")
+        elif p.confirmed and any(p.shift_px):
+            out.append(f"{name}: the part of the field at {p.describe()}, cut off by the "
+                       f"jump, was whole periods off: {p.detail}")
+    if not any(p.confirmed for p in parts):
+        p1, p2 = lattice.pitches
+        out.append(f"{name}: the jump cuts the field into {len(parts)} parts and none has "
+                   "image features of its own: their whole periods assume an opening below "
+                   f"half a pitch (periods {p1:.3g}/{p2:.3g} px) across it: fringe order not "
+                   "confirmed; pass --guess UX UY per part (guess= a field in Python), an "
+                   "intermediate state, or image a grid with printed features")
+    return out
