@@ -12,11 +12,11 @@ import math
 
 import numpy as np
 import pytest
-from independent_grid import camera, scene
 
 from gridstrain import Lattice, measure_series, wft
 from gridstrain.stacks import circular_offset_std, correct_phases, method_a, method_b
 from gridstrain.stacks._methods import phase_offsets
+from independent_grid import camera, scene
 
 H, W, PITCH = 96, 128, 5.0
 LAT = Lattice.from_pitch(PITCH)
