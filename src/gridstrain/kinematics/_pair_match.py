@@ -50,9 +50,10 @@ normal around 0 with the spread ``rho_sd``) are called a mismatch with a probabi
 at least ``Phi(3) = 99.87 %`` once conclusive. These rates hold for content that moves
 with the specimen; what the model does not cover is the real risk: a surface that
 changes its look between the states (paint flaking, a specular reflection that moves).
-Content fixed to the camera (dust on the sensor, vignetting) matches the unwarped
-deformed image instead: the better of the two correlations counts, so that such a
-pair, moved far, is not flagged.
+Content fixed to the camera (dust on the sensor, vignetting, what the high-pass
+leaves of the lighting) matches the unwarped deformed image instead: a pair whose
+content matches only there is inconclusive (it may be a pair moved far whose only
+content is on the camera), and a mismatch needs both correlations to fail.
 """
 
 from __future__ import annotations
@@ -63,12 +64,13 @@ from dataclasses import asdict, dataclass
 import numpy as np
 from scipy import ndimage
 
-from ..uncertainty._biases import nearest_filled
-
 # The high-pass's Gaussian, in pitches: printing defects and texture of one to a few
 # pitches pass; the lighting (a lamp's spot spans hundreds of periods) leaves
 # (s/scale)^4 of itself after the double high-pass.
 _HIGH_PASS = 2.0
+# The high-pass applied this many times: n passes leave (s^2/2 lap)^n of the lighting's
+# logarithm, its terms of degree below 2n removed.
+_PASSES = 3
 # Samples this many low-pass stds from a border or an invalid pixel: the low-pass of a
 # grid cut by an edge departs from its mean level by about exp(-d^2 / 2 s^2) of the
 # grid's contrast, 3e-4 at 4 stds.
@@ -97,8 +99,8 @@ class PairMatch:
         specimens; NaN when not measurable.
     rho : float
         Correlation of the two images' content, the deformed one warped back by the
-        measured displacement (or not warped, when content fixed to the camera
-        matches better: ``warped`` False).
+        measured displacement (or not warped, ``warped`` False, when only content
+        fixed to the camera matches: the verdict is then inconclusive).
     rho_match : float
         The correlation a matching pair shows given the predicted noise.
     rho_sd : float
@@ -109,7 +111,7 @@ class PairMatch:
         Whether both images hold enough content for the check (see the module).
     verdict : {"match", "mismatch", "nothing matches", "inconclusive"}
     warped : bool
-        Whether ``rho`` is that of the warped image.
+        Whether the figures are those of the warped image.
     """
 
     match: float
@@ -128,25 +130,66 @@ class PairMatch:
         return d
 
 
-def _normalised_high_pass(a: np.ndarray, w: np.ndarray, s: float) -> np.ndarray:
-    """``a`` less its Gaussian average of std ``s`` over the pixels ``w``, twice (zero
-    outside ``w``). A Gaussian average maps a quadratic ``q`` to ``q + s^2/2 lap q``, so
-    one high-pass leaves the lighting's curvature; the second removes it (and odd
-    terms by symmetry), leaving ``s^4/4 lap^2`` of the lighting's logarithm."""
-    den = np.maximum(ndimage.gaussian_filter(w.astype(np.float64), s, mode="constant"),
-                     1e-12)
-    out = np.where(w, a, 0.0)
-    for _ in range(2):
-        num = ndimage.gaussian_filter(out, s, mode="constant")
-        out = np.where(w, out - num / den, 0.0)
-    return out
+class _HighPass:
+    """The local linear fit of a field over the samples ``w`` (Gaussian weights of std
+    ``s`` samples), removed :data:`_PASSES` times (:meth:`__call__`).
+
+    Inside the region the fit at a sample is the Gaussian average (the weights are
+    symmetric), which maps a quadratic ``q`` to ``q + s^2/2 lap q``: each pass removes
+    one more order of the lighting's logarithm, ``n`` passes leaving ``(s^2/2
+    lap)^n``. At the region's edge a plain average would leave the gradient times the
+    weights' off-centre shift; the linear fit leaves none. The fit's matrix depends on
+    the region alone: inverted once for every field."""
+
+    def __init__(self, w: np.ndarray, s: float):
+        self.w, self.s = w, s
+        H, W = w.shape
+        yy, xx = np.mgrid[0:H, 0:W].astype(np.float64)
+        self.yy, self.xx = yy - H / 2, xx - W / 2
+        xx, yy, g = self.xx, self.yy, self._g
+        wf = w.astype(np.float64)
+        # the weighted moments about each sample, from those about the origin
+        m0, mx, my = g(wf), g(wf * xx), g(wf * yy)
+        cx, cy = mx - xx * m0, my - yy * m0
+        cxx = g(wf * xx * xx) - 2 * xx * mx + xx * xx * m0
+        cxy = g(wf * xx * yy) - xx * my - yy * mx + xx * yy * m0
+        cyy = g(wf * yy * yy) - 2 * yy * my + yy * yy * m0
+        # a sample with too few neighbours to fit a slope (a thin strip, an isolated
+        # sample) gets a slope of nearly zero, not a singular system
+        cxx = cxx + 1e-6 * s * s * m0
+        cyy = cyy + 1e-6 * s * s * m0
+        M = np.stack([np.stack([m0, cx, cy], -1), np.stack([cx, cxx, cxy], -1),
+                      np.stack([cy, cxy, cyy], -1)], -2)
+        M[~w] = np.eye(3)
+        self.row = np.linalg.inv(M)[..., 0, :]  # the fit's value: the first unknown
+
+    def _g(self, f: np.ndarray) -> np.ndarray:
+        return ndimage.gaussian_filter(f, self.s, mode="constant")
+
+    def __call__(self, a: np.ndarray) -> np.ndarray:
+        xx, yy, g, w = self.xx, self.yy, self._g, self.w
+        out = np.where(w, a, 0.0)
+        for _ in range(_PASSES):
+            f0, fx, fy = g(out), g(out * xx), g(out * yy)
+            fit = (self.row[..., 0] * f0 + self.row[..., 1] * (fx - xx * f0)
+                   + self.row[..., 2] * (fy - yy * f0))
+            out = np.where(w, out - fit, 0.0)
+        return out
 
 
-def _low_pass(a: np.ndarray, m: np.ndarray, s: float) -> np.ndarray:
-    """Gaussian average of std ``s`` of ``a`` over the pixels ``m`` (normalised)."""
-    num = ndimage.gaussian_filter(np.where(m, a, 0.0), s, mode="constant")
-    den = ndimage.gaussian_filter(m.astype(np.float64), s, mode="constant")
-    return num / np.maximum(den, 1e-12)
+def _low_pass(a: np.ndarray, m: np.ndarray, s: float, q: int = 1) -> np.ndarray:
+    """Gaussian average of std ``s`` of ``a`` over the pixels ``m`` (normalised),
+    sampled every ``q`` px: each axis filtered, then decimated, before the other."""
+
+    def smooth(f):
+        f = ndimage.gaussian_filter1d(f, s, axis=0, mode="constant")[::q]
+        return ndimage.gaussian_filter1d(f, s, axis=1, mode="constant")[:, ::q]
+
+    if m.all():  # the weights of a whole frame: the product of two profiles
+        den = np.outer(*(ndimage.gaussian_filter1d(np.ones(n), s, mode="constant")[::q]
+                         for n in m.shape))
+        return smooth(a) / den
+    return smooth(np.where(m, a, 0.0)) / np.maximum(smooth(m.astype(np.float64)), 1e-12)
 
 
 def _noise_gain(s1: float, s2q: float, q: int) -> float:
@@ -163,7 +206,7 @@ def _noise_gain(s1: float, s2q: float, q: int) -> float:
     for dy in range(q):
         for dx in range(q):
             hp = low[dy::q, dx::q]
-            for _ in range(2):
+            for _ in range(_PASSES):
                 hp = hp - ndimage.gaussian_filter(hp, s2q, mode="constant", truncate=6.0)
             total += float(np.sum(hp**2))
     return total
@@ -221,32 +264,38 @@ def pair_match(reference, deformed, u, valid, *, pitch: float, noise,
     v = np.asarray(valid, dtype=bool)
     H, W = ref.shape
     s1 = float(pitch)
-    q = max(1, int(s1 // 2))  # the low-passed content is smooth over s1: sampled every q px
+    # the low-passed content is sampled every pitch: the low-pass's transfer at the
+    # samples' Nyquist frequency is exp(-pi^2 / 2) = 0.007
+    q = max(1, int(s1))
     none = PairMatch(math.nan, math.nan, math.nan, math.nan, (math.nan, math.nan), False,
                      "inconclusive", True)
     if not v.any() or not all(math.isfinite(n) and n > 0 for n in noise):
         return none
     m = np.ones(v.shape, dtype=bool) if mask is None else np.asarray(mask, dtype=bool)
-    low_r = _low_pass(ref, m, s1)[::q, ::q]
+    low_r = _low_pass(ref, m, s1, q)
     low_d = _low_pass(cur, np.ones(cur.shape, dtype=bool), s1)
     yy, xx = np.mgrid[0:H:q, 0:W:q].astype(np.float64)
-    ux = nearest_filled(np.asarray(u[0], dtype=np.float64), v)[::q, ::q]
-    uy = nearest_filled(np.asarray(u[1], dtype=np.float64), v)[::q, ::q]
+    # u at the samples; where it is not measured the sample is not used (w below)
+    vq = v[::q, ::q]
+    ux = np.where(vq, np.asarray(u[0])[::q, ::q], 0.0)
+    uy = np.where(vq, np.asarray(u[1])[::q, ::q], 0.0)
     yw, xw = yy + uy, xx + ux
     # a sample is used where u is measured and its warped point inside the frame, both
     # _REACH low-pass stds from what the low-pass did not see or must not see (the
     # frame's borders, the pixels off the specimen: a hole's dark background)
     d = _REACH * s1
-    inner = ndimage.distance_transform_edt(np.pad(m, 1))[1:-1, 1:-1] > d
-    w = (inner & v)[::q, ::q] & (yw >= d) & (yw <= H - 1 - d) & (xw >= d) & (xw <= W - 1 - d)
+    # (the distance on the samples, q px apart: within q px of the pixels')
+    inner = q * ndimage.distance_transform_edt(np.pad(m[::q, ::q], 1))[1:-1, 1:-1] > d + q
+    w = inner & vq & (yw >= d) & (yw <= H - 1 - d) & (xw >= d) & (xw <= W - 1 - d)
     if w.sum() < 16:
         return none
     low_w = ndimage.map_coordinates(low_d, [yw, xw], order=1, mode="nearest")
     low_f = low_d[::q, ::q]
     floor = 1.0  # a grey level: the logarithm of a black pixel stays finite
     s2q = _HIGH_PASS * s1 / q
-    x = _normalised_high_pass(np.log(np.maximum(low_r, floor)), w, s2q)
-    ys = {warped: _normalised_high_pass(np.log(np.maximum(a, floor)), w, s2q)
+    high_pass = _HighPass(w, s2q)
+    x = high_pass(np.log(np.maximum(low_r, floor)))
+    ys = {warped: high_pass(np.log(np.maximum(a, floor)))
           for warped, a in ((True, low_w), (False, low_f))}
     n = float(w.sum())
     gain = _noise_gain(s1, s2q, q)
@@ -255,27 +304,31 @@ def pair_match(reference, deformed, u, valid, *, pitch: float, noise,
     ny = gain * noise[1] * float(np.mean(1.0 / np.maximum(low_w[w], floor) ** 2))
     vx = float(np.sum(x**2)) / n
     reach = math.ceil(4 * (s2q + s1 / q))
-    best = None
+    found = {}
     for warped, y in ys.items():
         vy = float(np.sum(y**2)) / n
         sx, sy = max(vx - nx, 0.0), max(vy - ny, 0.0)
         rho = float(np.sum(x * y)) / math.sqrt(max(vx * vy, 1e-300)) / n
         rho_match = math.sqrt(sx * sy / ((sx + nx) * (sy + ny)))
-        cand = (rho, rho_match, (sx / nx, sy / ny), warped, y)
-        if best is None or rho > best[0]:
-            best = cand
-    rho, rho_match, snr, warped, y = best
-    sd = _bartlett_sd(x, y, w, reach)
-    gap = math.atanh(min(rho_match, 1 - 1e-12)) - math.atanh(_MISMATCH * rho_match)
-    conclusive = bool(min(snr) >= _MIN_SNR and math.isfinite(sd) and sd > 0
-                      and gap >= _MIN_SEPARATION * sd
-                      and rho_match >= 2 * _NOTHING * sd)
-    match = rho / rho_match if rho_match > 0 else math.nan
+        sd = _bartlett_sd(x, y, w, reach)
+        gap = math.atanh(min(rho_match, 1 - 1e-12)) - math.atanh(_MISMATCH * rho_match)
+        conclusive = bool(sx >= _MIN_SNR * nx and sy >= _MIN_SNR * ny and math.isfinite(sd)
+                          and sd > 0 and gap >= _MIN_SEPARATION * sd
+                          and rho_match >= 2 * _NOTHING * sd)
+        match = rho / rho_match if rho_match > 0 else math.nan
+        found[warped] = (match, rho, rho_match, sd, (sx / nx, sy / ny), conclusive)
+    match, rho, rho_match, sd, snr, conclusive = found[True]
+    warped = True
     if not conclusive:
         verdict = "inconclusive"
     elif match >= _MISMATCH:
         verdict = "match"
-    elif rho < _NOTHING * sd:
+    elif found[False][0] >= _MISMATCH:
+        # the content matches where it was, not where the specimen took it: content
+        # fixed to the camera, which says nothing of the specimen
+        match, rho, rho_match, sd, snr, conclusive = found[False]
+        verdict, warped = "inconclusive", False
+    elif rho < _NOTHING * sd and found[False][1] < _NOTHING * found[False][3]:
         verdict = "nothing matches"
     else:
         verdict = "mismatch"
