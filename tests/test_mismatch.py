@@ -98,7 +98,9 @@ def _mismatch_warnings(res):
 TRUE_PAIRS = {
     "5 % strain": {"disp": _stretch(0.05)},
     "5 deg rotation": {"disp": _rotation(5.0)},
-    "0.5 px vibration": {"disp": _stretch(0.002), "vibration": 0.5},
+    # six frames: the stack's noise variance then has the frames' shifts regressed out
+    # (with three, the grid's motion counts as noise and the check has no verdict)
+    "0.5 px vibration": {"disp": _stretch(0.002), "vibration": 0.5, "n": 6},
     # lighting fixed to the camera, 40 % brighter on the right than on the left
     "illumination gradient": {"disp": _stretch(0.002), "light": 0.8 + 0.4 * XS / W},
     "crack": {"disp": _crack},
@@ -107,7 +109,7 @@ TRUE_PAIRS = {
 
 @pytest.mark.parametrize("case", list(TRUE_PAIRS))
 def test_a_true_pair_is_not_flagged(reference, case):
-    rng = np.random.default_rng(abs(hash(case)) % 2**32)
+    rng = np.random.default_rng(list(TRUE_PAIRS).index(case) + 20)
     state = _frames(rng, **TRUE_PAIRS[case])
     res = measure_series(reference, [state])
     rec = _pair_record(res)
