@@ -140,7 +140,8 @@ def test_each_state_is_the_direct_measurement_of_its_frames(data, tmp_path, meth
     next state is guessed). Each state's maps must still be those of
     kinematics.deformation on the two series' phase maps computed here from the
     frames: method A from the mean image, method B from one transform per frame
-    averaged (stacks.method_b), both on the pixels whose mean image shows a grid
+    averaged (stacks.method_b), their vibration offset about the frames' mean position
+    removed, both on the pixels whose mean image shows a grid
     (modulus at least a quarter of its median at both wave vectors, the documented
     rule for holes and edges: here a few pixels of the borders' band). The guess is
     automatic (the previous state's field from the second state on): the
@@ -157,9 +158,14 @@ def test_each_state_is_the_direct_measurement_of_its_frames(data, tmp_path, meth
         mod = np.abs(pm.psi)
         grid = ~np.any([mod[j] < 0.25 * np.median(mod[j][pm.valid]) for j in range(2)],
                        axis=0)
+        # both with their vibration offset about the frames' mean position removed
+        # (stacks.correct_phases, about="mean"), from the frames' measured shifts
+        shifts = stacks.vibration.frame_shifts(frames, lat)
         if method == "A":
-            return finite_derivatives(wft(mean, lat, mask=grid))
-        return finite_derivatives(stacks.method_b(frames, lat, mask=grid).maps)
+            pm = wft(mean, lat, mask=grid)
+        else:
+            pm = stacks.method_b(frames, lat, mask=grid).maps
+        return finite_derivatives(stacks.correct_phases(pm, shifts, about="mean"))
 
     def state_maps(frames):
         own = _state_carrier(frames[0], LAT, _reference_carrier(ref[0], LAT))

@@ -150,6 +150,7 @@ def _context(result, a: dict, ps, unit, title: str) -> dict:
         **_inputs_section(result), **_lattice_section(result),
         **_vibration_section(result, states), **_noise_section(result),
         **_maps_section(result, shown, ps, unit), **_states_section(result),
+        **_checks_section(result),
         "uncertainty": [_figure(plot_states(shown, name, pixel_size=ps, unit=unit),
                                 f"uncertainty map of {name}")
                         for name in (shown.uncertainty or {}) if name in _UNC],
@@ -277,6 +278,24 @@ def _states_section(result) -> dict:
             histories.append(_figure(fig, f"{what.lower()} of the states",
                                      f"{what} of every state, mean over the valid pixels."))
     return {"states": table, "histories": histories}
+
+
+def _checks_section(result) -> dict:
+    """The pair check of each state (its content against the reference's once warped
+    back) and the vibration offset removed from each series' phases (methods A, B)."""
+    sy = result.systematic or {}
+    pairs = [[r["state"], r["verdict"], _num(r["match"], ".2f"), _num(r["rho"], ".3f"),
+              _num(r["rho_match"], ".3f"), _num(r["rho_sd"], ".3f")]
+             for r in sy.get("pair_match", ())]
+    offsets = [[r["series"], r["method"], *(_num(v, ".2e") for v in r["removed_rad"]),
+                *(_num(v, ".2e") for v in r["predicted_std_rad"])]
+               for r in sy.get("vibration_offset", ()) if r is not None]
+    return {
+        "pair_checks": _table(["state", "verdict", "match", "correlation", "expected",
+                               "spread"], pairs, left=(0, 1)) if pairs else None,
+        "offsets": _table(["series", "method", "removed k1 (rad)", "removed k2 (rad)",
+                           "predicted std k1 (rad)", "predicted std k2 (rad)"], offsets,
+                          left=(0, 1)) if offsets else None}
 
 
 def _thin_ticks(fig, n: int) -> None:

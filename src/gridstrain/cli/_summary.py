@@ -168,6 +168,17 @@ def _systematic_lines(result: SeriesResult) -> list[str]:
     for i, sm in enumerate(sy["smoothing"]):
         lines.append(f"  {result.names[i + 1]:<9} e_xx {_fmt(sm['max'][0])}  e_yy "
                      f"{_fmt(sm['max'][1])}  e_xy {_fmt(sm['max'][2])}")
+    offsets = [r for r in sy.get("vibration_offset", ()) if r is not None]
+    if offsets:
+        lines.append("vibration offset about the frames' mean position, removed (rad, k1/k2):")
+        lines += [f"  {r['series']:<9} {_fmt(r['removed_rad'][0])}/{_fmt(r['removed_rad'][1])}"
+                  for r in offsets]
+    pairs = sy.get("pair_match", ())
+    if pairs:
+        lines.append("pair check (each state's content against the reference's, warped back):")
+        lines += [f"  {r['state']:<9} {r['verdict']}: correlation {_fmt(r['rho'], '.3f')} for "
+                  f"{_fmt(r['rho_match'], '.3f')} expected (match {_fmt(r['match'], '.2f')}, "
+                  f"spread {_fmt(r['rho_sd'], '.3f')})" for r in pairs]
     return lines
 
 

@@ -7,6 +7,8 @@
   (:class:`FringeOrder`) and the image-feature estimate (:func:`coarse_displacement`);
 - :mod:`~gridstrain.kinematics.tracking`: the fringe order followed from state to state
   along a series;
+- ``_pair_match``: whether the deformed image shows the reference's specimen, its
+  content compared once warped back (:func:`pair_match`);
 - ``_spline_kernels``: the compiled cubic splines (numba), loaded on first use.
 """
 
@@ -19,13 +21,16 @@ from ._fringe_order import (
     FringeOrder,
     coarse_displacement,
 )
+from ._pair_match import PairMatch, pair_match
 
 __all__ = [
     "FRINGE_ORDER_SOURCES",
     "CoarseEstimate",
     "FringeOrder",
     "Measurement",
+    "PairMatch",
     "coarse_displacement",
     "deformation",
     "measure",
+    "pair_match",
 ]

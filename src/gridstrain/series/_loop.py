@@ -60,6 +60,7 @@ from ._passes import (
     _dist,
     _lattice_image,
     _one_series,
+    _pair_check,
     _pass_cost,
     _plan,
     _run_pass,
@@ -483,6 +484,7 @@ def _measure(series: list, guesses: list, m: np.ndarray, o: MeasureOptions, step
         r = floor.r  # without its variance map: the floor keeps the smoothed one
         tracker = _Tracker(r.maps, r.stats.mean, r.mask, lattice, o.order, o.lagrangian)
         cracks: list[tuple] = []
+        matches: list[dict] = []
         alias = aliasing_bias(r.stats.mean, lattice, sigma=sigma, mask=r.mask)
         for i in range(n_states):
             c, acc = one(i + 1)
@@ -507,9 +509,12 @@ def _measure(series: list, guesses: list, m: np.ndarray, o: MeasureOptions, step
             del prev, follow
             if rec.confirmed and not confirmed:  # each part by its own features now
                 notes = [n for n in notes if "fringe order not confirmed" not in n]
-            c = c.dropping("mean")  # the image features were its only use
             cracks.append(found)
-            notes = [*notes, *said]
+            match, told = _pair_check(res, tracker.mean_ref, tracker.mask, done[0], c, lattice,
+                                      o.outliers)
+            matches.append(match)
+            notes = [*notes, *said, *told]
+            c = c.dropping("mean")  # the image features and the pair check were its uses
             pager.page_out()  # the uncertainty maps read back the moduli only
             if o.output is not None:
                 # the file keeps no phase maps, and the state's derivatives serve its
@@ -544,7 +549,8 @@ def _measure(series: list, guesses: list, m: np.ndarray, o: MeasureOptions, step
             screening=tuple(d.screening for d in done), vibration=tuple(d.vib for d in done),
             noise=floor.noise_floor(done, noise.info(done)), parameters=o.parameters(),
             warnings=tuple(warnings), metrology=metrology(sink.floors, sigma),
-            systematic={"aliasing": alias, "smoothing": sink.smoothing},
+            systematic={"aliasing": alias, "smoothing": sink.smoothing,
+                        "vibration_offset": [d.offset for d in done], "pair_match": matches},
             state_order=o.state_order, discontinuities=tuple(cracks), **extra)
 
 

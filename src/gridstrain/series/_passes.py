@@ -18,11 +18,13 @@ from .._threads import map_bounded
 from .._validation import (
     check_workers,
 )
+from ..kinematics import pair_match
 from ..phase import Lattice, Window, detect_lattice, finite_derivatives, transform
 from ..phase.lattice import state_carrier
 from ..phase.window import min_side
-from ..stacks import method_b
+from ..stacks import circular_offset_std, correct_phases, method_b
 from ..stacks._accumulators import FrameOrder
+from ..stacks._methods import phase_offsets
 from ..stacks.accumulate import PassPlan, SeriesPass
 from ..stacks.vibration import VibrationReport
 from ..stacks.vibration import shift_report as _vibration_report
@@ -191,14 +193,49 @@ def _carrier(s, lattice: Lattice, reference) -> tuple[Lattice | None, list[str]]
     turn = math.degrees(math.atan2(R[1, 0], R[0, 0]))
     if np.max(np.abs(stretch - 1)) <= _PLAUSIBLE_STRETCH:
         return own, []
-    files = ", ".join(str(p) for p in list(s.paths)[:2]) + (", ..." if len(s.paths) > 2
-                                                          else "")
+    files = _files(s.paths)
     return own, [f"{s.name}: its grid (pitches {own.pitches[0]:.4g}/{own.pitches[1]:.4g} "
                  f"px, angles {own.angles[0]:.3g}/{own.angles[1]:.3g} deg) is the "
                  f"reference's stretched by {stretch.min() - 1:+.1%}/{stretch.max() - 1:+.1%}"
                  f" and turned by {turn:.3g} deg: more than a plausible strain "
                  f"({_PLAUSIBLE_STRETCH:.0%}); check that {files} and the reference "
                  "images are of the same specimen and grid"]
+
+
+def _files(paths) -> str:
+    paths = [str(p) for p in paths]
+    return ", ".join(paths[:2]) + (", ..." if len(paths) > 2 else "")
+
+
+def _pair_check(res, ref_mean: np.ndarray, ref_mask: np.ndarray, ref, cur, lattice: Lattice,
+                outliers: str) -> tuple[dict, list[str]]:
+    """The record of :func:`~gridstrain.kinematics.pair_match` for a state measured
+    against the reference, and its warning; a refusal when nothing of the reference's
+    content is found in the state's, unless ``outliers="warn"``. ``ref``: the
+    reference's summary (``_Summary``); ``cur``: the state (``_Measured``) with its
+    mean image and noise variance."""
+    v = res.valid
+    var = cur.stats.variance
+    var_cur = float(np.mean(var[v])) if var is not None and v.any() else math.nan
+    m = pair_match(ref_mean, cur.stats.mean, res.u, v, pitch=max(lattice.pitches),
+                   noise=(ref.variance / ref.T, var_cur / cur.series.n_frames), mask=ref_mask)
+    record = {"state": cur.name, **m.as_dict()}
+    if m.verdict not in ("mismatch", "nothing matches"):
+        return record, []
+    both = (f"the reference ({_files(ref.sources)}) and {cur.name} "
+            f"({_files(cur.series.paths)})")
+    what = (f"{cur.name}: once warped back by the measured displacement, its image's "
+            f"content (printing defects, texture, below the grid's frequency) keeps "
+            f"{max(m.match, 0.0):.0%} of the correlation with the reference's that a "
+            f"pair of one specimen shows (correlation {m.rho:.2f} for {m.rho_match:.2f}, "
+            f"spread {m.rho_sd:.2f}): ")
+    if m.verdict == "nothing matches" and outliers != "warn":
+        raise ValueError(what + f"nothing matches; {both} do not show the same specimen "
+                         "and grid: check the folders, or pass --outliers warn "
+                         "(outliers='warn') to measure the pair anyway")
+    return record, [what + f"check that {both} show the same specimen and grid (an "
+                    "image of another specimen or experiment gives a displacement that "
+                    "is no measurement)"]
 
 
 def _run_pass(s, plan: PassPlan, report: Progress) -> SeriesPass:
@@ -419,8 +456,26 @@ def _one_series(s, acc: SeriesPass, base, window: Window, max_saturation: float,
         del res
     elif method == "B":
         pm = _method_b_maps(s, sc, acc, used, window, steps.sub(0.0, s.name))
+    offset = None
+    if method in ("A", "B"):
+        pm, offset = _centred(pm, sc.shifts, s.name, method)
     if f32:  # float32 maps from float32 frames (gridstrain.conventions)
         pm = dataclasses.replace(pm, psi=pm.psi.astype(np.complex64),
                                  dphi=pm.dphi.astype(np.float32))
     return _Measured(series=sc.series, screen=sc, vib=vib, stats=stats, maps=pm,
-                     mask=used, warnings=tuple(notes))
+                     mask=used, warnings=tuple(notes), offset=offset)
+
+
+def _centred(pm: PhaseMaps, shifts: np.ndarray, name: str, method: str):
+    """Method A's or B's maps with their vibration offset about the frames' mean
+    position removed (:func:`~gridstrain.stacks.correct_phases`, ``about="mean"``),
+    from the kept frames' measured shifts, and its record for the result's
+    systematic errors: the offset removed and its predicted spread, rad."""
+    if len(shifts) < 2:
+        return pm, None
+    removed = phase_offsets(shifts, pm.lattice, exact=True, about_mean=True)
+    record = {"series": name, "method": method,
+              "removed_rad": [float(v) for v in removed],
+              "predicted_std_rad": [float(v) for v in
+                                    circular_offset_std(shifts, pm.lattice)]}
+    return correct_phases(pm, shifts, about="mean"), record

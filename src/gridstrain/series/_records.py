@@ -52,6 +52,7 @@ class _Summary:
     modulus: np.ndarray  # (2,) median |Psi|
     kept_flagged: bool
     saturation_warnings: tuple
+    offset: dict | None = None  # the vibration offset removed (methods A and B)
 
 
 @dataclass(frozen=True, eq=False)
@@ -65,6 +66,7 @@ class _Measured:
     maps: PhaseMaps
     mask: np.ndarray  # the pixels the maps were computed on
     warnings: tuple
+    offset: dict | None = None  # the vibration offset removed (methods A and B)
 
     @property
     def name(self) -> str:
@@ -94,4 +96,5 @@ class _Measured:
                         variance=var, variance_method=st.variance_method,
                         modulus=_median_modulus(pm, pm.valid),
                         kept_flagged=sc.kept_flagged,
-                        saturation_warnings=tuple(_saturation_warning(s, sc, sat)))
+                        saturation_warnings=tuple(_saturation_warning(s, sc, sat)),
+                        offset=self.offset)

@@ -12,10 +12,19 @@
 from __future__ import annotations
 
 from ._accumulators import StackResult
-from ._methods import correct_phases, mean_image, method_a, method_b, method_c, prefix_stacks
+from ._methods import (
+    circular_offset_std,
+    correct_phases,
+    mean_image,
+    method_a,
+    method_b,
+    method_c,
+    prefix_stacks,
+)
 
 __all__ = [
     "StackResult",
+    "circular_offset_std",
     "correct_phases",
     "mean_image",
     "method_a",

@@ -40,6 +40,7 @@ from .screening import FrameProbe
 
 __all__ = [
     "StackResult",
+    "circular_offset_std",
     "correct_phases",
     "mean_image",
     "method_a",
@@ -253,12 +254,16 @@ def method_b(frames, lattice: Lattice, *, sigma: float | None = None, mask=None,
     The phases are averaged on the circle: the phase of the stack is
     ``arg mean_t (psi_t / |psi_t|)``. It needs no unwrapping and no reference frame,
     is right when the frames' phases straddle ``+-pi`` (where an arithmetic mean of
-    wrapped phases is off by up to ``pi``), and agrees with the arithmetic mean of
-    the unwrapped phases (eq. 32) up to third-order terms in their spread. Its
-    vibration offset is ``arg mean_t exp(2 i pi k . (alpha_t, beta_t))``, which
-    eqs. (29)-(30) approximate to second order, so :func:`correct_phases` applies
-    to both methods. Derivatives are already unwrapped quantities (rad/px) and are
-    averaged arithmetically (eq. 33).
+    wrapped phases is off by up to ``pi``), and differs from the arithmetic mean of
+    the unwrapped phases (eq. 32) by third-order terms in their spread. Its
+    vibration offset is ``arg mean_t exp(2 i pi k . (alpha_t, beta_t))``, method A's,
+    which eqs. (29)-(30) approximate to second order, so :func:`correct_phases`
+    applies to both methods. About the frames' mean position the offset is third
+    order but about 40 times the phase noise at 0.5 px of vibration
+    (:func:`circular_offset_std`): ``correct_phases(res, res.screening.shifts(),
+    about="mean")`` removes it with the shifts the screening measured. Derivatives
+    are already unwrapped quantities (rad/px) and are averaged arithmetically
+    (eq. 33).
     """
     check_type(lattice, "lattice", Lattice)
     progress = progress or null_progress
@@ -464,8 +469,11 @@ def prefix_stacks(frames, lattice: Lattice, counts, *, method: str = "A",
     raise ValueError(f"frames must hold at least {last} images (the largest count), got {n}")
 
 
-def phase_offsets(shifts, lattice: Lattice, *, exact: bool) -> np.ndarray:
-    """Phase offsets ``(delta_1, delta_2)`` of a vibrated stack, rad (eqs. 28-30)."""
+def phase_offsets(shifts, lattice: Lattice, *, exact: bool,
+                  about_mean: bool = False) -> np.ndarray:
+    """Phase offsets ``(delta_1, delta_2)`` of a vibrated stack, rad (eqs. 28-30);
+    ``about_mean``: the exact offset about the frames' mean position
+    (:func:`correct_phases`, ``about="mean"``)."""
     sh = np.asarray(shifts, dtype=float)
     if sh.ndim != 2 or sh.shape[1] != 2 or sh.shape[0] < 1:
         raise ValueError(f"shifts must be a (T, 2) array of (alpha, beta) in px, got shape "
@@ -475,6 +483,9 @@ def phase_offsets(shifts, lattice: Lattice, *, exact: bool) -> np.ndarray:
     # phase advance of each frame for each wave vector: arg Psi_k of s(x + shift) is
     # arg Psi_k(s) + 2 pi k . shift (checked in tests/test_stacks.py)
     u = 2 * math.pi * sh @ lattice.K.T  # (T, 2)
+    if about_mean:
+        u = u - u.mean(axis=0)
+        return np.angle(np.mean(np.exp(1j * u), axis=0))
     if exact:
         return np.angle(np.mean(np.exp(1j * u), axis=0))
     # eq. (28) expanded to second order, i.e. eqs. (29)-(30) written with atan2 so
@@ -482,7 +493,46 @@ def phase_offsets(shifts, lattice: Lattice, *, exact: bool) -> np.ndarray:
     return np.arctan2(u.mean(axis=0), 1 - 0.5 * np.mean(u**2, axis=0))
 
 
-def correct_phases(maps, shifts, *, exact: bool = False):
+def circular_offset_std(shifts, lattice: Lattice) -> np.ndarray:
+    """The spread of the offset about the mean position that :func:`correct_phases`
+    (``about="mean"``) removes, predicted from the vibrations' amplitude, rad.
+
+    For Gaussian vibrations the frames' phase advances ``x_t`` have the std ``s_j``
+    (``2 pi k_j . a_t``); about their mean, ``d_t = x_t - x_bar``, the offset is
+    ``arg mean_t exp(i d_t) = atan(mean_t sin d_t / mean_t cos d_t)``. The centring
+    removes the part of ``sin x`` along ``x``: ``mean_t sin d_t = mean_t (sin x_t -
+    exp(-s^2/2) x_t)`` to first order in ``x_bar``, of variance ``((1 - exp(-2 s^2)) / 2
+    - s^2 exp(-s^2)) / T``, and ``mean_t cos d_t = exp(-s^2 / 2)``, so
+
+    ``std = sqrt(((1 - exp(-2 s^2)) / 2 - s^2 exp(-s^2)) / T) exp(s^2 / 2)``,
+
+    ``s^3 / sqrt(6 T)`` to leading order (third order: the sample skewness). Its mean
+    is zero: the offset is a draw of the stack, not a bias of the method.
+
+    Parameters
+    ----------
+    shifts : (T, 2) array_like
+        The frames' rigid shifts, px.
+    lattice : Lattice
+
+    Returns
+    -------
+    (2,) float64 ndarray
+        Per wave vector, rad.
+    """
+    sh = np.asarray(shifts, dtype=float)
+    T = sh.shape[0]
+    if T < 2:
+        return np.zeros(2)
+    s2 = (2 * math.pi * sh @ lattice.K.T).var(axis=0)
+    # the difference cancels to s^6 / 6: its series where the closed form loses digits
+    series = s2**3 / 6 - s2**4 / 6 + 11 * s2**5 / 120
+    closed = (1 - np.exp(-2 * s2)) / 2 - s2 * np.exp(-s2)
+    var = np.where(s2 < 0.05, series, np.maximum(closed, 0.0)) / T
+    return np.sqrt(var) * np.exp(s2 / 2)
+
+
+def correct_phases(maps, shifts, *, exact: bool = False, about: str = "origin"):
     """Remove the vibration phase offset ``delta`` of a stack (paper eqs. 29-30).
 
     Parameters
@@ -498,6 +548,19 @@ def correct_phases(maps, shifts, *, exact: bool = False):
         eqs. (29)-(30) for any lattice. True: ``delta_j = arg mean_t
         exp(2 i pi k_j . shift_t)``, the offset these approximate to second order
         (the paper's eq. 28 before truncating the Taylor series of eq. 3).
+    about : {"origin", "mean"}
+        ``"origin"``: the phases are brought to the frame of zero shift (the whole
+        ``delta``, which needs the shifts against that frame). ``"mean"``: only the
+        offset about the frames' mean position, ``arg mean_t exp(i (theta_tj -
+        mean_t theta_tj))`` with ``theta_tj = 2 pi k_j . shift_t`` (exact; ``exact``
+        is ignored), which centred measured shifts give
+        (:meth:`~gridstrain.screening.FrameScreen.shifts`): the phases of the grid
+        at its mean position, the mean of the unwrapped phases of eq. (32), which
+        is what a stack without a frame of reference can give. That offset is
+        third order in the vibrations (:func:`circular_offset_std`) but not
+        negligible: 0.0125 rad (std) at 0.5 px std, pitch 5 and 64 frames, some 40 times
+        the phase noise of the stack. :func:`gridstrain.measure_series` removes it
+        for methods A and B.
 
     Returns
     -------
@@ -510,7 +573,8 @@ def correct_phases(maps, shifts, *, exact: bool = False):
     if not isinstance(maps, PhaseMaps):
         raise TypeError(f"maps must be a PhaseMaps or StackResult, got "
                         f"{type(maps).__name__}")
-    delta = phase_offsets(shifts, maps.lattice, exact=bool(exact))
+    check_choice(about, "about", ("origin", "mean"))
+    delta = phase_offsets(shifts, maps.lattice, exact=bool(exact), about_mean=about == "mean")
     rot = np.exp(-1j * delta).astype(maps.psi.dtype)[:, None, None]
     # dphi and valid are read-only arrays: sharing them cannot alter the input
     return PhaseMaps(psi=maps.psi * rot, dphi=maps.dphi, valid=maps.valid,

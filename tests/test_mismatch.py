@@ -1,0 +1,188 @@
+"""A reference and a deformed image of two different specimens are told from a pair of one
+specimen by their content once the deformed image is warped back
+(:func:`gridstrain.kinematics.pair_match`, the check of :func:`measure_series`).
+
+The images come from ``independent_grid`` (numpy only). The specimens differ by their
+printing defects: reflectance blots of 1.5 to 4 px radius, fixed to the material (drawn
+here at each pixel's material point, found by the same fixed-point inversion of the
+Lagrangian displacement as the generator's)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import tifffile
+
+from gridstrain import measure_series
+from gridstrain.kinematics import pair_match
+from independent_grid import camera, scene
+
+H, W, PITCH = 128, 160, 5.0
+K, L = 0.28, 5.0  # sensor gain and read-noise variance, 12-bit grey levels
+YS, XS = np.mgrid[0:H, 0:W].astype(np.float64)
+
+
+def _material(disp):
+    """Each pixel's material point ``X`` (``x = X + u(X)``)."""
+    X, Y = XS, YS
+    if disp is not None:
+        for _ in range(12):
+            ux, uy = disp(X, Y)
+            X, Y = XS - ux, YS - uy
+    return X, Y
+
+
+def _defects(X, Y, seed):
+    """A specimen's reflectance: 150 blots of +-5 to 20 %, at its own random places."""
+    rng = np.random.default_rng(seed)
+    c = rng.uniform([0, 0], [W, H], (150, 2))
+    r = rng.uniform(1.5, 4.0, 150)
+    a = rng.choice([-1.0, 1.0], 150) * rng.uniform(0.05, 0.2, 150)
+    t = np.ones_like(X)
+    for (cx, cy), rr, aa in zip(c, r, a, strict=True):
+        t += aa * np.exp(-((X - cx) ** 2 + (Y - cy) ** 2) / (2 * rr**2))
+    return t
+
+
+def _frames(rng, *, specimen=0, disp=None, light=None, vibration=0.0, n=3):
+    """``n`` frames of a specimen under ``disp`` (Lagrangian, in material
+    coordinates), each moved by a rigid vibration of std ``vibration`` px."""
+    out = []
+    for _ in range(n):
+        a = rng.normal(0.0, vibration, 2) if vibration else np.zeros(2)
+
+        def moved(X, Y, a=a):
+            ux, uy = disp(X, Y) if disp is not None else (0 * X, 0 * Y)
+            return ux - a[0], uy - a[1]
+
+        img, _ = scene((H, W), pitch=PITCH, angle=0.0, hole=False, displacement=moved)
+        img = img * _defects(*_material(moved), specimen)
+        if light is not None:
+            img = img * light
+        out.append(camera(img, K, L, rng))
+    return np.stack(out)
+
+
+def _stretch(e):
+    return lambda X, Y: (e * (X - W / 2), 0 * Y)
+
+
+def _rotation(deg):
+    c, s = math.cos(math.radians(deg)), math.sin(math.radians(deg))
+    return lambda X, Y: (c * (X - W / 2) - s * (Y - H / 2) - (X - W / 2),
+                         s * (X - W / 2) + c * (Y - H / 2) - (Y - H / 2))
+
+
+def _crack(X, Y):
+    # the right half opens by 0.7 px along x and slides 0.3 px along y
+    right = X > 0.55 * W
+    return 0.002 * (X - W / 2) + 0.7 * right, 0.3 * right
+
+
+@pytest.fixture(scope="module")
+def reference():
+    return _frames(np.random.default_rng(1))
+
+
+def _pair_record(res):
+    (rec,) = res.systematic["pair_match"]
+    return rec
+
+
+def _mismatch_warnings(res):
+    return [w for w in res.warnings if "same specimen" in w]
+
+
+TRUE_PAIRS = {
+    "5 % strain": {"disp": _stretch(0.05)},
+    "5 deg rotation": {"disp": _rotation(5.0)},
+    # six frames: the stack's noise variance then has the frames' shifts regressed out
+    # (with three, the grid's motion counts as noise and the check has no verdict)
+    "0.5 px vibration": {"disp": _stretch(0.002), "vibration": 0.5, "n": 6},
+    # lighting fixed to the camera, 40 % brighter on the right than on the left
+    "illumination gradient": {"disp": _stretch(0.002), "light": 0.8 + 0.4 * XS / W},
+    "crack": {"disp": _crack},
+}
+
+
+@pytest.mark.parametrize("case", list(TRUE_PAIRS))
+def test_a_true_pair_is_not_flagged(reference, case):
+    rng = np.random.default_rng(list(TRUE_PAIRS).index(case) + 20)
+    state = _frames(rng, **TRUE_PAIRS[case])
+    res = measure_series(reference, [state])
+    rec = _pair_record(res)
+    assert not _mismatch_warnings(res), res.warnings
+    # the check decided (enough content): a pass that cannot fail proves nothing
+    assert rec["conclusive"], rec
+    assert rec["verdict"] == "match"
+    # the content keeps most of its correlation: the warp, strain's change of the
+    # defects' scale (5 %) and the crack's band take a few per cent
+    assert rec["match"] > 0.8, rec
+
+
+def test_another_specimen_at_the_same_pitch_is_refused_naming_both_files(tmp_path, reference):
+    rng = np.random.default_rng(7)
+    other = _frames(rng, specimen=7, disp=_stretch(0.003))
+    for name, frames in (("REF", reference), ("DEF", other)):
+        (tmp_path / name).mkdir()
+        for t, f in enumerate(frames):
+            tifffile.imwrite(tmp_path / name / f"img{t}.tif", f, photometric="minisblack")
+    with pytest.raises(ValueError, match="nothing matches") as err:
+        measure_series(tmp_path / "REF", [tmp_path / "DEF"])
+    text = str(err.value)
+    assert "img0.tif" in text
+    assert "REF" in text
+    assert "DEF" in text
+    assert "--outliers warn" in text  # what to do if they are one specimen after all
+    # asked to go on, the measurement says it and records the figure
+    res = measure_series(tmp_path / "REF", [tmp_path / "DEF"], outliers="warn")
+    (said,) = _mismatch_warnings(res)
+    assert "REF" in said
+    assert "DEF" in said
+    rec = _pair_record(res)
+    assert rec["conclusive"]
+    assert rec["verdict"] in ("mismatch", "nothing matches")
+    # unrelated content: the correlation is about 0 within its spread (plus what the
+    # shared lighting, fixed to the camera, leaves after the high-pass)
+    assert rec["match"] < 0.5, rec
+
+
+def test_another_specimen_moved_far_is_flagged(reference):
+    # a rigid move of 3.3 px: the content fixed to the camera (the lighting) matches
+    # the unwarped image better; still nothing of the reference's defects is there
+    rng = np.random.default_rng(8)
+    other = _frames(rng, specimen=11, disp=lambda X, Y: (0 * X + 3.3, 0 * Y - 1.2))
+    res = measure_series(reference, [other], outliers="warn")
+    assert _mismatch_warnings(res)
+    assert _pair_record(res)["match"] < 0.5
+
+
+def test_a_grid_without_content_is_inconclusive_not_flagged():
+    # no defect on either specimen: nothing to compare, no verdict either way
+    rng = np.random.default_rng(3)
+    ref, _ = scene((H, W), pitch=PITCH, angle=0.0, hole=False, light=False)
+    cur, _ = scene((H, W), pitch=PITCH, angle=0.0, hole=False, light=False,
+                   displacement=_stretch(0.01))
+    var = np.mean(K * ref + L)
+    m = pair_match(camera(ref, K, L, rng), camera(cur, K, L, rng),
+                   np.stack(_stretch(0.01)(XS, YS)), np.ones((H, W), bool), pitch=PITCH,
+                   noise=(256 * var, 256 * var))  # stored x16: variances x256
+    assert not m.conclusive
+    assert m.verdict == "inconclusive"
+    # the noise model holds: the content left is within a few tenths of the noise
+    assert max(m.snr) < 1.0, m
+
+
+def test_the_noise_model_accounts_for_the_variance_of_a_flat_image():
+    # a flat field: the filtered image is noise only, and its variance is the predicted
+    # one (content variance 0 +- the sampling spread of a variance over ~300
+    # independent samples, 8 %; the SNR is clipped at 0 from below)
+    rng = np.random.default_rng(4)
+    level = np.full((H, W), 1500.0)
+    img = camera(level, K, L, rng).astype(np.float64)
+    var = 256 * (K * 1500 + L + 1 / 12)  # Poisson-Gaussian plus quantisation, x16 storage
+    m = pair_match(img, img, np.zeros((2, H, W)), np.ones((H, W), bool), pitch=PITCH,
+                   noise=(var, var))
+    assert m.snr[0] < 0.25, m
