@@ -1,0 +1,269 @@
+"""Acceptance: the command line against photographs it was not written for.
+
+Every case writes image files with the camera of ``tests/world_camera.py`` (its own
+model of a printed grid, a lens, lighting fixed to the camera and a 12-bit sensor;
+nothing shared with gridstrain.synthetic), runs ``python -m gridstrain.cli measure
+REF DEF -o out.h5 --json --quiet`` in a subprocess with the default options unless a
+user would obviously give one, loads the result file and compares it with the
+imposed displacement, at the reference's pixels (Lagrangian).
+
+Frames 200 x 260 px, grid pitch 6.4 px turned by 0.6 degree (a checkerboard of
+squares of 4.5 px where said), one photograph per state, so the noise is
+estimated from the image itself.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import imageio.v3 as iio
+import numpy as np
+import pytest
+import tifffile
+
+import gridstrain
+from gridstrain.results import load
+from world_camera import Specimen, compose, edge_crack, photograph, rotation, strain_bands, stretch
+
+H, W = 200, 260
+CENTRE = ((W - 1) / 2, (H - 1) / 2)
+PITCH = 6.4
+# the checkerboard's squares are 4.5 px: its fundamental pitch along the diagonals
+# is 9 / sqrt(2) = 6.36 px, the grid's to 1 %
+CHECKER = 9.0
+SRC = str(Path(gridstrain.__file__).resolve().parents[1])
+
+
+def _run(tmp, *args):
+    """``gridstrain measure ARGS -o out.h5 --json --quiet``: (JSON summary, result)."""
+    out = tmp / "out.h5"
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join(
+        [SRC, *filter(None, [os.environ.get("PYTHONPATH")])]))
+    proc = subprocess.run([sys.executable, "-m", "gridstrain.cli", "measure", *map(str, args),
+                           "-o", str(out), "--json", "--quiet"],
+                          capture_output=True, text=True, env=env, cwd=tmp, timeout=1800)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    return json.loads(proc.stdout), load(out)
+
+
+def _pair(tmp, disp, *, kind="grid", pitch=PITCH, seed=0, other=None):
+    """Reference and deformed photographs as TIFFs; ``other`` photographs another
+    specimen as the deformed one."""
+    rng = np.random.default_rng(seed + 100)
+    spec = Specimen((H, W), pitch=pitch, kind=kind, seed=seed)
+    paths = tmp / "ref.tif", tmp / "def.tif"
+    tifffile.imwrite(paths[0], photograph(spec, rng=rng))
+    tifffile.imwrite(paths[1], photograph(other or spec, disp, rng=rng))
+    return paths
+
+
+def _errors(res, state, disp):
+    """``(2, n)`` displacement errors at the valid pixels, px, and their stated std."""
+    v = np.asarray(res.valid[state])
+    yy, xx = np.mgrid[0:H, 0:W].astype(np.float64)
+    truth = np.stack(disp(xx, yy))
+    err = np.stack([np.asarray(res.u[state][k]) for k in (0, 1)]) - truth
+    unc = res.uncertainty
+    std = np.stack([np.asarray(unc["ux_std"][state]), np.asarray(unc["uy_std"][state])])
+    return err[:, v], std[:, v], v
+
+
+def _figures(res, state, disp):
+    err, std, v = _errors(res, state, disp)
+    return {
+        "valid": int(v.sum()),
+        "max_err_px": float(np.abs(err).max()),
+        "median_err_px": float(np.median(np.hypot(*err))),
+        "beyond_5_std": float(np.mean(np.any(np.abs(err) > 5 * std, axis=0))),
+        "median_std_px": float(np.median(std)),
+    }
+
+
+def _check_homogeneous(fig, pitch, record_property):
+    for k, v in fig.items():
+        record_property(k, v)
+    # a whole period off shows as an error of a pitch; half of it cannot be noise
+    # (the stated std is 3e-3 px)
+    assert fig["max_err_px"] < pitch / 2, fig
+    # 0.05 px: ten times the aliasing and noise floor of a 12-bit camera at this
+    # pitch, a twentieth of what a sub-pixel method is trusted for
+    assert fig["median_err_px"] <= 0.05, fig
+    # a stated std that holds: 5 std is exceeded by 6e-7 of Gaussian noise; 2 %
+    # leaves room for the window's bias where lighting and print vary
+    assert fig["beyond_5_std"] <= 0.02, fig
+
+
+# --- quick cases -----------------------------------------------------------------
+
+@pytest.fixture(scope="module")
+def rotated_2deg(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("rot2")
+    disp = rotation(2.0, CENTRE)
+    summary, res = _run(tmp, *_pair(tmp, disp))
+    return summary, res, disp
+
+
+def test_a_2_degree_rotation_is_measured(rotated_2deg, record_property):
+    _, res, disp = rotated_2deg
+    _check_homogeneous(_figures(res, 0, disp), PITCH, record_property)
+
+
+def test_the_spatial_resolution_is_13_69_sigma(rotated_2deg):
+    summary, res, _ = rotated_2deg
+    # d = pi sigma sqrt(2 / ln(1/0.9)) = 13.69 sigma; 2 % is the rounding of 13.69
+    # many times over, and far below a wrong definition (FWHM 2.355 sigma)
+    assert summary["metrology"]["spatial_resolution_px"] == pytest.approx(
+        13.69 * res.sigma, rel=0.02)
+    assert summary["noise_floor"]["spatial_resolution_px"] == pytest.approx(
+        13.69 * res.sigma, rel=0.02)
+
+
+@pytest.mark.xfail(strict=True, reason=(
+    "photographs of two specimens (pitches 6.4 and 7.23 px, other print defects) are "
+    "measured as a 13 % equibiaxial strain with no warning naming the files: the pair "
+    "check only flags a carrier stretch beyond 15 %, and the content of the deformed "
+    "image warped back by the measured field, unlike the reference's, is not "
+    "compared (check_after_warp returns silently when inconclusive)"))
+def test_a_pair_of_different_specimens_is_named(tmp_path):
+    other = Specimen((H, W), pitch=PITCH * 1.13, seed=7)
+    paths = _pair(tmp_path, None, other=other)
+    summary, res = _run(tmp_path, *paths)
+    named = [w for w in summary["warnings"] if "ref.tif" in w and "def.tif" in w]
+    assert named, summary["warnings"]
+    assert [w for w in res.warnings if "ref.tif" in w and "def.tif" in w]
+
+
+# --- rigid rotations and homogeneous strains -------------------------------------
+
+@pytest.mark.slow
+@pytest.mark.parametrize(("deg", "kind"), [(3.5, "grid"), (5.0, "grid"), (3.5, "checker")])
+def test_rotations(tmp_path, deg, kind, record_property):
+    disp = rotation(deg, CENTRE)
+    pitch = CHECKER if kind == "checker" else PITCH
+    _, res = _run(tmp_path, *_pair(tmp_path, disp, kind=kind, pitch=pitch, seed=1))
+    _check_homogeneous(_figures(res, 0, disp), res.lattice.pitch, record_property)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize(("exx", "eyy", "kind"), [
+    (0.02, -0.006, "grid"), (0.035, -0.0105, "grid"), (0.05, -0.015, "grid"),
+    (0.05, 0.05, "grid"), (0.035, 0.035, "checker")])
+def test_homogeneous_strains(tmp_path, exx, eyy, kind, record_property):
+    disp = stretch(exx, eyy, CENTRE)
+    pitch = CHECKER if kind == "checker" else PITCH
+    _, res = _run(tmp_path, *_pair(tmp_path, disp, kind=kind, pitch=pitch, seed=2))
+    _check_homogeneous(_figures(res, 0, disp), res.lattice.pitch, record_property)
+
+
+# --- an edge crack ---------------------------------------------------------------
+
+Y_CRACK, X_TIP = 94.3, 130.0
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("opening", [0.5, 2.0, 6.0])
+def test_an_edge_crack(tmp_path, opening, record_property):
+    disp = edge_crack(opening, Y_CRACK, X_TIP)
+    summary, res = _run(tmp_path, *_pair(tmp_path, disp, seed=3))
+    fig = _figures(res, 0, disp)
+    said = [w for w in summary["warnings"]
+            if any(t in w.lower() for t in ("crack", "jump", "discontinu"))]
+    for k, v in fig.items():
+        record_property(k, v)
+    record_property("discontinuities", len(res.discontinuities[0]))
+    assert fig["max_err_px"] < PITCH / 2, fig  # no side of the crack a period off
+    # 0.2 %: the pixels whose window reaches the crack are left out; those left may
+    # hold what the window's tails see of it, not more (5 std: 6e-7 of Gaussian noise)
+    assert fig["beyond_5_std"] <= 0.002, fig
+    assert said, summary["warnings"]
+    assert res.discontinuities[0], "no discontinuity in the result"
+
+
+# --- the window's smoothing of strain gradients ----------------------------------
+
+def _peak_error(err, valid, axis):
+    """Largest |median error| along a band (the median over ``axis`` removes the
+    noise, leaving the window's bias); lines with fewer than 30 valid pixels are
+    skipped."""
+    e = np.where(valid, err, np.nan)
+    keep = valid.sum(axis=axis) >= 30
+    prof = np.nanmedian(e[:, keep] if axis == 0 else e[keep], axis=axis)
+    return float(np.abs(prof).max())
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("widths", [1.5, 2.0])
+def test_the_smoothing_bound_bounds_gaussian_bands(tmp_path, widths, record_property):
+    # sigma is the detected pitch by default: the bands are drawn at widths x pitch
+    # and their width in window sigmas is read back from the result
+    amplitude = 0.02
+    disp, strain = strain_bands(amplitude, widths * PITCH, CENTRE)
+    summary, res = _run(tmp_path, *_pair(tmp_path, disp, seed=4))
+    width = widths * PITCH / res.sigma
+    record_property("width_sigma", width)
+    assert width == pytest.approx(widths, rel=0.01)  # the detected pitch to 1 %
+    v = np.asarray(res.valid[0])
+    yy, xx = np.mgrid[0:H, 0:W].astype(np.float64)
+    truth = strain(xx, yy)
+    bound = summary["systematic_errors"]["smoothing"][0]["max"]
+    for i, axis in ((0, 0), (1, 1), (2, 1)):  # e_xx varies along x: median over rows
+        err = np.asarray(res.strain[0][i]) - truth[i]
+        actual = _peak_error(err, v, axis)
+        record_property(f"peak_error_{i}", actual)
+        record_property(f"bound_{i}", bound[i])
+        # the bound states at most the peak error, and at most four times it: a
+        # bound far above is no figure a user can use (the documented 1.2 to 2.5)
+        assert 1.0 <= bound[i] / actual <= 4.0, (i, bound[i], actual)
+
+
+# --- a load-step record ----------------------------------------------------------
+
+N_FRAMES = 40
+
+
+def _record_truth(t):
+    """Frame ``t`` (0 the reference): a rigid drift of (0.3, -0.15) px a frame and a
+    uniaxial strain growing to 3 % (Poisson's ratio 0.3) about the centre."""
+    e = 0.03 * t / (N_FRAMES - 1)
+    return compose(stretch(e, -0.3 * e, CENTRE),
+                   lambda X, Y: (0.3 * t + 0 * X, -0.15 * t + 0 * Y))
+
+
+@pytest.mark.slow
+def test_a_record_with_loads_in_a_folder_of_unpadded_names(tmp_path, record_property):
+    rec = tmp_path / "record"
+    rec.mkdir()
+    spec = Specimen((H, W), seed=5)
+    rng = np.random.default_rng(105)
+    for t in range(N_FRAMES):  # frame_1 ... frame_40: a plain sort puts frame_10 second
+        iio.imwrite(rec / f"frame_{t + 1}.png",
+                    photograph(spec, _record_truth(t) if t else None, rng=rng))
+    loads = np.round(25.0 * np.arange(1, N_FRAMES) + rng.normal(0, 0.3, N_FRAMES - 1), 3)
+    (tmp_path / "loads.csv").write_text("# load cell, 5 kN\nload [N]\n"
+                                        + "".join(f"{v:.3f}\n" for v in loads))
+    summary, res = _run(tmp_path, rec, "--each-frame", "--reference-frames", "1",
+                        "--loads", "loads.csv", "--frame-rate", "1000")
+    numbers = [int("".join(c for c in n.split("frame_")[-1] if c.isdigit()))
+               for n in res.names[1:]]
+    assert numbers == list(range(2, N_FRAMES + 1)), res.names
+    assert res.state_order == "natural"
+    assert res.load_unit == "N"
+    np.testing.assert_allclose(res.load, loads, rtol=0, atol=1e-9)  # as written
+    # frame t of the record (the reference is frame 0) at t / 1000 s
+    np.testing.assert_allclose(res.time, np.arange(1, N_FRAMES) / 1000.0, rtol=1e-12)
+    assert [s["load"] for s in summary["states"]] == pytest.approx(list(loads), abs=1e-9)
+    assert [s["time_s"] for s in summary["states"]] == pytest.approx(
+        list(np.arange(1, N_FRAMES) / 1000.0), rel=1e-12)
+    worst_median, worst_max = 0.0, 0.0
+    for s in range(N_FRAMES - 1):
+        fig = _figures(res, s, _record_truth(s + 1))
+        worst_median = max(worst_median, fig["median_err_px"])
+        worst_max = max(worst_max, fig["max_err_px"])
+        assert fig["max_err_px"] < PITCH / 2, (res.names[s + 1], fig)  # a period off
+        assert fig["median_err_px"] <= 0.05, (res.names[s + 1], fig)  # as pairs above
+    record_property("worst_median_err_px", worst_median)
+    record_property("worst_max_err_px", worst_max)
