@@ -133,10 +133,10 @@ def test_the_spatial_resolution_is_13_69_sigma(rotated_2deg):
 
 @pytest.mark.xfail(strict=True, reason=(
     "photographs of two specimens (pitches 6.4 and 7.23 px, other print defects) are "
-    "measured as a 13 % equibiaxial strain with no warning naming the files: the pair "
-    "check only flags a carrier stretch beyond 15 %, and the content of the deformed "
-    "image warped back by the measured field, unlike the reference's, is not "
-    "compared (check_after_warp returns silently when inconclusive)"))
+    "measured as a 13.0 % equibiaxial strain with no warning naming the files: the "
+    "pair check flags only a carrier stretch beyond 15 %, and the image features, "
+    "which do not match (correlation 0.25), only leave the fringe order 'not "
+    "confirmed' ('nothing but the grid moves with the specimen')"))
 def test_a_pair_of_different_specimens_is_named(tmp_path):
     other = Specimen((H, W), pitch=PITCH * 1.13, seed=7)
     paths = _pair(tmp_path, None, other=other)
@@ -275,15 +275,13 @@ def test_a_record_with_loads_in_a_folder_of_unpadded_names(tmp_path, record_prop
     assert [s["load"] for s in summary["states"]] == pytest.approx(list(loads), abs=1e-9)
     assert [s["time_s"] for s in summary["states"]] == pytest.approx(
         list(np.arange(1, N_FRAMES) / 1000.0), rel=1e-12)
-    worst_median, worst_max = 0.0, 0.0
-    for s in range(N_FRAMES - 1):
-        fig = _figures(res, s, _record_truth(s + 1))
-        worst_median = max(worst_median, fig["median_err_px"])
-        worst_max = max(worst_max, fig["max_err_px"])
-        assert fig["max_err_px"] < PITCH / 2, (res.names[s + 1], fig)  # a period off
-        assert fig["median_err_px"] <= 0.05, (res.names[s + 1], fig)  # as pairs above
-    record_property("worst_median_err_px", worst_median)
-    record_property("worst_max_err_px", worst_max)
+    figs = [_figures(res, s, _record_truth(s + 1)) for s in range(N_FRAMES - 1)]
+    for k in ("median_err_px", "max_err_px", "beyond_5_std"):
+        record_property(f"worst_{k}", max(f[k] for f in figs))
+    for name, fig in zip(res.names[1:], figs, strict=True):
+        assert fig["max_err_px"] < PITCH / 2, (name, fig)  # none a period off
+        assert fig["median_err_px"] <= 0.05, (name, fig)  # as for the pairs above
+        assert fig["beyond_5_std"] <= 0.02, (name, fig)  # as for the pairs above
 
 
 # --- the camera itself -----------------------------------------------------------
