@@ -249,6 +249,27 @@ def strain_bands(amplitude, width, centre):
     return u, strain
 
 
+def strain_bump(amplitude, width, centre):
+    """A round Gaussian bump of ``e_xx``, standard deviation ``width`` px, peak
+    ``amplitude`` at ``centre``: ``u_x = a w sqrt(pi/2) exp(-dy²/2w²) erf(dx / sqrt(2)
+    w)``, ``u_y = 0``. Returns ``(u, strain)`` as :func:`strain_bands`."""
+    xc, yc = centre
+    a, w = amplitude, width
+    c = a * w * np.sqrt(np.pi / 2)
+
+    def u(X, Y):
+        return c * np.exp(-((Y - yc) ** 2) / (2 * w * w)) * _erf((X - xc) / (np.sqrt(2) * w)), \
+            np.zeros_like(Y)
+
+    def strain(X, Y):
+        gy = np.exp(-((Y - yc) ** 2) / (2 * w * w))
+        exx = a * gy * np.exp(-((X - xc) ** 2) / (2 * w * w))
+        exy = -0.5 * c * (Y - yc) / (w * w) * gy * _erf((X - xc) / (np.sqrt(2) * w))
+        return exx, np.zeros_like(X), exy
+
+    return u, strain
+
+
 def compose(*fields):
     """Sum of displacement fields."""
 
