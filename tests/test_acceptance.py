@@ -102,8 +102,8 @@ def _check_homogeneous(fig, pitch, record_property):
     # a whole period off shows as an error of a pitch; half of it cannot be noise
     # (the stated std is 3e-3 px)
     assert fig["max_err_px"] < pitch / 2, fig
-    # 0.05 px: ten times the aliasing and noise floor of a 12-bit camera at this
-    # pitch, a twentieth of what a sub-pixel method is trusted for
+    # 0.05 px, a twentieth of a pixel: more than ten times the noise (3e-3 px std)
+    # and the aliasing at this pitch; a median beyond it is an error of the method
     assert fig["median_err_px"] <= 0.05, fig
     # a stated std that holds: 5 std is exceeded by 6e-7 of Gaussian noise; 2 %
     # leaves room for the window's bias where lighting and print vary
