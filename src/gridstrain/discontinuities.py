@@ -147,7 +147,11 @@ def find_discontinuities(m: Measurement, *, min_jump: float = _MIN_JUMP) -> Disc
     # the displacement carries the deformed point out of its maps, join nothing
     inside = ndimage.binary_fill_holes(valid) if m.reference is None else m.reference.valid
     holes = ndimage.binary_opening(inside & ~valid, structure=_disc(math.ceil(sigma)))
-    lab, _ = ndimage.label(low | holes, structure=np.ones((3, 3)))
+    # ... and across gaps of up to 2 sigma along it: where the opening passes through
+    # a whole pitch the ridge vanishes over a few pixels, and the stretch beyond it,
+    # too low for a seed, still spoils the pixels beside it and joins the faces
+    joined = ndimage.binary_dilation(low | holes, structure=_disc(math.ceil(sigma)))
+    lab, _ = ndimage.label(joined, structure=np.ones((3, 3)))
     core = np.isin(lab, np.unique(lab[seeds])) & low
     if not core.any():
         return Discontinuities(core=empty, band=empty.copy(), regions=(),
