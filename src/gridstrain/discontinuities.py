@@ -9,7 +9,10 @@ sigma)`` high (0.04 for ``delta = 0.5`` px at ``sigma = 5`` px). Across an openi
 more than half a pitch the phases may also be unwrapped across the line with the
 wrong whole period on one side. :func:`find_discontinuities` finds the ridges,
 :func:`without_discontinuities` measures again with the pixels whose window
-straddles one left out, so that the unwrapping goes round the crack's tip.
+straddles one left out, so that the unwrapping goes round the crack's tip. A crack
+that cuts the field into parts leaves no way round: nothing in the phases joins
+one side's whole periods to the other's, and :func:`check_parts` fixes each part's
+from its own image content, or says it cannot.
 
 Conventions: :mod:`gridstrain.conventions`.
 """
@@ -107,12 +110,16 @@ def find_discontinuities(m: Measurement, *, min_jump: float = _MIN_JUMP) -> Disc
 
     Notes
     -----
-    Each strain component's departure from its median over ``8 sigma`` around is
-    compared with ``min_jump / (sqrt(2 pi) sigma)``, the height of the ridge a jump
-    of ``min_jump`` leaves, and with 10 robust standard deviations of that
-    departure over the valid pixels. A jump of a whole number of pitches leaves no
-    trace in the phases (the grid is the same on both sides): only the stretches of
-    a crack whose opening differs from it are seen.
+    Each strain component's departure from the median of the valid pixels over
+    ``8 sigma`` around is compared with ``min_jump / (sqrt(2 pi) sigma)``, the
+    height of the ridge a jump of ``min_jump`` leaves, and with 10 robust standard
+    deviations of that departure over the valid pixels. A ridge is followed from
+    there wherever its departure exceeds 4 of them, across gaps of up to ``2
+    sigma`` and across the holes of pixels the reference measures and the deformed
+    state does not (where the deformed grid vanishes along an opening near half a
+    pitch). A jump of a whole number of pitches leaves no trace in the phases (the
+    grid is the same on both sides): only the stretches of a crack whose opening
+    differs from it are seen.
     """
     check_type(m, "m", Measurement)
     min_jump = check_positive(min_jump, "min_jump")
@@ -303,12 +310,6 @@ class Part:
     shift_px: tuple[float, float] = (0.0, 0.0)
     left_out: bool = False
     detail: str = ""
-
-    def as_dict(self) -> dict:
-        """Plain-Python record, for JSON and HDF5."""
-        return {"rows": list(self.rows), "cols": list(self.cols), "pixels": self.pixels,
-                "confirmed": bool(self.confirmed), "shift_px": list(self.shift_px),
-                "left_out": bool(self.left_out), "detail": self.detail}
 
     def describe(self) -> str:
         """Where the part lies, in words."""
