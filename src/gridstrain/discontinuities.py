@@ -368,6 +368,12 @@ def check_parts(m: Measurement, before, reference_image, deformed_image, *,
     mask = check_mask(mask, shape)
     K = m.lattice.K
     yy, xx = np.mgrid[0:shape[0], 0:shape[1]].astype(np.float64)
+    # each part's territory: the pixels nearer to it than to any other part (a hole's
+    # edge, the strongest feature, lies in the invalid margin round the hole), less
+    # the crack's band, where the other side's content shows once warped back
+    nearest = nearest_index(m.valid)
+    territories = labels[nearest] * ~(before & ~m.valid)
+    del nearest
     found = []  # per part: (its pixels, the whole periods off or None, the estimate)
     for k, sl in enumerate(ndimage.find_objects(labels), start=1):
         part = labels == k
@@ -375,8 +381,7 @@ def check_parts(m: Measurement, before, reference_image, deformed_image, *,
         warped = ndimage.map_coordinates(cur, [yy + u[1], xx + u[0]], order=1,
                                          mode="nearest")
         del u
-        est = coarse_displacement(ref, warped, m.lattice, mask=mask, phase_shift=(0.0, 0.0),
-                                  region=part)
+        est = _part_estimate(ref, warped, m.lattice, mask, territories == k)
         off = np.rint(K @ np.array(est.shift)) if est.confident else None
         found.append((part, sl, off, est))
     shifts = [np.zeros(2) if off is None else np.linalg.solve(K, off)
@@ -415,6 +420,19 @@ def check_parts(m: Measurement, before, reference_image, deformed_image, *,
     again = dataclasses.replace(again, fringe_order=_parts_record(m.fringe_order, parts),
                                 reference=m.reference)
     return again, tuple(parts)
+
+
+def _part_estimate(ref, warped, lattice, mask, territory):
+    """:func:`coarse_displacement` of ``warped`` over ``territory`` (phases: zero),
+    within ``mask``, and over the whole territory when that is not confident: the
+    mask often hides a part's best features (a hole, the specimen's edges)."""
+    est = coarse_displacement(ref, warped, lattice, mask=mask, phase_shift=(0.0, 0.0),
+                              region=territory)
+    if est.confident or mask.all():
+        return est
+    whole = coarse_displacement(ref, warped, lattice, phase_shift=(0.0, 0.0),
+                                region=territory)
+    return whole if whole.confident or whole.peak_to_alias > est.peak_to_alias else est
 
 
 def _parts_record(rec: FringeOrder | None, parts: list[Part]) -> FringeOrder:
