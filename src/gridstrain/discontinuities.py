@@ -9,7 +9,10 @@ sigma)`` high (0.04 for ``delta = 0.5`` px at ``sigma = 5`` px). Across an openi
 more than half a pitch the phases may also be unwrapped across the line with the
 wrong whole period on one side. :func:`find_discontinuities` finds the ridges,
 :func:`without_discontinuities` measures again with the pixels whose window
-straddles one left out, so that the unwrapping goes round the crack's tip.
+straddles one left out, so that the unwrapping goes round the crack's tip. A crack
+that cuts the field into parts leaves no way round: nothing in the phases joins
+one side's whole periods to the other's, and :func:`check_parts` fixes each part's
+from its own image content, or says it cannot.
 
 Conventions: :mod:`gridstrain.conventions`.
 """
@@ -107,12 +110,16 @@ def find_discontinuities(m: Measurement, *, min_jump: float = _MIN_JUMP) -> Disc
 
     Notes
     -----
-    Each strain component's departure from its median over ``8 sigma`` around is
-    compared with ``min_jump / (sqrt(2 pi) sigma)``, the height of the ridge a jump
-    of ``min_jump`` leaves, and with 10 robust standard deviations of that
-    departure over the valid pixels. A jump of a whole number of pitches leaves no
-    trace in the phases (the grid is the same on both sides): only the stretches of
-    a crack whose opening differs from it are seen.
+    Each strain component's departure from the median of the valid pixels over
+    ``8 sigma`` around is compared with ``min_jump / (sqrt(2 pi) sigma)``, the
+    height of the ridge a jump of ``min_jump`` leaves, and with 10 robust standard
+    deviations of that departure over the valid pixels. A ridge is followed from
+    there wherever its departure exceeds 4 of them, across gaps of up to ``2
+    sigma`` and across the holes of pixels the reference measures and the deformed
+    state does not (where the deformed grid vanishes along an opening near half a
+    pitch). A jump of a whole number of pitches leaves no trace in the phases (the
+    grid is the same on both sides): only the stretches of a crack whose opening
+    differs from it are seen.
     """
     check_type(m, "m", Measurement)
     min_jump = check_positive(min_jump, "min_jump")
@@ -150,7 +157,11 @@ def find_discontinuities(m: Measurement, *, min_jump: float = _MIN_JUMP) -> Disc
     # the displacement carries the deformed point out of its maps, join nothing
     inside = ndimage.binary_fill_holes(valid) if m.reference is None else m.reference.valid
     holes = ndimage.binary_opening(inside & ~valid, structure=_disc(math.ceil(sigma)))
-    lab, _ = ndimage.label(low | holes, structure=np.ones((3, 3)))
+    # ... and across gaps of up to 2 sigma along it: where the opening passes through
+    # a whole pitch the ridge vanishes over a few pixels, and the stretch beyond it,
+    # too low for a seed, still spoils the pixels beside it and joins the faces
+    joined = ndimage.binary_dilation(low | holes, structure=_disc(math.ceil(sigma)))
+    lab, _ = ndimage.label(joined, structure=np.ones((3, 3)))
     core = np.isin(lab, np.unique(lab[seeds])) & low
     if not core.any():
         return Discontinuities(core=empty, band=empty.copy(), regions=(),
@@ -320,12 +331,6 @@ class Part:
     left_out: bool = False
     detail: str = ""
 
-    def as_dict(self) -> dict:
-        """Plain-Python record, for JSON and HDF5."""
-        return {"rows": list(self.rows), "cols": list(self.cols), "pixels": self.pixels,
-                "confirmed": bool(self.confirmed), "shift_px": list(self.shift_px),
-                "left_out": bool(self.left_out), "detail": self.detail}
-
     def describe(self) -> str:
         """Where the part lies, in words."""
         return (f"rows {self.rows[0]}-{self.rows[1]}, columns {self.cols[0]}-"
@@ -383,6 +388,12 @@ def check_parts(m: Measurement, before, reference_image, deformed_image, *,
     mask = check_mask(mask, shape)
     K = m.lattice.K
     yy, xx = np.mgrid[0:shape[0], 0:shape[1]].astype(np.float64)
+    # each part's territory: the pixels nearer to it than to any other part (a hole's
+    # edge, the strongest feature, lies in the invalid margin round the hole), less
+    # the crack's band, where the other side's content shows once warped back
+    nearest = nearest_index(m.valid)
+    territories = labels[nearest] * ~(before & ~m.valid)
+    del nearest
     found = []  # per part: (its pixels, the whole periods off or None, the estimate)
     for k, sl in enumerate(ndimage.find_objects(labels), start=1):
         part = labels == k
@@ -390,8 +401,7 @@ def check_parts(m: Measurement, before, reference_image, deformed_image, *,
         warped = ndimage.map_coordinates(cur, [yy + u[1], xx + u[0]], order=1,
                                          mode="nearest")
         del u
-        est = coarse_displacement(ref, warped, m.lattice, mask=mask, phase_shift=(0.0, 0.0),
-                                  region=part)
+        est = _part_estimate(ref, warped, m.lattice, mask, territories == k)
         off = np.rint(K @ np.array(est.shift)) if est.confident else None
         found.append((part, sl, off, est))
     shifts = [np.zeros(2) if off is None else np.linalg.solve(K, off)
@@ -430,6 +440,19 @@ def check_parts(m: Measurement, before, reference_image, deformed_image, *,
     again = dataclasses.replace(again, fringe_order=_parts_record(m.fringe_order, parts),
                                 reference=m.reference)
     return again, tuple(parts)
+
+
+def _part_estimate(ref, warped, lattice, mask, territory):
+    """:func:`coarse_displacement` of ``warped`` over ``territory`` (phases: zero),
+    within ``mask``, and over the whole territory when that is not confident: the
+    mask often hides a part's best features (a hole, the specimen's edges)."""
+    est = coarse_displacement(ref, warped, lattice, mask=mask, phase_shift=(0.0, 0.0),
+                              region=territory)
+    if est.confident or mask.all():
+        return est
+    whole = coarse_displacement(ref, warped, lattice, phase_shift=(0.0, 0.0),
+                                region=territory)
+    return whole if whole.confident or whole.peak_to_alias > est.peak_to_alias else est
 
 
 def _parts_record(rec: FringeOrder | None, parts: list[Part]) -> FringeOrder:
