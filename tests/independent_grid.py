@@ -8,11 +8,9 @@ gridstrain.synthetic. Its assumptions:
 - the lighting is fixed to the camera, a broad Gaussian falling to about 40 %;
 - a hole shows a uniform dark background (level 300 sensor grey levels);
 - optional reflectance ``R(X, Y)`` of the specimen (a factor, a function of the
-  material point: a stain, a wood grain), moving with it;
+  material point: a stain, a wood grain, printing defects), moving with it;
 - optional print texture: a reflectance factor ``1 + c t`` with ``t`` white noise
   smoothed by a Gaussian (20 px by default), normalised to unit std;
-- optional printing defects attached to the specimen: ``defects(X, Y)`` multiplies
-  the pattern at the material point ``X`` (it moves with the specimen);
 - the sensor is Poisson-Gaussian: ``K`` times a Poisson count plus normal read
   noise of variance ``L``, rounded to integers (quantisation adds 1/12), clipped
   to 12 bits and stored x16 in 16-bit integers.
@@ -37,7 +35,7 @@ def _pattern(a, b, kind, edge):
 
 def scene(shape, *, pitch, angle, kind="checker", amplitude=2000.0, contrast=0.9,
            light=True, hole=True, texture=0.0, displacement=None, over=3, seed=0,
-           edge=4.0, texture_scale=20.0, reflectance=None, defects=None):
+           edge=4.0, texture_scale=20.0, reflectance=None):
     """Noise-free expected sensor levels (float), and the hole mask."""
     H, W = shape
     th = np.deg2rad(angle)
@@ -53,8 +51,6 @@ def scene(shape, *, pitch, angle, kind="checker", amplitude=2000.0, contrast=0.9
     img = amplitude * ((1 - contrast) + contrast * _pattern(a, b, kind, edge))
     if reflectance is not None:
         img = img * reflectance(X, Y)
-    if defects is not None:
-        img = img * defects(X, Y)
     if light:
         img = img * (0.35 + 0.75 * np.exp(-((x - 0.4 * W) ** 2 + (y - 0.6 * H) ** 2)
                                            / (2 * (0.5 * W) ** 2)))

@@ -69,8 +69,8 @@ def _spots(rows=(0, H), n=90, seed=5):
 
 
 def _images(disp, defects=None, hole=False):
-    ref, _ = scene((H, W), pitch=5, angle=0, hole=hole, defects=defects)
-    cur, _ = scene((H, W), pitch=5, angle=0, hole=hole, displacement=disp, defects=defects)
+    ref, _ = scene((H, W), pitch=5, angle=0, hole=hole, reflectance=defects)
+    cur, _ = scene((H, W), pitch=5, angle=0, hole=hole, displacement=disp, reflectance=defects)
     rng = np.random.default_rng(2)
     return [camera(img, 0.3, 4.0, rng) for img in (ref, cur)]
 
