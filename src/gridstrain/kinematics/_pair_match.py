@@ -13,12 +13,12 @@ The statistic
 -------------
 ``X`` and ``Y`` are the logarithms of the two images low-passed by a Gaussian of one
 pitch (which removes the grid: its transfer at the grid's frequency is
-``exp(-2 pi^2) = 3e-9``), the deformed one warped back, each less its own Gaussian
-average over :data:`_HIGH_PASS` pitches (normalised over the valid pixels). The
-logarithm turns the lighting and the grid's contrast into additive terms, and the
-high-pass removes them where they are smooth: a gradient of illumination fixed to the
-camera, a lamp dimmed between the states. What remains is the content at scales of one
-to a few pitches, and the sensor noise.
+``exp(-2 pi^2) = 3e-9``) and sampled every pitch, the deformed one warped back, each
+less its local linear fit over :data:`_HIGH_PASS` pitches, :data:`_PASSES` times
+(:class:`_HighPass`). The logarithm turns the lighting and the grid's contrast into
+additive terms, and the high-pass removes them where they are smooth: a gradient of
+illumination fixed to the camera, a lamp dimmed between the states. What remains is the
+content at scales of one to a few pitches, and the sensor noise.
 
 ``rho`` is the correlation of ``X`` and ``Y`` over the valid pixels. The noise model
 predicts the noise variances ``N_x``, ``N_y`` of ``X`` and ``Y`` (the mean images'
