@@ -182,8 +182,10 @@ def _low_pass(a: np.ndarray, m: np.ndarray, s: float, q: int = 1) -> np.ndarray:
     sampled every ``q`` px: each axis filtered, then decimated, before the other."""
 
     def smooth(f):
-        f = ndimage.gaussian_filter1d(f, s, axis=0, mode="constant")[::q]
-        return ndimage.gaussian_filter1d(f, s, axis=1, mode="constant")[:, ::q]
+        # along the rows first, where the pixels are contiguous, on the whole frame;
+        # then along the columns, on the q times fewer columns kept
+        f = ndimage.gaussian_filter1d(f, s, axis=1, mode="constant")[:, ::q]
+        return ndimage.gaussian_filter1d(f, s, axis=0, mode="constant")[::q]
 
     if m.all():  # the weights of a whole frame: the product of two profiles
         den = np.outer(*(ndimage.gaussian_filter1d(np.ones(n), s, mode="constant")[::q]
