@@ -187,3 +187,21 @@ def test_the_noise_model_accounts_for_the_variance_of_a_flat_image():
     m = pair_match(img, img, np.zeros((2, H, W)), np.ones((H, W), bool), pitch=PITCH,
                    noise=(var, var))
     assert m.snr[0] < 0.25, m
+
+
+def test_the_result_file_summary_and_report_carry_the_check(tmp_path, reference):
+    from gridstrain.cli._summary import report_lines, summary
+    from gridstrain.report import write_report
+    from gridstrain.results import load
+
+    state = _frames(np.random.default_rng(9), disp=_stretch(0.01))
+    res = measure_series(reference, [state], output=tmp_path / "r.h5")
+    back = load(tmp_path / "r.h5")
+    assert back.systematic["pair_match"] == res.systematic["pair_match"]
+    assert back.systematic["vibration_offset"] == res.systematic["vibration_offset"]
+    (rec,) = summary(back, outputs={}, seconds=0.0)["systematic_errors"]["pair_match"]
+    assert rec["verdict"] == "match"
+    assert any(line.startswith("pair check") for line in report_lines(back))
+    html = write_report(tmp_path / "r.h5", tmp_path / "r.html").read_text(encoding="utf-8")
+    assert "Pair check" in html
+    assert "Vibration offset" in html
