@@ -98,8 +98,8 @@ def _mismatch_warnings(res):
 TRUE_PAIRS = {
     "5 % strain": {"disp": _stretch(0.05)},
     "5 deg rotation": {"disp": _rotation(5.0)},
-    # six frames: the stack's noise variance then has the frames' shifts regressed out
-    # (with three, the grid's motion counts as noise and the check has no verdict)
+    # six frames: the stack's noise variance has the frames' shifts regressed out (from
+    # four frames on), so the grid's motion does not count as noise
     "0.5 px vibration": {"disp": _stretch(0.002), "vibration": 0.5, "n": 6},
     # lighting fixed to the camera, 40 % brighter on the right than on the left
     "illumination gradient": {"disp": _stretch(0.002), "light": 0.8 + 0.4 * XS / W},
