@@ -205,3 +205,36 @@ def test_the_result_file_summary_and_report_carry_the_check(tmp_path, reference)
     html = write_report(tmp_path / "r.h5", tmp_path / "r.html").read_text(encoding="utf-8")
     assert "Pair check" in html
     assert "Vibration offset" in html
+
+
+def _texture(rng, shape, scale=3.0):
+    """A reflectance of std 10 %: white noise smoothed by a Gaussian of ``scale`` px."""
+    f2 = np.fft.fftfreq(shape[0])[:, None] ** 2 + np.fft.fftfreq(shape[1])[None] ** 2
+    t = np.real(np.fft.ifft2(np.fft.fft2(rng.standard_normal(shape))
+                             * np.exp(-2 * np.pi**2 * scale**2 * f2)))
+    return 2000.0 * (1 + 0.1 * t / t.std())
+
+
+def test_the_stated_spread_is_that_of_the_correlation():
+    # The false-alarm rate rests on rho_sd. Between unrelated contents (H0) rho
+    # scatters about 0 with rho_sd; for one content seen twice through independent
+    # noise (H1), atanh(rho) scatters with at most rho_sd. 150 pairs of 256 x 320 px
+    # (about 400 independent patches): a std from 150 draws is within 6 % (1 sigma),
+    # hence 15 %. (On 128 x 160 px, ~90 patches, the spread is 15 % above rho_sd: a
+    # small-sample bias of the autocorrelations.)
+    rng = np.random.default_rng(12)
+    shape = (256, 320)
+    u, v = np.zeros((2, *shape)), np.ones(shape, bool)
+    h0, sd0, z1, sd1 = [], [], [], []
+    for _ in range(150):
+        a, b = _texture(rng, shape), _texture(rng, shape)
+        noisy = [a + rng.normal(0.0, 40.0, shape), a + rng.normal(0.0, 40.0, shape)]
+        m = pair_match(a, b, u, v, pitch=PITCH, noise=(1e-6, 1e-6))
+        h0.append(m.rho)
+        sd0.append(m.rho_sd)
+        m = pair_match(*noisy, u, v, pitch=PITCH, noise=(1600.0, 1600.0))
+        z1.append(math.atanh(m.rho))
+        sd1.append(m.rho_sd)
+    assert abs(np.std(h0) / np.mean(sd0) - 1) < 0.15
+    assert abs(np.mean(h0)) < 3 * np.mean(sd0) / math.sqrt(150)  # no shared content
+    assert np.std(z1) < 1.15 * np.mean(sd1)
