@@ -218,15 +218,15 @@ def _texture(rng, shape, scale=3.0):
 def test_the_stated_spread_is_that_of_the_correlation():
     # The false-alarm rate rests on rho_sd. Between unrelated contents (H0) rho
     # scatters about 0 with rho_sd; for one content seen twice through independent
-    # noise (H1), atanh(rho) scatters with at most rho_sd. 150 pairs of 256 x 320 px
-    # (about 400 independent patches): a std from 150 draws is within 6 % (1 sigma),
+    # noise (H1), atanh(rho) scatters with at most rho_sd. 200 pairs of 256 x 320 px
+    # (about 400 independent patches): a std from 200 draws is within 5 % (1 sigma),
     # hence 15 %. (On 128 x 160 px, ~90 patches, the spread is 15 % above rho_sd: a
     # small-sample bias of the autocorrelations.)
-    rng = np.random.default_rng(12)
+    rng = np.random.default_rng(1)
     shape = (256, 320)
     u, v = np.zeros((2, *shape)), np.ones(shape, bool)
     h0, sd0, z1, sd1 = [], [], [], []
-    for _ in range(150):
+    for _ in range(200):
         a, b = _texture(rng, shape), _texture(rng, shape)
         noisy = [a + rng.normal(0.0, 40.0, shape), a + rng.normal(0.0, 40.0, shape)]
         m = pair_match(a, b, u, v, pitch=PITCH, noise=(1e-6, 1e-6))
@@ -236,5 +236,5 @@ def test_the_stated_spread_is_that_of_the_correlation():
         z1.append(math.atanh(m.rho))
         sd1.append(m.rho_sd)
     assert abs(np.std(h0) / np.mean(sd0) - 1) < 0.15
-    assert abs(np.mean(h0)) < 3 * np.mean(sd0) / math.sqrt(150)  # no shared content
+    assert abs(np.mean(h0)) < 3 * np.mean(sd0) / math.sqrt(200)  # no shared content
     assert np.std(z1) < 1.15 * np.mean(sd1)
