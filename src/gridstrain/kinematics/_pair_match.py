@@ -68,7 +68,7 @@ from scipy import ndimage
 
 # The high-pass's Gaussian, in pitches: printing defects and texture of one to a few
 # pitches pass; the lighting (a lamp's spot spans hundreds of periods) leaves
-# (s/scale)^4 of itself after the double high-pass.
+# (s/scale)^6 of itself after the three passes.
 _HIGH_PASS = 2.0
 # The high-pass applied this many times: n passes leave (s^2/2 lap)^n of the lighting's
 # logarithm, its terms of degree below 2n removed.
@@ -336,8 +336,8 @@ def pair_match(reference, deformed, u, valid, *, pitch: float, noise,
     elif found[False][0] >= _MISMATCH:
         # the content matches where it was, not where the specimen took it: content
         # fixed to the camera, which says nothing of the specimen
-        match, rho, rho_match, sd, snr, conclusive = found[False]
-        verdict, warped = "inconclusive", False
+        match, rho, rho_match, sd, snr, _ = found[False]
+        verdict, warped, conclusive = "inconclusive", False, False
     elif rho < _NOTHING * sd and found[False][1] < _NOTHING * found[False][3]:
         verdict = "nothing matches"
     else:
