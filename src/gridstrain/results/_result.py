@@ -109,7 +109,12 @@ class SeriesResult:
         Estimated systematic errors that the uncertainty maps do not cover:
         harmonic aliasing onto the carrier and the window's smoothing of strain
         gradients (:func:`gridstrain.uncertainty.aliasing_bias`,
-        :func:`gridstrain.uncertainty.smoothing_bias`).
+        :func:`gridstrain.uncertainty.smoothing_bias`); ``"vibration_offset"``, per
+        series, the phase offset about the frames' mean position removed from
+        methods A and B (``removed_rad``) and its predicted spread
+        (``predicted_std_rad``, :func:`gridstrain.stacks.circular_offset_std`), None
+        for method C; ``"pair_match"``, per state, whether its image shows the
+        reference's specimen (:func:`gridstrain.kinematics.pair_match`).
     fringe_orders : tuple of FringeOrder
         How each state's whole number of periods was fixed and whether anything
         confirms it (see :class:`gridstrain.kinematics.FringeOrder`).

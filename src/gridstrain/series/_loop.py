@@ -164,7 +164,10 @@ def measure_series(reference, states, *, lattice: Lattice | None = None,
         noise floor and uncertainty maps of the states they enter as NaN. A series
         whose frames form a sequence (a steady drift or a growing deformation,
         :class:`gridstrain.screening.Trend`) is refused, but with "warn", which
-        averages it with a warning.
+        averages it with a warning. So is a state whose image, warped back by its
+        measured displacement, shows nothing of the reference's content (another
+        specimen: :func:`gridstrain.kinematics.pair_match`, recorded in
+        ``systematic["pair_match"]``), but with "warn".
     progress : callable, optional
         ``progress(fraction, message)``.
     scheduler : str or distributed.Client, optional
