@@ -676,7 +676,7 @@ def _fringe_order_record(g, source, coarse):
     elif g.strides[1:] == (0, 0):  # one displacement, broadcast: its value
         gmed = (float(g[0, 0, 0]), float(g[1, 0, 0]))
     else:
-        gmed = tuple(float(np.median(c)) for c in g)
+        gmed = tuple(median(c) for c in g)
     if source == "user":
         order = FringeOrder("user", True, gmed, "the given guess")
     elif source == "auto":
