@@ -279,7 +279,7 @@ def _unwrap(wrapped: np.ndarray, valid: np.ndarray, pairs=None) -> np.ndarray:
         np.rint(s, out=s)
         s *= 2 * np.pi
         s += wrapped
-        s[~valid] = 0.0
+        np.copyto(s, 0.0, where=~valid)  # a masked write, without gathering indices
         return s
     ma = np.ma.masked_array(wrapped, mask=~valid)
     return np.ma.filled(unwrap_phase(ma, rng=0), 0.0)
@@ -449,7 +449,7 @@ def _outside_nan(valid, dtype, *maps):
     ``dtype``."""
     invalid = ~valid
     for a in maps:
-        a[..., invalid] = np.nan
+        np.copyto(a, np.nan, where=invalid)
     return tuple(a.astype(dtype, copy=False) for a in maps)
 
 
