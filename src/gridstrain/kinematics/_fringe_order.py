@@ -612,8 +612,9 @@ def phase_products(reference: PhaseMaps, deformed: PhaseMaps, valid: np.ndarray)
         v = valid[rows]
         if not v.any():
             continue
-        z = deformed.psi[:, rows][:, v].astype(np.complex128)
-        z *= np.conj(reference.psi[:, rows][:, v])
+        z = deformed.psi[:, rows][:, v].astype(np.complex128, copy=False)  # a fresh gather
+        ref = reference.psi[:, rows][:, v]
+        z *= np.conjugate(ref, out=ref)
         yield rows, v, z
 
 
