@@ -612,8 +612,12 @@ def phase_products(reference: PhaseMaps, deformed: PhaseMaps, valid: np.ndarray)
         v = valid[rows]
         if not v.any():
             continue
-        z = deformed.psi[:, rows][:, v].astype(np.complex128, copy=False)  # a fresh gather
-        ref = reference.psi[:, rows][:, v]
+        # each wave vector's map gathered on its own (a mask over the trailing axes of
+        # the stack gathers several times slower) into the layout that gather gives,
+        # (n, 2) transposed, so that the sums over a band add in the same order
+        z = np.stack([deformed.psi[j, rows][v] for j in range(2)],
+                     axis=-1).T.astype(np.complex128, copy=False)
+        ref = np.stack([reference.psi[j, rows][v] for j in range(2)], axis=-1).T
         z *= np.conjugate(ref, out=ref)
         yield rows, v, z
 
