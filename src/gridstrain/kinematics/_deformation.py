@@ -26,6 +26,7 @@ from .._validation import (
     check_workers,
 )
 from ..phase import Lattice, demodulated_at, detect_lattice
+from ..phase._validity import filled_box
 from ..phase.lattice import reference_carrier, state_carrier
 from ..wft import DEFAULT_MARGIN, PhaseMaps, wft
 from ._fringe_order import (
@@ -460,8 +461,12 @@ def _unwrapped_displacement(reference, deformed, valid, K, g) -> np.ndarray:
     # one wave vector at a time: a complex product of (H, W), not of (2, H, W)
     dphase = np.empty(reference.psi.shape, dtype=np.float64)
     for j in range(2):
-        dphase[j] = np.angle(deformed.psi[j] * np.conj(reference.psi[j]))
-    labels, n_regions = ndimage.label(valid)
+        z = np.conjugate(reference.psi[j])
+        z *= deformed.psi[j]
+        np.arctan2(z.imag, z.real, out=dphase[j])  # np.angle, written in place
+        del z
+    # a rectangle of valid pixels is one region: no labels needed
+    labels, n_regions = (None, 1) if filled_box(valid) else ndimage.label(valid)
     if n_regions == 0:
         raise ValueError("no valid pixel: the image is smaller than the window and its "
                          "margin, or the mask leaves nothing")

@@ -22,6 +22,7 @@ from .._validation import (
     check_type,
 )
 from ..phase import Lattice
+from ..phase._validity import filled_box
 from ..wft import PhaseMaps
 
 __all__ = ["FRINGE_ORDER_SOURCES", "CoarseEstimate", "FringeOrder", "coarse_displacement"]
@@ -402,18 +403,9 @@ def _reference_side(ref: np.ndarray, lattice: Lattice, m: np.ndarray) -> _Side:
     sf = _xc(F, MG, shape)
     n = np.maximum(n, 1.0)
     vf = np.maximum(_xc(F2, MG, shape) - sf * sf / n, 0.0)
+    box = filled_box(ma) if np.array_equal(ma, mb) else None
     return dataclasses.replace(side, fft_shape=shape, MF=MF, F=F, F2=F2, n=n, sf=sf, vf=vf,
-                               enough=enough, box=_box(ma) if np.array_equal(ma, mb) else None,
-                               reach=(ry, rx))
-
-
-def _box(m: np.ndarray) -> tuple | None:
-    """``(r0, r1, c0, c1)`` of the rectangle ``m`` fills, or None if it fills none."""
-    rows, cols = np.flatnonzero(m.any(axis=1)), np.flatnonzero(m.any(axis=0))
-    if not rows.size:
-        return None
-    r0, r1, c0, c1 = int(rows[0]), int(rows[-1]) + 1, int(cols[0]), int(cols[-1]) + 1
-    return (r0, r1, c0, c1) if (r1 - r0) * (c1 - c0) == np.count_nonzero(m) else None
+                               enough=enough, box=box, reach=(ry, rx))
 
 
 def _box_sums(v: np.ndarray, box: tuple, reach: tuple, shape: tuple) -> np.ndarray:
