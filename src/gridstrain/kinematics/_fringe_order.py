@@ -542,7 +542,9 @@ def _correlate(side: _Side, cur, lattice, phase_shift) -> CoarseEstimate:
     inside = ((np.abs(cands[..., 0]) < q * (Sx // 2 - 1))
               & (np.abs(cands[..., 1]) < q * (Sy // 2 - 1)))
     at = _at if q == 1 else _at_cubic  # a decimated peak spans few samples: cubic
-    vals = np.where(inside, at(c, np.where(inside[..., None], cands, 0.0) / q), np.nan)
+    vals = np.full(inside.shape, np.nan)
+    if inside.any():  # read at the candidates within the correlated shifts only
+        vals[inside] = at(c, cands[inside] / q)
     if not np.any(np.isfinite(vals)):
         return CoarseEstimate((0.0, 0.0), tuple(map(float, peak)), 0.0, nan, nan, nan,
                               False, "no candidate within the correlated shifts")
