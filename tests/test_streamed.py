@@ -191,3 +191,33 @@ def test_each_state_is_the_direct_measurement_of_its_frames(data, tmp_path, meth
         ["previous state"] * 2
     assert repr(res.fringe_orders) == repr(held.fringe_orders)
     assert_array_equal(np.asarray(res.u), held.u)
+
+
+def test_the_previous_field_read_back_from_the_file_gives_the_same_states(data, tmp_path,
+                                                                          monkeypatch):
+    """Each state's guess is the previous state's field: kept in memory when it is
+    small, read back from the result file when it is large (the bits the file holds,
+    u in float64). Both ways must give the same maps and fringe order records; the
+    threshold is set to 0 here to read back fields this small."""
+    from gridstrain.results import _file
+    from gridstrain.series import _loop
+
+    ref, states = data
+    kept = measure_series(ref, states, lattice=LAT, output=tmp_path / "kept.h5")
+    calls = []
+    real = _file.StreamedResult.reader
+
+    def spy(self, i):
+        calls.append(i)
+        return real(self, i)
+
+    monkeypatch.setattr(_file.StreamedResult, "reader", spy)
+    monkeypatch.setattr(_loop, "_FOLLOW_IN_MEMORY", 0)
+    read = measure_series(ref, states, lattice=LAT, output=tmp_path / "read.h5")
+    assert calls == [0, 1]  # every state but the last is followed from the file
+    assert_array_equal(np.asarray(read.u), np.asarray(kept.u))
+    assert_array_equal(np.asarray(read.strain), np.asarray(kept.strain))
+    assert_array_equal(np.asarray(read.valid), np.asarray(kept.valid))
+    assert [r.source for r in read.fringe_orders] == [r.source for r in kept.fringe_orders]
+    assert [r.detail for r in read.fringe_orders] == [r.detail for r in kept.fringe_orders]
+    assert read.fringe_orders[1].source == "previous state"

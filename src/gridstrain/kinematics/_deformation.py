@@ -26,6 +26,7 @@ from .._validation import (
     check_workers,
 )
 from ..phase import Lattice, demodulated_at, detect_lattice
+from ..phase._validity import filled_box
 from ..phase.lattice import reference_carrier, state_carrier
 from ..wft import DEFAULT_MARGIN, PhaseMaps, wft
 from ._fringe_order import (
@@ -279,7 +280,7 @@ def _unwrap(wrapped: np.ndarray, valid: np.ndarray, pairs=None) -> np.ndarray:
         np.rint(s, out=s)
         s *= 2 * np.pi
         s += wrapped
-        s[~valid] = 0.0
+        np.copyto(s, 0.0, where=~valid)  # a masked write, without gathering indices
         return s
     ma = np.ma.masked_array(wrapped, mask=~valid)
     return np.ma.filled(unwrap_phase(ma, rng=0), 0.0)
@@ -450,7 +451,7 @@ def _outside_nan(valid, dtype, *maps):
     ``dtype``."""
     invalid = ~valid
     for a in maps:
-        a[..., invalid] = np.nan
+        np.copyto(a, np.nan, where=invalid)
     return tuple(a.astype(dtype, copy=False) for a in maps)
 
 
@@ -461,8 +462,12 @@ def _unwrapped_displacement(reference, deformed, valid, K, g) -> np.ndarray:
     # one wave vector at a time: a complex product of (H, W), not of (2, H, W)
     dphase = np.empty(reference.psi.shape, dtype=np.float64)
     for j in range(2):
-        dphase[j] = np.angle(deformed.psi[j] * np.conj(reference.psi[j]))
-    labels, n_regions = ndimage.label(valid)
+        z = np.conjugate(reference.psi[j])
+        z *= deformed.psi[j]
+        np.arctan2(z.imag, z.real, out=dphase[j])  # np.angle, written in place
+        del z
+    # a rectangle of valid pixels is one region: no labels needed
+    labels, n_regions = (None, 1) if filled_box(valid) else ndimage.label(valid)
     if n_regions == 0:
         raise ValueError("no valid pixel: the image is smaller than the window and its "
                          "margin, or the mask leaves nothing")
@@ -677,7 +682,7 @@ def _fringe_order_record(g, source, coarse):
     elif g.strides[1:] == (0, 0):  # one displacement, broadcast: its value
         gmed = (float(g[0, 0, 0]), float(g[1, 0, 0]))
     else:
-        gmed = tuple(float(np.median(c)) for c in g)
+        gmed = tuple(median(c) for c in g)
     if source == "user":
         order = FringeOrder("user", True, gmed, "the given guess")
     elif source == "auto":

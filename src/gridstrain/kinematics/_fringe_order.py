@@ -23,6 +23,7 @@ from .._validation import (
     check_type,
 )
 from ..phase import Lattice
+from ..phase._validity import filled_box
 from ..wft import PhaseMaps
 from ._grid_free import (
     ContentOrder,
@@ -487,18 +488,9 @@ def _reference_side(ref: np.ndarray, lattice: Lattice, m: np.ndarray) -> _Side:
     sf = _xc(F, MG, shape)
     n = np.maximum(n, 1.0)
     vf = np.maximum(_xc(F2, MG, shape) - sf * sf / n, 0.0)
+    box = filled_box(ma) if np.array_equal(ma, mb) else None
     return dataclasses.replace(side, fft_shape=shape, MF=MF, F=F, F2=F2, n=n, sf=sf, vf=vf,
-                               enough=enough, box=_box(ma) if np.array_equal(ma, mb) else None,
-                               reach=(ry, rx))
-
-
-def _box(m: np.ndarray) -> tuple | None:
-    """``(r0, r1, c0, c1)`` of the rectangle ``m`` fills, or None if it fills none."""
-    rows, cols = np.flatnonzero(m.any(axis=1)), np.flatnonzero(m.any(axis=0))
-    if not rows.size:
-        return None
-    r0, r1, c0, c1 = int(rows[0]), int(rows[-1]) + 1, int(cols[0]), int(cols[-1]) + 1
-    return (r0, r1, c0, c1) if (r1 - r0) * (c1 - c0) == np.count_nonzero(m) else None
+                               enough=enough, box=box, reach=(ry, rx))
 
 
 def _box_sums(v: np.ndarray, box: tuple, reach: tuple, shape: tuple) -> np.ndarray:
@@ -635,7 +627,9 @@ def _correlate(side: _Side, cur, lattice, phase_shift) -> CoarseEstimate:
     inside = ((np.abs(cands[..., 0]) < q * (Sx // 2 - 1))
               & (np.abs(cands[..., 1]) < q * (Sy // 2 - 1)))
     at = _at if q == 1 else _at_cubic  # a decimated peak spans few samples: cubic
-    vals = np.where(inside, at(c, np.where(inside[..., None], cands, 0.0) / q), np.nan)
+    vals = np.full(inside.shape, np.nan)
+    if inside.any():  # read at the candidates within the correlated shifts only
+        vals[inside] = at(c, cands[inside] / q)
     if not np.any(np.isfinite(vals)):
         return CoarseEstimate((0.0, 0.0), tuple(map(float, peak)), 0.0, nan, nan, nan,
                               False, "no candidate within the correlated shifts")
@@ -697,8 +691,13 @@ def phase_products(reference: PhaseMaps, deformed: PhaseMaps, valid: np.ndarray)
         v = valid[rows]
         if not v.any():
             continue
-        z = deformed.psi[:, rows][:, v].astype(np.complex128)
-        z *= np.conj(reference.psi[:, rows][:, v])
+        # each wave vector's map gathered on its own (a mask over the trailing axes of
+        # the stack gathers several times slower) into the layout that gather gives,
+        # (n, 2) transposed, so that the sums over a band add in the same order
+        z = np.stack([deformed.psi[j, rows][v] for j in range(2)],
+                     axis=-1).T.astype(np.complex128, copy=False)
+        ref = np.stack([reference.psi[j, rows][v] for j in range(2)], axis=-1).T
+        z *= np.conjugate(ref, out=ref)
         yield rows, v, z
 
 

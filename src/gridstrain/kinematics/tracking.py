@@ -65,7 +65,10 @@ def _largest_step(res: Measurement, field: np.ndarray, lattice: Lattice,
     for r0 in range(0, H, rows):
         vb = v[r0:r0 + rows]
         if vb.any():
-            d = res.u[:, r0:r0 + rows][:, vb] - field[:, r0:r0 + rows][:, vb]
+            # each map gathered on its own (a mask over the trailing axes of a stack
+            # gathers several times slower), laid out as that gather lays them out
+            d = np.stack([res.u[k, r0:r0 + rows][vb] - field[k, r0:r0 + rows][vb]
+                          for k in range(2)], axis=-1).T
             largest = max(largest, float(np.max(np.abs(lattice.K @ d))))
     return largest
 

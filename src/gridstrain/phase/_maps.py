@@ -82,16 +82,18 @@ def demodulated_at(pm: PhaseMaps, lattice: Lattice) -> PhaseMaps:
     """
     dk = np.array(pm.lattice.K) - np.array(lattice.K)  # (2 wave vectors, (x, y))
     H, W = pm.shape
-    psi = np.array(pm.psi)  # a copy: the maps are read-only
-    dphi = np.array(pm.dphi)
+    # new maps (the given ones are read-only), written by the first operation
+    psi = np.empty_like(pm.psi)
+    dphi = np.empty_like(pm.dphi)
     ctype = psi.dtype
     x = np.arange(W, dtype=np.float64)
     y = np.arange(H, dtype=np.float64)
     for j in range(2):
-        psi[j] *= np.exp(2j * np.pi * dk[j, 0] * x).astype(ctype)[None, :]
+        np.multiply(pm.psi[j], np.exp(2j * np.pi * dk[j, 0] * x).astype(ctype)[None, :],
+                    out=psi[j])
         psi[j] *= np.exp(2j * np.pi * dk[j, 1] * y).astype(ctype)[:, None]
-        dphi[j, 0] += 2 * np.pi * dk[j, 0]
-        dphi[j, 1] += 2 * np.pi * dk[j, 1]
+        np.add(pm.dphi[j, 0], 2 * np.pi * dk[j, 0], out=dphi[j, 0])
+        np.add(pm.dphi[j, 1], 2 * np.pi * dk[j, 1], out=dphi[j, 1])
     return PhaseMaps(psi=psi, dphi=dphi, valid=np.array(pm.valid), lattice=lattice,
                      sigma=pm.sigma)
 

@@ -33,6 +33,17 @@ def _shows_grid(mods, valid: np.ndarray, box, m: np.ndarray, min_modulus: float)
     return keep
 
 
+def filled_box(valid: np.ndarray) -> tuple[int, int, int, int] | None:
+    """``(r0, r1, c0, c1)``, rows ``r0:r1`` and columns ``c0:c1``, of the rectangle the
+    ``True`` pixels of ``valid`` fill (a frame's valid band without a mask), or None
+    if they fill none (none at all, a mask's hole)."""
+    rows, cols = np.flatnonzero(valid.any(axis=1)), np.flatnonzero(valid.any(axis=0))
+    if not rows.size:
+        return None
+    r0, r1, c0, c1 = int(rows[0]), int(rows[-1]) + 1, int(cols[0]), int(cols[-1]) + 1
+    return (r0, r1, c0, c1) if (r1 - r0) * (c1 - c0) == np.count_nonzero(valid) else None
+
+
 def _gaps(runs, n: int) -> list[slice]:
     """Slices of ``range(n)`` that no ``dst`` run of :func:`_axis_band` covers."""
     covered = sorted((d.start, d.stop) for d, _ in runs)

@@ -5,6 +5,7 @@ See :mod:`gridstrain.conventions` for the coordinate and wave-vector conventions
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
@@ -309,16 +310,13 @@ def follow_lattice(image, lattice: Lattice, *, mask=None,
     data, _, _ = _windowed_crop(img, m)  # a wave vector does not depend on the origin
     h, w = data.shape
     spec = np.abs(sfft.fft2(data))
-    fy = sfft.fftfreq(h)[:, None]
-    fx = sfft.fftfreq(w)[None, :]
-    fr = np.hypot(fx, fy)
+    fx, fy, fr, nears = _follow_bins(h, w, tuple(map(float, lattice.k1)),
+                                     tuple(map(float, lattice.k2)), max_change)
     x = np.arange(w, dtype=float)
     y = np.arange(h, dtype=float)
     out = []
-    for j, k in enumerate((lattice.k1, lattice.k2)):
+    for j, (k, near) in enumerate(zip((lattice.k1, lattice.k2), nears, strict=True)):
         kv = np.array(k)
-        radius = max_change * float(np.hypot(*kv))
-        near = (np.hypot(fx - kv[0], fy - kv[1]) <= radius) & (fr < 0.5)
         if not near.any():
             raise ValueError(f"image of shape {img.shape} is too small to follow the lattice")
         score = np.where(near, spec, -1.0)
@@ -331,6 +329,23 @@ def follow_lattice(image, lattice: Lattice, *, mask=None,
                 "the spectrum at its frequency (a grid gives > 100)")
         out.append(_refine(data, np.array([fx[0, ix], fy[iy, 0]]), x, y, h, w))
     return Lattice(tuple(out[0]), tuple(out[1]))
+
+
+@functools.lru_cache(maxsize=4)
+def _follow_bins(h: int, w: int, k1: tuple, k2: tuple, max_change: float):
+    """The frequency grids of an ``h x w`` spectrum and, per wave vector, its bins
+    below Nyquist within ``max_change |k|`` of it: the same for every state of a
+    record (read-only)."""
+    fy = sfft.fftfreq(h)[:, None]
+    fx = sfft.fftfreq(w)[None, :]
+    fr = np.hypot(fx, fy)
+    nears = []
+    for k in (k1, k2):
+        radius = max_change * float(np.hypot(*k))
+        nears.append((np.hypot(fx - k[0], fy - k[1]) <= radius) & (fr < 0.5))
+    for a in (fx, fy, fr, *nears):
+        a.flags.writeable = False
+    return fx, fy, fr, tuple(nears)
 
 
 def reference_carrier(image, lattice: Lattice) -> np.ndarray | None:

@@ -80,20 +80,25 @@ def _dataset(group: h5py.Group, key: str, arr: np.ndarray) -> h5py.Dataset:
     return group.create_dataset(key, data=arr, **opts)
 
 
+# How each scalar kind is stored as an attribute.
+_SCALAR_TYPES = {"b": np.bool_, "i": np.int64, "f": np.float64, "s": _utf8}
+
+
 def _encode(group: h5py.Group, items, memo: dict, skip: Mapping = _ROOT_FIELDS) -> None:
     """Write ``(key, value)`` pairs into ``group`` (see the module docstring);
     ``skip`` names, per class name, the fields not written."""
     tuples, lists = [], []
+    where, attrs = group.name, group.attrs  # one lookup each for all the members
     for key, value in items:
-        _check_key(key, group.name)
+        _check_key(key, where)
         kind = _scalar_kind(value)
         if kind is not None or isinstance(value, os.PathLike):
             if isinstance(value, os.PathLike):
                 value = os.fspath(value)
+                kind = _scalar_kind(value)
             elif kind == "i" and not -(2**63) <= int(value) < 2**63:
-                raise TypeError(f"{group.name}/{key}: integer {value} too large to store")
-            group.attrs[key] = {"b": np.bool_, "i": np.int64, "f": np.float64,
-                                "s": _utf8}[_scalar_kind(value)](value)
+                raise TypeError(f"{where}/{key}: integer {value} too large to store")
+            attrs[key] = _SCALAR_TYPES[kind](value)
         elif isinstance(value, np.ndarray):
             if id(value) in memo:
                 group[key] = h5py.SoftLink(memo[id(value)])
@@ -102,7 +107,7 @@ def _encode(group: h5py.Group, items, memo: dict, skip: Mapping = _ROOT_FIELDS) 
         elif isinstance(value, list | tuple):
             kinds = {_scalar_kind(v) for v in value}
             if value and None not in kinds and (len(kinds) == 1 or kinds <= {"i", "f"}):
-                group.attrs[key] = _array(list(value), kinds)
+                attrs[key] = _array(list(value), kinds)
                 (tuples if isinstance(value, tuple) else lists).append(key)
             else:
                 g = group.create_group(key, track_order=True)
@@ -112,33 +117,35 @@ def _encode(group: h5py.Group, items, memo: dict, skip: Mapping = _ROOT_FIELDS) 
             group.create_group(key).attrs[_TYPE] = "none"
         elif isinstance(value, Mapping):
             g = group.create_group(key, track_order=True)
-            g.attrs[_TYPE] = "dict"
-            keys = [_check_key(k, f"{group.name}/{key}") for k in value]
-            g.attrs[_KEYS] = np.array(keys, dtype=h5py.string_dtype())
+            g_attrs = g.attrs
+            g_attrs[_TYPE] = "dict"
+            keys = [_check_key(k, f"{where}/{key}") for k in value]
+            g_attrs[_KEYS] = np.array(keys, dtype=h5py.string_dtype())
             _encode(g, value.items(), memo, skip)
         elif dataclasses.is_dataclass(value) and not isinstance(value, type):
             if id(value) in memo:
                 group[key] = h5py.SoftLink(memo[id(value)])
                 continue
             cls = type(value)
-            name = _class_name(cls, f"{group.name}/{key}")
+            name = _class_name(cls, f"{where}/{key}")
             g = group.create_group(key, track_order=True)
             memo[id(value)] = g.name
-            g.attrs[_TYPE] = "dataclass"
-            g.attrs[_CLASS] = name
+            g_attrs = g.attrs
+            g_attrs[_TYPE] = "dataclass"
+            g_attrs[_CLASS] = name
             left = skip.get(cls.__name__, ())
             _encode(g, ((f.name, getattr(value, f.name)) for f in dataclasses.fields(value)
                         if f.init and f.name not in left), memo, skip)
         elif isinstance(value, np.generic):
-            group.attrs[key] = value
+            attrs[key] = value
         else:
-            raise TypeError(f"{group.name}/{key}: cannot store a {type(value).__name__} "
+            raise TypeError(f"{where}/{key}: cannot store a {type(value).__name__} "
                             "(arrays, numbers, strings, None, tuples, lists, dicts and "
                             "dataclasses are stored)")
     if tuples:
-        group.attrs[_TUPLES] = np.array(tuples, dtype=h5py.string_dtype())
+        attrs[_TUPLES] = np.array(tuples, dtype=h5py.string_dtype())
     if lists:
-        group.attrs[_LISTS] = np.array(lists, dtype=h5py.string_dtype())
+        attrs[_LISTS] = np.array(lists, dtype=h5py.string_dtype())
 
 
 def _plain(v):

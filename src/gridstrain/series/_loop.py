@@ -75,6 +75,11 @@ __all__ = ["ORDERS", "MeasureOptions", "measure_series"]
 ORDERS = ("series", "independent")
 # Largest fraction of saturated pixels accepted in a frame (gridstrain.io's default).
 _MAX_SATURATION = 0.01
+# The previous state's displacement is kept in memory up to this size, bytes (a 0.5
+# Mpx field in float64), and read back from the result file above it: reading it
+# twice per state costs more than the transform of a frame that small, and keeping
+# it adds a constant, small amount to the peak.
+_FOLLOW_IN_MEMORY = 8 * 2**20
 
 
 # --------------------------------------------------------------------------- the door
@@ -533,7 +538,10 @@ def _measure(series: list, guesses: list, m: np.ndarray, o: MeasureOptions, step
             sink.add(i, *floor.state(c, done[-1], res, rec, alias, warnings))
             del c
             if o.order == "series" and i + 1 < n_states:
-                tracker.follow(res, done[-1].name, sink.reader(i))
+                # a small field is kept as measured (the bits the file holds); a large
+                # one is read back from the file when the next state needs it
+                small = res.u.nbytes <= _FOLLOW_IN_MEMORY
+                tracker.follow(res, done[-1].name, None if small else sink.reader(i))
             del res
         warnings.extend(tracker.finish())
         if method == "A":

@@ -14,6 +14,7 @@ from .._validation import (
     as_image,
     check_positive,
 )
+from ..phase._validity import filled_box
 from ._maps import _ATTENUATION
 
 __all__ = ["aliasing_bias", "smoothing_bias"]
@@ -372,13 +373,11 @@ def nearest_index(valid: np.ndarray) -> tuple:
     Where the valid pixels fill a rectangle (a frame's band of margin, no mask) the
     nearest one is the pixel clamped into it, its unique closest point: no distance
     transform is needed."""
-    rows = np.flatnonzero(valid.any(axis=1))
-    cols = np.flatnonzero(valid.any(axis=0))
-    if rows.size and (rows[-1] - rows[0] + 1) * (cols[-1] - cols[0] + 1) \
-            == np.count_nonzero(valid):
-        H, W = valid.shape
-        return (np.clip(np.arange(H), rows[0], rows[-1])[:, None],
-                np.clip(np.arange(W), cols[0], cols[-1])[None, :])
+    box = filled_box(valid)
+    if box is not None:
+        (H, W), (r0, r1, c0, c1) = valid.shape, box
+        return (np.clip(np.arange(H), r0, r1 - 1)[:, None],
+                np.clip(np.arange(W), c0, c1 - 1)[None, :])
     return tuple(ndimage.distance_transform_edt(~valid, return_distances=False,
                                                 return_indices=True))
 

@@ -256,8 +256,8 @@ def std_from_phase_variance(var_ref_phase: np.ndarray, deformed: PhaseMaps, *,
     np.sqrt(strain_std, out=strain_std)
     u_std = np.sqrt(var_u, out=var_u)
     nan = ~np.asarray(valid, dtype=bool)
-    u_std[:, nan] = np.nan
-    strain_std[:, nan] = np.nan
+    np.copyto(u_std, np.nan, where=nan)
+    np.copyto(strain_std, np.nan, where=nan)
     return u_std, strain_std
 
 
