@@ -224,8 +224,8 @@ def order_from_content(ref_gf: np.ndarray, cur_gf: np.ndarray, u: np.ndarray,
     e = energies(sel, tiles, whole.astype(float)).sum(axis=1)
     centre = whole[int(np.argmin(e))]
     at_edge = bool(np.any(np.abs(centre - np.asarray(around)) >= reach))
-    sel, tiles = compared(centre, _REFINE)
-    if sel.sum() < 16 * _TILES**2:
+    sel, tiles = compared(centre, _REFINE, 2)
+    if sel.sum() < 4 * _TILES**2:
         return none
     b = np.arange(-2 * _REFINE, 2 * _REFINE + 1) / 2
     half = np.stack(np.meshgrid(b, b, indexing="ij"), -1).reshape(-1, 2) + centre
