@@ -318,11 +318,17 @@ def follow_lattice(image, lattice: Lattice, *, mask=None,
     for j, k in enumerate((lattice.k1, lattice.k2)):
         kv = np.array(k)
         radius = max_change * float(np.hypot(*kv))
-        near = (np.hypot(fx - kv[0], fy - kv[1]) <= radius) & (fr < 0.5)
+        # the disc's rows and columns only (a margin for rounding): the same bins
+        rows = np.flatnonzero(np.abs(fy[:, 0] - kv[1]) <= 1.001 * radius)
+        cols = np.flatnonzero(np.abs(fx[0] - kv[0]) <= 1.001 * radius)
+        sub = np.ix_(rows, cols)
+        near = (np.hypot(fx[0, cols][None, :] - kv[0], fy[rows, 0][:, None] - kv[1])
+                <= radius) & (fr[sub] < 0.5)
         if not near.any():
             raise ValueError(f"image of shape {img.shape} is too small to follow the lattice")
-        score = np.where(near, spec, -1.0)
-        iy, ix = np.unravel_index(int(np.argmax(score)), score.shape)
+        score = np.where(near, spec[sub], -1.0)
+        i, j = np.unravel_index(int(np.argmax(score)), score.shape)
+        iy, ix = int(rows[i]), int(cols[j])
         prom = _prominence(spec, fr, iy, ix, min(h, w))
         if prom < _MIN_PROMINENCE:
             raise ValueError(
@@ -446,8 +452,14 @@ def _prominence(spec: np.ndarray, fr: np.ndarray, iy: int, ix: int, n: int) -> f
     most a few peaks, so its median is the background a periodic pattern must stand
     out of: isotropic content (noise, a natural scene, a speckle) does not.
     """
-    sel = np.abs(fr - fr[iy, ix]) <= 1.5 / n
-    bg = float(np.median(spec[sel]))
+    r, tol = fr[iy, ix], 1.5 / n
+    # only the rows and columns the annulus crosses (column 0 holds |fy|, row 0 |fx|;
+    # the margin covers the rounding of r + tol): the same bins, a ninth of the map
+    rows = np.flatnonzero(fr[:, 0] <= r + 2 * tol)
+    cols = np.flatnonzero(fr[0, :] <= r + 2 * tol)
+    sub = np.ix_(rows, cols)
+    sel = np.abs(fr[sub] - r) <= tol
+    bg = float(np.median(spec[sub][sel]))
     return float(spec[iy, ix]) / bg if bg > 0 else np.inf
 
 
