@@ -435,6 +435,8 @@ def _two_families(data, spec, fx, fy, fr, allowed, x, y):
         if not found:
             first_peak = float(spec[iy, ix])
         found.append(_refine(data, k0, x, y, h, w))
+        if which == "second":
+            break  # nothing is searched after it
         # exclude everything parallel to the peak just found (its harmonics)
         ang = np.degrees(np.arctan2(fy, fx))
         a0 = math.degrees(math.atan2(k0[1], k0[0]))
