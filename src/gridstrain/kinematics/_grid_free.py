@@ -78,6 +78,8 @@ class ContentOrder:
 
     Attributes
     ----------
+    confident : bool
+    reason : str
     offset : (2,) tuple of int
         The whole periods ``(m, n)`` added to the phases' field: ``t = m a1 + n a2``.
     shift : (2,) tuple of float
@@ -88,17 +90,15 @@ class ContentOrder:
         best's (1 when nothing decides).
     tiles_agreeing, tiles_informative : int
         Informative tiles (see the module's notes) and those that pick ``offset``.
-    confident : bool
-    reason : str
     """
 
+    confident: bool
+    reason: str
     offset: tuple[int, int]
     shift: tuple[float, float]
     residual_ratio: float
-    tiles_agreeing: int
-    tiles_informative: int
-    confident: bool
-    reason: str
+    tiles_agreeing: int = 0
+    tiles_informative: int = 0
 
 
 def grid_free(image: np.ndarray, lattice: Lattice, q: int) -> np.ndarray:
@@ -235,8 +235,8 @@ def order_from_content(ref_gf: np.ndarray, cur_gf: np.ndarray, u: np.ndarray,
             out[i0:i0 + per] = tiles.residuals(d)
         return out
 
-    none = ContentOrder(tuple(int(v) for v in around), (math.nan, math.nan), 1.0, 0, 0,
-                        False, "too few samples of the images' content to compare")
+    none = ContentOrder(False, "too few samples of the images' content to compare",
+                        tuple(int(v) for v in around), (math.nan, math.nan), 1.0)
     # whole periods first, around the given centre, as far as the images allow (half
     # the samples kept at least); then half periods near the best
     n_ok = int(ok.sum())
@@ -296,10 +296,10 @@ def order_from_content(ref_gf: np.ndarray, cur_gf: np.ndarray, u: np.ndarray,
     elif edge[j] or at_edge:
         why = "the best offset lies at the edge of the search"
     else:
-        return ContentOrder(offset, shift, ratio, agree, len(informative), True,
-                            f"the content below the grid's frequency: {counts}, ratio "
-                            f"of residuals {ratio:.2f}")
-    return ContentOrder(offset, shift, ratio, agree, len(informative), False, why)
+        return ContentOrder(True, f"the content below the grid's frequency: {counts}, "
+                            f"ratio of residuals {ratio:.2f}", offset, shift, ratio, agree,
+                            len(informative))
+    return ContentOrder(False, why, offset, shift, ratio, agree, len(informative))
 
 
 class _Tiles:
