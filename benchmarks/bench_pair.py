@@ -28,11 +28,13 @@ itself) and the threads a user gets (``--tuned-only`` leaves it out).
   displacement (``min_iter=6``). Its automatic pairing follows the brightest
   blurred point; on this pair it chose one near the border and paired it a period
   away (279 px RMS error), so it is given the point to follow (the centre of the
-  brighter defect) and where that point went (from the imposed field); so is
-  gridstrain (``--guess``, the displacement there), whose automatic fringe order
-  finds no printed feature at the scale of the pitch on this pair (the defect is a
-  broad reflectance blob) and says so: "fringe order not confirmed", the smallest
-  displacement taken, whole periods off (``--auto`` shows it);
+  brighter defect) and where that point went (from the imposed field). In the
+  *tuned* case gridstrain is told the same (``--guess``, the displacement there), so
+  that both do the same work; it does not need it: in the *defaults* case its
+  fringe order comes from the images, confirmed by the content below the grid's
+  frequency (the defects are reflectance blobs broader than the pitch, which the
+  correlation at the pitch cannot see), and the answer is the same (``--auto`` drops
+  the guess from the tuned case too);
 * ``start-up``: ``gridstrain --help`` against ``python -c "import numpy"``.
 
 Each run's displacement is compared with the imposed field (RMS over the pixels
@@ -160,8 +162,8 @@ def main(argv=None):
                     help="also run gridstrain from this source folder (another checkout's "
                          "src/), interleaved with this one")
     ap.add_argument("--auto", action="store_true",
-                    help="let gridstrain fix the fringe order by itself (on this pair it "
-                         "flags it unconfirmed: the defect is broader than the pitch)")
+                    help="let gridstrain fix the fringe order by itself in the tuned case "
+                         "too (from the defects' content below the grid's frequency)")
     ap.add_argument("--openlsa-python", metavar="PYTHON",
                     help="the interpreter of a virtual environment holding OpenLSA (it pins "
                          "numpy < 2: keep it out of gridstrain's environment, e.g. "

@@ -212,6 +212,43 @@ def test_median_of_large_maps_is_numpy_median(n):
     assert np.isnan(_median(values))
 
 
+@pytest.mark.parametrize("case", ["random", "sorted", "ties", "constant", "nan", "float32",
+                                  "strided", "view"])
+@pytest.mark.parametrize("n", [2**17, 2**17 + 1])
+def test_bracketed_median_of_large_arrays_is_numpy_median(case, n):
+    """From 2^16 values on, the middle is bracketed from a sample; the result must be
+    numpy's exactly, also when the sample misrepresents the array (a layout whose
+    every sampled value is the largest: the whole array is then sorted)."""
+    rng = np.random.default_rng(n)
+    values = rng.normal(size=n)
+    if case == "sorted":
+        values.sort()
+    elif case == "ties":
+        values = rng.integers(0, 7, n).astype(float)
+    elif case == "constant":
+        values = np.full(n, 3.25)
+    elif case == "nan":
+        values[rng.integers(n)] = np.nan
+    elif case == "float32":
+        values = values.astype(np.float32)
+    elif case == "strided":
+        values[::max(1, n // 2**14)] = 1e9  # the sample sees only these
+    elif case == "view":
+        values = rng.normal(size=(n // 64 + 3, 70))[1:n // 64 + 1, 3:67]
+    before = values.copy()
+    want = np.median(values)
+    got = _median(values)
+    if case == "nan":
+        assert np.isnan(got)
+        assert np.isnan(want)
+    else:
+        assert got == float(want)
+    np.testing.assert_array_equal(values, before)  # not modified
+    work = np.ascontiguousarray(values).copy()
+    got = _median(work, overwrite_input=True)
+    assert got == float(want) or (np.isnan(got) and np.isnan(want))
+
+
 def test_median_of_nothing_is_nan():
     assert np.isnan(_median(np.array([])))
 

@@ -99,6 +99,34 @@ def test_wood_grain_along_a_lattice_period_fixes_the_order(grain_angle):
     assert rms < 0.05
 
 
+@pytest.mark.parametrize("case", ["strain 5 %", "turned 5 degrees"])
+def test_content_fixes_the_order_under_large_strain_and_rotation(case):
+    """Under a homogeneous strain of 5 % or a rotation of 5 degrees the phases' field
+    at the camera's point differs from that at the material point by up to a pixel
+    (the gradient times the 11-px displacement): the comparison reads it at the
+    material point, or a grain 3 px wide would not match at any whole period."""
+    t = math.radians(5.0)
+
+    def U(X, Y):
+        x, y = X - CENTRE[0], Y - CENTRE[1]
+        if case == "strain 5 %":
+            return SHIFT[0] + 0.05 * x, SHIFT[1] + 0 * y
+        return (SHIFT[0] + (math.cos(t) - 1) * x - math.sin(t) * y,
+                SHIFT[1] + math.sin(t) * x + (math.cos(t) - 1) * y)
+
+    kw = {"pitch": PITCH, "angle": 12.0, "hole": False, "reflectance": grain(1)}
+    rng = np.random.default_rng(0)
+    ref = camera(scene(SHAPE, **kw)[0], 1.0, 4.0, rng) / 16.0
+    cur = camera(scene(SHAPE, displacement=U, **kw)[0], 1.0, 4.0, rng) / 16.0
+    res = measure_series(ref, cur)
+    order = res.fringe_orders[0]
+    assert order.confirmed
+    assert order.source == "image features"
+    worst, rms = _errors(res.u[0], res.valid[0], U)
+    assert worst < 0.5  # px: a period is 5 px
+    assert rms < 0.05
+
+
 @pytest.mark.parametrize(("kind", "texture"), [("featureless", 0.0),
                                                ("texture fixed to the camera", 0.15)])
 def test_nothing_that_moves_with_the_specimen_leaves_the_order_unconfirmed(kind, texture):

@@ -6,6 +6,7 @@ Signs, axes and the Lagrangian description are those of
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import math
 from dataclasses import dataclass, field
@@ -35,6 +36,7 @@ from ._fringe_order import (
     _from_estimate,
     coarse_displacement,  # noqa: F401  (named by the docstrings)
     solve_k,
+    strain_if_off,
 )
 
 __all__ = ["Measurement", "deformation", "measure"]
@@ -751,5 +753,10 @@ def measure(reference, deformed, *, lattice: Lattice | None = None,
     pm_cur = wft(cur, carrier, sigma=pm_ref.sigma, margin=margin, workers=None)
     if carrier is not lattice:
         pm_cur = demodulated_at(pm_cur, lattice)
-    return deformation(pm_ref, pm_cur, lagrangian=lagrangian, guess=guess,
-                       _images=(ref, cur, m))
+    res = deformation(pm_ref, pm_cur, lagrangian=lagrangian, guess=guess,
+                      _images=(ref, cur, m))
+    if res.fringe_order is not None and not res.fringe_order.confirmed:
+        # how far its strain may be off too (FringeOrder.strain_if_off)
+        res = dataclasses.replace(res, fringe_order=dataclasses.replace(
+            res.fringe_order, strain_if_off=strain_if_off(res)))
+    return res

@@ -29,6 +29,7 @@ from ._grid_free import (
     ContentOrder,
     decimation,
     field_from_phases,
+    gradient,
     grid_free,
     order_from_content,
     smooth_decimate,
@@ -320,12 +321,12 @@ class _CoarseReference:
         return self._gf
 
     def content(self, deformed: np.ndarray, u: np.ndarray, ok: np.ndarray,
-                around=(0, 0)) -> ContentOrder:
+                gradient=None) -> ContentOrder:
         """:func:`order_from_content` of ``deformed`` with the field ``u`` (2, h, w)
         and ``ok`` at the reference's grid-free samples."""
         ref, q = self.grid_free()
         return order_from_content(ref, grid_free(deformed, self.lattice, q), u, ok,
-                                  self.lattice, q, around=around)
+                                  self.lattice, q, gradient=gradient)
 
     def decide(self, deformed: np.ndarray, reference: PhaseMaps,
                current: PhaseMaps) -> CoarseEstimate:
@@ -345,7 +346,8 @@ class _CoarseReference:
         est = self.estimate(deformed, -solve_k(self.lattice.K, np.angle(mean)) / (2 * np.pi))
         if est.confident:
             return est
-        c = self.content(deformed, field_from_phases(z, ok, self.lattice), ok)
+        u = field_from_phases(z, ok, self.lattice)
+        c = self.content(deformed, u, ok, gradient=gradient(u, q))
         tiles = (c.tiles_agreeing, c.tiles_informative)
         if c.confident:
             return dataclasses.replace(

@@ -26,7 +26,9 @@ period. The decision (:func:`order_from_content`) is confident only when
   is a whole-period one (content fixed to the camera, or moving otherwise than the
   grid, puts it between two) and every other whole-period offset leaves at least
   ``_MIN_RESIDUAL_RATIO`` times its residual;
-- every informative tile picks the same offset, and so does the sum over the tiles;
+- every informative tile picks the same offset, and so does the sum over the tiles,
+  where the second-best whole-period offset leaves at least ``_MIN_TOTAL_RATIO``
+  times the best's residual;
 - that offset is not at the edge of the search.
 
 A competitor at a lattice offset that the grid explains (its periodic residue) adds
@@ -52,6 +54,12 @@ from ..phase import Lattice
 # stays below 1.2.
 _MIN_RESIDUAL_RATIO = 1.5
 
+# ... and holds this many compared samples (a tile of fewer, on a small image, reached
+# the ratio by chance on a bare grid); the sum over all tiles must reach this ratio
+# too (1.11 at most on bare grids, 1.6 to 11 with stains or a grain).
+_MIN_TILE_SAMPLES = 64
+_MIN_TOTAL_RATIO = 1.25
+
 # Tiles per side.
 _TILES = 3
 
@@ -70,6 +78,8 @@ class ContentOrder:
 
     Attributes
     ----------
+    confident : bool
+    reason : str
     offset : (2,) tuple of int
         The whole periods ``(m, n)`` added to the phases' field: ``t = m a1 + n a2``.
     shift : (2,) tuple of float
@@ -80,17 +90,15 @@ class ContentOrder:
         best's (1 when nothing decides).
     tiles_agreeing, tiles_informative : int
         Informative tiles (see the module's notes) and those that pick ``offset``.
-    confident : bool
-    reason : str
     """
 
+    confident: bool
+    reason: str
     offset: tuple[int, int]
     shift: tuple[float, float]
     residual_ratio: float
-    tiles_agreeing: int
-    tiles_informative: int
-    confident: bool
-    reason: str
+    tiles_agreeing: int = 0
+    tiles_informative: int = 0
 
 
 def grid_free(image: np.ndarray, lattice: Lattice, q: int) -> np.ndarray:
@@ -123,19 +131,24 @@ def decimation(lattice: Lattice) -> int:
 def field_from_phases(z: np.ndarray, ok: np.ndarray, lattice: Lattice) -> np.ndarray:
     """The displacement (2, h, w) px at the samples, from ``z = psi_def conj(psi_ref)``
     (2, h, w) sampled there: the wrapped phase difference unwrapped over ``ok``, eq.
-    (34) (at ``x``: the difference from ``X`` is the gradient times ``u``, 0.03 px
-    at 11 px and 3e-3, far below the half period the test resolves); its fringe order
-    is the one closest to zero at the median. NaN outside ``ok``."""
+    (34) at the camera's point ``x`` (see :func:`order_from_content`'s ``gradient``);
+    its fringe order is the one closest to zero at the median. NaN outside ``ok``."""
     from skimage.restoration import unwrap_phase
 
     dphase = np.stack([unwrap_phase(np.ma.masked_array(np.angle(z[j]), ~ok)).filled(0.0)
                        for j in range(2)])
     K = lattice.K
-    u = -np.tensordot(np.linalg.inv(K), dphase, axes=1) / (2 * np.pi)
-    n = np.rint(K @ np.median(u[:, ok], axis=1))
-    u -= np.linalg.solve(K, n)[:, None, None]
-    u[:, ~ok] = np.nan
-    return u
+    u0 = -np.tensordot(np.linalg.inv(K), dphase, axes=1) / (2 * np.pi)
+    n = np.rint(K @ np.median(u0[:, ok], axis=1))
+    u0 -= np.linalg.solve(K, n)[:, None, None]
+    u0[:, ~ok] = np.nan
+    return u0
+
+
+def gradient(u: np.ndarray, q: int) -> np.ndarray:
+    """(2, 2, h, w) ``du_i/dx_j`` of a field (2, h, w) sampled every ``q`` px (central
+    differences; NaN next to a NaN)."""
+    return np.stack([np.stack(np.gradient(c, q)[::-1]) for c in u])
 
 
 def largest_region(ok: np.ndarray) -> np.ndarray:
@@ -150,7 +163,7 @@ def largest_region(ok: np.ndarray) -> np.ndarray:
 
 def order_from_content(ref_gf: np.ndarray, cur_gf: np.ndarray, u: np.ndarray,
                        ok: np.ndarray, lattice: Lattice, q: int, *,
-                       around=(0, 0)) -> ContentOrder:
+                       around=(0, 0), gradient=None) -> ContentOrder:
     """Choose the whole periods to add to the field ``u`` from the grid-free images.
 
     Parameters
@@ -167,6 +180,11 @@ def order_from_content(ref_gf: np.ndarray, cur_gf: np.ndarray, u: np.ndarray,
         The samples' spacing, px.
     around : (2,) int
         The whole periods the search is centred on.
+    gradient : (2, 2, h, w) ndarray, optional
+        ``du_i/dx_j`` when ``u`` is the displacement at the camera's point ``x``
+        rather than at the material point ``X`` (the phases' field): the point ``X``
+        is then seen at ``x = X + t + u(x)``, to first order ``X + (I + G)(u(X) +
+        t)`` (at 10 % strain and 11 px, 0.1 px from the exact point).
 
     Returns
     -------
@@ -176,8 +194,14 @@ def order_from_content(ref_gf: np.ndarray, cur_gf: np.ndarray, u: np.ndarray,
     P = lattice.periods
     period = float(np.max(np.hypot(*P))) / q  # samples
     yy, xx = np.mgrid[0:h, 0:w].astype(np.float64)
-    ok = largest_region(ok & np.all(np.isfinite(u), axis=0))
-    cx, cy = (xx + u[0] / q), (yy + u[1] / q)
+    if gradient is None:
+        gradient = np.zeros((2, 2, 1, 1))
+    ok = largest_region(ok & np.all(np.isfinite(u), axis=0)
+                        & np.all(np.isfinite(gradient), axis=(0, 1)))
+    M = np.eye(2)[:, :, None, None] + gradient  # (I + G) at each sample
+    ux = M[0, 0] * u[0] + M[0, 1] * u[1]
+    uy = M[1, 0] * u[0] + M[1, 1] * u[1]
+    cx, cy = (xx + ux / q), (yy + uy / q)
     H2, W2 = cur_gf.shape
 
     def compared(centre, periods, step=1):
@@ -195,28 +219,35 @@ def order_from_content(ref_gf: np.ndarray, cur_gf: np.ndarray, u: np.ndarray,
     def energies(sel, tiles, offsets):  # (n, 2) in periods -> (n, tiles)
         base = np.stack([cy[sel], cx[sel]])[:, tiles.order]
         ref = ref_gf[sel][tiles.order]
-        shifts = (offsets @ P.T / q)[:, ::-1]  # (n, 2) as (rows, columns)
+        # (I + G) at the samples, rows as (y, x) and columns as (x, y)
+        m = np.broadcast_to(M, (2, 2, h, w))
+        Ms = np.stack([[m[1, 0][sel], m[1, 1][sel]],
+                       [m[0, 0][sel], m[0, 1][sel]]])[:, :, tiles.order]
+        shifts = offsets @ P.T / q  # (n, 2) as (x, y), samples
         out = np.empty((len(offsets), tiles.n))
         per = max(1, _CHUNK // base.shape[1])
         for i0 in range(0, len(offsets), per):
             t = shifts[i0:i0 + per]
-            coords = base[:, None, :] + t.T[:, :, None]
+            coords = base[:, None, :] + np.einsum("abs,nb->ans", Ms, t)
             d = ndimage.map_coordinates(cur_gf, coords.reshape(2, -1), order=1,
                                         mode="nearest").reshape(len(t), -1)
             d -= ref
             out[i0:i0 + per] = tiles.residuals(d)
         return out
 
-    none = ContentOrder(tuple(int(v) for v in around), (math.nan, math.nan), 1.0, 0, 0,
-                        False, "too few samples of the images' content to compare")
+    none = ContentOrder(False, "too few samples of the images' content to compare",
+                        tuple(int(v) for v in around), (math.nan, math.nan), 1.0)
     # whole periods first, around the given centre, as far as the images allow (half
     # the samples kept at least); then half periods near the best
     n_ok = int(ok.sum())
+    # every second sample along each axis where the tiles stay large (the one-pitch
+    # low-pass leaves neighbours correlated at 0.78, those two apart at 0.37)
+    step = 2 if n_ok >= 4 * _TILES**2 * 4 * _MIN_TILE_SAMPLES else 1
     for reach in range(_SEARCH, _REFINE - 1, -1):
-        sel = compared(around, reach, 2)[0]
-        if 4 * sel.sum() >= n_ok / 2:
+        sel = compared(around, reach, step)[0]
+        if step**2 * sel.sum() >= n_ok / 2:
             break
-    sel, tiles = compared(around, reach, 2)
+    sel, tiles = compared(around, reach, step)
     if sel.sum() < 4 * _TILES**2:
         return none
     a = np.arange(-reach, reach + 1)
@@ -224,8 +255,8 @@ def order_from_content(ref_gf: np.ndarray, cur_gf: np.ndarray, u: np.ndarray,
     e = energies(sel, tiles, whole.astype(float)).sum(axis=1)
     centre = whole[int(np.argmin(e))]
     at_edge = bool(np.any(np.abs(centre - np.asarray(around)) >= reach))
-    sel, tiles = compared(centre, _REFINE)
-    if sel.sum() < 16 * _TILES**2:
+    sel, tiles = compared(centre, _REFINE, step)
+    if sel.sum() < 4 * _TILES**2:
         return none
     b = np.arange(-2 * _REFINE, 2 * _REFINE + 1) / 2
     half = np.stack(np.meshgrid(b, b, indexing="ij"), -1).reshape(-1, 2) + centre
@@ -242,7 +273,8 @@ def order_from_content(ref_gf: np.ndarray, cur_gf: np.ndarray, u: np.ndarray,
         return j, ratio, bool(integer[j])
 
     j, ratio, whole_best = verdict(E.sum(axis=1))
-    votes = [verdict(E[:, k]) for k in range(tiles.n)]
+    votes = [verdict(E[:, k]) for k in range(tiles.n)
+             if tiles.size(k) >= _MIN_TILE_SAMPLES]
     informative = [v for v in votes if v[1] >= _MIN_RESIDUAL_RATIO]
     agree = sum(v[0] == j and v[2] for v in informative)
     offset = tuple(int(v) for v in np.rint(half[j]))
@@ -258,13 +290,16 @@ def order_from_content(ref_gf: np.ndarray, cur_gf: np.ndarray, u: np.ndarray,
                "allow: it is fixed to the camera or does not move with the grid")
     elif agree < len(informative):
         why = f"the tiles disagree ({counts})"
+    elif ratio < _MIN_TOTAL_RATIO:
+        why = (f"over all tiles the ratio of residuals is {ratio:.2f} < "
+               f"{_MIN_TOTAL_RATIO} ({counts})")
     elif edge[j] or at_edge:
         why = "the best offset lies at the edge of the search"
     else:
-        return ContentOrder(offset, shift, ratio, agree, len(informative), True,
-                            f"the content below the grid's frequency: {counts}, ratio "
-                            f"of residuals {ratio:.2f}")
-    return ContentOrder(offset, shift, ratio, agree, len(informative), False, why)
+        return ContentOrder(True, f"the content below the grid's frequency: {counts}, "
+                            f"ratio of residuals {ratio:.2f}", offset, shift, ratio, agree,
+                            len(informative))
+    return ContentOrder(False, why, offset, shift, ratio, agree, len(informative))
 
 
 class _Tiles:
@@ -302,6 +337,11 @@ class _Tiles:
             self.spans[i] = (at, at + b - a)
             at += b - a
         self.n = len(self.spans)
+
+    def size(self, k: int) -> int:
+        """Samples in tile ``k``."""
+        a, b = self.spans[k]
+        return b - a
 
     def residuals(self, d: np.ndarray) -> np.ndarray:
         """Per row of ``d`` (n, samples in ``order``) and tile, the sum of squares

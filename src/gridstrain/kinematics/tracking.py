@@ -256,8 +256,13 @@ def check_after_warp(res: Measurement, rec: FringeOrder, coarse: _CoarseReferenc
     followed from the previous one keeps that order (its record says why). The
     field is extended to the invalid pixels by their nearest valid neighbour's, so
     that a hole's edge, the strongest feature, is warped with the specimen around
-    it. ``coarse``: the reference's side of :func:`coarse_displacement` (its mean
-    image and mask), the one the states' image features use."""
+    it. The content below the grid's frequency is compared first, at whole-period
+    offsets of the measured field (:meth:`_CoarseReference.content`, on samples a
+    pitch apart: no full-size warp); the correlation at the pitch of the warped
+    image only when it cannot decide. A state whose order that comparison fixed
+    before it was measured is not compared again. ``coarse``: the reference's side
+    of :func:`coarse_displacement` (its mean image and mask), the one the states'
+    image features use."""
     v = res.valid
     if rec.source == "previous state" or not v.any() or res.reference is None:
         return res, rec, []

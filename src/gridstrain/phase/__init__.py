@@ -11,6 +11,7 @@ transform (paper eqs. 22-25).
 from __future__ import annotations
 
 from ._maps import PhaseMaps, demodulated_at, finite_derivatives
+from ._maps import demodulated_in_place as demodulated_in_place
 from ._spectrum import transfer_function
 from ._transform import DEFAULT_MARGIN, transform, wft, wft_complex
 from .lattice import Lattice, detect_lattice, follow_lattice

@@ -80,11 +80,16 @@ def demodulated_at(pm: PhaseMaps, lattice: Lattice) -> PhaseMaps:
     (:func:`gridstrain.lattice.follow_lattice`) and bringing the maps to the
     reference's lattice with this function avoids that bias.
     """
+    # new maps (the given ones are read-only), written by the first operation
+    return _carrier_moved(pm, np.empty_like(pm.psi), np.empty_like(pm.dphi), lattice)
+
+
+def _carrier_moved(pm: PhaseMaps, psi: np.ndarray, dphi: np.ndarray,
+                   lattice: Lattice) -> PhaseMaps:
+    """:func:`demodulated_at` of ``pm`` written into ``psi`` and ``dphi`` (writable
+    arrays of ``pm``'s shapes: new ones, or ``pm``'s own maps)."""
     dk = np.array(pm.lattice.K) - np.array(lattice.K)  # (2 wave vectors, (x, y))
     H, W = pm.shape
-    # new maps (the given ones are read-only), written by the first operation
-    psi = np.empty_like(pm.psi)
-    dphi = np.empty_like(pm.dphi)
     ctype = psi.dtype
     x = np.arange(W, dtype=np.float64)
     y = np.arange(H, dtype=np.float64)
@@ -96,6 +101,21 @@ def demodulated_at(pm: PhaseMaps, lattice: Lattice) -> PhaseMaps:
         np.add(pm.dphi[j, 1], 2 * np.pi * dk[j, 1], out=dphi[j, 1])
     return PhaseMaps(psi=psi, dphi=dphi, valid=np.array(pm.valid), lattice=lattice,
                      sigma=pm.sigma)
+
+
+def demodulated_in_place(pm: PhaseMaps, lattice: Lattice) -> PhaseMaps:
+    """:func:`demodulated_at`, written over ``pm``'s own maps where they own their
+    memory (copied otherwise), for the caller that made ``pm`` and drops it: a state
+    transformed at its own carrier does not hold two sets of maps, and touches no
+    fresh memory (90 MB at 1040 x 1376). ``pm`` must not be used afterwards."""
+    own = []
+    for a in (pm.psi, pm.dphi):
+        if a.base is None:
+            a.flags.writeable = True
+            own.append(a)
+        else:
+            own.append(np.array(a))
+    return _carrier_moved(pm, *own, lattice)
 
 
 def finite_derivatives(pm: PhaseMaps) -> PhaseMaps:

@@ -315,12 +315,15 @@ def follow_lattice(image, lattice: Lattice, *, mask=None,
     x = np.arange(w, dtype=float)
     y = np.arange(h, dtype=float)
     out = []
-    for j, (k, near) in enumerate(zip((lattice.k1, lattice.k2), nears, strict=True)):
+    for j, (k, (rows, cols, near)) in enumerate(zip((lattice.k1, lattice.k2), nears,
+                                                    strict=True)):
         kv = np.array(k)
+        sub = np.ix_(rows, cols)
         if not near.any():
             raise ValueError(f"image of shape {img.shape} is too small to follow the lattice")
-        score = np.where(near, spec, -1.0)
-        iy, ix = np.unravel_index(int(np.argmax(score)), score.shape)
+        score = np.where(near, spec[sub], -1.0)
+        r, c = np.unravel_index(int(np.argmax(score)), score.shape)
+        iy, ix = int(rows[r]), int(cols[c])
         prom = _prominence(spec, fr, iy, ix, min(h, w))
         if prom < _MIN_PROMINENCE:
             raise ValueError(
@@ -333,17 +336,22 @@ def follow_lattice(image, lattice: Lattice, *, mask=None,
 
 @functools.lru_cache(maxsize=4)
 def _follow_bins(h: int, w: int, k1: tuple, k2: tuple, max_change: float):
-    """The frequency grids of an ``h x w`` spectrum and, per wave vector, its bins
-    below Nyquist within ``max_change |k|`` of it: the same for every state of a
-    record (read-only)."""
+    """The frequency grids of an ``h x w`` spectrum and, per wave vector, the rows and
+    columns of the disc of radius ``max_change |k|`` around it and the disc's bins
+    below Nyquist among them: the same for every state of a record (read-only)."""
     fy = sfft.fftfreq(h)[:, None]
     fx = sfft.fftfreq(w)[None, :]
     fr = np.hypot(fx, fy)
     nears = []
     for k in (k1, k2):
         radius = max_change * float(np.hypot(*k))
-        nears.append((np.hypot(fx - k[0], fy - k[1]) <= radius) & (fr < 0.5))
-    for a in (fx, fy, fr, *nears):
+        # the disc's rows and columns only (a margin for rounding), and its bins there
+        rows = np.flatnonzero(np.abs(fy[:, 0] - k[1]) <= 1.001 * radius)
+        cols = np.flatnonzero(np.abs(fx[0] - k[0]) <= 1.001 * radius)
+        near = (np.hypot(fx[0, cols][None, :] - k[0], fy[rows, 0][:, None] - k[1])
+                <= radius) & (fr[np.ix_(rows, cols)] < 0.5)
+        nears.append((rows, cols, near))
+    for a in (fx, fy, fr, *(a for n in nears for a in n)):
         a.flags.writeable = False
     return fx, fy, fr, tuple(nears)
 
@@ -444,6 +452,8 @@ def _two_families(data, spec, fx, fy, fr, allowed, x, y):
         if not found:
             first_peak = float(spec[iy, ix])
         found.append(_refine(data, k0, x, y, h, w))
+        if which == "second":
+            break  # nothing is searched after it
         # exclude everything parallel to the peak just found (its harmonics)
         ang = np.degrees(np.arctan2(fy, fx))
         a0 = math.degrees(math.atan2(k0[1], k0[0]))
@@ -461,8 +471,14 @@ def _prominence(spec: np.ndarray, fr: np.ndarray, iy: int, ix: int, n: int) -> f
     most a few peaks, so its median is the background a periodic pattern must stand
     out of: isotropic content (noise, a natural scene, a speckle) does not.
     """
-    sel = np.abs(fr - fr[iy, ix]) <= 1.5 / n
-    bg = float(np.median(spec[sel]))
+    r, tol = fr[iy, ix], 1.5 / n
+    # only the rows and columns the annulus crosses (column 0 holds |fy|, row 0 |fx|;
+    # the margin covers the rounding of r + tol): the same bins, a ninth of the map
+    rows = np.flatnonzero(fr[:, 0] <= r + 2 * tol)
+    cols = np.flatnonzero(fr[0, :] <= r + 2 * tol)
+    sub = np.ix_(rows, cols)
+    sel = np.abs(fr[sub] - r) <= tol
+    bg = float(np.median(spec[sub][sel]))
     return float(spec[iy, ix]) / bg if bg > 0 else np.inf
 
 

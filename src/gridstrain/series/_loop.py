@@ -30,7 +30,7 @@ from .._validation import (
 from ..discontinuities import check_parts, find_discontinuities, without_discontinuities
 from ..kinematics import Measurement
 from ..kinematics.tracking import _Tracker, check_after_warp
-from ..phase import Lattice, Window, demodulated_at
+from ..phase import Lattice, Window, demodulated_in_place
 from ..phase.lattice import reference_carrier
 from ..results import SeriesResult
 from ..sequences import StateInputs, state_inputs
@@ -464,7 +464,7 @@ def _measure(series: list, guesses: list, m: np.ndarray, o: MeasureOptions, step
             out = _one_series(s, acc, m if k == 0 else None, window, o.max_saturation,
                               o.outliers, method, f32, steps)
             if plans[k].lattice != lattice:  # a state at its own carrier (_carrier)
-                out = dataclasses.replace(out, maps=demodulated_at(out.maps, lattice))
+                out = dataclasses.replace(out, maps=demodulated_in_place(out.maps, lattice))
             warnings.extend(out.warnings)
             return out, acc
 
