@@ -17,6 +17,7 @@ from numpy.testing import assert_allclose, assert_array_equal
 from gridstrain.io import (
     FrameSeries,
     atomic_path,
+    close_readers,
     natural_sort_key,
     open_series,
     read_hdf5,
@@ -92,6 +93,36 @@ def test_multipage_stack_read_page_by_page(tmp_path):
     got = list(s.frames(start=1, stop=3, dtype=None))
     assert len(got) == 2
     assert_array_equal(got[1], stack[2])
+
+
+def test_a_records_pages_are_read_from_one_open_file(tmp_path, monkeypatch):
+    # a record's states read one page each: the file is opened once, not once a page
+    # (each opening walks the chain of pages from the first)
+    from gridstrain.io import _readers
+
+    pages = np.arange(12 * 16 * 20, dtype=np.uint16).reshape(12, 16, 20)
+    tifffile.imwrite(tmp_path / "rec.tif", pages, photometric="minisblack")
+    s = open_series(tmp_path / "rec.tif")
+    opened = []
+    real = _readers.tifffile.TiffFile
+
+    def counting(*args, **kwargs):
+        opened.append(args[0])
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(_readers.tifffile, "TiffFile", counting)
+    close_readers()
+    for k in range(12):
+        assert_array_equal(s.read(k, dtype=None), pages[k])
+    assert len(opened) == 1
+    # a file written again is read again, not from the open one
+    tifffile.imwrite(tmp_path / "rec.tif", pages[::-1], photometric="minisblack")
+    st = os.stat(tmp_path / "rec.tif")  # a later time, whatever the clock's resolution
+    os.utime(tmp_path / "rec.tif", ns=(st.st_atime_ns, st.st_mtime_ns + 10**9))
+    assert_array_equal(s.read(0, dtype=None), pages[-1])
+    assert len(opened) == 2
+    close_readers()
+    assert _readers._TIFF_CURSOR.tif is None
 
 
 def test_directory_natural_order_ignores_other_files(tmp_path):

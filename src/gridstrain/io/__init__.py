@@ -83,7 +83,7 @@ from ._files import (
 )
 from ._hdf5_attrs import read_hdf5, read_noise_model
 from ._loads import LoadTable, read_loads
-from ._readers import IMAGE_EXTENSIONS, natural_sort_key, to_luminance
+from ._readers import IMAGE_EXTENSIONS, close_readers, natural_sort_key, to_luminance
 from ._series import (
     FrameSeries,
     check_saturation,
@@ -108,6 +108,7 @@ __all__ = [
     "check_fits",
     "check_saturation",
     "check_saturation_limit",
+    "close_readers",
     "hdf5_file",
     "hdf5_stream",
     "memory_budget",

@@ -11,6 +11,7 @@ import glob
 import logging
 import os
 import re
+import threading
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -174,8 +175,8 @@ def _check_tiff_log(log: _TiffLog, where: str, name: str) -> None:
                       "what remains of the file")
 
 
-@contextlib.contextmanager
-def _open_tiff(path: Path, name: str) -> Iterator[tifffile.TiffFile]:
+def _tiff_file(path: Path, name: str) -> tifffile.TiffFile:
+    """``path`` opened as a TIFF file, its header checked; errors name the series."""
     try:
         with _tiff_log() as log:
             tif = tifffile.TiffFile(path)
@@ -192,8 +193,50 @@ def _open_tiff(path: Path, name: str) -> Iterator[tifffile.TiffFile]:
         raise OSError(f"{name}: cannot read {path} as a TIFF file ({exc})") from exc
     except Exception as exc:
         raise OSError(f"{name}: cannot read {path} as a TIFF file ({exc})") from exc
-    with tif:
+    return tif
+
+
+@contextlib.contextmanager
+def _open_tiff(path: Path, name: str) -> Iterator[tifffile.TiffFile]:
+    with _tiff_file(path, name) as tif:
         yield tif
+
+
+class _TiffCursor(threading.local):
+    """The TIFF file read last by this thread, left open: a record's states read one
+    page each, in order, and reopening the file would walk its chain of pages from
+    the first every time (the cost of page ``n`` growing with ``n``). The file is
+    opened again when it is another one, or when its size or time changed."""
+
+    def __init__(self):
+        self.key = self.tif = None
+
+    def close(self) -> None:
+        if self.tif is not None:
+            self.tif.close()
+        self.key = self.tif = None
+
+    @contextlib.contextmanager
+    def open(self, path: Path, name: str) -> Iterator[tifffile.TiffFile]:
+        st = os.stat(path)
+        key = (os.path.abspath(path), st.st_size, st.st_mtime_ns, st.st_ino)
+        if key != self.key:
+            self.close()
+            self.tif = _tiff_file(path, name)
+            self.key = key
+        try:
+            yield self.tif
+        except Exception:
+            self.close()  # a damaged page: the next read starts afresh
+            raise
+
+
+_TIFF_CURSOR = _TiffCursor()
+
+
+def _reading_tiff(path: Path, name: str):
+    """A context giving ``path``'s open TIFF file, kept open for the next read."""
+    return _TIFF_CURSOR.open(path, name)
 
 
 def _codec_hint(page, exc: Exception) -> str | None:
@@ -269,6 +312,13 @@ class _VideoCursor:
 
 
 _CURSOR = _VideoCursor()
+
+
+def close_readers() -> None:
+    """Close the files left open for the next read (the calling thread's TIFF file,
+    the video decoder): at the end of a run, so that no file stays held."""
+    _TIFF_CURSOR.close()
+    _CURSOR.close()
 
 
 def _read_video(path: Path, pages: list[int], name: str) -> Iterator[np.ndarray]:

@@ -35,6 +35,7 @@ from ._readers import (
     _read_other,
     _read_tiff_page,
     _read_video,
+    _reading_tiff,
     _resolve_source,
     _scan_file,
     to_luminance,
@@ -221,7 +222,7 @@ class FrameSeries:
                         where = f"frame {j} ({_describe(path, page, n_pages)})"
                         yield where, self._checked(raw, where)
             elif self._tiff[f]:
-                with _open_tiff(path, self.name) as tif:
+                with _reading_tiff(path, self.name) as tif:
                     for j, _, page, n_pages in group:
                         where = f"frame {j} ({_describe(path, page, n_pages)})"
                         yield where, self._checked(_read_tiff_page(tif, page, where,

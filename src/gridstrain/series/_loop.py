@@ -28,6 +28,7 @@ from .._validation import (
     check_type,
 )
 from ..discontinuities import check_parts, find_discontinuities, without_discontinuities
+from ..io import close_readers
 from ..kinematics import Measurement
 from ..kinematics.tracking import _Tracker, check_after_warp
 from ..phase import Lattice, Window, demodulated_in_place
@@ -301,9 +302,12 @@ def measure_series(reference, states, *, lattice: Lattice | None = None,
                              first_frame=o.reference_frames or 0)
     # BLAS on the calling thread throughout: its products here are small or memory
     # bound, and OpenBLAS's own threads would spin between them (gridstrain._threads)
-    with one_blas_thread():
-        o = _window(series[0], m, o, steps)
-        return _measure(series, guesses, m, o, steps, warnings, progress, extra)
+    try:
+        with one_blas_thread():
+            o = _window(series[0], m, o, steps)
+            return _measure(series, guesses, m, o, steps, warnings, progress, extra)
+    finally:
+        close_readers()  # the files kept open between states: none held after the run
 
 
 
