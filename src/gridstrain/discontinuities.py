@@ -53,7 +53,7 @@ _FOLLOW_SIGMAS = 4.0
 # is at most this many sigmas wide (its equivalent width: the integral of its
 # absolute value over +-4 sigma, over sqrt(2 pi) times its height). A small jump's
 # is the window's profile, sigma wide; larger ones' are narrower or wider as the
-# phases of the two sides' phasors mix (measured: 0.34 to 1.29 sigma for jumps of
+# phases of the two sides' phasors mix (measured: 0.2 to 1.29 sigma for jumps of
 # 0.5 to 8 px at pitches 5 and 6.4 px, the widest for 6 px at a pitch of 5). A
 # smooth strain concentration of width w is seen sqrt(w^2 + sigma^2) wide: 1.66
 # sigma and more for bumps and bands of 1.5 to 3 sigma, 1.55 sigma through the
