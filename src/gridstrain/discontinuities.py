@@ -4,8 +4,10 @@ The windowed Fourier transform sees a displacement jump ``delta`` across a line 
 the jump smoothed by the window: the measured displacement is off by ``delta/2
 erfc(d / (sqrt(2) sigma))`` at a distance ``d`` from the line (0.25 px at the line,
 still 5 times the noise of a good grid at ``2 sigma`` for ``delta = 0.5`` px), and
-the strain shows a ridge of exactly the window's profile, ``delta / (sqrt(2 pi)
-sigma)`` high (0.04 for ``delta = 0.5`` px at ``sigma = 5`` px). Across an opening of
+the strain shows a ridge of the window's profile, ``delta / (sqrt(2 pi) sigma)``
+high (0.04 for ``delta = 0.5`` px at ``sigma = 5`` px) and integrating to ``delta``
+across, where a smooth strain concentration of width ``w`` shows one ``sqrt(w^2 +
+sigma^2)`` wide: the width tells them apart. Across an opening of
 more than half a pitch the phases may also be unwrapped across the line with the
 wrong whole period on one side. :func:`find_discontinuities` finds the ridges,
 :func:`without_discontinuities` measures again with the pixels whose window
@@ -145,9 +147,13 @@ def find_discontinuities(m: Measurement, *, min_jump: float = _MIN_JUMP) -> Disc
     there wherever its departure exceeds 4 of them, across gaps of up to ``2
     sigma`` and across the holes of pixels the reference measures and the deformed
     state does not (where the deformed grid vanishes along an opening near half a
-    pitch). A jump of a whole number of pitches leaves no trace in the phases (the
-    grid is the same on both sides): only the stretches of a crack whose opening
-    differs from it are seen.
+    pitch). A ridge is kept only if its cross-sections, one through a seed
+    every ``sigma``, are no wider than a jump's (``_MAX_WIDTH``, 1.4 sigma, their
+    median): a smooth strain concentration is seen wider than the window. Its
+    jump is the strain integrated across it (over +-3 sigma, the median over its
+    sections). A jump of a whole number of pitches leaves no trace in the phases
+    (the grid is the same on both sides): only the stretches of a crack whose
+    opening differs from it are seen, and the jump is known modulo the period.
     """
     check_type(m, "m", Measurement)
     min_jump = check_positive(min_jump, "min_jump")
@@ -222,17 +228,17 @@ def _sections(strain, valid, sigma, dep, seeds, lab) -> dict:
     Each is read along the ridge's normal (the leading eigenvector of the
     strain's structure tensor, its gradients' products over sigma: across a
     ridge, whatever the sign or the component), centred on the crest within 2
-    sigma of the seed, its baseline (the line through its means at 3.5 to 4.5
+    sigma of the seed, its baseline (the line through its means at 4.5 to 5.5
     sigma on each side) taken off. Returns the seeds' ``rows``, ``cols`` and
     ridge ``label``, the section's equivalent ``width`` (px; the integral of the
-    seed's strongest component over ``sqrt(2 pi)`` times its height), the
+    seed's strongest component's absolute value over +-4 sigma, over ``sqrt(2
+    pi)`` times its height), the
     ``opening`` and ``sliding`` jumps (px; the integral of the strain tensor across,
     ``n.E.n`` and ``2 t.E.n``), the normal ``n`` (x, y), and ``ok``: the section
     lies on valid pixels.
     """
     step = max(1, int(sigma))
-    pick = seeds.copy()
-    pick[:, :] = False
+    pick = np.zeros_like(seeds)
     pick[::step, ::step] = seeds[::step, ::step]
     missing = np.setdiff1d(np.unique(lab[seeds]), np.unique(lab[pick]))
     pick |= seeds & np.isin(lab, missing)  # a ridge too short to hold a grid point
@@ -246,14 +252,15 @@ def _sections(strain, valid, sigma, dep, seeds, lab) -> dict:
     theta = 0.5 * np.arctan2(2 * tensor[2], tensor[0] - tensor[1])
     n = np.stack([np.cos(theta), np.sin(theta)])  # (x, y)
     inner, wide, near, far = _SECTION_SIGMAS
-    reach = math.ceil((far + 2.0) * sigma)
+    reach = math.ceil((far + 2.0) * sigma) + 1  # a crest 2 sigma off, its span beyond
     t = np.arange(-reach, reach + 1, dtype=np.float64)
     yy = rows[:, None] + t[None, :] * n[1][:, None]
     xx = cols[:, None] + t[None, :] * n[0][:, None]
     prof = np.stack([ndimage.map_coordinates(c, [yy, xx], order=1, mode="nearest")
                      for c in filled])  # (3, points, samples)
     on = ndimage.map_coordinates(valid.astype(np.float64), [yy, xx], order=0, cval=0.0) > 0
-    sign = np.sign(dep[comp := np.argmax(np.abs(dep[:, rows, cols]), axis=0), rows, cols])
+    comp = np.argmax(np.abs(dep[:, rows, cols]), axis=0)  # the seed's strongest component
+    sign = np.sign(dep[comp, rows, cols])
     idx = np.arange(rows.size)
     centre = np.abs(t) <= 2.0 * sigma
     crest = np.flatnonzero(centre)[0] + np.argmax((prof[comp, idx] * sign[:, None])[:, centre],
