@@ -51,18 +51,25 @@ _MIN_SIGMAS = 10.0
 # noise of a good grid at the line (4 standard deviations occur at 6e-5 of the
 # pixels of a noise map, and only those touching a ridge are taken).
 _FOLLOW_SIGMAS = 4.0
-# A candidate ridge is a jump's only if its cross-section, its baseline taken off,
-# is at most this many sigmas wide (its equivalent width: the integral of its
-# absolute value over +-4 sigma, over sqrt(2 pi) times its height). A small jump's
-# is the window's profile, sigma wide; larger ones' are narrower or wider as the
-# phases of the two sides' phasors mix (measured: 0.2 to 1.29 sigma for jumps of
-# 0.5 to 8 px at pitches 5 and 6.4 px, the widest for 6 px at a pitch of 5). A
-# smooth strain concentration of width w is seen sqrt(w^2 + sigma^2) wide: 1.66
-# sigma and more for bumps and bands of 1.5 to 3 sigma, 1.55 sigma through the
-# shear lobes of a bump (whose negative lobe the absolute value counts). A ridge's
+# A candidate ridge is a jump's if its cross-section, its baseline taken off, is
+# at most this many sigmas wide (its equivalent width: the integral of its absolute
+# value over +-4 sigma, over sqrt(2 pi) times its height). A small jump's is the
+# window's profile, sigma wide; larger ones' are narrower or wider as the phases of
+# the two sides' phasors mix (measured: 0.2 to 1.42 sigma for jumps of 0.5 to 11 px
+# at pitches 5 and 6.4 px, the widest for true openings past a pitch). A smooth
+# strain concentration of width w is seen sqrt(w^2 + sigma^2) wide: 1.66 sigma and
+# more for bumps and bands of 1.5 to 3 sigma, 1.55 sigma through the shear lobes of
+# a bump of 10 % (whose negative lobe the absolute value counts). A ridge's
 # sections, 10 strain noise deviations high at least, scatter by 2 % about their
-# median: 1.4 lies between the two families with room for it on both sides.
-_MAX_WIDTH = 1.4
+# median.
+_MAX_WIDTH = 1.45
+# ... or if the deformed grid's contrast along it falls below this fraction of the
+# reference's: where the two sides' phases differ by Delta the window's modulus is
+# |cos(Delta / 2)| of theirs at the line (0.81 for a fifth of a pitch), where the
+# transform, tuned to the local pitch, keeps 0.94 and more of it through smooth
+# strain concentrations up to 10 % (and a true opening past a pitch, seen 1.5
+# sigma wide, 0.82 of it).
+_MAX_CONTRAST = 0.9
 # The jump is the strain integrated over +-3 sigma from the crest (holding 0.9973
 # of the window's profile), the width over +-4 sigma, the baseline the line
 # through the means at 4.5 to 5.5 sigma on each side.
@@ -197,6 +204,7 @@ def find_discontinuities(m: Measurement, *, min_jump: float = _MIN_JUMP) -> Disc
     joined = ndimage.binary_dilation(low | holes, structure=_disc(math.ceil(sigma)))
     lab, _ = ndimage.label(joined, structure=np.ones((3, 3)))
     sections = _sections(strain, valid, sigma, dep, seeds, lab)
+    sections["contrast"] = _contrast(m, sections["rows"], sections["cols"])
     jumps = [k for k in np.unique(lab[seeds]) if _is_jump(sections, k, sigma)]
     core = np.isin(lab, jumps) & low
     if not core.any():
@@ -217,7 +225,7 @@ def find_discontinuities(m: Measurement, *, min_jump: float = _MIN_JUMP) -> Disc
         regions.append({"rows": (int(sl[0].start + rows.min()), int(sl[0].start + rows.max())),
                         "cols": (int(sl[1].start + cols.min()), int(sl[1].start + cols.max())),
                         "pixels": int(sel.sum()),
-                        **_jump(sections, inside_k, sigma, m.lattice)})
+                        **_jump(sections, inside_k, m.lattice)})
     return Discontinuities(core=core, band=band, regions=tuple(regions),
                            threshold=threshold)
 
@@ -298,19 +306,37 @@ def _sections(strain, valid, sigma, dep, seeds, lab) -> dict:
 
 
 def _is_jump(sections: dict, k: int, sigma: float) -> bool:
-    """Whether the ridge labelled ``k`` has the window's cross-section (at most
-    ``_MAX_WIDTH`` sigmas wide, the median over its sections); one without a
-    section on valid pixels (along a hole) is kept: nothing says it is smooth."""
+    """Whether the ridge labelled ``k`` is a jump's: its cross-section no wider
+    than ``_MAX_WIDTH`` sigmas, or the deformed grid's contrast along it lower
+    than ``_MAX_CONTRAST`` of the reference's (the medians over its sections).
+    One without a section on valid pixels (along a hole) is kept: nothing says it
+    is smooth."""
     mine = (sections["label"] == k) & sections["ok"]
     if not mine.any():
         return True
-    return float(np.median(sections["width"][mine])) <= _MAX_WIDTH * sigma
+    return bool(np.median(sections["width"][mine]) <= _MAX_WIDTH * sigma
+                or np.median(sections["contrast"][mine]) < _MAX_CONTRAST)
 
 
-def _jump(sections: dict, inside: np.ndarray, sigma: float, lattice) -> dict:
-    """A region's jump from the sections through its seeds (median of those with
-    the window's width): ``jump_px``, ``opening_px``, ``sliding_px``, ``pitch_px``."""
-    mine = inside & sections["ok"] & (sections["width"] <= _MAX_WIDTH * sigma)
+def _contrast(m: Measurement, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
+    """Per point, the deformed grid's modulus at ``X + u`` over the reference's at
+    ``X``, the lower of the two families' (ones where the phase maps are not kept)."""
+    if m.reference is None or m.deformed is None or not rows.size:
+        return np.ones(rows.shape)
+    u = [np.nan_to_num(np.asarray(c, dtype=np.float64)[rows, cols]) for c in m.u]
+    out = np.full(rows.shape, np.inf)
+    for ref, cur in zip(m.reference.psi, m.deformed.psi, strict=True):
+        seen = ndimage.map_coordinates(np.abs(cur), [rows + u[1], cols + u[0]], order=1,
+                                       mode="nearest")
+        with np.errstate(divide="ignore", invalid="ignore"):
+            out = np.fmin(out, seen / np.abs(ref[rows, cols]))
+    return out
+
+
+def _jump(sections: dict, inside: np.ndarray, lattice) -> dict:
+    """A region's jump from the sections through its seeds (the median of those
+    on valid pixels): ``jump_px``, ``opening_px``, ``sliding_px``, ``pitch_px``."""
+    mine = inside & sections["ok"]
     if not mine.any():
         nan = float("nan")
         return {"jump_px": nan, "opening_px": nan, "sliding_px": nan,
