@@ -155,8 +155,9 @@ def find_discontinuities(m: Measurement, *, min_jump: float = _MIN_JUMP) -> Disc
     sigma`` and across the holes of pixels the reference measures and the deformed
     state does not (where the deformed grid vanishes along an opening near half a
     pitch). A ridge is kept only if its cross-sections, one through a seed
-    every ``sigma``, are no wider than a jump's (``_MAX_WIDTH``, 1.4 sigma, their
-    median): a smooth strain concentration is seen wider than the window. Its
+    every ``sigma``, are no wider than a jump's (``_MAX_WIDTH``, 1.45 sigma, their
+    median), a smooth strain concentration being seen wider than the window, or
+    if the deformed grid's contrast falls along it (``_MAX_CONTRAST``). Its
     jump is the strain integrated across it (over +-3 sigma, the median over its
     sections). A jump of a whole number of pitches leaves no trace in the phases
     (the grid is the same on both sides): only the stretches of a crack whose
