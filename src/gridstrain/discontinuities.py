@@ -55,21 +55,15 @@ _FOLLOW_SIGMAS = 4.0
 # at most this many sigmas wide (its equivalent width: the integral of its absolute
 # value over +-4 sigma, over sqrt(2 pi) times its height). A small jump's is the
 # window's profile, sigma wide; larger ones' are narrower or wider as the phases of
-# the two sides' phasors mix (measured: 0.2 to 1.42 sigma for jumps of 0.5 to 11 px
-# at pitches 5 and 6.4 px, the widest for true openings past a pitch). A smooth
-# strain concentration of width w is seen sqrt(w^2 + sigma^2) wide: 1.66 sigma and
-# more for bumps and bands of 1.5 to 3 sigma, 1.55 sigma through the shear lobes of
-# a bump of 10 % (whose negative lobe the absolute value counts). A ridge's
-# sections, 10 strain noise deviations high at least, scatter by 2 % about their
-# median.
+# the two sides' phasors mix (measured: 0.2 to 1.42 sigma for jumps of 0.5 to 7 px
+# and 11 px at pitches 5 and 6.4 px, the widest for true openings past a pitch; one
+# of 9 px at a pitch of 5 px, 1.52 sigma, is taken for smooth). A smooth strain
+# concentration of width w is seen sqrt(w^2 + sigma^2) wide: 1.6 sigma and more for
+# bumps and bands of 1.5 to 3 sigma and 3 to 20 %, 1.51 to 1.55 sigma through the
+# shear lobes of bumps of 10 to 20 % (whose negative lobe the absolute value
+# counts). A ridge's sections, 10 strain noise deviations high at least, scatter by
+# 2 % about their median.
 _MAX_WIDTH = 1.45
-# ... or if the deformed grid's contrast along it falls below this fraction of the
-# reference's: where the two sides' phases differ by Delta the window's modulus is
-# |cos(Delta / 2)| of theirs at the line (0.81 for a fifth of a pitch), where the
-# transform, tuned to the local pitch, keeps 0.94 and more of it through smooth
-# strain concentrations up to 10 % (and a true opening past a pitch, seen 1.5
-# sigma wide, 0.82 of it).
-_MAX_CONTRAST = 0.9
 # The jump is the strain integrated over +-3 sigma from the crest (holding 0.9973
 # of the window's profile), the width over +-4 sigma, the baseline the line
 # through the means at 4.5 to 5.5 sigma on each side.
@@ -156,8 +150,7 @@ def find_discontinuities(m: Measurement, *, min_jump: float = _MIN_JUMP) -> Disc
     state does not (where the deformed grid vanishes along an opening near half a
     pitch). A ridge is kept only if its cross-sections, one through a seed
     every ``sigma``, are no wider than a jump's (``_MAX_WIDTH``, 1.45 sigma, their
-    median), a smooth strain concentration being seen wider than the window, or
-    if the deformed grid's contrast falls along it (``_MAX_CONTRAST``). Its
+    median), a smooth strain concentration being seen wider than the window. Its
     jump is the strain integrated across it (over +-3 sigma, the median over its
     sections). A jump of a whole number of pitches leaves no trace in the phases
     (the grid is the same on both sides): only the stretches of a crack whose
@@ -205,7 +198,6 @@ def find_discontinuities(m: Measurement, *, min_jump: float = _MIN_JUMP) -> Disc
     joined = ndimage.binary_dilation(low | holes, structure=_disc(math.ceil(sigma)))
     lab, _ = ndimage.label(joined, structure=np.ones((3, 3)))
     sections = _sections(strain, valid, sigma, dep, seeds, lab)
-    sections["contrast"] = _contrast(m, sections["rows"], sections["cols"])
     jumps = [k for k in np.unique(lab[seeds]) if _is_jump(sections, k, sigma)]
     core = np.isin(lab, jumps) & low
     if not core.any():
@@ -307,31 +299,13 @@ def _sections(strain, valid, sigma, dep, seeds, lab) -> dict:
 
 
 def _is_jump(sections: dict, k: int, sigma: float) -> bool:
-    """Whether the ridge labelled ``k`` is a jump's: its cross-section no wider
-    than ``_MAX_WIDTH`` sigmas, or the deformed grid's contrast along it lower
-    than ``_MAX_CONTRAST`` of the reference's (the medians over its sections).
-    One without a section on valid pixels (along a hole) is kept: nothing says it
-    is smooth."""
+    """Whether the ridge labelled ``k`` has a jump's cross-section (at most
+    ``_MAX_WIDTH`` sigmas wide, the median over its sections); one without a
+    section on valid pixels (along a hole) is kept: nothing says it is smooth."""
     mine = (sections["label"] == k) & sections["ok"]
     if not mine.any():
         return True
-    return bool(np.median(sections["width"][mine]) <= _MAX_WIDTH * sigma
-                or np.median(sections["contrast"][mine]) < _MAX_CONTRAST)
-
-
-def _contrast(m: Measurement, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
-    """Per point, the deformed grid's modulus at ``X + u`` over the reference's at
-    ``X``, the lower of the two families' (ones where the phase maps are not kept)."""
-    if m.reference is None or m.deformed is None or not rows.size:
-        return np.ones(rows.shape)
-    u = [np.nan_to_num(np.asarray(c, dtype=np.float64)[rows, cols]) for c in m.u]
-    out = np.full(rows.shape, np.inf)
-    for ref, cur in zip(m.reference.psi, m.deformed.psi, strict=True):
-        seen = ndimage.map_coordinates(np.abs(cur), [rows + u[1], cols + u[0]], order=1,
-                                       mode="nearest")
-        with np.errstate(divide="ignore", invalid="ignore"):
-            out = np.fmin(out, seen / np.abs(ref[rows, cols]))
-    return out
+    return float(np.median(sections["width"][mine])) <= _MAX_WIDTH * sigma
 
 
 def _jump(sections: dict, inside: np.ndarray, lattice) -> dict:
