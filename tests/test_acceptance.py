@@ -301,11 +301,6 @@ def test_the_smoothing_bound_bounds_a_round_bump(tmp_path, widths, record_proper
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(strict=True, reason=(
-    "a round Gaussian bump of e_xx, 3 % at its peak and 2 sigma (12.8 px) wide, "
-    "smooth everywhere, is reported as a displacement jump of 0.25 px (rows 56-144, "
-    "columns 26-233) and 16662 pixels, half the valid field, are left out, with a "
-    "warning that the field is cut in two; at 2 and 2.5 % nothing is reported"))
 def test_a_strain_concentration_is_not_a_crack(tmp_path, record_property):
     disp, _ = strain_bump(0.03, 2.0 * PITCH, BUMP)
     summary, res = _run(tmp_path, *_pair(tmp_path, disp, seed=4))

@@ -15,9 +15,12 @@ import json
 import numpy as np
 import pytest
 import tifffile
+from scipy import ndimage
+from scipy.special import erf
 
 from gridstrain import Lattice, coarse_displacement, load
 from gridstrain.cli import main
+from gridstrain.discontinuities import find_discontinuities
 from independent_grid import camera, scene
 
 H, W = 160, 200
@@ -243,8 +246,6 @@ def test_a_region_is_correlated_on_its_own():
 
 
 def test_no_crack_in_a_smooth_strain_concentration(tmp_path):
-    from scipy.special import erf
-
     def disp(X, Y):  # e_xx: a bump of 2 %, 1.5 sigma wide (std), along a band
         return (0.02 * 7.5 * np.sqrt(np.pi / 2) * erf((X - 100) / (np.sqrt(2) * 7.5))
                 * np.exp(-(Y - 80) ** 2 / (2 * 22.5**2)), 0 * Y)
@@ -306,3 +307,134 @@ def test_the_range_pre_test_skips_a_noisy_smooth_field(monkeypatch):
     assert not dc.find_discontinuities(_strain_only(strain, valid))
     monkeypatch.setattr(dc, "_no_seed_possible", lambda *a: False)
     assert not dc.find_discontinuities(_strain_only(strain, valid))
+
+
+def _strain_fields(kind, size, sigma=5.0, angle=20.0):
+    """(3, H, W) strain as the window shows it (its cross-section the window's,
+    std ``sigma``, or wider): ``"opening"`` / ``"sliding"``, a jump of ``size`` px
+    across the line through the frame's centre whose normal is at ``angle`` degrees
+    from x; ``"bump"``, a round bump of e_xx of peak ``size`` and std 1.5 sigma
+    (seen sqrt(1.5^2 + 1) sigma wide) with the shear of its displacement."""
+    yy, xx = np.mgrid[0:H, 0:W].astype(np.float64)
+    X, Y = xx - W / 2, yy - H / 2
+    if kind == "bump":
+        s = np.hypot(1.5, 1.0) * sigma
+        gy = np.exp(-Y**2 / (2 * s * s))
+        c = size * s * np.sqrt(np.pi / 2)
+        return np.stack([size * gy * np.exp(-X**2 / (2 * s * s)), 0 * X,
+                         -0.5 * c * Y / (s * s) * gy * erf(X / (np.sqrt(2) * s))])
+    a = np.radians(angle)
+    n, t = np.array([np.cos(a), np.sin(a)]), np.array([-np.sin(a), np.cos(a)])
+    b = size * (n if kind == "opening" else t)
+    g = np.exp(-(X * n[0] + Y * n[1]) ** 2 / (2 * sigma**2)) / (np.sqrt(2 * np.pi) * sigma)
+    # the strain of a jump b across the line: sym(b (x) n) times the window's profile
+    return np.stack([b[0] * n[0] * g, b[1] * n[1] * g, 0.5 * (b[0] * n[1] + b[1] * n[0]) * g])
+
+
+@pytest.mark.parametrize(("kind", "angle"), [("opening", 20.0), ("sliding", 20.0),
+                                             ("opening", 90.0)])
+def test_the_jump_is_the_strain_integrated_across_the_ridge(kind, angle):
+    # a jump of 1 px leaves a ridge of the window's profile integrating to it (a
+    # sliding one's shear, 0.5 px, stands above the smallest jump's ridge); the
+    # strain noise of a 12-bit grid (4e-4 a pixel) moves the integral over +-3 sigma
+    # by about 4e-4 * sqrt(6 sigma * sigma) = 2e-3 px, the median over the sections by
+    # less: 0.02 px leaves room for the baseline's line through a noisy background
+    rng = np.random.default_rng(7)
+    valid = np.zeros((H, W), dtype=bool)
+    valid[20:-20, 20:-20] = True
+    strain = _strain_fields(kind, 1.0, angle=angle) + 1e-3
+    strain += 4e-4 * _window_noise(rng.standard_normal((3, H, W)))
+    strain[:, ~valid] = np.nan
+    disc = find_discontinuities(_strain_only(strain, valid))
+    (r,) = disc.regions
+    assert abs(abs(r["jump_px"]) - 1.0) <= 0.02
+    across, along = ("opening_px", "sliding_px")[:: 1 if kind == "opening" else -1]
+    assert abs(abs(r[across]) - 1.0) <= 0.02
+    assert abs(r[along]) <= 0.02
+    # the jump is known modulo the lattice's period along it: 1 / max |K b| / |b|,
+    # the pitch (5 px) along either family, 5 / cos(20 deg) at 20 degrees from one
+    period = 5.0 / np.cos(np.radians(angle if angle < 45 else 90 - angle))
+    assert r["pitch_px"] == pytest.approx(period, rel=1e-2)  # the normal's median
+    assert f"modulo the period {r['pitch_px']:.3g} px" in disc.describe()
+
+
+def _window_noise(noise, sigma=5.0):
+    """Noise correlated over the window, as the strain maps' is, at unit std."""
+    out = np.stack([ndimage.gaussian_filter(c, sigma / 2) for c in noise])
+    return out / out.std()
+
+
+def test_a_bump_as_the_window_shows_it_is_not_a_jump():
+    # a round bump of 5 % (1.5 sigma wide, seen 1.8 sigma wide through the window)
+    # stands 2.5 times above the ridge of the smallest jump looked for: only its
+    # cross-section, wider than the window's, tells it from one
+    valid = np.zeros((H, W), dtype=bool)
+    valid[20:-20, 20:-20] = True
+    strain = _strain_fields("bump", 0.05)
+    strain[:, ~valid] = np.nan
+    assert not find_discontinuities(_strain_only(strain, valid))
+
+
+def _bump(amplitude, width):
+    """A round Gaussian bump of e_xx, peak ``amplitude``, std ``width`` px, at the
+    frame's centre: ``u_x = a w sqrt(pi/2) exp(-dy^2/2w^2) erf(dx / sqrt(2) w)``."""
+    def disp(X, Y):
+        return (amplitude * width * np.sqrt(np.pi / 2) * np.exp(-(Y - 80) ** 2 / (2 * width**2))
+                * erf((X - 100) / (np.sqrt(2) * width)), 0 * Y)
+    return disp
+
+
+def _band(amplitude, width):
+    """A Gaussian band of e_yy across y at y = 80 px, peak ``amplitude``, std ``width`` px."""
+    def disp(X, Y):
+        return (0 * X, amplitude * width * np.sqrt(np.pi / 2)
+                * erf((Y - 80) / (np.sqrt(2) * width)))
+    return disp
+
+
+@pytest.mark.parametrize("amplitude", [0.03, 0.05, 0.10])
+@pytest.mark.parametrize("widths", [1.5, 2.0, 3.0])
+def test_a_strain_bump_is_never_a_crack(tmp_path, amplitude, widths):
+    # smooth everywhere, so no displacement jumps: the window shows its ridge
+    # sqrt(widths^2 + 1) sigma wide, wider than a jump's (the window's own profile),
+    # and up to 7 % high, 3.5 times the ridge of the smallest jump looked for
+    res = _measure(tmp_path, _bump(amplitude, widths * 5.0))
+    assert res.discontinuities == ((),)
+    assert not any("jumps" in w for w in res.warnings)
+    assert res.valid[0].mean() > 0.55  # 0.60 in the frame's band, none left out
+
+
+def test_a_strain_band_is_not_a_crack(tmp_path):
+    # a band of 5 %, 1.5 sigma wide, across the frame: line-like as a crack is, its
+    # cross-section 1.8 sigma wide through the window
+    res = _measure(tmp_path, _band(0.05, 1.5 * 5.0))
+    assert res.discontinuities == ((),)
+    assert not any("jumps" in w for w in res.warnings)
+
+
+@pytest.mark.parametrize("opening", [0.5, 1.0, 2.0, 3.0])
+def test_a_crack_is_named_once_with_its_jump_modulo_the_pitch(tmp_path, opening):
+    # the phases know the jump modulo the pitch (5 px): 3 px shows as -2 px
+    res = _measure(tmp_path, _crack(opening, "full"))
+    (regions,) = res.discontinuities
+    assert len(regions) == 1  # one crack, one region
+    seen = opening - 5.0 * round(opening / 5.0)
+    # 20 %: the strain integrated over +-3 sigma across the ridge, less a baseline
+    # read beyond it (measured: within 1 %)
+    assert regions[0]["jump_px"] == pytest.approx(seen, rel=0.2)
+    assert any(f"a jump of {regions[0]['jump_px']:.2g} px modulo the period 5 px" in w
+               for w in res.warnings)
+
+
+def test_a_crack_opening_past_a_pitch_is_found(tmp_path):
+    # the faces moved past a whole pitch (5.5 px, half a pixel beyond): the ridge,
+    # seen 1.42 sigma wide, is wider than the window's, not as wide as a smooth
+    # concentration's (1.5 sigma and more)
+    res = _measure(tmp_path, _crack(5.5, "full"))
+    (regions,) = res.discontinuities
+    assert len(regions) == 1
+    r = regions[0]
+    assert r["rows"][0] < Y0 < r["rows"][1]
+    assert r["cols"][0] <= 20  # across the valid band
+    assert r["cols"][1] >= W - 21
+    assert r["jump_px"] == pytest.approx(0.5, rel=0.2)  # modulo the pitch, as above

@@ -4,8 +4,10 @@ The windowed Fourier transform sees a displacement jump ``delta`` across a line 
 the jump smoothed by the window: the measured displacement is off by ``delta/2
 erfc(d / (sqrt(2) sigma))`` at a distance ``d`` from the line (0.25 px at the line,
 still 5 times the noise of a good grid at ``2 sigma`` for ``delta = 0.5`` px), and
-the strain shows a ridge of exactly the window's profile, ``delta / (sqrt(2 pi)
-sigma)`` high (0.04 for ``delta = 0.5`` px at ``sigma = 5`` px). Across an opening of
+the strain shows a ridge of the window's profile, ``delta / (sqrt(2 pi) sigma)``
+high (0.04 for ``delta = 0.5`` px at ``sigma = 5`` px) and integrating to ``delta``
+across, where a smooth strain concentration of width ``w`` shows one ``sqrt(w^2 +
+sigma^2)`` wide: the width tells them apart. Across an opening of
 more than half a pitch the phases may also be unwrapped across the line with the
 wrong whole period on one side. :func:`find_discontinuities` finds the ridges,
 :func:`without_discontinuities` measures again with the pixels whose window
@@ -49,6 +51,23 @@ _MIN_SIGMAS = 10.0
 # noise of a good grid at the line (4 standard deviations occur at 6e-5 of the
 # pixels of a noise map, and only those touching a ridge are taken).
 _FOLLOW_SIGMAS = 4.0
+# A candidate ridge is a jump's if its cross-section, its baseline taken off, is
+# at most this many sigmas wide (its equivalent width: the integral of its absolute
+# value over +-4 sigma, over sqrt(2 pi) times its height). A small jump's is the
+# window's profile, sigma wide; larger ones' are narrower or wider as the phases of
+# the two sides' phasors mix (measured: 0.2 to 1.42 sigma for jumps of 0.5 to 7 px
+# and 11 px at pitches 5 and 6.4 px, the widest for true openings past a pitch; one
+# of 9 px at a pitch of 5 px, 1.52 sigma, is taken for smooth). A smooth strain
+# concentration of width w is seen sqrt(w^2 + sigma^2) wide: 1.6 sigma and more for
+# bumps and bands of 1.5 to 3 sigma and 3 to 20 %, 1.51 to 1.55 sigma through the
+# shear lobes of bumps of 10 to 20 % (whose negative lobe the absolute value
+# counts). A ridge's sections, 10 strain noise deviations high at least, scatter by
+# 2 % about their median.
+_MAX_WIDTH = 1.45
+# The jump is the strain integrated over +-3 sigma from the crest (holding 0.9973
+# of the window's profile), the width over +-4 sigma, the baseline the line
+# through the means at 4.5 to 5.5 sigma on each side.
+_SECTION_SIGMAS = (3.0, 4.0, 4.5, 5.5)
 # Pixels within this many sigmas of a ridge's core are left out: the window's
 # error there, delta/2 erfc(d / sqrt(2) sigma), reaches the noise beyond it only for
 # jumps of several pixels (1e-3 of delta/2 at the core's edge plus 2 sigma).
@@ -69,8 +88,13 @@ class Discontinuities:
     regions : tuple of dict
         Per connected ridge: ``rows`` and ``cols`` (first, last; px, the
         bounding box of its band), ``pixels`` (of its band), ``jump_px`` (the
-        displacement jump its ridge's height gives, ``sqrt(2 pi) sigma`` times the
-        height; modulo a pitch where the opening exceeds half a pitch).
+        displacement jump, px: the strain integrated across the ridge, the
+        median over its sections, signed as the opening), ``opening_px`` and
+        ``sliding_px`` (its components across and along the ridge), ``pitch_px``
+        (the lattice's period along the jump). The phases know a jump only
+        modulo a period: one of 6 px at a pitch of 6.4 px reads -0.4 px, one of a
+        whole period leaves no trace. NaN where no section of the ridge lies
+        within the valid pixels (along a hole, for example).
     threshold : float
         The strain departure taken as a ridge (dimensionless).
     """
@@ -90,8 +114,15 @@ class Discontinuities:
     def describe(self) -> str:
         """One line per region, for a warning."""
         return "; ".join(f"rows {r['rows'][0]}-{r['rows'][1]}, columns {r['cols'][0]}-"
-                         f"{r['cols'][1]} (a jump of about {r['jump_px']:.2g} px, known "
-                         "modulo a pitch)" for r in self.regions)
+                         f"{r['cols'][1]} ({_jump_words(r)})" for r in self.regions)
+
+
+def _jump_words(r: dict) -> str:
+    """A region's jump, in words: known only modulo the period along it."""
+    if not math.isfinite(r["jump_px"]):
+        return "a jump its sections cannot measure"
+    return (f"a jump of {r['jump_px']:.2g} px modulo the period {r['pitch_px']:.3g} px "
+            "along it")
 
 
 def find_discontinuities(m: Measurement, *, min_jump: float = _MIN_JUMP) -> Discontinuities:
@@ -117,9 +148,13 @@ def find_discontinuities(m: Measurement, *, min_jump: float = _MIN_JUMP) -> Disc
     there wherever its departure exceeds 4 of them, across gaps of up to ``2
     sigma`` and across the holes of pixels the reference measures and the deformed
     state does not (where the deformed grid vanishes along an opening near half a
-    pitch). A jump of a whole number of pitches leaves no trace in the phases (the
-    grid is the same on both sides): only the stretches of a crack whose opening
-    differs from it are seen.
+    pitch). A ridge is kept only if its cross-sections, one through a seed
+    every ``sigma``, are no wider than a jump's (``_MAX_WIDTH``, 1.45 sigma, their
+    median), a smooth strain concentration being seen wider than the window. Its
+    jump is the strain integrated across it (over +-3 sigma, the median over its
+    sections). A jump of a whole number of pitches leaves no trace in the phases
+    (the grid is the same on both sides): only the stretches of a crack whose
+    opening differs from it are seen, and the jump is known modulo the period.
     """
     check_type(m, "m", Measurement)
     min_jump = check_positive(min_jump, "min_jump")
@@ -134,16 +169,16 @@ def find_discontinuities(m: Measurement, *, min_jump: float = _MIN_JUMP) -> Disc
     if _no_seed_possible(strain, valid, threshold):
         return Discontinuities(core=empty, band=empty.copy(), regions=(),
                                threshold=threshold)
-    height = np.zeros(valid.shape)
+    dep = np.zeros(strain.shape)
     seeds = np.zeros(valid.shape, dtype=bool)
     low = np.zeros(valid.shape, dtype=bool)
     for c in range(strain.shape[0]):
         # the surroundings: a median over 8 sigma, wider than a ridge (about 3 sigma)
-        d = np.abs(_departure(strain[c], valid, sigma))
+        dep[c] = _departure(strain[c], valid, sigma)
+        d = np.abs(dep[c])
         spread = MAD_TO_STD * float(np.median(d[valid]))
         seeds |= d > max(threshold, _MIN_SIGMAS * spread)
         low |= d > _FOLLOW_SIGMAS * spread
-        np.maximum(height, d, out=height)
     seeds &= valid
     low &= valid
     if not seeds.any():
@@ -162,23 +197,136 @@ def find_discontinuities(m: Measurement, *, min_jump: float = _MIN_JUMP) -> Disc
     # too low for a seed, still spoils the pixels beside it and joins the faces
     joined = ndimage.binary_dilation(low | holes, structure=_disc(math.ceil(sigma)))
     lab, _ = ndimage.label(joined, structure=np.ones((3, 3)))
-    core = np.isin(lab, np.unique(lab[seeds])) & low
+    sections = _sections(strain, valid, sigma, dep, seeds, lab)
+    jumps = [k for k in np.unique(lab[seeds]) if _is_jump(sections, k, sigma)]
+    core = np.isin(lab, jumps) & low
     if not core.any():
         return Discontinuities(core=empty, band=empty.copy(), regions=(),
                                threshold=threshold)
     band = ndimage.binary_dilation(core, structure=_disc(math.ceil(_BAND_SIGMAS * sigma)))
     band &= valid
-    labels, _ = ndimage.label(band)
+    # one region per ridge: the parts of its band that a hole along it, or a gap
+    # where its opening passes a whole period, parts are one crack's
+    labels, _ = ndimage.label(band | (joined & np.isin(lab, jumps)), structure=np.ones((3, 3)))
     regions = []
     for k, sl in enumerate(ndimage.find_objects(labels), start=1):
-        sel = labels[sl] == k
-        h = float(np.max(height[sl][sel & core[sl]]))
-        regions.append({"rows": (int(sl[0].start), int(sl[0].stop - 1)),
-                        "cols": (int(sl[1].start), int(sl[1].stop - 1)),
+        sel = (labels[sl] == k) & band[sl]
+        if not sel.any():
+            continue
+        rows, cols = np.nonzero(sel)
+        inside_k = labels[sections["rows"], sections["cols"]] == k
+        regions.append({"rows": (int(sl[0].start + rows.min()), int(sl[0].start + rows.max())),
+                        "cols": (int(sl[1].start + cols.min()), int(sl[1].start + cols.max())),
                         "pixels": int(sel.sum()),
-                        "jump_px": h * math.sqrt(2 * math.pi) * sigma})
+                        **_jump(sections, inside_k, m.lattice)})
     return Discontinuities(core=core, band=band, regions=tuple(regions),
                            threshold=threshold)
+
+
+def _sections(strain, valid, sigma, dep, seeds, lab) -> dict:
+    """The strain's cross-sections through seeds of the ridges, one every sigma.
+
+    Each is read along the ridge's normal (the leading eigenvector of the
+    strain's structure tensor, its gradients' products over sigma: across a
+    ridge, whatever the sign or the component), centred on the crest within 2
+    sigma of the seed, its baseline (the line through its means at 4.5 to 5.5
+    sigma on each side) taken off. Returns the seeds' ``rows``, ``cols`` and
+    ridge ``label``, the section's equivalent ``width`` (px; the integral of the
+    seed's strongest component's absolute value over +-4 sigma, over ``sqrt(2
+    pi)`` times its height), the
+    ``opening`` and ``sliding`` jumps (px; the integral of the strain tensor across,
+    ``n.E.n`` and ``2 t.E.n``), the normal ``n`` (x, y), and ``ok``: the section
+    lies on valid pixels.
+    """
+    step = max(1, int(sigma))
+    pick = np.zeros_like(seeds)
+    pick[::step, ::step] = seeds[::step, ::step]
+    missing = np.setdiff1d(np.unique(lab[seeds]), np.unique(lab[pick]))
+    pick |= seeds & np.isin(lab, missing)  # a ridge too short to hold a grid point
+    rows, cols = np.nonzero(pick)
+    nearest = nearest_index(valid)
+    filled = np.stack([nearest_filled(np.asarray(c, dtype=np.float64), valid, nearest)
+                       for c in strain])
+    grads = [np.gradient(c) for c in filled]
+    tensor = [ndimage.gaussian_filter(sum(g[i] * g[j] for g in grads), sigma)[rows, cols]
+              for i, j in ((1, 1), (0, 0), (1, 0))]  # xx, yy, xy
+    theta = 0.5 * np.arctan2(2 * tensor[2], tensor[0] - tensor[1])
+    n = np.stack([np.cos(theta), np.sin(theta)])  # (x, y)
+    inner, wide, near, far = _SECTION_SIGMAS
+    reach = math.ceil((far + 2.0) * sigma) + 1  # a crest 2 sigma off, its span beyond
+    t = np.arange(-reach, reach + 1, dtype=np.float64)
+    yy = rows[:, None] + t[None, :] * n[1][:, None]
+    xx = cols[:, None] + t[None, :] * n[0][:, None]
+    prof = np.stack([ndimage.map_coordinates(c, [yy, xx], order=1, mode="nearest")
+                     for c in filled])  # (3, points, samples)
+    on = ndimage.map_coordinates(valid.astype(np.float64), [yy, xx], order=0, cval=0.0) > 0
+    comp = np.argmax(np.abs(dep[:, rows, cols]), axis=0)  # the seed's strongest component
+    sign = np.sign(dep[comp, rows, cols])
+    idx = np.arange(rows.size)
+    centre = np.abs(t) <= 2.0 * sigma
+    crest = np.flatnonzero(centre)[0] + np.argmax((prof[comp, idx] * sign[:, None])[:, centre],
+                                                  axis=1)
+    span = np.arange(-round(far * sigma), round(far * sigma) + 1)
+    take = crest[:, None] + span[None, :]  # (points, span)
+    sec = np.take_along_axis(prof, np.broadcast_to(take, (prof.shape[0], *take.shape)),
+                             axis=2)
+    on = np.take_along_axis(on, take, axis=1)
+    # the baseline: the line through the means of the valid samples of each side
+    ends = []
+    for side in (span <= -near * sigma, span >= near * sigma):
+        w = on & side
+        ends.append((sec * w).sum(axis=-1) / np.maximum(w.sum(axis=-1), 1))
+    ok = on[:, np.abs(span) <= wide * sigma].all(axis=1)
+    ok &= (on & (span <= -near * sigma)).any(axis=1) & (on & (span >= near * sigma)).any(axis=1)
+    mid = 0.5 * (near + far) * sigma
+    sec = sec - ends[0][..., None] - (ends[1] - ends[0])[..., None] * (span + mid) / (2 * mid)
+    # the window's profile holds erf(a / sqrt 2) of a jump within +-a sigma
+    integral = (sec[..., np.abs(span) <= inner * sigma].sum(axis=-1)
+                / math.erf(inner / math.sqrt(2)))
+    height = sec[comp, idx, span.size // 2] * sign
+    main = sec[comp, idx] * sign[:, None]
+    inside = np.abs(span) <= wide * sigma
+    with np.errstate(divide="ignore", invalid="ignore"):
+        width = (np.abs(main[:, inside]).sum(axis=-1)
+                 / (math.erf(wide / math.sqrt(2)) * math.sqrt(2 * math.pi) * height))
+    ok &= height > 0
+    nx, ny = n
+    exx, eyy, exy = integral
+    opening = exx * nx * nx + eyy * ny * ny + 2 * exy * nx * ny
+    sliding = 2 * ((eyy - exx) * nx * ny + exy * (nx * nx - ny * ny))
+    return {"rows": rows, "cols": cols, "label": lab[rows, cols], "width": width,
+            "opening": opening, "sliding": sliding, "n": n, "ok": ok}
+
+
+def _is_jump(sections: dict, k: int, sigma: float) -> bool:
+    """Whether the ridge labelled ``k`` has a jump's cross-section (at most
+    ``_MAX_WIDTH`` sigmas wide, the median over its sections); one without a
+    section on valid pixels (along a hole) is kept: nothing says it is smooth."""
+    mine = (sections["label"] == k) & sections["ok"]
+    if not mine.any():
+        return True
+    return float(np.median(sections["width"][mine])) <= _MAX_WIDTH * sigma
+
+
+def _jump(sections: dict, inside: np.ndarray, lattice) -> dict:
+    """A region's jump from the sections through its seeds (the median of those
+    on valid pixels): ``jump_px``, ``opening_px``, ``sliding_px``, ``pitch_px``."""
+    mine = inside & sections["ok"]
+    if not mine.any():
+        nan = float("nan")
+        return {"jump_px": nan, "opening_px": nan, "sliding_px": nan,
+                "pitch_px": float(lattice.pitch)}
+    opening = float(np.median(sections["opening"][mine]))
+    sliding = float(np.median(sections["sliding"][mine]))
+    size = math.hypot(opening, sliding)
+    # the period along the jump: its phase in each family is K b, known modulo 1
+    n = np.median(sections["n"][:, mine] * np.sign(sections["n"][1, mine] + 1e-12), axis=1)
+    t = np.array([-n[1], n[0]])
+    b = (opening * n + sliding * t) / max(size, 1e-12)
+    along = float(np.max(np.abs(lattice.K @ b))) if size > 0 else 0.0
+    pitch = 1.0 / along if along > 0 else float(lattice.pitch)
+    return {"jump_px": math.copysign(size, opening), "opening_px": opening,
+            "sliding_px": sliding, "pitch_px": pitch}
 
 
 def _no_seed_possible(strain: np.ndarray, valid: np.ndarray, threshold: float) -> bool:
