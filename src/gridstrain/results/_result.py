@@ -134,8 +134,9 @@ class SeriesResult:
     discontinuities : tuple of tuple of dict
         Per state, the displacement jumps found (a crack, an edge, a torn grid):
         their bounding boxes (``rows``, ``cols``: first and last, px), the pixels
-        left out around them (``pixels``, invalid in ``valid``) and the jump
-        (``jump_px``, modulo a pitch); see
+        left out around them (``pixels``, invalid in ``valid``), the jump
+        (``jump_px``, its ``opening_px`` and ``sliding_px``, known modulo the
+        period ``pitch_px`` along it); see
         :func:`gridstrain.discontinuities.find_discontinuities`.
     """
 
