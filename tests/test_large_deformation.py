@@ -106,3 +106,28 @@ def test_a_pair_of_other_grids_is_named(tmp_path, capsys):
     # a 10 % strain is not
     res = _measure(tmp_path, _pair(tmp_path, _strain(0.10)))
     assert not [w for w in res.warnings if "plausible strain" in w]
+
+
+def test_demodulated_in_place_is_demodulated_at():
+    """A state's maps brought to the reference's carrier over their own memory are
+    those of the copying function bit for bit, read-only again, and a view (memory
+    it does not own) is copied rather than written over."""
+    from gridstrain.phase import demodulated_at, demodulated_in_place
+    from gridstrain.phase.lattice import Carrier
+    from gridstrain.wft import PhaseMaps, wft
+
+    img, _ = scene((96, 128), pitch=5.0, angle=10.0, hole=False)
+    lat = Lattice.from_pitch(5.0, angle=10.0)
+    k = lat.K @ np.array([[1.01, 0.02], [-0.02, 1.01]])  # stretched 1 % and turned
+    own = Carrier(tuple(k[0]), tuple(k[1]), window_pitch=lat.pitch)
+    want = demodulated_at(wft(img, own), lat)
+    got = demodulated_in_place(wft(img, own), lat)
+    np.testing.assert_array_equal(got.psi, want.psi)
+    np.testing.assert_array_equal(got.dphi, want.dphi)
+    assert not got.psi.flags.writeable
+    pm = wft(img, own)
+    view = PhaseMaps(psi=pm.psi[:, :, :], dphi=pm.dphi, valid=pm.valid, lattice=own,
+                     sigma=pm.sigma)
+    before = np.array(pm.psi)
+    np.testing.assert_array_equal(demodulated_in_place(view, lat).psi, want.psi)
+    np.testing.assert_array_equal(pm.psi, before)  # the viewed maps left alone
