@@ -87,8 +87,10 @@ def aliasing_bias(image, lattice, *, sigma: float, mask=None) -> dict:
 
     The amplitudes are measured, not modelled: the harmonics whose folds lie within
     the window's band of a carrier are fitted jointly with the carrier (its amplitude
-    allowed to vary linearly across the image, for the lighting) by weighted least
-    squares on the image, a Hann window times the mask. A lattice turned or stretched
+    allowed to vary linearly across the image) by weighted least squares, a Hann
+    window times the mask, on the image divided by its local mean over two pitches
+    (the lighting, whose variation would widen the carrier's peak over the bins where
+    the folds lie). A lattice turned or stretched
     away from a whole number of pixels puts the folds a few frequency bins apart from
     the carrier and from one another, where they are told apart. A harmonic whose
     fold cannot be told from its neighbours' (an integer pitch along the pixel axes:
@@ -103,11 +105,19 @@ def aliasing_bias(image, lattice, *, sigma: float, mask=None) -> dict:
     sigma = check_positive(sigma, "sigma")
     w = _aliasing_window(img.shape, lattice, mask)
     img, w = _central(img, w)
-    ref = img - float(np.sum(img * w) / np.sum(w))
+    # the lighting divided out: the local mean over two pitches, where the grid's
+    # carriers are damped by exp(-8 pi^2) below 1e-34
+    inside = (w > 0).astype(np.float64)
+    s = 2.0 * float(np.mean(lattice.pitches))
+    light = ndimage.gaussian_filter(img * inside, s) / np.maximum(
+        ndimage.gaussian_filter(inside, s), 1e-12)
+    img = np.where(light > 0, img / np.where(light > 0, light, 1.0), 0.0)
+    mean = float(np.sum(img * w) / np.sum(w))
+    ref = img - mean
     ks = [np.array(lattice.k1, dtype=np.float64), np.array(lattice.k2, dtype=np.float64)]
     records = []
     for j, k in enumerate(ks):
-        records.extend(_measured_harmonics(ref, w, lattice, j, k, sigma))
+        records.extend(_measured_harmonics(ref, w, lattice, j, k, sigma, mean))
     if any(not r["measured"] and r["relative_amplitude"] * r["transfer"] > _NEGLIGIBLE
            for r in records):
         return _model_bound(ref, w, lattice, sigma, records)
@@ -123,12 +133,27 @@ def aliasing_bias(image, lattice, *, sigma: float, mask=None) -> dict:
 _NEGLIGIBLE = 1e-4
 
 # Largest side of the region the harmonics are measured on, px: a central crop
-# resolves the folds (1 / 384 cycle/px) at a bounded cost.
-_MEASURE_SIDE = 384
+# resolves the folds (1 / 256 cycle/px) at a bounded cost.
+_MEASURE_SIDE = 256
 
 # A harmonic is measured when its fit's variance is at most this many times what it
 # would be alone: beyond, its fold overlaps another's or the carrier's.
 _INFLATION = 2.0
+
+# The powers of (x, y) that multiply the carrier in the fit.
+_POWERS = ((0, 0), (1, 0), (0, 1))
+_CARRIER_TERMS = len(_POWERS)
+
+# Free frequencies fitted beside the harmonics to measure the level they stand on,
+# and how many of the nearest ones a fold's level is taken from.
+_NULLS = 48
+
+# The amplitudes fitted are the image's averages; a print whose lines' widths vary
+# (a printer's banding, 6 % std) changes a harmonic's share line by line: the
+# largest local error of noise-free lines 0.2 pitch wide at pitch 4 px
+# (tests/world_camera.py) is 1.2 times the bound from the averages.
+_LOCAL = 1.25
+_NULLS_PER_FOLD = 4
 
 
 def _central(img, w):
@@ -170,9 +195,10 @@ def _harmonics_near(lattice, k, sigma, radius_extra=0.0):
     return out
 
 
-def _measured_harmonics(ref, w, lattice, j, k, sigma) -> list[dict]:
+def _measured_harmonics(ref, w, lattice, j, k, sigma, mean) -> list[dict]:
     """The harmonics that fold near carrier ``k`` (index ``j``), their amplitudes
-    relative to the carrier's fitted on ``ref`` with weights ``w``."""
+    relative to the carrier's fitted on ``ref`` (the image less its ``mean``) with
+    weights ``w``."""
     H, W = ref.shape
     res = 1.0 / min(H, W)  # a bin of the spectrum, cycles/px
     near = _harmonics_near(lattice, k, sigma)
@@ -182,17 +208,14 @@ def _measured_harmonics(ref, w, lattice, j, k, sigma) -> list[dict]:
     fit = _harmonics_near(lattice, k, sigma, radius_extra=4 * res)
     yy = (np.arange(H) - (H - 1) / 2) / H
     xx = (np.arange(W) - (W - 1) / 2) / W
-    # the carrier times 1, x, y: the lighting's gradient widens its peak
-    cols = [(k, 0), (k, 1), (k, 2)] + [(f, 0) for *_, f, _ in fit]
+    # the carrier times 1, x, y: what the lighting's division left of its variation
+    cols = [(k, c) for c in range(_CARRIER_TERMS)] + [(f, 0) for *_, f, _ in fit]
     sw = np.sqrt(w)
 
     def basis(f, kind):
-        ex = np.exp(2j * np.pi * f[0] * np.arange(W))
-        ey = np.exp(2j * np.pi * f[1] * np.arange(H))
-        if kind == 1:
-            ex = ex * xx
-        elif kind == 2:
-            ey = ey * yy
+        px, py = _POWERS[kind]
+        ex = np.exp(2j * np.pi * f[0] * np.arange(W)) * xx**px
+        ey = np.exp(2j * np.pi * f[1] * np.arange(H)) * yy**py
         return (sw * np.outer(ey, ex)).ravel()
 
     A = np.stack([basis(f, kind) for f, kind in cols], axis=1)
@@ -205,17 +228,46 @@ def _measured_harmonics(ref, w, lattice, j, k, sigma) -> list[dict]:
     except np.linalg.LinAlgError:
         inflation = np.full(len(cols), np.inf)
     a_j = abs(coef[0])
-    index = {(n, m): 3 + i for i, (n, m, *_) in enumerate(fit)}
+    floor2 = _floor(ref, w, lattice) / max(a_j, 1e-300) ** 2
+    index = {(n, m): _CARRIER_TERMS + i for i, (n, m, *_) in enumerate(fit)}
     out = []
     for n, m, h, _, delta in near:
         i = index[(n, m)]
         measured = bool(np.isfinite(inflation[i]) and inflation[i] <= _INFLATION
                         and inflation[0] <= _INFLATION and a_j > 0)
-        r = float(abs(coef[i]) / a_j) if measured else _sharp_term(lattice, n, m, k, j)
+        # the sensor's noise and the print's defects add their power at every
+        # frequency: taken out in quadrature, as measured where no harmonic folds
+        r = float(math.sqrt(max(0.0, abs(coef[i] / a_j) ** 2 - floor2))) if measured \
+            else _sharp_term(lattice, n, m, k, j)
+        # a print's reflectance is not negative: none of its Fourier coefficients
+        # exceeds its mean, and the pixel's integration then multiplies each by
+        # mtf(h): what is fitted beyond that is the carrier's modulation, not a harmonic
+        r = min(r, abs(mean) / max(a_j, 1e-300) * _mtf(h) / _mtf(k))
         out.append({"order": [n, m], "carrier": j + 1, "relative_amplitude": r,
                     "fold_distance": delta, "transfer": _transfer(delta, sigma),
                     "change": float(np.hypot(*(h - k))), "measured": measured})
     return out
+
+
+def _floor(ref, w, lattice) -> float:
+    """The mean power of a fitted amplitude where no harmonic folds: the image's
+    weighted transform over the weights' sum, at up to 24 fixed frequencies 4 bins or
+    more from every harmonic's fold and 8 from zero."""
+    H, W = ref.shape
+    res = 1.0 / min(H, W)
+    k1, k2 = np.array(lattice.k1), np.array(lattice.k2)
+    top = int(_OPTICS_CUTOFF / min(np.hypot(*k1), np.hypot(*k2))) + 1
+    n, m = np.meshgrid(np.arange(-top, top + 1), np.arange(-top, top + 1))
+    h = n.reshape(-1, 1) * k1 + m.reshape(-1, 1) * k2
+    folds = _fold(h[np.hypot(h[:, 0], h[:, 1]) <= _OPTICS_CUTOFF])
+    trial = np.random.default_rng(0).uniform(-0.5, 0.5, (400, 2))  # the same each call
+    d = _fold(trial[:, None, :] - folds[None, :, :])
+    free = trial[np.all(np.hypot(d[..., 0], d[..., 1]) > 4 * res, axis=1)
+                 & (np.hypot(*trial.T) > 8 * res)][:24]
+    if free.size == 0:
+        return 0.0
+    total = float(np.sum(w))
+    return float(np.mean([abs(_dtft(ref, w, f) / total) ** 2 for f in free]))
 
 
 def _mtf(f):
@@ -240,10 +292,10 @@ def _bound(records, lattice, sigma, *, observable, pattern, sharpness, method) -
         amp[j] += t
         per_e[j] += t * r["change"]
         ripple[j] += t * 2 * r["fold_distance"]
-    u = kinv @ (2 * amp) / (2 * math.pi)
+    u = _LOCAL * kinv @ (2 * amp) / (2 * math.pi)
     # the two images' terms: each moves its phase by 2 pi |h - k| . grad(u) per px
-    e = kinv @ per_e
-    rip = kinv @ ripple
+    e = _LOCAL * kinv @ per_e
+    rip = _LOCAL * kinv @ ripple
     keep = sorted(records, key=lambda r: -r["relative_amplitude"] * r["transfer"])
     return {"phase_rad": [float(x) for x in amp], "u_px": float(u.max()),
             "u_px_components": [float(x) for x in u],
