@@ -115,6 +115,15 @@ def test_the_bound_holds_for_printed_lines(pitch, width, record_property):
     record_property("max_err_px", worst.tolist())
     record_property("bound_px", bound.tolist())
     assert np.all(worst <= bound), (worst, bound)
+    # the strain: the homogeneous stretch's (e_xx, e_yy, e_xy) known exactly
+    alias = res.systematic["aliasing"]
+    v = np.asarray(res.valid[0])
+    e = np.asarray(res.strain[0])
+    e_err = np.abs(np.stack([e[0] - STRETCH[0], e[1] - STRETCH[1], e[2]]))[:, v].max()
+    e_bound = alias["strain_per_strain"] * max(map(abs, STRETCH)) + alias["strain_ripple"]
+    record_property("max_strain_err", float(e_err))
+    record_property("strain_bound", e_bound)
+    assert e_err <= e_bound, (e_err, e_bound)
 
 
 @pytest.mark.slow

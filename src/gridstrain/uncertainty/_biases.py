@@ -1,5 +1,5 @@
-"""Systematic errors the uncertainty maps do not cover: the harmonics of sharp lines aliasing
-onto the carrier (:func:`aliasing_bias`) and the window's smoothing of strain gradients
+"""Systematic errors the uncertainty maps do not cover: the grid's harmonics aliasing onto
+the carriers (:func:`aliasing_bias`) and the window's smoothing of strain gradients
 (:func:`smoothing_bias`).
 """
 
@@ -83,16 +83,20 @@ def aliasing_bias(image, lattice, *, sigma: float, mask=None) -> dict:
     displacement error is bounded by twice one image's amplitude,
     ``|K^-1| 2 A / 2 pi`` per component (``A = sum_h r_h T_h``, ``K`` the matrix of
     the wave vectors), and the strain error by ``|K^-1| sum_h r_h T_h (|h - k_j| e +
-    2 |Delta_h|)``.
+    2 |Delta_h|)``; both times 1.25, for a print whose harmonics' share varies line by
+    line about the image's average that is measured.
 
     The amplitudes are measured, not modelled: the harmonics whose folds lie within
     the window's band of a carrier are fitted jointly with the carrier (its amplitude
     allowed to vary linearly across the image) by weighted least squares, a Hann
     window times the mask, on the image divided by its local mean over two pitches
     (the lighting, whose variation would widen the carrier's peak over the bins where
-    the folds lie). A lattice turned or stretched
-    away from a whole number of pixels puts the folds a few frequency bins apart from
-    the carrier and from one another, where they are told apart. A harmonic whose
+    the folds lie). The power that noise and print defects put at every frequency,
+    measured where no harmonic folds, is taken out in quadrature, and no amplitude
+    exceeds the mean level times the pixel's integration at its frequency (a
+    reflectance is not negative). A lattice turned or stretched away from a whole
+    number of pixels puts the folds a few frequency bins apart from the carrier and
+    from one another, where they are told apart. A harmonic whose
     fold cannot be told from its neighbours' (an integer pitch along the pixel axes:
     it lands exactly on the carrier, where no window removes it and no single image
     sees it) is not measurable; then the bound of the sharp-print model stands (lines
@@ -100,6 +104,12 @@ def aliasing_bias(image, lattice, *, sigma: float, mask=None) -> dict:
     integration) and ``observable`` is False. No correction is applied: a harmonic on
     the carrier cannot be removed, and one off it is damped by the window already;
     the bound is stated and warned about where it exceeds the noise.
+
+    Figures (``tests/test_aliasing.py``): one harmonic of a direct sum, its amplitude
+    to 2 % and the measured error 0.8 times the bound; photographs of printed lines
+    0.2 to 0.5 pitch wide at pitches 4 to 7 px turned by 0.6 degree (noise-free,
+    stretched by 2 % and -0.6 %), largest errors 0.007 to 0.13 px, bounds 1.1 to 9
+    times them; a photographed sine grid, under half the noise std.
     """
     img = as_image(image, allow_uniform=True).astype(np.float64)
     sigma = check_positive(sigma, "sigma")
