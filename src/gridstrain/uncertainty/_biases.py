@@ -150,6 +150,10 @@ _MEASURE_SIDE = 256
 # would be alone: beyond, its fold overlaps another's or the carrier's.
 _INFLATION = 2.0
 
+# Folds closer than this, in bins of the spectrum, are not told apart (the Hann
+# window's main lobe is 2 bins wide each side).
+_APART = 1.5
+
 # The powers of (x, y) that multiply the carrier in the fit.
 _POWERS = ((0, 0), (1, 0), (0, 1))
 _CARRIER_TERMS = len(_POWERS)
@@ -214,8 +218,14 @@ def _measured_harmonics(ref, w, lattice, j, k, sigma, mean) -> list[dict]:
     near = _harmonics_near(lattice, k, sigma)
     if not near:
         return []
-    # harmonics just outside the band are fitted too, lest they leak into those in it
+    # harmonics just outside the band are fitted too, lest they leak into those in it;
+    # a fold closer than _APART bins (along each axis) to the carrier or to another
+    # fold is one frequency with it: not fitted, not measured
     fit = _harmonics_near(lattice, k, sigma, radius_extra=4 * res)
+    freqs = np.array([k, *(f for *_, f, _ in fit)])
+    gap = np.hypot(*((freqs[:, None, :] - freqs[None, :, :]) * np.array([W, H])).T)
+    np.fill_diagonal(gap, np.inf)
+    fit = [x for x, g in zip(fit, gap[1:], strict=True) if g.min() >= _APART]
     yy = (np.arange(H) - (H - 1) / 2) / H
     xx = (np.arange(W) - (W - 1) / 2) / W
     # the carrier times 1, x, y: what the lighting's division left of its variation
@@ -232,18 +242,15 @@ def _measured_harmonics(ref, w, lattice, j, k, sigma, mean) -> list[dict]:
     b = (sw * ref).ravel()
     gram = A.conj().T @ A
     coef, *_ = np.linalg.lstsq(A, b, rcond=None)
-    try:
-        inv_diag = np.real(np.diag(np.linalg.inv(gram)))
-        inflation = inv_diag * np.real(np.diag(gram))
-    except np.linalg.LinAlgError:
-        inflation = np.full(len(cols), np.inf)
+    inflation = np.abs(np.real(np.diag(np.linalg.pinv(gram, hermitian=True)))) \
+        * np.real(np.diag(gram))
     a_j = abs(coef[0])
     floor2 = _floor(ref, w, lattice) / max(a_j, 1e-300) ** 2
     index = {(n, m): _CARRIER_TERMS + i for i, (n, m, *_) in enumerate(fit)}
     out = []
     for n, m, h, _, delta in near:
-        i = index[(n, m)]
-        measured = bool(np.isfinite(inflation[i]) and inflation[i] <= _INFLATION
+        i = index.get((n, m))
+        measured = bool(i is not None and inflation[i] <= _INFLATION
                         and inflation[0] <= _INFLATION and a_j > 0)
         # the sensor's noise and the print's defects add their power at every
         # frequency: taken out in quadrature, as measured where no harmonic folds
@@ -252,7 +259,8 @@ def _measured_harmonics(ref, w, lattice, j, k, sigma, mean) -> list[dict]:
         # a print's reflectance is not negative: none of its Fourier coefficients
         # exceeds its mean, and the pixel's integration then multiplies each by
         # mtf(h): what is fitted beyond that is the carrier's modulation, not a harmonic
-        r = min(r, abs(mean) / max(a_j, 1e-300) * _mtf(h) / _mtf(k))
+        if measured:
+            r = min(r, abs(mean) / a_j * _mtf(h) / _mtf(k))
         out.append({"order": [n, m], "carrier": j + 1, "relative_amplitude": r,
                     "fold_distance": delta, "transfer": _transfer(delta, sigma),
                     "change": float(np.hypot(*(h - k))), "measured": measured})
