@@ -113,8 +113,10 @@ def aliasing_bias(image, lattice, *, sigma: float, mask=None) -> dict:
     """
     img = as_image(image, allow_uniform=True).astype(np.float64)
     sigma = check_positive(sigma, "sigma")
-    w = _aliasing_window(img.shape, lattice, mask)
-    img, w = _central(img, w)
+    box = _central(img.shape)
+    img = img[box]
+    w = _aliasing_window(img.shape, lattice,
+                         None if mask is None else np.asarray(mask, dtype=bool)[box])
     # the lighting divided out: the local mean over two pitches, where the grid's
     # carriers are damped by exp(-8 pi^2) below 1e-34
     inside = (w > 0).astype(np.float64)
@@ -158,24 +160,18 @@ _APART = 1.5
 _POWERS = ((0, 0), (1, 0), (0, 1))
 _CARRIER_TERMS = len(_POWERS)
 
-# Free frequencies fitted beside the harmonics to measure the level they stand on,
-# and how many of the nearest ones a fold's level is taken from.
-_NULLS = 48
-
 # The amplitudes fitted are the image's averages; a print whose lines' widths vary
 # (a printer's banding, 6 % std) changes a harmonic's share line by line: the
 # largest local error of noise-free lines 0.2 pitch wide at pitch 4 px
 # (tests/world_camera.py) is 1.2 times the bound from the averages.
 _LOCAL = 1.25
-_NULLS_PER_FOLD = 4
 
 
-def _central(img, w):
-    """The central ``_MEASURE_SIDE`` square of the image and its weights."""
-    H, W = img.shape
+def _central(shape) -> tuple:
+    """The slices of the central ``_MEASURE_SIDE`` square of an image of ``shape``."""
+    H, W = shape
     r0, c0 = max(0, (H - _MEASURE_SIDE) // 2), max(0, (W - _MEASURE_SIDE) // 2)
-    box = (slice(r0, r0 + _MEASURE_SIDE), slice(c0, c0 + _MEASURE_SIDE))
-    return img[box], w[box]
+    return slice(r0, r0 + _MEASURE_SIDE), slice(c0, c0 + _MEASURE_SIDE)
 
 
 def _fold(f):
