@@ -406,6 +406,7 @@ def _model_bound(ref, w, lattice, sigma, records) -> dict:
                                                   checker)
             for r in records if r["measured"]
             and _model_term(lattice, *r["order"], ks, r["carrier"] - 1, checker) > 0.01]
+    seen += _sharpness_elsewhere(ref, w, lattice, checker)
     c = max(seen) if seen else 1.0
     out = []
     for r in records:
@@ -421,6 +422,45 @@ def _model_bound(ref, w, lattice, sigma, records) -> dict:
                          f"from the carrier's take a sharp print's amplitude ({what}, times "
                          "the pixel integration, scaled by the sharpness seen on the "
                          "others); twice one image's error (reference and deformed)")
+
+
+def _sharpness_elsewhere(ref, w, lattice, checker) -> list[float]:
+    """The print's harmonics relative to the sharp model's, where they fold away from
+    the carriers, from zero and from the Nyquist lines: per fold, the amplitude seen
+    there over the largest model amplitude of the harmonics that fold onto it (they
+    cannot be told apart; the largest is taken to hold what is seen)."""
+    H, W = ref.shape
+    scale = np.array([W, H])  # cycles/px to bins
+    ks = [np.array(lattice.k1), np.array(lattice.k2)]
+    a1 = 0.5 * (abs(_dtft(ref, w, ks[0])) + abs(_dtft(ref, w, ks[1])))
+    if not a1 > 0:
+        return []
+    top = int(_OPTICS_CUTOFF / min(np.hypot(*ks[0]), np.hypot(*ks[1]))) + 1
+    groups: list[list] = []
+    special = [np.zeros(2), *ks, -ks[0], -ks[1]]
+    # one family's harmonics only: a grid of lines added rather than crossed has no
+    # cross terms, and they would make it read as a sine
+    for n, m in [(n, 0) for n in range(2, top + 1)] + [(0, m) for m in range(2, top + 1)]:
+        h = n * ks[0] + m * ks[1]
+        if np.hypot(*h) <= _OPTICS_CUTOFF:
+            _group(groups, _fold(h), _model_term(lattice, n, m, ks, 0 if m == 0 else 1,
+                                                 checker), special, scale)
+    return [abs(_dtft(ref, w, g)) / a1 / t for g, t in groups if t > 0.01]
+
+
+def _group(groups: list, f, term, special, scale) -> None:
+    """Add the fold ``f`` of a harmonic of model amplitude ``term`` to ``groups``
+    (``[fold, largest term]``, folds within _APART bins, or of each other's conjugate,
+    one group), unless it lies within 4 bins of a ``special`` frequency or of the
+    Nyquist lines."""
+    if min(float(np.hypot(*(_fold(f - c) * scale))) for c in special) < 4 or \
+            np.any((0.5 - np.abs(f)) * scale < 4):
+        return
+    for g in groups:
+        if min(np.hypot(*(_fold(g[0] - s * f) * scale)) for s in (1, -1)) < _APART:
+            g[1] = max(g[1], term)
+            return
+    groups.append([f, term])
 
 
 def _model_term(lattice, n, m, ks, j, checker) -> float:
