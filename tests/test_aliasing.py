@@ -135,7 +135,7 @@ def test_harmonics_on_the_carrier_take_a_sharp_prints_bound():
     alias = res.systematic["aliasing"]
     assert not alias["observable"]
     assert not any(r["measured"] for r in alias["harmonics"])
-    # measured 0.022 px; the sharp print's bound, 0.18 px, holds
+    # measured 0.022 px; the sharp print's bound, 0.14 px, holds
     assert np.all(np.abs(err).max(axis=1) <= np.array(alias["u_px_components"]))
     said = [w for w in res.warnings if "alias onto the carrier" in w]
     assert said

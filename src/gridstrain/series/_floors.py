@@ -353,7 +353,8 @@ def _systematic_warnings(name: str, m: Measurement, fl: dict, alias: dict, smoot
     noise_txt = f"{u_noise:.2g} px" if known else "unknown"
     if alias["u_px"] > max(_ALIAS_FACTOR * u_noise, _ALIAS_MIN_PX):
         how = ("measured on the reference image" if alias["observable"] else
-               "a sharp print's, the harmonics on the carrier cannot be seen in one image")
+               "a sharp print's scaled by the sharpness seen elsewhere: harmonics on the "
+               "carrier cannot be seen in one image")
         e_max = float(np.max(np.abs(m.strain[:, m.valid]))) if m.valid.any() else 0.0
         ux, uy = alias.get("u_px_components", [alias["u_px"]] * 2)
         e_bound = alias["strain_per_strain"] * e_max + alias.get("strain_ripple", 0.0)

@@ -99,9 +99,12 @@ def aliasing_bias(image, lattice, *, sigma: float, mask=None) -> dict:
     from one another, where they are told apart. A harmonic whose
     fold cannot be told from its neighbours' (an integer pitch along the pixel axes:
     it lands exactly on the carrier, where no window removes it and no single image
-    sees it) is not measurable; then the bound of the sharp-print model stands (lines
-    of amplitudes ``1/n``, checkerboards ``1/|n^2 - m^2|``, times the pixel's
-    integration) and ``observable`` is False. No correction is applied: a harmonic on
+    sees it) is not measurable; then the sharp-print model stands in for it (lines of
+    amplitudes ``1/|n| 1/|m|``, checkerboards ``1/|n^2 - m^2|``, times the pixel's
+    integration), scaled by the largest ratio of what is seen to that model: on the
+    measured harmonics, and on one family's harmonics where they fold away from the
+    carriers (each fold against the largest model amplitude folding there), or 1
+    when nothing is seen; ``observable`` is False. No correction is applied: a harmonic on
     the carrier cannot be removed, and one off it is damped by the window already;
     the bound is stated and warned about where it exceeds the noise.
 
