@@ -67,7 +67,9 @@ def aliasing_bias(image, lattice, *, sigma: float, mask=None) -> dict:
         ``relative_amplitude`` to the carrier's, ``fold_distance`` cycles/px,
         ``transfer`` of the window, ``measured``); ``observable``: every harmonic
         counted was measured (otherwise the sharp-print model stands in, see Notes);
-        ``pattern``, ``sharpness``, ``method``.
+        ``sigma`` the window's, px; ``pattern`` ("measured", or the model's "lines" or
+        "checkerboard"), ``sharpness`` (the model's scale, 1 when measured),
+        ``method``.
 
     Notes
     -----
