@@ -132,9 +132,10 @@ def aliasing_bias(image, lattice, *, sigma: float, mask=None) -> dict:
     mean = float(np.sum(img * w) / np.sum(w))
     ref = img - mean
     ks = [np.array(lattice.k1, dtype=np.float64), np.array(lattice.k2, dtype=np.float64)]
+    floor = _floor(ref, w, lattice)
     records = []
     for j, k in enumerate(ks):
-        records.extend(_measured_harmonics(ref, w, lattice, j, k, sigma, mean))
+        records.extend(_measured_harmonics(ref, w, lattice, j, k, sigma, mean, floor))
     if any(not r["measured"] and r["relative_amplitude"] * r["transfer"] > _NEGLIGIBLE
            for r in records):
         return _model_bound(ref, w, lattice, sigma, records)
@@ -210,10 +211,10 @@ def _harmonics_near(lattice, k, sigma, radius_extra=0.0):
     return out
 
 
-def _measured_harmonics(ref, w, lattice, j, k, sigma, mean) -> list[dict]:
+def _measured_harmonics(ref, w, lattice, j, k, sigma, mean, floor) -> list[dict]:
     """The harmonics that fold near carrier ``k`` (index ``j``), their amplitudes
     relative to the carrier's fitted on ``ref`` (the image less its ``mean``) with
-    weights ``w``."""
+    weights ``w``, less the ``floor`` (:func:`_floor`) in quadrature."""
     H, W = ref.shape
     res = 1.0 / min(H, W)  # a bin of the spectrum, cycles/px
     near = _harmonics_near(lattice, k, sigma)
@@ -246,7 +247,7 @@ def _measured_harmonics(ref, w, lattice, j, k, sigma, mean) -> list[dict]:
     inflation = np.abs(np.real(np.diag(np.linalg.pinv(gram, hermitian=True)))) \
         * np.real(np.diag(gram))
     a_j = abs(coef[0])
-    floor2 = _floor(ref, w, lattice) / max(a_j, 1e-300) ** 2
+    floor2 = floor / max(a_j, 1e-300) ** 2
     index = {(n, m): _CARRIER_TERMS + i for i, (n, m, *_) in enumerate(fit)}
     out = []
     for n, m, h, _, delta in near:
