@@ -180,16 +180,6 @@ def test_homogeneous_strains(tmp_path, exx, eyy, kind, record_property):
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(strict=True, reason=(
-    "at pitch 5.0 px the 4th and 6th harmonics of lines 0.35 pitch wide alias onto "
-    "the carriers (4/5 = -1/5 and 6/5 = 1/5 cycle/px): median error 0.023 px, max "
-    "0.043 px, 51 % of the valid pixels beyond 5 std (0.004 px) plus the stated "
-    "aliasing bound, which is 0.0006 px (systematic_errors.aliasing.u_px), with no "
-    "aliasing warning: the crossed-line grid is classed 'checkerboard' (its ink "
-    "crossings make cross harmonics) and neither model counts even harmonics "
-    "(lines: odd n, 1/n; checkerboard: n + m odd). The same images through a direct "
-    "Gaussian-window sum at the reference's carrier give the same errors; lines half "
-    "a pitch wide give 0.0013 px"))
 def test_a_grid_of_narrow_lines_at_pitch_5(tmp_path, record_property):
     disp = stretch(0.02, -0.006, CENTRE)
     summary, res = _run(tmp_path, *_pair(tmp_path, disp, pitch=5.0, seed=1))
@@ -202,6 +192,8 @@ def test_a_grid_of_narrow_lines_at_pitch_5(tmp_path, record_property):
     # what gridstrain states at a pixel: the noise's std, and a bound on the
     # harmonics' aliasing beside it; 2 % as for the pairs above
     assert beyond <= 0.02, (beyond, alias)
+    # a median error six times the noise std (0.004 px) is said, not only bounded
+    assert [w for w in summary["warnings"] if "alias onto the carrier" in w]
 
 # --- an edge crack ---------------------------------------------------------------
 

@@ -230,9 +230,11 @@ def test_sine_at_pitch_5_3_no_aliasing_warning():
     rng = np.random.default_rng(0)
     res = measure_series(_camera(ref, 0.28, 5.0, rng).astype(float),
                          _camera(cur, 0.28, 5.0, rng).astype(float), guess=None)
-    # no harmonic folds near the carrier at pitch 5.3 and sigma = pitch: the estimate,
-    # 2e-6 px, is far below the noise
-    assert res.systematic["aliasing"]["u_px"] < 1e-4
+    # a sine has no harmonics, and at pitch 5.3 none would fold near the carrier: the
+    # bound, 3.6e-4 px, is what the fit finds at the folds in the noise, a tenth of
+    # the displacement noise std (3.7e-3 px); a fifth of it leaves room for the draw
+    std = float(np.median(np.asarray(res.uncertainty["ux_std"][0])[res.valid[0]]))
+    assert res.systematic["aliasing"]["u_px"] < 0.2 * std
     assert not any("alias" in w for w in res.warnings)
 
 

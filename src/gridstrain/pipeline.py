@@ -119,9 +119,11 @@ Metrological figures (``SeriesResult.metrology``, :func:`gridstrain.uncertainty.
 
 Systematic errors (``SeriesResult.systematic``)
     The uncertainty maps cover noise only. Two biases are estimated and warned
-    about where they can exceed the noise: the harmonics of sharp lines aliasing
-    onto the carrier (:func:`gridstrain.uncertainty.aliasing_bias`, from the
-    reference image's spectrum, or a bound where the profile cannot be seen),
+    about where they can exceed the noise: the grid's harmonics aliasing onto the
+    carriers (:func:`gridstrain.uncertainty.aliasing_bias`, every harmonic's
+    amplitude fitted on the reference image, a sharp print's where one lands on a
+    carrier and cannot be seen; a bound per component, warned of above twice the
+    displacement noise),
     and the window's smoothing of strain gradients, ``sigma^2 / 2 lap(e)``
     (:func:`gridstrain.uncertainty.smoothing_bias`, from the measured field).
 """

@@ -160,8 +160,10 @@ def _systematic_lines(result: SeriesResult) -> list[str]:
     if sy is None:
         return []
     a = sy["aliasing"]
-    how = "measured sharpness" if a["observable"] else "bound for sharp lines"
-    lines = [f"systematic: harmonic aliasing up to {_fmt(a['u_px'])} px ({how}); "
+    how = "harmonics measured" if a["observable"] else "a sharp print's harmonics"
+    ux, uy = a.get("u_px_components", [a["u_px"]] * 2)
+    lines = [f"systematic: harmonic aliasing up to {_fmt(ux)}/{_fmt(uy)} px (u_x/u_y, "
+             f"{how}); "
              "window smoothing of strain gradients (bound on the peak error, "
              f"{sy['smoothing'][0].get('factor', 1) if sy['smoothing'] else 1:g} x the "
              "largest sigma^2/2 lap e):"]

@@ -1,10 +1,11 @@
-"""Systematic errors the uncertainty maps do not cover: the harmonics of sharp lines aliasing
-onto the carrier (:func:`aliasing_bias`) and the window's smoothing of strain gradients
+"""Systematic errors the uncertainty maps do not cover: the grid's harmonics aliasing onto
+the carriers (:func:`aliasing_bias`) and the window's smoothing of strain gradients
 (:func:`smoothing_bias`).
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -15,9 +16,9 @@ from .._validation import (
     check_positive,
 )
 from ..phase._validity import filled_box
-from ._maps import _ATTENUATION
+from ._maps import _ATTENUATION, SPATIAL_RESOLUTION_PER_SIGMA
 
-__all__ = ["aliasing_bias", "smoothing_bias"]
+__all__ = ["aliasing_advice", "aliasing_bias", "aliasing_bound_at", "smoothing_bias"]
 
 # The smoothing bias's bound over its second-order estimate: Gaussian features 1.5 to
 # 3 sigma wide have actual peak errors 1.25 to 2.5 times the estimate (smoothing_bias).
@@ -27,9 +28,6 @@ _SMOOTHING_FACTOR = 3.0
 # sigma wide (std) stands out of the median over them.
 _BACKGROUND_SIGMAS = 20.0
 
-
-# Harmonic orders of the line profile considered for aliasing.
-_ALIAS_ORDERS = range(2, 16)
 
 # Harmonics above this spatial frequency, cycles/px, are taken as cut by the lens:
 # the diffraction cut-off 1 / (lambda N) of an f/5.6 lens in green light (0.55 um)
@@ -45,7 +43,8 @@ def _dtft(img: np.ndarray, w: np.ndarray, k) -> complex:
 
 
 def aliasing_bias(image, lattice, *, sigma: float, mask=None) -> dict:
-    """Phase and displacement error from the lines' harmonics aliasing onto the carrier.
+    """Bound of the displacement and strain errors from the grid's harmonics aliasing onto
+    the carriers, measured on the reference image.
 
     Parameters
     ----------
@@ -60,60 +59,437 @@ def aliasing_bias(image, lattice, *, sigma: float, mask=None) -> dict:
     Returns
     -------
     dict
-        ``phase_rad`` (2,): estimated bound of the phase error per wave vector;
-        ``u_px``: the largest displacement error, ``phase p / 2 pi``;
-        ``strain_per_strain``: strain error per unit of measured strain;
-        ``sharpness`` (2,): the lines' harmonics relative to sharp lines (1);
-        ``observable``: whether the sharpness was measured (harmonics that do not
-        alias onto a carrier exist) or assumed (1);
+        ``u_px_components`` (2,): bound of the ``(u_x, u_y)`` error, px; ``u_px`` their
+        largest; ``phase_rad`` (2,): amplitude of one image's phase error per wave
+        vector, rad; ``strain_per_strain``: bound of the strain error per unit of
+        measured strain (the largest component); ``strain_ripple``: the strain error's
+        part that does not scale with the strain (dimensionless); ``harmonics``: one
+        record per harmonic counted (``order`` ``(n, m)``, ``carrier`` 1 or 2,
+        ``relative_amplitude`` to the carrier's, ``fold_distance`` cycles/px,
+        ``transfer`` of the window, ``measured``); ``observable``: every harmonic
+        counted was measured (otherwise the sharp-print model stands in, see Notes);
+        ``sigma`` the window's, px; ``pattern`` ("measured", or the model's "lines" or
+        "checkerboard"), ``sharpness`` (the model's scale, 1 when measured),
         ``method``.
 
     Notes
     -----
-    Sampling folds the ``n``-th harmonic ``n k`` of the line profile to
-    ``n k`` modulo 1 cycle/px; when it lands within the window's bandwidth of a
-    carrier ``+-k`` the transform at ``k`` mixes it in, with the phase ``n phi``
-    instead of ``phi``: a phase error of amplitude ``(a_n / a_1) exp(-2 pi^2
-    sigma^2 Delta^2)`` rad, ``Delta`` the distance of the alias to the carrier.
-    At pitch 4 the 3rd, 5th, 7th... harmonics land exactly on ``-k``, ``+k``...
-    The bound sums these terms for sharp lines (a square profile, ``a_n / a_1
-    = 1/n`` for odd ``n``, times the pixel's integration ``sinc(n k)/sinc(k)``
-    along each axis; harmonics above 1.6 cycles/px left out, the diffraction cut-off
-    of an f/5.6 lens on 5-um pixels), scaled by the profile's sharpness: measured as the median
-    ratio of the odd harmonics that alias elsewhere (seen in the image's spectrum)
-    to their sharp-line value, or 1 when none can be seen (integer pitches such as 4,
-    where every alias lands on a carrier, zero or the Nyquist frequency). The
-    strain error follows from the phase ``(n + 1) phi`` of the error term: about
-    ``(n + 1)`` times the phase error per unit strain, an estimate of its order
-    (0.7 to 1.4 times the measured error). A checkerboard (recognised by its cross
-    harmonic ``2 k1 + k2``) has harmonics ``n k1 + m k2``, ``n + m`` odd, of
-    amplitudes ``1 / |n^2 - m^2|``, and its own estimate. Figures on noise-free
-    images stretched by 1e-3 (``tests/test_noise_sources.py``): sharp lines at
-    pitch 4, 0.026 px and 4.7e-4 measured, estimates 0.096 px and 6.8e-4; at
-    pitch 6, 0.048 px measured, 0.058 px estimated; sharp checkerboards at pitch
-    4 and 6, 0.013 and 0.0014 px measured, 0.057 and 0.015 px estimated; a sine
-    at pitch 5.3, below 1e-4 px.
+    The reference image holds the harmonics ``h = n k1 + m k2`` of its lattice, every
+    ``(n, m)``: even and odd orders, and the cross terms that a grid's ink crossings
+    or a checkerboard make. Sampling folds ``h`` to ``h`` modulo 1 cycle/px; one that
+    lands at ``Delta`` from a carrier ``k_j`` passes the window with the transfer
+    ``exp(-2 pi^2 sigma^2 Delta^2)`` and adds to the carrier's phase a term of
+    amplitude ``r_h = |c_h| / |c_j|`` times that transfer, whose phase moves as
+    ``2 pi (h - k_j) . u``: ``n`` times faster than the carrier's. The error is
+    periodic in the displacement, not a constant: the reference's and the deformed
+    image's terms add with phases that differ by ``2 pi (h - k_j) . u``, so the
+    displacement error is bounded by twice one image's amplitude,
+    ``|K^-1| 2 A / 2 pi`` per component (``A = sum_h r_h T_h``, ``K`` the matrix of
+    the wave vectors), and the strain error by ``|K^-1| sum_h r_h T_h (|h - k_j| e +
+    2 |Delta_h|)``; both times 1.25, for a print whose harmonics' share varies line by
+    line about the image's average that is measured.
+
+    The amplitudes are measured, not modelled: the harmonics whose folds lie within
+    the window's band of a carrier are fitted jointly with the carrier (its amplitude
+    allowed to vary linearly across the image) by weighted least squares, a Hann
+    window times the mask, on the image divided by its local mean over two pitches
+    (the lighting, whose variation would widen the carrier's peak over the bins where
+    the folds lie). The power that noise and print defects put at every frequency,
+    measured where no harmonic folds, is taken out in quadrature, and no amplitude
+    exceeds the mean level times the pixel's integration at its frequency (a
+    reflectance is not negative). A lattice turned or stretched away from a whole
+    number of pixels puts the folds a few frequency bins apart from the carrier and
+    from one another, where they are told apart. A harmonic whose
+    fold cannot be told from its neighbours' (an integer pitch along the pixel axes:
+    it lands exactly on the carrier, where no window removes it and no single image
+    sees it) is not measurable; then the sharp-print model stands in for it (lines of
+    amplitudes ``1/|n| 1/|m|``, checkerboards ``1/|n^2 - m^2|``, times the pixel's
+    integration), scaled by the largest ratio of what is seen to that model: on the
+    measured harmonics, and on one family's harmonics where they fold away from the
+    carriers (each fold against the largest model amplitude folding there), or 1
+    when nothing is seen; ``observable`` is False. No correction is applied: a harmonic on
+    the carrier cannot be removed, and one off it is damped by the window already;
+    the bound is stated and warned about where it exceeds the noise.
+
+    Figures (``tests/test_aliasing.py``): one harmonic of a direct sum, its amplitude
+    to 2 % and the measured error 0.8 times the bound; photographs of printed lines
+    0.2 to 0.5 pitch wide at pitches 4 to 7 px turned by 0.6 degree (noise-free,
+    stretched by 2 % and -0.6 %), largest errors 0.007 to 0.13 px, bounds 1.1 to 9.4
+    times them; a photographed sine grid, under half the noise std.
     """
     img = as_image(image, allow_uniform=True).astype(np.float64)
     sigma = check_positive(sigma, "sigma")
-    w = _aliasing_window(img.shape, lattice, mask)
-    ref = img - float(np.sum(img * w) / np.sum(w))
+    box = _central(img.shape)
+    img = img[box]
+    w = _aliasing_window(img.shape, lattice,
+                         None if mask is None else np.asarray(mask, dtype=bool)[box])
+    # the lighting divided out: the local mean over two pitches, where the grid's
+    # carriers are damped by exp(-8 pi^2) below 1e-34
+    inside = (w > 0).astype(np.float64)
+    s = 2.0 * float(np.mean(lattice.pitches))
+    light = ndimage.gaussian_filter(img * inside, s) / np.maximum(
+        ndimage.gaussian_filter(inside, s), 1e-12)
+    img = np.where(light > 0, img / np.where(light > 0, light, 1.0), 0.0)
+    mean = float(np.sum(img * w) / np.sum(w))
+    ref = img - mean
+    ks = [np.array(lattice.k1, dtype=np.float64), np.array(lattice.k2, dtype=np.float64)]
+    floor = _floor(ref, w, lattice)
+    records = []
+    for j, k in enumerate(ks):
+        records.extend(_measured_harmonics(ref, w, lattice, j, k, sigma, mean, floor))
+    if any(not r["measured"] and r["relative_amplitude"] * r["transfer"] > _NEGLIGIBLE
+           for r in records):
+        return _model_bound(ref, w, lattice, sigma, records)
+    return _bound(records, lattice, sigma, observable=True, pattern="measured",
+                  sharpness=[1.0, 1.0],
+                  method="every harmonic n k1 + m k2 folded within the window's band of a "
+                         "carrier, its amplitude fitted on the reference image, weighted "
+                         "by the window's transfer; twice one image's error (reference "
+                         "and deformed)")
+
+
+# The smallest share of the carrier's amplitude, after the window, that counts.
+_NEGLIGIBLE = 1e-4
+
+# Largest side of the region the harmonics are measured on, px: a central crop
+# resolves the folds (1 / 256 cycle/px) at a bounded cost.
+_MEASURE_SIDE = 256
+
+# A harmonic is measured when its fit's variance is at most this many times what it
+# would be alone: beyond, its fold overlaps another's or the carrier's.
+_INFLATION = 2.0
+
+# Folds closer than this, in bins of the spectrum, are not told apart (the Hann
+# window's main lobe is 2 bins wide each side).
+_APART = 1.5
+
+# The powers of (x, y) that multiply the carrier in the fit.
+_POWERS = ((0, 0), (1, 0), (0, 1))
+_CARRIER_TERMS = len(_POWERS)
+
+# The amplitudes fitted are the image's averages; a print whose lines' widths vary
+# (a printer's banding, 6 % std) changes a harmonic's share line by line: the
+# largest local error of noise-free lines 0.2 pitch wide at pitch 4 px
+# (tests/world_camera.py) is 1.2 times the bound from the averages.
+_LOCAL = 1.25
+
+
+def _central(shape) -> tuple:
+    """The slices of the central ``_MEASURE_SIDE`` square of an image of ``shape``."""
+    H, W = shape
+    r0, c0 = max(0, (H - _MEASURE_SIDE) // 2), max(0, (W - _MEASURE_SIDE) // 2)
+    return slice(r0, r0 + _MEASURE_SIDE), slice(c0, c0 + _MEASURE_SIDE)
+
+
+def _fold(f):
+    return (f + 0.5) % 1.0 - 0.5
+
+
+def _transfer(delta, sigma):
+    """The Gaussian window's transfer at ``delta`` cycles/px."""
+    return math.exp(-2 * math.pi**2 * sigma**2 * delta**2)
+
+
+def _harmonics_near(lattice, k, sigma, radius_extra=0.0):
+    """``[(n, m, h, fold, Delta)]``: the lattice's harmonics (below the optics'
+    cut-off) whose fold lies within the window's band of ``k`` (transfer above
+    ``_NEGLIGIBLE``), or ``radius_extra`` cycles/px beyond it."""
+    k1, k2 = np.array(lattice.k1), np.array(lattice.k2)
+    band = math.sqrt(math.log(1 / _NEGLIGIBLE) / (2 * math.pi**2)) / sigma + radius_extra
+    top = int(_OPTICS_CUTOFF / min(np.hypot(*k1), np.hypot(*k2))) + 1
+    out = []
+    for n in range(-top, top + 1):
+        for m in range(-top, top + 1):
+            h = n * k1 + m * k2
+            if (n, m) == (0, 0) or np.hypot(*h) > _OPTICS_CUTOFF or np.allclose(h, k):
+                continue
+            f = _fold(h)
+            d = f - k
+            d = d - np.round(d)  # the carrier's own images one cycle/px away
+            delta = float(np.hypot(*d))
+            if delta <= band:
+                out.append((n, m, h, k + d, delta))
+    return out
+
+
+def _measured_harmonics(ref, w, lattice, j, k, sigma, mean, floor) -> list[dict]:
+    """The harmonics that fold near carrier ``k`` (index ``j``), their amplitudes
+    relative to the carrier's fitted on ``ref`` (the image less its ``mean``) with
+    weights ``w``, less the ``floor`` (:func:`_floor`) in quadrature."""
+    H, W = ref.shape
+    res = 1.0 / min(H, W)  # a bin of the spectrum, cycles/px
+    near = _harmonics_near(lattice, k, sigma)
+    if not near:
+        return []
+    # harmonics just outside the band are fitted too, lest they leak into those in it;
+    # a fold closer than _APART bins (along each axis) to the carrier or to another
+    # fold is one frequency with it: not fitted, not measured
+    fit = _harmonics_near(lattice, k, sigma, radius_extra=4 * res)
+    freqs = np.array([k, *(f for *_, f, _ in fit)])
+    gap = np.hypot(*((freqs[:, None, :] - freqs[None, :, :]) * np.array([W, H])).T)
+    np.fill_diagonal(gap, np.inf)
+    fit = [x for x, g in zip(fit, gap[1:], strict=True) if g.min() >= _APART]
+    yy = (np.arange(H) - (H - 1) / 2) / H
+    xx = (np.arange(W) - (W - 1) / 2) / W
+    # the carrier times 1, x, y: what the lighting's division left of its variation
+    cols = [(k, c) for c in range(_CARRIER_TERMS)] + [(f, 0) for *_, f, _ in fit]
+    sw = np.sqrt(w)
+
+    def basis(f, kind):
+        px, py = _POWERS[kind]
+        ex = np.exp(2j * np.pi * f[0] * np.arange(W)) * xx**px
+        ey = np.exp(2j * np.pi * f[1] * np.arange(H)) * yy**py
+        return (sw * np.outer(ey, ex)).ravel()
+
+    A = np.stack([basis(f, kind) for f, kind in cols], axis=1)
+    b = (sw * ref).ravel()
+    gram = A.conj().T @ A
+    coef, *_ = np.linalg.lstsq(A, b, rcond=None)
+    inflation = np.abs(np.real(np.diag(np.linalg.pinv(gram, hermitian=True)))) \
+        * np.real(np.diag(gram))
+    a_j = abs(coef[0])
+    floor2 = floor / max(a_j, 1e-300) ** 2
+    index = {(n, m): _CARRIER_TERMS + i for i, (n, m, *_) in enumerate(fit)}
+    out = []
+    for n, m, h, _, delta in near:
+        i = index.get((n, m))
+        measured = bool(i is not None and inflation[i] <= _INFLATION
+                        and inflation[0] <= _INFLATION and a_j > 0)
+        # the sensor's noise and the print's defects add their power at every
+        # frequency: taken out in quadrature, as measured where no harmonic folds
+        r = float(math.sqrt(max(0.0, abs(coef[i] / a_j) ** 2 - floor2))) if measured \
+            else _sharp_term(lattice, n, m, k, j)
+        # a print's reflectance is not negative: none of its Fourier coefficients
+        # exceeds its mean, and the pixel's integration then multiplies each by
+        # mtf(h): what is fitted beyond that is the carrier's modulation, not a harmonic
+        if measured:
+            r = min(r, abs(mean) / a_j * _mtf(h) / _mtf(k))
+        out.append({"order": [n, m], "carrier": j + 1, "relative_amplitude": r,
+                    "fold_distance": delta, "transfer": _transfer(delta, sigma),
+                    "change": float(np.hypot(*(h - k))), "measured": measured})
+    return out
+
+
+def _floor(ref, w, lattice) -> float:
+    """The mean power of a fitted amplitude where no harmonic folds: the image's
+    weighted transform over the weights' sum, at up to 24 fixed frequencies 4 bins or
+    more from every harmonic's fold and 8 from zero."""
+    H, W = ref.shape
+    res = 1.0 / min(H, W)
+    k1, k2 = np.array(lattice.k1), np.array(lattice.k2)
+    top = int(_OPTICS_CUTOFF / min(np.hypot(*k1), np.hypot(*k2))) + 1
+    n, m = np.meshgrid(np.arange(-top, top + 1), np.arange(-top, top + 1))
+    h = n.reshape(-1, 1) * k1 + m.reshape(-1, 1) * k2
+    folds = _fold(h[np.hypot(h[:, 0], h[:, 1]) <= _OPTICS_CUTOFF])
+    trial = np.random.default_rng(0).uniform(-0.5, 0.5, (400, 2))  # the same each call
+    d = _fold(trial[:, None, :] - folds[None, :, :])
+    free = trial[np.all(np.hypot(d[..., 0], d[..., 1]) > 4 * res, axis=1)
+                 & (np.hypot(*trial.T) > 8 * res)][:24]
+    if free.size == 0:
+        return 0.0
+    total = float(np.sum(w))
+    return float(np.mean([abs(_dtft(ref, w, f) / total) ** 2 for f in free]))
+
+
+def _mtf(f):
+    """The pixel's integration of a harmonic of frequency ``f`` (cycles/px)."""
+    return abs(float(np.sinc(f[0]) * np.sinc(f[1])))
+
+
+def _sharp_term(lattice, n, m, k, j) -> float:
+    """A sharp grid's harmonic ``(n, m)`` relative to its fundamental ``j``: lines of
+    amplitudes ``1 / |n|`` along each axis and their crossings' products."""
+    h = n * np.array(lattice.k1) + m * np.array(lattice.k2)
+    return _mtf(h) / _mtf(k) / (max(1, abs(n)) * max(1, abs(m)))
+
+
+def _bound(records, lattice, sigma, *, observable, pattern, sharpness, method) -> dict:
+    """The result dict of :func:`aliasing_bias` from its harmonics' records."""
+    kinv = np.abs(np.linalg.inv(np.array([lattice.k1, lattice.k2])))  # px per cycle
+    amp, per_e, ripple = np.zeros(2), np.zeros(2), np.zeros(2)
+    for r in records:
+        j = r["carrier"] - 1
+        t = r["relative_amplitude"] * r["transfer"]
+        amp[j] += t
+        per_e[j] += t * r["change"]
+        ripple[j] += t * 2 * r["fold_distance"]
+    u = _LOCAL * kinv @ (2 * amp) / (2 * math.pi)
+    # the two images' terms: each moves its phase by 2 pi |h - k| . grad(u) per px
+    e = _LOCAL * kinv @ per_e
+    rip = _LOCAL * kinv @ ripple
+    keep = sorted(records, key=lambda r: -r["relative_amplitude"] * r["transfer"])
+    return {"phase_rad": [float(x) for x in amp], "u_px": float(u.max()),
+            "u_px_components": [float(x) for x in u],
+            "strain_per_strain": float(e.max()), "strain_ripple": float(rip.max()),
+            "harmonics": [{k: v for k, v in r.items() if k != "change"}
+                          for r in keep if r["relative_amplitude"] * r["transfer"]
+                          > _NEGLIGIBLE],
+            "sigma": float(sigma), "sharpness": [float(x) for x in sharpness],
+            "observable": bool(observable), "pattern": pattern, "method": method}
+
+
+def aliasing_bound_at(alias: dict, sigma: float) -> float:
+    """The displacement bound ``u_px`` of :func:`aliasing_bias`'s result ``alias`` had
+    the window's standard deviation been ``sigma`` px (the same harmonics, their
+    transfer through the wider or narrower window)."""
+    scale = alias["u_px"] / max(1e-300, _total(alias, alias["sigma"]))
+    return scale * _total(alias, sigma)
+
+
+def _total(alias, sigma):
+    return sum(r["relative_amplitude"] * _transfer(r["fold_distance"], sigma)
+               for r in alias["harmonics"])
+
+
+def aliasing_advice(alias: dict, lattice, noise_px: float) -> str:
+    """What brings the bound ``alias`` of :func:`aliasing_bias` below ``noise_px``: a
+    larger sigma (the smallest that does, if one up to 4 times the present does), and
+    otherwise, or besides, the nearest pitch at which the harmonics fold away from the
+    carriers (the amplitudes measured, those not measured from a sharp print scaled
+    as the measured ones)."""
+    sigma = alias["sigma"]
+    rec = alias["harmonics"]
+    if not rec:
+        return ("use a larger sigma, a pitch that is not a whole number of pixels, or a "
+                "print closer to a sine (slightly defocused)")
+    main = rec[0]
+    n, m = main["order"]
+    out = [f"the strongest, harmonic ({n}, {m}) at {main['relative_amplitude']:.2g} of the "
+           f"carrier, folds {main['fold_distance']:.3g} cycles/px from carrier "
+           f"k{main['carrier']}, where the window (sigma {sigma:.3g} px) passes "
+           f"{main['transfer']:.0%} of it"]
+    wider = [s for s in sigma * np.linspace(1.1, 4.0, 30)
+             if aliasing_bound_at(alias, s) <= noise_px]
+    if wider:
+        s = float(wider[0])
+        out.append(f"a sigma of {s:.3g} px brings it below the noise (spatial resolution "
+                   f"{SPATIAL_RESOLUTION_PER_SIGMA * s:.3g} px)")
+    else:
+        out.append(f"a larger sigma cannot damp it (sigma {4 * sigma:.3g} px still leaves "
+                   f"{aliasing_bound_at(alias, 4 * sigma):.2g} px)")
+    pitch = float(np.mean(lattice.pitches))
+    better = _better_pitch(alias, lattice, noise_px)
+    if better is not None:
+        out.append(f"a pitch of {better:.3g} px instead of {pitch:.3g} (a magnification "
+                   f"{better / pitch:.3g} times the present) folds the harmonics away from "
+                   "the carriers")
+    out.append("a print closer to a sine (slightly defocused) lowers the harmonics "
+               "themselves")
+    return "; ".join(out)
+
+
+def _better_pitch(alias, lattice, noise_px):
+    """The pitch nearest the present (within 15 %) at which the bound, the same print
+    imaged at another magnification, falls below ``noise_px``; None if none does."""
+    sigma = alias["sigma"]
+    amp = {(*r["order"], r["carrier"]): r["relative_amplitude"]
+           for r in alias["harmonics"]}
     ks = [np.array(lattice.k1), np.array(lattice.k2)]
-    carriers = [s * k for k in ks for s in (1, -1)]
-    bw = 1.0 / (2 * math.pi * sigma)  # the window's frequency std
-    checker = _checkerboard_bound(ref, w, lattice, sigma, carriers, bw)
-    if checker is not None:
-        return checker
-    phase, strain, sharp, seen = zip(*(_line_family_bound(ref, w, k, sigma, carriers, bw)
-                                       for k in ks), strict=True)
-    p = lattice.pitches
-    u = max(phase[j] * p[j] / (2 * math.pi) for j in range(2))
-    return {"phase_rad": [float(x) for x in phase], "u_px": float(u),
-            "strain_per_strain": float(max(strain)), "sharpness": [float(x) for x in sharp],
-            "observable": all(seen), "pattern": "lines",
-            "method": "harmonics n k folded by the sampling onto the carrier, weighted by "
-                      "the window's transfer; sharp-line amplitudes 1/n times the pixel "
-                      "integration, scaled by the measured sharpness"}
+    sharp = [r["relative_amplitude"] / t for r in alias["harmonics"]
+             if (t := _sharp_term(lattice, *r["order"], ks[r["carrier"] - 1],
+                                  r["carrier"] - 1)) > 0.01]
+    c = min(1.0, max(sharp)) if sharp else 1.0
+    kinv = np.abs(np.linalg.inv(np.array([lattice.k1, lattice.k2])))
+    for step in np.arange(0.01, 0.151, 0.01):
+        for s in (1 + step, 1 - step):
+            lat = dataclasses.replace(lattice, k1=tuple(ks[0] / s), k2=tuple(ks[1] / s))
+            tot = np.zeros(2)
+            for j, k in enumerate((ks[0] / s, ks[1] / s)):
+                for n, m, _, _, d in _harmonics_near(lat, k, sigma):
+                    r = amp.get((n, m, j + 1), c * _sharp_term(lat, n, m, k, j))
+                    tot[j] += r * _transfer(d, sigma)
+            if float(np.max(s * kinv @ (2 * tot))) / (2 * math.pi) <= noise_px:
+                return float(np.mean(lattice.pitches)) * s
+    return None
+
+
+def _model_bound(ref, w, lattice, sigma, records) -> dict:
+    """:func:`aliasing_bias` where some harmonics could not be measured: the sharp
+    grid's amplitudes for those (a checkerboard's when the image is one), scaled by
+    the sharpness seen on the others."""
+    ks = [np.array(lattice.k1), np.array(lattice.k2)]
+    checker = _is_checkerboard(ref, w, lattice)
+    seen = [r["relative_amplitude"] / _model_term(lattice, *r["order"], ks, r["carrier"] - 1,
+                                                  checker)
+            for r in records if r["measured"]
+            and _model_term(lattice, *r["order"], ks, r["carrier"] - 1, checker) > 0.01]
+    seen += _sharpness_elsewhere(ref, w, lattice, checker)
+    c = max(seen) if seen else 1.0
+    out = []
+    for r in records:
+        if not r["measured"]:
+            r = dict(r, relative_amplitude=c * _model_term(lattice, *r["order"], ks,
+                                                           r["carrier"] - 1, checker))
+        out.append(r)
+    what = "checkerboard, 1/|n^2 - m^2|" if checker else "lines, 1/|n| 1/|m|"
+    return _bound(out, lattice, sigma, observable=False,
+                  pattern="checkerboard" if checker else "lines", sharpness=[c, c],
+                  method="harmonics n k1 + m k2 folded within the window's band of a carrier, "
+                         "weighted by the window's transfer; those whose fold cannot be told "
+                         f"from the carrier's take a sharp print's amplitude ({what}, times "
+                         "the pixel integration, scaled by the sharpness seen on the "
+                         "others); twice one image's error (reference and deformed)")
+
+
+def _sharpness_elsewhere(ref, w, lattice, checker) -> list[float]:
+    """The print's harmonics relative to the sharp model's, where they fold away from
+    the carriers, from zero and from the Nyquist lines: per fold, the amplitude seen
+    there over the largest model amplitude of the harmonics that fold onto it (they
+    cannot be told apart; the largest is taken to hold what is seen)."""
+    H, W = ref.shape
+    scale = np.array([W, H])  # cycles/px to bins
+    ks = [np.array(lattice.k1), np.array(lattice.k2)]
+    a1 = 0.5 * (abs(_dtft(ref, w, ks[0])) + abs(_dtft(ref, w, ks[1])))
+    if not a1 > 0:
+        return []
+    top = int(_OPTICS_CUTOFF / min(np.hypot(*ks[0]), np.hypot(*ks[1]))) + 1
+    groups: list[list] = []
+    special = [np.zeros(2), *ks, -ks[0], -ks[1]]
+    # one family's harmonics only: a grid of lines added rather than crossed has no
+    # cross terms, and they would make it read as a sine
+    for n, m in [(n, 0) for n in range(2, top + 1)] + [(0, m) for m in range(2, top + 1)]:
+        h = n * ks[0] + m * ks[1]
+        if np.hypot(*h) <= _OPTICS_CUTOFF:
+            _group(groups, _fold(h), _model_term(lattice, n, m, ks, 0 if m == 0 else 1,
+                                                 checker), special, scale)
+    return [abs(_dtft(ref, w, g)) / a1 / t for g, t in groups if t > 0.01]
+
+
+def _group(groups: list, f, term, special, scale) -> None:
+    """Add the fold ``f`` of a harmonic of model amplitude ``term`` to ``groups``
+    (``[fold, largest term]``, folds within _APART bins, or of each other's conjugate,
+    one group), unless it lies within 4 bins of a ``special`` frequency or of the
+    Nyquist lines."""
+    if min(float(np.hypot(*(_fold(f - c) * scale))) for c in special) < 4 or \
+            np.any((0.5 - np.abs(f)) * scale < 4):
+        return
+    for g in groups:
+        if min(np.hypot(*(_fold(g[0] - s * f) * scale)) for s in (1, -1)) < _APART:
+            g[1] = max(g[1], term)
+            return
+    groups.append([f, term])
+
+
+def _model_term(lattice, n, m, ks, j, checker) -> float:
+    if not checker:
+        return _sharp_term(lattice, n, m, ks[j], j)
+    # a checkerboard's amplitudes are in the basis of its fundamentals; only n + m odd
+    if (n + m) % 2 == 0:
+        return 0.0
+    h = n * ks[0] + m * ks[1]
+    return _mtf(h) / _mtf(ks[j]) / abs(n * n - m * m)
+
+
+def _is_checkerboard(ref, w, lattice) -> bool:
+    """A checkerboard has the cross harmonics ``2 k1 + k2`` (n + m odd) but not
+    ``k1 + k2`` (n + m even); crossed lines have both."""
+    k1, k2 = np.array(lattice.k1), np.array(lattice.k2)
+    a1 = 0.5 * (abs(_dtft(ref, w, k1)) + abs(_dtft(ref, w, k2)))
+    if not a1 > 0:
+        return False
+    even = max(abs(_dtft(ref, w, _fold(k1 + s * k2))) for s in (1, -1)) / a1
+    odd = max(abs(_dtft(ref, w, _fold(2 * k1 + s * k2))) for s in (1, -1)) / a1
+    return bool(odd > 0.03 and even < 0.1 * odd + 0.01)
 
 
 def _aliasing_window(shape, lattice, mask) -> np.ndarray:
@@ -154,99 +530,6 @@ def _filled_box(m: np.ndarray):
     if np.count_nonzero(m) != (r1 - r0) * (c1 - c0):
         return None
     return (r0, r1), (c0, c1)
-
-
-def _line_family_bound(ref, w, k, sigma, carriers, bw):
-    """Aliasing bound of one family of lines of wave vector ``k`` (see aliasing_bias).
-
-    Returns the phase bound (rad) and the strain bound (per unit strain), both
-    scaled by the sharpness; the sharpness (1 for sharp lines); and whether it was
-    measured (odd harmonics seen away from every carrier) rather than assumed.
-    """
-    a1 = abs(_dtft(ref, w, k))
-    mtf1 = abs(np.sinc(k[0]) * np.sinc(k[1]))
-    bound = 0.0
-    strain_b = 0.0
-    ratios = []
-    orders = [n for n in _ALIAS_ORDERS if n * float(np.hypot(*k)) <= _OPTICS_CUTOFF]
-    folded = {m: (m * k + 0.5) % 1.0 - 0.5 for n in orders for m in (n, -n)}
-    folded.update({m: m * k for m in (-1, 1)})
-    for n in orders:
-        f = folded[n]
-        delta = min(float(np.hypot(*(f - c))) for c in carriers)
-        mtf = abs(np.sinc(n * k[0]) * np.sinc(n * k[1])) / mtf1
-        term = (1.0 / n if n % 2 else 0.0) * mtf
-        transfer = math.exp(-2 * math.pi**2 * sigma**2 * delta**2)
-        bound += term * transfer
-        strain_b += (n + 1) * term * transfer
-        # an odd harmonic whose alias is away from the carriers, from zero, from
-        # the Nyquist lines (where it meets its own conjugate) and from every
-        # other harmonic's alias can be measured
-        apart = all(float(np.hypot(*((g - f + 0.5) % 1.0 - 0.5))) > 3 * bw
-                    for m, g in folded.items() if m != n)
-        if n % 2 and term > 0.01 and delta > 3 * bw and np.hypot(*f) > 3 * bw and \
-                np.all(np.abs(np.abs(f) - 0.5) > 1.5 * bw) and apart and a1 > 0:
-            ratios.append(abs(_dtft(ref, w, n * k)) / a1 / term)
-    # the median: one harmonic caught by a mask edge or texture does not decide
-    c = min(1.0, float(np.median(ratios))) if ratios else 1.0
-    return c * bound, c * strain_b, c, bool(ratios)
-
-
-def _checkerboard_bound(ref, w, lattice, sigma, carriers, bw):
-    """The aliasing estimate of a checkerboard, or None when the image is a grid of
-    lines (no cross harmonic ``2 k1 + k2``).
-
-    A sharp checkerboard whose squares' diagonals run along ``k1`` and ``k2`` is
-    the product of two square waves of phases ``(phi1 + phi2)/2`` and
-    ``(phi1 - phi2)/2``: its harmonics are ``n k1 + m k2`` with ``n + m`` odd and
-    amplitudes ``1 / |n^2 - m^2|`` relative to the fundamental. The cross
-    harmonics (2, 1), (1, 2)... (a third for sharp squares, absent from a grid of
-    lines or a sine checkerboard) measure the sharpness.
-    """
-    k1, k2 = np.array(lattice.k1), np.array(lattice.k2)
-
-    def mtf(f):
-        return abs(np.sinc(f[0]) * np.sinc(f[1]))
-
-    def fold(f):
-        return (f + 0.5) % 1.0 - 0.5
-
-    a1 = 0.5 * (abs(_dtft(ref, w, k1)) + abs(_dtft(ref, w, k2)))
-    m1 = 0.5 * (mtf(k1) + mtf(k2))
-    if not a1 > 0:
-        return None
-    ratios = []
-    for n, m in ((2, 1), (1, 2), (2, -1), (-1, 2)):
-        h = n * k1 + m * k2
-        f = fold(h)
-        if min(float(np.hypot(*(f - c))) for c in carriers) > 3 * bw and \
-                np.hypot(*f) > 3 * bw and mtf(h) > 0.05 * m1:
-            ratios.append(abs(_dtft(ref, w, h)) / a1 / (mtf(h) / m1 / 3.0))
-    # a grid of lines has no cross harmonic: noise and leaks give a few per cent
-    if not ratios or float(np.median(ratios)) < 0.1:
-        return None
-    c = min(1.0, float(np.median(ratios)))
-    bound = strain_b = 0.0
-    order = range(-9, 10)
-    for n in order:
-        for m in order:
-            h = n * k1 + m * k2
-            if (n + m) % 2 == 0 or abs(n) + abs(m) == 1 or np.hypot(*h) > _OPTICS_CUTOFF:
-                continue
-            delta = min(float(np.hypot(*(fold(h) - cc))) for cc in carriers)
-            term = mtf(h) / m1 / abs(n * n - m * m)
-            transfer = math.exp(-2 * math.pi**2 * sigma**2 * delta**2)
-            # a pair (h, -h) folds onto the pair of carriers: count each once
-            bound += 0.5 * term * transfer
-            strain_b += 0.5 * (abs(n) + abs(m) + 1) * term * transfer
-    p = float(np.mean(lattice.pitches))
-    return {"phase_rad": [c * bound] * 2, "u_px": float(c * bound * p / (2 * math.pi)),
-            "strain_per_strain": float(c * strain_b), "sharpness": [c, c],
-            "observable": True, "pattern": "checkerboard",
-            "method": "harmonics n k1 + m k2 (n + m odd) of a checkerboard folded by the "
-                      "sampling onto the carrier, weighted by the window's transfer; "
-                      "sharp-square amplitudes 1/|n^2 - m^2| times the pixel integration, "
-                      "scaled by the sharpness measured on the cross harmonics"}
 
 
 def smoothing_bias(strain, valid, *, sigma: float) -> dict:
