@@ -351,13 +351,10 @@ def _systematic_warnings(name: str, m: Measurement, fl: dict, alias: dict, smoot
     known = [fl[k] for k in ("ux", "uy") if math.isfinite(fl[k])]
     u_noise = max(known) if known else 0.0
     noise_txt = f"{u_noise:.2g} px" if known else "unknown"
-    # warned only when measured: harmonics folding onto a carrier (an integer pitch
-    # along the pixel axes) cannot be seen in one image, and the sharp print's model
-    # that bounds them overstates a print close to a sine many times (the paper's grid
-    # at pitch 5 px: 0.15 px stated, 1e-3 px measured); the bound, said to be a
-    # model's, stays in the result's systematic errors
-    if alias["observable"] and alias["u_px"] > max(_ALIAS_FACTOR * u_noise, _ALIAS_MIN_PX):
-        how = "measured on the reference image"
+    if alias["u_px"] > max(_ALIAS_FACTOR * u_noise, _ALIAS_MIN_PX):
+        how = ("measured on the reference image" if alias["observable"] else
+               "a sharp print's scaled by the sharpness seen on the harmonics of their "
+               "parity elsewhere: harmonics on the carrier cannot be seen in one image")
         e_max = float(np.max(np.abs(m.strain[:, m.valid]))) if m.valid.any() else 0.0
         ux, uy = alias.get("u_px_components", [alias["u_px"]] * 2)
         e_bound = alias["strain_per_strain"] * e_max + alias.get("strain_ripple", 0.0)

@@ -69,7 +69,8 @@ def aliasing_bias(image, lattice, *, sigma: float, mask=None) -> dict:
         ``transfer`` of the window, ``measured``); ``observable``: every harmonic
         counted was measured (otherwise the sharp-print model stands in, see Notes);
         ``sigma`` the window's, px; ``pattern`` ("measured", or the model's "lines" or
-        "checkerboard"), ``sharpness`` (the model's scale, 1 when measured),
+        "checkerboard"), ``sharpness`` (the model's scale for odd and even
+        harmonics, 1 when measured),
         ``method``.
 
     Notes
@@ -248,16 +249,22 @@ def _measured_harmonics(ref, w, lattice, j, k, sigma, mean, floor) -> list[dict]
     inflation = np.abs(np.real(np.diag(np.linalg.pinv(gram, hermitian=True)))) \
         * np.real(np.diag(gram))
     a_j = abs(coef[0])
-    floor2 = floor / max(a_j, 1e-300) ** 2
     index = {(n, m): _CARRIER_TERMS + i for i, (n, m, *_) in enumerate(fit)}
+    folds = np.array([f for *_, f, _ in fit]).reshape(-1, 2)
     out = []
-    for n, m, h, _, delta in near:
+    for n, m, h, f, delta in near:
         i = index.get((n, m))
         measured = bool(i is not None and inflation[i] <= _INFLATION
                         and inflation[0] <= _INFLATION and a_j > 0)
         # the sensor's noise and the print's defects add their power at every
-        # frequency: taken out in quadrature, as measured where no harmonic folds
-        r = float(math.sqrt(max(0.0, abs(coef[i] / a_j) ** 2 - floor2))) if measured \
+        # frequency, and the specimen's reflectance (a hole, an edge, a stain)
+        # modulates the carrier, spreading its spectrum around it: both taken out in
+        # quadrature, as measured where no harmonic folds, at random frequencies and
+        # on the ring of the fold's distance around the carrier
+        near_floor = _ring_floor(ref, w, k, f - k, np.vstack([folds, [k]]), (W, H)) \
+            if measured else 0.0
+        f2 = max(floor, near_floor) / max(a_j, 1e-300) ** 2
+        r = float(math.sqrt(max(0.0, abs(coef[i] / a_j) ** 2 - f2))) if measured \
             else _sharp_term(lattice, n, m, k, j)
         # a print's reflectance is not negative: none of its Fourier coefficients
         # exceeds its mean, and the pixel's integration then multiplies each by
@@ -268,6 +275,27 @@ def _measured_harmonics(ref, w, lattice, j, k, sigma, mean, floor) -> list[dict]
                     "fold_distance": delta, "transfer": _transfer(delta, sigma),
                     "change": float(np.hypot(*(h - k))), "measured": measured})
     return out
+
+
+# Offsets on the ring around a carrier where the power beside a fold is measured.
+_RING = 12
+
+
+def _ring_floor(ref, w, k, d, avoid, size) -> float:
+    """The mean power at the carrier ``k`` plus ``d`` turned by ``_RING`` angles around
+    it, away (``_APART`` bins or more) from every frequency in ``avoid``: what the
+    carrier's own spectrum, spread by the specimen's reflectance, puts at the fold's
+    distance from it."""
+    total = float(np.sum(w))
+    scale = np.asarray(size, dtype=np.float64)
+    powers = []
+    for t in np.arange(1, _RING) * (2 * math.pi / _RING):
+        c, s = math.cos(t), math.sin(t)
+        f = k + np.array([c * d[0] - s * d[1], s * d[0] + c * d[1]])
+        gaps = np.hypot(*((_fold(avoid - f)) * scale).T)
+        if gaps.min() >= _APART:
+            powers.append(abs(_dtft(ref, w, f) / total) ** 2)
+    return float(np.mean(powers)) if powers else 0.0
 
 
 def _floor(ref, w, lattice) -> float:
@@ -406,36 +434,53 @@ def _better_pitch(alias, lattice, noise_px):
 def _model_bound(ref, w, lattice, sigma, records) -> dict:
     """:func:`aliasing_bias` where some harmonics could not be measured: the sharp
     grid's amplitudes for those (a checkerboard's when the image is one), scaled by
-    the sharpness seen on the others."""
+    the sharpness seen on the others of the same parity.
+
+    A line's profile sets its odd and even harmonics apart: a symmetric profile of
+    half-pitch lines, or the paper's ``sin^3`` (harmonics 1 and 3), has no even ones,
+    while lines 0.35 pitch wide have both. An unseen harmonic of one family is scaled
+    by the sharpness seen on that family's harmonics of its parity; cross terms, or a
+    parity with nothing seen, by the largest seen on any."""
     ks = [np.array(lattice.k1), np.array(lattice.k2)]
     checker = _is_checkerboard(ref, w, lattice)
-    seen = [r["relative_amplitude"] / _model_term(lattice, *r["order"], ks, r["carrier"] - 1,
-                                                  checker)
+    seen = [(r["relative_amplitude"] / t, _parity(*r["order"]))
             for r in records if r["measured"]
-            and _model_term(lattice, *r["order"], ks, r["carrier"] - 1, checker) > 0.01]
+            and (t := _model_term(lattice, *r["order"], ks, r["carrier"] - 1, checker)) > 0.01]
     seen += _sharpness_elsewhere(ref, w, lattice, checker)
-    c = max(seen) if seen else 1.0
+    c_all = max(c for c, _ in seen) if seen else 1.0
+    by_parity = {p: max(c for c, q in seen if q == p) for p in (0, 1)
+                 if any(q == p for _, q in seen)}
     out = []
     for r in records:
         if not r["measured"]:
+            c = by_parity.get(_parity(*r["order"]), c_all)
             r = dict(r, relative_amplitude=c * _model_term(lattice, *r["order"], ks,
                                                            r["carrier"] - 1, checker))
         out.append(r)
     what = "checkerboard, 1/|n^2 - m^2|" if checker else "lines, 1/|n| 1/|m|"
     return _bound(out, lattice, sigma, observable=False,
-                  pattern="checkerboard" if checker else "lines", sharpness=[c, c],
+                  pattern="checkerboard" if checker else "lines",
+                  sharpness=[by_parity.get(1, c_all), by_parity.get(0, c_all)],
                   method="harmonics n k1 + m k2 folded within the window's band of a carrier, "
                          "weighted by the window's transfer; those whose fold cannot be told "
                          f"from the carrier's take a sharp print's amplitude ({what}, times "
                          "the pixel integration, scaled by the sharpness seen on the "
-                         "others); twice one image's error (reference and deformed)")
+                         "others of their parity); twice one image's error (reference and "
+                         "deformed)")
 
 
-def _sharpness_elsewhere(ref, w, lattice, checker) -> list[float]:
+def _parity(n: int, m: int) -> int | None:
+    """A harmonic of one family's parity (``n`` or ``m`` odd: 1, even: 0); None for a
+    cross term."""
+    return abs(n + m) % 2 if n == 0 or m == 0 else None
+
+
+def _sharpness_elsewhere(ref, w, lattice, checker) -> list[tuple[float, int | None]]:
     """The print's harmonics relative to the sharp model's, where they fold away from
     the carriers, from zero and from the Nyquist lines: per fold, the amplitude seen
     there over the largest model amplitude of the harmonics that fold onto it (they
-    cannot be told apart; the largest is taken to hold what is seen)."""
+    cannot be told apart; the largest is taken to hold what is seen), with their
+    parity (None when harmonics of both parities fold there)."""
     H, W = ref.shape
     scale = np.array([W, H])  # cycles/px to bins
     ks = [np.array(lattice.k1), np.array(lattice.k2)]
@@ -451,23 +496,25 @@ def _sharpness_elsewhere(ref, w, lattice, checker) -> list[float]:
         h = n * ks[0] + m * ks[1]
         if np.hypot(*h) <= _OPTICS_CUTOFF:
             _group(groups, _fold(h), _model_term(lattice, n, m, ks, 0 if m == 0 else 1,
-                                                 checker), special, scale)
-    return [abs(_dtft(ref, w, g)) / a1 / t for g, t in groups if t > 0.01]
+                                                 checker), special, scale, (n + m) % 2)
+    return [(abs(_dtft(ref, w, g)) / a1 / t, par) for g, t, par in groups if t > 0.01]
 
 
-def _group(groups: list, f, term, special, scale) -> None:
-    """Add the fold ``f`` of a harmonic of model amplitude ``term`` to ``groups``
-    (``[fold, largest term]``, folds within _APART bins, or of each other's conjugate,
-    one group), unless it lies within 4 bins of a ``special`` frequency or of the
-    Nyquist lines."""
+def _group(groups: list, f, term, special, scale, parity: int) -> None:
+    """Add the fold ``f`` of a harmonic of model amplitude ``term`` and ``parity`` to
+    ``groups`` (``[fold, largest term, parity or None]``, folds within _APART bins, or
+    of each other's conjugate, one group), unless it lies within 4 bins of a
+    ``special`` frequency or of the Nyquist lines."""
     if min(float(np.hypot(*(_fold(f - c) * scale))) for c in special) < 4 or \
             np.any((0.5 - np.abs(f)) * scale < 4):
         return
     for g in groups:
         if min(np.hypot(*(_fold(g[0] - s * f) * scale)) for s in (1, -1)) < _APART:
             g[1] = max(g[1], term)
+            if g[2] != parity:
+                g[2] = None
             return
-    groups.append([f, term])
+    groups.append([f, term, parity])
 
 
 def _model_term(lattice, n, m, ks, j, checker) -> float:
