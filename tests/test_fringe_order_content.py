@@ -182,3 +182,35 @@ def test_strain_if_off_is_the_strain_a_period_away():
     assert strain_if_off(right) == pytest.approx(c * PITCH, rel=0.05)
     # without the correction the strain does not depend on the order
     assert strain_if_off(deformation(rm, cm, guess=(3.0, -1.0), lagrangian=False)) == 0.0
+
+
+def test_a_record_on_a_bare_grid_compares_its_content_only_now_and_then(monkeypatch):
+    """A record whose reference holds nothing but the grid: its content decides nothing,
+    so after three states it is compared only every ninth; the maps and every state's
+    verdict are those of comparing it at every state."""
+    from gridstrain.kinematics import _fringe_order
+    from sequence_record import record
+
+    frames = record(13, (96, 128), strain=2e-3)
+    calls = []
+    real = _fringe_order._CoarseReference.content
+
+    def counted(self, *args, **kwargs):
+        c = real(self, *args, **kwargs)
+        calls.append(c.tiles_informative)
+        return c
+
+    monkeypatch.setattr(_fringe_order._CoarseReference, "content", counted)
+    gated = measure_series(frames[0], list(frames[1:]))
+    gated_calls = list(calls)
+    monkeypatch.setattr(_fringe_order, "_FUTILE", 10**9)
+    calls.clear()
+    every = measure_series(frames[0], list(frames[1:]))
+    assert not any(calls)  # nothing informative, state after state
+    # states 4 to 11 not compared: three decided nothing, then eight skipped
+    assert len(gated_calls) == len(calls) - 8
+    np.testing.assert_array_equal(np.asarray(gated.u), np.asarray(every.u))
+    np.testing.assert_array_equal(np.asarray(gated.valid), np.asarray(every.valid))
+    assert [r.confirmed for r in gated.fringe_orders] == \
+        [r.confirmed for r in every.fringe_orders]
+    assert [r.source for r in gated.fringe_orders] == [r.source for r in every.fringe_orders]

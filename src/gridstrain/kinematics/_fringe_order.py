@@ -296,6 +296,13 @@ def coarse_displacement(reference, deformed, lattice: Lattice, *, mask=None,
     return _CoarseReference(ref, lattice, m).estimate(cur, phase_shift)
 
 
+# A record's states whose content decided nothing before the comparison is made only
+# every _RECHECK states: a reference holding nothing but the grid never decides, and
+# the comparison is most of a small state's cost.
+_FUTILE = 3
+_RECHECK = 8
+
+
 class _CoarseReference:
     """The reference's side of :func:`coarse_displacement` (its band-passed image,
     masks and transforms), computed once and used for every deformed image of a
@@ -306,6 +313,9 @@ class _CoarseReference:
         self.lattice, self.mask = lattice, mask
         self._sides: dict[bool, _Side] = {}
         self._gf = None
+        # states in a row whose content below the grid's frequency decided nothing
+        # (no tile informative), and the states decided since the last comparison
+        self._futile = self._since = 0
 
     def side(self, whole: bool) -> _Side:
         if whole not in self._sides:
@@ -346,8 +356,18 @@ class _CoarseReference:
         est = self.estimate(deformed, -solve_k(self.lattice.K, np.angle(mean)) / (2 * np.pi))
         if est.confident:
             return est
+        if self._futile >= _FUTILE and self._since < _RECHECK:
+            # a record on a reference with nothing but the grid: its content has
+            # decided nothing state after state, and compared again every _RECHECK
+            # states (content may come into the compared region as the specimen moves)
+            self._since += 1
+            return dataclasses.replace(
+                est, reason=f"{est.reason}; below the grid's frequency: nothing decided "
+                            f"in the last {self._futile} states compared")
         u = field_from_phases(z, ok, self.lattice)
         c = self.content(deformed, u, ok, gradient=gradient(u, q))
+        self._futile = self._futile + 1 if c.tiles_informative == 0 else 0
+        self._since = 0
         tiles = (c.tiles_agreeing, c.tiles_informative)
         if c.confident:
             return dataclasses.replace(
