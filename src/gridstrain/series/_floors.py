@@ -256,6 +256,7 @@ class _ReferenceFloor:
                  lattice: Lattice, window: Window, method: str, report: Progress,
                  warnings: list):
         self.r, self.lattice, self.sigma = r, lattice, window.sigma
+        self.alias_said = False  # the aliasing's warning, given once a run
         T1, T2 = ref_pass.half_counts()
         if min(T1, T2) >= 1:
             self.su, self.se = _split_floor(ref_pass, lattice, window.sigma, r.mask,
@@ -312,8 +313,10 @@ class _ReferenceFloor:
                       "eyy": float(row["theory_strain"][1]),
                       "exy": float(row["theory_strain"][2])}
         smooth = smoothing_bias(res.strain, res.valid, sigma=self.sigma)
-        warnings.extend(_systematic_warnings(c.name, res, floors, alias, smooth,
-                                             self.lattice))
+        said = _systematic_warnings(c.name, res, floors, alias, smooth, self.lattice,
+                                    alias_said=self.alias_said)
+        self.alias_said |= any(_ALIAS_WORDS in w for w in said)
+        warnings.extend(said)
         return res, rec, unc, floors, smooth
 
     def _uncertainty(self, c: _Measured, res: Measurement):
@@ -344,14 +347,19 @@ class _ReferenceFloor:
                           frames=tuple(int(d.T) for d in done), **rows)
 
 
+_ALIAS_WORDS = "harmonics of the grid alias onto the carrier"
+
+
 def _systematic_warnings(name: str, m: Measurement, fl: dict, alias: dict, smooth: dict,
-                         lattice: Lattice) -> list[str]:
-    """Warnings for the systematic errors of one state that can exceed its noise."""
+                         lattice: Lattice, *, alias_said: bool = False) -> list[str]:
+    """Warnings for the systematic errors of one state that can exceed its noise; the
+    aliasing's once a run (``alias_said``: already given for an earlier state): its
+    bound is the reference's print at its pitch, the same for every state."""
     out = []
     known = [fl[k] for k in ("ux", "uy") if math.isfinite(fl[k])]
     u_noise = max(known) if known else 0.0
     noise_txt = f"{u_noise:.2g} px" if known else "unknown"
-    if alias["u_px"] > max(_ALIAS_FACTOR * u_noise, _ALIAS_MIN_PX):
+    if not alias_said and alias["u_px"] > max(_ALIAS_FACTOR * u_noise, _ALIAS_MIN_PX):
         how = ("measured on the reference image" if alias["observable"] else
                "a sharp print's scaled by the sharpness seen on the harmonics of their "
                "parity elsewhere: harmonics on the carrier cannot be seen in one image")
@@ -364,7 +372,9 @@ def _systematic_warnings(name: str, m: Measurement, fl: dict, alias: dict, smoot
                    f"{lattice.pitch:.3g} px: displacement error up to {ux:.2g} px (u_x) and "
                    f"{uy:.2g} px (u_y), periodic in the displacement, and strain error up "
                    f"to {e_bound:.2g} (amplitudes {how}){ratio}; "
-                   + aliasing_advice(alias, lattice, u_noise if known else _ALIAS_MIN_PX))
+                   + aliasing_advice(alias, lattice, u_noise if known else _ALIAS_MIN_PX)
+                   + " (the reference's print at its pitch: the states after it share the "
+                     "bound)")
     for j, comp in enumerate(("exx", "eyy", "exy")):
         b, bound = smooth["estimate_max"][j], smooth["max"][j]
         e_noise = fl[comp]
