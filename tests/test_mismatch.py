@@ -238,3 +238,19 @@ def test_the_stated_spread_is_that_of_the_correlation():
     assert abs(np.std(h0) / np.mean(sd0) - 1) < 0.15
     assert abs(np.mean(h0)) < 3 * np.mean(sd0) / math.sqrt(200)  # no shared content
     assert np.std(z1) < 1.15 * np.mean(sd1)
+
+
+def test_the_frames_of_one_record_are_not_compared(tmp_path):
+    # the reference taken from the record's first frames (--reference-frames): the
+    # states are frames of the same file, one camera's record of one specimen
+    from sequence_record import record
+
+    frames = record(4, (96, 128), strain=1e-3)
+    tifffile.imwrite(tmp_path / "rec.tif", frames, photometric="minisblack")
+    res = measure_series(None, tmp_path / "rec.tif", reference_frames=1)
+    assert [r["verdict"] for r in res.systematic["pair_match"]] == ["same record"] * 3
+    # the same frames as files of their own are compared
+    for t, f in enumerate(frames):
+        tifffile.imwrite(tmp_path / f"f{t}.tif", f)
+    res = measure_series(tmp_path / "f0.tif", [tmp_path / f"f{t}.tif" for t in (1, 2, 3)])
+    assert "same record" not in [r["verdict"] for r in res.systematic["pair_match"]]

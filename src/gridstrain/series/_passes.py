@@ -214,6 +214,14 @@ def _pair_check(res, ref_mean: np.ndarray, ref_mask: np.ndarray, ref, cur, latti
     content is found in the state's, unless ``outliers="warn"``. ``ref``: the
     reference's summary (``_Summary``); ``cur``: the state (``_Measured``) with its
     mean image and noise variance."""
+    files = {str(p) for p in cur.series.paths}
+    if files and files <= set(ref.sources):
+        # the state's frames are frames of the very file the reference's come from
+        # (--reference-frames on a record): one camera's record of one specimen
+        nan = math.nan
+        return {"state": cur.name, "match": nan, "rho": nan, "rho_match": nan,
+                "rho_sd": nan, "snr": [nan, nan], "conclusive": False,
+                "verdict": "same record", "warped": False}, []
     v = res.valid
     var = cur.stats.variance
     var_cur = float(np.mean(var[v])) if var is not None and v.any() else math.nan
