@@ -47,9 +47,9 @@ def coupling_corrected(pm: PhaseMaps) -> PhaseMaps:
     Parameters
     ----------
     pm : PhaseMaps
-        Maps of one transform, demodulated at the carrier they were transformed at (not
-        brought to another one by :func:`demodulated_at`: ``omega`` is the mismatch with
-        that carrier).
+        Maps of one transform, demodulated at the carrier they were transformed at
+        (not yet brought to another by :func:`~gridstrain.phase.demodulated_at`:
+        ``omega`` is the mismatch with that carrier).
 
     Returns
     -------
