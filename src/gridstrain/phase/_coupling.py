@@ -108,7 +108,10 @@ def _bias(psi: np.ndarray, dphi: np.ndarray, sigma: float, weights: np.ndarray):
     wx, wy = dphi.astype(np.float32)
     # grad ln |Psi| = Re(grad Psi / Psi): ln |Psi| is as smooth as Psi where the grid
     # shows, and one map to differentiate rather than two
-    lnmod = np.log(np.abs(psi).astype(np.float32))
+    mod = np.abs(psi)
+    # relative to its largest value, so that images scaled by a power of two (12-bit
+    # data stored x16) give the same maps to the last bit
+    lnmod = np.log((mod / mod.max()).astype(np.float32))
     gx = _derivative(lnmod, weights, 1)
     gy = _derivative(lnmod, weights, 0)
     q = (gx * gx + gy * gy) * (sigma / _STEEPEST) ** 2
