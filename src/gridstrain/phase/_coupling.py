@@ -138,11 +138,8 @@ def _saturated(b: np.ndarray) -> np.ndarray:
 
 
 def _derivative(f: np.ndarray, weights: np.ndarray, axis: int) -> np.ndarray:
-    """The differentiator ``weights`` (:func:`_weights`) along ``axis`` (1: x, 0: y), the
-    ends repeated; a complex ``f`` by its real and imaginary parts."""
-    if np.iscomplexobj(f):
-        return (_derivative(f.real, weights, axis)
-                + 1j * _derivative(f.imag, weights, axis))
+    """The differentiator ``weights`` (:func:`_weights`) along ``axis`` (1: x, 0: y) of a
+    real map, the ends repeated."""
     return ndimage.correlate1d(f, weights.astype(f.dtype), axis=axis, mode="nearest")
 
 
