@@ -26,7 +26,7 @@ from .._validation import (
     check_type,
     check_workers,
 )
-from ..phase import Lattice, demodulated_at, detect_lattice
+from ..phase import Lattice, coupling_corrected, demodulated_at, detect_lattice
 from ..phase._validity import filled_box
 from ..phase.lattice import reference_carrier, state_carrier
 from ..wft import DEFAULT_MARGIN, PhaseMaps, wft
@@ -744,13 +744,17 @@ def measure(reference, deformed, *, lattice: Lattice | None = None,
     m = check_mask(mask, ref.shape)
     if check_type(lattice, "lattice", Lattice, allow_none=True) is None:
         lattice = detect_lattice(ref, mask=m)
-    pm_ref = wft(ref, lattice, sigma=sigma, mask=m, margin=margin, workers=None)
+    # each transform corrected at its own carrier, before any change of carrier: the
+    # window's phase-modulus coupling (gridstrain.phase.coupling_corrected)
+    pm_ref = coupling_corrected(wft(ref, lattice, sigma=sigma, mask=m, margin=margin,
+                                    workers=None))
     # the deformed specimen has moved: its mask is not the reference's, so the
     # deformed image is transformed whole and validity comes from its own moduli; at
     # its own carrier, a window off it biases the phase where the grid's amplitude
     # varies (gridstrain.wft.demodulated_at)
     carrier = state_carrier(cur, lattice, reference_carrier(ref, lattice))
-    pm_cur = wft(cur, carrier, sigma=pm_ref.sigma, margin=margin, workers=None)
+    pm_cur = coupling_corrected(wft(cur, carrier, sigma=pm_ref.sigma, margin=margin,
+                                    workers=None))
     if carrier is not lattice:
         pm_cur = demodulated_at(pm_cur, lattice)
     res = deformation(pm_ref, pm_cur, lagrangian=lagrangian, guess=guess,

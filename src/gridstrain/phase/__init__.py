@@ -5,11 +5,13 @@ transform (paper eqs. 22-25).
 - :mod:`~gridstrain.phase.window`: the Gaussian window (``sigma``, the validity margin
   and the minimum modulus), checked once;
 - ``_transform``: the transform itself, its fast and compiled derivatives, and
-  ``_kernels`` (numba loops, loaded on the first transform that uses them).
+  ``_kernels`` (numba loops, loaded on the first transform that uses them);
+- ``_coupling``: the window's phase-modulus coupling, corrected to first order.
 """
 
 from __future__ import annotations
 
+from ._coupling import coupling_corrected
 from ._maps import PhaseMaps, demodulated_at, finite_derivatives
 from ._maps import demodulated_in_place as demodulated_in_place
 from ._spectrum import transfer_function
@@ -18,7 +20,7 @@ from .lattice import Lattice, detect_lattice, follow_lattice
 from .window import MIN_MODULUS, Window
 
 __all__ = [
-    "DEFAULT_MARGIN", "MIN_MODULUS", "Lattice", "PhaseMaps", "Window", "demodulated_at",
-    "detect_lattice", "finite_derivatives", "follow_lattice", "transfer_function", "transform",
-    "wft", "wft_complex",
+    "DEFAULT_MARGIN", "MIN_MODULUS", "Lattice", "PhaseMaps", "Window", "coupling_corrected",
+    "demodulated_at", "detect_lattice", "finite_derivatives", "follow_lattice",
+    "transfer_function", "transform", "wft", "wft_complex",
 ]

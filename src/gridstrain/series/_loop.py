@@ -31,7 +31,7 @@ from ..discontinuities import check_parts, find_discontinuities, without_discont
 from ..io import close_readers
 from ..kinematics import Measurement
 from ..kinematics.tracking import _Tracker, check_after_warp
-from ..phase import Lattice, Window, demodulated_in_place
+from ..phase import Lattice, Window, coupling_corrected, demodulated_in_place
 from ..phase.lattice import reference_carrier
 from ..results import SeriesResult
 from ..sequences import StateInputs, state_inputs
@@ -467,6 +467,8 @@ def _measure(series: list, guesses: list, m: np.ndarray, o: MeasureOptions, step
                 steps.step(n * _pass_cost(method), f"{s.name}: one pass")
             out = _one_series(s, acc, m if k == 0 else None, window, o.max_saturation,
                               o.outliers, method, f32, steps)
+            # at the carrier it was transformed at (gridstrain.phase.coupling_corrected)
+            out = dataclasses.replace(out, maps=coupling_corrected(out.maps))
             if plans[k].lattice != lattice:  # a state at its own carrier (_carrier)
                 out = dataclasses.replace(out, maps=demodulated_in_place(out.maps, lattice))
             warnings.extend(out.warnings)
