@@ -55,15 +55,16 @@ _FOLLOW_SIGMAS = 4.0
 # at most this many sigmas wide (its equivalent width: the integral of its absolute
 # value over +-4 sigma, over sqrt(2 pi) times its height). A small jump's is the
 # window's profile, sigma wide; larger ones' are narrower or wider as the phases of
-# the two sides' phasors mix (measured: 0.2 to 1.42 sigma for jumps of 0.5 to 7 px
+# the two sides' phasors mix (measured: 0.2 to 1.46 sigma for jumps of 0.5 to 7 px
 # and 11 px at pitches 5 and 6.4 px, the widest for true openings past a pitch; one
 # of 9 px at a pitch of 5 px, 1.52 sigma, is taken for smooth). A smooth strain
 # concentration of width w is seen sqrt(w^2 + sigma^2) wide: 1.6 sigma and more for
 # bumps and bands of 1.5 to 3 sigma and 3 to 20 %, 1.51 to 1.55 sigma through the
 # shear lobes of bumps of 10 to 20 % (whose negative lobe the absolute value
 # counts). A ridge's sections, 10 strain noise deviations high at least, scatter by
-# 2 % about their median.
-_MAX_WIDTH = 1.45
+# 2 % about their median: the limit lies between the widest jump and the narrowest
+# smooth concentration measured, 1.46 and 1.51 sigma.
+_MAX_WIDTH = 1.485
 # The jump is the strain integrated over +-3 sigma from the crest (holding 0.9973
 # of the window's profile), the width over +-4 sigma, the baseline the line
 # through the means at 4.5 to 5.5 sigma on each side.
@@ -149,7 +150,7 @@ def find_discontinuities(m: Measurement, *, min_jump: float = _MIN_JUMP) -> Disc
     sigma`` and across the holes of pixels the reference measures and the deformed
     state does not (where the deformed grid vanishes along an opening near half a
     pitch). A ridge is kept only if its cross-sections, one through a seed
-    every ``sigma``, are no wider than a jump's (``_MAX_WIDTH``, 1.45 sigma, their
+    every ``sigma``, are no wider than a jump's (``_MAX_WIDTH``, 1.485 sigma, their
     median), a smooth strain concentration being seen wider than the window. Its
     jump is the strain integrated across it (over +-3 sigma, the median over its
     sections). A jump of a whole number of pitches leaves no trace in the phases
