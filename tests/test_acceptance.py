@@ -51,14 +51,21 @@ CHECKER = 9.0
 SRC = str(Path(gridstrain.__file__).resolve().parents[1])
 
 
-def _run(tmp, *args):
-    """``gridstrain measure ARGS -o out.h5 --json --quiet``: (JSON summary, result)."""
+def _measure(tmp, *args):
+    """``gridstrain measure ARGS -o out.h5 --json --quiet`` run in ``tmp``: the
+    finished process and the result's path."""
     out = tmp / "out.h5"
     env = dict(os.environ, PYTHONPATH=os.pathsep.join(
         [SRC, *filter(None, [os.environ.get("PYTHONPATH")])]))
     proc = subprocess.run([sys.executable, "-m", "gridstrain.cli", "measure", *map(str, args),
                            "-o", str(out), "--json", "--quiet"],
                           capture_output=True, text=True, env=env, cwd=tmp, timeout=1800)
+    return proc, out
+
+
+def _run(tmp, *args):
+    """``gridstrain measure ARGS -o out.h5 --json --quiet``: (JSON summary, result)."""
+    proc, out = _measure(tmp, *args)
     assert proc.returncode == 0, proc.stderr[-2000:]
     return json.loads(proc.stdout), load(out)
 
@@ -139,12 +146,7 @@ def test_a_pair_of_different_specimens_is_named(tmp_path):
     # pitches 13 % apart: a strain a test rarely reaches homogeneously
     other = Specimen((H, W), pitch=PITCH * 1.13, seed=7)
     paths = _pair(tmp_path, None, other=other)
-    out = tmp_path / "out.h5"
-    env = dict(os.environ, PYTHONPATH=os.pathsep.join(
-        [SRC, *filter(None, [os.environ.get("PYTHONPATH")])]))
-    proc = subprocess.run([sys.executable, "-m", "gridstrain.cli", "measure", *map(str, paths),
-                           "-o", str(out), "--json", "--quiet"],
-                          capture_output=True, text=True, env=env, cwd=tmp_path, timeout=1800)
+    proc, out = _measure(tmp_path, *paths)
     if proc.returncode == 0:  # measured: one warning names the state's file and the reference
         warnings = json.loads(proc.stdout)["warnings"]
         assert [w for w in warnings if "def.tif" in w and "reference" in w], warnings

@@ -12,6 +12,7 @@ from numpy.testing import assert_allclose, assert_array_equal
 
 from gridstrain import Lattice, stacks, synthetic
 from gridstrain.kinematics import deformation
+from gridstrain.phase import coupling_corrected
 from gridstrain.phase.lattice import reference_carrier as _reference_carrier
 from gridstrain.phase.lattice import state_carrier as _state_carrier
 from gridstrain.pipeline import measure_series
@@ -141,7 +142,8 @@ def test_each_state_is_the_direct_measurement_of_its_frames(data, tmp_path, meth
     kinematics.deformation on the two series' phase maps computed here from the
     frames: method A from the mean image, method B from one transform per frame
     averaged (stacks.method_b), their vibration offset about the frames' mean position
-    removed, both on the pixels whose mean image shows a grid
+    removed and the window's phase-modulus coupling taken out
+    (gridstrain.phase.coupling_corrected), both on the pixels whose mean image shows a grid
     (modulus at least a quarter of its median at both wave vectors, the documented
     rule for holes and edges: here a few pixels of the borders' band). The guess is
     automatic (the previous state's field from the second state on): the
@@ -165,7 +167,9 @@ def test_each_state_is_the_direct_measurement_of_its_frames(data, tmp_path, meth
             pm = wft(mean, lat, mask=grid)
         else:
             pm = stacks.method_b(frames, lat, mask=grid).maps
-        return finite_derivatives(stacks.correct_phases(pm, shifts, about="mean"))
+        # and the window's phase-modulus coupling taken out at the transform's carrier
+        return coupling_corrected(
+            finite_derivatives(stacks.correct_phases(pm, shifts, about="mean")))
 
     def state_maps(frames):
         own = _state_carrier(frames[0], LAT, _reference_carrier(ref[0], LAT))
