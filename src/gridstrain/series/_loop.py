@@ -404,6 +404,34 @@ def _setup(*, method, outliers, margin, sigma, order, sigma_pitches, max_saturat
 
 
 
+def _kinematics(tracker: _Tracker, c, guess, lattice: Lattice, ref_summary, outliers: str):
+    """``(measurement, fringe order, warnings, cracks, pair check)`` of state ``c``: its
+    kinematics with the tracker's guess, the fringe order checked once the image is
+    warped back, the cracks left out (each part they cut off checked on its own
+    content), and the pair check against the reference (``ref_summary``)."""
+    auto = isinstance(guess, str)
+    prev = tracker.prev  # the previous state's field, read back by a crack's parts
+    est = tracker.features(c.maps, c.stats.mean, guess)
+    res, rec, notes = tracker.measure(c.maps, est, guess, c.name)
+    if auto:
+        res, checked, said = check_after_warp(res, rec, tracker.coarse, c.stats.mean,
+                                              lattice, c.name)
+        if checked is not rec:  # confirmed now: the doubt said before is void
+            notes = [n for n in notes if "fringe order not confirmed" not in n]
+        rec = checked
+        notes = [*notes, *said]
+    images = (tracker.mean_ref, c.stats.mean, tracker.mask) if auto else None
+    confirmed = rec.confirmed
+    follow = prev[0] if prev is not None and rec.source == "previous state" else None
+    res, rec, found, said = _discontinuities(res, rec, c.name, images, follow)
+    del prev, follow
+    if rec.confirmed and not confirmed:  # each part by its own features now
+        notes = [n for n in notes if "fringe order not confirmed" not in n]
+    match, told = _pair_check(res, tracker.mean_ref, tracker.mask, ref_summary, c, lattice,
+                              outliers)
+    return res, rec, [*notes, *said, *told], found, match
+
+
 def _total_cost(series: list, o: MeasureOptions) -> float:
     """The measurement's cost for its progress: reading a frame costs 1, a transform
     about 4 frames' worth."""
@@ -504,30 +532,10 @@ def _measure(series: list, guesses: list, m: np.ndarray, o: MeasureOptions, step
             c, acc = one(i + 1)
             del acc
             c = noise.complete(c)
-            prev = tracker.prev  # the previous state's field, read back by a crack's parts
-            est = tracker.features(c.maps, c.stats.mean, guesses[i])
-            res, rec, notes = tracker.measure(c.maps, est, guesses[i], c.name)
-            if isinstance(guesses[i], str):
-                res, checked, said = check_after_warp(res, rec, tracker.coarse, c.stats.mean,
-                                                      lattice, c.name)
-                if checked is not rec:  # confirmed now: the doubt said before is void
-                    notes = [n for n in notes if "fringe order not confirmed" not in n]
-                rec = checked
-                notes = [*notes, *said]
-            # each part a crack cuts off is checked on its own image content
-            images = (tracker.mean_ref, c.stats.mean, tracker.mask) \
-                if isinstance(guesses[i], str) else None
-            confirmed = rec.confirmed
-            follow = prev[0] if prev is not None and rec.source == "previous state" else None
-            res, rec, found, said = _discontinuities(res, rec, c.name, images, follow)
-            del prev, follow
-            if rec.confirmed and not confirmed:  # each part by its own features now
-                notes = [n for n in notes if "fringe order not confirmed" not in n]
+            res, rec, notes, found, match = _kinematics(tracker, c, guesses[i], lattice,
+                                                        done[0], o.outliers)
             cracks.append(found)
-            match, told = _pair_check(res, tracker.mean_ref, tracker.mask, done[0], c, lattice,
-                                      o.outliers)
             matches.append(match)
-            notes = [*notes, *said, *told]
             c = c.dropping("mean")  # the image features and the pair check were its uses
             pager.page_out()  # the uncertainty maps read back the moduli only
             if o.output is not None:
