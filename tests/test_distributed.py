@@ -444,13 +444,18 @@ def _trim_threshold():
 
 
 @pytest.mark.slow
-def test_local_cluster_workers_keep_the_adaptive_malloc():
-    # Dask's default, 64 KiB, makes every transform 1.5 times slower
+def test_local_cluster_workers_keep_the_adaptive_malloc(monkeypatch):
+    # Dask's default, 64 KiB, makes every transform 1.5 times slower; a nanny started
+    # earlier in this process leaves it in the process's environment, which workers
+    # would inherit
     key = "distributed.nanny.pre-spawn-environ"
     before = dict(dask.config.get(key))
+    monkeypatch.setenv("MALLOC_TRIM_THRESHOLD_", str(before["MALLOC_TRIM_THRESHOLD_"]))
     with gd.connect("local", n_workers=1) as c:
         assert set(c.run(_trim_threshold).values()) == {None}
     assert dask.config.get(key) == before  # the user's configuration is left alone
+    # and the environment as it was
+    assert os.environ["MALLOC_TRIM_THRESHOLD_"] == str(before["MALLOC_TRIM_THRESHOLD_"])
 
 
 @pytest.mark.slow

@@ -157,6 +157,24 @@ def _local_workers() -> int:
 
 
 @contextlib.contextmanager
+def _without_inherited_trim(dask_value):
+    """This process's environment without the ``MALLOC_TRIM_THRESHOLD_`` that a Dask
+    nanny started earlier in it left there (a nanny writes its workers' variables into
+    its own process's environment, which every later worker inherits), for the time
+    the workers are spawned; a value of the user's own (another than Dask's) is kept."""
+    name = "MALLOC_TRIM_THRESHOLD_"
+    value = os.environ.get(name)
+    if dask_value is None or value is None or value != str(dask_value):
+        yield
+        return
+    del os.environ[name]
+    try:
+        yield
+    finally:
+        os.environ[name] = value
+
+
+@contextlib.contextmanager
 def connect(scheduler, *, n_workers: int | None = None,
             timeout: float | None = None) -> Iterator:
     """A ``distributed.Client`` for ``scheduler``, closed on exit if opened here.
@@ -213,10 +231,11 @@ def connect(scheduler, *, n_workers: int | None = None,
         # and unmapped afresh, and a 512 x 512 transform takes 1.5 times longer
         # (measured); the workers of this cluster keep glibc's adaptive default.
         key = "distributed.nanny.pre-spawn-environ"
-        environ = {k: v for k, v in _dask_config().get(key, default={}).items()
-                   if k != "MALLOC_TRIM_THRESHOLD_"}
+        configured = _dask_config().get(key, default={})
+        environ = {k: v for k, v in configured.items() if k != "MALLOC_TRIM_THRESHOLD_"}
         # single-threaded processes: the transforms hold the GIL part of the time
-        with _dask_config().set({key: environ}):
+        with _dask_config().set({key: environ}), \
+                _without_inherited_trim(configured.get("MALLOC_TRIM_THRESHOLD_")):
             cluster = distributed.LocalCluster(n_workers=int(n), threads_per_worker=1,
                                                processes=True, host="127.0.0.1",
                                                # a free port: never the default 8787 (None
