@@ -114,7 +114,8 @@ class PairMatch:
         Content variance over predicted noise variance, reference and deformed.
     conclusive : bool
         Whether both images hold enough content for the check (see the module).
-    verdict : {"match", "mismatch", "nothing matches", "inconclusive"}
+    verdict : {"match", "mismatch", "nothing matches", "inconclusive", "same record"}
+        ("same record": the series' frames come from one file, not compared)
     warped : bool
         Whether the figures are those of the warped image.
     """

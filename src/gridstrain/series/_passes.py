@@ -18,7 +18,7 @@ from .._threads import map_bounded
 from .._validation import (
     check_workers,
 )
-from ..kinematics import pair_match
+from ..kinematics import PairMatch, pair_match
 from ..phase import Lattice, Window, detect_lattice, finite_derivatives, transform
 from ..phase.lattice import state_carrier
 from ..phase.window import min_side
@@ -219,9 +219,8 @@ def _pair_check(res, ref_mean: np.ndarray, ref_mask: np.ndarray, ref, cur, latti
         # the state's frames are frames of the very file the reference's come from
         # (--reference-frames on a record): one camera's record of one specimen
         nan = math.nan
-        return {"state": cur.name, "match": nan, "rho": nan, "rho_match": nan,
-                "rho_sd": nan, "snr": [nan, nan], "conclusive": False,
-                "verdict": "same record", "warped": False}, []
+        same = PairMatch(nan, nan, nan, nan, (nan, nan), False, "same record", False)
+        return {"state": cur.name, **same.as_dict()}, []
     v = res.valid
     var = cur.stats.variance
     var_cur = float(np.mean(var[v])) if var is not None and v.any() else math.nan
