@@ -205,18 +205,12 @@ class FrameSeries:
         locs = [(self._number(j), *self._frames[j]) for j in indices]
         for f, group in groupby(locs, key=lambda loc: loc[1]):
             path = self.paths[f]
-            if self._video and self._video[f]:
-                # decoded one frame at a time, as the loop asks for it
+            video = bool(self._video and self._video[f])
+            if video or _is_camera(path):
+                # a record's frames decoded or read one at a time, as the loop asks
                 group = list(group)
-                frames = _read_video(path, [page for _, _, page, _ in group], self.name)
-                with contextlib.closing(frames):
-                    for (j, _, page, n_pages), raw in zip(group, frames, strict=True):
-                        where = f"frame {j} ({_describe(path, page, n_pages)})"
-                        yield where, self._checked(raw, where)
-            elif _is_camera(path):
-                # one frame read at a time, as the loop asks for it
-                group = list(group)
-                frames = _read_camera(path, (page for _, _, page, _ in group), self.name)
+                pages = [page for _, _, page, _ in group]
+                frames = (_read_video if video else _read_camera)(path, pages, self.name)
                 with contextlib.closing(frames):
                     for (j, _, page, n_pages), raw in zip(group, frames, strict=True):
                         where = f"frame {j} ({_describe(path, page, n_pages)})"
