@@ -313,10 +313,12 @@ class _ReferenceFloor:
                       "eyy": float(row["theory_strain"][1]),
                       "exy": float(row["theory_strain"][2])}
         smooth = smoothing_bias(res.strain, res.valid, sigma=self.sigma)
-        said = _systematic_warnings(c.name, res, floors, alias, smooth, self.lattice,
-                                    alias_said=self.alias_said)
-        self.alias_said |= any(_ALIAS_WORDS in w for w in said)
-        warnings.extend(said)
+        if not self.alias_said:  # the reference's print at its pitch: once a run
+            said = _aliasing_warning(c.name, res, floors, alias, self.lattice)
+            if said is not None:
+                warnings.append(said)
+                self.alias_said = True
+        warnings.extend(_smoothing_warnings(c.name, res, floors, smooth))
         return res, rec, unc, floors, smooth
 
     def _uncertainty(self, c: _Measured, res: Measurement):
@@ -347,34 +349,36 @@ class _ReferenceFloor:
                           frames=tuple(int(d.T) for d in done), **rows)
 
 
-_ALIAS_WORDS = "harmonics of the grid alias onto the carrier"
-
-
-def _systematic_warnings(name: str, m: Measurement, fl: dict, alias: dict, smooth: dict,
-                         lattice: Lattice, *, alias_said: bool = False) -> list[str]:
-    """Warnings for the systematic errors of one state that can exceed its noise; the
-    aliasing's once a run (``alias_said``: already given for an earlier state): its
-    bound is the reference's print at its pitch, the same for every state."""
-    out = []
+def _aliasing_warning(name: str, m: Measurement, fl: dict, alias: dict,
+                      lattice: Lattice) -> str | None:
+    """The warning of the harmonics' aliasing where its bound exceeds the state's
+    noise, or None. The bound is the reference's print at its pitch, the same for
+    every state: the series gives it once."""
     known = [fl[k] for k in ("ux", "uy") if math.isfinite(fl[k])]
     u_noise = max(known) if known else 0.0
     noise_txt = f"{u_noise:.2g} px" if known else "unknown"
-    if not alias_said and alias["u_px"] > max(_ALIAS_FACTOR * u_noise, _ALIAS_MIN_PX):
-        how = ("measured on the reference image" if alias["observable"] else
-               "a sharp print's scaled by the sharpness seen on the harmonics of their "
-               "parity elsewhere: harmonics on the carrier cannot be seen in one image")
-        e_max = float(np.max(np.abs(m.strain[:, m.valid]))) if m.valid.any() else 0.0
-        ux, uy = alias.get("u_px_components", [alias["u_px"]] * 2)
-        e_bound = alias["strain_per_strain"] * e_max + alias.get("strain_ripple", 0.0)
-        ratio = f", {alias['u_px'] / u_noise:.0f} times the noise std ({noise_txt})" \
-            if known and u_noise > 0 else f" (noise {noise_txt})"
-        out.append(f"{name}: harmonics of the grid alias onto the carrier at pitch "
-                   f"{lattice.pitch:.3g} px: displacement error up to {ux:.2g} px (u_x) and "
-                   f"{uy:.2g} px (u_y), periodic in the displacement, and strain error up "
-                   f"to {e_bound:.2g} (amplitudes {how}){ratio}; "
-                   + aliasing_advice(alias, lattice, u_noise if known else _ALIAS_MIN_PX)
-                   + " (the reference's print at its pitch: the states after it share the "
-                     "bound)")
+    if not alias["u_px"] > max(_ALIAS_FACTOR * u_noise, _ALIAS_MIN_PX):
+        return None
+    how = ("measured on the reference image" if alias["observable"] else
+           "a sharp print's scaled by the sharpness seen on the harmonics of their "
+           "parity elsewhere: harmonics on the carrier cannot be seen in one image")
+    e_max = float(np.max(np.abs(m.strain[:, m.valid]))) if m.valid.any() else 0.0
+    ux, uy = alias.get("u_px_components", [alias["u_px"]] * 2)
+    e_bound = alias["strain_per_strain"] * e_max + alias.get("strain_ripple", 0.0)
+    ratio = f", {alias['u_px'] / u_noise:.0f} times the noise std ({noise_txt})" \
+        if known and u_noise > 0 else f" (noise {noise_txt})"
+    return (f"{name}: harmonics of the grid alias onto the carrier at pitch "
+            f"{lattice.pitch:.3g} px: displacement error up to {ux:.2g} px (u_x) and "
+            f"{uy:.2g} px (u_y), periodic in the displacement, and strain error up "
+            f"to {e_bound:.2g} (amplitudes {how}){ratio}; "
+            + aliasing_advice(alias, lattice, u_noise if known else _ALIAS_MIN_PX)
+            + " (the reference's print at its pitch: the states after it share the bound)")
+
+
+def _smoothing_warnings(name: str, m: Measurement, fl: dict, smooth: dict) -> list[str]:
+    """Warnings for the window's smoothing of one state's strain gradients where its
+    bias can exceed the noise."""
+    out = []
     for j, comp in enumerate(("exx", "eyy", "exy")):
         b, bound = smooth["estimate_max"][j], smooth["max"][j]
         e_noise = fl[comp]
