@@ -244,10 +244,15 @@ def _measured_harmonics(ref, w, lattice, j, k, sigma, mean, floor) -> list[dict]
 
     A = np.stack([basis(f, kind) for f, kind in cols], axis=1)
     b = (sw * ref).ravel()
-    gram = A.conj().T @ A
-    coef, *_ = np.linalg.lstsq(A, b, rcond=None)
-    inflation = np.abs(np.real(np.diag(np.linalg.pinv(gram, hermitian=True)))) \
-        * np.real(np.diag(gram))
+    AH = A.conj().T
+    gram = AH @ A
+    # the normal equations through the Gram matrix's pseudo-inverse, which the
+    # inflation needs anyway: a few columns of well-separated frequencies (those
+    # closer are left out above) keep it well conditioned, and a column it cannot
+    # resolve is inflated beyond _INFLATION and not taken as measured
+    inv = np.linalg.pinv(gram, hermitian=True)
+    coef = inv @ (AH @ b)
+    inflation = np.abs(np.real(np.diag(inv))) * np.real(np.diag(gram))
     a_j = abs(coef[0])
     index = {(n, m): _CARRIER_TERMS + i for i, (n, m, *_) in enumerate(fit)}
     folds = np.array([f for *_, f, _ in fit]).reshape(-1, 2)
