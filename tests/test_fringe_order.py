@@ -407,6 +407,7 @@ def _dust_on_lens(n):
     return dust(xx, yy)
 
 
+@pytest.mark.parametrize("n", [128, 576])
 @pytest.mark.parametrize(("case", "shift", "confident"), [
     ("spots", (11.2, -3.1), True),
     ("featureless", (11.2, -3.1), False),
@@ -414,12 +415,13 @@ def _dust_on_lens(n):
     ("lens dust", (7.4, 0.0), False),
 ])
 def test_decimated_estimate_keeps_the_verdicts_of_full_resolution(monkeypatch, case, shift,
-                                                                   confident):
-    """Images of 576 px are correlated decimated by 2 (pitch 5): the band-pass keeps
+                                                                   confident, n):
+    """Images of n px are correlated decimated by 2 (pitch 5): the band-pass keeps
     nothing above 0.8 / pitch, below the new Nyquist frequency, so the verdict and
     its figures must be those of the full-resolution correlation, the trust
-    thresholds (0.5, 1.5, a quarter period) keeping their meaning."""
-    n, pitch = 576, 5.0
+    thresholds (0.5, 1.5, a quarter period) keeping their meaning; from the smallest
+    image decimated (64 samples a side) to large ones."""
+    pitch = 5.0
     lat = Lattice.from_pitch(pitch)
     assert kinematics._decimation((n, n), lat) == 2  # the decimated path is tested
     defects = {"spots": spots(np.random.default_rng(2), (n, n), n=300),
