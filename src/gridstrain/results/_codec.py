@@ -26,6 +26,7 @@ was a tuple or a list in ``_rows`` (a column that is not a group is wrapped in a
 from __future__ import annotations
 
 import dataclasses
+import itertools
 import numbers
 import os
 import types
@@ -671,12 +672,12 @@ def _counts(group, attr: str, n: int | None) -> list[int]:
     """A list of ``n`` whole numbers >= 0 stored as ``attr`` (one per row)."""
     if attr not in group.attrs:
         raise _Bad(f"{_where(group, attr)}: missing")
-    v = _attr(group, attr)
-    v = [v] if n is None else v
+    got = _attr(group, attr)
+    v = [got] if n is None else got
     if not isinstance(v, list) or (n is not None and len(v) != n) or not all(
             isinstance(x, int) and not isinstance(x, bool) and x >= 0 for x in v):
         want = "a whole number >= 0" if n is None else f"{n} whole numbers >= 0"
-        raise _Bad(f"{_where(group, attr)}: expected {want}, got {_received(v)}")
+        raise _Bad(f"{_where(group, attr)}: expected {want}, got {_received(got)}")
     return v
 
 
@@ -707,7 +708,7 @@ def _read_columns(g: h5py.Group, memo: dict, fill, index) -> list:
         flat = _column(g, "values", sum(lengths), memo, fill, None, marks)
         ends = np.cumsum([0, *lengths]).tolist()
         return [(tuple if seq == "tuple" else list)(flat[a:b])
-                for a, b in zip(ends[:-1], ends[1:], strict=True)]
+                for a, b in itertools.pairwise(ends)]
     if kind == "union":
         part = _counts(g, "part", n)
         if part and max(part) >= _MAX_PARTS:

@@ -440,7 +440,8 @@ def _check_result(path, result: SeriesResult) -> SeriesResult:
     for i, v in enumerate(result.vibration):
         if np.ndim(v.shifts) != 2 or np.shape(v.shifts)[1:] != (2,) \
                 or len(v.shifts) != v.n_frames:
-            raise _Bad(f"{path}: /{_GROUP}/result/vibration/{i}/shifts: expected shape "
+            # the row of the series in the column (vibration/{i}/shifts in format 2)
+            raise _Bad(f"{path}: /{_GROUP}/result/vibration/shifts[{i}]: expected shape "
                        f"({v.n_frames}, 2), got {np.shape(v.shifts)}")
     return result
 
