@@ -142,6 +142,10 @@ def _through_a_file(value, *, rows=None):
             _encode(h5, [("v", {"x": value})], {})
     finally:
         _codec_rows(None)
+    return _read_back(buf)
+
+
+def _read_back(buf):
     with h5py.File(buf, "r") as h5:
         return _decode(h5["v"], {}, lambda cls, group, values, row: values)["x"]
 
@@ -188,6 +192,13 @@ def test_every_kind_of_column_comes_back_as_it_was_written():
     assert all(x is back["same"][0] for x in back["same"])
     # and as the list written value by value does
     _same(value, _through_a_file(value, rows=1_000_000), "value")
+
+
+def test_arrays_too_large_to_stack_in_memory_are_written_a_chunk_at_a_time(monkeypatch):
+    monkeypatch.setattr(_codec, "_STACK_BYTES", 0)
+    value = {"maps": [np.arange(12.0).reshape(3, 4) * k for k in range(5)],
+             "flags": (np.array([True]), np.array([False]))}
+    _same(value, _through_a_file(value), "value")
 
 
 # --------------------------------------------------------------------------- format 2

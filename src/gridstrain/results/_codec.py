@@ -331,7 +331,7 @@ def _stack(group, key: str, values: list) -> None:
         _dataset(group, key, np.stack(values))
         return
     # too large to be copied into one array: written a chunk of rows at a time
-    step = max(1, 2**20 // max(first.nbytes, 1))
+    step = min(len(values), max(1, 2**20 // max(first.nbytes, 1)))  # chunks of ~1 MiB
     ds = group.create_dataset(key, shape=(len(values), *first.shape), dtype=first.dtype,
                               chunks=(step, *first.shape), **_FILTERS)
     for i in range(0, len(values), step):
