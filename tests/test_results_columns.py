@@ -117,35 +117,23 @@ def test_the_objects_of_the_file_do_not_grow_with_the_states(result, tmp_path):
     objects, attributes = _census(short)
     assert _census(long_) == (objects, attributes)
     # value by value (format 2), each state adds its groups
-    _codec_rows(1_000_000)
-    try:
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(_codec, "_MIN_ROWS", VALUE_BY_VALUE)
         per_item = save_result(longer, tmp_path / "per_item.h5")
-    finally:
-        _codec_rows(None)
     assert _census(per_item)[0] > objects + 10 * longer.n_states
 
 
-_DEFAULT_ROWS = _codec._MIN_ROWS
-
-
-def _codec_rows(n):
-    _codec._MIN_ROWS = _DEFAULT_ROWS if n is None else n
+VALUE_BY_VALUE = 1_000_000  # as _MIN_ROWS: every list written value by value (format 2)
 
 
 def _through_a_file(value, *, rows=None):
     """``value`` written by the codec into a file in memory and read back."""
     buf = io.BytesIO()
-    if rows is not None:
-        _codec_rows(rows)
-    try:
+    with pytest.MonkeyPatch.context() as mp:
+        if rows is not None:
+            mp.setattr(_codec, "_MIN_ROWS", rows)
         with h5py.File(buf, "w") as h5:
             _encode(h5, [("v", {"x": value})], {})
-    finally:
-        _codec_rows(None)
-    return _read_back(buf)
-
-
-def _read_back(buf):
     with h5py.File(buf, "r") as h5:
         return _decode(h5["v"], {}, lambda cls, group, values, row: values)["x"]
 
@@ -191,7 +179,7 @@ def test_every_kind_of_column_comes_back_as_it_was_written():
     assert back["twice"][0] is back["twice"][2]
     assert all(x is back["same"][0] for x in back["same"])
     # and as the list written value by value does
-    _same(value, _through_a_file(value, rows=1_000_000), "value")
+    _same(value, _through_a_file(value, rows=VALUE_BY_VALUE), "value")
 
 
 def test_arrays_too_large_to_stack_in_memory_are_written_a_chunk_at_a_time(monkeypatch):
@@ -206,7 +194,7 @@ def test_arrays_too_large_to_stack_in_memory_are_written_a_chunk_at_a_time(monke
 
 def test_a_file_of_format_2_still_loads(result, tmp_path, monkeypatch):
     """A file as the encoder of format 2 wrote it: every list value by value."""
-    monkeypatch.setattr(_codec, "_MIN_ROWS", 1_000_000)
+    monkeypatch.setattr(_codec, "_MIN_ROWS", VALUE_BY_VALUE)
     monkeypatch.setattr(_layout, "FORMAT_VERSION", 2)
     path = save_result(result, tmp_path / "v2.h5")
     monkeypatch.undo()

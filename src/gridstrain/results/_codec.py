@@ -67,9 +67,13 @@ _ROOT_FIELDS = {"SeriesResult": ("u", "strain", "valid", "mask", "reference_imag
                 "Measurement": ("u", "strain", "rotation", "valid")}
 
 
+def _storable_key(key) -> bool:
+    return isinstance(key, str) and bool(key) and "/" not in key \
+        and key not in (".", "..") and key not in _RESERVED
+
+
 def _check_key(key, where: str) -> str:
-    if not isinstance(key, str) or not key or "/" in key or key in (".", "..") \
-            or key in _RESERVED:
+    if not _storable_key(key):
         raise TypeError(f"{where}: key {key!r} cannot name an HDF5 member (a non-empty "
                         "string without '/', not one of " + ", ".join(sorted(_RESERVED))
                         + ")")
@@ -205,9 +209,7 @@ def _part(v, memo: dict):
         return type(v).__name__
     if type(v) is dict:
         keys = tuple(v)
-        ok = all(isinstance(k, str) and k and "/" not in k and k not in (".", "..")
-                 and k not in _RESERVED for k in keys)
-        return ("dict", keys) if ok else "item"
+        return ("dict", keys) if all(map(_storable_key, keys)) else "item"
     if dataclasses.is_dataclass(v) and not isinstance(v, type):
         return ("class", type(v))
     return "item"
