@@ -312,3 +312,41 @@ def test_a_stacked_column_larger_than_the_memory_is_refused_before_reading():
     assert "/v/x/values: its values need" in text
     assert "memory" in text
     assert len(text.splitlines()) == 1
+
+
+def _random_value(rng, depth=0):
+    """A value of any kind the codec stores, nested up to three levels."""
+    kinds = ["none", "bool", "int", "float", "str", "array", "lattice"]
+    if depth < 3:
+        kinds += ["tuple", "list", "dict", "rows"]
+    kind = kinds[rng.integers(len(kinds))]
+    if kind == "none":
+        return None
+    if kind == "bool":
+        return bool(rng.integers(2))
+    if kind == "int":
+        return int(rng.integers(-5, 5))
+    if kind == "float":
+        return float(rng.choice([0.5, -1.0, np.nan, np.inf]))
+    if kind == "str":
+        return str(rng.choice(["", "a", "état", "0"]))
+    if kind == "array":
+        shape = tuple(rng.integers(0, 3, rng.integers(0, 3)))
+        return rng.normal(size=shape).astype(rng.choice(["f4", "f8", "i2", "?", "c16"]))
+    if kind == "lattice":
+        return Lattice.from_pitch(float(rng.choice([4.0, 5.0, 6.0])))
+    if kind in ("tuple", "list"):
+        items = [_random_value(rng, depth + 1) for _ in range(rng.integers(0, 4))]
+        return tuple(items) if kind == "tuple" else items
+    if kind == "dict":
+        return {k: _random_value(rng, depth + 1) for k in ("a", "b", "c")[:rng.integers(4)]}
+    # rows: records that share their keys, their values of a kind or two
+    keys = ("x", "y", "z")[:rng.integers(1, 4)]
+    return [{k: _random_value(rng, 2) for k in keys} for _ in range(rng.integers(2, 6))]
+
+
+@pytest.mark.parametrize("seed", range(40))
+def test_any_nesting_of_values_comes_back_as_it_was_written(seed):
+    rng = np.random.default_rng(seed)
+    value = [_random_value(rng) for _ in range(6)]
+    _same(value, _through_a_file(value), "value")
