@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 
 from gridstrain import Lattice
+from gridstrain.kinematics import Measurement
 from gridstrain.phase.lattice import Carrier
 from gridstrain.pipeline import measure_series
 from gridstrain.results import _codec, _layout, load, save_result
@@ -121,6 +122,32 @@ def test_the_objects_of_the_file_do_not_grow_with_the_states(result, tmp_path):
         mp.setattr(_codec, "_MIN_ROWS", VALUE_BY_VALUE)
         per_item = save_result(longer, tmp_path / "per_item.h5")
     assert _census(per_item)[0] > objects + 10 * longer.n_states
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class _Annotated(Measurement):
+    """A measurement class of a user's program (a subclass the file may name)."""
+
+    note: str = ""
+
+
+def test_measurements_of_two_classes_get_the_maps_of_their_own_states(result, tmp_path):
+    ms = list(result.measurements)
+    ms[1] = _Annotated(**{f.name: getattr(ms[1], f.name) for f in dataclasses.fields(ms[1])},
+                       note="loaded by hand")
+    mixed = dataclasses.replace(result, measurements=tuple(ms))
+    path = save_result(mixed, tmp_path / "mixed.h5")
+    with h5py.File(path, "r") as h5:
+        assert h5["gridstrain/result/measurements"].attrs["_type"] == "union"
+    back = load(path)
+    # a subclass keeps every field in the group, phase maps included (the fields left
+    # to the file's variables are those of the result classes themselves)
+    kept = tuple(m if type(m) is _Annotated else
+                 dataclasses.replace(m, reference=None, deformed=None) for m in ms)
+    _same(dataclasses.replace(mixed, measurements=kept), back)
+    # each state's maps are its own, not those of its row within its class
+    for i, m in enumerate(back.measurements):
+        np.testing.assert_array_equal(m.u, result.u[i])
 
 
 VALUE_BY_VALUE = 1_000_000  # as _MIN_ROWS: every list written value by value (format 2)
