@@ -338,7 +338,8 @@ def test_report_renders_in_headless_chromium(tmp_path):
 # attribute (the quotes close alt="..."), in a <pre>
 _PAYLOAD = ("\"'><script>document.documentElement.setAttribute('data-pwned','s')</script>"
             "<img src=x onerror=\"document.documentElement.setAttribute('data-pwned','i')\">")
-_STRUCTURE = {"_type", "_class", "_keys", "_tuple_attrs", "_list_attrs", "format_version"}
+_STRUCTURE = {"_type", "_class", "_keys", "_tuple_attrs", "_list_attrs", "format_version",
+              "_n", "_rows", "_none", "_const", "kind"}
 # Strings the result classes check against their allowed values (a payload there is
 # refused by load, tested below with the numeric fields)
 _CHOICES = {"method", "source", "unit"}
@@ -388,7 +389,8 @@ def test_report_escapes_everything_read_from_the_file(result, tmp_path, capsys):
     for field, value in (("gridstrain/result", ("method", _PAYLOAD)),
                          ("gridstrain/result", ("n_frames", _PAYLOAD)),
                          ("gridstrain/result", ("bit_depth", [_PAYLOAD] * 3)),
-                         ("gridstrain/result/measurements/1", ("iterations", _PAYLOAD)),
+                         ("gridstrain/result/measurements",  # a column, one per state
+                          ("iterations", [_PAYLOAD] * 2)),
                          ("/", ("pixel_size", _PAYLOAD)), ("/", ("unit", _PAYLOAD))):
         bad = tmp_path / f"bad_{value[0]}.h5"
         shutil.copy(path, bad)

@@ -94,9 +94,10 @@ def _without_phase_maps(result):
      "/gridstrain/result/sigma"),
     (lambda h5: h5["gridstrain/result"].attrs.__setitem__("method", "<script>"),
      "/gridstrain/result/method"),
-    (lambda h5: h5["gridstrain/result/measurements/0"].attrs.__setitem__("iterations",
-                                                                        "<b>3</b>"),
-     "/gridstrain/result/measurements/0/iterations"),
+    # the measurements are written by columns: one value per state, named with its row
+    (lambda h5: h5["gridstrain/result/measurements"].attrs.__setitem__(
+        "iterations", np.array(["<b>3</b>"] * 2, dtype=h5py.string_dtype())),
+     "/gridstrain/result/measurements/iterations[0]"),
     (lambda h5: h5["gridstrain/result"].attrs.__setitem__("_type", "module"),
      "/gridstrain/result/_type"),
     (lambda h5: _replace(h5, "exx", np.zeros((2, N, N + 1))), "/exx"),
@@ -108,7 +109,7 @@ def _without_phase_maps(result):
     (lambda h5: _replace(h5, "gridstrain/result", np.zeros(3)), "/gridstrain/result"),
     # linked from every measurement: named where it is first read
     (lambda h5: _replace(h5, "gridstrain/result/lattice", np.zeros(3)),
-     "/lattice: expected Lattice"),
+     "/measurements/lattice[0]: expected Lattice"),
 ])
 def test_a_wrong_field_is_one_line_naming_the_file_and_the_field(saved, edit, field):
     with h5py.File(saved, "a") as h5:

@@ -37,7 +37,11 @@ The file
     datasets; no pickle, no JSON), so that :func:`load` returns a result equal
     to the one saved. A field added to a result class is saved and reloaded
     without changes here, as long as it holds arrays, numbers, strings, ``None``,
-    tuples, lists, dicts with string keys or dataclasses of these.
+    tuples, lists, dicts with string keys or dataclasses of these. A list of
+    states or series (the measurements, the vibrations, the screening, the metrology
+    of each state...) is written by columns, one group for the whole list whatever
+    the number of states: each field one attribute or one dataset of a value per
+    state (format 3; files of format 2, written value by value, are read too).
 
 Exports
     :func:`export_mat` (MATLAB, ``scipy.io.savemat``), :func:`export_vtk` (VTK

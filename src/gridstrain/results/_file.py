@@ -28,6 +28,7 @@ from ._codec import (
 )
 from ._layout import (
     _GROUP,
+    _READ_VERSIONS,
     _UNC_KEYS,
     FORMAT_VERSION,
     _create_maps,
@@ -339,9 +340,10 @@ def _open(path) -> h5py.File:
             raise _Bad(f"{p} is not a gridstrain result file (no '{_GROUP}' group; files "
                        "of gridstrain before 0.2 are read with gridstrain.io.read_hdf5)")
         version = _attr(h5[_GROUP], "format_version")
-        if version != FORMAT_VERSION:
+        if version not in _READ_VERSIONS or isinstance(version, bool):
             raise _Bad(f"{p} is a gridstrain result file of format {version!r}; this "
-                       f"gridstrain reads format {FORMAT_VERSION}")
+                       "gridstrain reads formats "
+                       + ", ".join(map(str, _READ_VERSIONS)))
     except BaseException:
         h5.close()
         raise
@@ -438,7 +440,8 @@ def _check_result(path, result: SeriesResult) -> SeriesResult:
     for i, v in enumerate(result.vibration):
         if np.ndim(v.shifts) != 2 or np.shape(v.shifts)[1:] != (2,) \
                 or len(v.shifts) != v.n_frames:
-            raise _Bad(f"{path}: /{_GROUP}/result/vibration/{i}/shifts: expected shape "
+            # the row of the series in the column (vibration/{i}/shifts in format 2)
+            raise _Bad(f"{path}: /{_GROUP}/result/vibration/shifts[{i}]: expected shape "
                        f"({v.n_frames}, 2), got {np.shape(v.shifts)}")
     return result
 
@@ -493,12 +496,14 @@ def load(path) -> SeriesResult:
                                 | {k: _read_dataset(unc[k]) for k in unc
                                    if k not in _UNC_KEYS}) if unc else None}
 
-        def fill(cls, group, values):
+        def fill(cls, group, values, row):
             if cls.__name__ == "SeriesResult":
                 values.update(root)
-            elif cls.__name__ == "Measurement" and group.parent.name.endswith(
-                    "/measurements"):
-                i = group.name.rsplit("/", 1)[1]
+            elif cls.__name__ == "Measurement" and (
+                    row is not None or group.parent.name.endswith("/measurements")):
+                # the state: its row in the measurements written by columns (format 3),
+                # or the name of its group (format 2)
+                i = str(row) if row is not None else group.name.rsplit("/", 1)[1]
                 if not i.isdigit() or int(i) >= n:
                     raise _Bad(f"{_where(group)}: a measurement beyond the {n} states of "
                                "the maps")
@@ -556,7 +561,7 @@ def read_attrs(path) -> dict:
             group = _member(h5[_GROUP], "attrs")
             if isinstance(group, h5py.Group):  # else refused by _decode
                 _check_memory(h5.filename, _declared_bytes(group), "its attributes")
-            extra = _decode(group, {}, lambda c, g, v: v)
+            extra = _decode(group, {}, lambda c, g, v, row: v)
             if not isinstance(extra, dict):
                 raise _Bad(f"{_where(h5[_GROUP], 'attrs')}: expected a dict, got "
                            f"{_received(extra)}")

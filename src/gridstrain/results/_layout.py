@@ -25,8 +25,11 @@ from ._codec import (
 )
 from ._result import MAP_FIELDS
 
-#: Version of the file layout; :func:`load` refuses other versions by name.
-FORMAT_VERSION = 2
+#: Version of the file layout; :func:`load` refuses other versions by name. Format 3 writes
+#: the lists of states and series by columns (:mod:`._codec`); format 2 wrote them value by
+#: value, which the reader of format 3 reads too.
+FORMAT_VERSION = 3
+_READ_VERSIONS = (2, 3)
 _GROUP = "gridstrain"
 #: Long names of the maps, for the file and the figures.
 LONG_NAMES = {
