@@ -115,7 +115,9 @@ def _compiled(kern, pm: PhaseMaps, sigma: float, taps: np.ndarray, psi: np.ndarr
     real = psi.real.dtype
     for j in range(2):
         src = np.ascontiguousarray(pm.psi[j]).view(real)
-        kern.coupling_rows(src, np.ascontiguousarray(pm.dphi[j]), kern.max_modulus(src),
+        with np.errstate(divide="ignore"):  # no signal at all: 1 / 0, then NaN maps
+            inv = 1 / np.float64(kern.max_norm(src))
+        kern.coupling_rows(src, np.ascontiguousarray(pm.dphi[j]), inv,
                            taps.astype(np.float32), f32(sigma**2),
                            f32((sigma / _STEEPEST) ** 2), f32(0.5 * sigma**2),
                            f32(_SATURATION), psi[j].view(real), dphi[j], ring, rows, tmp)
@@ -130,7 +132,8 @@ def _numpy(pm: PhaseMaps, sigma: float, weights: np.ndarray, psi: np.ndarray,
             turn = np.empty(b.shape, np.complex64)
             np.cos(b, out=turn.real)
             np.negative(np.sin(b), out=turn.imag)
-            np.multiply(pm.psi[j], turn.astype(pm.psi.dtype, copy=False), out=psi[j])
+            # complex64 widened in the product's buffers, exactly: no full-size copy
+            np.multiply(pm.psi[j], turn, out=psi[j])
             np.subtract(pm.dphi[j, 0], _derivative(b, weights, 1), out=dphi[j, 0])
             np.subtract(pm.dphi[j, 1], _derivative(b, weights, 0), out=dphi[j, 1])
 
