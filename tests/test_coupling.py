@@ -231,3 +231,35 @@ def test_an_image_scaled_by_a_power_of_two_gives_the_same_maps(compiled, monkeyp
     sixteen = coupling_corrected(wft(16 * img, lat))
     np.testing.assert_array_equal(sixteen.psi, 16 * one.psi)
     np.testing.assert_array_equal(sixteen.dphi, one.dphi)
+
+
+def test_the_compiled_logarithm_is_within_an_ulp(kernels):
+    from gridstrain.phase import _kernels
+
+    rng = np.random.default_rng(3)
+    # the ratios |Psi|^2 / max |Psi|^2 it takes: every binade of the normal numbers up
+    # to 1, and the values that numpy's log answers: 0, subnormal, inf, NaN
+    v = np.concatenate([np.exp(-rng.uniform(0, 87, 100_000)), rng.uniform(0.5, 2, 10_000),
+                        [1.0, 0.5, np.sqrt(0.5), 2**-126]]).astype(np.float32)
+    odd = np.array([0.0, 1e-40, np.inf, np.nan], np.float32)
+    out = np.empty(v.size + odd.size, np.float32)
+    _kernels._log(out, np.concatenate([v, odd]), np.empty_like(out), np.float32(1))
+    exact = np.log(v.astype(np.float64))
+    # float32's own rounding of ln v is half an ulp; numpy's float32 log is within 3
+    ulp = np.spacing(np.abs(exact).astype(np.float32))
+    assert np.max(np.abs(out[:v.size] - exact) / ulp) <= 1.0
+    with np.errstate(divide="ignore"):
+        np.testing.assert_array_equal(out[v.size:], np.log(odd))
+
+
+def test_the_compiled_saturation_is_the_tanh(kernels):
+    from gridstrain.phase import _kernels
+
+    s = np.float32(0.2)
+    b = np.concatenate([np.linspace(-3, 3, 6001), [1e-30, -1e-7, 1e3]]).astype(np.float32)
+    got = np.array([_kernels._saturated(v, s) for v in b])
+    exact = 0.2 * np.tanh(b.astype(np.float64) / 0.2)
+    # the rational fit's 4e-7 of tanh in float32 arithmetic, times 0.2 rad: 1e-7 rad
+    np.testing.assert_allclose(got, exact, rtol=4e-7, atol=1e-8)
+    odd = np.array([_kernels._saturated(v, s) for v in np.float32([np.inf, -np.inf, np.nan])])
+    np.testing.assert_array_equal(odd, 0)  # nothing corrected where b is undefined

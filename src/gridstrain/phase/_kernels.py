@@ -317,6 +317,7 @@ _LOG_R = np.array([2 / 3, 2 / 5, 2 / 7, 2 / 9], np.float32)
 _LN2 = np.float32(0.6931471805599453)
 _SQRT_HALF_BITS = np.int32(0x3F3504F3)  # the bits of float32's sqrt(1/2)
 _TINY = np.float32(1.17549435e-38)  # float32's smallest normal number
+_HUGE = np.float32(3.4028235e38)  # and its largest finite one
 
 
 @_jit
@@ -447,7 +448,7 @@ def _log_modulus(out, psi, inv, ratio, mant):  # pragma: no cover
 @_jit
 def _log(out, v, mant, scale):  # pragma: no cover
     """``out = scale ln(v)`` (float32 rows, ``scale`` a power of two), within an ulp, in
-    loops that LLVM vectorises (no libm call) but for zeros, subnormals and NaN;
+    loops that LLVM vectorises (no libm call) but for zeros, subnormals, inf and NaN;
     ``mant`` scratch. ``v = 2^k z``, ``z`` in [sqrt(1/2), sqrt(2)) read from the bits
     (``_LOG_R``)."""
     bits = v.view(np.int32)
@@ -457,7 +458,7 @@ def _log(out, v, mant, scale):  # pragma: no cover
         k = (bits[x] - _SQRT_HALF_BITS) >> np.int32(23)
         zbits[x] = bits[x] - (k << np.int32(23))
         out[x] = np.float32(k)
-        unusual += not v[x] >= _TINY
+        unusual += not _TINY <= v[x] <= _HUGE
     r = _LOG_R
     one, two = np.float32(1), np.float32(2)
     for x in range(out.size):
@@ -468,7 +469,7 @@ def _log(out, v, mant, scale):  # pragma: no cover
         out[x] = scale * ln
     if unusual:
         for x in range(out.size):
-            if not v[x] >= _TINY:
+            if not _TINY <= v[x] <= _HUGE:
                 out[x] = scale * np.log(v[x])
 
 
