@@ -3,7 +3,7 @@
 Run from the repository root::
 
     PYTHONPATH=src python benchmarks/bench_coupling.py [--sizes 250x400 1040x1376] \
-        [--repeat 7] [--keep-freed]
+        [--repeat 7] [--keep-freed] [--float32]
 
 For each image size it prints the best CPU (and wall) times, ms, of
 
@@ -19,7 +19,8 @@ trust on a shared machine), with the largest differences between the two paths' 
 ``--keep-freed`` has glibc's malloc keep freed blocks for the next ones, as the
 command line does (:func:`gridstrain._threads.keep_freed_memory`): without it, each
 call's fresh output maps are faulted in and zeroed by the kernel, a cost both paths
-pay and that grows the smaller the image.
+pay and that grows the smaller the image. ``--float32`` transforms float32 images
+(complex64 maps, as the series' float32 option gives).
 """
 
 from __future__ import annotations
@@ -50,13 +51,15 @@ def main(argv=None):
     parser.add_argument("--repeat", type=int, default=7)
     parser.add_argument("--keep-freed", action="store_true",
                         help="keep freed memory for the next blocks, as the command line")
+    parser.add_argument("--float32", action="store_true", help="float32 images and maps")
     args = parser.parse_args(argv)
     if args.keep_freed and not keep_freed_memory():
         parser.error("--keep-freed needs glibc's malloc")
     print(machine())
     compiled = _transform._kernels() is not None
     print(f"compiled loops: {'numba' if compiled else 'not available (numba missing)'}; "
-          f"freed memory {'kept' if args.keep_freed else 'returned (malloc default)'}")
+          f"freed memory {'kept' if args.keep_freed else 'returned (malloc default)'}; "
+          f"{'float32' if args.float32 else 'float64'} images")
     print(f"{'size':>11}  {'wft':>7}  {'numpy':>7}  {'compiled':>8}  {'numpy/':>7}  "
           f"{'compiled/':>9}  {'wall':>21}  {'max |d phase|':>13}  {'max |d dphi|':>12}")
     print(f"{'':>11}  {'CPU ms':>7}  {'CPU ms':>7}  {'CPU ms':>8}  {'compiled':>7}  "
@@ -64,6 +67,7 @@ def main(argv=None):
     for size in args.sizes:
         shape = tuple(int(n) for n in size.split("x"))
         lattice, img = grid_test_image(shape)
+        img = img.astype(np.float32 if args.float32 else np.float64)
         maps = wft(img, lattice)
         funcs = {"wft": lambda img=img, lattice=lattice: wft(img, lattice),
                  "numpy": lambda maps=maps: _numpy_path(maps)}
