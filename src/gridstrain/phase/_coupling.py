@@ -83,8 +83,9 @@ def coupling_corrected(pm: PhaseMaps) -> PhaseMaps:
     loops (:mod:`gridstrain.phase._kernels`) take them in three passes down the rows,
     each a few rows behind the one before, so that what the passes exchange stays in
     cache; without it, ``scipy.ndimage`` correlations of whole maps. Both give the
-    same maps to float32's rounding; ``benchmarks/bench_coupling.py`` times them
-    against the transform.
+    same maps to float32's rounding (within 2e-6 rad at sigma = 5 px,
+    tests/test_coupling.py); ``benchmarks/bench_coupling.py`` times them against the
+    transform.
     """
     sigma = float(pm.sigma)
     found = _differentiator(sigma, np.dtype(np.float64))
