@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from gridstrain import Lattice, wft
-from gridstrain.phase import coupling_corrected
+from gridstrain.phase import PhaseMaps, coupling_corrected
 
 H, W = 112, 128
 PITCH = 6.4
@@ -136,3 +136,130 @@ def test_float32_maps_stay_float32():
     v = pm64.valid
     # float32 rounding of Psi (1e-7 relative) through the differentiator: 1e-6 rad
     assert np.abs(np.angle(f32.psi * np.conj(f64.psi)))[:, v].max() < 1e-5
+
+
+# --- the compiled loops (numba, the fast extra) against the numpy path ----------------
+
+def _strained_scene():
+    """A checker grid under a non-uniform light and two stains, strained, sheared and
+    bent (the carrier's mismatch and the phase's curvature vary across the image), with
+    a dark hole: both bias terms non-trivial, and saturated at the hole's edge."""
+    from independent_grid import scene, stains
+
+    shape = (128, 160)
+
+    def u(X, Y):
+        return (0.02 * (X - 80) + 1.5e-4 * (X - 80) ** 2, -0.01 * (Y - 64) + 0.01 * (X - 80))
+
+    img, hole = scene(shape, pitch=5.0, angle=3.0, reflectance=stains(shape), displacement=u)
+    return img, hole
+
+
+def _both_paths(pm, monkeypatch):
+    from gridstrain.phase import _transform
+
+    compiled = coupling_corrected(pm)
+    with monkeypatch.context() as patch:
+        patch.setattr(_transform, "_COMPILED", False)
+        numpy = coupling_corrected(pm)
+    return compiled, numpy
+
+
+@pytest.fixture
+def kernels():
+    from gridstrain.phase import _transform
+
+    pytest.importorskip("numba")
+    assert _transform._kernels() is not None
+
+
+@pytest.mark.parametrize("dtype", [np.float64, np.float32])
+@pytest.mark.parametrize("masked", [False, True])
+def test_compiled_loops_give_the_numpy_maps(kernels, monkeypatch, dtype, masked):
+    img, hole = _strained_scene()
+    pm = wft(img.astype(dtype), Lattice.from_pitch(5.0), mask=~hole if masked else None)
+    compiled, numpy = _both_paths(pm, monkeypatch)
+    bias = np.abs(np.angle(numpy.psi * np.conj(pm.psi)))
+    assert bias.max() > 0.05  # the correction is no small one here
+    # every pixel, the image's borders and the hole's included: ln |Psi| in float32
+    # holds 1e-6 at |ln| ~ 10 (each path within 1.3e-6 of the same formula in float64),
+    # through sigma^2 omega (0.5 rad px) and the differentiator: 2e-6 rad of phase and
+    # 2e-6 rad/px of its derivatives, 1.6e-6 px and 1.6e-6 strain at a 5 px pitch
+    assert np.abs(np.angle(compiled.psi * np.conj(numpy.psi))).max() < 2e-6
+    np.testing.assert_allclose(compiled.dphi, numpy.dphi, rtol=0, atol=2e-6)
+    assert compiled.psi.dtype == numpy.psi.dtype == pm.psi.dtype
+    assert compiled.dphi.dtype == numpy.dphi.dtype == pm.dphi.dtype
+    assert compiled.valid is pm.valid
+    assert compiled.sigma == pm.sigma
+
+
+def test_undefined_values_are_left_uncorrected_by_both_paths(kernels, monkeypatch):
+    img, hole = _strained_scene()
+    pm = wft(img, Lattice.from_pitch(5.0), mask=~hole)
+    psi, dphi = pm.psi.copy(), pm.dphi.copy()
+    # no signal in a patch (Psi = 0, its derivatives 0/0) in the first wave vector's
+    # maps; a NaN in the second's Psi, which makes its largest modulus NaN: no
+    # correction anywhere in that map
+    psi[0, 40:50, 30:45] = 0
+    dphi[0, :, 40:50, 30:45] = np.nan
+    psi[1, 70, 90] = np.nan
+    odd = PhaseMaps(psi=psi, dphi=dphi, valid=pm.valid, lattice=pm.lattice, sigma=pm.sigma)
+    compiled, numpy = _both_paths(odd, monkeypatch)
+    for out in (compiled, numpy):
+        assert np.all(np.isnan(out.dphi[0, :, 40:50, 30:45]))
+        assert np.all(out.psi[0, 40:50, 30:45] == 0)
+        assert np.isnan(out.psi[1, 70, 90])
+        np.testing.assert_array_equal(out.dphi[1], dphi[1])
+    np.testing.assert_array_equal(compiled.psi[1], numpy.psi[1])
+    np.testing.assert_array_equal(np.isnan(compiled.dphi), np.isnan(numpy.dphi))
+    # elsewhere as above (float32 rounding of ln |Psi|)
+    np.testing.assert_allclose(compiled.dphi, numpy.dphi, rtol=0, atol=2e-6)
+
+
+@pytest.mark.parametrize("compiled", [True, False])
+def test_an_image_scaled_by_a_power_of_two_gives_the_same_maps(compiled, monkeypatch):
+    from gridstrain.phase import _transform
+
+    if compiled and _transform._kernels() is None:
+        pytest.skip("the compiled loops need numba (the fast extra)")
+    monkeypatch.setattr(_transform, "_COMPILED", compiled)
+    img, _ = _strained_scene()
+    lat = Lattice.from_pitch(5.0)
+    one = coupling_corrected(wft(img, lat))
+    # 12-bit levels stored x16: Psi is 16 times as large, exactly; ln |Psi| is taken
+    # relative to its largest value, so that the correction is the same bits
+    sixteen = coupling_corrected(wft(16 * img, lat))
+    np.testing.assert_array_equal(sixteen.psi, 16 * one.psi)
+    np.testing.assert_array_equal(sixteen.dphi, one.dphi)
+
+
+def test_the_compiled_logarithm_is_within_an_ulp(kernels):
+    from gridstrain.phase import _kernels
+
+    rng = np.random.default_rng(3)
+    # the ratios |Psi|^2 / max |Psi|^2 it takes: every binade of the normal numbers up
+    # to 1, and the values that numpy's log answers: 0, subnormal, inf, NaN
+    v = np.concatenate([np.exp(-rng.uniform(0, 87, 100_000)), rng.uniform(0.5, 2, 10_000),
+                        [1.0, 0.5, np.sqrt(0.5), 2**-126]]).astype(np.float32)
+    odd = np.array([0.0, 1e-40, np.inf, np.nan], np.float32)
+    out = np.empty(v.size + odd.size, np.float32)
+    _kernels._log(out, np.concatenate([v, odd]), np.empty_like(out), np.float32(1))
+    exact = np.log(v.astype(np.float64))
+    # float32's own rounding of ln v is half an ulp; numpy's float32 log is within 3
+    ulp = np.spacing(np.abs(exact).astype(np.float32))
+    assert np.max(np.abs(out[:v.size] - exact) / ulp) <= 1.0
+    with np.errstate(divide="ignore"):
+        np.testing.assert_array_equal(out[v.size:], np.log(odd))
+
+
+def test_the_compiled_saturation_is_the_tanh(kernels):
+    from gridstrain.phase import _kernels
+
+    s = np.float32(0.2)
+    b = np.concatenate([np.linspace(-3, 3, 6001), [1e-30, -1e-7, 1e3]]).astype(np.float32)
+    got = np.array([_kernels._saturated(v, s) for v in b])
+    exact = 0.2 * np.tanh(b.astype(np.float64) / 0.2)
+    # the rational fit's 4e-7 of tanh in float32 arithmetic, times 0.2 rad: 1e-7 rad
+    np.testing.assert_allclose(got, exact, rtol=4e-7, atol=1e-8)
+    odd = np.array([_kernels._saturated(v, s) for v in np.float32([np.inf, -np.inf, np.nan])])
+    np.testing.assert_array_equal(odd, 0)  # nothing corrected where b is undefined

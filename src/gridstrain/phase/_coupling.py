@@ -15,7 +15,7 @@ import numpy as np
 from scipy import ndimage
 
 from ._maps import PhaseMaps
-from ._transform import _differentiator
+from ._transform import _differentiator, _kernels
 
 # The largest correction, rad: well above the coupling of print defects at a mismatch of
 # a few degrees (0.01-0.05 rad, which tanh leaves within 0.2 % at 0.02 / 0.2), well below
@@ -78,33 +78,77 @@ def coupling_corrected(pm: PhaseMaps) -> PhaseMaps:
     ``_SATURATION``.
 
     The derivatives are the least-squares differentiator of the fast derivatives
-    (within 1e-8 rad/px of the window's analytic derivative), as correlations in
-    float32: nine per wave vector, about twice the time of the transform
-    (``benchmarks/bench_coupling.py``).
+    (within 1e-8 rad/px of the window's analytic derivative), in float32, the ends of
+    the maps repeated: nine per wave vector. With numba (the ``fast`` extra) compiled
+    loops (:mod:`gridstrain.phase._kernels`) take them in three passes down the rows,
+    each a few rows behind the one before, so that what the passes exchange stays in
+    cache; without it, ``scipy.ndimage`` correlations of whole maps. Both give the
+    same maps to float32's rounding (within 2e-6 rad at sigma = 5 px,
+    tests/test_coupling.py); ``benchmarks/bench_coupling.py`` times them against the
+    transform.
     """
     sigma = float(pm.sigma)
     found = _differentiator(sigma, np.dtype(np.float64))
     # central differences where the window is too narrow for a short filter
-    weights = _weights(found[0] if found is not None else np.array([0.5]))
-    psi = np.empty_like(pm.psi)
-    dphi = np.empty_like(pm.dphi)
+    taps = found[0] if found is not None else np.array([0.5])
+    psi = np.empty(pm.psi.shape, pm.psi.dtype)
+    dphi = np.empty(pm.dphi.shape, pm.dphi.dtype)
+    kern = _kernels()
+    if kern is not None:
+        _compiled(kern, pm, sigma, taps, psi, dphi)
+    else:
+        _numpy(pm, sigma, _weights(taps), psi, dphi)
+    return PhaseMaps(psi=psi, dphi=dphi, valid=pm.valid, lattice=pm.lattice, sigma=pm.sigma)
+
+
+def _compiled(kern, pm: PhaseMaps, sigma: float, taps: np.ndarray, psi: np.ndarray,
+              dphi: np.ndarray):
+    """:func:`coupling_corrected` into ``psi``, ``dphi`` by the compiled loops
+    (:func:`gridstrain.phase._kernels.coupling_rows`): the operations of :func:`_bias`
+    in float32, row by row, with ``ln |Psi|`` taken as half the logarithm of
+    ``|Psi|^2 / max |Psi|^2`` and the logarithm, tanh, cos and sin as polynomials
+    that the loops vectorise (within an ulp or a few of libm's)."""
+    a = taps.astype(np.float32)
+    m = taps.size
+    W = pm.shape[1]
+    R = 2 * m + 1
+    ring = np.empty((5, R, W + 2 * m), np.float32)
+    rows = np.empty((3, R, W), np.float32)
+    tmp = np.empty((5, W), np.float32)
+    f32 = np.float32
+    real = psi.real.dtype
+    for j in range(2):
+        src = np.ascontiguousarray(pm.psi[j]).view(real)
+        with np.errstate(divide="ignore"):  # no signal at all: 1 / 0, then NaN maps
+            inv = 1 / np.float64(kern.max_norm(src))
+        kern.coupling_rows(src, np.ascontiguousarray(pm.dphi[j]), inv,
+                           a, f32(sigma**2),
+                           f32((sigma / _STEEPEST) ** 2), f32(0.5 * sigma**2),
+                           f32(_SATURATION), psi[j].view(real), dphi[j], ring, rows, tmp)
+
+
+def _numpy(pm: PhaseMaps, sigma: float, weights: np.ndarray, psi: np.ndarray,
+           dphi: np.ndarray):
+    """:func:`coupling_corrected` into ``psi``, ``dphi`` in numpy."""
     with np.errstate(invalid="ignore", divide="ignore"):
         for j in range(2):
             b = _bias(pm.psi[j], pm.dphi[j], sigma, weights)
             turn = np.empty(b.shape, np.complex64)
             np.cos(b, out=turn.real)
             np.negative(np.sin(b), out=turn.imag)
-            np.multiply(pm.psi[j], turn.astype(pm.psi.dtype, copy=False), out=psi[j])
+            # complex64 widened in the product's buffers, exactly: no full-size copy
+            np.multiply(pm.psi[j], turn, out=psi[j])
             np.subtract(pm.dphi[j, 0], _derivative(b, weights, 1), out=dphi[j, 0])
             np.subtract(pm.dphi[j, 1], _derivative(b, weights, 0), out=dphi[j, 1])
-    return PhaseMaps(psi=psi, dphi=dphi, valid=pm.valid, lattice=pm.lattice, sigma=pm.sigma)
 
 
 def _bias(psi: np.ndarray, dphi: np.ndarray, sigma: float, weights: np.ndarray):
     """The phase bias ``b`` of one wave vector's ``psi`` (H, W) and ``dphi`` (2, H, W), rad,
     float32 (:func:`coupling_corrected`)."""
-    # a correction of at most 0.2 rad needs no more digits than float32's (1e-7
-    # relative, 1e-8 rad), at a fraction of float64's cost
+    # float32 (1e-7 relative) at a fraction of float64's cost: ln |Psi| rounded to
+    # 1e-6 where |ln| ~ 10, through sigma^2 omega and the differentiator, leaves the
+    # correction within about 1e-6 rad of float64's arithmetic, far below the maps'
+    # noise
     wx, wy = dphi.astype(np.float32)
     # grad ln |Psi| = Re(grad Psi / Psi): ln |Psi| is as smooth as Psi where the grid
     # shows, and one map to differentiate rather than two
