@@ -209,6 +209,12 @@ def _case(args, shape, tmp, case, given, one_thread, point):
                                   capture_output=True).returncode == 0
     env = dict(os.environ, **ONE_THREAD) if one_thread else dict(os.environ)
     env["PYTHONPATH"] = os.pathsep.join([str(ROOT / "src"), env.get("PYTHONPATH", "")])
+    # the checkout's modules compiled once, as pip compiles an installed package's (and
+    # OpenLSA's): with PYTHONDONTWRITEBYTECODE set, every run would compile them again
+    env.pop("PYTHONDONTWRITEBYTECODE", None)
+    env["PYTHONPYCACHEPREFIX"] = str(tmp / "pycache")
+    subprocess.run([sys.executable, "-m", "compileall", "-q", str(ROOT / "src")], env=env,
+                   check=True, stdout=subprocess.DEVNULL)
     ref, cur = str(tmp / "ref.tif"), str(tmp / "def.tif")
     out = tmp / f"{case}.h5"
     cands = {}
