@@ -30,11 +30,16 @@ Photron MRAW:
 - ``NAME.cih``: text, one ``Key : Value`` per line (the keys of Photron FASTCAM
   Viewer's header, e.g. ``Record Rate(fps)``, ``Total Frame``, ``Start Frame``,
   ``Image Width``, ``Image Height``, ``Color Type``, ``Color Bit``,
-  ``EffectiveBit Depth``, ``EffectiveBit Side``, ``File Format``); or ``NAME.cihx``:
-  a few bytes of binary preamble then an XML document ``<cih>`` with the same values
-  under ``recordInfo/recordRate``, ``frameInfo/totalFrame``, ``frameInfo/startFrame``,
+  ``EffectiveBit Depth``, ``EffectiveBit Side``, ``File Format``, ``Save Step``,
+  ``Original Total Frame``, ``Camera Type``); or ``NAME.cihx``: a few bytes of binary
+  preamble then an XML document ``<cih>`` with the same values under
+  ``recordInfo/recordRate``, ``frameInfo/totalFrame``, ``frameInfo/startFrame``,
+  ``frameInfo/skipFrame``, ``frameInfo/recordedFrame``, ``deviceInfo/deviceName``,
   ``imageDataInfo/resolution/width|height``, ``imageDataInfo/colorInfo/type|bit``,
-  ``imageDataInfo/effectiveBit/depth|side``, ``imageFileInfo/fileFormat``.
+  ``imageDataInfo/effectiveBit/depth|side``, ``imageFileInfo/fileFormat``. Frame ``k``
+  is recorded frame ``Start Frame + k * Save Step``. Assumed from the headers of
+  three records of FASTCAM SA-Z and Nova S16 cameras (pyMRAW's sample data): a
+  monochrome model's ``.cihx`` may give the colour type ``Raw``.
 - ``NAME.mraw``: the frames one after the other, rows top-down, no header; 8-bit
   bytes, 16-bit little-endian words, or 12-bit pixels packed two in three bytes
   with the most significant bits first (pixels ``0xABC, 0xDEF`` are bytes
@@ -129,8 +134,11 @@ def write_cine(path, frames, *, real_bpp: int, bit_count: int = 16, packed: bool
 
 def write_mraw(path, frames, *, color_bit: int, effective_bit: int | None = None,
                side: str = "Lower", frame_rate: float = 20000, start_frame: int = 0,
-               header: str = "cih", color_type: str = "Mono") -> Path:
-    """Write ``frames`` ((n, H, W)) as ``path`` (``.mraw``) and its ``.cih``/``.cihx``."""
+               header: str = "cih", color_type: str = "Mono", save_step: int = 1,
+               recorded: int | None = None,
+               camera: str = "FASTCAM SA-Z type 2100K-M-64GB") -> Path:
+    """Write ``frames`` ((n, H, W)) as ``path`` (``.mraw``) and its ``.cih``/``.cihx``;
+    ``recorded``: the frames recorded (default: those the saved ones span)."""
     frames = np.asarray(frames)
     n, H, W = frames.shape
     path = Path(path)
@@ -141,12 +149,14 @@ def write_mraw(path, frames, *, color_bit: int, effective_bit: int | None = None
             else:
                 fh.write(f.astype("<u1" if color_bit == 8 else "<u2").tobytes())
     eff = color_bit if effective_bit is None else effective_bit
+    recorded = (n - 1) * save_step + 1 if recorded is None else recorded
     rate = f"{frame_rate:g}"
     if header == "cih":
         lines = ["#Camera Information Header", "Date : 2026/11/27", "Time : 12:00",
-                 "Camera Type : FASTCAM test", f"Record Rate(fps) : {rate}",
+                 f"Camera Type : {camera}", f"Record Rate(fps) : {rate}",
                  f"Shutter Speed(s) : 1/{rate}", f"Total Frame : {n}",
-                 f"Original Total Frame : {n}", f"Start Frame : {start_frame}",
+                 f"Original Total Frame : {recorded}", f"Start Frame : {start_frame}",
+                 f"Save Step : {save_step}",
                  "Correct Trigger Frame : 0", f"Image Width : {W}", f"Image Height : {H}",
                  f"Color Type : {color_type}", f"Color Bit : {color_bit}",
                  "File Format : MRaw", f"EffectiveBit Depth : {eff}",
@@ -157,8 +167,10 @@ def write_mraw(path, frames, *, color_bit: int, effective_bit: int | None = None
                f"<fileInfo><date>2026/11/27</date></fileInfo>\n"
                f"<recordInfo><recordRate>{rate}</recordRate>"
                f"<shutterSpeed>1/{rate}</shutterSpeed></recordInfo>\n"
-               f"<frameInfo><totalFrame>{n}</totalFrame><recordedFrame>{n}</recordedFrame>"
-               f"<startFrame>{start_frame}</startFrame></frameInfo>\n"
+               f"<frameInfo><recordedFrame>{recorded}</recordedFrame>"
+               f"<totalFrame>{n}</totalFrame><startFrame>{start_frame}</startFrame>"
+               f"<skipFrame>{save_step}</skipFrame></frameInfo>\n"
+               f"<deviceInfo><deviceName>{camera}</deviceName></deviceInfo>\n"
                f"<imageDataInfo><resolution><width>{W}</width><height>{H}</height>"
                f"</resolution><colorInfo><type>{color_type}</type><bit>{color_bit}</bit>"
                f"</colorInfo><effectiveBit><depth>{eff}</depth><side>{side}</side>"

@@ -259,8 +259,50 @@ def test_mraw_cihx_with_entities_and_colour_are_refused(tmp_path, frames):
     with pytest.raises(OSError, match=r"rec\.cihx declares XML entities"):
         open_series(path)
     cihx.write_bytes(text.replace(b"<type>Mono</type>", b"<type>Color</type>"))
-    with pytest.raises(ValueError, match=r"colour \(Color\) MRAW record"):
+    with pytest.raises(ValueError, match=r"rec\.mraw holds a colour \(Color\) record; "
+                                         r"gridstrain reads grey records \(rec\.cihx"):
         open_series(path)
+
+
+@pytest.mark.parametrize("header", ["cih", "cihx"])
+def test_mraw_raw_data_is_grey_from_a_monochrome_model_only(tmp_path, frames, header):
+    """A monochrome FASTCAM's header may call its frames ``Raw`` (the sensor's data as
+    read out): grey levels. A colour model's raw data is a Bayer mosaic, and a model
+    that does not say which it is cannot be taken for grey."""
+    path = write_mraw(tmp_path / "rec.mraw", frames, color_bit=12, header=header,
+                      color_type="Raw", camera="FASTCAM Nova S16 type 1100K-M-64GB")
+    np.testing.assert_array_equal(open_series(path).read(3, dtype=None), frames[3])
+    for camera in ("FASTCAM Mini AX200 type 900K-C-32GB", "FASTCAM test"):
+        path = write_mraw(tmp_path / f"{len(camera)}.mraw", frames, color_bit=12,
+                          header=header, color_type="Raw", camera=camera)
+        with pytest.raises(ValueError, match=r"holds raw sensor data from a camera whose "
+                                             r"model \(FASTCAM .*\) is not a monochrome "
+                                             r"one .* Bayer mosaic"):
+            open_series(path)
+
+
+@pytest.mark.parametrize("header", ["cih", "cihx"])
+def test_mraw_saved_every_nth_frame_has_the_times_of_those_frames(tmp_path, frames, header):
+    """A record saved every 36th frame (PFV's save step): frame k is recorded frame
+    start + 36 k, its time that over the record rate, and the saved frames' rate the
+    record rate over 36."""
+    path = write_mraw(tmp_path / "rec.mraw", frames, color_bit=16, frame_rate=60000,
+                      start_frame=49300, save_step=36, header=header)
+    s = open_series(path)
+    np.testing.assert_allclose(s.times, (49300 + 36 * np.arange(N)) / 60000, rtol=1e-15)
+    assert s.frame_rate == pytest.approx(60000 / 36, rel=1e-15)
+
+
+def test_mraw_save_step_beyond_the_frames_recorded_gives_no_times(tmp_path, frames):
+    """A header whose save step spans more frames than it says were recorded
+    contradicts itself: the frames are read, but they get no time rather than a
+    wrong one (``--frame-rate`` or a loads file's time column gives them)."""
+    path = write_mraw(tmp_path / "rec.mraw", frames, color_bit=16, save_step=2500,
+                      recorded=400, header="cihx")
+    s = open_series(path)
+    np.testing.assert_array_equal(s.read(2, dtype=None), frames[2])
+    assert s.times is None
+    assert s.frame_rate is None
 
 
 def test_a_frame_above_the_memory_budget_is_refused_before_reading(tmp_path):

@@ -32,12 +32,21 @@ Photron MRAW (``.mraw``, with ``.cihx`` or ``.cih`` of the same name beside it)
     The ``.cih`` header is text, one ``Key : Value`` per line; the ``.cihx`` header
     holds an XML document ``<cih>...</cih>`` (after a binary preamble). Read from it:
     width, height, frame count, start frame (the number of the first frame, the
-    trigger's being 0), record rate (fps), colour type (monochrome only), colour bit
-    (8, 12 or 16 bits per stored pixel), effective bit depth and side. The ``.mraw``
-    file is the frames one after the other, rows top-down, no header: 8-bit bytes,
-    16-bit little-endian words, or 12-bit packed two pixels in three bytes with the
-    most significant bits first (``AB CD EF`` holds ``0xABC`` and ``0xDEF``). Frame
-    ``k`` is at ``(start frame + k) / record rate``.
+    trigger's being 0), record rate (fps), the save step (``Save Step`` in a ``.cih``,
+    ``frameInfo/skipFrame`` in a ``.cihx``: every n-th recorded frame saved), the
+    frames recorded (``Original Total Frame``, ``frameInfo/recordedFrame``), colour
+    type, colour bit (8, 12 or 16 bits per stored pixel), effective bit depth and side,
+    and the camera's model (``Camera Type``, ``deviceInfo/deviceName``). The colour
+    type is ``Mono``, or ``Raw`` (the sensor's data as read out), which is grey only
+    from a monochrome model (Photron's model code ``-M``, e.g. ``FASTCAM Nova S16
+    type 1100K-M-64GB``): from a colour model, or one that does not say, it is a
+    Bayer mosaic and is refused. The ``.mraw`` file is the frames one after the
+    other, rows top-down, no header: 8-bit bytes, 16-bit little-endian words, or
+    12-bit packed two pixels in three bytes with the most significant bits first
+    (``AB CD EF`` holds ``0xABC`` and ``0xDEF``). Frame ``k`` is recorded frame
+    ``start frame + k * save step``, at that number over the record rate; a save step
+    that the frames recorded cannot hold (``(count - 1) * step`` beyond them) leaves
+    the record without times rather than with wrong ones.
 
 Times are seconds from the trigger (negative before it), frames in the stored grey
 levels (12-bit packed pixels unpacked into uint16, values unchanged), and the
@@ -411,6 +420,9 @@ def _cih_fields(text: bytes) -> dict[str, str]:
 
 # the values read from a .cihx: XML path under <cih>, and the .cih key they stand for
 _CIHX_FIELDS = {"frameInfo/totalFrame": "Total Frame", "frameInfo/startFrame": "Start Frame",
+                "frameInfo/skipFrame": "Save Step",
+                "frameInfo/recordedFrame": "Original Total Frame",
+                "deviceInfo/deviceName": "Camera Type",
                 "recordInfo/recordRate": "Record Rate(fps)",
                 "imageDataInfo/resolution/width": "Image Width",
                 "imageDataInfo/resolution/height": "Image Height",
@@ -452,6 +464,25 @@ def _cih_int(fields: dict, key: str, cih: Path, name: str, default: int | None =
     return int(value)
 
 
+# Photron's monochrome models carry "-M" in their model code ("... type 1100K-M-64GB")
+_MONOCHROME_MODEL = re.compile(r"-M(-|\b)")
+
+
+def _check_monochrome(fields: dict, path: Path, cih: Path, name: str) -> None:
+    """Refuse an MRAW record whose pixels are not grey levels (see the module)."""
+    colour = fields.get("Color Type", "Mono")
+    if colour.lower() in ("mono", "monochrome"):
+        return
+    model = fields.get("Camera Type", "")
+    if colour.lower() == "raw" and _MONOCHROME_MODEL.search(model):
+        return
+    what = (f"raw sensor data from a camera whose model ({model or 'not in the header'}) "
+            "is not a monochrome one (Photron's model code -M): a colour sensor's Bayer "
+            "mosaic") if colour.lower() == "raw" else f"a colour ({colour}) record"
+    raise ValueError(f"{name}: {path} holds {what}; gridstrain reads grey records "
+                     f"({cih.name}; export grey frames, e.g. as TIFF, from PFV)")
+
+
 def _read_mraw(path: Path, size: int, name: str) -> _Layout:
     cih = _cih_path(path, name)
     text = _read_header_text(cih, name)
@@ -460,11 +491,7 @@ def _read_mraw(path: Path, size: int, name: str) -> _Layout:
     fmt = fields.get("File Format", "MRaw")
     if fmt.lower() != "mraw":
         raise OSError(f"{name}: {cih} describes a record in the {fmt!r} format, not MRaw")
-    colour = fields.get("Color Type", "Mono")
-    if colour.lower() not in ("mono", "monochrome"):
-        raise ValueError(f"{name}: {path} is a colour ({colour}) MRAW record; gridstrain "
-                         "reads monochrome records (export grey frames, e.g. as TIFF, from "
-                         "PFV)")
+    _check_monochrome(fields, path, cih, name)
     W = _check_side(_cih_int(fields, "Image Width", cih, name), "'Image Width'", cih, name)
     H = _check_side(_cih_int(fields, "Image Height", cih, name), "'Image Height'", cih, name)
     count = _cih_int(fields, "Total Frame", cih, name)
@@ -488,8 +515,21 @@ def _read_mraw(path: Path, size: int, name: str) -> _Layout:
     if count < 1:
         raise OSError(f"{name}: {cih}: the header's 'Total Frame' is {count}; no frame to "
                       "read")
-    layout = _Layout(path, size, (H, W), count, stored, bits, False, rate,
-                     start, _rate_times(rate, start, count))
+    step = _cih_int(fields, "Save Step", cih, name, default=1)
+    if step < 1:
+        raise OSError(f"{name}: {cih}: the header's save step is {step}; it counts the "
+                      "recorded frames from one saved frame to the next (1 or more)")
+    recorded = _cih_int(fields, "Original Total Frame", cih, name, default=-1)
+    if step == 1:
+        rate_saved, times = rate, _rate_times(rate, start, count)
+    elif recorded < 0 or (count - 1) * step < recorded:
+        rate_saved = rate / step
+        times = tuple(float(t) for t in (start + step * np.arange(count, dtype=np.float64))
+                      / rate)
+    else:  # the header contradicts itself: no time is better than a wrong one
+        rate_saved, times = None, ()
+    layout = _Layout(path, size, (H, W), count, stored, bits, False, rate_saved,
+                     start, times)
     _check_extent(layout, 0, name)
     if count * layout.frame_bytes != size:
         raise OSError(f"{name}: {path}: header {cih.name} says {count} frame(s) of {W}x{H} "

@@ -131,8 +131,9 @@ class FrameSeries:
 
     @property
     def frame_rate(self) -> float | None:
-        """Frames per second recorded, from the header of a camera record (Phantom
-        cine, Photron MRAW) holding every frame; else None."""
+        """Frames per second saved, from the header of a camera record (Phantom cine,
+        Photron MRAW; the record rate over the save step of a record saved every n-th
+        frame); else None."""
         if len(self.paths) == 1 and _is_camera(self.paths[0]):
             return _layout(self.paths[0], self.name).frame_rate
         return None
