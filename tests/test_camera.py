@@ -220,7 +220,7 @@ def test_cine_time_block_of_the_wrong_size_is_refused(tmp_path, frames):
 
 @pytest.mark.parametrize(("kw", "message"), [
     ({"cfa": 3}, r"colour cine \(CFA=3"),
-    ({"compression": 2}, r"uninterpolated colour \(raw Bayer\) cine"),
+    ({"compression": 2}, r"rec\.cine is an uninterpolated colour \(raw Bayer\) cine;"),
 ])
 def test_colour_cines_are_refused(tmp_path, frames, kw, message):
     path = write_cine(tmp_path / "rec.cine", frames[:2], real_bpp=12, **kw)

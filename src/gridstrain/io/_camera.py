@@ -293,10 +293,10 @@ def _read_cine(path: Path, size: int, name: str) -> _Layout:
             raise OSError(f"{name}: {path}: cine Version {version}; gridstrain reads "
                           "version 1 (64-bit image offsets)")
         if compression != 0:
-            what = {1: "JPEG-compressed", 2: "uninterpolated colour (raw Bayer)"}.get(
-                compression, f"Compression={compression}")
-            raise ValueError(f"{name}: {path} is a {what} cine; gridstrain reads grey "
-                             "cines (export the record as 16-bit grey TIFF or cine from PCC)")
+            what = {1: "a JPEG-compressed cine", 2: "an uninterpolated colour (raw Bayer) "
+                    "cine"}.get(compression, f"a cine of Compression={compression}")
+            raise ValueError(f"{name}: {path} is {what}; gridstrain reads grey cines "
+                             "(export the record as 16-bit grey TIFF or cine from PCC)")
         if count < 1:
             raise OSError(f"{name}: {path}: the header's ImageCount is 0; no frame to read")
         table_end = off_table + 8 * count
