@@ -139,6 +139,17 @@ def test_a_link_cycle_is_refused(saved):
     _refused(saved, "/gridstrain/result/noise/loop")
 
 
+def test_groups_nested_too_deep_are_refused_in_one_line(saved):
+    # a file made to exhaust the reader's recursion (each level takes at least two of
+    # Python's 1000 frames): one line, no traceback
+    with h5py.File(saved, "a") as h5:
+        g = h5["gridstrain/result"].create_group("deep")
+        for _ in range(1000):
+            g = g.create_group("d")
+    text = _refused(saved, "/gridstrain/result")
+    assert "nested too deep to read" in text
+
+
 def test_a_file_declaring_more_than_the_memory_is_refused_before_reading(saved):
     # a chunked, compressed dataset declaring 2**50 bytes takes a few bytes on disk
     with h5py.File(saved, "a") as h5:

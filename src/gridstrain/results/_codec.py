@@ -579,6 +579,17 @@ def _member_value(group: h5py.Group, key: str, memo: dict, fill):
     return memo[target]
 
 
+def decoded(group: h5py.Group, memo: dict, fill):
+    """:func:`_decode` of a whole result, a file nested deeper than Python's recursion
+    allows refused in one line like any other malformed file (gridstrain's results nest
+    a few levels; thousands are a file made to crash its reader)."""
+    try:
+        return _decode(group, memo, fill)
+    except RecursionError:
+        raise _Bad(f"{_where(group)}: groups nested too deep to read; a result file nests a "
+                   "few levels") from None
+
+
 def _decode(group: h5py.Group, memo: dict, fill):
     """The object written by :func:`_encode` into ``group``, each value checked: a
     class only from the registry (:func:`_registry`), each field of its annotated

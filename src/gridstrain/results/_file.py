@@ -20,11 +20,11 @@ from ._codec import (
     _attr,
     _Bad,
     _check_memory,
-    _decode,
     _member,
     _read_dataset,
     _received,
     _where,
+    decoded,
 )
 from ._layout import (
     _GROUP,
@@ -519,7 +519,7 @@ def load(path) -> SeriesResult:
 
         if "result" not in h5[_GROUP]:
             raise _Bad(f"{_where(h5[_GROUP], 'result')}: missing")
-        result = _decode(_member(h5[_GROUP], "result"), {}, fill)
+        result = decoded(_member(h5[_GROUP], "result"), {}, fill)
         if not isinstance(result, SeriesResult):
             raise _Bad(f"{_where(h5[_GROUP], 'result')}: expected a SeriesResult, got "
                        f"{_received(result)}")
@@ -559,9 +559,9 @@ def read_attrs(path) -> dict:
                 raise _Bad(f"{_where(h5, 'unit')}: {exc}") from None
         if "attrs" in h5[_GROUP]:
             group = _member(h5[_GROUP], "attrs")
-            if isinstance(group, h5py.Group):  # else refused by _decode
+            if isinstance(group, h5py.Group):  # else refused by decoded
                 _check_memory(h5.filename, _declared_bytes(group), "its attributes")
-            extra = _decode(group, {}, lambda c, g, v, row: v)
+            extra = decoded(group, {}, lambda c, g, v, row: v)
             if not isinstance(extra, dict):
                 raise _Bad(f"{_where(h5[_GROUP], 'attrs')}: expected a dict, got "
                            f"{_received(extra)}")
