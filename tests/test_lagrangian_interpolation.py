@@ -194,6 +194,43 @@ def test_unwrap_shortcut_decides_what_scikit_image_decides(monkeypatch, amplitud
         np.testing.assert_allclose(t, np.rint(t[0]), rtol=0, atol=1e-12)
 
 
+@pytest.mark.parametrize(("guess_error", "calls"), [
+    (0.0, 0),  # a previous state's field, a few tenths of a radian off
+    (0.6, 1),  # a patch where the guess is 0.6 turn off (a crack opened): no shortcut
+])
+def test_unwrap_around_a_guess_decides_what_scikit_image_decides(monkeypatch, guess_error,
+                                                                 calls):
+    """A field spread over seven fringes (a record's late state) is unwrapped around
+    the phase its guess predicts, scikit-image spared, when the result has no jump;
+    where the guess is wrong by more than half a turn somewhere, scikit-image runs."""
+    rng = np.random.default_rng(7)
+    yy, xx = np.mgrid[0:120, 0:150].astype(float)
+    phase = 0.3 * xx + 4.0 * np.sin(yy / 25) + 0.2 * rng.standard_normal(xx.shape)
+    wrapped = np.angle(np.exp(1j * phase))
+    valid = rng.random(xx.shape) > 0.05
+    valid[40:70, 60:100] = False
+    valid[:, 75] = False  # two regions, each free to take its own multiple of 2 pi
+    # the guess: smooth, a few tenths of a radian off, whole turns apart per region
+    around = phase + 0.4 * np.cos(xx / 30) + 2 * np.pi * np.where(xx < 75, 3, -2)
+    around[10:30, 10:40] += 2 * np.pi * guess_error
+    want = _skimage_unwrap(wrapped, valid)
+    seen = []
+
+    def spy(*args, **kwargs):
+        seen.append(1)
+        return _original_unwrap_phase(*args, **kwargs)
+
+    monkeypatch.setattr(kinematics, "unwrap_phase", spy)
+    got = kinematics._unwrap(wrapped, valid, around=around)
+    assert len(seen) == calls
+    np.testing.assert_array_equal(got[~valid], 0.0)
+    labels, n = ndimage.label(valid)
+    turns = (got - want) / (2 * np.pi)
+    for lab in range(1, n + 1):
+        t = turns[labels == lab]
+        np.testing.assert_allclose(t, np.rint(t[0]), rtol=0, atol=1e-12)
+
+
 def test_correction_stops_within_tol_of_its_fixed_point():
     """The iterations stop on a bound of the error left, not on the last step.
 

@@ -246,7 +246,7 @@ class _Spline:
         return out.reshape(*self.lead, *pts)
 
 
-def _unwrap(wrapped: np.ndarray, valid: np.ndarray, pairs=None) -> np.ndarray:
+def _unwrap(wrapped: np.ndarray, valid: np.ndarray, pairs=None, around=None) -> np.ndarray:
     """scikit-image's ``unwrap_phase`` of ``wrapped`` over ``valid`` (0 elsewhere).
 
     Like scikit-image's, the result is defined up to one multiple of 2 pi per
@@ -258,8 +258,13 @@ def _unwrap(wrapped: np.ndarray, valid: np.ndarray, pairs=None) -> np.ndarray:
     (each merge rounds the difference of two neighbours), so its result is ``s + c``
     up to those multiples. That is checked by two differences instead of sorting
     every edge: the common case of a displacement field spread over less than a
-    fringe, whatever its mean. Otherwise scikit-image runs. ``pairs``: the valid
-    neighbours along rows and along columns, when the caller has them.
+    fringe, whatever its mean. ``around`` (H, W), when given, is the phase a guess
+    predicts (a record's previous state): each pixel is then taken the whole turns
+    closest to it, and if no two valid neighbours of that map differ by pi or more it
+    is the continuous map scikit-image's merges reach (the same proof, with the
+    guess's smooth map in place of the constant), spread over any number of fringes.
+    Otherwise scikit-image runs. ``pairs``: the valid neighbours along rows and along
+    columns, when the caller has them.
     """
     # any constant would do for the proof; the circular mean of a subsample centres
     # the map so that a field spread over less than 2 pi shows no jump
@@ -284,6 +289,16 @@ def _unwrap(wrapped: np.ndarray, valid: np.ndarray, pairs=None) -> np.ndarray:
         s += wrapped
         np.copyto(s, 0.0, where=~valid)  # a masked write, without gathering indices
         return s
+    if around is not None and np.isfinite(around).all():
+        # t = wrapped + 2 pi rint((around - wrapped) / 2 pi), in s's buffer
+        np.subtract(around, wrapped, out=s)
+        s /= 2 * np.pi
+        np.rint(s, out=s)
+        s *= 2 * np.pi
+        s += wrapped
+        if not (_jumps(s, rows, 1) or _jumps(s, cols, 0)):
+            np.copyto(s, 0.0, where=~valid)
+            return s
     ma = np.ma.masked_array(wrapped, mask=~valid)
     return np.ma.filled(unwrap_phase(ma, rng=0), 0.0)
 
@@ -474,13 +489,17 @@ def _unwrapped_displacement(reference, deformed, valid, K, g) -> np.ndarray:
         raise ValueError("no valid pixel: the image is smaller than the window and its "
                          "margin, or the mask leaves nothing")
     pairs = (valid[:, 1:] & valid[:, :-1], valid[1:] & valid[:-1])  # both maps' jump checks
-    for j in range(2):  # unwrapped in place
-        dphase[j] = _unwrap(dphase[j], valid, pairs)
-    # fringe order per connected region, closest to the guess. By eq. (34) the
-    # unwrapped phase in periods is -dphase / 2 pi = K u: the whole periods n that
-    # bring K (u - g) closest to 0 are taken on it, and added back as dphase + 2 pi n
-    # (u -> u - K^-1 n) before the one solve
+    # By eq. (34) the unwrapped phase in periods is -dphase / 2 pi = K u: a guess field
+    # (a record's previous state) predicts -2 pi K g, around which a field spread over
+    # many fringes unwraps without scikit-image
     constant = g.strides[1:] == (0, 0)  # a (u_x, u_y) pair broadcast: K g once
+    for j in range(2):  # unwrapped in place
+        around = None if constant else -2 * np.pi * (K[j, 0] * g[0] + K[j, 1] * g[1])
+        dphase[j] = _unwrap(dphase[j], valid, pairs, around)
+        del around
+    # fringe order per connected region, closest to the guess: the whole periods n
+    # that bring K (u - g) closest to 0 are taken on it, and added back as
+    # dphase + 2 pi n (u -> u - K^-1 n) before the one solve
     kg = K @ g[:, 0, 0] if constant else None
     for lab in range(1, n_regions + 1):
         sel = valid if n_regions == 1 else labels == lab
