@@ -13,6 +13,7 @@ from __future__ import annotations
 import struct
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -291,6 +292,37 @@ def test_mraw_saved_every_nth_frame_has_the_times_of_those_frames(tmp_path, fram
     s = open_series(path)
     np.testing.assert_allclose(s.times, (49300 + 36 * np.arange(N)) / 60000, rtol=1e-15)
     assert s.frame_rate == pytest.approx(60000 / 36, rel=1e-15)
+
+
+_PHOTRON = Path(__file__).parent / "data" / "photron"
+
+
+@pytest.mark.parametrize(("header", "shape", "n", "stored", "times"), [
+    # saved every 36th frame at 60000 fps, from frame 49300
+    ("sample_60k_16bit.cih", (368, 896), 12, 16, (49300 + 36 * np.arange(12)) / 60000),
+    # a save step of 2500 beyond its 400 recorded frames: no time rather than a wrong one
+    ("beam.cihx", (80, 1024), 4, 16, None),
+    # a monochrome Nova S16's "Raw" colour type, packed 12-bit pixels, from frame 52
+    ("ball_12bit.cihx", (384, 384), 15, 12, (52 + np.arange(15)) / 30000),
+])
+def test_headers_of_real_fastcam_records(tmp_path, header, shape, n, stored, times):
+    """The headers of three records that FASTCAM cameras saved (tests/data/photron),
+    with pixels of the sizes they declare: every header is read as its camera wrote it
+    (binary preamble, keys, 12 significant bits), the frames come back bit for bit."""
+    (tmp_path / header).write_bytes((_PHOTRON / header).read_bytes())
+    frames = np.random.default_rng(0).integers(0, 4096, size=(n, *shape), dtype=np.uint16)
+    path = (tmp_path / header).with_suffix(".mraw")
+    path.write_bytes(b"".join(pack12(f) if stored == 12 else f.astype("<u2").tobytes()
+                              for f in frames))
+    s = open_series(path)
+    assert (s.n_frames, s.shape, s.bit_depth) == (n, shape, 12)
+    for k in (0, n - 1):
+        np.testing.assert_array_equal(s.read(k, dtype=None), frames[k])
+    if times is None:
+        assert s.times is None
+        assert s.frame_rate is None
+    else:
+        np.testing.assert_allclose(s.times, times, rtol=1e-15)
 
 
 def test_mraw_save_step_beyond_the_frames_recorded_gives_no_times(tmp_path, frames):
