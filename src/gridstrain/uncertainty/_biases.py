@@ -196,21 +196,20 @@ def _harmonics_near(lattice, k, sigma, radius_extra=0.0):
     cut-off) whose fold lies within the window's band of ``k`` (transfer above
     ``_NEGLIGIBLE``), or ``radius_extra`` cycles/px beyond it."""
     k1, k2 = np.array(lattice.k1), np.array(lattice.k2)
+    k = np.asarray(k, dtype=np.float64)
     band = math.sqrt(math.log(1 / _NEGLIGIBLE) / (2 * math.pi**2)) / sigma + radius_extra
     top = int(_OPTICS_CUTOFF / min(np.hypot(*k1), np.hypot(*k2))) + 1
-    out = []
-    for n in range(-top, top + 1):
-        for m in range(-top, top + 1):
-            h = n * k1 + m * k2
-            if (n, m) == (0, 0) or np.hypot(*h) > _OPTICS_CUTOFF or np.allclose(h, k):
-                continue
-            f = _fold(h)
-            d = f - k
-            d = d - np.round(d)  # the carrier's own images one cycle/px away
-            delta = float(np.hypot(*d))
-            if delta <= band:
-                out.append((n, m, h, k + d, delta))
-    return out
+    # every order (n, m) at once, n the slower index: the orders in the loops' order
+    n, m = (a.ravel() for a in np.meshgrid(np.arange(-top, top + 1),
+                                           np.arange(-top, top + 1), indexing="ij"))
+    h = n[:, None] * k1 + m[:, None] * k2
+    keep = ((n != 0) | (m != 0)) & (np.hypot(h[:, 0], h[:, 1]) <= _OPTICS_CUTOFF) \
+        & ~np.all(np.isclose(h, k), axis=1)  # as np.allclose, order by order
+    d = _fold(h) - k
+    d = d - np.round(d)  # the carrier's own images one cycle/px away
+    delta = np.hypot(d[:, 0], d[:, 1])
+    return [(int(n[i]), int(m[i]), h[i], k + d[i], float(delta[i]))
+            for i in np.flatnonzero(keep & (delta <= band))]
 
 
 def _measured_harmonics(ref, w, lattice, j, k, sigma, mean, floor) -> list[dict]:
