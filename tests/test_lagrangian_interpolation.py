@@ -160,6 +160,37 @@ def _skimage_unwrap(wrapped, valid):
                         0.0)
 
 
+def _two_regions(rng, shape):
+    """Valid pixels with holes, cut in two regions by a column: each free to take its
+    own multiple of 2 pi."""
+    valid = rng.random(shape) > 0.05
+    valid[40:70, 60:100] = False
+    valid[:, 75] = False
+    return valid
+
+
+def _check_against_scikit_image(monkeypatch, wrapped, valid, calls, **kw):
+    """``_unwrap(wrapped, valid, **kw)`` calls scikit-image ``calls`` times and gives its
+    result up to one whole turn per connected region, to rounding, 0 off ``valid``."""
+    want = _skimage_unwrap(wrapped, valid)
+    seen = []
+
+    def spy(*args, **kwargs):
+        seen.append(1)
+        return _original_unwrap_phase(*args, **kwargs)
+
+    monkeypatch.setattr(kinematics, "unwrap_phase", spy)
+    got = kinematics._unwrap(wrapped, valid, **kw)
+    assert len(seen) == calls
+    np.testing.assert_array_equal(got[~valid], 0.0)
+    labels, n = ndimage.label(valid)
+    assert n == 2
+    turns = (got - want) / (2 * np.pi)
+    for lab in range(1, n + 1):
+        t = turns[labels == lab]
+        np.testing.assert_allclose(t, np.rint(t[0]), rtol=0, atol=1e-12)
+
+
 @pytest.mark.parametrize(("amplitude", "offset", "calls"),
                          [(2.0, 0.0, 0), (2.0, 2.5, 0), (6.0, 0.0, 1)])  # rad
 def test_unwrap_shortcut_decides_what_scikit_image_decides(monkeypatch, amplitude, offset,
@@ -170,28 +201,8 @@ def test_unwrap_shortcut_decides_what_scikit_image_decides(monkeypatch, amplitud
     yy, xx = np.mgrid[0:120, 0:150].astype(float)
     phase = (offset + amplitude * np.sin(xx / 40) * np.cos(yy / 30)
              + 0.2 * rng.standard_normal(xx.shape))
-    wrapped = np.angle(np.exp(1j * phase))
-    valid = rng.random(xx.shape) > 0.05
-    valid[40:70, 60:100] = False
-    valid[:, 75] = False  # two regions, each free to take its own multiple of 2 pi
-    want = _skimage_unwrap(wrapped, valid)
-    seen = []
-
-    def spy(*args, **kwargs):
-        seen.append(1)
-        return _original_unwrap_phase(*args, **kwargs)
-
-    monkeypatch.setattr(kinematics, "unwrap_phase", spy)
-    got = kinematics._unwrap(wrapped, valid)
-    assert len(seen) == calls
-    np.testing.assert_array_equal(got[~valid], 0.0)
-    # scikit-image's result up to one whole turn per connected region, to rounding
-    labels, n = ndimage.label(valid)
-    assert n == 2
-    turns = (got - want) / (2 * np.pi)
-    for lab in range(1, n + 1):
-        t = turns[labels == lab]
-        np.testing.assert_allclose(t, np.rint(t[0]), rtol=0, atol=1e-12)
+    _check_against_scikit_image(monkeypatch, np.angle(np.exp(1j * phase)),
+                                _two_regions(rng, xx.shape), calls)
 
 
 @pytest.mark.parametrize(("guess_error", "calls"), [
@@ -206,29 +217,11 @@ def test_unwrap_around_a_guess_decides_what_scikit_image_decides(monkeypatch, gu
     rng = np.random.default_rng(7)
     yy, xx = np.mgrid[0:120, 0:150].astype(float)
     phase = 0.3 * xx + 4.0 * np.sin(yy / 25) + 0.2 * rng.standard_normal(xx.shape)
-    wrapped = np.angle(np.exp(1j * phase))
-    valid = rng.random(xx.shape) > 0.05
-    valid[40:70, 60:100] = False
-    valid[:, 75] = False  # two regions, each free to take its own multiple of 2 pi
     # the guess: smooth, a few tenths of a radian off, whole turns apart per region
     around = phase + 0.4 * np.cos(xx / 30) + 2 * np.pi * np.where(xx < 75, 3, -2)
     around[10:30, 10:40] += 2 * np.pi * guess_error
-    want = _skimage_unwrap(wrapped, valid)
-    seen = []
-
-    def spy(*args, **kwargs):
-        seen.append(1)
-        return _original_unwrap_phase(*args, **kwargs)
-
-    monkeypatch.setattr(kinematics, "unwrap_phase", spy)
-    got = kinematics._unwrap(wrapped, valid, around=around)
-    assert len(seen) == calls
-    np.testing.assert_array_equal(got[~valid], 0.0)
-    labels, n = ndimage.label(valid)
-    turns = (got - want) / (2 * np.pi)
-    for lab in range(1, n + 1):
-        t = turns[labels == lab]
-        np.testing.assert_allclose(t, np.rint(t[0]), rtol=0, atol=1e-12)
+    _check_against_scikit_image(monkeypatch, np.angle(np.exp(1j * phase)),
+                                _two_regions(rng, xx.shape), calls, around=around)
 
 
 def test_correction_stops_within_tol_of_its_fixed_point():
