@@ -268,10 +268,12 @@ def _stamp_times(times: np.ndarray, path: Path, name: str) -> tuple[float, ...]:
     return tuple(float(t) for t in times)
 
 
-def _rate_times(rate: float | None, first: int, n: int) -> tuple[float, ...]:
+def _rate_times(rate: float | None, first: int, n: int, step: int = 1
+                ) -> tuple[float, ...]:
+    """Frames ``first + k * step`` (k < n) over ``rate``, s; none without a rate."""
     if rate is None:
         return ()
-    return tuple(float(t) for t in (np.arange(n, dtype=np.float64) + first) / rate)
+    return tuple(float(t) for t in (first + step * np.arange(n, dtype=np.float64)) / rate)
 
 
 # --------------------------------------------------------------------------- Phantom cine
@@ -520,12 +522,8 @@ def _read_mraw(path: Path, size: int, name: str) -> _Layout:
         raise OSError(f"{name}: {cih}: the header's save step is {step}; it counts the "
                       "recorded frames from one saved frame to the next (1 or more)")
     recorded = _cih_int(fields, "Original Total Frame", cih, name, default=-1)
-    if step == 1:
-        rate_saved, times = rate, _rate_times(rate, start, count)
-    elif recorded < 0 or (count - 1) * step < recorded:
-        rate_saved = rate / step
-        times = tuple(float(t) for t in (start + step * np.arange(count, dtype=np.float64))
-                      / rate)
+    if step == 1 or recorded < 0 or (count - 1) * step < recorded:
+        rate_saved, times = rate / step, _rate_times(rate, start, count, step)
     else:  # the header contradicts itself: no time is better than a wrong one
         rate_saved, times = None, ()
     layout = _Layout(path, size, (H, W), count, stored, bits, False, rate_saved,
