@@ -109,12 +109,16 @@ def grid_free(image: np.ndarray, lattice: Lattice, q: int) -> np.ndarray:
     removed. A hole or an edge stays in it: content that moves with the specimen."""
     pitch = max(lattice.pitches)
     x = np.asarray(image, dtype=np.float64)
-    num = smooth_decimate(x, pitch, q)
-    den = np.outer(*(ndimage.gaussian_filter1d(np.ones(n), pitch, mode="constant",
-                                               truncate=4.0)[::q] for n in x.shape))
-    low = num / np.maximum(den, 1e-12)
+    low = smooth_decimate(x, pitch, q) / np.maximum(frame_weights(x.shape, pitch, q), 1e-12)
     floor = 1e-3 * max(float(np.max(low)), 1e-300)
     return np.log(np.maximum(low, floor))
+
+
+def frame_weights(shape, s, q):
+    """What :func:`smooth_decimate` makes of a whole frame of ones: the weights that
+    normalise it near the borders, as the product of two profiles."""
+    return np.outer(*(ndimage.gaussian_filter1d(np.ones(n), s, mode="constant",
+                                                truncate=4.0)[::q] for n in shape))
 
 
 def smooth_decimate(a, s, q):

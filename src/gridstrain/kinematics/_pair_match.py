@@ -66,6 +66,8 @@ from dataclasses import asdict, dataclass
 import numpy as np
 from scipy import ndimage
 
+from ._grid_free import frame_weights
+
 # The high-pass's Gaussian, in pitches: printing defects and texture of one to a few
 # pitches pass; the lighting (a lamp's spot spans hundreds of periods) leaves
 # (s/scale)^6 of itself after the three passes.
@@ -193,10 +195,8 @@ def _low_pass(a: np.ndarray, m: np.ndarray, s: float, q: int = 1) -> np.ndarray:
         f = ndimage.gaussian_filter1d(f, s, axis=1, mode="constant")[:, ::q]
         return ndimage.gaussian_filter1d(f, s, axis=0, mode="constant")[::q]
 
-    if m.all():  # the weights of a whole frame: the product of two profiles
-        den = np.outer(*(ndimage.gaussian_filter1d(np.ones(n), s, mode="constant")[::q]
-                         for n in m.shape))
-        return smooth(a) / den
+    if m.all():
+        return smooth(a) / frame_weights(m.shape, s, q)
     return smooth(np.where(m, a, 0.0)) / np.maximum(smooth(m.astype(np.float64)), 1e-12)
 
 
