@@ -82,15 +82,51 @@ def test_the_command_serves_its_threads_from_one_malloc_arena(monkeypatch):
                              capture_output=True, text=True, check=True)
         assert out.stdout.split() == ["True", "True"]
     calls = []
+    monkeypatch.setattr(cli, "blas_on_one_thread_from_start",
+                        lambda: calls.append("blas") or True)
     monkeypatch.setattr(cli, "one_malloc_arena", lambda: calls.append("arena") or True)
     monkeypatch.setattr(cli, "keep_freed_memory", lambda: calls.append("keep") or True)
     monkeypatch.setattr(sys, "argv", ["gridstrain", "--help"])
     with pytest.raises(SystemExit):
         cli.main()  # the command's own process
-    assert calls == ["arena", "keep"]
+    assert calls == ["blas", "arena", "keep"]
     with pytest.raises(SystemExit):
         cli.main(["--help"])  # called from Python: the host's allocator is left alone
-    assert calls == ["arena", "keep"]
+    assert calls == ["blas", "arena", "keep"]
+
+
+_BLAS_AT_START = (
+    "import os, sys; from gridstrain._threads import blas_on_one_thread_from_start as f; "
+    "set_ = f(); import numpy, scipy.linalg; from threadpoolctl import threadpool_info; "
+    "print(set_, sorted({p['num_threads'] for p in threadpool_info() "
+    "if p['internal_api'] == 'openblas'}))")
+
+
+@pytest.mark.parametrize("given", [None, "2"])
+def test_the_command_starts_openblas_on_one_thread_unless_told(given):
+    # in a process of its own: OpenBLAS reads the variable once, when numpy loads it
+    import os
+
+    env = {k: v for k, v in os.environ.items() if k != "OPENBLAS_NUM_THREADS"}
+    if given is not None:
+        env["OPENBLAS_NUM_THREADS"] = given
+    out = subprocess.run([sys.executable, "-c", _BLAS_AT_START], env=env,
+                         capture_output=True, text=True, check=True).stdout.split(maxsplit=1)
+    if given is None:
+        assert out[0] == "True"
+        assert out[1].strip() in ("[1]", "[]")  # [] where numpy's BLAS is not OpenBLAS
+    else:  # the user's own setting is kept
+        assert out[0] == "False"
+        assert out[1].strip() in ("[2]", "[]")
+
+
+def test_openblas_is_left_alone_once_numpy_is_loaded(monkeypatch):
+    monkeypatch.delenv("OPENBLAS_NUM_THREADS", raising=False)
+    assert "numpy" in sys.modules  # this module imported it: the variable is read already
+    assert not _threads.blas_on_one_thread_from_start()
+    import os
+
+    assert "OPENBLAS_NUM_THREADS" not in os.environ
 
 
 def test_map_leaves_keeps_the_items_order_and_raises_the_first_error():

@@ -29,7 +29,7 @@ import sys
 import threading
 
 from .. import __version__
-from .._threads import keep_freed_memory, one_malloc_arena
+from .._threads import blas_on_one_thread_from_start, keep_freed_memory, one_malloc_arena
 
 # sub-command -> the one-line summary its module's parser declares (a test checks
 # that they agree)
@@ -209,6 +209,7 @@ def _where(argv) -> str:
 def _main(argv) -> int:
     if argv is None:  # the process is the command's own (not a caller's)
         argv = sys.argv[1:]
+        blas_on_one_thread_from_start()
         one_malloc_arena()
         keep_freed_memory()
     # the top level has no option taking a value: the first word is the sub-command
