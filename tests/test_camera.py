@@ -321,8 +321,10 @@ def test_headers_of_real_fastcam_records(tmp_path, header, shape, n, stored, tim
     if times is None:
         assert s.times is None
         assert s.frame_rate is None
+        assert any("read without times" in n for n in s.notes)
     else:
         np.testing.assert_allclose(s.times, times, rtol=1e-15)
+        assert not s.notes
 
 
 def test_mraw_save_step_beyond_the_frames_recorded_gives_no_times(tmp_path, frames):
@@ -331,10 +333,14 @@ def test_mraw_save_step_beyond_the_frames_recorded_gives_no_times(tmp_path, fram
     wrong one (``--frame-rate`` or a loads file's time column gives them)."""
     path = write_mraw(tmp_path / "rec.mraw", frames, color_bit=16, save_step=2500,
                       recorded=400, header="cihx")
-    s = open_series(path)
+    s = open_series(path, name="state")
     np.testing.assert_array_equal(s.read(2, dtype=None), frames[2])
     assert s.times is None
     assert s.frame_rate is None
+    # and the user is told why, naming the series and the header
+    (note,) = [n for n in s.notes if "without times" in n]
+    assert note.startswith("state: rec.cihx gives a save step of 2500 over 400 recorded "
+                           "frames")
 
 
 def test_a_frame_above_the_memory_budget_is_refused_before_reading(tmp_path):

@@ -46,7 +46,7 @@ Photron MRAW (``.mraw``, with ``.cihx`` or ``.cih`` of the same name beside it)
     (``AB CD EF`` holds ``0xABC`` and ``0xDEF``). Frame ``k`` is recorded frame
     ``start frame + k * save step``, at that number over the record rate; a save step
     that the frames recorded cannot hold (``(count - 1) * step`` beyond them) leaves
-    the record without times rather than with wrong ones.
+    the record without times rather than with wrong ones, and a reading note says so.
 
 Times are seconds from the trigger (negative before it), frames in the stored grey
 levels (12-bit packed pixels unpacked into uint16, values unchanged), and the
@@ -103,6 +103,7 @@ class _Layout:
     first_number: int  # number of the first frame, the trigger's being 0
     times: tuple[float, ...]  # s from the trigger, one per frame
     table: int | None = None  # a cine's image offset table; None: frames back to back
+    note: str = ""  # why the header's times were not used (without the series' name)
 
     @property
     def dtype(self) -> np.dtype:
@@ -522,12 +523,16 @@ def _read_mraw(path: Path, size: int, name: str) -> _Layout:
         raise OSError(f"{name}: {cih}: the header's save step is {step}; it counts the "
                       "recorded frames from one saved frame to the next (1 or more)")
     recorded = _cih_int(fields, "Original Total Frame", cih, name, default=-1)
+    note = ""
     if step == 1 or recorded < 0 or (count - 1) * step < recorded:
         rate_saved, times = rate / step, _rate_times(rate, start, count, step)
     else:  # the header contradicts itself: no time is better than a wrong one
         rate_saved, times = None, ()
+        note = (f"{cih.name} gives a save step of {step} over {recorded} recorded frames, "
+                f"which cannot hold its {count} saved frames: the frames are read without "
+                "times (give the frame rate, or the times in the loads file)")
     layout = _Layout(path, size, (H, W), count, stored, bits, False, rate_saved,
-                     start, times)
+                     start, times, note=note)
     _check_extent(layout, 0, name)
     if count * layout.frame_bytes != size:
         raise OSError(f"{name}: {path}: header {cih.name} says {count} frame(s) of {W}x{H} "

@@ -360,6 +360,7 @@ class _FileInfo:
     # frame times: a video's, s from its first frame; a camera record's, s from the trigger
     times: tuple[float, ...] = ()
     camera: bool = False  # a camera record, whose header says the significant bits
+    note: str = ""  # what the user should know of how its header was read
 
 
 def _av(name: str, path: Path):
@@ -412,7 +413,7 @@ def _scan_file(path: Path, name: str, *, allow_bool: bool = False) -> _FileInfo:
         lay = _layout(path, name)
         n = lay.n_frames
         return _FileInfo(path, False, (lay.shape,) * n, (lay.dtype,) * n, (1,) * n, lay.bits,
-                         times=lay.times, camera=True)
+                         times=lay.times, camera=True, note=lay.note)
     if _is_tiff(path):
         with _open_tiff(path, name) as tif:
             with _tiff_log() as log:

@@ -578,7 +578,7 @@ def _frame_table(infos: list[_FileInfo], name: str) -> tuple[tuple[int, int, int
 
 def _reading_notes(infos: list[_FileInfo], channels: int, name: str) -> tuple[str, ...]:
     """What the user should know about how the frames are read (colour, JPEG, lossy
-    video codecs)."""
+    video codecs, a camera header's times left out)."""
     paths = [info.path for info in infos]
     notes = []
     lossy = sorted({i.codec for i in infos if i.codec and i.codec not in _LOSSLESS_CODECS})
@@ -597,6 +597,7 @@ def _reading_notes(infos: list[_FileInfo], channels: int, name: str) -> tuple[st
     if any(p.suffix.lower() in _JPEG_EXTENSIONS for p in paths):
         notes.append(f"{name}: JPEG files; lossy compression adds block artefacts that "
                      "the noise floor does not model: prefer TIFF or PNG")
+    notes += [f"{name}: {i.note}" for i in infos if i.note]
     return tuple(notes)
 
 
