@@ -112,3 +112,127 @@ def row_medians(table: np.ndarray) -> np.ndarray:
     if nan.any():
         out[nan] = np.nan
     return out
+
+
+# A histogram pass narrows each wanted rank to one of this many bins; the values
+# of the bins left are gathered once they number at most _GATHER (32 MiB).
+_NARROW_BINS = 4096
+_GATHER = 2**22
+
+
+def streamed_percentiles(chunks, q, *, gather: int = _GATHER):
+    """``(count, min, max, percentiles)`` of all the values that ``chunks()`` yields
+    (1-D float64 arrays, finite), with memory for ``gather`` values, not for all.
+
+    ``chunks`` is called once per pass over the data (a few: one for the count and
+    the extremes, then histograms that narrow each order statistic the percentiles
+    need to a bin, until the values of those bins fit in ``gather`` and are sorted).
+    The percentiles are those of ``np.percentile(all, q)`` (linear interpolation
+    between the two order statistics about rank ``(n - 1) q / 100``), from the same
+    order statistics; NaN for no value.
+    """
+    qs = np.atleast_1d(np.asarray(q, dtype=np.float64))
+    n, lo, hi = 0, math.inf, -math.inf
+    for c in chunks():
+        if c.size:
+            n += c.size
+            lo, hi = min(lo, float(c.min())), max(hi, float(c.max()))
+    if n == 0:
+        return 0, math.nan, math.nan, np.full(qs.shape, np.nan)
+    h = (qs / 100) * (n - 1)
+    below = np.floor(h).astype(np.int64)
+    ranks = sorted({int(r) for b in below for r in (b, min(b + 1, n - 1))})
+    found = _order_statistics(chunks, ranks, lo, hi, n, gather)
+    a = np.array([found[int(b)] for b in below])
+    b = np.array([found[min(int(b) + 1, n - 1)] for b in below])
+    t = h - below
+    # numpy's own interpolation (a + (b - a) t, from b's side when t >= 1/2)
+    d = b - a
+    out = np.where(t >= 0.5, b - d * (1 - t), a + d * t)
+    return n, lo, hi, out
+
+
+def _order_statistics(chunks, ranks, lo, hi, n, gather) -> dict:
+    """The values at the 0-based ``ranks`` of the ``n`` values of ``chunks``, which
+    span ``[lo, hi]``."""
+    # each open rank: the closed interval its value lies in, and how many values lie
+    # below the interval
+    open_ = dict.fromkeys(ranks, (lo, hi, 0))
+    found = {}
+    for step in range(64):  # each pass divides an interval by _NARROW_BINS, or settles it
+        boxes = sorted({(a, b) for a, b, _ in open_.values()})
+        inside = [0] * len(boxes)
+        low, high = [math.inf] * len(boxes), [-math.inf] * len(boxes)
+        if step == 0:  # the whole span, counted already
+            inside, low, high = [n], [lo], [hi]
+        for c in chunks() if step else ():
+            for j, (a, b) in enumerate(boxes):
+                v = c[(c >= a) & (c <= b)]
+                if v.size:
+                    inside[j] += v.size
+                    low[j], high[j] = min(low[j], float(v.min())), max(high[j], float(v.max()))
+        # each interval shrunk to the values in it (none lie between its ends and
+        # theirs): one value left, repeated or not, is the answer
+        for r, (a, b, under) in list(open_.items()):
+            j = boxes.index((a, b))
+            if low[j] == high[j]:
+                found[r] = low[j]
+                del open_[r]
+            else:
+                open_[r] = (low[j], high[j], under)
+        if not open_:
+            return found
+        boxes = [(low[j], high[j]) for j in range(len(boxes)) if low[j] < high[j]]
+        if sum(inside) <= gather:
+            kept = [[] for _ in boxes]
+            for c in chunks():
+                for j, (a, b) in enumerate(boxes):
+                    kept[j].append(c[(c >= a) & (c <= b)])
+            for r, (a, b, under) in open_.items():
+                v = np.sort(np.concatenate(kept[boxes.index((a, b))]))
+                found[r] = float(v[r - under])
+            return found
+        # a histogram of each interval; a value equal to an inner edge counts in the
+        # bin above it, the top edge in the last bin
+        edges = [_edges(a, b) for a, b in boxes]
+        counts = [np.zeros(_NARROW_BINS, np.int64) for _ in boxes]
+        for c in chunks():
+            for j, (a, b) in enumerate(boxes):
+                v = c[(c >= a) & (c <= b)]
+                counts[j] += np.bincount(_bins(v, edges[j]), minlength=_NARROW_BINS)
+        for r, (a, b, under) in list(open_.items()):
+            j = boxes.index((a, b))
+            cum = np.cumsum(counts[j])
+            k = int(np.searchsorted(cum, r - under, side="right"))
+            e = edges[j]
+            top = b if k == _NARROW_BINS - 1 else float(e[k + 1])
+            open_[r] = (float(e[k]), top, under + (int(cum[k - 1]) if k else 0))
+    raise RuntimeError("the order statistics did not narrow")  # pragma: no cover
+
+
+def _bins(v: np.ndarray, edges: np.ndarray) -> np.ndarray:
+    """The bin of each of ``v`` (within the edges' span) among the uniform ``edges``:
+    ``edges[k] <= v < edges[k + 1]``, the last bin closed. Computed from the spacing,
+    then set right against the edges themselves (the rounding of either may differ
+    by one bin), as ``np.histogram`` does."""
+    m = edges.size - 1
+    with np.errstate(all="ignore"):  # a span of subnormals or beyond the largest float
+        scale = m / (edges[-1] - edges[0])
+        x = (v - edges[0]) * scale if np.isfinite(scale) else np.zeros(v.shape)
+    k = np.nan_to_num(x, nan=0.0, posinf=m - 1, neginf=0.0).astype(np.int64)
+    np.clip(k, 0, m - 1, out=k)
+    k -= v < edges[k]
+    k += (v >= edges[k + 1]) & (k < m - 1)
+    off = (v < edges[k]) | ((v >= edges[k + 1]) & (k < m - 1))
+    if off.any():  # the arithmetic more than a bin out: by the edges alone
+        k[off] = np.clip(np.searchsorted(edges, v[off], side="right") - 1, 0, m - 1)
+    return k
+
+
+def _edges(a: float, b: float) -> np.ndarray:
+    """``_NARROW_BINS`` uniform bins from ``a`` to ``b``, increasing, even where
+    ``b - a`` is beyond the largest float (as the maps of a damaged file may be)."""
+    t = np.linspace(0.0, 1.0, _NARROW_BINS + 1)
+    e = a * (1 - t) + b * t if math.isinf(b - a) else a + (b - a) * t
+    e[0], e[-1] = a, b
+    return np.maximum.accumulate(np.minimum(e, b))

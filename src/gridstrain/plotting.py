@@ -32,6 +32,7 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.colors import CenteredNorm, Normalize
 from matplotlib.figure import Figure
 
+from ._stats import streamed_percentiles
 from ._validation import check_choice, check_finite, check_pixel_size, check_positive, check_type
 from .io import OutputDirectory, write_atomic
 from .results import SeriesResult
@@ -105,10 +106,33 @@ def map_norm(values, *, valid=None, limits: str = "common") -> Normalize:
     v = v[ok]
     if v.size == 0:
         return CenteredNorm(0.0, 1.0)
+    r_lo, r_hi = (float(x) for x in np.percentile(v, _ROBUST))
+    return _norm(float(v.min()), float(v.max()), r_lo, r_hi, limits)
+
+
+def _states_norm(values_of: Callable, n: int, *, limits: str) -> Normalize:
+    """:func:`map_norm` of the valid values of ``n`` states, ``values_of(i)`` giving
+    state ``i``'s ``(values, valid)``: read one state at a time (a record of
+    thousands of states is never in memory at once), the same norm."""
+    check_choice(limits, "limits", tuple(LIMITS))
+
+    def chunks():
+        for i in range(n):
+            values, valid = values_of(i)
+            v = np.asarray(values, dtype=np.float64)
+            yield v[np.asarray(valid, dtype=bool) & np.isfinite(v)]
+
+    count, lo, hi, (r_lo, r_hi) = streamed_percentiles(chunks, _ROBUST)
+    if count == 0:
+        return CenteredNorm(0.0, 1.0)
+    return _norm(lo, hi, float(r_lo), float(r_hi), limits)
+
+
+def _norm(v_min: float, v_max: float, r_lo: float, r_hi: float, limits: str) -> Normalize:
+    """:func:`map_norm` from the extremes and the robust percentiles of the values."""
     # the signs that matter are judged without the outliers: a few noise pixels of
     # the other sign do not make a one-signed field diverging
-    r_lo, r_hi = (float(x) for x in np.percentile(v, _ROBUST))
-    lo, hi = (float(v.min()), float(v.max())) if limits == "common" else (r_lo, r_hi)
+    lo, hi = (v_min, v_max) if limits == "common" else (r_lo, r_hi)
     if r_lo < 0 < r_hi and min(-r_lo, r_hi) > _BOTH_SIGNS * (r_hi - r_lo):
         return CenteredNorm(0.0, max(-lo, hi))
     if hi <= lo:
@@ -308,28 +332,37 @@ def save_figures(result, directory, *, pixel_size: float | None = None,
     total = len(names)
     written = []
     T = result.n_frames
+    n = result.n_states
+
+    def values_of(name, kind, i):
+        # one state at a time: the maps of a record may stay in its file
+        values, valid = np.asarray(result.get_map(name)[i]), np.asarray(result.valid[i])
+        if kind == "displacement" and ps is not None:
+            values = values * ps
+        elif kind == "strain":
+            values = values * 1e6
+        return values, valid
+
     # one colour limit per quantity, common to every state, so that the states
     # compare by eye (displacements about each state's mean)
-    shown = {}
+    offsets, norms = {}, {}
     for name, (_symbol, kind) in _FIELDS.items():
-        maps, offsets = [], []
-        for i in range(result.n_states):
-            values, valid = np.asarray(result.get_map(name)[i]), result.valid[i]
-            if kind == "displacement" and ps is not None:
-                values = values * ps
-            elif kind == "strain":
-                values = values * 1e6
-            off = float(np.mean(values[valid])) if kind == "displacement" and valid.any() \
-                else 0.0
-            maps.append(values)
-            offsets.append(off)
-        centred = np.stack([m - o for m, o in zip(maps, offsets, strict=True)])
-        shown[name] = (maps, offsets, map_norm(centred, valid=result.valid, limits="robust"))
-    for i in range(result.n_states):
-        valid = result.valid[i]
+        off = np.zeros(n)
+        if kind == "displacement":
+            for i in range(n):
+                values, valid = values_of(name, kind, i)
+                off[i] = float(np.mean(values[valid])) if valid.any() else 0.0
+
+        def centred(i, name=name, kind=kind, off=off):
+            values, valid = values_of(name, kind, i)
+            return values - off[i], valid
+
+        offsets[name] = off
+        norms[name] = _states_norm(centred, n, limits="robust")
+    for i in range(n):
         for name, (symbol, kind) in _FIELDS.items():
-            maps, offsets, norm = shown[name]
-            values, offset = maps[i], offsets[i]
+            values, valid = values_of(name, kind, i)
+            offset, norm = float(offsets[name][i]), norms[name]
             u = (unit if ps is not None else "px") if kind == "displacement" else _MICRO
             title = (f"{symbol}, {result.names[i + 1]}: method {result.method}, "
                      f"$\\sigma$ = {result.sigma:.3g} px, T = {T[0]}/{T[i + 1]}")
@@ -368,22 +401,42 @@ def quantity(result, name: str, *, pixel_size: float | None = None,
     Strains (and their std) in µε with ``microstrain``, rotations in mrad,
     displacements in ``unit`` with a pixel size, else px.
     """
+    return np.stack([state_quantity(result, name, i, pixel_size=pixel_size, unit=unit,
+                                    microstrain=microstrain)[0]
+                     for i in range(result.n_states)]), \
+        _drawn_unit(name, pixel_size, unit, microstrain)
+
+
+def state_quantity(result, name: str, i: int, *, pixel_size: float | None = None,
+                   unit: str | None = None, microstrain: bool = True
+                   ) -> tuple[np.ndarray, str]:
+    """``(values (H, W), unit drawn)`` of one quantity of state ``i`` (read alone from
+    a result whose maps stay in its file), as :func:`quantity`."""
     check_choice(name, "name", tuple(QUANTITIES))
+    drawn = _drawn_unit(name, pixel_size, unit, microstrain)
     if name == "rotation":
-        return np.stack([m.rotation for m in result.measurements]) * 1e3, "mrad"
+        return np.asarray(result.measurements[i].rotation) * 1e3, drawn
     if name.endswith("_std"):
         if result.uncertainty is None or name not in result.uncertainty:
             raise ValueError(f"this result has no {name} map (a single frame per series "
                              "gives no uncertainty map)")
-        values = np.asarray(result.uncertainty[name])
+        values = np.asarray(result.uncertainty[name][i])
     else:
-        values = result.get_map(name)
-    base = QUANTITIES[name][1]
-    if base == "1":
-        return (values * 1e6, _MICRO) if microstrain else (values, "1")
-    if pixel_size is not None:
-        return values * pixel_size, unit
-    return values, "px"
+        values = np.asarray(result.get_map(name)[i])
+    if drawn == _MICRO:
+        return values * 1e6, drawn
+    if QUANTITIES[name][1] != "1" and pixel_size is not None:
+        return values * pixel_size, drawn
+    return values, drawn
+
+
+def _drawn_unit(name: str, pixel_size, unit, microstrain: bool) -> str:
+    check_choice(name, "name", tuple(QUANTITIES))
+    if name == "rotation":
+        return "mrad"
+    if QUANTITIES[name][1] == "1":
+        return _MICRO if microstrain else "1"
+    return unit if pixel_size is not None else "px"
 
 
 def state_norm(values, valid, *, limits: str = "common"):
@@ -453,14 +506,20 @@ def plot_states(result, name: str, *, limits: str = "common", microstrain: bool 
     from mpl_toolkits.axes_grid1.anchored_artists import AnchoredSizeBar
 
     ps, unit = check_pixel_size(pixel_size, unit)
-    values, drawn = quantity(result, name, pixel_size=ps, unit=unit,
-                             microstrain=microstrain)
-    valid = np.asarray(result.valid) & np.isfinite(values)
-    norm, _ = state_norm(values, valid, limits=limits)
+    check_choice(limits, "limits", tuple(LIMITS))
     n_all = result.n_states
     shown = chosen_states(n_all) if states is None else np.asarray(states, dtype=int)
     if shown.size == 0 or shown.min() < 0 or shown.max() >= n_all:
         raise ValueError(f"states must be indices of the {n_all} states, got {states!r}")
+
+    def values_of(i):
+        # state by state: the maps of a record may stay in its file
+        values, _ = state_quantity(result, name, i, pixel_size=ps, unit=unit,
+                                   microstrain=microstrain)
+        return values, np.asarray(result.valid[i]) & np.isfinite(values)
+
+    drawn = _drawn_unit(name, ps, unit, microstrain)
+    norm = _states_norm(values_of, n_all, limits=limits)
     n = shown.size
     cols = max(1, min(int(columns), n))
     rows = math.ceil(n / cols)
@@ -476,11 +535,12 @@ def plot_states(result, name: str, *, limits: str = "common", microstrain: bool 
             ax.set_axis_off()
             continue
         i = int(shown[k])
+        values, valid = values_of(i)
         ax.imshow(bg, cmap="gray", vmin=lo_g, vmax=hi_g if hi_g > lo_g else lo_g + 1,
                   interpolation="nearest")
-        im = ax.imshow(np.ma.masked_array(values[i], mask=~valid[i]), cmap=cmap, norm=norm,
+        im = ax.imshow(np.ma.masked_array(values, mask=~valid), cmap=cmap, norm=norm,
                        interpolation="nearest")
-        ax.set_title(f"{result.names[i + 1]}: {valid[i].mean():.0%} valid", fontsize=9)
+        ax.set_title(f"{result.names[i + 1]}: {valid.mean():.0%} valid", fontsize=9)
         ax.set_xlabel("x (px)", fontsize=8)
         ax.set_ylabel("y (px)", fontsize=8)
         ax.tick_params(labelsize=7)
@@ -498,16 +558,19 @@ def plot_states(result, name: str, *, limits: str = "common", microstrain: bool 
     return fig
 
 
-def _probe(values: np.ndarray, valid: np.ndarray, point, region):
-    """Per-state value at a point, or mean over the valid pixels of a region."""
-    if point is not None:
-        x, y = point
-        v = values[:, y, x].astype(float)
-        return np.where(valid[:, y, x], v, np.nan)
-    x0, y0, x1, y1 = region
+def _probe(values_of: Callable, result, point, region):
+    """Per-state value at a point, or mean over the valid pixels of a region, state
+    ``i``'s values from ``values_of(i)``."""
     out = []
-    for vals, ok in zip(values[:, y0:y1, x0:x1], valid[:, y0:y1, x0:x1], strict=True):
-        out.append(float(np.mean(vals[ok])) if ok.any() else math.nan)
+    for i in range(result.n_states):
+        vals, valid = values_of(i), np.asarray(result.valid[i])
+        if point is not None:
+            x, y = point
+            out.append(float(vals[y, x]) if valid[y, x] else math.nan)
+            continue
+        x0, y0, x1, y1 = region
+        ok = valid[y0:y1, x0:x1]
+        out.append(float(np.mean(vals[y0:y1, x0:x1][ok])) if ok.any() else math.nan)
     return np.array(out)
 
 
@@ -570,7 +633,7 @@ def plot_history(result, *, point=None, region=None, names=("exx", "eyy", "exy")
     ax = fig.add_subplot()
     unit_drawn = None
     for name in names:
-        values, unit_drawn = quantity(result, name, microstrain=microstrain)
+        unit_drawn = _drawn_unit(name, None, None, microstrain)
         scale = 1e6 if unit_drawn == _MICRO else 1.0
         if name in ("exx", "eyy", "exy", "ux", "uy"):
             if reading is None:
@@ -579,7 +642,8 @@ def plot_history(result, *, point=None, region=None, names=("exx", "eyy", "exy")
             err = getattr(reading, f"{name}_std") * scale
             err = err if np.all(np.isfinite(err)) else None
         else:
-            curve, err = _probe(values, result.valid, point, region), None
+            curve, err = _probe(lambda i, name=name: state_quantity(
+                result, name, i, microstrain=microstrain)[0], result, point, region), None
         ax.errorbar(xs, curve, yerr=err, marker="o", markersize=3, capsize=2,
                     label=QUANTITIES[name][0])
     ax.axhline(0.0, color="0.6", linewidth=0.8)

@@ -108,7 +108,8 @@ def _spread(n: int, k: int) -> list[int]:
 
 
 def _subset(result, states: list[int]):
-    """The result restricted to some states, for the figures of their maps."""
+    """The result restricted to some states, for the figures of their maps (those
+    states alone read from a result whose maps stay in its file)."""
     if states == list(range(result.n_states)):
         return result
     idx = np.array(states)
@@ -118,7 +119,7 @@ def _subset(result, states: list[int]):
         measurements=tuple(result.measurements[i] for i in states),
         names=(result.names[0], *(result.names[i + 1] for i in states)),
         uncertainty=None if result.uncertainty is None else
-        {k: np.asarray(v)[idx] for k, v in result.uncertainty.items()})
+        {k: np.asarray(v[idx]) for k, v in result.uncertainty.items()})
 
 
 def render_report(result: SeriesResult, *, attrs: dict | None = None,
@@ -347,7 +348,7 @@ def write_report(result_path, html_path, *, overwrite: bool = False) -> Path:
     pathlib.Path
     """
     src = as_path(result_path, "result_path")
-    result = load(src)
+    result = load(src, in_memory=False)
     text = render_report(result, attrs=read_attrs(src), title=f"gridstrain: {src.name}")
     dest = as_path(html_path, "html_path")
     return write_atomic(dest, text.encode("utf-8"), overwrite=overwrite)

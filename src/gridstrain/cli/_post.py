@@ -62,7 +62,7 @@ def open_result(args):
     from ..results import load, read_attrs
 
     src = Path(os.path.expanduser(args.result))
-    result = load(src)
+    result = load(src, in_memory=False)
     attrs = read_attrs(src)
     ps, unit = attrs.get("pixel_size"), attrs.get("unit")
     if ps is None or unit is None or getattr(args, "px", False):

@@ -58,7 +58,7 @@ def run(args) -> int:
     if args.point and args.region:
         raise ValueError("give --point or --region, not both")
     src = Path(os.path.expanduser(args.result))
-    result = load(src)
+    result = load(src, in_memory=False)
     attrs = read_attrs(src)
     ps, unit = attrs.get("pixel_size"), attrs.get("unit")
     if ps is None or unit is None:

@@ -149,9 +149,12 @@ class ResultFile:
 class StoredMaps(np.lib.mixins.NDArrayOperatorsMixin):
     """Maps of a result file, read from it when indexed: a read-only array of shape
     ``(n_states, [components,] H, W)`` (or of one state) whose ``[i]`` reads state
-    ``i`` only, so that a long series is looked at state by state without being
-    loaded. ``numpy.asarray``, NumPy's functions and operators, and the methods of
-    an array (``.mean()``, ``.reshape()``...) read the whole.
+    ``i`` only, ``[[i, j, ...]]`` those states only and ``[:, c]`` is component ``c``'s
+    own view (``result.ux``), so that a long series is looked at state by state
+    without being loaded. ``numpy.asarray``, NumPy's functions and operators, and the
+    methods of an array (``.mean()``, ``.reshape()``...) read the whole. A variable
+    that is no longer of the shape and type it had when the view was made (the file
+    replaced) is refused, not read.
 
     Parameters
     ----------
@@ -169,9 +172,10 @@ class StoredMaps(np.lib.mixins.NDArrayOperatorsMixin):
         self._state = state
         if layout is None:  # (n_states, H, W, dtype) of the variables
             with h5py.File(self.path, "r") as h5:
-                first = h5[names if isinstance(names, str) else names[0]]
+                first = _member(h5, names if isinstance(names, str) else names[0])
                 layout = (*first.shape, first.dtype)
-        n, H, W, self.dtype = layout
+        n, H, W, dtype = layout
+        self._n, self.dtype = n, np.dtype(dtype)
         comp = () if isinstance(names, str) else (len(names),)
         self.shape = (*(() if state is not None else (n,)), *comp, H, W)
 
@@ -186,18 +190,57 @@ class StoredMaps(np.lib.mixins.NDArrayOperatorsMixin):
     def __len__(self) -> int:
         return self.shape[0]
 
+    def _layout(self) -> tuple:
+        return (self._n, *self.shape[-2:], self.dtype)
+
+    def _dataset(self, h5, name: str):
+        """The variable ``name``, still of the shape and type it had when this view
+        was made (the file may have been replaced since: refused, not misread)."""
+        ds = _member(h5, name)
+        n, H, W, dtype = self._layout()
+        if not isinstance(ds, h5py.Dataset) or ds.shape != (n, H, W) \
+                or ds.dtype.kind != dtype.kind:
+            raise ValueError(f"{self.path}: /{name} is no longer the ({n}, {H}, {W}) "
+                             f"{dtype} variable it was when the file was opened")
+        return ds
+
     def _read(self, states) -> np.ndarray:
         with h5py.File(self.path, "r") as h5:
             if isinstance(self._names, str):
-                return np.asarray(h5[self._names][states])
+                return np.asarray(self._dataset(h5, self._names)[states])
             axis = 0 if isinstance(states, numbers.Integral) else 1
-            return np.stack([np.asarray(h5[n][states]) for n in self._names], axis=axis)
+            return np.stack([np.asarray(self._dataset(h5, n)[states]) for n in self._names],
+                            axis=axis)
+
+    def _read_states(self, which) -> np.ndarray:
+        """The states ``which`` (a sequence of indices, any order, repeats allowed),
+        reading those only."""
+        n = self.shape[0]
+        idx = np.asarray(which)
+        if idx.size == 0:
+            return np.empty((0, *self.shape[1:]), self.dtype)
+        if idx.ndim != 1 or idx.dtype.kind not in "iu":
+            return np.asarray(self)[idx]  # a mask or anything else: from the whole
+        if idx.size and not (-n <= idx.min() and idx.max() < n):
+            raise IndexError(f"states {which!r} out of range for {n} states")
+        # HDF5 reads increasing indices only: each state once, then put in order
+        unique, back = np.unique(idx % n, return_inverse=True)
+        return self._read(list(unique))[back]
 
     def __getitem__(self, key):
         key = key if isinstance(key, tuple) else (key,)
         if self._state is not None:
             return self._read(self._state)[key]
         first, rest = key[0], key[1:]
+        if isinstance(first, slice) and first == slice(None) and rest \
+                and not isinstance(self._names, str) \
+                and isinstance(rest[0], numbers.Integral) and not isinstance(rest[0], bool):
+            # one component of every state (result.ux): a view, read when indexed
+            j = int(rest[0])
+            if not -len(self._names) <= j < len(self._names):
+                raise IndexError(f"component {j} out of range for {len(self._names)}")
+            view = StoredMaps(self.path, self._names[j], layout=self._layout())
+            return view[(slice(None), *rest[1:])] if len(rest) > 1 else view
         if isinstance(first, numbers.Integral) and not isinstance(first, bool):
             i = int(first)
             if not -self.shape[0] <= i < self.shape[0]:
@@ -205,6 +248,11 @@ class StoredMaps(np.lib.mixins.NDArrayOperatorsMixin):
             out = self._read(i % self.shape[0])
         elif isinstance(first, slice):
             out = self._read(first)
+            return out[(slice(None), *rest)] if rest else out
+        elif isinstance(first, list | tuple | np.ndarray) and all(
+                isinstance(k, slice | numbers.Integral) for k in rest):
+            # chosen states (the rest basic indices: the same as on the whole)
+            out = self._read_states(first)
             return out[(slice(None), *rest)] if rest else out
         else:  # anything else: from the whole
             return np.asarray(self)[key]
@@ -446,7 +494,7 @@ def _check_result(path, result: SeriesResult) -> SeriesResult:
     return result
 
 
-def load(path) -> SeriesResult:
+def load(path, *, in_memory: bool = True) -> SeriesResult:
     """Read a result file written by :func:`save_result`.
 
     Nothing in the file is run or imported: the classes it may hold are a fixed
@@ -457,6 +505,13 @@ def load(path) -> SeriesResult:
     Parameters
     ----------
     path : str or os.PathLike
+    in_memory : bool
+        Read every map into memory (the default). False leaves the per-state maps
+        (displacement, strain, rotation, validity, uncertainty; the result's and each
+        measurement's) in the file as :class:`StoredMaps`, read state by state when
+        indexed: a record of thousands of states is then looked at, gauged or
+        reported on in the memory of a few states. The file must stay in place
+        while the result is used.
 
     Returns
     -------
@@ -474,27 +529,50 @@ def load(path) -> SeriesResult:
         the layout says (the message names the file and the field), or it declares
         more data than the memory available.
     """
+    in_memory = check_type(in_memory, "in_memory", bool)
     with _open(path) as h5:
         maps, unc, (n, H, W) = _map_datasets(h5)
-        # read once, then copied into the stacks and the measurements
-        _check_memory(h5.filename, 2 * _declared_bytes(h5), "its datasets")
+        stored = sum(int(ds.size) * ds.dtype.itemsize for ds in (*maps.values(),
+                                                                  *unc.values()))
+        # read once, then copied into the stacks and the measurements; left in the
+        # file, the maps take no memory
+        _check_memory(h5.filename, 2 * (_declared_bytes(h5) - (0 if in_memory else stored)),
+                      "its datasets")
+        if in_memory:
+            def stack(names):
+                out = np.empty((n, len(names), H, W),
+                               np.result_type(*(maps[k].dtype for k in names)))
+                for j, k in enumerate(names):
+                    out[:, j] = _read_dataset(maps[k], kinds="f")
+                return out
 
-        def stack(names):
-            out = np.empty((n, len(names), H, W),
-                           np.result_type(*(maps[k].dtype for k in names)))
-            for j, k in enumerate(names):
-                out[:, j] = _read_dataset(maps[k], kinds="f")
-            return out
+            def read(k, kinds="biufc"):
+                return _read_dataset(maps[k] if k in maps else unc[k], kinds=kinds)
+
+            def state(arr, i):
+                return arr[i].copy()
+        else:
+            where = Path(h5.filename).resolve()
+
+            def stack(names):
+                return StoredMaps(where, names, layout=(n, H, W, maps[names[0]].dtype))
+
+            def read(k, kinds="biufc"):
+                ds = maps[k] if k in maps else unc[k]
+                return StoredMaps(where, k, layout=(n, H, W, ds.dtype))
+
+            def state(arr, i):
+                return StoredMaps(where, arr._names, state=i, layout=arr._layout())
 
         u, strain = stack(("ux", "uy")), stack(("exx", "eyy", "exy"))
-        valid = _read_dataset(maps["valid"], kinds="b")
-        rotation = _read_dataset(maps["rotation"], kinds="f")
+        valid = read("valid", kinds="b")
+        rotation = read("rotation", kinds="f")
         root = {"u": u, "strain": strain, "valid": valid,
                 "mask": _read_dataset(h5["mask"], kinds="b"),
                 "reference_image": _read_dataset(h5["reference_image"], kinds="f"),
-                "uncertainty": ({k: _read_dataset(unc[k]) for k in _UNC_KEYS if k in unc}
-                                | {k: _read_dataset(unc[k]) for k in unc
-                                   if k not in _UNC_KEYS}) if unc else None}
+                "uncertainty": ({k: read(k) for k in _UNC_KEYS if k in unc}
+                                | {k: read(k) for k in unc if k not in _UNC_KEYS})
+                if unc else None}
 
         def fill(cls, group, values, row):
             if cls.__name__ == "SeriesResult":
@@ -508,8 +586,8 @@ def load(path) -> SeriesResult:
                     raise _Bad(f"{_where(group)}: a measurement beyond the {n} states of "
                                "the maps")
                 i = int(i)
-                values.update(u=u[i].copy(), strain=strain[i].copy(),
-                              rotation=rotation[i].copy(), valid=valid[i].copy())
+                values.update(u=state(u, i), strain=state(strain, i),
+                              rotation=state(rotation, i), valid=state(valid, i))
                 values.setdefault("reference", None)  # saved without the phase maps
                 values.setdefault("deformed", None)
             elif cls.__name__ == "NoiseFloor":
