@@ -83,15 +83,21 @@ def test_gauge_std_matches_repeated_noise_draws():
     assert 0.67 <= ratio <= 1.33, ratio
 
 
-def test_std_of_mean_is_the_double_sum():
-    # the FFT double sum against a direct sum over every pair of pixels
+@pytest.mark.parametrize(("shape", "boxes"), [
+    ((24, 30), ((slice(3, 20), slice(5, 17)), (slice(10, 12), slice(20, 28)))),
+    ((40, 50), ((slice(10, 11), slice(0, 50)),)),  # one row: lags along x only
+    ((6, 7), ((slice(0, 6), slice(0, 7)),)),  # a region smaller than the kernel
+])
+def test_std_of_mean_is_the_double_sum(shape, boxes):
+    # the spectral double sum against a direct sum over every pair of pixels
     from gridstrain import Lattice
 
     rng = np.random.default_rng(0)
-    s = rng.uniform(1.0, 2.0, (24, 30))
+    s = rng.uniform(1.0, 2.0, shape)
     inside = np.zeros(s.shape, dtype=bool)
-    inside[3:20, 5:17] = True
-    inside[10:12, 20:28] = True
+    for box in boxes:
+        inside[box] = True
+    inside &= rng.random(shape) > 0.1  # holes: invalid pixels inside the region
     kern = strain_kernel(Lattice.from_pitch(5.0, angle=30.0), 3.0, "exy")
     r = kern.shape[0] // 2
     ys, xs = np.nonzero(inside)

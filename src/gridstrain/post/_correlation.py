@@ -37,10 +37,12 @@ through the same kernels.
 
 from __future__ import annotations
 
+import hashlib
 import math
+import threading
 
 import numpy as np
-from scipy.signal import fftconvolve
+import scipy.fft as sfft
 
 #: Half-width of the correlation kernels, in sigma: exp(-8^2/4) (1 + 8^2/2) ~ 4e-6.
 _RADIUS_SIGMAS = 8.0
@@ -90,8 +92,12 @@ def std_of_mean(std: np.ndarray, inside: np.ndarray, kernel: np.ndarray) -> floa
     """Std of the mean of a map over ``inside``, its pixels' noise correlated by ``kernel``.
 
     ``Var = sum_ij s_i s_j rho(x_i - x_j) / N^2`` over the ``N`` pixels of
-    ``inside``, the sum computed as ``sum_i s_i (s * rho)(x_i)`` with an FFT
-    convolution over the bounding box of ``inside``.
+    ``inside``, ``s`` zero outside it. The double sum is ``sum_d rho(d) A(d)``, ``A``
+    the autocorrelation of ``s``; by the Wiener-Khinchin theorem it is
+    ``sum_f K(f) |S(f)|^2 / P`` over the ``P`` frequencies of one FFT of ``s``
+    zero-padded by the kernel's radius (so that no lag the kernel reaches wraps
+    around), ``K`` the transform of the even kernel, real, computed once per padded
+    size: one transform per call where a convolution takes three.
     """
     rows, cols = np.nonzero(inside)
     n = rows.size
@@ -101,5 +107,44 @@ def std_of_mean(std: np.ndarray, inside: np.ndarray, kernel: np.ndarray) -> floa
         return float(std[rows[0], cols[0]])
     box = (slice(rows.min(), rows.max() + 1), slice(cols.min(), cols.max() + 1))
     s = np.where(inside[box], std[box], 0.0).astype(np.float64)
-    var = float(np.sum(s * fftconvolve(s, kernel, mode="same"))) / (n * n)
-    return math.sqrt(max(var, 0.0))
+    # lags beyond the box pair no pixels: the kernel cut to them
+    r = kernel.shape[0] // 2
+    ry, rx = min(r, s.shape[0] - 1), min(r, s.shape[1] - 1)
+    kernel = kernel[r - ry:r + ry + 1, r - rx:r + rx + 1]
+    shape = (sfft.next_fast_len(s.shape[0] + ry, real=True),
+             sfft.next_fast_len(s.shape[1] + rx, real=True))
+    power = np.abs(sfft.rfft2(s, s=shape)) ** 2
+    spectrum = _kernel_spectrum(kernel, shape)
+    # the half spectrum: the columns but the first (and the Nyquist one) twice
+    weights = np.full(power.shape[1], 2.0)
+    weights[0] = 1.0
+    if shape[1] % 2 == 0:
+        weights[-1] = 1.0
+    total = float(np.sum((power * spectrum) @ weights)) / (shape[0] * shape[1])
+    return math.sqrt(max(total / (n * n), 0.0))
+
+
+_SPECTRA: dict = {}
+_SPECTRA_LOCK = threading.Lock()
+
+
+def _kernel_spectrum(kernel: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    """The real half spectrum of ``kernel`` (odd sides, centred, even: ``k(-d) =
+    k(d)``, each side at most ``shape``'s plus one over two) placed with its centre at
+    the origin of a periodic ``shape``; the last few kept (a gauge's states share
+    theirs)."""
+    key = (kernel.shape, hashlib.sha1(np.ascontiguousarray(kernel).tobytes()).hexdigest(),
+           shape)
+    with _SPECTRA_LOCK:
+        found = _SPECTRA.get(key)
+    if found is None:
+        placed = np.zeros(shape)
+        ry, rx = kernel.shape[0] // 2, kernel.shape[1] // 2
+        placed[np.ix_(np.arange(-ry, ry + 1) % shape[0],
+                      np.arange(-rx, rx + 1) % shape[1])] = kernel
+        found = sfft.rfft2(placed).real  # an even kernel's transform is real
+        with _SPECTRA_LOCK:
+            if len(_SPECTRA) >= 8:
+                _SPECTRA.pop(next(iter(_SPECTRA)))
+            _SPECTRA[key] = found
+    return found
