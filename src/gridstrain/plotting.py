@@ -110,7 +110,7 @@ def map_norm(values, *, valid=None, limits: str = "common") -> Normalize:
     return _norm(float(v.min()), float(v.max()), r_lo, r_hi, limits)
 
 
-def _states_norm(values_of: Callable, n: int, *, limits: str) -> Normalize:
+def states_norm(values_of: Callable, n: int, *, limits: str) -> Normalize:
     """:func:`map_norm` of the valid values of ``n`` states, ``values_of(i)`` giving
     state ``i``'s ``(values, valid)``: read one state at a time (a record of
     thousands of states is never in memory at once), the same norm."""
@@ -358,7 +358,7 @@ def save_figures(result, directory, *, pixel_size: float | None = None,
             return values - off[i], valid
 
         offsets[name] = off
-        norms[name] = _states_norm(centred, n, limits="robust")
+        norms[name] = states_norm(centred, n, limits="robust")
     for i in range(n):
         for name, (symbol, kind) in _FIELDS.items():
             values, valid = values_of(name, kind, i)
@@ -519,7 +519,7 @@ def plot_states(result, name: str, *, limits: str = "common", microstrain: bool 
         return values, np.asarray(result.valid[i]) & np.isfinite(values)
 
     drawn = _drawn_unit(name, ps, unit, microstrain)
-    norm = _states_norm(values_of, n_all, limits=limits)
+    norm = states_norm(values_of, n_all, limits=limits)
     n = shown.size
     cols = max(1, min(int(columns), n))
     rows = math.ceil(n / cols)

@@ -12,23 +12,7 @@ from ..results import SeriesResult
 from ._loads import state_loads
 
 FORMATS = (".gif", ".mp4")
-#: Values kept per state to choose the colour limits (with every state's own
-#: extremes): enough for the 0.5-99.5th percentiles to 0.1 % of the range.
-_SAMPLE = 20000
 _VIDEO_EXTRA = "MP4 needs PyAV: pip install 'gridstrain[video]'"
-
-
-def _limits_sample(values_of, n: int) -> np.ndarray:
-    """Valid values of every state, thinned, and each state's extremes."""
-    parts = []
-    for i in range(n):
-        v = values_of(i)
-        v = v[np.isfinite(v)]
-        if v.size == 0:
-            continue
-        step = max(1, v.size // _SAMPLE)
-        parts += [v[::step], np.array([v.min(), v.max()])]
-    return np.concatenate(parts) if parts else np.zeros(0)
 
 
 def _frame_text(name, i, load, load_unit, time) -> str:
@@ -76,7 +60,7 @@ def animate(result: SeriesResult, name: str, path, *, fps: float = 5.0,
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
-    from ..plotting import QUANTITIES, colormap, map_norm
+    from ..plotting import QUANTITIES, colormap, states_norm
 
     check_type(result, "result", SeriesResult)
     check_choice(name, "name", tuple(QUANTITIES))
@@ -109,7 +93,12 @@ def animate(result: SeriesResult, name: str, path, *, fps: float = 5.0,
         return np.where(np.asarray(result.valid[i]), v * scale, np.nan)
 
     n = result.n_states
-    norm = map_norm(_limits_sample(values_of, n), limits=limits)
+    def valued(i):  # NaN where not valid
+        v = values_of(i)
+        return v, np.isfinite(v)
+
+    # exactly those of the valid values of every state, read state by state
+    norm = states_norm(valued, n, limits=limits)
     cmap = colormap(norm)
     H, W = result.shape
     bg = result.reference_image
