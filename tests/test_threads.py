@@ -84,15 +84,17 @@ def test_the_command_serves_its_threads_from_one_malloc_arena(monkeypatch):
     calls = []
     monkeypatch.setattr(cli, "blas_on_one_thread_from_start",
                         lambda: calls.append("blas") or True)
+    monkeypatch.setattr(cli, "no_huge_page_stalls_from_start",
+                        lambda: calls.append("pages") or True)
     monkeypatch.setattr(cli, "one_malloc_arena", lambda: calls.append("arena") or True)
     monkeypatch.setattr(cli, "keep_freed_memory", lambda: calls.append("keep") or True)
     monkeypatch.setattr(sys, "argv", ["gridstrain", "--help"])
     with pytest.raises(SystemExit):
         cli.main()  # the command's own process
-    assert calls == ["blas", "arena", "keep"]
+    assert calls == ["blas", "pages", "arena", "keep"]
     with pytest.raises(SystemExit):
         cli.main(["--help"])  # called from Python: the host's allocator is left alone
-    assert calls == ["blas", "arena", "keep"]
+    assert calls == ["blas", "pages", "arena", "keep"]
 
 
 _BLAS_AT_START = (
@@ -175,3 +177,35 @@ def test_map_leaves_callers_progress_while_the_pool_is_busy():
     finally:
         release.set()
         blocker.join()
+
+
+@pytest.mark.parametrize(("setting", "stalls"), [
+    ("always defer defer+madvise [madvise] never\n", True),
+    ("always defer [defer+madvise] madvise never\n", True),
+    ("always [defer] defer+madvise madvise never\n", False),
+    ("[always] defer defer+madvise madvise never\n", False),
+    ("always defer defer+madvise madvise [never]\n", False),
+    ("", False),
+])
+def test_huge_pages_are_not_advised_where_the_kernel_stalls_for_them(tmp_path, setting,
+                                                                    stalls):
+    # in a process of its own, with the kernel's setting from a file of the test's:
+    # numpy reads NUMPY_MADVISE_HUGEPAGE once, when it is imported
+    import os
+
+    defrag = tmp_path / "defrag"
+    defrag.write_text(setting)
+    code = ("import sys; from gridstrain import _threads as t; "
+            f"t._THP_DEFRAG = {str(defrag)!r}; s = t.no_huge_page_stalls_from_start(); "
+            "import numpy as np; print(s, np._core.multiarray._get_madvise_hugepage())")
+    env = {k: v for k, v in os.environ.items() if k != "NUMPY_MADVISE_HUGEPAGE"}
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True,
+                         text=True, check=True).stdout.split()
+    assert out[0] == str(stalls)
+    if stalls:
+        assert out[1] == "False"
+    # told otherwise by the environment, it is left alone
+    env["NUMPY_MADVISE_HUGEPAGE"] = "1"
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True,
+                         text=True, check=True).stdout.split()
+    assert out == ["False", "True"]

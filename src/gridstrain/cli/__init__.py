@@ -29,7 +29,12 @@ import sys
 import threading
 
 from .. import __version__
-from .._threads import blas_on_one_thread_from_start, keep_freed_memory, one_malloc_arena
+from .._threads import (
+    blas_on_one_thread_from_start,
+    keep_freed_memory,
+    no_huge_page_stalls_from_start,
+    one_malloc_arena,
+)
 
 # sub-command -> the one-line summary its module's parser declares (a test checks
 # that they agree)
@@ -210,6 +215,7 @@ def _main(argv) -> int:
     if argv is None:  # the process is the command's own (not a caller's)
         argv = sys.argv[1:]
         blas_on_one_thread_from_start()
+        no_huge_page_stalls_from_start()
         one_malloc_arena()
         keep_freed_memory()
     # the top level has no option taking a value: the first word is the sub-command
