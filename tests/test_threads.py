@@ -197,7 +197,8 @@ def test_huge_pages_are_not_advised_where_the_kernel_stalls_for_them(tmp_path, s
     defrag.write_text(setting)
     code = ("import sys; from gridstrain import _threads as t; "
             f"t._THP_DEFRAG = {str(defrag)!r}; s = t.no_huge_page_stalls_from_start(); "
-            "import numpy as np; print(s, np._core.multiarray._get_madvise_hugepage())")
+            "import numpy as np; c = np._core if hasattr(np, '_core') else np.core; "
+            "print(s, c.multiarray._get_madvise_hugepage())")
     env = {k: v for k, v in os.environ.items() if k != "NUMPY_MADVISE_HUGEPAGE"}
     out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True,
                          text=True, check=True).stdout.split()
