@@ -80,6 +80,11 @@ def test_maps_left_in_the_file_read_as_those_loaded(record):
     assert_array_equal(lazy.mask, held.mask)
     with pytest.raises(TypeError, match="in_memory"):
         load(path, in_memory="no")
+    # a record's repr names its first and last states, not every one
+    assert repr(lazy) == repr(held)
+    assert repr(held).endswith(
+        f"frames reference 1, states 1 each, valid {held.valid[0].mean():.1%} (first) to "
+        f"{held.valid[-1].mean():.1%} (last))")
 
 
 def test_maps_left_in_the_file_fit_a_memory_reading_them_does_not(record):

@@ -33,6 +33,10 @@ def _elsewhere(action: str):
     return getattr(importlib.import_module(module), name)
 
 
+# States listed one by one in a result's repr; beyond, the first and the last
+_REPR_STATES = 6
+
+
 @dataclass(frozen=True, eq=False)
 class SeriesResult:
     """Displacement and strain maps of every loaded state against the reference.
@@ -239,6 +243,15 @@ class SeriesResult:
 
     def __repr__(self) -> str:
         H, W = self.shape
-        valid = ", ".join(f"{v.mean():.1%}" for v in self.valid)
-        return (f"SeriesResult({self.n_states} state(s) of {H}x{W}, method {self.method}, "
-                f"sigma={self.sigma:.4g} px, frames {list(self.n_frames)}, valid {valid})")
+        n = self.n_states
+        if n <= _REPR_STATES:
+            valid = ", ".join(f"{np.mean(self.valid[i]):.1%}" for i in range(n))
+            frames = str(list(self.n_frames))
+        else:  # a record: its first and last states (each read alone from a file)
+            valid = (f"{np.mean(self.valid[0]):.1%} (first) to "
+                     f"{np.mean(self.valid[n - 1]):.1%} (last)")
+            lo, hi = min(self.n_frames[1:]), max(self.n_frames[1:])
+            frames = (f"reference {self.n_frames[0]}, states "
+                      + (f"{lo}" if lo == hi else f"{lo} to {hi}") + " each")
+        return (f"SeriesResult({n} state(s) of {H}x{W}, method {self.method}, "
+                f"sigma={self.sigma:.4g} px, frames {frames}, valid {valid})")
