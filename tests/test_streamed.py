@@ -225,3 +225,39 @@ def test_the_previous_field_read_back_from_the_file_gives_the_same_states(data, 
     assert [r.source for r in read.fringe_orders] == [r.source for r in kept.fringe_orders]
     assert [r.detail for r in read.fringe_orders] == [r.detail for r in kept.fringe_orders]
     assert read.fringe_orders[1].source == "previous state"
+
+
+def test_a_record_that_cannot_fit_on_its_disk_is_refused_after_its_first_state(
+        data, tmp_path, monkeypatch):
+    # the disk's free space as the file system would report it, once the first state
+    # is written: room for that one, not for the two others
+    import collections
+
+    import gridstrain.results._file as rf
+
+    ref, states = data
+    usage = collections.namedtuple("usage", "total used free")
+    one_state = 8 * SHAPE[0] * SHAPE[1] * 11  # float64 maps: u, strain, rotation, stds
+    seen = []
+
+    def disk_usage(path):
+        seen.append(path)
+        return usage(10 * one_state, 9 * one_state, one_state)
+
+    monkeypatch.setattr(rf.shutil, "disk_usage", disk_usage)
+    with pytest.raises(OSError, match=r"r\.h5: the maps of its 2 other states need about "
+                                      r".* more on that disk, and .* are free; nothing was "
+                                      r"written; .*write elsewhere, or .*--dtype float32"):
+        measure_series(ref, states, lattice=LAT, guess=None, output=tmp_path / "r.h5")
+    assert seen == [tmp_path.resolve()]
+    assert list(tmp_path.iterdir()) == []
+    # with no room even for float32 maps, float32 is not offered
+    monkeypatch.setattr(rf.shutil, "disk_usage",
+                        lambda p: usage(10 * one_state, 10 * one_state, one_state // 4))
+    with pytest.raises(OSError, match=r"write elsewhere$"):
+        measure_series(ref, states, lattice=LAT, guess=None, output=tmp_path / "r.h5")
+    assert list(tmp_path.iterdir()) == []
+    # a single state needs no more room than it took: never refused
+    monkeypatch.setattr(rf.shutil, "disk_usage", lambda p: usage(1, 1, 0))
+    measure_series(ref, states[:1], lattice=LAT, guess=None, output=tmp_path / "one.h5")
+    assert (tmp_path / "one.h5").is_file()

@@ -7,6 +7,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import numbers
+import shutil
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -14,6 +15,7 @@ from pathlib import Path
 import h5py
 import numpy as np
 
+from .._memory import format_size
 from .._validation import as_path, check_float_dtype, check_mapping, check_pixel_size, check_type
 from ..io import hdf5_file, hdf5_stream
 from ._codec import (
@@ -318,6 +320,8 @@ class StreamedResult:
         _put_state(self.h5, i, arrays, self.spec.pixel_size)
         self._lossless[i] = self.h5["ux"].dtype == res.u.dtype
         self.stream.check()  # a full disk is reported now, not after the last state
+        if not self.measurements:
+            self._check_room()
         # the measurement without its maps (they are in the file) and phase maps
         self.measurements.append(dataclasses.replace(
             res, **dict.fromkeys(("u", "strain", "rotation", "valid"), _EMPTY),
@@ -325,6 +329,29 @@ class StreamedResult:
         self.orders.append(rec)
         self.floors.append(floors)
         self.smoothing.append(smooth)
+
+    def _check_room(self) -> None:
+        """Once the first state is written: refuse a record whose other states' maps
+        cannot fit on the disk it is written to, rather than fail hours later."""
+        per_state = sum(ds.dtype.itemsize * math.prod(ds.shape[1:]) for ds in self.h5.values()
+                        if isinstance(ds, h5py.Dataset) and ds.ndim == 3
+                        and ds.compression is None)
+        need = per_state * (self.n - 1)
+        try:
+            free = shutil.disk_usage(self.path.resolve().parent).free
+        except OSError:  # no figure from this file system: nothing to compare
+            return
+        if need > free:
+            # float32 maps take half of float64's: offered where that would fit
+            halved = any(ds.dtype == np.float64 for ds in self.h5.values()
+                         if isinstance(ds, h5py.Dataset)) and need / 2 <= free
+            raise OSError(f"cannot write {self.path}: the maps of its {self.n - 1} other "
+                          f"states need about {format_size(need)} more on that disk, and "
+                          f"{format_size(free)} are free; nothing was written; free some "
+                          "space or write elsewhere" + (
+                              ", or store the maps in float32 (--dtype float32, "
+                              "ResultFile(dtype='float32')), which halves them"
+                              if halved else ""))
 
     def reader(self, i: int):
         """A callable reading state ``i``'s ``(u, valid)`` back from the file (the
