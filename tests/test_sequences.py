@@ -339,3 +339,35 @@ def test_a_videos_time_stamps_are_the_states_times(tmp_path):
     assert res.names[1:] == ("rec[1]", "rec[2]", "rec[3]")
     # frames 1, 2, 3 of a 25 frames-per-second stream
     np.testing.assert_allclose(res.time, np.arange(1, 4) / 25, atol=1e-12)
+
+
+def test_a_records_report_shows_a_few_states_and_every_warning(tmp_path):
+    """A record's console report sums its states up: each table the first, the last
+    and evenly spaced states (said once in full), the one-frame series' vibrations in
+    one line; the warnings and the JSON summary keep every state."""
+    n = 16
+    folder = _folder(tmp_path, record(n, SHAPE, strain=STRAIN))
+    cli = [sys.executable, "-m", "gridstrain.cli", "measure", str(folder),
+           "--reference-frames", "1", "-o", str(tmp_path / "r.h5")]
+    text = subprocess.run(cli, capture_output=True, text=True, check=True).stdout
+    lines = text.splitlines()
+    assert "  16 series of one frame: no vibration to measure" in lines
+    assert sum("(6 of 15 states shown" in line for line in lines) == 1
+    assert sum(line == "  (the same 6 of 15 states)" for line in lines) >= 3
+    shown = [line.split(":")[0] for line in lines if line.startswith("frame_")]
+    assert shown == ["frame_2", "frame_5", "frame_8", "frame_10", "frame_13", "frame_16"]
+    summary = json.loads(subprocess.run([*cli, "--json", "--overwrite"], capture_output=True,
+                                        text=True, check=True).stdout)
+    assert len(summary["states"]) == 15
+    warnings = [line.removeprefix("warning: ") for line in lines
+                if line.startswith("warning: ")]
+    assert warnings == summary["warnings"]
+
+
+def test_states_named_in_a_warning_are_given_by_runs():
+    from gridstrain.kinematics.tracking import _runs
+
+    states = [(1, "a"), (2, "b"), (3, "c"), (5, "e"), (7, "g"), (8, "h"), (10, "j"),
+              (11, "k"), (12, "l"), (13, "m")]
+    assert _runs(states) == "a to c (3 states), e, g, h, j to m (4 states)"
+    assert _runs([(4, "d")]) == "d"

@@ -28,9 +28,28 @@ def _describe_depth(result: SeriesResult) -> str:
     return f"{bits}-bit data" + (f" stored x{scale}" if scale != 1 else "")
 
 
+# States reported one by one up to this many; beyond (a record), the tables show the
+# first, the last and evenly spaced ones, and any state with something wrong
+_LISTED = 12
+_SAMPLED = 6
+
+
+def _listed(n: int, notable=()) -> tuple[list[int], list[str]]:
+    """The states a table shows, and the line that says which (none: all of them)."""
+    if n <= _LISTED:
+        return list(range(n)), []
+    shown = sorted({*np.round(np.linspace(0, n - 1, _SAMPLED)).astype(int).tolist(),
+                    *notable})
+    return shown, [f"  ({len(shown)} of {n} states shown: every state's figures are in the "
+                   "result file, the JSON summary (--json) and the report (--report))"]
+
+
 def report_lines(result: SeriesResult, *, pixel_size: float | None = None,
                  unit: str | None = None) -> list[str]:
-    """The human-readable report of a measurement, as lines of text."""
+    """The human-readable report of a measurement, as lines of text. A record of many
+    states is summed up: its tables show a few states (the first, the last, evenly
+    spaced ones, and any with no valid pixel or a failed pair check); the warnings are
+    all there."""
     H, W = result.shape
     lat = result.lattice
     p1, p2 = lat.pitches
@@ -47,7 +66,11 @@ def report_lines(result: SeriesResult, *, pixel_size: float | None = None,
         "vibrations (rigid shift of each frame, 1 std)  alpha px  beta px   contrast k1/k2"
         "   phase offset k1/k2 rad",
     ]
+    record = result.n_states > _LISTED
+    single = [v for v in result.vibration if v.n_frames == 1] if record else []
     for k, v in enumerate(result.vibration):
+        if record and v.n_frames == 1:
+            continue
         label = f"  {v.name}, {v.n_frames} frame(s)"
         if result.excluded and result.excluded[k]:
             label += f" ({len(result.excluded[k])} excluded)"
@@ -55,10 +78,15 @@ def report_lines(result: SeriesResult, *, pixel_size: float | None = None,
         lines.append(f"{label:<46} {_fmt(v.std[0], '.4f'):>8} {_fmt(v.std[1], '.4f'):>8}   "
                      f"{contrast:<16} "
                      f"{_fmt(v.phase_offset_std[0])}/{_fmt(v.phase_offset_std[1])}")
+    if single:
+        lines.append(f"  {len(single)} series of one frame: no vibration to measure")
     nf = result.noise
     lines += ["", "noise floor (1 std at a pixel)            u_x px    u_y px    e_xx      "
               "e_yy      e_xy"]
-    for i in range(result.n_states):
+    empty = [i for i in range(result.n_states) if not result.valid[i].any()] \
+        if record else []
+    shown, note = _listed(result.n_states, empty)
+    for i in shown:
         given = (nf.model or {}).get("source", "").startswith("given")
         theory = "theory, given camera model" if given else "theory, measured sensor noise"
         rows = [(theory, nf.theory_u[i], nf.theory_strain[i]),
@@ -75,6 +103,9 @@ def report_lines(result: SeriesResult, *, pixel_size: float | None = None,
             es = "  ".join(f"{_fmt(x):<8}" for x in e) if e is not None else \
                 "-         -         -"
             lines.append(f"{head} {_fmt(u[0]):<8}  {_fmt(u[1]):<8}  {es}")
+    lines += note
+    # the later tables show the same states: said once in full
+    note = [f"  (the same {len(shown)} of {result.n_states} states)"] if note else []
     res = f"{nf.spatial_resolution:.3g} px"
     if pixel_size is not None:
         res += f" = {nf.spatial_resolution * pixel_size:.3g} {unit}"
@@ -82,11 +113,11 @@ def report_lines(result: SeriesResult, *, pixel_size: float | None = None,
                  f"10 %, {SPATIAL_RESOLUTION_PER_SIGMA:.2f} sigma; window FWHM "
                  f"{nf.window_fwhm:.3g} px, {FWHM_PER_SIGMA:.3f} sigma)")
     lines += _noise_source_lines(result)
-    lines += _metrology_lines(result)
-    lines += _systematic_lines(result)
+    lines += _metrology_lines(result, shown, note)
+    lines += _systematic_lines(result, shown, note)
     lines.append("")
-    for i, m in enumerate(result.measurements):
-        v = result.valid[i]
+    for i in shown:
+        m, v = result.measurements[i], result.valid[i]
         if v.any():
             e = [float(np.mean(c[v])) for c in result.strain[i]]
             u = [float(np.mean(c[v])) for c in result.u[i]]
@@ -96,6 +127,7 @@ def report_lines(result: SeriesResult, *, pixel_size: float | None = None,
             lines.append("  " + _fringe_line(result, i))
         else:
             lines.append(f"{result.names[i + 1]}: no valid pixel")
+    lines += note
     for w in result.warnings:
         lines.append(f"warning: {w}")
     return lines
@@ -136,7 +168,7 @@ def _noise_source_lines(result: SeriesResult) -> list[str]:
     return [line]
 
 
-def _metrology_lines(result: SeriesResult) -> list[str]:
+def _metrology_lines(result: SeriesResult, shown: list[int], note: list[str]) -> list[str]:
     m = result.metrology
     if m is None:
         return []
@@ -146,16 +178,17 @@ def _metrology_lines(result: SeriesResult) -> list[str]:
              f"{m['step_width_px']:.3g} px; efficiency = resolution x d for u, x d^2 for "
              "strain, px^2)",
              "                     u_x px    u_y px    e_xx      e_yy      e_xy"]
-    for i, st in enumerate(m["states"]):
+    for i in shown:
+        st = m["states"][i]
         names = ("ux", "uy", "exx", "eyy", "exy")
         res = "  ".join(f"{_fmt(st[k]['resolution']):<8}" for k in names)
         eff = "  ".join(f"{_fmt(st[k]['efficiency']):<8}" for k in names)
         lines.append(f"  {result.names[i + 1]:<9} resolution {res}")
         lines.append(f"  {'':<9} efficiency {eff}")
-    return lines
+    return lines + note
 
 
-def _systematic_lines(result: SeriesResult) -> list[str]:
+def _systematic_lines(result: SeriesResult, shown: list[int], note: list[str]) -> list[str]:
     sy = result.systematic
     if sy is None:
         return []
@@ -167,9 +200,13 @@ def _systematic_lines(result: SeriesResult) -> list[str]:
              "window smoothing of strain gradients (bound on the peak error, "
              f"{sy['smoothing'][0].get('factor', 1) if sy['smoothing'] else 1:g} x the "
              "largest sigma^2/2 lap e):"]
-    for i, sm in enumerate(sy["smoothing"]):
+    for i in shown:
+        if i >= len(sy["smoothing"]):
+            continue
+        sm = sy["smoothing"][i]
         lines.append(f"  {result.names[i + 1]:<9} e_xx {_fmt(sm['max'][0])}  e_yy "
                      f"{_fmt(sm['max'][1])}  e_xy {_fmt(sm['max'][2])}")
+    lines += note if sy["smoothing"] else []
     offsets = [r for r in sy.get("vibration_offset", ()) if r is not None]
     if offsets:
         lines.append("vibration offset about the frames' mean position, removed (rad, k1/k2):")
@@ -178,10 +215,19 @@ def _systematic_lines(result: SeriesResult) -> list[str]:
     pairs = sy.get("pair_match", ())
     if pairs:
         lines.append("pair check (each state's content against the reference's, warped back):")
+        rows, more = pairs, []
+        if note:  # a record: the states shown, and every one whose content does not match
+            names = {result.names[i + 1] for i in shown}
+            rows = [r for r in pairs if r["state"] in names or r["verdict"] in _FAILED_PAIRS]
+            more = [f"  ({len(rows)} of {len(pairs)} states: the same, and every one whose "
+                    "content does not match)"]
         lines += [f"  {r['state']:<9} {r['verdict']}: correlation {_fmt(r['rho'], '.3f')} for "
                   f"{_fmt(r['rho_match'], '.3f')} expected (match {_fmt(r['match'], '.2f')}, "
-                  f"spread {_fmt(r['rho_sd'], '.3f')})" for r in pairs]
+                  f"spread {_fmt(r['rho_sd'], '.3f')})" for r in rows] + more
     return lines
+
+
+_FAILED_PAIRS = ("mismatch", "nothing matches")
 
 
 def jsonable(value):

@@ -122,7 +122,9 @@ class _Tracker:
         self.ref_pm, self.mean_ref, self.mask = ref_pm, mean_ref, mask
         self.lattice, self.order, self.lagrangian = lattice, order, lagrangian
         self.prev = None  # (read-back of (u, valid), confirmed, name) of the last state
-        self.inherited: list[str] = []  # states followed from an unconfirmed one
+        # states followed from an unconfirmed one, with their place in the series
+        self.inherited: list[tuple[int, str]] = []
+        self.measured = 0  # states measured so far
         # the reference's side of the image-feature estimate, made once for all states
         self.coarse = _CoarseReference(np.asarray(mean_ref, dtype=np.float64), lattice,
                                        check_mask(mask, mean_ref.shape))
@@ -140,6 +142,7 @@ class _Tracker:
         from :meth:`features`."""
         ref_pm = self.ref_pm
         warnings: list[str] = []
+        place, self.measured = self.measured, self.measured + 1
         prev, self.prev = self.prev, None  # the next state's guess comes from this one
         if isinstance(g, str) and self.order == "series" and prev is not None:
             get, prev_ok, prev_name = prev
@@ -195,7 +198,7 @@ class _Tracker:
                                      f"followed from {prev_name} (step {step:.2f} period)"
                                      + ("" if prev_ok else ", itself not confirmed"), step)
                 if not prev_ok:
-                    self.inherited.append(name)
+                    self.inherited.append((place, name))
         elif isinstance(g, str) and est.confident:
             res = deformation(ref_pm, pm, lagrangian=self.lagrangian, guess=est.shift)
             rec = _from_estimate(est, "image features", True, res.guess, est.reason)
@@ -238,9 +241,25 @@ class _Tracker:
         """The warnings that concern several states."""
         if not self.inherited:
             return []
-        return [f"{', '.join(self.inherited)}: followed from a state whose fringe order "
+        return [f"{_runs(self.inherited)}: followed from a state whose fringe order "
                 "is not confirmed; they share its uncertainty (their strain too: each "
                 "state's record says by how much it may be off)"]
+
+
+def _runs(states: list[tuple[int, str]]) -> str:
+    """``(place, name)`` of states in series order, named one by one, a run of three or
+    more states in a row as its first and last (``rec[2] to rec[100] (99 states)``)."""
+    parts, k = [], 0
+    while k < len(states):
+        j = k
+        while j + 1 < len(states) and states[j + 1][0] == states[j][0] + 1:
+            j += 1
+        if j - k >= 2:
+            parts.append(f"{states[k][1]} to {states[j][1]} ({j - k + 1} states)")
+        else:
+            parts += [name for _, name in states[k:j + 1]]
+        k = j + 1
+    return ", ".join(parts)
 
 
 def check_after_warp(res: Measurement, rec: FringeOrder, coarse: _CoarseReference,
