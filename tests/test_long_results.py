@@ -112,6 +112,45 @@ def test_a_file_changed_under_its_views_is_refused_not_misread(record, tmp_path)
     assert lazy.strain[0].shape == (3, *SHAPE)  # what is unchanged still reads
 
 
+def test_reads_in_a_kept_open_block_share_one_handle_per_file(record, tmp_path,
+                                                               monkeypatch):
+    import gridstrain.results._file as rf
+    from gridstrain.results import kept_open
+
+    path, _ = record
+    copy = tmp_path / "rec.h5"
+    copy.write_bytes(path.read_bytes())
+    lazy = load(copy, in_memory=False)
+    opened = []
+    real = rf.h5py.File
+
+    def counting(*args, **kwargs):
+        f = real(*args, **kwargs)
+        opened.append(f)
+        return f
+
+    valid3 = load(path).valid[3]
+    monkeypatch.setattr(rf.h5py, "File", counting)
+    first = [np.asarray(lazy.ux[i]) for i in range(N_STATES)]  # a file a read
+    assert len(opened) == N_STATES
+    opened.clear()
+    with kept_open():
+        again = [np.asarray(lazy.ux[i]) for i in range(N_STATES)]
+        assert_array_equal(lazy.valid[3], valid3)
+        assert len(opened) == 1
+        # the file replaced under the block (another inode): opened again, and
+        # checked as always
+        with real(tmp_path / "other.h5", "w") as h5:
+            h5["ux"] = np.zeros((2, *SHAPE))
+        (tmp_path / "other.h5").replace(copy)
+        with pytest.raises(ValueError, match="no longer"):
+            lazy.ux[0]
+        assert len(opened) == 2
+    assert not any(f.id.valid for f in opened)  # every kept handle closed at the end
+    assert all(np.array_equal(a, b, equal_nan=True) for a, b in zip(first, again,
+                                                                    strict=True))
+
+
 def _run(args):
     assert main([str(a) for a in args]) == 0
 

@@ -3,6 +3,7 @@ history, animate): the file, its pixel size, the loads and the gauge's region.""
 
 from __future__ import annotations
 
+import functools
 import os
 from pathlib import Path
 
@@ -53,6 +54,19 @@ def output_path(args, src: Path, what: str) -> Path | None:
     out = Path(os.path.expanduser(args.output))
     check_output_file(out, what, args.overwrite, {src.resolve()})
     return out
+
+
+def reads_result(run):
+    """A command's ``run`` that reads a result file: inside it, the reads of the maps
+    left in the file keep one open handle (:func:`gridstrain.results.kept_open`),
+    closed when it returns, rather than opening the file for each state."""
+    @functools.wraps(run)
+    def wrapped(args) -> int:
+        from ..results import kept_open
+
+        with kept_open():
+            return run(args)
+    return wrapped
 
 
 def open_result(args):

@@ -7,7 +7,7 @@ import sys
 from pathlib import Path
 
 from ._common import check_output_file
-from ._post import add_result_options, open_result
+from ._post import add_result_options, open_result, reads_result
 
 SUMMARY = "an animation (GIF, MP4) of a map over the states on fixed colour limits"
 
@@ -34,6 +34,7 @@ def register(sub) -> None:
     p.set_defaults(func=run)
 
 
+@reads_result
 def run(args) -> int:
     from ..post import animate
 

@@ -9,6 +9,7 @@ from ._post import (
     gauge_of,
     open_result,
     output_path,
+    reads_result,
 )
 
 SUMMARY = "virtual strain gauge and extensometer: mean strain of every state with its std"
@@ -30,6 +31,7 @@ def register(sub) -> None:
     p.set_defaults(func=run)
 
 
+@reads_result
 def run(args) -> int:
     result, src, ps, unit, ld, lu, t = open_result(args)
     out = output_path(args, src, "gauge CSV")

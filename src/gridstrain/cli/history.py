@@ -10,6 +10,7 @@ from ._post import (
     gauge_of,
     open_result,
     output_path,
+    reads_result,
 )
 
 SUMMARY = "strain rate, velocity and acceleration of a gauge over time, smoothed, with std"
@@ -32,6 +33,7 @@ def register(sub) -> None:
     p.set_defaults(func=run)
 
 
+@reads_result
 def run(args) -> int:
     from ..post import history
 

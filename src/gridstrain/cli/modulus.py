@@ -6,7 +6,7 @@ import os
 from pathlib import Path
 
 from ._common import check_output_file, print_json
-from ._post import add_gauge_options, add_result_options, gauge_of, open_result
+from ._post import add_gauge_options, add_result_options, gauge_of, open_result, reads_result
 
 SUMMARY = ("Young's modulus and Poisson's ratio with their intervals, from a gauge and the "
            "loads")
@@ -37,6 +37,7 @@ def register(sub) -> None:
     p.set_defaults(func=run)
 
 
+@reads_result
 def run(args) -> int:
     from ..post import elastic_constants
 

@@ -5,6 +5,8 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
+from ._post import reads_result
+
 _FORMATS = ("png", "pdf", "svg")
 
 
@@ -43,6 +45,7 @@ def register(sub) -> None:
     p.set_defaults(func=run)
 
 
+@reads_result
 def run(args) -> int:
     from ..io import OutputDirectory
     from ..plotting import QUANTITIES, capped_dpi, plot_history, plot_states

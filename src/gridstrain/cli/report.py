@@ -6,6 +6,7 @@ import os
 from pathlib import Path
 
 from ._common import check_output_file
+from ._post import reads_result
 
 
 def register(sub) -> None:
@@ -22,6 +23,7 @@ def register(sub) -> None:
     p.set_defaults(func=run)
 
 
+@reads_result
 def run(args) -> int:
     from ..report import write_report
 

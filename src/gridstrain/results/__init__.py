@@ -63,6 +63,7 @@ from ._csv import save_csv
 from ._file import FORMAT_VERSION, load, read_attrs, save_result, to_xarray
 from ._file import ResultFile as ResultFile
 from ._file import StoredMaps as StoredMaps
+from ._file import kept_open as kept_open
 from ._formats import EXPORTS as EXPORTS
 from ._formats import ExportFormat as ExportFormat
 from ._formats import export as export
