@@ -226,7 +226,7 @@ class StoredMaps(np.lib.mixins.NDArrayOperatorsMixin):
             return np.empty((0, *self.shape[1:]), self.dtype)
         if idx.ndim != 1 or idx.dtype.kind not in "iu":
             return np.asarray(self)[idx]  # a mask or anything else: from the whole
-        if idx.size and not (-n <= idx.min() and idx.max() < n):
+        if not -n <= idx.min() <= idx.max() < n:
             raise IndexError(f"states {which!r} out of range for {n} states")
         # HDF5 reads increasing indices only: each state once, then put in order
         unique, back = np.unique(idx % n, return_inverse=True)
@@ -325,6 +325,12 @@ def _opened(path: Path):
     return contextlib.nullcontext(found[1])
 
 
+def _stored(path, h5, names, state: int | None = None) -> StoredMaps:
+    """The maps ``names`` of the result file ``h5`` (open, at ``path``), left in it."""
+    first = h5[names if isinstance(names, str) else names[0]]
+    return StoredMaps(path, names, state=state, layout=(*first.shape, first.dtype))
+
+
 class StreamedResult:
     """The sink of :func:`gridstrain.pipeline.measure_series` that writes each state
     into a :class:`ResultFile` as it comes (see :class:`ResultFile`)."""
@@ -409,9 +415,7 @@ class StreamedResult:
         spec, h5 = self.spec, self.h5
         # the result's maps are those of the file, read from it once it is in place
         def lazy(names, state=None):
-            first = h5[names if isinstance(names, str) else names[0]]
-            return StoredMaps(self.path, names, state=state,
-                              layout=(*first.shape, first.dtype))
+            return _stored(self.path, h5, names, state)
 
         ms = tuple(dataclasses.replace(m, u=lazy(("ux", "uy"), i),
                                        strain=lazy(("exx", "eyy", "exy"), i),
@@ -622,17 +626,17 @@ def load(path, *, in_memory: bool = True) -> SeriesResult:
             def state(arr, i):
                 return arr[i].copy()
         else:
+            # their types checked already (_map_datasets)
             where = Path(h5.filename).resolve()
 
             def stack(names):
-                return StoredMaps(where, names, layout=(n, H, W, maps[names[0]].dtype))
+                return _stored(where, h5, names)
 
-            def read(k, kinds="biufc"):
-                ds = maps[k] if k in maps else unc[k]
-                return StoredMaps(where, k, layout=(n, H, W, ds.dtype))
+            def read(k, kinds=None):
+                return _stored(where, h5, k)
 
             def state(arr, i):
-                return StoredMaps(where, arr._names, state=i, layout=arr._layout())
+                return _stored(where, h5, arr._names, i)
 
         u, strain = stack(("ux", "uy")), stack(("exx", "eyy", "exy"))
         valid = read("valid", kinds="b")
