@@ -49,8 +49,14 @@ def one_blas_thread() -> Iterator[None]:
         yield
 
 
-# read by OpenBLAS (numpy's and scipy's wheels each load a copy) when it loads
-_BLAS_THREAD_VARIABLES = ("OPENBLAS_NUM_THREADS",)
+def _set_before_numpy(name: str, value: str) -> bool:
+    """Set the environment variable ``name``, read by numpy or the libraries it loads
+    when they load, unless numpy is loaded already or the environment gives it; True
+    where it was set."""
+    if "numpy" in sys.modules or name in os.environ:
+        return False
+    os.environ[name] = value
+    return True
 
 
 def blas_on_one_thread_from_start() -> bool:
@@ -65,11 +71,8 @@ def blas_on_one_thread_from_start() -> bool:
     anyway. Only for the command's own process, before numpy is imported, like
     :func:`one_malloc_arena`; the processes it starts inherit the setting.
     """
-    if "numpy" in sys.modules or any(v in os.environ for v in _BLAS_THREAD_VARIABLES):
-        return False
-    for name in _BLAS_THREAD_VARIABLES:
-        os.environ[name] = "1"
-    return True
+    # read by OpenBLAS (numpy's and scipy's wheels each load a copy) when it loads
+    return _set_before_numpy("OPENBLAS_NUM_THREADS", "1")
 
 
 # The kernel's rule for huge pages that a program asks for (madvise): "madvise" and
@@ -100,17 +103,12 @@ def no_huge_page_stalls_from_start() -> bool:
     glibc hands it out again (:func:`keep_freed_memory`). Only for the command's own
     process, like :func:`one_malloc_arena`.
     """
-    if "numpy" in sys.modules or "NUMPY_MADVISE_HUGEPAGE" in os.environ:
-        return False
     try:
         with open(_THP_DEFRAG) as f:
             setting = f.read()
     except OSError:  # not Linux, or no transparent huge pages
         return False
-    if not _thp_stalls(setting):
-        return False
-    os.environ["NUMPY_MADVISE_HUGEPAGE"] = "0"
-    return True
+    return _thp_stalls(setting) and _set_before_numpy("NUMPY_MADVISE_HUGEPAGE", "0")
 
 
 # glibc's mallopt parameters (malloc.h): the largest number of malloc arenas, the size
