@@ -16,7 +16,8 @@ from pathlib import Path
 import numpy as np
 import scipy
 
-from gridstrain import Lattice, synthetic
+from gridstrain import Lattice
+from gridstrain.models import synthetic
 
 
 def machine() -> str:
@@ -129,7 +130,7 @@ def write_states(root, shape, frames: int, n_states: int, *, pitch: float = 5.0,
     Folders ``root/ref``, ``root/state1``... each of ``frames`` single-page TIFFs:
     a 12-bit grid (pitch ``pitch`` px, mean 2048 grey levels, peaks below 3000, no
     saturation) displaced by :func:`state_displacement`, each frame with its own
-    Poisson-Gaussian noise (:func:`gridstrain.synthetic.add_noise`). Returns the
+    Poisson-Gaussian noise (:func:`gridstrain.models.synthetic.add_noise`). Returns the
     folders, reference first.
     """
     from gridstrain.io import write_tiff_series

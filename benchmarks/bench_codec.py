@@ -21,12 +21,13 @@ import h5py
 import numpy as np
 
 from _common import machine
-from gridstrain import Lattice, synthetic
+from gridstrain import Lattice
 from gridstrain.kinematics import Measurement
-from gridstrain.pipeline import measure_series
+from gridstrain.models import synthetic
 from gridstrain.results import SeriesResult, _codec, load
 from gridstrain.results._codec import _ROOT_FIELDS, _decode, _member
 from gridstrain.results._layout import _write_group
+from gridstrain.series import measure_series
 
 WRITERS = {"value by value (format 2)": 10**12, "by columns (format 3)": _codec._MIN_ROWS}
 

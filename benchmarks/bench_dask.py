@@ -16,7 +16,7 @@ maps)
 * in this process, without a scheduler (the transforms on threads, one per usable
   core);
 * on a ``distributed.LocalCluster`` of 1 worker process of 1 thread, then of 2
-  (``gridstrain.distributed.connect("local", n_workers=n)``: processes, loopback
+  (``gridstrain.series.connect("local", n_workers=n)``: processes, loopback
   interface, dashboard on a free port), passed as ``scheduler=client``.
 
 With ``--cli`` each run is instead ``gridstrain measure REF STATE -o out.h5 --method
@@ -66,7 +66,7 @@ def _cpu_seconds() -> float:
 @contextlib.contextmanager
 def local_client(n_workers: int):
     """A client of a local cluster of ``n_workers`` single-threaded worker processes."""
-    from gridstrain import distributed as gd
+    from gridstrain.series import _distributed as gd
 
     if "n_workers" in inspect.signature(gd.connect).parameters:
         with gd.connect("local", n_workers=n_workers) as client:
@@ -198,8 +198,8 @@ def main(argv=None):
             for n in args.workers:
                 t0 = time.perf_counter()
                 client = stack.enter_context(local_client(n))
-                client.run(_import, "gridstrain.distributed")
-                client.run(_import, "gridstrain.pipeline")
+                client.run(_import, "gridstrain.series")
+                client.run(_import, "gridstrain.series")
                 print(f"(cluster of {n} worker(s) x 1 thread started in "
                       f"{time.perf_counter() - t0:.1f} s)")
                 clients[f"LocalCluster {n} x 1"] = client

@@ -35,8 +35,9 @@ import numpy as np
 
 from _common import machine
 from bench_wft import parse_size
-from gridstrain import Lattice, synthetic
+from gridstrain import Lattice
 from gridstrain.io import write_tiff_series
+from gridstrain.models import synthetic
 
 CHILD = r"""
 import json, resource, sys, time

@@ -59,7 +59,8 @@ import numpy as np
 import tifffile
 
 from _common import machine
-from gridstrain import Lattice, synthetic
+from gridstrain import Lattice
+from gridstrain.models import synthetic
 
 ROOT = Path(__file__).resolve().parents[1]
 PITCH, ANGLE = 6.0, 12.0

@@ -32,7 +32,8 @@ import numpy as np
 
 from _common import child_env, machine, run_child
 from bench_wft import parse_size
-from gridstrain import Lattice, measure_series, synthetic
+from gridstrain import Lattice, measure_series
+from gridstrain.models import synthetic
 
 MB = 1e6
 

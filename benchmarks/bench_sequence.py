@@ -24,7 +24,8 @@ import scipy.fft as sfft
 import tifffile
 
 from _common import cli_command, machine, run_child, state_displacement
-from gridstrain import Lattice, synthetic
+from gridstrain import Lattice
+from gridstrain.models import synthetic
 
 SHAPE = (250, 400)
 

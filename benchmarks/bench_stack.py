@@ -34,8 +34,9 @@ import tifffile
 
 from _common import issue_phases, machine
 from bench_wft import floor, floor_inputs, parse_size
-from gridstrain import Lattice, synthetic, wft
+from gridstrain import Lattice, wft
 from gridstrain.io import open_series, write_tiff_series
+from gridstrain.models import synthetic
 from gridstrain.stacks import method_b
 
 

@@ -12,7 +12,8 @@ Run: ``python examples/00_plate_with_hole.py``.
 import matplotlib.pyplot as plt
 import numpy as np
 
-from gridstrain import Lattice, kirsch, measure_series, synthetic
+from gridstrain import Lattice, measure_series
+from gridstrain.models import kirsch, synthetic
 
 n, radius = 320, 32.0
 centre = (n / 2, n / 2)

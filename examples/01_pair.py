@@ -12,7 +12,8 @@ Run: ``python examples/01_pair.py``.
 import matplotlib.pyplot as plt
 import numpy as np
 
-from gridstrain import Lattice, measure, synthetic
+from gridstrain import Lattice, measure
+from gridstrain.models import synthetic
 
 lattice = Lattice.from_pitch(5.0)  # k1 = (1/5, 0), k2 = (0, 1/5) cycles/px
 shape = (160, 160)

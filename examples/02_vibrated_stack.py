@@ -16,7 +16,8 @@ Run: ``python examples/02_vibrated_stack.py``.
 import matplotlib.pyplot as plt
 import numpy as np
 
-from gridstrain import Lattice, synthetic, wft
+from gridstrain import Lattice, wft
+from gridstrain.models import synthetic
 from gridstrain.stacks import method_a, method_b, method_c
 
 lattice = Lattice.from_pitch(5.0)

@@ -14,7 +14,8 @@ Run: ``python examples/03_noise_and_uncertainty.py``.
 import matplotlib.pyplot as plt
 import numpy as np
 
-from gridstrain import Lattice, estimate_noise, measure, synthetic
+from gridstrain import Lattice, estimate_noise, measure
+from gridstrain.models import synthetic
 from gridstrain.uncertainty import noise_variance_map, predict_uncertainty
 
 lattice = Lattice.from_pitch(5.0)

@@ -17,9 +17,10 @@ from pathlib import Path
 import matplotlib.pyplot as plt
 import numpy as np
 
-from gridstrain import Lattice, synthetic
+from gridstrain import Lattice
 from gridstrain.io import write_tiff_series
-from gridstrain.pipeline import measure_series
+from gridstrain.models import synthetic
+from gridstrain.series import measure_series
 
 lattice = Lattice.from_pitch(5.0)
 shape = (128, 128)

@@ -12,8 +12,9 @@ Run: ``python examples/05_dask.py``.
 
 import numpy as np
 
-from gridstrain import Lattice, synthetic
-from gridstrain.distributed import as_dask_stack, connect, method_b_dask
+from gridstrain import Lattice
+from gridstrain.models import synthetic
+from gridstrain.series import as_dask_stack, connect, method_b_dask
 from gridstrain.stacks import method_b
 
 if __name__ == "__main__":  # Dask's worker processes re-import this file

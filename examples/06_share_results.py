@@ -17,8 +17,9 @@ from pathlib import Path
 import numpy as np
 
 import gridstrain
-from gridstrain import Lattice, synthetic
-from gridstrain.report import write_report
+from gridstrain import Lattice
+from gridstrain.models import synthetic
+from gridstrain.post import write_report
 from gridstrain.results import export
 
 lattice = Lattice.from_pitch(5.0)

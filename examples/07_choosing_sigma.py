@@ -13,7 +13,8 @@ Run: ``python examples/07_choosing_sigma.py``.
 import matplotlib.pyplot as plt
 import numpy as np
 
-from gridstrain import Lattice, measure, synthetic
+from gridstrain import Lattice, measure
+from gridstrain.models import synthetic
 
 lattice = Lattice.from_pitch(5.0)
 rng = np.random.default_rng(7)

@@ -18,7 +18,8 @@ Run: ``python examples/08_high_speed_sequence.py``.
 import matplotlib.pyplot as plt
 import numpy as np
 
-from gridstrain import Lattice, measure_series, synthetic
+from gridstrain import Lattice, measure_series
+from gridstrain.models import synthetic
 from gridstrain.post import gauge, history
 
 lattice = Lattice.from_pitch(5.0)

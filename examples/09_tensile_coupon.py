@@ -23,10 +23,10 @@ from pathlib import Path
 
 import numpy as np
 
-from gridstrain import Lattice, measure_series, synthetic
+from gridstrain import Lattice, measure_series
 from gridstrain.io import write_tiff_series
-from gridstrain.plotting import plot_stress_strain
-from gridstrain.post import elastic_constants, gauge
+from gridstrain.models import synthetic
+from gridstrain.post import elastic_constants, gauge, plot_stress_strain
 
 lattice = Lattice.from_pitch(5.0)
 H, W = 176, 240

@@ -3,7 +3,8 @@
 import numpy as np
 import pytest
 
-from gridstrain import Lattice, synthetic
+from gridstrain import Lattice
+from gridstrain.models import synthetic
 
 
 @pytest.fixture(scope="session")

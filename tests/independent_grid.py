@@ -1,5 +1,5 @@
 """Grid images from a generator written with numpy alone, independent of
-gridstrain.synthetic. Its assumptions:
+gridstrain.models.synthetic. Its assumptions:
 
 - the specimen carries a printed pattern: a checkerboard (product of two tanh
   edges, edges about half a pixel wide, the blur of a good lens) or a grid of

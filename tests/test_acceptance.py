@@ -2,7 +2,7 @@
 
 Every case writes image files with the camera of ``tests/world_camera.py`` (its own
 model of a printed grid, a lens, lighting fixed to the camera and a 12-bit sensor;
-nothing shared with gridstrain.synthetic), runs ``python -m gridstrain.cli measure
+nothing shared with gridstrain.models.synthetic), runs ``python -m gridstrain.cli measure
 REF DEF -o out.h5 --json --quiet`` in a subprocess with the default options unless a
 user would obviously give one, loads the result file and compares it with the
 imposed displacement, at the reference's pixels (Lagrangian).

@@ -1,4 +1,4 @@
-"""One pass over a series (gridstrain.accumulate) against sums written here.
+"""One pass over a series (gridstrain.stacks.accumulate) against sums written here.
 
 The frames come from tests/independent_grid.py (numpy only): a rotated
 checkerboard under lighting fixed to the camera, with a hole, 12-bit Poisson-
@@ -15,8 +15,8 @@ import pytest
 from numpy.testing import assert_allclose, assert_array_equal
 
 from gridstrain import Lattice, stacks, wft
-from gridstrain.accumulate import PassPlan, SeriesPass
-from gridstrain.screening import screen_frames
+from gridstrain.stacks.accumulate import PassPlan, SeriesPass
+from gridstrain.stacks.screening import screen_frames
 from independent_grid import scene
 
 PITCH, ANGLE = 5.0, 12.0

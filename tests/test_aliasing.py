@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from gridstrain import Lattice
-from gridstrain.pipeline import measure_series
+from gridstrain.series import measure_series
 from gridstrain.uncertainty import aliasing_bias
 from independent_grid import camera, scene
 from world_camera import Specimen, expected_levels, photograph, stretch

@@ -25,8 +25,8 @@ from gridstrain import Lattice
 POSITIONAL_OK = {
     # the lattice is the second operand, as in wft(image, lattice); it is optional
     # only because it can be detected from the frames
-    ("noise", "estimate_noise", "lattice"),
-    ("noise", "estimate_noise_image", "lattice"),
+    ("uncertainty", "estimate_noise", "lattice"),
+    ("uncertainty", "estimate_noise_image", "lattice"),
     # the attributes are content written to the file, like the datasets before them
     ("io", "write_hdf5", "attrs"),
     # the frame is the clean grid seen through this rigid vibration: an operand

@@ -8,12 +8,13 @@ from the module that defines it (the package's face only re-exports). The layers
 
 - the core: one folder or module per concept of the method (``phase``: lattice, window,
   transform; ``stacks``: methods A/B/C, the streamed pass, vibrations, screening;
-  ``kinematics``; ``uncertainty``; ``theory``, synthetic data, the discontinuities) and
+  ``kinematics``, the discontinuities included; ``uncertainty``; ``theory``; ``models``,
+  the synthetic images and the analytic fields) and
   its private helpers. It computes on arrays and knows nothing of files, command lines,
   figures or clusters.
 - the edges: reading and writing files (``io``, ``results``), the series measurement
-  (``series``, ``pipeline``), figures and post-processing, the paper's experiment, Dask
-  and the command line. They may import the core and each other, without a cycle.
+  (``series``, Dask included), post-processing, figures and the report (``post``), the
+  paper's experiment and the command line. They may import the core and each other, without a cycle.
 """
 
 from __future__ import annotations
@@ -29,8 +30,7 @@ PACKAGE = Path(gridstrain.__file__).resolve().parent
 # top-level parts of the package (a folder or a flat module) that form the core
 CORE = {
     "conventions", "_validation", "_progress", "_fft", "_threads", "_stats",
-    "phase", "lattice", "wft", "stacks", "vibration", "screening", "accumulate",
-    "kinematics", "uncertainty", "noise", "theory", "synthetic", "kirsch", "discontinuities",
+    "phase", "stacks", "kinematics", "uncertainty", "theory", "models",
 }
 
 # private names still imported across parts, each for a reason a test pins down: the
@@ -39,7 +39,7 @@ CORE = {
 SHARED_PRIVATE = {
     ("stacks._accumulators", "phase._transform._kernels"),
     ("stacks.accumulate", "phase._transform._kernels"),
-    ("distributed", "stacks._accumulators._PhaseMean"),
+    ("series._distributed", "stacks._accumulators._PhaseMean"),
     ("paper.experiment", "stacks._accumulators._PhaseMean"),
     ("series._loop", "kinematics.tracking._Tracker"),
 }

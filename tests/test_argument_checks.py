@@ -25,7 +25,7 @@ from gridstrain.io import (
     write_tiff_series,
 )
 from gridstrain.paper.dataset import clean_frame, draw_shifts, mean_image_bias, paper_phases
-from gridstrain.plotting import plot_map
+from gridstrain.post import plot_map
 
 # (check, arguments, error, what the message must hold: the parameter, the
 # expectation, the value received)
@@ -148,7 +148,7 @@ def test_paper_and_plotting_refusals():
 _SHARED = {n for n in dir(v) if n.startswith(("check_", "as_"))}
 _EDGE = ("io/_series.py", "io/_files.py", "paper/dataset.py", "paper/experiment.py",
          "results/_file.py", "results/_codec.py", "results/_layout.py", "results/_csv.py",
-         "results/_mat.py", "report.py", "plotting.py", "cli/demo.py", "cli/noise.py",
+         "results/_mat.py", "post/_report.py", "post/_plotting.py", "cli/demo.py", "cli/noise.py",
          "cli/_common.py", "cli/plot.py", "cli/report.py", "cli/reproduce.py")
 
 

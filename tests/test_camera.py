@@ -21,7 +21,7 @@ import tifffile
 
 from camera_files import SETUP_LENGTH, pack12, write_cine, write_mraw
 from gridstrain.io import MemoryBudgetError, memory_budget, open_series
-from gridstrain.pipeline import measure_series
+from gridstrain.series import measure_series
 from sequence_record import record
 
 SHAPE = (64, 96)

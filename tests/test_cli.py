@@ -14,9 +14,10 @@ import numpy as np
 import pytest
 import tifffile
 
-from gridstrain import Lattice, kirsch, synthetic
+from gridstrain import Lattice
 from gridstrain.cli import main
-from gridstrain.plotting import figure_names
+from gridstrain.models import kirsch, synthetic
+from gridstrain.post import figure_names
 from gridstrain.results import load
 
 LAT = Lattice.from_pitch(5.0)

@@ -6,9 +6,10 @@ import numpy as np
 import pytest
 import tifffile
 
-from gridstrain import Lattice, __version__, synthetic
+from gridstrain import Lattice, __version__
 from gridstrain.cli import main
 from gridstrain.io import read_hdf5
+from gridstrain.models import synthetic
 
 
 @pytest.fixture(scope="module")
@@ -123,7 +124,7 @@ def test_a_frame_of_another_state_is_excluded_and_named(tmp_path, capsys):
     """A static stack with one frame of the loaded specimen (a strain of 3e-3) among
     them: its change is not a rigid vibration, which the estimate regresses out, and
     would pass for noise; it is screened out and named."""
-    from gridstrain.noise import estimate_noise
+    from gridstrain.uncertainty import estimate_noise
 
     lat = Lattice.from_pitch(5.0)
     rng = np.random.default_rng(8)

@@ -20,7 +20,7 @@ from scipy.special import erf
 
 from gridstrain import Lattice, coarse_displacement, load
 from gridstrain.cli import main
-from gridstrain.discontinuities import find_discontinuities
+from gridstrain.kinematics import find_discontinuities
 from independent_grid import camera, scene
 
 H, W = 160, 200
@@ -274,7 +274,7 @@ def test_the_range_pre_test_never_hides_a_ridge(monkeypatch, height, skip):
     # (0.25 px) leaves a ridge of 0.25 / (sqrt(2 pi) sigma); the spike stands 1 % below
     # or above it, so the pre-test may skip only the first, and the full search
     # (pre-test off) must agree with it on both
-    from gridstrain import discontinuities as dc
+    from gridstrain.kinematics import _discontinuities as dc
 
     if not skip:
         monkeypatch.setattr(dc, "_no_seed_possible", lambda *a: False)
@@ -296,7 +296,7 @@ def test_the_range_pre_test_skips_a_noisy_smooth_field(monkeypatch):
     # strain noise of 4e-4 (a 12-bit grid at sigma 5 px) over a gradient of 1e-3: its
     # range stays below the ridge of the smallest jump looked for, 0.02, so no pixel
     # can seed one and the search is skipped, as the full search would conclude
-    from gridstrain import discontinuities as dc
+    from gridstrain.kinematics import _discontinuities as dc
 
     rng = np.random.default_rng(5)
     valid = np.ones((H, W), dtype=bool)

@@ -1,8 +1,8 @@
-"""Tests of gridstrain.distributed: methods A and B on a real Dask cluster.
+"""Tests of gridstrain.series: methods A and B on a real Dask cluster.
 
 The cluster is two single-threaded worker processes on the loopback interface
 (127.0.0.1, nothing else). Every result is checked against the single-process
-code (gridstrain.stacks, gridstrain.pipeline) or a direct sum written here. The
+code (gridstrain.stacks, gridstrain.series) or a direct sum written here. The
 reductions add the same terms in another order, so the results agree to the
 rounding of float64 sums, not bit for bit: the tolerances below are a few hundred
 times that rounding and many orders of magnitude below any physical effect.
@@ -28,13 +28,14 @@ da = pytest.importorskip("dask.array")
 zarr = pytest.importorskip("zarr")
 
 import gridstrain  # noqa: E402
-from gridstrain import Lattice, kirsch, stacks, synthetic  # noqa: E402
-from gridstrain import distributed as gd  # noqa: E402
-from gridstrain.accumulate import PassPlan  # noqa: E402
+from gridstrain import Lattice, stacks  # noqa: E402
 from gridstrain.cli import main  # noqa: E402
 from gridstrain.io import open_series, read_hdf5  # noqa: E402
-from gridstrain.pipeline import measure_series  # noqa: E402
+from gridstrain.models import kirsch, synthetic  # noqa: E402
 from gridstrain.results import read_attrs  # noqa: E402
+from gridstrain.series import _distributed as gd  # noqa: E402
+from gridstrain.series import measure_series  # noqa: E402
+from gridstrain.stacks.accumulate import PassPlan  # noqa: E402
 
 LAT = Lattice.from_pitch(5.0)
 N = 80  # px: 4-sigma margins leave a 40 x 40 valid centre at sigma = pitch = 5
@@ -285,7 +286,7 @@ def test_dask_methods_screen_their_frames_as_the_bare_methods(client, name):
 
 @pytest.mark.parametrize("method", ["A", "B", "C"])
 def test_several_states_at_once_match_single_process(client, method):
-    """The cluster runs the same pass as this machine (gridstrain.accumulate): the
+    """The cluster runs the same pass as this machine (gridstrain.stacks.accumulate): the
     maps agree to the rounding of sums added in another order."""
     rng = np.random.default_rng(6)
     ref = _frames(6, rng)
@@ -427,7 +428,7 @@ def test_missing_dask_is_a_clear_error(monkeypatch, tiff_series, tmp_path, capsy
 def test_core_imports_without_dask():
     code = ("import sys\n"
             "for m in ('dask', 'distributed', 'zarr'): sys.modules[m] = None\n"
-            "import gridstrain, gridstrain.pipeline, gridstrain.distributed, gridstrain.cli\n"
+            "import gridstrain, gridstrain.series, gridstrain.series, gridstrain.cli\n"
             "from gridstrain.cli import build_parser; build_parser()\n")
     src = str(Path(gridstrain.__file__).resolve().parents[1])
     env = dict(os.environ, PYTHONPATH=src)

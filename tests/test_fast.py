@@ -17,9 +17,10 @@ import numpy as np
 import pytest
 from scipy import ndimage
 
-from gridstrain import Lattice, synthetic, wft
+from gridstrain import Lattice, wft
 from gridstrain._stats import median as _median
 from gridstrain._stats import row_medians
+from gridstrain.models import synthetic
 from gridstrain.phase._spectrum import spectrum_block as _spectrum_block
 from gridstrain.phase._spectrum import transfer_function
 from gridstrain.phase._transform import _wft

@@ -458,7 +458,7 @@ def test_killed_scheduler_is_one_line_within_bounded_time(data, tmp_path):
     code = textwrap.dedent(f"""
         import socket, subprocess, sys, time
         import dask
-        from gridstrain import distributed as gd
+        from gridstrain.series import _distributed as gd
         from gridstrain.cli import main
 
         dask.config.set({{"distributed.comm.timeouts.connect": "3s"}})

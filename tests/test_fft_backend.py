@@ -9,7 +9,8 @@ from typing import ClassVar
 import numpy as np
 import pytest
 
-from gridstrain import Lattice, synthetic, wft
+from gridstrain import Lattice, wft
+from gridstrain.models import synthetic
 from gridstrain.stacks import method_b
 
 _fft = importlib.import_module("gridstrain._fft")

@@ -6,7 +6,7 @@ image-feature estimate is trusted only when it clearly beats its aliases and agr
 with the phases, and that every state says how its order was fixed.
 
 The images come from the generator below, written here with numpy alone (not
-:mod:`gridstrain.synthetic`), so that the package is tested against an independent
+:mod:`gridstrain.models.synthetic`), so that the package is tested against an independent
 model of a camera looking at a specimen.
 """
 
@@ -24,8 +24,8 @@ from gridstrain import Lattice, coarse_displacement, wft
 from gridstrain.cli import main
 from gridstrain.kinematics import _fringe_order as kinematics
 from gridstrain.kinematics._fringe_order import _phase_shift
-from gridstrain.pipeline import measure_series, state_names
 from gridstrain.results import load, save_result
+from gridstrain.series import measure_series, state_names
 
 # --------------------------------------------------------------------------- generator
 

@@ -5,7 +5,7 @@ as a pitch: the correlation at the pitch sees only the grid's residue, as good a
 period away. Compared at whole-period offsets of the phases' field, once the grid is
 low-passed away, they fix the order; a grid with nothing else, or content fixed to the
 camera, must leave it unconfirmed. The images come from ``independent_grid`` (numpy
-only, not :mod:`gridstrain.synthetic`); the lighting is fixed to the camera (a broad
+only, not :mod:`gridstrain.models.synthetic`); the lighting is fixed to the camera (a broad
 Gaussian falling to about 40 %) and the sensor is Poisson-Gaussian.
 """
 
@@ -23,7 +23,7 @@ from gridstrain import Lattice, wft
 from gridstrain.cli import main
 from gridstrain.kinematics import deformation
 from gridstrain.kinematics._fringe_order import strain_if_off
-from gridstrain.pipeline import measure_series
+from gridstrain.series import measure_series
 from independent_grid import camera, grain, scene, stains
 
 SHAPE = (192, 256)

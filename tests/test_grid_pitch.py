@@ -14,7 +14,7 @@ import tifffile
 
 from gridstrain import Lattice
 from gridstrain.cli import main
-from gridstrain.pipeline import reference_lattice
+from gridstrain.series import reference_lattice
 from independent_grid import camera, scene
 
 PITCH_PX, GRID_MM = 5.3, 0.2

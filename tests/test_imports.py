@@ -46,16 +46,22 @@ def test_public_names_resolve_on_first_use():
 
 @pytest.mark.parametrize("first", ["import gridstrain.kinematics",
                                    "from gridstrain import wft",
-                                   "import gridstrain.wft",
-                                   "from gridstrain.wft import wft",
+                                   "import gridstrain.phase",
+                                   "from gridstrain.phase import wft",
                                    "import gridstrain.phase._transform"])
 def test_wft_is_the_function_whichever_loads_first(first):
-    # the public module gridstrain.wft is bound to the package when it loads; the
+    # the old module path gridstrain.wft is bound to the package when it loads; the
     # package's wft must stay the function, the one gridstrain.phase._transform implements
-    code = (f"{first}\nimport gridstrain\nfrom gridstrain import wft\n"
+    code = (f"{first}\nimport gridstrain, warnings\nfrom gridstrain import wft\n"
             "assert callable(wft) and wft.__name__ == 'wft', wft\n"
             "assert gridstrain.wft is wft\n"
-            "from gridstrain.wft import wft as w2, PhaseMaps, wft_complex, transfer_function\n"
+            "with warnings.catch_warnings(record=True) as caught:\n"
+            "    warnings.simplefilter('always')\n"
+            "    from gridstrain.wft import wft as w0\n"
+            "assert w0 is wft and gridstrain.wft is wft, (w0, gridstrain.wft)\n"
+            "assert [w.category for w in caught] == [DeprecationWarning], caught\n"
+            "assert 'gridstrain.phase' in str(caught[0].message)\n"
+            "from gridstrain.phase import wft as w2, PhaseMaps, wft_complex, transfer_function\n"
             "import gridstrain.phase._transform as impl\n"
             "assert w2 is wft is impl.wft and PhaseMaps is gridstrain.PhaseMaps\n"
             "assert wft_complex is impl.wft_complex\n"

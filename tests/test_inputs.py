@@ -12,8 +12,8 @@ import tifffile
 from numpy.testing import assert_allclose, assert_array_equal
 
 from gridstrain.cli import main
-from gridstrain.pipeline import measure_series
 from gridstrain.results import load, read_attrs
+from gridstrain.series import measure_series
 
 N = 96
 P = 5.0  # grid pitch, px
@@ -24,7 +24,7 @@ C = (N - 1) / 2
 def _grid(strain=0.0, *, amp=1.0):
     """A cosine crossed grid of pitch P, stretched by ``strain`` along x, in [0, 1].
 
-    Independent of gridstrain.synthetic: the loaded image at reference pixel x shows
+    Independent of gridstrain.models.synthetic: the loaded image at reference pixel x shows
     the pattern at x - u(x) with u = strain (x - C) (small strain, Lagrangian to
     first order), intensity 0.5 + 0.25 cos(2 pi x'/P) + 0.25 cos(2 pi y/P).
     """

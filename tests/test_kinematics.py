@@ -4,7 +4,8 @@ import numpy as np
 import pytest
 
 from conftest import rigid
-from gridstrain import Lattice, coarse_displacement, deformation, measure, synthetic, wft
+from gridstrain import Lattice, coarse_displacement, deformation, measure, wft
+from gridstrain.models import synthetic
 from gridstrain.phase import coupling_corrected
 
 N = 256

@@ -1,4 +1,4 @@
-"""Tests of gridstrain.kirsch: the analytic plate with a hole against elasticity."""
+"""Tests of gridstrain.models.kirsch: the analytic plate with a hole against elasticity."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose
 
-from gridstrain import kirsch
+from gridstrain.models import kirsch
 
 A = 40.0  # hole radius, px
 S = 100.0  # remote stress, MPa

@@ -2,7 +2,7 @@
 
 A state rotated or strained homogeneously has its grid's carrier moved by ``|k|
 (strain + rotation)``: its frames are probed and transformed at its own carrier
-(gridstrain.lattice.follow_lattice) and its maps brought to the reference's
+(gridstrain.phase.follow_lattice) and its maps brought to the reference's
 lattice. Images from the independent generator (tests/independent_grid.py), 12-bit
 Poisson-Gaussian noise, lighting falling to 40 %, 160 x 200 px, pitch 5 px.
 """
@@ -15,7 +15,7 @@ import tifffile
 
 from gridstrain import load
 from gridstrain.cli import main
-from gridstrain.lattice import Lattice, follow_lattice
+from gridstrain.phase import Lattice, follow_lattice
 from independent_grid import camera, scene
 
 H, W = 160, 200
@@ -112,9 +112,8 @@ def test_demodulated_in_place_is_demodulated_at():
     """A state's maps brought to the reference's carrier over their own memory are
     those of the copying function bit for bit, read-only again, and a view (memory
     it does not own) is copied rather than written over."""
-    from gridstrain.phase import demodulated_at, demodulated_in_place
+    from gridstrain.phase import PhaseMaps, demodulated_at, demodulated_in_place, wft
     from gridstrain.phase.lattice import Carrier
-    from gridstrain.wft import PhaseMaps, wft
 
     img, _ = scene((96, 128), pitch=5.0, angle=10.0, hole=False)
     lat = Lattice.from_pitch(5.0, angle=10.0)

@@ -3,7 +3,8 @@
 import numpy as np
 import pytest
 
-from gridstrain import Lattice, detect_lattice, synthetic
+from gridstrain import Lattice, detect_lattice
+from gridstrain.models import synthetic
 from gridstrain.phase import lattice as lattice_module
 
 

@@ -14,12 +14,13 @@ import numpy as np
 import pytest
 from numpy.testing import assert_array_equal
 
-from gridstrain import Lattice, synthetic
+from gridstrain import Lattice
 from gridstrain._memory import memory_budget
 from gridstrain._stats import streamed_percentiles
 from gridstrain.cli import main
-from gridstrain.pipeline import measure_series
+from gridstrain.models import synthetic
 from gridstrain.results import StoredMaps, load
+from gridstrain.series import measure_series
 
 LAT = Lattice.from_pitch(5.0)
 SHAPE = (64, 80)

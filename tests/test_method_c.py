@@ -1,6 +1,6 @@
 """Method C (vibration-compensated averaging) against an independent grid generator.
 
-The frames are made here with numpy alone (not with gridstrain.synthetic or
+The frames are made here with numpy alone (not with gridstrain.models.synthetic or
 gridstrain.paper): ``s(x, y) = A (1 + gamma/2 (l(2 pi x / p + phi1) + l(2 pi y / p +
 phi2)))`` with the paper's sharp ``l = sin^3`` profile (it has a third harmonic, which
 the weighting must leave rejected), evaluated *exactly* at the shifted points
@@ -92,7 +92,7 @@ def test_measured_shifts_give_the_grid_at_the_mean_position():
     assert np.abs(d).max() < 2e-3
     # the modulation moves too: each quadrant's carrier advances by (2 pi k +
     # <grad phi>) . a, a relative error of <grad phi> / (2 pi |k|) ~ 0.4 % on shifts
-    # of up to 0.4 px (gridstrain.vibration.frame_shifts): 2e-3 px
+    # of up to 0.4 px (gridstrain.stacks.vibration.frame_shifts): 2e-3 px
     np.testing.assert_allclose(res.shifts, shifts - shifts.mean(axis=0), atol=2e-3)
     assert res.motion_residual < 1e-3  # px: a rigid translation
     assert res.method == "C"

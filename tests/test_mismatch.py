@@ -191,7 +191,7 @@ def test_the_noise_model_accounts_for_the_variance_of_a_flat_image():
 
 def test_the_result_file_summary_and_report_carry_the_check(tmp_path, reference):
     from gridstrain.cli._summary import report_lines, summary
-    from gridstrain.report import write_report
+    from gridstrain.post import write_report
     from gridstrain.results import load
 
     state = _frames(np.random.default_rng(9), disp=_stretch(0.01))

@@ -1,4 +1,4 @@
-"""Tests of gridstrain.noise: Anscombe transform and noise estimation from a stack."""
+"""Tests of gridstrain.uncertainty: Anscombe transform and noise estimation from a stack."""
 
 from __future__ import annotations
 
@@ -7,9 +7,9 @@ import pytest
 from numpy.testing import assert_allclose
 from scipy import stats
 
-from gridstrain.lattice import Lattice
-from gridstrain.noise import NoiseModel, anscombe, estimate_noise, inverse_anscombe
-from gridstrain.synthetic import add_noise, grid_image
+from gridstrain.models import add_noise, grid_image
+from gridstrain.phase import Lattice
+from gridstrain.uncertainty import NoiseModel, anscombe, estimate_noise, inverse_anscombe
 
 # Paper defaults, 12-bit grey levels (../shared/paper/README.md).
 K_TRUE, L_TRUE = 0.28, 5.0

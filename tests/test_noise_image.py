@@ -9,8 +9,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from gridstrain.noise import estimate_noise_image
-from gridstrain.pipeline import measure_series
+from gridstrain.series import measure_series
+from gridstrain.uncertainty import estimate_noise_image
 from independent_grid import camera as _camera
 from independent_grid import scene as _scene
 

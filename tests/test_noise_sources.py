@@ -16,8 +16,8 @@ import tifffile
 from gridstrain import Lattice
 from gridstrain.cli import main
 from gridstrain.io import read_hdf5, read_noise_model
-from gridstrain.pipeline import measure_series
 from gridstrain.results import load
+from gridstrain.series import measure_series
 from independent_grid import camera as _camera
 from independent_grid import scene as _scene
 
@@ -253,15 +253,15 @@ def test_check_sigma_snaps_within_1e_3_and_refuses_below():
 
 
 def test_predicted_and_measured_floors_are_one_type_and_agree(pair):
-    from gridstrain import pipeline, uncertainty, wft
+    from gridstrain import uncertainty, wft
 
-    assert pipeline.NoiseFloor is uncertainty.NoiseFloor
     ref = tifffile.imread(pair / "ref.tif").astype(np.float64)
     cur = tifffile.imread(pair / "def.tif").astype(np.float64)
     K, L = 0.28 * 16, 5 * 256  # the camera's model in stored units (x16 storage)
     lat = Lattice.from_pitch(5.3, angle=10.0)
     res = measure_series(ref, cur, lattice=lat, guess=(0.0, 0.0), noise_model=(K, L))
     measured = res.noise
+    assert type(measured) is uncertainty.NoiseFloor
     predicted = uncertainty.noise_floor(wft(ref, lat, sigma=res.sigma), ref, K=K, L=L)
     assert isinstance(measured, uncertainty.NoiseFloor)
     assert isinstance(predicted, uncertainty.NoiseFloor)

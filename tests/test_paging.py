@@ -10,9 +10,9 @@ import pytest
 from numpy.testing import assert_array_equal
 
 from gridstrain import _paging
-from gridstrain.pipeline import measure_series
 from gridstrain.results import ResultFile
 from gridstrain.series import _loop as gp
+from gridstrain.series import measure_series
 from test_pipeline import LAT, Plate
 
 

@@ -5,7 +5,8 @@ import math
 import numpy as np
 import pytest
 
-from gridstrain import Lattice, synthetic
+from gridstrain import Lattice
+from gridstrain.models import synthetic
 from gridstrain.paper import (
     clean_frame,
     draw_shifts,

@@ -1,4 +1,4 @@
-"""Tests of gridstrain.pipeline: series of grid images to maps, vibrations, noise floor."""
+"""Tests of gridstrain.series: series of grid images to maps, vibrations, noise floor."""
 
 from __future__ import annotations
 
@@ -14,17 +14,12 @@ import tifffile
 from numpy.testing import assert_allclose, assert_array_equal
 from scipy import ndimage
 
-from gridstrain import Lattice, __version__, kirsch, synthetic, theory
+from gridstrain import Lattice, __version__, theory
 from gridstrain.io import open_series, read_hdf5
-from gridstrain.pipeline import (
-    FWHM_PER_SIGMA,
-    MAP_FIELDS,
-    SeriesResult,
-    measure_series,
-    save_csv,
-    save_result,
-)
-from gridstrain.results import read_attrs
+from gridstrain.models import kirsch, synthetic
+from gridstrain.results import MAP_FIELDS, SeriesResult, read_attrs, save_csv, save_result
+from gridstrain.series import measure_series
+from gridstrain.uncertainty import FWHM_PER_SIGMA
 
 LAT = Lattice.from_pitch(5.0)
 AMP = 2400.0  # mean grey level, 12-bit: the grid peaks at 1.45 AMP = 3480 < 4095
@@ -510,9 +505,9 @@ def test_the_split_floor_from_one_half_and_the_mean_is_half_against_half():
     other (computed here from numpy means of the frames), the halves unequal (5
     and 6 frames) and the frames shaken by 0.05 px."""
     from gridstrain import wft
-    from gridstrain.accumulate import PassPlan, SeriesPass
+    from gridstrain.phase import finite_derivatives
     from gridstrain.series._floors import _difference_std, _split_floor
-    from gridstrain.wft import finite_derivatives
+    from gridstrain.stacks.accumulate import PassPlan, SeriesPass
 
     lat = Lattice.from_pitch(5.0)
     rng = np.random.default_rng(4)
@@ -545,8 +540,8 @@ def test_the_split_floor_is_deformation_without_its_maps():
     a masked hole, to float rounding."""
     from gridstrain import wft
     from gridstrain.kinematics import deformation
+    from gridstrain.phase import finite_derivatives
     from gridstrain.series._floors import _difference_std
-    from gridstrain.wft import finite_derivatives
 
     th, f = np.deg2rad(12.0), 1 / 5.0
     lat = Lattice((f * np.cos(th), f * np.sin(th)), (-f * np.sin(th), f * np.cos(th)))

@@ -1,4 +1,4 @@
-"""Tests of gridstrain.plotting: maps centred on zero, transparent invalid pixels, PNGs."""
+"""Tests of gridstrain.post: maps centred on zero, transparent invalid pixels, PNGs."""
 
 from __future__ import annotations
 
@@ -8,10 +8,10 @@ import pytest
 from matplotlib.colors import CenteredNorm
 from numpy.testing import assert_allclose, assert_array_equal
 
-from gridstrain import Lattice, synthetic
+from gridstrain import Lattice
 from gridstrain.io import MARKER_NAME
-from gridstrain.pipeline import measure_series
-from gridstrain.plotting import (
+from gridstrain.models import synthetic
+from gridstrain.post import (
     figure_names,
     map_norm,
     plot_map,
@@ -19,6 +19,7 @@ from gridstrain.plotting import (
     save_figure,
     save_figures,
 )
+from gridstrain.series import measure_series
 
 LAT = Lattice.from_pitch(5.0)
 
@@ -69,7 +70,7 @@ def test_both_signs_that_matter_give_a_diverging_map_ticked_on_both_halves(rng):
 def test_plot_of_many_states_is_at_most_4000_px_tall(rng):
     from types import SimpleNamespace
 
-    from gridstrain.plotting import capped_dpi, chosen_states, plot_states
+    from gridstrain.post import capped_dpi, chosen_states, plot_states
 
     n, H, W = 200, 40, 60
     exx = rng.normal(1e-3, 1e-4, (n, H, W))

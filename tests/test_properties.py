@@ -4,7 +4,8 @@ import numpy as np
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from gridstrain import Lattice, measure, synthetic
+from gridstrain import Lattice, measure
+from gridstrain.models import synthetic
 
 _settings = settings(max_examples=8, deadline=None,
                      suppress_health_check=[HealthCheck.too_slow])

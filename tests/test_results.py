@@ -18,10 +18,12 @@ import pytest
 from numpy.testing import assert_allclose, assert_array_equal
 
 import gridstrain
-from gridstrain import Lattice, synthetic
+from gridstrain import Lattice
 from gridstrain.cli import main
-from gridstrain.pipeline import MAP_FIELDS, SeriesResult, measure_series
+from gridstrain.models import synthetic
 from gridstrain.results import (
+    MAP_FIELDS,
+    SeriesResult,
     export_mat,
     export_vtk,
     load,
@@ -30,6 +32,7 @@ from gridstrain.results import (
     save_result,
 )
 from gridstrain.results._file import _nan_equal
+from gridstrain.series import measure_series
 
 LAT = Lattice.from_pitch(5.0)
 N = 96
@@ -218,7 +221,7 @@ def test_vtk_export_is_a_paraview_time_series(result, tmp_path):
     assert_allclose(arrays["exy [-]"].reshape(N, N)[::-1], -result.exy[1], rtol=1e-6)
     assert_array_equal(arrays["valid"].reshape(N, N)[::-1], result.valid[1])
     # the times become the time values
-    from gridstrain.post import export_pvd
+    from gridstrain.results import export_pvd
 
     p2 = export_pvd(result, tmp_path / "t.pvd", time=[0.5, 1.5])
     assert [float(d.get("timestep")) for d in ET.parse(p2).getroot().iter("DataSet")] == \
@@ -438,7 +441,7 @@ def test_plot_command(result, tmp_path, capsys):
 
 
 def test_common_limits_span_every_state(result):
-    from gridstrain.plotting import quantity, state_norm
+    from gridstrain.post._plotting import quantity, state_norm
 
     fig = result.plot("exx")
     maps = [ax.get_images()[1] for ax in fig.axes[:2]]
@@ -493,7 +496,7 @@ def test_a_field_this_version_does_not_know_is_refused_by_name(result, tmp_path)
 
 
 def test_measure_figures_share_one_norm_per_quantity(result, tmp_path, monkeypatch):
-    from gridstrain import plotting
+    from gridstrain.post import _plotting as plotting
 
     seen = []
     real = plotting.plot_map
@@ -520,7 +523,7 @@ def test_report_of_a_long_sequence_stays_one_readable_page(tmp_path):
     """Beyond 12 states: the maps of six states, histories and one row per state."""
     from matplotlib.figure import Figure
 
-    from gridstrain.report import _figure, render_report
+    from gridstrain.post._report import _figure, render_report
 
     rng = np.random.default_rng(29)
     n = 13

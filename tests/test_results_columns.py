@@ -18,9 +18,9 @@ import pytest
 from gridstrain import Lattice
 from gridstrain.kinematics import Measurement
 from gridstrain.phase.lattice import Carrier
-from gridstrain.pipeline import measure_series
 from gridstrain.results import _codec, _layout, load, save_result
 from gridstrain.results._codec import _Bad, _decode, _encode
+from gridstrain.series import measure_series
 from independent_grid import camera, scene
 
 LAT = Lattice.from_pitch(5.0)

@@ -21,9 +21,9 @@ import tifffile
 
 from gridstrain import Lattice
 from gridstrain.cli import main
-from gridstrain.pipeline import measure_series
 from gridstrain.results import load, read_attrs, save_result
 from gridstrain.results._file import _nan_equal
+from gridstrain.series import measure_series
 from independent_grid import camera, scene
 
 LAT = Lattice.from_pitch(5.0)

@@ -1,7 +1,7 @@
 """Every frame screened before averaging: series that used to come out quietly wrong.
 
 The frames come from a generator written here with numpy alone (not
-gridstrain.synthetic), so that the screening is tested against the world rather than
+gridstrain.models.synthetic), so that the screening is tested against the world rather than
 against the package's own model. Its assumptions (:func:`grid_frames`): a cross-line
 grid of pitch 5 px whose reflectance is ``1 + c/2 (cos 2 pi X/p + cos 2 pi Y/p)``,
 point-sampled at pixel centres (no blur, no pixel integration); an affine specimen
@@ -23,10 +23,10 @@ import tifffile
 from numpy.testing import assert_allclose
 
 from gridstrain import Lattice
-from gridstrain.pipeline import measure_series, save_result
-from gridstrain.results import load, read_attrs
-from gridstrain.screening import screen_frames
+from gridstrain.results import load, read_attrs, save_result
+from gridstrain.series import measure_series
 from gridstrain.stacks import method_a, method_b, method_c
+from gridstrain.stacks.screening import screen_frames
 
 PITCH = 5.0
 LAT = Lattice.from_pitch(PITCH)

@@ -18,11 +18,10 @@ import pytest
 import tifffile
 
 from gridstrain import Lattice
-from gridstrain.io import _readers, open_series, read_loads
-from gridstrain.pipeline import measure_series
+from gridstrain.io import _readers, natural_order, open_series, read_loads, state_inputs
 from gridstrain.results import load
-from gridstrain.screening import screen_frames
-from gridstrain.sequences import natural_order, state_inputs
+from gridstrain.series import measure_series
+from gridstrain.stacks.screening import screen_frames
 from sequence_record import PITCH, record, static_series, truth
 
 SHAPE = (160, 192)  # the single-image noise estimate needs 160 px a side

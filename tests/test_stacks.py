@@ -5,7 +5,8 @@ import math
 import numpy as np
 import pytest
 
-from gridstrain import Lattice, PhaseMaps, synthetic, wft
+from gridstrain import Lattice, PhaseMaps, wft
+from gridstrain.models import synthetic
 from gridstrain.paper import clean_frame, draw_shifts, iter_frames, paper_phases
 from gridstrain.stacks import (
     StackResult,

@@ -10,14 +10,14 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose, assert_array_equal
 
-from gridstrain import Lattice, stacks, synthetic
+from gridstrain import Lattice, stacks
 from gridstrain.kinematics import deformation
-from gridstrain.phase import coupling_corrected
+from gridstrain.models import synthetic
+from gridstrain.phase import coupling_corrected, demodulated_at, finite_derivatives, wft
 from gridstrain.phase.lattice import reference_carrier as _reference_carrier
 from gridstrain.phase.lattice import state_carrier as _state_carrier
-from gridstrain.pipeline import measure_series
 from gridstrain.results import ResultFile, StoredMaps, load, save_result
-from gridstrain.wft import demodulated_at, finite_derivatives, wft
+from gridstrain.series import measure_series
 
 LAT = Lattice.from_pitch(5.0)
 SHAPE = (96, 112)
@@ -149,7 +149,7 @@ def test_each_state_is_the_direct_measurement_of_its_frames(data, tmp_path, meth
     automatic (the previous state's field from the second state on): the
     displacements stay below 0.7 px, well within half a period (2.5 px), so every
     guess gives the same fringe order. A state is transformed at its own carrier,
-    found on its first frame (gridstrain.lattice.follow_lattice), and its maps then
+    found on its first frame (gridstrain.phase.follow_lattice), and its maps then
     brought to the reference's lattice."""
     ref, states = data
     full = np.ones(SHAPE, dtype=bool)

@@ -1,8 +1,8 @@
 """Tests of gridstrain.theory against independent oracles.
 
 Oracles: analytic Fourier series, direct quadrature, Monte Carlo and Gauss-Hermite
-averages of shifted images made by gridstrain.synthetic.grid_image, and the real
-windowed Fourier transform gridstrain.wft.wft. Each tolerance says what it is.
+averages of shifted images made by gridstrain.models.synthetic.grid_image, and the real
+windowed Fourier transform gridstrain.phase.wft. Each tolerance says what it is.
 """
 
 from __future__ import annotations
@@ -16,9 +16,8 @@ from numpy.testing import assert_allclose
 from scipy import integrate
 
 from gridstrain import theory
-from gridstrain.lattice import Lattice
-from gridstrain.synthetic import PROFILES, add_noise, grid_image
-from gridstrain.wft import wft
+from gridstrain.models import PROFILES, add_noise, grid_image
+from gridstrain.phase import Lattice, wft
 
 F = 0.2  # the paper's carrier, cycles/px (pitch 5)
 CASE1 = (0.15, 0.10)  # paper §3.2, Std(alpha), Std(beta) in px

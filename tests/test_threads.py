@@ -48,7 +48,7 @@ def test_measure_series_keeps_blas_on_one_thread_throughout(monkeypatch):
     # its kinematics, noise and uncertainty products too, not only the frame loops:
     # OpenBLAS's idle threads would spin between them (a third more CPU for a pair)
     import gridstrain.kinematics.tracking as gp
-    from gridstrain.pipeline import measure_series
+    from gridstrain.series import measure_series
 
     seen = []
     inner = gp.deformation

@@ -4,7 +4,8 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose, assert_array_equal
 
-from gridstrain import Lattice, synthetic, wft
+from gridstrain import Lattice, wft
+from gridstrain.models import synthetic
 from gridstrain.stacks import method_b, method_c
 from gridstrain.uncertainty import noise_variance_map, predict_uncertainty
 
@@ -126,7 +127,7 @@ def test_variance_stabilisation_before_the_wft_would_bias_the_displacement():
     # alias onto the carrier (at pitch 5 the 4th and 6th land exactly on -k and +k),
     # so a noise-free rigid translation is no longer measured exactly.
     from gridstrain import measure
-    from gridstrain.noise import anscombe
+    from gridstrain.uncertainty import anscombe
 
     s = synthetic.grid_image((N, N), LAT, amplitude=2000.0)
     c = synthetic.grid_image((N, N), LAT, amplitude=2000.0,

@@ -23,7 +23,7 @@ from gridstrain._validation import (
     check_shape,
     check_type,
 )
-from gridstrain.lattice import Lattice
+from gridstrain.phase import Lattice
 
 NON_NUMBERS = [True, False, None, "3", b"3", [1.0], np.array([1.0]), 1 + 0j]
 NUMPY_SCALARS = [np.float32(2.5), np.float64(2.5), np.int16(3), np.uint8(3), np.int64(3)]

@@ -1,4 +1,4 @@
-"""Tests of gridstrain.vibration: per-frame shifts and the vibration report."""
+"""Tests of gridstrain.stacks.vibration: per-frame shifts and the vibration report."""
 
 from __future__ import annotations
 
@@ -6,10 +6,9 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose
 
-from gridstrain.lattice import Lattice
-from gridstrain.synthetic import add_noise, grid_image
-from gridstrain.vibration import VibrationReport, frame_shifts, vibration_report
-from gridstrain.wft import wft
+from gridstrain.models import add_noise, grid_image
+from gridstrain.phase import Lattice, wft
+from gridstrain.stacks.vibration import VibrationReport, frame_shifts, vibration_report
 
 # Paper §3.2 vibration cases, (sigma_alpha, sigma_beta) in px.
 CASE1 = (0.15, 0.1)
@@ -158,7 +157,7 @@ def test_measure_series_gives_the_same_vibration_report():
     """One vibration result: the pipeline's, for each series, is the VibrationReport
     of the stack (frame_shifts's estimator, from the screening's carrier sums),
     named after the series; a single frame says nothing (NaN)."""
-    from gridstrain.pipeline import measure_series
+    from gridstrain.series import measure_series
 
     lat = Lattice.from_pitch(5.0)
     ab = np.random.default_rng(10).normal(size=(8, 2)) * CASE1

@@ -3,8 +3,9 @@
 import numpy as np
 import pytest
 
-from gridstrain import Lattice, synthetic, wft
-from gridstrain.wft import transfer_function
+from gridstrain import Lattice, wft
+from gridstrain.models import synthetic
+from gridstrain.phase import transfer_function
 
 
 def _modulated_grid(shape=(128, 128), angle=20.0, pitch=5.0):
@@ -117,7 +118,7 @@ def test_phase_is_the_modulation_with_absolute_carrier():
 
 
 def test_edge_bias_decays_as_a_gaussian():
-    # Measures the bias that justifies the default margin (gridstrain.wft.DEFAULT_MARGIN).
+    # Measures the bias that justifies the default margin (gridstrain.phase.DEFAULT_MARGIN).
     lat = Lattice.from_pitch(5.0)
     N = 160
     img = synthetic.grid_image((N, N), lat)

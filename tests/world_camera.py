@@ -1,7 +1,7 @@
 """Photographs of a printed grid on a deforming specimen, for the acceptance tests.
 
 Written with numpy alone. It shares no code and no model with
-``gridstrain.synthetic``, ``tests/independent_grid.py`` or
+``gridstrain.models.synthetic``, ``tests/independent_grid.py`` or
 ``tests/sequence_record.py``: the tests that use it judge gridstrain against a
 picture it was not written for. Its model of a picture:
 

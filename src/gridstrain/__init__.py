@@ -11,8 +11,11 @@ matplotlib before anything is computed.
 from __future__ import annotations
 
 import importlib
+import importlib.abc
+import importlib.util
 import sys
 import types
+import warnings
 
 __version__ = "0.1.0"
 
@@ -22,26 +25,26 @@ _LAZY = {
     "FringeOrder": "kinematics",
     "Lattice": "phase",
     "Measurement": "kinematics",
-    "NoiseModel": "noise",
+    "NoiseModel": "uncertainty",
     "PhaseMaps": "phase",
     "Uncertainty": "uncertainty",
-    "VibrationReport": "vibration",
-    "anscombe": "noise",
+    "VibrationReport": "stacks",
+    "anscombe": "uncertainty",
     "coarse_displacement": "kinematics",
     "deformation": "kinematics",
     "detect_lattice": "phase",
-    "estimate_noise": "noise",
-    "estimate_noise_image": "noise",
-    "frame_shifts": "vibration",
-    "inverse_anscombe": "noise",
+    "estimate_noise": "uncertainty",
+    "estimate_noise_image": "uncertainty",
+    "frame_shifts": "stacks",
+    "inverse_anscombe": "uncertainty",
     "measure": "kinematics",
     "predict_uncertainty": "uncertainty",
-    "vibration_report": "vibration",
+    "vibration_report": "stacks",
     "wft": "phase",
     # the series workflow and the result files (they pull in h5py and matplotlib)
-    "SeriesResult": "pipeline",
+    "SeriesResult": "results",
     "load": "results",
-    "measure_series": "pipeline",
+    "measure_series": "series",
     "method_a": "stacks",
     "method_b": "stacks",
     "progress_bar": "_progress",
@@ -69,10 +72,9 @@ class _Package(types.ModuleType):
     """The package module: a public name stays what it is when a submodule of that name loads.
 
     The import system binds every submodule it loads to the package under the
-    submodule's name. :func:`wft` is implemented in ``gridstrain.phase._transform`` and also
-    exported by the public module :mod:`gridstrain.wft`, named after it: the
-    function, not that module, is the package's ``wft`` (as with an eager ``from
-    .wft import wft``), whichever of the two is imported first.
+    submodule's name. :func:`wft` is implemented in ``gridstrain.phase._transform``;
+    the old module path ``gridstrain.wft`` (see :data:`_MOVED`) still imports: the
+    function, not a module, stays the package's ``wft``, whichever is imported first.
     """
 
     def __setattr__(self, name, value):
@@ -82,3 +84,47 @@ class _Package(types.ModuleType):
 
 
 sys.modules[__name__].__class__ = _Package
+
+
+#: Modules that moved into a folder, old name -> the folder (or public module) that holds
+#: their names now. The old path still imports, for one release, with a DeprecationWarning.
+_MOVED = {
+    "accumulate": "stacks.accumulate",
+    "discontinuities": "kinematics",
+    "distributed": "series",
+    "kirsch": "models.kirsch",
+    "lattice": "phase",
+    "noise": "uncertainty",
+    "pipeline": "series",
+    "plotting": "post",
+    "report": "post",
+    "screening": "stacks.screening",
+    "sequences": "io",
+    "synthetic": "models.synthetic",
+    "vibration": "stacks.vibration",
+    "wft": "phase",
+}
+
+
+class _MovedFinder(importlib.abc.MetaPathFinder, importlib.abc.Loader):
+    """``import gridstrain.OLD`` gives the module that holds OLD's names now, and warns."""
+
+    def find_spec(self, fullname, path=None, target=None):
+        package, _, old = fullname.rpartition(".")
+        if package == __name__ and old in _MOVED:
+            return importlib.util.spec_from_loader(fullname, self)
+        return None
+
+    def create_module(self, spec):
+        old = spec.name.rpartition(".")[2]
+        new = f"{__name__}.{_MOVED[old]}"
+        warnings.warn(f"{spec.name} is deprecated and will be removed in the next release: "
+                      f"import from {new}", DeprecationWarning, stacklevel=2)
+        return importlib.import_module(new)
+
+    def exec_module(self, module):
+        pass  # the module it gives is already loaded
+
+
+if not any(isinstance(f, _MovedFinder) for f in sys.meta_path):
+    sys.meta_path.append(_MovedFinder())

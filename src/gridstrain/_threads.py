@@ -7,7 +7,7 @@ calls. OpenBLAS runs them on its own threads, which then spin while waiting for
 the next call and take the cores that the frames' transforms need: on 2 cores,
 method B on 2 threads of gridstrain's ran no faster than on 1 (7.1 s against 6.7 s
 for 100 frames of 1040 x 1376) until BLAS was kept on the calling thread (4.1 s).
-:func:`gridstrain.pipeline.measure_series` keeps it there throughout: its
+:func:`gridstrain.series.measure_series` keeps it there throughout: its
 kinematics, noise and uncertainty products are small or memory bound too, and with
 the libraries' defaults a pair cost a third more CPU time for the same wall time.
 """

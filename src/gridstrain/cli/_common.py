@@ -14,7 +14,7 @@ import threading
 from pathlib import Path
 
 from .._validation import check_positive
-from ..io._files import check_destination
+from ..io import check_destination
 from ..phase import Lattice
 
 
@@ -129,7 +129,7 @@ class Outputs:
         self.committed.append((kind, Path(path), (st.st_dev, st.st_ino)))
 
     def __enter__(self) -> Outputs:
-        from ..io._files import watch_outputs
+        from ..io import watch_outputs
 
         self._watch = watch_outputs(self._record)
         self._watch.__enter__()

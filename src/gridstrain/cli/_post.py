@@ -72,8 +72,7 @@ def reads_result(run):
 def open_result(args):
     """``(result, path, pixel_size, unit, load, load_unit, time)`` of the command's file."""
     from ..post import read_loads
-    from ..post._loads import state_loads
-    from ..results import load, read_attrs
+    from ..results import load, read_attrs, state_loads
 
     src = Path(os.path.expanduser(args.result))
     result = load(src, in_memory=False)

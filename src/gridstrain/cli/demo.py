@@ -1,6 +1,6 @@
 """``gridstrain demo``: a realistic test, simulated end to end, then measured.
 
-An aluminium plate with a hole (:mod:`gridstrain.kirsch`, E = 70 GPa, nu = 0.33)
+An aluminium plate with a hole (:mod:`gridstrain.models.kirsch`, E = 70 GPa, nu = 0.33)
 carrying a grid of pitch 5 px is imaged by a 12-bit camera that stores its data
 x16 in 16-bit TIFFs (the paper's Fig. 1), with Poisson-Gaussian sensor noise
 (K = 0.28, L = 5 in 12-bit levels; paper §3.2) and vibrations (i.i.d. Gaussian
@@ -22,13 +22,12 @@ from pathlib import Path
 import numpy as np
 import tifffile
 
-from .. import kirsch, synthetic
 from .._progress import bar
 from .._validation import check_int
 from ..io import OutputDirectory, open_series, read_mask, write_hdf5, write_tiff_series
+from ..models import kirsch, synthetic
 from ..phase import Lattice
-from ..plotting import figure_names, save_figures
-from ..report import write_report
+from ..post import figure_names, save_figures, write_report
 from ..results import MAP_FIELDS, save_result
 from ..series import measure_series
 from ._summary import jsonable, report_lines, summary

@@ -1,8 +1,8 @@
 """``gridstrain measure``: strain maps from a lab's image series.
 
 The command only parses, draws progress and prints; the work is
-:func:`gridstrain.pipeline.measure_series`, :func:`gridstrain.pipeline.save_result`
-and :func:`gridstrain.plotting.save_figures`.
+:func:`gridstrain.series.measure_series`, :func:`gridstrain.results.save_result`
+and :func:`gridstrain.post.save_figures`.
 """
 
 from __future__ import annotations
@@ -31,7 +31,9 @@ from ..io import (
     read_mask,
     read_noise_model,
     roi_mask,
+    state_inputs,
 )
+from ..phase import DEFAULT_MARGIN
 from ..results import (
     EXPORTS,
     MAP_FIELDS,
@@ -41,7 +43,6 @@ from ..results import (
     save_csv,
     save_result,
 )
-from ..sequences import state_inputs
 from ..series import (
     ORDERS,
     OUTLIER_POLICIES,
@@ -50,7 +51,6 @@ from ..series import (
     reference_lattice,
     state_names,
 )
-from ..wft import DEFAULT_MARGIN
 from ._common import (
     add_lattice_options,
     check_output_file,
@@ -180,7 +180,7 @@ def _specimen_options(k) -> None:
                    "the run, or 'warn' and keep them (noise floor then not stated)")
 
 
-# The options of a sequence (gridstrain.sequences), as (flag, argparse keywords).
+# The options of a sequence (gridstrain.io), as (flag, argparse keywords).
 _SEQUENCE_OPTIONS = (
     ("--each-frame", {"action": "store_true", "default": None, "help":
                       "every frame of the DEF inputs (a folder, a glob, a multi-page TIFF, a "
@@ -456,7 +456,7 @@ def _check_outputs(opts: dict, n_states: int, inputs: set[Path]) -> None:
         check_output_file(csv, "CSV file", opts["overwrite"], inputs)
     if opts.get("figures"):
         # only figures an earlier run wrote there are replaced (its marker lists them)
-        from ..plotting import figure_names  # matplotlib only when figures are asked
+        from ..post import figure_names  # matplotlib only when figures are asked
 
         OutputDirectory(os.path.expanduser(opts["figures"]), figure_names(n_states),
                         overwrite=opts["overwrite"], what="figures directory")
@@ -737,11 +737,11 @@ def _extra_outputs(result, out: Path, opts: dict, progress) -> dict:
                          unit=unit, overwrite=overwrite)
         outputs["export"] = {k: str(v) for k, v in written.items()}
     if opts.get("report"):
-        from ..report import write_report
+        from ..post import write_report
 
         outputs["report"] = str(write_report(out, opts["report"], overwrite=overwrite))
     if opts.get("figures"):
-        from ..plotting import save_figures  # matplotlib only when figures are asked
+        from ..post import save_figures  # matplotlib only when figures are asked
 
         figs = save_figures(result, opts["figures"], pixel_size=ps, unit=unit,
                             overwrite=overwrite, progress=progress)

@@ -49,7 +49,7 @@ def run(args) -> int:
     c = elastic_constants(reading, area=args.area, area_unit=args.area_unit,
                           axis=args.axis, strain_range=args.strain_range)
     if plot is not None:
-        from ..plotting import plot_stress_strain, save_figure
+        from ..post import plot_stress_strain, save_figure
 
         save_figure(plot_stress_strain(c), plot, overwrite=args.overwrite)
     if args.json:

@@ -2,7 +2,7 @@
 
 A static stack gives the noise from the frames' temporal scatter (vibrations
 regressed out); a single image (or a stack too short) from the image itself
-(:func:`gridstrain.noise.estimate_noise_image`).
+(:func:`gridstrain.uncertainty.estimate_noise_image`).
 """
 
 from __future__ import annotations
@@ -17,14 +17,11 @@ import numpy as np
 from .._progress import bar
 from .._validation import check_int
 from ..io import open_series, provenance, write_atomic, write_hdf5
-from ..phase import detect_lattice
-from ..series._outliers import outlier_verdict
+from ..phase import detect_lattice, wft
+from ..series import outlier_verdict
 from ..stacks.screening import screen_frames
 from ..stacks.vibration import vibration_report
-from ..uncertainty import noise_floor
-from ..uncertainty._noise import NOISE_RESULT_KIND, estimate_noise
-from ..uncertainty._noise_image import estimate_noise_image
-from ..wft import wft
+from ..uncertainty import NOISE_RESULT_KIND, estimate_noise, estimate_noise_image, noise_floor
 from ._common import (
     add_lattice_options,
     check_output_file,
@@ -112,8 +109,8 @@ def _output(args) -> Path | None:
 
 def _screened(series, lattice):
     """The stack without its frames of no grid, low contrast, a slip or another
-    scene (:func:`gridstrain.screening.screen_frames`), and the warnings naming them
-    (:func:`gridstrain.pipeline.outlier_verdict`, half or more refused). A frame that
+    scene (:func:`gridstrain.stacks.screening.screen_frames`), and the warnings naming them
+    (:func:`gridstrain.series.outlier_verdict`, half or more refused). A frame that
     moved or changed would pass its change for noise: K and L would be too large.
     Clipped pixels are left to the estimate, which leaves them out."""
     if series.n_frames < 3:

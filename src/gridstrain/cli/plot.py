@@ -48,7 +48,7 @@ def register(sub) -> None:
 @reads_result
 def run(args) -> int:
     from ..io import OutputDirectory
-    from ..plotting import QUANTITIES, capped_dpi, plot_history, plot_states
+    from ..post import QUANTITIES, capped_dpi, plot_history, plot_states
     from ..results import load, read_attrs
 
     if not 20 <= args.dpi <= 1200:

@@ -25,7 +25,7 @@ def register(sub) -> None:
 
 @reads_result
 def run(args) -> int:
-    from ..report import write_report
+    from ..post import write_report
 
     src = Path(os.path.expanduser(args.result))
     out = Path(os.path.expanduser(args.output)) if args.output else src.with_suffix(".html")

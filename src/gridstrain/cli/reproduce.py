@@ -7,7 +7,7 @@ import sys
 import time
 
 from .._progress import bar
-from ..synthetic import PROFILES
+from ..models import PROFILES
 
 
 def register(subparsers) -> None:
@@ -55,7 +55,7 @@ def register(subparsers) -> None:
 def run(args: argparse.Namespace) -> int:
     """Run ``gridstrain reproduce`` with parsed ``args``; returns the exit code."""
     # heavy imports only when the command runs
-    from ..paper._summary import fixed_figure
+    from ..paper import fixed_figure
     from ..paper.experiment import reproduce
 
     t0 = time.perf_counter()

@@ -30,7 +30,7 @@ Grey levels and bit depth
     records it as ``scale = 16`` and ``bit_depth = 12``; nothing is divided
     silently. Pass ``to_sensor_units=True`` to the readers to get grey levels of
     the sensor (raw / ``scale``), the unit in which the sensor noise model of
-    :mod:`gridstrain.synthetic` (``Var = K l + L``) is written.
+    :mod:`gridstrain.models.synthetic` (``Var = K l + L``) is written.
 
 Output
     Every file is written atomically (:func:`atomic_path`): to a temporary file in
@@ -81,9 +81,14 @@ from ._files import (
     write_csv,
     write_hdf5,
 )
+
+# shared with gridstrain's other folders, not part of the public API
+from ._files import check_destination as check_destination
+from ._files import watch_outputs as watch_outputs
 from ._hdf5_attrs import read_hdf5, read_noise_model
 from ._loads import LoadTable, read_loads
 from ._readers import IMAGE_EXTENSIONS, close_readers, natural_sort_key, to_luminance
+from ._sequences import STATE_ORDERS, StateInputs, natural_order, state_inputs
 from ._series import (
     FrameSeries,
     check_saturation,
@@ -98,11 +103,13 @@ from ._tiff import write_tiff_series
 __all__ = [
     "IMAGE_EXTENSIONS",
     "MARKER_NAME",
+    "STATE_ORDERS",
     "FrameSeries",
     "HDF5Stream",
     "LoadTable",
     "MemoryBudgetError",
     "OutputDirectory",
+    "StateInputs",
     "atomic_path",
     "available_memory",
     "check_fits",
@@ -112,6 +119,7 @@ __all__ = [
     "hdf5_file",
     "hdf5_stream",
     "memory_budget",
+    "natural_order",
     "natural_sort_key",
     "open_series",
     "parse_size",
@@ -123,6 +131,7 @@ __all__ = [
     "roi_mask",
     "space_error",
     "split_frames",
+    "state_inputs",
     "sweep_temporary_files",
     "to_luminance",
     "write_atomic",

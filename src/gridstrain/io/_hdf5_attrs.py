@@ -197,7 +197,7 @@ def read_noise_model(path):
 
     Returns
     -------
-    gridstrain.noise.NoiseModel
+    gridstrain.uncertainty.NoiseModel
         ``K``, ``L`` in the stored grey levels of the images it was estimated on,
         with their ``scale`` and ``bit_depth``.
 
@@ -206,7 +206,7 @@ def read_noise_model(path):
     ValueError
         The file is not a noise result, or holds an unusable model (``K <= 0``).
     """
-    from ..uncertainty._noise import NOISE_RESULT_KIND, NoiseModel
+    from ..uncertainty import NOISE_RESULT_KIND, NoiseModel
 
     p = as_path(path, "path")
     if not p.is_file():

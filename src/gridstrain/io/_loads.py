@@ -69,7 +69,7 @@ def read_loads(path, *, states, reference: str | None = None) -> LoadTable:
         The CSV file.
     states : sequence of str
         The states' names, in the order measured
-        (:attr:`gridstrain.pipeline.SeriesResult.names` less the reference).
+        (:attr:`gridstrain.results.SeriesResult.names` less the reference).
     reference : str, optional
         The reference's name: a row of a ``state`` column naming it (its load is
         usually zero) is allowed and skipped.

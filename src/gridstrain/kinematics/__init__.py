@@ -15,22 +15,40 @@
 from __future__ import annotations
 
 from ._deformation import Measurement, deformation, measure
+
+# shared with gridstrain's other folders, not part of the public API
+from ._deformation import eulerian_gradient as eulerian_gradient
+from ._deformation import small_strain as small_strain
+from ._discontinuities import (
+    Discontinuities,
+    Part,
+    check_parts,
+    find_discontinuities,
+    without_discontinuities,
+)
 from ._fringe_order import (
     FRINGE_ORDER_SOURCES,
     CoarseEstimate,
     FringeOrder,
     coarse_displacement,
 )
+from ._fringe_order import phase_products as phase_products
+from ._fringe_order import solve_k as solve_k
 from ._pair_match import PairMatch, pair_match
 
 __all__ = [
     "FRINGE_ORDER_SOURCES",
     "CoarseEstimate",
+    "Discontinuities",
     "FringeOrder",
     "Measurement",
     "PairMatch",
+    "Part",
+    "check_parts",
     "coarse_displacement",
     "deformation",
+    "find_discontinuities",
     "measure",
     "pair_match",
+    "without_discontinuities",
 ]

@@ -26,10 +26,17 @@ from .._validation import (
     check_type,
     check_workers,
 )
-from ..phase import Lattice, coupling_corrected, demodulated_at, detect_lattice
-from ..phase._validity import filled_box
+from ..phase import (
+    DEFAULT_MARGIN,
+    Lattice,
+    PhaseMaps,
+    coupling_corrected,
+    demodulated_at,
+    detect_lattice,
+    filled_box,
+    wft,
+)
 from ..phase.lattice import reference_carrier, state_carrier
-from ..wft import DEFAULT_MARGIN, PhaseMaps, wft
 from ._fringe_order import (
     FringeOrder,
     _CoarseReference,
@@ -748,7 +755,8 @@ def measure(reference, deformed, *, lattice: Lattice | None = None,
     Examples
     --------
     >>> import numpy as np
-    >>> from gridstrain import Lattice, measure, synthetic
+    >>> from gridstrain import Lattice, measure
+    >>> from gridstrain.models import synthetic
     >>> lat = Lattice.from_pitch(5.0)
     >>> ref = synthetic.grid_image((96, 96), lat)
     >>> cur = synthetic.grid_image((96, 96), lat,
@@ -770,7 +778,7 @@ def measure(reference, deformed, *, lattice: Lattice | None = None,
     # the deformed specimen has moved: its mask is not the reference's, so the
     # deformed image is transformed whole and validity comes from its own moduli; at
     # its own carrier, a window off it biases the phase where the grid's amplitude
-    # varies (gridstrain.wft.demodulated_at)
+    # varies (gridstrain.phase.demodulated_at)
     carrier = state_carrier(cur, lattice, reference_carrier(ref, lattice))
     pm_cur = coupling_corrected(wft(cur, carrier, sigma=pm_ref.sigma, margin=margin,
                                     workers=None))

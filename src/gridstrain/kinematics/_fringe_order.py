@@ -22,9 +22,7 @@ from .._validation import (
     check_same_shape,
     check_type,
 )
-from ..phase import Lattice
-from ..phase._validity import filled_box
-from ..wft import PhaseMaps
+from ..phase import Lattice, PhaseMaps, filled_box
 from ._grid_free import (
     ContentOrder,
     decimation,

@@ -15,9 +15,8 @@ from .._stats import median
 from .._validation import (
     check_mask,
 )
-from ..phase import Lattice
-from ..uncertainty._biases import nearest_filled, nearest_index
-from ..wft import PhaseMaps
+from ..phase import Lattice, PhaseMaps
+from ..uncertainty import nearest_filled, nearest_index
 from ._deformation import (
     Measurement,
     _Handover,

@@ -7,6 +7,8 @@
   measurements), its figures and summary (``gridstrain reproduce``).
 """
 
+# shared with gridstrain's other folders, not part of the public API
+from ._summary import fixed_figure as fixed_figure
 from .dataset import (
     clean_frame,
     draw_shifts,

@@ -52,7 +52,7 @@ from .._validation import (
     check_positive,
     check_shape,
 )
-from ..synthetic import add_noise, line_profile
+from ..models import add_noise, line_profile
 
 __all__ = [
     "clean_frame",
@@ -116,7 +116,7 @@ def paper_phases(shape, *, max_derivative: float = MAX_DERIVATIVE):
         ``phi1`` and ``phi2`` sampled at the pixel centres, rad.
     derivatives : (2, 2, H, W) float64 ndarray
         Their exact derivatives at the pixel centres, rad/px, laid out like
-        :attr:`gridstrain.wft.PhaseMaps.dphi`: ``derivatives[j, 0] = d phi_j / dx``,
+        :attr:`gridstrain.phase.PhaseMaps.dphi`: ``derivatives[j, 0] = d phi_j / dx``,
         ``derivatives[j, 1] = d phi_j / dy``.
 
     Notes
@@ -244,7 +244,7 @@ def clean_frame(phases, shift=(0.0, 0.0), *, amplitude: float = 4096.0,
         ``p = 1/f``, px; the grid is the paper's axis-aligned one,
         ``Lattice.from_pitch(pitch)``.
     profile : str or callable
-        Line profile ``l`` (see :data:`gridstrain.synthetic.PROFILES`); default the
+        Line profile ``l`` (see :data:`gridstrain.models.synthetic.PROFILES`); default the
         paper's ``sin^3`` scaled to a peak-to-peak of 1.
 
     Returns

@@ -16,7 +16,7 @@ Design of the experiment (choices the paper leaves open):
 * **Analysis region.** Pixels flagged valid by the transform of ``s`` (3.5 sigma
   from the border) and more than ``margin`` px from the border; the default
   ``ceil(4 sigma) + 1`` adds half a sigma, where the noise-free edge error of the
-  transform is ~1e-6 rad (see :mod:`gridstrain.wft`), and one pixel for the edge of
+  transform is ~1e-6 rad (see :mod:`gridstrain.phase`), and one pixel for the edge of
   the phase maps, repeated beyond the image when a frame is shifted.
 * **Nested stacks.** For each case one stream of ``max(T)`` frames is read once;
   the result for ``T`` uses its first ``T`` frames (running sums), and method B
@@ -74,12 +74,10 @@ from .._validation import (
     check_workers,
 )
 from ..io import OutputDirectory, provenance
-from ..phase import Lattice
-from ..stacks import method_a, method_b, method_c
-from ..stacks._accumulators import MeanImage, MethodC, _PhaseMean
-from ..stacks._methods import phase_offsets
-from ..synthetic import PROFILES, line_profile
-from ..wft import PhaseMaps, wft
+from ..models import PROFILES, line_profile
+from ..phase import Lattice, PhaseMaps, wft
+from ..stacks import MeanImage, MethodC, method_a, method_b, method_c, phase_offsets
+from ..stacks._accumulators import _PhaseMean
 from ._cases import _DERIVATIVES, QUANTITIES, _all_cases, _get
 from ._summary import _at, _write
 from .dataset import (
@@ -311,7 +309,7 @@ def reproduce(out_dir, *, quick: bool = False, overwrite: bool = False, seed: in
         ``A`` and ``gamma`` of eq. (1) (paper: 2**12 and 0.9; see
         :mod:`gridstrain.paper.dataset` on the 12-bit range).
     profile : str
-        Line profile, a key of :data:`gridstrain.synthetic.PROFILES`.
+        Line profile, a key of :data:`gridstrain.models.synthetic.PROFILES`.
     pitch : float
         Grid pitch ``1/f``, px (paper: 5).
     size : (int, int), optional

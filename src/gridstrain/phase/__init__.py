@@ -14,8 +14,13 @@ from __future__ import annotations
 from ._coupling import coupling_corrected
 from ._maps import PhaseMaps, demodulated_at, finite_derivatives
 from ._maps import demodulated_in_place as demodulated_in_place
+
+# shared with gridstrain's other folders, not part of the public API
+from ._spectrum import spectrum_block as spectrum_block
 from ._spectrum import transfer_function
 from ._transform import DEFAULT_MARGIN, transform, wft, wft_complex
+from ._transform import Workspace as Workspace
+from ._validity import filled_box as filled_box
 from .lattice import Lattice, detect_lattice, follow_lattice
 from .window import MIN_MODULUS, Window
 

@@ -254,7 +254,7 @@ def add_unit_sums(psi, mod, dphi, unit, msum, dsum, one, sign):  # pragma: no co
             dsum[1, y, x] += d1 * sign
 
 
-# the series pass's pixel sums (gridstrain.accumulate): numpy's operations per pixel,
+# the series pass's pixel sums (gridstrain.stacks.accumulate): numpy's operations per pixel,
 # without fused multiply-adds, so that a machine with FMA and one without agree
 _SUM_TILE = 1024  # pixels per tile: the tile's sums, origin and differences stay in cache
 

@@ -77,7 +77,7 @@ def demodulated_at(pm: PhaseMaps, lattice: Lattice) -> PhaseMaps:
     unequally and biases the phase by about ``2 pi dk . sigma^2 grad ln A``: a
     homogeneous strain of 10 % under lighting falling by half over 100 px, 0.01 px
     at sigma = 5 px. Transforming each state at its own carrier
-    (:func:`gridstrain.lattice.follow_lattice`) and bringing the maps to the
+    (:func:`gridstrain.phase.follow_lattice`) and bringing the maps to the
     reference's lattice with this function avoids that bias.
     """
     # new maps (the given ones are read-only), written by the first operation

@@ -1,6 +1,6 @@
 """Windowed Fourier transform of grid images: phases and phase derivatives.
 
-The implementation behind the public module :mod:`gridstrain.wft`: the paper's
+The implementation behind the public module :mod:`gridstrain.phase`: the paper's
 eqs. (22)-(25) for any two wave vectors, with the conventions (absolute carrier,
 centred unit-sum Gaussian, mean removal and zero extension) of
 :mod:`gridstrain.conventions`.

@@ -234,7 +234,7 @@ def detect_lattice(image, *, mask=None, max_pitch: float | None = None) -> Latti
 
     Examples
     --------
-    >>> from gridstrain import synthetic
+    >>> from gridstrain.models import synthetic
     >>> img = synthetic.grid_image((128, 128), Lattice.from_pitch(5.0, angle=10.0))
     >>> lat = detect_lattice(img)
     >>> round(lat.pitches[0], 4), round(lat.angles[0], 3)

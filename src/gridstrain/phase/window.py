@@ -60,7 +60,7 @@ class Window:
                     margin: float = DEFAULT_MARGIN,
                     min_modulus: float = MIN_MODULUS) -> Window:
         """The window for ``lattice``: ``sigma`` checked against its pitch (None gives the
-        pitch, as in :func:`gridstrain.wft.wft`)."""
+        pitch, as in :func:`gridstrain.phase.wft`)."""
         return cls(float(check_sigma(sigma, lattice.pitch)), margin, min_modulus)
 
     @property

@@ -1,17 +1,51 @@
 """What a test is run for, from the maps of a result: virtual gauges and
 extensometers with their standard deviations, elastic constants, histories over
-time, animations and ParaView time series.
+time, animations, figures and the HTML report.
 
 Coordinates follow :mod:`gridstrain.conventions` (x the column, y the row, from
 0); strains are dimensionless, loads in the unit the user gives, times in s.
+
+- ``_gauges``, ``_history``, ``_constants``, ``_animate``, ``_loads``: gauges and
+  extensometers, histories, E and ν, animations, a test rig's loads;
+- ``_plotting``: the figures (maps on common colour limits, histories, rigid shifts,
+  the stress–strain plot);
+- ``_report``: the self-contained HTML report of a result.
+
+The figures and the report load matplotlib; their names are imported on first use
+(PEP 562), so that the gauges and the command line's other commands do not pay for it.
 """
+
+from __future__ import annotations
+
+import importlib
 
 from ._animate import animate
 from ._constants import ElasticConstants, elastic_constants
 from ._gauges import GaugeReading, gauge
 from ._history import History, history
 from ._loads import read_loads
-from ._paraview import export_pvd
+
+# public name -> private module that defines it, imported on first use
+_LAZY = {
+    **dict.fromkeys(
+        ("QUANTITIES", "capped_dpi", "chosen_states", "figure_names", "map_norm",
+         "plot_history", "plot_map", "plot_shifts", "plot_states", "plot_stress_strain",
+         "save_figure", "save_figures"), "_plotting"),
+    **dict.fromkeys(("render_report", "write_report"), "_report"),
+}
 
 __all__ = ["ElasticConstants", "GaugeReading", "History", "animate", "elastic_constants",
-           "export_pvd", "gauge", "history", "read_loads"]
+           "gauge", "history", "read_loads", *sorted(_LAZY)]
+
+
+def __getattr__(name: str):
+    module = _LAZY.get(name)
+    if module is None:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    value = getattr(importlib.import_module(f".{module}", __name__), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(_LAZY))

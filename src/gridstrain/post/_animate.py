@@ -8,8 +8,7 @@ import numpy as np
 
 from .._validation import as_path, check_choice, check_pixel_size, check_positive, check_type
 from ..io import atomic_path
-from ..results import SeriesResult
-from ._loads import state_loads
+from ..results import SeriesResult, state_loads
 
 FORMATS = (".gif", ".mp4")
 _VIDEO_EXTRA = "MP4 needs PyAV: pip install 'gridstrain[video]'"
@@ -34,7 +33,7 @@ def animate(result: SeriesResult, name: str, path, *, fps: float = 5.0,
     ----------
     result : SeriesResult
     name : str
-        A quantity of :data:`gridstrain.plotting.QUANTITIES` (``"exx"``,
+        A quantity of :data:`gridstrain.post.QUANTITIES` (``"exx"``,
         ``"ux"``...): strains in µε.
     path : str or os.PathLike
         ``.gif`` (Pillow) or ``.mp4`` (PyAV, the ``video`` extra; MPEG-4 part 2,
@@ -42,7 +41,7 @@ def animate(result: SeriesResult, name: str, path, *, fps: float = 5.0,
     fps : float
         Frames (states) per second.
     limits : {"robust", "common"}
-        The colour limits, over every state (:func:`gridstrain.plotting.map_norm`).
+        The colour limits, over every state (:func:`gridstrain.post.map_norm`).
     pixel_size, unit : float, str, optional
         Displacements in ``unit``.
     load, load_unit, time : optional
@@ -60,7 +59,7 @@ def animate(result: SeriesResult, name: str, path, *, fps: float = 5.0,
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
-    from ..plotting import QUANTITIES, colormap, states_norm
+    from ._plotting import QUANTITIES, colormap, states_norm
 
     check_type(result, "result", SeriesResult)
     check_choice(name, "name", tuple(QUANTITIES))

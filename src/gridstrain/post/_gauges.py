@@ -9,9 +9,8 @@ import numpy as np
 
 from .._validation import check_pixel_size, check_type
 from ..io import roi_mask
-from ..results import SeriesResult
+from ..results import SeriesResult, state_loads
 from . import _correlation
-from ._loads import state_loads
 
 _STRAINS = ("exx", "eyy", "exy")
 

@@ -32,7 +32,7 @@ The file
       and ``systematic_aliasing_strain_per_strain``.
 
     Every variable has ``units`` and ``long_name``. The group ``gridstrain``
-    holds the rest of the :class:`~gridstrain.pipeline.SeriesResult`, field by
+    holds the rest of the :class:`~gridstrain.results.SeriesResult`, field by
     field (every dataclass, dict, tuple and array as HDF5 groups, attributes and
     datasets; no pickle, no JSON), so that :func:`load` returns a result equal
     to the one saved. A field added to a result class is saved and reloaded
@@ -63,13 +63,18 @@ from ._csv import save_csv
 from ._file import FORMAT_VERSION, load, read_attrs, save_result, to_xarray
 from ._file import ResultFile as ResultFile
 from ._file import StoredMaps as StoredMaps
+
+# shared with gridstrain's other folders, not part of the public API
+from ._file import StreamedResult as StreamedResult
 from ._file import kept_open as kept_open
 from ._formats import EXPORTS as EXPORTS
 from ._formats import ExportFormat as ExportFormat
 from ._formats import export as export
 from ._formats import export_path as export_path
 from ._layout import LONG_NAMES as LONG_NAMES
+from ._loads import state_loads
 from ._mat import export_mat
+from ._paraview import export_pvd
 from ._result import MAP_FIELDS as MAP_FIELDS
 from ._result import SeriesResult as SeriesResult
 from ._vtk import export_vtk
@@ -79,10 +84,12 @@ from ._vtk import export_vtk
 __all__ = [
     "FORMAT_VERSION",
     "export_mat",
+    "export_pvd",
     "export_vtk",
     "load",
     "read_attrs",
     "save_csv",
     "save_result",
+    "state_loads",
     "to_xarray",
 ]

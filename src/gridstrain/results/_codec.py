@@ -433,14 +433,14 @@ def _registry() -> dict[str, type]:
     from ..uncertainty import NoiseFloor
 
     return {
-        "gridstrain.pipeline.SeriesResult": SeriesResult,
+        "gridstrain.results.SeriesResult": SeriesResult,
         "gridstrain.kinematics.Measurement": Measurement,
         "gridstrain.kinematics.FringeOrder": FringeOrder,
-        "gridstrain.lattice.Lattice": Lattice,
-        "gridstrain.screening.FrameScreen": FrameScreen,
-        "gridstrain.screening.Trend": Trend,
+        "gridstrain.phase.Lattice": Lattice,
+        "gridstrain.stacks.screening.FrameScreen": FrameScreen,
+        "gridstrain.stacks.screening.Trend": Trend,
         "gridstrain.uncertainty.NoiseFloor": NoiseFloor,
-        "gridstrain.vibration.VibrationReport": VibrationReport,
+        "gridstrain.stacks.vibration.VibrationReport": VibrationReport,
         "gridstrain._wft.PhaseMaps": PhaseMaps,
     }
 

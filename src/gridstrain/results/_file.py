@@ -62,7 +62,7 @@ __all__ = ["FORMAT_VERSION", "ResultFile", "StoredMaps", "load", "read_attrs", "
 def save_result(result: SeriesResult, path, *, pixel_size: float | None = None,
                 unit: str | None = None, overwrite: bool = False,
                 attrs: Mapping | None = None, phase_maps: bool = False) -> Path:
-    """Write a :class:`~gridstrain.pipeline.SeriesResult` to one HDF5 file, atomically.
+    """Write a :class:`~gridstrain.results.SeriesResult` to one HDF5 file, atomically.
 
     Parameters
     ----------
@@ -114,7 +114,7 @@ def save_result(result: SeriesResult, path, *, pixel_size: float | None = None,
 
 @dataclass(frozen=True)
 class ResultFile:
-    """Where and how :func:`gridstrain.pipeline.measure_series` writes its result
+    """Where and how :func:`gridstrain.series.measure_series` writes its result
     while it measures (``output=``): each state's maps go to the file as soon as they
     are measured and leave memory, so that memory does not grow with the number of
     states. The file is the one :func:`save_result` writes (put at ``path``
@@ -332,7 +332,7 @@ def _stored(path, h5, names, state: int | None = None) -> StoredMaps:
 
 
 class StreamedResult:
-    """The sink of :func:`gridstrain.pipeline.measure_series` that writes each state
+    """The sink of :func:`gridstrain.series.measure_series` that writes each state
     into a :class:`ResultFile` as it comes (see :class:`ResultFile`)."""
 
     def __init__(self, spec: ResultFile, n_states: int):

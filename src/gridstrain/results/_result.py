@@ -25,7 +25,7 @@ MAP_FIELDS = {"ux": "px", "uy": "px", "exx": "1", "eyy": "1", "exy": "1"}
 # result type: found when called, so that the type depends on neither of them.
 _ELSEWHERE = {"save": ("gridstrain.results", "save_result"),
               "to_xarray": ("gridstrain.results", "to_xarray"),
-              "plot": ("gridstrain.plotting", "plot_states")}
+              "plot": ("gridstrain.post", "plot_states")}
 
 
 def _elsewhere(action: str):
@@ -96,7 +96,7 @@ class SeriesResult:
     excluded : tuple of tuple of int
         Per series, the numbers of the frames the screening excluded (their files
         and reasons are in ``warnings``); ``n_frames`` counts the frames kept.
-    screening : tuple of gridstrain.screening.FrameScreen
+    screening : tuple of gridstrain.stacks.screening.FrameScreen
         Per series, what the screening measured on every frame (excluded ones
         included).
     uncertainty : dict of str to ndarray, optional
@@ -126,7 +126,7 @@ class SeriesResult:
         The order the states were measured in: natural order (folders, globs, a
         numbered family of files already in it), explicit files put in natural
         order from the order given, or the order given kept
-        (:mod:`gridstrain.sequences`).
+        (:mod:`gridstrain.io`).
     load : (n_states,) float64 ndarray, optional
         The load of each state, in ``load_unit`` (``measure_series(loads=...)``).
     load_unit : str, optional
@@ -141,7 +141,7 @@ class SeriesResult:
         left out around them (``pixels``, invalid in ``valid``), the jump
         (``jump_px``, its ``opening_px`` and ``sliding_px``, known modulo the
         period ``pitch_px`` along it); see
-        :func:`gridstrain.discontinuities.find_discontinuities`.
+        :func:`gridstrain.kinematics.find_discontinuities`.
     """
 
     u: np.ndarray
@@ -238,7 +238,7 @@ class SeriesResult:
 
     def plot(self, name: str = "exx", **options):
         """Maps of ``name`` for every state on common colour limits
-        (:func:`gridstrain.plotting.plot_states`); returns a matplotlib Figure."""
+        (:func:`gridstrain.post.plot_states`); returns a matplotlib Figure."""
         return _elsewhere("plot")(self, name, **options)
 
     def __repr__(self) -> str:

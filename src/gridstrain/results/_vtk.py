@@ -12,10 +12,10 @@ def export_vtk(result: SeriesResult, path, *, pixel_size: float | None = None,
                unit: str | None = None, overwrite: bool = False) -> Path:
     """Write the states as a ParaView time series (``.pvd`` and a folder of ``.vti``).
 
-    See :func:`gridstrain.post.export_pvd`: one ``.vti`` per state as a time step
+    See :func:`gridstrain.results.export_pvd`: one ``.vti`` per state as a time step
     (time, else load, else index), the displacement as one vector in ``unit``,
     the image upright in ParaView, units in the field names.
     """
-    from ..post import export_pvd
+    from ._paraview import export_pvd
 
     return export_pvd(result, path, pixel_size=pixel_size, unit=unit, overwrite=overwrite)

@@ -19,17 +19,26 @@ from .._stats import median
 from .._validation import (
     check_positive,
 )
-from ..kinematics import FringeOrder, Measurement
-from ..kinematics._deformation import eulerian_gradient, small_strain
-from ..kinematics._fringe_order import phase_products, solve_k
-from ..phase import Lattice, Window, finite_derivatives, transform
+from ..kinematics import (
+    FringeOrder,
+    Measurement,
+    eulerian_gradient,
+    phase_products,
+    small_strain,
+    solve_k,
+)
+from ..phase import Lattice, PhaseMaps, Window, finite_derivatives, transform
 from ..stacks.accumulate import SeriesPass
-from ..uncertainty import SPATIAL_RESOLUTION_PER_SIGMA, NoiseFloor, smoothing_bias
-from ..uncertainty._biases import aliasing_advice
-from ..uncertainty._maps import phase_variance, std_from_phase_variance
-from ..uncertainty._noise import NoiseModel
-from ..uncertainty._noise_image import estimate_noise_image
-from ..wft import PhaseMaps
+from ..uncertainty import (
+    SPATIAL_RESOLUTION_PER_SIGMA,
+    NoiseFloor,
+    NoiseModel,
+    aliasing_advice,
+    estimate_noise_image,
+    phase_variance,
+    smoothing_bias,
+    std_from_phase_variance,
+)
 from ._records import _Measured, _Stats, _Summary
 
 # Aliasing of the grid's harmonics is flagged only above this displacement error, px

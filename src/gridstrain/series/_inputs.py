@@ -19,10 +19,9 @@ from .._validation import (
     check_mask,
     check_positive,
 )
-from ..io import FrameSeries, open_series, read_mask
+from ..io import FrameSeries, StateInputs, open_series, read_mask
 from ..phase import Lattice
 from ..phase.window import min_side
-from ..sequences import StateInputs
 
 
 class _ArraySeries:

@@ -2,7 +2,7 @@
 (:class:`~gridstrain.series.MeasureOptions`), then each series read in one pass, each state
 measured against the reference and dropped once its maps are kept.
 
-The stages and their algorithms are described in :mod:`gridstrain.pipeline`, the public
+The stages and their algorithms are described in :mod:`gridstrain.series`, the public
 path of :func:`measure_series`.
 """
 
@@ -27,18 +27,13 @@ from .._validation import (
     check_sigma,
     check_type,
 )
-from ..discontinuities import check_parts, find_discontinuities, without_discontinuities
-from ..io import close_readers
-from ..kinematics import Measurement
+from ..io import StateInputs, close_readers, state_inputs
+from ..kinematics import Measurement, check_parts, find_discontinuities, without_discontinuities
 from ..kinematics.tracking import _Tracker, check_after_warp
-from ..phase import Lattice, Window, coupling_corrected, demodulated_in_place
+from ..phase import DEFAULT_MARGIN, Lattice, Window, coupling_corrected, demodulated_in_place
 from ..phase.lattice import reference_carrier
 from ..results import SeriesResult
-from ..sequences import StateInputs, state_inputs
-from ..uncertainty import aliasing_bias, metrology
-from ..uncertainty._biases import nearest_filled, nearest_index
-from ..uncertainty._noise import NoiseModel
-from ..wft import DEFAULT_MARGIN
+from ..uncertainty import NoiseModel, aliasing_bias, metrology, nearest_filled, nearest_index
 from ._floors import _check_model_units, _check_noise_model, _Noise, _ReferenceFloor
 from ._inputs import (
     _check_fit,
@@ -112,8 +107,8 @@ def measure_series(reference, states, *, lattice: Lattice | None = None,
         or file stem. Explicit files whose names form one numbered family are
         measured in natural order (``frame_2`` before ``frame_10``) unless
         ``keep_order``; :attr:`SeriesResult.state_order` says which order was
-        used. A :class:`gridstrain.sequences.StateInputs` (from
-        :func:`gridstrain.sequences.state_inputs`) is used as it is.
+        used. A :class:`gridstrain.io.StateInputs` (from
+        :func:`gridstrain.io.state_inputs`) is used as it is.
     lattice : Lattice, optional
         The grid's wave vectors; detected on the mean reference image by default.
     sigma : float, optional
@@ -159,7 +154,7 @@ def measure_series(reference, states, *, lattice: Lattice | None = None,
         series (within the mask), in [0, 1].
     outliers : {"exclude", "refuse", "warn"}
         What to do with the frames that the screening flags (every frame is checked
-        against its series by :func:`gridstrain.screening.screen_frames`: no grid
+        against its series by :func:`gridstrain.stacks.screening.screen_frames`: no grid
         or a uniform frame, low contrast, a rigid slip, a frame of another state,
         more than ``max_saturation`` clipped pixels, at the container's ceiling or
         at a level ``2^n - 1``). "exclude" (default): leave them out of every
@@ -169,7 +164,7 @@ def measure_series(reference, states, *, lattice: Lattice | None = None,
         flagged frame. "warn": keep them, name them in the warnings, and give the
         noise floor and uncertainty maps of the states they enter as NaN. A series
         whose frames form a sequence (a steady drift or a growing deformation,
-        :class:`gridstrain.screening.Trend`) is refused, but with "warn", which
+        :class:`gridstrain.stacks.screening.Trend`) is refused, but with "warn", which
         averages it with a warning. So is a state whose image, warped back by its
         measured displacement, shows nothing of the reference's content (another
         specimen: :func:`gridstrain.kinematics.pair_match`, recorded in
@@ -180,7 +175,7 @@ def measure_series(reference, states, *, lattice: Lattice | None = None,
         Compute each series' statistics pass (mean, variance, saturation) and
         method B's transforms on Dask: ``"local"`` (one worker process per core),
         a scheduler address ``"tcp://HOST:PORT"`` or a ``distributed.Client``
-        (see :func:`gridstrain.distributed.connect`; needs the ``distributed``
+        (see :func:`gridstrain.series.connect`; needs the ``distributed``
         extra, and on a cluster workers that see the input files at the same
         paths). Every series is submitted before the first is awaited. The frame
         shifts, the lattice, method C, the noise floor and the kinematics stay on
@@ -188,11 +183,11 @@ def measure_series(reference, states, *, lattice: Lattice | None = None,
         added in another order.
     noise_model : NoiseModel or (K, L), optional
         The camera's noise ``Var = K l + L`` in the stored grey levels of the
-        images (a :class:`gridstrain.noise.NoiseModel`, e.g. from ``gridstrain
+        images (a :class:`gridstrain.uncertainty.NoiseModel`, e.g. from ``gridstrain
         noise``, or a pair from a datasheet). Used for every series instead of
         the noise measured in the data. Default: the temporal variance of each
         series of two frames or more, and for single frames the model estimated
-        from one image (:func:`gridstrain.noise.estimate_noise_image`).
+        from one image (:func:`gridstrain.uncertainty.estimate_noise_image`).
     sigma_pitches : float, optional
         The window's standard deviation in pitches (``sigma = sigma_pitches x
         pitch``, at least 1), instead of ``sigma``.
@@ -220,7 +215,7 @@ def measure_series(reference, states, *, lattice: Lattice | None = None,
         Every frame of the states' inputs (a folder, a glob, a list of files, a
         multi-page TIFF, a ``(T, H, W)`` array) is a state of its own, named after
         its file (and page): a sequence such as a high-speed record
-        (:mod:`gridstrain.sequences`). Without it a series whose frames drift or
+        (:mod:`gridstrain.io`). Without it a series whose frames drift or
         deform steadily is refused rather than averaged.
     reference_frames : int, optional
         The reference is the first ``reference_frames`` frames of the record given
@@ -252,7 +247,7 @@ def measure_series(reference, states, *, lattice: Lattice | None = None,
     Notes
     -----
     Frames are read one at a time, never held whole, in one pass per series
-    (:class:`gridstrain.accumulate.SeriesPass`: screening, shifts, mean, variance,
+    (:class:`gridstrain.stacks.accumulate.SeriesPass`: screening, shifts, mean, variance,
     the noise floor's halves, method B's transforms or method C's sums). Read twice:
     at most 8 reference frames (their mean detects or checks the lattice, which the
     pass needs), the frames the screening excludes (taken out of the sums), and,
@@ -262,7 +257,8 @@ def measure_series(reference, states, *, lattice: Lattice | None = None,
     Examples
     --------
     >>> import numpy as np
-    >>> from gridstrain import Lattice, synthetic
+    >>> from gridstrain import Lattice
+    >>> from gridstrain.models import synthetic
     >>> lat = Lattice.from_pitch(5.0)
     >>> ref = synthetic.grid_image((96, 96), lat)
     >>> cur = synthetic.grid_image((96, 96), lat,
@@ -582,7 +578,7 @@ def _measure(series: list, guesses: list, m: np.ndarray, o: MeasureOptions, step
 def _discontinuities(res: Measurement, rec, name: str, images, follow) -> tuple:
     """``(res, rec, regions, warnings)``: ``res`` measured again without the pixels
     whose window straddles a jump of its displacement
-    (:mod:`gridstrain.discontinuities`), each part the jump cuts the field into
+    (:mod:`gridstrain.kinematics`), each part the jump cuts the field into
     followed from the previous state's field pixel by pixel when ``follow`` (a
     callable giving back its ``(u, valid)``) is given and checked on its own
     content when ``images`` (reference, deformed, mask) are, the fringe order's

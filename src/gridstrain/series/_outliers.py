@@ -71,7 +71,7 @@ def _screen_pass(s, acc: SeriesPass, max_saturation: float, outliers: str):
     except NoGridError as exc:
         raise ValueError(f"{s.name}: {exc}; a state whose grid turned by more than 17 "
                          "degrees or stretched by more than 30 % from the reference's is "
-                         "not followed (gridstrain.lattice.follow_lattice): measure it "
+                         "not followed (gridstrain.phase.follow_lattice): measure it "
                          "against an intermediate state") from None
     except ValueError as exc:
         raise ValueError(f"{s.name}: {exc}") from None

@@ -19,16 +19,21 @@ from .._validation import (
     check_workers,
 )
 from ..kinematics import PairMatch, pair_match
-from ..phase import Lattice, Window, detect_lattice, finite_derivatives, transform
+from ..phase import (
+    DEFAULT_MARGIN,
+    Lattice,
+    PhaseMaps,
+    Window,
+    detect_lattice,
+    finite_derivatives,
+    transform,
+)
 from ..phase.lattice import state_carrier
 from ..phase.window import min_side
-from ..stacks import circular_offset_std, correct_phases, method_b
-from ..stacks._accumulators import FrameOrder
-from ..stacks._methods import phase_offsets
+from ..stacks import FrameOrder, circular_offset_std, correct_phases, method_b, phase_offsets
 from ..stacks.accumulate import PassPlan, SeriesPass
 from ..stacks.vibration import VibrationReport
 from ..stacks.vibration import shift_report as _vibration_report
-from ..wft import DEFAULT_MARGIN, PhaseMaps
 from ._inputs import (
     _as_series,
     _check_pitch_fits,
@@ -178,11 +183,11 @@ def _carrier(s, lattice: Lattice, reference) -> tuple[Lattice | None, list[str]]
     frame's carrier over the whole frame: at the reference's they lose it once ``|dk|
     W`` reaches a bin (2 degrees on a 200-px frame) and the series would be refused
     as showing no grid; and a window centred off the carrier biases the phase where
-    the grid's amplitude varies (:func:`gridstrain.wft.demodulated_at`). So each
+    the grid's amplitude varies (:func:`gridstrain.phase.demodulated_at`). So each
     state's pass and transforms use its own carrier, and its maps are brought to
     the reference's lattice afterwards. None (the reference's) where no peak stands
     out near it (the screening then says what it sees) or the carrier has not moved
-    (:func:`gridstrain.lattice._state_carrier`)."""
+    (:func:`gridstrain.phase.lattice.state_carrier`)."""
     own = state_carrier(next(iter(s.frames(start=0, stop=1))), lattice, reference)
     if own is lattice:
         return None, []
@@ -256,7 +261,7 @@ def _run_pass(s, plan: PassPlan, report: Progress) -> SeriesPass:
 
     def read():
         # the frames as stored: integer frames are summed as read, and method B
-        # transforms them in float32 (gridstrain.accumulate, gridstrain.stacks)
+        # transforms them in float32 (gridstrain.stacks.accumulate, gridstrain.stacks)
         for t, frame in enumerate(s.frames(dtype=None)):
             if not box:
                 box.append(SeriesPass(plan, frame))
@@ -418,8 +423,8 @@ def _contrast_notes(vib) -> list[str]:
 
 
 def _dist():
-    """gridstrain.distributed, imported only when a scheduler is given."""
-    from .. import distributed
+    """gridstrain.series, imported only when a scheduler is given."""
+    from . import _distributed as distributed
 
     return distributed
 
@@ -445,7 +450,7 @@ def _one_series(s, acc: SeriesPass, base, window: Window, max_saturation: float,
     plan = acc.plan
     sc, acc = _screen_pass(s, acc, max_saturation, outliers)
     notes = list(sc.warnings)
-    vib = _diagnose(s.name, sc.shifts, "gridstrain.vibration.frame_shifts", plan.lattice,
+    vib = _diagnose(s.name, sc.shifts, "gridstrain.stacks.vibration.frame_shifts", plan.lattice,
                     method)
     st = acc.statistics()
     stats = _Stats(st.mean, st.variance, st.method, sc.saturation)

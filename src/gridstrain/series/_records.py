@@ -12,9 +12,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from .._stats import median
+from ..phase import PhaseMaps
 from ..stacks.screening import FrameScreen
 from ..stacks.vibration import VibrationReport
-from ..wft import PhaseMaps
 from ._outliers import _saturation_warning, _Screened
 
 

@@ -21,7 +21,7 @@ def empty_state_message(name: str, margin: float, sigma: float, guess, source: s
 
 
 def _streamed(output, n_states: int):
-    from ..results._file import StreamedResult
+    from ..results import StreamedResult
 
     return StreamedResult(output, n_states)
 

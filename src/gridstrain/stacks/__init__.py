@@ -11,7 +11,12 @@
 
 from __future__ import annotations
 
+# shared with gridstrain's other folders, not part of the public API
+from ._accumulators import FrameOrder as FrameOrder
+from ._accumulators import MeanImage as MeanImage
+from ._accumulators import MethodC as MethodC
 from ._accumulators import StackResult
+from ._accumulators import with_screening as with_screening
 from ._methods import (
     circular_offset_std,
     correct_phases,
@@ -21,14 +26,27 @@ from ._methods import (
     method_c,
     prefix_stacks,
 )
+from ._methods import phase_offsets as phase_offsets
+from .accumulate import PassPlan, SeriesPass, SeriesStatistics
+from .screening import FrameScreen, Trend, screen_frames
+from .vibration import VibrationReport, frame_shifts, vibration_report
 
 __all__ = [
+    "FrameScreen",
+    "PassPlan",
+    "SeriesPass",
+    "SeriesStatistics",
     "StackResult",
+    "Trend",
+    "VibrationReport",
     "circular_offset_std",
     "correct_phases",
+    "frame_shifts",
     "mean_image",
     "method_a",
     "method_b",
     "method_c",
     "prefix_stacks",
+    "screen_frames",
+    "vibration_report",
 ]

@@ -18,9 +18,17 @@ from .._validation import (
     float_dtype,
     image_array,
 )
-from ..phase import Lattice, Window, transform
-from ..phase._transform import Workspace, _kernels
-from ..wft import DEFAULT_MARGIN, PhaseMaps, wft, wft_complex
+from ..phase import (
+    DEFAULT_MARGIN,
+    Lattice,
+    PhaseMaps,
+    Window,
+    Workspace,
+    transform,
+    wft,
+    wft_complex,
+)
+from ..phase._transform import _kernels
 from .screening import FrameProbe, FrameScreen, decide
 from .vibration import RigidProbe
 
@@ -78,7 +86,7 @@ class StackResult:
         (they are in the average), method C's motion that is not rigid or given
         shifts that disagree with the frames.
     screening : FrameScreen or None
-        What :func:`gridstrain.screening.decide` found on each frame (no grid, low
+        What :func:`gridstrain.stacks.screening.decide` found on each frame (no grid, low
         contrast, slipped, of another state, clipped), None when not screened.
     """
 
@@ -234,7 +242,7 @@ class _PhaseMean:
     def add_frame(self, img, lattice: Lattice, *, sigma=None, mask=None,
                   margin: float = DEFAULT_MARGIN, index: int = 0,
                   order: FrameOrder | None = None, remove: bool = False) -> None:
-        """Add the WFT of ``img`` (as :func:`~gridstrain.wft.wft` computes it).
+        """Add the WFT of ``img`` (as :func:`~gridstrain.phase.wft` computes it).
 
         With ``order``, ``index`` is the frame's rank in the stack (from 0), and its
         blocks are added after those of frame ``index - 1``. ``remove=True`` takes
@@ -340,7 +348,7 @@ class _CompensatedMean:
     """Running float64 sums ``sum_t exp(-i theta_tj) v_t`` for method C.
 
     ``theta_tj = 2 pi k_j . a_t`` is the phase by which frame ``t``'s rigid shift
-    ``a_t`` advances carrier ``j`` (:mod:`gridstrain.vibration`). The frames are
+    ``a_t`` advances carrier ``j`` (:mod:`gridstrain.stacks.vibration`). The frames are
     copied into a buffer of ``B`` rows and added by one matrix product per batch,
     ``S (4, HW) += W (4, B) @ F (B, HW)`` with the rows of ``W`` the real and
     imaginary parts of the two weights: each frame is read once, and the sums are

@@ -33,8 +33,7 @@ from .._validation import (
     check_workers,
     image_array,
 )
-from ..phase import Lattice
-from ..wft import DEFAULT_MARGIN, PhaseMaps
+from ..phase import DEFAULT_MARGIN, Lattice, PhaseMaps
 from ._accumulators import FrameOrder, MeanImage, MethodC, StackResult, _PhaseMean, with_screening
 from .screening import FrameProbe
 
@@ -95,7 +94,7 @@ def _check_counts(counts) -> list[int]:
 
 class _Screener:
     """Probes each frame of a stack as it is read, in frame order, and says at the end
-    which frames :func:`gridstrain.screening.decide` flags.
+    which frames :func:`gridstrain.stacks.screening.decide` flags.
 
     The bare methods cannot leave a flagged frame out (their frames may be a stream
     read once): they name it in the result's warnings instead, so that no average
@@ -177,7 +176,7 @@ def method_a(frames, lattice: Lattice, *, sigma: float | None = None, mask=None,
     workers : int, optional
         Threads of the transform (default: the usable cores; see :func:`wft`).
     screen : bool
-        Screen every frame as it is read (:mod:`gridstrain.screening`: no grid, low
+        Screen every frame as it is read (:mod:`gridstrain.stacks.screening`: no grid, low
         contrast, a slip, a frame of another state, clipping) and name the flagged
         ones in the result's ``warnings``; they stay in the average (about 2 ms a
         megapixel frame).
@@ -236,7 +235,7 @@ def method_b(frames, lattice: Lattice, *, sigma: float | None = None, mask=None,
         frame and the scratch arrays of one transform (about 100 bytes a pixel in
         float64).
     screen : bool
-        Screen every frame as it is read (:mod:`gridstrain.screening`: no grid, low
+        Screen every frame as it is read (:mod:`gridstrain.stacks.screening`: no grid, low
         contrast, a slip, a frame of another state, clipping) and name the flagged
         ones in the result's ``warnings``; they stay in the average (about 2 ms a
         megapixel frame).
@@ -302,7 +301,7 @@ def method_c(frames, lattice: Lattice, *, shifts=None, sigma: float | None = Non
     """Method C: average the frames with their carriers realigned, then one WFT.
 
     Not in the paper: it uses the frames' rigid shifts, which the carrier phases
-    give (:func:`gridstrain.vibration.frame_shifts`), to remove what the
+    give (:func:`gridstrain.stacks.vibration.frame_shifts`), to remove what the
     vibrations do to method A while keeping its single transform per wave vector.
 
     Parameters
@@ -314,7 +313,7 @@ def method_c(frames, lattice: Lattice, *, shifts=None, sigma: float | None = Non
     shifts : (T, 2) array_like, optional
         ``(alpha_t, beta_t)`` of each frame, px, frame ``t`` being
         ``s(x + alpha_t, y + beta_t)`` (eq. 2), e.g. from
-        :func:`~gridstrain.vibration.frame_shifts`. Default: measured here, in the
+        :func:`~gridstrain.stacks.vibration.frame_shifts`. Default: measured here, in the
         same pass, from each frame's carrier phases relative to the first frame,
         then centred (see Notes).
     sigma : float, optional
@@ -324,7 +323,7 @@ def method_c(frames, lattice: Lattice, *, shifts=None, sigma: float | None = Non
     margin : float
         Invalid band at borders and mask edges, in sigmas (see :func:`wft`).
     screen : bool
-        Screen every frame as it is read (:mod:`gridstrain.screening`: no grid, low
+        Screen every frame as it is read (:mod:`gridstrain.stacks.screening`: no grid, low
         contrast, a slip, a frame of another state, clipping) and name the flagged
         ones in the result's ``warnings``; they stay in the average (about 2 ms a
         megapixel frame).
@@ -341,7 +340,7 @@ def method_c(frames, lattice: Lattice, *, shifts=None, sigma: float | None = Non
     Notes
     -----
     **Principle.** A frame shifted by ``a_t`` has its carrier ``k_j`` advanced by
-    ``theta_tj = 2 pi k_j . a_t`` (:mod:`gridstrain.vibration`). The transform is
+    ``theta_tj = 2 pi k_j . a_t`` (:mod:`gridstrain.stacks.vibration`). The transform is
     linear, so weighting the frames by ``exp(-i theta_tj)`` before averaging,
     ``z_j = (1/T) sum_t exp(-i theta_tj) v_t``, realigns every frame's carrier
     and ``Psi_kj(z_j)`` is the transform of the un-vibrated grid. The weight is a
@@ -358,7 +357,7 @@ def method_c(frames, lattice: Lattice, *, shifts=None, sigma: float | None = Non
     estimates' errors. The carrier of ``z_j`` is that of the grid at the stack's
     mean position ``a_bar`` times ``mean_t exp(-2 i pi k_j . (e_t - e_bar))``:
     the contrast factor is ``1 - 1/2 (2 pi)^2 k_j^T Var(e) k_j`` (1 - 2e-7 for
-    the 5e-4 px of :func:`~gridstrain.vibration.frame_shifts`) instead of eq. (14)'s
+    the 5e-4 px of :func:`~gridstrain.stacks.vibration.frame_shifts`) instead of eq. (14)'s
     ``1 - 1/2 (2 pi)^2 k_j^T Var(a) k_j``, and the phase offset about the mean
     position is third order in the errors (eqs. 28-31 have no first- or
     second-order term left). What remains relative to ``s`` is the mean position
@@ -380,14 +379,14 @@ def method_c(frames, lattice: Lattice, *, shifts=None, sigma: float | None = Non
     the translation is compensated and the rest averages as under method A.
     ``motion_residual`` measures it and a warning is given beyond
     0.05 rad on the carrier (the shifts of the 2 x 2 quadrants, each
-    measured like :func:`~gridstrain.vibration.frame_shifts`). Method A would
+    measured like :func:`~gridstrain.stacks.vibration.frame_shifts`). Method A would
     not do better: it compensates nothing.
 
     Cost: per frame, its carrier coefficients in four quadrants (one product
     with a (W, 5) matrix) and its share of a matrix product that adds a batch of
     frames to the four sums (32 bytes per pixel plus a batch buffer of at most
     64 MiB); then one complex FFT and the band-limited inverse transforms per
-    wave vector (:func:`~gridstrain.wft.wft_complex`). See
+    wave vector (:func:`~gridstrain.phase.wft_complex`). See
     ``benchmarks/bench_method_c.py``.
     """
     check_type(lattice, "lattice", Lattice)
@@ -431,7 +430,7 @@ def prefix_stacks(frames, lattice: Lattice, counts, *, method: str = "A",
         :func:`method_c`; C with its shifts measured in the same pass, centred on
         each prefix).
     sigma, mask
-        As in :func:`gridstrain.wft.wft`.
+        As in :func:`gridstrain.phase.wft`.
     progress : callable, optional
         ``progress(fraction, message)``.
 
@@ -554,7 +553,7 @@ def correct_phases(maps, shifts, *, exact: bool = False, about: str = "origin"):
         offset about the frames' mean position, ``arg mean_t exp(i (theta_tj -
         mean_t theta_tj))`` with ``theta_tj = 2 pi k_j . shift_t`` (exact; ``exact``
         is ignored), which centred measured shifts give
-        (:meth:`~gridstrain.screening.FrameScreen.shifts`): the phases of the grid
+        (:meth:`~gridstrain.stacks.screening.FrameScreen.shifts`): the phases of the grid
         at its mean position, the mean of the unwrapped phases of eq. (32), which
         is what a stack without a frame of reference can give. That offset is
         third order in the vibrations (:func:`circular_offset_std`) but not

@@ -3,7 +3,7 @@
 A series holds ``T`` frames of one static state. Everything the measurement needs
 from its frames is gathered in one read of each frame by :class:`SeriesPass`:
 
-- the screening's per-frame record (:class:`gridstrain.screening.FrameProbe`):
+- the screening's per-frame record (:class:`gridstrain.stacks.screening.FrameProbe`):
   carrier coefficients, hence the rigid shifts ``a_t`` (eq. 2), contrast, tiles,
   clipping;
 - the sums giving the mean image, the temporal variance with the shifts regressed
@@ -39,9 +39,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.linalg import blas
 
-from ..phase import Lattice
+from ..phase import DEFAULT_MARGIN, Lattice
 from ..phase._transform import _kernels
-from ..wft import DEFAULT_MARGIN
 from ._accumulators import FrameOrder, StackResult, _PhaseMean, compensated_result
 from .screening import FrameProbe, FrameScreen, decide
 from .vibration import RigidProbe, shift_matrix
@@ -361,7 +360,7 @@ class SeriesPass:
         return sorted(set(self.records) - self.removed)
 
     def screen(self, *, max_saturation: float = 0.01) -> FrameScreen:
-        """The screening of every frame added (:func:`gridstrain.screening.decide`);
+        """The screening of every frame added (:func:`gridstrain.stacks.screening.decide`);
         the pass must hold frames ``0 .. T-1``."""
         T = self.plan.n_frames
         if sorted(self.records) != list(range(T)):
@@ -473,7 +472,7 @@ class SeriesPass:
         # are turned by it rather than recomputed
         c = np.array([self.records[t].coefficients for t in kept])
         cbar = c.mean(axis=0)
-        phi = np.angle(c * np.conj(cbar))  # (T, 2), as gridstrain.vibration centres them
+        phi = np.angle(c * np.conj(cbar))  # (T, 2), as gridstrain.stacks.vibration centres them
         centre = np.angle(cbar * np.conj(self._c0)) + phi.mean(axis=0)
         lin = sum(self.lin[4 + 4 * h:8 + 4 * h] for h in halves)  # (4, HW)
         wsum = sum(self.wsum[h] for h in halves)  # (2,)

@@ -1,13 +1,13 @@
 """Every frame of a series checked against the series before it is averaged.
 
-A series holds ``T`` frames of one static state (:mod:`gridstrain.pipeline`).
+A series holds ``T`` frames of one static state (:mod:`gridstrain.series`).
 Averaging assumes that they are: one frame of another state, a grid that slipped,
 a black or clipped frame enters the mean image (method A) or the mean phases
 (method B) as silently as a good one, and biases every map by ``1/T`` of its error.
 :func:`screen_frames` reads each frame once and measures, per frame:
 
 - the carrier coefficient of each wave vector over the whole frame (the probe of
-  :func:`gridstrain.vibration.frame_shifts`), hence its rigid shift ``(alpha_t,
+  :func:`gridstrain.stacks.vibration.frame_shifts`), hence its rigid shift ``(alpha_t,
   beta_t)`` (paper eq. 2) and its grid's modulus;
 - the same coefficient on a few tiles of the frame: once the frame's rigid motion
   (translation and small rotation) is taken out, the tiles of a frame of the same
@@ -22,7 +22,7 @@ a black or clipped frame enters the mean image (method A) or the mean phases
 A frame is *flagged* when
 
 - it is uniform or shows no grid (its carrier stands less than 5 times above the
-  white-noise level of the frame, as :func:`gridstrain.vibration.frame_shifts`
+  white-noise level of the frame, as :func:`gridstrain.stacks.vibration.frame_shifts`
   requires of a first frame);
 - its grid's modulus is less than half the series' median (a dark, defocused or
   occluded frame);
@@ -36,7 +36,7 @@ A frame is *flagged* when
 - more than ``max_saturation`` of its pixels are clipped.
 
 Conventions: :mod:`gridstrain.conventions`. The decisions (exclude, refuse or keep
-the flagged frames) belong to the caller; :func:`gridstrain.pipeline.measure_series`
+the flagged frames) belong to the caller; :func:`gridstrain.series.measure_series`
 takes them with its ``outliers`` option.
 """
 
@@ -280,7 +280,7 @@ class FrameScreen:
 
     def shifts(self, keep=None) -> np.ndarray:
         """(T_kept, 2) rigid shifts of the frames ``keep`` (default: all), px,
-        centred on their mean frame, as :func:`gridstrain.vibration.frame_shifts`
+        centred on their mean frame, as :func:`gridstrain.stacks.vibration.frame_shifts`
         gives them for those frames alone."""
         idx = np.arange(self.n_frames) if keep is None else np.asarray(keep, dtype=int)
         return shifts_from_coefficients(self.coefficients[idx], self.lattice)
@@ -458,7 +458,7 @@ class FrameProbe:
     Records of frames probed by equal probes (same lattice, shape, levels and
     mask), in any order and on any machine, are decided together by
     :func:`decide`: the probe is what a streamed or distributed pass over a
-    series needs (:mod:`gridstrain.accumulate`).
+    series needs (:mod:`gridstrain.stacks.accumulate`).
 
     Parameters
     ----------

@@ -8,7 +8,7 @@ wave vectors follow :mod:`gridstrain.conventions`.
 The translation moves the phase of every grid component: for ``s(x + a)`` the
 windowed Fourier coefficient at ``k`` is multiplied by ``exp(+2 i pi k . a)``, i.e.
 its phase gains ``+2 pi k . a`` (the same sign as the phase change that
-:func:`gridstrain.wft.wft` measures between ``s`` and ``s(x + a)``, checked in
+:func:`gridstrain.phase.wft` measures between ``s`` and ``s(x + a)``, checked in
 ``tests/test_vibration.py::test_phase_sign_matches_wft``; in the Lagrangian language
 of the conventions the image ``s(x + a)`` is the specimen displaced by ``u = -a``).
 :func:`frame_shifts` inverts this with one global coefficient per wave vector and
@@ -211,7 +211,8 @@ def frame_shifts(frames, lattice: Lattice, *, reference=None) -> np.ndarray:
 
     Examples
     --------
-    >>> from gridstrain import Lattice, synthetic
+    >>> from gridstrain import Lattice
+    >>> from gridstrain.models import synthetic
     >>> lat = Lattice.from_pitch(5.0)
     >>> shifted = [synthetic.grid_image((64, 64), lat,
     ...                                 displacement=lambda X, Y, a=a: (-a + 0 * X, 0 * Y))
@@ -289,7 +290,7 @@ class VibrationReport:
     lattice : Lattice
         The wave vectors used.
     name : str
-        The series (in :class:`gridstrain.pipeline.SeriesResult`: ``"reference"``,
+        The series (in :class:`gridstrain.results.SeriesResult`: ``"reference"``,
         then each state); empty for a stack measured on its own.
     estimator : str
         Which code estimated the shifts.
@@ -308,7 +309,7 @@ class VibrationReport:
     n_frames: int
     lattice: Lattice
     name: str = ""
-    estimator: str = "gridstrain.vibration.frame_shifts"
+    estimator: str = "gridstrain.stacks.vibration.frame_shifts"
     method: str = "A"
 
     def __post_init__(self):
@@ -356,7 +357,7 @@ def vibration_report(frames, lattice: Lattice) -> VibrationReport:
 
 
 def shift_report(shifts: np.ndarray, lattice: Lattice, *, method: str = "A", name: str = "",
-            estimator: str = "gridstrain.vibration.frame_shifts") -> VibrationReport:
+            estimator: str = "gridstrain.stacks.vibration.frame_shifts") -> VibrationReport:
     """The :class:`VibrationReport` of the measured ``shifts`` (T, 2), px."""
     T = shifts.shape[0]
     if T < 2:  # one frame says nothing about the vibrations

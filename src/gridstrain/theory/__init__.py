@@ -3,7 +3,7 @@
 Coordinates, signs and the window follow :mod:`gridstrain.conventions`. Every
 function here is a formula (or a small numerical evaluation of one); none of them
 touches an image stack. They give the levels that the measured errors of
-:mod:`gridstrain.wft` and of stack averaging converge to, and the corrections that
+:mod:`gridstrain.phase` and of stack averaging converge to, and the corrections that
 remove the vibration-induced phase offset.
 
 Model (paper eq. 2)
@@ -11,7 +11,7 @@ Model (paper eq. 2)
     reference image ``s`` seen through a rigid translation ``a_t = (alpha_t,
     beta_t)`` px (i.i.d., zero mean) plus sensor noise of variance ``K s + L``.
     In the Lagrangian terms of :mod:`gridstrain.conventions` the specimen is
-    displaced by ``u = -a_t``; with :func:`gridstrain.synthetic.grid_image` the
+    displaced by ``u = -a_t``; with :func:`gridstrain.models.synthetic.grid_image` the
     frame is ``grid_image(..., displacement=lambda X, Y: (-alpha_t + 0 * X,
     -beta_t + 0 * Y))``.
 

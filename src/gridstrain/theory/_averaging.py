@@ -25,11 +25,11 @@ from .._validation import (
     check_shape,
     check_type,
 )
+from ..models import line_profile
 from ..phase import Lattice
-from ..synthetic import line_profile
 
 # Samples per period used to compute a profile's Fourier coefficients (at least this
-# many, and at least 16 per retained harmonic): the profiles of gridstrain.synthetic
+# many, and at least 16 per retained harmonic): the profiles of gridstrain.models.synthetic
 # are analytic, so the aliasing error of the FFT falls geometrically with this number
 # and is below 1e-15 for all of them at 1024.
 _MIN_PROFILE_SAMPLES = 1024
@@ -87,7 +87,7 @@ def profile_coefficients(profile="sin3", *, n_harmonics: int = 16) -> np.ndarray
     Parameters
     ----------
     profile : str or callable
-        A name in :data:`gridstrain.synthetic.PROFILES` or a vectorised callable
+        A name in :data:`gridstrain.models.synthetic.PROFILES` or a vectorised callable
         ``l(t)`` of the phase ``t`` (rad), 2 pi-periodic, returning real values
         (dimensionless; eq. 1 wants zero mean and a peak-to-peak of 1).
     n_harmonics : int
@@ -317,7 +317,7 @@ def grid_mean_image_bias(shape, lattice: Lattice, cov, *, amplitude: float = 1.0
         Covariance of the shifts ``(alpha, beta)``, px^2, ``x`` first.
     amplitude, contrast, profile
         ``A``, ``gamma`` and ``l`` of eq. (1), as in
-        :func:`gridstrain.synthetic.grid_image` (``kind="grid"``, no phase
+        :func:`gridstrain.models.synthetic.grid_image` (``kind="grid"``, no phase
         modulation, point sampling).
     exact : bool
         False: Prop. 2.1 (second order). True: the exact expectation for Gaussian
@@ -449,7 +449,7 @@ def phase_offset(shifts, frequency: float, *, exact: bool = False,
     float
         ``delta``, rad, such that ``arg Psi(v_bar) = arg Psi(s) + delta`` (eq. 26):
         shifting a frame by ``+alpha`` raises the phase the windowed Fourier
-        transform of :func:`gridstrain.wft.wft` measures by ``+2 pi f alpha``.
+        transform of :func:`gridstrain.phase.wft` measures by ``+2 pi f alpha``.
         Subtract it to correct the phase.
 
     Notes

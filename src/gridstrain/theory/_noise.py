@@ -30,7 +30,7 @@ def window_energy(sigma: float, *, continuous: bool = False) -> tuple[float, flo
         Standard deviation of the Gaussian window, px.
     continuous : bool
         False: the exact sums over the sampled window of
-        :func:`gridstrain.wft.wft`, centred on a pixel and normalised to unit sum,
+        :func:`gridstrain.phase.wft`, centred on a pixel and normalised to unit sum,
         and over its sampled analytic derivative along one axis (normalised by the
         same sum). True: the continuous limits ``1 / (4 pi sigma^2)`` and
         ``1 / (8 pi sigma^4)``.
@@ -100,7 +100,7 @@ def wft_noise_std(noise_variance: float, modulus: float, sigma: float) -> tuple[
     order in ``Std(phi)``; the sums are those of :func:`window_energy`. With the
     continuous sums: ``Std(phi) = sqrt(v / (8 pi)) / (sigma |Psi|)`` and
     ``Std(dphi) = sqrt(v / (16 pi)) / (sigma^2 |Psi|)``. Against the real
-    :func:`gridstrain.wft.wft` (paper grid, pitch 5, ``sigma = 5``, white noise
+    :func:`gridstrain.phase.wft` (paper grid, pitch 5, ``sigma = 5``, white noise
     of std 30 grey levels, 600 images of 128 x 128, interior pixels; sampling
     error 0.3 %) the measured stds differ from these by -0.02 % (phase),
     -0.1 % (``d phi_1 / dx``) and -0.2 % (``d phi_1 / dy``).
@@ -134,7 +134,7 @@ def compensated_noise_std(noise_variance: float, modulus: float, sigma: float, T
         ``Var(alpha)`` of the vibrations along ``k``, px^2.
     shift_error_variance : float
         Variance of the shift estimates' errors along ``k``, px^2 (about
-        ``(5e-4)^2`` for :func:`gridstrain.vibration.frame_shifts` on a 256 x 256
+        ``(5e-4)^2`` for :func:`gridstrain.stacks.vibration.frame_shifts` on a 256 x 256
         frame of the paper's grid, falling as the inverse of the frame's area).
     centred : bool
         True: the shifts were measured from the frames and centred (what
@@ -213,7 +213,7 @@ def grid_modulus(amplitude: float, contrast: float, *, profile="sin3") -> float:
     Returns
     -------
     float
-        Grey levels: the modulus :func:`gridstrain.wft.wft` measures on the
+        Grey levels: the modulus :func:`gridstrain.phase.wft` measures on the
         noise-free, vibration-free grid (``A/2 * 0.9 * 3/16 = 0.084 A`` for the
         paper's grid). An averaged stack multiplies it by :func:`contrast_factor`.
     """

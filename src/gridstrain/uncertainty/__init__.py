@@ -1,7 +1,7 @@
 """Uncertainty: how precise a map is, and what it does not cover.
 
 - ``_noise``: the sensor's noise model ``Var = K l + L`` from a stack of frames
-  (:func:`~gridstrain.noise.estimate_noise`), the Anscombe transform;
+  (:func:`~gridstrain.uncertainty.estimate_noise`), the Anscombe transform;
 - ``_noise_image``: the same model from one image;
 - ``_maps``: the per-pixel standard deviation of the phases, the displacement and the
   strain (:func:`predict_uncertainty`), the noise floor of a state (:class:`NoiseFloor`)
@@ -9,12 +9,16 @@
 - ``_biases``: the systematic errors (aliasing of harmonics, the window's smoothing);
 - :mod:`~gridstrain.uncertainty.floors`: the noise floors a series measurement states.
 
-The noise model's public path is :mod:`gridstrain.noise`.
+The noise model's public path is :mod:`gridstrain.uncertainty`.
 """
 
 from __future__ import annotations
 
+# shared with gridstrain's other folders, not part of the public API
+from ._biases import aliasing_advice as aliasing_advice
 from ._biases import aliasing_bias, smoothing_bias
+from ._biases import nearest_filled as nearest_filled
+from ._biases import nearest_index as nearest_index
 from ._maps import FWHM_PER_SIGMA as FWHM_PER_SIGMA
 from ._maps import SPATIAL_RESOLUTION_PER_SIGMA as SPATIAL_RESOLUTION_PER_SIGMA
 from ._maps import (
@@ -26,12 +30,28 @@ from ._maps import (
     noise_variance_map,
     predict_uncertainty,
 )
+from ._maps import phase_variance as phase_variance
+from ._maps import std_from_phase_variance as std_from_phase_variance
+from ._noise import (
+    NOISE_RESULT_KIND,
+    NoiseModel,
+    anscombe,
+    estimate_noise,
+    inverse_anscombe,
+)
+from ._noise_image import estimate_noise_image
 
 __all__ = [
+    "NOISE_RESULT_KIND",
     "NoiseFloor",
+    "NoiseModel",
     "Uncertainty",
     "aliasing_bias",
+    "anscombe",
     "displacement_strain_std",
+    "estimate_noise",
+    "estimate_noise_image",
+    "inverse_anscombe",
     "metrology",
     "noise_floor",
     "noise_variance_map",

@@ -15,7 +15,7 @@ from .._validation import (
     as_image,
     check_positive,
 )
-from ..phase._validity import filled_box
+from ..phase import filled_box
 from ._maps import _ATTENUATION, SPATIAL_RESOLUTION_PER_SIGMA
 
 __all__ = ["aliasing_advice", "aliasing_bias", "aliasing_bound_at", "smoothing_bias"]

@@ -27,8 +27,8 @@ from .._validation import (
     check_same_shape,
     check_type,
 )
+from ..phase import PhaseMaps
 from ..theory import window_energy
-from ..wft import PhaseMaps
 
 __all__ = ["NoiseFloor", "Uncertainty", "displacement_strain_std", "metrology", "noise_floor",
            "noise_variance_map", "predict_uncertainty"]
@@ -299,7 +299,7 @@ class NoiseFloor:
     model : dict, optional
         Where the image noise came from: ``source`` ("stack", "single image",
         "given" or a mix per series), and the camera model ``Var = K l + L`` used
-        where one was (:meth:`gridstrain.noise.NoiseModel.as_dict`).
+        where one was (:meth:`gridstrain.uncertainty.NoiseModel.as_dict`).
     frames : (n_series,) tuple of int, optional
         Frames averaged in each series (reference first).
     theory_phase : (n_states, 2) ndarray, optional

@@ -338,7 +338,7 @@ def estimate_noise(frames, lattice: Lattice | None = None, *, shifts=None,
     shifts : (T, 2) array_like, optional
         Per-frame translations ``(alpha_t, beta_t)`` in px, any common origin.
         Default: measured on the fly from the carrier phase (see
-        :func:`gridstrain.vibration.frame_shifts`).
+        :func:`gridstrain.stacks.vibration.frame_shifts`).
     saturation : float, optional
         Stored grey level at which the sensor clips (e.g. 4095, or 65520 for
         12-bit data stored x16). Pixels that reach it in any frame, or whose

@@ -20,9 +20,7 @@ from .._validation import (
     check_positive,
     check_type,
 )
-from ..phase import Lattice, detect_lattice
-from ..phase._spectrum import spectrum_block
-from ..wft import transfer_function
+from ..phase import Lattice, detect_lattice, spectrum_block, transfer_function
 from ._noise import _Q75, NoiseModel, _intervals, _settled, _wls
 
 # Side of the tiles whose median periodogram measures the grid's harmonic content:

@@ -31,10 +31,10 @@ from pathlib import Path
 
 import numpy as np
 
-from ._validation import as_path, check_type
-from .io import write_atomic
-from .plotting import plot_history, plot_shifts, plot_states
-from .results import MAP_FIELDS, SeriesResult, load, read_attrs
+from .._validation import as_path, check_type
+from ..io import write_atomic
+from ..results import MAP_FIELDS, SeriesResult, load, read_attrs
+from ._plotting import plot_history, plot_shifts, plot_states
 
 __all__ = ["render_report", "write_report"]
 

@@ -28,10 +28,11 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import ndimage
 
-from ._validation import as_image, check_mask, check_positive, check_same_shape, check_type
-from .kinematics import FringeOrder, Measurement, coarse_displacement, deformation
-from .stacks.screening import MAD_TO_STD
-from .uncertainty._biases import nearest_filled, nearest_index
+from .._validation import as_image, check_mask, check_positive, check_same_shape, check_type
+from ..stacks.screening import MAD_TO_STD
+from ..uncertainty import nearest_filled, nearest_index
+from ._deformation import Measurement, deformation
+from ._fringe_order import FringeOrder, coarse_displacement
 
 __all__ = ["Discontinuities", "Part", "check_parts", "find_discontinuities",
            "without_discontinuities"]

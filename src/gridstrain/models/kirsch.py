@@ -35,7 +35,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._validation import as_pair, check_choice, check_finite, check_positive, check_range
+from .._validation import as_pair, check_choice, check_finite, check_positive, check_range
 
 __all__ = [
     "ALUMINIUM_POISSON_RATIO",

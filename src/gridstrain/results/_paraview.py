@@ -26,8 +26,8 @@ import numpy as np
 
 from .._validation import check_pixel_size, check_type
 from ..io import OutputDirectory, write_atomic
-from ..results import SeriesResult
 from ._loads import state_loads
+from ._result import SeriesResult
 
 FRAME = ("X = x * pixel size, Y = -y * pixel size (image rows downwards, ParaView's Y "
          "upwards): displacement = (ux, -uy, 0); exy and rotation change sign")

@@ -32,10 +32,10 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.colors import CenteredNorm, Normalize
 from matplotlib.figure import Figure
 
-from ._stats import streamed_percentiles
-from ._validation import check_choice, check_finite, check_pixel_size, check_positive, check_type
-from .io import OutputDirectory, write_atomic
-from .results import SeriesResult
+from .._stats import streamed_percentiles
+from .._validation import check_choice, check_finite, check_pixel_size, check_positive, check_type
+from ..io import OutputDirectory, write_atomic
+from ..results import SeriesResult
 
 __all__ = [
     "capped_dpi",
@@ -56,7 +56,7 @@ LIMITS = ("common", "robust")
 # Robust limits: these percentiles of the valid values of all states.
 _ROBUST = (0.5, 99.5)
 
-#: Symbol and kind of each map of :data:`gridstrain.pipeline.MAP_FIELDS`.
+#: Symbol and kind of each map of :data:`gridstrain.results.MAP_FIELDS`.
 _FIELDS = {
     "ux": (r"$u_x$", "displacement"),
     "uy": (r"$u_y$", "displacement"),
@@ -297,7 +297,7 @@ def figure_names(n_states: int) -> list[str]:
 def save_figures(result, directory, *, pixel_size: float | None = None,
                  unit: str | None = None, overwrite: bool = False,
                  progress: Callable[[float, str], None] | None = None) -> tuple[Path, ...]:
-    """Write every figure of a :class:`gridstrain.pipeline.SeriesResult`.
+    """Write every figure of a :class:`gridstrain.results.SeriesResult`.
 
     Parameters
     ----------
@@ -603,8 +603,8 @@ def plot_history(result, *, point=None, region=None, names=("exx", "eyy", "exy")
         gauge's (:func:`gridstrain.post.gauge`) for strains and displacements.
         State names label the axis up to 15 states.
     """
-    from .post import gauge
-    from .post._loads import state_loads
+    from ..results import state_loads
+    from . import gauge
 
     check_choice(against, "against", ("auto", "time", "load", "state"))
     H, W = result.shape

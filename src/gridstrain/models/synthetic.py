@@ -10,7 +10,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from ._validation import (
+from .._validation import (
     check_choice,
     check_fraction,
     check_int,
@@ -18,7 +18,7 @@ from ._validation import (
     check_positive,
     check_shape,
 )
-from .phase import Lattice
+from ..phase import Lattice
 
 __all__ = [
     "PROFILES",

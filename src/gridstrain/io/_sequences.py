@@ -1,7 +1,7 @@
 """A test as a sequence of states: every frame its own state, in natural order.
 
 gridstrain's model is the paper's: a reference *series* and loaded *series*, each a
-static state imaged ``T`` times and averaged (:mod:`gridstrain.pipeline`). A lab's
+static state imaged ``T`` times and averaged (:mod:`gridstrain.series`). A lab's
 test is often a *sequence* instead: one image per load step or per camera frame (a
 tensile test photographed every few seconds, a high-speed record of hundreds of
 frames). :func:`state_inputs` turns what the user gives into the states to measure:
@@ -33,8 +33,9 @@ from pathlib import Path
 
 import numpy as np
 
-from ._validation import check_int
-from .io import FrameSeries, natural_sort_key, open_series, split_frames
+from .._validation import check_int
+from ._readers import natural_sort_key
+from ._series import FrameSeries, open_series, split_frames
 
 __all__ = ["STATE_ORDERS", "StateInputs", "natural_order", "state_inputs"]
 
@@ -173,7 +174,7 @@ def state_inputs(states, *, each_frame: bool = False, reference_frames: int | No
     Parameters
     ----------
     states : series or sequence of series
-        As for :func:`gridstrain.pipeline.measure_series`.
+        As for :func:`gridstrain.series.measure_series`.
     each_frame : bool
         Every frame of every input is a state of its own (a folder, a glob, a
         list of files, a multi-page TIFF, a ``(T, H, W)`` array); a list of

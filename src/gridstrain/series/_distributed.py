@@ -3,7 +3,7 @@
 Needs the ``distributed`` extra (``pip install gridstrain[distributed]``: Dask's
 arrays, its distributed scheduler and Zarr). The rest of gridstrain never imports
 Dask; this module imports it inside its functions, so that ``import
-gridstrain.distributed`` works without it and every function says what to install.
+gridstrain.series`` works without it and every function says what to install.
 
 Stacks
     :func:`as_dask_stack` turns a series (anything :func:`gridstrain.io.open_series`
@@ -28,8 +28,8 @@ Method B (paper §2.3)
     happen in another order (about 1e-16 relative).
 
 Series of load steps
-    :func:`gridstrain.pipeline.measure_series` takes ``scheduler=`` (see
-    :func:`connect`): each series' one pass (:class:`gridstrain.accumulate.SeriesPass`:
+    :func:`gridstrain.series.measure_series` takes ``scheduler=`` (see
+    :func:`connect`): each series' one pass (:class:`gridstrain.stacks.accumulate.SeriesPass`:
     screening, shifts, statistics, the noise floor's halves, method B's or C's
     sums) runs in tasks of chunks of frames, merged on the workers; the same
     pass, and so the same result to the rounding of the sums, as on one machine.
@@ -49,8 +49,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ._threads import one_blas_thread
-from ._validation import (
+from .._threads import one_blas_thread
+from .._validation import (
     check_float_dtype,
     check_int,
     check_mask,
@@ -58,13 +58,12 @@ from ._validation import (
     check_type,
     float_dtype,
 )
-from .io import FrameSeries, open_series
-from .phase import Lattice
-from .stacks import StackResult
-from .stacks._accumulators import _PhaseMean, with_screening
-from .stacks.accumulate import SeriesPass
-from .stacks.screening import FrameProbe
-from .wft import DEFAULT_MARGIN, wft
+from ..io import FrameSeries, open_series
+from ..phase import DEFAULT_MARGIN, Lattice, wft
+from ..stacks import StackResult, with_screening
+from ..stacks._accumulators import _PhaseMean
+from ..stacks.accumulate import SeriesPass
+from ..stacks.screening import FrameProbe
 
 __all__ = [
     "MissingDistributedError",
@@ -108,7 +107,7 @@ def _dask():
         import dask
         import dask.array as da
     except ImportError as exc:
-        raise MissingDistributedError(f"gridstrain.distributed needs Dask, which cannot "
+        raise MissingDistributedError(f"gridstrain.series needs Dask, which cannot "
                                       f"be imported ({exc}): {_INSTALL}") from exc
     return dask, da
 
@@ -704,7 +703,7 @@ def _chunk_pass(series, start: int, stop: int, plan, origin) -> SeriesPass:
 
 
 def _submit_pass(client, series, plan, *, timeout: float | None = None) -> _Pending:
-    """Submit the pass over ``series`` (:class:`gridstrain.accumulate.SeriesPass`),
+    """Submit the pass over ``series`` (:class:`gridstrain.stacks.accumulate.SeriesPass`),
     in chunks of frames merged on the workers (internal).
 
     ``result()`` gives the merged pass, as one pass over all the frames on this
