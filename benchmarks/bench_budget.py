@@ -9,7 +9,7 @@ For each frame size and method it writes a reference and loaded series
 (``_common.write_states``, ``--frames`` uint16 TIFFs each), runs ``gridstrain measure
 REF STATE -o out.h5 --quiet --method M`` in a fresh interpreter and prints the peak
 resident memory of the child (``VmHWM``) beside the estimate of
-:func:`gridstrain._memory.measurement_bytes`, and their ratio (the estimate must lie
+:func:`gridstrain._runtime.memory.measurement_bytes`, and their ratio (the estimate must lie
 above the peak: the ratio is the margin of the refusal). With ``--held`` it adds runs
 with ``--phase-maps`` and two states, whose maps are all held to the end.
 """
@@ -22,7 +22,7 @@ import tempfile
 from pathlib import Path
 
 from _common import cli_command, machine, run_child, write_states
-from gridstrain._memory import measurement_bytes
+from gridstrain._runtime.memory import measurement_bytes
 
 MiB = 2**20
 

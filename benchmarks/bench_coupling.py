@@ -17,7 +17,7 @@ For each image size it prints the best CPU (and wall) times, ms, of
 and the ratios numpy / compiled and compiled / wft (the CPU ratios are the ones to
 trust on a shared machine), with the largest differences between the two paths' maps.
 ``--keep-freed`` has glibc's malloc keep freed blocks for the next ones, as the
-command line does (:func:`gridstrain._threads.keep_freed_memory`): without it, each
+command line does (:func:`gridstrain._runtime.threads.keep_freed_memory`): without it, each
 call's fresh output maps are faulted in and zeroed by the kernel, a cost both paths
 pay and that grows the smaller the image. ``--float32`` transforms float32 images
 (complex64 maps, as the series' float32 option gives).
@@ -31,7 +31,7 @@ import numpy as np
 
 from _common import grid_test_image, interleaved, machine
 from gridstrain import wft
-from gridstrain._threads import keep_freed_memory
+from gridstrain._runtime.threads import keep_freed_memory
 from gridstrain.phase import _transform, coupling_corrected
 
 

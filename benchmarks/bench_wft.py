@@ -61,7 +61,7 @@ from _common import grid_test_image, interleaved, machine
 from gridstrain import wft
 from gridstrain.phase._transform import _PAD_SIGMAS, _wft
 
-_fft = importlib.import_module("gridstrain._fft")
+_fft = importlib.import_module("gridstrain._runtime.fft")
 _impl = importlib.import_module("gridstrain.phase._transform")
 
 
@@ -149,7 +149,7 @@ def floor_inputs(shape, sigma, dtype):
 
 
 def floor(real, cplx, workers=1):
-    """One rfft2 and two ifft2, on the FFT implementation wft uses (gridstrain._fft)."""
+    """One rfft2 and two ifft2, on the FFT implementation wft uses (gridstrain._runtime.fft)."""
     _fft.call("rfft2", real, workers=workers)
     _fft.call("ifft2", cplx, workers=workers)
     _fft.call("ifft2", cplx, workers=workers)

@@ -29,7 +29,7 @@ PACKAGE = Path(gridstrain.__file__).resolve().parent
 
 # top-level parts of the package (a folder or a flat module) that form the core
 CORE = {
-    "conventions", "_validation", "_progress", "_fft", "_threads", "_stats",
+    "conventions", "_validation", "_progress", "_runtime", "_stats",
     "phase", "stacks", "kinematics", "uncertainty", "theory", "models",
 }
 

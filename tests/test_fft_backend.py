@@ -13,7 +13,7 @@ from gridstrain import Lattice, wft
 from gridstrain.models import synthetic
 from gridstrain.stacks import method_b
 
-_fft = importlib.import_module("gridstrain._fft")
+_fft = importlib.import_module("gridstrain._runtime.fft")
 
 
 class _Spy:

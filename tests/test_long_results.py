@@ -15,7 +15,7 @@ import pytest
 from numpy.testing import assert_array_equal
 
 from gridstrain import Lattice
-from gridstrain._memory import memory_budget
+from gridstrain._runtime.memory import memory_budget
 from gridstrain._stats import streamed_percentiles
 from gridstrain.cli import main
 from gridstrain.models import synthetic

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 import tifffile
 
-from gridstrain import _memory
+from gridstrain._runtime import memory as _memory
 from gridstrain.cli import main
 from gridstrain.io import MemoryBudgetError, check_fits, memory_budget, open_series, read_mask
 

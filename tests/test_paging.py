@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from numpy.testing import assert_array_equal
 
-from gridstrain import _paging
+from gridstrain._runtime import paging as _paging
 from gridstrain.results import ResultFile
 from gridstrain.series import _loop as gp
 from gridstrain.series import measure_series

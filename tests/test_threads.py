@@ -1,4 +1,4 @@
-"""BLAS kept on the calling thread inside the frame loops (gridstrain._threads)."""
+"""BLAS kept on the calling thread inside the frame loops (gridstrain._runtime.threads)."""
 
 from __future__ import annotations
 
@@ -10,7 +10,9 @@ import numpy as np
 import pytest
 from threadpoolctl import threadpool_info
 
-from gridstrain import Lattice, _fft, _threads
+from gridstrain import Lattice
+from gridstrain._runtime import fft as _fft
+from gridstrain._runtime import threads as _threads
 from gridstrain.stacks import method_b
 
 
@@ -76,7 +78,7 @@ def test_the_command_serves_its_threads_from_one_malloc_arena(monkeypatch):
     import gridstrain.cli as cli
 
     if platform.libc_ver()[0] == "glibc":  # glibc takes the settings (in a process of its own)
-        out = subprocess.run([sys.executable, "-c", "from gridstrain._threads import "
+        out = subprocess.run([sys.executable, "-c", "from gridstrain._runtime.threads import "
                               "one_malloc_arena as f, keep_freed_memory as g; "
                               "print(f(), g())"],
                              capture_output=True, text=True, check=True)
@@ -98,7 +100,7 @@ def test_the_command_serves_its_threads_from_one_malloc_arena(monkeypatch):
 
 
 _BLAS_AT_START = (
-    "import os, sys; from gridstrain._threads import blas_on_one_thread_from_start as f; "
+    "import os, sys; from gridstrain._runtime.threads import blas_on_one_thread_from_start as f; "
     "set_ = f(); import numpy, scipy.linalg; from threadpoolctl import threadpool_info; "
     "print(set_, sorted({p['num_threads'] for p in threadpool_info() "
     "if p['internal_api'] == 'openblas'}))")
@@ -195,7 +197,7 @@ def test_huge_pages_are_not_advised_where_the_kernel_stalls_for_them(tmp_path, s
 
     defrag = tmp_path / "defrag"
     defrag.write_text(setting)
-    code = ("import sys; from gridstrain import _threads as t; "
+    code = ("import sys; from gridstrain._runtime import threads as t; "
             f"t._THP_DEFRAG = {str(defrag)!r}; s = t.no_huge_page_stalls_from_start(); "
             "import numpy as np; c = np._core if hasattr(np, '_core') else np.core; "
             "print(s, c.multiarray._get_madvise_hugepage())")

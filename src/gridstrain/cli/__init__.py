@@ -29,7 +29,7 @@ import sys
 import threading
 
 from .. import __version__
-from .._threads import (
+from .._runtime.threads import (
     blas_on_one_thread_from_start,
     keep_freed_memory,
     no_huge_page_stalls_from_start,
@@ -231,7 +231,7 @@ def _main(argv) -> int:
             return int(args.func(args) or 0)
     except MemoryError as exc:
         _as_signal(exc)
-        from .._memory import MemoryBudgetError
+        from .._runtime.memory import MemoryBudgetError
 
         if isinstance(exc, MemoryBudgetError):
             print(f"{where}: error: {_one_line(exc)}", file=sys.stderr)

@@ -22,8 +22,8 @@ from pathlib import Path
 import h5py
 
 from .. import __version__
-from .._memory import memory_budget, parse_size
 from .._progress import bar
+from .._runtime.memory import memory_budget, parse_size
 from ..io import (
     FrameSeries,
     OutputDirectory,

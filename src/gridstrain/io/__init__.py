@@ -60,7 +60,7 @@ Memory
 """
 
 
-from .._memory import (
+from .._runtime.memory import (
     MemoryBudgetError,
     available_memory,
     check_fits,

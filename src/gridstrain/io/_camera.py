@@ -66,7 +66,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import _memory
+from .._runtime import memory as _memory
 
 #: Camera records read frame by frame from their published layouts.
 CAMERA_EXTENSIONS = (".cine", ".mraw")

@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import numpy.typing as npt
 
-from .. import _memory
+from .._runtime import memory as _memory
 from .._validation import (
     as_path,
     check_callable,

@@ -15,8 +15,8 @@ import numpy as np
 from scipy import ndimage
 from skimage.restoration import unwrap_phase
 
+from .._runtime.threads import map_leaves
 from .._stats import median
-from .._threads import map_leaves
 from .._validation import (
     as_image,
     check_int,

@@ -8,7 +8,7 @@ import math
 
 import numpy as np
 
-from .. import _fft
+from .._runtime import fft as _fft
 from ._spectrum import _axis_band, spectrum_block, transfer_function
 from ._validity import _gaps
 

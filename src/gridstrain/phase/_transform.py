@@ -17,8 +17,8 @@ import numpy as np
 from numpy.lib.stride_tricks import as_strided
 from scipy import fft as sfft
 
-from .. import _fft
-from .._threads import map_leaves
+from .._runtime import fft as _fft
+from .._runtime.threads import map_leaves
 from .._validation import (
     as_image,
     check_choice,
@@ -113,7 +113,7 @@ def wft(image, lattice: Lattice, *, sigma: float | None = None, mask=None,
     rfft2 and two complex ifft2 of the padded size, the least any FFT method needs
     for the two phase maps alone (``benchmarks/bench_wft.py``); with ``workers=2``,
     the two wave vectors run at once (about 1.6x faster on two cores). The FFTs run
-    on the implementation :mod:`gridstrain._fft` chooses (scipy.fft, or MKL with
+    on the implementation :mod:`gridstrain._runtime.fft` chooses (scipy.fft, or MKL with
     the ``mkl`` extra).
 
     ``derivatives="fast"`` transforms only ``Psi``, one inverse per wave vector,

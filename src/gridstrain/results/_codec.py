@@ -36,7 +36,7 @@ from collections.abc import Mapping
 import h5py
 import numpy as np
 
-from .._memory import available_memory, format_size
+from .._runtime.memory import available_memory, format_size
 from ._result import SeriesResult
 
 # Lossless filters of the images, masks and tables: gzip is read everywhere. Level 1:

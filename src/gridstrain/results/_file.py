@@ -18,7 +18,7 @@ from pathlib import Path
 import h5py
 import numpy as np
 
-from .._memory import format_size
+from .._runtime.memory import format_size
 from .._validation import as_path, check_float_dtype, check_mapping, check_pixel_size, check_type
 from ..io import hdf5_file, hdf5_stream
 from ._codec import (

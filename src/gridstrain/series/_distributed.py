@@ -49,7 +49,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .._threads import one_blas_thread
+from .._runtime.threads import one_blas_thread
 from .._validation import (
     check_float_dtype,
     check_int,

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import _memory
+from .._runtime import memory as _memory
 from .._validation import (
     check_choice,
     check_mask,
@@ -281,7 +281,7 @@ def _loads_and_times(loads, frame_rate, series: list, *, each_frame: bool,
 
 def _check_memory(series: list, *, method: str, held: bool) -> None:
     """Refuse, before the first frame is transformed, a measurement whose estimated
-    peak exceeds the memory available (:mod:`gridstrain._memory`)."""
+    peak exceeds the memory available (:mod:`gridstrain._runtime.memory`)."""
     n_states = len(series) - 1
     peak = _memory.measurement_bytes(series[0].shape, method=method, n_states=n_states,
                                      held_states=held)

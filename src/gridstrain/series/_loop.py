@@ -14,9 +14,9 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import ndimage
 
-from .. import _paging
 from .._progress import Progress, null_progress
-from .._threads import one_blas_thread
+from .._runtime import paging as _paging
+from .._runtime.threads import one_blas_thread
 from .._validation import (
     SIGMA_PITCH_RTOL,
     check_callable,
@@ -297,7 +297,7 @@ def measure_series(reference, states, *, lattice: Lattice | None = None,
     extra = _loads_and_times(loads, frame_rate, series, each_frame=o.each_frame,
                              first_frame=o.reference_frames or 0)
     # BLAS on the calling thread throughout: its products here are small or memory
-    # bound, and OpenBLAS's own threads would spin between them (gridstrain._threads)
+    # bound, and OpenBLAS's own threads would spin between them (gridstrain._runtime.threads)
     try:
         with one_blas_thread():
             o = _window(series[0], m, o, steps)

@@ -13,8 +13,8 @@ from collections.abc import Iterable
 import numpy as np
 
 from .._progress import Progress, null_progress
+from .._runtime.threads import map_bounded
 from .._stats import median
-from .._threads import map_bounded
 from .._validation import (
     check_workers,
 )

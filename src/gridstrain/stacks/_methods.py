@@ -24,7 +24,7 @@ from dataclasses import replace
 import numpy as np
 
 from .._progress import Progress, null_progress
-from .._threads import map_bounded, one_blas_thread
+from .._runtime.threads import map_bounded, one_blas_thread
 from .._validation import (
     as_image,
     as_int_tuple,
@@ -149,7 +149,7 @@ def _average(frames, progress: Progress, what: str,
     """The streamed float64 sum of ``frames`` (each probed by ``screener``)."""
     acc = MeanImage()
     items = _frames(frames)
-    with one_blas_thread():  # the screening's small products (gridstrain._threads)
+    with one_blas_thread():  # the screening's small products (gridstrain._runtime.threads)
         for i, img, total in (items if screener is None else screener.frames(items)):
             acc.add(img)
             _report(progress, i, total, what)
@@ -394,7 +394,7 @@ def method_c(frames, lattice: Lattice, *, shifts=None, sigma: float | None = Non
     run = MethodC(lattice, shifts)
     screener = _Screener(lattice, screen)
     # frames converted while copied into the batch: one pass instead of three
-    with one_blas_thread():  # small per-frame products (gridstrain._threads)
+    with one_blas_thread():  # small per-frame products (gridstrain._runtime.threads)
         for i, img, total in screener.frames(_frames(frames, convert=False)):
             run.add(img, f"frames[{i}]")
             _report(progress, i, total, "method C")

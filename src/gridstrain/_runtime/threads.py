@@ -32,7 +32,7 @@ def _controller():
     # threads, which the limit must reach too)
     from threadpoolctl import ThreadpoolController
 
-    from . import _fft
+    from . import fft as _fft
 
     _fft.name()
     return ThreadpoolController()
