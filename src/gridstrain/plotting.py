@@ -687,7 +687,10 @@ def plot_stress_strain(constants) -> Figure:
         ax.plot((slope * s + off) * 1e6, s, color=line[0].get_color(), lw=1)
     ax.set_xlabel(r"strain (µε)")
     ax.set_ylabel(f"stress ({c.stress_unit})")
-    ax.set_title(f"E = {c.E:.5g} [{c.E_ci[0]:.5g}, {c.E_ci[1]:.5g}] {c.stress_unit}, "
+    from .post import modulus_unit
+
+    k, unit = modulus_unit(c.E, c.stress_unit)
+    ax.set_title(f"E = {c.E * k:.4g} [{c.E_ci[0] * k:.4g}, {c.E_ci[1] * k:.4g}] {unit}, "
                  f"ν = {c.nu:.3f} [{c.nu_ci[0]:.3f}, {c.nu_ci[1]:.3f}] (95 %)", fontsize=9)
     ax.axvline(0.0, color="0.6", lw=0.8)
     ax.legend(fontsize=8)

@@ -7,11 +7,11 @@ Coordinates follow :mod:`gridstrain.conventions` (x the column, y the row, from
 """
 
 from ._animate import animate
-from ._constants import ElasticConstants, elastic_constants
+from ._constants import ElasticConstants, elastic_constants, modulus_unit, stress_unit
 from ._gauges import GaugeReading, gauge
 from ._history import History, history
 from ._loads import read_loads
 from ._paraview import export_pvd
 
 __all__ = ["ElasticConstants", "GaugeReading", "History", "animate", "elastic_constants",
-           "export_pvd", "gauge", "history", "read_loads"]
+           "export_pvd", "gauge", "history", "modulus_unit", "read_loads", "stress_unit"]
