@@ -12,6 +12,8 @@ from ._gauges import GaugeReading, gauge
 from ._history import History, history
 from ._loads import read_loads
 from ._paraview import export_pvd
+from ._units import STRAIN_UNITS, strain_scale
 
-__all__ = ["ElasticConstants", "GaugeReading", "History", "animate", "elastic_constants",
-           "export_pvd", "gauge", "history", "modulus_unit", "read_loads", "stress_unit"]
+__all__ = ["STRAIN_UNITS", "ElasticConstants", "GaugeReading", "History", "animate",
+           "elastic_constants", "export_pvd", "gauge", "history", "modulus_unit",
+           "read_loads", "strain_scale", "stress_unit"]
