@@ -60,7 +60,7 @@ def animate(result: SeriesResult, name: str, path, *, fps: float = 5.0,
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
-    from ..plotting import QUANTITIES, colormap, states_norm
+    from ..plotting import QUANTITIES, colormap, state_quantity, states_norm
 
     check_type(result, "result", SeriesResult)
     check_choice(name, "name", tuple(QUANTITIES))
@@ -77,20 +77,12 @@ def animate(result: SeriesResult, name: str, path, *, fps: float = 5.0,
             raise ImportError(_VIDEO_EXTRA) from None
     ps, unit = check_pixel_size(pixel_size, unit)
     load, load_unit, time = state_loads(result, load=load, load_unit=load_unit, time=time)
-    base = QUANTITIES[name][1]
-    scale, drawn = (1e6, "µε") if base == "1" else \
-        (1e3, "mrad") if base == "rad" else ((ps, unit) if ps is not None else (1.0, "px"))
-
     def values_of(i):
-        if name == "rotation":
-            v = np.asarray(result.measurements[i].rotation)
-        elif name.endswith("_std"):
-            if not result.uncertainty or name not in result.uncertainty:
-                raise ValueError(f"this result has no {name} map")
-            v = np.asarray(result.uncertainty[name][i])
-        else:
-            v = np.asarray(result.get_map(name)[i])
-        return np.where(np.asarray(result.valid[i]), v * scale, np.nan)
+        # in the unit the figures draw (µε, mrad, degrees, the length unit)
+        v = state_quantity(result, name, i, pixel_size=ps, unit=unit)[0]
+        return np.where(np.asarray(result.valid[i]), v, np.nan)
+
+    drawn = state_quantity(result, name, 0, pixel_size=ps, unit=unit)[1]
 
     n = result.n_states
     def valued(i):  # NaN where not valid
