@@ -181,3 +181,26 @@ def test_paraview_reads_the_time_load_and_derived_strains(stored, tmp_path):
     e1 = _principal(np.asarray(res.exx), np.asarray(res.eyy), np.asarray(res.exy))[0]
     got = vtk_to_numpy(img.GetPointData().GetArray("e1 [-]")).reshape(N, N)[::-1]
     assert_allclose(got, e1[1], rtol=2e-7, atol=1e-12)  # float32 for viewing
+
+
+def test_result_derived_and_finite_strains_of_one_state_and_of_all(stored):
+    from gridstrain.kinematics import finite_strains, principal_strains
+
+    res = stored[0]
+    every, one = res.principal_strains(), res.principal_strains(1)
+    assert every.e1.shape == (2, N, N)
+    assert_array_equal(one.e1, every.e1[1])
+    unc = res.uncertainty
+    direct = principal_strains(res.exx[1], res.eyy[1], res.exy[1], exx_std=unc["exx_std"][1],
+                               eyy_std=unc["eyy_std"][1], exy_std=unc["exy_std"][1])
+    assert_array_equal(one.equivalent_std, direct.equivalent_std)
+    f = res.finite_strains(0)
+    g = finite_strains(res.exx[0], res.eyy[0], res.exy[0], res.measurements[0].rotation)
+    assert_array_equal(f.Lxx, g.Lxx)
+    assert_array_equal(res.finite_strains().Exy[0], g.Exy)
+    # small strains: Green-Lagrange differs from exx by (exx^2 + (exy + w)^2) / 2,
+    # below 5e-6 at the 2e-3 strains of this result
+    valid = np.asarray(res.valid[0])
+    assert np.nanmax(np.abs(f.Exx - res.exx[0])[valid]) < 5e-6
+    with pytest.raises(ValueError, match="state must be an index of the 2 state"):
+        res.principal_strains(2)
