@@ -204,3 +204,12 @@ def test_result_derived_and_finite_strains_of_one_state_and_of_all(stored):
     assert np.nanmax(np.abs(f.Exx - res.exx[0])[valid]) < 5e-6
     with pytest.raises(ValueError, match="state must be an index of the 2 state"):
         res.principal_strains(2)
+
+
+def test_the_command_lists_the_export_registry():
+    """``gridstrain export --help`` names the formats without importing the results
+    package: its list must be the registry's."""
+    from gridstrain.cli import export as command
+    from gridstrain.results import EXPORTS
+
+    assert tuple(EXPORTS) == command._FORMATS
