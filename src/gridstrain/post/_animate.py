@@ -27,7 +27,8 @@ def _frame_text(name, i, load, load_unit, time) -> str:
 def animate(result: SeriesResult, name: str, path, *, fps: float = 5.0,
             limits: str = "robust", pixel_size: float | None = None,
             unit: str | None = None, load=None, load_unit: str | None = None, time=None,
-            dpi: float = 100, overwrite: bool = False, progress=None) -> Path:
+            dpi: float = 100, strain_units: str = "microstrain", overwrite: bool = False,
+            progress=None) -> Path:
     """Write an animation of one quantity over the states, on fixed colour limits.
 
     Parameters
@@ -35,7 +36,7 @@ def animate(result: SeriesResult, name: str, path, *, fps: float = 5.0,
     result : SeriesResult
     name : str
         A quantity of :data:`gridstrain.plotting.QUANTITIES` (``"exx"``,
-        ``"ux"``...): strains in µε.
+        ``"ux"``, ``"e1"``...).
     path : str or os.PathLike
         ``.gif`` (Pillow) or ``.mp4`` (PyAV, the ``video`` extra; MPEG-4 part 2,
         FFmpeg's own encoder). Written atomically.
@@ -49,6 +50,9 @@ def animate(result: SeriesResult, name: str, path, *, fps: float = 5.0,
         Shown in each frame's title (default: the result's own).
     dpi : float
         Resolution of the frames (6.4 in wide).
+    strain_units : {"microstrain", "%", "1"}
+        Strains in µε (default), percent or dimensionless
+        (:data:`gridstrain.post.STRAIN_UNITS`).
     overwrite : bool
     progress : callable, optional
         ``progress(fraction, message)``.
@@ -79,10 +83,12 @@ def animate(result: SeriesResult, name: str, path, *, fps: float = 5.0,
     load, load_unit, time = state_loads(result, load=load, load_unit=load_unit, time=time)
     def values_of(i):
         # in the unit the figures draw (µε, mrad, degrees, the length unit)
-        v = state_quantity(result, name, i, pixel_size=ps, unit=unit)[0]
+        v = state_quantity(result, name, i, pixel_size=ps, unit=unit,
+                           microstrain=strain_units)[0]
         return np.where(np.asarray(result.valid[i]), v, np.nan)
 
-    drawn = state_quantity(result, name, 0, pixel_size=ps, unit=unit)[1]
+    drawn = state_quantity(result, name, 0, pixel_size=ps, unit=unit,
+                           microstrain=strain_units)[1]
 
     n = result.n_states
     def valued(i):  # NaN where not valid
