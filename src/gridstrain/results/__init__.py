@@ -76,7 +76,6 @@ from ._layout import LONG_NAMES as LONG_NAMES
 from ._mat import export_mat
 from ._netcdf import export_netcdf
 from ._result import DERIVED_FIELDS as DERIVED_FIELDS
-from ._result import FINITE_FIELDS as FINITE_FIELDS
 from ._result import MAP_FIELDS as MAP_FIELDS
 from ._result import SeriesResult as SeriesResult
 from ._vtk import export_vtk

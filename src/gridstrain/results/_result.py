@@ -30,9 +30,6 @@ MAP_FIELDS = {"ux": "px", "uy": "px", "exx": "1", "eyy": "1", "exy": "1"}
 #: The strains derived from the tensor (:meth:`SeriesResult.principal_strains`), with
 #: their units; each has a ``*_std`` when the result has uncertainty maps.
 DERIVED_FIELDS = dict(DERIVED_STRAINS)
-#: The finite strains (:meth:`SeriesResult.finite_strains`): Green-Lagrange ``E*`` and
-#: logarithmic ``L*``, dimensionless.
-FINITE_FIELDS = dict.fromkeys(("Exx", "Eyy", "Exy", "Lxx", "Lyy", "Lxy"), "1")
 
 
 # What a result does with itself, implemented by the file and the figures, which know the
