@@ -275,7 +275,22 @@ def _pair_match(dt):
     assert all(isinstance(v, float) for v in (m.match, m.rho, m.rho_match, m.rho_sd))
 
 
+def _derived_strains(dt):
+    # maps of a measurement in: derived maps in its precision
+    from gridstrain.kinematics import finite_strains, principal_strains
+
+    ref, cur = _ref_cur(dt)
+    m = gridstrain.measure(ref[0], cur[0], lattice=LAT, guess=None)
+    p = principal_strains(*m.strain, exx_std=m.strain[0], eyy_std=m.strain[1],
+                          exy_std=m.strain[2])
+    for name in ("e1", "principal_angle", "equivalent", "max_shear", "e1_std"):
+        assert getattr(p, name).dtype == _precision(dt), name
+    f = finite_strains(*m.strain, m.rotation)
+    assert f.Exx.dtype == f.Lxy.dtype == _precision(dt)
+
+
 ENTRY_POINTS = {
+    "principal_strains": _derived_strains, "finite_strains": _derived_strains,
     "wft": _wft, "method_a": _method_a, "method_b": _method_b, "method_c": _method_c,
     "wft_complex": _wft_complex,
     "prefix_stacks": _prefix_stacks, "correct_phases": _correct_phases,

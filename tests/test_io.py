@@ -646,11 +646,31 @@ def test_csv_maps_and_refusals(tmp_path):
     with pytest.raises(ValueError, match=r"columns\['v'\] has shape \(5,\), expected "
                                          r"\(6,\) like columns\['u'\]"):
         write_csv(tmp_path / "b.csv", {"u": np.zeros(6), "v": np.zeros(5)})
-    with pytest.raises(ValueError, match="column names must be"):
-        write_csv(tmp_path / "b.csv", {"a,b": np.zeros(6)})
+    with pytest.raises(ValueError, match="column names must be non-empty strings"):
+        write_csv(tmp_path / "b.csv", {"": np.zeros(6)})
     with pytest.raises(TypeError, match="real numeric"):
         write_csv(tmp_path / "b.csv", {"z": np.zeros(3, complex)})
     assert not (tmp_path / "b.csv").exists()
+
+
+def test_csv_quotes_what_needs_it_and_pandas_reads_it_back(tmp_path):
+    """Names from other people's files: commas, quotes, line breaks, a leading space,
+    non-ASCII text, a formula-looking cell; RFC 4180 quoting keeps each in its cell."""
+    pd = pytest.importorskip("pandas")
+    names = np.array(['a,b', 'say "hi"', "two\nlines", " lead", "µε 5 %", "=1+1",
+                      "plain", "cr\rlf"])
+    cols = {"state": names, 'load [kN, "raw"]': np.arange(8) * 0.5,
+            "x\ny": np.arange(8, dtype=np.int64)}
+    path = write_csv(tmp_path / "q.csv", cols)
+    text = path.read_bytes().decode("utf-8")
+    assert text.startswith('state,"load [kN, ""raw""]","x\ny"\r\n')
+    assert "\r\nplain,3.0,6\r\n" in text  # unquoted where nothing needs it
+    assert '"cr\rlf"' in text
+    df = pd.read_csv(path, keep_default_na=False)
+    assert list(df.columns) == list(cols)
+    assert list(df["state"]) == list(names)
+    assert_array_equal(df['load [kN, "raw"]'], cols['load [kN, "raw"]'])
+    assert_array_equal(df["x\ny"], cols["x\ny"])
 
 
 # ------------------------------------------------------------------------ TIFF series

@@ -150,3 +150,57 @@ def test_save_figures_count_and_names(tmp_path):
         save_figures(res, tmp_path / "no" / "figs")
     with pytest.raises(ValueError, match="unit"):
         save_figures(res, tmp_path / "f2", pixel_size=0.04)
+
+
+@pytest.fixture(scope="module")
+def sheared():
+    """Two states of a 64 x 64 grid (the paper's model, eq. 1) under a uniform strain
+    with shear: exx = 1.5e-3 s, eyy = -0.5e-3 s, exy = 0.4e-3 s (s = 1, 2)."""
+    rng = np.random.default_rng(8)
+
+    def frames(s):
+        def disp(X, Y):
+            x, y = X - 32, Y - 32
+            return s * (1.5e-3 * x + 0.8e-3 * y), s * (-0.5e-3 * y)
+
+        img = synthetic.grid_image((64, 64), LAT, amplitude=1500.0,
+                                   displacement=disp) + 200.0
+        return np.array([synthetic.add_noise(img, rng=rng) for _ in range(2)])
+
+    return measure_series(frames(0.0), [frames(1.0), frames(2.0)], lattice=LAT)
+
+
+def test_derived_strains_drawn_in_percent_and_degrees(sheared):
+    from gridstrain.post import plot_history, plot_states
+
+    res = sheared
+    exx, eyy, exy = (np.asarray(a) for a in (res.exx, res.eyy, res.exy))
+    # Mohr's circle, written here: the oracle of what the panels hold
+    e1 = (exx + eyy) / 2 + np.sqrt(((exx - eyy) / 2) ** 2 + exy**2)
+    angle = np.degrees(np.arctan2(exy, (exx - eyy) / 2) / 2)
+    fig = plot_states(res, "e1", microstrain="%")
+    # each panel: the reference image, then the map over it
+    drawn = [ax.get_images()[1] for ax in fig.axes if len(ax.get_images()) == 2]
+    assert len(drawn) == 2
+    for k, im in enumerate(drawn):
+        valid = ~np.ma.getmaskarray(im.get_array())
+        # the same float64 numbers, scaled: rounding only (1e-16 of 0.3 %)
+        assert_allclose(im.get_array().data[valid], 100 * e1[k][valid], rtol=1e-12)
+    assert "(%)" in fig.axes[-1].get_ylabel()  # the colour bar
+    fig = plot_states(res, "principal_angle")
+    im = next(ax.get_images()[1] for ax in fig.axes if len(ax.get_images()) == 2)
+    valid = ~np.ma.getmaskarray(im.get_array())
+    assert_allclose(im.get_array().data[valid], angle[0][valid], rtol=1e-12)
+    assert "(deg)" in fig.axes[-1].get_ylabel()
+    # the history of a gauge's e1, in percent, with error bars of its std
+    fig = plot_history(res, names=("e1",), microstrain="%")
+    line = fig.axes[0].get_lines()[0]
+    from gridstrain.post import gauge
+
+    p = gauge(res).principal_strains()
+    assert_allclose(line.get_ydata(), 100 * p.e1, rtol=1e-12)
+    assert fig.axes[0].get_ylabel() == "(%)"
+    # the truth, e1 of the applied tensor (1.58e-3 s), within 4 stated std (2.7e-4 on
+    # the 530 valid pixels of two 2-frame 64 px states: e1 follows exx here)
+    truth = np.array([1.0, 2.0]) * (0.5e-3 + np.hypot(1.0e-3, 0.4e-3))
+    assert np.all(np.abs(p.e1 - truth) < 4 * p.e1_std)

@@ -94,6 +94,62 @@ def test_modulus_command(coupon, tmp_path, capsys):
                "--loads", str(loads), "--json", "--strain-range", "0", "1e-3"])
     assert rc == 0
     assert len(json.loads(capsys.readouterr().out)["states"]) == 5
+    # printed in GPa, the unit a modulus of 70 000 MPa reads best in
+    rc = main(["modulus", str(path), "--region", *map(str, REGION), "--area", str(AREA),
+               "--loads", str(loads)])
+    assert rc == 0
+    line = capsys.readouterr().out.splitlines()[1]
+    assert line.startswith("E  = 70.")
+    assert line.endswith("] GPa")
     # no loads: one line, exit 2
     assert main(["modulus", str(path), "--area", "20"]) == 2
     assert "no loads" in capsys.readouterr().err
+
+
+def _reading(load, load_unit, axial):
+    """A gauge that read exactly ``axial`` (and -0.3 of it across), std 1e-6."""
+    n = len(load)
+    one = np.full(n, 1e-6)
+    zero = np.zeros(n)
+    from gridstrain.post import GaugeReading
+
+    return GaugeReading(states=tuple(f"s{i}" for i in range(n)), where="test",
+                        n_pixels=np.ones(n, int), exx=axial, exx_std=one,
+                        eyy=-0.3 * axial, eyy_std=one, exy=zero, exy_std=one, ux=zero,
+                        ux_std=one, uy=zero, uy_std=one, load=np.asarray(load, float),
+                        load_unit=load_unit)
+
+
+@pytest.mark.parametrize(("load_unit", "area", "area_unit", "to_mpa", "shown"), [
+    ("N", 20.0, "mm2", 1.0, "70 GPa"),
+    ("N", 0.2, "cm2", 1e-2, "70 GPa"),       # was "10 kPa" as a unit
+    ("kN", 0.2, "cm²", 10.0, "70 GPa"),
+    ("N", 2e-5, "m2", 1e-6, "70 GPa"),
+    ("kN", 20.0, "mm^2", 1e3, "70 GPa"),
+])
+def test_stress_in_mpa_and_modulus_in_gpa(load_unit, area, area_unit, to_mpa, shown):
+    """70 GPa read by a noise-free gauge: the same E whatever units the load and the
+    area come in; ``to_mpa`` is the stress in MPa of one load unit on one area unit."""
+    load = np.linspace(100.0, 1000.0, 6)
+    axial = load / area * to_mpa / E  # E = 70e3 MPa
+    c = elastic_constants(_reading(load, load_unit, axial), area=area, area_unit=area_unit)
+    assert c.stress_unit == "MPa"
+    # exact data: the fit's rounding only, 1e-9 relative
+    assert abs(c.E / E - 1) < 1e-9
+    assert c.E_text().startswith(f"{shown}, 95 % interval [")
+    assert c.E_text().endswith("] GPa")
+
+
+def test_soft_and_imperial_moduli_keep_a_sensible_unit():
+    load = np.linspace(1.0, 10.0, 6)
+    soft = elastic_constants(_reading(load, "N", load / 10.0 / 5.0), area=10.0)  # 5 MPa
+    assert soft.E_text().startswith("5 MPa")
+    # 10 Msi (aluminium): lbf on in2 stays psi
+    imp = elastic_constants(_reading(load, "lbf", load / 0.5 / 1e7), area=0.5,
+                            area_unit="in2")
+    assert imp.stress_unit == "psi"
+    assert imp.E_text().startswith("10 Msi")
+    # units it does not know are written as they came, unscaled
+    odd = elastic_constants(_reading(load, "kgf", load / 2.0 / 7e3), area=2.0)
+    assert odd.stress_unit == "kgf/mm2"
+    assert odd.E_text().startswith("7000 kgf/mm2")

@@ -11,6 +11,7 @@ import math
 
 import numpy as np
 import pytest
+from numpy.testing import assert_allclose
 
 from gridstrain import measure_series
 from gridstrain.cli import main
@@ -190,6 +191,34 @@ def test_loads_file_is_read_strictly(tmp_path):
             read_loads(p, names)
 
 
+def test_gauge_principal_strains_hold_the_truth(series_file):
+    """A homogeneous strain along the axes: e1 = exx, e2 = eyy, angle 0, and the
+    equivalent strain of the closed form (2/sqrt 3) sqrt(exx^2 + exx eyy + eyy^2)."""
+    res, _, steps = series_file
+    g = gauge(res, region=(30, 30, 130, 100))
+    p = g.principal_strains()
+    for i, s in enumerate(steps):
+        exx, eyy = s * EXX, s * EYY
+        # 4 stated std, as for the components: e1 and e2 are exx and eyy to first
+        # order here (R = 0.67e-3 s, 100 times their std)
+        assert abs(p.e1[i] - exx) < 4 * p.e1_std[i]
+        assert abs(p.e2[i] - eyy) < 4 * p.e2_std[i]
+        assert abs(p.principal_angle[i]) < 4 * p.principal_angle_std[i]
+        eq = 2 / math.sqrt(3) * math.sqrt(exx**2 + exx * eyy + eyy**2)
+        assert abs(p.equivalent[i] - eq) < 4 * p.equivalent_std[i]
+        assert abs(p.max_shear[i] - (exx - eyy) / 2) < 4 * p.max_shear_std[i]
+    # with the components' std of the axes: exy's std moves the angle, exx's e1
+    assert_allclose(p.e1_std, g.exx_std, rtol=1e-3)  # exy / R ~ 1e-2: 1e-4 change
+    cols = g.columns(derived=True)
+    assert list(cols)[7:11] == ["e1 [-]", "e1_std [-]", "e2 [-]", "e2_std [-]"]
+    assert "principal_angle [rad]" in cols
+    # the table in percent and with the angle in degrees
+    text = g.table(strain_units="%", derived=True)
+    assert "exx [%]" in text
+    assert "principal_angle [deg]" in text
+    assert f"{g.exx[2] * 100:.5f}" in text
+
+
 def test_gauge_command_writes_the_csv(series_file, tmp_path, capsys):
     res, path, steps = series_file
     loads = tmp_path / "loads.csv"
@@ -209,6 +238,14 @@ def test_gauge_command_writes_the_csv(series_file, tmp_path, capsys):
     assert [r["state"] for r in rows] == list(res.names[1:])
     assert float(rows[2]["load [N]"]) == 300.0
     assert abs(float(rows[2]["exx [-]"]) - 3 * EXX) < 4 * float(rows[2]["exx_std [-]"])
+    # --derived: the principal strains in the table and the CSV; --strain-units %
+    rc = main(["gauge", str(path), "--region", "1.5", "1.5", "6.5", "5", "--derived",
+               "--strain-units", "%", "-o", str(tmp_path / "d.csv")])
+    assert rc == 0
+    assert "e1 [%]" in capsys.readouterr().out
+    with open(tmp_path / "d.csv", newline="") as fh:
+        head = next(csv.reader(fh))
+    assert head[7:11] == ["e1 [-]", "e1_std [-]", "e2 [-]", "e2_std [-]"]
     # an existing file is refused without --overwrite: one line, exit 2
     assert main(["gauge", str(path), "-o", str(out)]) == 2
     assert "exists" in capsys.readouterr().err

@@ -48,6 +48,24 @@ def test_gif_frames_share_their_colours_and_name_the_state(series_file, tmp_path
     assert np.abs(f[0, :, :int(0.7 * w)] - f[-1, :, :int(0.7 * w)]).mean() > 10
 
 
+def test_animations_in_percent_and_of_the_derived_strains(series_file, tmp_path):
+    import imageio.v3 as iio
+
+    from gridstrain.post import animate
+
+    res, _, _ = series_file
+    micro = iio.imread(animate(res, "exx", tmp_path / "u.gif"), index=None)
+    pct = iio.imread(animate(res, "exx", tmp_path / "p.gif", strain_units="%"),
+                     index=None)
+    assert pct.shape == micro.shape
+    # the colour bar's unit and ticks (and the layout around them) change
+    assert np.abs(micro.astype(float) - pct).mean() > 1
+    e1 = iio.imread(animate(res, "e1", tmp_path / "e1.gif"), index=None)
+    assert e1.shape[0] == res.n_states
+    with pytest.raises(ValueError, match="strain units must be one of"):
+        animate(res, "exx", tmp_path / "x.gif", strain_units="permille")
+
+
 def test_animate_command_mp4_and_gif(series_file, tmp_path, capsys):
     pytest.importorskip("av")
     import imageio.v3 as iio

@@ -438,6 +438,12 @@ def test_plot_command(result, tmp_path, capsys):
                             "rotation.png", "history.png"])
     assert main(["plot", str(path), "-o", str(out)]) == 2  # no silent overwrite
     assert "earlier gridstrain run" in capsys.readouterr().err
+    # the derived strains, in percent
+    out = tmp_path / "derived"
+    assert main(["plot", str(path), "-o", str(out), "--maps", "e1,principal_angle,e1_std",
+                 "--strain-units", "%", "--dpi", "40"]) == 0
+    assert sorted(p.name for p in out.glob("*.png")) == [
+        "e1.png", "e1_std.png", "history.png", "principal_angle.png"]
 
 
 def test_common_limits_span_every_state(result):

@@ -41,6 +41,7 @@ from .._runtime.threads import (
 _COMMANDS = {
     "animate": "an animation (GIF, MP4) of a map over the states on fixed colour limits",
     "demo": "simulate a plate with a hole in tension and measure it",
+    "export": "write a result file as MATLAB, CSV, ParaView (VTK) or NetCDF files",
     "gauge": "virtual strain gauge and extensometer: mean strain of every state with its "
              "std",
     "history": "strain rate, velocity and acceleration of a gauge over time, smoothed, with "

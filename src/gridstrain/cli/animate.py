@@ -19,7 +19,8 @@ def register(sub) -> None:
         "an MP4 (PyAV: pip install 'gridstrain[video]'), on colour limits fixed over all "
         "the states, with each state's name, time and load in its frame.")
     add_result_options(p)
-    p.add_argument("quantity", help="ux, uy, exx, eyy, exy, rotation, exx_std...")
+    p.add_argument("quantity", help="ux, uy, exx, eyy, exy, rotation, exx_std..., or the "
+                   "derived e1, e2, principal_angle, equivalent, max_shear")
     p.add_argument("-o", "--output", required=True, metavar="FILE.mp4|FILE.gif",
                    help="the animation; its extension chooses the format")
     p.add_argument("--fps", type=float, default=5.0, help="states per second (default 5)")
@@ -28,6 +29,9 @@ def register(sub) -> None:
                    "(robust, the default) or their full range (common)")
     p.add_argument("--dpi", type=float, default=100, help="frame resolution (default 100: "
                    "640 px wide)")
+    p.add_argument("--strain-units", choices=("microstrain", "%", "1"),
+                   default="microstrain",
+                   help="strains in microstrain (default), percent or dimensionless")
     p.add_argument("--px", action="store_true",
                    help="displacements in px even when the file has a pixel size")
     p.add_argument("--overwrite", action="store_true", help="replace an existing file")
@@ -44,7 +48,8 @@ def run(args) -> int:
     try:
         path = animate(result, args.quantity, out, fps=args.fps, limits=args.limits,
                        pixel_size=ps, unit=unit, load=ld, load_unit=lu, time=t,
-                       dpi=args.dpi, overwrite=args.overwrite)
+                       dpi=args.dpi, strain_units=args.strain_units,
+                       overwrite=args.overwrite)
     except ImportError as exc:  # the optional video writer: one line naming the extra
         print(f"gridstrain animate: error: {exc}", file=sys.stderr)
         return 2

@@ -22,11 +22,21 @@ def register(sub) -> None:
         "pixels of a region, a point or a polygon) and optionally an extensometer (the "
         "engineering strain between two points) on every state, each with its standard "
         "deviation from the noise, propagated through the window's correlation. Prints a "
-        "table (strains in microstrain); -o writes a CSV (strains dimensionless).")
+        "table (strains in --strain-units, microstrain by default); -o writes a CSV "
+        "(strains dimensionless). --derived adds the principal strains e1, e2, their "
+        "angle, the equivalent (von Mises) strain and the maximum shear of the mean "
+        "tensor, with their std.")
     add_result_options(p)
     add_gauge_options(p)
     p.add_argument("--extensometer", type=float, nargs=4, metavar=("X0", "Y0", "X1", "Y1"),
                    help="also the engineering strain between the points (x0, y0), (x1, y1)")
+    p.add_argument("--strain-units", choices=("microstrain", "%", "1"),
+                   default="microstrain",
+                   help="strains of the printed table in microstrain (default), percent or "
+                   "dimensionless; the CSV stays dimensionless")
+    p.add_argument("--derived", action="store_true",
+                   help="also e1, e2, principal_angle, equivalent, max_shear and their std "
+                   "(table and CSV)")
     add_output_options(p, "the table")
     p.set_defaults(func=run)
 
@@ -36,7 +46,7 @@ def run(args) -> int:
     result, src, ps, unit, ld, lu, t = open_result(args)
     out = output_path(args, src, "gauge CSV")
     reading = gauge_of(args, result, ps, unit, ld, lu, t, extensometer=args.extensometer)
-    print(reading.table())
+    print(reading.table(strain_units=args.strain_units, derived=args.derived))
     if out is not None:
-        print(reading.to_csv(out, overwrite=args.overwrite))
+        print(reading.to_csv(out, derived=args.derived, overwrite=args.overwrite))
     return 0

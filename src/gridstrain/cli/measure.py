@@ -231,9 +231,9 @@ def _output_options(o) -> None:
     o.add_argument("--csv", metavar="FILE", help="also write one CSV row per valid pixel")
     o.add_argument("--figures", metavar="DIR", help="also write PNG maps into DIR")
     o.add_argument("--export", metavar="FORMATS",
-                   help="also write mat (MATLAB), vtk (ParaView: a .pvd time series of .vti) "
-                   "and/or csv next to "
-                   "the output, comma-separated (e.g. mat,vtk)")
+                   help="also write mat (MATLAB), vtk (ParaView: a .pvd time series of .vti), "
+                   "csv and/or netcdf (a clean NetCDF-4 copy) next to the output, "
+                   "comma-separated (e.g. mat,vtk); gridstrain export does the same later")
     o.add_argument("--phase-maps", action="store_true", default=None,
                    help="also store the phase maps of every series in the output (about 3x "
                    "the file; gridstrain.load then gives them back). Holds every state's "
@@ -461,6 +461,9 @@ def _check_outputs(opts: dict, n_states: int, inputs: set[Path]) -> None:
         OutputDirectory(os.path.expanduser(opts["figures"]), figure_names(n_states),
                         overwrite=opts["overwrite"], what="figures directory")
     for f in opts.get("export") or ():
+        if _export_path(out, f).resolve() == out.resolve():
+            raise ValueError(f"--export {f} would write {out}, the output file itself: "
+                             f"name the output with another suffix (.h5)")
         check_output_file(_export_path(out, f), f"{f} export", opts["overwrite"], inputs)
     if opts.get("report"):
         check_output_file(Path(os.path.expanduser(opts["report"])), "report file",

@@ -24,8 +24,8 @@ def register(sub) -> None:
     p.add_argument("--area", type=float, required=True, metavar="A",
                    help="the specimen's cross-section, in --area-unit")
     p.add_argument("--area-unit", default="mm2", metavar="UNIT",
-                   help="unit of --area: mm2 (default; with loads in N the stress is in "
-                   "MPa), m2, cm2, in2...")
+                   help="unit of --area: mm2 (default), cm2, m2 (with loads in N, kN or "
+                   "MN the stress is in MPa), in2 (with lbf: psi)")
     p.add_argument("--axis", choices=("x", "y"), default="x",
                    help="loading direction (default x: exx is the axial strain)")
     p.add_argument("--strain-range", type=float, nargs=2, metavar=("LO", "HI"),
@@ -60,8 +60,7 @@ def run(args) -> int:
         print_json(d)
         return 0
     print(reading.where)
-    print(f"E  = {c.E:.5g} {c.stress_unit}, 95 % interval [{c.E_ci[0]:.5g}, "
-          f"{c.E_ci[1]:.5g}]")
+    print(f"E  = {c.E_text()}")
     print(f"nu = {c.nu:.4f}, 95 % interval [{c.nu_ci[0]:.4f}, {c.nu_ci[1]:.4f}]")
     print(f"{len(c.states)} states fitted; intervals from the {c.interval_basis} (reduced "
           f"chi2 {c.reduced_chi2[0]:.2f} axial, {c.reduced_chi2[1]:.2f} transverse)")

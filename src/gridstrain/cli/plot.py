@@ -24,12 +24,14 @@ def register(sub) -> None:
                    help="output directory (default: RESULT_figures next to the result)")
     p.add_argument("--maps", default="ux,uy,exx,eyy,exy,rotation", metavar="NAMES",
                    help="comma-separated quantities (ux, uy, exx, eyy, exy, rotation, "
-                   "exx_std...; default ux,uy,exx,eyy,exy,rotation)")
+                   "exx_std..., and the derived e1, e2, principal_angle, equivalent, "
+                   "max_shear, e1_std...; default ux,uy,exx,eyy,exy,rotation)")
     p.add_argument("--limits", choices=("common", "robust"), default="common",
                    help="colour limits over all states: their full range (common, the "
                    "default) or their 0.5-99.5th percentiles (robust)")
-    p.add_argument("--strain-units", choices=("microstrain", "1"), default="microstrain",
-                   help="strains in microstrain (default) or dimensionless")
+    p.add_argument("--strain-units", choices=("microstrain", "%", "1"),
+                   default="microstrain",
+                   help="strains in microstrain (default), percent or dimensionless")
     p.add_argument("--point", type=int, nargs=2, metavar=("X", "Y"),
                    help="strain history of the states at this pixel")
     p.add_argument("--region", type=int, nargs=4, metavar=("X0", "Y0", "X1", "Y1"),
@@ -68,7 +70,7 @@ def run(args) -> int:
         ps = unit = None
     out = Path(os.path.expanduser(args.output)) if args.output else \
         src.with_name(src.stem + "_figures")
-    micro = args.strain_units == "microstrain"
+    micro = args.strain_units
     figures = {f"{n}.{args.format}": (lambda n=n: plot_states(
         result, n, limits=args.limits, microstrain=micro, pixel_size=ps, unit=unit))
         for n in names}

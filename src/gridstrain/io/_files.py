@@ -4,6 +4,7 @@ folders; reading back its own HDF5 and noise files (see :mod:`gridstrain.io`).""
 from __future__ import annotations
 
 import contextlib
+import csv
 import datetime
 import errno
 import functools
@@ -574,7 +575,7 @@ def write_csv(path, columns: Mapping[str, np.ndarray], *, overwrite: bool = Fals
     columns : dict of str to array_like
         Arrays of one shape; each is flattened in C order (row by row for an
         (H, W) map) into one column. Booleans are written 0/1; text (a numpy
-        ``str`` array, such as state names) as it is, without commas or quotes.
+        ``str`` array, such as state names) as it is, quoted where needed.
     overwrite : bool
         Replace an existing file.
     digits : int, optional
@@ -590,8 +591,11 @@ def write_csv(path, columns: Mapping[str, np.ndarray], *, overwrite: bool = Fals
 
     Notes
     -----
-    One header line holds the column names, separated by commas; no index column,
-    no quoting (names may not contain commas, quotes or line breaks).
+    Written by the standard library's :mod:`csv` writer (RFC 4180: comma-separated,
+    a field holding a comma, a double quote or a line break enclosed in double
+    quotes, a double quote doubled, ``QUOTE_MINIMAL``), UTF-8 without a byte-order
+    mark, CRLF line ends; one header line holds the column names; no index
+    column. ``pandas.read_csv`` and spreadsheets read it back as written.
     """
     columns = check_mapping(columns, "columns")
     if not columns:
@@ -602,13 +606,9 @@ def write_csv(path, columns: Mapping[str, np.ndarray], *, overwrite: bool = Fals
     names, arrays = [], []
     first = None
     for key, value in columns.items():
-        if not isinstance(key, str) or not key or re.search(r"[,\"'\r\n]", key):
-            raise ValueError("column names must be non-empty strings without commas, "
-                             f"quotes or line breaks, got {key!r}")
+        if not isinstance(key, str) or not key:
+            raise ValueError(f"column names must be non-empty strings, got {key!r}")
         arr = np.asarray(value)
-        if arr.dtype.kind == "U" and any(re.search(r"[,\"'\r\n]", t) for t in arr.flat):
-            raise ValueError(f"columns[{key!r}] holds text with a comma, a quote or a line "
-                             "break, which this CSV (no quoting) cannot hold")
         if arr.dtype.kind not in "biufU":
             raise TypeError(f"columns[{key!r}] must be a real numeric, boolean or text "
                             f"array, got dtype {arr.dtype}")
@@ -619,17 +619,20 @@ def write_csv(path, columns: Mapping[str, np.ndarray], *, overwrite: bool = Fals
                              f"{first[1]} like columns[{first[0]!r}]")
         names.append(key)
         arrays.append(arr.reshape(-1))
-    line = ",".join(_column_format(a.dtype, digits) for a in arrays) + "\n"
+    formats = [_column_format(a.dtype, digits) for a in arrays]
     n = arrays[0].size
     dest = as_path(path, "path")
     with atomic_path(dest, overwrite=overwrite) as tmp, \
-            open(tmp, "x", encoding="utf-8", newline="\n") as fh:
-        fh.write(",".join(names) + "\n")
+            open(tmp, "x", encoding="utf-8", newline="") as fh:
+        # RFC 4180's CRLF: the writer then quotes a lone CR too ("\n" would not)
+        writer = csv.writer(fh, quoting=csv.QUOTE_MINIMAL, lineterminator="\r\n")
+        writer.writerow(names)
         for start in range(0, n, chunk_rows):
             # tolist gives Python ints and floats: "%r" of a float is then the
             # shortest exact decimal, and bools format as 0/1 through "%d"
-            cols = [a[start:start + chunk_rows].tolist() for a in arrays]
-            fh.write("".join(line % row for row in zip(*cols, strict=True)))
+            cols = [[f % v for v in a[start:start + chunk_rows].tolist()]
+                    for f, a in zip(formats, arrays, strict=True)]
+            writer.writerows(zip(*cols, strict=True))
     return dest
 
 

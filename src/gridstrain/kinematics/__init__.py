@@ -9,6 +9,9 @@
   along a series;
 - ``_pair_match``: whether the deformed image shows the reference's specimen, its
   content compared once warped back (:func:`pair_match`);
+- ``_derived``: what the strain tensor gives besides its components: the principal,
+  equivalent and maximum shear strains with their std (:func:`principal_strains`) and
+  the finite strains rebuilt from the displacement gradient (:func:`finite_strains`);
 - ``_spline_kernels``: the compiled cubic splines (numba), loaded on first use.
 """
 
@@ -19,6 +22,13 @@ from ._deformation import Measurement, deformation, measure
 # shared with gridstrain's other folders, not part of the public API
 from ._deformation import eulerian_gradient as eulerian_gradient
 from ._deformation import small_strain as small_strain
+from ._derived import (
+    DERIVED_STRAINS,
+    FiniteStrains,
+    PrincipalStrains,
+    finite_strains,
+    principal_strains,
+)
 from ._discontinuities import (
     Discontinuities,
     Part,
@@ -37,18 +47,23 @@ from ._fringe_order import solve_k as solve_k
 from ._pair_match import PairMatch, pair_match
 
 __all__ = [
+    "DERIVED_STRAINS",
     "FRINGE_ORDER_SOURCES",
     "CoarseEstimate",
     "Discontinuities",
+    "FiniteStrains",
     "FringeOrder",
     "Measurement",
     "PairMatch",
     "Part",
+    "PrincipalStrains",
     "check_parts",
     "coarse_displacement",
     "deformation",
     "find_discontinuities",
+    "finite_strains",
     "measure",
     "pair_match",
+    "principal_strains",
     "without_discontinuities",
 ]

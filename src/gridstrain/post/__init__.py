@@ -20,10 +20,11 @@ from __future__ import annotations
 import importlib
 
 from ._animate import animate
-from ._constants import ElasticConstants, elastic_constants
+from ._constants import ElasticConstants, elastic_constants, modulus_unit, stress_unit
 from ._gauges import GaugeReading, gauge
 from ._history import History, history
 from ._loads import read_loads
+from ._units import STRAIN_UNITS, strain_scale
 
 # public name -> private module that defines it, imported on first use
 _LAZY = {
@@ -34,8 +35,9 @@ _LAZY = {
     **dict.fromkeys(("render_report", "write_report"), "_report"),
 }
 
-__all__ = ["ElasticConstants", "GaugeReading", "History", "animate", "elastic_constants",
-           "gauge", "history", "read_loads", *sorted(_LAZY)]
+__all__ = ["STRAIN_UNITS", "ElasticConstants", "GaugeReading", "History", "animate",
+           "elastic_constants", "gauge", "history", "modulus_unit", "read_loads", "strain_scale",
+           "stress_unit", *sorted(_LAZY)]
 
 
 def __getattr__(name: str):

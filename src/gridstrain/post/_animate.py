@@ -26,7 +26,8 @@ def _frame_text(name, i, load, load_unit, time) -> str:
 def animate(result: SeriesResult, name: str, path, *, fps: float = 5.0,
             limits: str = "robust", pixel_size: float | None = None,
             unit: str | None = None, load=None, load_unit: str | None = None, time=None,
-            dpi: float = 100, overwrite: bool = False, progress=None) -> Path:
+            dpi: float = 100, strain_units: str = "microstrain", overwrite: bool = False,
+            progress=None) -> Path:
     """Write an animation of one quantity over the states, on fixed colour limits.
 
     Parameters
@@ -34,7 +35,7 @@ def animate(result: SeriesResult, name: str, path, *, fps: float = 5.0,
     result : SeriesResult
     name : str
         A quantity of :data:`gridstrain.post.QUANTITIES` (``"exx"``,
-        ``"ux"``...): strains in µε.
+        ``"ux"``, ``"e1"``...).
     path : str or os.PathLike
         ``.gif`` (Pillow) or ``.mp4`` (PyAV, the ``video`` extra; MPEG-4 part 2,
         FFmpeg's own encoder). Written atomically.
@@ -48,6 +49,9 @@ def animate(result: SeriesResult, name: str, path, *, fps: float = 5.0,
         Shown in each frame's title (default: the result's own).
     dpi : float
         Resolution of the frames (6.4 in wide).
+    strain_units : {"microstrain", "%", "1"}
+        Strains in µε (default), percent or dimensionless
+        (:data:`gridstrain.post.STRAIN_UNITS`).
     overwrite : bool
     progress : callable, optional
         ``progress(fraction, message)``.
@@ -59,7 +63,7 @@ def animate(result: SeriesResult, name: str, path, *, fps: float = 5.0,
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
-    from ._plotting import QUANTITIES, colormap, states_norm
+    from ._plotting import QUANTITIES, colormap, state_quantity, states_norm
 
     check_type(result, "result", SeriesResult)
     check_choice(name, "name", tuple(QUANTITIES))
@@ -76,20 +80,14 @@ def animate(result: SeriesResult, name: str, path, *, fps: float = 5.0,
             raise ImportError(_VIDEO_EXTRA) from None
     ps, unit = check_pixel_size(pixel_size, unit)
     load, load_unit, time = state_loads(result, load=load, load_unit=load_unit, time=time)
-    base = QUANTITIES[name][1]
-    scale, drawn = (1e6, "µε") if base == "1" else \
-        (1e3, "mrad") if base == "rad" else ((ps, unit) if ps is not None else (1.0, "px"))
-
     def values_of(i):
-        if name == "rotation":
-            v = np.asarray(result.measurements[i].rotation)
-        elif name.endswith("_std"):
-            if not result.uncertainty or name not in result.uncertainty:
-                raise ValueError(f"this result has no {name} map")
-            v = np.asarray(result.uncertainty[name][i])
-        else:
-            v = np.asarray(result.get_map(name)[i])
-        return np.where(np.asarray(result.valid[i]), v * scale, np.nan)
+        # in the unit the figures draw (µε, mrad, degrees, the length unit)
+        v = state_quantity(result, name, i, pixel_size=ps, unit=unit,
+                           microstrain=strain_units)[0]
+        return np.where(np.asarray(result.valid[i]), v, np.nan)
+
+    drawn = state_quantity(result, name, 0, pixel_size=ps, unit=unit,
+                           microstrain=strain_units)[1]
 
     n = result.n_states
     def valued(i):  # NaN where not valid

@@ -11,10 +11,58 @@ from scipy import stats
 from .._validation import check_choice, check_positive, check_type
 from ._gauges import GaugeReading
 
-#: Stress units of common load / area pairs; others are written "load/area".
-_STRESS_UNITS = {("N", "mm2"): "MPa", ("kN", "mm2"): "GPa", ("N", "m2"): "Pa",
-                 ("kN", "m2"): "kPa", ("MN", "m2"): "MPa", ("lbf", "in2"): "psi",
-                 ("kN", "cm2"): "10 MPa", ("N", "cm2"): "10 kPa"}
+#: Forces in N and areas in mm2 of the units a load and an area are given in: with both
+#: known the stress is in MPa (N/mm2); lbf over in2 stays in psi; other pairs are
+#: written "load/area", unscaled.
+_FORCE_N = {"mN": 1e-3, "N": 1.0, "daN": 10.0, "kN": 1e3, "MN": 1e6}
+_AREA_MM2 = {"mm2": 1.0, "cm2": 1e2, "dm2": 1e4, "m2": 1e6}
+
+
+def _area_unit(text: str) -> str:
+    return str(text).strip().replace("²", "2").replace("^2", "2")
+
+
+def stress_unit(load_unit: str | None, area_unit: str) -> tuple[float, str]:
+    """``(factor, unit)``: load / area times ``factor`` is a stress in ``unit``.
+
+    MPa for every force unit of ``N``, ``kN``, ``MN``, ``daN``, ``mN`` over an area in
+    ``mm2``, ``cm2``, ``dm2``, ``m2`` (``mm²`` and ``mm^2`` too): a load of 5 N on 1 cm2
+    is 0.05 MPa, not "5 N/cm2"; psi for ``lbf`` over ``in2``; else the quotient
+    unscaled, its unit written ``load/area``.
+    """
+    area = _area_unit(area_unit)
+    if load_unit in _FORCE_N and area in _AREA_MM2:
+        return _FORCE_N[load_unit] / _AREA_MM2[area], "MPa"
+    if (load_unit, area) == ("lbf", "in2"):
+        return 1.0, "psi"
+    return 1.0, f"{load_unit or 'load'}/{area}"
+
+
+#: The units a modulus is shown in, by the stress unit it is computed in: the largest
+#: whose value is at least 1 (GPa from 1 GPa up, else MPa; Msi, ksi, psi).
+_MODULUS_UNITS = {"MPa": (("GPa", 1e3), ("MPa", 1.0)),
+                  "psi": (("Msi", 1e6), ("ksi", 1e3), ("psi", 1.0))}
+
+
+def modulus_unit(value: float, unit: str) -> tuple[float, str]:
+    """``(scale, unit)`` to show the modulus ``value`` (in ``unit``) as
+    ``value * scale`` in the returned unit: GPa from 1 GPa up, else MPa (Msi, ksi or psi
+    for psi); an unknown unit is kept.
+
+    Examples
+    --------
+    >>> modulus_unit(70148.0, "MPa")
+    (0.001, 'GPa')
+    >>> modulus_unit(850.0, "MPa")
+    (1.0, 'MPa')
+    """
+    choices = _MODULUS_UNITS.get(unit)
+    if choices is None or not math.isfinite(value):
+        return 1.0, unit
+    for name, size in choices:
+        if abs(value) >= size:
+            return 1.0 / size, name
+    return 1.0 / choices[-1][1], choices[-1][0]
 #: Two-sided coverage of the intervals.
 LEVEL = 0.95
 
@@ -26,13 +74,15 @@ class ElasticConstants:
     Attributes
     ----------
     E : float
-        Young's modulus, ``stress_unit``.
+        Young's modulus, ``stress_unit`` (:meth:`E_text` shows it in GPa or MPa).
     E_ci : (float, float)
         Its 95 % interval.
     nu : float
         Poisson's ratio, dimensionless.
     nu_ci : (float, float)
     stress_unit : str
+        MPa for loads in N, kN... on areas in mm2, cm2, m2...; psi for lbf on in2
+        (:func:`stress_unit`).
     axis : {"x", "y"}
         The loading axis: the axial strain is ``exx`` (or ``eyy``).
     states : tuple of str
@@ -61,6 +111,14 @@ class ElasticConstants:
     transverse_std: np.ndarray
     interval_basis: str
     reduced_chi2: tuple[float, float]
+
+    def E_text(self, digits: int = 5) -> str:
+        """``E`` and its interval in a unit chosen for it (:func:`modulus_unit`):
+        ``"70.148 GPa, 95 % interval [69.577, 70.728] GPa"``."""
+        scale, unit = modulus_unit(self.E, self.stress_unit)
+        lo, hi = (v * scale for v in self.E_ci)
+        return (f"{self.E * scale:.{digits}g} {unit}, {LEVEL * 100:g} % interval "
+                f"[{lo:.{digits}g}, {hi:.{digits}g}] {unit}")
 
     def to_dict(self) -> dict:
         """The constants as JSON-ready values, units included."""
@@ -93,8 +151,9 @@ def elastic_constants(reading: GaugeReading, *, area: float, area_unit: str = "m
     area : float
         The specimen's cross-section, in ``area_unit``.
     area_unit : str
-        ``"mm2"`` (default), ``"m2"``, ``"cm2"``, ``"in2"``...: with a load in N and
-        an area in mm2 the stress is in MPa.
+        ``"mm2"`` (default), ``"m2"``, ``"cm2"``, ``"in2"``...: with a load in N, kN
+        or MN and an area in mm2, cm2 or m2 the stress is in MPa, with lbf on in2 in
+        psi (:func:`stress_unit`).
     axis : {"x", "y"}
         Loading direction: ``exx`` (``eyy``) is the axial strain.
     strain_range : (low, high) floats, optional
@@ -150,7 +209,8 @@ def elastic_constants(reading: GaugeReading, *, area: float, area_unit: str = "m
     if keep.sum() < 3:
         raise ValueError(f"a fit needs at least 3 states, got {int(keep.sum())} "
                          f"(strain_range {strain_range!r})")
-    stress = reading.load[keep] / area
+    factor, unit = stress_unit(reading.load_unit, area_unit)
+    stress = reading.load[keep] / area * factor
     a, var_a, chi_a = _fit(stress, axial[keep], axial_s[keep] * own)
     c, var_c, chi_t = _fit(stress, trans[keep], trans_s[keep] * own)
     dof = int(keep.sum()) - 2
@@ -168,8 +228,6 @@ def elastic_constants(reading: GaugeReading, *, area: float, area_unit: str = "m
     E_ci = (1.0 / (a + q * sa), 1.0 / (a - q * sa) if a > q * sa else math.inf)
     nu = -c / a
     s_nu = math.sqrt((var_c + nu**2 * var_a) / a**2)
-    unit = _STRESS_UNITS.get((reading.load_unit, area_unit.replace("²", "2")),
-                             f"{reading.load_unit or 'load'}/{area_unit}")
     return ElasticConstants(
         E=E, E_ci=E_ci, nu=nu, nu_ci=(nu - q * s_nu, nu + q * s_nu), stress_unit=unit,
         axis=axis, states=tuple(np.array(reading.states)[keep].tolist()), stress=stress,

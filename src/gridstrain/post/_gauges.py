@@ -9,8 +9,10 @@ import numpy as np
 
 from .._validation import check_pixel_size, check_type
 from ..io import roi_mask
+from ..kinematics import DERIVED_STRAINS, PrincipalStrains, principal_strains
 from ..results import SeriesResult, state_loads
 from . import _correlation
+from ._units import strain_scale
 
 _STRAINS = ("exx", "eyy", "exy")
 
@@ -84,8 +86,25 @@ class GaugeReading:
     def __post_init__(self):
         freeze_arrays(self)
 
-    def columns(self) -> dict[str, np.ndarray]:
-        """The table, column by column, each name followed by its unit in brackets."""
+    def principal_strains(self) -> PrincipalStrains:
+        """The principal strains ``e1``, ``e2``, their angle, the equivalent strain and
+        the maximum shear of the gauge's mean tensor in each state, with their std.
+
+        Those a strain rosette gives: of the mean of ``exx``, ``eyy``, ``exy`` (not the
+        mean of each pixel's principal strain), the std propagated to first order from
+        ``exx_std``, ``eyy_std``, ``exy_std``, the three taken as uncorrelated
+        (:func:`gridstrain.kinematics.principal_strains`, whose Notes say when that
+        holds); NaN std without uncertainty maps.
+        """
+        return principal_strains(self.exx, self.eyy, self.exy, exx_std=self.exx_std,
+                                 eyy_std=self.eyy_std, exy_std=self.exy_std)
+
+    def columns(self, *, derived: bool = False) -> dict[str, np.ndarray]:
+        """The table, column by column, each name followed by its unit in brackets.
+
+        With ``derived``, the columns of :meth:`principal_strains` after ``exy``:
+        ``e1 [-]``, ``e1_std [-]``... ``principal_angle [rad]``...
+        """
         cols: dict[str, np.ndarray] = {"state": np.array(self.states, dtype=str)}
         if self.load is not None:
             cols[f"load [{self.load_unit or '-'}]"] = self.load
@@ -94,30 +113,54 @@ class GaugeReading:
         for name in _STRAINS:
             cols[f"{name} [-]"] = getattr(self, name)
             cols[f"{name}_std [-]"] = getattr(self, f"{name}_std")
+        if derived:
+            p = self.principal_strains()
+            for name, unit in DERIVED_STRAINS.items():
+                unit = "-" if unit == "1" else unit
+                cols[f"{name} [{unit}]"] = getattr(p, name)
+                cols[f"{name}_std [{unit}]"] = getattr(p, f"{name}_std")
         if self.extensometer is not None:
             cols["extensometer [-]"] = self.extensometer
             cols["extensometer_std [-]"] = self.extensometer_std
         return cols
 
-    def to_csv(self, path, *, overwrite: bool = False):
+    def to_csv(self, path, *, derived: bool = False, overwrite: bool = False):
         """Write :meth:`columns` to a CSV file, atomically; returns its path.
 
         Floats with 10 significant digits: a strain to 1e-10, far below any noise.
+        Strains dimensionless whatever a table shows.
         """
         from ..io import write_csv
 
-        return write_csv(path, self.columns(), overwrite=overwrite, digits=10)
+        return write_csv(path, self.columns(derived=derived), overwrite=overwrite,
+                         digits=10)
 
-    def table(self) -> str:
-        """The readings as a fixed-width text table: strains in µε."""
-        cols = self.columns()
+    def table(self, *, strain_units: str = "microstrain", derived: bool = False) -> str:
+        """The readings as a fixed-width text table.
+
+        Parameters
+        ----------
+        strain_units : {"microstrain", "%", "1"}
+            Strains in µε (default, 0.1 µε shown), percent (1e-5 %) or dimensionless
+            (1e-7); :data:`gridstrain.post.STRAIN_UNITS`.
+        derived : bool
+            Also the principal strains, their angle (degrees), the equivalent strain
+            and the maximum shear (:meth:`principal_strains`).
+        """
+        factor, label = strain_scale(strain_units)
+        # a tenth of a microstrain in every unit: below any noise floor
+        decimals = {1e6: 1, 100.0: 5, 1.0: 7}[factor]
+        cols = self.columns(derived=derived)
         head, rows = [], []
         for key, arr in cols.items():
             if key.startswith("state"):
                 text = [str(v) for v in arr]
             elif key.endswith("[-]"):
-                key = key.replace("[-]", "[µε]")
-                text = [f"{v * 1e6:.1f}" for v in arr]
+                key = key.replace("[-]", f"[{label}]")
+                text = [f"{v * factor:.{decimals}f}" for v in arr]
+            elif key.endswith("[rad]"):
+                key = key.replace("[rad]", "[deg]")
+                text = [f"{np.degrees(v):.2f}" for v in arr]
             else:
                 text = [f"{v:.6g}" for v in arr]
             head.append(key)
@@ -153,16 +196,23 @@ class GaugeReading:
                                                           f"mean {name} over the gauge"})
             data[f"{name}_std"] = ("state", getattr(self, f"{name}_std"),
                                    {"units": "1", "long_name": f"std of the mean {name}"})
+        p = self.principal_strains()
+        for name, unit in DERIVED_STRAINS.items():
+            data[name] = ("state", getattr(p, name), {"units": unit, "long_name":
+                                                      f"{name} of the mean strain tensor"})
+            data[f"{name}_std"] = ("state", getattr(p, f"{name}_std"),
+                                   {"units": unit, "long_name": f"first-order std of {name}"})
         for name in ("ux", "uy"):
             data[name] = ("state", getattr(self, name), {"units": "px"})
             data[f"{name}_std"] = ("state", getattr(self, f"{name}_std"), {"units": "px"})
         return xr.Dataset(data, coords=coords, attrs={"gauge": self.where})
 
-    def to_pandas(self):
-        """The table as a ``pandas.DataFrame`` indexed by state (needs pandas)."""
+    def to_pandas(self, *, derived: bool = False):
+        """The table as a ``pandas.DataFrame`` indexed by state (needs pandas);
+        ``derived`` as for :meth:`columns`."""
         import pandas as pd
 
-        cols = self.columns()
+        cols = self.columns(derived=derived)
         return pd.DataFrame({k: v for k, v in cols.items() if k != "state"},
                             index=pd.Index(cols["state"], name="state"))
 

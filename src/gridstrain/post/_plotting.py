@@ -381,8 +381,9 @@ def save_figures(result, directory, *, pixel_size: float | None = None,
 
 # --------------------------------------------------------------------------- every state
 
-#: What each quantity of a result is drawn as: (symbol, unit in the file, scale to
-#: the unit drawn, unit drawn). Strains read best in microstrain (1e-6).
+#: What each quantity of a result is drawn as: (symbol, unit in the file). Strains read
+#: best in microstrain (1e-6; ``microstrain=`` takes "%" and "1" too), rotations in mrad,
+#: the principal direction in degrees.
 QUANTITIES = {
     "ux": (r"$u_x$", "px"), "uy": (r"$u_y$", "px"),
     "exx": (r"$\varepsilon_{xx}$", "1"), "eyy": (r"$\varepsilon_{yy}$", "1"),
@@ -390,16 +391,29 @@ QUANTITIES = {
     "ux_std": (r"std $u_x$", "px"), "uy_std": (r"std $u_y$", "px"),
     "exx_std": (r"std $\varepsilon_{xx}$", "1"), "eyy_std": (r"std $\varepsilon_{yy}$", "1"),
     "exy_std": (r"std $\varepsilon_{xy}$", "1"),
+    # derived from the strain tensor (SeriesResult.principal_strains)
+    "e1": (r"$\varepsilon_1$", "1"), "e2": (r"$\varepsilon_2$", "1"),
+    "principal_angle": (r"$\theta_1$", "rad"),
+    "equivalent": (r"$\varepsilon_{eq}$", "1"),
+    "max_shear": (r"$(\varepsilon_1 - \varepsilon_2)/2$", "1"),
+    "e1_std": (r"std $\varepsilon_1$", "1"), "e2_std": (r"std $\varepsilon_2$", "1"),
+    "principal_angle_std": (r"std $\theta_1$", "rad"),
+    "equivalent_std": (r"std $\varepsilon_{eq}$", "1"),
+    "max_shear_std": (r"std $(\varepsilon_1 - \varepsilon_2)/2$", "1"),
 }
 _MICRO = "µε"
+# the quantities derived from the strain tensor, and their std
+_DERIVED = ("e1", "e2", "principal_angle", "equivalent", "max_shear")
 
 
 def quantity(result, name: str, *, pixel_size: float | None = None,
-             unit: str | None = None, microstrain: bool = True) -> tuple[np.ndarray, str]:
+             unit: str | None = None, microstrain=True) -> tuple[np.ndarray, str]:
     """``(values (n_states, H, W), unit drawn)`` of one quantity of a result.
 
-    Strains (and their std) in µε with ``microstrain``, rotations in mrad,
-    displacements in ``unit`` with a pixel size, else px.
+    Strains (and their std) in µε with ``microstrain`` (True or ``"microstrain"``), in
+    percent with ``"%"``, dimensionless with False or ``"1"``; rotations in mrad, the
+    principal direction in degrees, displacements in ``unit`` with a pixel size, else
+    px.
     """
     return np.stack([state_quantity(result, name, i, pixel_size=pixel_size, unit=unit,
                                     microstrain=microstrain)[0]
@@ -408,34 +422,48 @@ def quantity(result, name: str, *, pixel_size: float | None = None,
 
 
 def state_quantity(result, name: str, i: int, *, pixel_size: float | None = None,
-                   unit: str | None = None, microstrain: bool = True
+                   unit: str | None = None, microstrain=True
                    ) -> tuple[np.ndarray, str]:
     """``(values (H, W), unit drawn)`` of one quantity of state ``i`` (read alone from
     a result whose maps stay in its file), as :func:`quantity`."""
+    from ._units import strain_scale
+
     check_choice(name, "name", tuple(QUANTITIES))
     drawn = _drawn_unit(name, pixel_size, unit, microstrain)
     if name == "rotation":
         return np.asarray(result.measurements[i].rotation) * 1e3, drawn
-    if name.endswith("_std"):
+    if name.removesuffix("_std") in _DERIVED:
+        maps = result.derived_maps(i)
+        if name not in maps:
+            raise ValueError(f"this result has no {name} map (a single frame per series "
+                             "gives no uncertainty map)")
+        if name.startswith("principal_angle"):
+            return np.degrees(maps[name]), drawn
+        values = maps[name]
+    elif name.endswith("_std"):
         if result.uncertainty is None or name not in result.uncertainty:
             raise ValueError(f"this result has no {name} map (a single frame per series "
                              "gives no uncertainty map)")
         values = np.asarray(result.uncertainty[name][i])
     else:
         values = np.asarray(result.get_map(name)[i])
-    if drawn == _MICRO:
-        return values * 1e6, drawn
-    if QUANTITIES[name][1] != "1" and pixel_size is not None:
+    if QUANTITIES[name][1] == "1":
+        return values * strain_scale(microstrain)[0], drawn
+    if pixel_size is not None:
         return values * pixel_size, drawn
     return values, drawn
 
 
-def _drawn_unit(name: str, pixel_size, unit, microstrain: bool) -> str:
+def _drawn_unit(name: str, pixel_size, unit, microstrain) -> str:
+    from ._units import strain_scale
+
     check_choice(name, "name", tuple(QUANTITIES))
     if name == "rotation":
         return "mrad"
+    if name.startswith("principal_angle"):
+        return "deg"
     if QUANTITIES[name][1] == "1":
-        return _MICRO if microstrain else "1"
+        return strain_scale(microstrain)[1]
     return unit if pixel_size is not None else "px"
 
 
@@ -473,7 +501,7 @@ def _nice_length(span: float) -> float:
     return max((m * p for m in (1, 2, 5) if m * p <= target), default=p)
 
 
-def plot_states(result, name: str, *, limits: str = "common", microstrain: bool = True,
+def plot_states(result, name: str, *, limits: str = "common", microstrain=True,
                 pixel_size: float | None = None, unit: str | None = None,
                 columns: int = 3, states=None) -> Figure:
     """Maps of one quantity for a chosen set of states, on common colour limits.
@@ -486,8 +514,8 @@ def plot_states(result, name: str, *, limits: str = "common", microstrain: bool 
         ``"exx_std"``...).
     limits : {"common", "robust"}
         See :func:`map_norm` (over every state, drawn or not).
-    microstrain : bool
-        Strains in µε (else dimensionless).
+    microstrain : bool or {"microstrain", "%", "1"}
+        Strains in µε (True, the default), in percent, or dimensionless (False).
     pixel_size, unit : float, str, optional
         Displacements in ``unit`` and a scale bar in it.
     columns : int
@@ -575,7 +603,7 @@ def _probe(values_of: Callable, result, point, region):
 
 
 def plot_history(result, *, point=None, region=None, names=("exx", "eyy", "exy"),
-                 microstrain: bool = True, against: str = "auto", load=None,
+                 microstrain=True, against: str = "auto", load=None,
                  load_unit: str | None = None, time=None) -> Figure:
     """Strain (or any quantity) of all states at a point or averaged over a region.
 
@@ -589,8 +617,8 @@ def plot_history(result, *, point=None, region=None, names=("exx", "eyy", "exy")
         pixels. Default (neither given): the whole image.
     names : sequence of str
         Quantities of :data:`QUANTITIES`, drawn on one axis.
-    microstrain : bool
-        Strains in µε.
+    microstrain : bool or {"microstrain", "%", "1"}
+        Strains in µε (True, the default), in percent, or dimensionless (False).
     against : {"auto", "time", "load", "state"}
         The horizontal axis: "auto" takes the time, else the load, else the state.
     load, load_unit, time : optional
@@ -632,14 +660,19 @@ def plot_history(result, *, point=None, region=None, names=("exx", "eyy", "exy")
     fig = _new_figure(6.4, 4.0)
     ax = fig.add_subplot()
     unit_drawn = None
+    from ._units import strain_scale
+
     for name in names:
         unit_drawn = _drawn_unit(name, None, None, microstrain)
-        scale = 1e6 if unit_drawn == _MICRO else 1.0
-        if name in ("exx", "eyy", "exy", "ux", "uy"):
+        scale = strain_scale(microstrain)[0] if QUANTITIES[name][1] == "1" else \
+            math.degrees(1.0) if name == "principal_angle" else 1.0
+        if name in ("exx", "eyy", "exy", "ux", "uy", *_DERIVED):
             if reading is None:
                 reading = gauge(result, point=point, region=region)
-            curve = getattr(reading, name) * scale
-            err = getattr(reading, f"{name}_std") * scale
+            # the derived strains of the gauge's mean tensor, as a rosette reads them
+            source = reading.principal_strains() if name in _DERIVED else reading
+            curve = getattr(source, name) * scale
+            err = getattr(source, f"{name}_std") * scale
             err = err if np.all(np.isfinite(err)) else None
         else:
             curve, err = _probe(lambda i, name=name: state_quantity(
@@ -687,7 +720,10 @@ def plot_stress_strain(constants) -> Figure:
         ax.plot((slope * s + off) * 1e6, s, color=line[0].get_color(), lw=1)
     ax.set_xlabel(r"strain (µε)")
     ax.set_ylabel(f"stress ({c.stress_unit})")
-    ax.set_title(f"E = {c.E:.5g} [{c.E_ci[0]:.5g}, {c.E_ci[1]:.5g}] {c.stress_unit}, "
+    from ._constants import modulus_unit
+
+    k, unit = modulus_unit(c.E, c.stress_unit)
+    ax.set_title(f"E = {c.E * k:.4g} [{c.E_ci[0] * k:.4g}, {c.E_ci[1] * k:.4g}] {unit}, "
                  f"ν = {c.nu:.3f} [{c.nu_ci[0]:.3f}, {c.nu_ci[1]:.3f}] (95 %)", fontsize=9)
     ax.axvline(0.0, color="0.6", lw=0.8)
     ax.legend(fontsize=8)

@@ -45,15 +45,19 @@ The file
 
 Exports
     :func:`export_mat` (MATLAB, ``scipy.io.savemat``), :func:`export_vtk` (VTK
-    XML image data ``.vti``, for ParaView) and :func:`save_csv` (one row per
-    valid pixel, units in the header), each in its own module and named in one
-    table, :data:`EXPORTS`, that :func:`export` and the command line read.
+    XML image data ``.vti``, for ParaView), :func:`save_csv` (one row per
+    valid pixel, units in the header, RFC 4180 quoting) and :func:`export_netcdf`
+    (a clean NetCDF-4 copy, without the ``gridstrain`` group), each in its own module
+    and named in one table, :data:`EXPORTS`, that :func:`export`, ``measure
+    --export`` and ``gridstrain export`` read. Every export carries the load and time
+    of each state when known and the derived strains (``e1``, ``e2``,
+    ``principal_angle``, ``equivalent``, ``max_shear``, :data:`DERIVED_FIELDS`).
 
 Modules
     ``_result`` the result type; ``_file`` saving, loading and the file written as
     the states are measured; ``_layout`` the file's variables; ``_codec`` the generic,
     safe codec of the result's fields; ``_formats`` the export registry; ``_mat``,
-    ``_vtk``, ``_csv`` one module per export format.
+    ``_vtk``, ``_csv``, ``_netcdf`` one module per export format.
 """
 
 from __future__ import annotations
@@ -74,7 +78,9 @@ from ._formats import export_path as export_path
 from ._layout import LONG_NAMES as LONG_NAMES
 from ._loads import state_loads
 from ._mat import export_mat
+from ._netcdf import export_netcdf
 from ._paraview import export_pvd
+from ._result import DERIVED_FIELDS as DERIVED_FIELDS
 from ._result import MAP_FIELDS as MAP_FIELDS
 from ._result import SeriesResult as SeriesResult
 from ._vtk import export_vtk
@@ -84,6 +90,7 @@ from ._vtk import export_vtk
 __all__ = [
     "FORMAT_VERSION",
     "export_mat",
+    "export_netcdf",
     "export_pvd",
     "export_vtk",
     "load",

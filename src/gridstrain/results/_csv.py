@@ -3,14 +3,13 @@
 
 from __future__ import annotations
 
-import re
 from pathlib import Path
 
 import numpy as np
 
 from .._validation import check_pixel_size, check_type
 from ..io import write_csv
-from ._result import MAP_FIELDS, SeriesResult
+from ._result import DERIVED_FIELDS, MAP_FIELDS, SeriesResult
 
 #: Significant digits of the CSV export: 7 resolves 1e-7 of a value, far below
 #: the noise floor of any map (1e-5 strain, 1e-3 px), and keeps the file small.
@@ -22,12 +21,16 @@ def save_csv(result: SeriesResult, path, *, pixel_size: float | None = None,
              digits: int | None = CSV_DIGITS) -> Path:
     """Write one row per valid pixel, with the unit of each column in the header.
 
-    Columns ``state``, ``x [px]``, ``y [px]`` (column and row,
+    Columns ``state`` (the state's name), with loads ``load [UNIT]``, with times
+    ``time [s]``, then ``x [px]``, ``y [px]`` (column and row,
     :mod:`gridstrain.conventions`), with a pixel size ``x [unit]``, ``y [unit]``;
     ``ux [px]``, ``uy [px]`` (and in ``unit``), ``exx [1]``, ``eyy [1]``,
-    ``exy [1]`` (dimensionless, tensor shear), ``rotation [rad]``, and the
-    uncertainty maps ``ux_std [px]``... when the result has them. ``state``
-    holds the state's name. Written atomically.
+    ``exy [1]`` (dimensionless, tensor shear), ``rotation [rad]``, the derived
+    strains ``e1 [1]``, ``e2 [1]``, ``principal_angle [rad]``, ``equivalent [1]``,
+    ``max_shear [1]`` (:meth:`SeriesResult.principal_strains`), and the uncertainty
+    maps ``ux_std [px]``..., ``e1_std [1]``... when the result has them. Written
+    atomically by :func:`gridstrain.io.write_csv` (RFC 4180 quoting: names and
+    units from other people's files are kept whatever they hold).
 
     Parameters
     ----------
@@ -38,7 +41,12 @@ def save_csv(result: SeriesResult, path, *, pixel_size: float | None = None,
     check_type(result, "result", SeriesResult)
     ps, unit = check_pixel_size(pixel_size, unit)
     st, yy, xx = np.nonzero(result.valid)
-    cols = {"state": np.array(result.names[1:], dtype=str)[st], "x [px]": xx, "y [px]": yy}
+    cols = {"state": np.array(result.names[1:], dtype=str)[st]}
+    if result.load is not None:
+        cols[f"load [{result.load_unit or '1'}]"] = np.asarray(result.load)[st]
+    if result.time is not None:
+        cols["time [s]"] = np.asarray(result.time)[st]
+    cols.update({"x [px]": xx, "y [px]": yy})
     if ps is not None:
         cols[f"x [{unit}]"], cols[f"y [{unit}]"] = xx * ps, yy * ps
     for name, u in MAP_FIELDS.items():
@@ -47,10 +55,13 @@ def save_csv(result: SeriesResult, path, *, pixel_size: float | None = None,
             cols[f"{name} [{unit}]"] = result.get_map(name)[st, yy, xx] * ps
     rot = np.stack([m.rotation for m in result.measurements])
     cols["rotation [rad]"] = rot[st, yy, xx]
+    derived = result.derived_maps()
+    for name in DERIVED_FIELDS:
+        cols[f"{name} [{DERIVED_FIELDS[name]}]"] = derived[name][st, yy, xx]
     for name, arr in (result.uncertainty or {}).items():
         u = MAP_FIELDS.get(name.removesuffix("_std"), "1")
         cols[f"{name} [{u}]"] = np.asarray(arr)[st, yy, xx]
-    if ps is not None and re.search(r"[,\"'\r\n\[\]]", unit):
-        raise ValueError(f"unit must not contain commas, quotes or brackets for the CSV "
-                         f"header, got {unit!r}")
+    for name in DERIVED_FIELDS:
+        if f"{name}_std" in derived:
+            cols[f"{name}_std [{DERIVED_FIELDS[name]}]"] = derived[f"{name}_std"][st, yy, xx]
     return write_csv(path, cols, overwrite=overwrite, digits=digits)

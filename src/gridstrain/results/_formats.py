@@ -14,6 +14,7 @@ from pathlib import Path
 from .._validation import as_path
 from ._csv import save_csv
 from ._mat import export_mat
+from ._netcdf import export_netcdf
 from ._result import SeriesResult
 from ._vtk import export_vtk
 
@@ -34,6 +35,7 @@ EXPORTS = {f.name: f for f in (
     ExportFormat("mat", ".mat", export_mat),
     ExportFormat("vtk", ".pvd", export_vtk),
     ExportFormat("csv", ".csv", save_csv),
+    ExportFormat("netcdf", ".nc", export_netcdf),
 )}
 
 
@@ -45,8 +47,12 @@ def export_path(stem, name: str) -> Path:
 
 def export(result: SeriesResult, stem, formats, *, pixel_size: float | None = None,
            unit: str | None = None, overwrite: bool = False) -> dict:
-    """Write ``stem.mat``, ``stem.pvd`` (with ``stem_vti/``) and/or ``stem.csv``;
-    returns ``{format: path}``."""
+    """Write ``stem.mat``, ``stem.pvd`` (with ``stem_vti/``), ``stem.csv`` and/or
+    ``stem.nc``; returns ``{format: path}``.
+
+    Each carries the load and time of every state when the result has them, and the
+    derived strains (:meth:`SeriesResult.principal_strains`).
+    """
     for f in formats:
         if f not in EXPORTS:
             raise ValueError(f"export format must be one of {', '.join(EXPORTS)}, got "

@@ -9,7 +9,7 @@ import numpy as np
 
 from .._validation import as_path, check_pixel_size, check_type
 from ..io import write_atomic
-from ._result import MAP_FIELDS, SeriesResult
+from ._result import DERIVED_FIELDS, MAP_FIELDS, SeriesResult
 
 
 def export_mat(result: SeriesResult, path, *, pixel_size: float | None = None,
@@ -20,7 +20,11 @@ def export_mat(result: SeriesResult, path, *, pixel_size: float | None = None,
     column ``x`` as in the image), NaN where not ``valid`` (a logical array).
     Also ``x``, ``y`` (px), ``x_phys``, ``y_phys`` with a pixel size, ``states``
     (cell array of names), ``units`` (a struct), ``k1``, ``k2`` (cycles/px),
-    ``sigma`` (px), ``method``.
+    ``sigma`` (px), ``method``; the derived strains ``e1``, ``e2``,
+    ``principal_angle`` (rad), ``equivalent``, ``max_shear``
+    (:meth:`SeriesResult.principal_strains`) and their ``*_std`` with uncertainty
+    maps; with loads ``load`` (``n_states`` x 1, its unit in ``units.load``) and with
+    times ``time`` (s).
     """
     from scipy.io import savemat
 
@@ -38,6 +42,16 @@ def export_mat(result: SeriesResult, path, *, pixel_size: float | None = None,
     for name, arr in (result.uncertainty or {}).items():
         data[name] = hwn(arr)
         units[name] = MAP_FIELDS.get(name.removesuffix("_std"), "1")
+    derived = result.derived_maps()
+    for name, arr in derived.items():
+        data[name] = hwn(arr)
+        units[name] = DERIVED_FIELDS[name.removesuffix("_std")]
+    if result.load is not None:
+        data["load"] = np.asarray(result.load, dtype=np.float64)
+        units["load"] = result.load_unit or "1"
+    if result.time is not None:
+        data["time"] = np.asarray(result.time, dtype=np.float64)
+        units["time"] = "s"
     data["x"], data["y"] = np.arange(W, dtype=float), np.arange(H, dtype=float)
     if ps is not None:
         data["x_phys"], data["y_phys"] = data["x"] * ps, data["y"] * ps

@@ -18,6 +18,7 @@ Vectors and tensor components are given in that frame: the displacement vector i
 from __future__ import annotations
 
 import base64
+import re
 import struct
 import zlib
 from xml.sax.saxutils import quoteattr
@@ -33,6 +34,15 @@ FRAME = ("X = x * pixel size, Y = -y * pixel size (image rows downwards, ParaVie
          "upwards): displacement = (ux, -uy, 0); exy and rotation change sign")
 
 
+# characters XML 1.0 cannot hold (control characters, lone surrogates): a state's name
+# or a unit from someone else's file may have them, and would make the file unreadable
+_NOT_XML = re.compile("[^\t\n\r\x20-\ud7ff\ue000-\ufffd\U00010000-\U0010ffff]")
+
+
+def _xml_text(text: str) -> str:
+    return _NOT_XML.sub("\ufffd", str(text))
+
+
 def _array(name: str, arr: np.ndarray, components: int = 1) -> str:
     a = np.ascontiguousarray(arr).reshape(-1)
     raw = a.astype(a.dtype.newbyteorder("<"), copy=False).tobytes()
@@ -40,16 +50,29 @@ def _array(name: str, arr: np.ndarray, components: int = 1) -> str:
     # zlib-compressed binary: one block, header (count, block size, last size, sizes)
     header = struct.pack("<4Q", 1, len(raw), len(raw), len(comp))
     kind = {"f4": "Float32", "f8": "Float64", "u1": "UInt8"}[a.dtype.str[1:]]
-    return (f"        <DataArray type={quoteattr(kind)} Name={quoteattr(name)} "
+    return (f"        <DataArray type={quoteattr(kind)} Name={quoteattr(_xml_text(name))} "
             f'NumberOfComponents="{components}" format="binary">'
             f"{base64.b64encode(header).decode()}{base64.b64encode(comp).decode()}"
             "</DataArray>\n")
 
 
-def _vti(fields: dict, H: int, W: int, s: float, notes: dict) -> bytes:
+def _field_data(values: dict) -> str:
+    """One-value arrays of the whole image (a state's time and load), in ParaView's
+    Information panel."""
+    if not values:
+        return ""
+    rows = "".join(f"      <DataArray type=\"Float64\" Name={quoteattr(_xml_text(name))} "
+                   f'NumberOfTuples="1" format="ascii">{float(v)!r}</DataArray>\n'
+                   for name, v in values.items())
+    return f"    <FieldData>\n{rows}    </FieldData>\n"
+
+
+def _vti(fields: dict, H: int, W: int, s: float, notes: dict,
+         field_data: dict | None = None) -> bytes:
     extent = f"0 {W - 1} 0 {H - 1} 0 0"
     # notes as a comment: every reader skips it, and a person reading the file sees it
-    comment = "; ".join(f"{k}: {v}" for k, v in notes.items()).replace("--", "- -")
+    comment = _xml_text("; ".join(f"{k}: {v}" for k, v in notes.items())
+                        .replace("--", "- -"))
     vector = next(k for k in fields if k.startswith("displacement"))
     arrays = "".join(_array(name, arr, comps) for name, (arr, comps) in fields.items())
     text = ('<?xml version="1.0"?>\n'
@@ -57,7 +80,7 @@ def _vti(fields: dict, H: int, W: int, s: float, notes: dict) -> bytes:
             'header_type="UInt64" compressor="vtkZLibDataCompressor">\n'
             f'  <ImageData WholeExtent="{extent}" Origin="0 {-(H - 1) * s!r} 0" '
             f'Spacing="{s!r} {s!r} 1">\n'
-            f"    <!-- {comment} -->\n"
+            f"    <!-- {comment} -->\n" + _field_data(field_data or {}) +
             f'    <Piece Extent="{extent}">\n      <PointData Vectors={quoteattr(vector)}>\n'
             + arrays + "      </PointData>\n    </Piece>\n  </ImageData>\n</VTKFile>\n")
     return text.encode("utf-8")
@@ -95,8 +118,12 @@ def export_pvd(result: SeriesResult, path, *, pixel_size: float | None = None,
     -----
     Point data of each state (float32: 7 significant digits, for viewing):
     ``displacement [UNIT]`` (a 3-component vector, see the module's frame),
-    ``exx [-]``, ``eyy [-]``, ``exy [-]``, ``rotation [rad]``, the std maps
-    (``exx_std [-]``...) and ``valid`` (0/1); NaN where not valid.
+    ``exx [-]``, ``eyy [-]``, ``exy [-]``, ``rotation [rad]``, the derived strains
+    ``e1 [-]``, ``e2 [-]``, ``principal_angle [rad]`` (from X towards Y: the sign of
+    the image frame's angle changes), ``equivalent [-]``, ``max_shear [-]``, the std
+    maps (``exx_std [-]``, ``e1_std [-]``...) and ``valid`` (0/1); NaN where not
+    valid. Field data of each state (one value): ``time [s]`` and ``load [UNIT]``
+    when known.
     """
     from pathlib import Path
 
@@ -121,13 +148,27 @@ def export_pvd(result: SeriesResult, path, *, pixel_size: float | None = None,
                   "exx [-]": (_up(result.exx[i]), 1), "eyy [-]": (_up(result.eyy[i]), 1),
                   "exy [-]": (-_up(result.exy[i]), 1),
                   "rotation [rad]": (-_up(result.measurements[i].rotation), 1)}
+        derived = result.derived_maps(i)
+        for key in ("e1", "e2", "principal_angle", "equivalent", "max_shear"):
+            sign = -1.0 if key == "principal_angle" else 1.0  # Y = -y
+            fields[f"{key} [{'rad' if key == 'principal_angle' else '-'}]"] = (
+                sign * _up(derived[key]), 1)
         for key, arr in unc.items():
             scale = s if key in ("ux_std", "uy_std") else 1.0
             label = u if key in ("ux_std", "uy_std") else "-"
             fields[f"{key} [{label}]"] = (_up(np.asarray(arr)[i]) * scale, 1)
+        for key, arr in derived.items():
+            if key.endswith("_std"):
+                label = "rad" if key.startswith("principal_angle") else "-"
+                fields[f"{key} [{label}]"] = (_up(arr), 1)
         fields["valid"] = (np.asarray(result.valid[i])[::-1].astype(np.uint8), 1)
         notes = {"state": result.names[i + 1], "frame": FRAME, "time value": what}
-        out.write(name, _vti(fields, H, W, s, notes))
+        values = {}
+        if time is not None:
+            values["time [s]"] = time[i]
+        if load is not None:
+            values[f"load [{load_unit or '-'}]"] = load[i]
+        out.write(name, _vti(fields, H, W, s, notes, values))
     rows = "".join(f'    <DataSet timestep="{float(t)!r}" part="0" '
                    f"file={quoteattr(folder.name + '/' + n)}/>\n"
                    for t, n in zip(steps, names, strict=True))

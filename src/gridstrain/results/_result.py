@@ -12,13 +12,24 @@ import numpy as np
 from .._validation import (
     check_choice,
 )
-from ..kinematics import FringeOrder, Measurement
+from ..kinematics import (
+    DERIVED_STRAINS,
+    FiniteStrains,
+    FringeOrder,
+    Measurement,
+    PrincipalStrains,
+    finite_strains,
+    principal_strains,
+)
 from ..phase import Lattice
 from ..stacks.vibration import VibrationReport
 from ..uncertainty import NoiseFloor
 
 #: Names of the maps, in file order, with their units before ``pixel_size``.
 MAP_FIELDS = {"ux": "px", "uy": "px", "exx": "1", "eyy": "1", "exy": "1"}
+#: The strains derived from the tensor (:meth:`SeriesResult.principal_strains`), with
+#: their units; each has a ``*_std`` when the result has uncertainty maps.
+DERIVED_FIELDS = dict(DERIVED_STRAINS)
 
 
 # What a result does with itself, implemented by the file and the figures, which know the
@@ -226,6 +237,64 @@ class SeriesResult:
     def exy(self) -> np.ndarray:
         """(n_states, H, W) shear strain (tensor component)."""
         return self.strain[:, 2]
+
+    def _states(self, state):
+        if state is None:
+            return slice(None)
+        if isinstance(state, bool) or not isinstance(state, int | np.integer) or \
+                not -self.n_states <= state < self.n_states:
+            raise ValueError(f"state must be an index of the {self.n_states} state(s) or "
+                             f"None, got {state!r}")
+        return int(state)
+
+    def principal_strains(self, state: int | None = None) -> PrincipalStrains:
+        """Principal strains ``e1``, ``e2``, their angle, the equivalent strain and the
+        maximum shear, with their std when the result has uncertainty maps.
+
+        Parameters
+        ----------
+        state : int, optional
+            One state (maps ``(H, W)``); default every state (``(n_states, H, W)``).
+
+        Returns
+        -------
+        gridstrain.kinematics.PrincipalStrains
+            See :func:`gridstrain.kinematics.principal_strains`: the std to first order,
+            the noises of ``exx``, ``eyy`` and ``exy`` taken as uncorrelated. NaN where
+            not ``valid``.
+        """
+        i = self._states(state)
+        unc = self.uncertainty or {}
+        stds = {f"{c}_std": np.asarray(unc[f"{c}_std"][i]) for c in ("exx", "eyy", "exy")
+                if f"{c}_std" in unc}
+        if len(stds) < 3:
+            stds = {}
+        return principal_strains(np.asarray(self.exx[i]), np.asarray(self.eyy[i]),
+                                 np.asarray(self.exy[i]), **stds)
+
+    def finite_strains(self, state: int | None = None) -> FiniteStrains:
+        """Green-Lagrange and logarithmic strains, rebuilt from the displacement
+        gradient (the strain tensor and the rotation): see
+        :func:`gridstrain.kinematics.finite_strains`. ``state`` as for
+        :meth:`principal_strains`. Meaningful with ``lagrangian=True`` (the default of
+        :func:`~gridstrain.series.measure_series`)."""
+        i = self._states(state)
+        rot = self.measurements[i].rotation if state is not None else \
+            np.stack([np.asarray(m.rotation) for m in self.measurements])
+        return finite_strains(np.asarray(self.exx[i]), np.asarray(self.eyy[i]),
+                              np.asarray(self.exy[i]), np.asarray(rot))
+
+    def derived_maps(self, state: int | None = None) -> dict[str, np.ndarray]:
+        """The maps of :data:`DERIVED_FIELDS` (and their ``*_std``, with uncertainty
+        maps), by name: those the exports write."""
+        p = self.principal_strains(state)
+        out = {}
+        for name in DERIVED_FIELDS:
+            out[name] = getattr(p, name)
+        for name in DERIVED_FIELDS:
+            if getattr(p, f"{name}_std") is not None:
+                out[f"{name}_std"] = getattr(p, f"{name}_std")
+        return out
 
     def save(self, path, **options):
         """Write this result to its HDF5 file (:func:`gridstrain.results.save_result`)."""
