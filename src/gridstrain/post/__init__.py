@@ -8,10 +8,10 @@ Coordinates follow :mod:`gridstrain.conventions` (x the column, y the row, from
 
 from ._animate import animate
 from ._constants import ElasticConstants, elastic_constants
-from ._gauges import GaugeReading, gauge
+from ._gauges import GaugeReading, gauge, reference_share
 from ._history import History, history
 from ._loads import read_loads
 from ._paraview import export_pvd
 
 __all__ = ["ElasticConstants", "GaugeReading", "History", "animate", "elastic_constants",
-           "export_pvd", "gauge", "history", "read_loads"]
+           "export_pvd", "gauge", "history", "read_loads", "reference_share"]
