@@ -360,6 +360,11 @@ def test_command_prints_E_and_writes_the_curves(record, tmp_path, capsys):
     assert main(["stress-gauge", str(record["good"]), "--density", "2700",
                  "--free-edge", "left"]) == 0
     text = capsys.readouterr().out
+    # --edge-at: the free edge 1.5 mm outside the image, in the file's unit
+    assert main(["stress-gauge", str(record["good"]), "--density", "2700",
+                 "--free-edge", "left", "--edge-at", "-1.5", "--json"]) == 0
+    moved = json.loads(capsys.readouterr().out)
+    assert moved["strip_width"] == pytest.approx(out["strip_width"] + 1.5 - 0.5 * 0.3)
     assert "E = " in text
     assert "strip without data" in text
 
