@@ -93,6 +93,12 @@ def test_stress_is_e_times_strain_without_noise(wave):
     assert np.all(g.strip_stress == 0.0)
     # E from the slope: the same small bias, 0.1 % (measured 0.03 %)
     assert pytest.approx(E, rel=1e-3) == g.E
+    # without std maps no std is made up: the interval is the residuals' scatter.
+    # The filter's bias (-0.03 %) lies along the strain, so no residual shows it and
+    # no interval holds it (measured: +-0.0004 %): bias_coefficient states it instead
+    assert np.isnan(g.stress_std).all()
+    assert g.interval_basis == "residual scatter"
+    assert 0 < g.E_std < 1e-4 * E
     np.testing.assert_allclose(g.distance, (np.arange(200) + 0.5) * PS)
     # the strain rate: the filter's derivative of the strain, against C d eps / ds
     _, _, eps_x, _, _ = bar_wave(x=g.distance)

@@ -441,7 +441,9 @@ def stress_gauge(displacement, strain, time, *, density: float, free_edge: str,
     noise explains (a model error: a non-uniaxial stress, a smoothing bias, an
     inelastic material), in which case the std is scaled by the ratio of RMS
     residual to RMS predicted noise: an interval is never narrower than the scatter
-    supports. The propagation is to first order: it holds while E's std is a small
+    supports. The interval holds the noise, not the filter's bias: that moves stress
+    and strain together and leaves no residual (``bias_coefficient`` states it). The
+    propagation is to first order: it holds while E's std is a small
     part of E (measured: predicted / empirical std 0.97 to 1.03 up to 2 %, but 0.82
     at 19 %, where the noise of the strains that weight the slope and choose the
     points counts too).
