@@ -54,6 +54,8 @@ _COMMANDS = {
     "plot": "figures of a result file: maps of every state, strain history",
     "report": "a self-contained HTML report of a result file",
     "reproduce": "re-run the paper's synthetic experiments (RMSE vs T, methods A and B)",
+    "stress-gauge": "Young's modulus at high strain rate from an impact record: stress from "
+                    "the accelerations",
 }
 
 
@@ -74,7 +76,7 @@ def build_parser(commands=None) -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND",
                                 parser_class=_Parser)
     for name, summary in _COMMANDS.items():
-        module = f"gridstrain.cli.{name}"
+        module = f"gridstrain.cli.{name.replace('-', '_')}"
         if commands is not None and name not in commands:
             if importlib.util.find_spec(module) is not None:
                 sub.add_parser(name, help=summary, add_help=False)
