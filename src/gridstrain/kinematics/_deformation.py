@@ -26,7 +26,14 @@ from .._validation import (
     check_type,
     check_workers,
 )
-from ..phase import Lattice, coupling_corrected, demodulated_at, detect_lattice
+from ..phase import (
+    MIN_MODULUS,
+    Lattice,
+    coupling_corrected,
+    demodulated_at,
+    detect_lattice,
+    no_grid,
+)
 from ..phase._validity import filled_box
 from ..phase.lattice import reference_carrier, state_carrier
 from ..wft import DEFAULT_MARGIN, PhaseMaps, wft
@@ -763,10 +770,19 @@ def measure(reference, deformed, *, lattice: Lattice | None = None,
     m = check_mask(mask, ref.shape)
     if check_type(lattice, "lattice", Lattice, allow_none=True) is None:
         lattice = detect_lattice(ref, mask=m)
+    pm_ref = wft(ref, lattice, sigma=sigma, mask=m, margin=margin, workers=None)
+    nogrid = no_grid(pm_ref.modulus, pm_ref.valid, m, MIN_MODULUS, away=pm_ref.sigma)
+    if nogrid.any():
+        # a hole or background left unmasked: masked, so that the windows straddling
+        # it are invalid as along a mask's edge (as measure_series does)
+        m = m & ~nogrid
+        if not m.any():
+            raise ValueError("reference: no pixel shows a grid at the lattice's wave "
+                             f"vectors (pitch {lattice.pitch:.4g} px)")
+        pm_ref = wft(ref, lattice, sigma=sigma, mask=m, margin=margin, workers=None)
     # each transform corrected at its own carrier, before any change of carrier: the
     # window's phase-modulus coupling (gridstrain.phase.coupling_corrected)
-    pm_ref = coupling_corrected(wft(ref, lattice, sigma=sigma, mask=m, margin=margin,
-                                    workers=None))
+    pm_ref = coupling_corrected(pm_ref)
     # the deformed specimen has moved: its mask is not the reference's, so the
     # deformed image is transformed whole and validity comes from its own moduli; at
     # its own carrier, a window off it biases the phase where the grid's amplitude

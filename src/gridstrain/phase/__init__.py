@@ -16,11 +16,12 @@ from ._maps import PhaseMaps, demodulated_at, finite_derivatives
 from ._maps import demodulated_in_place as demodulated_in_place
 from ._spectrum import transfer_function
 from ._transform import DEFAULT_MARGIN, transform, wft, wft_complex
+from ._validity import no_grid
 from .lattice import Lattice, detect_lattice, follow_lattice
 from .window import MIN_MODULUS, Window
 
 __all__ = [
     "DEFAULT_MARGIN", "MIN_MODULUS", "Lattice", "PhaseMaps", "Window", "coupling_corrected",
     "demodulated_at", "detect_lattice", "finite_derivatives", "follow_lattice",
-    "transfer_function", "transform", "wft", "wft_complex",
+    "no_grid", "transfer_function", "transform", "wft", "wft_complex",
 ]
