@@ -385,6 +385,25 @@ def _read_cine(path: Path, size: int, name: str) -> _Layout:
                           "number of pixels) cannot be stored two pixels in three bytes")
         bits = _check_bits(real_bpp, stored, "RealBPP", path, name)
         stamps = _cine_stamps(fh, off_setup + length, off_table, count, path, name)
+    fps, times, note = _cine_times(stamps, (trig_sec, trig_frac), rate, first_no, count,
+                                   path, name)
+    layout = _Layout(path, size, (H, W), count, stored, bits, bottom_up,
+                     fps, first_no, times, off_table, note=f"{path.name}: {note}" if note
+                     else "")
+    # the images must at least fit after the offset table
+    _check_extent(layout, table_end, name)
+    with open(path, "rb") as fh:
+        _frame_offset(fh, layout, 0, name)
+    return layout
+
+
+def _cine_times(stamps: np.ndarray | None, trigger: tuple[int, int], rate: int,
+                first_no: int, count: int, path: Path, name: str
+                ) -> tuple[float | None, tuple[float, ...], str]:
+    """A cine's frame rate (None if not plausible), its frames' times from the trigger,
+    s (from the time stamps, else from FirstImageNo and FrameRate; none where they
+    are not plausible, see the module) and the note saying why they were left out."""
+    trig_sec, trig_frac = trigger
     fps, note = float(rate), ""
     if not _plausible_rate(fps):
         if rate > 0:
@@ -411,14 +430,7 @@ def _read_cine(path: Path, size: int, name: str) -> _Layout:
                     f"frame {far:.3g} s from the trigger, more than a day: the frames are "
                     "read without times")
             times = ()
-    layout = _Layout(path, size, (H, W), count, stored, bits, bottom_up,
-                     fps, first_no, times, off_table, note=f"{path.name}: {note}" if note
-                     else "")
-    # the images must at least fit after the offset table
-    _check_extent(layout, table_end, name)
-    with open(path, "rb") as fh:
-        _frame_offset(fh, layout, 0, name)
-    return layout
+    return fps, times, note
 
 
 def _cine_stamps(fh, start: int, end: int, count: int, path: Path, name: str
