@@ -737,7 +737,11 @@ def measure(reference, deformed, *, lattice: Lattice | None = None,
     sigma : float, optional
         Window standard deviation, px (default: the pitch).
     mask : (H, W) bool array_like, optional
-        True on the specimen, in the reference configuration.
+        True on the specimen, in the reference configuration. The reference's
+        regions without a grid (a hole or background left unmasked: the modulus
+        below a quarter of its median, :func:`gridstrain.phase.no_grid`) are masked
+        too, so that the band of ``margin`` sigmas around them is invalid, as
+        :func:`gridstrain.measure_series` does.
     lagrangian : bool
         Large-displacement correction (default on); see :func:`deformation`.
     guess : "auto", None, (2,) or (2, H, W) array_like
