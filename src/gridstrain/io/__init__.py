@@ -20,7 +20,10 @@ Input
     ITU-R BT.709 weights) and JPEG files with a note on their lossy compression
     (:attr:`FrameSeries.notes`). :func:`read_mask` reads a specimen mask, grey,
     1-bit or colour (:mod:`gridstrain.conventions`, Masks); :func:`roi_mask`
-    makes one from a rectangle or a polygon.
+    makes one from a rectangle or a polygon. :func:`record_numbering` reads the frame
+    numbers of a record saved one file per frame from the file names and names its
+    breaks (:class:`FrameGap`: missing, off-step or out-of-order numbers; repeated
+    numbers are refused).
 
 Grey levels and bit depth
     Frames are returned in *raw* grey levels, the values stored in the files.
@@ -87,6 +90,7 @@ from ._files import check_destination as check_destination
 from ._files import watch_outputs as watch_outputs
 from ._hdf5_attrs import read_hdf5, read_noise_model
 from ._loads import LoadTable, read_loads
+from ._numbering import FrameGap, RecordNumbering, record_numbering
 from ._readers import IMAGE_EXTENSIONS, close_readers, natural_sort_key, to_luminance
 from ._sequences import STATE_ORDERS, StateInputs, natural_order, state_inputs
 from ._series import (
@@ -104,11 +108,13 @@ __all__ = [
     "IMAGE_EXTENSIONS",
     "MARKER_NAME",
     "STATE_ORDERS",
+    "FrameGap",
     "FrameSeries",
     "HDF5Stream",
     "LoadTable",
     "MemoryBudgetError",
     "OutputDirectory",
+    "RecordNumbering",
     "StateInputs",
     "atomic_path",
     "available_memory",
@@ -128,6 +134,7 @@ __all__ = [
     "read_loads",
     "read_mask",
     "read_noise_model",
+    "record_numbering",
     "roi_mask",
     "space_error",
     "split_frames",

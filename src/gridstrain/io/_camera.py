@@ -48,6 +48,13 @@ Photron MRAW (``.mraw``, with ``.cihx`` or ``.cih`` of the same name beside it)
     that the frames recorded cannot hold (``(count - 1) * step`` beyond them) leaves
     the record without times rather than with wrong ones, and a reading note says so.
 
+Times are checked before they are kept: a record rate outside 1e-3 to 1e10 fps (nan,
+infinite, zero, negative, or a corrupt value such as 5e-324) or a time more than a day
+from the trigger (a TriggerTime of 0 or of garbage puts the frames 1.7e9 or -4.3e9 s
+away) is not a record's timing; the frames are then read without the header's times
+(or, for a cine with a plausible FrameRate, timed by it instead of by its stamps), and a
+reading note names the header field. No time is better than a wrong one.
+
 Times are seconds from the trigger (negative before it), frames in the stored grey
 levels (12-bit packed pixels unpacked into uint16, values unchanged), and the
 significant bits (``RealBPP``, effective bit depth) given to the series as its bit
@@ -86,6 +93,12 @@ _SETUP_FIELDS = {"Mark": (140, "<2s"), "Length": (142, "<H"), "FrameRate": (768,
 _SETUP_NEED = 900  # bytes of SETUP holding every field read
 _TIME_ONLY_BLOCK = 1002
 _P10, _P12L = 256, 1024
+# A record's rate, fps: from one frame in about 17 minutes (time lapse) to beyond the
+# fastest cameras (some 1e7 fps); outside, the header's number is not a rate.
+_RATE_RANGE = (1e-3, 1e10)
+# A frame's time from the trigger, s: high-speed records last seconds to minutes; a
+# day away, the trigger time or the numbering of the header is not the record's.
+_MAX_TIME_S = 86400.0
 
 
 @dataclass(frozen=True)
@@ -271,10 +284,33 @@ def _stamp_times(times: np.ndarray, path: Path, name: str) -> tuple[float, ...]:
 
 def _rate_times(rate: float | None, first: int, n: int, step: int = 1
                 ) -> tuple[float, ...]:
-    """Frames ``first + k * step`` (k < n) over ``rate``, s; none without a rate."""
+    """Frames ``first + k * step`` (k < n) over ``rate``, s; none without a rate (a
+    rate checked by :func:`_plausible_rate`, so that no quotient overflows)."""
     if rate is None:
         return ()
     return tuple(float(t) for t in (first + step * np.arange(n, dtype=np.float64)) / rate)
+
+
+def _plausible_rate(value: float) -> bool:
+    """Whether a header's number can be a record's rate, fps (see the module)."""
+    return bool(np.isfinite(value) and _RATE_RANGE[0] <= value <= _RATE_RANGE[1])
+
+
+def _implausible_rate_note(field: str, value) -> str:
+    lo, hi = _RATE_RANGE
+    return (f"the header's {field} is {value}, not a record rate ({lo:g} to {hi:g} fps): "
+            "the frames are read without times (give the frame rate, or the times in the "
+            "loads file)")
+
+
+def _far_times(times: tuple[float, ...]) -> float | None:
+    """The time farthest from the trigger, s, if it is more than a day away (or not
+    finite); None when every time is plausible."""
+    if not times:
+        return None
+    t = np.asarray(times, dtype=np.float64)
+    worst = float(t[np.argmax(np.where(np.isfinite(t), np.abs(t), np.inf))])
+    return worst if not np.isfinite(worst) or abs(worst) > _MAX_TIME_S else None
 
 
 # --------------------------------------------------------------------------- Phantom cine
@@ -349,21 +385,52 @@ def _read_cine(path: Path, size: int, name: str) -> _Layout:
                           "number of pixels) cannot be stored two pixels in three bytes")
         bits = _check_bits(real_bpp, stored, "RealBPP", path, name)
         stamps = _cine_stamps(fh, off_setup + length, off_table, count, path, name)
-    fps = float(rate) if rate > 0 else None
-    if stamps is not None:
-        # seconds and fractions apart: a uint64 stamp less the trigger's may overflow
-        sec = (stamps >> np.uint64(32)).astype(np.int64) - trig_sec
-        frac = (stamps & np.uint64(0xFFFFFFFF)).astype(np.int64) - trig_frac
-        times = _stamp_times(sec + frac / 2.0**32, path, name)
-    else:
-        times = _rate_times(fps, first_no, count)
+    fps, times, note = _cine_times(stamps, (trig_sec, trig_frac), rate, first_no, count,
+                                   path, name)
     layout = _Layout(path, size, (H, W), count, stored, bits, bottom_up,
-                     fps, first_no, times, off_table)
+                     fps, first_no, times, off_table, note=f"{path.name}: {note}" if note
+                     else "")
     # the images must at least fit after the offset table
     _check_extent(layout, table_end, name)
     with open(path, "rb") as fh:
         _frame_offset(fh, layout, 0, name)
     return layout
+
+
+def _cine_times(stamps: np.ndarray | None, trigger: tuple[int, int], rate: int,
+                first_no: int, count: int, path: Path, name: str
+                ) -> tuple[float | None, tuple[float, ...], str]:
+    """A cine's frame rate (None if not plausible), its frames' times from the trigger,
+    s (from the time stamps, else from FirstImageNo and FrameRate; none where they
+    are not plausible, see the module) and the note saying why they were left out."""
+    trig_sec, trig_frac = trigger
+    fps, note = float(rate), ""
+    if not _plausible_rate(fps):
+        if rate > 0:
+            note = _implausible_rate_note("FrameRate", rate)
+        fps = None
+    times: tuple[float, ...] = ()
+    if stamps is not None:
+        # seconds and fractions apart: a uint64 stamp less the trigger's may overflow
+        sec = (stamps >> np.uint64(32)).astype(np.int64) - trig_sec
+        frac = (stamps & np.uint64(0xFFFFFFFF)).astype(np.int64) - trig_frac
+        times = _stamp_times(sec + frac / 2.0**32, path, name)
+        far = _far_times(times)
+        if far is not None:
+            by = "timed by its FrameRate" if fps is not None else "read without times"
+            note = (f"the header's TriggerTime ({trig_sec + trig_frac / 2.0**32:.10g} s "
+                    f"since 1970) puts a frame {far:.3g} s from the trigger, more than a "
+                    f"day: the time stamps are left out and the frames {by}")
+            times = ()
+    if not times:
+        times = _rate_times(fps, first_no, count)
+        far = _far_times(times)
+        if far is not None:
+            note = (f"the header's FirstImageNo ({first_no}) and FrameRate ({rate}) put a "
+                    f"frame {far:.3g} s from the trigger, more than a day: the frames are "
+                    "read without times")
+            times = ()
+    return fps, times, note
 
 
 def _cine_stamps(fh, start: int, end: int, count: int, path: Path, name: str
@@ -512,9 +579,6 @@ def _read_mraw(path: Path, size: int, name: str) -> _Layout:
         rate = float(fields.get("Record Rate(fps)", "nan"))
     except ValueError:
         rate = float("nan")
-    if not (np.isfinite(rate) and rate > 0):
-        raise OSError(f"{name}: {cih}: the header's 'Record Rate(fps)' must be a positive "
-                      f"number, got {fields.get('Record Rate(fps)')!r}")
     if count < 1:
         raise OSError(f"{name}: {cih}: the header's 'Total Frame' is {count}; no frame to "
                       "read")
@@ -524,8 +588,18 @@ def _read_mraw(path: Path, size: int, name: str) -> _Layout:
                       "recorded frames from one saved frame to the next (1 or more)")
     recorded = _cih_int(fields, "Original Total Frame", cih, name, default=-1)
     note = ""
-    if step == 1 or recorded < 0 or (count - 1) * step < recorded:
+    if not _plausible_rate(rate):
+        rate_saved, times = None, ()
+        note = f"{cih.name}: " + _implausible_rate_note(
+            "'Record Rate(fps)'", fields.get("Record Rate(fps)"))
+    elif step == 1 or recorded < 0 or (count - 1) * step < recorded:
         rate_saved, times = rate / step, _rate_times(rate, start, count, step)
+        far = _far_times(times)
+        if far is not None:
+            rate_saved, times = None, ()
+            note = (f"{cih.name}: the header's 'Start Frame' ({start}) and 'Record "
+                    f"Rate(fps)' ({fields.get('Record Rate(fps)')}) put a frame {far:.3g} s "
+                    "from the trigger, more than a day: the frames are read without times")
     else:  # the header contradicts itself: no time is better than a wrong one
         rate_saved, times = None, ()
         note = (f"{cih.name} gives a save step of {step} over {recorded} recorded frames, "

@@ -28,12 +28,14 @@ from .._validation import (
 )
 from ..phase import (
     DEFAULT_MARGIN,
+    MIN_MODULUS,
     Lattice,
     PhaseMaps,
     coupling_corrected,
     demodulated_at,
     detect_lattice,
     filled_box,
+    no_grid,
     wft,
 )
 from ..phase.lattice import reference_carrier, state_carrier
@@ -737,7 +739,11 @@ def measure(reference, deformed, *, lattice: Lattice | None = None,
     sigma : float, optional
         Window standard deviation, px (default: the pitch).
     mask : (H, W) bool array_like, optional
-        True on the specimen, in the reference configuration.
+        True on the specimen, in the reference configuration. The reference's
+        regions without a grid (a hole or background left unmasked: the modulus
+        below a quarter of its median, :func:`gridstrain.phase.no_grid`) are masked
+        too, so that the band of ``margin`` sigmas around them is invalid, as
+        :func:`gridstrain.measure_series` does.
     lagrangian : bool
         Large-displacement correction (default on); see :func:`deformation`.
     guess : "auto", None, (2,) or (2, H, W) array_like
@@ -771,10 +777,19 @@ def measure(reference, deformed, *, lattice: Lattice | None = None,
     m = check_mask(mask, ref.shape)
     if check_type(lattice, "lattice", Lattice, allow_none=True) is None:
         lattice = detect_lattice(ref, mask=m)
+    pm_ref = wft(ref, lattice, sigma=sigma, mask=m, margin=margin, workers=None)
+    nogrid = no_grid(pm_ref.modulus, pm_ref.valid, m, MIN_MODULUS, away=pm_ref.sigma)
+    if nogrid.any():
+        # a hole or background left unmasked: masked, so that the windows straddling
+        # it are invalid as along a mask's edge (as measure_series does)
+        m = m & ~nogrid
+        if not m.any():
+            raise ValueError("reference: no pixel shows a grid at the lattice's wave "
+                             f"vectors (pitch {lattice.pitch:.4g} px)")
+        pm_ref = wft(ref, lattice, sigma=sigma, mask=m, margin=margin, workers=None)
     # each transform corrected at its own carrier, before any change of carrier: the
     # window's phase-modulus coupling (gridstrain.phase.coupling_corrected)
-    pm_ref = coupling_corrected(wft(ref, lattice, sigma=sigma, mask=m, margin=margin,
-                                    workers=None))
+    pm_ref = coupling_corrected(pm_ref)
     # the deformed specimen has moved: its mask is not the reference's, so the
     # deformed image is transformed whole and validity comes from its own moduli; at
     # its own carrier, a window off it biases the phase where the grid's amplitude

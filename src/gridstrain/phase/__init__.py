@@ -21,11 +21,12 @@ from ._spectrum import transfer_function
 from ._transform import DEFAULT_MARGIN, transform, wft, wft_complex
 from ._transform import Workspace as Workspace
 from ._validity import filled_box as filled_box
+from ._validity import no_grid
 from .lattice import Lattice, detect_lattice, follow_lattice
 from .window import MIN_MODULUS, Window
 
 __all__ = [
     "DEFAULT_MARGIN", "MIN_MODULUS", "Lattice", "PhaseMaps", "Window", "coupling_corrected",
     "demodulated_at", "detect_lattice", "finite_derivatives", "follow_lattice",
-    "transfer_function", "transform", "wft", "wft_complex",
+    "no_grid", "transfer_function", "transform", "wft", "wft_complex",
 ]

@@ -33,6 +33,48 @@ def _shows_grid(mods, valid: np.ndarray, box, m: np.ndarray, min_modulus: float)
     return keep
 
 
+def no_grid(modulus, valid, mask, min_modulus: float, *, away: float = 0.0) -> np.ndarray:
+    """Pixels of ``mask`` whose grid does not show: either modulus below ``min_modulus``
+    times its median over ``valid`` (over ``mask`` where no pixel is valid).
+
+    A hole, a gap or the background beside a coupon, left unmasked: its pixels are
+    then masked and the image transformed again, so that the band of ``margin``
+    sigmas around them is invalid as around a mask's edge (a window straddling the
+    hole takes its uniform background into the phase: strain errors of 1e-3 to 5e-3
+    within 4 sigmas of a hole's edge, tests/test_small_defects.py).
+
+    Parameters
+    ----------
+    modulus : (2, H, W) float ndarray
+        ``|Psi_k1|`` and ``|Psi_k2|`` (:attr:`PhaseMaps.modulus`).
+    valid : (H, W) bool ndarray
+        The transform's valid pixels, where the median is taken.
+    mask : (H, W) bool ndarray
+        The specimen (:mod:`gridstrain.conventions`, Masks).
+    min_modulus : float
+        Fraction of the median below which no grid shows
+        (:data:`~gridstrain.phase.MIN_MODULUS`).
+    away : float
+        Count only the pixels farther than ``away`` px from the image's border and the
+        mask's edge. A window cut by a straight border keeps half the grid's modulus,
+        but one cut by a corner a quarter: ``away = sigma`` keeps the corners of a
+        grid that shows everywhere from reading as holes.
+
+    Returns
+    -------
+    (H, W) bool ndarray
+        True where ``mask`` holds a pixel without a grid.
+    """
+    ref = valid if valid.any() else mask
+    out = np.zeros(mask.shape, dtype=bool)
+    for j in range(2):
+        out |= modulus[j] < min_modulus * median(modulus[j][ref], overwrite_input=True)
+    out &= mask
+    if away > 0 and out.any():
+        out &= _region(mask, bool(mask.all()), away)[0]
+    return out
+
+
 def filled_box(valid: np.ndarray) -> tuple[int, int, int, int] | None:
     """``(r0, r1, c0, c1)``, rows ``r0:r1`` and columns ``c0:c1``, of the rectangle the
     ``True`` pixels of ``valid`` fill (a frame's valid band without a mask), or None

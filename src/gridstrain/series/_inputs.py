@@ -19,7 +19,7 @@ from .._validation import (
     check_mask,
     check_positive,
 )
-from ..io import FrameSeries, StateInputs, open_series, read_mask
+from ..io import FrameSeries, StateInputs, open_series, read_mask, record_numbering
 from ..phase import Lattice
 from ..phase.window import min_side
 
@@ -245,12 +245,32 @@ def _specimen_mask(mask, shape) -> np.ndarray:
     return check_mask(mask, shape)
 
 
+def _file_numbers(series: list, *, from_record: bool):
+    """The record's numbering from its file names (:func:`gridstrain.io.record_numbering`),
+    the reference's frames first where they come from the record; None where the states
+    are not one file each (pages of a file, frames of a video or camera record, arrays)."""
+    record = series if from_record else series[1:]
+    paths = []
+    for s in record:
+        if not isinstance(s, FrameSeries) or len(s.paths) != s.n_frames:
+            return None
+        paths.extend(s.paths)
+    return record_numbering(paths)
+
+
 def _loads_and_times(loads, frame_rate, series: list, *, each_frame: bool,
-                     first_frame: int) -> dict:
+                     first_frame: int) -> tuple[dict, list[str]]:
     """``load``, ``load_unit`` and ``time`` of the result, checked against the
-    states before any frame is read."""
+    states before any frame is read, and the warnings on the record's numbering.
+
+    A record of one file per frame is numbered by its file names: a missing,
+    off-step or out-of-order number is named in a warning, and with ``frame_rate``
+    each state's time is its number less the record's first over the rate (so that
+    a dropped frame shifts no later state). Repeated numbers are refused."""
     names = [s.name for s in series[1:]]
     load = unit = time = None
+    numbering = _file_numbers(series, from_record=first_frame > 0) if each_frame else None
+    notes = list(numbering.warnings) if numbering is not None else []
     if loads is not None:
         if isinstance(loads, str | os.PathLike):
             from ..io import read_loads
@@ -270,13 +290,17 @@ def _loads_and_times(loads, frame_rate, series: list, *, each_frame: bool,
         if time is not None:
             raise ValueError(f"give the times by frame_rate or by the loads file's time "
                              f"column, not both (frame_rate={frame_rate!r})")
-        time = (np.arange(len(names), dtype=np.float64) + first_frame) / rate
+        if numbering is not None:
+            n = np.array(numbering.numbers, dtype=np.float64)
+            time = (n[len(n) - len(names):] - n.min()) / rate
+        else:
+            time = (np.arange(len(names), dtype=np.float64) + first_frame) / rate
     elif time is None and each_frame:
         # the camera's own time stamps, where the file holds them (videos)
         stamps = [getattr(s, "times", None) for s in series[1:]]
         if all(t is not None and t.size == 1 for t in stamps):
             time = np.concatenate(stamps)
-    return {"load": load, "load_unit": unit, "time": time}
+    return {"load": load, "load_unit": unit, "time": time}, notes
 
 
 def _check_memory(series: list, *, method: str, held: bool) -> None:

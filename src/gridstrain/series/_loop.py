@@ -294,8 +294,9 @@ def measure_series(reference, states, *, lattice: Lattice | None = None,
     if not (each_frame or given.reference is not None or reference_frames):
         warnings += _glob_warning(series)
     o = dataclasses.replace(o, state_order=given.order)
-    extra = _loads_and_times(loads, frame_rate, series, each_frame=o.each_frame,
-                             first_frame=o.reference_frames or 0)
+    extra, notes = _loads_and_times(loads, frame_rate, series, each_frame=o.each_frame,
+                                    first_frame=o.reference_frames or 0)
+    warnings += notes
     # BLAS on the calling thread throughout: its products here are small or memory
     # bound, and OpenBLAS's own threads would spin between them (gridstrain._runtime.threads)
     try:

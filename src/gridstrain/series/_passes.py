@@ -26,6 +26,7 @@ from ..phase import (
     Window,
     detect_lattice,
     finite_derivatives,
+    no_grid,
     transform,
 )
 from ..phase.lattice import state_carrier
@@ -288,18 +289,6 @@ def _run_pass(s, plan: PassPlan, report: Progress) -> SeriesPass:
     return box[0]
 
 
-def _no_grid(mod: np.ndarray, valid: np.ndarray, mask: np.ndarray,
-             min_modulus: float) -> np.ndarray:
-    """Pixels of ``mask`` whose modulus ``mod`` (2, H, W) shows no grid, below
-    ``min_modulus`` times its median (``valid``: the transform's valid pixels, where the
-    median is taken)."""
-    ref = valid if valid.any() else mask
-    out = np.zeros(mask.shape, dtype=bool)
-    for j in range(2):
-        out |= mod[j] < min_modulus * median(mod[j][ref], overwrite_input=True)
-    return out & mask
-
-
 def _check_given_lattice(image: np.ndarray, lattice: Lattice, window: Window,
                          mask: np.ndarray) -> None:
     """Refuse a given lattice that the reference image does not show.
@@ -353,7 +342,7 @@ def _phase_maps_a(image, lattice: Lattice, window: Window, mask):
     """WFT of an averaged image, masking regions without a grid (method A)."""
     m = np.ones(image.shape, dtype=bool) if mask is None else mask
     pm = transform(image, lattice, window, mask=m, workers=None)
-    nogrid = _no_grid(pm.modulus, pm.valid, m, window.min_modulus)
+    nogrid = no_grid(pm.modulus, pm.valid, m, window.min_modulus)
     if nogrid.any():
         m = _less(m, nogrid)
         pm = transform(image, lattice, window, mask=m, workers=None)
@@ -379,7 +368,7 @@ def _grid_support(image, lattice: Lattice, window: Window, mask) -> np.ndarray:
         mod[j, r0:r1] = modulus
 
     valid = transform(image, lattice, window, mask=m, sink=keep, workers=None)
-    nogrid = _no_grid(mod, valid, m, window.min_modulus)
+    nogrid = no_grid(mod, valid, m, window.min_modulus)
     return _less(m, nogrid) if nogrid.any() else m
 
 

@@ -568,7 +568,7 @@ def correct_phases(maps, shifts, *, exact: bool = False, about: str = "origin"):
         moduli and derivatives unchanged (``delta`` is uniform).
     """
     if isinstance(maps, StackResult):
-        return replace(maps, maps=correct_phases(maps.maps, shifts, exact=exact))
+        return replace(maps, maps=correct_phases(maps.maps, shifts, exact=exact, about=about))
     if not isinstance(maps, PhaseMaps):
         raise TypeError(f"maps must be a PhaseMaps or StackResult, got "
                         f"{type(maps).__name__}")
