@@ -26,6 +26,7 @@ from .._memory import memory_budget, parse_size
 from .._progress import bar
 from ..io import (
     FrameSeries,
+    LoadsFile,
     OutputDirectory,
     open_series,
     read_mask,
@@ -76,7 +77,8 @@ _CONFIG_KEYS = {
     "timeout": "float",
     "sigma-pitches": "float", "noise": "path", "noise-model": "pair", "dtype": "str",
     "each-frame": "bool", "reference-frames": "int", "keep-order": "bool", "loads": "path",
-    "frame-rate": "float",
+    "frame-rate": "float", "load-column": "str", "time-column": "str",
+    "loads-offset": "float",
 }
 # How to run, not what to measure: every output (the result file, the side outputs and
 # what they replace), the terminal's report, the cluster and its patience. Never
@@ -197,8 +199,20 @@ _SEQUENCE_OPTIONS = (
                       "form one numbered family, as a shell lists frame_1 frame_10 "
                       "frame_2, are measured in natural order)"}),
     ("--loads", {"metavar": "FILE.csv", "help":
-                 "the load of each state: a CSV with a 'load [UNIT]' column, optionally "
-                 "'time [s]', one row per state in order or a 'state' column naming them"}),
+                 "the load of each state: a testing machine's export as it comes (',', "
+                 "';', tab or spaces between columns, decimal comma, preamble lines, "
+                 "units in the header: 'Force (kN)', 'Zeit [ms]'); a log with a time "
+                 "column is joined to the states' times (--frame-rate or the camera's) "
+                 "by linear interpolation; else one row per state in order or a 'state' "
+                 "column naming them"}),
+    ("--load-column", {"metavar": "NAME", "help":
+                       "the load column's name (default: the one named load, force or "
+                       "Kraft)"}),
+    ("--time-column", {"metavar": "NAME", "help":
+                       "the time column's name (default: the one named time or Zeit)"}),
+    ("--loads-offset", {"type": float, "metavar": "SECONDS", "help":
+                        "the time on the log's clock at the camera's time zero, s (a log "
+                        "started 0.2 s before the camera's trigger: 0.2; default 0)"}),
     ("--frame-rate", {"type": float, "metavar": "HZ", "help":
                       "the camera's frame rate: each state's time is its frame's number in "
                       "the record over the rate, s (with --each-frame; default: the times a "
@@ -624,7 +638,7 @@ def _run(args, progress: _Bar) -> int:
             noise_model=noise_model, sigma_pitches=opts.get("sigma-pitches"),
             timeout=opts["timeout"], output=spec, dtype=opts.get("dtype"),
             each_frame=opts["each-frame"], reference_frames=opts.get("reference-frames"),
-            keep_order=opts["keep-order"], loads=opts.get("loads"),
+            keep_order=opts["keep-order"], loads=_loads(opts),
             frame_rate=opts.get("frame-rate"), **kw)
     if spec is None:
         _refuse_empty(result)
@@ -635,6 +649,18 @@ def _run(args, progress: _Bar) -> int:
     outputs = _extra_outputs(result, out, opts, progress)
     _print(result, out, opts, outputs, time.perf_counter() - t0)
     return 0
+
+
+def _loads(opts: dict):
+    """``measure_series``'s ``loads``: the file and how to read it, or None."""
+    if not opts.get("loads"):
+        for name in ("load-column", "time-column", "loads-offset"):
+            if opts.get(name) is not None:
+                raise ValueError(f"--{name} needs --loads")
+        return None
+    return LoadsFile(os.path.expanduser(opts["loads"]), load_column=opts.get("load-column"),
+                     time_column=opts.get("time-column"),
+                     offset=opts.get("loads-offset") or 0.0)
 
 
 def _checked(opts: dict) -> tuple:

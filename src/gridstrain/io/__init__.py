@@ -20,7 +20,10 @@ Input
     ITU-R BT.709 weights) and JPEG files with a note on their lossy compression
     (:attr:`FrameSeries.notes`). :func:`read_mask` reads a specimen mask, grey,
     1-bit or colour (:mod:`gridstrain.conventions`, Masks); :func:`roi_mask`
-    makes one from a rectangle or a polygon.
+    makes one from a rectangle or a polygon. :func:`read_loads` reads a testing
+    machine's export as it comes (delimiter, decimal comma, preamble, units in the
+    header, encoding) and joins its log to the states by time (:class:`LoadsFile`
+    names its columns and the log's offset; :class:`LoadTable` records how).
 
 Grey levels and bit depth
     Frames are returned in *raw* grey levels, the values stored in the files.
@@ -82,7 +85,7 @@ from ._files import (
     write_hdf5,
 )
 from ._hdf5_attrs import read_hdf5, read_noise_model
-from ._loads import LoadTable, read_loads
+from ._loads import LoadsFile, LoadTable, read_loads
 from ._readers import IMAGE_EXTENSIONS, close_readers, natural_sort_key, to_luminance
 from ._series import (
     FrameSeries,
@@ -101,6 +104,7 @@ __all__ = [
     "FrameSeries",
     "HDF5Stream",
     "LoadTable",
+    "LoadsFile",
     "MemoryBudgetError",
     "OutputDirectory",
     "atomic_path",
