@@ -45,7 +45,10 @@ Output
     ``OSError`` naming the file (:func:`space_error`), with nothing left behind,
     never a crash inside the library. In an output directory
     (:class:`OutputDirectory`) a marker file lists what gridstrain wrote, and only
-    those files are ever replaced. :func:`write_hdf5` writes
+    those files are ever replaced; the command line lists its single output files
+    (``-o maps.h5``, a report) in the marker of their folder
+    (:func:`record_outputs`), and ``--overwrite`` replaces only a file
+    :func:`written_by_gridstrain` recognises. :func:`write_hdf5` writes
     compressed, checksummed HDF5 with units and JSON-encoded metadata;
     :func:`write_csv` writes exact decimal columns; :func:`write_tiff_series`
     writes a folder of numbered single-page TIFFs such as a camera produces.
@@ -78,11 +81,13 @@ from ._files import (
     hdf5_file,
     hdf5_stream,
     provenance,
+    record_outputs,
     space_error,
     sweep_temporary_files,
     write_atomic,
     write_csv,
     write_hdf5,
+    written_by_gridstrain,
 )
 from ._hdf5_attrs import read_hdf5, read_noise_model
 from ._loads import LoadsFile, LoadTable, read_loads
@@ -124,6 +129,7 @@ __all__ = [
     "read_loads",
     "read_mask",
     "read_noise_model",
+    "record_outputs",
     "roi_mask",
     "space_error",
     "split_frames",
@@ -133,5 +139,6 @@ __all__ = [
     "write_csv",
     "write_hdf5",
     "write_tiff_series",
+    "written_by_gridstrain",
 ]
 
