@@ -109,6 +109,12 @@ def test_a_zwick_export_is_read_as_it_comes(tmp_path):
     # the test could fail: the nearest row of the log is 3 ms off, 2-3 N away
     nearest = counts[np.round((CAMERA + OFFSET) * RATE_LOG).astype(int)] * 1e-4
     assert np.max(np.abs(nearest - want)) > 1000 * ATOL_KN
+    # against the law itself: linear interpolation errs by at most h^2/8 max|F''|
+    # (h = 10 ms, |F''| <= 40 (2 pi 1.3)^2 N/s^2: 0.033 N), the export's rounding by
+    # half its last digit (0.05 N)
+    bound_kn = (0.01**2 / 8 * 40 * (2 * np.pi * 1.3) ** 2 + 0.05) * 1e-3
+    exact_kn = _force_n(CAMERA + OFFSET) * 1e-3
+    assert np.max(np.abs(table.load - exact_kn)) <= bound_kn
     s = table.source
     assert s["sha256"] == hashlib.sha256(path.read_bytes()).hexdigest()
     assert (s["encoding"], s["delimiter"], s["decimal"]) == ("cp1252", ";", ",")
@@ -310,6 +316,7 @@ def test_cli_measure_then_gauge_modulus_history(tmp_path, capsys):
     cam = np.arange(1, N_FRAMES) / RATE_CAMERA
     want = _oracle(cam, t_ms, counts)
     np.testing.assert_allclose(load(out).load, want, rtol=0, atol=ATOL_KN)
+    assert load(out).load_source["file"] == str(tmp_path / "zwick.csv")
     # the post commands join the same log to the result's times, with their options
     g = tmp_path / "g.csv"
     csv = tmp_path / "zwick.csv"
@@ -332,6 +339,22 @@ def test_cli_measure_then_gauge_modulus_history(tmp_path, capsys):
                "--area", str(AREA_MM2), "--json"])
     assert rc == 0, capsys.readouterr().err
     assert math.isfinite(json.loads(capsys.readouterr().out)["E"])
+
+
+def test_a_replay_refuses_a_loads_file_changed_since(tmp_path, capsys):
+    rc, out = _cli(tmp_path)
+    assert rc == 0, capsys.readouterr().err
+    again = ["measure", "--config", str(out), "-o", str(tmp_path / "again.h5"), "--quiet"]
+    assert main(again) == 0, capsys.readouterr().err
+    # the same log, one row edited: the replay names the file and the two digests
+    csv = tmp_path / "zwick.csv"
+    csv.write_bytes(csv.read_bytes().replace(b"\r\n100;", b"\r\n100;9"))
+    rc = main([*again[:-1], "--overwrite", "--quiet"])
+    err = capsys.readouterr().err
+    assert rc != 0
+    assert f"loads file {csv} has changed since {out} was measured" in err
+    # given on the command line, it is taken as it is
+    assert main([*again, "--overwrite", "--loads", str(csv)]) == 0, capsys.readouterr().err
 
 
 def test_cli_measure_refuses_a_time_going_backwards(tmp_path, capsys):

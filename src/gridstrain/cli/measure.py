@@ -605,6 +605,8 @@ def _run(args, progress: _Bar) -> int:
         replay["config_ignored"] = list(config.ignored)
         if config.from_result and not opts["quiet"]:
             print(_replay_line(config, opts), file=sys.stderr)
+        if config.from_result and opts.get("loads") and args.loads is None:
+            _check_replayed_loads(config.path, opts["loads"])
     reference, states, mask = _inputs(opts, args)
     ps, unit = _pixel_size(opts, lattice, reference, mask), opts.get("unit")
     stored = dict(opts)
@@ -649,6 +651,24 @@ def _run(args, progress: _Bar) -> int:
     outputs = _extra_outputs(result, out, opts, progress)
     _print(result, out, opts, outputs, time.perf_counter() - t0)
     return 0
+
+
+def _check_replayed_loads(result: Path, loads) -> None:
+    """Refuse to replay a run on a loads file other than the one it read: its SHA-256,
+    recorded in the result, must match (a file given by --loads is taken as it is)."""
+    import hashlib
+
+    from ..results import load
+
+    recorded = (load(result, in_memory=False).load_source or {}).get("sha256")
+    path = Path(os.path.expanduser(loads))
+    if recorded is None or not path.is_file():
+        return  # loads given as numbers, or an older result: nothing to compare
+    now = hashlib.sha256(path.read_bytes()).hexdigest()
+    if now != recorded:
+        raise ValueError(f"loads file {path} has changed since {result} was measured "
+                         f"(SHA-256 {now[:12]}... now, {recorded[:12]}... then); pass "
+                         "--loads to replay with it as it is")
 
 
 def _loads(opts: dict):

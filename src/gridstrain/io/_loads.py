@@ -6,40 +6,8 @@ date) above the header, a semicolon or a tab between columns and a decimal comma
 in a German or French locale, units in the header (``Force (kN)``, ``Zeit [ms]``)
 or on a line of their own below it, Windows-1252 or UTF-16 text, and a row every
 10 ms while the camera takes one frame a second. :func:`read_loads` reads such a
-file as it comes and gives one load (and time) per state.
-
-How the file is read
-    The bytes are decoded as UTF-8 (a byte-order mark skipped), UTF-16 with a
-    byte-order mark, or else Windows-1252 (cp1252, the encoding of the exports of
-    Windows software, where ``µ`` is one byte); anything else is refused naming the
-    file and the row. Lines are split into fields by the standard library's
-    :mod:`csv` reader (quotes, and its field-size limit of 128 KiB, turned into one
-    line naming the row). The delimiter is the first of tab, ``;`` and ``,`` under
-    which a header line is followed by a row of numbers with as many fields, else
-    runs of white space. The header is the first line of text (no field a number)
-    followed by such a row, or by one line of units and then such a row; the lines
-    above it are the preamble and are skipped, as are blank lines and lines
-    beginning with ``#``. With ``;``, tab or white space between the fields, a comma
-    in a number is its decimal mark.
-
-Columns and units
-    The load column is the one named ``load_column``, else the one whose name
-    holds ``load``, ``force``, ``Kraft`` or is ``F``; the time column the one named
-    ``time_column``, else one holding ``time``, ``Zeit`` or named ``t``. Units are
-    read from brackets or parentheses (``Load [N]``, ``Force (kN)``), a slash
-    (``Zeit / ms``) or the line of units. Loads stay in N, kN, MN or lbf (mN and daN
-    are converted to N, lb to lbf, kip to 1000 lbf); times are converted to s (from
-    µs, ms, s, min, h).
-
-Joining the log to the states
-    With a ``state`` column, each row names its state. Otherwise, when the states'
-    times on the camera's clock are known (``times``: the frame rate or the camera's
-    time stamps) and the file has a time column, each state's load is the log's
-    load linearly interpolated at ``time + offset`` on the log's clock, ``offset``
-    being the log's time at the camera's time zero: a log started 0.2 s before the
-    camera's trigger has ``offset = 0.2``. Otherwise the file holds one row per
-    state, in their order, and its time column (less ``offset``) gives the states'
-    times.
+file as it comes and gives one load (and time) per state; its Notes state the
+rules.
 """
 
 from __future__ import annotations
@@ -48,6 +16,7 @@ import codecs
 import csv
 import hashlib
 import math
+import os
 import re
 from dataclasses import dataclass, field
 
@@ -121,7 +90,7 @@ class LoadsFile:
     load_column, time_column : str, optional
         The columns' names (without their unit, or as written), compared
         case-insensitively; by default recognised by name (see
-        :mod:`gridstrain.io._loads`).
+        :func:`read_loads`).
     offset : float
         The time on the log's clock at the camera's time zero, s (a log started
         0.2 s before the camera's trigger: 0.2).
@@ -398,7 +367,7 @@ def read_loads(path, *, states, reference: str | None = None, times=None,
     """Read the load (and the time) of every state from a testing machine's export.
 
     The file is read as the machine wrote it (delimiter, decimal comma, preamble,
-    units in the header, encoding: see :mod:`gridstrain.io._loads`). A ``state``
+    units in the header, encoding: see Notes). A ``state``
     column names the state of each row (every state once, in any order; a row
     naming ``reference`` is skipped). Otherwise, with ``times`` and a time column,
     the log is joined to the states by time; else it holds one row per state, in
@@ -445,11 +414,45 @@ def read_loads(path, *, states, reference: str | None = None, times=None,
 
     Notes
     -----
+    **How the file is read.**
+    The bytes are decoded as UTF-8 (a byte-order mark skipped), UTF-16 with a
+    byte-order mark, or else Windows-1252 (cp1252, the encoding of the exports of
+    Windows software, where ``µ`` is one byte); anything else is refused naming the
+    file and the row. Lines are split into fields by the standard library's
+    :mod:`csv` reader (quotes, and its field-size limit of 128 KiB, turned into one
+    line naming the row). The delimiter is the first of tab, ``;`` and ``,`` under
+    which a header line is followed by a row of numbers with as many fields, else
+    runs of white space. The header is the line of text (no field a number) with
+    the longest run of such rows below it (a preamble of "name;value" lines has
+    short ones), or one line of units and then the rows; the lines above it are the
+    preamble and are skipped, as are blank lines and lines beginning with ``#``.
+    With ``;``, tab or white space between the fields, a comma in a number is its
+    decimal mark.
+
+    **Columns and units.**
+    The load column is the one named ``load_column``, else the one whose name
+    holds ``load``, ``force``, ``Kraft`` or is ``F``; the time column the one named
+    ``time_column``, else one holding ``time``, ``Zeit`` or named ``t``. Units are
+    read from brackets or parentheses (``Load [N]``, ``Force (kN)``), a slash
+    (``Zeit / ms``) or the line of units. Loads stay in N, kN, MN or lbf (mN and daN
+    are converted to N, lb to lbf, kip to 1000 lbf); times are converted to s (from
+    µs, ms, s, min, h).
+
+    **Joining the log to the states.**
+    With a ``state`` column, each row names its state. Otherwise, when the states'
+    times on the camera's clock are known (``times``: the frame rate or the camera's
+    time stamps) and the file has a time column, each state's load is the log's
+    load linearly interpolated at ``time + offset`` on the log's clock, ``offset``
+    being the log's time at the camera's time zero: a log started 0.2 s before the
+    camera's trigger has ``offset = 0.2``. Otherwise the file holds one row per
+    state, in their order, and its time column (less ``offset``) gives the states'
+    times.
+
     Interpolation is linear between the two rows around each state's time, the
-    exact load at a row's time; a log sampled far faster than the camera (100 Hz
-    against 10 Hz) makes the error of the interpolation that of the log's own
-    resolution. No extrapolation: a state before the first or after the last row is
-    refused.
+    exact load at a row's time: for rows ``h`` s apart its error is at most
+    ``h**2 / 8 max|F''|`` (1.25e-5 s² times the load's second derivative for a
+    100 Hz log), below the last digit of most exports. No extrapolation: a state
+    before the first or after the last row is refused.
 
     Examples
     --------
@@ -535,7 +538,7 @@ def read_loads(path, *, states, reference: str | None = None, times=None,
         raise ValueError(f"loads file {p}: offset (--loads-offset) {offset:g} s but no time "
                          "column to shift")
     source = {
-        "file": str(p), "sha256": hashlib.sha256(raw).hexdigest(), "encoding": encoding,
+        "file": os.path.abspath(p), "sha256": hashlib.sha256(raw).hexdigest(), "encoding": encoding,
         "delimiter": "whitespace" if lay.delimiter is None else lay.delimiter,
         "decimal": "," if comma else ".", "header_row": int(row), "rows": len(rows),
         "load_column": cells[columns["load"]], "load_unit": units[columns["load"]],
