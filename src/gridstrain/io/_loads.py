@@ -13,6 +13,7 @@ rules.
 from __future__ import annotations
 
 import codecs
+import contextlib
 import csv
 import hashlib
 import math
@@ -32,7 +33,7 @@ _WITH_UNIT = (re.compile(r"^(?P<name>.*?)\s*\[\s*(?P<unit>[^\]]*?)\s*\]$"),
               re.compile(r"^(?P<name>.*?)\s*\(\s*(?P<unit>[^)]*?)\s*\)$"),
               re.compile(r"^(?P<name>.*?\S)\s*/\s*(?P<unit>[^/\s]+)$"),
               re.compile(r"^(?P<name>.*?\S)\s+in\s+(?P<unit>\S+)$", re.IGNORECASE))
-_MICRO = "\u00b5"  # the micro sign of cp1252 (0xB5); the Greek mu is taken as it
+_MICRO = "\u00b5"  # the micro sign of cp1252 (0xB5); a Greek mu (U+03BC) reads as it
 
 #: A force unit as written -> (the unit the loads are given in, factor to it).
 FORCE_UNITS = {"N": ("N", 1.0), "kN": ("kN", 1.0), "KN": ("kN", 1.0), "kn": ("kN", 1.0),
@@ -110,9 +111,9 @@ class LoadsFile:
 
 # --------------------------------------------------------------------------- decoding
 
-def _row_of(raw: bytes, index: int, width: int = 1) -> int:
-    """The line (from 1) of byte ``index`` of ``raw``, in a ``width``-byte encoding."""
-    return raw[:index].count(b"\n" + b"\x00" * (width - 1)) + 1
+def _row_of(raw: bytes, index: int, encoding: str = "latin-1") -> int:
+    """The line (from 1) of byte ``index`` of ``raw``, read in ``encoding``."""
+    return raw[:index].decode(encoding, errors="replace").count("\n") + 1
 
 
 def _decode(raw: bytes, p) -> tuple[str, str]:
@@ -121,7 +122,7 @@ def _decode(raw: bytes, p) -> tuple[str, str]:
         try:
             return raw.decode("utf-16"), "utf-16"
         except UnicodeDecodeError as exc:
-            raise ValueError(f"loads file {p}, row {_row_of(raw, exc.start, 2)}: not "
+            raise ValueError(f"loads file {p}, row {_row_of(raw, exc.start, 'utf-16')}: not "
                              "valid UTF-16 text (its byte-order mark says UTF-16)") from None
     if raw.startswith(codecs.BOM_UTF8):
         enc = "utf-8-sig"
@@ -133,14 +134,12 @@ def _decode(raw: bytes, p) -> tuple[str, str]:
                          "byte-order mark)")
     else:
         enc = "utf-8"
-    try:
+    with contextlib.suppress(UnicodeDecodeError):
         return raw.decode(enc), enc
-    except UnicodeDecodeError as exc:
-        first = exc
     try:
         return raw.decode("cp1252"), "cp1252"
     except UnicodeDecodeError as exc:
-        raise ValueError(f"loads file {p}, row {_row_of(raw, first.start)}: byte "
+        raise ValueError(f"loads file {p}, row {_row_of(raw, exc.start)}: byte "
                          f"0x{raw[exc.start]:02x} is neither UTF-8 nor Windows-1252 "
                          "(cp1252) text; save the export as UTF-8") from None
 
