@@ -61,6 +61,11 @@ def lattice_option(opts: dict) -> Lattice | None:
     return None
 
 
+#: ``--overwrite``'s help, for a single output file (check_output_file says why not).
+OVERWRITE_HELP = ("replace the file of that name if an earlier gridstrain run wrote it "
+                  "and it is unchanged since (never another file)")
+
+
 def check_output_file(path: Path, what: str, overwrite: bool, inputs=frozenset()) -> None:
     """Refuse, before any work, an output that would fail or clobber at the end: with
     ``--overwrite``, a file that gridstrain did not write (or that changed since) is

@@ -7,7 +7,7 @@ import functools
 import os
 from pathlib import Path
 
-from ._common import check_output_file, xy_pairs
+from ._common import OVERWRITE_HELP, check_output_file, xy_pairs
 
 
 def add_result_options(p, *, loads: bool = True) -> None:
@@ -60,7 +60,7 @@ def polygon_option(values):
 
 def add_output_options(p, what: str) -> None:
     p.add_argument("-o", "--output", metavar="FILE.csv", help=f"write {what} as CSV")
-    p.add_argument("--overwrite", action="store_true", help="replace an existing file")
+    p.add_argument("--overwrite", action="store_true", help=OVERWRITE_HELP)
 
 
 def output_path(args, src: Path, what: str) -> Path | None:

@@ -260,7 +260,8 @@ def _output_options(o) -> None:
     o.add_argument("--report", metavar="FILE.html",
                    help="also write a self-contained HTML report of the run")
     o.add_argument("--overwrite", action="store_true", default=None,
-                   help="replace existing output files")
+                   help="replace the output files an earlier gridstrain run wrote, "
+                   "unchanged since (never another file)")
     o.add_argument("--memory-budget", type=_size, metavar="SIZE",
                    help="memory the run may use, e.g. 3G or 500M (default: the memory "
                    "available, the least of the system's and the cgroup's limit); a run "
