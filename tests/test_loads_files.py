@@ -32,6 +32,7 @@ import numpy as np
 import pytest
 import tifffile
 
+from camera_files import write_cine
 from gridstrain import measure_series
 from gridstrain.cli import main
 from gridstrain.io import LoadsFile, read_loads
@@ -304,6 +305,30 @@ def _cli(tmp_path, *extra):
                  "--load-column", "Standardkraft", "-o", str(out), "--quiet",
                  "--pixel-size", "0.1", "--unit", "mm", "--noise-model", str(NOISE[0]),
                  str(NOISE[1]), *extra]), out
+
+
+def test_a_high_speed_record_is_joined_by_its_own_time_stamps(tmp_path):
+    """A Phantom cine (``tests/camera_files.py``) at 1000 frames per second, two frames
+    before the trigger and one frame's stamp 3 us late, against a 100 kHz log (times
+    in µs) started 5 ms before the trigger: each state's load is the log's at the
+    camera's own stamp plus the offset, the late stamp included."""
+    n, rate, first = 5, 1000, -2
+    stamps = (np.arange(n) + first) / rate
+    stamps[3] += 3e-6
+    cine = write_cine(tmp_path / "rec.cine", record(n, (64, 96), strain=1e-3) // 16,
+                      real_bpp=12, frame_rate=rate, first_number=first, times=stamps)
+    t_us = np.arange(0, 10_001, 10)  # 0 to 10 ms every 10 us, on the log's clock
+    counts = np.round(_force_n(t_us * 1e-6) * 1e3 * 10).astype(np.int64)  # ramped x1000
+    log = tmp_path / "log.txt"
+    log.write_text("Time [µs]\tLoad [N]\n" + "".join(
+        f"{t}\t{c / 10:.1f}\n" for t, c in zip(t_us, counts, strict=True)), encoding="utf-8")
+    res = measure_series(None, cine, reference_frames=1, loads=LoadsFile(log, offset=5e-3))
+    # TIME64 stamps are exact to 2**-32 s: far below the log's 10 us
+    np.testing.assert_allclose(res.time, stamps[1:], rtol=0, atol=2.0**-32)
+    want = np.interp(res.time + 5e-3, t_us * 1e-6, counts / 10)
+    # 1 uN: the rounding of us -> s times a slope of 8e5 N/s is 1e-10 N
+    np.testing.assert_allclose(res.load, want, rtol=0, atol=1e-6)
+    assert res.load_source["time_unit"] == "µs"
 
 
 def test_cli_measure_then_gauge_modulus_history(tmp_path, capsys):
