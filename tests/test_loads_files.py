@@ -370,7 +370,9 @@ def test_a_replay_refuses_a_loads_file_changed_since(tmp_path, capsys):
     rc, out = _cli(tmp_path)
     assert rc == 0, capsys.readouterr().err
     again = ["measure", "--config", str(out), "-o", str(tmp_path / "again.h5"), "--quiet"]
-    assert main(again) == 0, capsys.readouterr().err
+    assert main([*again[:-1], "--json"]) == 0, capsys.readouterr().err
+    # the JSON summary says how the file was read: the same record as the result's
+    assert json.loads(capsys.readouterr().out)["loads"] == load(out).load_source
     # the same log, one row edited: the replay names the file and the two digests
     csv = tmp_path / "zwick.csv"
     csv.write_bytes(csv.read_bytes().replace(b"\r\n100;", b"\r\n100;9"))
