@@ -420,6 +420,82 @@ def test_figures_overwrite_replaces_only_gridstrain_figures(data, tmp_path, caps
     assert (figs / "notes.png").read_bytes() == b"the user's own figure"
 
 
+def _sha256(path: Path) -> str:
+    import hashlib
+
+    return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+def _refused(capsys, rc, folder: Path, kept) -> str:
+    """The one line of a refusal that left ``folder`` holding ``kept`` only."""
+    err = capsys.readouterr().err
+    assert rc == 2, err
+    assert len(err.strip("\n").split("\n")) == 1, err
+    assert _leftovers(folder) == sorted(kept)  # no output, no temporary file
+    return err.strip()
+
+
+@pytest.mark.parametrize("what", ["result", "report"])
+def test_overwrite_never_replaces_a_single_file_gridstrain_did_not_write(
+        data, tmp_path, capsys, what):
+    """``measure -o`` and ``report -o`` with --overwrite: the user's file of that name,
+    or a link to one, is refused with one line and stays byte for byte; gridstrain's
+    own file, listed in the folder's marker with its content, is replaced."""
+    out = tmp_path / ("a.h5" if what == "result" else "r.html")
+    src = tmp_path / "src.h5"
+    if what == "result":
+        argv = ["measure", data / "ref.tif", data / "load.tif", "--quiet", "-o", out]
+    else:
+        assert _run(["measure", data / "ref.tif", data / "load.tif", "--quiet", "-o",
+                     src]) == 0
+        argv = ["report", src, "-o", out]
+    theirs = tmp_path / "thesis.tex"
+    theirs.write_bytes(b"the user's thesis")
+    for planted in ("file", "link"):
+        if planted == "file":
+            out.write_bytes(b"the user's own file of that name")
+        else:
+            out.unlink()
+            out.symlink_to(theirs)
+        before = _leftovers(tmp_path)
+        rc = _run([*argv, "--overwrite"])
+        line = _refused(capsys, rc, tmp_path, before)
+        assert f"{out} exists and was not written by gridstrain" in line
+        assert "--overwrite replaces only gridstrain's own outputs" in line
+    assert out.is_symlink()
+    assert theirs.read_bytes() == b"the user's thesis"
+    out.unlink()
+    # written by gridstrain: listed with its digest, then replaced by --overwrite
+    assert _run(argv) == 0, capsys.readouterr().err
+    listed = json.loads((tmp_path / MARKER_NAME).read_text())["outputs"]
+    assert listed[out.name]["sha256"] == _sha256(out)
+    assert listed[out.name]["size"] == out.stat().st_size
+    assert _run([*argv, "--overwrite"]) == 0, capsys.readouterr().err
+    listed = json.loads((tmp_path / MARKER_NAME).read_text())["outputs"]
+    assert listed[out.name]["sha256"] == _sha256(out)
+    # changed since by the user: refused, kept
+    with open(out, "ab") as fh:
+        fh.write(b"the user's note")
+    edited = out.read_bytes()
+    rc = _run([*argv, "--overwrite"])
+    line = _refused(capsys, rc, tmp_path, _leftovers(tmp_path))
+    assert "or has changed since" in line
+    assert out.read_bytes() == edited
+
+
+def test_a_gauge_csv_written_by_gridstrain_is_replaced(data, tmp_path, capsys):
+    res = tmp_path / "a.h5"
+    assert _run(["measure", data / "ref.tif", data / "load.tif", "--quiet", "-o", res]) == 0
+    csv = tmp_path / "g.csv"
+    for flags in ([], ["--overwrite"]):
+        assert _run(["gauge", res, "-o", csv, *flags]) == 0, capsys.readouterr().err
+    # a marker that is not gridstrain's lists nothing: the CSV is then refused
+    (tmp_path / MARKER_NAME).write_text("my notes")
+    rc = _run(["gauge", res, "-o", csv, "--overwrite"])
+    line = _refused(capsys, rc, tmp_path, _leftovers(tmp_path))
+    assert "was not written by gridstrain" in line
+
+
 def test_signal_module_untouched_after_main(data, tmp_path):
     before = signal.getsignal(signal.SIGTERM), signal.getsignal(signal.SIGINT)
     _run(["measure", data / "ref.tif", data / "load.tif", "-o", tmp_path / "o.h5",
@@ -601,7 +677,8 @@ def test_a_killed_run_leaves_a_temporary_file_that_the_next_run_removes(data, tm
     assert left[0].endswith(".tmp.h5")
     assert _run(["measure", data / "ref.tif", data / "load.tif", "-o", out / "o.h5",
                  "--quiet"]) == 0
-    assert _leftovers(out) == ["o.h5"]
+    # the result and the marker listing it as gridstrain's (for --overwrite)
+    assert _leftovers(out) == sorted([MARKER_NAME, "o.h5"])
 
 
 def test_sweep_keeps_files_of_live_processes_and_others(tmp_path):

@@ -183,8 +183,8 @@ def test_loads_file_is_read_strictly(tmp_path):
     assert read_loads(p, names)[0].tolist() == [1.0, 2.0]
     for bad, match in (("load [N]\n1\n", "1 row.* for 2 state"),
                        ("state,load [N]\ns1,1\ns3,2\n", "'s3' is not one of"),
-                       ("force [N]\n1\n2\n", "no 'load \\[UNIT\\]' column"),
-                       ("load [N],time [ms]\n1,1\n2,2\n", "in seconds"),
+                       ("extension [mm]\n1\n2\n", "no load column"),
+                       ("load [N],time [weeks]\n1,1\n2,2\n", "not a time unit"),
                        ("load [N]\n1\nx\n", "row 3")):
         p.write_text(bad)
         with pytest.raises(ValueError, match=match):

@@ -179,9 +179,10 @@ def test_read_loads_in_order_and_by_name(tmp_path):
     ("load,time [s]\n1,2\n", r"row 1: column 'load' has no unit"),
     ("load [kN]\n1\nx\n", r"row 3: column 'load \[kN\]' must hold a finite number"),
     ("load [kN]\n1\n", r"1 row\(s\) of values for 2 state\(s\)"),
-    ("load [kN],time [ms]\n1,2\n2,3\n", r"row 1: the time column must be in seconds"),
+    ("load [kN],time [weeks]\n1,2\n2,3\n", r"row 1: the unit 'weeks' of column 'time "
+     r"\[weeks\]' is not a time unit"),
     ("state,load [kN]\na,1\na,2\n", r"row 3: state 'a' already given in row 2"),
-    ("load [kN]\n1,2\n3\n", r"row 2: 2 value\(s\) for the 1 column"),
+    ("load [kN],time [s]\n1,2\n3\n", r"row 3: 1 value\(s\) for the 2 column"),
 ])
 def test_read_loads_refuses_with_the_file_and_the_row(tmp_path, text, match):
     with pytest.raises(ValueError, match=match) as info:

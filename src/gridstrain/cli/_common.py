@@ -61,12 +61,28 @@ def lattice_option(opts: dict) -> Lattice | None:
     return None
 
 
+#: ``--overwrite``'s help, for a single output file (check_output_file says why not).
+OVERWRITE_HELP = ("replace the file of that name if an earlier gridstrain run wrote it "
+                  "and it is unchanged since (never another file)")
+
+
 def check_output_file(path: Path, what: str, overwrite: bool, inputs=frozenset()) -> None:
-    """Refuse, before any work, an output that would fail or clobber at the end."""
+    """Refuse, before any work, an output that would fail or clobber at the end: with
+    ``--overwrite``, a file that gridstrain did not write (or that changed since) is
+    not replaced (:func:`gridstrain.io.written_by_gridstrain`)."""
+    from ..io import MARKER_NAME, written_by_gridstrain
+
     if path.resolve() in inputs:
         raise ValueError(f"{what} {path} is one of the input files; inputs are never "
                          "modified")
     check_destination(path, overwrite, what=what, how="--overwrite")
+    if overwrite and (path.exists() or path.is_symlink()) and \
+            not written_by_gridstrain(path):
+        raise FileExistsError(
+            f"{what} {path} exists and was not written by gridstrain (or has changed "
+            f"since: its folder's {MARKER_NAME} does not list it with this content); "
+            "--overwrite replaces only gridstrain's own outputs: move it away or choose "
+            "another name")
 
 
 @contextlib.contextmanager
@@ -139,6 +155,24 @@ class Outputs:
         self._watch.__exit__(None, None, None)
         if exc is not None:
             self.rollback()
+        else:
+            self._list_as_ours()
+
+    def _list_as_ours(self) -> None:
+        """List the files of a successful run in their folders' markers, so that a
+        later ``--overwrite`` may replace them (and nothing else)."""
+        from ..io import record_outputs
+
+        mine = []
+        for kind, path, ident in self.committed:
+            with contextlib.suppress(OSError):
+                st = os.lstat(path)
+                if kind == "file" and (st.st_dev, st.st_ino) == ident:
+                    mine.append(path)
+        # the outputs are complete; a marker that cannot be written costs only the
+        # right to replace them later with --overwrite, which then says so
+        with contextlib.suppress(OSError, ValueError):
+            record_outputs(mine)
 
     def rollback(self) -> None:
         """Remove what was committed, newest first; SIGINT and SIGTERM wait meanwhile

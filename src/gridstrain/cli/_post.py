@@ -7,16 +7,32 @@ import functools
 import os
 from pathlib import Path
 
-from ._common import check_output_file, xy_pairs
+from ._common import OVERWRITE_HELP, check_output_file, xy_pairs
 
 
 def add_result_options(p, *, loads: bool = True) -> None:
     p.add_argument("result", metavar="RESULT.h5", help="a file written by gridstrain measure")
     if loads:
-        p.add_argument("--loads", metavar="FILE.csv",
-                       help="load (and time) of each state: a CSV with the columns "
-                       "'load [UNIT]', optionally 'state' and 'time [s]' (default: those "
-                       "stored in the result, if any)")
+        add_loads_options(p, default=" (default: those stored in the result, if any)")
+
+
+def add_loads_options(p, *, default: str = "") -> None:
+    """``--loads`` and how to read it: the testing machine's export as it comes."""
+    g = p.add_argument_group("loads (a testing machine's export, read as it comes)")
+    g.add_argument("--loads", metavar="FILE.csv",
+                   help="load (and time) of each state: a testing machine's export "
+                   "(',', ';', tab or spaces between columns, decimal comma, preamble "
+                   "lines, units in the header: 'Force (kN)', 'Zeit [ms]'); a log with a "
+                   "time column is joined to the states' times by linear interpolation; "
+                   "else one row per state or a 'state' column naming them" + default)
+    g.add_argument("--load-column", metavar="NAME",
+                   help="the load column's name (default: the one named load, force or "
+                   "Kraft)")
+    g.add_argument("--time-column", metavar="NAME",
+                   help="the time column's name (default: the one named time or Zeit)")
+    g.add_argument("--loads-offset", type=float, metavar="SECONDS",
+                   help="the time on the log's clock at the camera's time zero, s (a log "
+                   "started 0.2 s before the camera's trigger: 0.2; default 0)")
 
 
 def add_gauge_options(p) -> None:
@@ -44,7 +60,7 @@ def polygon_option(values):
 
 def add_output_options(p, what: str) -> None:
     p.add_argument("-o", "--output", metavar="FILE.csv", help=f"write {what} as CSV")
-    p.add_argument("--overwrite", action="store_true", help="replace an existing file")
+    p.add_argument("--overwrite", action="store_true", help=OVERWRITE_HELP)
 
 
 def output_path(args, src: Path, what: str) -> Path | None:
@@ -81,10 +97,16 @@ def open_result(args):
     if ps is None or unit is None or getattr(args, "px", False):
         ps = unit = None
     if getattr(args, "loads", None):
-        ld, lu, t = read_loads(os.path.expanduser(args.loads), result.names)
+        own = state_loads(result)[2]
+        ld, lu, t = read_loads(os.path.expanduser(args.loads), result.names, times=own,
+                               load_column=args.load_column, time_column=args.time_column,
+                               offset=args.loads_offset or 0.0)
         if t is None:
-            t = state_loads(result)[2]
+            t = own
     else:
+        for flag in ("load_column", "time_column", "loads_offset"):
+            if getattr(args, flag, None) is not None:
+                raise ValueError(f"--{flag.replace('_', '-')} needs --loads")
         ld, lu, t = state_loads(result)
     return result, src, ps, unit, ld, lu, t
 

@@ -44,6 +44,22 @@ def _listed(n: int, notable=()) -> tuple[list[int], list[str]]:
                    "result file, the JSON summary (--json) and the report (--report))"]
 
 
+def _loads_line(result) -> list[str]:
+    """How the loads file was read and joined to the states, in one line (none
+    without a file)."""
+    src = getattr(result, "load_source", None)
+    if not src:
+        return []
+    sep = {"\t": "tab", " ": "spaces", "whitespace": "spaces"}.get(src["delimiter"],
+                                                                 repr(src["delimiter"]))
+    how = (f"at the states' times + {src['offset_s']:g} s on {src['time_column']!r}, "
+           "linear interpolation" if src["method"] == "linear interpolation in time"
+           else src["method"])
+    return [f"loads: {src['file']} ({src['encoding']}, {sep} between columns, decimal "
+            f"{src['decimal']!r}), {src['load_column']!r} {how}; "
+            f"SHA-256 {src['sha256'][:12]}..."]
+
+
 def report_lines(result: SeriesResult, *, pixel_size: float | None = None,
                  unit: str | None = None) -> list[str]:
     """The human-readable report of a measurement, as lines of text. A record of many
@@ -62,6 +78,7 @@ def report_lines(result: SeriesResult, *, pixel_size: float | None = None,
         f"{result.sigma:.4g} px, "
         f"method {result.method}, large-displacement correction "
         f"{'on' if result.lagrangian else 'off'}",
+        *_loads_line(result),
         "",
         "vibrations (rigid shift of each frame, 1 std)  alpha px  beta px   contrast k1/k2"
         "   phase offset k1/k2 rad",
@@ -278,7 +295,7 @@ def summary(result: SeriesResult, *, outputs: dict, seconds: float,
                       "excluded_frames": list(result.excluded[0]) if result.excluded
                       else []},
         "state_order": result.state_order, "load_unit": result.load_unit,
-        "states": states,
+        "loads": result.load_source, "states": states,
         "vibration": [{"series": v.name, "frames": v.n_frames,
                        "std_px": [num(x) for x in v.std],
                        "contrast_factor": [num(x) for x in v.contrast_factor],

@@ -6,7 +6,7 @@ import os
 import sys
 from pathlib import Path
 
-from ._common import check_output_file
+from ._common import OVERWRITE_HELP, check_output_file
 from ._post import add_result_options, open_result, reads_result
 
 SUMMARY = "an animation (GIF, MP4) of a map over the states on fixed colour limits"
@@ -34,7 +34,7 @@ def register(sub) -> None:
                    help="strains in microstrain (default), percent or dimensionless")
     p.add_argument("--px", action="store_true",
                    help="displacements in px even when the file has a pixel size")
-    p.add_argument("--overwrite", action="store_true", help="replace an existing file")
+    p.add_argument("--overwrite", action="store_true", help=OVERWRITE_HELP)
     p.set_defaults(func=run)
 
 

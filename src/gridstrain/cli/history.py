@@ -22,8 +22,9 @@ def register(sub) -> None:
         description="Smooth a gauge's readings over the states' times with a Savitzky-Golay "
         "filter (a polynomial of degree --order fitted to --window consecutive states) and "
         "differentiate it: strain rates, and the velocity and acceleration of the gauge's "
-        "mean displacement, each with its std. The times come from --loads (a 'time [s]' "
-        "column) or the result, evenly spaced.")
+        "mean displacement, each with its std. The times come from the result (the frame "
+        "rate or the camera's time stamps) or from --loads (its time column, one row per "
+        "state), evenly spaced.")
     add_result_options(p)
     add_gauge_options(p)
     p.add_argument("--window", type=int, default=5, help="states in the window (odd, "

@@ -26,6 +26,7 @@ from .._progress import bar
 from .._runtime.memory import memory_budget, parse_size
 from ..io import (
     FrameSeries,
+    LoadsFile,
     OutputDirectory,
     open_series,
     read_mask,
@@ -76,7 +77,8 @@ _CONFIG_KEYS = {
     "timeout": "float",
     "sigma-pitches": "float", "noise": "path", "noise-model": "pair", "dtype": "str",
     "each-frame": "bool", "reference-frames": "int", "keep-order": "bool", "loads": "path",
-    "frame-rate": "float",
+    "frame-rate": "float", "load-column": "str", "time-column": "str",
+    "loads-offset": "float",
 }
 # How to run, not what to measure: every output (the result file, the side outputs and
 # what they replace), the terminal's report, the cluster and its patience. Never
@@ -197,8 +199,20 @@ _SEQUENCE_OPTIONS = (
                       "form one numbered family, as a shell lists frame_1 frame_10 "
                       "frame_2, are measured in natural order)"}),
     ("--loads", {"metavar": "FILE.csv", "help":
-                 "the load of each state: a CSV with a 'load [UNIT]' column, optionally "
-                 "'time [s]', one row per state in order or a 'state' column naming them"}),
+                 "the load of each state: a testing machine's export as it comes (',', "
+                 "';', tab or spaces between columns, decimal comma, preamble lines, "
+                 "units in the header: 'Force (kN)', 'Zeit [ms]'); a log with a time "
+                 "column is joined to the states' times (--frame-rate or the camera's) "
+                 "by linear interpolation; else one row per state in order or a 'state' "
+                 "column naming them"}),
+    ("--load-column", {"metavar": "NAME", "help":
+                       "the load column's name (default: the one named load, force or "
+                       "Kraft)"}),
+    ("--time-column", {"metavar": "NAME", "help":
+                       "the time column's name (default: the one named time or Zeit)"}),
+    ("--loads-offset", {"type": float, "metavar": "SECONDS", "help":
+                        "the time on the log's clock at the camera's time zero, s (a log "
+                        "started 0.2 s before the camera's trigger: 0.2; default 0)"}),
     ("--frame-rate", {"type": float, "metavar": "HZ", "help":
                       "the camera's frame rate: each state's time is its frame's number in "
                       "the record over the rate, s (with --each-frame; default: the times a "
@@ -246,7 +260,8 @@ def _output_options(o) -> None:
     o.add_argument("--report", metavar="FILE.html",
                    help="also write a self-contained HTML report of the run")
     o.add_argument("--overwrite", action="store_true", default=None,
-                   help="replace existing output files")
+                   help="replace the output files an earlier gridstrain run wrote, "
+                   "unchanged since (never another file)")
     o.add_argument("--memory-budget", type=_size, metavar="SIZE",
                    help="memory the run may use, e.g. 3G or 500M (default: the memory "
                    "available, the least of the system's and the cgroup's limit); a run "
@@ -594,6 +609,8 @@ def _run(args, progress: _Bar) -> int:
         replay["config_ignored"] = list(config.ignored)
         if config.from_result and not opts["quiet"]:
             print(_replay_line(config, opts), file=sys.stderr)
+        if config.from_result and opts.get("loads") and args.loads is None:
+            _check_replayed_loads(config.path, opts["loads"])
     reference, states, mask = _inputs(opts, args)
     ps, unit = _pixel_size(opts, lattice, reference, mask), opts.get("unit")
     stored = dict(opts)
@@ -627,7 +644,7 @@ def _run(args, progress: _Bar) -> int:
             noise_model=noise_model, sigma_pitches=opts.get("sigma-pitches"),
             timeout=opts["timeout"], output=spec, dtype=opts.get("dtype"),
             each_frame=opts["each-frame"], reference_frames=opts.get("reference-frames"),
-            keep_order=opts["keep-order"], loads=opts.get("loads"),
+            keep_order=opts["keep-order"], loads=_loads(opts),
             frame_rate=opts.get("frame-rate"), **kw)
     if spec is None:
         _refuse_empty(result)
@@ -638,6 +655,36 @@ def _run(args, progress: _Bar) -> int:
     outputs = _extra_outputs(result, out, opts, progress)
     _print(result, out, opts, outputs, time.perf_counter() - t0)
     return 0
+
+
+def _check_replayed_loads(result: Path, loads) -> None:
+    """Refuse to replay a run on a loads file other than the one it read: its SHA-256,
+    recorded in the result, must match (a file given by --loads is taken as it is)."""
+    import hashlib
+
+    from ..results import load
+
+    recorded = (load(result, in_memory=False).load_source or {}).get("sha256")
+    path = Path(os.path.expanduser(loads))
+    if recorded is None or not path.is_file():
+        return  # loads given as numbers, or an older result: nothing to compare
+    now = hashlib.sha256(path.read_bytes()).hexdigest()
+    if now != recorded:
+        raise ValueError(f"loads file {path} has changed since {result} was measured "
+                         f"(SHA-256 {now[:12]}... now, {recorded[:12]}... then); pass "
+                         "--loads to replay with it as it is")
+
+
+def _loads(opts: dict):
+    """``measure_series``'s ``loads``: the file and how to read it, or None."""
+    if not opts.get("loads"):
+        for name in ("load-column", "time-column", "loads-offset"):
+            if opts.get(name) is not None:
+                raise ValueError(f"--{name} needs --loads")
+        return None
+    return LoadsFile(os.path.expanduser(opts["loads"]), load_column=opts.get("load-column"),
+                     time_column=opts.get("time-column"),
+                     offset=opts.get("loads-offset") or 0.0)
 
 
 def _checked(opts: dict) -> tuple:

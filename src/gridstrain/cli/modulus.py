@@ -5,7 +5,7 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-from ._common import check_output_file, print_json
+from ._common import OVERWRITE_HELP, check_output_file, print_json
 from ._post import add_gauge_options, add_result_options, gauge_of, open_result, reads_result
 
 SUMMARY = ("Young's modulus and Poisson's ratio with their intervals, from a gauge and the "
@@ -33,7 +33,7 @@ def register(sub) -> None:
                    "[LO, HI]")
     p.add_argument("--json", action="store_true", help="print the result as JSON")
     p.add_argument("--plot", metavar="FILE.png", help="write the stress-strain plot")
-    p.add_argument("--overwrite", action="store_true", help="replace an existing plot")
+    p.add_argument("--overwrite", action="store_true", help=OVERWRITE_HELP)
     p.set_defaults(func=run)
 
 

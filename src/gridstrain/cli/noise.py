@@ -23,6 +23,7 @@ from ..stacks.screening import screen_frames
 from ..stacks.vibration import vibration_report
 from ..uncertainty import NOISE_RESULT_KIND, estimate_noise, estimate_noise_image, noise_floor
 from ._common import (
+    OVERWRITE_HELP,
     add_lattice_options,
     check_output_file,
     fmt,
@@ -56,7 +57,7 @@ def register(sub) -> None:
                    help="polynomial degree of the vibration model (default: 3, or the "
                    "highest the number of frames allows; 0 = static set-up)")
     add_lattice_options(p.add_argument_group("lattice"))
-    p.add_argument("--overwrite", action="store_true", help="replace an existing output")
+    p.add_argument("--overwrite", action="store_true", help=OVERWRITE_HELP)
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.add_argument("--json", action="store_true", help="print a JSON summary on stdout")
     p.set_defaults(func=run)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-from ._common import check_output_file
+from ._common import OVERWRITE_HELP, check_output_file
 from ._post import reads_result
 
 
@@ -19,7 +19,7 @@ def register(sub) -> None:
     p.add_argument("result", metavar="RESULT.h5", help="a file written by gridstrain measure")
     p.add_argument("-o", "--output", metavar="REPORT.html",
                    help="output file (default: RESULT.html next to the result)")
-    p.add_argument("--overwrite", action="store_true", help="replace an existing report")
+    p.add_argument("--overwrite", action="store_true", help=OVERWRITE_HELP)
     p.set_defaults(func=run)
 
 

@@ -24,6 +24,10 @@ Input
     numbers of a record saved one file per frame from the file names and names its
     breaks (:class:`FrameGap`: missing, off-step or out-of-order numbers; repeated
     numbers are refused).
+    :func:`read_loads` reads a testing
+    machine's export as it comes (delimiter, decimal comma, preamble, units in the
+    header, encoding) and joins its log to the states by time (:class:`LoadsFile`
+    names its columns and the log's offset; :class:`LoadTable` records how).
 
 Grey levels and bit depth
     Frames are returned in *raw* grey levels, the values stored in the files.
@@ -45,7 +49,10 @@ Output
     ``OSError`` naming the file (:func:`space_error`), with nothing left behind,
     never a crash inside the library. In an output directory
     (:class:`OutputDirectory`) a marker file lists what gridstrain wrote, and only
-    those files are ever replaced. :func:`write_hdf5` writes
+    those files are ever replaced; the command line lists its single output files
+    (``-o maps.h5``, a report) in the marker of their folder
+    (:func:`record_outputs`), and ``--overwrite`` replaces only a file
+    :func:`written_by_gridstrain` recognises. :func:`write_hdf5` writes
     compressed, checksummed HDF5 with units and JSON-encoded metadata;
     :func:`write_csv` writes exact decimal columns; :func:`write_tiff_series`
     writes a folder of numbered single-page TIFFs such as a camera produces.
@@ -78,18 +85,20 @@ from ._files import (
     hdf5_file,
     hdf5_stream,
     provenance,
+    record_outputs,
     space_error,
     sweep_temporary_files,
     write_atomic,
     write_csv,
     write_hdf5,
+    written_by_gridstrain,
 )
 
 # shared with gridstrain's other folders, not part of the public API
 from ._files import check_destination as check_destination
 from ._files import watch_outputs as watch_outputs
 from ._hdf5_attrs import read_hdf5, read_noise_model
-from ._loads import LoadTable, read_loads
+from ._loads import LoadsFile, LoadTable, read_loads
 from ._numbering import FrameGap, RecordNumbering, record_numbering
 from ._readers import IMAGE_EXTENSIONS, close_readers, natural_sort_key, to_luminance
 from ._sequences import STATE_ORDERS, StateInputs, natural_order, state_inputs
@@ -112,6 +121,7 @@ __all__ = [
     "FrameSeries",
     "HDF5Stream",
     "LoadTable",
+    "LoadsFile",
     "MemoryBudgetError",
     "OutputDirectory",
     "RecordNumbering",
@@ -135,6 +145,7 @@ __all__ = [
     "read_mask",
     "read_noise_model",
     "record_numbering",
+    "record_outputs",
     "roi_mask",
     "space_error",
     "split_frames",
@@ -145,5 +156,6 @@ __all__ = [
     "write_csv",
     "write_hdf5",
     "write_tiff_series",
+    "written_by_gridstrain",
 ]
 

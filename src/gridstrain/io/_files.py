@@ -871,13 +871,8 @@ class OutputDirectory:
         self._save({})
 
     def _save(self, files: dict) -> None:
-        from .. import __version__
-
-        text = json.dumps({"gridstrain": __version__,
-                           "note": "files written by gridstrain, which replaces only these "
-                                   f"and only while their {_HASH} is unchanged",
-                           "files": files}, indent=1)
-        write_atomic(self.marker, text.encode("utf-8"), overwrite=True)
+        # the single outputs listed beside (record_outputs) are kept as they are
+        _write_marker(self.path, files, _read_marker(self.path).get("outputs", {}))
 
     def record(self, *paths) -> None:
         """Add files written in the directory to the marker, with their content's digest."""
@@ -899,3 +894,120 @@ class OutputDirectory:
         dest = write_atomic(self.path / rel, data, overwrite=False)
         self.record(dest)
         return dest
+
+
+# --------------------------------------------------------------------------- single files
+
+def _read_marker(directory: Path) -> dict:
+    """The marker of ``directory`` as JSON ({} if none); refused if it is not one."""
+    marker = Path(directory) / MARKER_NAME
+    if marker.is_symlink():
+        raise ValueError(f"{marker} is a symbolic link, not a gridstrain manifest")
+    if not marker.is_file():
+        return {}
+    try:
+        data = json.loads(marker.read_text(encoding="utf-8"))
+        if not isinstance(data, dict) or not isinstance(data.get("files"), dict) or \
+                not isinstance(data.get("outputs", {}), dict):
+            raise ValueError(marker)
+        return data
+    except (OSError, ValueError):
+        raise ValueError(f"{marker} is not a gridstrain manifest (move the file "
+                         "away)") from None
+
+
+def _write_marker(directory: Path, files: dict, outputs: dict) -> None:
+    from .. import __version__
+
+    data = {"gridstrain": __version__,
+            "note": "files written by gridstrain, which replaces only these and only "
+                    f"while their {_HASH} is unchanged",
+            "files": files}
+    if outputs:
+        data["outputs"] = outputs
+    write_atomic(Path(directory) / MARKER_NAME, json.dumps(data, indent=1).encode("utf-8"),
+                 overwrite=True)
+
+
+def record_outputs(paths) -> None:
+    """List single output files gridstrain wrote in the marker of their folder.
+
+    Each file (a result ``maps.h5``, a report, a gauge's CSV) is listed under
+    ``"outputs"`` in the folder's :data:`MARKER_NAME` with its size and the SHA-256
+    digest of its content, so that a later run may replace it, with ``overwrite``,
+    while its content is unchanged (:func:`written_by_gridstrain`). Files that an
+    :class:`OutputDirectory` lists already, links and files no longer there are
+    left out.
+
+    Parameters
+    ----------
+    paths : iterable of str or os.PathLike
+        Files this process has just written.
+
+    Raises
+    ------
+    ValueError
+        A folder's marker is not a gridstrain manifest.
+    OSError
+        The marker cannot be written.
+    """
+    by_folder: dict[Path, list[str]] = {}
+    listed: dict[Path, dict] = {}  # the files of output directories, by marker folder
+    for f in paths:
+        f = Path(os.path.realpath(Path(f).parent)) / Path(f).name
+        if f.name == MARKER_NAME or _in_output_directory(f, listed):
+            continue
+        by_folder.setdefault(f.parent, []).append(f.name)
+    for folder, names in by_folder.items():
+        data = _read_marker(folder)
+        outputs = dict(data.get("outputs", {}))
+        for name in dict.fromkeys(names):
+            found = _digest(folder / name)
+            if found is not None:
+                outputs[name] = {"size": found[0], _HASH: found[1]}
+        _write_marker(folder, data.get("files", {}), outputs)
+
+
+def _in_output_directory(f: Path, listed: dict) -> bool:
+    """Whether the marker of ``f``'s folder, or of a folder above, lists ``f`` among
+    the files of an :class:`OutputDirectory` (``ref/frame000000.tif``)."""
+    for above in f.parents:
+        if above not in listed:
+            try:
+                listed[above] = _read_marker(above).get("files", {})
+            except ValueError:
+                listed[above] = {}
+        if f.relative_to(above).as_posix() in listed[above]:
+            return True
+    return False
+
+
+def written_by_gridstrain(path) -> bool:
+    """Whether ``path`` is a file gridstrain wrote and nobody changed since.
+
+    True when the marker of its folder (:data:`MARKER_NAME`) lists it, among the
+    files of an :class:`OutputDirectory` or the single outputs of
+    :func:`record_outputs`, with the size and SHA-256 digest of its present content.
+    A symbolic link, a file no marker lists, one whose content changed and a folder
+    whose marker is not a gridstrain manifest give False.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        An existing output file.
+
+    Returns
+    -------
+    bool
+    """
+    f = as_path(path, "path")
+    folder = Path(os.path.realpath(f.parent))
+    try:
+        data = _read_marker(folder)
+    except ValueError:
+        return False
+    entry = data.get("outputs", {}).get(f.name) or data.get("files", {}).get(f.name)
+    if not isinstance(entry, dict) or not isinstance(entry.get(_HASH), str):
+        return False
+    return _digest(folder / f.name) == (entry.get("size"), entry[_HASH])
+

@@ -211,6 +211,11 @@ def elastic_constants(reading: GaugeReading, *, area: float, area_unit: str = "m
                          f"(strain_range {strain_range!r})")
     factor, unit = stress_unit(reading.load_unit, area_unit)
     stress = reading.load[keep] / area * factor
+    if np.all(stress == stress[0]):  # else "Singular matrix" from the fit
+        raise ValueError(f"the loads of the {int(keep.sum())} states fitted are all "
+                         f"{reading.load[keep][0]:g} {reading.load_unit or ''}".rstrip()
+                         + ": a modulus needs states at different loads (a constant or "
+                         "all-zero load column? choose the force with --load-column)")
     a, var_a, chi_a = _fit(stress, axial[keep], axial_s[keep] * own)
     c, var_c, chi_t = _fit(stress, trans[keep], trans_s[keep] * own)
     dof = int(keep.sum()) - 2

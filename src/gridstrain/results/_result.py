@@ -144,8 +144,13 @@ class SeriesResult:
         The unit of ``load`` (``"N"``, ``"kN"``...); None without loads or when
         they were given without a unit.
     time : (n_states,) float64 ndarray, optional
-        The time of each state, s: from the loads file's ``time [s]`` column or
-        the frame rate (frame number in the record over the rate).
+        The time of each state, s: from the frame rate (frame number in the
+        record over the rate), the camera's time stamps, or the loads file's time
+        column.
+    load_source : dict, optional
+        How ``load`` was read from a file (:attr:`gridstrain.io.LoadTable.source`):
+        the file, its SHA-256, the columns and their units, the offset and the
+        method joining it to the states; None when the loads were given as numbers.
     discontinuities : tuple of tuple of dict
         Per state, the displacement jumps found (a crack, an edge, a torn grid):
         their bounding boxes (``rows``, ``cols``: first and last, px), the pixels
@@ -190,6 +195,7 @@ class SeriesResult:
     load_unit: str | None = None
     time: np.ndarray | None = None
     discontinuities: tuple = ()
+    load_source: dict | None = None
 
     def __post_init__(self):
         for name in ("u", "strain", "valid", "mask", "reference_image", "load", "time"):

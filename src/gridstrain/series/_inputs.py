@@ -260,47 +260,52 @@ def _file_numbers(series: list, *, from_record: bool):
 
 def _loads_and_times(loads, frame_rate, series: list, *, each_frame: bool,
                      first_frame: int) -> tuple[dict, list[str]]:
-    """``load``, ``load_unit`` and ``time`` of the result, checked against the
-    states before any frame is read, and the warnings on the record's numbering.
+    """``load``, ``load_unit``, ``time`` and ``load_source`` of the result, checked
+    against the states before any frame is read, and the warnings on the record's
+    numbering.
 
     A record of one file per frame is numbered by its file names: a missing,
     off-step or out-of-order number is named in a warning, and with ``frame_rate``
     each state's time is its number less the record's first over the rate (so that
-    a dropped frame shifts no later state). Repeated numbers are refused."""
+    a dropped frame shifts no later state). Repeated numbers are refused. The states'
+    times come from the record (the frame rate, else a video's time stamps); a loads
+    file with a time column is then joined to them by time
+    (:func:`gridstrain.io.read_loads`), else its time column gives them.
+    """
     names = [s.name for s in series[1:]]
-    load = unit = time = None
+    time = None
     numbering = _file_numbers(series, from_record=first_frame > 0) if each_frame else None
     notes = list(numbering.warnings) if numbering is not None else []
-    if loads is not None:
-        if isinstance(loads, str | os.PathLike):
-            from ..io import read_loads
-
-            table = read_loads(loads, states=names)
-            load, unit, time = table.load, table.unit, table.time
-        else:
-            load = np.array(loads, dtype=np.float64)
-            if load.shape != (len(names),) or not np.all(np.isfinite(load)):
-                raise ValueError(f"loads must hold one finite number per loaded state "
-                                 f"({len(names)}), got shape {load.shape}")
     if frame_rate is not None:
         rate = check_positive(frame_rate, "frame_rate")
         if not each_frame:
             raise ValueError("frame_rate needs one frame per state (each_frame=True, "
                              f"--each-frame), got frame_rate={frame_rate!r}")
-        if time is not None:
-            raise ValueError(f"give the times by frame_rate or by the loads file's time "
-                             f"column, not both (frame_rate={frame_rate!r})")
         if numbering is not None:
             n = np.array(numbering.numbers, dtype=np.float64)
             time = (n[len(n) - len(names):] - n.min()) / rate
         else:
             time = (np.arange(len(names), dtype=np.float64) + first_frame) / rate
-    elif time is None and each_frame:
+    elif each_frame:
         # the camera's own time stamps, where the file holds them (videos)
         stamps = [getattr(s, "times", None) for s in series[1:]]
         if all(t is not None and t.size == 1 for t in stamps):
             time = np.concatenate(stamps)
-    return {"load": load, "load_unit": unit, "time": time}, notes
+    load = unit = source = None
+    if loads is not None:
+        from ..io import LoadsFile
+
+        if isinstance(loads, str | os.PathLike | LoadsFile):
+            spec = loads if isinstance(loads, LoadsFile) else LoadsFile(loads)
+            table = spec.read(names, times=time)
+            load, unit, source = table.load, table.unit, dict(table.source)
+            time = table.time if time is None else time
+        else:
+            load = np.array(loads, dtype=np.float64)
+            if load.shape != (len(names),) or not np.all(np.isfinite(load)):
+                raise ValueError(f"loads must hold one finite number per loaded state "
+                                 f"({len(names)}), got shape {load.shape}")
+    return {"load": load, "load_unit": unit, "time": time, "load_source": source}, notes
 
 
 def _check_memory(series: list, *, method: str, held: bool) -> None:

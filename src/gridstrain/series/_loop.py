@@ -223,14 +223,19 @@ def measure_series(reference, states, *, lattice: Lattice | None = None,
         must then be None. Implies ``each_frame``.
     keep_order : bool
         Keep explicit files in the order given even where it is not natural.
-    loads : str, os.PathLike or (n_states,) array_like, optional
-        The load of each state: a CSV file read by :func:`gridstrain.io.read_loads`
-        (its ``load [UNIT]`` and optional ``time [s]`` columns), or the loads
-        themselves (no unit). Stored as :attr:`SeriesResult.load`.
+    loads : str, os.PathLike, LoadsFile or (n_states,) array_like, optional
+        The load of each state: a testing machine's export read by
+        :func:`gridstrain.io.read_loads` (a :class:`gridstrain.io.LoadsFile` names
+        its columns and the log's time offset), or the loads themselves (no unit).
+        A log with a time column is joined to the states' times (``frame_rate`` or
+        the camera's time stamps) by linear interpolation. Stored as
+        :attr:`SeriesResult.load`, how it was read as
+        :attr:`SeriesResult.load_source`.
     frame_rate : float, optional
         The camera's frame rate, Hz: each state's time is its frame's number in
-        the record over the rate, s (:attr:`SeriesResult.time`). Without it (and
-        without a time column), states read from one video get its time stamps.
+        the record over the rate, s (:attr:`SeriesResult.time`). Without it, states
+        read from one video get its time stamps, else the loads file's time
+        column (one row per state) gives the times.
 
     Returns
     -------
