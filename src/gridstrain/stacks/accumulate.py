@@ -29,19 +29,23 @@ that function is periodic in the carrier phases ``theta_t = 2 pi K a_t`` the pas
 measures, a sum of harmonics ``exp(i (m theta_1 + n theta_2))``; what is not periodic
 (lighting, stains, the print's defects) varies slowly and moves with ``a_t`` to first
 order. So each pixel's series is fitted on the regressors ``g_t`` (:data:`MOTION_TERMS`):
-the two shift components, then the cosine and sine of the carriers' first harmonics
-``(1, 0), (0, 1)``, then of ``(2, 0), (0, 2), (1, 1), (1, -1)``. A first-order fit on
-the shifts alone (eq. 3's linear term, the paper's ref. [22]) leaves the second-order
-term ``a^T H a / 2`` in the residual: with 0.3 px of vibration on sharp grids of
-pitch 5 it passes for 2 to 10 times the sensor's variance, and the std maps state the
-noise up to 3 times too large. The harmonics follow a grid's own response to a shift
-at any amplitude: on a sharp-edged checkerboard of pitch 5 (T = 50) what is left adds
-0.4 % to the noise variance at 0.3 px and 7 % at 0.5 px (3.5 % in std).
+the two shift components, then the cosine and sine of the carriers' harmonics ``(m,
+n)`` of order ``|m| + |n|`` 1, 2 and 3, by order. A first-order fit on the shifts
+alone (eq. 3's linear term, the paper's ref. [22]) leaves the second-order term ``a^T
+H a / 2`` in the residual: with 0.3 px of vibration on sharp grids of pitch 5 it
+passes for 2 to 10 times the sensor's variance, and the std maps state the noise up
+to 3 times too large. The harmonics follow a grid's own response to a shift at any
+amplitude. On a sharp-edged checkerboard of pitch 5 (T = 50), what the harmonics up
+to order 2 leave adds 0.4 % to the noise variance at 0.3 px and 7 % at 0.5 px; on
+``sin^3`` lines crossed as a checkerboard, 2 % and 17 to 44 %; up to order 3, 0.4 %
+at most on both.
 
-The fit is nested: the regressors are added by groups (none, the shifts, the first
-harmonics, the second) and each group is kept only if it lowers the image's mean
-residual variance by more than :data:`_TERM_GAIN`: a still stack keeps the fit on the
-shifts, and every group costs degrees of freedom, not bias. With ``c_t = g_t -
+The fit is nested: the regressors are added by groups (none, the shifts, each order
+of harmonics) and each group is kept only if it lowers the image's mean residual
+variance by more than :data:`_TERM_GAIN`: a still stack keeps the fit on the shifts
+(``T - 3`` dof, as a first-order fit), and every group costs degrees of freedom, not
+bias. A group is tried only while ``T - 1`` exceeds the regressors fitted (``T >= 28``
+for all: 0.5 px needs them, 0.1 px the first order). With ``c_t = g_t -
 mean(g)`` over the kept frames, the fit leaves the residual sum of squares ``S_dd -
 S_d^2 / T - s^T S_cc^-1 s`` with ``s = sum_t c_t d_t = sum_t g_t d_t - mean(g) S_d``:
 the sums over ``g_t d_t`` and ``d_t`` are additive whatever the frames kept, so the
@@ -81,10 +85,29 @@ MOTION_TERMS = (("x", "y"),
                 ("cos(theta1)", "sin(theta1)", "cos(theta2)", "sin(theta2)"),
                 ("cos(2 theta1)", "sin(2 theta1)", "cos(2 theta2)", "sin(2 theta2)",
                  "cos(theta1 + theta2)", "sin(theta1 + theta2)",
-                 "cos(theta1 - theta2)", "sin(theta1 - theta2)"))
-# the harmonics (m, n) of the groups after the shifts, in MOTION_TERMS' order
-_HARMONICS = ((1, 0), (0, 1), (2, 0), (0, 2), (1, 1), (1, -1))
-_N_MOTION = sum(len(g) for g in MOTION_TERMS)
+                 "cos(theta1 - theta2)", "sin(theta1 - theta2)"),
+                ("cos(3 theta1)", "sin(3 theta1)", "cos(3 theta2)", "sin(3 theta2)",
+                 "cos(2 theta1 + theta2)", "sin(2 theta1 + theta2)",
+                 "cos(2 theta1 - theta2)", "sin(2 theta1 - theta2)",
+                 "cos(theta1 + 2 theta2)", "sin(theta1 + 2 theta2)",
+                 "cos(theta1 - 2 theta2)", "sin(theta1 - 2 theta2)"))
+# the harmonics (m, n) of the groups after the shifts, in MOTION_TERMS' order: those of
+# order |m| + |n| = 1, 2 and 3
+_HARMONICS = ((1, 0), (0, 1), (2, 0), (0, 2), (1, 1), (1, -1),
+              (3, 0), (0, 3), (2, 1), (2, -1), (1, 2), (1, -2))
+
+
+def _motion_rows(n_frames: int) -> int:
+    """The motion regressors a series of ``n_frames`` frames can fit, whole groups of
+    :data:`MOTION_TERMS` leaving a degree of freedom at least (``T >= 4`` for the
+    shifts, 8, 16 and 28 for the harmonics of order 1, 2 and 3): only their sums are
+    kept."""
+    k = 0
+    for grp in MOTION_TERMS:
+        if n_frames - 1 - (k + len(grp)) < 1:
+            break
+        k += len(grp)
+    return k
 # A group of regressors is fitted when it lowers the image's mean residual variance
 # by more than this fraction: 1 % of a variance is 0.5 % of a std, below the maps'
 # own calibration (1.0-1.06); on a still stack the next group's gain is noise, under
@@ -127,7 +150,7 @@ def _orthonormal(g: np.ndarray, gbar: np.ndarray) -> tuple[np.ndarray, list[int]
 
 def motion_regressors(theta: np.ndarray, shift: np.ndarray) -> np.ndarray:
     """The regressors of :data:`MOTION_TERMS` for frames of carrier phase advances
-    ``theta`` (T, 2), rad, and shifts ``shift`` (T, 2), px: (T, 14) float64."""
+    ``theta`` (T, 2), rad, and shifts ``shift`` (T, 2), px: (T, 26) float64."""
     theta = np.asarray(theta, dtype=np.float64).reshape(-1, 2)
     cols = [np.asarray(shift, dtype=np.float64).reshape(-1, 2)]
     for m, n in _HARMONICS:
@@ -226,8 +249,9 @@ class SeriesPass:
 
     Notes
     -----
-    Memory: eighteen float64 images (the halves' sums, the 14 motion regressors' sums
-    of the variance's fit, the sum of squares and the origin), a batch of frames of at
+    Memory: four float64 images (the halves' sums, the sum of squares, the origin) and
+    one per motion regressor of the variance's fit that ``n_frames`` allows (2 from 4
+    frames, 6 from 8, 14 from 16, 26 from 28: module docstring), a batch of frames of at
     most 64 MiB; method B adds its transform sums (80 bytes a pixel), method C
     eight float64 images. The per-frame records are a few hundred bytes a frame.
     The motion's sums are freed by :meth:`release`.
@@ -253,7 +277,8 @@ class SeriesPass:
         # imaginary parts of exp(-i theta_j) d for j = 1, 2, then g_t d for the motion
         # regressors g_t (MOTION_TERMS): what release() keeps is a prefix
         self._m0 = 2 + (8 if plan.method == "C" else 0)
-        rows = self._m0 + _N_MOTION
+        self._n_motion = _motion_rows(plan.n_frames)
+        rows = self._m0 + self._n_motion
         self.lin = np.zeros((rows, H * W), dtype=np.float64)
         self.sq = np.zeros(H * W, dtype=np.float64)  # sum d^2
         # method C's weights sum: sum_t exp(-i theta_tj) per half, (2 halves, 2)
@@ -329,7 +354,7 @@ class SeriesPass:
         a = self._M @ self.theta[t]  # px
         w = np.zeros(self.lin.shape[0])
         w[h] = sign
-        w[self._m0:] = sign * motion_regressors(self.theta[t], a)[0]
+        w[self._m0:] = sign * motion_regressors(self.theta[t], a)[0, :self._n_motion]
         if self.plan.method == "C":
             e = np.exp(-1j * self.theta[t])  # undoes the carrier's advance (eq. 2)
             w[2 + 4 * h:6 + 4 * h] = sign * np.array([e[0].real, e[0].imag, e[1].real,
@@ -464,14 +489,10 @@ class SeriesPass:
         return decide([self.records[t] for t in range(T)], self.probe,
                       max_saturation=max_saturation)
 
-    def _kept_shifts(self) -> np.ndarray:
-        kept = self.kept
-        return np.array([self._M @ self.theta[t] for t in kept]).reshape(len(kept), 2)
-
     def statistics(self) -> SeriesStatistics:
         """Mean image and noise variance of the kept frames (the variance's fit: module
         docstring)."""
-        if self.sq is None or self.lin.shape[0] < self._m0 + _N_MOTION:
+        if self.sq is None or self.lin.shape[0] < self._m0 + self._n_motion:
             raise ValueError("the pixel sums were released")
         self._flush()
         kept = self.kept
@@ -484,13 +505,14 @@ class SeriesPass:
         if T < 2:
             return SeriesStatistics(mean, None, "unavailable (a single frame)", 1)
         theta = np.array([self.theta[t] for t in kept]).reshape(T, 2)
-        g = motion_regressors(theta, theta @ self._M.T)
+        g = motion_regressors(theta, theta @ self._M.T)[:, :self._n_motion]
         gbar = g.mean(axis=0)
         # the groups' regressors made orthonormal over the kept frames, in order: q =
         # (g - gbar) B, B upper triangular, collinear columns left out
         B, cols = _orthonormal(g, gbar)
         names = [n for grp in MOTION_TERMS for n in grp]
-        ends = np.cumsum([len(grp) for grp in MOTION_TERMS])
+        ends = [e for e in np.cumsum([len(grp) for grp in MOTION_TERMS])
+                if e <= self._n_motion]
         # the nested fits: the first k orthonormal regressors, k at each group's end;
         # a group wholly collinear with those before it adds no fit
         stops = [0] + [sum(1 for c in cols if c < e) for e in ends]
