@@ -71,7 +71,7 @@ from ._accumulators import FrameOrder, StackResult, _PhaseMean, compensated_resu
 from .screening import FrameProbe, FrameScreen, decide
 from .vibration import RigidProbe, shift_matrix
 
-__all__ = ["MOTION_TERMS", "PassPlan", "SeriesPass", "SeriesStatistics"]
+__all__ = ["MOTION_TERMS", "PassPlan", "SeriesPass", "SeriesStatistics", "motion_sums_bytes"]
 
 # Frames batched per matrix product of the linear sums: the batch costs this many
 # bytes at most (as for method C's sums).
@@ -96,6 +96,19 @@ MOTION_TERMS = (("x", "y"),
 _HARMONICS = ((1, 0), (0, 1), (2, 0), (0, 2), (1, 1), (1, -1),
               (3, 0), (0, 3), (2, 1), (2, -1), (1, 2), (1, -2))
 
+# A group of regressors is fitted when it lowers the image's mean residual variance
+# by more than this fraction: 1 % of a variance is 0.5 % of a std, below the maps'
+# own calibration (1.0-1.06); on a still stack the next group's gain is noise, under
+# 0.1 % for 10,000 pixels and 40 degrees of freedom.
+_TERM_GAIN = 0.01
+# A centred regressor whose part independent of those before it is below this
+# fraction of the uncentred regressor's norm is left out (a still stack: the
+# harmonics' columns are then the shifts' and their squares to 1e-9): the fit stays
+# well conditioned, and what it would explain is below the rounding of the sums.
+_COLLINEAR = 1e-7
+# Pixels per band of the fit's per-pixel algebra (its temporaries: 0.5 MiB a regressor).
+_FIT_BAND = 2**16
+
 
 def _motion_rows(n_frames: int) -> int:
     """The motion regressors a series of ``n_frames`` frames can fit, whole groups of
@@ -108,18 +121,15 @@ def _motion_rows(n_frames: int) -> int:
             break
         k += len(grp)
     return k
-# A group of regressors is fitted when it lowers the image's mean residual variance
-# by more than this fraction: 1 % of a variance is 0.5 % of a std, below the maps'
-# own calibration (1.0-1.06); on a still stack the next group's gain is noise, under
-# 0.1 % for 10,000 pixels and 40 degrees of freedom.
-_TERM_GAIN = 0.01
-# A centred regressor whose part independent of those before it is below this
-# fraction of its norm is left out (a still stack: the harmonics' columns are then
-# the shifts' and their squares to 1e-9): the fit stays well conditioned, and what
-# it would explain is below the rounding of the sums.
-_COLLINEAR = 1e-7
-# Pixels per band of the fit's per-pixel algebra (its temporaries: 0.5 MiB a regressor).
-_FIT_BAND = 2**16
+
+
+def motion_sums_bytes(shape, n_frames: int) -> int:
+    """Memory a :class:`SeriesPass` over ``n_frames`` frames of ``shape`` (H, W) holds
+    for its variance's fit beyond the fit on the shifts alone: 8 bytes a pixel for each
+    harmonic term ``n_frames`` allows (``_motion_rows``), 0 below 8 frames; for the
+    memory budget, whose calibrated figures include the shifts' two sums."""
+    H, W = (int(v) for v in shape)
+    return 8 * H * W * max(_motion_rows(int(n_frames)) - len(MOTION_TERMS[0]), 0)
 
 
 def _orthonormal(g: np.ndarray, gbar: np.ndarray) -> tuple[np.ndarray, list[int]]:
@@ -148,7 +158,7 @@ def _orthonormal(g: np.ndarray, gbar: np.ndarray) -> tuple[np.ndarray, list[int]
     return B, cols
 
 
-def motion_regressors(theta: np.ndarray, shift: np.ndarray) -> np.ndarray:
+def _motion_regressors(theta: np.ndarray, shift: np.ndarray) -> np.ndarray:
     """The regressors of :data:`MOTION_TERMS` for frames of carrier phase advances
     ``theta`` (T, 2), rad, and shifts ``shift`` (T, 2), px: (T, 26) float64."""
     theta = np.asarray(theta, dtype=np.float64).reshape(-1, 2)
@@ -354,7 +364,7 @@ class SeriesPass:
         a = self._M @ self.theta[t]  # px
         w = np.zeros(self.lin.shape[0])
         w[h] = sign
-        w[self._m0:] = sign * motion_regressors(self.theta[t], a)[0, :self._n_motion]
+        w[self._m0:] = sign * _motion_regressors(self.theta[t], a)[0, :self._n_motion]
         if self.plan.method == "C":
             e = np.exp(-1j * self.theta[t])  # undoes the carrier's advance (eq. 2)
             w[2 + 4 * h:6 + 4 * h] = sign * np.array([e[0].real, e[0].imag, e[1].real,
@@ -505,7 +515,7 @@ class SeriesPass:
         if T < 2:
             return SeriesStatistics(mean, None, "unavailable (a single frame)", 1)
         theta = np.array([self.theta[t] for t in kept]).reshape(T, 2)
-        g = motion_regressors(theta, theta @ self._M.T)[:, :self._n_motion]
+        g = _motion_regressors(theta, theta @ self._M.T)[:, :self._n_motion]
         gbar = g.mean(axis=0)
         # the groups' regressors made orthonormal over the kept frames, in order: q =
         # (g - gbar) B, B upper triangular, collinear columns left out
@@ -520,14 +530,15 @@ class SeriesPass:
         # per pixel, the residual sum of squares of the nested fit of the first k
         # orthonormal regressors is svv - sum_{i<k} z_i^2, z = B^T s (module docstring)
         motion = self.lin[self._m0:]
-        sums = np.zeros(len(stops))
         n = H * W
-        for i0 in range(0, n, _FIT_BAND):
-            i1 = min(i0 + _FIT_BAND, n)
-            svv, z2 = self._band(i0, i1, s1, gbar, B, cols, motion, T)
-            z2 = np.concatenate([[0.0], np.cumsum(z2)])
-            sums += svv.sum() - z2[stops]
-        means = sums / np.array([T - 1 - k for k in stops])
+        # the choice from _FIT_BAND pixels drawn at random (a fixed draw) where the
+        # image has more: their mean is the image's within 0.1 % (40 dof), and a
+        # regular stride could fall on one phase of the grid
+        pick_px = (slice(None) if n <= _FIT_BAND else
+                   np.sort(np.random.default_rng(0).choice(n, _FIT_BAND, replace=False)))
+        svv, z2 = self._band(pick_px, s1, gbar, B, cols, motion, T)
+        z2 = np.concatenate([[0.0], np.cumsum(z2)])
+        means = (svv.sum() - z2[stops]) / np.array([T - 1 - k for k in stops])
         # the fewest groups whose mean residual variance is within _TERM_GAIN of the
         # lowest; a still stack keeps the fit on its shifts where it has them
         best = float(means.min())
@@ -539,7 +550,7 @@ class SeriesPass:
         var = np.empty(n)
         for i0 in range(0, n, _FIT_BAND):
             i1 = min(i0 + _FIT_BAND, n)
-            svv, z2 = self._band(i0, i1, s1, gbar, B[:k, :k], cols[:k], motion, T,
+            svv, z2 = self._band(slice(i0, i1), s1, gbar, B[:k, :k], cols[:k], motion, T,
                                  per_pixel=True)
             var[i0:i1] = svv - z2.sum(axis=0) if k else svv
         dof = T - 1 - k
@@ -555,16 +566,17 @@ class SeriesPass:
         return SeriesStatistics(mean, np.maximum(var, 0.0).reshape(H, W) / dof, how, T,
                                 regressors=terms, dof=dof)
 
-    def _band(self, i0, i1, s1, gbar, B, cols, motion, T, *, per_pixel=False):
-        """Pixels ``i0:i1``: the centred sum of squares ``svv`` and the squared
-        coordinates ``z^2`` of the series on the orthonormal regressors ``B`` (per
-        pixel with ``per_pixel``, else summed over the band)."""
-        s1b = s1[i0:i1]
-        svv = self.sq[i0:i1] - s1b * s1b / T
+    def _band(self, px, s1, gbar, B, cols, motion, T, *, per_pixel=False):
+        """Pixels ``px`` (a slice or indices of the flat image): the centred sum of
+        squares ``svv`` and the squared coordinates ``z^2`` of the series on the
+        orthonormal regressors ``B`` (per pixel with ``per_pixel``, else summed)."""
+        s1b = s1[px]
+        svv = self.sq[px] - s1b * s1b / T
         if not cols:
-            return svv, np.zeros((0, i1 - i0)) if per_pixel else np.zeros(0)
+            return svv, np.zeros((0, svv.size)) if per_pixel else np.zeros(0)
         # s = sum_t (g_t - gbar) d_t = sum_t g_t d_t - gbar S_d, on the kept columns
-        sc = motion[cols, i0:i1] - gbar[cols, None] * s1b
+        sc = motion[cols, px] if isinstance(px, slice) else motion[np.ix_(cols, px)]
+        sc = sc - gbar[cols, None] * s1b
         z = B.T @ sc
         z *= z
         return svv, z if per_pixel else z.sum(axis=1)
