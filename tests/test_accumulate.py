@@ -353,3 +353,21 @@ def test_raw_frames_pending_when_the_compiled_loops_are_switched_off(data, monke
     monkeypatch.setattr(_wft, "_COMPILED", False)
     # flushed by numpy instead: the same sums
     _assert_direct_sums(acc.statistics(), frames, list(range(12)))
+
+
+@pytest.mark.parametrize(("n_frames", "terms"), [(3, 0), (4, 2), (7, 2), (8, 6), (16, 14),
+                                                 (27, 14), (28, 26), (500, 26)])
+def test_a_pass_keeps_the_sums_of_the_terms_its_frames_can_fit(n_frames, terms):
+    # a group of the variance's regressors (2 shifts, then 4, 8 and 12 harmonic terms)
+    # is summed only when T - 1 exceeds the terms fitted with it: its fit keeps a
+    # degree of freedom; the budget counts those beyond the shifts, 8 bytes a pixel
+    shape = (40, 48)
+    yy, xx = np.mgrid[0:40, 0:48]
+    img = 1000 + 500 * np.cos(2 * np.pi * (_lattice().K @ np.array([xx.ravel(),
+                                                                  yy.ravel()]))).sum(0)
+    img = img.reshape(shape)
+    for method, first in (("A", 2), ("C", 10)):  # C: its 8 realigning rows first
+        acc = SeriesPass(PassPlan(lattice=_lattice(), n_frames=n_frames, method=method), img)
+        assert acc.lin.shape == (first + terms, img.size)
+    assert stacks.accumulate.motion_sums_bytes(shape, n_frames) == \
+        8 * img.size * max(terms - 2, 0)
