@@ -62,14 +62,29 @@ def _pass(frames, method="A", chunks=1, **kw):
     return out
 
 
-def _direct_variance(frames, shifts):
-    """Per-pixel residual variance of the least-squares fit v_t = m + b . a_t,
-    solved pixel by pixel from the normal equations (T - 3 dof)."""
+def _terms(shifts):
+    """The motion regressors by name, written here: the shift (px) and the cosine and
+    sine of the harmonics m theta_1 + n theta_2 of the carrier phases theta = 2 pi K a."""
+    th = 2 * np.pi * shifts @ _lattice().K.T
+    out = {"x": shifts[:, 0], "y": shifts[:, 1]}
+    for m, n in ((1, 0), (0, 1), (2, 0), (0, 2), (1, 1), (1, -1)):
+        name = {(1, 0): "theta1", (0, 1): "theta2", (2, 0): "2 theta1", (0, 2): "2 theta2",
+                (1, 1): "theta1 + theta2", (1, -1): "theta1 - theta2"}[m, n]
+        arg = m * th[:, 0] + n * th[:, 1]
+        out[f"cos({name})"], out[f"sin({name})"] = np.cos(arg), np.sin(arg)
+    return out
+
+
+def _direct_variance(frames, shifts, names=("x", "y")):
+    """Per-pixel residual variance of the least-squares fit v_t = m + sum_k b_k g_k(t)
+    on the regressors ``names`` (:func:`_terms`), solved pixel by pixel by numpy's
+    least squares (T - 1 - len(names) dof)."""
     T = len(frames)
-    X = np.column_stack([np.ones(T), shifts])
+    terms = _terms(shifts)
+    X = np.column_stack([np.ones(T)] + [terms[n] for n in names])
     beta, *_ = np.linalg.lstsq(X, frames.reshape(T, -1), rcond=None)
     r = frames.reshape(T, -1) - X @ beta
-    return (r * r).sum(axis=0).reshape(frames.shape[1:]) / (T - 3)
+    return (r * r).sum(axis=0).reshape(frames.shape[1:]) / (T - 1 - len(names))
 
 
 def test_mean_halves_and_variance_are_the_direct_sums(data):
@@ -86,10 +101,19 @@ def test_mean_halves_and_variance_are_the_direct_sums(data):
     # fit uses the same ones (the pass's claim is the algebra, the shifts are tested
     # in test_vibration), so they agree to rounding: 1e-9 of a variance of ~1e3
     a = screen_frames(frames, _lattice()).shifts()
-    want = _direct_variance(frames, a)
     assert st.n_frames == 12
-    assert "regressed out (9 dof)" in st.method
+    # 0.08 px of vibration at pitch 5: the first harmonics lower the residual by more
+    # than the 1 % a group must gain; the second ones (4 dof of 9) do not
+    assert st.regressors == ("x", "y", "cos(theta1)", "sin(theta1)", "cos(theta2)",
+                             "sin(theta2)")
+    assert st.dof == 5
+    assert "regressed out (5 dof)" in st.method
+    want = _direct_variance(frames, a, st.regressors)
     assert_allclose(st.variance, want, rtol=1e-9, atol=1e-6)
+    # the plain first-order fit, for the record: the second-order term of the
+    # vibrations is in it (a few % at 0.08 px on this sharp checkerboard)
+    first = _direct_variance(frames, a)
+    assert np.mean(first) > np.mean(want)
 
 
 def test_chunking_does_not_change_the_sums(data):
@@ -264,7 +288,8 @@ def test_integer_frames_as_read_give_the_direct_sums(data, compiled, monkeypatch
     assert_allclose(acc.half_means()[0], frames[[0, 1, 2, 3, 5]].mean(axis=0), atol=1e-9)
     assert_allclose(acc.half_means()[1], frames[6:].mean(axis=0), atol=1e-9)
     a = screen_frames(frames, _lattice()).shifts()[keep]
-    assert_allclose(st.variance, _direct_variance(frames[keep], a), rtol=1e-9, atol=1e-6)
+    assert_allclose(st.variance, _direct_variance(frames[keep], a, st.regressors),
+                    rtol=1e-9, atol=1e-6)
 
 
 def test_compiled_and_numpy_sums_agree_for_method_c(data, monkeypatch):
@@ -281,8 +306,10 @@ def test_compiled_and_numpy_sums_agree_for_method_c(data, monkeypatch):
         acc.remove(7, raw[7])
         acc._flush()
         out[compiled] = acc
-    # the same 12 weighted sums (4 linear rows, 8 realigning ones) added in another
-    # order: float64 rounding, 1e-13 of the largest sum
+    # the same 16 weighted sums (2 halves, 8 realigning rows, the 6 motion regressors
+    # 12 frames can fit) added in another order: float64 rounding, 1e-13 of the
+    # largest sum
+    assert out[True].lin.shape[0] == 16
     for name in ("lin", "sq"):
         x, y = getattr(out[True], name), getattr(out[False], name)
         assert_allclose(x, y, rtol=0, atol=1e-13 * np.abs(y).max())
@@ -301,7 +328,8 @@ def _assert_direct_sums(st, frames, keep):
     # grey levels of ~3e4 summed in float64, a frame taken out: rounding ~1e-11
     assert_allclose(st.mean, frames[keep].mean(axis=0), rtol=0, atol=1e-9)
     a = screen_frames(frames, _lattice()).shifts()[keep]
-    assert_allclose(st.variance, _direct_variance(frames[keep], a), rtol=1e-9, atol=1e-6)
+    assert_allclose(st.variance, _direct_variance(frames[keep], a, st.regressors),
+                    rtol=1e-9, atol=1e-6)
 
 
 def test_a_frame_read_as_float_leaves_the_raw_batch_exact(data):
@@ -325,3 +353,21 @@ def test_raw_frames_pending_when_the_compiled_loops_are_switched_off(data, monke
     monkeypatch.setattr(_wft, "_COMPILED", False)
     # flushed by numpy instead: the same sums
     _assert_direct_sums(acc.statistics(), frames, list(range(12)))
+
+
+@pytest.mark.parametrize(("n_frames", "terms"), [(3, 0), (4, 2), (7, 2), (8, 6), (16, 14),
+                                                 (27, 14), (28, 26), (500, 26)])
+def test_a_pass_keeps_the_sums_of_the_terms_its_frames_can_fit(n_frames, terms):
+    # a group of the variance's regressors (2 shifts, then 4, 8 and 12 harmonic terms)
+    # is summed only when T - 1 exceeds the terms fitted with it: its fit keeps a
+    # degree of freedom; the budget counts those beyond the shifts, 8 bytes a pixel
+    shape = (40, 48)
+    yy, xx = np.mgrid[0:40, 0:48]
+    img = 1000 + 500 * np.cos(2 * np.pi * (_lattice().K @ np.array([xx.ravel(),
+                                                                  yy.ravel()]))).sum(0)
+    img = img.reshape(shape)
+    for method, first in (("A", 2), ("C", 10)):  # C: its 8 realigning rows first
+        acc = SeriesPass(PassPlan(lattice=_lattice(), n_frames=n_frames, method=method), img)
+        assert acc.lin.shape == (first + terms, img.size)
+    assert stacks.accumulate.motion_sums_bytes(shape, n_frames) == \
+        8 * img.size * max(terms - 2, 0)

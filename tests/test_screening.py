@@ -186,10 +186,14 @@ def test_a_black_frame_in_the_reference_is_excluded_by_both_methods():
         assert any("frame 3: shows no grid" in w for w in res.warnings)
         want = measure_series(np.delete(ref, 3, axis=0), cur, lattice=LAT, method=method)
         assert_allclose(res.strain, want.strain, rtol=0, atol=1e-12)  # the same frames
-        assert_allclose(res.uncertainty["exx_std"], want.uncertainty["exx_std"], rtol=1e-12)
+        # the noise variance's fit on the carriers' first harmonics (0.1 px of
+        # vibration: their parts independent of the shifts are ~theta^3 / 6, 4e-4)
+        # magnifies the rounding of the black frame's sums taken out (d ~ 2000 grey
+        # levels) about a thousand times: 1e-12 of the variance, 1e-10 allowed
+        assert_allclose(res.uncertainty["exx_std"], want.uncertainty["exx_std"], rtol=1e-10)
         assert res.n_frames == want.n_frames
         assert_allclose(res.noise.split_strain, want.noise.split_strain, rtol=1e-12)
-        assert_allclose(res.noise.theory_strain, want.noise.theory_strain, rtol=1e-12)
+        assert_allclose(res.noise.theory_strain, want.noise.theory_strain, rtol=1e-10)
         assert abs(mean_map(res, "exx") - STRAIN) < 1.5e-5  # noise of the mean strain
 
 

@@ -70,13 +70,14 @@ Noise floor
       modulus ``|Psi|`` of each series (which includes the vibrations' contrast
       loss), carried through eqs. (34)-(35). ``v`` is measured in the data: the
       temporal variance of each pixel, averaged over the valid pixels, after
-      regressing out the first-order effect of the measured frame shifts,
-      ``v_t(x) - mean = grad s(x) . (a_t - mean a) + noise`` (a least-squares
-      fit per pixel on the two shift components, ``T - 3`` degrees of freedom).
-      Without that regression a vibration of 0.05 px on a grid of pitch 5 would
-      pass for sensor noise. It needs ``T >= 4`` (plain temporal variance for
-      ``T = 2, 3``; nothing for ``T = 1``, where the state is assumed as noisy as
-      the reference).
+      regressing out the measured frame shifts: a least-squares fit per pixel on
+      the two shift components (``T - 3`` degrees of freedom) and, where the
+      vibrations need them, the cosine and sine of the carriers' harmonics of the
+      shifts (:mod:`gridstrain.stacks.accumulate`). Without that regression a
+      vibration of 0.05 px on a grid of pitch 5 would pass for sensor noise, and
+      without the harmonics one of 0.3 px would, by its second-order term. It
+      needs ``T >= 4`` (plain temporal variance for ``T = 2, 3``; nothing for
+      ``T = 1``, where the state is assumed as noisy as the reference).
     - **split**: an empirical check that assumes nothing about the noise: the
       reference frames are split into two halves, each averaged, and the second
       half is measured against the first. The result is pure error (the specimen

@@ -22,6 +22,7 @@ from .._validation import (
 from ..io import FrameSeries, StateInputs, open_series, read_mask, record_numbering
 from ..phase import Lattice
 from ..phase.window import min_side
+from ..stacks.accumulate import motion_sums_bytes
 
 
 class _ArraySeries:
@@ -314,6 +315,9 @@ def _check_memory(series: list, *, method: str, held: bool) -> None:
     n_states = len(series) - 1
     peak = _memory.measurement_bytes(series[0].shape, method=method, n_states=n_states,
                                      held_states=held)
+    # the pass over the longest series: the sums of its variance's harmonic terms
+    # (gridstrain.stacks.accumulate), on top of the calibrated 4-frame figures
+    peak += motion_sums_bytes(series[0].shape, max(s.n_frames for s in series))
     H, W = series[0].shape
     advice = ("measure a smaller region (crop the frames), fewer states at once"
               + (", each state written as measured (an output file, without "

@@ -6,9 +6,9 @@ from its frames is gathered in one read of each frame by :class:`SeriesPass`:
 - the screening's per-frame record (:class:`gridstrain.stacks.screening.FrameProbe`):
   carrier coefficients, hence the rigid shifts ``a_t`` (eq. 2), contrast, tiles,
   clipping;
-- the sums giving the mean image, the temporal variance with the shifts regressed
-  out, and the means of the two halves of the series (the noise floor measured
-  half against half);
+- the sums giving the mean image, the temporal variance with the frames' rigid
+  motion regressed out, and the means of the two halves of the series (the noise
+  floor measured half against half);
 - with method B, the sums of the frames' windowed Fourier transforms
   (:func:`gridstrain.stacks.method_b`);
 - with method C, the frames summed with their carriers realigned by their shifts,
@@ -22,11 +22,35 @@ advances of the carrier against the origin's, so that every part measures them o
 the same basis. A frame the screening rejects is taken out again by
 :meth:`SeriesPass.remove` (the only frames read twice).
 
-The regression of the variance. With ``c_t = a_t - mean(a)`` the centred shifts of
-the kept frames, the per-pixel fit ``d_t = m + b . c_t + e_t`` leaves the residual
-sum of squares ``S_dd - S_d^2 / T - s^T S_cc^-1 s`` with ``s = sum_t c_t d_t =
-sum_t a_t d_t - mean(a) S_d``: the sums over ``a_t d_t`` and ``d_t`` are additive
-whatever the frames kept, so the centring is done once, at the end.
+The regression of the variance. A frame of a static stack is ``s(x + a_t)`` plus the
+sensor noise (eq. 2): at one pixel, the frames' values are a function of the rigid shift
+``a_t``, which the temporal variance would count as noise. Where the grid is periodic
+that function is periodic in the carrier phases ``theta_t = 2 pi K a_t`` the pass
+measures, a sum of harmonics ``exp(i (m theta_1 + n theta_2))``; what is not periodic
+(lighting, stains, the print's defects) varies slowly and moves with ``a_t`` to first
+order. So each pixel's series is fitted on the regressors ``g_t`` (:data:`MOTION_TERMS`):
+the two shift components, then the cosine and sine of the carriers' harmonics ``(m,
+n)`` of order ``|m| + |n|`` 1, 2 and 3, by order. A first-order fit on the shifts
+alone (eq. 3's linear term, the paper's ref. [22]) leaves the second-order term ``a^T
+H a / 2`` in the residual: with 0.3 px of vibration on sharp grids of pitch 5 it
+passes for 2 to 10 times the sensor's variance, and the std maps state the noise up
+to 3 times too large. The harmonics follow a grid's own response to a shift at any
+amplitude. On a sharp-edged checkerboard of pitch 5 (T = 50), what the harmonics up
+to order 2 leave adds 0.4 % to the noise variance at 0.3 px and 7 % at 0.5 px; on
+``sin^3`` lines crossed as a checkerboard, 2 % and 17 to 44 %; up to order 3, 0.4 %
+at most on both.
+
+The fit is nested: the regressors are added by groups (none, the shifts, each order
+of harmonics) and each group is kept only if it lowers the image's mean residual
+variance by more than :data:`_TERM_GAIN`: a still stack keeps the fit on the shifts
+(``T - 3`` dof, as a first-order fit), and every group costs degrees of freedom, not
+bias. A group is tried only while ``T - 1`` exceeds the regressors fitted (``T >= 28``
+for all: 0.5 px needs them, 0.1 px the first order). With ``c_t = g_t -
+mean(g)`` over the kept frames, the fit leaves the residual sum of squares ``S_dd -
+S_d^2 / T - s^T S_cc^-1 s`` with ``s = sum_t c_t d_t = sum_t g_t d_t - mean(g) S_d``:
+the sums over ``g_t d_t`` and ``d_t`` are additive whatever the frames kept, so the
+centring is done once, at the end, where ``S_cc`` is factored once by Gram-Schmidt
+(its groups in order) for every nested fit.
 
 Conventions: :mod:`gridstrain.conventions`. Sums are float64 whatever the frames.
 """
@@ -37,6 +61,7 @@ import copy
 from dataclasses import dataclass
 
 import numpy as np
+from scipy import linalg
 from scipy.linalg import blas
 
 from ..phase import DEFAULT_MARGIN, Lattice
@@ -45,12 +70,102 @@ from ._accumulators import FrameOrder, StackResult, _PhaseMean, compensated_resu
 from .screening import FrameProbe, FrameScreen, decide
 from .vibration import RigidProbe, shift_matrix
 
-__all__ = ["PassPlan", "SeriesPass", "SeriesStatistics"]
+__all__ = ["MOTION_TERMS", "PassPlan", "SeriesPass", "SeriesStatistics", "motion_sums_bytes"]
 
 # Frames batched per matrix product of the linear sums: the batch costs this many
 # bytes at most (as for method C's sums).
 _BATCH_BYTES = 2**26
 _METHODS = ("A", "B", "C")
+
+#: The regressors of a frame's rigid motion fitted out of each pixel's series, by
+#: group, in the order the groups are tried (module docstring): the shift ``(x, y)``,
+#: px, then the cosine and sine of the carrier harmonics ``m theta_1 + n theta_2``.
+MOTION_TERMS = (("x", "y"),
+                ("cos(theta1)", "sin(theta1)", "cos(theta2)", "sin(theta2)"),
+                ("cos(2 theta1)", "sin(2 theta1)", "cos(2 theta2)", "sin(2 theta2)",
+                 "cos(theta1 + theta2)", "sin(theta1 + theta2)",
+                 "cos(theta1 - theta2)", "sin(theta1 - theta2)"),
+                ("cos(3 theta1)", "sin(3 theta1)", "cos(3 theta2)", "sin(3 theta2)",
+                 "cos(2 theta1 + theta2)", "sin(2 theta1 + theta2)",
+                 "cos(2 theta1 - theta2)", "sin(2 theta1 - theta2)",
+                 "cos(theta1 + 2 theta2)", "sin(theta1 + 2 theta2)",
+                 "cos(theta1 - 2 theta2)", "sin(theta1 - 2 theta2)"))
+# the harmonics (m, n) of the groups after the shifts, in MOTION_TERMS' order: those of
+# order |m| + |n| = 1, 2 and 3
+_HARMONICS = ((1, 0), (0, 1), (2, 0), (0, 2), (1, 1), (1, -1),
+              (3, 0), (0, 3), (2, 1), (2, -1), (1, 2), (1, -2))
+
+# A group of regressors is fitted when it lowers the image's mean residual variance
+# by more than this fraction: 1 % of a variance is 0.5 % of a std, below the maps'
+# own calibration (1.0-1.06); on a still stack the next group's gain is noise, under
+# 0.1 % for 10,000 pixels and 40 degrees of freedom.
+_TERM_GAIN = 0.01
+# A centred regressor whose part independent of those before it is below this
+# fraction of the uncentred regressor's norm is left out (a still stack: the
+# harmonics' columns are then the shifts' and their squares to 1e-9): the fit stays
+# well conditioned, and what it would explain is below the rounding of the sums.
+_COLLINEAR = 1e-7
+# Pixels per band of the fit's per-pixel algebra (its temporaries: 0.5 MiB a regressor).
+_FIT_BAND = 2**16
+
+
+def _motion_rows(n_frames: int) -> int:
+    """The motion regressors a series of ``n_frames`` frames can fit, whole groups of
+    :data:`MOTION_TERMS` leaving a degree of freedom at least (``T >= 4`` for the
+    shifts, 8, 16 and 28 for the harmonics of order 1, 2 and 3): only their sums are
+    kept."""
+    k = 0
+    for grp in MOTION_TERMS:
+        if n_frames - 1 - (k + len(grp)) < 1:
+            break
+        k += len(grp)
+    return k
+
+
+def motion_sums_bytes(shape, n_frames: int) -> int:
+    """Memory a :class:`SeriesPass` over ``n_frames`` frames of ``shape`` (H, W) holds
+    for its variance's fit beyond the fit on the shifts alone: 8 bytes a pixel for each
+    harmonic term ``n_frames`` allows (``_motion_rows``), 0 below 8 frames; for the
+    memory budget, whose calibrated figures include the shifts' two sums."""
+    H, W = (int(v) for v in shape)
+    return 8 * H * W * max(_motion_rows(int(n_frames)) - len(MOTION_TERMS[0]), 0)
+
+
+def _orthonormal(g: np.ndarray, gbar: np.ndarray) -> tuple[np.ndarray, list[int]]:
+    """The centred regressors ``c = g - gbar`` (T, p) made orthonormal in their order
+    (modified Gram-Schmidt, twice): ``(B, cols)`` with ``c[:, cols] @ B`` orthonormal,
+    ``B`` upper triangular. A column is left out where its part independent of those
+    before it is below :data:`_COLLINEAR` of the uncentred column's norm: the sums
+    ``sum_t g_t d_t`` are uncentred, and a smaller part would be their rounding."""
+    c = g - gbar
+    q, cols = [], []
+    for j in range(c.shape[1]):
+        v = c[:, j].copy()
+        for _ in range(2):
+            for qi in q:
+                v -= (qi @ v) * qi
+        nv = float(np.linalg.norm(v))
+        if not nv > _COLLINEAR * float(np.linalg.norm(g[:, j])):
+            continue
+        q.append(v / nv)
+        cols.append(j)
+    if not cols:
+        return np.zeros((0, 0)), []
+    Q = np.column_stack(q)
+    R = Q.T @ c[:, cols]  # upper triangular: c[:, cols] = Q R
+    B = linalg.solve_triangular(np.triu(R), np.eye(len(cols)))
+    return B, cols
+
+
+def _motion_regressors(theta: np.ndarray, shift: np.ndarray) -> np.ndarray:
+    """The regressors of :data:`MOTION_TERMS` for frames of carrier phase advances
+    ``theta`` (T, 2), rad, and shifts ``shift`` (T, 2), px: (T, 26) float64."""
+    theta = np.asarray(theta, dtype=np.float64).reshape(-1, 2)
+    cols = [np.asarray(shift, dtype=np.float64).reshape(-1, 2)]
+    for m, n in _HARMONICS:
+        arg = m * theta[:, 0] + n * theta[:, 1]
+        cols.append(np.column_stack([np.cos(arg), np.sin(arg)]))
+    return np.concatenate(cols, axis=1)
 
 
 @dataclass(frozen=True, eq=False)
@@ -108,18 +223,26 @@ class SeriesStatistics:
         Mean image, grey levels.
     variance : (H, W) float64 ndarray or None
         Noise variance of one frame, grey levels^2: the temporal variance with the
-        frames' rigid shifts regressed out (``T - 3`` degrees of freedom) when they
-        are of rank 2 and ``T >= 4``, else plain (``T - 1``); None for one frame.
+        frames' rigid motion regressed out of each pixel's series (``regressors``,
+        module docstring; ``T - 1 - len(regressors)`` degrees of freedom), plain
+        (``T - 1``) when there is nothing to regress on; None for one frame.
     method : str
         How the variance was obtained.
     n_frames : int
         Frames kept.
+    regressors : tuple of str
+        The terms of :data:`MOTION_TERMS` fitted out (those left out as collinear
+        with the ones before them excepted); empty for a plain variance.
+    dof : int
+        Degrees of freedom of the variance (0 for one frame).
     """
 
     mean: np.ndarray
     variance: np.ndarray | None
     method: str
     n_frames: int
+    regressors: tuple = ()
+    dof: int = 0
 
 
 class SeriesPass:
@@ -135,9 +258,12 @@ class SeriesPass:
 
     Notes
     -----
-    Memory: six float64 images (the sums and the origin), a batch of frames of at
+    Memory: four float64 images (the halves' sums, the sum of squares, the origin) and
+    one per motion regressor of the variance's fit that ``n_frames`` allows (2 from 4
+    frames, 6 from 8, 14 from 16, 26 from 28: module docstring), a batch of frames of at
     most 64 MiB; method B adds its transform sums (80 bytes a pixel), method C
     eight float64 images. The per-frame records are a few hundred bytes a frame.
+    The motion's sums are freed by :meth:`release`.
     """
 
     def __init__(self, plan: PassPlan, origin):
@@ -156,9 +282,12 @@ class SeriesPass:
         self.parts: dict = {}  # t -> (4, 2) quadrant shifts (method C), px
         self.removed: set = set()
         self.dtype = None  # float32 while every frame is float32 (gridstrain.conventions)
-        # linear sums, rows: d over each half, a_x d, a_y d, then (method C) per half
-        # the real and imaginary parts of exp(-i theta_j) d for j = 1, 2
-        rows = 4 + (8 if plan.method == "C" else 0)
+        # linear sums, rows: d over each half, then (method C) per half the real and
+        # imaginary parts of exp(-i theta_j) d for j = 1, 2, then g_t d for the motion
+        # regressors g_t (MOTION_TERMS): what release() keeps is a prefix
+        self._m0 = 2 + (8 if plan.method == "C" else 0)
+        self._n_motion = _motion_rows(plan.n_frames)
+        rows = self._m0 + self._n_motion
         self.lin = np.zeros((rows, H * W), dtype=np.float64)
         self.sq = np.zeros(H * W, dtype=np.float64)  # sum d^2
         # method C's weights sum: sum_t exp(-i theta_tj) per half, (2 halves, 2)
@@ -234,10 +363,10 @@ class SeriesPass:
         a = self._M @ self.theta[t]  # px
         w = np.zeros(self.lin.shape[0])
         w[h] = sign
-        w[2:4] = sign * a
+        w[self._m0:] = sign * _motion_regressors(self.theta[t], a)[0, :self._n_motion]
         if self.plan.method == "C":
             e = np.exp(-1j * self.theta[t])  # undoes the carrier's advance (eq. 2)
-            w[4 + 4 * h:8 + 4 * h] = sign * np.array([e[0].real, e[0].imag, e[1].real,
+            w[2 + 4 * h:6 + 4 * h] = sign * np.array([e[0].real, e[0].imag, e[1].real,
                                                       e[1].imag])
             self.wsum[h] += sign * e
         if t == 0 and np.array_equal(arr, self.origin):
@@ -369,39 +498,87 @@ class SeriesPass:
         return decide([self.records[t] for t in range(T)], self.probe,
                       max_saturation=max_saturation)
 
-    def _kept_shifts(self) -> np.ndarray:
-        kept = self.kept
-        return np.array([self._M @ self.theta[t] for t in kept]).reshape(len(kept), 2)
-
     def statistics(self) -> SeriesStatistics:
-        """Mean image and noise variance of the kept frames."""
-        if self.sq is None:
+        """Mean image and noise variance of the kept frames (the variance's fit: module
+        docstring)."""
+        if self.sq is None or self.lin.shape[0] < self._m0 + self._n_motion:
             raise ValueError("the pixel sums were released")
         self._flush()
-        a = self._kept_shifts()
-        T = a.shape[0]
+        kept = self.kept
+        T = len(kept)
         if T == 0:
             raise ValueError("no frame left in the sums")
         H, W = self.shape
-        s1 = (self.lin[0] + self.lin[1]).reshape(H, W)
-        mean = self.origin + s1 / T
+        s1 = self.lin[0] + self.lin[1]  # (HW,)
+        mean = self.origin + s1.reshape(H, W) / T
         if T < 2:
             return SeriesStatistics(mean, None, "unavailable (a single frame)", 1)
-        svv = self.sq.reshape(H, W) - s1 * s1 / T
-        abar = a.mean(axis=0)
-        c = a - abar
-        S = c.T @ c
-        rank = int(np.linalg.matrix_rank(S, tol=1e-12 * max(float(np.trace(S)), 1e-300)))
-        if T - 1 - 2 >= 1 and rank == 2:
-            # s = sum_t c_t d_t, from the additive sums (module docstring)
-            s = self.lin[2:4].reshape(2, H, W) - abar[:, None, None] * s1
-            svv = svv - np.einsum("ihw,ij,jhw->hw", s, np.linalg.inv(S), s)
-            dof = T - 3
+        theta = np.array([self.theta[t] for t in kept]).reshape(T, 2)
+        g = _motion_regressors(theta, theta @ self._M.T)[:, :self._n_motion]
+        gbar = g.mean(axis=0)
+        # the groups' regressors made orthonormal over the kept frames, in order: q =
+        # (g - gbar) B, B upper triangular, collinear columns left out
+        B, cols = _orthonormal(g, gbar)
+        names = [n for grp in MOTION_TERMS for n in grp]
+        ends = [e for e in np.cumsum([len(grp) for grp in MOTION_TERMS])
+                if e <= self._n_motion]
+        # the nested fits: the first k orthonormal regressors, k at each group's end;
+        # a group wholly collinear with those before it adds no fit
+        stops = [0] + [sum(1 for c in cols if c < e) for e in ends]
+        stops = list(dict.fromkeys(k for k in stops if T - 1 - k >= 1))
+        # per pixel, the residual sum of squares of the nested fit of the first k
+        # orthonormal regressors is svv - sum_{i<k} z_i^2, z = B^T s (module docstring)
+        motion = self.lin[self._m0:]
+        n = H * W
+        # the choice from _FIT_BAND pixels drawn at random (a fixed draw) where the
+        # image has more: their mean is the image's within 0.1 % (40 dof), and a
+        # regular stride could fall on one phase of the grid
+        pick_px = (slice(None) if n <= _FIT_BAND else
+                   np.sort(np.random.default_rng(0).choice(n, _FIT_BAND, replace=False)))
+        svv, z2 = self._band(pick_px, s1, gbar, B, cols, motion, T)
+        z2 = np.concatenate([[0.0], np.cumsum(z2)])
+        means = (svv.sum() - z2[stops]) / np.array([T - 1 - k for k in stops])
+        # the fewest groups whose mean residual variance is within _TERM_GAIN of the
+        # lowest; a still stack keeps the fit on its shifts where it has them
+        best = float(means.min())
+        k_shift = sum(1 for c in cols if c < len(MOTION_TERMS[0]))
+        low = stops.index(k_shift) if k_shift in stops else 0
+        pick = next((i for i in range(low, len(stops))
+                     if means[i] <= (1 + _TERM_GAIN) * best), int(np.argmin(means)))
+        k = stops[pick]
+        var = np.empty(n)
+        for i0 in range(0, n, _FIT_BAND):
+            i1 = min(i0 + _FIT_BAND, n)
+            svv, z2 = self._band(slice(i0, i1), s1, gbar, B[:k, :k], cols[:k], motion, T,
+                                 per_pixel=True)
+            var[i0:i1] = svv - z2.sum(axis=0) if k else svv
+        dof = T - 1 - k
+        terms = tuple(names[c] for c in cols[:k])
+        n_harm = sum(1 for c in cols[:k] if c >= len(MOTION_TERMS[0]))
+        if k == 0:
+            how = f"temporal variance, vibrations not removed ({dof} dof)"
+        elif n_harm == 0:
             how = f"temporal variance, shifts regressed out ({dof} dof)"
         else:
-            dof = T - 1
-            how = f"temporal variance, vibrations not removed ({dof} dof)"
-        return SeriesStatistics(mean, np.maximum(svv, 0.0) / dof, how, T)
+            how = (f"temporal variance, shifts and {n_harm} terms of the carriers' "
+                   f"harmonics regressed out ({dof} dof)")
+        return SeriesStatistics(mean, np.maximum(var, 0.0).reshape(H, W) / dof, how, T,
+                                regressors=terms, dof=dof)
+
+    def _band(self, px, s1, gbar, B, cols, motion, T, *, per_pixel=False):
+        """Pixels ``px`` (a slice or indices of the flat image): the centred sum of
+        squares ``svv`` and the squared coordinates ``z^2`` of the series on the
+        orthonormal regressors ``B`` (per pixel with ``per_pixel``, else summed)."""
+        s1b = s1[px]
+        svv = self.sq[px] - s1b * s1b / T
+        if not cols:
+            return svv, np.zeros((0, svv.size)) if per_pixel else np.zeros(0)
+        # s = sum_t (g_t - gbar) d_t = sum_t g_t d_t - gbar S_d, on the kept columns
+        sc = motion[cols, px] if isinstance(px, slice) else motion[np.ix_(cols, px)]
+        sc = sc - gbar[cols, None] * s1b
+        z = B.T @ sc
+        z *= z
+        return svv, z if per_pixel else z.sum(axis=1)
 
     def release(self, *, keep_halves: bool = False, keep_method: bool = True) -> None:
         """Free the pixel sums once :meth:`statistics` is taken, keeping what the
@@ -417,11 +594,14 @@ class SeriesPass:
         if self.lin is None:
             return
         if self.plan.method == "C" and (keep_method or keep_halves):
-            return  # its rows follow the halves' sums in the same array
-        if not keep_halves:
+            keep = self._m0  # its rows follow the halves' sums in the same array
+        elif keep_halves:
+            keep = 2
+        else:
             self.lin = self.origin = None  # the origin only completes the sums
-        elif self.lin.shape[0] > 2:
-            self.lin = np.array(self.lin[:2])
+            return
+        if self.lin.shape[0] > keep:  # the motion's sums: only the variance needs them
+            self.lin = np.array(self.lin[:keep])
 
     def half_counts(self) -> tuple[int, int]:
         """Frames kept in each half."""
@@ -474,7 +654,7 @@ class SeriesPass:
         cbar = c.mean(axis=0)
         phi = np.angle(c * np.conj(cbar))  # (T, 2), as gridstrain.stacks.vibration centres them
         centre = np.angle(cbar * np.conj(self._c0)) + phi.mean(axis=0)
-        lin = sum(self.lin[4 + 4 * h:8 + 4 * h] for h in halves)  # (4, HW)
+        lin = sum(self.lin[2 + 4 * h:6 + 4 * h] for h in halves)  # (4, HW)
         wsum = sum(self.wsum[h] for h in halves)  # (2,)
         n = len(sel)
 
