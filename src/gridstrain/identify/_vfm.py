@@ -1,0 +1,218 @@
+"""The virtual fields method with the noise-optimal special virtual fields.
+
+Principle of virtual work, plane stress, static, no body force, thickness ``t``: for
+every kinematically admissible virtual displacement ``u*``,
+
+    t ∫_S sigma . eps* dS = F u*_bar,
+
+``u*_bar`` the loaded edge's rigid virtual displacement along the load and ``F`` the
+load (the resultant's component that works; the gripped edge does not move, the other
+edges are free of traction). With ``sigma = C(p) eps`` linear in the parameters ``p``
+(:mod:`._models`), the left side is ``sum_k p_k Z_k U`` with ``Z_k`` the row
+``t a sum_pixels pairing_k(eps) . B U`` (``a`` a pixel's area, :mod:`._mesh`). Special
+virtual fields ``U_k`` with ``Z_j U_k = delta_jk`` give ``p_k = F u*_bar(U_k)`` directly.
+
+Among them, Avril & Pierron (2004) choose those that minimise the variance of ``p_k``:
+with strain noise ``n`` (per pixel std ``s_c`` of component ``c``, independent between
+pixels and components), ``p_k``'s error is ``-(sum_j p_j dZ_j) U_k
+= -t a sum_pixels n . C(p) eps*(U_k)``, of variance ``U_k' H U_k`` with
+``H = (t a)^2 sum_c (C B)_c' diag(s_c^2) (C B)_c``. Minimising ``U' H U / 2`` under
+``A U = e_k`` (``A`` the rows ``Z_k``) with Lagrange multipliers gives
+``U = H^-1 A' (A H^-1 A')^-1 e_k`` and the parameters' covariance
+``(A H^-1 A')^-1`` (the method's own variance, eta^2). ``H`` depends on ``p`` through
+``C``: the fields are computed again from the new ``p`` until the ratio settles.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import scipy.linalg as sla
+import scipy.sparse as sp
+
+from ._mesh import Mesh
+
+#: Iterations of the optimal fields and the relative change of the ratio that stops them
+MAX_ITERATIONS = 30
+RTOL = 1e-9
+#: A test whose equations are this close to dependent (smallest over largest eigenvalue
+#: of the normalised A H^-1 A') cannot separate the parameters at all
+RCOND = 1e-10
+#: Refused below this: the weakest combination of the parameters is seen in ``A H^-1 A'``
+#: less than ten times above the share the noise alone gives it (E[dA H^-1 dA']), so
+#: that it is fitted to the noise (a first-order bias of 1 / SNR_MIN and more)
+SNR_MIN = 10.0
+
+
+class NotIdentifiable(ValueError):
+    """The measured fields cannot separate the material parameters (a uniform shear,
+    an equibiaxial field...): only a combination of them is determined."""
+
+
+def _operators(mesh: Mesh, strain: np.ndarray, std: np.ndarray, model, scale: float):
+    """``Z`` rows ``(n_par, n_dof)`` and the per-component ``s_c^2`` of ``H``."""
+    voigt = np.array([strain[0], strain[1], 2.0 * strain[2]])
+    rows = []
+    for M in model.basis:
+        w = M @ voigt  # eps . M eps* = (M eps) . eps*
+        rows.append(scale * sum(b.T @ wc for b, wc in zip(mesh.B, w, strict=True)))
+    var = (std[0] ** 2, std[1] ** 2, (2.0 * std[2]) ** 2)
+    return np.array(rows), var
+
+
+def _noise_blocks(BT, var) -> list:
+    """``(BT_a)' diag(s_c^2) BT_b`` for every component ``c`` and pair ``a <= b``: ``H``
+    is their sum weighted by the stiffness, the only part that changes between
+    iterations."""
+    blocks = []
+    for v in var:
+        D = sp.diags(v)
+        blocks.append({(a, b): np.asarray((BT[a].T @ (D @ BT[b])).todense())
+                       for a in range(3) for b in range(a, 3)})
+    return blocks
+
+
+def _noise_matrix(blocks, C, D, scale: float) -> np.ndarray:
+    """``(t a)^2 sum_c (C B T)_c' diag(s_c^2) (D B T)_c``, ``(m, m)``: with ``C = D =
+    C(p)`` the variance of the virtual work's noise, reduced (``H``)."""
+    m = blocks[0][0, 0].shape[0]
+    H = np.zeros((m, m))
+    for c, block in enumerate(blocks):
+        for (a, b), M in block.items():
+            H += C[c, a] * D[c, b] * M
+            if a != b:
+                H += C[c, b] * D[c, a] * M.T
+    return scale * scale * H
+
+
+def special_fields(mesh: Mesh, T, strain, std, load: float, model, *, thickness: float):
+    """The noise-optimal special virtual fields of one set of strain maps.
+
+    Parameters
+    ----------
+    mesh : Mesh
+    T : (n_dof, m) sparse matrix
+        The admissible virtual displacements (:meth:`Mesh.kinematics`).
+    strain, std : (3, n_pixels) float64 ndarray
+        ``exx, eyy, exy`` (tensor shear) at the mesh's pixels and their std.
+    load : float
+        The resultant that works, nonzero.
+    model : stiffness model
+    thickness : float
+
+    Returns
+    -------
+    p : (n_par,) float64 ndarray
+    cov : (n_par, n_par) float64 ndarray
+        The method's own covariance of ``p`` from the stated std.
+    fields : (n_par, n_dof) float64 ndarray
+        The special virtual fields (nodal displacements).
+    iterations : int
+    snr : float
+        The smallest eigenvalue of ``A H^-1 A'`` against the share the noise gives it:
+        how many times the weakest combination of the parameters is seen above the
+        noise (squared).
+
+    Raises
+    ------
+    NotIdentifiable
+        When the equations of the parameters are dependent.
+    """
+    scale = thickness * mesh.pixel_size ** 2
+    Z, var = _operators(mesh, strain, std, model, scale)
+    A = Z @ T  # (n_par, m), dense
+    blocks = _noise_blocks([b @ T for b in mesh.B], var)
+    p = model.guess()
+    iteration = 0
+    while iteration < MAX_ITERATIONS:
+        iteration += 1
+        C = model.stiffness(p)
+        H = _noise_matrix(blocks, C, C, scale)
+        # a vanishing safeguard: a field that no pixel strains costs nothing
+        H[np.diag_indices_from(H)] += 1e-12 * np.trace(H) / H.shape[0]
+        factor = sla.cho_factor(H)
+        HiA = sla.cho_solve(factor, A.T)  # (m, n_par)
+        G = A @ HiA
+        d = np.sqrt(np.abs(np.diag(G)))
+        if not np.all(d > 0):
+            raise NotIdentifiable("the measured strains do no virtual work: no field "
+                                  "strains the measured region (zero or empty maps)")
+        R = G / np.outer(d, d)
+        w, vecs = np.linalg.eigh(R)
+        if w[0] < RCOND * w[-1]:
+            comb = vecs[:, -1] / d
+            raise NotIdentifiable(
+                f"the measured fields cannot separate E from nu: they give "
+                f"{model.describe(comb / np.max(np.abs(comb)))}")
+        Gi = np.linalg.inv(G)
+        V = HiA @ Gi  # (m, n_par): the special fields, reduced
+        p_new = load * V[-1, :]
+        done = model.plausible(p_new) and \
+            abs(p_new[1] / p_new[0] - p[1] / p[0]) <= RTOL * max(1.0, abs(p[1] / p[0]))
+        if not model.plausible(p_new):
+            # the noise-optimal metric needs a stiffness: keep the last one
+            p = p_new
+            break
+        p = p_new
+        if done:
+            break
+    # the noise's own share of G: E[dA H^-1 dA'] = tr(H^-1 N_jk'), N_jk the covariance
+    # of the rows' noise; a combination of the parameters whose share of G is mostly
+    # noise is fitted to the noise, not measured
+    Hi = sla.cho_solve(factor, np.eye(H.shape[0]))
+    k = len(model.basis)
+    N = np.array([[np.sum(Hi * _noise_matrix(blocks, model.basis[i], model.basis[j],
+                                              scale))
+                   for j in range(k)] for i in range(k)])
+    w, vecs = np.linalg.eigh(N)
+    whiten = vecs / np.sqrt(np.maximum(w, w[-1] * 1e-300))
+    snr = float(np.linalg.eigvalsh(whiten.T @ G @ whiten)[0])
+    if snr < SNR_MIN:
+        comb = np.linalg.eigh(G / np.outer(d, d))[1][:, -1] / d
+        raise NotIdentifiable(
+            f"the measured fields cannot separate E from nu: they give "
+            f"{model.describe(comb / np.max(np.abs(comb)))}; the other combination of "
+            f"the stiffness stands only {max(snr - 1.0, 0.0):.2g} times above the noise "
+            f"(at least {SNR_MIN - 1:g} needed: a heterogeneous field, more load or "
+            f"less noise)")
+    fields = np.asarray((T @ V).T)
+    return p, Gi, fields, iteration, snr
+
+
+def _quantile(level: float) -> float:
+    from scipy import stats
+
+    return float(stats.norm.ppf(0.5 + level / 2))
+
+
+def finite_interval(value: float, std: float, q: float) -> tuple[float, float]:
+    return (value - q * std, value + q * std) if math.isfinite(std) else (math.nan,
+                                                                           math.nan)
+
+
+def virtual_work(mesh: Mesh, strain, std, p, fields, model, *, thickness: float):
+    """The internal virtual work of strain maps in given fields, and its noise variance.
+
+    Parameters
+    ----------
+    strain, std : (3, n_pixels) float64 ndarray
+    p : (n_par,) float64 ndarray
+        The stiffness.
+    fields : (n_fields, n_dof) float64 ndarray
+        Nodal virtual displacements.
+
+    Returns
+    -------
+    work, var : (n_fields,) float64 ndarray
+        ``t a sum_pixels sigma(p) . eps*`` for each field and its variance from ``std``.
+    """
+    scale = thickness * mesh.pixel_size ** 2
+    C = model.stiffness(p)
+    virtual = np.stack([b @ fields.T for b in mesh.B])  # (3, n_pixels, n_fields)
+    measured = np.array([strain[0], strain[1], 2.0 * strain[2]])
+    sigma_star = np.einsum("cd,dpf->cpf", C, virtual)  # C symmetric: eps.C.eps*
+    work = scale * np.einsum("cp,cpf->f", measured, sigma_star)
+    var = (std[0] ** 2, std[1] ** 2, (2.0 * std[2]) ** 2)
+    noise = scale**2 * sum(v[:, None] * sigma_star[c] ** 2 for c, v in enumerate(var))
+    return work, noise.sum(axis=0)
