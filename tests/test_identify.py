@@ -10,10 +10,13 @@ Noise is white Gaussian strain noise of a known std, as the identification assum
 
 from __future__ import annotations
 
+import dataclasses
+import json
+
 import numpy as np
 import pytest
 
-from gridstrain.identify import NotIdentifiable, VirtualFields, virtual_fields
+from gridstrain.identify import NotIdentifiable, VirtualFields, identify, virtual_fields
 from gridstrain.post import GaugeReading, elastic_constants
 
 E, NU = 70e3, 0.33  # MPa, -: aluminium
@@ -232,3 +235,83 @@ def test_argument_errors():
         _run(strain, std, LOADS, elements=(0, 4))
     with pytest.raises(ValueError, match="usable pixels"):
         _run(strain, np.zeros_like(std), LOADS)
+
+
+@pytest.fixture(scope="module")
+def beam_file(tmp_path_factory):
+    """A result file whose maps are the cantilever's with noise: a small measured
+    series (the numpy-only grid of ``independent_grid``, undeformed) with its strain,
+    std and validity maps replaced by the beam's, saved with its pixel size, and a
+    loads CSV."""
+    from gridstrain import measure_series
+    from independent_grid import camera, scene
+
+    rng = np.random.default_rng(11)
+    level = scene((H, W), pitch=5.0, angle=0.0, hole=False, light=False)[0]
+    images = [camera(level, 0.28, 5.0, rng).astype(np.float64) for _ in range(5)]
+    res = measure_series(images[0], images[1:], noise_model=(16 * 0.28, 256 * 5.0))
+    s = 1e-4
+    strain = np.stack([cantilever(f)[0] for f in LOADS])
+    strain = strain + rng.normal(0.0, s, strain.shape)
+    std = np.full((len(LOADS), H, W), s)
+    valid = np.ones((len(LOADS), H, W), dtype=bool)
+    # the file is written from each state's measurement: replaced there too
+    ms = tuple(dataclasses.replace(m, strain=strain[i], valid=valid[i])
+               for i, m in enumerate(res.measurements))
+    res = dataclasses.replace(
+        res, strain=strain, valid=valid, measurements=ms,
+        uncertainty={**res.uncertainty, "exx_std": std, "eyy_std": std, "exy_std": std})
+    d = tmp_path_factory.mktemp("beam")
+    path = res.save(d / "beam.h5", pixel_size=PIXEL, unit="mm")
+    loads = d / "loads.csv"
+    loads.write_text("state,load [N]\n" + "".join(
+        f"{name},{float(f)!r}\n" for name, f in zip(res.names[1:], LOADS, strict=True)))
+    return res, path, loads
+
+
+def test_identify_result_and_command(beam_file, tmp_path, capsys):
+    from gridstrain.cli import main
+
+    res, path, loads = beam_file
+    fit = identify(res, thickness=THICKNESS, loaded_edge="left", load_direction="y",
+                   pixel_size=PIXEL, unit="mm", load=LOADS, load_unit="N")
+    assert abs(fit.E - E) < 3 * fit.E_std  # about 500 MPa: 4 states at 1e-4
+    assert abs(fit.nu - NU) < 3 * fit.nu_std
+    stress = tmp_path / "stress.npz"
+    args = ["identify", str(path), "--thickness", str(THICKNESS), "--loaded-edge", "left",
+            "--load-direction", "y", "--loads", str(loads)]
+    assert main([*args, "--json", "--stress-out", str(stress)]) == 0
+    out = json.loads(capsys.readouterr().out)
+    # the command reads the same maps, loads and pixel size: the same numbers
+    assert out["E"] == pytest.approx(fit.E, rel=1e-9)
+    assert out["nu"] == pytest.approx(fit.nu, rel=1e-9)
+    assert out["E_unit"] == "MPa"
+    assert out["E_interval"][0] < E < out["E_interval"][1]
+    assert out["nu_interval"][0] < NU < out["nu_interval"][1]
+    with np.load(stress) as z:
+        assert z["sxx"].shape == (len(LOADS), H, W)
+        assert str(z["unit"]) == "MPa"
+        # sigma_xx of the heaviest state: the exact one to the noise's 1e-4 x Q11 ~ 8 MPa
+        # per pixel (5 std: 40 MPa) against a 240 MPa peak
+        np.testing.assert_allclose(z["sxx"][-1], cantilever(LOADS[-1])[1][0], atol=40.0)
+    # a region: its own edges are the loaded and gripped ones (the beam's left 30 mm
+    # is a cantilever too, loaded the same way)
+    assert main([*args, "--json", "--region", "0", "0", "30", "10"]) == 0
+    part = json.loads(capsys.readouterr().out)
+    assert part["n_pixels"] == H * 144
+    assert abs(part["E"] - E) < 3 * part["E_std"]
+    # the text output
+    assert main(args) == 0
+    assert capsys.readouterr().out.startswith("E  = ")
+    # errors: one line on stderr, exit 2, no traceback
+    assert main(["identify", str(path), "--thickness", "2", "--loaded-edge", "left",
+                 "--load-direction", "y"]) == 2
+    err = capsys.readouterr().err
+    assert "no loads" in err
+    assert len(err.strip().splitlines()) == 1
+    assert main([*args, "--load-direction", "x"]) == 2  # the beam's load is along y
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1
+    assert "error:" in err
+    assert main([*args, "--stress-out", str(stress)]) == 2  # exists, no --overwrite
+    assert len(capsys.readouterr().err.strip().splitlines()) == 1
