@@ -19,6 +19,10 @@ LEVEL = 0.95
 #: Stress unit of a load / length^2 pair, and its factor to MPa
 _STRESS = {("N", "mm"): 1.0, ("kN", "mm"): 1e3, ("N", "m"): 1e-6, ("kN", "m"): 1e-3,
            ("MN", "m"): 1.0, ("N", "cm"): 1e-2, ("N", "um"): 1e6, ("N", "µm"): 1e6}
+#: The largest share of the used region's free boundary (all but the loaded and gripped
+#: sides) that may face specimen pixels left out: a few invalid pixels inside (a speck)
+#: cost the integral their own area; a strip along a free edge loses the load it carries
+MAX_CUT_FRACTION = 0.05
 #: Elements along the longer side of the region when not given
 ELEMENTS_LONG_SIDE = 8
 #: The smallest element side, px: an element of a few pixels only adds noise
@@ -233,10 +237,34 @@ def _scatter(mesh, values, stds, load, p, fields, model, combined, thickness):
     return tuple(float(v) for v in np.sum(w * r * r, axis=0) / dof)
 
 
+def _cut_fraction(used, specimen, loaded_edge):
+    """The share of the used region's boundary, its loaded and gripped sides aside,
+    whose outer neighbour is specimen left out (not a free edge)."""
+    rows, cols = np.nonzero(used)
+    box = (rows.min(), rows.max(), cols.min(), cols.max())
+    pad_used = np.pad(used, 1)
+    pad_spec = np.pad(specimen, 1)
+    along_x = loaded_edge in ("left", "right")
+    boundary = cut = 0
+    for dr, dc in ((-1, 0), (1, 0), (0, -1), (0, 1)):
+        out = ~pad_used[1 + dr:pad_used.shape[0] - 1 + dr,
+                        1 + dc:pad_used.shape[1] - 1 + dc] & used
+        # the loaded and gripped sides are cross-sections: cut by design
+        if along_x and dc:
+            out[:, box[2] if dc < 0 else box[3]] = False
+        if not along_x and dr:
+            out[box[0] if dr < 0 else box[1], :] = False
+        beyond = pad_spec[1 + dr:pad_spec.shape[0] - 1 + dr,
+                          1 + dc:pad_spec.shape[1] - 1 + dc]
+        boundary += int(out.sum())
+        cut += int((out & beyond).sum())
+    return cut / max(boundary, 1), cut
+
+
 def virtual_fields(strain, std, load, *, thickness: float, loaded_edge: str,
                    load_direction: str, pixel_size: float, unit: str = "mm",
-                   load_unit: str = "N", valid=None, elements=None, states=None,
-                   model: str = "isotropic") -> VirtualFields:
+                   load_unit: str = "N", valid=None, specimen=None, elements=None,
+                   states=None, model: str = "isotropic") -> VirtualFields:
     """Young's modulus and Poisson's ratio from strain maps and loads, by the virtual
     fields method with the noise-optimal special virtual fields.
 
@@ -264,6 +292,10 @@ def virtual_fields(strain, std, load, *, thickness: float, loaded_edge: str,
     valid : (n_states, H, W) or (H, W) bool array_like, optional
         The pixels to integrate (default: where every map is finite); a region is a
         ``valid`` cut to it.
+    specimen : (H, W) bool array_like, optional
+        The specimen's pixels (a result's ``mask``): when given, a used region whose
+        boundary (its loaded and gripped sides aside) faces specimen pixels left out
+        along more than 5 % of its length is refused, its edges not being free.
     elements : (int, int), optional
         ``(ny, nx)`` elements of the virtual fields' mesh over the used pixels' box.
         Default: about square, 8 along the longer side.
@@ -291,10 +323,10 @@ def virtual_fields(strain, std, load, *, thickness: float, loaded_edge: str,
     edges of the used region other than the loaded and the gripped ones must be free
     of traction, and the loaded and gripped edges must be cross-sections that carry the
     whole load: integrating a region that stops short of a free edge leaves that
-    edge's traction out (a bias). Among the special fields (each gives one stiffness
-    component directly), those of least variance from the stated strain noise are
-    taken, computed again with the identified stiffness until it settles (Avril &
-    Pierron 2004); their variance is the method's own.
+    edge's traction out (a bias; ``specimen`` detects it). Among the special fields
+    (each gives one stiffness component directly), those of least variance from the
+    stated strain noise are taken, computed again with the identified stiffness until
+    it settles (Avril & Pierron 2004); their variance is the method's own.
 
     The states are combined before the identification: per pixel, the strains are
     fitted against the load (weighted by their std) and the slope, the strain per
@@ -356,6 +388,19 @@ def virtual_fields(strain, std, load, *, thickness: float, loaded_edge: str,
     if rows.size < 16:
         raise ValueError(f"the virtual fields need usable pixels (finite strains with a "
                          f"positive std in every state, inside valid), got {rows.size}")
+    if specimen is not None:
+        spec = np.asarray(specimen, dtype=bool)
+        if spec.shape != (H, W):
+            raise ValueError(f"specimen must be ({H}, {W}), got {spec.shape}")
+        fraction, n_cut = _cut_fraction(used, spec, loaded_edge)
+        if fraction > MAX_CUT_FRACTION:
+            raise ValueError(
+                f"the region used stops short of the specimen's free edges along {n_cut} "
+                f"px of its boundary ({fraction:.0%}): the load carried between it and "
+                f"the edges is missing from the virtual work (a bias, not noise). The "
+                f"maps stop a margin from the specimen's edges; the virtual fields need "
+                f"data up to them, or a region whose sides other than the loaded and "
+                f"gripped ones are free edges")
     elements = _check_elements(elements, rows, cols)
     mesh = Mesh(rows, cols, pixel_size, elements)
     T = mesh.kinematics(loaded_edge, load_direction)
@@ -366,7 +411,7 @@ def virtual_fields(strain, std, load, *, thickness: float, loaded_edge: str,
 
     # each state alone, the reference at zero load
     E_k, nu_k, sE_k, snu_k = (np.full(n, np.nan) for _ in range(4))
-    for i in range(n):
+    for i in range(n if n > 1 else 0):  # one state: the combined identification is its
         if load[i] == 0:
             continue
         try:
@@ -389,6 +434,8 @@ def virtual_fields(strain, std, load, *, thickness: float, loaded_edge: str,
             f"fields do not separate E from nu, or the loads, edges or direction are wrong")
     (E, nu), c = model_cls.constants(p, cov)
     sE, snu = (float(v) for v in np.sqrt(np.diag(c)))
+    if n == 1:
+        E_k[0], nu_k[0], sE_k[0], snu_k[0] = E, nu, sE, snu
     q = float(stats.norm.ppf(0.5 + LEVEL / 2))
     chi = (math.nan,) * len(p)
     basis = "stated std"

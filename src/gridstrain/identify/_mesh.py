@@ -74,6 +74,14 @@ class Mesh:
                            shape=shape)
         self.B = (bx, by, b6)
 
+    def reduced(self, T) -> list:
+        """``[B_c T]``, the virtual strains of the reduced degrees of freedom (kept for
+        the last ``T``: every state shares it)."""
+        cached = getattr(self, "_reduced", None)
+        if cached is None or cached[0] is not T:
+            self._reduced = (T, [(b @ T).tocsr() for b in self.B])
+        return self._reduced[1]
+
     def _edge_nodes(self, edge: str) -> np.ndarray:
         axis, end = EDGES[edge]
         nodes = np.arange(self.n_nodes).reshape(self.ny + 1, self.nx + 1)

@@ -77,6 +77,15 @@ def identify(result: SeriesResult, *, thickness: float, loaded_edge: str,
     -------
     VirtualFields
         Where the result's maps are valid in every state and inside ``region``.
+
+    Raises
+    ------
+    NotIdentifiable
+        (:func:`virtual_fields`).
+    ValueError
+        Also when the region used stops short of the specimen's free edges (the
+        result's ``mask``): the maps stop ``margin`` window widths from the mask's
+        edges, so that the load carried in that strip is missed.
     """
     check_type(result, "result", SeriesResult)
     ps, unit = check_pixel_size(pixel_size, unit)
@@ -100,5 +109,6 @@ def identify(result: SeriesResult, *, thickness: float, loaded_edge: str,
             std[i, c] = unc[f"{name}_std"][i]
     return virtual_fields(strain, std, load, thickness=thickness, loaded_edge=loaded_edge,
                           load_direction=load_direction, pixel_size=ps, unit=unit,
-                          load_unit=load_unit, valid=valid, elements=elements,
+                          load_unit=load_unit, valid=valid, specimen=result.mask,
+                          elements=elements,
                           states=tuple(result.names[1:]))

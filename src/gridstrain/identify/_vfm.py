@@ -122,7 +122,7 @@ def special_fields(mesh: Mesh, T, strain, std, load: float, model, *, thickness:
     scale = thickness * mesh.pixel_size ** 2
     Z, var = _operators(mesh, strain, std, model, scale)
     A = Z @ T  # (n_par, m), dense
-    blocks = _noise_blocks([b @ T for b in mesh.B], var)
+    blocks = _noise_blocks(mesh.reduced(T), var)
     p = model.guess()
     iteration = 0
     while iteration < MAX_ITERATIONS:
