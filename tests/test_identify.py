@@ -314,6 +314,7 @@ def test_identify_result_and_command(beam_file, tmp_path, capsys):
     assert out["E_unit"] == "MPa"
     assert out["E_interval"][0] < E < out["E_interval"][1]
     assert out["nu_interval"][0] < NU < out["nu_interval"][1]
+    assert len(out["E_states"]) == len(LOADS)
     with np.load(stress) as z:
         assert z["sxx"].shape == (len(LOADS), H, W)
         assert str(z["unit"]) == "MPa"

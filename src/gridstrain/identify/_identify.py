@@ -127,16 +127,20 @@ class VirtualFields:
         _freeze(self)
 
     def to_dict(self) -> dict:
-        """The identification as JSON-ready values, units included."""
+        """The identification as JSON-ready values, units included (a value that could
+        not be had, NaN, as None)."""
+        def finite(values):
+            return [float(v) if math.isfinite(v) else None for v in values]
+
         return {"E": self.E, "E_interval": list(self.E_interval), "E_std": self.E_std,
                 "E_unit": self.stress_unit, "nu": self.nu,
                 "nu_interval": list(self.nu_interval), "nu_std": self.nu_std,
                 "nu_unit": "1", "level": LEVEL, "model": self.model,
                 "parameters": dict(self.parameters), "states": list(self.states),
                 "load": self.load.tolist(), "load_unit": self.load_unit,
-                "E_states": self.E_states.tolist(), "nu_states": self.nu_states.tolist(),
+                "E_states": finite(self.E_states), "nu_states": finite(self.nu_states),
                 "combined": self.combined, "interval_basis": self.interval_basis,
-                "reduced_chi2": list(self.reduced_chi2), "elements": list(self.elements),
+                "reduced_chi2": finite(self.reduced_chi2), "elements": list(self.elements),
                 "n_pixels": self.n_pixels, "thickness": self.thickness,
                 "unit": self.unit, "loaded_edge": self.loaded_edge,
                 "load_direction": self.load_direction}
