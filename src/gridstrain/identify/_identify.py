@@ -230,13 +230,21 @@ def _scatter(mesh, values, stds, load, p, fields, model, combined, thickness):
         work[i], var[i] = virtual_work(mesh, values[i], stds[i], p, fields, model,
                                        thickness=thickness)
     w = 1.0 / var
-    # the special fields of the unit-load maps: in field k the external work of load F
-    # is F Q_k (the reference's share, common to every state, in the intercept)
-    r = work - load[:, None] * np.asarray(p)[None, :]
+    # in the (nearly) special fields of the unit-load maps the work is linear in the
+    # load, plus, for "slope", the reference's share common to every state: fitted, the
+    # residuals hold what the noise does not explain
+    L = load[:, None]
     if combined == "slope":
-        r = r - np.sum(w * r, axis=0) / np.sum(w, axis=0)
+        sw = w.sum(axis=0)
+        mean_L = (w * L).sum(axis=0) / sw
+        mean_y = (w * work).sum(axis=0) / sw
+        dL = L - mean_L
+        slope = (w * dL * (work - mean_y)).sum(axis=0) / (w * dL * dL).sum(axis=0)
+        r = work - mean_y - slope * dL
         dof = n - 2
     else:
+        slope = (w * L * work).sum(axis=0) / (w * L * L).sum(axis=0)
+        r = work - slope * L
         dof = n - 1
     return tuple(float(v) for v in np.sum(w * r * r, axis=0) / dof)
 
@@ -337,8 +345,8 @@ def virtual_fields(strain, std, load, *, thickness: float, loaded_edge: str,
     unit load, is identified with a unit load; the intercept takes up the reference
     image's noise, common to every state, and any preload. Each state is also
     identified on its own. The internal virtual work of each state in the combined
-    special fields, ``Q_k F`` plus the intercept, is linear in its strains: when it
-    scatters about that straight line more than the stated std explains (reduced chi2
+    special fields is linear in the load (plus an intercept): when it scatters about
+    that straight line more than the stated std explains (reduced chi2
     above 1: a non-linearity, a slipping grip, a wrong load), that component's std is
     scaled by the square root of its reduced chi2 and Student's quantile is used, with
     n - 2 degrees of freedom (n - 1 through zero): the wider of the two intervals.

@@ -40,8 +40,8 @@ RTOL = 1e-9
 #: of the normalised A H^-1 A') cannot separate the parameters at all
 RCOND = 1e-10
 #: Refused below this: the weakest combination of the parameters is seen in ``A H^-1 A'``
-#: less than ten times above the share the noise alone gives it (E[dA H^-1 dA']), so
-#: that it is fitted to the noise (a first-order bias of 1 / SNR_MIN and more)
+#: less than ten times above the share the noise alone gives it (E[dA H^-1 dA']); the
+#: share is taken out, but what is left is then mostly noise
 SNR_MIN = 10.0
 
 
@@ -124,6 +124,8 @@ def special_fields(mesh: Mesh, T, strain, std, load: float, model, *, thickness:
     A = Z @ T  # (n_par, m), dense
     blocks = _noise_blocks(mesh.reduced(T), var)
     p = model.guess()
+    k = len(model.basis)
+    eye = np.eye(A.shape[1])
     iteration = 0
     while iteration < MAX_ITERATIONS:
         iteration += 1
@@ -131,51 +133,49 @@ def special_fields(mesh: Mesh, T, strain, std, load: float, model, *, thickness:
         H = _noise_matrix(blocks, C, C, scale)
         # a vanishing safeguard: a field that no pixel strains costs nothing
         H[np.diag_indices_from(H)] += 1e-12 * np.trace(H) / H.shape[0]
-        factor = sla.cho_factor(H)
-        HiA = sla.cho_solve(factor, A.T)  # (m, n_par)
+        Hi = sla.cho_solve(sla.cho_factor(H), eye)
+        HiA = Hi @ A.T  # (m, n_par)
         G = A @ HiA
         d = np.sqrt(np.abs(np.diag(G)))
         if not np.all(d > 0):
             raise NotIdentifiable("the measured strains do no virtual work: no field "
                                   "strains the measured region (zero or empty maps)")
-        R = G / np.outer(d, d)
-        w, vecs = np.linalg.eigh(R)
+        w, vecs = np.linalg.eigh(G / np.outer(d, d))
         if w[0] < RCOND * w[-1]:
             comb = vecs[:, -1] / d
             raise NotIdentifiable(
                 f"the measured fields cannot separate E from nu: they give "
                 f"{model.describe(comb / np.max(np.abs(comb)))}")
-        Gi = np.linalg.inv(G)
-        V = HiA @ Gi  # (m, n_par): the special fields, reduced
+        # the noise's own share of G, E[dA H^-1 dA'] = tr(H^-1 N_jk'), N_jk the
+        # covariance of the rows' noise: the fields are drawn from the noisy strains,
+        # so that G holds it; taken out, the estimate has no first-order bias
+        # (errors in variables)
+        N = np.array([[np.sum(Hi * _noise_matrix(blocks, model.basis[i], model.basis[j],
+                                                  scale))
+                       for j in range(k)] for i in range(k)])
+        Gc = G - N
+        nw, nvecs = np.linalg.eigh(N)
+        whiten = nvecs / np.sqrt(np.maximum(nw, nw[-1] * 1e-300))
+        snr = float(np.linalg.eigvalsh(whiten.T @ Gc @ whiten)[0])
+        if snr < SNR_MIN:
+            comb = np.linalg.eigh(G / np.outer(d, d))[1][:, -1] / d
+            raise NotIdentifiable(
+                f"the measured fields cannot separate E from nu: they give "
+                f"{model.describe(comb / np.max(np.abs(comb)))}; the other combination "
+                f"of the stiffness stands only {max(snr, 0.0):.2g} times above the noise "
+                f"(at least {SNR_MIN:g} needed: a heterogeneous field, more load or "
+                f"less noise)")
+        Gi = np.linalg.inv(Gc)
+        V = HiA @ Gi  # (m, n_par): the (nearly) special fields, reduced
         p_new = load * V[-1, :]
-        done = model.plausible(p_new) and \
-            abs(p_new[1] / p_new[0] - p[1] / p[0]) <= RTOL * max(1.0, abs(p[1] / p[0]))
         if not model.plausible(p_new):
-            # the noise-optimal metric needs a stiffness: keep the last one
+            # the noise-optimal metric needs a stiffness: stop there
             p = p_new
             break
+        done = abs(p_new[1] / p_new[0] - p[1] / p[0]) <= RTOL * max(1.0, abs(p[1] / p[0]))
         p = p_new
         if done:
             break
-    # the noise's own share of G: E[dA H^-1 dA'] = tr(H^-1 N_jk'), N_jk the covariance
-    # of the rows' noise; a combination of the parameters whose share of G is mostly
-    # noise is fitted to the noise, not measured
-    Hi = sla.cho_solve(factor, np.eye(H.shape[0]))
-    k = len(model.basis)
-    N = np.array([[np.sum(Hi * _noise_matrix(blocks, model.basis[i], model.basis[j],
-                                              scale))
-                   for j in range(k)] for i in range(k)])
-    w, vecs = np.linalg.eigh(N)
-    whiten = vecs / np.sqrt(np.maximum(w, w[-1] * 1e-300))
-    snr = float(np.linalg.eigvalsh(whiten.T @ G @ whiten)[0])
-    if snr < SNR_MIN:
-        comb = np.linalg.eigh(G / np.outer(d, d))[1][:, -1] / d
-        raise NotIdentifiable(
-            f"the measured fields cannot separate E from nu: they give "
-            f"{model.describe(comb / np.max(np.abs(comb)))}; the other combination of "
-            f"the stiffness stands only {max(snr - 1.0, 0.0):.2g} times above the noise "
-            f"(at least {SNR_MIN - 1:g} needed: a heterogeneous field, more load or "
-            f"less noise)")
     fields = np.asarray((T @ V).T)
     return p, Gi, fields, iteration, snr
 
