@@ -202,6 +202,20 @@ def _check_elements(elements, rows, cols):
     return ny, nx
 
 
+def _check_correlation(correlation):
+    if correlation is None:
+        return None
+    try:
+        out = tuple(np.asarray(k, dtype=np.float64) for k in correlation)
+    except (TypeError, ValueError):
+        out = ()
+    if len(out) != 3 or any(k.ndim != 2 or k.shape[0] % 2 == 0 or k.shape[1] % 2 == 0
+                            or not np.all(np.isfinite(k)) for k in out):
+        raise ValueError(f"correlation must be 3 kernels (exx, eyy, exy) of odd sides, "
+                         f"got {correlation!r:.80}")
+    return out
+
+
 def _slopes(values, stds, load):
     """Per pixel, the weighted slope of the strains against the load and its std.
 
@@ -220,7 +234,8 @@ def _slopes(values, stds, load):
     return (w * L * values).sum(axis=0) / sxx, 1.0 / np.sqrt(sxx), "through zero"
 
 
-def _scatter(mesh, values, stds, load, p, fields, model, combined, thickness):
+def _scatter(mesh, values, stds, load, p, fields, model, combined, thickness,
+             correlation):
     """Per parameter, the reduced chi2 of the states' virtual work in its special field
     about the straight line of the load (with an intercept for ``"slope"``)."""
     n = load.size
@@ -228,7 +243,7 @@ def _scatter(mesh, values, stds, load, p, fields, model, combined, thickness):
     var = np.empty_like(work)
     for i in range(n):
         work[i], var[i] = virtual_work(mesh, values[i], stds[i], p, fields, model,
-                                       thickness=thickness)
+                                       thickness=thickness, correlation=correlation)
     w = 1.0 / var
     # in the (nearly) special fields of the unit-load maps the work is linear in the
     # load, plus, for "slope", the reference's share common to every state: fitted, the
@@ -275,8 +290,8 @@ def _cut_fraction(used, specimen, loaded_edge):
 
 def virtual_fields(strain, std, load, *, thickness: float, loaded_edge: str,
                    load_direction: str, pixel_size: float, unit: str = "mm",
-                   load_unit: str = "N", valid=None, specimen=None, elements=None,
-                   states=None, model: str = "isotropic") -> VirtualFields:
+                   load_unit: str = "N", valid=None, specimen=None, correlation=None,
+                   elements=None, states=None, model: str = "isotropic") -> VirtualFields:
     """Young's modulus and Poisson's ratio from strain maps and loads, by the virtual
     fields method with the noise-optimal special virtual fields.
 
@@ -308,6 +323,12 @@ def virtual_fields(strain, std, load, *, thickness: float, loaded_edge: str,
         The specimen's pixels (a result's ``mask``): when given, a used region whose
         boundary (its loaded and gripped sides aside) faces specimen pixels left out
         along more than 5 % of its length is refused, its edges not being free.
+    correlation : sequence of 3 (2R+1, 2R+1) array_like, optional
+        The correlation of the noise of ``exx``, ``eyy`` and ``exy`` between two
+        pixels as a function of their offset ``[dy, dx]`` (centre 1, even): a
+        measured result's, from its window (:func:`gridstrain.post.strain_noise_correlation`).
+        Default: independent pixels, which understates the noise that the window's
+        smoothing puts at the scale of the elements.
     elements : (int, int), optional
         ``(ny, nx)`` elements of the virtual fields' mesh over the used pixels' box.
         Default: about square, 8 along the longer side.
@@ -351,8 +372,12 @@ def virtual_fields(strain, std, load, *, thickness: float, loaded_edge: str,
     scaled by the square root of its reduced chi2 and Student's quantile is used, with
     n - 2 degrees of freedom (n - 1 through zero): the wider of the two intervals.
     Intervals are ``value +- q std``, ``E`` and ``nu`` from the stiffness components
-    to first order. The pixels' noise is taken as independent: the
-    window's correlation of neighbouring pixels is not propagated.
+    to first order. The noise of two pixels is correlated as ``correlation`` says
+    (independent without it); the three components' noises are taken as independent
+    of each other. The noise also enters the equations themselves (the fields are
+    drawn from the noisy strains): its expected share of ``A H^-1 A'`` is taken out
+    (errors in variables), and a test where that share is more than a tenth of the
+    weakest combination is refused.
 
     References
     ----------
@@ -419,7 +444,8 @@ def virtual_fields(strain, std, load, *, thickness: float, loaded_edge: str,
     values = e[:, :, rows, cols]
     stds = s[:, :, rows, cols]
     factor, stress_unit = _stress_unit(load_unit, unit)
-    kw = {"thickness": thickness}
+    correlation = _check_correlation(correlation)
+    kw = {"thickness": thickness, "correlation": correlation}
 
     # each state alone, the reference at zero load
     E_k, nu_k, sE_k, snu_k = (np.full(n, np.nan) for _ in range(4))
@@ -453,7 +479,8 @@ def virtual_fields(strain, std, load, *, thickness: float, loaded_edge: str,
     basis = "stated std"
     dof = n - (2 if combined == "slope" else 1)
     if dof >= 1:
-        chi = _scatter(mesh, values, stds, load, p, fields, model_cls, combined, thickness)
+        chi = _scatter(mesh, values, stds, load, p, fields, model_cls, combined, thickness,
+                       correlation)
         if max(chi) > 1.0:
             basis = "scatter over states"
             q = float(stats.t.ppf(0.5 + LEVEL / 2, dof))

@@ -42,6 +42,7 @@ class Mesh:
     def __init__(self, rows, cols, pixel_size: float, elements):
         ny, nx = elements
         self.ny, self.nx = ny, nx
+        self.rows, self.cols = rows, cols
         self.pixel_size = pixel_size
         # the box's edges in physical units: pixel i covers [i - 1/2, i + 1/2] px
         self.x0 = (cols.min() - 0.5) * pixel_size

@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 
 from .._validation import check_pixel_size, check_type
+from ..post import strain_noise_correlation
 from ..results import SeriesResult
 from ._identify import VirtualFields, virtual_fields
 
@@ -76,7 +77,9 @@ def identify(result: SeriesResult, *, thickness: float, loaded_edge: str,
     Returns
     -------
     VirtualFields
-        Where the result's maps are valid in every state and inside ``region``.
+        Where the result's maps are valid in every state and inside ``region``; the
+        noise of neighbouring pixels correlated by the window
+        (:func:`gridstrain.post.strain_noise_correlation`).
 
     Raises
     ------
@@ -110,5 +113,6 @@ def identify(result: SeriesResult, *, thickness: float, loaded_edge: str,
     return virtual_fields(strain, std, load, thickness=thickness, loaded_edge=loaded_edge,
                           load_direction=load_direction, pixel_size=ps, unit=unit,
                           load_unit=load_unit, valid=valid, specimen=result.mask,
+                          correlation=strain_noise_correlation(result),
                           elements=elements,
                           states=tuple(result.names[1:]))

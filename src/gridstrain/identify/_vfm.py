@@ -28,6 +28,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+import scipy.fft as sfft
 import scipy.linalg as sla
 import scipy.sparse as sp
 
@@ -51,24 +52,61 @@ class NotIdentifiable(ValueError):
 
 
 def _operators(mesh: Mesh, strain: np.ndarray, std: np.ndarray, model, scale: float):
-    """``Z`` rows ``(n_par, n_dof)`` and the per-component ``s_c^2`` of ``H``."""
+    """``Z`` rows ``(n_par, n_dof)`` and the per-component std ``s_c`` of ``H``."""
     voigt = np.array([strain[0], strain[1], 2.0 * strain[2]])
     rows = []
     for M in model.basis:
         w = M @ voigt  # eps . M eps* = (M eps) . eps*
         rows.append(scale * sum(b.T @ wc for b, wc in zip(mesh.B, w, strict=True)))
-    var = (std[0] ** 2, std[1] ** 2, (2.0 * std[2]) ** 2)
-    return np.array(rows), var
+    return np.array(rows), (std[0], std[1], 2.0 * std[2])
 
 
-def _noise_blocks(BT, var) -> list:
-    """``(BT_a)' diag(s_c^2) BT_b`` for every component ``c`` and pair ``a <= b``: ``H``
-    is their sum weighted by the stiffness, the only part that changes between
-    iterations."""
+def correlate(mesh: Mesh, values: np.ndarray, kernel: np.ndarray) -> np.ndarray:
+    """``R values``: each column of ``(n_pixels, q)`` values at the mesh's pixels,
+    convolved with the noise's correlation ``kernel`` (odd sides, even, 1 at its
+    centre) over the image grid (zero off the pixels), read back at the pixels."""
+    r0, c0 = mesh.rows.min(), mesh.cols.min()
+    hb, wb = mesh.rows.max() - r0 + 1, mesh.cols.max() - c0 + 1
+    ry, rx = min(kernel.shape[0] // 2, hb - 1), min(kernel.shape[1] // 2, wb - 1)
+    cy, cx = kernel.shape[0] // 2, kernel.shape[1] // 2
+    kernel = kernel[cy - ry:cy + ry + 1, cx - rx:cx + rx + 1]
+    # padded by the kernel's reach, so that no lag it covers wraps around
+    shape = (sfft.next_fast_len(hb + ry, real=True), sfft.next_fast_len(wb + rx,
+                                                                           real=True))
+    placed = np.zeros(shape)
+    placed[np.ix_(np.arange(-ry, ry + 1) % shape[0], np.arange(-rx, rx + 1) % shape[1])] = \
+        kernel
+    spectrum = sfft.rfft2(placed).real  # an even kernel's transform is real
+    r, c = mesh.rows - r0, mesh.cols - c0
+    out = np.empty(values.shape)
+    for j in range(0, values.shape[1], _CHUNK):
+        part = values[:, j:j + _CHUNK]
+        grid = np.zeros((part.shape[1], *shape))
+        grid[:, r, c] = part.T
+        conv = sfft.irfft2(sfft.rfft2(grid) * spectrum, s=shape)
+        out[:, j:j + _CHUNK] = conv[:, r, c].T
+    return out
+
+
+#: Columns convolved at once
+_CHUNK = 16
+
+
+def _noise_blocks(mesh: Mesh, BT, std, correlation) -> list:
+    """``(BT_a)' S_c R_c S_c BT_b`` for every component ``c`` and pair ``a <= b`` (``S_c``
+    the std, ``R_c`` the noise's correlation between pixels, the identity when none is
+    given): ``H`` is their sum weighted by the stiffness, the only part that changes
+    between iterations."""
     blocks = []
-    for v in var:
-        D = sp.diags(v)
-        blocks.append({(a, b): np.asarray((BT[a].T @ (D @ BT[b])).todense())
+    for c, s in enumerate(std):
+        if correlation is None:
+            D = sp.diags(s * s)
+            blocks.append({(a, b): np.asarray((BT[a].T @ (D @ BT[b])).todense())
+                           for a in range(3) for b in range(a, 3)})
+            continue
+        Y = [s[:, None] * correlate(mesh, s[:, None] * np.asarray(BT[b].todense()),
+                                    correlation[c]) for b in range(3)]
+        blocks.append({(a, b): np.asarray(BT[a].T @ Y[b])
                        for a in range(3) for b in range(a, 3)})
     return blocks
 
@@ -86,7 +124,8 @@ def _noise_matrix(blocks, C, D, scale: float) -> np.ndarray:
     return scale * scale * H
 
 
-def special_fields(mesh: Mesh, T, strain, std, load: float, model, *, thickness: float):
+def special_fields(mesh: Mesh, T, strain, std, load: float, model, *, thickness: float,
+                   correlation=None):
     """The noise-optimal special virtual fields of one set of strain maps.
 
     Parameters
@@ -100,6 +139,9 @@ def special_fields(mesh: Mesh, T, strain, std, load: float, model, *, thickness:
         The resultant that works, nonzero.
     model : stiffness model
     thickness : float
+    correlation : sequence of 3 (2R+1, 2R+1) ndarray, optional
+        The correlation of the noise of ``exx, eyy, exy`` between pixels ``d`` apart,
+        1 at the centre; independent pixels when None.
 
     Returns
     -------
@@ -120,9 +162,9 @@ def special_fields(mesh: Mesh, T, strain, std, load: float, model, *, thickness:
         When the equations of the parameters are dependent.
     """
     scale = thickness * mesh.pixel_size ** 2
-    Z, var = _operators(mesh, strain, std, model, scale)
+    Z, sd = _operators(mesh, strain, std, model, scale)
     A = Z @ T  # (n_par, m), dense
-    blocks = _noise_blocks(mesh.reduced(T), var)
+    blocks = _noise_blocks(mesh, mesh.reduced(T), sd, correlation)
     p = model.guess()
     k = len(model.basis)
     eye = np.eye(A.shape[1])
@@ -191,7 +233,8 @@ def finite_interval(value: float, std: float, q: float) -> tuple[float, float]:
                                                                            math.nan)
 
 
-def virtual_work(mesh: Mesh, strain, std, p, fields, model, *, thickness: float):
+def virtual_work(mesh: Mesh, strain, std, p, fields, model, *, thickness: float,
+                 correlation=None):
     """The internal virtual work of strain maps in given fields, and its noise variance.
 
     Parameters
@@ -213,6 +256,9 @@ def virtual_work(mesh: Mesh, strain, std, p, fields, model, *, thickness: float)
     measured = np.array([strain[0], strain[1], 2.0 * strain[2]])
     sigma_star = np.einsum("cd,dpf->cpf", C, virtual)  # C symmetric: eps.C.eps*
     work = scale * np.einsum("cp,cpf->f", measured, sigma_star)
-    var = (std[0] ** 2, std[1] ** 2, (2.0 * std[2]) ** 2)
-    noise = scale**2 * sum(v[:, None] * sigma_star[c] ** 2 for c, v in enumerate(var))
-    return work, noise.sum(axis=0)
+    noise = np.zeros(fields.shape[0])
+    for c, s in enumerate((std[0], std[1], 2.0 * std[2])):
+        x = s[:, None] * sigma_star[c]
+        rx = x if correlation is None else correlate(mesh, x, correlation[c])
+        noise += np.sum(x * rx, axis=0)
+    return work, scale**2 * noise
