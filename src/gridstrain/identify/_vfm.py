@@ -13,14 +13,22 @@ edges are free of traction). With ``sigma = C(p) eps`` linear in the parameters 
 virtual fields ``U_k`` with ``Z_j U_k = delta_jk`` give ``p_k = F u*_bar(U_k)`` directly.
 
 Among them, Avril & Pierron (2004) choose those that minimise the variance of ``p_k``:
-with strain noise ``n`` (per pixel std ``s_c`` of component ``c``, independent between
-pixels and components), ``p_k``'s error is ``-(sum_j p_j dZ_j) U_k
-= -t a sum_pixels n . C(p) eps*(U_k)``, of variance ``U_k' H U_k`` with
-``H = (t a)^2 sum_c (C B)_c' diag(s_c^2) (C B)_c``. Minimising ``U' H U / 2`` under
+with strain noise ``n`` (per pixel std ``s_c`` of component ``c``, correlation ``R_c``
+between pixels, the components independent), ``p_k``'s error is
+``-(sum_j p_j dZ_j) U_k = -t a sum_pixels n . C(p) eps*(U_k)``, of variance
+``U_k' H U_k`` with ``H = (t a)^2 sum_c (C B)_c' S_c R_c S_c (C B)_c``
+(``S_c = diag(s_c)``; ``R_c`` the identity for independent pixels). Minimising ``U' H U / 2`` under
 ``A U = e_k`` (``A`` the rows ``Z_k``) with Lagrange multipliers gives
 ``U = H^-1 A' (A H^-1 A')^-1 e_k`` and the parameters' covariance
 ``(A H^-1 A')^-1`` (the method's own variance, eta^2). ``H`` depends on ``p`` through
 ``C``: the fields are computed again from the new ``p`` until the ratio settles.
+
+The fields depend on the noisy strains through ``A``: the estimate ``p = F (A H^-1
+A')^-1 A H^-1 e`` (``e`` the loaded edge's degree of freedom) is a weighted least
+squares with noisy regressors, whose ``A H^-1 A'`` holds the noise's share
+``E[dA H^-1 dA']_jk = tr(H^-1 N_jk)`` (``N_jk`` the covariance of the noise of rows
+``j`` and ``k``). Taken out, ``p = F (A H^-1 A' - N)^-1 A H^-1 e`` has no first-order
+bias (errors in variables), and ``(A H^-1 A' - N)^-1`` is its covariance.
 """
 
 from __future__ import annotations
