@@ -112,10 +112,16 @@ def _noise_blocks(mesh: Mesh, BT, std, correlation) -> list:
             blocks.append({(a, b): np.asarray((BT[a].T @ (D @ BT[b])).todense())
                            for a in range(3) for b in range(a, 3)})
             continue
-        Y = [s[:, None] * correlate(mesh, s[:, None] * np.asarray(BT[b].todense()),
-                                    correlation[c]) for b in range(3)]
-        blocks.append({(a, b): np.asarray(BT[a].T @ Y[b])
-                       for a in range(3) for b in range(a, 3)})
+        m = BT[0].shape[1]
+        block = {(a, b): np.empty((m, m)) for a in range(3) for b in range(a, 3)}
+        # a few columns at a time: (n_pixels, m) dense would not fit a large image
+        for b in range(3):
+            for j in range(0, m, _CHUNK):
+                cols = BT[b][:, j:j + _CHUNK].toarray()
+                Y = s[:, None] * correlate(mesh, s[:, None] * cols, correlation[c])
+                for a in range(b + 1):
+                    block[a, b][:, j:j + _CHUNK] = BT[a].T @ Y
+        blocks.append(block)
     return blocks
 
 
