@@ -7,7 +7,6 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import stats
 
 from .._validation import check_choice, check_positive
 from ._mesh import Mesh
@@ -474,6 +473,8 @@ def virtual_fields(strain, std, load, *, thickness: float, loaded_edge: str,
     sE, snu = (float(v) for v in np.sqrt(np.diag(c)))
     if n == 1:
         E_k[0], nu_k[0], sE_k[0], snu_k[0] = E, nu, sE, snu
+    from scipy import stats  # loaded when used: the face imports light
+
     q = float(stats.norm.ppf(0.5 + LEVEL / 2))
     chi = (math.nan,) * len(p)
     basis = "stated std"

@@ -33,8 +33,6 @@ bias (errors in variables), and ``(A H^-1 A' - N)^-1`` is its covariance.
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 import scipy.fft as sfft
 import scipy.linalg as sla
@@ -234,17 +232,6 @@ def special_fields(mesh: Mesh, T, strain, std, load: float, model, *, thickness:
             break
     fields = np.asarray((T @ V).T)
     return p, Gi, fields, iteration, snr
-
-
-def _quantile(level: float) -> float:
-    from scipy import stats
-
-    return float(stats.norm.ppf(0.5 + level / 2))
-
-
-def finite_interval(value: float, std: float, q: float) -> tuple[float, float]:
-    return (value - q * std, value + q * std) if math.isfinite(std) else (math.nan,
-                                                                           math.nan)
 
 
 def virtual_work(mesh: Mesh, strain, std, p, fields, model, *, thickness: float,
