@@ -90,6 +90,11 @@ def test_exact_field_gives_E_and_nu():
     np.testing.assert_allclose(r.stress(strain[-1]), sigma,
                                atol=1e-3 * np.abs(sigma).max())
     assert not r.E_states.flags.writeable
+    # float32 maps are computed in float64: the same constants to their rounding (6e-8)
+    r32 = _run(strain.astype(np.float32), np.full_like(strain, 1e-7, dtype=np.float32),
+               LOADS)
+    assert pytest.approx(r.E, rel=1e-5) == r32.E
+    assert r32.stress(strain[-1].astype(np.float32)).dtype == np.float64
 
 
 @pytest.mark.parametrize("edge", ["left", "right", "top", "bottom"])
