@@ -46,6 +46,8 @@ _COMMANDS = {
              "std",
     "history": "strain rate, velocity and acceleration of a gauge over time, smoothed, with "
                "std",
+    "identify": "Young's modulus and Poisson's ratio of a heterogeneous test by the "
+                "virtual fields method, with their intervals",
     "measure": "displacement and strain maps from image series",
     "modulus": "Young's modulus and Poisson's ratio with their intervals, from a gauge and "
                "the loads",

@@ -21,6 +21,7 @@ import importlib
 
 from ._animate import animate
 from ._constants import ElasticConstants, elastic_constants, modulus_unit, stress_unit
+from ._correlation import strain_noise_correlation
 from ._gauges import GaugeReading, gauge, reference_share
 from ._history import History, history
 from ._loads import read_loads
@@ -37,7 +38,8 @@ _LAZY = {
 
 __all__ = ["STRAIN_UNITS", "ElasticConstants", "GaugeReading", "History", "animate",
            "elastic_constants", "gauge", "history", "modulus_unit", "read_loads",
-           "reference_share", "strain_scale", "stress_unit", *sorted(_LAZY)]
+           "reference_share", "strain_noise_correlation", "strain_scale", "stress_unit",
+           *sorted(_LAZY)]
 
 
 def __getattr__(name: str):

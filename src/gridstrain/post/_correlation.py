@@ -148,3 +148,23 @@ def _kernel_spectrum(kernel: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
                 _SPECTRA.pop(next(iter(_SPECTRA)))
             _SPECTRA[key] = found
     return found
+
+
+def strain_noise_correlation(result) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The correlation of a result's strain noise between two pixels, per component.
+
+    Parameters
+    ----------
+    result : SeriesResult
+        Its lattice and window (``sigma``) set the correlation.
+
+    Returns
+    -------
+    exx, eyy, exy : (2R+1, 2R+1) float64 ndarray
+        The correlation of the noise of two pixels ``[dy, dx]`` apart (the centre is
+        ``[R, R]``, 1 there), ``R = ceil(8 sigma)``: the window's smoothing, derived in
+        this module's docstring. The same kernels weigh the double sums of a gauge's
+        std (:func:`gridstrain.post.gauge`).
+    """
+    return tuple(strain_kernel(result.lattice, result.sigma, name)
+                 for name in ("exx", "eyy", "exy"))

@@ -1,0 +1,118 @@
+"""The virtual fields method on a measured result: its maps, std maps, pixel size and
+loads."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .._validation import check_pixel_size, check_type
+from ..post import strain_noise_correlation
+from ..results import SeriesResult
+from ._identify import VirtualFields, virtual_fields
+
+_STRAINS = ("exx", "eyy", "exy")
+
+
+def _loads(result, load, load_unit):
+    n = result.n_states
+    if load is None:
+        load, load_unit = result.load, result.load_unit if load_unit is None else load_unit
+    if load is None:
+        raise ValueError("the result has no loads: give them (gridstrain identify --loads "
+                         "FILE.csv, or identify(..., load=...))")
+    try:
+        arr = np.array(load, dtype=np.float64).reshape(-1)
+    except (TypeError, ValueError):
+        raise ValueError(f"load must be numbers, one per loaded state, got {load!r}") \
+            from None
+    if arr.size == n + 1:  # stored with the reference first
+        arr = arr[1:]
+    if arr.size != n:
+        raise ValueError(f"load must hold one value per loaded state ({n}), got "
+                         f"{arr.size}")
+    return arr, (load_unit or "N")
+
+
+def _region_mask(shape, ps, region):
+    if region is None:
+        return np.ones(shape, dtype=bool)
+    try:
+        x0, y0, x1, y1 = (float(v) for v in region)
+    except (TypeError, ValueError):
+        raise ValueError(f"region must be (x0, y0, x1, y1), got {region!r}") from None
+    if not (x0 < x1 and y0 < y1):
+        raise ValueError(f"region must have x0 < x1 and y0 < y1, got {region!r}")
+    y, x = np.indices(shape, dtype=np.float64) * ps
+    return (x >= x0) & (x < x1) & (y >= y0) & (y < y1)
+
+
+def identify(result: SeriesResult, *, thickness: float, loaded_edge: str,
+             load_direction: str, pixel_size: float, unit: str, load=None,
+             load_unit: str | None = None, region=None, elements=None) -> VirtualFields:
+    """Young's modulus and Poisson's ratio of a measured result by the virtual fields
+    method (:func:`virtual_fields` on its maps).
+
+    Parameters
+    ----------
+    result : SeriesResult
+        With its uncertainty maps (``exx_std``...).
+    thickness : float
+        The specimen's thickness, ``unit``.
+    loaded_edge : {"left", "right", "top", "bottom"}
+    load_direction : {"x", "y"}
+    pixel_size : float
+    unit : str
+        The length unit of ``pixel_size``, ``thickness`` and ``region`` (the result
+        file's own: :func:`gridstrain.results.read_attrs`).
+    load : (n_states,) array_like, optional
+        The loads, ``load_unit`` (default: the result's own). A leading value for the
+        reference is dropped.
+    load_unit : str, optional
+        Default: the result's, else ``"N"``.
+    region : (x0, y0, x1, y1) floats, optional
+        Only the pixels whose centre lies in ``x0 <= x < x1``, ``y0 <= y < y1``
+        (``unit``); its edges are then the loaded, gripped and free edges.
+    elements : (int, int), optional
+
+    Returns
+    -------
+    VirtualFields
+        Where the result's maps are valid in every state and inside ``region``; the
+        noise of neighbouring pixels correlated by the window
+        (:func:`gridstrain.post.strain_noise_correlation`).
+
+    Raises
+    ------
+    NotIdentifiable
+        (:func:`virtual_fields`).
+    ValueError
+        Also when the region used stops short of the specimen's free edges (the
+        result's ``mask``): the maps stop ``margin`` window widths from the mask's
+        edges, so that the load carried in that strip is missed.
+    """
+    check_type(result, "result", SeriesResult)
+    ps, unit = check_pixel_size(pixel_size, unit)
+    if ps is None:
+        raise ValueError("identify needs the pixel size (the result's, or measure "
+                         "--pixel-size): moduli need lengths")
+    unc = result.uncertainty
+    if unc is None or any(f"{k}_std" not in unc for k in _STRAINS):
+        raise ValueError("the result has no strain uncertainty maps (exx_std, eyy_std, "
+                         "exy_std): the virtual fields' weights and intervals need them")
+    load, load_unit = _loads(result, load, load_unit)
+    keep = _region_mask(result.shape, ps, region)
+    n = result.n_states
+    valid = np.zeros((n, *result.shape), dtype=bool)
+    strain = np.empty((n, 3, *result.shape))
+    std = np.empty_like(strain)
+    for i in range(n):
+        valid[i] = np.asarray(result.valid[i]) & keep
+        for c, name in enumerate(_STRAINS):
+            strain[i, c] = result.get_map(name)[i]
+            std[i, c] = unc[f"{name}_std"][i]
+    return virtual_fields(strain, std, load, thickness=thickness, loaded_edge=loaded_edge,
+                          load_direction=load_direction, pixel_size=ps, unit=unit,
+                          load_unit=load_unit, valid=valid, specimen=result.mask,
+                          correlation=strain_noise_correlation(result),
+                          elements=elements,
+                          states=tuple(result.names[1:]))
