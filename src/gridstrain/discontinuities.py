@@ -29,7 +29,13 @@ import numpy as np
 from scipy import ndimage
 
 from ._validation import as_image, check_mask, check_positive, check_same_shape, check_type
-from .kinematics import FringeOrder, Measurement, coarse_displacement, deformation
+from .kinematics import (
+    FringeOrder,
+    Measurement,
+    coarse_displacement,
+    deformation,
+    grid_shows,
+)
 from .stacks.screening import MAD_TO_STD
 from .uncertainty._biases import nearest_filled, nearest_index
 
@@ -578,8 +584,10 @@ def check_parts(m: Measurement, before, reference_image, deformed_image, *,
     ``m.valid`` (when there are more than in ``before``), the deformed image is
     warped back by the part's measured field and correlated with the reference
     over that part alone (:func:`gridstrain.kinematics.coarse_displacement`
-    with ``region``). Where the content lies whole periods away, the part is
-    measured again with those periods added; where it cannot tell (a grid
+    with ``region``). Where the content lies whole periods away and the grid's own
+    modulus shows them too (:func:`gridstrain.kinematics.grid_shows`: not light
+    that moved), the part is measured again with those periods added; where it
+    cannot tell (a grid
     without printed features, a part too small to hold any), the part is not
     confirmed. Unconfirmed parts are left out (invalid) when another part is
     confirmed, so that every valid pixel shares the record of the state; when
@@ -635,6 +643,14 @@ def check_parts(m: Measurement, before, reference_image, deformed_image, *,
         del u
         est = _part_estimate(ref, warped, m.lattice, mask, territories == k)
         off = np.rint(K @ np.array(est.shift)) if est.confident else None
+        if off is not None and np.any(off):
+            # whole periods on one side of a cut: only where the grid's own modulus shows
+            # them too, not the part's light alone (a highlight, a hot spot)
+            shown, seen = grid_shows(m.reference, m.deformed, m.u, part, off,
+                                     within=territories == k)
+            if not shown:
+                off, est = None, dataclasses.replace(
+                    est, reason=f"its light lay whole periods away ({est.reason}) but {seen}")
         found.append((part, sl, off, est))
     shifts = [np.zeros(2) if off is None else np.linalg.solve(K, off)
               for _, _, off, _ in found]
