@@ -151,6 +151,7 @@ class _Tracker:
         warnings: list[str] = []
         place, self.measured = self.measured, self.measured + 1
         prev, self.prev = self.prev, None  # the next state's guess comes from this one
+        first = None  # the first state's smallest displacement, once measured
         if isinstance(g, str) and self.order == "series" and prev is not None:
             get, prev_ok, prev_name = prev
             # the previous field, its invalid pixels filled, is handed over to the
@@ -215,10 +216,12 @@ class _Tracker:
                                      f"{step:.2f} period at most, is a step well under half "
                                      f"a period{agree}", step)
         elif isinstance(g, str) and est.confident:
+            first = None  # not held while the features' order is measured
             res = deformation(ref_pm, pm, lagrangian=self.lagrangian, guess=est.shift)
             rec = _from_estimate(est, "image features", True, res.guess, est.reason)
         elif isinstance(g, str) or g is None:
-            res = deformation(ref_pm, pm, lagrangian=self.lagrangian, guess=None)
+            res = first[0] if first is not None else \
+                deformation(ref_pm, pm, lagrangian=self.lagrangian, guess=None)
             if g is None:
                 rec = FringeOrder("smallest displacement", False, (0.0, 0.0),
                                   "guess=None: the order closest to zero, as asked")
