@@ -4,7 +4,8 @@
   the Lagrangian description) and the small-strain tensor (eq. 35), :func:`deformation`
   and :func:`measure`;
 - ``_fringe_order``: how the whole number of periods of a displacement is fixed
-  (:class:`FringeOrder`) and the image-feature estimate (:func:`coarse_displacement`);
+  (:class:`FringeOrder`), the image-feature estimate (:func:`coarse_displacement`) and
+  whether the grid's own modulus shows a whole-period shift (:func:`grid_shows`);
 - :mod:`~gridstrain.kinematics.tracking`: the fringe order followed from state to state
   along a series;
 - ``_pair_match``: whether the deformed image shows the reference's specimen, its
@@ -41,6 +42,7 @@ from ._fringe_order import (
     CoarseEstimate,
     FringeOrder,
     coarse_displacement,
+    grid_shows,
 )
 from ._fringe_order import phase_products as phase_products
 from ._fringe_order import solve_k as solve_k
@@ -62,6 +64,7 @@ __all__ = [
     "deformation",
     "find_discontinuities",
     "finite_strains",
+    "grid_shows",
     "measure",
     "pair_match",
     "principal_strains",

@@ -32,7 +32,7 @@ from .._validation import as_image, check_mask, check_positive, check_same_shape
 from ..stacks.screening import MAD_TO_STD
 from ..uncertainty import nearest_filled, nearest_index
 from ._deformation import Measurement, deformation
-from ._fringe_order import FringeOrder, coarse_displacement
+from ._fringe_order import FringeOrder, coarse_displacement, grid_shows
 
 __all__ = ["Discontinuities", "Part", "check_parts", "find_discontinuities",
            "without_discontinuities"]
@@ -70,6 +70,21 @@ _MAX_WIDTH = 1.485
 # of the window's profile), the width over +-4 sigma, the baseline the line
 # through the means at 4.5 to 5.5 sigma on each side.
 _SECTION_SIGMAS = (3.0, 4.0, 4.5, 5.5)
+# A displacement jump is seen by the phases modulo the lattice: across a torn grid the
+# window mixes the two sides' phasors, whose phase runs the short way round, so the
+# jump a ridge integrates to is within half a period of zero along each wave vector.
+# A ridge that integrates to more than this many periods is a continuous gradient the
+# phases followed (a steep but intact grid), not a tear: 0.5 plus 0.1 for the noise
+# and the baseline of the sections (a jump of 5.5 px at a pitch of 5 reads 0.1
+# period, a tanh step of one period over three pitches 0.9).
+_MAX_TEAR_PERIODS = 0.6
+# ... unless the grid's modulus collapses along it: the deformed state's modulus at
+# ``X + u`` over the reference's at ``X`` (the same material point: the lighting and
+# the print cancel), relative to its median over the valid pixels, below this along
+# the ridge's core (the median over the core, the smaller of the two wave vectors).
+# Half a period of opening cancels the two sides' phasors (0); an intact grid whose
+# local period changes by 20 % within the window keeps 0.6 and more.
+_TORN_MODULUS = 0.5
 # Pixels within this many sigmas of a ridge's core are left out: the window's
 # error there, delta/2 erfc(d / sqrt(2) sigma), reaches the noise beyond it only for
 # jumps of several pixels (1e-3 of delta/2 at the core's edge plus 2 sigma).
@@ -154,7 +169,13 @@ def find_discontinuities(m: Measurement, *, min_jump: float = _MIN_JUMP) -> Disc
     every ``sigma``, are no wider than a jump's (``_MAX_WIDTH``, 1.485 sigma, their
     median), a smooth strain concentration being seen wider than the window. Its
     jump is the strain integrated across it (over +-3 sigma, the median over its
-    sections). A jump of a whole number of pitches leaves no trace in the phases
+    sections). A ridge is a tear only where the phases can be discontinuous: seen
+    through the window, a jump integrates to less than half a period along each wave
+    vector (the two sides' phasors mix the short way round), so a ridge that
+    integrates to more than 0.6 period is a steep gradient of an intact grid,
+    followed and not cut, unless the grid's modulus collapses along it (the
+    deformed state's at ``X + u`` over the reference's at ``X`` below half its
+    median). A jump of a whole number of pitches leaves no trace in the phases
     (the grid is the same on both sides): only the stretches of a crack whose
     opening differs from it are seen, and the jump is known modulo the period.
     """
@@ -200,7 +221,11 @@ def find_discontinuities(m: Measurement, *, min_jump: float = _MIN_JUMP) -> Disc
     joined = ndimage.binary_dilation(low | holes, structure=_disc(math.ceil(sigma)))
     lab, _ = ndimage.label(joined, structure=np.ones((3, 3)))
     sections = _sections(strain, valid, sigma, dep, seeds, lab)
-    jumps = [k for k in np.unique(lab[seeds]) if _is_jump(sections, k, sigma)]
+    sections["periods"] = _phase_jumps(sections, m.lattice)
+    modulus = _ModulusRatio(m)
+    jumps = [k for k in np.unique(lab[seeds])
+             if _is_jump(sections, k, sigma)
+             and _is_tear(sections, k, (lab == k) & low, modulus)]
     core = np.isin(lab, jumps) & low
     if not core.any():
         return Discontinuities(core=empty, band=empty.copy(), regions=(),
@@ -308,6 +333,64 @@ def _is_jump(sections: dict, k: int, sigma: float) -> bool:
     if not mine.any():
         return True
     return float(np.median(sections["width"][mine])) <= _MAX_WIDTH * sigma
+
+
+def _phase_jumps(sections: dict, lattice) -> np.ndarray:
+    """Per section, the jump it integrates to in periods: the largest over the two
+    wave vectors of ``|K b|``, ``b`` the jump vector (opening along the normal,
+    sliding along the ridge), px."""
+    nx, ny = sections["n"]
+    b = np.stack([sections["opening"] * nx - sections["sliding"] * ny,
+                  sections["opening"] * ny + sections["sliding"] * nx])
+    return np.max(np.abs(lattice.K @ b), axis=0)
+
+
+class _ModulusRatio:
+    """The deformed grid's modulus at ``X + u`` over the reference's at ``X``, both
+    wave vectors, relative to its median over the valid pixels (made on first use: only
+    a ridge that integrates past half a period needs it)."""
+
+    def __init__(self, m: Measurement):
+        self.m = m
+        self._ratio = None
+
+    def along(self, core: np.ndarray) -> float:
+        """The median over ``core`` of the smaller wave vector's ratio; NaN without
+        the phase maps."""
+        m = self.m
+        if m.reference is None or m.deformed is None or not core.any():
+            return math.nan
+        if self._ratio is None:
+            v = np.asarray(m.valid, dtype=bool)
+            H, W = v.shape
+            yy, xx = np.mgrid[0:H, 0:W].astype(np.float64)
+            u = np.stack([nearest_filled(np.asarray(c, dtype=np.float64), v)
+                          for c in m.u])
+            out = np.full((H, W), np.inf)
+            for j in range(2):
+                ref = np.abs(m.reference.psi[j])
+                cur = ndimage.map_coordinates(np.abs(m.deformed.psi[j]),
+                                              [yy + u[1], xx + u[0]], order=1,
+                                              mode="nearest")
+                r = cur / np.maximum(ref, 1e-12 * float(np.max(ref[v])))
+                np.minimum(out, r / max(float(np.median(r[v])), 1e-300), out=out)
+            self._ratio = out
+        return float(np.median(self._ratio[core]))
+
+
+def _is_tear(sections: dict, k: int, core: np.ndarray, modulus: _ModulusRatio) -> bool:
+    """Whether the ridge ``k`` (its ``core`` pixels) can be a torn grid: its sections
+    integrate to at most ``_MAX_TEAR_PERIODS`` (the median over those on valid
+    pixels), as a jump seen modulo the lattice does; or, past it, the grid's modulus
+    collapses along it (``_TORN_MODULUS``). A steep gradient of an intact grid
+    integrates to what it is, a period or more, with its modulus kept: the phases are
+    continuous across it and it is followed, not cut."""
+    mine = (sections["label"] == k) & sections["ok"]
+    if not mine.any():
+        return True
+    if float(np.median(sections["periods"][mine])) <= _MAX_TEAR_PERIODS:
+        return True
+    return not modulus.along(core) >= _TORN_MODULUS
 
 
 def _jump(sections: dict, inside: np.ndarray, lattice) -> dict:
@@ -496,8 +579,10 @@ def check_parts(m: Measurement, before, reference_image, deformed_image, *,
     ``m.valid`` (when there are more than in ``before``), the deformed image is
     warped back by the part's measured field and correlated with the reference
     over that part alone (:func:`gridstrain.kinematics.coarse_displacement`
-    with ``region``). Where the content lies whole periods away, the part is
-    measured again with those periods added; where it cannot tell (a grid
+    with ``region``). Where the content lies whole periods away and the grid's own
+    modulus shows them too (:func:`gridstrain.kinematics.grid_shows`: not light
+    that moved), the part is measured again with those periods added; where it
+    cannot tell (a grid
     without printed features, a part too small to hold any), the part is not
     confirmed. Unconfirmed parts are left out (invalid) when another part is
     confirmed, so that every valid pixel shares the record of the state; when
@@ -553,6 +638,14 @@ def check_parts(m: Measurement, before, reference_image, deformed_image, *,
         del u
         est = _part_estimate(ref, warped, m.lattice, mask, territories == k)
         off = np.rint(K @ np.array(est.shift)) if est.confident else None
+        if off is not None and np.any(off):
+            # whole periods on one side of a cut: only where the grid's own modulus shows
+            # them too, not the part's light alone (a highlight, a hot spot)
+            shown, seen = grid_shows(m.reference, m.deformed, m.u, part, off,
+                                     within=territories == k)
+            if not shown:
+                off, est = None, dataclasses.replace(
+                    est, reason=f"its light lay whole periods away ({est.reason}) but {seen}")
         found.append((part, sl, off, est))
     shifts = [np.zeros(2) if off is None else np.linalg.solve(K, off)
               for _, _, off, _ in found]

@@ -23,6 +23,7 @@ from .._validation import (
     check_type,
 )
 from ..phase import Lattice, PhaseMaps, filled_box
+from ..uncertainty import nearest_index
 from ._grid_free import (
     ContentOrder,
     decimation,
@@ -33,7 +34,8 @@ from ._grid_free import (
     smooth_decimate,
 )
 
-__all__ = ["FRINGE_ORDER_SOURCES", "CoarseEstimate", "FringeOrder", "coarse_displacement"]
+__all__ = ["FRINGE_ORDER_SOURCES", "CoarseEstimate", "FringeOrder", "coarse_displacement",
+           "grid_shows"]
 
 # A coarse cross-correlation estimate is trusted only if the low-passed images,
 # aligned, correlate at least this well (Pearson); below it the pattern has no
@@ -101,9 +103,14 @@ class FringeOrder:
     confirmed : bool
         True when the order is backed by something besides the phases: the user's
         guess; image features that clearly pick one candidate and agree with the
-        phases; or tracking from a confirmed previous state with an increment
-        below ``_MAX_STEP`` periods everywhere (a step that is plausibly less than
-        half a period). A state not confirmed may be one or more periods off.
+        phases (a candidate whole periods from the phases' smallest displacement
+        shown by the grid's own modulus as well: a highlight or hot spot that moved
+        imitates the specimen in the image's light); or tracking from a confirmed
+        previous state with an increment below ``_MAX_STEP`` periods everywhere (a
+        step that is plausibly less than half a period; the first state of a series
+        from the reference within ``_SMALL_STEP``), not contradicted by image
+        features. Where two kinds of evidence disagree the state is not confirmed.
+        A state not confirmed may be one or more periods off.
     guess : (2,) tuple of float
         Median of the guess field that fixed the order, px.
     detail : str
@@ -352,9 +359,14 @@ class _CoarseReference:
         ref_psi = reference.psi[:, ::q, ::q].astype(np.complex128)
         z = current.psi[:, ::q, ::q] * np.conj(ref_psi)
         mean = (z / np.maximum(np.abs(z), 1e-300))[:, ok].sum(axis=1)
-        est = self.estimate(deformed, -solve_k(self.lattice.K, np.angle(mean)) / (2 * np.pi))
+        phases = -solve_k(self.lattice.K, np.angle(mean)) / (2 * np.pi)
+        est = self.estimate(deformed, phases)
+        field = None
         if est.confident:
-            return est
+            if not np.any(np.rint(self.lattice.K @ (np.array(est.shift) - phases))):
+                return est  # the order the phases give: nothing moved by whole periods
+            field = field_from_phases(z, ok, self.lattice)
+            return self._corroborated(est, reference, current, field, ok, est.shift)
         if self._futile >= _FUTILE and self._since < _RECHECK:
             # a record on a reference with nothing but the grid: its content has
             # decided nothing state after state, and compared again every _RECHECK
@@ -363,18 +375,52 @@ class _CoarseReference:
             return dataclasses.replace(
                 est, reason=f"{est.reason}; below the grid's frequency: nothing decided "
                             f"in the last {self._futile} states compared")
-        u = field_from_phases(z, ok, self.lattice)
+        u = field_from_phases(z, ok, self.lattice) if field is None else field
         c = self.content(deformed, u, ok, gradient=gradient(u, q))
         self._futile = self._futile + 1 if c.tiles_informative == 0 else 0
         self._since = 0
         tiles = (c.tiles_agreeing, c.tiles_informative)
         if c.confident:
-            return dataclasses.replace(
+            found = dataclasses.replace(
                 est, shift=c.shift, confident=True, residual_ratio=c.residual_ratio,
                 tiles=tiles, reason=f"{c.reason} (at the pitch: {est.reason})")
+            if not any(c.offset):
+                return found
+            return self._corroborated(found, reference, current, u, ok, c.shift)
         return dataclasses.replace(est, residual_ratio=c.residual_ratio, tiles=tiles,
                                    reason=f"{est.reason}; below the grid's frequency: "
                                           f"{c.reason}")
+
+    def shows(self, reference: PhaseMaps, current: PhaseMaps, u: np.ndarray,
+              ok: np.ndarray, periods, *, material: bool = False) -> tuple[bool, str]:
+        """:func:`_grid_shows` with ``u`` and ``ok`` at this reference's samples."""
+        return _grid_shows(reference, current, u, ok, periods, material=material)
+
+    def _corroborated(self, est: CoarseEstimate, reference: PhaseMaps, current: PhaseMaps,
+                      u: np.ndarray, ok: np.ndarray, shift) -> CoarseEstimate:
+        """``est``, which puts the displacement whole periods from the order the phases
+        give (``shift``, px), kept confident only when the grids' own moduli show the
+        same whole periods (:func:`grid_shows`).
+
+        The image's light is the specimen's reflectance times the lighting, plus what
+        its surface reflects: a lamp's hot spot or a specular highlight that moved by
+        about a lattice vector is read as the specimen moving by whole periods. The
+        grid's modulus, demodulated at the grid's frequency, does not carry what the
+        surface reflects (smooth, it adds nothing at that frequency) and carries what is
+        printed or lies on the specimen (it multiplies the grid): a whole-period shift
+        that is the specimen's shows in it too."""
+        # the whole periods ``shift`` adds to the field ``u``, at its median
+        v = u[:, ok]
+        med = np.array([np.median(c) for c in v])
+        same, seen = self.shows(reference, current, u, ok,
+                                self.lattice.K @ (np.array(shift) - med))
+        if same:
+            return dataclasses.replace(est, reason=f"{est.reason}; {seen}")
+        return dataclasses.replace(
+            est, confident=False,
+            reason=f"the image's light puts the displacement whole periods from the "
+                   f"phases' smallest ({shift[0]:.2f}, {shift[1]:.2f} px: {est.reason}) but "
+                   f"{seen}: light that moved (a hot spot, a highlight), not the specimen")
 
     def estimate(self, deformed: np.ndarray, phase_shift) -> CoarseEstimate:
         """:func:`coarse_displacement` of ``deformed`` (float64, checked)."""
@@ -386,6 +432,103 @@ class _CoarseReference:
             if whole.confident or whole.peak_to_alias > best.peak_to_alias:
                 best = whole
         return best
+
+
+def grid_shows(reference: PhaseMaps, deformed: PhaseMaps, u, valid, periods, *,
+               within=None) -> tuple[bool, str]:
+    """Whether the grid's own modulus shows a displacement whole periods from ``u``.
+
+    Image features that put a displacement whole periods away may follow the light
+    rather than the specimen: a lamp's hot spot or a specular highlight that moved by
+    about a lattice vector. The grid's modulus, demodulated at the grid's frequency,
+    carries what multiplies the grid (what is printed on or lies on the specimen, a
+    hole's or an edge's collapse of the grid) and not what the surface reflects (a
+    smooth highlight adds nothing at the grid's frequency). The moduli of the two
+    states are compared as the image's content is below the grid's frequency
+    (:mod:`gridstrain.kinematics._grid_free`), the deformed one read at ``X + u(X) +
+    m a1 + n a2``.
+
+    Parameters
+    ----------
+    reference, deformed : PhaseMaps
+        The two states' maps (their ``psi``).
+    u : (2, H, W) array_like
+        The measured displacement, px, Lagrangian (at the material point).
+    valid : (H, W) bool array_like
+        Where ``u`` holds; elsewhere it is carried from the nearest valid pixel.
+    periods : (2,) array_like
+        The whole periods ``(m, n)`` to test, added to ``u``.
+    within : (H, W) bool array_like, optional
+        The pixels whose content is compared (default: every pixel).
+
+    Returns
+    -------
+    (bool, str)
+        Whether the moduli pick ``periods`` among the whole-period offsets (by the
+        rule of the sum over the tiles, ``favoured``, or every rule), and what they
+        say, in words.
+    """
+    check_type(reference, "reference", PhaseMaps)
+    check_type(deformed, "deformed", PhaseMaps)
+    q = decimation(reference.lattice)
+    v = check_mask(valid, reference.shape, "valid")[::q, ::q]
+    uq = np.asarray(u, dtype=np.float64)[:, ::q, ::q]
+    w = None if within is None else check_mask(within, reference.shape, "within")[::q, ::q]
+    return _grid_shows(reference, deformed, uq, v, periods, material=True, within=w)
+
+
+def _grid_content(reference: PhaseMaps, current: PhaseMaps, u: np.ndarray, ok: np.ndarray,
+                  *, material: bool = False, within=None, around=(0, 0)) -> ContentOrder:
+    """:func:`order_from_content` of the grids' own moduli (the logarithm of the mean
+    modulus of the two wave vectors, sampled every ``q`` px) with the field ``u`` (2,
+    h, w) and ``ok`` at those samples, over the samples ``within`` (default all), the
+    field carried to the others from the nearest of ``ok``, the search centred on the
+    whole periods ``around``. ``material``: ``u`` is the displacement at the material
+    point (a measurement's, Lagrangian), not the phases' at the camera's point."""
+    lattice = reference.lattice
+    q = decimation(lattice)
+    pitch = max(lattice.pitches)
+
+    def content(pm):
+        # low-passed by a Gaussian of a pitch as the image's content is (the moire of
+        # the grid's harmonics with the pixels ripples the modulus by a few 1e-3),
+        # over the window's weights within the frame: near a border the transform
+        # sums a truncated window, its modulus falling as they do
+        m = np.mean(np.abs(pm.psi), axis=0, dtype=np.float64)
+        w = ndimage.gaussian_filter(np.ones(m.shape), pm.sigma, mode="constant",
+                                    truncate=4.0)
+        m = smooth_decimate(m, pitch, q) / np.maximum(smooth_decimate(w, pitch, q), 1e-6)
+        return np.log(np.maximum(m, 1e-3 * max(float(np.max(m)), 1e-300)))
+
+    if not ok.any():
+        return order_from_content(content(reference), content(current), u, ok, lattice, q,
+                                  around=around)
+    # every sample, the field carried to the invalid ones from their nearest valid
+    # one: a hole's edge or the specimen's, where the modulus collapses, lies in the
+    # invalid margin round them and is the strongest content the grid carries
+    rows, cols = nearest_index(ok)
+    u = np.asarray(u, dtype=np.float64)[:, rows, cols]
+    use = np.ones_like(ok) if within is None else within
+    return order_from_content(content(reference), content(current), u, use, lattice, q,
+                              around=around, gradient=None if material else gradient(u, q))
+
+
+def _grid_shows(reference: PhaseMaps, current: PhaseMaps, u: np.ndarray, ok: np.ndarray,
+                periods, *, material: bool = False, within=None) -> tuple[bool, str]:
+    """:func:`grid_shows` with ``u`` and ``ok`` at the samples."""
+    # the search centred on the periods tested: they are then never at its edge, and
+    # the phases' own order lies within its reach for shifts of a few periods
+    want = tuple(int(v) for v in np.rint(periods))
+    g = _grid_content(reference, current, u, ok, material=material, within=within,
+                      around=want)
+    same = want == tuple(g.offset)
+    if same and (g.confident or g.favoured):
+        return True, (f"the grid's own modulus shows the same whole periods (ratio of "
+                      f"residuals {g.residual_ratio:.2f})")
+    if not (g.confident or g.favoured):
+        return False, f"the grid's own modulus does not show them ({g.reason})"
+    return False, (f"the grid's own modulus puts them at {g.offset[0]}, {g.offset[1]} "
+                   f"periods ({g.reason})")
 
 
 def _band_weights(m, pitch, q=1) -> tuple[np.ndarray, np.ndarray]:

@@ -92,6 +92,10 @@ class ContentOrder:
         best's (1 when nothing decides).
     tiles_agreeing, tiles_informative : int
         Informative tiles (see the module's notes) and those that pick ``offset``.
+    favoured : bool
+        Whether the sum over the tiles alone picks ``offset``: a whole-period offset,
+        not at the edge of the search, whose second best leaves at least
+        ``_MIN_TOTAL_RATIO`` times its residual (``confident`` asks the tiles too).
     """
 
     confident: bool
@@ -101,6 +105,7 @@ class ContentOrder:
     residual_ratio: float
     tiles_agreeing: int = 0
     tiles_informative: int = 0
+    favoured: bool = False
 
 
 def grid_free(image: np.ndarray, lattice: Lattice, q: int) -> np.ndarray:
@@ -287,6 +292,7 @@ def order_from_content(ref_gf: np.ndarray, cur_gf: np.ndarray, u: np.ndarray,
     field = u[:, sel] + (P @ np.rint(half[j]))[:, None]
     shift = tuple(float(np.median(c)) for c in field)
     counts = f"{agree} of {len(informative)} informative tiles of {tiles.n} agree"
+    favoured = bool(whole_best and ratio >= _MIN_TOTAL_RATIO and not (edge[j] or at_edge))
     if not informative:
         why = (f"no tile's content decides (ratio of residuals {ratio:.2f} over all; "
                f"each tile's below {_MIN_RESIDUAL_RATIO}): nothing but the grid moves "
@@ -304,8 +310,8 @@ def order_from_content(ref_gf: np.ndarray, cur_gf: np.ndarray, u: np.ndarray,
     else:
         return ContentOrder(True, f"the content below the grid's frequency: {counts}, "
                             f"ratio of residuals {ratio:.2f}", offset, shift, ratio, agree,
-                            len(informative))
-    return ContentOrder(False, why, offset, shift, ratio, agree, len(informative))
+                            len(informative), favoured)
+    return ContentOrder(False, why, offset, shift, ratio, agree, len(informative), favoured)
 
 
 class _Tiles:

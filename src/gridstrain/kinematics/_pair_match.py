@@ -35,7 +35,10 @@ The decision
 ------------
 The check is conclusive only when both images hold content well above their noise
 (``S >= 3 N``: a noise model off by a factor 2 then moves ``rho_match`` by less than 25
-%) and a matching pair stands clear of the thresholds below. A conclusive pair is a
+%) and above what a bare grid leaves below its frequency (a relative std of 2e-3: the
+moire of the grid's harmonics with the pixels, 1e-4 to 2e-4, changes with the strain
+and is no evidence of the specimen; absence of texture is not evidence of a foreign
+specimen), and a matching pair stands clear of the thresholds below. A conclusive pair is a
 mismatch when ``match < 0.5``, and nothing matches when, moreover, ``rho < 3 rho_sd``
 (no correlation at all).
 
@@ -85,6 +88,14 @@ _DRAWS = 3
 # Content at least this many times its noise in both images: a noise model off by a
 # factor 2 moves the expected correlation by less than 25 %.
 _MIN_SNR = 3.0
+# ... and at least this relative std (of the logarithm, 0.2 % of the light) in both:
+# what a bare grid leaves below its frequency (the moire of its harmonics with the
+# pixels, the lighting the high-pass leaves) is 1e-4 to 2e-4 in nearly noise-free
+# images (lines, checkerboards and sines at pitches 4 to 7 px, strain bumps of 3 to
+# 20 %), and it changes with the strain: taken for content it refused true pairs.
+# Printing defects, texture and stains are percents (1.0 % for blots of 5 to 20 %
+# and 1.5 to 4 px).
+_MIN_CONTENT = 2e-3
 # A matching pair's correlation at least this many sampling spreads (in Fisher's z)
 # above the mismatch threshold: the false-alarm probability is Phi(-5).
 _MIN_SEPARATION = 5.0
@@ -323,7 +334,8 @@ def pair_match(reference, deformed, u, valid, *, pitch: float, noise,
         rho_match = math.sqrt(sx * sy / ((sx + nx) * (sy + ny)))
         sd = _bartlett_sd(x, y, w, reach)
         gap = math.atanh(min(rho_match, 1 - 1e-12)) - math.atanh(_MISMATCH * rho_match)
-        conclusive = bool(sx >= _MIN_SNR * nx and sy >= _MIN_SNR * ny and math.isfinite(sd)
+        conclusive = bool(sx >= _MIN_SNR * nx and sy >= _MIN_SNR * ny
+                          and min(sx, sy) >= _MIN_CONTENT**2 and math.isfinite(sd)
                           and sd > 0 and gap >= _MIN_SEPARATION * sd
                           and rho_match >= 2 * _NOTHING * sd)
         match = rho / rho_match if rho_match > 0 else math.nan

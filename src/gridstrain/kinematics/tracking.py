@@ -36,6 +36,13 @@ from ._grid_free import decimation
 # 0.1 period covers noise and a step that is not quite uniform. A larger change may
 # be a step of more than half a period, followed one period off.
 _MAX_STEP = 0.4
+# A step of at most this many periods (along each wave vector, at every pixel) is well
+# under half a period: following it is evidence of its own, which image features that
+# put the state whole periods away cannot overrule (light that moved, a hot spot or a
+# highlight, imitates them; the steps of an ordinary load series are 0.01 to 0.02
+# period). The first state of a series is followed from the reference (its
+# displacement is the step) when its smallest displacement is within it.
+_SMALL_STEP = 0.1
 
 
 def _filled(u: np.ndarray, valid: np.ndarray) -> np.ndarray | None:
@@ -143,6 +150,7 @@ class _Tracker:
         warnings: list[str] = []
         place, self.measured = self.measured, self.measured + 1
         prev, self.prev = self.prev, None  # the next state's guess comes from this one
+        first = None  # the first state's smallest displacement, once measured
         if isinstance(g, str) and self.order == "series" and prev is not None:
             get, prev_ok, prev_name = prev
             # the previous field, its invalid pixels filled, is handed over to the
@@ -154,14 +162,15 @@ class _Tracker:
             step = _largest_step(res, u_prev, self.lattice, before)
             del u_prev, before
             gmed = res.guess
+            away = est.confident and bool(np.max(np.abs(self.lattice.K @ est.shift)) >= 0.5)
             if est.confident and _order_offset(res, est.shift, self.lattice) < 0.5:
                 rec = _from_estimate(est, "previous state", True, gmed,
                                      f"followed from {prev_name} (step {step:.2f} period); "
                                      f"image features agree ({est.reason})", step)
-            elif est.confident and (step > _MAX_STEP
-                                    or np.max(np.abs(self.lattice.K @ est.shift)) >= 0.5):
+            elif est.confident and (step > _MAX_STEP or (away and step > _SMALL_STEP)):
                 # conclusive features that moved with the specimen beat the assumption
-                # of a step below half a period: the step was larger
+                # of a step below half a period where the step followed is not small:
+                # the step was larger
                 followed = _median_u(res)
                 res = deformation(ref_pm, pm, lagrangian=self.lagrangian, guess=est.shift)
                 rec = _from_estimate(est, "image features", True, res.guess,
@@ -172,18 +181,11 @@ class _Tracker:
                                 f"from {prev_name}: the load step was more than half a "
                                 "period; the features were used")
             elif est.confident:
-                # the features say "no motion" while the specimen was followed away from
-                # zero: content fixed to the camera (dust, hot pixels) can do that
-                rec = _from_estimate(est, "previous state", False, gmed,
-                                     f"followed from {prev_name}, but image features "
-                                     f"suggest {est.shift[0]:.2f}, {est.shift[1]:.2f} px",
-                                     step)
-                warnings.append(f"{name}: the displacement followed from {prev_name} "
-                                f"(median {_median_u(res)}) and the image features "
-                                f"({est.shift[0]:.2f}, {est.shift[1]:.2f}) px, which may be "
-                                "dust or hot pixels fixed to the camera, disagree by whole "
-                                "periods: fringe order not confirmed; check the order of "
-                                "the states or pass --guess UX UY")
+                # two kinds of evidence disagree: a small step followed, and features
+                # whole periods away (light that moved: a hot spot, a highlight) or at
+                # no motion (content fixed to the camera: dust, hot pixels)
+                rec, said = _disagreement(res, est, prev_name, step, name)
+                warnings.append(said)
             elif step > _MAX_STEP:
                 rec = _from_estimate(est, "previous state", False, gmed,
                                      f"followed from {prev_name}, but the displacement "
@@ -198,11 +200,27 @@ class _Tracker:
                                      + ("" if prev_ok else ", itself not confirmed"), step)
                 if not prev_ok:
                     self.inherited.append((place, name))
+        elif isinstance(g, str) and self.order == "series" and place == 0 and \
+                (first := _first_step(ref_pm, pm, self.lagrangian))[1] <= _SMALL_STEP:
+            # the first state of a series, within a small step of the reference: followed
+            # from it, as every later state is from the one before
+            res, step = first
+            if est.confident and _order_offset(res, est.shift, self.lattice) >= 0.5:
+                rec, said = _disagreement(res, est, "the reference", step, name)
+                warnings.append(said)
+            else:
+                agree = f"; image features agree ({est.reason})" if est.confident else ""
+                rec = _from_estimate(est, "previous state", True, res.guess,
+                                     f"followed from the reference: its displacement, "
+                                     f"{step:.2f} period at most, is a step well under half "
+                                     f"a period{agree}", step)
         elif isinstance(g, str) and est.confident:
+            first = None  # not held while the features' order is measured
             res = deformation(ref_pm, pm, lagrangian=self.lagrangian, guess=est.shift)
             rec = _from_estimate(est, "image features", True, res.guess, est.reason)
         elif isinstance(g, str) or g is None:
-            res = deformation(ref_pm, pm, lagrangian=self.lagrangian, guess=None)
+            res = first[0] if first is not None else \
+                deformation(ref_pm, pm, lagrangian=self.lagrangian, guess=None)
             if g is None:
                 rec = FringeOrder("smallest displacement", False, (0.0, 0.0),
                                   "guess=None: the order closest to zero, as asked")
@@ -243,6 +261,34 @@ class _Tracker:
         return [f"{_runs(self.inherited)}: followed from a state whose fringe order "
                 "is not confirmed; they share its uncertainty (their strain too: each "
                 "state's record says by how much it may be off)"]
+
+
+def _first_step(ref_pm: PhaseMaps, pm: PhaseMaps, lagrangian: bool):
+    """``(Measurement, step)``: the smallest displacement the phases allow and its
+    largest size along a wave vector over the valid pixels, in periods (the step from
+    the reference, whose displacement is zero)."""
+    res = deformation(ref_pm, pm, lagrangian=lagrangian, guess=None)
+    zero = np.broadcast_to(np.zeros((2, 1, 1)), res.u.shape)
+    return res, _largest_step(res, zero, ref_pm.lattice, res.valid)
+
+
+def _disagreement(res: Measurement, est, prev_name: str, step: float, name: str):
+    """``(record, warning)`` of a state followed by a small step from ``prev_name``
+    whose image features (``est``, confident) put it whole periods away: two kinds of
+    evidence disagree, the followed displacement is kept and not confirmed."""
+    sx, sy = est.shift
+    rec = _from_estimate(est, "previous state", False, res.guess,
+                         f"followed from {prev_name} (step {step:.2f} period), but image "
+                         f"features put it at {sx:.2f}, {sy:.2f} px, whole periods away "
+                         f"({est.reason})", step)
+    said = (f"{name}: the displacement followed from {prev_name} (median {_median_u(res)}, "
+            f"a step of {step:.2f} period at most) and the image features ({sx:.2f}, "
+            f"{sy:.2f}) px disagree by whole periods: features fixed to the camera (dust, "
+            "hot pixels) or light that moved (a hot spot, a highlight) imitate the "
+            "specimen's, and a load step of whole periods imitates a small one; the "
+            "followed displacement is kept: fringe order not confirmed; check the order of "
+            "the states or pass --guess UX UY")
+    return rec, said
 
 
 def _runs(states: list[tuple[int, str]]) -> str:
@@ -287,9 +333,18 @@ def check_after_warp(res: Measurement, rec: FringeOrder, coarse: _CoarseReferenc
     if rec.confirmed and rec.tiles_agreeing:
         return res, rec, []  # fixed by the content at whole-period offsets of the field
     q = decimation(lattice)
-    c = coarse.content(mean_cur, res.u[:, ::q, ::q].astype(np.float64), v[::q, ::q])
+    uq, vq = res.u[:, ::q, ::q].astype(np.float64), v[::q, ::q]
+    c = coarse.content(mean_cur, uq, vq)
+
+    def shown(off):
+        # a correction by whole periods only where the grid's own modulus shows it too:
+        # the image's light alone (a hot spot, a highlight) may have moved by them
+        return coarse.shows(res.reference, res.deformed, uq, vq, off, material=True)
+
     if c.confident:
         t = lattice.periods @ np.array(c.offset, dtype=float)
+        if any(c.offset) and not (seen := shown(c.offset))[0]:
+            return _unshown(res, rec, t, name, c.reason, seen[1])
         return _recheck(res, rec, t, name, c.reason, _content_record(c))
     u = np.stack([nearest_filled(res.u[k], v) for k in range(2)])
     H, W = v.shape
@@ -304,9 +359,29 @@ def check_after_warp(res: Measurement, rec: FringeOrder, coarse: _CoarseReferenc
         return res, rec, []
     # the whole periods the content is off, and the correction they call for
     off = np.rint(lattice.K @ np.array(est.shift))
+    t = np.linalg.solve(lattice.K, off)
+    if np.any(off) and not (seen := shown(off))[0]:
+        return _unshown(res, rec, t, name, est.reason, seen[1])
     figures = {"correlation": est.correlation, "peak_to_alias": est.peak_to_alias,
                "disagreement": est.disagreement, "features_shift": est.shift}
-    return _recheck(res, rec, np.linalg.solve(lattice.K, off), name, est.reason, figures)
+    return _recheck(res, rec, t, name, est.reason, figures)
+
+
+def _unshown(res: Measurement, rec: FringeOrder, t, name: str, reason: str, seen: str):
+    """``(res, rec, warnings)`` when the warped-back image's light lies whole periods
+    (``t``, px) from the reference's but the grid's own modulus does not show them: two
+    kinds of evidence disagree; the displacement is kept as measured, not confirmed."""
+    said = (f"the deformed image warped back by the measured field {_median_u(res)} showed "
+            f"the reference's light {t[0]:.2f}, {t[1]:.2f} px away ({reason}), but {seen}: "
+            "light that moved (a hot spot, a highlight) imitates the specimen")
+    was = rec.confirmed
+    rec = dataclasses.replace(rec, confirmed=False, detail=f"{said}; {rec.detail}")
+    if was:
+        rec, doubt = with_strain_doubt(res, rec)
+    else:
+        doubt = ""
+    return res, rec, [f"{name}: {said}; the displacement is kept as measured: fringe order "
+                      f"not confirmed{doubt}"]
 
 
 def _content_record(c) -> dict:
