@@ -320,7 +320,8 @@ NO_IMAGE = {"transfer_function", "save_result", "save_csv", "as_dask_stack", "co
 # Public functions of the faces that this policy test does not call yet: each takes
 # maps or measurements already in the caller's precision (demodulated_at,
 # finite_derivatives, coupling_corrected, transform: PhaseMaps; the discontinuities:
-# a Measurement; grid_shows: PhaseMaps; no_grid: a modulus map), or names a state (empty_state_message).
+# a Measurement; grid_shows: PhaseMaps; no_grid: a modulus map), or names a state
+# (empty_state_message).
 NOT_CALLED = {"check_parts", "coupling_corrected", "demodulated_at", "empty_state_message",
               "grid_shows", "no_grid",
               "find_discontinuities", "finite_derivatives", "transform",
