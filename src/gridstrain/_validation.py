@@ -48,6 +48,7 @@ __all__ = [
     "check_type",
     "check_workers",
     "float_dtype",
+    "freeze_arrays",
     "image_array",
 ]
 
@@ -664,3 +665,11 @@ def check_pixel_size(pixel_size, unit):
         raise ValueError(f"unit must be a short name such as 'mm' when pixel_size is "
                          f"given, got {unit!r}")
     return ps, unit.strip()
+
+
+def freeze_arrays(obj) -> None:
+    """Make the array fields of a frozen dataclass read-only (a result is data)."""
+    for name in obj.__dataclass_fields__:
+        value = getattr(obj, name)
+        if isinstance(value, np.ndarray):
+            value.flags.writeable = False

@@ -8,7 +8,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .._validation import check_choice, check_positive
+from .._validation import check_choice, check_positive, freeze_arrays
 from ._mesh import Mesh
 from ._models import Isotropic
 from ._vfm import NotIdentifiable, special_fields, virtual_work
@@ -27,13 +27,6 @@ ELEMENTS_LONG_SIDE = 8
 #: The smallest element side, px: an element of a few pixels only adds noise
 MIN_ELEMENT_PX = 4
 _MODELS = {"isotropic": Isotropic}
-
-
-def _freeze(obj) -> None:
-    for f in obj.__dataclass_fields__:
-        v = getattr(obj, f)
-        if isinstance(v, np.ndarray):
-            v.flags.writeable = False
 
 
 @dataclass(frozen=True)
@@ -123,7 +116,7 @@ class VirtualFields:
     load_direction: str
 
     def __post_init__(self):
-        _freeze(self)
+        freeze_arrays(self)
 
     def to_dict(self) -> dict:
         """The identification as JSON-ready values, units included (a value that could

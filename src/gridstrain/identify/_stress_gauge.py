@@ -29,7 +29,7 @@ import numpy as np
 from scipy import stats
 from scipy.signal import savgol_filter
 
-from .._validation import check_choice, check_int, check_positive
+from .._validation import check_choice, check_int, check_positive, freeze_arrays
 
 #: Free edges and, for each, (axial axis, sign of the stress: +1 when the slab
 #: between the free edge and a section lies towards -x or -y of it).
@@ -132,10 +132,7 @@ class StressGauge:
     unit: str
 
     def __post_init__(self):
-        for name in self.__dataclass_fields__:
-            v = getattr(self, name)
-            if isinstance(v, np.ndarray):
-                v.flags.writeable = False
+        freeze_arrays(self)
 
     def to_dict(self) -> dict:
         """The modulus, its interval and the test's conditions, JSON-ready."""

@@ -13,20 +13,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .._validation import as_float_array, float_dtype
+from .._validation import as_float_array, float_dtype, freeze_arrays
 
 __all__ = ["FiniteStrains", "PrincipalStrains", "finite_strains", "principal_strains"]
 
 #: The derived strains of :func:`principal_strains`, with their units.
 DERIVED_STRAINS = {"e1": "1", "e2": "1", "principal_angle": "rad", "equivalent": "1",
                    "max_shear": "1"}
-
-
-def _frozen(obj) -> None:
-    for name in obj.__dataclass_fields__:
-        v = getattr(obj, name)
-        if isinstance(v, np.ndarray):
-            v.flags.writeable = False
 
 
 @dataclass(frozen=True)
@@ -66,7 +59,7 @@ class PrincipalStrains:
     max_shear_std: np.ndarray | None = None
 
     def __post_init__(self):
-        _frozen(self)
+        freeze_arrays(self)
 
 
 def _components(exx, eyy, exy, names=("exx", "eyy", "exy")):
@@ -199,7 +192,7 @@ class FiniteStrains:
     Lxy: np.ndarray
 
     def __post_init__(self):
-        _frozen(self)
+        freeze_arrays(self)
 
 
 def finite_strains(exx, eyy, exy, rotation) -> FiniteStrains:

@@ -7,7 +7,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .._validation import check_pixel_size, check_type
+from .._validation import check_pixel_size, check_type, freeze_arrays
 from ..io import roi_mask
 from ..kinematics import DERIVED_STRAINS, PrincipalStrains, principal_strains
 from ..results import SeriesResult, state_loads
@@ -15,14 +15,6 @@ from . import _correlation
 from ._units import strain_scale
 
 _STRAINS = ("exx", "eyy", "exy")
-
-
-def freeze_arrays(obj) -> None:
-    """Make the array fields of a frozen dataclass read-only (a result is data)."""
-    for f in obj.__dataclass_fields__:
-        v = getattr(obj, f)
-        if isinstance(v, np.ndarray):
-            v.flags.writeable = False
 
 
 @dataclass(frozen=True)

@@ -7,8 +7,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.signal import savgol_filter
 
-from .._validation import check_int, check_pixel_size, check_type
-from ._gauges import GaugeReading, freeze_arrays
+from .._validation import check_int, check_pixel_size, check_type, freeze_arrays
+from ._gauges import GaugeReading
 
 #: Largest departure of a time step from the mean step, relative: the
 #: Savitzky-Golay weights assume evenly spaced samples.
