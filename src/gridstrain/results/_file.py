@@ -61,7 +61,8 @@ __all__ = ["FORMAT_VERSION", "ResultFile", "StoredMaps", "load", "read_attrs", "
 
 def save_result(result: SeriesResult, path, *, pixel_size: float | None = None,
                 unit: str | None = None, overwrite: bool = False,
-                attrs: Mapping | None = None, phase_maps: bool = False) -> Path:
+                attrs: Mapping | None = None, phase_maps: bool = False,
+                lossless: bool = False) -> Path:
     """Write a :class:`~gridstrain.results.SeriesResult` to one HDF5 file, atomically.
 
     Parameters
@@ -85,6 +86,11 @@ def save_result(result: SeriesResult, path, *, pixel_size: float | None = None,
         ``.deformed``: ``Psi`` and its derivatives, eight maps per series, which
         triples the file). Without them :func:`load` gives those two fields as
         ``None``; every other field comes back equal.
+    lossless : bool
+        Store the per-state maps exactly as measured (float64 unless the
+        measurement is float32), uncompressed. By default they are stored in
+        float32, each map rounded to a tenth of its own std at each pixel and the
+        std maps to a relative 1.6 %, then compressed (see Notes).
 
     Returns
     -------
@@ -94,16 +100,31 @@ def save_result(result: SeriesResult, path, *, pixel_size: float | None = None,
     -----
     The layout is described in :mod:`gridstrain.results`; ``xarray.open_dataset``
     opens it, :func:`load` reads it back.
+
+    The rounding of the default file: each
+    map ``ux, uy, exx, eyy, exy`` (and ``ux_phys, uy_phys``) is rounded at each pixel
+    to the nearest multiple of the largest power of two ``q <= 0.2 s``, ``s`` its
+    predicted std there (``ux_std``...; the rotation uses ``exy_std``, its std under
+    the same noise model), so that the error is at most ``0.1 s``: the mantissa bits
+    below ``q`` are zero, which the compressor (HDF5 shuffle and deflate) then drops.
+    The std maps keep 5 mantissa bits (relative error at most ``2**-6`` = 1.6 %). Where a
+    map has no std (none predicted, or NaN), its values keep float32's precision
+    (relative ``2**-24``). Each variable's attributes say how it was rounded
+    (``rounding``, ``rounding_std_variable``, ``rounding_std_fraction``, and
+    ``rounding_max_error_over_std``: the largest error over the std actually made,
+    per state), the root attribute ``maps_lossless`` which of the two the file is.
+    The validity maps, the mask and every other variable are stored losslessly.
     """
     check_type(result, "result", SeriesResult)
+    lossless = check_type(lossless, "lossless", bool)
     ps, unit = check_pixel_size(pixel_size, unit)
     attrs = check_mapping(attrs, "attrs", allow_none=True)
     H, W = result.shape
     n_series = len(result.names)
     with hdf5_file(path, overwrite=overwrite) as h5:
         _write_dimensions(h5, result, H, W)
-        _write_maps(h5, result, ps, unit, H, W)
-        _write_tables(h5, result, ps, unit, attrs, n_series)
+        _write_maps(h5, result, ps, unit, H, W, lossless=lossless)
+        _write_tables(h5, result, ps, unit, attrs, n_series, lossless=lossless)
         _write_group(h5, result, attrs, phase_maps=phase_maps)
     return as_path(path, "path")
 
@@ -124,14 +145,16 @@ class ResultFile:
     ----------
     path : str or os.PathLike
         Destination (``.h5`` or ``.nc``).
-    pixel_size, unit, overwrite, attrs
-        As for :func:`save_result`.
+    pixel_size, unit, overwrite, attrs, lossless
+        As for :func:`save_result`: by default the maps are stored in float32,
+        rounded to a tenth of their std and compressed.
     dtype : {None, "float32", "float64"}
-        Precision of the stored maps; None keeps that of the measurement
-        (:mod:`gridstrain.conventions`). float32 halves the file and keeps a
-        displacement below 1024 px to 3.1e-5 px (half the spacing of float32 numbers
-        below 1024, 2^-14) and a strain below 1 to 3e-8; the measurement itself is
-        computed as without it.
+        Precision of the maps of a lossless file; None keeps that of the
+        measurement (:mod:`gridstrain.conventions`). float32 halves the lossless
+        file and keeps a displacement below 1024 px to 3.1e-5 px (half the spacing
+        of float32 numbers below 1024, 2^-14) and a strain below 1 to 3e-8; the
+        measurement itself is computed as without it. A dtype needs
+        ``lossless=True`` (a rounded file's maps are float32).
     """
 
     path: object
@@ -140,8 +163,14 @@ class ResultFile:
     overwrite: bool = False
     attrs: Mapping | None = None
     dtype: object = None
+    lossless: bool = False
 
     def __post_init__(self):
+        check_type(self.lossless, "lossless", bool)
+        if self.dtype is not None and not self.lossless:
+            raise ValueError(f"dtype={self.dtype!r} is the precision of a lossless file's "
+                             "maps: give lossless=True with it (a rounded file's maps "
+                             "are float32)")
         as_path(self.path, "path")
         ps, unit = check_pixel_size(self.pixel_size, self.unit)
         object.__setattr__(self, "pixel_size", ps)
@@ -365,9 +394,11 @@ class StreamedResult:
         arrays = _state_arrays(res, unc)
         if unc and not self.unc_names:
             self.unc_names = list(unc)
-        _create_maps(self.h5, arrays, self.n, self.spec.pixel_size, self.spec.dtype)
-        _put_state(self.h5, i, arrays, self.spec.pixel_size)
-        self._lossless[i] = self.h5["ux"].dtype == res.u.dtype
+        lossless = self.spec.lossless
+        _create_maps(self.h5, arrays, self.n, self.spec.pixel_size, self.spec.dtype,
+                     lossless=lossless)
+        _put_state(self.h5, i, arrays, self.spec.pixel_size, lossless=lossless)
+        self._lossless[i] = lossless and self.h5["ux"].dtype == res.u.dtype
         self.stream.check()  # a full disk is reported now, not after the last state
         if not self.measurements:
             self._check_room()
@@ -381,26 +412,24 @@ class StreamedResult:
 
     def _check_room(self) -> None:
         """Once the first state is written: refuse a record whose other states' maps
-        cannot fit on the disk it is written to, rather than fail hours later."""
-        per_state = sum(ds.dtype.itemsize * math.prod(ds.shape[1:]) for ds in self.h5.values()
-                        if isinstance(ds, h5py.Dataset) and ds.ndim == 3
-                        and ds.compression is None)
+        cannot fit on the disk it is written to, rather than fail hours later. A state
+        is taken to need what the first one took (compressed, where it is)."""
+        self.h5.flush()
+        per_state = sum(ds.id.get_storage_size() for ds in self.h5.values()
+                        if isinstance(ds, h5py.Dataset) and ds.ndim == 3)
         need = per_state * (self.n - 1)
         try:
             free = shutil.disk_usage(self.path.resolve().parent).free
         except OSError:  # no figure from this file system: nothing to compare
             return
         if need > free:
-            # float32 maps take half of float64's: offered where that would fit
-            halved = any(ds.dtype == np.float64 for ds in self.h5.values()
-                         if isinstance(ds, h5py.Dataset)) and need / 2 <= free
             raise OSError(f"cannot write {self.path}: the maps of its {self.n - 1} other "
                           f"states need about {format_size(need)} more on that disk, and "
                           f"{format_size(free)} are free; nothing was written; free some "
                           "space or write elsewhere" + (
-                              ", or store the maps in float32 (--dtype float32, "
-                              "ResultFile(dtype='float32')), which halves them"
-                              if halved else ""))
+                              ", or store the maps rounded to a tenth of their std (leave "
+                              "out --lossless; ResultFile(lossless=False)), a fraction of "
+                              "their lossless size" if self.spec.lossless else ""))
 
     def reader(self, i: int):
         """A callable reading state ``i``'s ``(u, valid)`` back from the file (the
@@ -433,7 +462,8 @@ class StreamedResult:
         _write_dimensions(h5, result, H, W)
         _describe_maps(h5, ps, unit, H, W, self.unc_names)
         _write_images(h5, result, ps)
-        _write_tables(h5, result, ps, unit, spec.attrs, len(result.names))
+        _write_tables(h5, result, ps, unit, spec.attrs, len(result.names),
+                      lossless=spec.lossless)
         _write_group(h5, result, spec.attrs, phase_maps=False)
         cm, self._cm = self._cm, None
         cm.__exit__(None, None, None)  # closed, and put at its path
@@ -738,7 +768,7 @@ def to_xarray(result_or_path, *, pixel_size: float | None = None, unit: str | No
 
         with tempfile.TemporaryDirectory() as d:
             p = save_result(result_or_path, Path(d) / "result.h5", pixel_size=pixel_size,
-                            unit=unit)
+                            unit=unit, lossless=True)
             with xr.open_dataset(p, engine="h5netcdf") as ds:
                 return ds.load()
     with xr.open_dataset(as_path(result_or_path, "path"), engine="h5netcdf") as ds:
