@@ -365,6 +365,12 @@ class _Config:
         return [k for k in self.options if opts.get(k) == self.options[k]]
 
 
+# A configuration nests one level (the lists of states and guesses): thousands of
+# levels are a file made to crash its reader, refused in one line.
+_TOO_DEEP = ("arrays or tables nested too deep to read (a gridstrain configuration "
+             "nests one level)")
+
+
 def _read_config(path: str) -> _Config:
     p = Path(os.path.expanduser(path))
     if not p.is_file():
@@ -380,12 +386,16 @@ def _read_config(path: str) -> _Config:
             data = tomllib.loads(text)
         except tomllib.TOMLDecodeError as exc:
             raise ValueError(f"{p}: /config: not valid TOML ({exc})") from None
+        except RecursionError:
+            raise ValueError(f"{p}: /config: {_TOO_DEEP}") from None
     else:
         try:
             with open(p, "rb") as fh:
                 data = tomllib.load(fh)
         except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
             raise ValueError(f"config {p}: not valid TOML ({exc})") from None
+        except RecursionError:
+            raise ValueError(f"config {p}: {_TOO_DEEP}") from None
     where = f"{p}: /config" if from_result else f"config {p}"
     out, ignored = {}, []
     for key, value in data.items():

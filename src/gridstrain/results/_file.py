@@ -7,6 +7,7 @@ from __future__ import annotations
 import contextlib
 import contextvars
 import dataclasses
+import functools
 import math
 import numbers
 import os
@@ -53,6 +54,31 @@ __all__ = ["FORMAT_VERSION", "ResultFile", "StoredMaps", "load", "read_attrs", "
 
 
 
+
+
+def _file_errors(func):
+    """``func(path, ...)`` (or a method of an object with ``.path``) with the errors
+    HDF5 raises on a damaged file (bytes flipped, truncated: a ``RuntimeError`` or an
+    ``OSError`` from deep in h5py) turned into one ``ValueError`` naming the file."""
+    @functools.wraps(func)
+    def wrapped(first, *args, **kwargs):
+        try:
+            return func(first, *args, **kwargs)
+        except (FileNotFoundError, RecursionError):
+            raise
+        except (RuntimeError, OSError, KeyError) as exc:
+            path = getattr(first, "path", first)
+            text = " ".join(str(exc).split()) or type(exc).__name__
+            raise ValueError(f"{os.fspath(path)}: damaged result file, cannot be read "
+                             f"(HDF5: {text})") from None
+    return wrapped
+
+
+def _identity(path) -> tuple:
+    """What tells a file from the one that replaces it at the same path: its device,
+    inode, size and modification time."""
+    st = os.stat(path)
+    return (st.st_dev, st.st_ino, st.st_size, st.st_mtime_ns)
 
 
 # --------------------------------------------------------------------------- save
@@ -198,12 +224,17 @@ class StoredMaps(np.lib.mixins.NDArrayOperatorsMixin):
         The variable, or the variables stacked along the component axis.
     state : int, optional
         One state only (no state axis).
+    identity : tuple, optional
+        The file's :func:`_identity` when it was opened: a file replaced (or changed)
+        since is refused, not read.
     """
 
-    def __init__(self, path, names, *, state: int | None = None, layout=None):
+    def __init__(self, path, names, *, state: int | None = None, layout=None,
+                 identity: tuple | None = None):
         self.path = as_path(path, "path")
         self._names = names
         self._state = state
+        self._identity = identity
         if layout is None:  # (n_states, H, W, dtype) of the variables
             with h5py.File(self.path, "r") as h5:
                 first = _member(h5, names if isinstance(names, str) else names[0])
@@ -238,8 +269,9 @@ class StoredMaps(np.lib.mixins.NDArrayOperatorsMixin):
                              f"{dtype} variable it was when the file was opened")
         return ds
 
+    @_file_errors
     def _read(self, states) -> np.ndarray:
-        with _opened(self.path) as h5:
+        with _opened(self.path, self._identity) as h5:
             if isinstance(self._names, str):
                 return np.asarray(self._dataset(h5, self._names)[states])
             axis = 0 if isinstance(states, numbers.Integral) else 1
@@ -273,7 +305,8 @@ class StoredMaps(np.lib.mixins.NDArrayOperatorsMixin):
             j = int(rest[0])
             if not -len(self._names) <= j < len(self._names):
                 raise IndexError(f"component {j} out of range for {len(self._names)}")
-            view = StoredMaps(self.path, self._names[j], layout=self._layout())
+            view = StoredMaps(self.path, self._names[j], layout=self._layout(),
+                              identity=self._identity)
             return view[(slice(None), *rest[1:])] if len(rest) > 1 else view
         if isinstance(first, numbers.Integral) and not isinstance(first, bool):
             i = int(first)
@@ -338,14 +371,21 @@ def kept_open() -> Iterator[None]:
             h5.close()
 
 
-def _opened(path: Path):
+def _opened(path: Path, identity: tuple | None = None):
     """``path`` opened for reading, as a context: its kept handle inside
-    :func:`kept_open`, else a handle of its own, closed after the read."""
+    :func:`kept_open`, else a handle of its own, closed after the read. With the
+    ``identity`` the file had when it was loaded, a file replaced since (``mv``,
+    ``measure --overwrite``) or changed is refused: the states read so far came from
+    the other one."""
+    key = _identity(path)
+    if identity is not None and key != identity:
+        raise ValueError(f"{path}: the result file was replaced or changed since it was "
+                         "opened; nothing more is read from it (the states read so far "
+                         "came from the file as it was): run again on the file as it is "
+                         "now")
     kept = _KEPT.get()
     if kept is None:
         return h5py.File(path, "r")
-    st = os.stat(path)
-    key = (st.st_dev, st.st_ino, st.st_size, st.st_mtime_ns)
     found = kept.get(path)
     if found is None or found[0] != key:
         if found is not None:
@@ -354,10 +394,11 @@ def _opened(path: Path):
     return contextlib.nullcontext(found[1])
 
 
-def _stored(path, h5, names, state: int | None = None) -> StoredMaps:
+def _stored(path, h5, names, state: int | None = None, identity=None) -> StoredMaps:
     """The maps ``names`` of the result file ``h5`` (open, at ``path``), left in it."""
     first = h5[names if isinstance(names, str) else names[0]]
-    return StoredMaps(path, names, state=state, layout=(*first.shape, first.dtype))
+    return StoredMaps(path, names, state=state, layout=(*first.shape, first.dtype),
+                      identity=identity)
 
 
 class StreamedResult:
@@ -598,6 +639,7 @@ def _check_result(path, result: SeriesResult) -> SeriesResult:
     return result
 
 
+@_file_errors
 def load(path, *, in_memory: bool = True) -> SeriesResult:
     """Read a result file written by :func:`save_result`.
 
@@ -658,15 +700,16 @@ def load(path, *, in_memory: bool = True) -> SeriesResult:
         else:
             # their types checked already (_map_datasets)
             where = Path(h5.filename).resolve()
+            identity = _identity(where)  # the file read now, and only it later
 
             def stack(names):
-                return _stored(where, h5, names)
+                return _stored(where, h5, names, identity=identity)
 
             def read(k, kinds=None):
-                return _stored(where, h5, k)
+                return _stored(where, h5, k, identity=identity)
 
             def state(arr, i):
-                return _stored(where, h5, arr._names, i)
+                return _stored(where, h5, arr._names, i, identity=identity)
 
         u, strain = stack(("ux", "uy")), stack(("exx", "eyy", "exy"))
         valid = read("valid", kinds="b")
@@ -714,6 +757,7 @@ _ATTR_TYPES = {"pixel_size": float, "unit": str, "config": str, "config_file": s
                "conventions": str}
 
 
+@_file_errors
 def read_attrs(path) -> dict:
     """The root attributes of a result file (pixel size, unit, config...), decoded.
 
