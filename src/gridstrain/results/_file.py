@@ -356,8 +356,9 @@ def kept_open() -> Iterator[None]:
     """Inside the block, the reads of :class:`StoredMaps` in this thread keep one open
     handle per file, closed when the block ends (outside, each read opens and closes
     its file: 0.9 ms a read, more than reading a map of 250 x 400 px). A file
-    replaced or changed since it was opened (another inode, size or time) is opened
-    again, and checked as always."""
+    replaced or changed since :func:`load` read it (another inode, size or time) is
+    refused; the maps of a file being written, which have no such record, open it
+    again and check each variable's layout."""
     if _KEPT.get() is not None:  # nested: the outer block keeps them
         yield
         return
@@ -657,7 +658,8 @@ def load(path, *, in_memory: bool = True) -> SeriesResult:
         measurement's) in the file as :class:`StoredMaps`, read state by state when
         indexed: a record of thousands of states is then looked at, gauged or
         reported on in the memory of a few states. The file must stay in place
-        while the result is used.
+        while the result is used: once it is replaced or changed, the maps' reads
+        are refused (ValueError naming the file), never read from the other file.
 
     Returns
     -------
@@ -671,9 +673,9 @@ def load(path, *, in_memory: bool = True) -> SeriesResult:
     FileNotFoundError
         No such file.
     ValueError
-        The file is not a gridstrain result file, or a field of it is not what
-        the layout says (the message names the file and the field), or it declares
-        more data than the memory available.
+        The file is not a gridstrain result file, or is damaged (HDF5 cannot read
+        it), or a field of it is not what the layout says (the message names the
+        file and the field), or it declares more data than the memory available.
     """
     in_memory = check_type(in_memory, "in_memory", bool)
     with _open(path) as h5:
