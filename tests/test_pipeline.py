@@ -417,8 +417,9 @@ def test_progress_is_monotonic_and_ends_at_one():
 
 def test_save_result_layout(noisy_plate, tmp_path):
     _p, _, _, _, res = noisy_plate
+    # lossless: the maps compared bit for bit (their rounding: test_compact_results)
     path = save_result(res, tmp_path / "out.h5", pixel_size=0.04, unit="mm",
-                       attrs={"mask_file": "mask.tif"})
+                       attrs={"mask_file": "mask.tif"}, lossless=True)
     data = read_hdf5(path)
     d, u = data["datasets"], data["units"]
     a = read_attrs(path)
