@@ -471,7 +471,7 @@ def test_save_result_layout(noisy_plate, tmp_path):
     # the place kept for per-pixel uncertainty maps: saved next to the maps
     std = np.full((1, 192, 192), 2e-3)
     with_std = dataclasses.replace(res, uncertainty={"ux_std": std})
-    data = read_hdf5(save_result(with_std, tmp_path / "c.h5"))
+    data = read_hdf5(save_result(with_std, tmp_path / "c.h5", lossless=True))
     assert_array_equal(data["datasets"]["ux_std"], std)
     assert data["units"]["ux_std"] == "px"
 
