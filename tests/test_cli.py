@@ -105,7 +105,10 @@ def test_measure_writes_hdf5_csv_and_figures(data, tmp_path, capsys):
         valid = h5["valid"][()]
         assert valid.dtype == bool
         assert valid.shape == (1, N, N)
-        np.testing.assert_allclose(h5["ux_phys"][()], 0.04 * h5["ux"][()], rtol=1e-15)
+        # ux and ux_phys are each rounded to a tenth of their std (ux_std, in px or in
+        # mm): they agree to two tenths of it
+        diff = np.abs(h5["ux_phys"][()] - 0.04 * h5["ux"][()].astype(np.float64))
+        assert np.all(diff[valid] <= 0.2 * 0.04 * h5["ux_std"][()][valid])
         exx = h5["exx"][0][valid[0]]
         assert h5.attrs["unit"] == "mm"
         assert h5.attrs["pixel_size"] == 0.04

@@ -62,7 +62,8 @@ def result():
 def test_xarray_opens_the_file_with_dimensions_coordinates_and_units(result, tmp_path):
     xr = pytest.importorskip("xarray")
     pytest.importorskip("h5netcdf")
-    path = save_result(result, tmp_path / "r.h5", pixel_size=0.04, unit="mm")
+    path = save_result(result, tmp_path / "r.h5", pixel_size=0.04, unit="mm",
+                       lossless=True)
     with xr.open_dataset(path, engine="h5netcdf") as ds:
         assert ds["exx"].dims == ("state", "y", "x")
         assert list(ds["state"].values) == ["state 0", "state 1"]
@@ -92,7 +93,7 @@ def test_xarray_opens_the_file_with_dimensions_coordinates_and_units(result, tmp
 
 
 def test_load_returns_the_saved_result(result, tmp_path):
-    path = save_result(result, tmp_path / "r.h5", phase_maps=True)
+    path = save_result(result, tmp_path / "r.h5", phase_maps=True, lossless=True)
     back = load(path)
     assert isinstance(back, SeriesResult)
     for f in dataclasses.fields(SeriesResult):
@@ -106,9 +107,10 @@ def test_load_returns_the_saved_result(result, tmp_path):
     assert not _nan_equal(back, changed)
     # and a result without uncertainty maps keeps its None
     bare = dataclasses.replace(result, uncertainty=None, warnings=("a", "b"))
-    assert _nan_equal(load(save_result(bare, tmp_path / "b.h5", phase_maps=True)), bare)
+    assert _nan_equal(load(save_result(bare, tmp_path / "b.h5", phase_maps=True,
+                                             lossless=True)), bare)
     # by default the phase maps (8 maps per series) are left out, and only they
-    small = load(save_result(result, tmp_path / "s.h5"))
+    small = load(save_result(result, tmp_path / "s.h5", lossless=True))
     assert (tmp_path / "s.h5").stat().st_size < 0.6 * path.stat().st_size
     for m in small.measurements:
         assert m.reference is None
@@ -131,7 +133,7 @@ def test_new_fields_are_saved_without_changing_the_file_code(result, tmp_path):
                    records=(LAT, None, (1, 2.5), np.arange(3.0)),
                    extra={"order": [3, 1, 2], "map": np.ones((2, 2)), "none": None,
                           "names": ("a", "b"), "nested": {"deep": math.nan}})
-    back = load(save_result(later, tmp_path / "l.h5", phase_maps=True))
+    back = load(save_result(later, tmp_path / "l.h5", phase_maps=True, lossless=True))
     assert type(back) is _Later
     assert _nan_equal(back, later)
 

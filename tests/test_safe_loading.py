@@ -45,7 +45,7 @@ def result():
 @pytest.fixture
 def saved(result, tmp_path):
     return save_result(result, tmp_path / "r.h5", pixel_size=0.02, unit="mm",
-                       attrs={"config": 'method = "A"\n'})
+                       attrs={"config": 'method = "A"\n'}, lossless=True)
 
 
 def _refused(path, field, read=load):

@@ -19,7 +19,7 @@ import tifffile
 
 from gridstrain import Lattice
 from gridstrain.io import _readers, natural_order, open_series, read_loads, state_inputs
-from gridstrain.results import load
+from gridstrain.results import ResultFile, load
 from gridstrain.series import measure_series
 from gridstrain.stacks.screening import screen_frames
 from sequence_record import PITCH, record, static_series, truth
@@ -45,7 +45,9 @@ def frames():
 def measured(frames, tmp_path_factory):
     tmp = tmp_path_factory.mktemp("seq")
     folder = _folder(tmp, frames)
-    res = measure_series(None, folder, reference_frames=1, output=tmp / "a.h5")
+    # lossless: the maps compared bit for bit with those of another container
+    res = measure_series(None, folder, reference_frames=1,
+                         output=ResultFile(tmp / "a.h5", lossless=True))
     return res, folder, tmp
 
 

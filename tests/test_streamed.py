@@ -42,7 +42,8 @@ def pair(data, tmp_path_factory):
     ref, states = data
     path = tmp_path_factory.mktemp("streamed") / "r.h5"
     held = measure_series(ref, states, lattice=LAT, guess=None)
-    streamed = measure_series(ref, states, lattice=LAT, guess=None, output=path)
+    streamed = measure_series(ref, states, lattice=LAT, guess=None,
+                              output=ResultFile(path, lossless=True))
     return held, streamed, path
 
 
@@ -83,7 +84,7 @@ def test_indexing_reads_like_an_array(pair):
 
 def test_the_file_is_the_one_save_result_writes(pair, tmp_path):
     held, _streamed, path = pair
-    saved = save_result(held, tmp_path / "held.h5")
+    saved = save_result(held, tmp_path / "held.h5", lossless=True)
     a, b = load(path), load(saved)
     for name in ("u", "strain", "valid", "mask", "reference_image"):
         assert_array_equal(getattr(a, name), getattr(b, name))
@@ -97,7 +98,8 @@ def test_the_file_is_the_one_save_result_writes(pair, tmp_path):
 def test_float32_keeps_what_it_says(data, tmp_path):
     ref, states = data
     held = measure_series(ref, states, lattice=LAT, guess=None)
-    small = measure_series(ref, states, lattice=LAT, guess=None, output=tmp_path / "f.h5",
+    small = measure_series(ref, states, lattice=LAT, guess=None,
+                           output=ResultFile(tmp_path / "f.h5", lossless=True),
                            dtype="float32")
     u = np.asarray(small.u)
     assert u.dtype == np.float32
@@ -176,7 +178,7 @@ def test_each_state_is_the_direct_measurement_of_its_frames(data, tmp_path, meth
         return demodulated_at(maps(frames, own), LAT)
 
     res = measure_series(ref, states, lattice=LAT, method=method,
-                         output=tmp_path / "r.h5")
+                         output=ResultFile(tmp_path / "r.h5", lossless=True))
     m_ref = maps(ref)
     for k, frames in enumerate(states):
         want = deformation(m_ref, state_maps(frames), guess=None)
@@ -207,7 +209,8 @@ def test_the_previous_field_read_back_from_the_file_gives_the_same_states(data, 
     from gridstrain.series import _loop
 
     ref, states = data
-    kept = measure_series(ref, states, lattice=LAT, output=tmp_path / "kept.h5")
+    kept = measure_series(ref, states, lattice=LAT,
+                          output=ResultFile(tmp_path / "kept.h5", lossless=True))
     calls = []
     real = _file.StreamedResult.reader
 
@@ -217,7 +220,8 @@ def test_the_previous_field_read_back_from_the_file_gives_the_same_states(data, 
 
     monkeypatch.setattr(_file.StreamedResult, "reader", spy)
     monkeypatch.setattr(_loop, "_FOLLOW_IN_MEMORY", 0)
-    read = measure_series(ref, states, lattice=LAT, output=tmp_path / "read.h5")
+    read = measure_series(ref, states, lattice=LAT,
+                          output=ResultFile(tmp_path / "read.h5", lossless=True))
     assert calls == [0, 1]  # every state but the last is followed from the file
     assert_array_equal(np.asarray(read.u), np.asarray(kept.u))
     assert_array_equal(np.asarray(read.strain), np.asarray(kept.strain))
@@ -247,13 +251,15 @@ def test_a_record_that_cannot_fit_on_its_disk_is_refused_after_its_first_state(
     monkeypatch.setattr(rf.shutil, "disk_usage", disk_usage)
     with pytest.raises(OSError, match=r"r\.h5: the maps of its 2 other states need about "
                                       r".* more on that disk, and .* are free; nothing was "
-                                      r"written; .*write elsewhere, or .*--dtype float32"):
-        measure_series(ref, states, lattice=LAT, guess=None, output=tmp_path / "r.h5")
+                                      r"written; .*write elsewhere, or .*leave out "
+                                      r"--lossless"):
+        measure_series(ref, states, lattice=LAT, guess=None,
+                       output=ResultFile(tmp_path / "r.h5", lossless=True))
     assert seen == [tmp_path.resolve()]
     assert list(tmp_path.iterdir()) == []
-    # with no room even for float32 maps, float32 is not offered
-    monkeypatch.setattr(rf.shutil, "disk_usage",
-                        lambda p: usage(10 * one_state, 10 * one_state, one_state // 4))
+    # a rounded file is counted by what its first state took compressed: refused
+    # where even that does not fit, and the rounding is not offered again
+    monkeypatch.setattr(rf.shutil, "disk_usage", lambda p: usage(10, 10, 1000))
     with pytest.raises(OSError, match=r"write elsewhere$"):
         measure_series(ref, states, lattice=LAT, guess=None, output=tmp_path / "r.h5")
     assert list(tmp_path.iterdir()) == []

@@ -85,14 +85,35 @@ def reads_result(run):
     return wrapped
 
 
+def load_with_attrs(src: Path):
+    """The result (its maps left in the file) and the root attributes of the file at
+    ``src``, both read from one file: one replaced between the two reads is refused."""
+    from ..results import load, read_attrs
+
+    before = _identity(src)
+    result = load(src, in_memory=False)
+    attrs = read_attrs(src)
+    if _identity(src) != before:
+        raise ValueError(f"{src}: the result file was replaced while it was opened; run "
+                         "again on the file as it is now")
+    return result, attrs
+
+
+def _identity(src: Path):
+    try:
+        st = os.stat(src)
+    except OSError:
+        return None  # missing: load says so, naming the file
+    return (st.st_dev, st.st_ino, st.st_size, st.st_mtime_ns)
+
+
 def open_result(args):
     """``(result, path, pixel_size, unit, load, load_unit, time)`` of the command's file."""
     from ..post import read_loads
-    from ..results import load, read_attrs, state_loads
+    from ..results import state_loads
 
     src = Path(os.path.expanduser(args.result))
-    result = load(src, in_memory=False)
-    attrs = read_attrs(src)
+    result, attrs = load_with_attrs(src)
     ps, unit = attrs.get("pixel_size"), attrs.get("unit")
     if ps is None or unit is None or getattr(args, "px", False):
         ps = unit = None

@@ -5,7 +5,7 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-from ._post import reads_result
+from ._post import load_with_attrs, reads_result
 
 _FORMATS = ("png", "pdf", "svg")
 
@@ -51,7 +51,6 @@ def register(sub) -> None:
 def run(args) -> int:
     from ..io import OutputDirectory
     from ..post import QUANTITIES, capped_dpi, plot_history, plot_states
-    from ..results import load, read_attrs
 
     if not 20 <= args.dpi <= 1200:
         raise ValueError(f"--dpi must be between 20 and 1200, got {args.dpi}")
@@ -63,8 +62,7 @@ def run(args) -> int:
     if args.point and args.region:
         raise ValueError("give --point or --region, not both")
     src = Path(os.path.expanduser(args.result))
-    result = load(src, in_memory=False)
-    attrs = read_attrs(src)
+    result, attrs = load_with_attrs(src)
     ps, unit = attrs.get("pixel_size"), attrs.get("unit")
     if ps is None or unit is None:
         ps = unit = None

@@ -17,7 +17,11 @@ The file
     - maps ``(state, y, x)``: ``ux``, ``uy`` (px), ``exx``, ``eyy``, ``exy``
       (``"1"``: strain is dimensionless), ``rotation`` (rad), ``valid`` (bool),
       the per-pixel uncertainty maps ``*_std`` and, with a pixel size,
-      ``ux_phys``, ``uy_phys``; ``reference_image`` and ``mask`` ``(y, x)``;
+      ``ux_phys``, ``uy_phys``; ``reference_image`` and ``mask`` ``(y, x)``. By
+      default the float maps are float32, each rounded to a tenth of its own std at
+      each pixel (the std maps to 5 mantissa bits) and compressed, the rounding in
+      each variable's ``rounding*`` attributes; ``lossless=True`` stores them as
+      measured (:func:`save_result`);
     - the vibrations (``vibration_shifts (series, frame, axis)``, NaN after the
       last frame of a shorter series, and their standard deviations, contrast
       factors and phase offsets), the noise floor (``noise_*``), the lattice

@@ -7,6 +7,7 @@ from __future__ import annotations
 import contextlib
 import contextvars
 import dataclasses
+import functools
 import math
 import numbers
 import os
@@ -55,13 +56,39 @@ __all__ = ["FORMAT_VERSION", "ResultFile", "StoredMaps", "load", "read_attrs", "
 
 
 
+def _file_errors(func):
+    """``func(path, ...)`` (or a method of an object with ``.path``) with the errors
+    HDF5 raises on a damaged file (bytes flipped, truncated: a ``RuntimeError`` or an
+    ``OSError`` from deep in h5py) turned into one ``ValueError`` naming the file."""
+    @functools.wraps(func)
+    def wrapped(first, *args, **kwargs):
+        try:
+            return func(first, *args, **kwargs)
+        except (FileNotFoundError, RecursionError):
+            raise
+        except (RuntimeError, OSError, KeyError) as exc:
+            path = getattr(first, "path", first)
+            text = " ".join(str(exc).split()) or type(exc).__name__
+            raise ValueError(f"{os.fspath(path)}: damaged result file, cannot be read "
+                             f"(HDF5: {text})") from None
+    return wrapped
+
+
+def _identity(path) -> tuple:
+    """What tells a file from the one that replaces it at the same path: its device,
+    inode, size and modification time."""
+    st = os.stat(path)
+    return (st.st_dev, st.st_ino, st.st_size, st.st_mtime_ns)
+
+
 # --------------------------------------------------------------------------- save
 
 
 
 def save_result(result: SeriesResult, path, *, pixel_size: float | None = None,
                 unit: str | None = None, overwrite: bool = False,
-                attrs: Mapping | None = None, phase_maps: bool = False) -> Path:
+                attrs: Mapping | None = None, phase_maps: bool = False,
+                lossless: bool = False) -> Path:
     """Write a :class:`~gridstrain.results.SeriesResult` to one HDF5 file, atomically.
 
     Parameters
@@ -85,6 +112,11 @@ def save_result(result: SeriesResult, path, *, pixel_size: float | None = None,
         ``.deformed``: ``Psi`` and its derivatives, eight maps per series, which
         triples the file). Without them :func:`load` gives those two fields as
         ``None``; every other field comes back equal.
+    lossless : bool
+        Store the per-state maps exactly as measured (float64 unless the
+        measurement is float32), uncompressed. By default they are stored in
+        float32, each map rounded to a tenth of its own std at each pixel and the
+        std maps to a relative 1.6 %, then compressed (see Notes).
 
     Returns
     -------
@@ -94,16 +126,31 @@ def save_result(result: SeriesResult, path, *, pixel_size: float | None = None,
     -----
     The layout is described in :mod:`gridstrain.results`; ``xarray.open_dataset``
     opens it, :func:`load` reads it back.
+
+    The rounding of the default file: each
+    map ``ux, uy, exx, eyy, exy`` (and ``ux_phys, uy_phys``) is rounded at each pixel
+    to the nearest multiple of the largest power of two ``q <= 0.2 s``, ``s`` its
+    predicted std there (``ux_std``...; the rotation uses ``exy_std``, its std under
+    the same noise model), so that the error is at most ``0.1 s``: the mantissa bits
+    below ``q`` are zero, which the compressor (HDF5 shuffle and deflate) then drops.
+    The std maps keep 5 mantissa bits (relative error at most ``2**-6`` = 1.6 %). Where a
+    map has no std (none predicted, or NaN), its values keep float32's precision
+    (relative ``2**-24``). Each variable's attributes say how it was rounded
+    (``rounding``, ``rounding_std_variable``, ``rounding_std_fraction``, and
+    ``rounding_max_error_over_std``: the largest error over the std actually made,
+    per state), the root attribute ``maps_lossless`` which of the two the file is.
+    The validity maps, the mask and every other variable are stored losslessly.
     """
     check_type(result, "result", SeriesResult)
+    lossless = check_type(lossless, "lossless", bool)
     ps, unit = check_pixel_size(pixel_size, unit)
     attrs = check_mapping(attrs, "attrs", allow_none=True)
     H, W = result.shape
     n_series = len(result.names)
     with hdf5_file(path, overwrite=overwrite) as h5:
         _write_dimensions(h5, result, H, W)
-        _write_maps(h5, result, ps, unit, H, W)
-        _write_tables(h5, result, ps, unit, attrs, n_series)
+        _write_maps(h5, result, ps, unit, H, W, lossless=lossless)
+        _write_tables(h5, result, ps, unit, attrs, n_series, lossless=lossless)
         _write_group(h5, result, attrs, phase_maps=phase_maps)
     return as_path(path, "path")
 
@@ -124,14 +171,16 @@ class ResultFile:
     ----------
     path : str or os.PathLike
         Destination (``.h5`` or ``.nc``).
-    pixel_size, unit, overwrite, attrs
-        As for :func:`save_result`.
+    pixel_size, unit, overwrite, attrs, lossless
+        As for :func:`save_result`: by default the maps are stored in float32,
+        rounded to a tenth of their std and compressed.
     dtype : {None, "float32", "float64"}
-        Precision of the stored maps; None keeps that of the measurement
-        (:mod:`gridstrain.conventions`). float32 halves the file and keeps a
-        displacement below 1024 px to 3.1e-5 px (half the spacing of float32 numbers
-        below 1024, 2^-14) and a strain below 1 to 3e-8; the measurement itself is
-        computed as without it.
+        Precision of the maps of a lossless file; None keeps that of the
+        measurement (:mod:`gridstrain.conventions`). float32 halves the lossless
+        file and keeps a displacement below 1024 px to 3.1e-5 px (half the spacing
+        of float32 numbers below 1024, 2^-14) and a strain below 1 to 3e-8; the
+        measurement itself is computed as without it. A dtype needs
+        ``lossless=True`` (a rounded file's maps are float32).
     """
 
     path: object
@@ -140,8 +189,14 @@ class ResultFile:
     overwrite: bool = False
     attrs: Mapping | None = None
     dtype: object = None
+    lossless: bool = False
 
     def __post_init__(self):
+        check_type(self.lossless, "lossless", bool)
+        if self.dtype is not None and not self.lossless:
+            raise ValueError(f"dtype={self.dtype!r} is the precision of a lossless file's "
+                             "maps: give lossless=True with it (a rounded file's maps "
+                             "are float32)")
         as_path(self.path, "path")
         ps, unit = check_pixel_size(self.pixel_size, self.unit)
         object.__setattr__(self, "pixel_size", ps)
@@ -169,12 +224,17 @@ class StoredMaps(np.lib.mixins.NDArrayOperatorsMixin):
         The variable, or the variables stacked along the component axis.
     state : int, optional
         One state only (no state axis).
+    identity : tuple, optional
+        The file's :func:`_identity` when it was opened: a file replaced (or changed)
+        since is refused, not read.
     """
 
-    def __init__(self, path, names, *, state: int | None = None, layout=None):
+    def __init__(self, path, names, *, state: int | None = None, layout=None,
+                 identity: tuple | None = None):
         self.path = as_path(path, "path")
         self._names = names
         self._state = state
+        self._identity = identity
         if layout is None:  # (n_states, H, W, dtype) of the variables
             with h5py.File(self.path, "r") as h5:
                 first = _member(h5, names if isinstance(names, str) else names[0])
@@ -209,8 +269,9 @@ class StoredMaps(np.lib.mixins.NDArrayOperatorsMixin):
                              f"{dtype} variable it was when the file was opened")
         return ds
 
+    @_file_errors
     def _read(self, states) -> np.ndarray:
-        with _opened(self.path) as h5:
+        with _opened(self.path, self._identity) as h5:
             if isinstance(self._names, str):
                 return np.asarray(self._dataset(h5, self._names)[states])
             axis = 0 if isinstance(states, numbers.Integral) else 1
@@ -244,7 +305,8 @@ class StoredMaps(np.lib.mixins.NDArrayOperatorsMixin):
             j = int(rest[0])
             if not -len(self._names) <= j < len(self._names):
                 raise IndexError(f"component {j} out of range for {len(self._names)}")
-            view = StoredMaps(self.path, self._names[j], layout=self._layout())
+            view = StoredMaps(self.path, self._names[j], layout=self._layout(),
+                              identity=self._identity)
             return view[(slice(None), *rest[1:])] if len(rest) > 1 else view
         if isinstance(first, numbers.Integral) and not isinstance(first, bool):
             i = int(first)
@@ -294,8 +356,9 @@ def kept_open() -> Iterator[None]:
     """Inside the block, the reads of :class:`StoredMaps` in this thread keep one open
     handle per file, closed when the block ends (outside, each read opens and closes
     its file: 0.9 ms a read, more than reading a map of 250 x 400 px). A file
-    replaced or changed since it was opened (another inode, size or time) is opened
-    again, and checked as always."""
+    replaced or changed since :func:`load` read it (another inode, size or time) is
+    refused; the maps of a file being written, which have no such record, open it
+    again and check each variable's layout."""
     if _KEPT.get() is not None:  # nested: the outer block keeps them
         yield
         return
@@ -309,14 +372,21 @@ def kept_open() -> Iterator[None]:
             h5.close()
 
 
-def _opened(path: Path):
+def _opened(path: Path, identity: tuple | None = None):
     """``path`` opened for reading, as a context: its kept handle inside
-    :func:`kept_open`, else a handle of its own, closed after the read."""
+    :func:`kept_open`, else a handle of its own, closed after the read. With the
+    ``identity`` the file had when it was loaded, a file replaced since (``mv``,
+    ``measure --overwrite``) or changed is refused: the states read so far came from
+    the other one."""
+    key = _identity(path)
+    if identity is not None and key != identity:
+        raise ValueError(f"{path}: the result file was replaced or changed since it was "
+                         "opened; nothing more is read from it (the states read so far "
+                         "came from the file as it was): run again on the file as it is "
+                         "now")
     kept = _KEPT.get()
     if kept is None:
         return h5py.File(path, "r")
-    st = os.stat(path)
-    key = (st.st_dev, st.st_ino, st.st_size, st.st_mtime_ns)
     found = kept.get(path)
     if found is None or found[0] != key:
         if found is not None:
@@ -325,10 +395,11 @@ def _opened(path: Path):
     return contextlib.nullcontext(found[1])
 
 
-def _stored(path, h5, names, state: int | None = None) -> StoredMaps:
+def _stored(path, h5, names, state: int | None = None, identity=None) -> StoredMaps:
     """The maps ``names`` of the result file ``h5`` (open, at ``path``), left in it."""
     first = h5[names if isinstance(names, str) else names[0]]
-    return StoredMaps(path, names, state=state, layout=(*first.shape, first.dtype))
+    return StoredMaps(path, names, state=state, layout=(*first.shape, first.dtype),
+                      identity=identity)
 
 
 class StreamedResult:
@@ -365,9 +436,11 @@ class StreamedResult:
         arrays = _state_arrays(res, unc)
         if unc and not self.unc_names:
             self.unc_names = list(unc)
-        _create_maps(self.h5, arrays, self.n, self.spec.pixel_size, self.spec.dtype)
-        _put_state(self.h5, i, arrays, self.spec.pixel_size)
-        self._lossless[i] = self.h5["ux"].dtype == res.u.dtype
+        lossless = self.spec.lossless
+        _create_maps(self.h5, arrays, self.n, self.spec.pixel_size, self.spec.dtype,
+                     lossless=lossless)
+        _put_state(self.h5, i, arrays, self.spec.pixel_size, lossless=lossless)
+        self._lossless[i] = lossless and self.h5["ux"].dtype == res.u.dtype
         self.stream.check()  # a full disk is reported now, not after the last state
         if not self.measurements:
             self._check_room()
@@ -381,26 +454,24 @@ class StreamedResult:
 
     def _check_room(self) -> None:
         """Once the first state is written: refuse a record whose other states' maps
-        cannot fit on the disk it is written to, rather than fail hours later."""
-        per_state = sum(ds.dtype.itemsize * math.prod(ds.shape[1:]) for ds in self.h5.values()
-                        if isinstance(ds, h5py.Dataset) and ds.ndim == 3
-                        and ds.compression is None)
+        cannot fit on the disk it is written to, rather than fail hours later. A state
+        is taken to need what the first one took (compressed, where it is)."""
+        self.h5.flush()
+        per_state = sum(ds.id.get_storage_size() for ds in self.h5.values()
+                        if isinstance(ds, h5py.Dataset) and ds.ndim == 3)
         need = per_state * (self.n - 1)
         try:
             free = shutil.disk_usage(self.path.resolve().parent).free
         except OSError:  # no figure from this file system: nothing to compare
             return
         if need > free:
-            # float32 maps take half of float64's: offered where that would fit
-            halved = any(ds.dtype == np.float64 for ds in self.h5.values()
-                         if isinstance(ds, h5py.Dataset)) and need / 2 <= free
             raise OSError(f"cannot write {self.path}: the maps of its {self.n - 1} other "
                           f"states need about {format_size(need)} more on that disk, and "
                           f"{format_size(free)} are free; nothing was written; free some "
                           "space or write elsewhere" + (
-                              ", or store the maps in float32 (--dtype float32, "
-                              "ResultFile(dtype='float32')), which halves them"
-                              if halved else ""))
+                              ", or store the maps rounded to a tenth of their std (leave "
+                              "out --lossless; ResultFile(lossless=False)), a fraction of "
+                              "their lossless size" if self.spec.lossless else ""))
 
     def reader(self, i: int):
         """A callable reading state ``i``'s ``(u, valid)`` back from the file (the
@@ -433,7 +504,8 @@ class StreamedResult:
         _write_dimensions(h5, result, H, W)
         _describe_maps(h5, ps, unit, H, W, self.unc_names)
         _write_images(h5, result, ps)
-        _write_tables(h5, result, ps, unit, spec.attrs, len(result.names))
+        _write_tables(h5, result, ps, unit, spec.attrs, len(result.names),
+                      lossless=spec.lossless)
         _write_group(h5, result, spec.attrs, phase_maps=False)
         cm, self._cm = self._cm, None
         cm.__exit__(None, None, None)  # closed, and put at its path
@@ -568,6 +640,7 @@ def _check_result(path, result: SeriesResult) -> SeriesResult:
     return result
 
 
+@_file_errors
 def load(path, *, in_memory: bool = True) -> SeriesResult:
     """Read a result file written by :func:`save_result`.
 
@@ -585,7 +658,8 @@ def load(path, *, in_memory: bool = True) -> SeriesResult:
         measurement's) in the file as :class:`StoredMaps`, read state by state when
         indexed: a record of thousands of states is then looked at, gauged or
         reported on in the memory of a few states. The file must stay in place
-        while the result is used.
+        while the result is used: once it is replaced or changed, the maps' reads
+        are refused (ValueError naming the file), never read from the other file.
 
     Returns
     -------
@@ -599,9 +673,9 @@ def load(path, *, in_memory: bool = True) -> SeriesResult:
     FileNotFoundError
         No such file.
     ValueError
-        The file is not a gridstrain result file, or a field of it is not what
-        the layout says (the message names the file and the field), or it declares
-        more data than the memory available.
+        The file is not a gridstrain result file, or is damaged (HDF5 cannot read
+        it), or a field of it is not what the layout says (the message names the
+        file and the field), or it declares more data than the memory available.
     """
     in_memory = check_type(in_memory, "in_memory", bool)
     with _open(path) as h5:
@@ -628,15 +702,16 @@ def load(path, *, in_memory: bool = True) -> SeriesResult:
         else:
             # their types checked already (_map_datasets)
             where = Path(h5.filename).resolve()
+            identity = _identity(where)  # the file read now, and only it later
 
             def stack(names):
-                return _stored(where, h5, names)
+                return _stored(where, h5, names, identity=identity)
 
             def read(k, kinds=None):
-                return _stored(where, h5, k)
+                return _stored(where, h5, k, identity=identity)
 
             def state(arr, i):
-                return _stored(where, h5, arr._names, i)
+                return _stored(where, h5, arr._names, i, identity=identity)
 
         u, strain = stack(("ux", "uy")), stack(("exx", "eyy", "exy"))
         valid = read("valid", kinds="b")
@@ -684,6 +759,7 @@ _ATTR_TYPES = {"pixel_size": float, "unit": str, "config": str, "config_file": s
                "conventions": str}
 
 
+@_file_errors
 def read_attrs(path) -> dict:
     """The root attributes of a result file (pixel size, unit, config...), decoded.
 
@@ -738,7 +814,7 @@ def to_xarray(result_or_path, *, pixel_size: float | None = None, unit: str | No
 
         with tempfile.TemporaryDirectory() as d:
             p = save_result(result_or_path, Path(d) / "result.h5", pixel_size=pixel_size,
-                            unit=unit)
+                            unit=unit, lossless=True)
             with xr.open_dataset(p, engine="h5netcdf") as ds:
                 return ds.load()
     with xr.open_dataset(as_path(result_or_path, "path"), engine="h5netcdf") as ds:

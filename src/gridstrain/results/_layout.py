@@ -23,6 +23,14 @@ from ._codec import (
     _scalar_kind,
     _utf8,
 )
+from ._precision import (
+    MAX_ERROR_ATTR,
+    STD_BITS,
+    STD_FRACTION,
+    STD_OF,
+    round_relative,
+    round_to_std,
+)
 from ._result import MAP_FIELDS
 
 #: Version of the file layout; :func:`load` refuses other versions by name. Format 3 writes
@@ -46,7 +54,7 @@ LONG_NAMES = {
 _UNC_KEYS = ("ux_std", "uy_std", "exx_std", "eyy_std", "exy_std")
 
 
-# The per-state float maps: checksummed, stored as they are (see _create_maps).
+# The per-state float maps of a lossless file: checksummed, stored as they are.
 _CHECKSUM = {"fletcher32": True}
 
 
@@ -113,7 +121,8 @@ def _write_group(h5, result, attrs: Mapping, *, phase_maps: bool) -> None:
         _encode(g, [("attrs", dict(extra))], memo)
 
 
-def _write_tables(h5, result, ps, unit, attrs: Mapping, n_series: int) -> None:
+def _write_tables(h5, result, ps, unit, attrs: Mapping, n_series: int, *,
+                  lossless: bool) -> None:
     """The variables of the series and states (vibrations, noise floor, metrology) and
     the root attributes (see the module's layout)."""
     lat = result.lattice
@@ -121,6 +130,12 @@ def _write_tables(h5, result, ps, unit, attrs: Mapping, n_series: int) -> None:
     _write_noise(h5, result, lat)
     _write_metrology(h5, result)
     root = _root_attributes(result, ps, unit, lat)
+    root["maps_lossless"] = bool(lossless)
+    root["maps_precision"] = (
+        "lossless: the maps as measured" if lossless else
+        f"float32, each map rounded to {STD_FRACTION:g} of its std at each pixel "
+        f"(rotation: of exy's), the std maps to {STD_BITS} mantissa bits (relative "
+        f"{2.0 ** -(STD_BITS + 1):.2g}); see each variable's rounding attributes")
     for key, value in attrs.items():
         root[_check_key(key, "attrs")] = value
     for key, value in root.items():
@@ -201,15 +216,15 @@ def _describe_maps(h5, ps, unit, H: int, W: int, unc_names) -> None:
         _describe(h5[name], _MAPS, units, long_name, **more, **extra)
 
 
-def _write_maps(h5, result, ps, unit, H: int, W: int) -> None:
+def _write_maps(h5, result, ps, unit, H: int, W: int, *, lossless: bool) -> None:
     """Maps of every state (px values, and physical ones with a pixel size), their
     predicted standard deviations, the mean reference frame and the mask."""
     unc = result.uncertainty or {}
     for k, m in enumerate(result.measurements):
         arrays = _state_arrays(m, {n: a[k] for n, a in unc.items()})
         if k == 0:
-            _create_maps(h5, arrays, result.n_states, ps)
-        _put_state(h5, k, arrays, ps)
+            _create_maps(h5, arrays, result.n_states, ps, lossless=lossless)
+        _put_state(h5, k, arrays, ps, lossless=lossless)
     _describe_maps(h5, ps, unit, H, W, list(unc))
     _write_images(h5, result, ps)
 
@@ -223,30 +238,86 @@ def _write_images(h5, result, ps) -> None:
          "specimen mask used (given mask less regions without a grid)", **extra)
 
 
-def _create_maps(h5, arrays: dict, n: int, ps, dtype=None) -> None:
+def _create_maps(h5, arrays: dict, n: int, ps, dtype=None, *, lossless: bool = True) -> None:
     """Empty (n, H, W) variables for the maps of ``arrays`` (one state's), chunked by
-    state and compressed; NaN (False for ``valid``) until a state is written."""
-    for name, arr in arrays.items():
+    state; NaN (False for ``valid``) until a state is written. Lossless: in ``dtype``
+    (None: the maps' own), the floating-point maps checksummed and not compressed.
+    Otherwise in float32, rounded by :func:`_put_state` (:mod:`._precision`) and
+    compressed, with the rounding in each variable's attributes."""
+    names = list(arrays)
+    if ps is not None:
+        names += [f"{k}_phys" for k in ("ux", "uy") if k in arrays]
+    for name in names:
         if name in h5:
             continue
-        dt = np.dtype(bool) if arr.dtype == bool else np.dtype(dtype or arr.dtype)
-        fill = False if dt.kind == "b" else np.nan
-        # the measured maps' lower bytes are noise: deflating them took 0.2 s a map
-        # of 1040 x 1376 for 12 % of its size; the validity maps shrink 100-fold
-        filters = _FILTERS if dt.kind == "b" else _CHECKSUM
-        h5.create_dataset(name, shape=(n, *arr.shape), dtype=dt, chunks=(1, *arr.shape),
-                          fillvalue=fill, **filters)
-        if ps is not None and name in ("ux", "uy"):
-            h5.create_dataset(f"{name}_phys", shape=(n, *arr.shape), dtype=dt,
+        arr = arrays[name.removesuffix("_phys")]
+        shape = (n, *arr.shape)
+        if arr.dtype == bool:
+            # the validity maps shrink 100-fold
+            h5.create_dataset(name, shape=shape, dtype=bool, chunks=(1, *arr.shape),
+                              fillvalue=False, **_FILTERS)
+            continue
+        if lossless:
+            # the measured maps' lower bytes are noise: deflating them took 0.2 s a map
+            # of 1040 x 1376 for 12 % of its size
+            h5.create_dataset(name, shape=shape, dtype=np.dtype(dtype or arr.dtype),
                               chunks=(1, *arr.shape), fillvalue=np.nan, **_CHECKSUM)
+            continue
+        ds = h5.create_dataset(name, shape=shape, dtype=np.float32, chunks=(1, *arr.shape),
+                               fillvalue=np.nan, **_FILTERS)
+        ds.attrs.update(_rounding_attrs(name, arrays, n))
 
 
-def _put_state(h5, k: int, arrays: dict, ps) -> None:
+def _rounding_attrs(name: str, arrays: dict, n: int) -> dict:
+    """The attributes saying how the float32 map ``name`` is rounded."""
+    if name.endswith("_std"):
+        return {"rounding": "relative", "rounding_mantissa_bits": np.int64(STD_BITS),
+                "rounding_relative_error": np.float64(2.0 ** -(STD_BITS + 1))}
+    std = STD_OF.get(name)
+    if std is None or std not in arrays:
+        return {"rounding": "float32"}
+    return {"rounding": "std", "rounding_std_variable": std,
+            "rounding_std_fraction": np.float64(STD_FRACTION),
+            MAX_ERROR_ATTR: np.full(n, np.nan)}
+
+
+def _put_state(h5, k: int, arrays: dict, ps, *, lossless: bool = True) -> None:
     """Write state ``k``'s maps into the variables of :func:`_create_maps`."""
+    if not lossless:
+        arrays = _rounded(h5, k, arrays, ps)
     for name, arr in arrays.items():
         h5[name][k] = arr
-        if ps is not None and name in ("ux", "uy"):
+        if lossless and ps is not None and name in ("ux", "uy"):
             h5[f"{name}_phys"][k] = np.asarray(arr) * ps
+
+
+def _rounded(h5, k: int, arrays: dict, ps) -> dict:
+    """State ``k``'s maps as a rounded file stores them (``*_phys`` included), the
+    largest error over the std of each written into its variable's attributes."""
+    out = {}
+    stds = {}
+    for name, arr in arrays.items():
+        if name.endswith("_std"):
+            out[name] = round_relative(arr)
+            # the bound holds against the measured std and the stored one alike
+            stds[name] = np.fmin(np.asarray(arr, dtype=np.float64), out[name])
+    todo = [(n, a, 1.0) for n, a in arrays.items() if not n.endswith("_std")]
+    if ps is not None:
+        todo += [(f"{n}_phys", arrays[n], ps) for n in ("ux", "uy")]
+    for name, arr, scale in todo:
+        if arr.dtype == bool:
+            out[name] = arr
+            continue
+        values = np.asarray(arr, dtype=np.float64) * scale
+        attrs = h5[name].attrs
+        if attrs.get("rounding") != "std" or STD_OF[name] not in stds:
+            out[name] = values.astype(np.float32)  # no std: float32's own precision
+            continue
+        out[name], worst = round_to_std(values, stds[STD_OF[name]] * scale)
+        errors = np.array(attrs[MAX_ERROR_ATTR], dtype=np.float64)
+        errors[k] = worst
+        attrs[MAX_ERROR_ATTR] = errors
+    return out
 
 
 def _write_vibrations(h5, result, n_series: int) -> None:

@@ -209,7 +209,8 @@ def measure_series(reference, states, *, lattice: Lattice | None = None,
         Precision of the returned (and written) maps; None: that of the
         measurement (:mod:`gridstrain.conventions`). Everything is computed as
         without it; see :class:`gridstrain.results.ResultFile` for what float32
-        keeps.
+        keeps. With ``output``, a dtype writes a lossless file in that precision
+        (by default the file's maps are rounded to a tenth of their std).
 
     each_frame : bool
         Every frame of the states' inputs (a folder, a glob, a list of files, a
@@ -395,7 +396,9 @@ def _setup(*, method, outliers, margin, sigma, order, sigma_pitches, max_saturat
         if dtype is not None and output.dtype is not None and output.dtype != dtype:
             raise ValueError(f"dtype={dtype} and output's dtype={output.dtype} disagree")
         dtype = output.dtype if dtype is None else dtype
-        output = dataclasses.replace(output, dtype=dtype)
+        # a precision asked for is kept as it is: a lossless file
+        output = dataclasses.replace(output, dtype=dtype,
+                                     lossless=output.lossless or dtype is not None)
     return MeasureOptions(method=method, outliers=outliers, margin=margin, sigma=sigma, order=order,
                   sigma_pitches=sigma_pitches, max_saturation=max_saturation,
                   lattice=lattice, detected=lattice is None,

@@ -1,0 +1,106 @@
+"""The precision a result file keeps of its maps: each measured map rounded to a tenth of
+its own predicted standard deviation, each std map to a relative precision, both stored
+in float32 with the dropped mantissa bits zero so that the compressor gains.
+
+A map ``v`` with a std map ``s`` is rounded, pixel by pixel, to the nearest multiple of
+the power of two ``q = 2**floor(log2(2 f s))`` (``f`` = :data:`STD_FRACTION`): the
+error is at most ``q / 2 <= f s``. Since ``q`` is a power of two, the rounded value is
+``v`` with its mantissa bits below ``q`` set to zero (bit rounding, as netCDF-4's
+BitRound and Granular BitRound do, with the number of bits kept chosen per value from
+its own std rather than per variable), computed exactly in float64 and exactly
+representable in float32 while ``|v| / q < 2**24``. Where the std is not a positive
+number (a pixel with no prediction), the value keeps float32's own precision (relative
+``2**-24``). The largest error over the std actually made is measured on every state
+and recorded in the file (:data:`MAX_ERROR_ATTR`), so that a value float32 could not
+hold to the bound (``|v|`` above ``2**23 q``) is never hidden.
+
+A std map keeps :data:`STD_BITS` mantissa bits: relative error at most ``2**-(STD_BITS
++ 1)``. A std map is a prediction whose own uncertainty is far larger (the sensor
+model's K and L are fitted to a few percent).
+
+References
+----------
+Klöwer, M., Razinger, M., Dominguez, J. J., Düben, P. D. and Palmer, T. N. (2021).
+Compressing atmospheric data into its real information content. *Nature
+Computational Science* 1, 713-724. https://doi.org/10.1038/s43588-021-00156-2
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+#: The largest rounding error of a measured map, over its std at the same pixel.
+STD_FRACTION = 0.1
+#: Mantissa bits a std map keeps (of float32's 23): relative error <= 2**-6 = 1.6 %.
+STD_BITS = 5
+#: The attribute recording, per state, the largest |stored - measured| / std.
+MAX_ERROR_ATTR = "rounding_max_error_over_std"
+#: The std map each measured map is rounded from. The rotation
+#: ``omega = (duy/dx - dux/dy) / 2`` has the std of ``exy = (dux/dy + duy/dx) / 2``
+#: under the noise model of :func:`gridstrain.uncertainty.uncertainty_maps`, in which
+#: the two derivatives are independent (``Std = sqrt(Var G01 + Var G10) / 2`` for both).
+STD_OF = {"ux": "ux_std", "uy": "uy_std", "exx": "exx_std", "eyy": "eyy_std",
+          "exy": "exy_std", "rotation": "exy_std", "ux_phys": "ux_std",
+          "uy_phys": "uy_std"}
+
+_F32_MAX = float(np.finfo(np.float32).max)
+
+
+def round_to_std(values, std, *, fraction: float = STD_FRACTION) -> tuple[np.ndarray, float]:
+    """``values`` rounded to ``fraction`` of ``std`` at each pixel, in float32.
+
+    Parameters
+    ----------
+    values, std : (H, W) array_like
+        A map and its predicted standard deviation, in the same unit. NaN values
+        stay NaN.
+    fraction : float
+        The largest error, over the std.
+
+    Returns
+    -------
+    rounded : (H, W) float32 ndarray
+    max_error : float
+        The largest ``|rounded - values| / std`` over the pixels where both are
+        finite and the std positive (NaN where there is none); at most ``fraction``
+        unless float32 cannot hold a value to it.
+    """
+    v = np.asarray(values, dtype=np.float64)
+    s = np.asarray(std, dtype=np.float64)
+    if np.any(np.abs(v[np.isfinite(v)]) > _F32_MAX):
+        raise ValueError(f"values must fit float32 (|v| <= {_F32_MAX:.3g}) to be stored "
+                         "rounded; store the result losslessly")
+    use = np.isfinite(s) & (s > 0) & np.isfinite(v)
+    out = v.copy()
+    with np.errstate(divide="ignore", invalid="ignore"):
+        q = np.exp2(np.floor(np.log2(2.0 * fraction * s[use])))
+        # q a power of two: v / q, its rounding and the product are exact in float64
+        out[use] = np.round(v[use] / q) * q
+    rounded = out.astype(np.float32)
+    if not use.any():
+        return rounded, float("nan")
+    err = np.abs(rounded[use].astype(np.float64) - v[use]) / s[use]
+    return rounded, float(err.max())
+
+
+def round_relative(values, *, bits: int = STD_BITS) -> np.ndarray:
+    """``values`` with ``bits`` mantissa bits kept (round to nearest), in float32:
+    relative error at most ``2**-(bits + 1)``; NaN, infinities and zeros unchanged.
+
+    Parameters
+    ----------
+    values : (H, W) array_like
+    bits : int
+        Explicit mantissa bits kept, 0 to 23.
+
+    Returns
+    -------
+    (H, W) float32 ndarray
+    """
+    v = np.asarray(values, dtype=np.float64)
+    out = v.copy()
+    use = np.isfinite(v) & (v != 0)
+    _, e = np.frexp(v[use])  # |v| = m 2**e, m in [0.5, 1): its leading bit is 2**(e - 1)
+    q = np.exp2((e - 1 - bits).astype(np.float64))
+    out[use] = np.round(v[use] / q) * q
+    return out.astype(np.float32)

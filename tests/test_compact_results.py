@@ -1,0 +1,222 @@
+"""The precision a result file keeps of its maps (``gridstrain.results``): by default
+float32 rounded to a tenth of each map's own predicted std at each pixel, compressed;
+``lossless=True`` the maps as measured, bit for bit.
+
+The oracle is the same measurement held in memory in float64 (``measure_series``
+without ``output``): every stored value is compared with it at every pixel. The record is
+drawn by the numpy-only generator of ``tests/sequence_record.py`` (a 12-bit
+Poisson-Gaussian camera, one frame per state, the coupon strained and drifting), 160 x 192
+px: the smallest size whose single frames give their own noise estimate, and hence std
+maps (``estimate_noise_image`` needs 160 px a side).
+"""
+
+from __future__ import annotations
+
+import h5py
+import numpy as np
+import pytest
+import tifffile
+from numpy.testing import assert_array_equal
+
+from gridstrain import Lattice
+from gridstrain.cli import main
+from gridstrain.results import ResultFile, load, save_result
+from gridstrain.series import measure_series
+from sequence_record import record
+
+LAT = Lattice.from_pitch(5.0)
+SHAPE = (160, 192)
+MAPS = ("ux", "uy", "exx", "eyy", "exy", "rotation")
+# the std each map is rounded from: the rotation (duy/dx - dux/dy)/2 has the std of
+# exy = (dux/dy + duy/dx)/2 when the two derivatives are independent, as the noise
+# model of gridstrain.uncertainty takes them
+STD = {"ux": "ux_std", "uy": "uy_std", "exx": "exx_std", "eyy": "eyy_std",
+       "exy": "exy_std", "rotation": "exy_std"}
+PS = 0.02  # mm a pixel, for the maps in physical units
+
+
+@pytest.fixture(scope="module")
+def frames():
+    return record(4, SHAPE, strain=2e-3)
+
+
+@pytest.fixture(scope="module")
+def held(frames):
+    return measure_series(frames[0][None], [f[None] for f in frames[1:]], lattice=LAT,
+                          guess=None)
+
+
+@pytest.fixture(scope="module")
+def files(held, frames, tmp_path_factory):
+    d = tmp_path_factory.mktemp("compact")
+    at_once = save_result(held, d / "at_once.h5", pixel_size=PS, unit="mm")
+    lossless = save_result(held, d / "lossless.h5", pixel_size=PS, unit="mm", lossless=True)
+    measure_series(frames[0][None], [f[None] for f in frames[1:]], lattice=LAT, guess=None,
+                   output=ResultFile(d / "streamed.h5", pixel_size=PS, unit="mm"))
+    return {"at_once": at_once, "lossless": lossless, "streamed": d / "streamed.h5"}
+
+
+def _maps(held) -> dict:
+    out = {name: getattr(held, name) for name in MAPS if name != "rotation"}
+    out["rotation"] = np.stack([m.rotation for m in held.measurements])
+    out["ux_phys"], out["uy_phys"] = held.ux * PS, held.uy * PS
+    return out
+
+
+def test_the_record_has_a_std_at_every_valid_pixel(held):
+    # the rounding is bounded by the std: without one the checks below would be empty
+    assert held.uncertainty is not None
+    for name, std in held.uncertainty.items():
+        s = std[held.valid]
+        assert np.all(np.isfinite(s)), name
+        assert np.all(s > 0), name
+    assert held.valid.mean() > 0.4  # the margin leaves about half of 160 x 192 px
+
+
+def test_every_stored_map_is_within_a_tenth_of_its_std(held, files):
+    v = held.valid
+    with h5py.File(files["at_once"], "r") as h5:
+        for name, want in _maps(held).items():
+            ds = h5[name]
+            assert ds.dtype == np.float32, name
+            assert ds.compression == "gzip", name
+            assert ds.shuffle, name
+            got = ds[()].astype(np.float64)
+            scale = PS if name.endswith("_phys") else 1.0
+            std = held.uncertainty[STD[name.removesuffix("_phys")]] * scale
+            stored_std = h5[STD[name.removesuffix("_phys")]][()].astype(np.float64) * scale
+            err = np.abs(got - want)[v] / std[v]
+            # the promise of the file: at most a tenth of the std, at every valid pixel,
+            # of the std measured and of the std the file states alike
+            assert err.max() <= 0.1, name
+            assert (np.abs(got - want)[v] / stored_std[v]).max() <= 0.1, name
+            # and it is a rounding, not a copy: most pixels moved by more than the
+            # 2^-24 relative of a float32 cast (at |u| < 1 px, 6e-8 px; std >= 3e-3 px)
+            assert np.mean(err > 1e-3) > 0.5, name
+            # the largest error the file records is the one made, state by state, over
+            # the smaller of the two stds (over every pixel with a std, valid or not:
+            # both are NaN elsewhere)
+            recorded = ds.attrs["rounding_max_error_over_std"]
+            low = np.fmin(std, stored_std)
+            use = np.isfinite(low) & np.isfinite(want)
+            made = [float((np.abs(got[k] - want[k])[use[k]] / low[k][use[k]]).max())
+                    for k in range(held.n_states)]
+            np.testing.assert_allclose(recorded, made, rtol=1e-12)
+            assert ds.attrs["rounding_std_variable"] == STD[name.removesuffix("_phys")]
+            assert ds.attrs["rounding_std_fraction"] == 0.1
+        for name, want in held.uncertainty.items():
+            got = h5[name][()].astype(np.float64)
+            # 5 mantissa bits kept: relative error at most 2^-6 (a std's own precision
+            # is far coarser: the sensor model is fitted to a few percent)
+            rel = np.abs(got - want)[v] / want[v]
+            assert rel.max() <= 2.0**-6, name
+            assert rel.max() > 2.0**-9, name  # rounded, not copied
+        assert not h5.attrs["maps_lossless"]
+    # gridstrain.load reads the same numbers, within the same bound
+    back = load(files["at_once"])
+    for name in ("ux", "uy", "exx", "eyy", "exy"):
+        std = held.uncertainty[STD[name]]
+        assert (np.abs(getattr(back, name) - getattr(held, name))[v] <= 0.1 * std[v]).all()
+
+
+def test_nan_and_invalid_pixels_survive(held, files):
+    with h5py.File(files["at_once"], "r") as h5:
+        for name, want in {**_maps(held), **held.uncertainty}.items():
+            assert_array_equal(np.isnan(h5[name][()]), np.isnan(want), err_msg=name)
+        assert_array_equal(h5["valid"][()], held.valid)
+        assert_array_equal(h5["mask"][()], held.mask)
+        assert_array_equal(h5["reference_image"][()], held.reference_image)
+    assert np.isnan(held.ux[~held.valid]).all()  # the invalid pixels are NaN to survive
+
+
+def test_the_lossless_file_round_trips_bit_for_bit(held, files):
+    back = load(files["lossless"])
+    for name in ("u", "strain", "valid"):
+        a, b = getattr(back, name), getattr(held, name)
+        assert a.dtype == b.dtype
+        assert_array_equal(a, b)
+    for k, v in held.uncertainty.items():
+        assert_array_equal(back.uncertainty[k], v)
+    for a, b in zip(back.measurements, held.measurements, strict=True):
+        assert_array_equal(a.rotation, b.rotation)
+    with h5py.File(files["lossless"], "r") as h5:
+        assert h5.attrs["maps_lossless"]
+        assert h5["ux"].dtype == np.float64
+        assert h5["ux"].compression is None
+        assert_array_equal(h5["ux_phys"][()], held.ux * PS)
+
+
+def test_written_state_by_state_or_at_once_the_file_holds_the_same(files):
+    with h5py.File(files["at_once"], "r") as a, h5py.File(files["streamed"], "r") as b:
+        def maps(h5):
+            return sorted(k for k in h5 if isinstance(h5[k], h5py.Dataset)
+                          and h5[k].shape[1:] == SHAPE)
+
+        names = maps(a)
+        assert maps(b) == names
+        assert len(names) == 14  # 6 maps, 5 std maps, 2 in mm, valid
+        for name in names:
+            x, y = a[name][()], b[name][()]
+            assert x.dtype == y.dtype, name
+            assert x.tobytes() == y.tobytes(), name  # NaN included, bit for bit
+            assert dict(a[name].attrs).keys() == dict(b[name].attrs).keys()
+            if "rounding_max_error_over_std" in a[name].attrs:
+                assert_array_equal(a[name].attrs["rounding_max_error_over_std"],
+                                   b[name].attrs["rounding_max_error_over_std"])
+
+
+def test_a_file_of_the_previous_layout_still_loads(held, tmp_path):
+    """A file as gridstrain wrote it before the maps were rounded: float64 maps,
+    uncompressed, with no attribute naming their precision."""
+    path = save_result(held, tmp_path / "old.h5", lossless=True)
+    with h5py.File(path, "a") as h5:
+        for key in ("maps_lossless", "maps_precision"):
+            del h5.attrs[key]
+        for name in (*MAPS, "valid", *held.uncertainty):
+            assert not any(k.startswith("rounding") for k in h5[name].attrs)
+        assert h5["exx"].dtype == np.float64
+        assert h5["exx"].compression is None
+    for in_memory in (True, False):
+        back = load(path, in_memory=in_memory)
+        assert_array_equal(np.asarray(back.u), held.u)
+        assert_array_equal(np.asarray(back.strain), held.strain)
+        assert_array_equal(np.asarray(back.valid), held.valid)
+
+
+def test_xarray_opens_the_rounded_file_lazily_by_state(held, files):
+    xr = pytest.importorskip("xarray")
+    pytest.importorskip("h5netcdf")
+    pytest.importorskip("dask")
+    H, W = SHAPE
+    n = held.n_states
+    with xr.open_dataset(files["at_once"], engine="h5netcdf", chunks={}) as ds:
+        ux = ds["ux"]
+        assert ux.chunks == ((1,) * n, (H,), (W,))  # one chunk a state, as in the file
+        assert ux.encoding["chunksizes"] == (1, H, W)
+        assert ux.attrs["rounding_std_fraction"] == 0.1
+        with h5py.File(files["at_once"], "r") as h5:
+            assert_array_equal(ux[1].values, h5["ux"][1])
+            assert_array_equal(ds["valid"].values, held.valid)
+    with xr.open_dataset(files["at_once"]) as ds:  # the default engine opens it too
+        assert ds["exx"].dims == ("state", "y", "x")
+
+
+def test_a_dtype_is_for_a_lossless_file(tmp_path):
+    with pytest.raises(ValueError, match=r"dtype=.*float32.* lossless=True"):
+        ResultFile(tmp_path / "r.h5", dtype="float32")
+    assert ResultFile(tmp_path / "r.h5", dtype="float32", lossless=True).lossless
+
+
+def test_measure_stores_rounded_maps_unless_lossless(frames, tmp_path, capsys):
+    for k, f in enumerate(frames[:2]):
+        tifffile.imwrite(tmp_path / f"f{k}.tif", f, photometric="minisblack")
+    for flags, lossless, dtype in (((), False, np.float32),
+                                   (("--lossless",), True, np.float64),
+                                   (("--dtype", "float32"), True, np.float32)):
+        out = tmp_path / f"r{len(flags)}{lossless}.h5"
+        rc = main(["measure", str(tmp_path / "f0.tif"), str(tmp_path / "f1.tif"), "-o", str(out),
+                   "--pitch", "5", "--quiet", *flags])
+        assert rc == 0, capsys.readouterr().err
+        with h5py.File(out, "r") as h5:
+            assert bool(h5.attrs["maps_lossless"]) is lossless, flags
+            assert h5["exx"].dtype == dtype, flags
