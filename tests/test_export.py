@@ -44,8 +44,9 @@ def stored(tmp_path_factory):
     res = measure_series(_frames(0.0, rng), [_frames(1e-3, rng), _frames(2e-3, rng)],
                          lattice=LAT)
     res = dataclasses.replace(res, names=NAMES, load=LOADS, load_unit="kN", time=TIMES)
+    # lossless: the exports are compared with the stored values to the last bit
     path = save_result(res, tmp_path_factory.mktemp("export") / "r.h5", pixel_size=0.02,
-                       unit="mm")
+                       unit="mm", lossless=True)
     return load(path), path
 
 

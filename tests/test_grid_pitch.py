@@ -71,7 +71,7 @@ def test_reference_lattice_is_the_detected_pitch(series):
 def test_measure_grid_pitch_sets_the_pixel_size(series, tmp_path, capsys):
     out = tmp_path / "maps.h5"
     rc = _run(["measure", series / "ref.tif", series / "load.tif", "-o", out,
-               "--grid-pitch", GRID_MM, "--unit", "mm", "--quiet"])
+               "--grid-pitch", GRID_MM, "--unit", "mm", "--quiet", "--lossless"])
     assert rc == 0, capsys.readouterr().err
     with h5py.File(out, "r") as h5:
         ps = float(h5.attrs["pixel_size"])

@@ -362,7 +362,8 @@ def beam_file(tmp_path_factory):
         res, strain=strain, valid=valid, measurements=ms,
         uncertainty={**res.uncertainty, "exx_std": std, "eyy_std": std, "exy_std": std})
     d = tmp_path_factory.mktemp("beam")
-    path = res.save(d / "beam.h5", pixel_size=PIXEL, unit="mm")
+    # lossless: the command must read back the very maps identified here
+    path = res.save(d / "beam.h5", pixel_size=PIXEL, unit="mm", lossless=True)
     loads = d / "loads.csv"
     loads.write_text("state,load [N]\n" + "".join(
         f"{name},{float(f)!r}\n" for name, f in zip(res.names[1:], LOADS, strict=True)))

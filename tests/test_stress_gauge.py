@@ -320,7 +320,8 @@ def record(tmp_path_factory):
         frames[k] = camera(level, 0.5, 5.0, rng)
     res = measure_series(None, frames, reference_frames=2, frame_rate=RATE)
     d = tmp_path_factory.mktemp("impact")
-    return {"good": res.save(d / "impact.h5", pixel_size=ps, unit="mm"),
+    # lossless: the command must read back the very maps measured here
+    return {"good": res.save(d / "impact.h5", pixel_size=ps, unit="mm", lossless=True),
             "nopix": res.save(d / "nopix.h5"),
             "notime": dataclasses.replace(res, time=None).save(d / "notime.h5",
                                                                pixel_size=ps, unit="mm"),

@@ -36,7 +36,8 @@ def export_netcdf(result: SeriesResult, path, *, pixel_size: float | None = None
     dest = as_path(path, "path")
     with hdf5_file(dest, overwrite=overwrite) as h5:
         _write_dimensions(h5, result, H, W)
-        _write_maps(h5, result, ps, unit, H, W)
+        # the values as the result holds them: an export rounds nothing again
+        _write_maps(h5, result, ps, unit, H, W, lossless=True)
         extra = {"coordinates": "x_phys y_phys"} if ps is not None else {}
         for name, arr in result.derived_maps().items():
             base = name.removesuffix("_std")
@@ -44,5 +45,5 @@ def export_netcdf(result: SeriesResult, path, *, pixel_size: float | None = None
                 f"first-order standard deviation of {base} (1 sigma; exx, eyy, exy " \
                 "noises uncorrelated)"
             _var(h5, name, arr, ("state", "y", "x"), DERIVED_FIELDS[base], text, **extra)
-        _write_tables(h5, result, ps, unit, {}, len(result.names))
+        _write_tables(h5, result, ps, unit, {}, len(result.names), lossless=True)
     return dest
