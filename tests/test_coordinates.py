@@ -234,6 +234,23 @@ def test_map_axes_in_the_unit(result_file):
     assert_allclose(fig.axes[0].get_xlim(), (-0.5, W - 0.5))
 
 
+@pytest.mark.parametrize(("region", "what"), [(OUTSIDE_MM, "lies outside"),
+                                              (INVALID_MM, "holds no valid pixel")])
+def test_identify_region_by_the_same_rule(result_file, capsys, region, what):
+    from gridstrain.identify import identify
+
+    path, res = result_file
+    with pytest.raises(ValueError, match=EXTENT_MM):
+        identify(res, thickness=2.0, loaded_edge="right", load_direction="x",
+                 pixel_size=PS, unit="mm", region=region)
+    code, _, err = _run(["identify", path, "--thickness", 2, "--loaded-edge", "right",
+                         "--load-direction", "x", "--region", *region], capsys)
+    assert code != 0
+    assert len(err.strip().splitlines()) == 1, err
+    assert what in err
+    assert EXTENT_MM in err
+
+
 # ----------------------------------------------------------------------------- CLI
 
 

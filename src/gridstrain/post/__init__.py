@@ -7,6 +7,8 @@ Coordinates follow :mod:`gridstrain.conventions` (x the column, y the row, from
 
 - ``_gauges``, ``_history``, ``_constants``, ``_animate``, ``_loads``: gauges and
   extensometers, histories, E and ν, animations, a test rig's loads;
+- ``_places``: the one rule a region, point or polygon is named by (the file's unit
+  with a pixel size, else px), checked against the measured field;
 - ``_plotting``: the figures (maps on common colour limits, histories, rigid shifts,
   the stress–strain plot);
 - ``_report``: the self-contained HTML report of a result.
