@@ -178,7 +178,7 @@ def test_extensometer_mm_and_px(result_file):
     # displacement noise of two points 150 px apart gives ~1e-5 (5 std)
     assert_allclose(mm.extensometer, STRAINS, rtol=0,
                     atol=5 * float(np.max(mm.extensometer_std)))
-    with pytest.raises(ValueError, match=r"extensometer .* lies outside the measured field"):
+    with pytest.raises(ValueError, match=r"extensometer .* lies outside: the measured field spans"):
         gauge(res, extensometer=(2.0, 4.0, 11.0, 4.0), pixel_size=PS, unit="mm")
 
 

@@ -84,8 +84,8 @@ def check_inside(frame: Frame, points, name: str) -> None:
     """Refuse ``points`` (``(x, y)`` pairs in the frame's unit) outside the field."""
     for x, y in np.reshape(points, (-1, 2)):
         if not frame.inside(x, y):
-            raise ValueError(f"{name} ({x:g}, {y:g}) {frame.unit} lies outside the "
-                             f"measured field: {frame.extent}")
+            raise ValueError(f"{name} ({x:g}, {y:g}) {frame.unit} lies outside: "
+                             f"{frame.extent}")
 
 
 def points_px(frame: Frame, values, name: str, n: int) -> np.ndarray:
