@@ -30,7 +30,7 @@ H, W = 192, 256
 PITCH = 5.0  # px: a 0.2 mm grid at PS
 PS = 0.04  # mm per px, not a power of two: px = mm / PS is not exact in binary
 #: The axial strain of each loaded state and the specimen's law.
-STRAINS = (0.5e-3, 1.0e-3, 1.5e-3, 2.0e-3)
+STRAINS = tuple(0.3e-3 * k for k in range(1, 8))  # seven: --window 7 of the docs
 NU, E_MPA, AREA = 0.3, 70_000.0, 20.0  # MPa, mm2
 DT = 0.5  # s between states
 NOISE = 5.0  # grey levels, std
@@ -54,7 +54,7 @@ def grid_image(exx: float, eyy: float, rng) -> np.ndarray:
 
 @pytest.fixture(scope="module")
 def result_file(tmp_path_factory):
-    """A tensile test of four states, its loads and times from a one-row-per-state file,
+    """A tensile test of seven states, its loads and times from a one-row-per-state file,
     saved with a pixel size of ``PS`` mm: ``(path, loaded result)``."""
     d = tmp_path_factory.mktemp("coordinates")
     rng = np.random.default_rng(41)
@@ -139,7 +139,7 @@ def test_gauge_point_mm_and_px(result_file):
     ({"region": OUTSIDE_MM}, "region corner (12, 4) mm lies outside"),
     ({"point": (3.0, 7.7)}, "point (3, 7.7) mm lies outside"),
     ({"polygon": [(1, 1), (11, 1), (1, 5)]}, "polygon vertex (11, 1) mm lies outside"),
-    ({"region": INVALID_MM}, "holds no valid pixel in any of the 4 state(s)"),
+    ({"region": INVALID_MM}, f"holds no valid pixel in any of the {len(STRAINS)} state(s)"),
 ])
 def test_gauge_refuses_a_place_outside_or_without_valid_pixel(result_file, place, what):
     _, res = result_file
@@ -189,8 +189,9 @@ def test_history_of_an_mm_gauge_is_the_px_one(result_file):
     px = history(gauge(res, region=_mm_to_px(REGION_MM)), window=3, pixel_size=PS,
                  unit="mm")
     assert_array_equal(mm.exx_rate, px.exx_rate)
-    # the strain rate of a ramp of 0.5e-3 every 0.5 s: 1e-3 /s, within the noise
-    assert_allclose(mm.exx_rate, 1e-3, rtol=0, atol=5 * float(np.max(mm.exx_rate_std)))
+    # the strain rate of a ramp of 0.3e-3 every 0.5 s: 0.6e-3 /s, within the noise
+    assert_allclose(mm.exx_rate, (STRAINS[1] - STRAINS[0]) / DT, rtol=0,
+                    atol=5 * float(np.max(mm.exx_rate_std)))
 
 
 def _curves(fig):
@@ -211,7 +212,7 @@ def test_plot_history_mm_and_px(result_file):
     rot_mm = plot_history(res, point=(5.0, 4.0), names=("rotation",), pixel_size=PS,
                           unit="mm")
     assert_allclose(_curves(rot_mm)[0], np.asarray(
-        [res.measurements[i].rotation[100, 125] for i in range(4)]) * 1e3, atol=1e-9)
+        [res.measurements[i].rotation[100, 125] for i in range(len(STRAINS))]) * 1e3, atol=1e-9)
     # never an empty figure: a place outside, or without valid pixel, is refused
     for place in ({"region": OUTSIDE_MM}, {"region": INVALID_MM}):
         with pytest.raises(ValueError, match=EXTENT_MM):
@@ -347,10 +348,10 @@ def test_cli_plot_region_in_mm_and_axes(result_file, tmp_path, capsys, monkeypat
 
 def test_cli_plot_reads_a_machine_log_as_gauge_does(result_file, tmp_path, capsys):
     """``plot --loads`` joins a log sampled faster than the camera to the states' times
-    (it was read as one row per state: "9 rows for 4 states")."""
+    (it was read as one row per state: "17 rows for 7 states")."""
     path, _ = result_file
     log = tmp_path / "machine.csv"
-    t = np.arange(9) * 0.25  # 0 to 2 s, four times the camera's rate
+    t = np.arange(17) * 0.25  # 0 to 4 s, twice the camera's rate
     with open(log, "w", newline="") as fh:
         w = csv.writer(fh, delimiter=";")
         w.writerow(["Zeit [s]", "Kraft [kN]"])
@@ -363,9 +364,10 @@ def test_cli_plot_reads_a_machine_log_as_gauge_does(result_file, tmp_path, capsy
     # the same options as gauge: an offset that puts a state past the log's end is
     # refused, naming it
     code, _, err = _run(["plot", path, "-o", tmp_path / "figs2", "--maps", "exx",
-                           "--loads", log, "--loads-offset", "0.5"], capsys)
+                           "--loads", log, "--loads-offset", "1.0"], capsys)
     assert code != 0
     assert len(err.strip().splitlines()) == 1, err
+    assert "outside the log's time" in err
 
 
 # ----------------------------------------------------------------------------- README
@@ -394,6 +396,28 @@ def test_readme_modulus_example_runs(result_file, tmp_path, capsys, monkeypatch)
     assert e is not None, out
     # the generator's 70 GPa, to the noise (the interval is ~0.2 %): 1 %
     assert abs(float(e.group(1)) - E_MPA / 1e3) < 0.01 * E_MPA / 1e3
+
+
+def test_gauges_page_commands_run(result_file, tmp_path, capsys, monkeypatch):
+    """The gauge, modulus and history commands at the top of the gauges page, as
+    written (a region and an extensometer in mm), on the generated result."""
+    path, _ = result_file
+    page = Path(__file__).parents[1] / "docs" / "user_guide" / "gauges.rst"
+    lines = [ln.split()[1:] for ln in page.read_text(encoding="utf-8").splitlines()
+             if re.match(r"\s+gridstrain (gauge|modulus|history) ", ln)]
+    assert [a[0] for a in lines] == ["gauge", "modulus", "history"]
+    monkeypatch.chdir(tmp_path)
+    Path("maps.h5").write_bytes(Path(path).read_bytes())
+    Path("loads.csv").write_bytes((Path(path).parent / "loads.csv").read_bytes())
+    for argv in lines:
+        code, _, err = _run(argv, capsys)
+        assert code == 0, (argv, err)
+    rows = _csv_rows("gauge.csv")
+    # the extensometer between x = 1 and 9 mm reads the imposed strain; its std from
+    # the displacement noise at two points 200 px apart is ~1e-5 (5 std)
+    ext = np.array([float(r["extensometer [-]"]) for r in rows])
+    std = np.array([float(r["extensometer_std [-]"]) for r in rows])
+    assert_allclose(ext, STRAINS, rtol=0, atol=5 * float(std.max()))
 
 
 # ----------------------------------------------------------------------------- saving
