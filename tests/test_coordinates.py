@@ -208,6 +208,14 @@ def test_plot_history_mm_and_px(result_file):
     # exx in µε, the oracle's mean of the same pixels
     assert_allclose(_curves(mm)[0], _region_oracle(res, REGION_MM) * 1e6, atol=1e-6)
     assert "mm" in mm.axes[0].get_title()
+    # displacements in the place's unit: the px curve times PS
+    ux_mm = plot_history(res, point=(5.0, 4.0), names=("ux", "ux_std"), pixel_size=PS,
+                         unit="mm")
+    ux_px = plot_history(res, point=(125, 100), names=("ux", "ux_std"))
+    for a, b in zip(_curves(ux_mm), _curves(ux_px), strict=True):
+        assert_allclose(a, b * PS, rtol=1e-12)
+    assert ux_mm.axes[0].get_ylabel() == "(mm)"
+    assert_allclose(_curves(ux_mm)[0], np.asarray(res.ux[:, 100, 125]) * PS, rtol=1e-12)
     # a quantity outside the gauge (the rotation) on the same pixels
     rot_mm = plot_history(res, point=(5.0, 4.0), names=("rotation",), pixel_size=PS,
                           unit="mm")

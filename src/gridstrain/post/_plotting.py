@@ -631,7 +631,7 @@ def plot_history(result, *, point=None, region=None, names=("exx", "eyy", "exy")
     load, load_unit, time : optional
         The states' loads and times (default: the result's own, if any).
     pixel_size, unit : float, str, optional
-        ``point`` and ``region`` in ``unit`` (the file's, as for
+        ``point``, ``region`` and the displacements in ``unit`` (the file's, as for
         :func:`gridstrain.post.gauge`); px without them.
 
     Returns
@@ -670,10 +670,14 @@ def plot_history(result, *, point=None, region=None, names=("exx", "eyy", "exy")
     unit_drawn = None
     from ._units import strain_scale
 
+    ps, unit = check_pixel_size(pixel_size, unit)
     for name in names:
-        unit_drawn = _drawn_unit(name, None, None, microstrain)
-        scale = strain_scale(microstrain)[0] if QUANTITIES[name][1] == "1" else \
-            math.degrees(1.0) if name == "principal_angle" else 1.0
+        # displacements in the unit the place is named in, as the maps draw them
+        unit_drawn = _drawn_unit(name, ps, unit, microstrain)
+        kind = QUANTITIES[name][1]
+        scale = strain_scale(microstrain)[0] if kind == "1" else \
+            math.degrees(1.0) if name == "principal_angle" else \
+            (ps or 1.0) if kind == "px" else 1.0
         if name in ("exx", "eyy", "exy", "ux", "uy", *_DERIVED):
             if reading is None:
                 reading = gauge(result, point=point, region=region,
@@ -685,7 +689,8 @@ def plot_history(result, *, point=None, region=None, names=("exx", "eyy", "exy")
             err = err if np.all(np.isfinite(err)) else None
         else:
             curve, err = _probe(lambda i, name=name: state_quantity(
-                result, name, i, microstrain=microstrain)[0], result, mask), None
+                result, name, i, pixel_size=ps, unit=unit, microstrain=microstrain)[0],
+                result, mask), None
             if not np.isfinite(curve).any():
                 refuse_empty(frame, where, lambda i: result.valid[i], result.n_states)
         ax.errorbar(xs, curve, yerr=err, marker="o", markersize=3, capsize=2,
