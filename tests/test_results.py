@@ -433,8 +433,9 @@ def test_report_escapes_everything_read_from_the_file(result, tmp_path, capsys):
 def test_plot_command(result, tmp_path, capsys):
     path = save_result(result, tmp_path / "r.h5", pixel_size=0.02, unit="mm")
     out = tmp_path / "figs"
+    # the point in the file's unit, as gauge's: the pixel (48, 48) at 0.02 mm
     assert main(["plot", str(path), "-o", str(out), "--limits", "robust", "--dpi", "60",
-                 "--point", "48", "48"]) == 0
+                 "--point", "0.96", "0.96"]) == 0
     names = sorted(p.name for p in out.glob("*.png"))
     assert names == sorted(["ux.png", "uy.png", "exx.png", "eyy.png", "exy.png",
                             "rotation.png", "history.png"])

@@ -35,18 +35,25 @@ def add_loads_options(p, *, default: str = "") -> None:
                    "started 0.2 s before the camera's trigger: 0.2; default 0)")
 
 
-def add_gauge_options(p) -> None:
-    g = p.add_argument_group("the gauge (coordinates in the file's physical unit when it "
-                             "has a pixel size, else px; --px forces px)")
+#: How every command names a place (gridstrain.post._places holds the rule).
+PLACES = ("Coordinates in the file's physical unit when it has a pixel size, else px; "
+          "--px forces px; a place outside the measured field or with no valid pixel is "
+          "refused, naming the field's extent.")
+
+
+def add_gauge_options(p, *, what: str = "the gauge", polygon: bool = True,
+                      px_help: str = "coordinates in px even when the file has a pixel "
+                      "size") -> None:
+    g = p.add_argument_group(what, PLACES)
     g.add_argument("--region", type=float, nargs=4, metavar=("X0", "Y0", "X1", "Y1"),
-                   help="mean over the rectangle x0 <= x < x1, y0 <= y < y1 (default: the "
-                   "whole valid region)")
+                   help="mean over the valid pixels whose centre lies in x0 <= x < x1, "
+                   "y0 <= y < y1 (default: the whole field)")
     g.add_argument("--point", type=float, nargs=2, metavar=("X", "Y"),
                    help="the pixel nearest to this point")
-    g.add_argument("--polygon", nargs="+", metavar="X,Y",
-                   help="mean over a polygon, its vertices as x,y (at least 3)")
-    g.add_argument("--px", action="store_true",
-                   help="coordinates in px even when the file has a pixel size")
+    if polygon:
+        g.add_argument("--polygon", nargs="+", metavar="X,Y",
+                       help="mean over a polygon, its vertices as x,y (at least 3)")
+    g.add_argument("--px", action="store_true", help=px_help)
 
 
 def polygon_option(values):

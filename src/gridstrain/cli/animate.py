@@ -33,7 +33,8 @@ def register(sub) -> None:
                    default="microstrain",
                    help="strains in microstrain (default), percent or dimensionless")
     p.add_argument("--px", action="store_true",
-                   help="displacements in px even when the file has a pixel size")
+                   help="displacements and the axes in px even when the file has a "
+                   "pixel size")
     p.add_argument("--overwrite", action="store_true", help=OVERWRITE_HELP)
     p.set_defaults(func=run)
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-from ._post import load_with_attrs, reads_result
+from ._post import add_gauge_options, add_loads_options, open_result, reads_result
 
 _FORMATS = ("png", "pdf", "svg")
 
@@ -14,11 +14,14 @@ def register(sub) -> None:
     p = sub.add_parser(
         "plot", help="figures of a result file: maps of every state, strain history",
         description="Draw the maps of a result file's states on common colour limits "
-        "(strains in microstrain, the valid region shown over the reference image, a "
-        "scale bar in physical units when the file has a pixel size; up to 12 states: "
+        "(strains in microstrain, the valid region shown over the reference image, the "
+        "axes and a scale bar in the file's physical unit when it has a pixel size; up "
+        "to 12 states: "
         "the first, evenly spaced ones and the last; no figure taller than 4000 px) and "
         "the strain history of every state at a point or averaged over a region, against "
-        "time or load when known, with error bars of one std.")
+        "time or load when known, with error bars of one std. --region and --point are "
+        "in the file's physical unit when it has a pixel size (px with --px), as in "
+        "gauge, modulus and history.")
     p.add_argument("result", metavar="RESULT.h5", help="a file written by gridstrain measure")
     p.add_argument("-o", "--output", metavar="DIR",
                    help="output directory (default: RESULT_figures next to the result)")
@@ -32,14 +35,10 @@ def register(sub) -> None:
     p.add_argument("--strain-units", choices=("microstrain", "%", "1"),
                    default="microstrain",
                    help="strains in microstrain (default), percent or dimensionless")
-    p.add_argument("--point", type=int, nargs=2, metavar=("X", "Y"),
-                   help="strain history of the states at this pixel")
-    p.add_argument("--region", type=int, nargs=4, metavar=("X0", "Y0", "X1", "Y1"),
-                   help="strain history averaged over this rectangle (default: the whole "
-                   "valid region)")
-    p.add_argument("--loads", metavar="FILE.csv",
-                   help="load (and time) of each state for the history: a CSV with the "
-                   "columns 'load [UNIT]', optionally 'state' and 'time [s]'")
+    add_loads_options(p, default=" (default: those stored in the result, if any)")
+    add_gauge_options(p, what="the strain history", polygon=False,
+                      px_help="coordinates, the maps' axes and displacements in px even "
+                      "when the file has a pixel size")
     p.add_argument("--dpi", type=int, default=150, help="resolution (default 150; 300 for "
                    "print)")
     p.add_argument("--format", choices=_FORMATS, default="png", help="file format")
@@ -61,25 +60,19 @@ def run(args) -> int:
                          f"{args.maps!r}")
     if args.point and args.region:
         raise ValueError("give --point or --region, not both")
-    src = Path(os.path.expanduser(args.result))
-    result, attrs = load_with_attrs(src)
-    ps, unit = attrs.get("pixel_size"), attrs.get("unit")
-    if ps is None or unit is None:
-        ps = unit = None
+    result, src, ps, unit, ld, lu, t = open_result(args)
     out = Path(os.path.expanduser(args.output)) if args.output else \
         src.with_name(src.stem + "_figures")
     micro = args.strain_units
     figures = {f"{n}.{args.format}": (lambda n=n: plot_states(
         result, n, limits=args.limits, microstrain=micro, pixel_size=ps, unit=unit))
         for n in names}
-    ld = lu = t = None
-    if args.loads:
-        from ..post import read_loads
-
-        ld, lu, t = read_loads(os.path.expanduser(args.loads), result.names)
-    figures[f"history.{args.format}"] = lambda: plot_history(
-        result, point=args.point, region=args.region, microstrain=micro, load=ld,
-        load_unit=lu, time=t)
+    # drawn first: a place outside the field, or with no valid pixel, is refused
+    # before the maps are drawn
+    history = plot_history(result, point=args.point, region=args.region,
+                           microstrain=micro, load=ld, load_unit=lu, time=t, pixel_size=ps,
+                           unit=unit)
+    figures[f"history.{args.format}"] = lambda: history
     # only figures gridstrain wrote there are replaced (the folder's marker lists them)
     directory = OutputDirectory(out, list(figures), overwrite=args.overwrite,
                                 what="output directory")

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 
 from .._validation import check_pixel_size, check_type
-from ..post import strain_noise_correlation
+from ..post import frame_of, place_mask, refuse_empty, strain_noise_correlation
 from ..results import SeriesResult
 from ._identify import VirtualFields, virtual_fields
 
@@ -33,17 +33,12 @@ def _loads(result, load, load_unit):
     return arr, (load_unit or "N")
 
 
-def _region_mask(shape, ps, region):
+def _region_mask(shape, ps, unit, region):
+    """The pixels of ``region`` (in ``unit``), by the rule every command names places
+    with (:func:`gridstrain.post.place_mask`)."""
     if region is None:
         return np.ones(shape, dtype=bool)
-    try:
-        x0, y0, x1, y1 = (float(v) for v in region)
-    except (TypeError, ValueError):
-        raise ValueError(f"region must be (x0, y0, x1, y1), got {region!r}") from None
-    if not (x0 < x1 and y0 < y1):
-        raise ValueError(f"region must have x0 < x1 and y0 < y1, got {region!r}")
-    y, x = np.indices(shape, dtype=np.float64) * ps
-    return (x >= x0) & (x < x1) & (y >= y0) & (y < y1)
+    return place_mask(frame_of(shape, pixel_size=ps, unit=unit), region=region)[0]
 
 
 def identify(result: SeriesResult, *, thickness: float, loaded_edge: str,
@@ -88,7 +83,9 @@ def identify(result: SeriesResult, *, thickness: float, loaded_edge: str,
     ValueError
         Also when the region used stops short of the specimen's free edges (the
         result's ``mask``): the maps stop ``margin`` window widths from the mask's
-        edges, so that the load carried in that strip is missed.
+        edges, so that the load carried in that strip is missed; and when ``region``
+        reaches outside the measured field or holds no valid pixel (the message names
+        the field's extent in ``unit``).
     """
     check_type(result, "result", SeriesResult)
     ps, unit = check_pixel_size(pixel_size, unit)
@@ -100,7 +97,7 @@ def identify(result: SeriesResult, *, thickness: float, loaded_edge: str,
         raise ValueError("the result has no strain uncertainty maps (exx_std, eyy_std, "
                          "exy_std): the virtual fields' weights and intervals need them")
     load, load_unit = _loads(result, load, load_unit)
-    keep = _region_mask(result.shape, ps, region)
+    keep = _region_mask(result.shape, ps, unit, region)
     n = result.n_states
     valid = np.zeros((n, *result.shape), dtype=bool)
     strain = np.empty((n, 3, *result.shape))
@@ -110,6 +107,10 @@ def identify(result: SeriesResult, *, thickness: float, loaded_edge: str,
         for c, name in enumerate(_STRAINS):
             strain[i, c] = result.get_map(name)[i]
             std[i, c] = unc[f"{name}_std"][i]
+    if region is not None and not valid.any():
+        frame = frame_of(result.shape, pixel_size=ps, unit=unit)
+        refuse_empty(frame, f"region {' '.join(f'{v:g}' for v in region)} {frame.unit}",
+                     lambda i: result.valid[i], n)
     return virtual_fields(strain, std, load, thickness=thickness, loaded_edge=loaded_edge,
                           load_direction=load_direction, pixel_size=ps, unit=unit,
                           load_unit=load_unit, valid=valid, specimen=result.mask,

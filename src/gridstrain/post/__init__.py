@@ -7,6 +7,8 @@ Coordinates follow :mod:`gridstrain.conventions` (x the column, y the row, from
 
 - ``_gauges``, ``_history``, ``_constants``, ``_animate``, ``_loads``: gauges and
   extensometers, histories, E and ν, animations, a test rig's loads;
+- ``_places``: the one rule a region, point or polygon is named by (the file's unit
+  with a pixel size, else px), checked against the measured field;
 - ``_plotting``: the figures (maps on common colour limits, histories, rigid shifts,
   the stress–strain plot);
 - ``_report``: the self-contained HTML report of a result.
@@ -25,6 +27,7 @@ from ._correlation import strain_noise_correlation
 from ._gauges import GaugeReading, gauge, reference_share
 from ._history import History, history
 from ._loads import read_loads
+from ._places import frame_of, place_mask, refuse_empty
 from ._units import STRAIN_UNITS, strain_scale
 
 # public name -> private module that defines it, imported on first use
@@ -37,7 +40,8 @@ _LAZY = {
 }
 
 __all__ = ["STRAIN_UNITS", "ElasticConstants", "GaugeReading", "History", "animate",
-           "elastic_constants", "gauge", "history", "modulus_unit", "read_loads",
+           "elastic_constants", "frame_of", "gauge", "history", "modulus_unit",
+           "place_mask", "read_loads", "refuse_empty",
            "reference_share", "strain_noise_correlation", "strain_scale", "stress_unit",
            *sorted(_LAZY)]
 

@@ -44,7 +44,7 @@ def animate(result: SeriesResult, name: str, path, *, fps: float = 5.0,
     limits : {"robust", "common"}
         The colour limits, over every state (:func:`gridstrain.post.map_norm`).
     pixel_size, unit : float, str, optional
-        Displacements in ``unit``.
+        Displacements and the axes in ``unit`` (px without).
     load, load_unit, time : optional
         Shown in each frame's title (default: the result's own).
     dpi : float
@@ -63,7 +63,7 @@ def animate(result: SeriesResult, name: str, path, *, fps: float = 5.0,
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
-    from ._plotting import QUANTITIES, colormap, state_quantity, states_norm
+    from ._plotting import QUANTITIES, colormap, map_extent, state_quantity, states_norm
 
     check_type(result, "result", SeriesResult)
     check_choice(name, "name", tuple(QUANTITIES))
@@ -103,11 +103,15 @@ def animate(result: SeriesResult, name: str, path, *, fps: float = 5.0,
     fig = Figure(figsize=(6.4, max(2.5, 5.0 * H / W + 0.9)), dpi=dpi)
     canvas = FigureCanvasAgg(fig)
     ax = fig.add_subplot()
+    # the axes in the unit places are named in (px without a pixel size)
+    s, axis_unit = (1.0, "px") if ps is None else (ps, unit)
+    extent = map_extent((H, W), s)
     ax.imshow(bg, cmap="gray", vmin=lo_g, vmax=hi_g if hi_g > lo_g else lo_g + 1,
-              interpolation="nearest")
-    im = ax.imshow(np.full((H, W), np.nan), cmap=cmap, norm=norm, interpolation="nearest")
-    ax.set_xlabel("x (px)")
-    ax.set_ylabel("y (px)")
+              interpolation="nearest", extent=extent)
+    im = ax.imshow(np.full((H, W), np.nan), cmap=cmap, norm=norm, interpolation="nearest",
+                   extent=extent)
+    ax.set_xlabel(f"x ({axis_unit})")
+    ax.set_ylabel(f"y ({axis_unit})")
     symbol = QUANTITIES[name][0]
     cbar = fig.colorbar(im, ax=ax, shrink=0.9)
     cbar.set_label(f"{symbol} ({drawn})")

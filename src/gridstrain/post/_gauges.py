@@ -7,11 +7,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .._validation import check_pixel_size, check_type, freeze_arrays
-from ..io import roi_mask
+from .._validation import check_type, freeze_arrays
 from ..kinematics import DERIVED_STRAINS, PrincipalStrains, principal_strains
 from ..results import SeriesResult, state_loads
 from . import _correlation
+from ._places import frame_of, place_mask, points_px, refuse_empty
 from ._units import strain_scale
 
 _STRAINS = ("exx", "eyy", "exy")
@@ -233,58 +233,6 @@ def reference_share(result) -> np.ndarray | None:
     return w[0] / (w[0] + w[1:])
 
 
-def _check_points(values, name: str, n: int | None) -> np.ndarray:
-    try:
-        arr = np.asarray(values, dtype=np.float64)
-    except (TypeError, ValueError):
-        arr = None
-    if arr is None or not np.all(np.isfinite(arr)) or arr.ndim != 1 or \
-            (n is not None and arr.size != n) or (n is None and (arr.size < 6 or
-                                                                 arr.size % 2)):
-        what = f"{n} finite numbers" if n else "at least 3 (x, y) vertices"
-        raise ValueError(f"{name} must be {what}, got {values!r}")
-    return arr
-
-
-def _region_mask(shape, ps, unit, region, point, polygon):
-    """The gauge's pixels and its description; coordinates in ``unit`` with ``ps``."""
-    given = [n for n, v in (("region", region), ("point", point), ("polygon", polygon))
-             if v is not None]
-    if len(given) > 1:
-        raise ValueError(f"give one of region, point or polygon, got {' and '.join(given)}")
-    H, W = shape
-    s = 1.0 if ps is None else ps
-    u = "px" if ps is None else unit
-    if point is not None:
-        x, y = _check_points(point, "point", 2)
-        c, r = round(x / s), round(y / s)
-        if not (0 <= c < W and 0 <= r < H):
-            raise ValueError(f"point ({x:g}, {y:g}) {u} must lie inside the image "
-                             f"(0 to {W * s:g} by 0 to {H * s:g} {u})")
-        m = np.zeros(shape, dtype=bool)
-        m[r, c] = True
-        return m, f"gauge at the pixel x = {c}, y = {r} px (point {x:g}, {y:g} {u})"
-    if polygon is not None:
-        v = _check_points(np.ravel(polygon), "polygon", None).reshape(-1, 2) / s
-        m = roi_mask(shape, polygon=v)
-        text = " ".join(f"{a * s:g},{b * s:g}" for a, b in v)
-        return m, f"gauge over the polygon {text} {u}"
-    if region is None:
-        region = (0.0, 0.0, W * s, H * s)
-    x0, y0, x1, y1 = _check_points(region, "region", 4)
-    # the pixels whose centre x * s lies in [x0, x1) (and likewise in y)
-    c0, c1 = max(0, math.ceil(x0 / s - 1e-9)), min(W, math.ceil(x1 / s - 1e-9))
-    r0, r1 = max(0, math.ceil(y0 / s - 1e-9)), min(H, math.ceil(y1 / s - 1e-9))
-    if not (c0 < c1 and r0 < r1):
-        raise ValueError(f"region {x0:g} {y0:g} {x1:g} {y1:g} ({u}) holds no pixel of the "
-                         f"{W} x {H} px image (x0 < x1 and y0 < y1 inside 0 to {W * s:g} "
-                         f"by 0 to {H * s:g} {u})")
-    m = np.zeros(shape, dtype=bool)
-    m[r0:r1, c0:c1] = True
-    return m, (f"gauge over x in [{x0:g}, {x1:g}), y in [{y0:g}, {y1:g}) {u} "
-               f"(columns {c0}-{c1 - 1}, rows {r0}-{r1 - 1})")
-
-
 def _bilinear(field, valid, x, y):
     """``field`` at the point (x, y) px, bilinear; NaN unless its 4 pixels are valid."""
     H, W = field.shape
@@ -341,8 +289,10 @@ def gauge(result: SeriesResult, *, region=None, point=None, polygon=None,
         Two points whose distance is followed: engineering strain ``(l - L) / L``
         from the displacements interpolated (bilinear) at the points.
     pixel_size, unit : float, str, optional
-        Coordinates above are in ``unit`` (pixel ``x`` at ``x * pixel_size``);
-        px without them.
+        Coordinates above are in ``unit`` (pixel ``x`` at ``x * pixel_size``): give
+        those of the result's file (:func:`gridstrain.results.read_attrs`) to name
+        places in its physical unit, as the command line does; px without them.
+        The rule is written once, in :mod:`gridstrain.post._places`.
     load, time : (n_states,) array_like, optional
         The load (in ``load_unit``) and the time (s) of each loaded state.
         Default: the result's own ``load``, ``load_unit`` and ``time``, if any.
@@ -350,6 +300,14 @@ def gauge(result: SeriesResult, *, region=None, point=None, polygon=None,
     Returns
     -------
     GaugeReading
+
+    Raises
+    ------
+    ValueError
+        A region, point, polygon vertex or extensometer end outside the measured
+        field (``0 <= x <= W * pixel_size``, likewise y), or a gauge with no valid
+        pixel in any state: the message names the field's extent, and that of its
+        valid pixels, in the unit the place was given in.
 
     Notes
     -----
@@ -362,8 +320,9 @@ def gauge(result: SeriesResult, *, region=None, point=None, polygon=None,
     variance is ``reference_share``).
     """
     check_type(result, "result", SeriesResult)
-    ps, unit = check_pixel_size(pixel_size, unit)
-    mask, where = _region_mask(result.shape, ps, unit, region, point, polygon)
+    frame = frame_of(result.shape, pixel_size=pixel_size, unit=unit)
+    mask, where = place_mask(frame, region=region, point=point, polygon=polygon)
+    where = f"gauge over {where}" if point is None else f"gauge at {where}"
     load, load_unit, time = state_loads(result, load=load, load_unit=load_unit, time=time)
     n = result.n_states
     unc = result.uncertainty
@@ -375,15 +334,14 @@ def gauge(result: SeriesResult, *, region=None, point=None, polygon=None,
     count = np.zeros(n, dtype=np.int64)
     ext = ext_std = ext_where = None
     if extensometer is not None:
-        pts = _check_points(extensometer, "extensometer", 4) / (1.0 if ps is None else ps)
+        pts = points_px(frame, extensometer, "extensometer", 4)
         p0, p1 = pts[:2], pts[2:]
         if np.hypot(*(p1 - p0)) < 1.0:
             raise ValueError(f"extensometer points must be at least 1 px apart, got "
                              f"{extensometer!r}")
         ext, ext_std = np.full(n, np.nan), np.full(n, np.nan)
-        u = "px" if ps is None else unit
         e = np.asarray(extensometer, dtype=float)
-        ext_where = (f"({e[0]:g}, {e[1]:g}) to ({e[2]:g}, {e[3]:g}) {u}, "
+        ext_where = (f"({e[0]:g}, {e[1]:g}) to ({e[2]:g}, {e[3]:g}) {frame.unit}, "
                      f"L = {np.hypot(*(p1 - p0)):.1f} px")
     for i in range(n):
         inside = mask & np.asarray(result.valid[i])
@@ -399,6 +357,8 @@ def gauge(result: SeriesResult, *, region=None, point=None, polygon=None,
                     std[name][i] = _correlation.std_of_mean(s, ok, kernels[name])
         if ext is not None:
             ext[i], ext_std[i] = _extensometer(result, i, p0, p1, unc)
+    if not count.any():
+        refuse_empty(frame, where, lambda i: result.valid[i], n)
     return GaugeReading(
         states=tuple(result.names[1:]), where=where, n_pixels=count,
         exx=out["exx"], exx_std=std["exx"], eyy=out["eyy"], eyy_std=std["eyy"],

@@ -198,7 +198,7 @@ def plot_map(values, *, valid=None, background=None, label: str = "", unit: str 
     H, W = v.shape
     s = 1.0 if pixel_size is None else float(pixel_size)
     axis_unit = "px" if pixel_size is None else length_unit
-    extent = (-0.5 * s, (W - 0.5) * s, (H - 0.5) * s, -0.5 * s)
+    extent = map_extent((H, W), s)
     aspect = H / W
     fig = _new_figure(6.4, max(3.0, 5.2 * aspect + 1.0))
     ax = fig.add_subplot()
@@ -216,6 +216,14 @@ def plot_map(values, *, valid=None, background=None, label: str = "", unit: str 
         ax.set_title(title, fontsize=10)
     _colour_bar(fig.colorbar(im, ax=ax, shrink=0.9), label, unit, offset)
     return fig
+
+
+def map_extent(shape, scale: float = 1.0) -> tuple[float, float, float, float]:
+    """``imshow``'s extent of an ``(H, W)`` map whose pixel ``(col, row)`` is centred on
+    ``(col * scale, row * scale)`` (:mod:`gridstrain.conventions`), y downwards: the
+    axes of every map figure are in the unit places are named in."""
+    H, W = shape
+    return (-0.5 * scale, (W - 0.5) * scale, (H - 0.5) * scale, -0.5 * scale)
 
 
 def _same_shape(arr: np.ndarray, shape: tuple[int, ...], name: str) -> np.ndarray:
@@ -517,7 +525,7 @@ def plot_states(result, name: str, *, limits: str = "common", microstrain=True,
     microstrain : bool or {"microstrain", "%", "1"}
         Strains in µε (True, the default), in percent, or dimensionless (False).
     pixel_size, unit : float, str, optional
-        Displacements in ``unit`` and a scale bar in it.
+        Displacements, the axes and a scale bar in ``unit`` (px without).
     columns : int
         Panels per row.
     states : sequence of int, optional
@@ -557,6 +565,9 @@ def plot_states(result, name: str, *, limits: str = "common", microstrain=True,
     bg = result.reference_image
     lo_g, hi_g = np.percentile(bg, _GREY_PERCENTILES)
     cmap = colormap(norm)
+    # the axes in the unit places are named in (px without a pixel size)
+    s, axis_unit = (1.0, "px") if ps is None else (ps, unit)
+    extent = map_extent((H, W), s)
     im = None
     for k, ax in enumerate(axes):
         if k >= n:
@@ -565,18 +576,18 @@ def plot_states(result, name: str, *, limits: str = "common", microstrain=True,
         i = int(shown[k])
         values, valid = values_of(i)
         ax.imshow(bg, cmap="gray", vmin=lo_g, vmax=hi_g if hi_g > lo_g else lo_g + 1,
-                  interpolation="nearest")
+                  interpolation="nearest", extent=extent)
         im = ax.imshow(np.ma.masked_array(values, mask=~valid), cmap=cmap, norm=norm,
-                       interpolation="nearest")
+                       interpolation="nearest", extent=extent)
         ax.set_title(f"{result.names[i + 1]}: {valid.mean():.0%} valid", fontsize=9)
-        ax.set_xlabel("x (px)", fontsize=8)
-        ax.set_ylabel("y (px)", fontsize=8)
+        ax.set_xlabel(f"x ({axis_unit})", fontsize=8)
+        ax.set_ylabel(f"y ({axis_unit})", fontsize=8)
         ax.tick_params(labelsize=7)
         if ps is not None:
             length = _nice_length(W * ps)
-            ax.add_artist(AnchoredSizeBar(ax.transData, length / ps, f"{length:g} {unit}",
+            ax.add_artist(AnchoredSizeBar(ax.transData, length, f"{length:g} {unit}",
                                           "lower right", pad=0.4, color="black",
-                                          frameon=True, size_vertical=max(1, H / 100)))
+                                          frameon=True, size_vertical=max(1, H / 100) * ps))
     symbol = QUANTITIES[name][0]
     cbar = fig.colorbar(im, ax=list(axes[:n]), shrink=0.85)
     cbar.set_label(f"{symbol} ({drawn})" if drawn != "1" else f"{symbol} (dimensionless)")
@@ -586,35 +597,31 @@ def plot_states(result, name: str, *, limits: str = "common", microstrain=True,
     return fig
 
 
-def _probe(values_of: Callable, result, point, region):
-    """Per-state value at a point, or mean over the valid pixels of a region, state
-    ``i``'s values from ``values_of(i)``."""
+def _probe(values_of: Callable, result, mask):
+    """Per-state mean of the valid pixels of ``mask``, state ``i``'s values from
+    ``values_of(i)``; NaN in a state where none is valid."""
     out = []
     for i in range(result.n_states):
-        vals, valid = values_of(i), np.asarray(result.valid[i])
-        if point is not None:
-            x, y = point
-            out.append(float(vals[y, x]) if valid[y, x] else math.nan)
-            continue
-        x0, y0, x1, y1 = region
-        ok = valid[y0:y1, x0:x1]
-        out.append(float(np.mean(vals[y0:y1, x0:x1][ok])) if ok.any() else math.nan)
+        ok = mask & np.asarray(result.valid[i])
+        vals = values_of(i)
+        out.append(float(np.mean(vals[ok])) if ok.any() else math.nan)
     return np.array(out)
 
 
 def plot_history(result, *, point=None, region=None, names=("exx", "eyy", "exy"),
                  microstrain=True, against: str = "auto", load=None,
-                 load_unit: str | None = None, time=None) -> Figure:
+                 load_unit: str | None = None, time=None, pixel_size: float | None = None,
+                 unit: str | None = None) -> Figure:
     """Strain (or any quantity) of all states at a point or averaged over a region.
 
     Parameters
     ----------
     result : SeriesResult
-    point : (x, y) ints, optional
-        A pixel (column, row).
-    region : (x0, y0, x1, y1) ints, optional
-        Columns ``x0 <= x < x1``, rows ``y0 <= y < y1``; the mean of the valid
-        pixels. Default (neither given): the whole image.
+    point : (x, y) floats, optional
+        The pixel nearest to the point.
+    region : (x0, y0, x1, y1) floats, optional
+        The pixels whose centre lies in ``x0 <= x < x1``, ``y0 <= y < y1``; the mean
+        of the valid pixels. Default (neither given): the whole field.
     names : sequence of str
         Quantities of :data:`QUANTITIES`, drawn on one axis.
     microstrain : bool or {"microstrain", "%", "1"}
@@ -623,6 +630,9 @@ def plot_history(result, *, point=None, region=None, names=("exx", "eyy", "exy")
         The horizontal axis: "auto" takes the time, else the load, else the state.
     load, load_unit, time : optional
         The states' loads and times (default: the result's own, if any).
+    pixel_size, unit : float, str, optional
+        ``point``, ``region`` and the displacements in ``unit`` (the file's, as for
+        :func:`gridstrain.post.gauge`); px without them.
 
     Returns
     -------
@@ -630,26 +640,24 @@ def plot_history(result, *, point=None, region=None, names=("exx", "eyy", "exy")
         One curve per quantity, with error bars of one standard deviation: the
         gauge's (:func:`gridstrain.post.gauge`) for strains and displacements.
         State names label the axis up to 15 states.
+
+    Raises
+    ------
+    ValueError
+        A point or region outside the measured field, or with no valid pixel in any
+        state (never an empty figure): the message names the field's extent in the
+        unit given.
     """
     from ..results import state_loads
     from . import gauge
+    from ._places import frame_of, place_mask, refuse_empty
 
     check_choice(against, "against", ("auto", "time", "load", "state"))
-    H, W = result.shape
     if point is not None and region is not None:
         raise ValueError("give point or region, not both")
-    if point is not None:
-        x, y = (int(v) for v in point)
-        if not (0 <= x < W and 0 <= y < H):
-            raise ValueError(f"point ({x}, {y}) must lie inside the {W} x {H} px image")
-        point, where = (x, y), f"at x = {x}, y = {y} px"
-    else:
-        region = (0, 0, W, H) if region is None else tuple(int(v) for v in region)
-        x0, y0, x1, y1 = region
-        if not (0 <= x0 < x1 <= W and 0 <= y0 < y1 <= H):
-            raise ValueError(f"region {x0} {y0} {x1} {y1} must satisfy 0 <= x0 < x1 <= {W} "
-                             f"and 0 <= y0 < y1 <= {H}")
-        where = f"mean over x in [{x0}, {x1}), y in [{y0}, {y1}) px (valid pixels)"
+    frame = frame_of(result.shape, pixel_size=pixel_size, unit=unit)
+    mask, where = place_mask(frame, region=region, point=point)
+    where = f"at {where}" if point is not None else f"mean over {where} (valid pixels)"
     load, load_unit, time = state_loads(result, load=load, load_unit=load_unit, time=time)
     if against == "auto":
         against = "time" if time is not None else "load" if load is not None else "state"
@@ -662,13 +670,18 @@ def plot_history(result, *, point=None, region=None, names=("exx", "eyy", "exy")
     unit_drawn = None
     from ._units import strain_scale
 
+    ps, unit = check_pixel_size(pixel_size, unit)
     for name in names:
-        unit_drawn = _drawn_unit(name, None, None, microstrain)
-        scale = strain_scale(microstrain)[0] if QUANTITIES[name][1] == "1" else \
-            math.degrees(1.0) if name == "principal_angle" else 1.0
+        # displacements in the unit the place is named in, as the maps draw them
+        unit_drawn = _drawn_unit(name, ps, unit, microstrain)
+        kind = QUANTITIES[name][1]
+        scale = strain_scale(microstrain)[0] if kind == "1" else \
+            math.degrees(1.0) if name == "principal_angle" else \
+            (ps or 1.0) if kind == "px" else 1.0
         if name in ("exx", "eyy", "exy", "ux", "uy", *_DERIVED):
             if reading is None:
-                reading = gauge(result, point=point, region=region)
+                reading = gauge(result, point=point, region=region,
+                                pixel_size=pixel_size, unit=unit)
             # the derived strains of the gauge's mean tensor, as a rosette reads them
             source = reading.principal_strains() if name in _DERIVED else reading
             curve = getattr(source, name) * scale
@@ -676,7 +689,10 @@ def plot_history(result, *, point=None, region=None, names=("exx", "eyy", "exy")
             err = err if np.all(np.isfinite(err)) else None
         else:
             curve, err = _probe(lambda i, name=name: state_quantity(
-                result, name, i, microstrain=microstrain)[0], result, point, region), None
+                result, name, i, pixel_size=ps, unit=unit, microstrain=microstrain)[0],
+                result, mask), None
+            if not np.isfinite(curve).any():
+                refuse_empty(frame, where, lambda i: result.valid[i], result.n_states)
         ax.errorbar(xs, curve, yerr=err, marker="o", markersize=3, capsize=2,
                     label=QUANTITIES[name][0])
     ax.axhline(0.0, color="0.6", linewidth=0.8)

@@ -122,10 +122,18 @@ def save_result(result: SeriesResult, path, *, pixel_size: float | None = None,
     -------
     pathlib.Path
 
+    Raises
+    ------
+    ValueError
+        ``result.u``, ``.strain`` or ``.valid`` not of one state per measurement and
+        the maps' shape.
+
     Notes
     -----
     The layout is described in :mod:`gridstrain.results`; ``xarray.open_dataset``
-    opens it, :func:`load` reads it back.
+    opens it, :func:`load` reads it back. The maps stored are the result's own
+    ``u``, ``strain`` and ``valid`` (a result changed with ``dataclasses.replace``
+    is saved as it is); the measurements come back with them.
 
     The rounding of the default file: each
     map ``ux, uy, exx, eyy, exy`` (and ``ux_phys, uy_phys``) is rounded at each pixel
@@ -146,6 +154,7 @@ def save_result(result: SeriesResult, path, *, pixel_size: float | None = None,
     ps, unit = check_pixel_size(pixel_size, unit)
     attrs = check_mapping(attrs, "attrs", allow_none=True)
     H, W = result.shape
+    _check_own_maps(result)
     n_series = len(result.names)
     with hdf5_file(path, overwrite=overwrite) as h5:
         _write_dimensions(h5, result, H, W)
@@ -154,6 +163,21 @@ def save_result(result: SeriesResult, path, *, pixel_size: float | None = None,
         _write_group(h5, result, attrs, phase_maps=phase_maps)
     return as_path(path, "path")
 
+
+
+def _check_own_maps(result: SeriesResult) -> None:
+    """The result's maps, which the file stores, have one state per measurement and
+    the shapes the layout lays out (a result changed with ``dataclasses.replace`` is
+    saved as it is, or refused here, never saved with its measurements' maps)."""
+    n, (H, W) = len(result.measurements), result.shape
+    for name, shape, kinds in (("u", (n, 2, H, W), "f"), ("strain", (n, 3, H, W), "f"),
+                               ("valid", (n, H, W), "b")):
+        arr = getattr(result, name)
+        if tuple(arr.shape) != shape or np.dtype(arr.dtype).kind not in kinds:
+            raise ValueError(f"result.{name} must be a {shape} "
+                             f"{'bool' if kinds == 'b' else 'floating-point'} array (one "
+                             f"state per measurement, {n}), got shape {tuple(arr.shape)} "
+                             f"dtype {arr.dtype}")
 
 
 # --------------------------------------------------------------------------- streaming

@@ -5,6 +5,7 @@ metrology), written the same way by a whole result and by a file written state b
 
 from __future__ import annotations
 
+import dataclasses
 import os
 from collections.abc import Mapping
 
@@ -218,10 +219,19 @@ def _describe_maps(h5, ps, unit, H: int, W: int, unc_names) -> None:
 
 def _write_maps(h5, result, ps, unit, H: int, W: int, *, lossless: bool) -> None:
     """Maps of every state (px values, and physical ones with a pixel size), their
-    predicted standard deviations, the mean reference frame and the mask."""
+    predicted standard deviations, the mean reference frame and the mask.
+
+    The displacement, strain and validity maps are the result's own (``result.u``,
+    ``.strain``, ``.valid``), not its measurements' copies: a result changed with
+    ``dataclasses.replace(result, u=...)`` is saved as it is, and its measurements
+    come back from the file with those maps. The rotation, which the result does
+    not hold, is the measurement's."""
     unc = result.uncertainty or {}
     for k, m in enumerate(result.measurements):
-        arrays = _state_arrays(m, {n: a[k] for n, a in unc.items()})
+        own = dataclasses.replace(m, u=np.asarray(result.u[k]),
+                                  strain=np.asarray(result.strain[k]),
+                                  valid=np.asarray(result.valid[k]))
+        arrays = _state_arrays(own, {n: a[k] for n, a in unc.items()})
         if k == 0:
             _create_maps(h5, arrays, result.n_states, ps, lossless=lossless)
         _put_state(h5, k, arrays, ps, lossless=lossless)
