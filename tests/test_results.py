@@ -311,8 +311,8 @@ def _browse(page, profile, *extra):
 def test_report_renders_in_headless_chromium(tmp_path):
     """The demo's report, as a browser shows it: no console error, the maps drawn."""
     demo = tmp_path / "demo"
-    assert main(["demo", "--out", str(demo), "--size", "128", "--frames", "3", "--radius",
-                 "16", "--quiet"]) == 0
+    assert main(["demo", "--out", str(demo), "--size", "128", "--steps", "3",
+                 "--quiet"]) == 0
     page = demo / "report.html"
     shot = tmp_path / "shot.png"
     proc = _browse(page, tmp_path / "profile", "--enable-logging=stderr", "--v=0",
@@ -322,7 +322,7 @@ def test_report_renders_in_headless_chromium(tmp_path):
                if "CONSOLE" in line or "Uncaught" in line]
     assert console == []
     dom = proc.stdout
-    assert dom.count('<img class="figure"') >= 6  # five maps, the rotation, vibrations
+    assert dom.count('<img class="figure"') >= 8  # the test's two, five maps, rotation
     assert "map of exx" in dom
     proc = _browse(page, tmp_path / "profile", "--window-size=1200,4000",
                    f"--screenshot={shot}")
