@@ -59,10 +59,15 @@ def _text(page: str) -> str:
     return html.unescape(re.sub(r"<[^>]+>", " ", page))
 
 
-def test_report_shows_e_and_nu_with_their_intervals(tested, tmp_path):
-    out = tmp_path / "r.html"
+@pytest.fixture(scope="module")
+def page(tested):
+    """The report of :func:`tested` with the coupon's area, as the command writes it."""
+    out = tested.with_name("r.html")
     assert main(["report", str(tested), "-o", str(out), "--area", str(AREA)]) == 0
-    page = out.read_text(encoding="utf-8")
+    return out.read_text(encoding="utf-8")
+
+
+def test_report_shows_e_and_nu_with_their_intervals(tested, page):
     text = _text(page)
     # the oracle: the constants of the default gauge (the whole valid region),
     # computed here from the result file
@@ -89,8 +94,7 @@ def test_report_without_area_says_e_needs_it(tested):
     assert "need the specimen's cross-section" in _text(page)
 
 
-def test_report_values_are_plain_text_and_one_table_per_state(tested):
-    page = render_report(load(tested), attrs=read_attrs(tested), area=AREA)
+def test_report_values_are_plain_text_and_one_table_per_state(tested, page):
     for raw in ("np.float64(", "array(", "{'", "np.int64(", "dtype=", "FrameScreen("):
         assert raw not in page, raw
     tables = re.findall(r"<table>(.*?)</table>", page, flags=re.S)

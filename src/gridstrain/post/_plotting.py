@@ -392,6 +392,9 @@ def save_figures(result, directory, *, pixel_size: float | None = None,
     written = []
     T = result.n_frames
     n = result.n_states
+    from ..results import state_loads
+
+    loads = state_loads(result)
 
     def values_of(name, kind, i):
         # one state at a time: the maps of a record may stay in its file
@@ -423,8 +426,9 @@ def save_figures(result, directory, *, pixel_size: float | None = None,
             values, valid = values_of(name, kind, i)
             offset, norm = float(offsets[name][i]), norms[name]
             u = (unit if ps is not None else "px") if kind == "displacement" else _MICRO
-            title = (f"{symbol}, {result.names[i + 1]}: method {result.method}, "
-                     f"$\\sigma$ = {result.sigma:.3g} px, T = {T[0]}/{T[i + 1]}")
+            title = (f"{symbol}, {state_title(result.names[i + 1], i, *loads)}\n"
+                     f"method {result.method}, $\\sigma$ = {result.sigma:.3g} px, "
+                     f"T = {T[0]}/{T[i + 1]}")
             fig = plot_map(values, valid=valid, background=result.reference_image,
                            label=symbol, unit=u, title=title, pixel_size=ps,
                            length_unit=unit or "px", offset=offset, norm=norm)

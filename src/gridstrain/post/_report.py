@@ -279,7 +279,9 @@ def _test_section(result, ps, unit, *, region, px: bool, area, area_unit: str,
                     f"{area:g} {area_unit} in {c.stress_unit}, loading along {axis}; "
                     f"intervals from the {c.interval_basis} (reduced χ² "
                     f"{c.reduced_chi2[0]:.2f} axial, {c.reduced_chi2[1]:.2f} transverse).")
-    return {"where": reading.where, "loads": _loads_note(result, load_unit),
+    where = reading.where if region is not None else \
+        f"the whole valid region ({reading.where.removeprefix('gauge ')})"
+    return {"where": where, "loads": _loads_note(result, load_unit),
             "table": table, "figures": figures, "constants": constants, "note": note}
 
 
