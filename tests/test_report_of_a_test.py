@@ -154,3 +154,22 @@ def test_plot_robust_limits_are_the_percentiles_of_every_state(tested, tmp_path,
     im = drawn["exx"].axes[0].get_images()[1]
     assert (im.norm.vmin, im.norm.vmax) == (0.0, 2000.0)
     assert im.get_cmap().name.startswith("cividis")
+
+
+def test_animate_draws_explicit_limits_in_the_colormap_given(tested, tmp_path):
+    import imageio.v3 as iio
+    from matplotlib import colormaps
+
+    out = tmp_path / "a.gif"
+    # limits far above every strain (357-1429 µε): each valid pixel takes the lowest
+    # colour of cividis, as a clipped value does
+    assert main(["animate", str(tested), "exx", "-o", str(out), "--limits", "explicit",
+                 "1e6", "2e6", "--cmap", "cividis", "--dpi", "40"]) == 0
+    frame = iio.imread(out, index=0)[..., :3].astype(int)
+    low = np.round(np.array(colormaps["cividis"](0.0)[:3]) * 255).astype(int)
+    # within 2 grey levels (the GIF's 255-colour palette); the valid region is a
+    # third of the map, a tenth of the frame at least
+    share = np.mean(np.all(np.abs(frame - low) <= 2, axis=-1))
+    assert share > 0.05
+    assert main(["animate", str(tested), "exx", "-o", str(tmp_path / "b.gif"), "--limits",
+                 "explicit", "5", "1"]) == 2
