@@ -4,8 +4,9 @@ A plate with a hole in tension
 
 What gridstrain is for, in one figure: the strain map of an aluminium plate with a
 hole, measured from noisy camera images of the grid bonded to it (eight frames per
-state, averaged), next to the analytic (Kirsch) field. This is ``gridstrain demo``
-on smaller images, with a window of sigma = 2 pitches.
+state, averaged), next to the analytic (Kirsch) field, on smaller images with a
+window of sigma = 2 pitches. ``gridstrain demo`` runs a whole tensile test instead:
+load steps, the testing machine's log, E and nu.
 Run: ``python examples/00_plate_with_hole.py``.
 """
 

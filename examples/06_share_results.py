@@ -57,7 +57,8 @@ report = write_report(path, root / "report.html", overwrite=True)
 print(f"report written: {report} (open it in a browser)")
 
 # %%
-# What the report shows first: the maps of every state on common colour limits.
+# The maps of every state on colour limits they share (robust percentiles), as the
+# report draws them.
 maps = again.plot("exx")
 maps.savefig(root / "exx.png")
 print(f"figure written: {root / 'exx.png'}")

@@ -375,76 +375,118 @@ def test_demo_defaults(tmp_path, monkeypatch, capsys):
     monkeypatch.chdir(tmp_path)
     assert _run(["demo", "--json", "--quiet"]) == 0
     s = json.loads(capsys.readouterr().out)
-    floor = s["noise_floor"]["theory_strain"][0]
+    # per-pixel errors against the homogeneous truth: at the predicted noise floor
+    # (1.3 x: the valid region of a 192^2 image holds ~30 independent windows)
+    floor = np.max(s["noise_floor"]["theory_strain"], axis=0)
     for i, name in enumerate(("exx", "eyy", "exy")):
         assert s["demo"]["rms_error"][name] < 1.3 * floor[i]
+    c = s["demo"]["elastic_constants"]
+    assert c["E_ci"][0] < c["E_true"] < c["E_ci"][1]
+    assert c["nu_ci"][0] < c["nu_true"] < c["nu_ci"][1]
 
 
-def test_demo_small(tmp_path, monkeypatch, capsys):
+DEMO_SMALL = ["demo", "--size", "128", "--steps", "3", "--out", "d"]
+
+
+def test_demo_measures_a_tensile_test_with_the_machines_log(tmp_path, monkeypatch, capsys):
+    from gridstrain.post import elastic_constants, gauge, modulus_unit
+
     monkeypatch.chdir(tmp_path)
-    argv = ["demo", "--size", "128", "--radius", "14", "--frames", "3", "--out", "d"]
-    assert _run([*argv, "--json", "--quiet"]) == 0
+    assert _run([*DEMO_SMALL, "--json", "--quiet"]) == 0
     s = json.loads(capsys.readouterr().out)
     d = tmp_path / "d"
-    assert len(list((d / "ref").iterdir())) == 3
-    assert len(list((d / "load").iterdir())) == 3
-    for name in ("mask.tif", "maps.h5", "truth.h5"):
-        assert (d / name).is_file()
-    assert len(list((d / "figures").glob("*.png"))) == 7
-    ref = tifffile.imread(d / "ref" / "frame000000.tif")
+    frames = sorted((d / "record").iterdir())
+    assert [f.name for f in frames] == [f"frame{k:06d}.tif" for k in range(4)]
+    ref = tifffile.imread(frames[0])
     assert ref.dtype == np.uint16
     assert not np.any(ref % 16)  # 12-bit data x16
-    assert s["bit_depth"] == 12
-    assert s["scale"] == 16
-    # errors against the analytic field: within 1.5 x the predicted floor (the
-    # valid region of a 128^2 image holds ~12 independent windows: 20 % sampling)
-    floor = s["noise_floor"]["theory_strain"][0]
+    for name in ("mask.tif", "maps.h5", "truth.h5", "report.html"):
+        assert (d / name).is_file()
+    # the log as a testing machine writes it: a preamble, ';', a decimal comma, kN,
+    # a row every 0.1 s, many more rows than images
+    log = (d / "loads.csv").read_text(encoding="utf-8").splitlines()
+    header = next(i for i, line in enumerate(log) if line.startswith("Zeit [s];"))
+    assert header >= 2
+    assert "Kraft [kN]" in log[header]
+    rows = [r.split(";") for r in log[header + 1:]]
+    assert len(rows) > 10 * 4
+    assert all("," in c and "." not in c for c in rows[1])
+    t = np.array([float(r[0].replace(",", ".")) for r in rows])
+    np.testing.assert_allclose(np.diff(t), 0.1, atol=1e-9)  # s: printed to 0.01 s
+    # the states' loads: the log interpolated at the images' times (2, 4, 6 s; the
+    # log's clock 0.2 s ahead): the true ramp to 3 kN within 1e-3 kN (5 std of the
+    # load cell's 2e-4 kN noise; a linear ramp interpolates exactly)
+    res = load(d / "maps.h5")
+    assert res.load_unit == "kN"
+    np.testing.assert_allclose(res.time, [2.0, 4.0, 6.0])
+    np.testing.assert_allclose(res.load, [1.0, 2.0, 3.0], atol=1e-3)
+    # strain maps at the predicted noise floor (1.5 x: a 128^2 image's valid region
+    # holds ~12 independent windows, 20 % sampling)
+    floor = np.max(s["noise_floor"]["theory_strain"], axis=0)
     for i, name in enumerate(("exx", "eyy", "exy")):
         assert s["demo"]["rms_error"][name] < 1.5 * floor[i]
-    # px: sensor noise on a 128^2 frame, ~1.5e-3 px per shift, against 1e-2 px
-    assert max(s["demo"]["shift_rms_error_px"].values()) < 3e-3
-    assert s["demo"]["measure_command"].startswith("gridstrain measure d/ref d/load")
+    # E and nu: those of the default gauge computed here (the oracle), printed in
+    # the report with their intervals; the truth inside them
+    c = elastic_constants(gauge(res), area=20.0)
+    got = s["demo"]["elastic_constants"]
+    assert got["E"] == pytest.approx(c.E, rel=1e-12)
+    assert got["nu"] == pytest.approx(c.nu, rel=1e-12)
+    assert c.E_ci[0] < 70e3 < c.E_ci[1]
+    assert c.nu_ci[0] < 0.33 < c.nu_ci[1]
+    page = (d / "report.html").read_text(encoding="utf-8")
+    k, unit = modulus_unit(c.E, c.stress_unit)
+    assert "Young&#39;s modulus E" in page or "Young's modulus E" in page
+    assert f"[{c.E_ci[0] * k:.4g}, {c.E_ci[1] * k:.4g}] {unit}" in page
+    assert f"[{c.nu_ci[0]:.4f}, {c.nu_ci[1]:.4f}]" in page
+    assert 'alt="stress-strain plot"' in page
+    assert s["demo"]["measure_command"].startswith("gridstrain measure d/record ")
     # an earlier demo is kept without --overwrite
-    assert _run(argv) == 2
+    assert _run(DEMO_SMALL) == 2
     assert "earlier gridstrain run" in capsys.readouterr().err
 
 
 @pytest.mark.slow
-def test_demo_overwrite_then_measure_its_command(tmp_path, monkeypatch, capsys):
+def test_demo_overwrite_then_run_its_commands(tmp_path, monkeypatch, capsys):
     monkeypatch.chdir(tmp_path)
-    argv = ["demo", "--size", "128", "--radius", "14", "--out", "d", "--quiet"]
-    assert _run([*argv, "--frames", "3"]) == 0
-    assert _run([*argv, "--frames", "2", "--overwrite"]) == 0
-    assert len(list((tmp_path / "d" / "ref").iterdir())) == 2  # no stale frame left
-    capsys.readouterr()
-    assert _run(["demo", "--size", "128", "--radius", "14", "--out", "d", "--frames", "2",
-                 "--overwrite"]) == 0
+    argv = ["demo", "--size", "128", "--out", "d"]
+    assert _run([*argv, "--steps", "4", "--quiet"]) == 0
+    assert _run([*argv, "--steps", "3", "--overwrite"]) == 0
+    assert len(list((tmp_path / "d" / "record").iterdir())) == 4  # no stale frame left
     out = capsys.readouterr().out
-    assert "RMS error against the analytic field" in out
-    command = out.strip().splitlines()[-1].strip()
-    assert command.startswith("gridstrain measure d/ref d/load -o maps.h5")
-    rc = _run([*shlex.split(command)[1:], "--quiet"])
-    assert rc == 0, capsys.readouterr().err
-    assert (tmp_path / "maps.h5").is_file()
-    assert len(list((tmp_path / "figs").glob("*.png"))) == 7
+    assert "RMS error against the truth" in out
+    assert "E  = " in out
+    lines = out.strip().splitlines()
+    commands = [c.strip() for c in lines[lines.index("do the same yourself:") + 1:]]
+    assert commands[0].startswith("gridstrain measure d/record --reference-frames 1")
+    for command in commands:
+        rc = _run([*shlex.split(command)[1:], *(["--quiet"] if "measure" in command
+                                                else [])])
+        assert rc == 0, capsys.readouterr().err
+    assert "E  = " in capsys.readouterr().out
+    first, again = load(tmp_path / "d" / "maps.h5"), load(tmp_path / "maps.h5")
+    np.testing.assert_array_equal(again.load, first.load)
+    np.testing.assert_array_equal(again.get_map("exx"), first.get_map("exx"))
+    assert (tmp_path / "report.html").is_file()
 
 
 def test_demo_result_replays_its_measurement(tmp_path, monkeypatch, capsys):
     monkeypatch.chdir(tmp_path)
-    assert _run(["demo", "--size", "128", "--radius", "14", "--frames", "2", "--out", "d",
-                 "--quiet"]) == 0
+    assert _run(["demo", "--size", "96", "--steps", "3", "--out", "d", "--quiet"]) == 0
     rc = _run(["measure", "--config", "d/maps.h5", "-o", "again.h5", "--quiet"])
     assert rc == 0, capsys.readouterr().err
     first, again = load(tmp_path / "d" / "maps.h5"), load(tmp_path / "again.h5")
     assert again.method == first.method
-    # the same frames, mask and options: the same numbers, whatever the run
+    # the same frames, log, mask and options: the same numbers, whatever the run
     np.testing.assert_array_equal(again.valid, first.valid)
+    np.testing.assert_array_equal(again.load, first.load)
+    np.testing.assert_array_equal(again.time, first.time)
     for name in ("ux", "uy", "exx"):
         np.testing.assert_array_equal(again.get_map(name), first.get_map(name))
 
 
-@pytest.mark.parametrize("bad", [["--size", "32"], ["--frames", "0"], ["--radius", "200"],
-                                 ["--vibration", "-1"], ["--stress", "1e4"]])
+@pytest.mark.parametrize("bad", [["--size", "32"], ["--steps", "2"], ["--steps", "13"],
+                                 ["--vibration", "-1"], ["--stress", "1e4"],
+                                 ["--area", "0"], ["--translation", "3", "0"]])
 def test_demo_bad_options(bad, tmp_path, capsys):
     rc = _run(["demo", "--out", tmp_path / "d", *bad])
     assert rc == 2

@@ -354,8 +354,7 @@ def _tree(folder: Path) -> dict[str, bytes]:
             for p in sorted(folder.rglob("*")) if p.is_file()}
 
 
-DEMO = ["demo", "--size", "96", "--pitch", "5", "--radius", "10", "--frames", "1",
-        "--quiet"]
+DEMO = ["demo", "--size", "96", "--pitch", "5", "--steps", "3", "--quiet"]
 
 
 def test_demo_overwrite_keeps_the_users_files(tmp_path, capsys, monkeypatch):
@@ -371,22 +370,21 @@ def test_demo_overwrite_keeps_the_users_files(tmp_path, capsys, monkeypatch):
     assert {k: after[k] for k in mine} == mine
     # only the demo's files besides, no stray temporary or ".old" folder
     assert sorted({p.name for p in tmp_path.iterdir()}) == sorted(
-        [".bashrc", "thesis", MARKER_NAME, "ref", "load", "mask.tif", "maps.h5", "truth.h5",
-         "report.html",
-         "figures"])
+        [".bashrc", "thesis", MARKER_NAME, "record", "mask.tif", "loads.csv", "maps.h5",
+         "truth.h5", "report.html"])
 
 
 def test_demo_refuses_foreign_frames_even_with_overwrite(tmp_path, capsys):
     exp = tmp_path / "EXP"
-    (exp / "ref").mkdir(parents=True)
-    (exp / "ref" / "img_0001.tif").write_bytes(b"the user's frame")
+    (exp / "record").mkdir(parents=True)
+    (exp / "record" / "img_0001.tif").write_bytes(b"the user's frame")
     for flags in ([], ["--overwrite"]):
         rc = _run([*DEMO, "--out", exp, *flags])
         err = capsys.readouterr().err
         assert rc == 2
         assert len(err.strip().splitlines()) == 1
         assert "img_0001.tif was not written by gridstrain" in err
-    assert _tree(exp) == {"ref/img_0001.tif": b"the user's frame"}
+    assert _tree(exp) == {"record/img_0001.tif": b"the user's frame"}
 
 
 def test_demo_refuses_its_own_file_once_changed(tmp_path, capsys):

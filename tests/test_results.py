@@ -313,8 +313,8 @@ def _browse(page, profile, *extra):
 def test_report_renders_in_headless_chromium(tmp_path):
     """The demo's report, as a browser shows it: no console error, the maps drawn."""
     demo = tmp_path / "demo"
-    assert main(["demo", "--out", str(demo), "--size", "128", "--frames", "3", "--radius",
-                 "16", "--quiet"]) == 0
+    assert main(["demo", "--out", str(demo), "--size", "128", "--steps", "3",
+                 "--quiet"]) == 0
     page = demo / "report.html"
     shot = tmp_path / "shot.png"
     proc = _browse(page, tmp_path / "profile", "--enable-logging=stderr", "--v=0",
@@ -324,7 +324,7 @@ def test_report_renders_in_headless_chromium(tmp_path):
                if "CONSOLE" in line or "Uncaught" in line]
     assert console == []
     dom = proc.stdout
-    assert dom.count('<img class="figure"') >= 6  # five maps, the rotation, vibrations
+    assert dom.count('<img class="figure"') >= 8  # the test's two, five maps, rotation
     assert "map of exx" in dom
     proc = _browse(page, tmp_path / "profile", "--window-size=1200,4000",
                    f"--screenshot={shot}")
@@ -459,11 +459,16 @@ def test_common_limits_span_every_state(result):
     assert unit == "µε"
     v = values[result.valid]
     # tension in both states: all positive, a linear norm over the whole range
-    norm, diverging = state_norm(values, result.valid)
+    norm, diverging = state_norm(values, result.valid, limits="common")
     assert not diverging
     assert (norm.vmin, norm.vmax) == (pytest.approx(v.min()), pytest.approx(v.max()))
+    # the default, robust: the 0.5th and 99.5th percentiles of the same values
+    norm, _ = state_norm(values, result.valid)
+    lo, hi = np.percentile(v, [0.5, 99.5])
+    assert (norm.vmin, norm.vmax) == (pytest.approx(lo), pytest.approx(hi))
     # a field of both signs keeps white at zero, on symmetric limits
-    norm, diverging = state_norm(np.array([-1.0, 3.0]), np.array([True, True]))
+    norm, diverging = state_norm(np.array([-1.0, 3.0]), np.array([True, True]),
+                                 limits="common")
     assert diverging
     assert norm(0.0) == pytest.approx(0.5)
     assert norm(-3.0) == pytest.approx(0.0)
@@ -550,11 +555,14 @@ def test_report_of_a_long_sequence_stays_one_readable_page(tmp_path):
     assert text.count('alt="map of ') == 6  # one figure per map, six states in each
     assert 'alt="strain of the states"' in text
     assert 'alt="displacement of the states"' in text
-    # one row per state in the table of states and in that of the noise floor
+    # one table with a row per state (its means and noise floor together), one
+    # with a row per image series
     tables = re.findall(r"<table>(.*?)</table>", text, flags=re.S)
-    states = next(t for t in tables if "mean ε_xx" in t)
-    noise = next(t for t in tables if "theory u_x" in t)
-    assert states.count("<tr>") == noise.count("<tr>") == n + 1
+    (states,) = [t for t in tables if "mean ε_xx" in t]
+    assert "noise ε_xx" in states
+    assert states.count("<tr>") == n + 1
+    (series,) = [t for t in tables if "sensor variance" in t]
+    assert series.count("<tr>") == n + 2
     # the reference's and the six shown states' shifts, not one figure per series
     assert text.count('alt="vibrations of ') == 7
     # a tall figure is drawn no taller than 4000 px

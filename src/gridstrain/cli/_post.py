@@ -56,6 +56,46 @@ def add_gauge_options(p, *, what: str = "the gauge", polygon: bool = True,
     g.add_argument("--px", action="store_true", help=px_help)
 
 
+def add_colour_options(p) -> None:
+    """``--limits`` and ``--cmap``: the colour limits and colormap of the maps, one
+    default (robust) for plot, animate and report."""
+    p.add_argument("--limits", nargs="+", default=["robust"], metavar="MODE",
+                   help="colour limits over all states: 'robust' (default: the "
+                   "0.5-99.5th percentiles of the valid values), 'common' (their full "
+                   "range) or 'explicit LO HI' (in the unit drawn: microstrain for "
+                   "strains by default)")
+    p.add_argument("--cmap", metavar="NAME",
+                   help="a matplotlib colormap (default: RdBu_r centred on zero for a "
+                   "field of both signs, else viridis)")
+
+
+def limits_option(values):
+    """``--limits``'s words as ``limits=``: a name, or the pair after 'explicit'."""
+    words = list(values or ["robust"])
+    if words[0] == "explicit":
+        if len(words) != 3:
+            raise ValueError(f"--limits explicit needs two numbers LO HI, got "
+                             f"{' '.join(words[1:]) or 'none'}")
+        try:
+            lo, hi = float(words[1]), float(words[2])
+        except ValueError:
+            raise ValueError(f"--limits explicit needs two numbers LO HI, got "
+                             f"{words[1]} {words[2]}") from None
+        from ..post import check_limits
+
+        return check_limits((lo, hi), name="--limits explicit LO HI")
+    if len(words) != 1 or words[0] not in ("robust", "common"):
+        raise ValueError(f"--limits must be robust, common or explicit LO HI, got "
+                         f"{' '.join(words)}")
+    return words[0]
+
+
+def cmap_option(value):
+    from ..post import check_cmap
+
+    return check_cmap(value, name="--cmap")
+
+
 def polygon_option(values):
     if values is None:
         return None

@@ -7,7 +7,14 @@ import sys
 from pathlib import Path
 
 from ._common import OVERWRITE_HELP, check_output_file
-from ._post import add_result_options, open_result, reads_result
+from ._post import (
+    add_colour_options,
+    add_result_options,
+    cmap_option,
+    limits_option,
+    open_result,
+    reads_result,
+)
 
 SUMMARY = "an animation (GIF, MP4) of a map over the states on fixed colour limits"
 
@@ -24,9 +31,7 @@ def register(sub) -> None:
     p.add_argument("-o", "--output", required=True, metavar="FILE.mp4|FILE.gif",
                    help="the animation; its extension chooses the format")
     p.add_argument("--fps", type=float, default=5.0, help="states per second (default 5)")
-    p.add_argument("--limits", choices=("robust", "common"), default="robust",
-                   help="colour limits over all states: their 0.5-99.5th percentiles "
-                   "(robust, the default) or their full range (common)")
+    add_colour_options(p)
     p.add_argument("--dpi", type=float, default=100, help="frame resolution (default 100: "
                    "640 px wide)")
     p.add_argument("--strain-units", choices=("microstrain", "%", "1"),
@@ -44,10 +49,11 @@ def run(args) -> int:
     from ..post import animate
 
     out = Path(os.path.expanduser(args.output))
+    limits, cmap = limits_option(args.limits), cmap_option(args.cmap)
     result, src, ps, unit, ld, lu, t = open_result(args)
     check_output_file(out, "animation", args.overwrite, {src.resolve()})
     try:
-        path = animate(result, args.quantity, out, fps=args.fps, limits=args.limits,
+        path = animate(result, args.quantity, out, fps=args.fps, limits=limits, cmap=cmap,
                        pixel_size=ps, unit=unit, load=ld, load_unit=lu, time=t,
                        dpi=args.dpi, strain_units=args.strain_units,
                        overwrite=args.overwrite)

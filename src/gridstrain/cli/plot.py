@@ -5,7 +5,15 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-from ._post import add_gauge_options, add_loads_options, open_result, reads_result
+from ._post import (
+    add_colour_options,
+    add_gauge_options,
+    add_loads_options,
+    cmap_option,
+    limits_option,
+    open_result,
+    reads_result,
+)
 
 _FORMATS = ("png", "pdf", "svg")
 
@@ -13,7 +21,8 @@ _FORMATS = ("png", "pdf", "svg")
 def register(sub) -> None:
     p = sub.add_parser(
         "plot", help="figures of a result file: maps of every state, strain history",
-        description="Draw the maps of a result file's states on common colour limits "
+        description="Draw the maps of a result file's states on colour limits shared by "
+        "the states (robust percentiles by default) "
         "(strains in microstrain, the valid region shown over the reference image, the "
         "axes and a scale bar in the file's physical unit when it has a pixel size; up "
         "to 12 states: "
@@ -29,9 +38,7 @@ def register(sub) -> None:
                    help="comma-separated quantities (ux, uy, exx, eyy, exy, rotation, "
                    "exx_std..., and the derived e1, e2, principal_angle, equivalent, "
                    "max_shear, e1_std...; default ux,uy,exx,eyy,exy,rotation)")
-    p.add_argument("--limits", choices=("common", "robust"), default="common",
-                   help="colour limits over all states: their full range (common, the "
-                   "default) or their 0.5-99.5th percentiles (robust)")
+    add_colour_options(p)
     p.add_argument("--strain-units", choices=("microstrain", "%", "1"),
                    default="microstrain",
                    help="strains in microstrain (default), percent or dimensionless")
@@ -60,12 +67,14 @@ def run(args) -> int:
                          f"{args.maps!r}")
     if args.point and args.region:
         raise ValueError("give --point or --region, not both")
+    limits, cmap = limits_option(args.limits), cmap_option(args.cmap)
     result, src, ps, unit, ld, lu, t = open_result(args)
     out = Path(os.path.expanduser(args.output)) if args.output else \
         src.with_name(src.stem + "_figures")
     micro = args.strain_units
     figures = {f"{n}.{args.format}": (lambda n=n: plot_states(
-        result, n, limits=args.limits, microstrain=micro, pixel_size=ps, unit=unit))
+        result, n, limits=limits, cmap=cmap, microstrain=micro, pixel_size=ps,
+        unit=unit))
         for n in names}
     # drawn first: a place outside the field, or with no valid pixel, is refused
     # before the maps are drawn

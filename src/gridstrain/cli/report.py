@@ -6,19 +6,38 @@ import os
 from pathlib import Path
 
 from ._common import OVERWRITE_HELP, check_output_file
-from ._post import reads_result
+from ._post import add_colour_options, cmap_option, limits_option, reads_result
 
 
 def register(sub) -> None:
     p = sub.add_parser(
         "report", help="a self-contained HTML report of a result file",
         description="Write one HTML file (figures embedded, nothing fetched from the "
-        "network) with the run's parameters and provenance, the lattice, the vibrations, "
-        "the noise floor, the maps of every state on common colour limits, the "
-        "uncertainty maps and the warnings.")
+        "network): when the states have loads, a gauge's strains in every state, their "
+        "history and the load-strain plot, or with --area the stress-strain plot with "
+        "Young's modulus and Poisson's ratio and their 95 percent intervals; the maps "
+        "of every state on colour limits they share; one table with a row per state "
+        "and one with a row per image series; the uncertainty maps, the lattice, the "
+        "warnings and the run's provenance.")
     p.add_argument("result", metavar="RESULT.h5", help="a file written by gridstrain measure")
     p.add_argument("-o", "--output", metavar="REPORT.html",
                    help="output file (default: RESULT.html next to the result)")
+    g = p.add_argument_group("the test (with loads; coordinates in the file's physical "
+                             "unit when it has a pixel size, else px; --px forces px)")
+    g.add_argument("--region", type=float, nargs=4, metavar=("X0", "Y0", "X1", "Y1"),
+                   help="the gauge: mean over the rectangle x0 <= x < x1, y0 <= y < y1 "
+                   "(default: the whole valid region)")
+    g.add_argument("--px", action="store_true",
+                   help="--region in px even when the file has a pixel size")
+    g.add_argument("--area", type=float, metavar="A",
+                   help="the specimen's cross-section, in --area-unit: E and nu with their "
+                   "intervals and the stress-strain plot (without it: the load-strain "
+                   "plot)")
+    g.add_argument("--area-unit", default="mm2", metavar="UNIT",
+                   help="unit of --area: mm2 (default), cm2, m2, in2")
+    g.add_argument("--axis", choices=("x", "y"), default="x",
+                   help="loading direction (default x: exx is the axial strain)")
+    add_colour_options(p)
     p.add_argument("--overwrite", action="store_true", help=OVERWRITE_HELP)
     p.set_defaults(func=run)
 
@@ -27,8 +46,13 @@ def register(sub) -> None:
 def run(args) -> int:
     from ..post import write_report
 
+    limits, cmap = limits_option(args.limits), cmap_option(args.cmap)
+    if args.area is not None and not args.area > 0:
+        raise ValueError(f"--area must be a positive cross-section, got {args.area:g}")
     src = Path(os.path.expanduser(args.result))
     out = Path(os.path.expanduser(args.output)) if args.output else src.with_suffix(".html")
     check_output_file(out, "report file", args.overwrite, {src.resolve()})
-    print(write_report(src, out, overwrite=args.overwrite))
+    print(write_report(src, out, overwrite=args.overwrite, region=args.region, px=args.px,
+                       area=args.area, area_unit=args.area_unit, axis=args.axis,
+                       limits=limits, cmap=cmap))
     return 0

@@ -33,7 +33,9 @@ from ._units import STRAIN_UNITS, strain_scale
 # public name -> private module that defines it, imported on first use
 _LAZY = {
     **dict.fromkeys(
-        ("QUANTITIES", "capped_dpi", "chosen_states", "figure_names", "map_norm",
+        ("QUANTITIES", "ROBUST_PERCENTILES", "capped_dpi", "check_cmap", "check_limits",
+         "plot_gauge", "plot_load_strain",
+         "chosen_states", "figure_names", "map_norm",
          "plot_history", "plot_map", "plot_shifts", "plot_states", "plot_stress_strain",
          "save_figure", "save_figures"), "_plotting"),
     **dict.fromkeys(("render_report", "write_report"), "_report"),

@@ -24,7 +24,7 @@ def _frame_text(name, i, load, load_unit, time) -> str:
 
 
 def animate(result: SeriesResult, name: str, path, *, fps: float = 5.0,
-            limits: str = "robust", pixel_size: float | None = None,
+            limits="robust", cmap: str | None = None, pixel_size: float | None = None,
             unit: str | None = None, load=None, load_unit: str | None = None, time=None,
             dpi: float = 100, strain_units: str = "microstrain", overwrite: bool = False,
             progress=None) -> Path:
@@ -41,8 +41,12 @@ def animate(result: SeriesResult, name: str, path, *, fps: float = 5.0,
         FFmpeg's own encoder). Written atomically.
     fps : float
         Frames (states) per second.
-    limits : {"robust", "common"}
-        The colour limits, over every state (:func:`gridstrain.post.map_norm`).
+    limits : {"robust", "common"} or (float, float)
+        The colour limits, over every state (:func:`gridstrain.post.map_norm`): the
+        0.5th to 99.5th percentiles of the valid values (default), their full
+        range, or the two ends given in the unit drawn.
+    cmap : str, optional
+        A matplotlib colormap; default :func:`gridstrain.post.map_norm`'s choice.
     pixel_size, unit : float, str, optional
         Displacements and the axes in ``unit`` (px without).
     load, load_unit, time : optional
@@ -63,10 +67,20 @@ def animate(result: SeriesResult, name: str, path, *, fps: float = 5.0,
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
-    from ._plotting import QUANTITIES, colormap, map_extent, state_quantity, states_norm
+    from ._plotting import (
+        QUANTITIES,
+        check_cmap,
+        check_limits,
+        colormap,
+        map_extent,
+        state_quantity,
+        states_norm,
+    )
 
     check_type(result, "result", SeriesResult)
     check_choice(name, "name", tuple(QUANTITIES))
+    limits = check_limits(limits)
+    cmap = check_cmap(cmap)
     fps = check_positive(fps, "fps")
     dpi = check_positive(dpi, "dpi")
     dest = as_path(path, "path")
@@ -96,7 +110,7 @@ def animate(result: SeriesResult, name: str, path, *, fps: float = 5.0,
 
     # exactly those of the valid values of every state, read state by state
     norm = states_norm(valued, n, limits=limits)
-    cmap = colormap(norm)
+    cmap = colormap(norm, cmap)
     H, W = result.shape
     bg = result.reference_image
     lo_g, hi_g = np.percentile(bg, (1.0, 99.0))

@@ -17,6 +17,13 @@ Map style (one for ``--figures``, ``gridstrain plot`` and the report: :func:`map
     (and stated on the colour bar): a rigid translation would otherwise fill the
     map with one colour. The states of a series share one norm per quantity.
     Invalid pixels are transparent over the grid image in grey.
+
+Colour limits (the same default in every figure, animation and the report)
+    ``"robust"`` (default): the 0.5th and 99.5th percentiles of the valid values of
+    every state (:data:`ROBUST_PERCENTILES`), so that a few edge pixels do not wash
+    a 100-2000 µε field out to ±3500 µε; ``"common"``: their full range; or two
+    numbers ``(low, high)`` in the unit drawn. A diverging map spans the larger
+    side of either. ``cmap`` replaces the colormap chosen.
 """
 
 from __future__ import annotations
@@ -38,10 +45,15 @@ from ..io import OutputDirectory, write_atomic
 from ..results import SeriesResult
 
 __all__ = [
+    "ROBUST_PERCENTILES",
     "capped_dpi",
+    "check_cmap",
+    "check_limits",
     "chosen_states",
     "figure_names",
     "map_norm",
+    "plot_gauge",
+    "plot_load_strain",
     "plot_map",
     "plot_shifts",
     "plot_stress_strain",
@@ -52,9 +64,43 @@ __all__ = [
 # Grey-level percentiles mapped to black and white in the background image.
 _GREY_PERCENTILES = (1.0, 99.0)
 _DPI = 100
+#: The colour limits a map may take by name; a pair ``(low, high)`` gives them
+#: explicitly (:func:`check_limits`).
 LIMITS = ("common", "robust")
-# Robust limits: these percentiles of the valid values of all states.
-_ROBUST = (0.5, 99.5)
+#: Robust limits: these percentiles of the valid values of all states.
+ROBUST_PERCENTILES = (0.5, 99.5)
+_ROBUST = ROBUST_PERCENTILES
+
+
+def check_limits(limits, *, name: str = "limits"):
+    """``limits`` checked: ``"common"``, ``"robust"`` or ``(low, high)`` floats.
+
+    Returns the name, or the pair as a tuple of two finite floats with
+    ``low < high`` (the values drawn at the two ends of the colour bar, in the unit
+    the map is drawn in: µε for strains by default).
+    """
+    if isinstance(limits, str):
+        return check_choice(limits, name, tuple(LIMITS))
+    try:
+        lo, hi = (float(v) for v in limits)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must be 'common', 'robust' or a pair (low, high) of "
+                         f"numbers, got {limits!r}") from None
+    if not (math.isfinite(lo) and math.isfinite(hi) and lo < hi):
+        raise ValueError(f"{name} must be a pair (low, high) of finite numbers with low < "
+                         f"high, got ({lo:g}, {hi:g})")
+    return lo, hi
+
+
+def check_cmap(cmap, *, name: str = "cmap"):
+    """``cmap`` checked: None (gridstrain's choice, :func:`colormap`) or the name of a
+    matplotlib colormap."""
+    if cmap is None:
+        return None
+    if not isinstance(cmap, str) or cmap not in colormaps:
+        raise ValueError(f"{name} must name a matplotlib colormap (viridis, RdBu_r, "
+                         f"coolwarm, cividis...), got {cmap!r}")
+    return cmap
 
 #: Symbol and kind of each map of :data:`gridstrain.results.MAP_FIELDS`.
 _FIELDS = {
@@ -77,7 +123,7 @@ def _new_figure(width: float, height: float) -> Figure:
 _BOTH_SIGNS = 0.05
 
 
-def map_norm(values, *, valid=None, limits: str = "common") -> Normalize:
+def map_norm(values, *, valid=None, limits="robust") -> Normalize:
     """The colour norm of a map (or of all the states of a series) in gridstrain's style.
 
     Parameters
@@ -86,9 +132,10 @@ def map_norm(values, *, valid=None, limits: str = "common") -> Normalize:
         The values drawn (any shape; NaN ignored).
     valid : bool array_like, optional
         The pixels that count (default: the finite ones).
-    limits : {"common", "robust"}
-        The range of the valid values, or their 0.5th to 99.5th percentiles (a few
-        outliers then do not wash the maps out).
+    limits : {"robust", "common"} or (float, float)
+        The 0.5th to 99.5th percentiles of the valid values (the default: a few
+        outliers then do not wash the maps out), their full range, or the two ends
+        given, in the unit of ``values``.
 
     Returns
     -------
@@ -99,8 +146,11 @@ def map_norm(values, *, valid=None, limits: str = "common") -> Normalize:
         diverging ``RdBu_r``); else a linear
         :class:`~matplotlib.colors.Normalize` over the range (drawn with the
         sequential ``viridis``). :func:`colormap` gives the colormap of a norm.
+        Explicit limits: centred on 0 when ``low == -high``, else linear over them.
     """
-    check_choice(limits, "limits", tuple(LIMITS))
+    limits = check_limits(limits)
+    if not isinstance(limits, str):
+        return _norm(*limits, *limits, limits)
     v = np.asarray(values, dtype=np.float64)
     ok = np.isfinite(v) if valid is None else np.asarray(valid, dtype=bool) & np.isfinite(v)
     v = v[ok]
@@ -110,11 +160,13 @@ def map_norm(values, *, valid=None, limits: str = "common") -> Normalize:
     return _norm(float(v.min()), float(v.max()), r_lo, r_hi, limits)
 
 
-def states_norm(values_of: Callable, n: int, *, limits: str) -> Normalize:
+def states_norm(values_of: Callable, n: int, *, limits="robust") -> Normalize:
     """:func:`map_norm` of the valid values of ``n`` states, ``values_of(i)`` giving
     state ``i``'s ``(values, valid)``: read one state at a time (a record of
     thousands of states is never in memory at once), the same norm."""
-    check_choice(limits, "limits", tuple(LIMITS))
+    limits = check_limits(limits)
+    if not isinstance(limits, str):
+        return _norm(*limits, *limits, limits)
 
     def chunks():
         for i in range(n):
@@ -128,8 +180,11 @@ def states_norm(values_of: Callable, n: int, *, limits: str) -> Normalize:
     return _norm(lo, hi, float(r_lo), float(r_hi), limits)
 
 
-def _norm(v_min: float, v_max: float, r_lo: float, r_hi: float, limits: str) -> Normalize:
+def _norm(v_min: float, v_max: float, r_lo: float, r_hi: float, limits) -> Normalize:
     """:func:`map_norm` from the extremes and the robust percentiles of the values."""
+    if not isinstance(limits, str):  # given: drawn as asked
+        lo, hi = limits
+        return CenteredNorm(0.0, hi) if lo == -hi else Normalize(lo, hi)
     # the signs that matter are judged without the outliers: a few noise pixels of
     # the other sign do not make a one-signed field diverging
     lo, hi = (v_min, v_max) if limits == "common" else (r_lo, r_hi)
@@ -141,15 +196,17 @@ def _norm(v_min: float, v_max: float, r_lo: float, r_hi: float, limits: str) -> 
     return Normalize(lo, hi)
 
 
-def colormap(norm):
-    """``RdBu_r`` for a norm centred on 0, ``viridis`` otherwise; invalid transparent."""
-    name = "RdBu_r" if isinstance(norm, CenteredNorm) else "viridis"
+def colormap(norm, cmap: str | None = None):
+    """``cmap``, else ``RdBu_r`` for a norm centred on 0 and ``viridis`` otherwise;
+    invalid pixels transparent."""
+    name = check_cmap(cmap) or ("RdBu_r" if isinstance(norm, CenteredNorm) else "viridis")
     return colormaps[name].with_extremes(bad=(0.0, 0.0, 0.0, 0.0))
 
 
 def plot_map(values, *, valid=None, background=None, label: str = "", unit: str = "",
              title: str = "", pixel_size: float | None = None, length_unit: str = "px",
-             limit: float | None = None, offset: float = 0.0, norm=None) -> Figure:
+             limit: float | None = None, offset: float = 0.0, norm=None,
+             cmap: str | None = None) -> Figure:
     """A map over the grid image, in the style of :func:`map_norm`.
 
     Parameters
@@ -179,6 +236,8 @@ def plot_map(values, *, valid=None, background=None, label: str = "", unit: str 
         The norm (from :func:`map_norm`, shared by the states of a series).
         Default (neither ``limit`` nor ``norm``): :func:`map_norm` of the valid
         values, robust limits.
+    cmap : str, optional
+        A matplotlib colormap; default :func:`colormap`'s choice.
 
     Returns
     -------
@@ -208,7 +267,7 @@ def plot_map(values, *, valid=None, background=None, label: str = "", unit: str 
         ax.imshow(bg, cmap="gray", vmin=lo, vmax=hi if hi > lo else lo + 1, extent=extent,
                   interpolation="nearest")
     data = np.ma.masked_array(v, mask=~ok)
-    im = ax.imshow(data, cmap=colormap(norm), norm=norm, extent=extent,
+    im = ax.imshow(data, cmap=colormap(norm, cmap), norm=norm, extent=extent,
                    interpolation="nearest")
     ax.set_xlabel(f"x ({axis_unit})")
     ax.set_ylabel(f"y ({axis_unit})")
@@ -341,6 +400,9 @@ def save_figures(result, directory, *, pixel_size: float | None = None,
     written = []
     T = result.n_frames
     n = result.n_states
+    from ..results import state_loads
+
+    loads = state_loads(result)
 
     def values_of(name, kind, i):
         # one state at a time: the maps of a record may stay in its file
@@ -372,8 +434,9 @@ def save_figures(result, directory, *, pixel_size: float | None = None,
             values, valid = values_of(name, kind, i)
             offset, norm = float(offsets[name][i]), norms[name]
             u = (unit if ps is not None else "px") if kind == "displacement" else _MICRO
-            title = (f"{symbol}, {result.names[i + 1]}: method {result.method}, "
-                     f"$\\sigma$ = {result.sigma:.3g} px, T = {T[0]}/{T[i + 1]}")
+            title = (f"{symbol}, {state_title(result.names[i + 1], i, *loads)}\n"
+                     f"method {result.method}, $\\sigma$ = {result.sigma:.3g} px, "
+                     f"T = {T[0]}/{T[i + 1]}")
             fig = plot_map(values, valid=valid, background=result.reference_image,
                            label=symbol, unit=u, title=title, pixel_size=ps,
                            length_unit=unit or "px", offset=offset, norm=norm)
@@ -475,7 +538,7 @@ def _drawn_unit(name: str, pixel_size, unit, microstrain) -> str:
     return unit if pixel_size is not None else "px"
 
 
-def state_norm(values, valid, *, limits: str = "common"):
+def state_norm(values, valid, *, limits="robust"):
     """``(norm, diverging)``: :func:`map_norm` of the valid values of every state."""
     norm = map_norm(values, valid=valid, limits=limits)
     return norm, isinstance(norm, CenteredNorm)
@@ -509,9 +572,9 @@ def _nice_length(span: float) -> float:
     return max((m * p for m in (1, 2, 5) if m * p <= target), default=p)
 
 
-def plot_states(result, name: str, *, limits: str = "common", microstrain=True,
-                pixel_size: float | None = None, unit: str | None = None,
-                columns: int = 3, states=None) -> Figure:
+def plot_states(result, name: str, *, limits="robust", cmap: str | None = None,
+                microstrain=True, pixel_size: float | None = None,
+                unit: str | None = None, columns: int = 3, states=None) -> Figure:
     """Maps of one quantity for a chosen set of states, on common colour limits.
 
     Parameters
@@ -520,8 +583,12 @@ def plot_states(result, name: str, *, limits: str = "common", microstrain=True,
     name : str
         One of :data:`QUANTITIES` (``"exx"``, ``"ux"``, ``"rotation"``,
         ``"exx_std"``...).
-    limits : {"common", "robust"}
-        See :func:`map_norm` (over every state, drawn or not).
+    limits : {"robust", "common"} or (float, float)
+        See :func:`map_norm` (over every state, drawn or not): the 0.5th to 99.5th
+        percentiles of the valid values (default), their full range, or the two
+        ends given in the unit drawn (µε for strains by default).
+    cmap : str, optional
+        A matplotlib colormap; default :func:`colormap`'s choice.
     microstrain : bool or {"microstrain", "%", "1"}
         Strains in µε (True, the default), in percent, or dimensionless (False).
     pixel_size, unit : float, str, optional
@@ -537,12 +604,16 @@ def plot_states(result, name: str, *, limits: str = "common", microstrain=True,
     matplotlib.figure.Figure
         One panel per state over the grey reference image: pixels outside the
         valid region show the image, so the region measured is visible; one colour
-        bar with the unit.
+        bar with the unit. Each panel is titled with the state's name, its time and
+        load when the result has them, and its valid fraction.
     """
     from mpl_toolkits.axes_grid1.anchored_artists import AnchoredSizeBar
 
+    from ..results import state_loads
+
     ps, unit = check_pixel_size(pixel_size, unit)
-    check_choice(limits, "limits", tuple(LIMITS))
+    limits = check_limits(limits)
+    cmap = check_cmap(cmap)
     n_all = result.n_states
     shown = chosen_states(n_all) if states is None else np.asarray(states, dtype=int)
     if shown.size == 0 or shown.min() < 0 or shown.max() >= n_all:
@@ -561,10 +632,14 @@ def plot_states(result, name: str, *, limits: str = "common", microstrain=True,
     rows = math.ceil(n / cols)
     H, W = result.shape
     fig = _new_figure(3.4 * cols + 1.0, (3.4 * H / W + 0.6) * rows + 0.4)
+    # room between the panels for two-line titles and the tick labels: an inner
+    # panel carries no axis label (below), so nothing runs into its neighbour
+    fig.subplots_adjust(hspace=0.35, wspace=0.25)
     axes = np.atleast_1d(fig.subplots(rows, cols, squeeze=False)).ravel()
     bg = result.reference_image
     lo_g, hi_g = np.percentile(bg, _GREY_PERCENTILES)
-    cmap = colormap(norm)
+    cmap = colormap(norm, cmap)
+    load, load_unit, time = state_loads(result)
     # the axes in the unit places are named in (px without a pixel size)
     s, axis_unit = (1.0, "px") if ps is None else (ps, unit)
     extent = map_extent((H, W), s)
@@ -579,9 +654,14 @@ def plot_states(result, name: str, *, limits: str = "common", microstrain=True,
                   interpolation="nearest", extent=extent)
         im = ax.imshow(np.ma.masked_array(values, mask=~valid), cmap=cmap, norm=norm,
                        interpolation="nearest", extent=extent)
-        ax.set_title(f"{result.names[i + 1]}: {valid.mean():.0%} valid", fontsize=9)
-        ax.set_xlabel(f"x ({axis_unit})", fontsize=8)
-        ax.set_ylabel(f"y ({axis_unit})", fontsize=8)
+        ax.set_title(state_title(result.names[i + 1], i, load, load_unit, time)
+                     + f"\n{valid.mean():.0%} valid", fontsize=8)
+        # axis labels on the outer panels only: an inner one would run into its
+        # neighbour's image
+        if k + cols >= n:
+            ax.set_xlabel(f"x ({axis_unit})", fontsize=8)
+        if k % cols == 0:
+            ax.set_ylabel(f"y ({axis_unit})", fontsize=8)
         ax.tick_params(labelsize=7)
         if ps is not None:
             length = _nice_length(W * ps)
@@ -592,9 +672,20 @@ def plot_states(result, name: str, *, limits: str = "common", microstrain=True,
     cbar = fig.colorbar(im, ax=list(axes[:n]), shrink=0.85)
     cbar.set_label(f"{symbol} ({drawn})" if drawn != "1" else f"{symbol} (dimensionless)")
     which = f"{n_all} state(s)" if n == n_all else f"{n} of {n_all} states"
-    fig.suptitle(f"{symbol}, {limits} colour limits over all states; {which} shown",
-                 fontsize=10)
+    how = f"{limits} colour limits" if isinstance(limits, str) else \
+        f"colour limits {limits[0]:g} to {limits[1]:g} {drawn}"
+    fig.suptitle(f"{symbol}, {how} over all states; {which} shown", fontsize=10)
     return fig
+
+
+def state_title(name: str, i: int, load, load_unit: str | None, time) -> str:
+    """A state's name with its time and load where known: ``"step3, t = 6 s, 1 kN"``."""
+    parts = [str(name)]
+    if time is not None and math.isfinite(time[i]):
+        parts.append(f"t = {time[i]:.4g} s")
+    if load is not None and math.isfinite(load[i]):
+        parts.append(f"{load[i]:.4g} {load_unit or ''}".rstrip())
+    return ", ".join(parts)
 
 
 def _probe(values_of: Callable, result, mask):
@@ -742,6 +833,86 @@ def plot_stress_strain(constants) -> Figure:
     ax.set_title(f"E = {c.E * k:.4g} [{c.E_ci[0] * k:.4g}, {c.E_ci[1] * k:.4g}] {unit}, "
                  f"ν = {c.nu:.3f} [{c.nu_ci[0]:.3f}, {c.nu_ci[1]:.3f}] (95 %)", fontsize=9)
     ax.axvline(0.0, color="0.6", lw=0.8)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    return fig
+
+
+def plot_gauge(reading, *, against: str = "auto", microstrain=True) -> Figure:
+    """A gauge's mean strains of every state, with error bars of one std.
+
+    Parameters
+    ----------
+    reading : gridstrain.post.GaugeReading
+    against : {"auto", "time", "load", "state"}
+        The horizontal axis: "auto" takes the time, else the load, else the state.
+    microstrain : bool or {"microstrain", "%", "1"}
+        Strains in µε (True, the default), in percent, or dimensionless (False).
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+        ``exx``, ``eyy`` and ``exy`` of the reading, titled with the gauge's place
+        (:attr:`GaugeReading.where`); no error bar where the std is unknown.
+    """
+    from ._units import strain_scale
+
+    check_choice(against, "against", ("auto", "time", "load", "state"))
+    if against == "auto":
+        against = "time" if reading.time is not None else \
+            "load" if reading.load is not None else "state"
+    xs = {"time": reading.time, "load": reading.load}.get(
+        against, np.arange(len(reading.states)))
+    if xs is None:
+        raise ValueError(f"against={against!r}, but the gauge has no {against}")
+    scale, drawn = strain_scale(microstrain)
+    fig = _new_figure(6.4, 4.0)
+    ax = fig.add_subplot()
+    for name in ("exx", "eyy", "exy"):
+        err = getattr(reading, f"{name}_std") * scale
+        ax.errorbar(xs, getattr(reading, name) * scale,
+                    yerr=err if np.all(np.isfinite(err)) else None, marker="o",
+                    markersize=3, capsize=2, label=QUANTITIES[name][0])
+    ax.axhline(0.0, color="0.6", linewidth=0.8)
+    ax.set_xlabel({"time": "time (s)", "load": f"load ({reading.load_unit or '-'})",
+                   "state": "state index"}[against])
+    ax.set_ylabel(f"strain ({drawn})" if drawn != "1" else "strain (dimensionless)")
+    ax.set_title(reading.where, fontsize=8, wrap=True)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    return fig
+
+
+def plot_load_strain(reading, *, axis: str = "x") -> Figure:
+    """The load against a gauge's axial and transverse strains, where no
+    cross-section turns it into a stress (:func:`plot_stress_strain` does then).
+
+    Parameters
+    ----------
+    reading : gridstrain.post.GaugeReading
+        With loads.
+    axis : {"x", "y"}
+        The loading direction: ``exx`` (``eyy``) is the axial strain.
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+        Strains in µε with error bars of one std (none where unknown).
+    """
+    check_choice(axis, "axis", ("x", "y"))
+    if reading.load is None:
+        raise ValueError("reading has no loads: a load-strain plot needs them")
+    fig = _new_figure(6.4, 4.4)
+    ax = fig.add_subplot()
+    for name in ("exx", "eyy") if axis == "x" else ("eyy", "exx"):
+        std = getattr(reading, f"{name}_std") * 1e6
+        ax.errorbar(getattr(reading, name) * 1e6, reading.load,
+                    xerr=std if np.all(np.isfinite(std)) else None, marker="o", ls="-",
+                    lw=0.8, capsize=2, label=QUANTITIES[name][0])
+    ax.axvline(0.0, color="0.6", lw=0.8)
+    ax.set_xlabel(f"strain ({_MICRO})")
+    ax.set_ylabel(f"load ({reading.load_unit or '-'})")
+    ax.set_title(reading.where, fontsize=8, wrap=True)
     ax.legend(fontsize=8)
     fig.tight_layout()
     return fig

@@ -3,11 +3,19 @@
 :func:`write_report` reads a result file (:mod:`gridstrain.results`) and writes a
 single HTML file: no script, no style sheet or font fetched, every figure a PNG
 embedded as a ``data:`` URI, so the page shows the same offline, attached to an
-e-mail or archived with the data. It holds the run's provenance (version, date,
-input files, the configuration that replays the run), the lattice, the
-vibrations of every series, the noise floor, the maps on common colour limits
-(strains in µε), the rotation and uncertainty maps, the strain of the states
-averaged over the valid region, and the warnings.
+e-mail or archived with the data. It shows first what the test was run for: when
+the states have loads, a gauge (the whole valid region, or the region given) with
+its strains and their std in every state, their history, and the load–strain plot,
+or with the specimen's cross-section the stress–strain plot with Young's modulus
+and Poisson's ratio and their 95 % intervals (:func:`gridstrain.post.
+elastic_constants`). Then the maps on colour limits shared by the states (robust
+percentiles by default; strains in µε), the rotation and uncertainty maps, one
+table with a row per state (time, load, valid fraction, mean maps, noise floor,
+pair check, fringe order) and one with a row per image series (frames, bit depth,
+saturation, vibrations, sensor noise), the lattice, the warnings and the run's
+provenance (version, date, input files, the configuration that replays the run).
+Every value is written with its unit and a sensible number of digits, never as a
+Python repr.
 
 A result file may come from anyone: the page is rendered from a template
 (``templates/report.html.j2``) with autoescaping, so every text and number read
@@ -25,16 +33,28 @@ import dataclasses
 import html
 import io
 import math
+import numbers
 import warnings
 from importlib import resources
 from pathlib import Path
 
 import numpy as np
 
-from .._validation import as_path, check_type
+from .._validation import as_path, check_choice, check_positive, check_type
 from ..io import write_atomic
-from ..results import MAP_FIELDS, SeriesResult, load, read_attrs
-from ._plotting import plot_history, plot_shifts, plot_states
+from ..results import MAP_FIELDS, SeriesResult, load, read_attrs, state_loads
+from ._constants import elastic_constants
+from ._gauges import gauge
+from ._plotting import (
+    check_cmap,
+    check_limits,
+    plot_gauge,
+    plot_history,
+    plot_load_strain,
+    plot_shifts,
+    plot_states,
+    plot_stress_strain,
+)
 
 __all__ = ["render_report", "write_report"]
 
@@ -123,45 +143,170 @@ def _subset(result, states: list[int]):
 
 
 def render_report(result: SeriesResult, *, attrs: dict | None = None,
-                  title: str = "gridstrain result") -> str:
+                  title: str = "gridstrain result", region=None, px: bool = False,
+                  area: float | None = None, area_unit: str = "mm2", axis: str = "x",
+                  limits="robust", cmap: str | None = None) -> str:
     """The HTML text of the report of ``result`` (see :func:`write_report`).
 
-    ``attrs`` are the result file's root attributes (:func:`gridstrain.results.
-    read_attrs`): pixel size, unit, creation date, the stored configuration.
+    Parameters
+    ----------
+    result : SeriesResult
+    attrs : dict, optional
+        The result file's root attributes (:func:`gridstrain.results.read_attrs`):
+        pixel size, unit, creation date, the stored configuration.
+    title : str
+        The page's title.
+    region : (x0, y0, x1, y1) floats, optional
+        The gauge of the test's section (:func:`gridstrain.post.gauge`), in the
+        file's unit when ``attrs`` give a pixel size, else px. Default: the whole
+        valid region.
+    px : bool
+        ``region`` in px even when the file has a pixel size.
+    area : float, optional
+        The specimen's cross-section, in ``area_unit``: with loads, the
+        stress–strain plot and E and ν with their 95 % intervals
+        (:func:`gridstrain.post.elastic_constants`); without it, the load–strain
+        plot and a note that E needs the area.
+    area_unit : str
+        ``"mm2"`` (default), ``"cm2"``, ``"m2"``, ``"in2"``.
+    axis : {"x", "y"}
+        The loading direction.
+    limits : {"robust", "common"} or (float, float)
+        The maps' colour limits, shared by the states
+        (:func:`gridstrain.post.map_norm`).
+    cmap : str, optional
+        A matplotlib colormap for the maps.
+
+    Returns
+    -------
+    str
     """
     check_type(result, "result", SeriesResult)
+    area = check_positive(area, "area", allow_none=True)
+    check_choice(axis, "axis", ("x", "y"))
+    limits, cmap = check_limits(limits), check_cmap(cmap)
     a = dict(attrs or {})
     ps, unit = a.get("pixel_size"), a.get("unit")
     if ps is None or unit is None:
         ps = unit = None
+    test = {"region": region, "px": bool(px), "area": area, "area_unit": area_unit,
+            "axis": axis}
     with warnings.catch_warnings():
         # long state names squeeze a figure's margins; it is drawn all the same
         warnings.filterwarnings("ignore", "Tight layout not applied", UserWarning)
-        context = _context(result, a, ps, unit, title)
+        context = _context(result, a, ps, unit, title, test, {"limits": limits,
+                                                             "cmap": cmap})
     return _template().render(context)
 
 
-def _context(result, a: dict, ps, unit, title: str) -> dict:
+def _context(result, a: dict, ps, unit, title: str, test: dict, colours: dict) -> dict:
     """The values the template shows: texts, tables and figures."""
     states = _shown_states(result.n_states)
     shown = _subset(result, states)
     return {
         "title": title, "summary": _summary(result, a, ps, unit),
         "warnings": list(result.warnings),
-        **_inputs_section(result), **_lattice_section(result),
-        **_vibration_section(result, states), **_noise_section(result),
-        **_maps_section(result, shown, ps, unit), **_states_section(result),
-        **_checks_section(result),
-        "uncertainty": [_figure(plot_states(shown, name, pixel_size=ps, unit=unit),
+        "test": _test_section(result, ps, unit, **test),
+        **_series_section(result, states), **_lattice_section(result),
+        **_maps_section(result, shown, ps, unit, colours),
+        **_states_section(result), **_checks_section(result),
+        "uncertainty": [_figure(plot_states(shown, name, pixel_size=ps, unit=unit,
+                                            **colours),
                                 f"uncertainty map of {name}")
                         for name in (shown.uncertainty or {}) if name in _UNC],
         "extra": _extra_fields(result),
         "parameters": _table(["parameter", "value"],
-                             [[str(k), repr(v)] for k, v in result.parameters.items()],
+                             [[str(k), _plain(v)] for k, v in result.parameters.items()],
                              left=(0, 1)),
         "config": str(a.get("config") or ""),
         "conventions": str(a.get("conventions", "")),
     }
+
+
+def _with_std(value, std, scale: float = 1e6) -> str:
+    """``value ± std`` times ``scale``, rounded to the std's second significant digit
+    (``"1401.5 ± 11"``); the value alone to 4 digits where the std is unknown."""
+    v, s = float(value) * scale, float(std) * scale
+    if not math.isfinite(v):
+        return "–"
+    if not (math.isfinite(s) and s > 0):
+        return _num(v, ".4g")
+    decimals = max(0, 1 - math.floor(math.log10(s)))
+    return f"{v:.{decimals}f} ± {s:.{decimals}f}"
+
+
+def _test_section(result, ps, unit, *, region, px: bool, area, area_unit: str,
+                  axis: str) -> dict | None:
+    """What the test was run for, when the states have loads: the gauge's strains of
+    every state, their history, and the stress–strain plot with E and ν (with the
+    area) or the load–strain plot (without)."""
+    load, load_unit, time = state_loads(result)
+    if load is None:
+        return None
+    gps, gunit = (None, None) if px else (ps, unit)
+    reading = gauge(result, region=region, pixel_size=gps, unit=gunit)
+    rows = [[name, _num(time[i], ".4g") if time is not None else "–",
+             _num(load[i], ".4g"), int(reading.n_pixels[i]),
+             *(_with_std(getattr(reading, c)[i], getattr(reading, f"{c}_std")[i])
+               for c in ("exx", "eyy", "exy"))]
+            for i, name in enumerate(reading.states)]
+    table = _table(["state", "time (s)", f"load ({load_unit or '–'})", "pixels",
+                    "ε_xx (µε)", "ε_yy (µε)", "ε_xy (µε)"], rows)
+    figures = [_figure(plot_gauge(reading), "gauge history",
+                       "The gauge's mean strains in every state, with one std.")]
+    constants = note = None
+    if area is None:
+        figures.append(_figure(plot_load_strain(reading, axis=axis), "load-strain plot",
+                               "Load against the gauge's strains."))
+        note = ("Young's modulus and Poisson's ratio need the specimen's cross-section: "
+                "gridstrain report RESULT.h5 --area A (in mm² by default).")
+    else:
+        try:
+            c = elastic_constants(reading, area=area, area_unit=area_unit, axis=axis)
+        except ValueError as exc:  # too few states, no std, constant loads: said so
+            note = f"No elastic constants: {exc}."
+            figures.append(_figure(plot_load_strain(reading, axis=axis),
+                                   "load-strain plot", "Load against the gauge's strains."))
+        else:
+            figures.append(_figure(plot_stress_strain(c), "stress-strain plot",
+                                   "Stress against the axial and transverse strains, "
+                                   "with the weighted straight-line fits."))
+            constants = _table(["constant", "value", "95 % interval"], [
+                ["Young's modulus E", *_modulus_cells(c)],
+                ["Poisson's ratio ν", f"{c.nu:.4f}",
+                 f"[{c.nu_ci[0]:.4f}, {c.nu_ci[1]:.4f}]"]], left=(0,))
+            note = (f"Fitted on {len(c.states)} states, the stress = load / "
+                    f"{area:g} {area_unit} in {c.stress_unit}, loading along {axis}; "
+                    f"intervals from the {c.interval_basis} (reduced χ² "
+                    f"{c.reduced_chi2[0]:.2f} axial, {c.reduced_chi2[1]:.2f} transverse).")
+    where = reading.where if region is not None else \
+        f"the whole valid region ({reading.where.removeprefix('gauge ')})"
+    return {"where": where, "loads": _loads_note(result, load_unit),
+            "table": table, "figures": figures, "constants": constants, "note": note}
+
+
+def _modulus_cells(c) -> list[str]:
+    from ._constants import modulus_unit
+
+    k, unit = modulus_unit(c.E, c.stress_unit)
+    return [f"{c.E * k:.4g} {unit}", f"[{c.E_ci[0] * k:.4g}, {c.E_ci[1] * k:.4g}] {unit}"]
+
+
+def _loads_note(result, load_unit) -> str:
+    """Where the loads came from, in words."""
+    src = getattr(result, "load_source", None) or {}
+    if not src:
+        return f"Loads in {load_unit or 'no stated unit'}, given with the measurement."
+    text = (f"Loads from {src.get('file', '?')} (column {src.get('load_column', '?')}, "
+            f"in {src.get('load_unit', '?')}")
+    if src.get("time_column"):
+        text += (f"; times from {src['time_column']}, "
+                 f"{src.get('method', 'joined by time')}, the log's clock "
+                 f"{_num(src.get('offset_s', 0.0), 'g')} s ahead of the camera's")
+    else:
+        text += f"; {src.get('method', '')}"
+    sha = str(src.get("sha256", ""))
+    return text + (f"; SHA-256 {sha[:12]}…)." if sha else ").")
 
 
 def _summary(result, a: dict, ps, unit) -> str:
@@ -177,21 +322,6 @@ def _summary(result, a: dict, ps, unit) -> str:
             f"{a.get('gridstrain_version', '?')} on {a.get('created', '?')}.")
 
 
-def _inputs_section(result) -> dict:
-    """Every image series: frames, bit depth, saturation and files."""
-    rows = []
-    for name, files, T, bits, scale, sat in zip(
-            result.names, result.sources, result.n_frames, result.bit_depth, result.scale,
-            result.saturation, strict=True):
-        where = files[0] + (f" … ({len(files)} files)" if len(files) > 1 else "") \
-            if files else "array in memory"
-        depth = "float" if bits is None else f"{bits}-bit" + (f" ×{scale}" if scale != 1
-                                                               else "")
-        rows.append([name, T, depth, _num(sat, ".2%"), where])
-    return {"inputs": _table(["series", "frames", "data", "saturated", "files"], rows,
-                             left=(0, 4))}
-
-
 def _lattice_section(result) -> dict:
     """The wave vectors, pitches and angles, and whether they were detected."""
     lat = result.lattice
@@ -205,72 +335,86 @@ def _lattice_section(result) -> dict:
             "lattice_note": f"{how}; validity margin {result.margin:g} σ."}
 
 
-def _vibration_section(result, states: list[int]) -> dict:
-    """The vibrations of every series: a table, and the shifts of the reference's and
-    the shown states' stacks."""
+def _series_section(result, states: list[int]) -> dict:
+    """One row per image series (frames, data, saturation, vibrations, sensor noise,
+    files), and the shifts of the reference's and the shown states' stacks."""
+    nf = result.noise
+    rows = []
+    for j, (name, files, T, bits, scale, sat) in enumerate(zip(
+            result.names, result.sources, result.n_frames, result.bit_depth, result.scale,
+            result.saturation, strict=True)):
+        v = result.vibration[j]
+        where = files[0] + (f" … ({len(files)} files)" if len(files) > 1 else "") \
+            if files else "array in memory"
+        depth = "float" if bits is None else f"{bits}-bit" + (f" ×{scale}" if scale != 1
+                                                               else "")
+        rows.append([name, T, depth, _num(sat, ".2%"), _num(v.std[0]), _num(v.std[1]),
+                     _num(v.contrast_factor[0], ".4f"), _num(v.contrast_factor[1], ".4f"),
+                     _num(nf.sensor_variance[j]), nf.variance_method[j], where])
+    table = _table(["series", "frames", "data", "saturated", "vibration std α (px)",
+                    "β (px)", "contrast k1", "k2", "sensor variance (grey levels²)",
+                    "how", "files"], rows, left=(0, 9, 10))
     series = [0, *(i + 1 for i in states)]
-    table = _table(["series", "std α (px)", "std β (px)", "contrast k1", "contrast k2",
-                    "phase offset std k1 (rad)", "k2 (rad)"],
-                   [[v.name, _num(v.std[0]), _num(v.std[1]), _num(v.contrast_factor[0], ".5f"),
-                     _num(v.contrast_factor[1], ".5f"), _num(v.phase_offset_std[0]),
-                     _num(v.phase_offset_std[1])] for v in result.vibration])
     figures = [_figure(plot_shifts(v.shifts, title=f"{v.name}: rigid shift of each frame"),
                        f"vibrations of {v.name}")
                for v in (result.vibration[j] for j in series) if v.n_frames > 1]
     note = "" if len(series) == len(result.vibration) else (
         f"Shifts drawn for the reference and the {len(states)} states whose maps are "
         "shown; the table lists every series.")
-    return {"vibration": table, "vibration_figures": figures, "vibration_note": note}
+    return {"series": table, "vibration_figures": figures, "vibration_note": note}
 
 
-def _noise_section(result) -> dict:
-    """The noise floor of every state (one row each), and the sensor noise of every
-    series."""
-    nf = result.noise
-    rows = [[result.names[i + 1], _num(nf.theory_u[i][0]), _num(nf.theory_u[i][1]),
-             *(_num(x * 1e6) for x in nf.theory_strain[i]),
-             *(_num(x * 1e6) for x in nf.split_strain[i]),
-             _num(nf.vibration_u[i][0]), _num(nf.vibration_u[i][1])]
-            for i in range(result.n_states)]
-    noise = _table(["state", "theory u_x (px)", "u_y (px)", "theory ε_xx (µε)", "ε_yy (µε)",
-                    "ε_xy (µε)", "halves ε_xx (µε)", "ε_yy (µε)", "ε_xy (µε)",
-                    "vibration u_x (px)", "u_y (px)"], rows)
-    sensor = _table(["series", "sensor variance (grey levels²)", "how", "|Ψ| k1", "|Ψ| k2"],
-                    [[n, _num(v), m, _num(mod[0]), _num(mod[1])]
-                     for n, v, m, mod in zip(result.names, nf.sensor_variance,
-                                             nf.variance_method, nf.modulus, strict=True)],
-                    left=(0, 2))
-    return {"noise": noise, "sensor": sensor}
-
-
-def _maps_section(result, shown, ps, unit) -> dict:
+def _maps_section(result, shown, ps, unit, colours: dict) -> dict:
     """The maps of the shown states on colour limits common to them."""
     n, k = result.n_states, shown.n_states
     which = "Every state" if k == n else (
         f"{k} of the {n} states (the first, the last and evenly spaced ones; the "
         "histories and the table below hold every state)")
-    note = (f"{which} on the same colour limits; strains in µε (10⁻⁶), displacements in "
-            f"{unit if ps else 'px'}; outside the valid region the reference image shows "
-            "through.")
-    maps = [_figure(plot_states(shown, name, pixel_size=ps, unit=unit), f"map of {name}")
+    lim = colours["limits"]
+    how = ("the 0.5th to 99.5th percentiles of the valid values of every state"
+           if lim == "robust" else "the full range of the valid values of every state"
+           if lim == "common" else f"{lim[0]:g} to {lim[1]:g} µε for the strains, robust "
+           "for the others")
+    note = (f"{which} on the same colour limits ({how}); strains in µε (10⁻⁶), "
+            f"displacements in {unit if ps else 'px'}; outside the valid region the "
+            "reference image shows through.")
+    # limits given explicitly are in one quantity's unit: they apply to the strains
+    maps = [_figure(plot_states(shown, name, pixel_size=ps, unit=unit,
+                                cmap=colours["cmap"],
+                                limits=lim if isinstance(lim, str) or name[0] == "e"
+                                else "robust"), f"map of {name}")
             for name in (*MAP_FIELDS, "rotation")]
     return {"maps_note": note, "maps": maps}
 
 
 def _states_section(result) -> dict:
-    """One row per state (valid fraction, mean of each map over its valid pixels,
-    iterations, fringe order), and the histories of the means."""
+    """One row per state (time, load, valid fraction, mean of each map over its valid
+    pixels, noise floor, pair check, iterations, fringe order), and the histories of
+    the means."""
+    load, load_unit, time = state_loads(result)
+    nf = result.noise
+    pairs = {r["state"]: r for r in (result.systematic or {}).get("pair_match", ())}
     rows = []
     for i, m in enumerate(result.measurements):
+        name = result.names[i + 1]
         v = np.asarray(result.valid[i])
         means = [float(np.mean(np.asarray(result.get_map(k)[i])[v])) if v.any()
                  else math.nan for k in MAP_FIELDS]
-        rows.append([result.names[i + 1], f"{v.mean():.1%}", _num(means[0], ".4f"),
-                     _num(means[1], ".4f"), *(_num(x * 1e6, ".1f") for x in means[2:]),
+        noise = [_num(t * 1e6, ".2g") + (f" / {_num(h * 1e6, '.2g')}"
+                                         if math.isfinite(float(h)) else "")
+                 for t, h in zip(nf.theory_strain[i], nf.split_strain[i], strict=True)]
+        pair = pairs.get(name)
+        rows.append([name, "–" if time is None else _num(time[i], ".4g"),
+                     "–" if load is None else _num(load[i], ".4g"), f"{v.mean():.1%}",
+                     _num(means[0], ".4f"), _num(means[1], ".4f"),
+                     *(_num(x * 1e6, ".1f") for x in means[2:]), *noise,
+                     "–" if pair is None else f"{pair['verdict']} ({_num(pair['match'], '.2f')})",
                      m.iterations, _fringe_order(result, i)])
-    table = _table(["state", "valid", "mean u_x (px)", "mean u_y (px)", "mean ε_xx (µε)",
-                    "mean ε_yy (µε)", "mean ε_xy (µε)", "iterations", "fringe order"],
-                   rows, left=(0, 8))
+    table = _table(["state", "time (s)", f"load ({load_unit or '–'})", "valid",
+                    "mean u_x (px)", "mean u_y (px)", "mean ε_xx (µε)", "mean ε_yy (µε)",
+                    "mean ε_xy (µε)", "noise ε_xx (µε)", "noise ε_yy (µε)",
+                    "noise ε_xy (µε)", "pair check", "iterations", "fringe order"],
+                   rows, left=(0, 12, 14))
     histories = []
     if result.n_states > 1:
         for names, what in ((("exx", "eyy", "exy"), "Strain"), (("ux", "uy"), "Displacement")):
@@ -282,18 +426,13 @@ def _states_section(result) -> dict:
 
 
 def _checks_section(result) -> dict:
-    """The pair check of each state (its content against the reference's once warped
-    back) and the vibration offset removed from each series' phases (methods A, B)."""
+    """The vibration offset removed from each series' phases (methods A, B)."""
     sy = result.systematic or {}
-    pairs = [[r["state"], r["verdict"], _num(r["match"], ".2f"), _num(r["rho"], ".3f"),
-              _num(r["rho_match"], ".3f"), _num(r["rho_sd"], ".3f")]
-             for r in sy.get("pair_match", ())]
     offsets = [[r["series"], r["method"], *(_num(v, ".2e") for v in r["removed_rad"]),
                 *(_num(v, ".2e") for v in r["predicted_std_rad"])]
                for r in sy.get("vibration_offset", ()) if r is not None]
     return {
-        "pair_checks": _table(["state", "verdict", "match", "correlation", "expected",
-                               "spread"], pairs, left=(0, 1)) if pairs else None,
+        "pair_checks": bool(sy.get("pair_match")),
         "offsets": _table(["series", "method", "removed k1 (rad)", "removed k2 (rad)",
                            "predicted std k1 (rad)", "predicted std k2 (rad)"], offsets,
                           left=(0, 1)) if offsets else None}
@@ -318,20 +457,85 @@ def _fringe_order(result, i: int) -> str:
 
 
 # The fields every report shows in its own section; any other field a result
-# class gains is listed under "Other results" by its repr.
+# class gains is listed under "Other results", its values written out as text.
 _SHOWN = {
     "u", "strain", "valid", "lattice", "lattice_detected", "sigma", "method", "lagrangian",
     "margin", "mask", "reference_image", "names", "sources", "n_frames", "bit_depth",
     "scale", "saturation", "measurements", "guesses", "guess_sources", "vibration", "noise",
-    "parameters", "warnings", "uncertainty", "fringe_orders"}
+    "parameters", "warnings", "uncertainty", "fringe_orders", "load", "load_unit", "time",
+    "load_source"}
+# Values listed in full up to this many; a longer array is summarised.
+_LIST_UP_TO = 12
+# Nested records listed down to this depth; deeper, summarised.
+_DEPTH = 4
 
 
-def _extra_fields(result) -> list[tuple[str, str]]:
-    return [(f.name, repr(getattr(result, f.name))) for f in dataclasses.fields(result)
-            if f.name not in _SHOWN and getattr(result, f.name) is not None]
+def _plain(value) -> str:
+    """A value as a reader reads it, never as a Python repr: numbers to 4 significant
+    digits, booleans as yes/no, sequences comma-separated (a long array by its size
+    and range), records as ``key: value`` separated by semicolons."""
+    if value is None:
+        return "–"
+    if isinstance(value, str):
+        return value
+    if isinstance(value, bool | np.bool_):
+        return "yes" if value else "no"
+    if isinstance(value, numbers.Integral):
+        return str(int(value))
+    if isinstance(value, numbers.Real):
+        return _num(value, ".4g")
+    if isinstance(value, numbers.Complex):
+        return f"{_num(value.real, '.4g')} {'-' if value.imag < 0 else '+'} " \
+               f"{_num(abs(value.imag), '.4g')}i"
+    if not isinstance(value, dict | tuple | list | np.ndarray) and not (
+            dataclasses.is_dataclass(value) and not isinstance(value, type)):
+        return str(value)
+    if dataclasses.is_dataclass(value) and not isinstance(value, type):
+        value = {f.name: getattr(value, f.name) for f in dataclasses.fields(value)}
+    if isinstance(value, dict):
+        return "; ".join(f"{k}: ({_plain(v)})" if isinstance(v, dict) and v
+                         else f"{k}: {_plain(v)}" for k, v in value.items()) or "none"
+    a = np.asarray(value, dtype=object) if not isinstance(value, np.ndarray) else value
+    if a.dtype.kind in "biuf" and a.size > _LIST_UP_TO:
+        f = a[np.isfinite(a)] if a.dtype.kind == "f" else a
+        rng = f"from {_plain(f.min())} to {_plain(f.max())}" if f.size else "none finite"
+        return f"{a.size} values {rng}"
+    items = list(value) if not isinstance(value, np.ndarray) else value.ravel().tolist()
+    if not items or all(_is_empty(v) for v in items):
+        return "none"
+    return ", ".join(_plain(v) for v in items[:_LIST_UP_TO]) + (
+        f", … ({len(items)} in all)" if len(items) > _LIST_UP_TO else "")
 
 
-def write_report(result_path, html_path, *, overwrite: bool = False) -> Path:
+def _is_empty(value) -> bool:
+    return isinstance(value, tuple | list | dict) and not value
+
+
+def _rows(prefix: str, value, depth: int = 0) -> list[list[str]]:
+    """``[name, text]`` rows of a value: a record (dict, dataclass) one row per
+    entry, named by its path (``systematic / aliasing / u_px``), a sequence of records
+    one row per record."""
+    if dataclasses.is_dataclass(value) and not isinstance(value, type):
+        value = {f.name: getattr(value, f.name) for f in dataclasses.fields(value)}
+    if depth < _DEPTH and isinstance(value, dict) and value:
+        return [r for k, v in value.items() for r in _rows(f"{prefix} / {k}", v, depth + 1)]
+    if (isinstance(value, tuple | list) and value
+            and not all(_is_empty(v) for v in value)
+            and any(isinstance(v, dict) or dataclasses.is_dataclass(v) for v in value)):
+        # a sequence of records (one per series, per harmonic): a row each
+        return [[f"{prefix} [{i}]", _plain(v)] for i, v in enumerate(value)]
+    return [[prefix, _plain(value)]]
+
+
+def _extra_fields(result) -> dict | None:
+    """The fields no section shows, one row per value, as text."""
+    rows = [r for f in dataclasses.fields(result)
+            if f.name not in _SHOWN and getattr(result, f.name) is not None
+            for r in _rows(f.name, getattr(result, f.name))]
+    return _table(["field", "value"], rows, left=(0, 1)) if rows else None
+
+
+def write_report(result_path, html_path, *, overwrite: bool = False, **options) -> Path:
     """Write the HTML report of a result file, atomically.
 
     Parameters
@@ -342,6 +546,9 @@ def write_report(result_path, html_path, *, overwrite: bool = False) -> Path:
         Destination (``.html``).
     overwrite : bool
         Replace an existing file.
+    **options
+        ``region``, ``px``, ``area``, ``area_unit``, ``axis``, ``limits``, ``cmap``
+        of :func:`render_report`.
 
     Returns
     -------
@@ -349,6 +556,7 @@ def write_report(result_path, html_path, *, overwrite: bool = False) -> Path:
     """
     src = as_path(result_path, "result_path")
     result = load(src, in_memory=False)
-    text = render_report(result, attrs=read_attrs(src), title=f"gridstrain: {src.name}")
+    text = render_report(result, attrs=read_attrs(src), title=f"gridstrain: {src.name}",
+                         **options)
     dest = as_path(html_path, "html_path")
     return write_atomic(dest, text.encode("utf-8"), overwrite=overwrite)
