@@ -12,9 +12,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import tifffile
+from scipy import ndimage
 
-from gridstrain import load
+from gridstrain import detect_lattice, load, measure, wft
 from gridstrain.cli import main
+from gridstrain.kinematics import grid_shows
 from gridstrain.phase import Lattice, follow_lattice
 from independent_grid import camera, scene
 
@@ -130,3 +132,23 @@ def test_demodulated_in_place_is_demodulated_at():
     before = np.array(pm.psi)
     np.testing.assert_array_equal(demodulated_in_place(view, lat).psi, want.psi)
     np.testing.assert_array_equal(pm.psi, before)  # the viewed maps left alone
+
+
+def test_the_grid_modulus_shows_a_rotated_field_a_period_off_past_a_wide_margin():
+    # the field is carried across the invalid margin round the hole to first order: as
+    # a constant it puts the hole's edge, the modulus's strongest content, 0.3 to 0.5
+    # period off at 10 degrees and 3 pitches, and half periods are favoured
+    rng = np.random.default_rng(1)
+    ref, _ = scene((H, W), pitch=5.0, angle=0, hole=True)
+    cur, _ = scene((H, W), pitch=5.0, angle=0, hole=True, displacement=_rotation(10.0))
+    ref, cur = (camera(img, 0.3, 4.0, rng) for img in (ref, cur))
+    lat = detect_lattice(ref)
+    pr, pc = wft(ref, lat), wft(cur, lat)
+    m = measure(ref, cur, lattice=lat)
+    valid = ndimage.binary_erosion(m.valid, iterations=15)
+    yy, xx = np.mgrid[0:H, 0:W].astype(float)
+    t = np.deg2rad(10.0)
+    period = 5.0 * np.array([-np.sin(t), np.cos(t)])  # the rotated grid's a2
+    u = np.stack(_rotation(10.0)(xx, yy)) + period[:, None, None]
+    shown, said = grid_shows(pr, pc, u, valid, (0, -1))
+    assert shown, said
