@@ -11,6 +11,7 @@ import math
 from collections.abc import Iterable
 
 import numpy as np
+from scipy import ndimage
 
 from .._progress import Progress, null_progress
 from .._runtime.threads import map_bounded
@@ -28,6 +29,7 @@ from ..phase import (
     finite_derivatives,
     no_grid,
     transform,
+    transform_to_edges,
 )
 from ..phase.lattice import state_carrier
 from ..phase.window import min_side
@@ -338,12 +340,26 @@ def _check_grid(pm: PhaseMaps, image: np.ndarray, mask: np.ndarray, window: Wind
                              "the lattice be detected")
 
 
-def _phase_maps_a(image, lattice: Lattice, window: Window, mask):
-    """WFT of an averaged image, masking regions without a grid (method A)."""
+# With to_edges, the specimen ends where the grid's modulus falls to this fraction of
+# its median: half, where a straight edge cuts the window in two (MIN_MODULUS, a
+# quarter, reaches ~0.7 sigma into the background beside the specimen).
+_EDGE_MODULUS = 0.5
+
+
+def _phase_maps_a(image, lattice: Lattice, window: Window, mask, *, to_edges: bool = False):
+    """WFT of an averaged image, masking regions without a grid (method A); with
+    ``to_edges``, valid up to the specimen's edges
+    (:func:`gridstrain.phase.transform_to_edges`), the regions without a grid cut at
+    the half-modulus line less one pixel, so that no background is taken for grid."""
     m = np.ones(image.shape, dtype=bool) if mask is None else mask
     pm = transform(image, lattice, window, mask=m, workers=None)
     nogrid = no_grid(pm.modulus, pm.valid, m, window.min_modulus)
-    if nogrid.any():
+    if to_edges:
+        if nogrid.any():
+            half = no_grid(pm.modulus, pm.valid, m, _EDGE_MODULUS, away=window.sigma)
+            m = _less(m, ndimage.binary_dilation(half | nogrid))
+        pm = transform_to_edges(image, lattice, window, mask=m)
+    elif nogrid.any():
         m = _less(m, nogrid)
         pm = transform(image, lattice, window, mask=m, workers=None)
     return finite_derivatives(pm), m
@@ -433,7 +449,8 @@ def _connect(scheduler, timeout: float | None):
 
 
 def _one_series(s, acc: SeriesPass, base, window: Window, max_saturation: float,
-                outliers: str, method: str, f32: bool, steps: _Steps) -> _Measured:
+                outliers: str, method: str, f32: bool, steps: _Steps, *,
+                to_edges: bool = False) -> _Measured:
     """Screening, statistics and phase maps of series ``s`` from its pass; ``base``
     is the mask of the reference (None for a state: its configuration is deformed)."""
     plan = acc.plan
@@ -446,7 +463,7 @@ def _one_series(s, acc: SeriesPass, base, window: Window, max_saturation: float,
     del st
     acc.release(keep_halves=base is not None)  # the reference's halves: its noise floor
     if method == "A":
-        pm, used = _phase_maps_a(stats.mean, plan.lattice, window, base)
+        pm, used = _phase_maps_a(stats.mean, plan.lattice, window, base, to_edges=to_edges)
     else:  # the mean image gives the mask only
         used = _grid_support(stats.mean, plan.lattice, window, base)
     steps.step(2 * _WFT_COST, f"{s.name}: phase maps")

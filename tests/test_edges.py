@@ -1,0 +1,161 @@
+"""Data up to the specimen's edges: the grid continued beyond them by its own maps
+(gridstrain.phase.transform_to_edges) and measure_series(to_edges=True)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from gridstrain.phase import Lattice, Window, edge_pixels, transform, transform_to_edges
+from gridstrain.series import measure_series
+
+P = 5.0  # pitch, px
+SIGMA = 5.0  # window, px (= the pitch)
+H, W = 128, 192
+R0, R1, C0, C1 = 20, 108, 30, 162  # the specimen's rows and columns
+XC = (C0 + C1) / 2
+BACKGROUND = 0.3
+
+
+def specimen_image(u_x, *, noise=0.0, rng=None):
+    """A cosine grid of pitch ``P`` on a rectangular specimen (rows ``R0:R1``,
+    columns ``C0:C1`` in the reference), grey ``BACKGROUND`` without a grid outside.
+
+    ``u_x(X)`` is a Lagrangian displacement along x (px), a function of the column
+    alone; the deformed image at ``x`` shows the material point ``X`` with
+    ``x = X + u_x(X)`` (solved by fixed-point iteration, ``|u_x'| << 1``). The
+    profile is a pure cosine (no harmonics: the continuation does not extend them),
+    amplitude 0.4 on a mean of 1; white Gaussian noise of std ``noise``.
+    """
+    y, x = np.mgrid[0:H, 0:W].astype(np.float64)
+    X = x.copy()
+    for _ in range(50):
+        X = x - u_x(X)
+    spec = (y >= R0) & (y < R1) & (X >= C0 - 0.5) & (X < C1 - 0.5)
+    v = 1 + 0.4 * np.cos(2 * np.pi * X / P) + 0.4 * np.cos(2 * np.pi * y / P)
+    v = np.where(spec, v, BACKGROUND)
+    if noise:
+        v = v + noise * rng.standard_normal(v.shape)
+    return v
+
+
+def _image_strain(phase_x):
+    """The image's own (Eulerian) strain along x from its phase derivative."""
+    return -P / (2 * np.pi) * phase_x
+
+
+def _predicted_bias(u, eps, x0, edge, inward):
+    """The strain bias at column ``x0`` predicted by a direct sum: the continuation
+    beyond ``edge`` (the specimen's last column, ``inward`` = +1 for a left edge)
+    carries the displacement of the trusted pixel ``t`` (2 sigma inside) on with its
+    strain, ``u(t) + eps(t) (q - t)``; the window's phase derivative of that error,
+    ``d/dx0 sum_q g(q - x0) du(q)``, is the strain's error (first order in the
+    phase)."""
+    t = edge + inward * 2 * SIGMA
+    q = edge - inward * np.arange(1, 60, dtype=np.float64)
+    du = u(t) + eps(t) * (q - t) - u(q)
+    g = np.exp(-0.5 * ((q - x0) / SIGMA) ** 2) / (np.sqrt(2 * np.pi) * SIGMA)
+    return float(np.sum(g * (q - x0) / SIGMA**2 * du))
+
+
+def _mask():
+    y, x = np.mgrid[0:H, 0:W]
+    return (y >= R0) & (y < R1) & (x >= C0) & (x < C1)
+
+
+LAT = Lattice.from_pitch(P)
+WIN = Window(SIGMA)
+ROWS = slice(50, 78)  # rows far from the top and bottom edges (4 sigma = 20 px)
+
+
+def test_uniform_strain_up_to_the_edges_noise_free():
+    eps = 1e-3
+    img = specimen_image(lambda X: eps * (X - XC))
+    # the image's own strain: x - xc = (1 + eps)(X - xc), phase -2 pi (x - xc) eps/(1+eps)/p
+    true = eps / (1 + eps)
+    m = _mask()
+    # the specimen's columns in the deformed image (the edges moved by eps * 66 px)
+    c0, c1 = int(np.ceil(XC + (C0 - 0.5 - XC) * (1 + eps))), int(XC + (C1 - 0.5 - XC) * (1 + eps))
+    m[:, :] = False
+    m[R0:R1, c0:c1 + 1] = True
+    pm = transform_to_edges(img, LAT, WIN, mask=m)
+    assert pm.valid[m].all()
+    e = _image_strain(pm.dphi[0, 0])
+    edge = e[ROWS][:, [c0, c0 + 1, c1 - 1, c1]]
+    # a uniform strain is continued exactly: what is left is the sub-pixel position of
+    # the edge (the mask's pixel edge vs the image's), < 1e-6 strain, 1/10 of the
+    # 1e-5 that users resolve
+    np.testing.assert_allclose(edge, true, atol=1e-6)
+    plain = _image_strain(transform(img, LAT, WIN, mask=m).dphi[0, 0])
+    # the cut window of the plain transform is biased by ~1e-3 there: the test can fail
+    assert np.max(np.abs(plain[ROWS, c0] - true)) > 1e-4
+
+
+@pytest.mark.parametrize("kind", ["linear", "quadratic"])
+def test_gradient_bias_at_the_edge_is_the_stated_one(kind):
+    if kind == "linear":
+        g = 2e-5  # /px: the strain changes by 2.6e-3 across the specimen
+        u = lambda X: g * (X - XC) ** 2 / 2  # noqa: E731
+        eps = lambda X: g * (X - XC)  # noqa: E731
+    else:
+        c = 4e-7  # /px^2: eps'' sigma^2 = 1e-5
+        u = lambda X: c * (X - XC) ** 3 / 6  # noqa: E731
+        eps = lambda X: c * (X - XC) ** 2 / 2  # noqa: E731
+    # the phase is given in the image's own coordinates (an undeformed specimen whose
+    # grid carries the phase -2 pi u(x)/p): the transform's bias alone, no kinematics
+    y, x = np.mgrid[0:H, 0:W].astype(np.float64)
+    m = _mask()
+    img = np.where(m, 1 + 0.4 * np.cos(2 * np.pi * (x - u(x)) / P)
+                   + 0.4 * np.cos(2 * np.pi * y / P), BACKGROUND)
+    pm = transform_to_edges(img, LAT, WIN, mask=m)
+    measured = _image_strain(pm.dphi[0, 0]) - eps(x)
+    for x0, edge, inward in [(C0, C0, 1), (C0 + 3, C0, 1), (C1 - 1, C1 - 1, -1)]:
+        stated = _predicted_bias(u, eps, float(x0), float(edge), inward)
+        got = float(np.mean(measured[ROWS, x0]))
+        # the stated bias is 1e-4 to 3e-4 here; the direct sum is first order in the
+        # phase and leaves out the trusted pixels' own window reaching past the edge
+        # (2 % of its weight): 15 % of it, and 1e-5 strain
+        assert abs(got - stated) <= 0.15 * abs(stated) + 1e-5, (x0, got, stated)
+
+
+def test_edge_pixels_are_the_band():
+    m = _mask()
+    e = edge_pixels(m, WIN)
+    band = WIN.band
+    assert e[64, C0]
+    assert e[64, C0 + int(band) - 1]
+    assert not e[64, C0 + int(band) + 1]
+    assert not e[0, 0]  # outside the specimen: not a pixel of it
+
+
+def _measure(u_x, **kw):
+    ref = specimen_image(lambda X: 0 * X, **kw)
+    cur = specimen_image(u_x, **kw)
+    return measure_series(ref, cur, lattice=LAT, sigma=SIGMA, guess=None,
+                          lagrangian=True, to_edges=True)
+
+
+def test_measure_to_edges_uniform_strain():
+    eps = 1e-3
+    res = _measure(lambda X: eps * (X - XC))
+    assert res.parameters["to_edges"] is True
+    valid = np.asarray(res.valid[0])
+    exx = np.asarray(res.strain[0][0])
+    # valid up to a pixel or two of the specimen's edges (the half-modulus line less
+    # one pixel, then the deformed specimen's own edge)
+    cols = np.flatnonzero(valid[64])
+    assert cols[0] <= C0 + 2
+    assert cols[-1] >= C1 - 3
+    edge = edge_pixels(res.mask, WIN) & valid
+    edge[:ROWS.start] = edge[ROWS.stop:] = False
+    assert edge.sum() > 100
+    # the Lagrangian strain of a uniform stretch is eps exactly; the edge pixels are
+    # continued exactly (1e-6, test above) plus the kinematics' own interpolation
+    # near the edge: 5e-6, half the 1e-5 users resolve
+    np.testing.assert_allclose(exx[edge], eps, atol=5e-6)
+
+
+def test_to_edges_needs_method_a():
+    ref = specimen_image(lambda X: 0 * X)
+    with pytest.raises(ValueError, match="to_edges needs method 'A'"):
+        measure_series(ref, ref, lattice=LAT, method="B", to_edges=True)
