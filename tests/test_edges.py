@@ -159,3 +159,31 @@ def test_to_edges_needs_method_a():
     ref = specimen_image(lambda X: 0 * X)
     with pytest.raises(ValueError, match="to_edges needs method 'A'"):
         measure_series(ref, ref, lattice=LAT, method="B", to_edges=True)
+
+
+@pytest.mark.slow
+def test_stated_std_at_the_edges_matches_the_scatter():
+    """The std maps of a to-edges measurement against the scatter over noise draws,
+    at the edge pixels (the band of 4 sigmas along the left and right edges, away
+    from the corners) and in the interior."""
+    rng = np.random.default_rng(5)
+    noise, eps, n = 0.02, 1e-3, 20
+    strain, stated = [], []
+    for _ in range(n):
+        ref = specimen_image(lambda X: 0 * X, noise=noise, rng=rng)
+        cur = specimen_image(lambda X: eps * (X - XC), noise=noise, rng=rng)
+        res = measure_series(ref, cur, lattice=LAT, sigma=SIGMA, guess=None, to_edges=True,
+                             noise_model=(1e-12, noise**2))
+        strain.append(np.asarray(res.strain[0]))
+        stated.append(np.stack([res.uncertainty[k][0] for k in ("exx_std", "eyy_std")]))
+    strain, stated = np.array(strain)[:, :2], np.array(stated)
+    ok = np.all(np.isfinite(strain), axis=0).all(axis=0)
+    edge = edge_pixels(res.mask, WIN) & ok
+    edge[:R0 + 20] = edge[R1 - 20:] = False  # away from the top and bottom edges
+    assert edge.sum() > 300
+    scatter = np.std(strain, axis=0, ddof=1)
+    for c in range(2):
+        # the std of a std from 20 draws is 16 %; pooled over the band's ~60
+        # independent windows, 2 %; the stated std is known to 5 to 10 % (its probes)
+        r = np.sqrt(np.mean(stated[:, c][:, edge] ** 2) / np.mean(scatter[c][edge] ** 2))
+        assert 0.8 <= r <= 1.25, (c, r)

@@ -14,7 +14,13 @@ transform (paper eqs. 22-25).
 from __future__ import annotations
 
 from ._coupling import coupling_corrected
-from ._edges import EDGE_DEPTH, EDGE_PASSES, edge_pixels, transform_to_edges
+from ._edges import (
+    EDGE_DEPTH,
+    EDGE_PASSES,
+    edge_noise_gain,
+    edge_pixels,
+    transform_to_edges,
+)
 from ._maps import PhaseMaps, demodulated_at, finite_derivatives
 from ._maps import demodulated_in_place as demodulated_in_place
 
@@ -39,6 +45,7 @@ __all__ = [
     "coupling_corrected",
     "demodulated_at",
     "detect_lattice",
+    "edge_noise_gain",
     "edge_pixels",
     "finite_derivatives",
     "follow_lattice",

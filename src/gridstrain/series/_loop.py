@@ -541,7 +541,8 @@ def _measure(series: list, guesses: list, m: np.ndarray, o: MeasureOptions, step
         done = [r.summary()]
         pager.page_out()  # the noise floor transforms the reference's halves
         floor = _ReferenceFloor(r, done[0], ref_pass, lattice, window, method,
-                                steps.sub(3 * _WFT_COST, "noise floor"), warnings)
+                                steps.sub(3 * _WFT_COST, "noise floor"), warnings,
+                                to_edges=o.to_edges)
         del ref_pass
         r = floor.r  # without its variance map: the floor keeps the smoothed one
         tracker = _Tracker(r.maps, r.stats.mean, r.mask, lattice, o.order, o.lagrangian)
