@@ -79,7 +79,8 @@ def edge_pixels(mask, window: Window) -> np.ndarray:
 
 
 def transform_to_edges(image, lattice: Lattice, window: Window, *, mask=None,
-                       passes: int = EDGE_PASSES, depth: float = EDGE_DEPTH) -> PhaseMaps:
+                       extend: int = 0, passes: int = EDGE_PASSES,
+                       depth: float = EDGE_DEPTH) -> PhaseMaps:
     """The windowed Fourier transform of ``image`` valid up to the edges of ``mask``
     and of the frame, the grid continued beyond them by its own maps.
 
@@ -95,6 +96,11 @@ def transform_to_edges(image, lattice: Lattice, window: Window, *, mask=None,
         True on the specimen; its pixels must show the grid up to its edges (a mask
         one or two pixels inside the specimen's edge is safe, one reaching beyond it
         mixes the background into the continuation).
+    extend : int
+        Pixels beyond ``mask`` also valid, whose maps are partly the continuation's:
+        for an image whose specimen's edge is known to a few pixels only (a state's,
+        found in the image), ``mask`` is drawn that far inside it and the maps reach
+        its real edge.
     passes : int
         Continuations and transforms (default :data:`EDGE_PASSES`).
     depth : float
@@ -103,8 +109,9 @@ def transform_to_edges(image, lattice: Lattice, window: Window, *, mask=None,
     Returns
     -------
     PhaseMaps
-        ``(H, W)`` maps; ``valid`` where ``mask`` is and both moduli reach
-        ``min_modulus`` times their median over the mask, up to the edges.
+        ``(H, W)`` maps; ``valid`` where ``mask`` is (and ``extend`` px beyond) and
+        both moduli reach ``min_modulus`` times their median over the mask, up to the
+        edges.
 
     Notes
     -----
@@ -142,6 +149,8 @@ def transform_to_edges(image, lattice: Lattice, window: Window, *, mask=None,
     m = check_mask(mask, img.shape)
     if isinstance(passes, bool) or not isinstance(passes, int) or passes < 1:
         raise ValueError(f"passes must be an integer >= 1, got {passes!r}")
+    if isinstance(extend, bool) or not isinstance(extend, int) or extend < 0:
+        raise ValueError(f"extend must be an integer >= 0, got {extend!r}")
     sigma = window.sigma
     H, W = img.shape
     P = math.ceil(window.band) + 1
@@ -206,7 +215,8 @@ def transform_to_edges(image, lattice: Lattice, window: Window, *, mask=None,
     shift = np.exp(2j * math.pi * P * (K[:, 0] + K[:, 1])).astype(pm.psi.dtype)
     psi = pm.psi[(slice(None), *inner)] * shift[:, None, None]
     dphi = np.ascontiguousarray(pm.dphi[(slice(None), slice(None), *inner)])
-    valid = m.copy()
+    valid = ndimage.binary_dilation(m, iterations=extend) if extend and not m.all() \
+        else m.copy()
     if valid.any():
         for j in range(2):
             mod = np.abs(psi[j])

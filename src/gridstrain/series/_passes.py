@@ -340,10 +340,20 @@ def _check_grid(pm: PhaseMaps, image: np.ndarray, mask: np.ndarray, window: Wind
                              "the lattice be detected")
 
 
-# With to_edges, the specimen ends where the grid's modulus falls to this fraction of
-# its median: half, where a straight edge cuts the window in two (MIN_MODULUS, a
-# quarter, reaches ~0.7 sigma into the background beside the specimen).
+# With to_edges, a specimen found in the image (no mask, or regions without a grid
+# inside it) ends where the grid's modulus falls to this fraction of its median: half,
+# where a straight edge cuts the window in two (MIN_MODULUS, a quarter, reaches ~0.7
+# sigma into the background beside the specimen). The step of the mean grey level at
+# the edge leaks into the modulus and moves that line by up to 3 px (sigma = pitch, a
+# background at a third of the grid's mean; measured), and at a corner, where a
+# quarter of the window is on the specimen, the line cuts it 4 px deep: the grid is
+# continued from _EDGE_INSIDE px inside that line, and the maps reach _EDGE_BEYOND px
+# beyond it (the continuation's: the best estimate of the grid there), so that a
+# reference's mask at the specimen's edge is covered by the states' maps. The
+# reference's mask bounds the result's valid pixels (the kinematics).
 _EDGE_MODULUS = 0.5
+_EDGE_INSIDE = 2
+_EDGE_BEYOND = 6
 
 
 def _phase_maps_a(image, lattice: Lattice, window: Window, mask, *, to_edges: bool = False):
@@ -355,11 +365,15 @@ def _phase_maps_a(image, lattice: Lattice, window: Window, mask, *, to_edges: bo
     pm = transform(image, lattice, window, mask=m, workers=None)
     nogrid = no_grid(pm.modulus, pm.valid, m, window.min_modulus)
     if to_edges:
-        if nogrid.any():
-            half = no_grid(pm.modulus, pm.valid, m, _EDGE_MODULUS, away=window.sigma)
-            m = _less(m, ndimage.binary_dilation(half | nogrid))
-        pm = transform_to_edges(image, lattice, window, mask=m)
-    elif nogrid.any():
+        if not nogrid.any():  # the mask's edges are the specimen's
+            return finite_derivatives(transform_to_edges(image, lattice, window, mask=m)), m
+        half = no_grid(pm.modulus, pm.valid, m, _EDGE_MODULUS, away=window.sigma)
+        inner = _less(m, ndimage.binary_dilation(half | nogrid, iterations=_EDGE_INSIDE))
+        pm = transform_to_edges(image, lattice, window, mask=inner,
+                                extend=_EDGE_INSIDE + _EDGE_BEYOND)
+        pm = dataclasses.replace(pm, valid=pm.valid & m)
+        return finite_derivatives(pm), _less(m, half | nogrid)
+    if nogrid.any():
         m = _less(m, nogrid)
         pm = transform(image, lattice, window, mask=m, workers=None)
     return finite_derivatives(pm), m
