@@ -289,3 +289,36 @@ def test_identify_a_cantilever_measured_to_the_edges():
     plain = measure_series(ref, states, **kw)
     with pytest.raises(ValueError, match="stops short of the specimen's free edges"):
         identify(plain, **fit_kw)
+
+
+def test_measure_command_to_edges_and_its_replay(tmp_path, capsys):
+    import tifffile
+
+    from gridstrain.cli import main
+    from gridstrain.results import load
+
+    rng = np.random.default_rng(2)
+    for name, f in (("ref.tif", lambda X: 0 * X), ("load.tif", lambda X: 1e-3 * (X - XC))):
+        img = specimen_image(f, noise=0.002, rng=rng)
+        tifffile.imwrite(tmp_path / name, np.round(img * 20000).astype(np.uint16),
+                         photometric="minisblack")
+    args = ["measure", str(tmp_path / "ref.tif"), str(tmp_path / "load.tif"), "--pitch", "5",
+            "--sigma", "5", "--guess", "0", "0", "--quiet"]
+    assert main([*args, "--to-edges", "-o", str(tmp_path / "a.h5")]) == 0
+    first = load(tmp_path / "a.h5")
+    assert first.parameters["to_edges"] is True
+    valid = np.asarray(first.valid[0])
+    # up to the specimen's edges (found in the images: within 2 px), not 4 sigma short
+    assert np.flatnonzero(valid[64])[0] <= C0 + 2
+    # a replay takes --to-edges back from the file: the same maps
+    assert main(["measure", "--config", str(tmp_path / "a.h5"), "-o", str(tmp_path / "b.h5"),
+                 "--quiet"]) == 0
+    again = load(tmp_path / "b.h5")
+    assert again.parameters["to_edges"] is True
+    np.testing.assert_array_equal(again.get_map("exx"), first.get_map("exx"))
+    # method B: one line, exit 2
+    capsys.readouterr()
+    assert main([*args, "--to-edges", "--method", "B", "-o", str(tmp_path / "c.h5")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1
+    assert "to_edges needs method 'A'" in err[0]
