@@ -66,6 +66,15 @@ def _wft(dt):
     _check_maps(gridstrain.wft(ref[0], LAT), dt)
 
 
+def _transform_to_edges(dt):
+    ref, _ = _ref_cur(dt)
+    from gridstrain.phase import Window, transform_to_edges
+
+    mask = np.zeros((N, N), dtype=bool)
+    mask[8:-8, 8:-8] = True  # a specimen smaller than the frame
+    _check_maps(transform_to_edges(ref[0], LAT, Window(5.0), mask=mask), dt)
+
+
 def _method_a(dt):
     ref, _ = _ref_cur(dt)
     res = stacks.method_a(ref, LAT)
@@ -291,7 +300,8 @@ def _derived_strains(dt):
 
 ENTRY_POINTS = {
     "principal_strains": _derived_strains, "finite_strains": _derived_strains,
-    "wft": _wft, "method_a": _method_a, "method_b": _method_b, "method_c": _method_c,
+    "wft": _wft, "transform_to_edges": _transform_to_edges,
+    "method_a": _method_a, "method_b": _method_b, "method_c": _method_c,
     "wft_complex": _wft_complex,
     "prefix_stacks": _prefix_stacks, "correct_phases": _correct_phases,
     "mean_image": _mean_image, "measure": _measure, "deformation": _deformation,
@@ -312,9 +322,10 @@ ENTRY_POINTS = {
 # (frequencies; metrology's figures), files (save_*, load: the dtypes saved), or the
 # frames themselves at a dtype the caller names (gridstrain.io; as_dask_stack);
 # connect() opens a cluster, progress_bar() draws, state_names() names the inputs,
-# circular_offset_std() takes shifts.
-NO_IMAGE = {"transfer_function", "save_result", "save_csv", "as_dask_stack", "connect",
-            "load", "progress_bar", "metrology", "state_names", "circular_offset_std"}
+# circular_offset_std() takes shifts, edge_pixels() and edge_noise_gain() a mask.
+NO_IMAGE = {"edge_noise_gain", "edge_pixels", "transfer_function", "save_result", "save_csv",
+            "as_dask_stack", "connect", "load", "progress_bar", "metrology", "state_names",
+            "circular_offset_std"}
 
 
 # Public functions of the faces that this policy test does not call yet: each takes

@@ -70,6 +70,7 @@ _CONFIG_KEYS = {
     "sigma": "float", "method": "method", "mask": "path", "roi": "roi",
     "roi-polygon": "polygon", "pixel-size": "float", "grid-pitch": "float",
     "unit": "str", "no-lagrangian": "bool", "guess": "pairs", "margin": "float",
+    "to-edges": "bool",
     "csv": "path", "figures": "path", "export": "formats", "report": "path",
     "phase-maps": "bool", "lossless": "bool", "quiet": "bool", "json": "bool",
     "overwrite": "bool",
@@ -149,6 +150,11 @@ def _window_options(g) -> None:
     g.add_argument("--margin", type=float, metavar="N",
                    help=f"invalid band at borders and mask edges, in sigmas "
                    f"(default {DEFAULT_MARGIN:g})")
+    g.add_argument("--to-edges", action="store_true", default=None,
+                   help="measure up to the specimen's edges (method A): the grid continued "
+                   "beyond them by its own phase before the window; the band of --margin "
+                   "sigmas is then edge pixels, exact for a uniform strain, biased by "
+                   "about 2.2 sigma times the strain's gradient normal to the edge")
 
 
 def _specimen_options(k) -> None:
@@ -464,7 +470,7 @@ def _options(args, config: _Config | None = None) -> dict:
                          "reference = ... and states = [...] in the config file; with "
                          "--reference-frames N, REF is the record)")
     for name in ("no-lagrangian", "quiet", "json", "overwrite", "phase-maps", "each-frame",
-                 "keep-order", "lossless"):
+                 "keep-order", "lossless", "to-edges"):
         opts[name] = bool(opts.get(name, False))
     opts.setdefault("method", "A")
     opts.setdefault("outliers", "exclude")
@@ -661,7 +667,7 @@ def _run(args, progress: _Bar) -> int:
             timeout=opts["timeout"], output=spec, dtype=opts.get("dtype"),
             each_frame=opts["each-frame"], reference_frames=opts.get("reference-frames"),
             keep_order=opts["keep-order"], loads=_loads(opts),
-            frame_rate=opts.get("frame-rate"), **kw)
+            frame_rate=opts.get("frame-rate"), to_edges=opts["to-edges"], **kw)
     if spec is None:
         _refuse_empty(result)
         out = save_result(result, opts["output"], pixel_size=ps, unit=unit,

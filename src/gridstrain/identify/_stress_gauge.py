@@ -23,6 +23,7 @@ centred on ``x = j`` and spanning ``[j - 1/2, j + 1/2]``.
 from __future__ import annotations
 
 import math
+import numbers
 from dataclasses import dataclass
 
 import numpy as np
@@ -331,7 +332,8 @@ def stress_gauge(displacement, strain, time, *, density: float, free_edge: str,
                  pixel_size: float, unit: str = "mm", valid=None, displacement_std=None,
                  strain_std=None, reference_share=None, sigma: float | None = None,
                  edge: float | None = None, window: int = 9, order: int = 4,
-                 strip_fit: int | None = None, strain_floor: float = 0.1) -> StressGauge:
+                 strip_fit: int | None = None, strain_floor: float = 0.1,
+                 fit_from: float = 0.0) -> StressGauge:
     """Mean axial stress over every cross-section of an impact record, and E.
 
     Parameters
@@ -380,6 +382,13 @@ def stress_gauge(displacement, strain, time, *, density: float, free_edge: str,
         The modulus is fitted on the points whose ``|strain|`` is at least this
         fraction of the largest (0 keeps them all), away from the record's first and
         last ``window // 2`` states (where the filter extrapolates).
+    fit_from : float
+        The sections nearer than this, px, to the free edge or to the far end of the
+        sections used enter the slab's integral but not E's fit: maps measured up to
+        the edges
+        (:func:`gridstrain.phase.transform_to_edges`) carry there a strain bias of
+        order ``sigma^2 eps''`` that the stress, an integral of accelerations, does
+        not share (default 0: every section).
 
     Returns
     -------
@@ -506,8 +515,12 @@ def stress_gauge(displacement, strain, time, *, density: float, free_edge: str,
     rate = A1 @ e_mean
     noise = _Noise(A2, M, u_s, e_s, f, sigma, run.size)
     stress_std, rate_std = noise.stress_std(scale), noise.rate_std(A1)
+    if isinstance(fit_from, bool) or not isinstance(fit_from, numbers.Real) or \
+            not 0 <= fit_from < math.inf:
+        raise ValueError(f"fit_from must be a finite distance >= 0, px, got {fit_from!r}")
     fit = _fit_modulus(stress, stress_std, e_mean, noise, scale, window=window,
-                       strain_floor=strain_floor)
+                       strain_floor=strain_floor,
+                       sections=(centres >= fit_from) & (centres <= centres[-1] - fit_from))
     rates = np.abs(rate[fit["fitted"]])
     d_m = centres * m  # metres
     return StressGauge(
@@ -638,13 +651,16 @@ class _Noise:
 
 
 def _fit_modulus(stress, stress_std, strain, noise: _Noise, scale, *, window,
-                 strain_floor) -> dict:
-    """E, its std and interval, and the points fitted (see :func:`stress_gauge`)."""
+                 strain_floor, sections=None) -> dict:
+    """E, its std and interval, and the points fitted (see :func:`stress_gauge`);
+    ``sections``: the sections that may be fitted (all by default)."""
     # the states where the filter is centred, the points where the strain counts
     T = stress.shape[0]
     h = window // 2
     fitted = np.zeros_like(stress, dtype=bool)
     fitted[h:T - h] = True
+    if sections is not None:
+        fitted &= np.asarray(sections, dtype=bool)[None, :]
     big = np.nanmax(np.abs(strain[h:T - h]))
     fitted &= np.abs(strain) >= strain_floor * big
     if fitted.sum() < 3 or not big > 0:
@@ -735,6 +751,10 @@ def stress_gauge_of(result, *, density: float, free_edge: str, pixel_size: float
     edge : float, optional
         Position of the free edge along the axis, px. Default: the border of the
         result's specimen mask on that side (the image's border without a mask).
+        A result measured up to the edges (``to_edges`` in its parameters) has its
+        maps there: the strip without data is at most a pixel wide, and the sections
+        within its band (``margin * sigma``) enter the stress but not E's fit
+        (``fit_from``).
     window, order, strip_fit, strain_floor
         As in :func:`stress_gauge`.
 
@@ -783,9 +803,13 @@ def stress_gauge_of(result, *, density: float, free_edge: str, pixel_size: float
         valid &= np.isfinite(u_std) & np.isfinite(e_std)
     if edge is None:
         edge = _free_edge_position(np.asarray(result.mask, dtype=bool), free_edge)
+    # measured up to the edges: the strip is measured, not extrapolated, and the edge
+    # pixels' strain bias is kept out of E's fit
+    to_edges = bool((result.parameters or {}).get("to_edges"))
+    fit_from = float(result.margin) * float(result.sigma) if to_edges else 0.0
     return stress_gauge(u, eps, result.time, density=density, free_edge=free_edge,
                         pixel_size=pixel_size, unit=unit, valid=valid,
                         displacement_std=u_std, strain_std=e_std,
                         reference_share=reference_share(result) if has_std else None,
                         sigma=result.sigma, edge=edge, window=window, order=order,
-                        strip_fit=strip_fit, strain_floor=strain_floor)
+                        strip_fit=strip_fit, strain_floor=strain_floor, fit_from=fit_from)

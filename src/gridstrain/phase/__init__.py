@@ -6,12 +6,21 @@ transform (paper eqs. 22-25).
   and the minimum modulus), checked once;
 - ``_transform``: the transform itself, its fast and compiled derivatives, and
   ``_kernels`` (numba loops, loaded on the first transform that uses them);
+- ``_edges``: the transform up to the specimen's edges, the grid continued beyond them
+  by its own maps (:func:`transform_to_edges`);
 - ``_coupling``: the window's phase-modulus coupling, corrected to first order.
 """
 
 from __future__ import annotations
 
 from ._coupling import coupling_corrected
+from ._edges import (
+    EDGE_DEPTH,
+    EDGE_PASSES,
+    edge_noise_gain,
+    edge_pixels,
+    transform_to_edges,
+)
 from ._maps import PhaseMaps, demodulated_at, finite_derivatives
 from ._maps import demodulated_in_place as demodulated_in_place
 
@@ -26,7 +35,24 @@ from .lattice import Lattice, detect_lattice, follow_lattice
 from .window import MIN_MODULUS, Window
 
 __all__ = [
-    "DEFAULT_MARGIN", "MIN_MODULUS", "Lattice", "PhaseMaps", "Window", "coupling_corrected",
-    "demodulated_at", "detect_lattice", "finite_derivatives", "follow_lattice",
-    "no_grid", "transfer_function", "transform", "wft", "wft_complex",
+    "DEFAULT_MARGIN",
+    "EDGE_DEPTH",
+    "EDGE_PASSES",
+    "MIN_MODULUS",
+    "Lattice",
+    "PhaseMaps",
+    "Window",
+    "coupling_corrected",
+    "demodulated_at",
+    "detect_lattice",
+    "edge_noise_gain",
+    "edge_pixels",
+    "finite_derivatives",
+    "follow_lattice",
+    "no_grid",
+    "transfer_function",
+    "transform",
+    "transform_to_edges",
+    "wft",
+    "wft_complex",
 ]

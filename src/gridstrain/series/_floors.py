@@ -27,7 +27,14 @@ from ..kinematics import (
     small_strain,
     solve_k,
 )
-from ..phase import Lattice, PhaseMaps, Window, finite_derivatives, transform
+from ..phase import (
+    Lattice,
+    PhaseMaps,
+    Window,
+    edge_noise_gain,
+    finite_derivatives,
+    transform,
+)
 from ..stacks.accumulate import SeriesPass
 from ..uncertainty import (
     SPATIAL_RESOLUTION_PER_SIGMA,
@@ -263,8 +270,10 @@ class _ReferenceFloor:
 
     def __init__(self, r: _Measured, summary: _Summary, ref_pass: SeriesPass,
                  lattice: Lattice, window: Window, method: str, report: Progress,
-                 warnings: list):
+                 warnings: list, *, to_edges: bool = False):
         self.r, self.lattice, self.sigma = r, lattice, window.sigma
+        # measured up to the edges: the factors on the std there (gridstrain.phase)
+        self.edge_gain = edge_noise_gain(r.mask, lattice, window) if to_edges else None
         self.alias_said = False  # the aliasing's warning, given once a run
         T1, T2 = ref_pass.half_counts()
         if min(T1, T2) >= 1:
@@ -345,6 +354,9 @@ class _ReferenceFloor:
             var_ref = self.var_ref_phase
         u_std, strain_std = std_from_phase_variance(
             var_ref, c.maps, variance_def=v_def / c.series.n_frames, valid=res.valid)
+        if self.edge_gain is not None:
+            u_std *= self.edge_gain[0]
+            strain_std *= self.edge_gain[1]
         names = ("ux_std", "uy_std", "exx_std", "eyy_std", "exy_std")
         return dict(zip(names, (*u_std, *strain_std), strict=True))
 

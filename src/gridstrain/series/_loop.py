@@ -91,7 +91,8 @@ def measure_series(reference, states, *, lattice: Lattice | None = None,
                    timeout: float | None = None, output=None,
                    dtype=None, each_frame: bool = False,
                    reference_frames: int | None = None, keep_order: bool = False,
-                   loads=None, frame_rate: float | None = None) -> SeriesResult:
+                   loads=None, frame_rate: float | None = None,
+                   to_edges: bool = False) -> SeriesResult:
     """Displacement and strain maps of loaded states from series of grid images.
 
     Parameters
@@ -232,6 +233,16 @@ def measure_series(reference, states, *, lattice: Lattice | None = None,
         the camera's time stamps) by linear interpolation. Stored as
         :attr:`SeriesResult.load`, how it was read as
         :attr:`SeriesResult.load_source`.
+    to_edges : bool
+        Measure up to the specimen's edges (method A): the grid is continued beyond
+        the mask's and the frame's edges by its own demodulated maps before the
+        window (:func:`gridstrain.phase.transform_to_edges`), so that ``valid``
+        reaches them rather than stopping ``margin`` sigmas short. The pixels within
+        that band are then edge pixels (:func:`gridstrain.phase.edge_pixels` of the
+        result's ``mask`` and window), exact for a uniform strain, biased by the
+        strain's gradient along the edge's normal otherwise (about
+        ``2.2 sigma d eps/dn`` at the edge for ``sigma`` = the pitch); recorded as
+        ``parameters["to_edges"]``.
     frame_rate : float, optional
         The camera's frame rate, Hz: each state's time is its frame's number in
         the record over the rate, s (:attr:`SeriesResult.time`). Without it, states
@@ -277,6 +288,12 @@ def measure_series(reference, states, *, lattice: Lattice | None = None,
                sigma_pitches=sigma_pitches, max_saturation=max_saturation, lattice=lattice,
                scheduler=scheduler, timeout=timeout, noise_model=noise_model, dtype=dtype,
                output=output, lagrangian=lagrangian, bit_depth=bit_depth, guess=guess)
+    if not isinstance(to_edges, bool | np.bool_):
+        raise TypeError(f"to_edges must be a bool, got {type(to_edges).__name__}")
+    if to_edges and o.method != "A":
+        raise ValueError(f"to_edges needs method 'A' (the averaged image is continued "
+                         f"beyond the edges), got method={o.method!r}")
+    o = dataclasses.replace(o, to_edges=bool(to_edges))
     o = dataclasses.replace(o, each_frame=bool(each_frame or reference_frames is not None),
                             reference_frames=reference_frames, keep_order=bool(keep_order))
     progress = null_progress if check_callable(progress, "progress") is None else progress
@@ -348,6 +365,7 @@ class MeasureOptions:
     keep_order: bool = False
     state_order: str = "given"
     window: Window | None = None
+    to_edges: bool = False
 
     def parameters(self) -> dict:
         """The options as the result records them."""
@@ -363,7 +381,7 @@ class MeasureOptions:
             "sigma_pitches": self.sigma_pitches,
             "dtype": None if self.dtype is None else str(self.dtype),
             "each_frame": bool(self.each_frame), "reference_frames": self.reference_frames,
-            "keep_order": bool(self.keep_order)}
+            "keep_order": bool(self.keep_order), "to_edges": bool(self.to_edges)}
 
 
 def _setup(*, method, outliers, margin, sigma, order, sigma_pitches, max_saturation,
@@ -499,7 +517,7 @@ def _measure(series: list, guesses: list, m: np.ndarray, o: MeasureOptions, step
                 pending[k] = None
                 steps.step(n * _pass_cost(method), f"{s.name}: one pass")
             out = _one_series(s, acc, m if k == 0 else None, window, o.max_saturation,
-                              o.outliers, method, f32, steps)
+                              o.outliers, method, f32, steps, to_edges=o.to_edges)
             # at the carrier it was transformed at (gridstrain.phase.coupling_corrected)
             out = dataclasses.replace(out, maps=coupling_corrected(out.maps))
             if plans[k].lattice != lattice:  # a state at its own carrier (_carrier)
@@ -526,7 +544,8 @@ def _measure(series: list, guesses: list, m: np.ndarray, o: MeasureOptions, step
         done = [r.summary()]
         pager.page_out()  # the noise floor transforms the reference's halves
         floor = _ReferenceFloor(r, done[0], ref_pass, lattice, window, method,
-                                steps.sub(3 * _WFT_COST, "noise floor"), warnings)
+                                steps.sub(3 * _WFT_COST, "noise floor"), warnings,
+                                to_edges=o.to_edges)
         del ref_pass
         r = floor.r  # without its variance map: the floor keeps the smoothed one
         tracker = _Tracker(r.maps, r.stats.mean, r.mask, lattice, o.order, o.lagrangian)

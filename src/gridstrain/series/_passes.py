@@ -11,6 +11,7 @@ import math
 from collections.abc import Iterable
 
 import numpy as np
+from scipy import ndimage
 
 from .._progress import Progress, null_progress
 from .._runtime.threads import map_bounded
@@ -28,6 +29,7 @@ from ..phase import (
     finite_derivatives,
     no_grid,
     transform,
+    transform_to_edges,
 )
 from ..phase.lattice import state_carrier
 from ..phase.window import min_side
@@ -338,11 +340,39 @@ def _check_grid(pm: PhaseMaps, image: np.ndarray, mask: np.ndarray, window: Wind
                              "the lattice be detected")
 
 
-def _phase_maps_a(image, lattice: Lattice, window: Window, mask):
-    """WFT of an averaged image, masking regions without a grid (method A)."""
+# With to_edges, a specimen found in the image (no mask, or regions without a grid
+# inside it) ends where the grid's modulus falls to this fraction of its median: half,
+# where a straight edge cuts the window in two (MIN_MODULUS, a quarter, reaches ~0.7
+# sigma into the background beside the specimen). The step of the mean grey level at
+# the edge leaks into the modulus and moves that line by up to 3 px (sigma = pitch, a
+# background at a third of the grid's mean; measured), and at a corner, where a
+# quarter of the window is on the specimen, the line cuts it 4 px deep: the grid is
+# continued from _EDGE_INSIDE px inside that line, and the maps reach _EDGE_BEYOND px
+# beyond it (the continuation's: the best estimate of the grid there), so that a
+# reference's mask at the specimen's edge is covered by the states' maps. The
+# reference's mask bounds the result's valid pixels (the kinematics).
+_EDGE_MODULUS = 0.5
+_EDGE_INSIDE = 2
+_EDGE_BEYOND = 6
+
+
+def _phase_maps_a(image, lattice: Lattice, window: Window, mask, *, to_edges: bool = False):
+    """WFT of an averaged image, masking regions without a grid (method A); with
+    ``to_edges``, valid up to the specimen's edges
+    (:func:`gridstrain.phase.transform_to_edges`), the regions without a grid cut at
+    the half-modulus line less one pixel, so that no background is taken for grid."""
     m = np.ones(image.shape, dtype=bool) if mask is None else mask
     pm = transform(image, lattice, window, mask=m, workers=None)
     nogrid = no_grid(pm.modulus, pm.valid, m, window.min_modulus)
+    if to_edges:
+        if not nogrid.any():  # the mask's edges are the specimen's
+            return finite_derivatives(transform_to_edges(image, lattice, window, mask=m)), m
+        half = no_grid(pm.modulus, pm.valid, m, _EDGE_MODULUS, away=window.sigma)
+        inner = _less(m, ndimage.binary_dilation(half | nogrid, iterations=_EDGE_INSIDE))
+        pm = transform_to_edges(image, lattice, window, mask=inner,
+                                extend=_EDGE_INSIDE + _EDGE_BEYOND)
+        pm = dataclasses.replace(pm, valid=pm.valid & m)
+        return finite_derivatives(pm), _less(m, half | nogrid)
     if nogrid.any():
         m = _less(m, nogrid)
         pm = transform(image, lattice, window, mask=m, workers=None)
@@ -433,7 +463,8 @@ def _connect(scheduler, timeout: float | None):
 
 
 def _one_series(s, acc: SeriesPass, base, window: Window, max_saturation: float,
-                outliers: str, method: str, f32: bool, steps: _Steps) -> _Measured:
+                outliers: str, method: str, f32: bool, steps: _Steps, *,
+                to_edges: bool = False) -> _Measured:
     """Screening, statistics and phase maps of series ``s`` from its pass; ``base``
     is the mask of the reference (None for a state: its configuration is deformed)."""
     plan = acc.plan
@@ -446,7 +477,7 @@ def _one_series(s, acc: SeriesPass, base, window: Window, max_saturation: float,
     del st
     acc.release(keep_halves=base is not None)  # the reference's halves: its noise floor
     if method == "A":
-        pm, used = _phase_maps_a(stats.mean, plan.lattice, window, base)
+        pm, used = _phase_maps_a(stats.mean, plan.lattice, window, base, to_edges=to_edges)
     else:  # the mean image gives the mask only
         used = _grid_support(stats.mean, plan.lattice, window, base)
     steps.step(2 * _WFT_COST, f"{s.name}: phase maps")
