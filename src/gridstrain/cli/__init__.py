@@ -40,7 +40,7 @@ from .._runtime.threads import (
 # that they agree)
 _COMMANDS = {
     "animate": "an animation (GIF, MP4) of a map over the states on fixed colour limits",
-    "demo": "simulate a plate with a hole in tension and measure it",
+    "demo": "simulate a tensile test with a testing machine's log and measure it",
     "export": "write a result file as MATLAB, CSV, ParaView (VTK) or NetCDF files",
     "gauge": "virtual strain gauge and extensometer: mean strain of every state with its "
              "std",
