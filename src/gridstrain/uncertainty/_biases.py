@@ -283,27 +283,38 @@ def _measured_harmonics(ref, w, lattice, j, k, sigma, mean, floor) -> list[dict]
     # specimen, which changes a harmonic's share of the light from place to place (an
     # even harmonic of lines half a pitch wide changes sign where the width crosses
     # half the pitch: its average over the image is nil where it is not)
-    sw = np.sqrt(w)
-    bvec = (sw * ref).ravel()
+    sep = _separable(w)
 
-    def basis(f, kind):
+    def waves(f, kind):
         px, py = _POWERS[kind]
-        ex = np.exp(2j * np.pi * f[0] * np.arange(W)) * xx**px
-        ey = np.exp(2j * np.pi * f[1] * np.arange(H)) * yy**py
-        return (sw * np.outer(ey, ex)).ravel()
+        return (np.exp(2j * np.pi * f[0] * np.arange(W)) * xx**px,
+                np.exp(2j * np.pi * f[1] * np.arange(H)) * yy**py)
 
     def solve(cols):
         # the normal equations through the Gram matrix's pseudo-inverse, which the
         # inflation needs anyway: a few columns of well-separated frequencies (those
         # closer are left out above) keep it well conditioned, and a column it
         # cannot resolve is inflated beyond _INFLATION
-        A = np.stack([basis(fit_f[t] if t >= 0 else k, kind) for t, kind in cols]
-                     + [basis(e, kind) for e in others for kind in range(_CARRIER_TERMS)],
-                     axis=1)
-        AH = A.conj().T
-        gram = AH @ A
+        pairs = [waves(fit_f[t] if t >= 0 else k, kind) for t, kind in cols] + \
+            [waves(e, kind) for e in others for kind in range(_CARRIER_TERMS)]
+        EX = np.array([x for x, _ in pairs])  # (n, W)
+        EY = np.array([y for _, y in pairs])  # (n, H)
+        if sep is not None:
+            # separable weights (no mask, or a rectangle): the Gram matrix is the
+            # product of the two axes' and the projections two matrix products,
+            # (H + W) n^2 and H W n operations instead of H W n^2
+            wy, wx = sep
+            gram = ((EY.conj() * wy) @ EY.T) * ((EX.conj() * wx) @ EX.T)
+            M = (ref * wx) @ EX.conj().T  # (H, n)
+            rhs = np.sum(EY.conj().T * wy[:, None] * M, axis=0)
+        else:
+            sw = np.sqrt(w)
+            A = np.stack([(sw * np.outer(y, x)).ravel() for x, y in pairs], axis=1)
+            AH = A.conj().T
+            gram = AH @ A
+            rhs = AH @ (sw * ref).ravel()
         inv = np.linalg.pinv(gram, hermitian=True)
-        return inv @ (AH @ bvec), inv, np.abs(np.real(np.diag(inv))) * np.real(np.diag(gram))
+        return inv @ rhs, inv, np.abs(np.real(np.diag(inv))) * np.real(np.diag(gram))
 
     fit_f = [f for *_, f, _ in fit]
     # the image's other strong terms, fitted too (after the columns above): the other
@@ -338,12 +349,15 @@ def _measured_harmonics(ref, w, lattice, j, k, sigma, mean, floor) -> list[dict]
             # frequencies and on the ring of the fold's distance around the carrier;
             # an envelope's value at a point is noisier than its mean by its variance
             # there over the mean's (the block of the inverse Gram matrix)
-            near_floor = _ring_floor(ref, w, k, f - k, np.vstack([folds, [k]]), (W, H))
             pts = at[:, :len(idx)]
             blk = inv[np.ix_(idx, idx)]
             gain = np.real(np.einsum("pi,ij,pj->p", pts, blk, pts.conj())) / max(
                 np.real(blk[0, 0]), 1e-300)
             loc2 = np.abs(pts @ coef[idx]) ** 2
+            # (a share that counts for nothing even whole needs no floor)
+            whole = math.sqrt(float(loc2.max())) / float(a_loc.min()) * _transfer(delta, sigma)
+            near_floor = 0.0 if whole < _NEGLIGIBLE else _ring_floor(
+                ref, w, k, f - k, np.vstack([folds, [k]]), (W, H))
             noise2 = gain * max(floor, near_floor)
             # a noise amplitude's power is exponential about its mean: the largest
             # of the 9 points of tens of harmonics would add tens of noise-level
@@ -377,6 +391,17 @@ def _measured_harmonics(ref, w, lattice, j, k, sigma, mean, floor) -> list[dict]
 # about 20 images of 50 harmonics at 9 points.
 _SIGNIFICANT = 9.0
 
+def _separable(w):
+    """``(wy, wx)`` with ``w == outer(wy, wx)`` (to rounding), or None."""
+    total = float(w.sum())
+    if not total > 0:
+        return None
+    wy, wx = w.sum(axis=1), w.sum(axis=0) / total
+    if np.allclose(np.outer(wy, wx), w, rtol=0.0, atol=1e-12 * float(w.max())):
+        return wy, wx
+    return None
+
+
 # The points, in fractions of the measured region's side from its centre, where the
 # harmonics' local share of the carrier is taken: where its Hann window exceeds a
 # third of its peak (cos^2(pi x) >= 1/3 for |x| <= 0.3).
@@ -394,13 +419,15 @@ def _ring_floor(ref, w, k, d, avoid, size) -> float:
     distance from it."""
     total = float(np.sum(w))
     scale = np.asarray(size, dtype=np.float64)
+    rw = ref * w
+    ones = np.ones_like(w)
     powers = []
     for t in np.arange(1, _RING) * (2 * math.pi / _RING):
         c, s = math.cos(t), math.sin(t)
         f = k + np.array([c * d[0] - s * d[1], s * d[0] + c * d[1]])
         gaps = np.hypot(*((_fold(avoid - f)) * scale).T)
         if gaps.min() >= _APART:
-            powers.append(abs(_dtft(ref, w, f) / total) ** 2)
+            powers.append(abs(_dtft(rw, ones, f) / total) ** 2)
     return float(np.mean(powers)) if powers else 0.0
 
 
