@@ -137,7 +137,7 @@ def aliasing_bias(image, lattice, *, sigma: float, mask=None) -> dict:
     Figures (``tests/test_aliasing.py``): one harmonic of a direct sum, its amplitude
     to 2 % and the measured error 0.8 times the bound; photographs of printed lines
     0.2 to 0.5 pitch wide at pitches 4 to 7 px turned by 0.6 degree (noise-free,
-    stretched by 2 % and -0.6 %), largest errors 0.007 to 0.13 px, bounds 1.1 to 9.4
+    stretched by 2 % and -0.6 %), largest errors 0.007 to 0.13 px, bounds 1.2 to 34
     times them; a photographed sine grid, under half the noise std.
     """
     img = as_image(image, allow_uniform=True).astype(np.float64)
