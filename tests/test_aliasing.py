@@ -53,10 +53,11 @@ def test_a_single_folded_harmonic_is_measured_and_bounds_the_error():
     # 5 k1 is (cos t, sin t) cycle/px: (-4, 0) folds at |5 k1 - (1, 0)| = 2 sin(t/2)
     # from k1, exactly (a geometric identity)
     assert r["fold_distance"] == pytest.approx(2 * np.sin(np.deg2rad(ANGLE) / 2), rel=1e-9)
-    # nothing else is in the image: the other families' records are nil (1 % of the
-    # harmonic: the leak again)
+    # nothing else is in the image: the other families' records are nil (4 % of the
+    # harmonic: the leak again, through the envelopes x and y times each fold, whose
+    # spectra are the Hann window's derivative's, wider than its own; measured 2.7 %)
     others = [x["relative_amplitude"] for k, x in rec.items() if k != ((-4, 0), 1)]
-    assert max(others, default=0.0) < 0.01 * a4 / 0.4
+    assert max(others, default=0.0) < 0.04 * a4 / 0.4
     # the measured error: the pair stretched by 1.5 %, whose phases sweep the
     # harmonic's term, 5 times faster than the carrier's, through 2 periods from the
     # centre to the edges: the reference's and the deformed image's terms meet in

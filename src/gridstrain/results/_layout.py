@@ -425,8 +425,9 @@ def _write_metrology(h5, result) -> None:
         smooth = np.array([[np.nan if v is None else v for v in s["max"]]
                            for s in sy["smoothing"]], dtype=float)
         _var(h5, "systematic_smoothing_strain", smooth, ("state", "strain_component"), "1",
-             "window smoothing of strain gradients, bound on the peak error: 3 x the "
-             "largest sigma^2/2 lap(e)")
+             "window smoothing of strain gradients, bound on the peak error: the larger "
+             "of 3 x the largest sigma^2/2 lap(e) and 1.5 x the sharpest feature's "
+             "deconvolved peak error")
         h5.attrs["systematic_aliasing_u_px"] = float(sy["aliasing"]["u_px"])
         h5.attrs["systematic_aliasing_strain_per_strain"] = float(
             sy["aliasing"]["strain_per_strain"])

@@ -408,7 +408,8 @@ def _smoothing_warnings(name: str, m: Measurement, fl: dict, smooth: dict) -> li
         if b is None or not math.isfinite(e_noise) or b <= 2.5 * e_noise or b <= 1e-6:
             continue
         text = (f"{name}: the window smooths the {comp} gradients: its bias may reach "
-                f"{bound:.2g} ({smooth['factor']:g} x the largest sigma^2/2 lap(e)) against "
+                f"{bound:.2g} (the larger of {smooth['factor']:g} x the largest sigma^2/2 "
+                "lap(e) and 1.5 x the sharpest feature's deconvolved peak error) against "
                 f"a noise std of {e_noise:.2g}")
         if smooth["below_resolution"][j]:
             text += (f"; the sharpest feature is at or below the spatial resolution "

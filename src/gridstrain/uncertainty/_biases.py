@@ -29,10 +29,18 @@ _SMOOTHING_FACTOR = 3.0
 _BACKGROUND_SIGMAS = 20.0
 
 
-# Harmonics above this spatial frequency, cycles/px, are taken as cut by the lens:
-# the diffraction cut-off 1 / (lambda N) of an f/5.6 lens in green light (0.55 um)
-# on 5-um pixels is 1.6 cycles/px (sharper optics or larger pixels pass more).
-_OPTICS_CUTOFF = 1.6
+# Harmonics above this spatial frequency, cycles/px, are left out. No lens is taken to
+# cut them: perfect optics leave the pixel's integration alone, sinc(h), and a sharp
+# line's n-th harmonic 1/n of its fundamental, which still reach the carriers' band
+# (at pitch 5 px the 9th and 11th, 1.8 and 2.2 cycles/px, made errors 9 times a bound
+# stopped at 1.6). Counting up to 3 cycles/px moves the bound of sharp lines at pitch 4
+# to 8 px by under 5 % against 4.5 cycles/px (tests/bias_cases.py).
+_OPTICS_CUTOFF = 3.0
+
+# Harmonics that cannot be measured (their folds on the carrier's) and lie above this
+# frequency, cycles/px, are not counted: the diffraction cut-off 1 / (lambda N) of an
+# f/5.6 lens in green light (0.55 um) on 5-um pixels.
+_MODEL_CUTOFF = 1.6
 
 
 def _dtft(img: np.ndarray, w: np.ndarray, k) -> complex:
@@ -91,12 +99,18 @@ def aliasing_bias(image, lattice, *, sigma: float, mask=None) -> dict:
     line about the image's average that is measured.
 
     The amplitudes are measured, not modelled: the harmonics whose folds lie within
-    the window's band of a carrier are fitted jointly with the carrier (its amplitude
-    allowed to vary linearly across the image) by weighted least squares, a Hann
-    window times the mask, on the image divided by its local mean over two pitches
-    (the lighting, whose variation would widen the carrier's peak over the bins where
-    the folds lie). The power that noise and print defects put at every frequency,
-    measured where no harmonic folds, is taken out in quadrature, and no amplitude
+    the window's band of a carrier are fitted jointly with the carrier (each amplitude,
+    the carrier's and every harmonic's, allowed to vary linearly across the image; a
+    harmonic's share is its largest ratio to the carrier's at 3 x 3 points over the
+    window's region: a print whose line width drifts across the specimen changes that
+    share from place to place, and an even harmonic of lines half a pitch wide changes
+    sign where the width crosses half the pitch) by weighted least squares, a Hann
+    window times the mask, on the image divided by its lighting (a polynomial of
+    degree 4 fitted to it, :func:`_lighting`: a varying lighting would widen the
+    carrier's peak over the bins where the folds lie). The power that noise and print
+    defects put at every frequency, measured where no harmonic folds, is taken out in
+    quadrature (a local amplitude whose power is under 9 times that noise's is taken
+    as noise), and no amplitude
     exceeds the mean level times the pixel's integration at its frequency (a
     reflectance is not negative). A lattice turned or stretched away from a whole
     number of pixels puts the folds a few frequency bins apart from the carrier and
@@ -112,10 +126,18 @@ def aliasing_bias(image, lattice, *, sigma: float, mask=None) -> dict:
     the carrier cannot be removed, and one off it is damped by the window already;
     the bound is stated and warned about where it exceeds the noise.
 
+    Harmonics up to 3 cycles/px are counted: perfect optics leave the pixel's
+    integration, ``sinc(h)``, as the only cut. On noise-free prints of sharp lines
+    (``tests/bias_cases.py``: pitch 4 to 8 px, perfect optics or a Gaussian blur of
+    0.5 and 1 px, line width drifting by 0 or +-20 % across the frame, vignetting 0 or
+    50 %) the bound holds in 120 of 120 cases, 1.3 to 7.3 times the largest error
+    where it exceeds 0.01 px (``tests/test_bounds.py``; errors under 1e-4 px aside).
+    Harmonics that cannot be measured are counted up to 1.6 cycles/px only.
+
     Figures (``tests/test_aliasing.py``): one harmonic of a direct sum, its amplitude
     to 2 % and the measured error 0.8 times the bound; photographs of printed lines
     0.2 to 0.5 pitch wide at pitches 4 to 7 px turned by 0.6 degree (noise-free,
-    stretched by 2 % and -0.6 %), largest errors 0.007 to 0.13 px, bounds 1.1 to 9.4
+    stretched by 2 % and -0.6 %), largest errors 0.007 to 0.13 px, bounds 1.2 to 34
     times them; a photographed sine grid, under half the noise std.
     """
     img = as_image(image, allow_uniform=True).astype(np.float64)
@@ -124,13 +146,7 @@ def aliasing_bias(image, lattice, *, sigma: float, mask=None) -> dict:
     img = img[box]
     w = _aliasing_window(img.shape, lattice,
                          None if mask is None else np.asarray(mask, dtype=bool)[box])
-    # the lighting divided out: the local mean over two pitches, where the grid's
-    # carriers are damped by exp(-8 pi^2) below 1e-34
-    inside = (w > 0).astype(np.float64)
-    s = 2.0 * float(np.mean(lattice.pitches))
-    light = ndimage.gaussian_filter(img * inside, s) / np.maximum(
-        ndimage.gaussian_filter(inside, s), 1e-12)
-    img = np.where(light > 0, img / np.where(light > 0, light, 1.0), 0.0)
+    img = img / _lighting(img, w)
     mean = float(np.sum(img * w) / np.sum(w))
     ref = img - mean
     ks = [np.array(lattice.k1, dtype=np.float64), np.array(lattice.k2, dtype=np.float64)]
@@ -147,6 +163,37 @@ def aliasing_bias(image, lattice, *, sigma: float, mask=None) -> dict:
                          "carrier, its amplitude fitted on the reference image, weighted "
                          "by the window's transfer; twice one image's error (reference "
                          "and deformed)")
+
+
+# The degree of the polynomial in (x, y) that stands for the lighting.
+_LIGHT_DEGREE = 4
+
+
+def _lighting(img, w) -> np.ndarray:
+    """The lighting over the image: a polynomial of degree ``_LIGHT_DEGREE`` in the
+    pixel's coordinates fitted to ``img`` by least squares with the weights ``w``, 1
+    where it is not positive (outside the weights).
+
+    A local mean (a Gaussian over two pitches, normalised) damps the carriers in the
+    image's interior but not where the image's border cuts it: there its window's cut
+    leaves about 2 % of the carrier (``g(0) / 2 pi k``), a ripple along the border
+    that spreads the carrier's spectrum over the bins where the nearest folds lie
+    (0.07 % of the carrier read as harmonics on a pure sine grid, bounds of 0.01 to
+    0.05 px where the errors were 1e-5 px). A polynomial has no carrier to leak: the
+    Hann-weighted projection of a carrier on it is the window's transform far from
+    zero. Lighting gradients and vignetting (the cos^4 law) over a few hundred pixels
+    are smooth polynomials; what is sharper (a stain, a hole) is the reflectance's
+    modulation of the carrier, measured on the ring around it (:func:`_ring_floor`).
+    """
+    H, W = img.shape
+    y = (np.arange(H) - (H - 1) / 2) / H
+    x = (np.arange(W) - (W - 1) / 2) / W
+    terms = [(a, b) for a in range(_LIGHT_DEGREE + 1) for b in range(_LIGHT_DEGREE + 1 - a)]
+    sw = np.sqrt(w).ravel()
+    A = np.stack([np.outer(y**b, x**a).ravel() * sw for a, b in terms], axis=1)
+    coef = np.linalg.lstsq(A, img.ravel() * sw, rcond=None)[0]
+    light = sum(c * np.outer(y**b, x**a) for c, (a, b) in zip(coef, terms, strict=True))
+    return np.where((w > 0) & (light > 0), light, 1.0)
 
 
 # The smallest share of the carrier's amplitude, after the window, that counts.
@@ -231,54 +278,134 @@ def _measured_harmonics(ref, w, lattice, j, k, sigma, mean, floor) -> list[dict]
     fit = [x for x, g in zip(fit, gap[1:], strict=True) if g.min() >= _APART]
     yy = (np.arange(H) - (H - 1) / 2) / H
     xx = (np.arange(W) - (W - 1) / 2) / W
-    # the carrier times 1, x, y: what the lighting's division left of its variation
-    cols = [(k, c) for c in range(_CARRIER_TERMS)] + [(f, 0) for *_, f, _ in fit]
-    sw = np.sqrt(w)
+    # the carrier and every harmonic times 1, x, y: what the lighting's division left
+    # of the carrier's variation, and a print whose lines' width drifts across the
+    # specimen, which changes a harmonic's share of the light from place to place (an
+    # even harmonic of lines half a pitch wide changes sign where the width crosses
+    # half the pitch: its average over the image is nil where it is not)
+    sep = _separable(w)
 
-    def basis(f, kind):
+    def waves(f, kind):
         px, py = _POWERS[kind]
-        ex = np.exp(2j * np.pi * f[0] * np.arange(W)) * xx**px
-        ey = np.exp(2j * np.pi * f[1] * np.arange(H)) * yy**py
-        return (sw * np.outer(ey, ex)).ravel()
+        return (np.exp(2j * np.pi * f[0] * np.arange(W)) * xx**px,
+                np.exp(2j * np.pi * f[1] * np.arange(H)) * yy**py)
 
-    A = np.stack([basis(f, kind) for f, kind in cols], axis=1)
-    b = (sw * ref).ravel()
-    AH = A.conj().T
-    gram = AH @ A
-    # the normal equations through the Gram matrix's pseudo-inverse, which the
-    # inflation needs anyway: a few columns of well-separated frequencies (those
-    # closer are left out above) keep it well conditioned, and a column it cannot
-    # resolve is inflated beyond _INFLATION and not taken as measured
-    inv = np.linalg.pinv(gram, hermitian=True)
-    coef = inv @ (AH @ b)
-    inflation = np.abs(np.real(np.diag(inv))) * np.real(np.diag(gram))
-    a_j = abs(coef[0])
-    index = {(n, m): _CARRIER_TERMS + i for i, (n, m, *_) in enumerate(fit)}
-    folds = np.array([f for *_, f, _ in fit]).reshape(-1, 2)
+    def solve(cols):
+        # the normal equations through the Gram matrix's pseudo-inverse, which the
+        # inflation needs anyway: a few columns of well-separated frequencies (those
+        # closer are left out above) keep it well conditioned, and a column it
+        # cannot resolve is inflated beyond _INFLATION
+        pairs = [waves(fit_f[t] if t >= 0 else k, kind) for t, kind in cols] + \
+            [waves(e, kind) for e in others for kind in range(_CARRIER_TERMS)]
+        EX = np.array([x for x, _ in pairs])  # (n, W)
+        EY = np.array([y for _, y in pairs])  # (n, H)
+        if sep is not None:
+            # separable weights (no mask, or a rectangle): the Gram matrix is the
+            # product of the two axes' and the projections two matrix products,
+            # (H + W) n^2 and H W n operations instead of H W n^2
+            wy, wx = sep
+            gram = ((EY.conj() * wy) @ EY.T) * ((EX.conj() * wx) @ EX.T)
+            M = (ref * wx) @ EX.conj().T  # (H, n)
+            rhs = np.sum(EY.conj().T * wy[:, None] * M, axis=0)
+        else:
+            sw = np.sqrt(w)
+            A = np.stack([(sw * np.outer(y, x)).ravel() for x, y in pairs], axis=1)
+            AH = A.conj().T
+            gram = AH @ A
+            rhs = AH @ (sw * ref).ravel()
+        inv = np.linalg.pinv(gram, hermitian=True)
+        return inv @ rhs, inv, np.abs(np.real(np.diag(inv))) * np.real(np.diag(gram))
+
+    fit_f = [f for *_, f, _ in fit]
+    # the image's other strong terms, fitted too (after the columns above): the other
+    # carrier and both conjugates, whose window's leak near the carrier would
+    # otherwise pass for the folds nearest it
+    kk = [np.asarray(lattice.k1, dtype=np.float64), np.asarray(lattice.k2, dtype=np.float64)]
+    others = [kk[1 - j], -kk[0], -kk[1]]
+    # the carrier times 1, x, y (column t = -1), and every harmonic t the same: an
+    # envelope whose fold lies near the carrier's is inflated (its variance, counted
+    # at each point below, grows), but its drift is what is sought
+    cols = [(t, c) for t in range(-1, len(fit)) for c in range(_CARRIER_TERMS)]
+    coef, inv, inflation = solve(cols)
+    # the envelopes at points over the region the window weighs (its Hann window
+    # above a third of its peak): the local amplitudes
+    at = np.array([[1.0, px, py] for px in _SPREAD for py in _SPREAD])  # (P, 3)
+    a_loc = np.abs(at @ coef[:_CARRIER_TERMS])
+    index: dict = {}
+    for q, (t, _) in enumerate(cols):
+        if t >= 0:
+            index.setdefault(tuple(fit[t][:2]), []).append(q)
+    folds = np.array(fit_f).reshape(-1, 2)
     out = []
     for n, m, h, f, delta in near:
-        i = index.get((n, m))
-        measured = bool(i is not None and inflation[i] <= _INFLATION
-                        and inflation[0] <= _INFLATION and a_j > 0)
-        # the sensor's noise and the print's defects add their power at every
-        # frequency, and the specimen's reflectance (a hole, an edge, a stain)
-        # modulates the carrier, spreading its spectrum around it: both taken out in
-        # quadrature, as measured where no harmonic folds, at random frequencies and
-        # on the ring of the fold's distance around the carrier
-        near_floor = _ring_floor(ref, w, k, f - k, np.vstack([folds, [k]]), (W, H)) \
-            if measured else 0.0
-        f2 = max(floor, near_floor) / max(a_j, 1e-300) ** 2
-        r = float(math.sqrt(max(0.0, abs(coef[i] / a_j) ** 2 - f2))) if measured \
-            else _sharp_term(lattice, n, m, k, j)
-        # a print's reflectance is not negative: none of its Fourier coefficients
-        # exceeds its mean, and the pixel's integration then multiplies each by
-        # mtf(h): what is fitted beyond that is the carrier's modulation, not a harmonic
+        idx = index.get((n, m))
+        measured = bool(idx is not None and inflation[idx[0]] <= _INFLATION
+                        and inflation[0] <= _INFLATION and a_loc.min() > 0)
         if measured:
-            r = min(r, abs(mean) / a_j * _mtf(h) / _mtf(k))
+            # the sensor's noise and the print's defects add their power at every
+            # frequency, and the specimen's reflectance (a hole, an edge, a stain)
+            # modulates the carrier, spreading its spectrum around it: both taken out
+            # in quadrature, as measured where no harmonic folds, at random
+            # frequencies and on the ring of the fold's distance around the carrier;
+            # an envelope's value at a point is noisier than its mean by its variance
+            # there over the mean's (the block of the inverse Gram matrix)
+            pts = at[:, :len(idx)]
+            blk = inv[np.ix_(idx, idx)]
+            gain = np.real(np.einsum("pi,ij,pj->p", pts, blk, pts.conj())) / max(
+                np.real(blk[0, 0]), 1e-300)
+            loc2 = np.abs(pts @ coef[idx]) ** 2
+            # (a share that counts for nothing even whole needs no floor)
+            whole = math.sqrt(float(loc2.max())) / float(a_loc.min()) * _transfer(delta, sigma)
+            near_floor = 0.0 if whole < _NEGLIGIBLE else _ring_floor(
+                ref, w, k, f - k, np.vstack([folds, [k]]), (W, H))
+            noise2 = gain * max(floor, near_floor)
+            # a noise amplitude's power is exponential about its mean: the largest
+            # of the 9 points of tens of harmonics would add tens of noise-level
+            # terms; one whose power stands under _SIGNIFICANT times the noise's is
+            # taken as noise
+            r2 = np.where(loc2 > _SIGNIFICANT * noise2, loc2 - noise2, 0.0) \
+                / np.maximum(a_loc, 1e-300) ** 2
+            # a print's reflectance is not negative: none of its Fourier coefficients
+            # exceeds its mean, and the pixel's integration then multiplies each by
+            # mtf(h): what is fitted beyond that is the carrier's modulation, not a
+            # harmonic
+            r_pts = np.minimum(np.sqrt(np.maximum(r2, 0.0)),
+                               abs(mean) / np.maximum(a_loc, 1e-300) * _mtf(h) / _mtf(k))
+            r = float(r_pts.max())
+        elif np.hypot(*h) > _MODEL_CUTOFF:
+            # one that cannot be seen, above the cut-off of an f/5.6 lens, is left
+            # to those below it: the sharp print's amplitudes summed to 3 cycles/px
+            # take every harmonic at its largest and in phase, 12 times the error of
+            # sharp lines at pitch 4 px (tests/test_noise_sources.py)
+            continue
+        else:
+            r = _sharp_term(lattice, n, m, k, j)
         out.append({"order": [n, m], "carrier": j + 1, "relative_amplitude": r,
                     "fold_distance": delta, "transfer": _transfer(delta, sigma),
                     "change": float(np.hypot(*(h - k))), "measured": measured})
     return out
+
+
+# A harmonic's power at a point below this many times the noise's there is taken as
+# noise: a noise amplitude exceeds it with probability exp(-9) = 1.2e-4, once in
+# about 20 images of 50 harmonics at 9 points.
+_SIGNIFICANT = 9.0
+
+def _separable(w):
+    """``(wy, wx)`` with ``w == outer(wy, wx)`` (to rounding), or None."""
+    total = float(w.sum())
+    if not total > 0:
+        return None
+    wy, wx = w.sum(axis=1), w.sum(axis=0) / total
+    if np.allclose(np.outer(wy, wx), w, rtol=0.0, atol=1e-12 * float(w.max())):
+        return wy, wx
+    return None
+
+
+# The points, in fractions of the measured region's side from its centre, where the
+# harmonics' local share of the carrier is taken: where its Hann window exceeds a
+# third of its peak (cos^2(pi x) >= 1/3 for |x| <= 0.3).
+_SPREAD = (-0.3, 0.0, 0.3)
 
 
 # Offsets on the ring around a carrier where the power beside a fold is measured.
@@ -292,13 +419,15 @@ def _ring_floor(ref, w, k, d, avoid, size) -> float:
     distance from it."""
     total = float(np.sum(w))
     scale = np.asarray(size, dtype=np.float64)
+    rw = ref * w
+    ones = np.ones_like(w)
     powers = []
     for t in np.arange(1, _RING) * (2 * math.pi / _RING):
         c, s = math.cos(t), math.sin(t)
         f = k + np.array([c * d[0] - s * d[1], s * d[0] + c * d[1]])
         gaps = np.hypot(*((_fold(avoid - f)) * scale).T)
         if gaps.min() >= _APART:
-            powers.append(abs(_dtft(ref, w, f) / total) ** 2)
+            powers.append(abs(_dtft(rw, ones, f) / total) ** 2)
     return float(np.mean(powers)) if powers else 0.0
 
 
@@ -604,11 +733,16 @@ def smoothing_bias(strain, valid, *, sigma: float) -> dict:
         - ``estimate_max`` and ``p95`` (3,): the largest value and the 95th
           percentile of ``|sigma^2 / 2 lap(e)|`` itself;
         - ``attenuation`` (3,): the fraction by which the window lowers the peak
-          where the bound is largest, ``max / (|departure| + max)``, with the
+          where the estimate is largest, ``feature_error / (|departure| +
+          feature_error)``, with the
           departure the measured strain's from its median over 20 sigma around
           (meaningful where ``max`` stands above the noise);
-        - ``below_resolution`` (3,) bool: that fraction exceeds 10 %, the
-          attenuation that defines the spatial resolution (:func:`metrology`);
+        - ``feature_error`` (3,): the peak error of the Gaussian feature whose
+          departure and curvatures the smoothed field shows there (see Notes);
+        - ``below_resolution`` (3,) bool: a feature is seen (the estimate's peak
+          stands 8 times above its median over the map, and above 1e-6) and its
+          peak is lowered by more than 10 %, the attenuation that defines the
+          spatial resolution (:func:`metrology`), or it is narrower than 0.7 sigma;
 
         and ``factor``, ``definition``.
 
@@ -627,12 +761,20 @@ def smoothing_bias(strain, valid, *, sigma: float) -> dict:
     for a round bump) is 0.51 (band) and 0.40 (bump) at ``w = 1.5 sigma``, 0.64
     and 0.56 at ``2 sigma``, 0.80 and 0.72 at ``3 sigma``, tending to 1 for wide
     features (closed forms; 0.52, 0.41, 0.67, 0.56 measured on noise-free
-    independent images). The bound ``max`` is that estimate times
-    ``factor = 3``: from 1.2 to 2.5 times the actual peak error for features
-    from 1.5 to 3 sigma wide, 3 times for wide ones; below about ``1.2 sigma``
-    (band) or ``1.6 sigma`` (bump) it no longer bounds, and ``below_resolution``
-    says so. Noise adds to the largest value: about 1.1 times the strain noise
-    std on a uniform field, so a bound below ~3.5 noise std is noise.
+    independent images). That estimate times ``factor = 3`` bounds features from
+    about ``1.2 sigma`` (band) or ``1.6 sigma`` (bump) up, 3 times the error for wide
+    ones. Narrower ones are deconvolved: where the estimate peaks, the departure of
+    the twice-smoothed field from its surroundings and its curvatures along the
+    Hessian's principal directions give a Gaussian feature's width along each
+    (``s2^2 = -departure / curvature = w^2 + 2 sigma^2``; a direction with no
+    curvature is a band's) and its peak error (:func:`_feature_error`); the bound
+    ``max`` is the larger of the two, 1.5 times that error. On noise-free
+    independent images (``tests/test_bounds.py``) the feature error is 0.92 to
+    1.2 times the actual peak error for bands and bumps 0.7 to 5 sigma wide, and
+    the bound 1.4 to 2.8 times it. A feature narrower than 0.7 sigma is taken as
+    one of 0.7 sigma, which it may exceed: ``below_resolution`` says so. Noise adds
+    to the largest value: about 1.1 times the strain noise std on a uniform field,
+    so a bound below ~3.5 noise std is noise.
 
     It is taken on every ``s``-th row and column, ``s = floor(sigma / 2.5)``, at
     ``s^2`` times less cost. The maps are band-limited by the window (transfer
@@ -650,46 +792,211 @@ def smoothing_bias(strain, valid, *, sigma: float) -> dict:
     e, v = e[:, ::s, ::s], v[::s, ::s]
     sig = sigma / s  # the window in samples of the decimated maps
     inner = ndimage.binary_erosion(v, iterations=max(1, math.ceil(2 * sig)))
-    p95, mx, att = [], [], []
+    p95, mx, att, model, below = [], [], [], [], []
     wsum = ndimage.gaussian_filter(v.astype(np.float64), sig)
     np.maximum(wsum, 1e-12, out=wsum)
     ii, jj = np.nonzero(inner)
     half = round(_BACKGROUND_SIGMAS * sig / 2)
+    band_any = bool(np.any(v & ~inner))
     for c in e:
         filled = np.where(v, c, 0.0)
         sm = np.divide(ndimage.gaussian_filter(filled, sig), wsum, out=filled)
         lap = ndimage.laplace(sm)
-        del sm
         b = lap[inner] if inner.any() else np.array([])
         del lap
         b *= 0.5 * sig**2  # sigma^2 / 2 times the Laplacian per px^2 (samples of s px)
         np.abs(b, out=b)
         p95.append(float(np.percentile(b, 95)) if b.size else math.nan)
         mx.append(float(b.max()) if b.size else math.nan)
-        if b.size:
-            # the departure from the surroundings where the bound peaks
-            i, j = ii[int(np.argmax(b))], jj[int(np.argmax(b))]
-            box = (slice(max(0, i - half), i + half + 1), slice(max(0, j - half), j + half + 1))
-            dep = float(c[i, j]) - float(np.median(c[box][v[box]]))
-            peak = _SMOOTHING_FACTOR * mx[-1]
-            att.append(peak / (abs(dep) + peak) if peak > 0 else 0.0)
-        else:
+        if not b.size:
             att.append(math.nan)
+            model.append(math.nan)
+            below.append(False)
+            continue
+        # the feature where the estimate peaks: its departure from the surroundings
+        # and its curvatures, from which a Gaussian feature's width and its error
+        i, j = ii[int(np.argmax(b))], jj[int(np.argmax(b))]
+        box = (slice(max(0, i - half), i + half + 1), slice(max(0, j - half), j + half + 1))
+        level = float(np.median(c[box][v[box]]))
+        dep = float(c[i, j]) - level
+        err, narrow = _feature_error(sm, i, j, float(sm[i, j]) - level, sig)
+        a = err / (abs(dep) + err) if err > 0 else 0.0
+        # detected: the estimate's peak stands out of its typical level (noise alone
+        # puts the largest of a map's values at about 6 times their median)
+        typical = max(_DETECT * float(np.median(b)), _SMALLEST)
+        seen = mx[-1] > typical
+        # a feature at the valid region's edge (a hole's, the frame's) peaks where the
+        # twice-smoothed field is cut: taken from the measured field itself there
+        edge = _edge_feature(c, v, inner, sig, half) if band_any else None
+        if edge is not None and edge[0] > err and edge[3] > typical:
+            err, narrow, a, _ = edge
+            seen = True
+        # a feature not seen is noise, whose curvatures make no feature: the bound
+        # is then the Laplacian term's alone
+        model.append(err if seen else 0.0)
+        att.append(a)
+        below.append(bool(seen and (narrow or a > _ATTENUATION)))
 
     def clean(v):
         return [x if math.isfinite(x) else None for x in v]
 
-    bound = [_SMOOTHING_FACTOR * x for x in mx]
+    bound = [max(_SMOOTHING_FACTOR * x, _FEATURE_MARGIN * y) for x, y in zip(mx, model,
+                                                                        strict=True)]
     return {"max": clean(bound), "estimate_max": clean(mx), "p95": clean(p95),
-            "attenuation": clean(att),
-            "below_resolution": [bool(math.isfinite(a) and a > _ATTENUATION) for a in att],
+            "feature_error": clean(model), "attenuation": clean(att),
+            "below_resolution": below,
             "factor": _SMOOTHING_FACTOR,
-            "definition": "max: a bound on the window's smoothing bias, factor x the "
-                          "largest |sigma^2/2 laplacian(e)| of the measured strain smoothed "
-                          "by the window, over the valid pixels 2 sigma from their edge "
-                          "(tested on Gaussian features 1.5 to 3 sigma wide: 1.2 to 2.5 "
-                          "times the actual peak error); estimate_max, p95: that "
-                          "Laplacian term itself"}
+            "definition": "max: a bound on the window's smoothing bias, the larger of "
+                          "factor x the largest |sigma^2/2 laplacian(e)| of the measured "
+                          "strain smoothed by the window, over the valid pixels, and "
+                          f"{_FEATURE_MARGIN:g} x the peak error of the Gaussian feature "
+                          "whose departure and curvatures the smoothed strain shows where "
+                          "that term peaks (feature_error, its width taken at least "
+                          f"{_NARROWEST:g} sigma); estimate_max, p95: the Laplacian term"}
+
+
+def _edge_feature(c, v, inner, sig, half):
+    """``(error, narrow, attenuation, estimate)`` of the Gaussian feature that the
+    measured field ``c`` (samples; ``v`` its valid pixels) shows on the valid pixels
+    outside ``inner`` (a band along the valid region's edge), or None.
+
+    The field is not smoothed again there (the window would be cut by the edge): a
+    quadratic is fitted at each pixel of the band by least squares over its valid
+    neighbours, weighted by a Gaussian of ``_EDGE_FIT`` sigma (one-sided where the
+    edge cuts it: the moments of the valid pixels are filtered separably, and each
+    pixel's 6 x 6 normal equations solved). Where ``sigma^2 / 2`` times the fitted
+    Laplacian peaks, the fitted value's departure from the median over ``half``
+    samples around and the fitted curvatures give a Gaussian feature of the measured
+    field, of width ``s^2 = w^2 + sigma^2`` along each principal direction, and its
+    peak error ``dep (prod(s / w) - 1)``."""
+    band = v & ~inner
+    r = _EDGE_FIT * sig
+    t = np.arange(-math.ceil(4 * r), math.ceil(4 * r) + 1, dtype=np.float64)
+    g = np.exp(-0.5 * (t / r) ** 2)
+
+    def moment(f, a, b):
+        out = ndimage.correlate1d(f, g * t**a, axis=1, mode="constant")
+        return ndimage.correlate1d(out, g * t**b, axis=0, mode="constant")[band]
+
+    vf = v.astype(np.float64)
+    mf = np.where(v, c, 0.0)
+    powers = [(0, 0), (1, 0), (0, 1), (2, 0), (1, 1), (0, 2)]
+    mom = {}
+    for a in range(5):
+        for b in range(5 - a):
+            mom[a, b] = moment(vf, a, b)
+    M = np.stack([np.stack([mom[p[0] + q[0], p[1] + q[1]] for q in powers], axis=-1)
+                  for p in powers], axis=-2)  # (n, 6, 6)
+    rhs = np.stack([moment(mf, *p) for p in powers], axis=-1)  # (n, 6)
+    ok = np.linalg.cond(M) < 1e8
+    if not ok.any():
+        return None
+    coef = np.linalg.solve(M[ok], rhs[ok][..., None])[..., 0]
+    est = 0.5 * sig**2 * np.abs(2 * (coef[:, 3] + coef[:, 5]))
+    k = int(np.argmax(est))
+    bi, bj = np.nonzero(band)
+    i, j = bi[ok][k], bj[ok][k]
+    box = (slice(max(0, i - half), i + half + 1), slice(max(0, j - half), j + half + 1))
+    level = float(np.median(c[box][v[box]]))
+    dep = float(coef[k, 0]) - level
+    hess = _log_curvatures(c - level, v, i, j, dep, sig)
+    if hess is None:
+        return None
+    narrow, inflate = False, 1.0
+    for lm in np.linalg.eigvalsh(hess):
+        ssq = -1.0 / lm if lm < 0 else math.inf
+        if not ssq > 0 or not math.isfinite(ssq):
+            continue
+        wsq = ssq - sig**2
+        if wsq < (_NARROWEST * sig) ** 2:
+            narrow = True
+            wsq = (_NARROWEST * sig) ** 2
+            ssq = wsq + sig**2
+        inflate *= math.sqrt(ssq / wsq)
+    err = abs(dep) * (inflate - 1.0)
+    # its estimate, or nothing where it does not stand out of the band's own (the
+    # fit on the measured field is noisier than the field smoothed again)
+    seen = float(est[k]) if est[k] > _DETECT * float(np.median(est)) else 0.0
+    return err, narrow, (err / (abs(dep) + err) if err > 0 else 0.0), seen
+
+
+def _log_curvatures(d, v, i, j, dep, sig):
+    """The Hessian of ``ln |d|`` at ``(i, j)``, a quadratic fitted by least squares to
+    the valid pixels within 2 sigma where ``d`` has ``dep``'s sign and exceeds a
+    fifth of ``|dep|``: a Gaussian feature ``exp(-x^2 / 2 s^2)`` along a principal
+    direction is a parabola of curvature ``-1 / s^2`` there, whatever the fit's
+    extent (a quadratic fitted to the feature itself flattens it). None when too few
+    pixels."""
+    H, W = d.shape
+    rad = math.ceil(2 * sig)
+    r0, r1, c0, c1 = max(0, i - rad), min(H, i + rad + 1), max(0, j - rad), min(W, j + rad + 1)
+    dy, dx = np.mgrid[r0 - i:r1 - i, c0 - j:c1 - j].astype(np.float64)
+    val = d[r0:r1, c0:c1] * math.copysign(1.0, dep)
+    use = v[r0:r1, c0:c1] & (val > 0.2 * abs(dep)) & (dx**2 + dy**2 <= (2 * sig) ** 2)
+    if np.count_nonzero(use) < 12:
+        return None
+    x, y = dx[use], dy[use]
+    A = np.stack([np.ones_like(x), x, y, x * x, x * y, y * y], axis=1)
+    coef = np.linalg.lstsq(A, np.log(val[use]), rcond=None)[0]
+    return np.array([[2 * coef[3], coef[4]], [coef[4], 2 * coef[5]]])
+
+
+# The Gaussian weights of the quadratic fitted at the valid region's edge, in sigmas.
+_EDGE_FIT = 0.75
+
+# The bound over the Gaussian feature's peak error (feature_error), for features of
+# other shapes and the noise on the curvatures (tests/test_bounds.py).
+_FEATURE_MARGIN = 1.5
+
+# The narrowest feature, in sigmas, whose error the bound covers: one whose smoothed
+# image is narrower than that of a Gaussian feature of this width is taken as one, and
+# below_resolution says so.
+_NARROWEST = 0.7
+
+# A feature is taken as seen where the smoothing estimate's peak exceeds this many
+# times the estimate's median over the map, and _SMALLEST (a strain no measurement
+# resolves).
+_DETECT = 8.0
+_SMALLEST = 1e-6
+
+
+def _feature_error(sm, i, j, dep, sig) -> tuple[float, bool]:
+    """The peak error of the window's smoothing for the Gaussian feature whose image
+    ``sm`` (the measured field smoothed once more, in samples) shows the departure
+    ``dep`` and the curvatures (the Hessian's eigenvalues) at ``(i, j)``, with ``sig``
+    the window's sigma in samples; and whether that feature is narrower than
+    ``_NARROWEST`` sigma (its width then taken as that).
+
+    A feature ``A exp(-x^2 / 2 w^2)`` along each principal direction (a band along
+    one, a bump along both) is measured as ``g * e``, of width ``s^2 = w^2 + sigma^2``
+    and peak ``A prod(w / s)``; smoothed again, ``s2^2 = w^2 + 2 sigma^2``, peak
+    ``A prod(w / s2)`` and curvature ``-peak / s2^2`` along each direction: the
+    curvature and the departure give ``s2``, hence ``w``, and the error at the peak,
+    ``A (1 - prod(w / s)) = dep prod(s2 / w) - dep prod(s2 / s)``. A direction with no
+    curvature of the peak's sign is flat (a band): its factors are 1."""
+    H, W = sm.shape
+    if not (0 < i < H - 1 and 0 < j < W - 1) or dep == 0:
+        return 0.0, False
+    dxx = sm[i, j + 1] - 2 * sm[i, j] + sm[i, j - 1]
+    dyy = sm[i + 1, j] - 2 * sm[i, j] + sm[i - 1, j]
+    dxy = 0.25 * (sm[i + 1, j + 1] - sm[i + 1, j - 1] - sm[i - 1, j + 1]
+                      + sm[i - 1, j - 1])
+    hess = np.array([[dxx, dxy], [dxy, dyy]])
+    lam = np.linalg.eigvalsh(hess)
+    narrow = False
+    inflate, keep = 1.0, 1.0
+    for lm in lam:
+        s2sq = -dep / lm if lm != 0 else math.inf
+        if not s2sq > 0 or not math.isfinite(s2sq):
+            continue  # flat, or curving away from the peak: a band's direction
+        wsq = s2sq - 2 * sig**2
+        if wsq < (_NARROWEST * sig) ** 2:
+            narrow = True
+            wsq = (_NARROWEST * sig) ** 2
+            s2sq = wsq + 2 * sig**2
+        inflate *= math.sqrt(s2sq / wsq)
+        keep *= math.sqrt(s2sq / (wsq + sig**2))
+    return abs(dep) * (inflate - keep), narrow
 
 
 def nearest_filled(a: np.ndarray, valid: np.ndarray, nearest=None) -> np.ndarray:

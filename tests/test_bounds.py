@@ -1,0 +1,192 @@
+"""The systematic-error bounds against noise-free images whose truth is exact
+(``tests/bias_cases.py``): the aliasing bound on prints of varying line width, with
+vignetting, through perfect optics (the pixel's integration alone) or a blurred lens;
+the smoothing bound on Gaussian strain features 0.7 to 5 window sigmas wide, in the
+open and next to a mask.
+
+A bound holds when it is at least the largest error over the valid pixels (less
+``FLOOR_PX``). The target: it holds in 95 % of the cases or more and is never under
+half the error."""
+
+from __future__ import annotations
+
+import itertools
+
+import numpy as np
+import pytest
+from scipy import ndimage
+
+import gridstrain
+from bias_cases import gaussian_feature, image, lattice_vectors, stretch
+from gridstrain import Lattice
+from gridstrain.series import measure_series
+from gridstrain.uncertainty import smoothing_bias
+
+H, W = 192, 256
+CENTRE = ((W - 1) / 2, (H - 1) / 2)
+# the harmonics' terms move 2 pi (h - k) . u: a stretch of 1.5 % sweeps them through
+# several periods across the frame, so the reference's and the deformed image's
+# terms meet in phase somewhere
+STRETCH = (0.015, -0.005)
+
+
+def _aliasing_case(pitch, blur, dw, vignetting, width):
+    k1, k2 = lattice_vectors(pitch, 0.6)
+    lat = Lattice(tuple(k1), tuple(k2))
+    disp = stretch(*STRETCH, CENTRE)
+    kw = {"pitch": pitch, "width": width, "dw": dw, "blur": blur, "vignetting": vignetting}
+    ref = image((H, W), **kw)
+    cur = image((H, W), displacement=disp, **kw)
+    # noise-free: the noise model says so, and the pair check is not what is tested
+    res = measure_series(ref, cur, lattice=lat, guess=None, noise_model=(1e-6, 1e-6),
+                         outliers="warn")
+    v = np.asarray(res.valid[0])
+    yy, xx = np.mgrid[0:H, 0:W].astype(np.float64)
+    err = np.stack([np.asarray(res.u[0][k]) for k in (0, 1)]) - np.stack(disp(xx, yy))
+    worst = np.abs(err[:, v]).max(axis=1)
+    alias = res.systematic["aliasing"]
+    return worst, np.array(alias["u_px_components"]), res
+
+
+# px: errors below this are not aliasing worth a bound: the generator leaves out
+# harmonics under 1e-5 of the level (each moves a phase by under 1e-4 rad, 1e-4 p / 2 pi
+# px), and no camera's noise comes near it (the best stacks reach 1e-3 px)
+FLOOR_PX = 1e-4
+
+
+def _check_aliasing(cases):
+    ratios = []
+    for case in cases:
+        worst, bound, _ = _aliasing_case(*case)
+        ratios.append(float(np.min((bound + FLOOR_PX) / worst)))
+    ratios = np.array(ratios)
+    # the target: 95 % of the cases bounded, none under half its error
+    assert np.mean(ratios >= 1) >= 0.95, dict(zip(cases, ratios.round(3), strict=True))
+    assert ratios.min() >= 0.5, dict(zip(cases, ratios.round(3), strict=True))
+    return ratios
+
+
+# (pitch px, blur px, line width drift +-, vignetting at the corners, line width of the
+# pitch): perfect optics, a drift through half a pitch (the even harmonics change sign
+# across the frame), strong vignetting, and a blurred lens
+COMPACT = [(4, 0.0, 0.2, 0.5, 0.35), (5, 0.0, 0.0, 0.0, 0.5), (5, 0.0, 0.2, 0.5, 0.5),
+           (7, 0.0, 0.2, 0.0, 0.5), (6, 0.5, 0.2, 0.5, 0.35), (4, 0.7, 0.2, 0.5, 0.35)]
+
+
+def test_aliasing_bound_holds_for_drifting_prints_and_perfect_optics():
+    ratios = _check_aliasing(COMPACT)
+    # and it is not vacuous where the errors are large (sharp prints, errors of 0.01
+    # to 0.1 px): within 6 times them (measured 1.2 to 4.7)
+    assert ratios[:4].max() <= 6
+
+
+def test_a_drifting_print_is_warned_of():
+    worst, _, res = _aliasing_case(5, 0.0, 0.2, 0.5, 0.5)
+    assert worst.max() > 0.01  # px: an error worth a warning at any noise level here
+    assert any("alias onto the carrier" in w for w in res.warnings)
+
+
+def test_a_noisy_drifting_print_is_within_noise_and_bound():
+    """The issue's case: lines 0.35 pitch wide drifting by +-20 % across the frame,
+    50 % vignetting, with sensor noise (added here: Gaussian, 5 grey levels std on a
+    paper level of 1000): the strain errors beyond 5 std are the aliasing's, within
+    its bound, and it is warned of."""
+    k1, k2 = lattice_vectors(5, 0.6)
+    lat = Lattice(tuple(k1), tuple(k2))
+    disp = stretch(*STRETCH, CENTRE)
+    kw = {"pitch": 5, "width": 0.35, "dw": 0.2, "vignetting": 0.5}
+    rng = np.random.default_rng(1)
+    ref = image((H, W), **kw) + rng.normal(0.0, 5.0, (H, W))
+    cur = image((H, W), displacement=disp, **kw) + rng.normal(0.0, 5.0, (H, W))
+    res = measure_series(ref, cur, lattice=lat, guess=None, outliers="warn")
+    v = np.asarray(res.valid[0])
+    e = np.asarray(res.strain[0])
+    err = np.abs(np.stack([e[0] - STRETCH[0], e[1] - STRETCH[1], e[2]]))
+    std = np.stack([np.asarray(res.uncertainty[c][0]) for c in ("exx_std", "eyy_std",
+                                                                 "exy_std")])
+    alias = res.systematic["aliasing"]
+    bound = alias["strain_per_strain"] * max(map(abs, STRETCH)) + alias["strain_ripple"]
+    # the aliasing is most of the error (beyond 5 std at most pixels: noise alone puts
+    # 6e-7 of them there); with its bound, 2 % as the acceptance tests allow for the
+    # window's bias where lighting and print vary (measured: none)
+    assert np.mean(np.any(err > 5 * std, axis=0)[v]) > 0.1
+    assert np.mean(np.any(err > 5 * std + bound, axis=0)[v]) <= 0.02
+    assert any("alias onto the carrier" in w for w in res.warnings)
+
+
+@pytest.mark.slow
+def test_aliasing_bound_full_sweep():
+    cases = list(itertools.product([4, 5, 6, 7, 8], [0.0, 0.5, 1.0], [0.0, 0.2],
+                                   [0.0, 0.5], [0.35, 0.5]))
+    _check_aliasing(cases)
+
+
+def _smoothing_case(width, bump, hole, sigma=5.0, pitch=5.0):
+    """A Gaussian ``e_xx`` of ``width`` sigmas, amplitude 1e-2, on a sine print (no
+    harmonics: the error is the window's alone); with ``hole``, a masked disc whose
+    valid region (4 sigma from it) begins at the feature's centre."""
+    k1, k2 = lattice_vectors(pitch, 0.6)
+    lat = Lattice(tuple(k1), tuple(k2))
+    shape = (200, 240)
+    yy, xx = np.mgrid[0:shape[0], 0:shape[1]].astype(np.float64)
+    x0, y0 = 120.0, 100.0
+    mask = None
+    if hole:
+        r = 25.0
+        mask = (xx - (x0 - r - 4 * sigma)) ** 2 + (yy - y0) ** 2 > r**2
+    disp, exx = gaussian_feature(1e-2, width * sigma, x0, y0=y0 if bump else None)
+    ref = image(shape, pitch=pitch, kind="sine")
+    cur = image(shape, pitch=pitch, kind="sine", displacement=disp)
+    m = gridstrain.measure(ref, cur, lattice=lat, sigma=sigma, guess=None, mask=mask)
+    v = np.asarray(m.valid)
+    actual = float(np.max(np.abs(np.asarray(m.strain[0]) - exx(xx, yy))[v]))
+    return actual, smoothing_bias(m.strain, m.valid, sigma=sigma)
+
+
+@pytest.mark.parametrize(("width", "bump", "hole"),
+                         [(0.7, False, False), (0.7, True, False), (1.0, True, False),
+                          (3.0, False, False), (0.7, True, True), (1.0, True, True),
+                          (2.0, True, True)])
+def test_smoothing_bound_holds_down_to_07_sigma_and_at_a_hole(width, bump, hole):
+    actual, b = _smoothing_case(width, bump, hole)
+    # a bound, and within 3 times the error (the factor 3 on the Laplacian term for
+    # wide features, where it tends to the error itself; 1.5 on the feature's own
+    # error, measured 0.92 to 1.2 of it)
+    assert actual <= b["max"][0] <= 3 * actual
+    # the peak of a feature narrower than 2 sigma is lowered by more than 10 %
+    # (band: 1 - w / sqrt(w^2 + sigma^2); bump: sigma^2 / (w^2 + sigma^2)); of a band
+    # 3 sigma wide by 5 %
+    assert b["below_resolution"][0] == (width < 2.0 or bump)
+
+
+@pytest.mark.slow
+def test_smoothing_bound_full_sweep():
+    worst = []
+    for width, bump, hole in itertools.product([0.7, 1.0, 1.5, 2.0, 3.0, 5.0],
+                                               [False, True], [False, True]):
+        actual, b = _smoothing_case(width, bump, hole)
+        worst.append(b["max"][0] / actual)
+    # every case bounded, none by more than 3 times (measured 1.38 to 2.81)
+    assert min(worst) >= 1
+    assert max(worst) <= 3
+
+
+def test_noise_alone_is_no_feature():
+    """Strain maps of noise alone (white noise smoothed by the window, std 1e-4), with
+    a hole: no feature is seen, nothing is below the resolution, and the bound is the
+    Laplacian term's (about 3 times the noise std: 1.1 std times the factor 3)."""
+    rng = np.random.default_rng(0)
+    H2, W2, sigma = 300, 360, 5.0
+    yy, xx = np.mgrid[0:H2, 0:W2]
+    e = np.stack([ndimage.gaussian_filter(rng.normal(size=(H2, W2)), sigma)
+                  for _ in range(3)])
+    e *= 1e-4 / e.std()
+    v = np.zeros((H2, W2), bool)
+    v[20:-20, 20:-20] = True
+    v &= (xx - 180) ** 2 + (yy - 150) ** 2 > 50**2
+    b = smoothing_bias(np.where(v, e, np.nan), v, sigma=sigma)
+    assert not any(b["below_resolution"])
+    assert b["feature_error"] == [0.0, 0.0, 0.0]
+    # 4 std: the largest of ~5000 smoothed-noise samples of the Laplacian term, at
+    # 1.1 std typical, times the factor 3, measured 2.4 to 3.3 std
+    assert max(b["max"]) <= 4e-4
