@@ -280,6 +280,73 @@ def _cut_fraction(used, specimen, loaded_edge):
     return cut / max(boundary, 1), cut
 
 
+def _checked_maps(strain, std, load, valid, specimen, loaded_edge):
+    """``(strain, std, load, used)`` checked: the maps as float64, the loads one per
+    state, and the pixels usable in every state (inside ``valid``); a region that
+    stops short of the specimen's free edges refused."""
+    e = np.asarray(strain, dtype=np.float64)
+    s = np.asarray(std, dtype=np.float64)
+    if e.ndim != 4 or e.shape[1] != 3:
+        raise ValueError(f"strain must be (n_states, 3, H, W), got shape {e.shape}")
+    if s.shape != e.shape:
+        raise ValueError(f"std must have strain's shape {e.shape}, got {s.shape}")
+    n, _, H, W = e.shape
+    try:
+        load = np.array(load, dtype=np.float64).reshape(-1)
+    except (TypeError, ValueError):
+        raise ValueError(f"load must be numbers, one per state, got {load!r}") from None
+    if load.size != n or not np.all(np.isfinite(load)):
+        raise ValueError(f"load must hold {n} finite values (one per state), got "
+                         f"{load.tolist()}")
+    if not np.any(load != 0):
+        raise ValueError("load must not be zero in every state: the virtual work of a "
+                         "zero load identifies nothing")
+    used = np.all(np.isfinite(e) & np.isfinite(s) & (s > 0), axis=(0, 1))
+    if valid is not None:
+        v = np.asarray(valid, dtype=bool)
+        if v.shape not in ((H, W), (n, H, W)):
+            raise ValueError(f"valid must be ({H}, {W}) or ({n}, {H}, {W}), got {v.shape}")
+        used &= v if v.ndim == 2 else np.all(v, axis=0)
+    rows = np.count_nonzero(used)
+    if rows < 16:
+        raise ValueError(f"the virtual fields need usable pixels (finite strains with a "
+                         f"positive std in every state, inside valid), got {rows}")
+    if specimen is not None:
+        spec = np.asarray(specimen, dtype=bool)
+        if spec.shape != (H, W):
+            raise ValueError(f"specimen must be ({H}, {W}), got {spec.shape}")
+        fraction, n_cut = _cut_fraction(used, spec, loaded_edge)
+        if fraction > MAX_CUT_FRACTION:
+            raise ValueError(
+                f"the region used stops short of the specimen's free edges along {n_cut} "
+                f"px of its boundary ({fraction:.0%}): the load carried between it and "
+                f"the edges is missing from the virtual work (a bias, not noise). The "
+                f"maps stop a margin from the specimen's edges; the virtual fields need "
+                f"data up to them, or a region whose sides other than the loaded and "
+                f"gripped ones are free edges")
+    return e, s, load, used
+
+
+def _each_state(mesh, T, values, stds, load, model_cls, kw):
+    """E, nu and their std identified from each state alone (NaN where a state
+    cannot give them: the reference at zero load, a state that does not separate
+    E from nu); one state: left to the combined identification."""
+    n = load.size
+    E_k, nu_k, sE_k, snu_k = (np.full(n, np.nan) for _ in range(4))
+    for i in range(n if n > 1 else 0):  # one state: the combined identification is its
+        if load[i] == 0:
+            continue
+        try:
+            p, cov, _, _, _ = special_fields(mesh, T, values[i], stds[i], load[i],
+                                             model_cls, **kw)
+        except NotIdentifiable:
+            continue
+        if model_cls.plausible(p):
+            (E_k[i], nu_k[i]), c = model_cls.constants(p, cov)
+            sE_k[i], snu_k[i] = np.sqrt(np.diag(c))
+    return E_k, nu_k, sE_k, snu_k
+
+
 def virtual_fields(strain, std, load, *, thickness: float, loaded_edge: str,
                    load_direction: str, pixel_size: float, unit: str = "mm",
                    load_unit: str = "N", valid=None, specimen=None, correlation=None,
@@ -388,48 +455,11 @@ def virtual_fields(strain, std, load, *, thickness: float, loaded_edge: str,
                                                             "bottom"))
     load_direction = check_choice(load_direction, "load_direction", ("x", "y"))
     model_cls = _MODELS[check_choice(model, "model", tuple(_MODELS))]
-    e = np.asarray(strain, dtype=np.float64)
-    s = np.asarray(std, dtype=np.float64)
-    if e.ndim != 4 or e.shape[1] != 3:
-        raise ValueError(f"strain must be (n_states, 3, H, W), got shape {e.shape}")
-    if s.shape != e.shape:
-        raise ValueError(f"std must have strain's shape {e.shape}, got {s.shape}")
-    n, _, H, W = e.shape
-    try:
-        load = np.array(load, dtype=np.float64).reshape(-1)
-    except (TypeError, ValueError):
-        raise ValueError(f"load must be numbers, one per state, got {load!r}") from None
-    if load.size != n or not np.all(np.isfinite(load)):
-        raise ValueError(f"load must hold {n} finite values (one per state), got "
-                         f"{load.tolist()}")
-    if not np.any(load != 0):
-        raise ValueError("load must not be zero in every state: the virtual work of a "
-                         "zero load identifies nothing")
-    used = np.all(np.isfinite(e) & np.isfinite(s) & (s > 0), axis=(0, 1))
-    if valid is not None:
-        v = np.asarray(valid, dtype=bool)
-        if v.shape not in ((H, W), (n, H, W)):
-            raise ValueError(f"valid must be ({H}, {W}) or ({n}, {H}, {W}), got {v.shape}")
-        used &= v if v.ndim == 2 else np.all(v, axis=0)
+    e, s, load, used = _checked_maps(strain, std, load, valid, specimen, loaded_edge)
+    n = e.shape[0]
     if states is None:
         states = tuple(f"state {i}" for i in range(n))
     rows, cols = np.nonzero(used)
-    if rows.size < 16:
-        raise ValueError(f"the virtual fields need usable pixels (finite strains with a "
-                         f"positive std in every state, inside valid), got {rows.size}")
-    if specimen is not None:
-        spec = np.asarray(specimen, dtype=bool)
-        if spec.shape != (H, W):
-            raise ValueError(f"specimen must be ({H}, {W}), got {spec.shape}")
-        fraction, n_cut = _cut_fraction(used, spec, loaded_edge)
-        if fraction > MAX_CUT_FRACTION:
-            raise ValueError(
-                f"the region used stops short of the specimen's free edges along {n_cut} "
-                f"px of its boundary ({fraction:.0%}): the load carried between it and "
-                f"the edges is missing from the virtual work (a bias, not noise). The "
-                f"maps stop a margin from the specimen's edges; the virtual fields need "
-                f"data up to them, or a region whose sides other than the loaded and "
-                f"gripped ones are free edges")
     elements = _check_elements(elements, rows, cols)
     mesh = Mesh(rows, cols, pixel_size, elements)
     T = mesh.kinematics(loaded_edge, load_direction)
@@ -439,20 +469,7 @@ def virtual_fields(strain, std, load, *, thickness: float, loaded_edge: str,
     correlation = _check_correlation(correlation)
     kw = {"thickness": thickness, "correlation": correlation}
 
-    # each state alone, the reference at zero load
-    E_k, nu_k, sE_k, snu_k = (np.full(n, np.nan) for _ in range(4))
-    for i in range(n if n > 1 else 0):  # one state: the combined identification is its
-        if load[i] == 0:
-            continue
-        try:
-            p, cov, _, _, _ = special_fields(mesh, T, values[i], stds[i], load[i], model_cls,
-                                          **kw)
-        except NotIdentifiable:
-            continue
-        if model_cls.plausible(p):
-            (E_k[i], nu_k[i]), c = model_cls.constants(p, cov)
-            sE_k[i], snu_k[i] = np.sqrt(np.diag(c))
-
+    E_k, nu_k, sE_k, snu_k = _each_state(mesh, T, values, stds, load, model_cls, kw)
     slope, slope_std, combined = _slopes(values, stds, load)
     p, cov, fields, iterations, _ = special_fields(mesh, T, slope, slope_std, 1.0,
                                                    model_cls, **kw)
