@@ -16,18 +16,34 @@ from pathlib import Path
 from .._validation import check_positive
 from ..io import check_destination
 from ..phase import Lattice
+from ..series import Option
+
+
+def _grid_value(value, name):
+    return value  # checked together, into a Lattice (lattice_option)
+
+
+#: ``--pitch/--angle`` or ``--k1/--k2``: the grid given rather than detected.
+LATTICE_OPTIONS = (
+    Option("pitch", None, _grid_value, "", flag="--pitch", kind="float", metavar="PX",
+           group="window", help="grid pitch, px (default: detected on the reference)"),
+    Option("angle", None, _grid_value, "", flag="--angle", kind="float", metavar="DEG",
+           group="window", help="grid angle, degrees (with --pitch; default 0)"),
+    Option("k1", None, _grid_value, "", flag="--k1", kind="pair", metavar=("KX", "KY"),
+           group="window",
+           help="first wave vector, cycles/px (with --k2, instead of --pitch)"),
+    Option("k2", None, _grid_value, "", flag="--k2", kind="pair", metavar=("KX", "KY"),
+           group="window", help="second wave vector, cycles/px"),
+)
 
 
 def add_lattice_options(group) -> None:
     """``--pitch/--angle`` or ``--k1/--k2`` (automatic detection when absent)."""
-    group.add_argument("--pitch", type=float, metavar="PX",
-                       help="grid pitch, px (default: detected on the reference)")
-    group.add_argument("--angle", type=float, metavar="DEG",
-                       help="grid angle, degrees (with --pitch; default 0)")
-    group.add_argument("--k1", type=float, nargs=2, metavar=("KX", "KY"),
-                       help="first wave vector, cycles/px (with --k2, instead of --pitch)")
-    group.add_argument("--k2", type=float, nargs=2, metavar=("KX", "KY"),
-                       help="second wave vector, cycles/px")
+    for o in LATTICE_OPTIONS:
+        kw = {"type": float, "metavar": o.metavar, "help": o.help}
+        if o.kind == "pair":
+            kw["nargs"] = 2
+        group.add_argument(o.flag, **kw)
 
 
 def positive_option(opts: dict, name: str) -> None:

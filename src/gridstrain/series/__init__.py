@@ -155,9 +155,10 @@ from ._distributed import (
 from ._inputs import state_names
 from ._loop import measure_series
 from ._options import OPTIONS, ORDERS, MeasureOptions, Option
-from ._outliers import OUTLIER_POLICIES
 
 # shared with gridstrain's other folders, not part of the public API
+from ._options import check_together as check_together
+from ._outliers import OUTLIER_POLICIES
 from ._outliers import outlier_verdict as outlier_verdict
 from ._passes import reference_lattice
 from ._sinks import empty_state_message
