@@ -13,6 +13,7 @@ import dataclasses
 import json
 import math
 import os
+import re
 import sys
 import time
 import tomllib
@@ -217,14 +218,14 @@ def _argument(group, o: Option) -> None:
     kw: dict = {"help": o.help}
     if o.metavar is not None:
         kw["metavar"] = o.metavar
-    elif o.kind == "choice":  # checked by the option (its message names the flag)
+    elif o.kind in ("choice", "method"):  # checked by the option, naming the flag
         kw["metavar"] = "{" + ",".join(o.choices) + "}"
     if o.kind == "bool":
         kw.update(action="store_true", default=None)
     elif o.kind in ("float", "int"):
         kw["type"] = float if o.kind == "float" else int
     elif o.kind == "method":
-        kw.update(type=str.upper, choices=o.choices)
+        kw["type"] = str.upper
     elif o.kind in ("pair", "pairs"):
         kw.update(type=float, nargs=2)
         if o.kind == "pairs":
@@ -258,6 +259,40 @@ def register(sub) -> None:
                      "estimated to need more is refused before it starts")
     out.add_argument("--config", metavar="FILE.toml", help="read options from a TOML file")
     p.set_defaults(func=run)
+
+
+def _first_sentence(doc: str) -> str:
+    """The first sentence of a parameter's text (its type line left out)."""
+    text = " ".join(line.strip() for line in doc.splitlines()[1:])
+    return re.split(r"(?<!e\.g)\. ", text)[0].rstrip(".") + "."
+
+
+def options_table() -> str:
+    """The reStructuredText table of every option of the command, from the
+    declarations: its flag and configuration key, the measure_series keyword it gives,
+    whether a replay takes it from a result, and its help. The documentation's
+    page of options (``docs/user_guide/measure_options.rst``) holds it as written."""
+    feeds = {flag: o.name for o in OPTIONS for flag in o.via}
+    rows = [("Flag (configuration key)", "``measure_series``", "Replayed", "What it sets")]
+    for key, o in _FLAGGED.items():
+        python = o.name if o.name in _MEASURED else feeds.get(o.flag)
+        rows.append((f"``{o.flag}`` (``{key}``)", f"``{python}``" if python else "",
+                     "yes" if o.recorded else "no (run-only)", o.help.replace("%%", "%")))
+    for o in OPTIONS:
+        if o.flag is None:
+            via = ", ".join(f"``{f}``" for f in o.via) or "(Python only)"
+            # the command replays what it gave from the flags it stores
+            kept = [f for f in o.via if f[2:] in _FLAGGED and _FLAGGED[f[2:]].recorded]
+            replayed = ("yes" if kept and len(kept) == len(o.via) else
+                        "only " + ", ".join(f"``{f}``" for f in kept) if kept else
+                        "no (run-only)")
+            rows.append((via, f"``{o.name}``", replayed,
+                         _first_sentence(o.doc)))
+    lines = [".. list-table::", "   :header-rows: 1", "   :widths: 24 18 12 46", ""]
+    for row in rows:
+        lines.append(f"   * - {row[0]}")
+        lines.extend(f"     - {cell}" for cell in row[1:])
+    return "\n".join(lines) + "\n"
 
 
 # --------------------------------------------------------------------------- options

@@ -191,6 +191,9 @@ def _noise_model(value, name):
 
 
 def _scheduler(value, name):
+    if isinstance(value, str) and not value.strip():
+        raise ValueError(f"{name} must be 'local' or a scheduler address such as "
+                         f"'tcp://HOST:PORT', got {value!r}")
     return _check_scheduler(value)
 
 
@@ -211,6 +214,8 @@ def _loads(value, name):
     if value is None or isinstance(value, LoadsFile):
         return value
     if isinstance(value, str | os.PathLike):
+        if not os.fspath(value):
+            raise ValueError(f"{name} must be a loads file's path, got ''")
         return os.fspath(value)
     try:
         load = np.array(value, dtype=np.float64)
