@@ -37,13 +37,36 @@ LATTICE_OPTIONS = (
 )
 
 
+def add_option(group, o: Option) -> None:
+    """The flag of option ``o`` (a :class:`gridstrain.series.Option`), its value read as
+    its kind says."""
+    kw: dict = {"help": o.help}
+    if o.metavar is not None:
+        kw["metavar"] = o.metavar
+    elif o.kind in ("choice", "method"):  # checked by the option, naming the flag
+        kw["metavar"] = "{" + ",".join(o.choices) + "}"
+    if o.kind == "bool":
+        kw.update(action="store_true", default=None)
+    elif o.kind in ("float", "int"):
+        kw["type"] = float if o.kind == "float" else int
+    elif o.kind == "method":
+        kw["type"] = str.upper
+    elif o.kind in ("pair", "pairs"):
+        kw.update(type=float, nargs=2)
+        if o.kind == "pairs":
+            kw["action"] = "append"
+    elif o.kind == "roi":
+        kw.update(type=int, nargs=4)
+    elif o.kind == "polygon":
+        kw["nargs"] = "+"
+    flags = ("-o", o.flag) if o.flag == "--output" else (o.flag,)
+    group.add_argument(*flags, **kw)
+
+
 def add_lattice_options(group) -> None:
     """``--pitch/--angle`` or ``--k1/--k2`` (automatic detection when absent)."""
     for o in LATTICE_OPTIONS:
-        kw = {"type": float, "metavar": o.metavar, "help": o.help}
-        if o.kind == "pair":
-            kw["nargs"] = 2
-        group.add_argument(o.flag, **kw)
+        add_option(group, o)
 
 
 def positive_option(opts: dict, name: str) -> None:

@@ -56,6 +56,7 @@ from ..series import (
 )
 from ._common import (
     LATTICE_OPTIONS,
+    add_option,
     check_output_file,
     lattice_option,
     quiet_dask_logs,
@@ -213,31 +214,6 @@ _GROUPS = (
 )
 
 
-def _argument(group, o: Option) -> None:
-    """``o``'s flag, its value read as its kind says."""
-    kw: dict = {"help": o.help}
-    if o.metavar is not None:
-        kw["metavar"] = o.metavar
-    elif o.kind in ("choice", "method"):  # checked by the option, naming the flag
-        kw["metavar"] = "{" + ",".join(o.choices) + "}"
-    if o.kind == "bool":
-        kw.update(action="store_true", default=None)
-    elif o.kind in ("float", "int"):
-        kw["type"] = float if o.kind == "float" else int
-    elif o.kind == "method":
-        kw["type"] = str.upper
-    elif o.kind in ("pair", "pairs"):
-        kw.update(type=float, nargs=2)
-        if o.kind == "pairs":
-            kw["action"] = "append"
-    elif o.kind == "roi":
-        kw.update(type=int, nargs=4)
-    elif o.kind == "polygon":
-        kw["nargs"] = "+"
-    flags = ("-o", o.flag) if o.flag == "--output" else (o.flag,)
-    group.add_argument(*flags, **kw)
-
-
 def register(sub) -> None:
     p = sub.add_parser(
         "measure", help="displacement and strain maps from image series",
@@ -251,7 +227,7 @@ def register(sub) -> None:
                    help="loaded state series, in order (or states = [...] in the config)")
     groups = {key: p.add_argument_group(title) for key, title in _GROUPS}
     for o in _FLAGGED.values():
-        _argument(groups[o.group], o)
+        add_option(groups[o.group], o)
     out = groups["output"]
     out.add_argument("--memory-budget", type=_size, metavar="SIZE",
                      help="memory the run may use, e.g. 3G or 500M (default: the memory "
