@@ -56,7 +56,7 @@ METHODS = ("A", "B", "C")
 _MAX_SATURATION = 0.01
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, repr=False)
 class Option:
     """One option of :func:`~gridstrain.series.measure_series`, declared once.
 
@@ -70,7 +70,9 @@ class Option:
         ``check(value, name) -> value``: the value checked (and normalised, e.g. an
         int to a float); its errors name ``name`` (the keyword, a flag or a key).
     doc : str
-        Its entry in ``measure_series``'s Parameters: the type line, then the text.
+        Its entry in ``measure_series``'s Parameters: the type line, then the text
+        (empty for an option of a command alone, such as ``gridstrain measure``'s
+        ``--pixel-size``).
     flag : str or None
         The command-line flag that gives it as it is (``--sigma``); its key in a
         configuration file is the flag without the dashes. None where the command
@@ -94,6 +96,9 @@ class Option:
         The value as the result records it (JSON-friendly) and back.
     via : tuple of str
         The command-line flags the option is built from, where it has no ``flag``.
+    choices : tuple of str
+        The values allowed, for a ``"choice"`` or ``"method"`` kind (its check
+        refuses the others).
     """
 
     name: str
@@ -110,6 +115,9 @@ class Option:
     replay: Callable = lambda v: v
     via: tuple = ()
     choices: tuple = ()
+
+    def __repr__(self) -> str:
+        return f"Option({self.name!r}, flag={self.flag!r})"
 
     @property
     def key(self) -> str | None:
