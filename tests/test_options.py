@@ -185,6 +185,10 @@ def test_options_with_overrides_are_the_keywords():
     assert by_options.parameters == by_keywords.parameters
     assert by_options.parameters["sigma"] == 6.0
     np.testing.assert_array_equal(by_options.strain, by_keywords.strain)
+    # a lattice overridden by None is detected, whatever the options it replaces
+    detected = measure_series(ref, cur, base, lattice=None, sigma=6.0)
+    assert detected.lattice_detected
+    assert detected.parameters["lattice"] is None
 
 
 def test_every_option_is_documented():

@@ -605,7 +605,9 @@ def check_together(o: MeasureOptions, *, label: Callable[[str], str] = str
     if o.sigma is not None and o.sigma_pitches is not None:
         raise ValueError(f"give {label('sigma')} or {label('sigma_pitches')}, not both "
                          f"(got {o.sigma!r} and {o.sigma_pitches!r})")
-    changes: dict = {}
+    # what the measurement completes, from these options (a replace() carries the
+    # values of the options it was made from)
+    changes: dict = {"detected": o.lattice is None, "window": None}
     if o.sigma is not None and o.lattice is not None:
         changes["sigma"] = check_sigma(o.sigma, o.lattice.pitch, label("sigma"))
     if o.to_edges and o.method != "A":
