@@ -1,5 +1,6 @@
-"""The measurement loop of a series: the door where every option is checked once
-(:class:`~gridstrain.series.MeasureOptions`), then each series read in one pass, each state
+"""The measurement loop of a series: the door where the options are taken (a
+:class:`~gridstrain.series.MeasureOptions` and keywords, each declared once in
+``_options.py``) and checked together, then each series read in one pass, each state
 measured against the reference and dropped once its maps are kept.
 
 The stages and their algorithms are described in :mod:`gridstrain.series`, the public
@@ -34,7 +35,6 @@ from ._inputs import (
     _loads_and_times,
 )
 from ._options import (
-    ORDERS,
     MeasureOptions,
     check_together,
     loads_file,
@@ -60,7 +60,7 @@ from ._passes import (
 )
 from ._sinks import _InMemory, _streamed, empty_state_message
 
-__all__ = ["ORDERS", "MeasureOptions", "measure_series"]
+__all__ = ["measure_series"]
 
 # The previous state's displacement is kept in memory up to this size, bytes (a 0.5
 # Mpx field in float64), and read back from the result file above it: reading it
