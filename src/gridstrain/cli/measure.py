@@ -66,10 +66,6 @@ from ._summary import jsonable, report_lines, summary
 
 _EXPORTS = tuple(EXPORTS)
 
-# Seconds the command waits for a cluster's result of one series: an hour covers
-# thousands of method-B transforms on a few workers, and ends a stalled run.
-_TIMEOUT = 3600.0
-
 _EXAMPLE = """example:
   gridstrain measure ref/ load1/ load2/ -o maps.h5 --mask mask.tif \\
       --pixel-size 0.04 --unit mm --report report.html --export mat,vtk,csv
@@ -454,10 +450,11 @@ def _options(args, config: _Config | None = None) -> dict:
     for name in _SWITCHES:
         opts[name] = bool(opts.get(name, False))
     for key, o in _FLAGGED.items():  # the measurement's defaults, recorded as such
-        if o.name in _MEASURED and o.recorded and opts.get(key) is None \
-                and o.default is not None:
-            opts[key] = o.record(o.default)
-    opts.setdefault("timeout", _TIMEOUT)
+        if o.name not in _MEASURED or opts.get(key) is not None:
+            continue
+        default = o.default if o.command_default is None else o.command_default
+        if default is not None and (o.recorded or o.command_default is not None):
+            opts[key] = o.record(default)
     if not opts.get("output"):
         raise ValueError("the output file is missing: pass -o OUT.h5 (or output = ... in "
                          "the config file)")

@@ -54,6 +54,9 @@ ORDERS = ("series", "independent")
 METHODS = ("A", "B", "C")
 # Largest fraction of saturated pixels accepted in a frame (gridstrain.io's default).
 _MAX_SATURATION = 0.01
+# Seconds the command waits for a cluster's result of one series: an hour covers
+# thousands of method-B transforms on a few workers, and ends a stalled run.
+_COMMAND_TIMEOUT = 3600.0
 
 
 @dataclass(frozen=True, repr=False)
@@ -99,6 +102,8 @@ class Option:
     choices : tuple of str
         The values allowed, for a ``"choice"`` or ``"method"`` kind (its check
         refuses the others).
+    command_default : object
+        The command line's default where it is not ``default`` (None: the same).
     """
 
     name: str
@@ -115,6 +120,7 @@ class Option:
     replay: Callable = lambda v: v
     via: tuple = ()
     choices: tuple = ()
+    command_default: object = None
 
     def __repr__(self) -> str:
         return f"Option({self.name!r}, flag={self.flag!r})"
@@ -519,9 +525,9 @@ output : str, os.PathLike or gridstrain.results.ResultFile, optional
     With a scheduler: the longest wait, s, for the cluster's result of one
     series (TimeoutError past it: a stalled cluster). None waits for ever.
     Run-only.""", flag="--timeout", kind="float", metavar="SECONDS",
-           group="distributed", recorded=False,
+           group="distributed", recorded=False, command_default=_COMMAND_TIMEOUT,
            help="with --scheduler, give up on a cluster that returns no result for a "
-           "series within SECONDS (default 3600)"),
+           f"series within SECONDS (default {_COMMAND_TIMEOUT:g})"),
 )
 
 _BY_NAME = {o.name: o for o in OPTIONS}
