@@ -13,6 +13,7 @@ Then a small record measured, replayed by ``measure --config RESULT`` and by
 from __future__ import annotations
 
 import json
+import re
 from pathlib import Path
 
 import numpy as np
@@ -172,6 +173,28 @@ def test_an_unknown_keyword_names_the_close_ones():
         measure_series(ref, ref, {"sigma": 5.0})
     with pytest.raises(ValueError, match="give sigma or sigma_pitches, not both"):
         measure_series(ref, ref, MeasureOptions(sigma=5.0), sigma_pitches=1.5)
+
+
+@pytest.mark.parametrize(("given", "flags", "says"), [
+    ({"frame_rate": 10.0}, ["--frame-rate", "10"],
+     "{frame_rate} needs one frame per state ({each_frame})"),
+    ({"load_column": "F"}, ["--load-column", "F"], "{load_column} needs {loads}"),
+    ({"sigma": 5.0, "sigma_pitches": 1.5}, ["--sigma", "5", "--sigma-pitches", "1.5"],
+     "give {sigma} or {sigma_pitches}, not both"),
+    ({"to_edges": True, "method": "B"}, ["--to-edges", "--method", "B"],
+     "{to_edges} needs method 'A'"),
+])
+def test_options_checked_together_name_them(given, flags, says, tmp_path, capsys):
+    """The checks between options: in Python by keyword, on the command line by flag,
+    before any frame is read (the inputs here do not exist)."""
+    by_name = {o.name: o for o in OPTIONS}
+    with pytest.raises(ValueError, match=re.escape(says.format(**{n: n for n in by_name}))):
+        measure_series(str(tmp_path / "r.tif"), str(tmp_path / "d.tif"), **given)
+    assert main(["measure", str(tmp_path / "r.tif"), str(tmp_path / "d.tif"), "-o",
+                 str(tmp_path / "o.h5"), "--quiet", *flags]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1, err
+    assert says.format(**{n: o.flag for n, o in by_name.items()}) in err[0], err
 
 
 def test_options_with_overrides_are_the_keywords():
