@@ -12,6 +12,7 @@ Then a small record measured, replayed by ``measure --config RESULT`` and by
 
 from __future__ import annotations
 
+import inspect
 import json
 import re
 from pathlib import Path
@@ -224,6 +225,9 @@ def test_every_option_is_documented():
             assert f"``{o.flag}``" in text, o.flag
     # the page's table is the declaration's, written by the command
     assert cli_measure.options_table() in text
+    # help() and editors see every keyword the overrides take, with its default
+    shown = list(inspect.signature(measure_series).parameters.values())[3:]
+    assert [(p.name, p.default) for p in shown] == [(o.name, o.default) for o in OPTIONS]
 
 
 def _log(path: Path) -> Path:

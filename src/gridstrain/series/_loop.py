@@ -38,6 +38,7 @@ from ._options import (
     MeasureOptions,
     check_together,
     loads_file,
+    options_signature,
     parameters_doc,
     unknown_option,
 )
@@ -174,9 +175,11 @@ def measure_series(reference, states, options: MeasureOptions | None = None,
         close_readers()  # the files kept open between states: none held after the run
 
 
-# the options' entries are their declaration's (gridstrain.series._options), written once
+# the options' entries are their declaration's (gridstrain.series._options), written once;
+# the signature shown (help(), inspect, editors) names every keyword the overrides take
 measure_series.__doc__ = measure_series.__doc__.replace(
     "@OPTIONS_DOC@\n", textwrap.indent(parameters_doc(), " " * 4) + "\n")
+measure_series.__signature__ = options_signature(measure_series)
 
 
 def _kinematics(tracker: _Tracker, c, guess, lattice: Lattice, ref_summary, outliers: str):

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import dataclasses
 import difflib
+import inspect
 import math
 import numbers
 import os
@@ -656,6 +657,16 @@ def loads_file(o: MeasureOptions):
         return LoadsFile(os.path.expanduser(o.loads), load_column=o.load_column,
                          time_column=o.time_column, offset=o.loads_offset)
     return o.loads
+
+
+def options_signature(func) -> inspect.Signature:
+    """``func(reference, states, options=None, **overrides)``'s signature with the
+    overrides spelt out: every option, keyword-only, with its default."""
+    sig = inspect.signature(func)
+    fixed = [p for p in sig.parameters.values() if p.kind is not p.VAR_KEYWORD]
+    keywords = [inspect.Parameter(o.name, inspect.Parameter.KEYWORD_ONLY, default=o.default)
+                for o in OPTIONS]
+    return sig.replace(parameters=[*fixed, *keywords])
 
 
 def parameters_doc() -> str:
