@@ -31,6 +31,9 @@ POSITIONAL_OK = {
     ("io", "write_hdf5", "attrs"),
     # the frame is the clean grid seen through this rigid vibration: an operand
     ("paper", "clean_frame", "shift"),
+    # the options as one object (a MeasureOptions, e.g. a result's replayed): the
+    # keywords beside it override its fields
+    ("series", "measure_series", "options"),
 }
 
 

@@ -321,7 +321,7 @@ def test_measure_command_to_edges_and_its_replay(tmp_path, capsys):
     assert main([*args, "--to-edges", "--method", "B", "-o", str(tmp_path / "c.h5")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1
-    assert "to_edges needs method 'A'" in err[0]
+    assert "--to-edges needs method 'A'" in err[0]
 
 
 @pytest.mark.slow

@@ -518,9 +518,9 @@ def test_max_saturation_option(tmp_path, capsys):
 
 @pytest.mark.parametrize(("extra", "match"), [
     (["--guess", "1", "2", "--guess", "3", "4"], "--guess given 2 times"),
-    (["--order", "backwards"], "--order must be one of series, independent"),
-    (["--max-saturation", "1.5"], "--max-saturation must be a fraction in [0, 1]"),
-    (["--max-saturation", "-0.1"], "--max-saturation must be a fraction in [0, 1]"),
+    (["--order", "backwards"], "--order must be one of 'series', 'independent'"),
+    (["--max-saturation", "1.5"], "--max-saturation must be a number in [0, 1]"),
+    (["--max-saturation", "-0.1"], "--max-saturation must be a number in [0, 1]"),
 ])
 def test_bad_options_give_one_line(tmp_path, capsys, extra, match):
     n, pitch = 64, 5.0

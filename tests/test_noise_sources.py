@@ -151,7 +151,7 @@ def test_noise_options_refused(pair, tmp_path, capsys):
              (["--noise", tmp_path / "n1.json"], "stored x1"),
              (["--noise", noise_json, "--noise-model", 1, 1], "not both"),
              (["--sigma", 6, "--sigma-pitches", 1.5], "not both"),
-             (["--sigma-pitches", 0.5], "sigma_pitches must be at least")]
+             (["--sigma-pitches", 0.5], "--sigma-pitches must be at least")]
     for extra, match in cases:
         assert _run(["measure", pair / "ref.tif", pair / "def.tif", "-o", res, "--quiet",
                      *extra]) != 0, extra

@@ -324,7 +324,7 @@ def test_command_line_names_the_frame_and_follows_outliers(tmp_path, capsys):
                  "--quiet", "--config", str(cfg)]) != 0
     err = capsys.readouterr().err.strip().splitlines()
     assert "no grid" in err[0]
-    assert 'outliers must be "exclude" or "refuse" or "warn"' in err[1]
+    assert "outliers must be one of 'exclude', 'refuse', 'warn', got 'drop'" in err[1]
     assert summary["reference"]["frames"] == 5
     assert any("img_002.tif" in w for w in summary["warnings"])
 

@@ -16,18 +16,57 @@ from pathlib import Path
 from .._validation import check_positive
 from ..io import check_destination
 from ..phase import Lattice
+from ..series import Option
+
+
+def _grid_value(value, name):
+    return value  # checked together, into a Lattice (lattice_option)
+
+
+#: ``--pitch/--angle`` or ``--k1/--k2``: the grid given rather than detected.
+LATTICE_OPTIONS = (
+    Option("pitch", None, _grid_value, "", flag="--pitch", kind="float", metavar="PX",
+           group="window", help="grid pitch, px (default: detected on the reference)"),
+    Option("angle", None, _grid_value, "", flag="--angle", kind="float", metavar="DEG",
+           group="window", help="grid angle, degrees (with --pitch; default 0)"),
+    Option("k1", None, _grid_value, "", flag="--k1", kind="pair", metavar=("KX", "KY"),
+           group="window",
+           help="first wave vector, cycles/px (with --k2, instead of --pitch)"),
+    Option("k2", None, _grid_value, "", flag="--k2", kind="pair", metavar=("KX", "KY"),
+           group="window", help="second wave vector, cycles/px"),
+)
+
+
+def add_option(group, o: Option) -> None:
+    """The flag of option ``o`` (a :class:`gridstrain.series.Option`), its value read as
+    its kind says."""
+    kw: dict = {"help": o.help}
+    if o.metavar is not None:
+        kw["metavar"] = o.metavar
+    elif o.kind in ("choice", "method"):  # checked by the option, naming the flag
+        kw["metavar"] = "{" + ",".join(o.choices) + "}"
+    if o.kind == "bool":
+        kw.update(action="store_true", default=None)
+    elif o.kind in ("float", "int"):
+        kw["type"] = float if o.kind == "float" else int
+    elif o.kind == "method":
+        kw["type"] = str.upper
+    elif o.kind in ("pair", "pairs"):
+        kw.update(type=float, nargs=2)
+        if o.kind == "pairs":
+            kw["action"] = "append"
+    elif o.kind == "roi":
+        kw.update(type=int, nargs=4)
+    elif o.kind == "polygon":
+        kw["nargs"] = "+"
+    flags = ("-o", o.flag) if o.flag == "--output" else (o.flag,)
+    group.add_argument(*flags, **kw)
 
 
 def add_lattice_options(group) -> None:
     """``--pitch/--angle`` or ``--k1/--k2`` (automatic detection when absent)."""
-    group.add_argument("--pitch", type=float, metavar="PX",
-                       help="grid pitch, px (default: detected on the reference)")
-    group.add_argument("--angle", type=float, metavar="DEG",
-                       help="grid angle, degrees (with --pitch; default 0)")
-    group.add_argument("--k1", type=float, nargs=2, metavar=("KX", "KY"),
-                       help="first wave vector, cycles/px (with --k2, instead of --pitch)")
-    group.add_argument("--k2", type=float, nargs=2, metavar=("KX", "KY"),
-                       help="second wave vector, cycles/px")
+    for o in LATTICE_OPTIONS:
+        add_option(group, o)
 
 
 def positive_option(opts: dict, name: str) -> None:

@@ -7,7 +7,11 @@ import functools
 import os
 from pathlib import Path
 
-from ._common import OVERWRITE_HELP, check_output_file, xy_pairs
+from ..series import OPTIONS
+from ._common import OVERWRITE_HELP, add_option, check_output_file, xy_pairs
+
+# measure's options by name: the loads file's reading options are theirs
+_MEASURE_OPTIONS = {o.name: o for o in OPTIONS}
 
 
 def add_result_options(p, *, loads: bool = True) -> None:
@@ -25,14 +29,9 @@ def add_loads_options(p, *, default: str = "") -> None:
                    "lines, units in the header: 'Force (kN)', 'Zeit [ms]'); a log with a "
                    "time column is joined to the states' times by linear interpolation; "
                    "else one row per state or a 'state' column naming them" + default)
-    g.add_argument("--load-column", metavar="NAME",
-                   help="the load column's name (default: the one named load, force or "
-                   "Kraft)")
-    g.add_argument("--time-column", metavar="NAME",
-                   help="the time column's name (default: the one named time or Zeit)")
-    g.add_argument("--loads-offset", type=float, metavar="SECONDS",
-                   help="the time on the log's clock at the camera's time zero, s (a log "
-                   "started 0.2 s before the camera's trigger: 0.2; default 0)")
+    # how to read it: measure's options of the same names (gridstrain.series.OPTIONS)
+    for name in ("load_column", "time_column", "loads_offset"):
+        add_option(g, _MEASURE_OPTIONS[name])
 
 
 #: How every command names a place (gridstrain.post._places holds the rule).

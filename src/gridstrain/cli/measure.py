@@ -13,6 +13,7 @@ import dataclasses
 import json
 import math
 import os
+import re
 import sys
 import time
 import tomllib
@@ -24,9 +25,9 @@ import h5py
 from .. import __version__
 from .._progress import bar
 from .._runtime.memory import memory_budget, parse_size
+from .._validation import check_positive
 from ..io import (
     FrameSeries,
-    LoadsFile,
     OutputDirectory,
     open_series,
     read_mask,
@@ -34,7 +35,6 @@ from ..io import (
     roi_mask,
     state_inputs,
 )
-from ..phase import DEFAULT_MARGIN
 from ..results import (
     EXPORTS,
     MAP_FIELDS,
@@ -45,55 +45,26 @@ from ..results import (
     save_result,
 )
 from ..series import (
-    ORDERS,
-    OUTLIER_POLICIES,
+    OPTIONS,
+    MeasureOptions,
+    Option,
+    check_together,
     empty_state_message,
     measure_series,
     reference_lattice,
     state_names,
 )
 from ._common import (
-    add_lattice_options,
+    LATTICE_OPTIONS,
+    add_option,
     check_output_file,
     lattice_option,
-    positive_option,
     quiet_dask_logs,
     xy_pairs,
 )
 from ._summary import jsonable, report_lines, summary
 
-# The options a TOML configuration file may set: its keys are the long options
-# (``pixel-size`` or ``pixel_size``), with the type each must have there.
-_CONFIG_KEYS = {
-    "reference": "source", "states": "sources",
-    "output": "path", "pitch": "float", "angle": "float", "k1": "pair", "k2": "pair",
-    "sigma": "float", "method": "method", "mask": "path", "roi": "roi",
-    "roi-polygon": "polygon", "pixel-size": "float", "grid-pitch": "float",
-    "unit": "str", "no-lagrangian": "bool", "guess": "pairs", "margin": "float",
-    "to-edges": "bool",
-    "csv": "path", "figures": "path", "export": "formats", "report": "path",
-    "phase-maps": "bool", "lossless": "bool", "quiet": "bool", "json": "bool",
-    "overwrite": "bool",
-    "bit-depth": "int",
-    "scheduler": "str", "outliers": "outliers", "order": "str", "max-saturation": "float",
-    "timeout": "float",
-    "sigma-pitches": "float", "noise": "path", "noise-model": "pair", "dtype": "str",
-    "each-frame": "bool", "reference-frames": "int", "keep-order": "bool", "loads": "path",
-    "frame-rate": "float", "load-column": "str", "time-column": "str",
-    "loads-offset": "float",
-}
-# How to run, not what to measure: every output (the result file, the side outputs and
-# what they replace), the terminal's report, the cluster and its patience. Never
-# stored in a result, never taken from one: a result file from someone else replays
-# the measurement and nothing else. A TOML file the user writes may set them, except
-# ``overwrite``, which only --overwrite on the command line turns on.
-_RUN_ONLY = ("output", "csv", "figures", "export", "report", "overwrite", "quiet", "json",
-             "scheduler", "timeout", "lossless")
 _EXPORTS = tuple(EXPORTS)
-
-# Seconds the command waits for a cluster's result of one series: an hour covers
-# thousands of method-B transforms on a few workers, and ends a stalled run.
-_TIMEOUT = 3600.0
 
 _EXAMPLE = """example:
   gridstrain measure ref/ load1/ load2/ -o maps.h5 --mask mask.tif \\
@@ -112,6 +83,133 @@ RESULT.h5 -o again.h5' measures the same inputs with the same options, and takes
 nothing else from the file (no output, overwrite, scheduler or timeout)."""
 
 
+def _path(value, name):
+    if not isinstance(value, str) or not value:
+        raise ValueError(f"{name} must be a non-empty path, got {value!r}")
+    return value
+
+
+def _text(value, name):
+    if not isinstance(value, str) or not value:
+        raise ValueError(f"{name} must be a non-empty string, got {value!r}")
+    return value
+
+
+def _switch(value, name):
+    return bool(value)
+
+
+def _positive(value, name):
+    return None if value is None else check_positive(value, name)
+
+
+def _given(value, name):
+    return value  # checked with the options it goes with (_checked)
+
+
+# The command's own options: those it turns into measure_series's (the grid, the mask,
+# the guess, the noise model, the output) and those of its outputs and report. Each
+# is a flag and a configuration key (the flag without its dashes); recorded=False: how
+# to run, never stored in a result, never taken from one (a result file from someone
+# else replays the measurement and nothing else). A TOML file the user writes may set
+# them, except ``overwrite``, which only --overwrite on the command line turns on.
+_COMMAND_OPTIONS: tuple[Option, ...] = (
+    *LATTICE_OPTIONS,
+    Option("mask", None, _path, "", flag="--mask", kind="path", metavar="FILE",
+           help="specimen mask image (nonzero = specimen), reference configuration"),
+    Option("roi", None, _given, "", flag="--roi", kind="roi",
+           metavar=("X0", "Y0", "X1", "Y1"),
+           help="rectangle of interest, px: columns X0 <= x < X1, rows Y0 <= y < Y1 (with "
+           "--mask: both)"),
+    Option("roi_polygon", None, _given, "", flag="--roi-polygon", kind="polygon",
+           metavar="X,Y", help="polygon of interest, its vertices as x,y in px (at least 3)"),
+    Option("no_lagrangian", False, _switch, "", flag="--no-lagrangian", kind="bool",
+           help="turn the large-displacement correction off"),
+    Option("guess", None, _given, "", flag="--guess", kind="pairs", metavar=("UX", "UY"),
+           help="displacement fixing the fringe order (the whole number of periods), px: "
+           "once for the first state (series order; the others follow it) or for every "
+           "state (independent order), or once per state (default: the previous state, "
+           "else printed features, else the smallest displacement, flagged)"),
+    Option("noise", None, _path, "", flag="--noise", kind="path", metavar="FILE.h5",
+           group="noise",
+           help="camera noise model written by 'gridstrain noise -o FILE.h5'"),
+    Option("noise_model", None, _given, "", flag="--noise-model", kind="pair",
+           metavar=("K", "L"), group="noise",
+           help="camera noise Var = K l + L in the STORED grey levels of the images (K grey "
+           "levels, L grey levels^2; for 12-bit data stored x16, 16 and 256 times the "
+           "sensor's)"),
+    Option("output", None, _path, "", flag="--output", kind="path", metavar="OUT.h5",
+           group="output", recorded=False, help="output HDF5 file"),
+    Option("pixel_size", None, _positive, "", flag="--pixel-size", kind="float",
+           metavar="SIZE", group="output",
+           help="pixel size on the specimen, in --unit (adds ux_phys, uy_phys)"),
+    Option("grid_pitch", None, _positive, "", flag="--grid-pitch", kind="float",
+           metavar="PITCH", group="output",
+           help="the grid's printed pitch on the specimen, in --unit, instead of "
+           "--pixel-size: the pixel size is PITCH / the pitch detected in px"),
+    Option("unit", None, _text, "", flag="--unit", metavar="UNIT", group="output",
+           help="length unit of --pixel-size or --grid-pitch (e.g. mm)"),
+    Option("csv", None, _path, "", flag="--csv", kind="path", metavar="FILE",
+           group="output", recorded=False,
+           help="also write one CSV row per valid pixel"),
+    Option("figures", None, _path, "", flag="--figures", kind="path", metavar="DIR",
+           group="output", recorded=False, help="also write PNG maps into DIR"),
+    Option("export", None, _given, "", flag="--export", kind="formats",
+           metavar="FORMATS", group="output", recorded=False,
+           help="also write mat (MATLAB), vtk (ParaView: a .pvd time series of .vti), csv "
+           "and/or netcdf (a clean NetCDF-4 copy) next to the output, comma-separated "
+           "(e.g. mat,vtk); gridstrain export does the same later"),
+    Option("phase_maps", False, _switch, "", flag="--phase-maps", kind="bool",
+           group="output",
+           help="also store the phase maps of every series in the output (about 3x the "
+           "file; gridstrain.load then gives them back). Holds every state's maps in "
+           "memory until the end: without it each state is written as soon as it is "
+           "measured"),
+    Option("lossless", False, _switch, "", flag="--lossless", kind="bool", group="output",
+           recorded=False,
+           help="store the maps exactly as measured (float64 unless the frames are "
+           "float32), uncompressed: 24x the default file on a record of one-frame states. "
+           "By default each map is stored in float32 rounded to a tenth of its own "
+           "predicted std at each pixel (rotation: exy's), the std maps to 1.6 %%, "
+           "compressed"),
+    Option("report", None, _path, "", flag="--report", kind="path", metavar="FILE.html",
+           group="output", recorded=False,
+           help="also write a self-contained HTML report of the run"),
+    Option("overwrite", False, _switch, "", flag="--overwrite", kind="bool",
+           group="output", recorded=False,
+           help="replace the output files an earlier gridstrain run wrote, unchanged since "
+           "(never another file)"),
+    Option("quiet", False, _switch, "", flag="--quiet", kind="bool", group="output",
+           recorded=False, help="no progress bar and no report"),
+    Option("json", False, _switch, "", flag="--json", kind="bool", group="output",
+           recorded=False, help="print a JSON summary on stdout instead of the report"),
+)
+
+# Every flag of the command that is an option of the measurement or of its outputs, by
+# its configuration key: measure_series's own (gridstrain.series.OPTIONS) and the
+# command's.
+_FLAGGED = {o.key: o for o in (*OPTIONS, *_COMMAND_OPTIONS) if o.flag is not None}
+# The keys of a TOML configuration file (``pixel-size`` or ``pixel_size``), with the
+# type each must have there: the inputs, then every flagged option.
+_CONFIG_KEYS = {"reference": "source", "states": "sources",
+                **{key: o.kind for key, o in _FLAGGED.items()}}
+# How to run, not what to measure (see _COMMAND_OPTIONS).
+_RUN_ONLY = tuple(key for key, o in _FLAGGED.items() if not o.recorded)
+_SWITCHES = tuple(key for key, o in _FLAGGED.items() if o.kind == "bool")
+_MEASURED = {o.name: o for o in OPTIONS}
+
+# The sections of the help, by an option's group.
+_GROUPS = (
+    ("window", "grid and window"),
+    ("specimen", "specimen and kinematics"),
+    ("sequence", "sequences (one image per load step or camera frame)"),
+    ("noise", "noise (default: measured in each series; from the image itself for single "
+     "frames)"),
+    ("output", "output"),
+    ("distributed", "distributed (needs gridstrain[distributed])"),
+)
+
+
 def register(sub) -> None:
     p = sub.add_parser(
         "measure", help="displacement and strain maps from image series",
@@ -123,176 +221,50 @@ def register(sub) -> None:
                    help="reference series (or reference = ... in the config)")
     p.add_argument("states", metavar="DEF", nargs="*",
                    help="loaded state series, in order (or states = [...] in the config)")
-    p.add_argument("-o", "--output", metavar="OUT.h5", help="output HDF5 file")
-    _window_options(p.add_argument_group("grid and window"))
-    _specimen_options(p.add_argument_group("specimen and kinematics"))
-    _sequence_options(p.add_argument_group("sequences (one image per load step or camera "
-                                           "frame)"))
-    _noise_options(p.add_argument_group("noise (default: measured in each series; from the "
-                                        "image itself for single frames)"))
-    _output_options(p.add_argument_group("output"))
-    _dask_options(p.add_argument_group("distributed (needs gridstrain[distributed])"))
+    groups = {key: p.add_argument_group(title) for key, title in _GROUPS}
+    for o in _FLAGGED.values():
+        add_option(groups[o.group], o)
+    out = groups["output"]
+    out.add_argument("--memory-budget", type=_size, metavar="SIZE",
+                     help="memory the run may use, e.g. 3G or 500M (default: the memory "
+                     "available, the least of the system's and the cgroup's limit); a run "
+                     "estimated to need more is refused before it starts")
+    out.add_argument("--config", metavar="FILE.toml", help="read options from a TOML file")
     p.set_defaults(func=run)
 
 
-def _window_options(g) -> None:
-    add_lattice_options(g)
-    g.add_argument("--sigma", type=float, metavar="PX",
-                   help="window standard deviation, px (default and minimum: the pitch)")
-    g.add_argument("--sigma-pitches", type=float, metavar="X",
-                   help="window standard deviation in pitches (sigma = X pitch, X >= 1), "
-                   "instead of --sigma")
-    g.add_argument("--method", type=str.upper, choices=("A", "B", "C"),
-                   help="A: transform of the averaged images (default); B: transform of "
-                   "every frame, averaged; C: frames averaged with their carriers "
-                   "realigned by their measured shifts (B's precision, no vibration "
-                   "contrast loss, about twice A's cost)")
-    g.add_argument("--margin", type=float, metavar="N",
-                   help=f"invalid band at borders and mask edges, in sigmas "
-                   f"(default {DEFAULT_MARGIN:g})")
-    g.add_argument("--to-edges", action="store_true", default=None,
-                   help="measure up to the specimen's edges (method A): the grid continued "
-                   "beyond them by its own phase before the window; the band of --margin "
-                   "sigmas is then edge pixels, exact for a uniform strain, biased by "
-                   "about 2.2 sigma times the strain's gradient normal to the edge")
+def _first_sentence(doc: str) -> str:
+    """The first sentence of a parameter's text (its type line left out)."""
+    text = " ".join(line.strip() for line in doc.splitlines()[1:])
+    return re.split(r"(?<!e\.g)\. ", text)[0].rstrip(".") + "."
 
 
-def _specimen_options(k) -> None:
-    k.add_argument("--mask", metavar="FILE",
-                   help="specimen mask image (nonzero = specimen), reference configuration")
-    k.add_argument("--roi", type=int, nargs=4, metavar=("X0", "Y0", "X1", "Y1"),
-                   help="rectangle of interest, px: columns X0 <= x < X1, rows Y0 <= y < "
-                   "Y1 (with --mask: both)")
-    k.add_argument("--roi-polygon", nargs="+", metavar="X,Y",
-                   help="polygon of interest, its vertices as x,y in px (at least 3)")
-    k.add_argument("--no-lagrangian", action="store_true", default=None,
-                   help="turn the large-displacement correction off")
-    k.add_argument("--guess", type=float, nargs=2, metavar=("UX", "UY"), action="append",
-                   help="displacement fixing the fringe order (the whole number of "
-                   "periods), px: once for the first state (series order; the others "
-                   "follow it) or for every state (independent order), or once per "
-                   "state (default: the previous state, else printed features, else the "
-                   "smallest displacement, flagged)")
-    k.add_argument("--order", metavar="ORDER",
-                   help="'series' (default): the states are load steps in time, each "
-                   "state's fringe order followed from the previous one; "
-                   "'independent': unordered states, each on its own")
-    k.add_argument("--max-saturation", type=float, metavar="FRACTION",
-                   help="largest fraction of saturated pixels accepted in a frame, in "
-                   "[0, 1] (default 0.01); photos of white paper clip between the lines")
-    k.add_argument("--bit-depth", type=int, metavar="BITS",
-                   help="significant bits of the camera (default: detected)")
-    k.add_argument("--outliers", choices=OUTLIER_POLICIES,
-                   help="frames that do not belong to their series (no grid, low contrast, "
-                   "a slip, another state's frame, clipped): 'exclude' them with a warning "
-                   "(default; a series with half its frames flagged is refused), 'refuse' "
-                   "the run, or 'warn' and keep them (noise floor then not stated)")
-
-
-# The options of a sequence (gridstrain.io), as (flag, argparse keywords).
-_SEQUENCE_OPTIONS = (
-    ("--each-frame", {"action": "store_true", "default": None, "help":
-                      "every frame of the DEF inputs (a folder, a glob, a multi-page TIFF, a "
-                      "video, a Phantom cine or Photron MRAW record) is a state of its "
-                      "own, named after its file (and page): a high-speed record or a "
-                      "load-step series. Without it a DEF whose "
-                      "frames drift or deform steadily is refused, never averaged"}),
-    ("--reference-frames", {"type": int, "metavar": "N", "help":
-                            "the reference is the first N frames of the record (REF, then "
-                            "any DEF, read as one record), averaged; every later frame is a "
-                            "state (implies --each-frame)"}),
-    ("--keep-order", {"action": "store_true", "default": None, "help":
-                      "keep explicit files in the order given (default: files whose names "
-                      "form one numbered family, as a shell lists frame_1 frame_10 "
-                      "frame_2, are measured in natural order)"}),
-    ("--loads", {"metavar": "FILE.csv", "help":
-                 "the load of each state: a testing machine's export as it comes (',', "
-                 "';', tab or spaces between columns, decimal comma, preamble lines, "
-                 "units in the header: 'Force (kN)', 'Zeit [ms]'); a log with a time "
-                 "column is joined to the states' times (--frame-rate or the camera's) "
-                 "by linear interpolation; else one row per state in order or a 'state' "
-                 "column naming them"}),
-    ("--load-column", {"metavar": "NAME", "help":
-                       "the load column's name (default: the one named load, force or "
-                       "Kraft)"}),
-    ("--time-column", {"metavar": "NAME", "help":
-                       "the time column's name (default: the one named time or Zeit)"}),
-    ("--loads-offset", {"type": float, "metavar": "SECONDS", "help":
-                        "the time on the log's clock at the camera's time zero, s (a log "
-                        "started 0.2 s before the camera's trigger: 0.2; default 0)"}),
-    ("--frame-rate", {"type": float, "metavar": "HZ", "help":
-                      "the camera's frame rate: each state's time is its frame's number in "
-                      "the record over the rate, s (with --each-frame; default: the times a "
-                      "video or camera record holds)"}),
-)
-
-
-def _sequence_options(q) -> None:
-    for flag, kw in _SEQUENCE_OPTIONS:
-        q.add_argument(flag, **kw)
-
-
-def _noise_options(n) -> None:
-    n.add_argument("--noise", metavar="FILE.h5",
-                   help="camera noise model written by 'gridstrain noise -o FILE.h5'")
-    n.add_argument("--noise-model", type=float, nargs=2, metavar=("K", "L"),
-                   help="camera noise Var = K l + L in the STORED grey levels of the images "
-                   "(K grey levels, L grey levels^2; for 12-bit data stored x16, 16 and 256 "
-                   "times the sensor's)")
-
-
-def _output_options(o) -> None:
-    o.add_argument("--pixel-size", type=float, metavar="SIZE",
-                   help="pixel size on the specimen, in --unit (adds ux_phys, uy_phys)")
-    o.add_argument("--grid-pitch", type=float, metavar="PITCH",
-                   help="the grid's printed pitch on the specimen, in --unit, instead of "
-                   "--pixel-size: the pixel size is PITCH / the pitch detected in px")
-    o.add_argument("--unit", metavar="UNIT",
-                   help="length unit of --pixel-size or --grid-pitch (e.g. mm)")
-    o.add_argument("--csv", metavar="FILE", help="also write one CSV row per valid pixel")
-    o.add_argument("--figures", metavar="DIR", help="also write PNG maps into DIR")
-    o.add_argument("--export", metavar="FORMATS",
-                   help="also write mat (MATLAB), vtk (ParaView: a .pvd time series of .vti), "
-                   "csv and/or netcdf (a clean NetCDF-4 copy) next to the output, "
-                   "comma-separated (e.g. mat,vtk); gridstrain export does the same later")
-    o.add_argument("--phase-maps", action="store_true", default=None,
-                   help="also store the phase maps of every series in the output (about 3x "
-                   "the file; gridstrain.load then gives them back). Holds every state's "
-                   "maps in memory until the end: without it each state is written as "
-                   "soon as it is measured")
-    o.add_argument("--lossless", action="store_true", default=None,
-                   help="store the maps exactly as measured (float64 unless the frames are "
-                   "float32), uncompressed: 24x the default file on a record of one-frame "
-                   "states. By default each map is stored in float32 rounded to a tenth "
-                   "of its own predicted std at each pixel (rotation: exy's), the std "
-                   "maps to 1.6 %%, compressed")
-    o.add_argument("--dtype", choices=("float32", "float64"), default=None,
-                   help="store the maps losslessly in this precision (implies --lossless). "
-                   "float32 keeps u below 1024 px to 3.1e-5 px and strain to 3e-8")
-    o.add_argument("--report", metavar="FILE.html",
-                   help="also write a self-contained HTML report of the run")
-    o.add_argument("--overwrite", action="store_true", default=None,
-                   help="replace the output files an earlier gridstrain run wrote, "
-                   "unchanged since (never another file)")
-    o.add_argument("--memory-budget", type=_size, metavar="SIZE",
-                   help="memory the run may use, e.g. 3G or 500M (default: the memory "
-                   "available, the least of the system's and the cgroup's limit); a run "
-                   "estimated to need more is refused before it starts")
-    o.add_argument("--config", metavar="FILE.toml", help="read options from a TOML file")
-    o.add_argument("--quiet", action="store_true", default=None,
-                   help="no progress bar and no report")
-    o.add_argument("--json", action="store_true", default=None,
-                   help="print a JSON summary on stdout instead of the report")
-
-
-def _dask_options(d) -> None:
-    d.add_argument("--scheduler", metavar="ADDRESS",
-                   help="compute the statistics and method B's transforms on Dask: "
-                   "'local' (a worker per core) or a scheduler's tcp://HOST:PORT, whose "
-                   "workers must see the input files at the same paths")
-    d.add_argument("--timeout", type=float, metavar="SECONDS",
-                   help=f"with --scheduler, give up on a cluster that returns no result "
-                   f"for a series within SECONDS (default {_TIMEOUT:g})")
+def options_table() -> str:
+    """The reStructuredText table of every option of the command, from the
+    declarations: its flag and configuration key, the measure_series keyword it gives,
+    whether a replay takes it from a result, and its help. The documentation's
+    page of options (``docs/user_guide/measure_options.rst``) holds it as written."""
+    feeds = {flag: o.name for o in OPTIONS for flag in o.via}
+    rows = [("Flag (configuration key)", "``measure_series``", "Replayed", "What it sets")]
+    for key, o in _FLAGGED.items():
+        python = o.name if o.name in _MEASURED else feeds.get(o.flag)
+        rows.append((f"``{o.flag}`` (``{key}``)", f"``{python}``" if python else "",
+                     "yes" if o.recorded else "no (run-only)", o.help.replace("%%", "%")))
+    for o in OPTIONS:
+        if o.flag is None:
+            via = ", ".join(f"``{f}``" for f in o.via) or "(Python only)"
+            # the command replays what it gave from the flags it stores
+            kept = [f for f in o.via if f[2:] in _FLAGGED and _FLAGGED[f[2:]].recorded]
+            replayed = ("yes" if kept and len(kept) == len(o.via) else
+                        "only " + ", ".join(f"``{f}``" for f in kept) if kept else
+                        "no (run-only)")
+            rows.append((via, f"``{o.name}``", replayed,
+                         _first_sentence(o.doc)))
+    lines = [".. list-table::", "   :header-rows: 1", "   :widths: 24 18 12 46", ""]
+    for row in rows:
+        lines.append(f"   * - {row[0]}")
+        lines.extend(f"     - {cell}" for cell in row[1:])
+    return "\n".join(lines) + "\n"
 
 
 # --------------------------------------------------------------------------- options
@@ -319,10 +291,6 @@ def _config_value(key: str, value, kind: str, base: Path, where: str):
     if kind == "bool":
         if not isinstance(value, bool):
             raise bad("true or false")
-        return value
-    if kind == "outliers":
-        if value not in OUTLIER_POLICIES:
-            raise bad(" or ".join(f'"{p}"' for p in OUTLIER_POLICIES))
         return value
     if kind == "roi":
         if not isinstance(value, list) or len(value) != 4 or any(
@@ -431,7 +399,8 @@ def _read_config(path: str) -> _Config:
         if name == "overwrite":
             raise ValueError(f"{where}: overwrite is not taken from a file; pass "
                              "--overwrite on the command line")
-        out[name] = _config_value(key, value, _CONFIG_KEYS[name], p.parent, where)
+        value = _config_value(key, value, _CONFIG_KEYS[name], p.parent, where)
+        out[name] = _checked_value(name, value, f"{where}: {key}")
     return _Config(p, out, from_result, tuple(ignored))
 
 
@@ -449,6 +418,14 @@ def _replay_line(config: _Config, opts: dict) -> str:
     return line
 
 
+def _checked_value(key: str, value, label: str):
+    """``value`` of option ``key`` by its declaration's check, its errors naming
+    ``label`` (the flag, or the configuration file and key), as a configuration file
+    writes it."""
+    o = _FLAGGED.get(key)
+    return value if o is None else o.record(o.check(value, label))
+
+
 def _options(args, config: _Config | None = None) -> dict:
     """The options of the command line over those of the config file."""
     opts = dict(config.options) if config else {}
@@ -463,19 +440,21 @@ def _options(args, config: _Config | None = None) -> dict:
         if value is not None:
             if name == "guess":
                 value = [list(v) for v in value]
-            opts[name] = list(value) if isinstance(value, tuple) else value
+            value = list(value) if isinstance(value, tuple) else value
+            opts[name] = _checked_value(name, value, f"--{name}")
     record = opts.get("reference-frames") is not None
     if not opts.get("reference") or not (opts.get("states") or record):
         raise ValueError("the inputs are missing: give REF and at least one DEF (or "
                          "reference = ... and states = [...] in the config file; with "
                          "--reference-frames N, REF is the record)")
-    for name in ("no-lagrangian", "quiet", "json", "overwrite", "phase-maps", "each-frame",
-                 "keep-order", "lossless", "to-edges"):
+    for name in _SWITCHES:
         opts[name] = bool(opts.get(name, False))
-    opts.setdefault("method", "A")
-    opts.setdefault("outliers", "exclude")
-    opts.setdefault("margin", DEFAULT_MARGIN)
-    opts.setdefault("timeout", _TIMEOUT)
+    for key, o in _FLAGGED.items():  # the measurement's defaults, recorded as such
+        if o.name not in _MEASURED or opts.get(key) is not None:
+            continue
+        default = o.default if o.command_default is None else o.command_default
+        if default is not None and (o.recorded or o.command_default is not None):
+            opts[key] = o.record(default)
     if not opts.get("output"):
         raise ValueError("the output file is missing: pass -o OUT.h5 (or output = ... in "
                          "the config file)")
@@ -623,7 +602,7 @@ def run(args) -> int:
 def _run(args, progress: _Bar) -> int:
     t0 = time.perf_counter()
     config = _read_config(args.config) if args.config else None
-    opts, lattice, noise_model = _checked(_options(args, config))
+    opts, lattice, measured = _checked(_options(args, config))
     progress.configure(opts["quiet"])
     replay = {}
     if config is not None:
@@ -649,25 +628,13 @@ def _run(args, progress: _Bar) -> int:
     spec = None if opts["phase-maps"] else ResultFile(
         opts["output"], pixel_size=ps, unit=unit, overwrite=opts["overwrite"], attrs=extra,
         dtype=opts.get("dtype"), lossless=opts["lossless"] or opts.get("dtype") is not None)
-    guesses = opts.get("guess")
-    guess = "auto" if guesses is None else tuple(guesses[0]) if len(guesses) == 1 \
-        else [tuple(g) for g in guesses]
-    sat = opts.get("max-saturation")
-    kw = {} if sat is None else {"max_saturation": sat}
+    options = dataclasses.replace(measured, mask=mask, output=spec, progress=progress)
     # with a cluster, its failures are one line (cli.main), not Dask's log records
     dask_logs = quiet_dask_logs() if opts.get("scheduler") else contextlib.nullcontext()
     with dask_logs:
         result = measure_series(
             None if opts.get("reference-frames") is not None else reference, states,
-            lattice=lattice, sigma=opts.get("sigma"),
-            method=opts["method"], mask=mask, lagrangian=not opts["no-lagrangian"],
-            guess=guess, order=opts.get("order", "series"), margin=opts["margin"],
-            outliers=opts["outliers"], progress=progress, scheduler=opts.get("scheduler"),
-            noise_model=noise_model, sigma_pitches=opts.get("sigma-pitches"),
-            timeout=opts["timeout"], output=spec, dtype=opts.get("dtype"),
-            each_frame=opts["each-frame"], reference_frames=opts.get("reference-frames"),
-            keep_order=opts["keep-order"], loads=_loads(opts),
-            frame_rate=opts.get("frame-rate"), to_edges=opts["to-edges"], **kw)
+            options)
     if spec is None:
         _refuse_empty(result)
         out = save_result(result, opts["output"], pixel_size=ps, unit=unit,
@@ -698,25 +665,30 @@ def _check_replayed_loads(result: Path, loads) -> None:
                          "--loads to replay with it as it is")
 
 
-def _loads(opts: dict):
-    """``measure_series``'s ``loads``: the file and how to read it, or None."""
-    if not opts.get("loads"):
-        for name in ("load-column", "time-column", "loads-offset"):
-            if opts.get(name) is not None:
-                raise ValueError(f"--{name} needs --loads")
-        return None
-    return LoadsFile(os.path.expanduser(opts["loads"]), load_column=opts.get("load-column"),
-                     time_column=opts.get("time-column"),
-                     offset=opts.get("loads-offset") or 0.0)
+def _label(name: str) -> str:
+    """How an error names option ``name`` of measure_series: by its flag."""
+    o = _MEASURED[name]
+    return o.flag or (o.via[0] if o.via else name)
+
+
+def _measure_options(opts: dict, lattice, noise_model) -> MeasureOptions:
+    """measure_series's options from the command's, checked together (each was
+    checked as it came in: _checked_value)."""
+    values = {o.name: o.replay(opts[o.key]) for o in OPTIONS
+              if o.flag is not None and opts.get(o.key) is not None}
+    guesses = opts.get("guess")
+    guess = "auto" if guesses is None else tuple(guesses[0]) if len(guesses) == 1 \
+        else [tuple(g) for g in guesses]
+    if values.get("loads") is not None:
+        values["loads"] = os.path.expanduser(values["loads"])
+    return check_together(MeasureOptions(
+        **values, lattice=lattice, noise_model=noise_model, guess=guess,
+        lagrangian=not opts["no-lagrangian"]), label=_label)
 
 
 def _checked(opts: dict) -> tuple:
     """The options, refused with one line each where they cannot be right, with the
-    lattice and the camera noise model they give (read once)."""
-    for name in ("sigma", "margin", "pixel-size", "grid-pitch", "sigma-pitches", "timeout"):
-        positive_option(opts, name)
-    if opts.get("sigma") is not None and opts.get("sigma-pitches") is not None:
-        raise ValueError("give --sigma or --sigma-pitches, not both")
+    lattice they give and measure_series's options (the noise model read once)."""
     noise_model = _noise_option(opts)
     if opts.get("pixel-size") is not None and opts.get("grid-pitch") is not None:
         raise ValueError("give --pixel-size or --grid-pitch, not both")
@@ -724,16 +696,7 @@ def _checked(opts: dict) -> tuple:
     if (opts.get(scale[2:]) is None) != (opts.get("unit") is None):
         raise ValueError(f"{scale} and --unit go together (e.g. --pixel-size 0.04 --unit "
                          "mm, or --grid-pitch 0.2 --unit mm)")
-    bits = opts.get("bit-depth")
-    if bits is not None and not 1 <= bits <= 32:
-        raise ValueError(f"--bit-depth must be between 1 and 32, got {bits}")
     lattice = lattice_option(opts)
-    order = opts.get("order", "series")
-    if order not in ORDERS:
-        raise ValueError(f"--order must be one of {', '.join(ORDERS)}, got {order!r}")
-    sat = opts.get("max-saturation")
-    if sat is not None and not (math.isfinite(sat) and 0 <= sat <= 1):
-        raise ValueError(f"--max-saturation must be a fraction in [0, 1], got {sat:g}")
     guesses = opts.get("guess")
     n = len(opts.get("states") or ())
     frames = opts["each-frame"] or opts.get("reference-frames") is not None
@@ -741,10 +704,7 @@ def _checked(opts: dict) -> tuple:
         raise ValueError(f"--guess given {len(guesses)} times: give it once (the first "
                          f"state, or every state with --order independent) or once per "
                          f"state ({n})")
-    dtype = opts.get("dtype")
-    if dtype not in (None, "float32", "float64"):
-        raise ValueError(f"--dtype must be float32 or float64, got {dtype!r}")
-    return opts, lattice, noise_model
+    return opts, lattice, _measure_options(opts, lattice, noise_model)
 
 
 def _pixel_size(opts: dict, lattice, reference, mask) -> float | None:

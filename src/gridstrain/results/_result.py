@@ -101,7 +101,9 @@ class SeriesResult:
         One per series, reference first.
     noise : NoiseFloor
     parameters : dict
-        Every option of the measurement, as given.
+        Every recorded option of the measurement (:data:`gridstrain.series.OPTIONS`;
+        the run-only ones left out), JSON-friendly;
+        ``gridstrain.series.MeasureOptions.from_parameters`` gives them back.
     warnings : tuple of str
         Things the user should know that did not stop the measurement.
     excluded : tuple of tuple of int

@@ -2,6 +2,8 @@
 
 - ``_loop``: :func:`measure_series`, its options checked once at the door and the loop
   over the series and the states;
+- ``_options``: every option of :func:`measure_series` declared once
+  (:data:`OPTIONS`), :class:`MeasureOptions` and the checks between options;
 - ``_inputs``: the frames, guesses, names, mask, loads and times, checked together;
 - ``_passes``: the lattice, one streamed pass per series and its phase maps;
 - ``_outliers``: the frames the screening flags, and what is done with them;
@@ -151,19 +153,23 @@ from ._distributed import (
     method_b_dask,
 )
 from ._inputs import state_names
-from ._loop import ORDERS, MeasureOptions, measure_series
-from ._outliers import OUTLIER_POLICIES
+from ._loop import measure_series
+from ._options import OPTIONS, ORDERS, MeasureOptions, Option
 
 # shared with gridstrain's other folders, not part of the public API
+from ._options import check_together as check_together
+from ._outliers import OUTLIER_POLICIES
 from ._outliers import outlier_verdict as outlier_verdict
 from ._passes import reference_lattice
 from ._sinks import empty_state_message
 
 __all__ = [
+    "OPTIONS",
     "ORDERS",
     "OUTLIER_POLICIES",
     "MeasureOptions",
     "MissingDistributedError",
+    "Option",
     "SeriesResult",
     "as_dask_stack",
     "connect",

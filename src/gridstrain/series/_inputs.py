@@ -17,7 +17,6 @@ from .._runtime import memory as _memory
 from .._validation import (
     check_choice,
     check_mask,
-    check_positive,
 )
 from ..io import FrameSeries, StateInputs, open_series, read_mask, record_numbering
 from ..phase import Lattice
@@ -277,11 +276,8 @@ def _loads_and_times(loads, frame_rate, series: list, *, each_frame: bool,
     time = None
     numbering = _file_numbers(series, from_record=first_frame > 0) if each_frame else None
     notes = list(numbering.warnings) if numbering is not None else []
-    if frame_rate is not None:
-        rate = check_positive(frame_rate, "frame_rate")
-        if not each_frame:
-            raise ValueError("frame_rate needs one frame per state (each_frame=True, "
-                             f"--each-frame), got frame_rate={frame_rate!r}")
+    if frame_rate is not None:  # positive, with each_frame: checked at the door
+        rate = frame_rate
         if numbering is not None:
             n = np.array(numbering.numbers, dtype=np.float64)
             time = (n[len(n) - len(names):] - n.min()) / rate

@@ -1,5 +1,6 @@
-"""The measurement loop of a series: the door where every option is checked once
-(:class:`~gridstrain.series.MeasureOptions`), then each series read in one pass, each state
+"""The measurement loop of a series: the door where the options are taken (a
+:class:`~gridstrain.series.MeasureOptions` and keywords, each declared once in
+``_options.py``) and checked together, then each series read in one pass, each state
 measured against the reference and dropped once its maps are kept.
 
 The stages and their algorithms are described in :mod:`gridstrain.series`, the public
@@ -9,7 +10,7 @@ path of :func:`measure_series`.
 from __future__ import annotations
 
 import dataclasses
-from dataclasses import dataclass
+import textwrap
 
 import numpy as np
 from scipy import ndimage
@@ -17,39 +18,35 @@ from scipy import ndimage
 from .._progress import Progress, null_progress
 from .._runtime import paging as _paging
 from .._runtime.threads import one_blas_thread
-from .._validation import (
-    SIGMA_PITCH_RTOL,
-    check_callable,
-    check_choice,
-    check_float_dtype,
-    check_fraction,
-    check_positive,
-    check_sigma,
-    check_type,
-)
+from .._validation import check_sigma
 from ..io import StateInputs, close_readers, state_inputs
 from ..kinematics import Measurement, check_parts, find_discontinuities, without_discontinuities
 from ..kinematics.tracking import _Tracker, check_after_warp
-from ..phase import DEFAULT_MARGIN, Lattice, Window, coupling_corrected, demodulated_in_place
+from ..phase import Lattice, Window, coupling_corrected, demodulated_in_place
 from ..phase.lattice import reference_carrier
 from ..results import SeriesResult
-from ..uncertainty import NoiseModel, aliasing_bias, metrology, nearest_filled, nearest_index
-from ._floors import _check_model_units, _check_noise_model, _Noise, _ReferenceFloor
+from ..uncertainty import aliasing_bias, metrology, nearest_filled, nearest_index
+from ._floors import _check_model_units, _Noise, _ReferenceFloor
 from ._inputs import (
     _check_fit,
     _check_memory,
     _glob_warning,
-    _guess_parameter,
     _inputs,
     _loads_and_times,
 )
-from ._outliers import OUTLIER_POLICIES
+from ._options import (
+    MeasureOptions,
+    check_together,
+    loads_file,
+    options_signature,
+    parameters_doc,
+    unknown_option,
+)
 from ._passes import (
     _LATTICE_FRAMES,
     _WFT_COST,
     _carrier,
     _check_given_lattice,
-    _check_scheduler,
     _connect,
     _contrast_notes,
     _detect,
@@ -64,13 +61,8 @@ from ._passes import (
 )
 from ._sinks import _InMemory, _streamed, empty_state_message
 
-__all__ = ["ORDERS", "MeasureOptions", "measure_series"]
+__all__ = ["measure_series"]
 
-#: How the states are ordered: "series" follows them in time (each state's fringe
-#: order from the previous state's field), "independent" measures each on its own.
-ORDERS = ("series", "independent")
-# Largest fraction of saturated pixels accepted in a frame (gridstrain.io's default).
-_MAX_SATURATION = 0.01
 # The previous state's displacement is kept in memory up to this size, bytes (a 0.5
 # Mpx field in float64), and read back from the result file above it: reading it
 # twice per state costs more than the transform of a frame that small, and keeping
@@ -81,18 +73,8 @@ _FOLLOW_IN_MEMORY = 8 * 2**20
 # --------------------------------------------------------------------------- the door
 
 
-def measure_series(reference, states, *, lattice: Lattice | None = None,
-                   sigma: float | None = None, method: str = "A", mask=None,
-                   lagrangian: bool = True, guess="auto", order: str = "series",
-                   margin: float = DEFAULT_MARGIN, bit_depth: int | None = None,
-                   max_saturation: float = _MAX_SATURATION, outliers: str = "exclude",
-                   progress: Progress | None = None, scheduler=None, noise_model=None,
-                   sigma_pitches: float | None = None,
-                   timeout: float | None = None, output=None,
-                   dtype=None, each_frame: bool = False,
-                   reference_frames: int | None = None, keep_order: bool = False,
-                   loads=None, frame_rate: float | None = None,
-                   to_edges: bool = False) -> SeriesResult:
+def measure_series(reference, states, options: MeasureOptions | None = None,
+                   **overrides) -> SeriesResult:
     """Displacement and strain maps of loaded states from series of grid images.
 
     Parameters
@@ -110,144 +92,11 @@ def measure_series(reference, states, *, lattice: Lattice | None = None,
         ``keep_order``; :attr:`SeriesResult.state_order` says which order was
         used. A :class:`gridstrain.io.StateInputs` (from
         :func:`gridstrain.io.state_inputs`) is used as it is.
-    lattice : Lattice, optional
-        The grid's wave vectors; detected on the mean reference image by default.
-    sigma : float, optional
-        Window standard deviation, px (default: the pitch; at least the pitch; a
-        value within a relative 1e-3 below the pitch is taken as the pitch).
-    method : {"A", "B", "C"}
-        "A" (paper §2.2): one windowed Fourier transform of each averaged series.
-        "B" (§2.3): one transform per frame, phases and derivatives averaged.
-        "C": each series averaged with its frames' carriers realigned by their
-        measured rigid shifts, one transform per wave vector
-        (:func:`gridstrain.stacks.method_c`): method B's precision without method
-        A's contrast loss, at about twice method A's cost. Warns (in
-        ``warnings``) when a series' motion is not a rigid translation.
-    mask : (H, W) bool array_like or path, optional
-        True (nonzero, for an image file) on the specimen, in the reference
-        configuration. Regions without a grid are masked automatically on top.
-    lagrangian : bool
-        Large-displacement correction (:func:`gridstrain.kinematics.deformation`).
-    guess : "auto", None, (2,) or (2, H, W) array_like, or a sequence of them
-        Initial displacement fixing the fringe order (the whole number of periods),
-        px. "auto": from the previous state in series order, else from image
-        features (:func:`gridstrain.kinematics.coarse_displacement`, used only when
-        confident), else the smallest displacement the phases allow, with a
-        warning. None: the smallest displacement. A pair or field fixes the first
-        state in series order (the others follow it) and every state in
-        independent order. A sequence gives one entry per state (``"auto"`` for
-        the automatic choice).
-    order : {"series", "independent"}
-        "series" (default): the states are load steps in time, and each state's
-        fringe order comes from the previous state's displacement field, so that a
-        series whose displacement changes by less than half a period between
-        consecutive states is followed whatever its total motion. Every state is
-        still measured against the reference (Lagrangian, no accumulation of
-        error); only its guess comes from the previous one. "independent": every
-        state on its own (unordered states). How each order was fixed is in
-        :attr:`SeriesResult.fringe_orders`.
-    margin : float
-        Invalid band along borders and mask edges, in units of ``sigma``.
-    bit_depth : int, optional
-        Passed to :func:`gridstrain.io.open_series` for paths.
-    max_saturation : float
-        Largest fraction of saturated pixels accepted in any frame of a file
-        series (within the mask), in [0, 1].
-    outliers : {"exclude", "refuse", "warn"}
-        What to do with the frames that the screening flags (every frame is checked
-        against its series by :func:`gridstrain.stacks.screening.screen_frames`: no grid
-        or a uniform frame, low contrast, a rigid slip, a frame of another state,
-        more than ``max_saturation`` clipped pixels, at the container's ceiling or
-        at a level ``2^n - 1``). "exclude" (default): leave them out of every
-        average (mean, variance, method B, the noise floor's halves, ``T``) and
-        name them in the warnings; a series with half its frames flagged or more
-        is refused, the good ones being then unknown. "refuse": raise on any
-        flagged frame. "warn": keep them, name them in the warnings, and give the
-        noise floor and uncertainty maps of the states they enter as NaN. A series
-        whose frames form a sequence (a steady drift or a growing deformation,
-        :class:`gridstrain.stacks.screening.Trend`) is refused, but with "warn", which
-        averages it with a warning. So is a state whose image, warped back by its
-        measured displacement, shows nothing of the reference's content (another
-        specimen: :func:`gridstrain.kinematics.pair_match`, recorded in
-        ``systematic["pair_match"]``), but with "warn".
-    progress : callable, optional
-        ``progress(fraction, message)``.
-    scheduler : str or distributed.Client, optional
-        Compute each series' statistics pass (mean, variance, saturation) and
-        method B's transforms on Dask: ``"local"`` (one worker process per core),
-        a scheduler address ``"tcp://HOST:PORT"`` or a ``distributed.Client``
-        (see :func:`gridstrain.series.connect`; needs the ``distributed``
-        extra, and on a cluster workers that see the input files at the same
-        paths). Every series is submitted before the first is awaited. The frame
-        shifts, the lattice, method C, the noise floor and the kinematics stay on
-        this machine. Results equal those without a scheduler to the rounding of sums
-        added in another order.
-    noise_model : NoiseModel or (K, L), optional
-        The camera's noise ``Var = K l + L`` in the stored grey levels of the
-        images (a :class:`gridstrain.uncertainty.NoiseModel`, e.g. from ``gridstrain
-        noise``, or a pair from a datasheet). Used for every series instead of
-        the noise measured in the data. Default: the temporal variance of each
-        series of two frames or more, and for single frames the model estimated
-        from one image (:func:`gridstrain.uncertainty.estimate_noise_image`).
-    sigma_pitches : float, optional
-        The window's standard deviation in pitches (``sigma = sigma_pitches x
-        pitch``, at least 1), instead of ``sigma``.
-    timeout : float, optional
-        With a scheduler: the longest wait, s, for the cluster's result of one
-        series (TimeoutError past it: a stalled cluster). None waits for ever.
-    output : str, os.PathLike or gridstrain.results.ResultFile, optional
-        Write the result file (:func:`gridstrain.results.save_result`'s layout)
-        while measuring: each state's maps go to the file as soon as they are
-        measured and leave memory, so that memory holds one state and the
-        reference whatever the number of states. The returned result reads its maps
-        from the file (see ``u``). The file is put at its path when the measurement
-        ends, atomically; nothing is there if it fails. The measurements' phase maps
-        are not kept. With methods B and C, the reference's phase maps wait in an
-        unlinked temporary file in the result's folder while each state's frames
-        are transformed (64 bytes a pixel in float64, paged back in by the system
-        when read; nothing is left behind, whatever ends the process).
-    dtype : {None, "float32", "float64"}
-        Precision of the returned (and written) maps; None: that of the
-        measurement (:mod:`gridstrain.conventions`). Everything is computed as
-        without it; see :class:`gridstrain.results.ResultFile` for what float32
-        keeps. With ``output``, a dtype writes a lossless file in that precision
-        (by default the file's maps are rounded to a tenth of their std).
-
-    each_frame : bool
-        Every frame of the states' inputs (a folder, a glob, a list of files, a
-        multi-page TIFF, a ``(T, H, W)`` array) is a state of its own, named after
-        its file (and page): a sequence such as a high-speed record
-        (:mod:`gridstrain.io`). Without it a series whose frames drift or
-        deform steadily is refused rather than averaged.
-    reference_frames : int, optional
-        The reference is the first ``reference_frames`` frames of the record given
-        as ``states`` (averaged) and every later frame is a state; ``reference``
-        must then be None. Implies ``each_frame``.
-    keep_order : bool
-        Keep explicit files in the order given even where it is not natural.
-    loads : str, os.PathLike, LoadsFile or (n_states,) array_like, optional
-        The load of each state: a testing machine's export read by
-        :func:`gridstrain.io.read_loads` (a :class:`gridstrain.io.LoadsFile` names
-        its columns and the log's time offset), or the loads themselves (no unit).
-        A log with a time column is joined to the states' times (``frame_rate`` or
-        the camera's time stamps) by linear interpolation. Stored as
-        :attr:`SeriesResult.load`, how it was read as
-        :attr:`SeriesResult.load_source`.
-    to_edges : bool
-        Measure up to the specimen's edges (method A): the grid is continued beyond
-        the mask's and the frame's edges by its own demodulated maps before the
-        window (:func:`gridstrain.phase.transform_to_edges`), so that ``valid``
-        reaches them rather than stopping ``margin`` sigmas short. The pixels within
-        that band are then edge pixels (:func:`gridstrain.phase.edge_pixels` of the
-        result's ``mask`` and window), exact for a uniform strain, biased by the
-        strain's gradient along the edge's normal otherwise (about
-        ``2.2 sigma d eps/dn`` at the edge for ``sigma`` = the pitch); recorded as
-        ``parameters["to_edges"]``.
-    frame_rate : float, optional
-        The camera's frame rate, Hz: each state's time is its frame's number in
-        the record over the rate, s (:attr:`SeriesResult.time`). Without it, states
-        read from one video get its time stamps, else the loads file's time
-        column (one row per state) gives the times.
+    options : MeasureOptions, optional
+        The options below as one object (e.g. ``MeasureOptions.from_parameters``
+        of an earlier result's ``parameters``); keywords given beside it override
+        its fields. An unknown keyword is a TypeError naming the close ones.
+@OPTIONS_DOC@
 
     Returns
     -------
@@ -284,19 +133,15 @@ def measure_series(reference, states, *, lattice: Lattice | None = None,
     >>> round(float(np.nanmean(res.strain[0, 0])), 6)
     0.001
     """
-    o = _setup(method=method, outliers=outliers, margin=margin, sigma=sigma, order=order,
-               sigma_pitches=sigma_pitches, max_saturation=max_saturation, lattice=lattice,
-               scheduler=scheduler, timeout=timeout, noise_model=noise_model, dtype=dtype,
-               output=output, lagrangian=lagrangian, bit_depth=bit_depth, guess=guess)
-    if not isinstance(to_edges, bool | np.bool_):
-        raise TypeError(f"to_edges must be a bool, got {type(to_edges).__name__}")
-    if to_edges and o.method != "A":
-        raise ValueError(f"to_edges needs method 'A' (the averaged image is continued "
-                         f"beyond the edges), got method={o.method!r}")
-    o = dataclasses.replace(o, to_edges=bool(to_edges))
-    o = dataclasses.replace(o, each_frame=bool(each_frame or reference_frames is not None),
-                            reference_frames=reference_frames, keep_order=bool(keep_order))
-    progress = null_progress if check_callable(progress, "progress") is None else progress
+    if options is not None and not isinstance(options, MeasureOptions):
+        raise TypeError(f"options must be a MeasureOptions, got {type(options).__name__}")
+    unknown_option(overrides)
+    o = MeasureOptions(**overrides) if options is None else dataclasses.replace(
+        options, **overrides)
+    o = check_together(o)
+    each_frame, reference_frames, keep_order = o.each_frame, o.reference_frames, o.keep_order
+    loads, frame_rate, guess, mask = loads_file(o), o.frame_rate, o.guess, o.mask
+    progress = null_progress if o.progress is None else o.progress
     given = states if isinstance(states, StateInputs) else state_inputs(
         states, each_frame=each_frame, reference_frames=reference_frames,
         keep_order=keep_order, bit_depth=o.bit_depth)
@@ -330,101 +175,11 @@ def measure_series(reference, states, *, lattice: Lattice | None = None,
         close_readers()  # the files kept open between states: none held after the run
 
 
-
-@dataclass(frozen=True, eq=False)
-class MeasureOptions:
-    """The options of :func:`measure_series`, checked once at the door (:func:`_setup`) and
-    passed inward. The lattice, ``sigma`` and the transform's :class:`Window` are
-    completed by :func:`_window` once the reference is seen; every transform of the
-    measurement then takes ``window``.
-
-    A new option is a keyword of :func:`measure_series`, a field here (checked in
-    :func:`_setup`, recorded by :meth:`parameters`) and, when it shapes the transform, a
-    field of :class:`~gridstrain.phase.Window`.
-    """
-
-    method: str
-    outliers: str
-    margin: float
-    sigma: float | None
-    order: str
-    sigma_pitches: float | None
-    max_saturation: float
-    lattice: Lattice | None
-    detected: bool
-    scheduler: object
-    timeout: float | None
-    noise_model: NoiseModel | None
-    dtype: np.dtype | None
-    output: object
-    lagrangian: bool
-    bit_depth: int | None
-    guess: object
-    each_frame: bool = False
-    reference_frames: int | None = None
-    keep_order: bool = False
-    state_order: str = "given"
-    window: Window | None = None
-    to_edges: bool = False
-
-    def parameters(self) -> dict:
-        """The options as the result records them."""
-        lat = self.lattice
-        return {
-            "sigma": float(self.sigma), "method": self.method,
-            "lagrangian": bool(self.lagrangian), "guess": _guess_parameter(self.guess),
-            "order": self.order, "margin": float(self.margin),
-            "max_saturation": float(self.max_saturation), "bit_depth": self.bit_depth,
-            "outliers": self.outliers,
-            "lattice": None if self.detected else {"k1": list(lat.k1), "k2": list(lat.k2)},
-            "noise_model": None if self.noise_model is None else self.noise_model.as_dict(),
-            "sigma_pitches": self.sigma_pitches,
-            "dtype": None if self.dtype is None else str(self.dtype),
-            "each_frame": bool(self.each_frame), "reference_frames": self.reference_frames,
-            "keep_order": bool(self.keep_order), "to_edges": bool(self.to_edges)}
-
-
-def _setup(*, method, outliers, margin, sigma, order, sigma_pitches, max_saturation,
-           lattice, scheduler, timeout, noise_model, dtype, output, lagrangian, bit_depth,
-           guess) -> MeasureOptions:
-    """The options of :func:`measure_series`, checked."""
-    check_choice(method, "method", ("A", "B", "C"))
-    check_choice(outliers, "outliers", OUTLIER_POLICIES)
-    check_choice(order, "order", ORDERS)
-    margin = check_positive(margin, "margin")
-    sigma = check_positive(sigma, "sigma", allow_none=True)
-    if sigma_pitches is not None:
-        if sigma is not None:
-            raise ValueError(f"give sigma or sigma_pitches, not both (got sigma={sigma!r}, "
-                             f"sigma_pitches={sigma_pitches!r})")
-        sigma_pitches = check_positive(sigma_pitches, "sigma_pitches")
-        if sigma_pitches < 1 - SIGMA_PITCH_RTOL:
-            raise ValueError(f"sigma_pitches must be at least 1 (the window must hold one "
-                             f"period), got {sigma_pitches!r}")
-        sigma_pitches = max(sigma_pitches, 1.0)
-    max_saturation = check_fraction(max_saturation, "max_saturation")
-    check_type(lattice, "lattice", Lattice, allow_none=True)
-    if sigma is not None and lattice is not None:
-        sigma = check_sigma(sigma, lattice.pitch)
-    dtype = check_float_dtype(dtype, "dtype")
-    if output is not None:
-        from ..results import ResultFile
-
-        output = output if isinstance(output, ResultFile) else ResultFile(output)
-        if dtype is not None and output.dtype is not None and output.dtype != dtype:
-            raise ValueError(f"dtype={dtype} and output's dtype={output.dtype} disagree")
-        dtype = output.dtype if dtype is None else dtype
-        # a precision asked for is kept as it is: a lossless file
-        output = dataclasses.replace(output, dtype=dtype,
-                                     lossless=output.lossless or dtype is not None)
-    return MeasureOptions(method=method, outliers=outliers, margin=margin, sigma=sigma, order=order,
-                  sigma_pitches=sigma_pitches, max_saturation=max_saturation,
-                  lattice=lattice, detected=lattice is None,
-                  scheduler=_check_scheduler(scheduler),
-                  timeout=check_positive(timeout, "timeout", allow_none=True),
-                  noise_model=_check_noise_model(noise_model), dtype=dtype, output=output,
-                  lagrangian=bool(lagrangian), bit_depth=bit_depth, guess=guess)
-
+# the options' entries are their declaration's (gridstrain.series._options), written once;
+# the signature shown (help(), inspect, editors) names every keyword the overrides take
+measure_series.__doc__ = measure_series.__doc__.replace(
+    "@OPTIONS_DOC@\n", textwrap.indent(parameters_doc(), " " * 4) + "\n")
+measure_series.__signature__ = options_signature(measure_series)
 
 
 def _kinematics(tracker: _Tracker, c, guess, lattice: Lattice, ref_summary, outliers: str):
