@@ -488,7 +488,8 @@ def _measure(series: list, guesses: list, m: np.ndarray, o: MeasureOptions, step
     sink = _InMemory(n_states, o.dtype) if o.output is None else _streamed(o.output,
                                                                            n_states)
     with sink, _connect(o.scheduler, o.timeout) as client:
-        run = _Run(o, n_states, steps, warnings, sink, _paging.Unpaged(), None)
+        run = _Run(o, n_states, steps, warnings, sink, _paging.Unpaged(), None,
+                   follow_in_memory=_FOLLOW_IN_MEMORY)
         one = _Series(series, plans, o, m, steps, client, run)
         r, ref_pass = one(0)
         if not r.maps.valid.any():
@@ -509,12 +510,13 @@ def _measure(series: list, guesses: list, m: np.ndarray, o: MeasureOptions, step
         run.policy = _Policy(n_states, o.order, all(s.n_frames == 1 for s in series[1:]))
         cracks, matches = [], []
         for i in range(n_states):
-            c = one(i + 1)[0]
-            st = measure_state(run, _State(i, c, guesses[i], carrier_doubt=doubts[i]))
+            # the state's maps held by its _State alone, which drops each after its use
+            st = measure_state(run, _State(i, one(i + 1)[0], guesses[i],
+                                           carrier_doubt=doubts[i]))
             cracks.append(st.found)
             matches.append(st.match)
             run.done.append(st.summary)
-            del c, st
+            del st
         warnings += [*run.tracker.finish(), *run.policy.finding()]
         done = run.done
         if method == "A":

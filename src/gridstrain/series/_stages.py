@@ -31,7 +31,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import ndimage
 
-from .._progress import Finding, as_finding, findings_of
+from .._progress import Finding, findings_of
 from ..kinematics import (
     CoarseEstimate,
     Measurement,
@@ -283,11 +283,6 @@ def _no_features() -> CoarseEstimate:
 _NOT_CHECKED = {"match": math.nan, "rho": math.nan, "rho_match": math.nan,
                 "rho_sd": math.nan, "snr": [math.nan, math.nan], "conclusive": False,
                 "verdict": "not checked", "warped": False}
-
-
-def as_run_findings(texts, code: str) -> list[Finding]:
-    """Findings of the run (no one state) from plain sentences."""
-    return [as_finding(t, code) for t in texts]
 
 
 __all__ = ["RULES", "SAMPLE_EVERY", "STAGES", "Stage", "measure_state", "stages_cost"]
