@@ -108,6 +108,10 @@ class SeriesResult:
         sentence (a ``str``) carrying its code, state and figures
         (:class:`gridstrain.Finding`; select them by ``code``). A file written
         before codes were stored gives them the code ``"other"``.
+    findings : tuple of dict
+        ``warnings``' codes, states and figures as plain records
+        (:meth:`gridstrain.Finding.record`), one per warning: what a file stores
+        beside the sentences.
     excluded : tuple of tuple of int
         Per series, the numbers of the frames the screening excluded (their files
         and reasons are in ``warnings``); ``n_frames`` counts the frames kept.
@@ -347,8 +351,9 @@ def _with_findings(result) -> None:
     texts, records = result.warnings, result.findings
     if len(records) == len(texts) and texts:
         out = tuple(Finding(r["code"], t, state=r.get("state"), **(r.get("figures") or {}))
-                    if isinstance(r, dict) and r.get("code") in FINDINGS else
-                    as_finding(t, "other") for t, r in zip(texts, records, strict=True))
+                    if not isinstance(t, Finding) and isinstance(r, dict)
+                    and r.get("code") in FINDINGS else as_finding(t, "other")
+                    for t, r in zip(texts, records, strict=True))
     else:
         out = tuple(as_finding(t, "other") for t in texts)
     object.__setattr__(result, "warnings", out)
