@@ -71,7 +71,8 @@ class Stage:
 class _State:
     """One state while it is measured: its series' maps and statistics (``c``), its
     measurement, fringe order, jumps, pair check, uncertainty and findings; each
-    array dropped once its last stage has used it (:meth:`release`)."""
+    array dropped once its last stage has used it (the ``release`` and ``store``
+    stages)."""
 
     def __init__(self, index: int, c, guess, *, carrier_doubt: bool = False):
         self.index, self.c, self.guess = index, c, guess
