@@ -177,8 +177,6 @@ FINDINGS = _kinds(
     ("pair.mismatch", "doubt",
      "the state's image does not show the reference's specimen",
      "check the files: another specimen, or a state out of its series"),
-    ("pair.check", "warning", "the pair check could not decide or was weak",
-     "check the files"),
     ("aliasing.bound", "warning",
      "the grid's harmonics alias onto the carrier above the noise",
      "a sharper print, another pitch, or a larger sigma"),
