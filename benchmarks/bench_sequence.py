@@ -7,7 +7,14 @@ Poisson-Gaussian noise), frame ``t`` displaced by ``t / 20`` of
 (``--reference-frames 1``) and every later frame a state. A state's CPU time is the
 difference of two runs (``--short`` and ``--states`` states) over the difference of
 their numbers of states, so that imports, the reference and the lattice cancel.
-The floor is one frame's ``rfft2`` and two ``ifft2`` (one per wave vector), float64.
+Two FFT floors of a frame are printed, one thread each, and the ratio to both: the
+transforms a state of this record cannot avoid as the pipeline computes them (the
+frames are integers, computed in float64: one complex ``fft2`` and two ``ifft2``, one
+per wave vector), and the least any implementation could do (one ``rfft2`` of the
+real frame and two complex ``ifft2``, float32). They differ by the real transform's
+halving and float32's: about 1.6 to 2 times. Then the CPU of each stage of a state
+(:data:`gridstrain.series._stages.STAGES`, and the pass's own steps), measured in this
+process between the progress messages that name them, over the ``--states`` record.
 
     python benchmarks/bench_sequence.py [--states 100] [--short 10] [--memory 1000]
 """
@@ -42,16 +49,43 @@ def write_record(path: Path, n: int, seed: int = 0) -> None:
             tif.write(frame, photometric="minisblack", contiguous=False)
 
 
-def fft_floor(repeat: int = 50) -> float:
+def fft_floor(repeat: int = 50, *, least: bool = False) -> float:
+    """Best CPU time of a frame's transforms: float64 ``fft2`` + two ``ifft2``, or
+    with ``least`` float32 ``rfft2`` + two complex ``ifft2``; one thread."""
     img = np.random.default_rng(0).normal(size=SHAPE)
+    if least:
+        img = img.astype(np.float32)
+    # each wave vector's windowed spectrum, full size (complex64 with least)
+    full = sfft.fft2(img, workers=1)
     best = np.inf
     for _ in range(repeat):
         c0 = time.process_time()
-        f = sfft.fft2(img)
-        sfft.ifft2(f)
-        sfft.ifft2(f)
+        if least:
+            sfft.rfft2(img, workers=1)
+        else:
+            sfft.fft2(img, workers=1)
+        sfft.ifft2(full, workers=1)
+        sfft.ifft2(full, workers=1)
         best = min(best, time.process_time() - c0)
     return best
+
+
+def stage_cpu(record: Path, out: Path, n: int) -> dict:
+    """CPU seconds per state of each named step of the measurement (in this process):
+    the time between a progress message and the one before is its step's."""
+    from gridstrain.series import measure_series
+
+    cpu: dict[str, float] = {}
+    last = [time.process_time()]
+
+    def progress(fraction, message):
+        now = time.process_time()
+        name = message.split(": ")[-1].rstrip("0123456789/ ") if ": " in message else message
+        cpu[name] = cpu.get(name, 0.0) + now - last[0]
+        last[0] = now
+
+    measure_series(None, str(record), reference_frames=1, output=str(out), progress=progress)
+    return {k: v / n for k, v in cpu.items()}
 
 
 def run(cli, record: Path, out: Path, *, peak: bool = False) -> dict:
@@ -70,6 +104,7 @@ def main() -> None:
     print(machine())
     cli = cli_command()
     floor = fft_floor()
+    least = fft_floor(least=True)
     with tempfile.TemporaryDirectory() as d:
         d = Path(d)
         runs = {}
@@ -80,10 +115,17 @@ def main() -> None:
             runs[n] = run(cli, d / f"rec{n}.tif", d / f"out{n}.h5", peak=True)
             print(f"{n:5d} states: CPU {runs[n]['cpu']:.2f} s, wall {runs[n]['wall']:.2f} s, "
                   f"peak {runs[n]['peak'] / 2**20:.0f} MiB")
+        stages = stage_cpu(d / f"rec{args.states}.tif", d / "stages.h5", args.states)
     per = (runs[args.states]["cpu"] - runs[args.short]["cpu"]) / (args.states - args.short)
     print(f"CPU per one-frame state of {SHAPE[0]} x {SHAPE[1]} px: {per * 1e3:.1f} ms; "
-          f"FFT floor of a frame {floor * 1e3:.2f} ms; ratio {per / floor:.0f} "
-          "(target 0.10 s, goal 0.03 s)")
+          f"FFT floor of a frame: {floor * 1e3:.2f} ms as computed (float64 fft2 + 2 "
+          f"ifft2), ratio {per / floor:.0f}; {least * 1e3:.2f} ms the least (float32 rfft2 "
+          f"+ 2 ifft2), ratio {per / least:.0f} (target 20)")
+    print(f"CPU per state by stage, ms (in process, {args.states} states; the pass's "
+          "steps included):")
+    for name, t in sorted(stages.items(), key=lambda kv: -kv[1]):
+        if t * 1e3 >= 0.05:
+            print(f"  {name:<24} {t * 1e3:7.1f}")
     if args.memory:
         a, b = runs[args.states]["peak"], runs[args.memory]["peak"]
         print(f"peak memory {args.memory} states / {args.states} states: {b / a:.3f} "

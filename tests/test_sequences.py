@@ -367,7 +367,7 @@ def test_a_records_report_shows_a_few_states_and_every_warning(tmp_path):
 
 
 def test_states_named_in_a_warning_are_given_by_runs():
-    from gridstrain.kinematics.tracking import _runs
+    from gridstrain.kinematics.tracking import state_runs as _runs
 
     states = [(1, "a"), (2, "b"), (3, "c"), (5, "e"), (7, "g"), (8, "h"), (10, "j"),
               (11, "k"), (12, "l"), (13, "m")]

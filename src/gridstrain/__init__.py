@@ -48,6 +48,8 @@ _LAZY = {
     "method_a": "stacks",
     "method_b": "stacks",
     "progress_bar": "_progress",
+    "Finding": "_progress",
+    "FINDINGS": "_progress",
     "save_result": "results",
 }
 

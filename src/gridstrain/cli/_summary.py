@@ -8,6 +8,7 @@ import math
 
 import numpy as np
 
+from .._progress import tally
 from ..results import MAP_FIELDS, SeriesResult
 from ..uncertainty import FWHM_PER_SIGMA, SPATIAL_RESOLUTION_PER_SIGMA
 
@@ -145,6 +146,8 @@ def report_lines(result: SeriesResult, *, pixel_size: float | None = None,
         else:
             lines.append(f"{result.names[i + 1]}: no valid pixel")
     lines += note
+    if result.warnings:  # counted by their codes' severity, then said one by one
+        lines.append(f"findings: {tally(result.warnings)}")
     for w in result.warnings:
         lines.append(f"warning: {w}")
     return lines
@@ -307,6 +310,9 @@ def summary(result: SeriesResult, *, outputs: dict, seconds: float,
         "metrology": result.metrology,
         "systematic_errors": result.systematic,
         "warnings": list(result.warnings),
+        # the same findings, each with its code, severity, state and figures
+        "findings": [{"code": w.code, "severity": w.severity, "state": w.state,
+                      "figures": w.record()["figures"]} for w in result.warnings],
         "seconds": seconds,
     }
 

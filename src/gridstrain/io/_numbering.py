@@ -21,6 +21,8 @@ from dataclasses import dataclass
 from itertools import pairwise
 from pathlib import Path
 
+from .._progress import Finding
+
 __all__ = ["FrameGap", "RecordNumbering", "record_numbering"]
 
 #: What :attr:`FrameGap.kind` may say.
@@ -122,9 +124,10 @@ class RecordNumbering:
     gaps: tuple[FrameGap, ...]
 
     @property
-    def warnings(self) -> tuple[str, ...]:
-        """One sentence per break."""
-        return tuple(str(g) for g in self.gaps)
+    def warnings(self) -> tuple[Finding, ...]:
+        """One finding per break (code ``frames.gap``), its sentence the break's."""
+        return tuple(Finding("frames.gap", str(g), kind=g.kind, step=g.step,
+                             runs=[list(r) for r in g.runs]) for g in self.gaps)
 
 
 def _numbers_from_names(names: list[str]) -> list[int] | None:

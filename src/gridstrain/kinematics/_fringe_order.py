@@ -108,7 +108,7 @@ class FringeOrder:
         imitates the specimen in the image's light); or tracking from a confirmed
         previous state with an increment below ``_MAX_STEP`` periods everywhere (a
         step that is plausibly less than half a period; the first state of a series
-        from the reference within ``_SMALL_STEP``), not contradicted by image
+        from the reference within ``SMALL_STEP``), not contradicted by image
         features. Where two kinds of evidence disagree the state is not confirmed.
         A state not confirmed may be one or more periods off.
     guess : (2,) tuple of float

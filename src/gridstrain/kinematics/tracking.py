@@ -11,6 +11,7 @@ import math
 import numpy as np
 from scipy import ndimage
 
+from .._progress import Finding
 from .._stats import median
 from .._validation import (
     check_mask,
@@ -42,7 +43,7 @@ _MAX_STEP = 0.4
 # highlight, imitates them; the steps of an ordinary load series are 0.01 to 0.02
 # period). The first state of a series is followed from the reference (its
 # displacement is the step) when its smallest displacement is within it.
-_SMALL_STEP = 0.1
+SMALL_STEP = 0.1
 
 
 def _filled(u: np.ndarray, valid: np.ndarray) -> np.ndarray | None:
@@ -135,6 +136,15 @@ class _Tracker:
         self.coarse = _CoarseReference(np.asarray(mean_ref, dtype=np.float64), lattice,
                                        check_mask(mask, mean_ref.shape))
 
+    def snapshot(self) -> tuple:
+        """What :meth:`measure` changes, for :meth:`restore`: a state measured on
+        trial is measured again as if the first time."""
+        return self.prev, self.measured, list(self.inherited)
+
+    def restore(self, saved: tuple) -> None:
+        self.prev, self.measured, inherited = saved
+        self.inherited = list(inherited)
+
     def features(self, pm: PhaseMaps, mean: np.ndarray, g):
         """The image-feature estimate of the next state's displacement
         (:func:`coarse_displacement`) from its mean image, or None when its guess
@@ -167,7 +177,7 @@ class _Tracker:
                 rec = _from_estimate(est, "previous state", True, gmed,
                                      f"followed from {prev_name} (step {step:.2f} period); "
                                      f"image features agree ({est.reason})", step)
-            elif est.confident and (step > _MAX_STEP or (away and step > _SMALL_STEP)):
+            elif est.confident and (step > _MAX_STEP or (away and step > SMALL_STEP)):
                 # conclusive features that moved with the specimen beat the assumption
                 # of a step below half a period where the step followed is not small:
                 # the step was larger
@@ -176,10 +186,12 @@ class _Tracker:
                 rec = _from_estimate(est, "image features", True, res.guess,
                                      f"{est.reason}; followed from {prev_name} it would "
                                      f"have been {followed}", step)
-                warnings.append(f"{name}: image features fix the displacement at "
-                                f"{_median_u(res)}, whole periods from {followed} followed "
-                                f"from {prev_name}: the load step was more than half a "
-                                "period; the features were used")
+                warnings.append(Finding(
+                    "fringe_order.features_used",
+                    f"{name}: image features fix the displacement at {_median_u(res)}, "
+                    f"whole periods from {followed} followed from {prev_name}: the load "
+                    "step was more than half a period; the features were used",
+                    state=name, step=step))
             elif est.confident:
                 # two kinds of evidence disagree: a small step followed, and features
                 # whole periods away (light that moved: a hot spot, a highlight) or at
@@ -190,10 +202,12 @@ class _Tracker:
                 rec = _from_estimate(est, "previous state", False, gmed,
                                      f"followed from {prev_name}, but the displacement "
                                      f"changed by up to {step:.2f} period", step)
-                warnings.append(f"{name}: the displacement changed by up to {step:.2f} "
-                                f"period since {prev_name}, more than the {_MAX_STEP} a load "
-                                "step can be followed with: fringe order not confirmed; "
-                                + _what_to_do(self.lattice))
+                warnings.append(Finding(
+                    "fringe_order.unconfirmed",
+                    f"{name}: the displacement changed by up to {step:.2f} period since "
+                    f"{prev_name}, more than the {_MAX_STEP} a load step can be followed "
+                    "with: fringe order not confirmed; " + _what_to_do(self.lattice),
+                    state=name, step=step))
             else:
                 rec = _from_estimate(est, "previous state", prev_ok, gmed,
                                      f"followed from {prev_name} (step {step:.2f} period)"
@@ -201,7 +215,7 @@ class _Tracker:
                 if not prev_ok:
                     self.inherited.append((place, name))
         elif isinstance(g, str) and self.order == "series" and place == 0 and \
-                (first := _first_step(ref_pm, pm, self.lagrangian))[1] <= _SMALL_STEP:
+                (first := _first_step(ref_pm, pm, self.lagrangian))[1] <= SMALL_STEP:
             # the first state of a series, within a small step of the reference: followed
             # from it, as every later state is from the one before
             res, step = first
@@ -227,16 +241,16 @@ class _Tracker:
             else:
                 rec = _from_estimate(est, "smallest displacement", False, (0.0, 0.0),
                                      f"image features undecided: {est.reason}")
-                warnings.append(f"{name}: fringe order not confirmed ({est.reason}); the "
-                                f"smallest displacement the phases allow was taken (median "
-                                f"{_median_u(res)}); " + _what_to_do(self.lattice))
+                warnings.append(Finding(
+                    "fringe_order.unconfirmed",
+                    f"{name}: fringe order not confirmed ({est.reason}); the smallest "
+                    f"displacement the phases allow was taken (median {_median_u(res)}); "
+                    + _what_to_do(self.lattice), state=name))
         else:
             res = deformation(ref_pm, pm, lagrangian=self.lagrangian, guess=g)
             rec = FringeOrder("user", True, res.guess, "the given guess")
         if not rec.confirmed:
-            rec, said = with_strain_doubt(res, rec)
-            if warnings:  # the warning that says why it is not confirmed
-                warnings[-1] += said
+            rec = _doubt_said(res, rec, warnings)
         # the measurement carries the series' record, not the pair's view of its guess
         res = dataclasses.replace(res, fringe_order=rec)
         return res, rec, warnings
@@ -258,9 +272,22 @@ class _Tracker:
         """The warnings that concern several states."""
         if not self.inherited:
             return []
-        return [f"{_runs(self.inherited)}: followed from a state whose fringe order "
-                "is not confirmed; they share its uncertainty (their strain too: each "
-                "state's record says by how much it may be off)"]
+        return [Finding("fringe_order.inherited",
+                        f"{state_runs(self.inherited)}: followed from a state whose fringe order "
+                        "is not confirmed; they share its uncertainty (their strain too: "
+                        "each state's record says by how much it may be off)",
+                        states=len(self.inherited))]
+
+
+def _doubt_said(res: Measurement, rec: FringeOrder, warnings: list) -> FringeOrder:
+    """``rec`` with how far the strain may be off (:func:`with_strain_doubt`), said in
+    the last of ``warnings``, the one that says why it is not confirmed."""
+    rec, said = with_strain_doubt(res, rec)
+    if warnings and said:
+        last = warnings[-1]
+        warnings[-1] = Finding(last.code, last + said, state=last.state, **last.figures,
+                               strain_if_off=rec.strain_if_off)
+    return rec
 
 
 def _first_step(ref_pm: PhaseMaps, pm: PhaseMaps, lagrangian: bool):
@@ -281,17 +308,20 @@ def _disagreement(res: Measurement, est, prev_name: str, step: float, name: str)
                          f"followed from {prev_name} (step {step:.2f} period), but image "
                          f"features put it at {sx:.2f}, {sy:.2f} px, whole periods away "
                          f"({est.reason})", step)
-    said = (f"{name}: the displacement followed from {prev_name} (median {_median_u(res)}, "
-            f"a step of {step:.2f} period at most) and the image features ({sx:.2f}, "
-            f"{sy:.2f}) px disagree by whole periods: features fixed to the camera (dust, "
-            "hot pixels) or light that moved (a hot spot, a highlight) imitate the "
-            "specimen's, and a load step of whole periods imitates a small one; the "
-            "followed displacement is kept: fringe order not confirmed; check the order of "
-            "the states or pass --guess UX UY")
+    said = Finding(
+        "fringe_order.unconfirmed",
+        f"{name}: the displacement followed from {prev_name} (median {_median_u(res)}, "
+        f"a step of {step:.2f} period at most) and the image features ({sx:.2f}, "
+        f"{sy:.2f}) px disagree by whole periods: features fixed to the camera (dust, "
+        "hot pixels) or light that moved (a hot spot, a highlight) imitate the "
+        "specimen's, and a load step of whole periods imitates a small one; the "
+        "followed displacement is kept: fringe order not confirmed; check the order of "
+        "the states or pass --guess UX UY", state=name, step=step,
+        features_shift=[float(sx), float(sy)])
     return rec, said
 
 
-def _runs(states: list[tuple[int, str]]) -> str:
+def state_runs(states: list[tuple[int, str]]) -> str:
     """``(place, name)`` of states in series order, named one by one, a run of three or
     more states in a row as its first and last (``rec[2] to rec[100] (99 states)``)."""
     parts, k = [], 0
@@ -380,8 +410,10 @@ def _unshown(res: Measurement, rec: FringeOrder, t, name: str, reason: str, seen
         rec, doubt = with_strain_doubt(res, rec)
     else:
         doubt = ""
-    return res, rec, [f"{name}: {said}; the displacement is kept as measured: fringe order "
-                      f"not confirmed{doubt}"]
+    return res, rec, [Finding("fringe_order.unconfirmed",
+                              f"{name}: {said}; the displacement is kept as measured: "
+                              f"fringe order not confirmed{doubt}", state=name,
+                              offset_px=[float(t[0]), float(t[1])])]
 
 
 def _content_record(c) -> dict:
@@ -408,7 +440,9 @@ def _recheck(res: Measurement, rec: FringeOrder, t, name: str, reason: str, figu
                       f"the deformed image warped back by the field {before} showed the "
                       f"reference's content {t[0]:.2f}, {t[1]:.2f} px away "
                       f"({reason}); {rec.source} had given it", **figures)
-    return again, rec, [f"{name}: the displacement was whole periods off ({before}): "
-                        f"warped back by it, the deformed image's content lay "
-                        f"{t[0]:.2f}, {t[1]:.2f} px from the reference's; it is "
-                        f"now {_median_u(again)}"]
+    return again, rec, [Finding("fringe_order.corrected",
+                                f"{name}: the displacement was whole periods off "
+                                f"({before}): warped back by it, the deformed image's "
+                                f"content lay {t[0]:.2f}, {t[1]:.2f} px from the "
+                                f"reference's; it is now {_median_u(again)}", state=name,
+                                offset_px=[float(t[0]), float(t[1])])]

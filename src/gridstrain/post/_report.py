@@ -40,6 +40,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .._progress import SEVERITIES
 from .._validation import as_path, check_choice, check_positive, check_type
 from ..io import write_atomic
 from ..results import MAP_FIELDS, SeriesResult, load, read_attrs, state_loads
@@ -205,7 +206,8 @@ def _context(result, a: dict, ps, unit, title: str, test: dict, colours: dict) -
     shown = _subset(result, states)
     return {
         "title": title, "summary": _summary(result, a, ps, unit),
-        "warnings": list(result.warnings),
+        # most serious first (their codes' severity), each with its code
+        "warnings": sorted(result.warnings, key=lambda w: -SEVERITIES.index(w.severity)),
         "test": _test_section(result, ps, unit, **test),
         **_series_section(result, states), **_lattice_section(result),
         **_maps_section(result, shown, ps, unit, colours),
@@ -462,8 +464,8 @@ _SHOWN = {
     "u", "strain", "valid", "lattice", "lattice_detected", "sigma", "method", "lagrangian",
     "margin", "mask", "reference_image", "names", "sources", "n_frames", "bit_depth",
     "scale", "saturation", "measurements", "guesses", "guess_sources", "vibration", "noise",
-    "parameters", "warnings", "uncertainty", "fringe_orders", "load", "load_unit", "time",
-    "load_source"}
+    "parameters", "warnings", "findings", "uncertainty", "fringe_orders", "load", "load_unit",
+    "time", "load_source"}
 # Values listed in full up to this many; a longer array is summarised.
 _LIST_UP_TO = 12
 # Nested records listed down to this depth; deeper, summarised.

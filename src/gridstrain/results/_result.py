@@ -9,6 +9,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .._progress import FINDINGS, Finding, as_finding
 from .._validation import (
     check_choice,
 )
@@ -104,8 +105,15 @@ class SeriesResult:
         Every recorded option of the measurement (:data:`gridstrain.series.OPTIONS`;
         the run-only ones left out), JSON-friendly;
         ``gridstrain.series.MeasureOptions.from_parameters`` gives them back.
-    warnings : tuple of str
-        Things the user should know that did not stop the measurement.
+    warnings : tuple of Finding
+        Things the user should know that did not stop the measurement: each a
+        sentence (a ``str``) carrying its code, state and figures
+        (:class:`gridstrain.Finding`; select them by ``code``). A file written
+        before codes were stored gives them the code ``"other"``.
+    findings : tuple of dict
+        ``warnings``' codes, states and figures as plain records
+        (:meth:`gridstrain.Finding.record`), one per warning: what a file stores
+        beside the sentences.
     excluded : tuple of tuple of int
         Per series, the numbers of the frames the screening excluded (their files
         and reasons are in ``warnings``); ``n_frames`` counts the frames kept.
@@ -198,8 +206,12 @@ class SeriesResult:
     time: np.ndarray | None = None
     discontinuities: tuple = ()
     load_source: dict | None = None
+    #: ``warnings``' codes, states and figures (:meth:`Finding.record`), as a file
+    #: stores them beside the sentences; filled from ``warnings`` when not given.
+    findings: tuple = field(default=(), repr=False)
 
     def __post_init__(self):
+        _with_findings(self)
         for name in ("u", "strain", "valid", "mask", "reference_image", "load", "time"):
             arr = getattr(self, name)
             if isinstance(arr, np.ndarray):  # maps read from a file are read-only already
@@ -332,3 +344,19 @@ class SeriesResult:
                       + (f"{lo}" if lo == hi else f"{lo} to {hi}") + " each")
         return (f"SeriesResult({n} state(s) of {H}x{W}, method {self.method}, "
                 f"sigma={self.sigma:.4g} px, frames {frames}, valid {valid})")
+
+
+def _with_findings(result) -> None:
+    """``result.warnings`` as findings and ``result.findings`` as their records: the
+    one made from the other (a result measured now carries findings; one read from a
+    file, their sentences and records apart; an older file, sentences alone)."""
+    texts, records = result.warnings, result.findings
+    if len(records) == len(texts) and texts:
+        out = tuple(Finding(r["code"], t, state=r.get("state"), **(r.get("figures") or {}))
+                    if not isinstance(t, Finding) and isinstance(r, dict)
+                    and r.get("code") in FINDINGS else as_finding(t, "other")
+                    for t, r in zip(texts, records, strict=True))
+    else:
+        out = tuple(as_finding(t, "other") for t in texts)
+    object.__setattr__(result, "warnings", out)
+    object.__setattr__(result, "findings", tuple(f.record() for f in out))

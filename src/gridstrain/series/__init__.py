@@ -8,6 +8,8 @@
 - ``_passes``: the lattice, one streamed pass per series and its phase maps;
 - ``_outliers``: the frames the screening flags, and what is done with them;
 - ``_records``: what is kept of each series measured;
+- ``_stages``: a state's measurement, stage by stage (:data:`STAGES`), and the
+  long-record policy that samples its expensive checks;
 - ``_floors``: the noise floors of the maps;
 - ``_sinks``: the states' maps kept in memory or written as measured;
 - ``_distributed``: the same pass on a Dask cluster (``--scheduler``).

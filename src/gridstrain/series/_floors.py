@@ -14,13 +14,12 @@ import numpy as np
 from scipy import ndimage
 
 from .. import theory
-from .._progress import Progress
+from .._progress import Finding, Progress
 from .._stats import median
 from .._validation import (
     check_positive,
 )
 from ..kinematics import (
-    FringeOrder,
     Measurement,
     eulerian_gradient,
     phase_products,
@@ -237,10 +236,11 @@ class _Noise:
                                              mask=self.ref_mask if is_ref else None,
                                              saturation=s0.saturation_level, scale=s0.scale)
             except ValueError as exc:
-                self.warnings.append(
+                self.warnings.append(Finding(
+                    "noise.unavailable",
                     f"{s0.name}: the noise could not be estimated from its single image "
                     f"({exc}); the single-frame series get no uncertainty of their own "
-                    "(give --noise or --noise-model)")
+                    "(give --noise or --noise-model)", state=s0.name))
                 self.failed = True
                 return r
             self.model = dataclasses.replace(model, bit_depth=s0.bit_depth)
@@ -281,9 +281,10 @@ class _ReferenceFloor:
                                             window.margin, method, report, mean_maps=r.maps)
         else:
             self.su, self.se, (T1, T2) = np.full(2, np.nan), np.full(3, np.nan), (1, 1)
-            warnings.append("a single reference frame: no split-halves noise estimate "
-                            "(measure a second image of the unloaded specimen as a state: "
-                            "its maps are the noise floor)")
+            warnings.append(Finding(
+                "noise.single_reference", "a single reference frame: no split-halves noise "
+                "estimate (measure a second image of the unloaded specimen as a state: its "
+                "maps are the noise floor)"))
         self.T1, self.T2 = T1, T2
         self.sr = summary
         self.local_ref = self._local(r)
@@ -299,10 +300,10 @@ class _ReferenceFloor:
         return ndimage.gaussian_filter(r.stats.variance, self.sigma / math.sqrt(2),
                                        mode="nearest", truncate=5.0)
 
-    def state(self, c: _Measured, sc: _Summary, res: Measurement, rec: FringeOrder,
-              alias: dict, warnings: list) -> tuple:
-        """``(measurement, fringe order, uncertainty maps or None, floors, smoothing)``
-        of state ``c`` (summarised in ``sc``)."""
+    def state(self, c: _Measured, sc: _Summary, res: Measurement, alias: dict,
+              warnings: list) -> tuple:
+        """``(uncertainty maps or None, floors)`` of state ``c`` (summarised in
+        ``sc``); the aliasing's warning, once a run, appended to ``warnings``."""
         ref = self.sr
         th_u, th_e = _theory_floor(ref.variance, ref.T, ref.modulus, sc.variance, sc.T,
                                    sc.modulus, self.sigma, self.lattice)
@@ -330,14 +331,29 @@ class _ReferenceFloor:
                       "exx": float(row["theory_strain"][0]),
                       "eyy": float(row["theory_strain"][1]),
                       "exy": float(row["theory_strain"][2])}
-        smooth = smoothing_bias(res.strain, res.valid, sigma=self.sigma)
         if not self.alias_said:  # the reference's print at its pitch: once a run
             said = _aliasing_warning(c.name, res, floors, alias, self.lattice)
             if said is not None:
                 warnings.append(said)
                 self.alias_said = True
-        warnings.extend(_smoothing_warnings(c.name, res, floors, smooth))
-        return res, rec, unc, floors, smooth
+        return unc, floors
+
+    def smoothing(self, name: str, res: Measurement, floors: dict) -> tuple:
+        """``(record, warnings)`` of the window's smoothing of state ``name``'s strain
+        gradients (:func:`smoothing_bias`), against its ``floors``."""
+        smooth = smoothing_bias(res.strain, res.valid, sigma=self.sigma)
+        smooth["computed"] = True
+        return smooth, _smoothing_warnings(name, res, floors, smooth)
+
+    @staticmethod
+    def smoothing_not_computed(why: str) -> dict:
+        """The smoothing record of a state it was not computed on: every figure None,
+        ``why`` in its definition."""
+        none3 = [None, None, None]
+        return {"max": none3, "estimate_max": none3, "p95": none3,
+                "feature_error": none3, "attenuation": none3,
+                "below_resolution": [False, False, False], "factor": math.nan,
+                "definition": f"not computed: {why}", "computed": False}
 
     def _uncertainty(self, c: _Measured, res: Measurement):
         local = self._local(c)

@@ -13,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .._progress import findings_of
 from .._runtime import memory as _memory
 from .._validation import (
     check_choice,
@@ -275,7 +276,7 @@ def _loads_and_times(loads, frame_rate, series: list, *, each_frame: bool,
     names = [s.name for s in series[1:]]
     time = None
     numbering = _file_numbers(series, from_record=first_frame > 0) if each_frame else None
-    notes = list(numbering.warnings) if numbering is not None else []
+    notes = findings_of(numbering.warnings, "frames.gap") if numbering is not None else []
     if frame_rate is not None:  # positive, with each_frame: checked at the door
         rate = frame_rate
         if numbering is not None:

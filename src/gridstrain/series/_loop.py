@@ -11,21 +11,20 @@ from __future__ import annotations
 
 import dataclasses
 import textwrap
+from dataclasses import dataclass
 
 import numpy as np
-from scipy import ndimage
 
-from .._progress import Progress, null_progress
+from .._progress import Progress, as_finding, findings_of, null_progress
 from .._runtime import paging as _paging
 from .._runtime.threads import one_blas_thread
 from .._validation import check_sigma
 from ..io import StateInputs, close_readers, state_inputs
-from ..kinematics import Measurement, check_parts, find_discontinuities, without_discontinuities
-from ..kinematics.tracking import _Tracker, check_after_warp
+from ..kinematics.tracking import SMALL_STEP, _Tracker
 from ..phase import Lattice, Window, coupling_corrected, demodulated_in_place
 from ..phase.lattice import reference_carrier
 from ..results import SeriesResult
-from ..uncertainty import aliasing_bias, metrology, nearest_filled, nearest_index
+from ..uncertainty import aliasing_bias, metrology
 from ._floors import _check_model_units, _Noise, _ReferenceFloor
 from ._inputs import (
     _check_fit,
@@ -53,13 +52,13 @@ from ._passes import (
     _dist,
     _lattice_image,
     _one_series,
-    _pair_check,
     _pass_cost,
     _plan,
     _run_pass,
     _Steps,
 )
-from ._sinks import _InMemory, _streamed, empty_state_message
+from ._sinks import _InMemory, _streamed
+from ._stages import _Policy, _State, measure_state, stages_cost
 
 __all__ = ["measure_series"]
 
@@ -157,14 +156,14 @@ def measure_series(reference, states, options: MeasureOptions | None = None,
     _check_memory(series, method=o.method, held=o.output is None)
     steps = _Steps(progress, _total_cost(series, o))
     # how the frames were read (colour converted, lossy JPEG), series by series
-    warnings: list[str] = [n for s in series for n in getattr(s, "notes", ())]
-    warnings += list(given.warnings)
+    warnings = [as_finding(n, "input", s.name) for s in series for n in getattr(s, "notes", ())]
+    warnings += findings_of(given.warnings, "input")
     if not (each_frame or given.reference is not None or reference_frames):
-        warnings += _glob_warning(series)
+        warnings += findings_of(_glob_warning(series), "input")
     o = dataclasses.replace(o, state_order=given.order)
     extra, notes = _loads_and_times(loads, frame_rate, series, each_frame=o.each_frame,
                                     first_frame=o.reference_frames or 0)
-    warnings += notes
+    warnings += findings_of(notes, "input")
     # BLAS on the calling thread throughout: its products here are small or memory
     # bound, and OpenBLAS's own threads would spin between them (gridstrain._runtime.threads)
     try:
@@ -182,41 +181,13 @@ measure_series.__doc__ = measure_series.__doc__.replace(
 measure_series.__signature__ = options_signature(measure_series)
 
 
-def _kinematics(tracker: _Tracker, c, guess, lattice: Lattice, ref_summary, outliers: str):
-    """``(measurement, fringe order, warnings, cracks, pair check)`` of state ``c``: its
-    kinematics with the tracker's guess, the fringe order checked once the image is
-    warped back, the cracks left out (each part they cut off checked on its own
-    content), and the pair check against the reference (``ref_summary``)."""
-    auto = isinstance(guess, str)
-    prev = tracker.prev  # the previous state's field, read back by a crack's parts
-    est = tracker.features(c.maps, c.stats.mean, guess)
-    res, rec, notes = tracker.measure(c.maps, est, guess, c.name)
-    if auto:
-        res, checked, said = check_after_warp(res, rec, tracker.coarse, c.stats.mean,
-                                              lattice, c.name)
-        if checked is not rec:  # confirmed now: the doubt said before is void
-            notes = [n for n in notes if "fringe order not confirmed" not in n]
-        rec = checked
-        notes = [*notes, *said]
-    images = (tracker.mean_ref, c.stats.mean, tracker.mask) if auto else None
-    confirmed = rec.confirmed
-    follow = prev[0] if prev is not None and rec.source == "previous state" else None
-    res, rec, found, said = _discontinuities(res, rec, c.name, images, follow)
-    del prev, follow
-    if rec.confirmed and not confirmed:  # each part by its own features now
-        notes = [n for n in notes if "fringe order not confirmed" not in n]
-    match, told = _pair_check(res, tracker.mean_ref, tracker.mask, ref_summary, c, lattice,
-                              outliers)
-    return res, rec, [*notes, *said, *told], found, match
-
-
 def _total_cost(series: list, o: MeasureOptions) -> float:
     """The measurement's cost for its progress: reading a frame costs 1, a transform
     about 4 frames' worth."""
     total = min(series[0].n_frames, _LATTICE_FRAMES) + 1.0
     for s in series:
         total += s.n_frames * _pass_cost(o.method) + 2 * _WFT_COST
-    total += (len(series) - 1) * (3 * _WFT_COST if o.lagrangian else _WFT_COST)
+    total += (len(series) - 1) * stages_cost()
     return total + 3 * _WFT_COST
 
 
@@ -235,115 +206,82 @@ def _window(ref, m: np.ndarray, o: MeasureOptions, steps: _Steps) -> MeasureOpti
     return dataclasses.replace(o, lattice=lattice, sigma=window.sigma, window=window)
 
 
+@dataclass(eq=False)
+class _Run:
+    """What the stages of every state share (:mod:`gridstrain.series._stages`): the
+    options, the reference's tracker, noise and floor, the sink, the summaries of the
+    series measured so far and the findings."""
+
+    o: MeasureOptions
+    n_states: int
+    steps: _Steps
+    warnings: list
+    sink: object
+    pager: object
+    noise: _Noise
+    floor: _ReferenceFloor | None = None
+    tracker: _Tracker | None = None
+    policy: _Policy | None = None
+    alias: dict | None = None
+    done: list = dataclasses.field(default_factory=list)
+    follow_in_memory: int = _FOLLOW_IN_MEMORY
+
+    @property
+    def lattice(self) -> Lattice:
+        return self.o.lattice
+
+
 def _measure(series: list, guesses: list, m: np.ndarray, o: MeasureOptions, steps: _Steps,
              warnings: list, progress: Progress, extra: dict) -> SeriesResult:
     """One pass over every series (screening, shifts, statistics, the halves of the
     noise floor, method B's or C's sums), the flagged frames then taken out; the
-    states measured one after the other, each dropped once measured."""
-    lattice, window, method = o.lattice, o.window, o.method
-    sigma = window.sigma
-    n_states = len(series) - 1
-    base = reference_carrier(next(iter(series[0].frames(start=0, stop=1))), lattice) \
-        if n_states else None
-    carriers = [(None, [])] + [_carrier(s, lattice, base) for s in series[1:]]
-    for _, notes in carriers:
-        warnings.extend(notes)
-    plans = [_plan(s, carriers[k][0] or lattice, method, window, m, k == 0)
+    states measured one after the other by :data:`STAGES`, each dropped once stored."""
+    lattice, window, method, n_states = o.lattice, o.window, o.method, len(series) - 1
+    carriers, doubts = _carriers(series, lattice, warnings)
+    plans = [_plan(s, carriers[k] or lattice, method, window, m, k == 0)
              for k, s in enumerate(series)]
     _check_model_units(o.noise_model, series)
-    f32 = all(np.dtype(s.dtype) == np.float32 for s in series)
-    kin = 3 * _WFT_COST if o.lagrangian else _WFT_COST
     sink = _InMemory(n_states, o.dtype) if o.output is None else _streamed(o.output,
                                                                            n_states)
-    pager = _paging.Unpaged()  # the reference's maps, paged out during states' passes
     with sink, _connect(o.scheduler, o.timeout) as client:
-        pending = None if client is None else [
-            _dist()._submit_pass(client, s, plan, timeout=o.timeout)
-            for s, plan in zip(series, plans, strict=True)]
-
-        def one(k):
-            s = series[k]
-            n = s.n_frames
-            pager.page_out()
-            if client is None:
-                acc = _run_pass(s, plans[k], steps.sub(n * _pass_cost(method), s.name))
-            else:  # the cluster worked while this machine read the other series
-                acc = pending[k].result(o.timeout)
-                pending[k] = None
-                steps.step(n * _pass_cost(method), f"{s.name}: one pass")
-            out = _one_series(s, acc, m if k == 0 else None, window, o.max_saturation,
-                              o.outliers, method, f32, steps, to_edges=o.to_edges)
-            # at the carrier it was transformed at (gridstrain.phase.coupling_corrected)
-            out = dataclasses.replace(out, maps=coupling_corrected(out.maps))
-            if plans[k].lattice != lattice:  # a state at its own carrier (_carrier)
-                out = dataclasses.replace(out, maps=demodulated_in_place(out.maps, lattice))
-            warnings.extend(out.warnings)
-            return out, acc
-
+        run = _Run(o, n_states, steps, warnings, sink, _paging.Unpaged(), None,
+                   follow_in_memory=_FOLLOW_IN_MEMORY)
+        one = _Series(series, plans, o, m, steps, client, run)
         r, ref_pass = one(0)
         if not r.maps.valid.any():
             raise ValueError(f"{r.name}: no valid pixel: the mask, the band of margin = "
-                             f"{o.margin:g} sigmas (sigma {sigma:.4g} px) and the grid's "
-                             "modulus leave no pixel to measure")
-        noise = _Noise(o.noise_model, lattice, r.mask, warnings)
-        r = noise.complete(r)
-        if o.output is not None and n_states and method in ("B", "C"):
-            # nothing reads the reference's maps while a state's frames are transformed,
-            # the pass that needs the most memory: they wait in a temporary file beside
-            # the result, paged in again by the system when the kinematics read them
-            paged = _paging.page({"psi": r.maps.psi, "dphi": r.maps.dphi},
-                                 folder=sink.path.parent)
-            if paged is not None:
-                pager = paged
-                r = dataclasses.replace(r, maps=dataclasses.replace(r.maps, **paged.arrays))
-        done = [r.summary()]
-        pager.page_out()  # the noise floor transforms the reference's halves
-        floor = _ReferenceFloor(r, done[0], ref_pass, lattice, window, method,
-                                steps.sub(3 * _WFT_COST, "noise floor"), warnings,
-                                to_edges=o.to_edges)
+                             f"{o.margin:g} sigmas (sigma {window.sigma:.4g} px) and the "
+                             "grid's modulus leave no pixel to measure")
+        run.noise = _Noise(o.noise_model, lattice, r.mask, warnings)
+        r = _paged_reference(run, run.noise.complete(r))
+        run.done.append(r.summary())
+        run.pager.page_out()  # the noise floor transforms the reference's halves
+        run.floor = _ReferenceFloor(r, run.done[0], ref_pass, lattice, window, method,
+                                    steps.sub(3 * _WFT_COST, "noise floor"), warnings,
+                                    to_edges=o.to_edges)
         del ref_pass
-        r = floor.r  # without its variance map: the floor keeps the smoothed one
-        tracker = _Tracker(r.maps, r.stats.mean, r.mask, lattice, o.order, o.lagrangian)
-        cracks: list[tuple] = []
-        matches: list[dict] = []
-        alias = aliasing_bias(r.stats.mean, lattice, sigma=sigma, mask=r.mask)
+        r = run.floor.r  # without its variance map: the floor keeps the smoothed one
+        run.tracker = _Tracker(r.maps, r.stats.mean, r.mask, lattice, o.order, o.lagrangian)
+        run.alias = aliasing_bias(r.stats.mean, lattice, sigma=window.sigma, mask=r.mask)
+        run.policy = _Policy(n_states, o.order, all(s.n_frames == 1 for s in series[1:]))
+        cracks, matches = [], []
         for i in range(n_states):
-            c, acc = one(i + 1)
-            del acc
-            c = noise.complete(c)
-            res, rec, notes, found, match = _kinematics(tracker, c, guesses[i], lattice,
-                                                        done[0], o.outliers)
-            cracks.append(found)
-            matches.append(match)
-            c = c.dropping("mean")  # the image features and the pair check were its uses
-            pager.page_out()  # the uncertainty maps read back the moduli only
-            if o.output is not None:
-                # the file keeps no phase maps, and the state's derivatives serve its
-                # kinematics only: freed before its uncertainty maps are made
-                res = dataclasses.replace(res, reference=None, deformed=None)
-                c = c.without_derivatives()
-            warnings.extend(notes)
-            steps.step(kin, f"{c.name}: kinematics")
-            if o.output is not None and not res.valid.any():  # never a file
-                raise ValueError(empty_state_message(c.name, o.margin, sigma, rec.guess,
-                                                     rec.source))
-            done.append(c.summary())
-            sink.add(i, *floor.state(c, done[-1], res, rec, alias, warnings))
-            del c
-            if o.order == "series" and i + 1 < n_states:
-                # a small field is kept as measured (the bits the file holds); a large
-                # one is read back from the file when the next state needs it
-                small = res.u.nbytes <= _FOLLOW_IN_MEMORY
-                tracker.follow(res, done[-1].name, None if small else sink.reader(i))
-            del res
-        warnings.extend(tracker.finish())
+            # the state's maps held by its _State alone, which drops each after its use
+            st = measure_state(run, _State(i, one(i + 1)[0], guesses[i],
+                                           carrier_doubt=doubts[i]))
+            cracks.append(st.found)
+            matches.append(st.match)
+            run.done.append(st.summary)
+            del st
+        warnings += [*run.tracker.finish(), *run.policy.finding()]
+        done = run.done
         if method == "A":
-            warnings.extend(_contrast_notes([d.vib for d in done]))
+            warnings += findings_of(_contrast_notes([d.vib for d in done]), "contrast.vibration")
         for d in done:
-            warnings.extend(d.saturation_warnings)
+            warnings += findings_of(d.saturation_warnings, "saturation", d.name)
         progress(1.0, "done")
         return sink.result(
-            lattice=lattice, lattice_detected=o.detected, sigma=sigma, method=method,
+            lattice=lattice, lattice_detected=o.detected, sigma=window.sigma, method=method,
             lagrangian=o.lagrangian, margin=float(o.margin), mask=r.mask.copy(),
             reference_image=np.array(r.stats.mean), names=tuple(d.name for d in done),
             sources=tuple(d.sources for d in done), n_frames=tuple(d.T for d in done),
@@ -351,69 +289,80 @@ def _measure(series: list, guesses: list, m: np.ndarray, o: MeasureOptions, step
             saturation=tuple(d.saturation for d in done),
             excluded=tuple(d.excluded for d in done),
             screening=tuple(d.screening for d in done), vibration=tuple(d.vib for d in done),
-            noise=floor.noise_floor(done, noise.info(done)), parameters=o.parameters(),
-            warnings=tuple(warnings), metrology=metrology(sink.floors, sigma),
-            systematic={"aliasing": alias, "smoothing": sink.smoothing,
+            noise=run.floor.noise_floor(done, run.noise.info(done)),
+            parameters=o.parameters(), warnings=tuple(warnings),
+            metrology=metrology(sink.floors, window.sigma),
+            systematic={"aliasing": run.alias, "smoothing": sink.smoothing,
                         "vibration_offset": [d.offset for d in done], "pair_match": matches},
             state_order=o.state_order, discontinuities=tuple(cracks), **extra)
 
 
-def _discontinuities(res: Measurement, rec, name: str, images, follow) -> tuple:
-    """``(res, rec, regions, warnings)``: ``res`` measured again without the pixels
-    whose window straddles a jump of its displacement
-    (:mod:`gridstrain.kinematics`), each part the jump cuts the field into
-    followed from the previous state's field pixel by pixel when ``follow`` (a
-    callable giving back its ``(u, valid)``) is given and checked on its own
-    content when ``images`` (reference, deformed, mask) are, the fringe order's
-    record, the jumps' regions, and the warnings naming them."""
-    disc = find_discontinuities(res)
-    if not disc:
-        return res, rec, (), []
-    before = res.valid
-    guess = None
-    if follow is not None:
-        u, valid = follow()
-        nearest = nearest_index(valid)
-        guess = np.stack([nearest_filled(np.asarray(c, dtype=np.float64), valid, nearest)
-                          for c in u])
-        del u, valid, nearest
-    res = without_discontinuities(dataclasses.replace(res, fringe_order=rec), disc,
-                                  guess=guess)
-    del guess
-    said = [f"{name}: the displacement jumps (a crack, an edge or a torn grid?) at "
-            f"{disc.describe()}: the {int(disc.band.sum())} pixels whose window straddles "
-            "it are left out"]
-    if images is not None:
-        res, parts = check_parts(res, before, images[0], images[1], mask=images[2])
-        said.extend(_parts_notes(parts, name, res.lattice))
-        return res, res.fringe_order, tuple(disc.regions), said
-    after = ndimage.label(res.valid)[1]
-    if after > ndimage.label(before)[1]:
-        said.append(f"{name}: the jump cuts the field into {after} parts whose whole "
-                    "numbers of periods were fixed each on its own (closest to the "
-                    "guess): across an opening of more than half a pitch one of them may "
-                    "be whole periods off; pass a guess or an intermediate state")
-    return res, rec, tuple(disc.regions), said
+def _carriers(series: list, lattice: Lattice, warnings: list) -> tuple[list, list]:
+    """Each series' own carrier (None: the reference's), its warning kept, and for
+    each state whether its carrier is in doubt: beyond a plausible strain, or moved
+    from the previous state's by more than a small step across the frame (the
+    phase across the frame changes by ``|dK| W`` periods)."""
+    if len(series) < 2:
+        return [None], []
+    base = reference_carrier(next(iter(series[0].frames(start=0, stop=1))), lattice)
+    out, doubts, before = [None], [], lattice.K
+    for s in series[1:]:
+        own, notes = _carrier(s, lattice, base)
+        out.append(own)
+        K = lattice.K if own is None else own.K
+        doubts.append(bool(notes) or
+                      float(np.max(np.abs(K - before))) * max(s.shape) > SMALL_STEP)
+        before = K
+        warnings += findings_of(notes, "carrier.implausible", s.name)
+    return out, doubts
 
 
-def _parts_notes(parts: tuple, name: str, lattice) -> list[str]:
-    """The warnings that say how each part a crack cut off was fixed."""
-    if not parts:
-        return []
-    out = []
-    for p in parts:
-        if p.left_out:
-            out.append(f"{name}: the part of the field at {p.describe()}, cut off by the "
-                       f"jump, has no image features of its own to fix its whole periods "
-                       f"({p.detail}): left out")
-        elif p.confirmed and any(p.shift_px):
-            out.append(f"{name}: the part of the field at {p.describe()}, cut off by the "
-                       f"jump, was whole periods off: {p.detail}")
-    if not any(p.confirmed for p in parts):
-        p1, p2 = lattice.pitches
-        out.append(f"{name}: the jump cuts the field into {len(parts)} parts and none has "
-                   "image features of its own: their whole periods assume an opening below "
-                   f"half a pitch (periods {p1:.3g}/{p2:.3g} px) across it: fringe order not "
-                   "confirmed; pass --guess UX UY per part (guess= a field in Python), an "
-                   "intermediate state, or image a grid with printed features")
-    return out
+def _paged_reference(run: _Run, r):
+    """The reference with its maps paged out to a temporary file beside the result
+    while the states' frames are transformed (methods B and C with a file)."""
+    o = run.o
+    if o.output is None or not run.n_states or o.method not in ("B", "C"):
+        return r
+    # nothing reads the reference's maps while a state's frames are transformed, the
+    # pass that needs the most memory: they wait in a temporary file beside the
+    # result, paged in again by the system when the kinematics read them
+    paged = _paging.page({"psi": r.maps.psi, "dphi": r.maps.dphi},
+                         folder=run.sink.path.parent)
+    if paged is None:
+        return r
+    run.pager = paged
+    return dataclasses.replace(r, maps=dataclasses.replace(r.maps, **paged.arrays))
+
+
+class _Series:
+    """``one(k)``: series ``k`` read in its pass (here, or awaited from the cluster
+    that worked while this machine read the others), screened, averaged and
+    transformed: ``(_Measured, its pass)``."""
+
+    def __init__(self, series, plans, o: MeasureOptions, m, steps: _Steps, client,
+                 run: _Run):
+        self.series, self.plans, self.o, self.m, self.steps = series, plans, o, m, steps
+        self.client, self.run = client, run
+        self.f32 = all(np.dtype(s.dtype) == np.float32 for s in series)
+        self.pending = None if client is None else [
+            _dist()._submit_pass(client, s, plan, timeout=o.timeout)
+            for s, plan in zip(series, plans, strict=True)]
+
+    def __call__(self, k: int):
+        s, o, steps = self.series[k], self.o, self.steps
+        n = s.n_frames
+        self.run.pager.page_out()
+        if self.client is None:
+            acc = _run_pass(s, self.plans[k], steps.sub(n * _pass_cost(o.method), s.name))
+        else:
+            acc = self.pending[k].result(o.timeout)
+            self.pending[k] = None
+            steps.step(n * _pass_cost(o.method), f"{s.name}: one pass")
+        out = _one_series(s, acc, self.m if k == 0 else None, o.window, o.max_saturation,
+                          o.outliers, o.method, self.f32, steps, to_edges=o.to_edges)
+        # at the carrier it was transformed at (gridstrain.phase.coupling_corrected)
+        out = dataclasses.replace(out, maps=coupling_corrected(out.maps))
+        if self.plans[k].lattice != o.lattice:  # a state at its own carrier (_carrier)
+            out = dataclasses.replace(out, maps=demodulated_in_place(out.maps, o.lattice))
+        self.run.warnings.extend(findings_of(out.warnings, "screening.flagged", s.name))
+        return out, acc

@@ -13,7 +13,7 @@ from collections.abc import Iterable
 import numpy as np
 from scipy import ndimage
 
-from .._progress import Progress, null_progress
+from .._progress import Finding, Progress, findings_of, null_progress
 from .._runtime.threads import map_bounded
 from .._stats import median
 from .._validation import (
@@ -469,7 +469,7 @@ def _one_series(s, acc: SeriesPass, base, window: Window, max_saturation: float,
     is the mask of the reference (None for a state: its configuration is deformed)."""
     plan = acc.plan
     sc, acc = _screen_pass(s, acc, max_saturation, outliers)
-    notes = list(sc.warnings)
+    notes = findings_of(sc.warnings, "screening.flagged", s.name)
     vib = _diagnose(s.name, sc.shifts, "gridstrain.stacks.vibration.frame_shifts", plan.lattice,
                     method)
     st = acc.statistics()
@@ -484,7 +484,8 @@ def _one_series(s, acc: SeriesPass, base, window: Window, max_saturation: float,
     if method == "C":
         res = acc.method_c(sigma=window.sigma, mask=used, margin=window.margin)
         pm = finite_derivatives(res.maps)
-        notes.extend(f"{s.name}: {w}" for w in res.warnings)
+        notes.extend(Finding("vibration", f"{s.name}: {w}", state=s.name)
+                     for w in res.warnings)
         del res
     elif method == "B":
         pm = _method_b_maps(s, sc, acc, used, window, steps.sub(0.0, s.name))

@@ -797,7 +797,9 @@ def smoothing_bias(strain, valid, *, sigma: float) -> dict:
     np.maximum(wsum, 1e-12, out=wsum)
     ii, jj = np.nonzero(inner)
     half = round(_BACKGROUND_SIGMAS * sig / 2)
-    band_any = bool(np.any(v & ~inner))
+    # the edge fit's normal equations depend on the valid pixels only: solved once for
+    # the three components (their SVDs were most of this function's time)
+    fit = _EdgeFit(v, inner, sig) if np.any(v & ~inner) else None
     for c in e:
         filled = np.where(v, c, 0.0)
         sm = np.divide(ndimage.gaussian_filter(filled, sig), wsum, out=filled)
@@ -827,7 +829,7 @@ def smoothing_bias(strain, valid, *, sigma: float) -> dict:
         seen = mx[-1] > typical
         # a feature at the valid region's edge (a hole's, the frame's) peaks where the
         # twice-smoothed field is cut: taken from the measured field itself there
-        edge = _edge_feature(c, v, inner, sig, half) if band_any else None
+        edge = _edge_feature(c, v, fit, sig, half) if fit is not None else None
         if edge is not None and edge[0] > err and edge[3] > typical:
             err, narrow, a, _ = edge
             seen = True
@@ -855,47 +857,66 @@ def smoothing_bias(strain, valid, *, sigma: float) -> dict:
                           f"{_NARROWEST:g} sigma); estimate_max, p95: the Laplacian term"}
 
 
-def _edge_feature(c, v, inner, sig, half):
+class _EdgeFit:
+    """The weighted least-squares quadratic fit on the band of valid pixels outside
+    ``inner`` (see :func:`_edge_feature`), for any field on those pixels: the moments
+    of the valid pixels are filtered separably, and each band pixel's 6 x 6 normal
+    equations inverted once where they are well conditioned."""
+
+    _POWERS = ((0, 0), (1, 0), (0, 1), (2, 0), (1, 1), (0, 2))
+
+    def __init__(self, v: np.ndarray, inner: np.ndarray, sig: float):
+        self.v = v
+        self.band = v & ~inner
+        r = _EDGE_FIT * sig
+        self.t = np.arange(-math.ceil(4 * r), math.ceil(4 * r) + 1, dtype=np.float64)
+        self.g = np.exp(-0.5 * (self.t / r) ** 2)
+        vf = v.astype(np.float64)
+        mom = {(a, b): self.moment(vf, a, b) for a in range(5) for b in range(5 - a)}
+        P = self._POWERS
+        M = np.stack([np.stack([mom[p[0] + q[0], p[1] + q[1]] for q in P], axis=-1)
+                      for p in P], axis=-2)  # (n, 6, 6)
+        # symmetric and positive semi-definite: its condition number is the ratio of
+        # its extreme eigenvalues (eigvalsh costs a fraction of cond's SVD)
+        lam = np.linalg.eigvalsh(M)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            self.ok = lam[:, -1] < 1e8 * lam[:, 0]
+        self.inv = np.linalg.inv(M[self.ok]) if self.ok.any() else None
+        bi, bj = np.nonzero(self.band)
+        self.bi, self.bj = bi[self.ok], bj[self.ok]
+
+    def moment(self, f, a, b):
+        out = ndimage.correlate1d(f, self.g * self.t**a, axis=1, mode="constant")
+        return ndimage.correlate1d(out, self.g * self.t**b, axis=0,
+                                   mode="constant")[self.band]
+
+    def coefficients(self, c: np.ndarray) -> np.ndarray:
+        """``(n, 6)``: the fitted quadratic's coefficients at the well-conditioned band
+        pixels."""
+        mf = np.where(self.v, c, 0.0)
+        rhs = np.stack([self.moment(mf, *p) for p in self._POWERS], axis=-1)[self.ok]
+        return np.einsum("nij,nj->ni", self.inv, rhs)
+
+
+def _edge_feature(c, v, fit: _EdgeFit, sig, half):
     """``(error, narrow, attenuation, estimate)`` of the Gaussian feature that the
-    measured field ``c`` (samples; ``v`` its valid pixels) shows on the valid pixels
-    outside ``inner`` (a band along the valid region's edge), or None.
+    measured field ``c`` (samples; ``v`` its valid pixels) shows on the band of
+    ``fit`` (the valid pixels along the valid region's edge), or None.
 
     The field is not smoothed again there (the window would be cut by the edge): a
     quadratic is fitted at each pixel of the band by least squares over its valid
     neighbours, weighted by a Gaussian of ``_EDGE_FIT`` sigma (one-sided where the
-    edge cuts it: the moments of the valid pixels are filtered separably, and each
-    pixel's 6 x 6 normal equations solved). Where ``sigma^2 / 2`` times the fitted
+    edge cuts it: :class:`_EdgeFit`). Where ``sigma^2 / 2`` times the fitted
     Laplacian peaks, the fitted value's departure from the median over ``half``
     samples around and the fitted curvatures give a Gaussian feature of the measured
     field, of width ``s^2 = w^2 + sigma^2`` along each principal direction, and its
     peak error ``dep (prod(s / w) - 1)``."""
-    band = v & ~inner
-    r = _EDGE_FIT * sig
-    t = np.arange(-math.ceil(4 * r), math.ceil(4 * r) + 1, dtype=np.float64)
-    g = np.exp(-0.5 * (t / r) ** 2)
-
-    def moment(f, a, b):
-        out = ndimage.correlate1d(f, g * t**a, axis=1, mode="constant")
-        return ndimage.correlate1d(out, g * t**b, axis=0, mode="constant")[band]
-
-    vf = v.astype(np.float64)
-    mf = np.where(v, c, 0.0)
-    powers = [(0, 0), (1, 0), (0, 1), (2, 0), (1, 1), (0, 2)]
-    mom = {}
-    for a in range(5):
-        for b in range(5 - a):
-            mom[a, b] = moment(vf, a, b)
-    M = np.stack([np.stack([mom[p[0] + q[0], p[1] + q[1]] for q in powers], axis=-1)
-                  for p in powers], axis=-2)  # (n, 6, 6)
-    rhs = np.stack([moment(mf, *p) for p in powers], axis=-1)  # (n, 6)
-    ok = np.linalg.cond(M) < 1e8
-    if not ok.any():
+    if fit.inv is None:
         return None
-    coef = np.linalg.solve(M[ok], rhs[ok][..., None])[..., 0]
+    coef = fit.coefficients(c)
     est = 0.5 * sig**2 * np.abs(2 * (coef[:, 3] + coef[:, 5]))
     k = int(np.argmax(est))
-    bi, bj = np.nonzero(band)
-    i, j = bi[ok][k], bj[ok][k]
+    i, j = fit.bi[k], fit.bj[k]
     box = (slice(max(0, i - half), i + half + 1), slice(max(0, j - half), j + half + 1))
     level = float(np.median(c[box][v[box]]))
     dep = float(coef[k, 0]) - level
