@@ -668,6 +668,8 @@ def _run(args, progress: _Bar) -> int:
             each_frame=opts["each-frame"], reference_frames=opts.get("reference-frames"),
             keep_order=opts["keep-order"], loads=_loads(opts),
             frame_rate=opts.get("frame-rate"), to_edges=opts["to-edges"], **kw)
+    if ps is not None:  # the result carries its file's pixel size (and the outputs use it)
+        result = dataclasses.replace(result, pixel_size=ps, unit=unit)
     if spec is None:
         _refuse_empty(result)
         out = save_result(result, opts["output"], pixel_size=ps, unit=unit,

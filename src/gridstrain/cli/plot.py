@@ -80,7 +80,7 @@ def run(args) -> int:
     # before the maps are drawn
     history = plot_history(result, point=args.point, region=args.region,
                            microstrain=micro, load=ld, load_unit=lu, time=t, pixel_size=ps,
-                           unit=unit)
+                           unit=unit, px=ps is None)
     figures[f"history.{args.format}"] = lambda: history
     # only figures gridstrain wrote there are replaced (the folder's marker lists them)
     directory = OutputDirectory(out, list(figures), overwrite=args.overwrite,

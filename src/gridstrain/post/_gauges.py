@@ -11,7 +11,7 @@ from .._validation import check_type, freeze_arrays
 from ..kinematics import DERIVED_STRAINS, PrincipalStrains, principal_strains
 from ..results import SeriesResult, state_loads
 from . import _correlation
-from ._places import frame_of, place_mask, points_px, refuse_empty
+from ._places import place_mask, points_px, refuse_empty, result_frame
 from ._units import strain_scale
 
 _STRAINS = ("exx", "eyy", "exy")
@@ -270,8 +270,9 @@ def _extensometer(result, i, p0, p1, unc):
 
 
 def gauge(result: SeriesResult, *, region=None, point=None, polygon=None,
-          extensometer=None, pixel_size: float | None = None, unit: str | None = None,
-          load=None, load_unit: str | None = None, time=None) -> GaugeReading:
+          extensometer=None, unit: str | None = None, px: bool = False,
+          pixel_size: float | None = None, load=None, load_unit: str | None = None,
+          time=None) -> GaugeReading:
     """Mean strain over a region of every state, with its standard deviation.
 
     Parameters
@@ -288,11 +289,21 @@ def gauge(result: SeriesResult, *, region=None, point=None, polygon=None,
     extensometer : (x0, y0, x1, y1) floats, optional
         Two points whose distance is followed: engineering strain ``(l - L) / L``
         from the displacements interpolated (bilinear) at the points.
-    pixel_size, unit : float, str, optional
-        Coordinates above are in ``unit`` (pixel ``x`` at ``x * pixel_size``): give
-        those of the result's file (:func:`gridstrain.results.read_attrs`) to name
-        places in its physical unit, as the command line does; px without them.
-        The rule is written once, in :mod:`gridstrain.post._places`.
+    unit : str, optional
+        The coordinates above are in ``unit``, the result's length unit (``"mm"``:
+        :attr:`SeriesResult.unit`, pixel ``x`` at ``x * result.pixel_size``), as the
+        command line reads them.
+    px : bool
+        The coordinates above are in px.
+    pixel_size : float, optional
+        With ``unit``, for a result that carries no pixel size (one that carries
+        another is refused).
+
+        A place on a result that has a pixel size must say its unit (``unit=`` or
+        ``px=True``): a call without either is refused, naming both, rather than read
+        in a unit its author may not have meant (px before results carried their
+        pixel size). On a result without one, places are px. The rule is written
+        once, in :mod:`gridstrain.post._places`.
     load, time : (n_states,) array_like, optional
         The load (in ``load_unit``) and the time (s) of each loaded state.
         Default: the result's own ``load``, ``load_unit`` and ``time``, if any.
@@ -320,7 +331,9 @@ def gauge(result: SeriesResult, *, region=None, point=None, polygon=None,
     variance is ``reference_share``).
     """
     check_type(result, "result", SeriesResult)
-    frame = frame_of(result.shape, pixel_size=pixel_size, unit=unit)
+    frame = result_frame(result, pixel_size=pixel_size, unit=unit, px=px, places=(
+        ("region", region), ("point", point), ("polygon", polygon),
+        ("extensometer", extensometer)))
     mask, where = place_mask(frame, region=region, point=point, polygon=polygon)
     where = f"gauge over {where}" if point is None else f"gauge at {where}"
     load, load_unit, time = state_loads(result, load=load, load_unit=load_unit, time=time)

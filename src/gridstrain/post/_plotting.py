@@ -701,8 +701,8 @@ def _probe(values_of: Callable, result, mask):
 
 def plot_history(result, *, point=None, region=None, names=("exx", "eyy", "exy"),
                  microstrain=True, against: str = "auto", load=None,
-                 load_unit: str | None = None, time=None, pixel_size: float | None = None,
-                 unit: str | None = None) -> Figure:
+                 load_unit: str | None = None, time=None, unit: str | None = None,
+                 px: bool = False, pixel_size: float | None = None) -> Figure:
     """Strain (or any quantity) of all states at a point or averaged over a region.
 
     Parameters
@@ -721,9 +721,10 @@ def plot_history(result, *, point=None, region=None, names=("exx", "eyy", "exy")
         The horizontal axis: "auto" takes the time, else the load, else the state.
     load, load_unit, time : optional
         The states' loads and times (default: the result's own, if any).
-    pixel_size, unit : float, str, optional
-        ``point``, ``region`` and the displacements in ``unit`` (the file's, as for
-        :func:`gridstrain.post.gauge`); px without them.
+    unit, px, pixel_size : optional
+        ``point``, ``region`` and the displacements in ``unit`` or px: the rule of
+        :func:`gridstrain.post.gauge` (a place on a result with a pixel size says its
+        unit).
 
     Returns
     -------
@@ -741,12 +742,13 @@ def plot_history(result, *, point=None, region=None, names=("exx", "eyy", "exy")
     """
     from ..results import state_loads
     from . import gauge
-    from ._places import frame_of, place_mask, refuse_empty
+    from ._places import place_mask, refuse_empty, result_frame
 
     check_choice(against, "against", ("auto", "time", "load", "state"))
     if point is not None and region is not None:
         raise ValueError("give point or region, not both")
-    frame = frame_of(result.shape, pixel_size=pixel_size, unit=unit)
+    frame = result_frame(result, pixel_size=pixel_size, unit=unit, px=px,
+                         places=(("point", point), ("region", region)))
     mask, where = place_mask(frame, region=region, point=point)
     where = f"at {where}" if point is not None else f"mean over {where} (valid pixels)"
     load, load_unit, time = state_loads(result, load=load, load_unit=load_unit, time=time)
@@ -761,7 +763,7 @@ def plot_history(result, *, point=None, region=None, names=("exx", "eyy", "exy")
     unit_drawn = None
     from ._units import strain_scale
 
-    ps, unit = check_pixel_size(pixel_size, unit)
+    ps, unit = (None, None) if frame.unit == "px" else (frame.scale, frame.unit)
     for name in names:
         # displacements in the unit the place is named in, as the maps draw them
         unit_drawn = _drawn_unit(name, ps, unit, microstrain)
@@ -771,7 +773,7 @@ def plot_history(result, *, point=None, region=None, names=("exx", "eyy", "exy")
             (ps or 1.0) if kind == "px" else 1.0
         if name in ("exx", "eyy", "exy", "ux", "uy", *_DERIVED):
             if reading is None:
-                reading = gauge(result, point=point, region=region,
+                reading = gauge(result, point=point, region=region, px=px,
                                 pixel_size=pixel_size, unit=unit)
             # the derived strains of the gauge's mean tensor, as a rosette reads them
             source = reading.principal_strains() if name in _DERIVED else reading

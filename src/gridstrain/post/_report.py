@@ -187,8 +187,8 @@ def render_report(result: SeriesResult, *, attrs: dict | None = None,
     limits, cmap = check_limits(limits), check_cmap(cmap)
     a = dict(attrs or {})
     ps, unit = a.get("pixel_size"), a.get("unit")
-    if ps is None or unit is None:
-        ps = unit = None
+    if ps is None or unit is None:  # the result's own, when the attributes have none
+        ps, unit = result.pixel_size, result.unit
     test = {"region": region, "px": bool(px), "area": area, "area_unit": area_unit,
             "axis": axis}
     with warnings.catch_warnings():
@@ -243,8 +243,8 @@ def _test_section(result, ps, unit, *, region, px: bool, area, area_unit: str,
     load, load_unit, time = state_loads(result)
     if load is None:
         return None
-    gps, gunit = (None, None) if px else (ps, unit)
-    reading = gauge(result, region=region, pixel_size=gps, unit=gunit)
+    named = {} if px or ps is None else {"pixel_size": ps, "unit": unit}
+    reading = gauge(result, region=region, px=px, **named)
     rows = [[name, _num(time[i], ".4g") if time is not None else "–",
              _num(load[i], ".4g"), int(reading.n_pixels[i]),
              *(_with_std(getattr(reading, c)[i], getattr(reading, f"{c}_std")[i])

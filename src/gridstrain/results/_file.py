@@ -152,6 +152,10 @@ def save_result(result: SeriesResult, path, *, pixel_size: float | None = None,
     check_type(result, "result", SeriesResult)
     lossless = check_type(lossless, "lossless", bool)
     ps, unit = check_pixel_size(pixel_size, unit)
+    if ps is None:  # the result's own, stored as the file's
+        ps, unit = result.pixel_size, result.unit
+    elif (ps, unit) != (result.pixel_size, result.unit):
+        result = dataclasses.replace(result, pixel_size=ps, unit=unit)
     attrs = check_mapping(attrs, "attrs", allow_none=True)
     H, W = result.shape
     _check_own_maps(result)
@@ -737,6 +741,7 @@ def load(path, *, in_memory: bool = True) -> SeriesResult:
             def state(arr, i):
                 return _stored(where, h5, arr._names, i, identity=identity)
 
+        own_ps, own_unit = _file_pixel_size(h5)
         u, strain = stack(("ux", "uy")), stack(("exx", "eyy", "exy"))
         valid = read("valid", kinds="b")
         rotation = read("rotation", kinds="f")
@@ -750,6 +755,9 @@ def load(path, *, in_memory: bool = True) -> SeriesResult:
         def fill(cls, group, values, row):
             if cls.__name__ == "SeriesResult":
                 values.update(root)
+                # the file's root attributes say its pixel size (files that stored it
+                # there only, or none, load all the same)
+                values.update(pixel_size=own_ps, unit=own_unit)
             elif cls.__name__ == "Measurement" and (
                     row is not None or group.parent.name.endswith("/measurements")):
                 # the state: its row in the measurements written by columns (format 3),
@@ -775,6 +783,18 @@ def load(path, *, in_memory: bool = True) -> SeriesResult:
             raise _Bad(f"{_where(h5[_GROUP], 'result')}: expected a SeriesResult, got "
                        f"{_received(result)}")
         return _check_result(h5.filename, result)
+
+
+def _file_pixel_size(h5) -> tuple[float | None, str | None]:
+    """The root attributes ``pixel_size`` and ``unit``, checked; ``(None, None)`` when
+    the file has none."""
+    ps, unit = (_attr(h5, k) if k in h5.attrs else None for k in ("pixel_size", "unit"))
+    if ps is None or unit is None:
+        return None, None
+    try:
+        return check_pixel_size(float(ps), str(unit))
+    except (TypeError, ValueError) as exc:
+        raise _Bad(f"{_where(h5, 'pixel_size')}: {exc}") from None
 
 
 #: Root attributes whose type a reader relies on (the report, the plots, the replay).

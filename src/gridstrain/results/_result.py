@@ -9,9 +9,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .._validation import (
-    check_choice,
-)
+from .._validation import check_choice, check_pixel_size
 from ..kinematics import (
     DERIVED_STRAINS,
     FiniteStrains,
@@ -158,6 +156,13 @@ class SeriesResult:
         (``jump_px``, its ``opening_px`` and ``sliding_px``, known modulo the
         period ``pitch_px`` along it); see
         :func:`gridstrain.kinematics.find_discontinuities`.
+    pixel_size : float, optional
+        The length of a pixel on the specimen, in ``unit`` (``measure --pixel-size`` or
+        ``--grid-pitch``; the result file's root attribute): places on the maps are
+        named in ``unit`` by the command line, and in the API with ``unit=``
+        (:mod:`gridstrain.post._places`). None when the file has none (px only).
+    unit : str, optional
+        The length unit of ``pixel_size`` (``"mm"``...); None with it.
     """
 
     u: np.ndarray
@@ -196,8 +201,13 @@ class SeriesResult:
     time: np.ndarray | None = None
     discontinuities: tuple = ()
     load_source: dict | None = None
+    pixel_size: float | None = None
+    unit: str | None = None
 
     def __post_init__(self):
+        ps, unit = check_pixel_size(self.pixel_size, self.unit)
+        object.__setattr__(self, "pixel_size", ps)
+        object.__setattr__(self, "unit", unit)
         for name in ("u", "strain", "valid", "mask", "reference_image", "load", "time"):
             arr = getattr(self, name)
             if isinstance(arr, np.ndarray):  # maps read from a file are read-only already
