@@ -42,7 +42,7 @@ from matplotlib.figure import Figure
 from .._stats import streamed_percentiles
 from .._validation import check_choice, check_finite, check_pixel_size, check_positive, check_type
 from ..io import OutputDirectory, write_atomic
-from ..results import SeriesResult
+from ..results import FINITE_FIELDS, SeriesResult
 
 __all__ = [
     "ROBUST_PERCENTILES",
@@ -471,10 +471,16 @@ QUANTITIES = {
     "principal_angle_std": (r"std $\theta_1$", "rad"),
     "equivalent_std": (r"std $\varepsilon_{eq}$", "1"),
     "max_shear_std": (r"std $(\varepsilon_1 - \varepsilon_2)/2$", "1"),
+    "rotation_std": (r"std $\omega$", "rad"),
+    # finite strains (SeriesResult.finite_strains): Green-Lagrange E and logarithmic
+    **{f"{kind}_{c}{s}": (("std " if s else "") + f"${sym}_{{{c}}}$", "1")
+       for kind, sym in (("gl", "E"), ("log", r"\ln U")) for c in ("xx", "yy", "xy")
+       for s in ("", "_std")},
 }
 _MICRO = "µε"
 # the quantities derived from the strain tensor, and their std
 _DERIVED = ("e1", "e2", "principal_angle", "equivalent", "max_shear")
+_FINITE = tuple(f"{k}_{c}" for k in ("gl", "log") for c in ("xx", "yy", "xy"))
 
 
 def quantity(result, name: str, *, pixel_size: float | None = None,
@@ -503,11 +509,14 @@ def state_quantity(result, name: str, i: int, *, pixel_size: float | None = None
     drawn = _drawn_unit(name, pixel_size, unit, microstrain)
     if name == "rotation":
         return np.asarray(result.measurements[i].rotation) * 1e3, drawn
-    if name.removesuffix("_std") in _DERIVED:
-        maps = result.derived_maps(i)
+    if name.removesuffix("_std") in (*_DERIVED, *_FINITE, "rotation"):
+        # the finite strains asked for: refused, saying why, on an Eulerian result
+        maps = result.derived_maps(i, finite=name.removesuffix("_std") in _FINITE)
         if name not in maps:
             raise ValueError(f"this result has no {name} map (a single frame per series "
                              "gives no uncertainty map)")
+        if name == "rotation_std":
+            return maps[name] * 1e3, drawn
         if name.startswith("principal_angle"):
             return np.degrees(maps[name]), drawn
         values = maps[name]
@@ -529,7 +538,7 @@ def _drawn_unit(name: str, pixel_size, unit, microstrain) -> str:
     from ._units import strain_scale
 
     check_choice(name, "name", tuple(QUANTITIES))
-    if name == "rotation":
+    if name in ("rotation", "rotation_std"):
         return "mrad"
     if name.startswith("principal_angle"):
         return "deg"
@@ -771,14 +780,20 @@ def plot_history(result, *, point=None, region=None, names=("exx", "eyy", "exy")
         scale = strain_scale(microstrain)[0] if kind == "1" else \
             math.degrees(1.0) if name == "principal_angle" else \
             (ps or 1.0) if kind == "px" else 1.0
-        if name in ("exx", "eyy", "exy", "ux", "uy", *_DERIVED):
+        if name in ("exx", "eyy", "exy", "ux", "uy", *_DERIVED, *_FINITE):
             if reading is None:
                 reading = gauge(result, point=point, region=region, px=px,
                                 pixel_size=pixel_size, unit=unit)
             # the derived strains of the gauge's mean tensor, as a rosette reads them
-            source = reading.principal_strains() if name in _DERIVED else reading
-            curve = getattr(source, name) * scale
-            err = getattr(source, f"{name}_std") * scale
+            attr = name
+            if name in _DERIVED:
+                source = reading.principal_strains()
+            elif name in _FINITE:  # of the gauge's mean gradient
+                source, attr = reading.finite_strains(), FINITE_FIELDS[name]
+            else:
+                source = reading
+            curve = getattr(source, attr) * scale
+            err = getattr(source, f"{attr}_std") * scale
             err = err if np.all(np.isfinite(err)) else None
         else:
             curve, err = _probe(lambda i, name=name: state_quantity(

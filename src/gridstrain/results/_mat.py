@@ -24,8 +24,8 @@ def export_mat(result: SeriesResult, path, *, pixel_size: float | None = None,
     ``principal_angle`` (rad), ``equivalent``, ``max_shear``
     (:meth:`SeriesResult.principal_strains`), the finite strains ``gl_xx``...
     ``log_xy`` (:meth:`SeriesResult.finite_strains`, Lagrangian results only) and
-    their ``*_std`` and ``rotation_std`` with uncertainty maps; with loads ``load`` (``n_states`` x 1, its unit in ``units.load``) and with
-    times ``time`` (s).
+    their ``*_std`` and ``rotation_std`` with uncertainty maps; with loads ``load``
+    (``n_states`` x 1, its unit in ``units.load``) and with times ``time`` (s).
     """
     from scipy.io import savemat
 

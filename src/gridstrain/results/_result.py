@@ -347,15 +347,19 @@ class SeriesResult:
         return bool(self.lagrangian) and all(getattr(m, "rotation", None) is not None
                                              for m in self.measurements)
 
-    def derived_maps(self, state: int | None = None, *, finite: bool = True
+    def derived_maps(self, state: int | None = None, *, finite: bool | None = None
                      ) -> dict[str, np.ndarray]:
         """The maps of :data:`DERIVED_FIELDS` (and their ``*_std``, with uncertainty
-        maps, and ``rotation_std``), by name: those the exports write. The finite
-        strains (``gl_*``, ``log_*``) with ``finite`` and :attr:`has_finite_strains`
-        only."""
+        maps, and ``rotation_std``), by name: those the exports write.
+
+        The finite strains (``gl_*``, ``log_*``): with ``finite=None`` (the default)
+        where :attr:`has_finite_strains`, with ``True`` always (refused on an Eulerian
+        result, see :meth:`finite_strains`), with ``False`` never."""
         p = self.principal_strains(state)
         out = {name: getattr(p, name) for name in DERIVED_STRAINS}
-        f = self.finite_strains(state) if finite and self.has_finite_strains else None
+        if finite is None:
+            finite = self.has_finite_strains
+        f = self.finite_strains(state) if finite else None
         if f is not None:
             out.update({name: getattr(f, attr) for name, attr in FINITE_FIELDS.items()})
         for name in DERIVED_STRAINS:
