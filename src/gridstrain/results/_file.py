@@ -742,6 +742,7 @@ def load(path, *, in_memory: bool = True) -> SeriesResult:
                 return _stored(where, h5, arr._names, i, identity=identity)
 
         own_ps, own_unit = _file_pixel_size(h5)
+        own_precision = _file_precision(h5)
         u, strain = stack(("ux", "uy")), stack(("exx", "eyy", "exy"))
         valid = read("valid", kinds="b")
         rotation = read("rotation", kinds="f")
@@ -757,7 +758,8 @@ def load(path, *, in_memory: bool = True) -> SeriesResult:
                 values.update(root)
                 # the file's root attributes say its pixel size (files that stored it
                 # there only, or none, load all the same)
-                values.update(pixel_size=own_ps, unit=own_unit)
+                values.update(pixel_size=own_ps, unit=own_unit,
+                              maps_precision=own_precision)
             elif cls.__name__ == "Measurement" and (
                     row is not None or group.parent.name.endswith("/measurements")):
                 # the state: its row in the measurements written by columns (format 3),
@@ -783,6 +785,16 @@ def load(path, *, in_memory: bool = True) -> SeriesResult:
             raise _Bad(f"{_where(h5[_GROUP], 'result')}: expected a SeriesResult, got "
                        f"{_received(result)}")
         return _check_result(h5.filename, result)
+
+
+def _file_precision(h5) -> str | None:
+    """None for a file whose maps are as measured; else how they were rounded (its
+    ``maps_precision``, or a word for a file that says only ``maps_lossless``)."""
+    lossless = _attr(h5, "maps_lossless") if "maps_lossless" in h5.attrs else True
+    if bool(lossless):
+        return None
+    text = _attr(h5, "maps_precision") if "maps_precision" in h5.attrs else None
+    return str(text) if text else "rounded (float32)"
 
 
 def _file_pixel_size(h5) -> tuple[float | None, str | None]:

@@ -131,8 +131,12 @@ def _write_tables(h5, result, ps, unit, attrs: Mapping, n_series: int, *,
     _write_noise(h5, result, lat)
     _write_metrology(h5, result)
     root = _root_attributes(result, ps, unit, lat)
-    root["maps_lossless"] = bool(lossless)
+    rounded_before = getattr(result, "maps_precision", None)
+    # maps read from a rounded file are not made lossless by being written as they are
+    root["maps_lossless"] = bool(lossless) and rounded_before is None
     root["maps_precision"] = (
+        f"written as read from a file that had rounded them: {rounded_before}"
+        if lossless and rounded_before is not None else
         "lossless: the maps as measured" if lossless else
         f"float32, each map rounded to {STD_FRACTION:g} of its std at each pixel "
         f"(rotation: of exy's), the std maps to {STD_BITS} mantissa bits (relative "

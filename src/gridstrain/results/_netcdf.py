@@ -34,7 +34,8 @@ def export_netcdf(result: SeriesResult, path, *, pixel_size: float | None = None
     (:meth:`SeriesResult.principal_strains`), the finite strains ``gl_xx``...
     ``log_xy`` (:meth:`SeriesResult.finite_strains`, Lagrangian results only) and their
     ``*_std`` and ``rotation_std`` with uncertainty maps; without the ``gridstrain``
-    group that lets :func:`load` rebuild the result object: ``xarray.open_dataset(path)`` (engine ``h5netcdf``) sees nothing it
+    group that lets :func:`load` rebuild the result object: ``xarray.open_dataset(path)``
+    (engine ``h5netcdf``) sees nothing it
     cannot read.
     """
     check_type(result, "result", SeriesResult)

@@ -176,6 +176,11 @@ class SeriesResult:
         (:mod:`gridstrain.post._places`). None when the file has none (px only).
     unit : str, optional
         The length unit of ``pixel_size`` (``"mm"``...); None with it.
+    maps_precision : str, optional
+        None for maps as measured; for maps read from a file that rounded them
+        (:func:`gridstrain.results.save_result` without ``lossless``), that file's
+        ``maps_precision``: a file or export written from them says so, never
+        "lossless".
     """
 
     u: np.ndarray
@@ -216,6 +221,7 @@ class SeriesResult:
     load_source: dict | None = None
     pixel_size: float | None = None
     unit: str | None = None
+    maps_precision: str | None = None
 
     def __post_init__(self):
         ps, unit = check_pixel_size(self.pixel_size, self.unit)
