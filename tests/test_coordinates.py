@@ -193,6 +193,16 @@ def test_the_result_carries_its_pixel_size_and_places_say_their_unit(result_file
         gauge(res, region=OUTSIDE_MM, unit="mm")
 
 
+def test_maps_of_a_result_draw_its_own_unit(result_file):
+    _, res = result_file
+    for fig, want in ((plot_states(res, "exx", states=[0]), "mm"),
+                      (plot_states(res, "exx", states=[0], px=True), "px")):
+        ax = fig.axes[0]
+        assert (ax.get_xlabel(), ax.get_ylabel()) == (f"x ({want})", f"y ({want})")
+    ax = plot_states(res, "exx", states=[0]).axes[0]
+    assert_allclose(ax.get_xlim(), (-0.5 * PS, (W - 0.5) * PS), rtol=1e-12)
+
+
 def test_a_result_without_pixel_size_reads_px(result_file, tmp_path):
     _, res = result_file
     bare = dataclasses.replace(res, pixel_size=None, unit=None)

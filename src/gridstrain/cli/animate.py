@@ -54,7 +54,7 @@ def run(args) -> int:
     check_output_file(out, "animation", args.overwrite, {src.resolve()})
     try:
         path = animate(result, args.quantity, out, fps=args.fps, limits=limits, cmap=cmap,
-                       pixel_size=ps, unit=unit, load=ld, load_unit=lu, time=t,
+                       pixel_size=ps, unit=unit, px=ps is None, load=ld, load_unit=lu, time=t,
                        dpi=args.dpi, strain_units=args.strain_units,
                        overwrite=args.overwrite)
     except ImportError as exc:  # the optional video writer: one line naming the extra

@@ -74,7 +74,7 @@ def run(args) -> int:
     micro = args.strain_units
     figures = {f"{n}.{args.format}": (lambda n=n: plot_states(
         result, n, limits=limits, cmap=cmap, microstrain=micro, pixel_size=ps,
-        unit=unit))
+        unit=unit, px=ps is None))
         for n in names}
     # drawn first: a place outside the field, or with no valid pixel, is refused
     # before the maps are drawn

@@ -123,6 +123,15 @@ def result_frame(result, *, pixel_size: float | None = None, unit: str | None = 
     return Frame(shape, ps, u)
 
 
+def drawn_in(result, *, pixel_size: float | None = None, unit: str | None = None,
+             px: bool = False) -> tuple[float | None, str | None]:
+    """``(pixel_size, unit)`` a figure of ``result`` draws its axes and displacements
+    in: those given, else the result's own (:func:`result_frame`'s rule, no place
+    named); ``(None, None)`` for px."""
+    frame = result_frame(result, pixel_size=pixel_size, unit=unit, px=px)
+    return (None, None) if frame.unit == "px" else (frame.scale, frame.unit)
+
+
 def _text(value) -> str:
     try:
         return "(" + ", ".join(f"{float(v):g}" for v in np.ravel(value)) + ")"

@@ -583,7 +583,8 @@ def _nice_length(span: float) -> float:
 
 def plot_states(result, name: str, *, limits="robust", cmap: str | None = None,
                 microstrain=True, pixel_size: float | None = None,
-                unit: str | None = None, columns: int = 3, states=None) -> Figure:
+                unit: str | None = None, px: bool = False, columns: int = 3,
+                states=None) -> Figure:
     """Maps of one quantity for a chosen set of states, on common colour limits.
 
     Parameters
@@ -601,7 +602,10 @@ def plot_states(result, name: str, *, limits="robust", cmap: str | None = None,
     microstrain : bool or {"microstrain", "%", "1"}
         Strains in µε (True, the default), in percent, or dimensionless (False).
     pixel_size, unit : float, str, optional
-        Displacements, the axes and a scale bar in ``unit`` (px without).
+        Displacements, the axes and a scale bar in ``unit``; default the result's own
+        (:attr:`SeriesResult.pixel_size`), px for a result without one.
+    px : bool
+        In px, even for a result with a pixel size.
     columns : int
         Panels per row.
     states : sequence of int, optional
@@ -619,8 +623,9 @@ def plot_states(result, name: str, *, limits="robust", cmap: str | None = None,
     from mpl_toolkits.axes_grid1.anchored_artists import AnchoredSizeBar
 
     from ..results import state_loads
+    from ._places import drawn_in
 
-    ps, unit = check_pixel_size(pixel_size, unit)
+    ps, unit = drawn_in(result, pixel_size=pixel_size, unit=unit, px=px)
     limits = check_limits(limits)
     cmap = check_cmap(cmap)
     n_all = result.n_states

@@ -212,6 +212,7 @@ def _context(result, a: dict, ps, unit, title: str, test: dict, colours: dict) -
         **_maps_section(result, shown, ps, unit, colours),
         **_states_section(result), **_checks_section(result),
         "uncertainty": [_figure(plot_states(shown, name, pixel_size=ps, unit=unit,
+                                            px=ps is None,
                                             **colours),
                                 f"uncertainty map of {name}")
                         for name in (shown.uncertainty or {}) if name in _UNC],
@@ -410,7 +411,7 @@ def _maps_section(result, shown, ps, unit, colours: dict) -> dict:
             f"displacements in {unit if ps else 'px'}; outside the valid region the "
             "reference image shows through.")
     # limits given explicitly are in one quantity's unit: they apply to the strains
-    maps = [_figure(plot_states(shown, name, pixel_size=ps, unit=unit,
+    maps = [_figure(plot_states(shown, name, pixel_size=ps, unit=unit, px=ps is None,
                                 cmap=colours["cmap"],
                                 limits=lim if isinstance(lim, str) or name[0] == "e"
                                 else "robust"), f"map of {name}")
