@@ -327,7 +327,7 @@ def test_map_axes_in_the_unit(result_file):
     # the pixels' edges, in mm: the first centred on 0, the last on (W - 1) PS
     assert_allclose(ax.get_xlim(), (-0.5 * PS, (W - 0.5) * PS), rtol=1e-12)
     assert_allclose(sorted(ax.get_ylim()), (-0.5 * PS, (H - 0.5) * PS), rtol=1e-12)
-    fig = plot_states(res, "exx", states=[0])
+    fig = plot_states(res, "exx", states=[0], px=True)
     assert fig.axes[0].get_xlabel() == "x (px)"
     assert_allclose(fig.axes[0].get_xlim(), (-0.5, W - 0.5))
 
