@@ -328,3 +328,18 @@ def test_an_eulerian_result_offers_no_finite_strains(finite_result):
     with pytest.raises(ValueError, match="lagrangian=False"):
         gauge(euler).finite_strains()
     assert "gl_xx" not in euler.derived_maps(0)
+
+
+def test_cli_gauge_finite_columns(finite_result, tmp_path, capsys):
+    path = finite_result.save(tmp_path / "f.h5", lossless=True)
+    out = tmp_path / "g.csv"
+    assert main(["gauge", str(path), "--region", "32", "32", "96", "96", "--finite",
+                 "-o", str(out)]) == 0
+    printed = capsys.readouterr().out
+    assert "gl_xx [µε]" in printed
+    with open(out, newline="") as fh:
+        rows = list(csv.DictReader(fh))
+    f = gauge(finite_result, region=(32, 32, 96, 96)).finite_strains()
+    # 10 significant digits in the CSV: 1e-10 relative
+    assert_allclose([float(r["gl_xx [-]"]) for r in rows], f.Exx, rtol=1e-9)
+    assert_allclose([float(r["log_xy_std [-]"]) for r in rows], f.Lxy_std, rtol=1e-9)

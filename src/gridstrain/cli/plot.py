@@ -37,7 +37,9 @@ def register(sub) -> None:
     p.add_argument("--maps", default="ux,uy,exx,eyy,exy,rotation", metavar="NAMES",
                    help="comma-separated quantities (ux, uy, exx, eyy, exy, rotation, "
                    "exx_std..., and the derived e1, e2, principal_angle, equivalent, "
-                   "max_shear, e1_std...; default ux,uy,exx,eyy,exy,rotation)")
+                   "max_shear, e1_std..., the finite strains gl_xx, gl_yy, gl_xy "
+                   "(Green-Lagrange), log_xx, log_yy, log_xy (logarithmic), gl_xx_std..., "
+                   "rotation_std; default ux,uy,exx,eyy,exy,rotation)")
     add_colour_options(p)
     p.add_argument("--strain-units", choices=("microstrain", "%", "1"),
                    default="microstrain",
