@@ -208,10 +208,9 @@ class FiniteStrains:
 #: The finite strains' components, by :class:`FiniteStrains` field.
 FINITE_COMPONENTS = ("Exx", "Eyy", "Exy", "Lxx", "Lyy", "Lxy")
 
-# Step of the central differences of the log strain's first-order std, in strain: the
-# truncation error ~ step^2 (1e-12) and the rounding ~ 1e-16 / step (1e-10), relative
-# to the derivatives (of order 1), both far below the 1.6 % to which std are stored.
-_STEP = 2.0**-20
+# Below this t = 2 h / c, (t / (1 - t^2) - atanh t) / t^3 by its series 2/3 + 4 t^2 / 5
+# + 6 t^4 / 7 (next term 8 t^6 / 9: 1e-12 relative), where the closed form cancels.
+_SERIES_T = 1e-2
 
 
 def _finite(xx, h01, h10, yy):
@@ -230,6 +229,43 @@ def _finite(xx, h01, h10, yy):
     iso = (f1 + f2) / 2
     return (Exx, Eyy, Exy, iso + slope * 2 * (Exx - m), iso + slope * 2 * (Eyy - m),
             slope * 2 * Exy)
+
+
+def _log_jacobian(Exx, Eyy, Exy) -> dict:
+    """``d(Lxx, Lyy, Lxy) / d(Exx, Eyy, Exy)`` of :func:`_finite`'s closed form, as
+    ``{L: {E: array}}``.
+
+    With ``c = 1 + 2 m``, ``c1,2 = c +- 2 h`` (``C``'s eigenvalues), ``D = Exx - Eyy``
+    and ``P = D dD / 4 + Exy dExy`` (``h dh``): ``iso = (ln c1 + ln c2) / 4`` and
+    ``slope = atanh(t) / (4 h)``, ``t = 2 h / c``, so that ``d iso = (1/c1 + 1/c2) / 2
+    dm - 2 P / (c1 c2)`` and ``d slope = -dm / (c1 c2) + (2 / c^3) Q P``, ``Q = (t / (1 -
+    t^2) - atanh t) / t^3``: every term finite where ``h = 0`` (an equal biaxial
+    state, no strain), ``Q`` by its series there.
+    """
+    m, D = (Exx + Eyy) / 2, Exx - Eyy
+    h = np.hypot(D / 2, Exy)
+    c = 1 + 2 * m
+    c1, c2 = c + 2 * h, c - 2 * h
+    t = 2 * h / c
+    with np.errstate(divide="ignore", invalid="ignore"):
+        slope = np.where(h > 0, np.log1p(4 * h / c2) / (8 * h), 1 / (2 * c2))
+        closed = (t / (1 - t * t) - np.arctanh(t)) / t**3
+    t2 = t * t
+    Q = np.where(np.abs(t) < _SERIES_T, 2 / 3 + t2 * (4 / 5 + t2 * 6 / 7), closed)
+    inv12 = 1 / (c1 * c2)
+    iso_m = (1 / c1 + 1 / c2) / 2
+    slope_P = 2 * Q / c**3
+    # per E component: dm, dD, dP, dExy
+    parts = {"Exx": (0.5, 1.0, D / 4, 0.0), "Eyy": (0.5, -1.0, -D / 4, 0.0),
+             "Exy": (0.0, 0.0, Exy, 1.0)}
+    out = {"Lxx": {}, "Lyy": {}, "Lxy": {}}
+    for e, (dm, dD, dP, dxy) in parts.items():
+        d_iso = iso_m * dm - 2 * inv12 * dP
+        d_slope = -inv12 * dm + slope_P * dP
+        out["Lxx"][e] = d_iso + D * d_slope + slope * dD
+        out["Lyy"][e] = d_iso - D * d_slope - slope * dD
+        out["Lxy"][e] = 2 * Exy * d_slope + 2 * slope * dxy
+    return out
 
 
 def finite_strains(exx, eyy, exy, rotation, *, gradient_std=None) -> FiniteStrains:
@@ -272,9 +308,10 @@ def finite_strains(exx, eyy, exy, rotation, *, gradient_std=None) -> FiniteStrai
 
     The std are propagated to first order from the gradient's, ``var(f) = sum_k
     (df/dH_k)^2 s_k^2``: in closed form for Green–Lagrange (``dExx = (1 + H_xx) dH_xx
-    + H_yx dH_yx``...), by central differences of step ``2^-20`` for the logarithmic
-    strain (exact to 1e-9 relative). First order holds while the std are small against
-    1 (always, for a strain measured to 1e-4).
+    + H_yx dH_yx``...), and through it for the logarithmic strain, whose derivative in
+    ``E`` is in closed form too (finite where ``C``'s two eigenvalues meet). First
+    order holds while the std are small against 1 (always, for a strain measured to
+    1e-4).
 
     Examples
     --------
@@ -311,14 +348,13 @@ def finite_strains(exx, eyy, exy, rotation, *, gradient_std=None) -> FiniteStrai
         for name in ("Exx", "Eyy", "Exy"):
             out[f"{name}_std"] = np.sqrt(sum(np.square(j * sk) for j, sk in
                                              zip(jac[name], stds, strict=True)))
-        var = [np.zeros_like(xx) for _ in range(3)]
-        for k, sk in enumerate(stds):
-            up, down = list(grad), list(grad)
-            up[k], down[k] = grad[k] + _STEP, grad[k] - _STEP
-            hi, lo = _finite(*up)[3:], _finite(*down)[3:]
-            for c in range(3):
-                var[c] += np.square((hi[c] - lo[c]) / (2 * _STEP) * sk)
-        for c, name in enumerate(("Lxx", "Lyy", "Lxy")):
-            out[f"{name}_std"] = np.sqrt(var[c])
+        # the log strain: d(L) / d(E) (_log_jacobian) times d(E) / d(H)
+        dL = _log_jacobian(out["Exx"], out["Eyy"], out["Exy"])
+        for name in ("Lxx", "Lyy", "Lxy"):
+            var = 0.0
+            for k, sk in enumerate(stds):
+                g = sum(dL[name][e] * jac[e][k] for e in ("Exx", "Eyy", "Exy"))
+                var = var + np.square(g * sk)
+            out[f"{name}_std"] = np.sqrt(var)
     return FiniteStrains(**{k: np.asarray(v, dtype=dtype) for k, v in out.items()})
 
