@@ -276,7 +276,7 @@ def finite_result():
 
 
 def test_gauge_finite_strains_of_a_stretch_and_a_shear(finite_result):
-    r = gauge(finite_result, region=(32, 32, 96, 96))
+    r = gauge(finite_result, region=(32, 32, 96, 96), finite=True)
     f = r.finite_strains()
     e, g = STRETCH, SHEAR
     # the exact finite strains: stretch E = e + e^2 / 2, L = ln(1 + e); simple shear
@@ -326,7 +326,12 @@ def test_an_eulerian_result_offers_no_finite_strains(finite_result):
     with pytest.raises(ValueError, match="lagrangian=False"):
         euler.finite_strains(0)
     with pytest.raises(ValueError, match="lagrangian=False"):
+        gauge(euler, finite=True)
+    with pytest.raises(ValueError, match="lagrangian=False"):
         gauge(euler).finite_strains()
+    # asked of a gauge read without its rotation: says how to read it
+    with pytest.raises(ValueError, match=r"gauge\(\.\.\., finite=True\)"):
+        gauge(finite_result).finite_strains()
     assert "gl_xx" not in euler.derived_maps(0)
 
 
@@ -339,7 +344,7 @@ def test_cli_gauge_finite_columns(finite_result, tmp_path, capsys):
     assert "gl_xx [µε]" in printed
     with open(out, newline="") as fh:
         rows = list(csv.DictReader(fh))
-    f = gauge(finite_result, region=(32, 32, 96, 96)).finite_strains()
+    f = gauge(finite_result, region=(32, 32, 96, 96), finite=True).finite_strains()
     # 10 significant digits in the CSV: 1e-10 relative
     assert_allclose([float(r["gl_xx [-]"]) for r in rows], f.Exx, rtol=1e-9)
     assert_allclose([float(r["log_xy_std [-]"]) for r in rows], f.Lxy_std, rtol=1e-9)

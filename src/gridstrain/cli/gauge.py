@@ -51,7 +51,8 @@ def register(sub) -> None:
 def run(args) -> int:
     result, src, ps, unit, ld, lu, t = open_result(args)
     out = output_path(args, src, "gauge CSV")
-    reading = gauge_of(args, result, ps, unit, ld, lu, t, extensometer=args.extensometer)
+    reading = gauge_of(args, result, ps, unit, ld, lu, t, extensometer=args.extensometer,
+                       finite=args.finite)
     print(reading.table(strain_units=args.strain_units, derived=args.derived,
                         finite=args.finite))
     if out is not None:

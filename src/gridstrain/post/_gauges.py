@@ -59,8 +59,9 @@ class GaugeReading:
         readings together, so it cancels in differences between states, slopes
         and rates. None where the result does not tell.
     rotation, rotation_std : (n_states,) float64 ndarray or None
-        Mean rotation ``(du_y/dx - du_x/dy) / 2`` over the gauge and its std, rad; None
-        for a result measured with ``lagrangian=False`` (no finite strains).
+        Mean rotation ``(du_y/dx - du_x/dy) / 2`` over the gauge and its std, rad; read
+        with ``gauge(..., finite=True)`` from a result measured with the Lagrangian
+        correction, else None.
     gradient_std : (n_states, 4) float64 ndarray or None
         Std of the mean ``du_x/dx``, ``du_x/dy``, ``du_y/dx``, ``du_y/dy``: what
         :meth:`finite_strains` propagates.
@@ -89,6 +90,7 @@ class GaugeReading:
     rotation: np.ndarray | None = None
     rotation_std: np.ndarray | None = None
     gradient_std: np.ndarray | None = None
+    lagrangian: bool = True
 
     def __post_init__(self):
         freeze_arrays(self)
@@ -105,10 +107,13 @@ class GaugeReading:
         ValueError
             The gauge's result was measured with ``lagrangian=False``.
         """
-        if self.rotation is None:
+        if self.rotation is None and not self.lagrangian:
             raise ValueError("the finite strains need the Lagrangian displacement "
                              "gradient, and this gauge's result was measured with "
                              "lagrangian=False (measure --no-lagrangian)")
+        if self.rotation is None:
+            raise ValueError("the finite strains need the gauge's mean rotation: read "
+                             "the gauge with gauge(..., finite=True) (gauge --finite)")
         g = self.gradient_std
         return finite_strains(self.exx, self.eyy, self.exy, self.rotation,
                               gradient_std=None if g is None else tuple(g.T))
@@ -327,7 +332,7 @@ def _extensometer(result, i, p0, p1, unc):
 def gauge(result: SeriesResult, *, region=None, point=None, polygon=None,
           extensometer=None, unit: str | None = None, px: bool = False,
           pixel_size: float | None = None, load=None, load_unit: str | None = None,
-          time=None) -> GaugeReading:
+          time=None, finite: bool = False) -> GaugeReading:
     """Mean strain over a region of every state, with its standard deviation.
 
     Parameters
@@ -362,6 +367,11 @@ def gauge(result: SeriesResult, *, region=None, point=None, polygon=None,
     load, time : (n_states,) array_like, optional
         The load (in ``load_unit``) and the time (s) of each loaded state.
         Default: the result's own ``load``, ``load_unit`` and ``time``, if any.
+    finite : bool
+        Also read the mean rotation and the std of the mean displacement gradient,
+        for :meth:`GaugeReading.finite_strains` (three more double sums per state:
+        a gauge takes half as long again). Refused for a result measured with
+        ``lagrangian=False``.
 
     Returns
     -------
@@ -399,7 +409,9 @@ def gauge(result: SeriesResult, *, region=None, point=None, polygon=None,
     kernels["ux"] = kernels["uy"] = _correlation.displacement_kernel(result.sigma)
     # the rotation and the gradient's off-diagonal terms, for the finite strains: their
     # std maps those of the uncertainty maps' noise model (SeriesResult.finite_strains)
-    finite = result.has_finite_strains
+    finite = check_type(finite, "finite", bool)
+    if finite and not result.has_finite_strains:
+        result.finite_strains(0)  # refused, saying why (an Eulerian result)
     extra = {"rotation": "exy_std", "uxy": "exx_std", "uyx": "eyy_std"} if finite else {}
     for name in extra:
         kernels[name] = _correlation.strain_kernel(result.lattice, result.sigma, name)
@@ -450,5 +462,5 @@ def gauge(result: SeriesResult, *, region=None, point=None, polygon=None,
         rotation=out["rotation"] if finite else None,
         rotation_std=std["rotation"] if finite else None,
         gradient_std=np.stack([std["exx"], std["uxy"], std["uyx"], std["eyy"]], axis=1)
-        if finite else None)
+        if finite else None, lagrangian=bool(result.lagrangian))
 

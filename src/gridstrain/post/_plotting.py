@@ -788,7 +788,8 @@ def plot_history(result, *, point=None, region=None, names=("exx", "eyy", "exy")
         if name in ("exx", "eyy", "exy", "ux", "uy", *_DERIVED, *_FINITE):
             if reading is None:
                 reading = gauge(result, point=point, region=region, px=px,
-                                pixel_size=pixel_size, unit=unit)
+                                pixel_size=pixel_size, unit=unit,
+                                finite=any(n in _FINITE for n in names))
             # the derived strains of the gauge's mean tensor, as a rosette reads them
             attr = name
             if name in _DERIVED:
