@@ -8,6 +8,11 @@ asked for). The measured field spans ``0 <= x < W s``, ``0 <= y < H s``; a place
 reaching outside it, or holding no valid pixel in any state, is refused in one line
 that names the field's extent (and that of its valid pixels) in the unit the place
 was given in: a wrong place never becomes an empty figure or a NaN reading.
+
+The command line names places in the file's unit, px with ``--px``. The API follows
+the same rule with the unit said (:func:`result_frame`): a result carries its file's
+pixel size, and a place on it says ``unit=`` or ``px=True``; without either it is
+refused, since such a call read px before results carried their pixel size.
 """
 
 from __future__ import annotations
