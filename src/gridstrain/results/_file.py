@@ -98,7 +98,9 @@ def save_result(result: SeriesResult, path, *, pixel_size: float | None = None,
         Destination (``.h5`` or ``.nc``).
     pixel_size : float, optional
         Size of a pixel on the specimen, in ``unit``: adds ``x_phys``, ``y_phys``,
-        ``ux_phys`` and ``uy_phys``.
+        ``ux_phys`` and ``uy_phys``. Default the result's own
+        (:attr:`SeriesResult.pixel_size`); given, it is the saved result's (loaded
+        back with it).
     unit : str, optional
         Length unit of ``pixel_size`` (``"mm"``...); required with it.
     overwrite : bool
