@@ -275,3 +275,24 @@ def test_maps_read_from_a_rounded_file_are_never_labelled_lossless(stored, tmp_p
     export_netcdf(res, tmp_path / "measured.nc")
     with h5py.File(tmp_path / "measured.nc", "r") as h5:
         assert bool(h5.attrs["maps_lossless"])
+
+
+def test_a_streamed_result_carries_its_files_pixel_size_and_rounding(tmp_path):
+    """``measure_series(output=ResultFile(...))``: the result's maps are read from the
+    file it wrote, so it carries that file's pixel size and, rounded by default, says
+    so in what it exports."""
+    from gridstrain.results import ResultFile
+
+    rng = np.random.default_rng(3)
+    spec = ResultFile(tmp_path / "s.h5", pixel_size=0.02, unit="mm")
+    res = measure_series(_frames(0.0, rng), [_frames(1e-3, rng)], lattice=LAT,
+                         output=spec)
+    assert (res.pixel_size, res.unit) == (0.02, "mm")
+    assert "rounded" in res.maps_precision
+    export_netcdf(res, tmp_path / "s.nc")
+    with h5py.File(tmp_path / "s.nc", "r") as h5:
+        assert not bool(h5.attrs["maps_lossless"])
+    exact = measure_series(_frames(0.0, rng), [_frames(1e-3, rng)], lattice=LAT,
+                           output=ResultFile(tmp_path / "e.h5", lossless=True))
+    assert exact.maps_precision is None
+    assert exact.pixel_size is None

@@ -37,6 +37,7 @@ from ._layout import (
     _READ_VERSIONS,
     _UNC_KEYS,
     FORMAT_VERSION,
+    ROUNDED_TEXT,
     _create_maps,
     _describe_maps,
     _put_state,
@@ -528,7 +529,10 @@ class StreamedResult:
             guesses=tuple(tuple(float(v) for v in r.guess) for r in self.orders),
             guess_sources=tuple(r.source for r in self.orders),
             fringe_orders=tuple(self.orders),
-            uncertainty={k: lazy(k) for k in self.unc_names} or None, **fields)
+            uncertainty={k: lazy(k) for k in self.unc_names} or None,
+            # read from the file: its pixel size, and its rounding when it rounds
+            **{"pixel_size": spec.pixel_size, "unit": spec.unit,
+               "maps_precision": None if spec.lossless else ROUNDED_TEXT, **fields})
         H, W = result.shape
         ps, unit = spec.pixel_size, spec.unit
         _write_dimensions(h5, result, H, W)

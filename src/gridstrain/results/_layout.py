@@ -122,6 +122,12 @@ def _write_group(h5, result, attrs: Mapping, *, phase_maps: bool) -> None:
         _encode(g, [("attrs", dict(extra))], memo)
 
 
+#: How a rounded file's maps are stored, in words (its ``maps_precision``).
+ROUNDED_TEXT = (f"float32, each map rounded to {STD_FRACTION:g} of its std at each pixel "
+                f"(rotation: of exy's), the std maps to {STD_BITS} mantissa bits (relative "
+                f"{2.0 ** -(STD_BITS + 1):.2g}); see each variable's rounding attributes")
+
+
 def _write_tables(h5, result, ps, unit, attrs: Mapping, n_series: int, *,
                   lossless: bool) -> None:
     """The variables of the series and states (vibrations, noise floor, metrology) and
@@ -137,10 +143,7 @@ def _write_tables(h5, result, ps, unit, attrs: Mapping, n_series: int, *,
     root["maps_precision"] = (
         f"written as read from a file that had rounded them: {rounded_before}"
         if lossless and rounded_before is not None else
-        "lossless: the maps as measured" if lossless else
-        f"float32, each map rounded to {STD_FRACTION:g} of its std at each pixel "
-        f"(rotation: of exy's), the std maps to {STD_BITS} mantissa bits (relative "
-        f"{2.0 ** -(STD_BITS + 1):.2g}); see each variable's rounding attributes")
+        "lossless: the maps as measured" if lossless else ROUNDED_TEXT)
     for key, value in attrs.items():
         root[_check_key(key, "attrs")] = value
     for key, value in root.items():
