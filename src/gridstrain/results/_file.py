@@ -698,7 +698,8 @@ def load(path, *, in_memory: bool = True) -> SeriesResult:
     Returns
     -------
     SeriesResult
-        Equal, field by field, to the result that was saved (arrays bit for bit);
+        Equal, field by field, to the result that was saved (arrays bit for bit),
+        with the pixel size it was saved with (:attr:`SeriesResult.pixel_size`);
         the measurements' ``reference`` and ``deformed`` phase maps are ``None``
         unless they were saved (``save_result(..., phase_maps=True)``).
 
