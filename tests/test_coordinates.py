@@ -111,7 +111,7 @@ EXTENT_MM = "x 0 to 10.24, y 0 to 7.68 mm"
 def test_gauge_mm_and_px_read_the_same_pixels(result_file):
     _, res = result_file
     mm = gauge(res, region=REGION_MM, pixel_size=PS, unit="mm")
-    px = gauge(res, region=_mm_to_px(REGION_MM))
+    px = gauge(res, region=_mm_to_px(REGION_MM), px=True)
     # the same pixels: the same sums, bit for bit
     assert_array_equal(mm.n_pixels, px.n_pixels)
     assert_array_equal(mm.exx, px.exx)
@@ -130,7 +130,7 @@ def test_gauge_point_mm_and_px(result_file):
     _, res = result_file
     x, y = 5.013, 3.987  # mm: the nearest pixel is (125, 100), 0.33 and 0.33 px away
     mm = gauge(res, point=(x, y), pixel_size=PS, unit="mm")
-    px = gauge(res, point=(x / PS, y / PS))
+    px = gauge(res, point=(x / PS, y / PS), px=True)
     assert_array_equal(mm.exx, px.exx)
     assert_array_equal(mm.exx, np.asarray(res.exx[:, 100, 125]))
     assert "x = 125, y = 100 px" in mm.where
@@ -153,7 +153,95 @@ def test_gauge_refuses_a_place_outside_or_without_valid_pixel(result_file, place
     # the same place in px: the same refusal, the extent in px
     px = {k: np.asarray(v, dtype=float) / PS for k, v in place.items()}
     with pytest.raises(ValueError, match="x 0 to 256, y 0 to 192 px"):
-        gauge(res, **px)
+        gauge(res, px=True, **px)
+
+
+def test_the_result_carries_its_pixel_size_and_places_say_their_unit(result_file):
+    _, res = result_file
+    # the file's pixel size, carried by the loaded result
+    assert (res.pixel_size, res.unit) == (PS, "mm")
+    # an mm region named with the result's unit and its px equivalent: one gauge
+    mm = gauge(res, region=REGION_MM, unit="mm")
+    px = gauge(res, region=_mm_to_px(REGION_MM), px=True)
+    assert_array_equal(mm.n_pixels, px.n_pixels)
+    assert_array_equal(mm.exx, px.exx)
+    assert_array_equal(mm.exy_std, px.exy_std)
+    assert_allclose(mm.exx, _region_oracle(res, REGION_MM), rtol=0, atol=1e-12)
+    # the pixel size given again (as read from the file, or typed from its 6 printed
+    # digits) is the same rule
+    again = gauge(res, region=REGION_MM, pixel_size=PS * (1 + 2e-6), unit="mm")
+    assert_array_equal(again.exx, mm.exx)
+    # a place without its unit on a result with a pixel size: refused (it read px
+    # before results carried their pixel size), naming both ways to write it
+    for call in (lambda: gauge(res, region=REGION_MM),
+                 lambda: gauge(res, point=(5.0, 4.0)),
+                 lambda: plot_history(res, region=REGION_MM)):
+        with pytest.raises(ValueError, match=r"does not say its unit.*unit='mm'.*"
+                                             r"px=True"):
+            call()
+    # another pixel size, another unit, or both px and a unit: refused
+    with pytest.raises(ValueError, match="disagrees with this result's own"):
+        gauge(res, region=REGION_MM, pixel_size=0.05, unit="mm")
+    with pytest.raises(ValueError, match="this result's length unit 'mm'"):
+        gauge(res, region=REGION_MM, unit="um")
+    with pytest.raises(ValueError, match="px=True names places in pixels"):
+        gauge(res, region=REGION_MM, unit="mm", px=True)
+    # the whole field needs no unit
+    assert_array_equal(gauge(res).n_pixels, gauge(res, px=True).n_pixels)
+    # outside the field: one line naming the field's extent in the unit given
+    with pytest.raises(ValueError, match=EXTENT_MM):
+        gauge(res, region=OUTSIDE_MM, unit="mm")
+
+
+def test_maps_of_a_result_draw_its_own_unit(result_file):
+    _, res = result_file
+    for fig, want in ((plot_states(res, "exx", states=[0]), "mm"),
+                      (plot_states(res, "exx", states=[0], px=True), "px")):
+        ax = fig.axes[0]
+        assert (ax.get_xlabel(), ax.get_ylabel()) == (f"x ({want})", f"y ({want})")
+    ax = plot_states(res, "exx", states=[0]).axes[0]
+    assert_allclose(ax.get_xlim(), (-0.5 * PS, (W - 0.5) * PS), rtol=1e-12)
+
+
+def test_a_result_without_pixel_size_reads_px(result_file, tmp_path):
+    _, res = result_file
+    bare = dataclasses.replace(res, pixel_size=None, unit=None)
+    assert_array_equal(gauge(bare, region=_mm_to_px(REGION_MM)).exx,
+                       gauge(res, region=REGION_MM, unit="mm").exx)
+    with pytest.raises(ValueError, match="needs a pixel size, and this result carries none"):
+        gauge(bare, region=REGION_MM, unit="mm")
+    # saved without one, it loads without one; saved with one, it loads with it
+    assert load(bare.save(tmp_path / "bare.h5", lossless=True)).pixel_size is None
+    back = load(bare.save(tmp_path / "mm.h5", pixel_size=0.05, unit="mm", lossless=True))
+    assert (back.pixel_size, back.unit) == (0.05, "mm")
+    # and a result carrying one writes it as the file's attribute, read back
+    with h5py.File(res.save(tmp_path / "own.h5", lossless=True)) as h5:
+        assert (float(h5.attrs["pixel_size"]), h5.attrs["unit"]) == (PS, "mm")
+
+
+def test_an_older_file_without_the_fields_loads(result_file, tmp_path):
+    """A file written before results carried their pixel size: no such members in its
+    result group, the pixel size in the root attributes only."""
+    path, _ = result_file
+    old = tmp_path / "old.h5"
+    old.write_bytes(Path(path).read_bytes())
+    with h5py.File(old, "r+") as h5:
+        removed = 0
+        def drop(name, obj):
+            nonlocal removed
+            for key in ("pixel_size", "unit"):
+                if key in obj.attrs and name.endswith("result"):
+                    del obj.attrs[key]
+                    removed += 1
+        h5.visititems(drop)
+        group = h5["gridstrain"]["result"]
+        for key in ("pixel_size", "unit"):
+            if key in group:
+                del group[key]
+                removed += 1
+        assert removed, "the result group stores the fields somewhere"
+    back = load(old)
+    assert (back.pixel_size, back.unit) == (PS, "mm")
 
 
 def test_no_valid_pixel_message_names_the_valid_extent(result_file):
@@ -173,7 +261,7 @@ def test_extensometer_mm_and_px(result_file):
     _, res = result_file
     ends = (2.0, 4.0, 8.0, 4.0)  # mm: 150 px apart along x
     mm = gauge(res, extensometer=ends, pixel_size=PS, unit="mm")
-    px = gauge(res, extensometer=_mm_to_px(ends))
+    px = gauge(res, extensometer=_mm_to_px(ends), px=True)
     assert_array_equal(mm.extensometer, px.extensometer)
     # the engineering strain between two points of a homogeneous field is exx; the
     # displacement noise of two points 150 px apart gives ~1e-5 (5 std)
@@ -187,7 +275,7 @@ def test_history_of_an_mm_gauge_is_the_px_one(result_file):
     _, res = result_file
     mm = history(gauge(res, region=REGION_MM, pixel_size=PS, unit="mm"), window=3,
                  pixel_size=PS, unit="mm")
-    px = history(gauge(res, region=_mm_to_px(REGION_MM)), window=3, pixel_size=PS,
+    px = history(gauge(res, region=_mm_to_px(REGION_MM), px=True), window=3, pixel_size=PS,
                  unit="mm")
     assert_array_equal(mm.exx_rate, px.exx_rate)
     # the strain rate of a ramp of 0.3e-3 every 0.5 s: 0.6e-3 /s, within the noise
@@ -203,7 +291,7 @@ def _curves(fig):
 def test_plot_history_mm_and_px(result_file):
     _, res = result_file
     mm = plot_history(res, region=REGION_MM, pixel_size=PS, unit="mm")
-    px = plot_history(res, region=_mm_to_px(REGION_MM))
+    px = plot_history(res, region=_mm_to_px(REGION_MM), px=True)
     for a, b in zip(_curves(mm), _curves(px), strict=True):
         assert_array_equal(a, b)
     # exx in µε, the oracle's mean of the same pixels
@@ -212,7 +300,7 @@ def test_plot_history_mm_and_px(result_file):
     # displacements in the place's unit: the px curve times PS
     ux_mm = plot_history(res, point=(5.0, 4.0), names=("ux", "ux_std"), pixel_size=PS,
                          unit="mm")
-    ux_px = plot_history(res, point=(125, 100), names=("ux", "ux_std"))
+    ux_px = plot_history(res, point=(125, 100), names=("ux", "ux_std"), px=True)
     for a, b in zip(_curves(ux_mm), _curves(ux_px), strict=True):
         assert_allclose(a, b * PS, rtol=1e-12)
     assert ux_mm.axes[0].get_ylabel() == "(mm)"
@@ -239,7 +327,7 @@ def test_map_axes_in_the_unit(result_file):
     # the pixels' edges, in mm: the first centred on 0, the last on (W - 1) PS
     assert_allclose(ax.get_xlim(), (-0.5 * PS, (W - 0.5) * PS), rtol=1e-12)
     assert_allclose(sorted(ax.get_ylim()), (-0.5 * PS, (H - 0.5) * PS), rtol=1e-12)
-    fig = plot_states(res, "exx", states=[0])
+    fig = plot_states(res, "exx", states=[0], px=True)
     assert fig.axes[0].get_xlabel() == "x (px)"
     assert_allclose(fig.axes[0].get_xlim(), (-0.5, W - 0.5))
 

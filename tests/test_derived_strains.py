@@ -177,3 +177,80 @@ def test_std_maps_of_a_measured_field_match_its_scatter(angle):
     # ~150 independent patches: 6 % on a std, so 3 x 6 % for each; measured 0.95 to
     # 1.14 (the components' noise correlations were |rho| <= 0.08, neglected here)
     assert np.all((np.array(ratios) > 0.8) & (np.array(ratios) < 1.2)), ratios
+
+
+@pytest.mark.parametrize(("name", "grad"), [
+    # (du_x/dx, du_x/dy, du_y/dx, du_y/dy)
+    ("uniaxial stretch", (0.2, 0.0, 0.0, 0.0)),
+    ("simple shear", (0.0, 0.5, 0.0, 0.0)),
+    ("rigid rotation", (np.cos(0.6) - 1, -np.sin(0.6), np.sin(0.6), np.cos(0.6) - 1)),
+    ("small strain", (1.5e-3, 2e-4, -3e-4, -4e-4)),
+])
+def test_finite_strain_std_agrees_with_monte_carlo(name, grad):
+    """The first-order std of the Green–Lagrange and log strains, against the scatter
+    of the exact finite strains of gradients drawn with the given (uncorrelated) std.
+    The drawn std, 1e-4, is that of a measured gradient (the floor of the method's
+    strain maps): the terms first order leaves out are (1e-4)^2, relatively 1e-4."""
+    a, b, c, d = grad
+    s = np.array([1e-4, 2e-4, 1.5e-4, 0.8e-4])
+    exy, w = (b + c) / 2, (c - b) / 2
+    f = finite_strains(a, d, exy, w, gradient_std=tuple(s))
+    rng = np.random.default_rng(7)
+    n = 200_000
+    H = np.array(grad)[:, None] + s[:, None] * rng.standard_normal((4, n))
+    mc = finite_strains(H[0], H[3], (H[1] + H[2]) / 2, (H[2] - H[1]) / 2)
+    for comp in ("Exx", "Eyy", "Exy", "Lxx", "Lyy", "Lxy"):
+        stated, seen = float(getattr(f, f"{comp}_std")), float(np.std(getattr(mc, comp)))
+        # a sample std of 2e5 draws is within 1/sqrt(2n) = 0.16 % (1 sigma): 1 %
+        assert stated == pytest.approx(seen, rel=1e-2), (name, comp)
+    # the exact values of the named cases (the oracle: E = (H + H^T + H^T H) / 2)
+    F = np.eye(2) + np.array([[a, b], [c, d]])
+    E = (F.T @ F - np.eye(2)) / 2
+    assert_allclose([f.Exx, f.Eyy, f.Exy], [E[0, 0], E[1, 1], E[0, 1]], atol=1e-15)
+    if name == "rigid rotation":
+        # no strain, whatever the angle, and its std is the gradient's turned
+        assert_allclose([f.Exx, f.Eyy, f.Exy, f.Lxx, f.Lyy, f.Lxy], 0, atol=1e-15)
+    if name == "uniaxial stretch":
+        assert float(f.Lxx) == pytest.approx(np.log1p(0.2), rel=1e-14)
+        # dLxx/dH_xx = 1 / (1 + e): the std of ln(1 + e) is s / (1 + e), exactly
+        assert float(f.Lxx_std) == pytest.approx(1e-4 / 1.2, rel=1e-8)
+        # dExx/dH_xx = 1 + e
+        assert float(f.Exx_std) == pytest.approx(1e-4 * 1.2, rel=1e-14)
+
+
+def test_finite_strain_std_is_checked():
+    with pytest.raises(ValueError, match="gradient_std must be the 4 std"):
+        finite_strains(0.0, 0.0, 0.0, 0.0, gradient_std=(1.0, 1.0))
+    with pytest.raises(ValueError, match=r"gradient_std\[2\] must have the shape"):
+        finite_strains(np.zeros(3), np.zeros(3), np.zeros(3), np.zeros(3),
+                       gradient_std=(np.ones(3), np.ones(3), np.ones(2), np.ones(3)))
+    assert finite_strains(0.0, 0.0, 0.0, 0.0).Exx_std is None
+
+
+def test_log_strain_std_agrees_with_central_differences():
+    """The closed-form derivative of the log strain, against central differences of
+    the log strain itself (written here), on random gradients up to 30 %, an equal
+    biaxial stretch (C's eigenvalues equal) and no deformation at all."""
+    rng = np.random.default_rng(9)
+    H = np.concatenate([rng.normal(scale=0.1, size=(50, 4)),
+                        [[0.01, 0.0, 0.0, 0.01], [0.0, 0.0, 0.0, 0.0],
+                         [1e-7, 2e-8, -1e-8, 1.2e-7]]])
+    s = np.array([1e-4, 2e-4, 1.5e-4, 0.8e-4])
+
+    def logs(h):
+        exy, w = (h[:, 1] + h[:, 2]) / 2, (h[:, 2] - h[:, 1]) / 2
+        f = finite_strains(h[:, 0], h[:, 3], exy, w)
+        return np.stack([f.Lxx, f.Lyy, f.Lxy])
+
+    step = 1e-6  # truncation 1e-12, rounding 1e-10: far below the 1e-7 asked
+    var = 0.0
+    for k in range(4):
+        d = np.zeros(4)
+        d[k] = step
+        var = var + ((logs(H + d) - logs(H - d)) / (2 * step) * s[k]) ** 2
+    exy, w = (H[:, 1] + H[:, 2]) / 2, (H[:, 2] - H[:, 1]) / 2
+    f = finite_strains(H[:, 0], H[:, 3], exy, w,
+                       gradient_std=tuple(np.broadcast_to(v, len(H)) for v in s))
+    got = np.stack([f.Lxx_std, f.Lyy_std, f.Lxy_std])
+    assert np.all(np.isfinite(got))
+    assert_allclose(got, np.sqrt(var), rtol=1e-7)

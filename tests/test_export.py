@@ -17,7 +17,7 @@ from numpy.testing import assert_allclose, assert_array_equal
 from gridstrain import Lattice, measure_series
 from gridstrain.cli import main
 from gridstrain.models import synthetic
-from gridstrain.results import load, save_result
+from gridstrain.results import export_netcdf, load, save_result
 
 LAT = Lattice.from_pitch(5.0)
 N = 64
@@ -215,3 +215,84 @@ def test_the_command_lists_the_export_registry():
     from gridstrain.results import EXPORTS
 
     assert tuple(EXPORTS) == command._FORMATS
+
+
+def test_every_export_carries_the_finite_strains_and_their_std(stored, tmp_path):
+    """The Green–Lagrange and log maps of every format against the closed form applied
+    here to the stored gradient, and the VTK shear's sign turned with Y = -y."""
+    res, path = stored
+    prefix = tmp_path / "f"
+    assert main(["export", str(path), "--to", "mat,csv,vtk,netcdf", "-o", str(prefix)]) == 0
+    exx, eyy, exy = (np.asarray(a) for a in (res.exx, res.eyy, res.exy))
+    w = np.stack([np.asarray(m.rotation) for m in res.measurements])
+    h01, h10 = exy - w, exy + w
+    # E = (H + H^T + H^T H) / 2, the oracle
+    gl = {"gl_xx": exx + (exx**2 + h10**2) / 2, "gl_yy": eyy + (h01**2 + eyy**2) / 2,
+          "gl_xy": exy + (exx * h01 + h10 * eyy) / 2}
+    from scipy.io import loadmat
+
+    m = loadmat(f"{prefix}.mat")
+    for name, want in gl.items():
+        # float64 on the same numbers: rounding of 1e-3 strains, 1e-18
+        assert_allclose(m[name], np.moveaxis(want, 0, -1), rtol=0, atol=1e-15)
+    assert str(m["units"]["rotation_std"][0, 0][0]) == "rad"
+    assert_allclose(m["rotation_std"], m["exy_std"], rtol=1e-12)  # the noise model's
+    assert m["log_xy_std"].shape == (N, N, 2)
+    pd = pytest.importorskip("pandas")
+    df = pd.read_csv(f"{prefix}.csv", keep_default_na=False)
+    for col in ("gl_xx [1]", "log_yy [1]", "gl_xy_std [1]", "rotation_std [rad]"):
+        assert col in df.columns
+    rows = df[df["state"] == NAMES[1]]
+    x, y = rows["x [px]"].to_numpy(), rows["y [px]"].to_numpy()
+    assert_allclose(rows["gl_yy [1]"], gl["gl_yy"][0][y, x], rtol=5e-7, atol=1e-13)
+    _, root = _field_data(tmp_path / "f_vti" / "state_00000.vti")
+    # float32 for viewing: 6e-8 relative of 1e-3 strains
+    assert_allclose(_point_array(root, "gl_xy [-]"), -gl["gl_xy"][0], atol=1e-9)
+    xr = pytest.importorskip("xarray")
+    pytest.importorskip("h5netcdf")
+    with xr.open_dataset(f"{prefix}.nc") as ds:
+        assert_allclose(ds["gl_xx"].values, gl["gl_xx"], rtol=0, atol=1e-15)
+        assert "Green-Lagrange" in ds["gl_xx"].attrs["long_name"]
+        assert ds["rotation_std"].attrs["units"] == "rad"
+
+
+def test_maps_read_from_a_rounded_file_are_never_labelled_lossless(stored, tmp_path):
+    res, _ = stored
+    rounded = load(save_result(res, tmp_path / "rounded.h5"))
+    assert rounded.maps_precision is not None
+    assert "rounded" in rounded.maps_precision
+    assert load(stored[1]).maps_precision is None  # the lossless file's: as measured
+    export_netcdf(rounded, tmp_path / "again.nc")
+    with h5py.File(tmp_path / "again.nc", "r") as h5:
+        assert not bool(h5.attrs["maps_lossless"])
+        assert "had rounded them" in str(h5.attrs["maps_precision"])
+    # saved again losslessly, still said rounded, and read back as such
+    again = save_result(rounded, tmp_path / "again.h5", lossless=True)
+    with h5py.File(again, "r") as h5:
+        assert not bool(h5.attrs["maps_lossless"])
+    assert load(again).maps_precision is not None
+    # the measured maps exported: lossless
+    export_netcdf(res, tmp_path / "measured.nc")
+    with h5py.File(tmp_path / "measured.nc", "r") as h5:
+        assert bool(h5.attrs["maps_lossless"])
+
+
+def test_a_streamed_result_carries_its_files_pixel_size_and_rounding(tmp_path):
+    """``measure_series(output=ResultFile(...))``: the result's maps are read from the
+    file it wrote, so it carries that file's pixel size and, rounded by default, says
+    so in what it exports."""
+    from gridstrain.results import ResultFile
+
+    rng = np.random.default_rng(3)
+    spec = ResultFile(tmp_path / "s.h5", pixel_size=0.02, unit="mm")
+    res = measure_series(_frames(0.0, rng), [_frames(1e-3, rng)], lattice=LAT,
+                         output=spec)
+    assert (res.pixel_size, res.unit) == (0.02, "mm")
+    assert "rounded" in res.maps_precision
+    export_netcdf(res, tmp_path / "s.nc")
+    with h5py.File(tmp_path / "s.nc", "r") as h5:
+        assert not bool(h5.attrs["maps_lossless"])
+    exact = measure_series(_frames(0.0, rng), [_frames(1e-3, rng)], lattice=LAT,
+                           output=ResultFile(tmp_path / "e.h5", lossless=True))
+    assert exact.maps_precision is None
+    assert exact.pixel_size is None

@@ -409,3 +409,33 @@ def test_options_without_loads_are_refused(tmp_path, capsys):
     assert rc != 0
     assert "--loads-offset needs --loads" in capsys.readouterr().err
 
+
+
+# "name;value" lines a testing machine writes above its header: each a header-shaped
+# pair of text cells, some with numbers, units or dates in the value
+PREAMBLE = ["Probe;A1", "Prüfgeschwindigkeit;2 mm/min", "Prüfer;Müller",
+            "Datum;06.12.2026", "Prüfzeit;120 s", "Kraftaufnehmer;10 kN",
+            "Norm;DIN EN ISO 6892-1", "Temperatur;23 °C", "Vorkraft;5 N",
+            "Bemerkung;ohne"]
+
+
+@pytest.mark.parametrize("n", range(1, 11))
+@pytest.mark.parametrize("units_row", [False, True])
+def test_a_preamble_of_name_value_lines_is_never_the_header(tmp_path, n, units_row):
+    """1 to 10 ``name;value`` lines right above the header (no blank line between),
+    the units in the header or on a line of their own: the header is the real one,
+    the loads those written."""
+    t_ms, counts = _log()
+    head = (["Zeit;Standardkraft", "s;kN"] if units_row
+            else ["Zeit [s];Standardkraft [kN]"])
+    lines = PREAMBLE[:n] + head
+    for t, c in zip(t_ms.tolist(), counts.tolist(), strict=True):
+        lines.append(f"{t / 1000:.3f};{c / 10000:.4f}".replace(".", ","))
+    path = tmp_path / "preamble.csv"
+    path.write_bytes(("\r\n".join(lines) + "\r\n").encode("cp1252"))
+    table = read_loads(path, states=STATES, times=CAMERA, offset=OFFSET)
+    assert table.source["header_row"] == n + 1
+    assert table.source["load_column"] == "Standardkraft" + ("" if units_row else " [kN]")
+    assert table.unit == "kN"
+    np.testing.assert_allclose(table.load, _oracle(CAMERA, t_ms, counts), rtol=0,
+                               atol=ATOL_KN)

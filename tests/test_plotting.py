@@ -204,3 +204,28 @@ def test_derived_strains_drawn_in_percent_and_degrees(sheared):
     # the 530 valid pixels of two 2-frame 64 px states: e1 follows exx here)
     truth = np.array([1.0, 2.0]) * (0.5e-3 + np.hypot(1.0e-3, 0.4e-3))
     assert np.all(np.abs(p.e1 - truth) < 4 * p.e1_std)
+
+
+def test_finite_strains_drawn_as_maps_and_histories(sheared):
+    """The Green–Lagrange maps drawn are ``E = (H + H^T + H^T H) / 2`` of the stored
+    gradient (written here), the history's curve the gauge's finite strain."""
+    from gridstrain.post import gauge, plot_history, plot_states
+
+    res = sheared
+    exx, exy = np.asarray(res.exx), np.asarray(res.exy)
+    w = np.stack([np.asarray(m.rotation) for m in res.measurements])
+    gl_xx = exx + (exx**2 + (exy + w) ** 2) / 2
+    fig = plot_states(res, "gl_xx")
+    drawn = [ax.get_images()[1] for ax in fig.axes if len(ax.get_images()) == 2]
+    for k, im in enumerate(drawn):
+        valid = ~np.ma.getmaskarray(im.get_array())
+        # µε of the same float64 numbers: rounding only
+        assert_allclose(im.get_array().data[valid], 1e6 * gl_xx[k][valid], rtol=1e-12)
+    assert "µε" in fig.axes[-1].get_ylabel()
+    std = plot_states(res, "rotation_std")
+    assert "mrad" in std.axes[-1].get_ylabel()
+    fig = plot_history(res, names=("gl_xx", "log_xx"))
+    f = gauge(res, finite=True).finite_strains()
+    curves = [c.lines[0].get_ydata() for c in fig.axes[0].containers]  # the errorbars
+    assert_allclose(curves[0], 1e6 * f.Exx, rtol=1e-12)
+    assert_allclose(curves[1], 1e6 * f.Lxx, rtol=1e-12)

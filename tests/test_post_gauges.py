@@ -249,3 +249,102 @@ def test_gauge_command_writes_the_csv(series_file, tmp_path, capsys):
     # an existing file is refused without --overwrite: one line, exit 2
     assert main(["gauge", str(path), "-o", str(out)]) == 2
     assert "exists" in capsys.readouterr().err
+
+
+# ------------------------------------------------------------------ finite strains
+
+STRETCH, SHEAR = 0.02, 0.02  # large enough that E - eps = e^2 / 2 = 2e-4 is 30 std
+
+
+@pytest.fixture(scope="module")
+def finite_result():
+    """A uniaxial stretch ``x = (1 + e) X`` and a simple shear ``x = X + g Y`` of the
+    paper's grid model (eq. 1, pitch 5, 128 x 128 px, white noise of 5 grey levels),
+    measured with the Lagrangian correction (the default)."""
+    rng = np.random.default_rng(11)
+
+    def img(mapping):
+        y, x = np.mgrid[0:128, 0:128].astype(np.float64) - 64.0
+        X, Y = mapping(x, y)
+        return 2000.0 * (1 + 0.4 * np.cos(2 * np.pi * X / 5.0)
+                         + 0.4 * np.cos(2 * np.pi * Y / 5.0)) + rng.normal(0, 5.0, x.shape)
+
+    return measure_series(img(lambda x, y: (x, y)),
+                          [img(lambda x, y: (x / (1 + STRETCH), y)),
+                           img(lambda x, y: (x - SHEAR * y, y))],
+                          guess=None, noise_model=(1e-6, 25.0))
+
+
+def test_gauge_finite_strains_of_a_stretch_and_a_shear(finite_result):
+    r = gauge(finite_result, region=(32, 32, 96, 96), finite=True)
+    f = r.finite_strains()
+    e, g = STRETCH, SHEAR
+    # the exact finite strains: stretch E = e + e^2 / 2, L = ln(1 + e); simple shear
+    # E_yy = g^2 / 2, E_xy = g / 2, L's principal values +-asinh(g / 2)
+    want = {"Exx": (e + e * e / 2, 0.0), "Eyy": (0.0, g * g / 2), "Exy": (0.0, g / 2),
+            "Lxx": (np.log1p(e), None), "Lyy": (0.0, None)}
+    for name, values in want.items():
+        got, std = getattr(f, name), getattr(f, f"{name}_std")
+        assert np.all(std > 0), name
+        assert np.all(std < 2e-5), name  # the gauge's ~6e-6
+        for k, v in enumerate(values):
+            if v is not None:
+                # 5 std of the gauge's reading: the noise (the window's bias on a
+                # homogeneous field is below it); E - eps is 2e-4, 30 std
+                assert got[k] == pytest.approx(v, abs=5 * std[k]), (name, k)
+    rad = np.hypot((f.Lxx[1] - f.Lyy[1]) / 2, f.Lxy[1])
+    assert rad == pytest.approx(np.arcsinh(g / 2), abs=5 * float(f.Lxy_std[1]))
+    # the simple shear's rotation, -g / 2, read with the std of its mean
+    assert r.rotation[1] == pytest.approx(-g / 2, abs=5 * r.rotation_std[1])
+    # the columns and the table carry them
+    cols = r.columns(finite=True)
+    assert list(cols)[-12:] == [f"{n}{s} [-]" for n in ("gl_xx", "gl_yy", "gl_xy",
+                                                         "log_xx", "log_yy", "log_xy")
+                                for s in ("", "_std")]
+    assert "gl_xx [µε]" in r.table(finite=True)
+
+
+def test_finite_strain_maps_std_against_their_scatter(finite_result):
+    """The first-order std maps of the finite strains (from the uncertainty maps'
+    gradient noise) against the scatter of the maps of the homogeneous stretch."""
+    maps = finite_result.derived_maps(0)
+    valid = np.asarray(finite_result.valid[0])
+    for name in ("gl_xx", "gl_yy", "log_xx", "log_yy"):
+        predicted = np.sqrt(np.mean(maps[f"{name}_std"][valid] ** 2))
+        seen = np.std(maps[name][valid])
+        # ~100 independent window patches over the field: 7 % on a std, 3 x 7 %
+        assert 0.8 < predicted / seen < 1.25, (name, predicted / seen)
+    # the rotation's std map is exy's under the uncertainty maps' noise model
+    assert_allclose(maps["rotation_std"][valid],
+                    np.asarray(finite_result.uncertainty["exy_std"][0])[valid], rtol=1e-12)
+
+
+def test_an_eulerian_result_offers_no_finite_strains(finite_result):
+    import dataclasses
+
+    euler = dataclasses.replace(finite_result, lagrangian=False)
+    with pytest.raises(ValueError, match="lagrangian=False"):
+        euler.finite_strains(0)
+    with pytest.raises(ValueError, match="lagrangian=False"):
+        gauge(euler, finite=True)
+    with pytest.raises(ValueError, match="lagrangian=False"):
+        gauge(euler).finite_strains()
+    # asked of a gauge read without its rotation: says how to read it
+    with pytest.raises(ValueError, match=r"gauge\(\.\.\., finite=True\)"):
+        gauge(finite_result).finite_strains()
+    assert "gl_xx" not in euler.derived_maps(0)
+
+
+def test_cli_gauge_finite_columns(finite_result, tmp_path, capsys):
+    path = finite_result.save(tmp_path / "f.h5", lossless=True)
+    out = tmp_path / "g.csv"
+    assert main(["gauge", str(path), "--region", "32", "32", "96", "96", "--finite",
+                 "-o", str(out)]) == 0
+    printed = capsys.readouterr().out
+    assert "gl_xx [µε]" in printed
+    with open(out, newline="") as fh:
+        rows = list(csv.DictReader(fh))
+    f = gauge(finite_result, region=(32, 32, 96, 96), finite=True).finite_strains()
+    # 10 significant digits in the CSV: 1e-10 relative
+    assert_allclose([float(r["gl_xx [-]"]) for r in rows], f.Exx, rtol=1e-9)
+    assert_allclose([float(r["log_xy_std [-]"]) for r in rows], f.Lxy_std, rtol=1e-9)

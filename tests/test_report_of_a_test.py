@@ -173,3 +173,30 @@ def test_animate_draws_explicit_limits_in_the_colormap_given(tested, tmp_path):
     assert share > 0.05
     assert main(["animate", str(tested), "exx", "-o", str(tmp_path / "b.gif"), "--limits",
                  "explicit", "5", "1"]) == 2
+
+
+def test_report_of_several_gauges_side_by_side(tested, tmp_path):
+    """``--region`` repeated: one table with each gauge's columns, each gauge's E and
+    nu from its own fit (the oracle: the gauge of that region alone)."""
+    regions = [(20.0, 20.0, 48.0, 76.0), (48.0, 20.0, 76.0, 76.0)]
+    out = tmp_path / "two.html"
+    argv = ["report", str(tested), "-o", str(out), "--area", str(AREA)]
+    for r in regions:
+        argv += ["--region", *map(str, r)]
+    assert main(argv) == 0
+    page = out.read_text(encoding="utf-8")
+    text = _text(page)
+    res = load(tested)
+    for g, r in enumerate(regions, start=1):
+        reading = gauge(res, region=r)
+        c = elastic_constants(reading, area=AREA)
+        k, unit = modulus_unit(c.E, c.stress_unit)
+        assert f"Young's modulus E (G{g}) {c.E * k:.4g} {unit}" in " ".join(text.split())
+        assert f'alt="stress-strain plot (G{g})"' in page
+        # the gauge's strain of the last state, in its own column
+        assert f"G{g} ε_xx (µε)" in text
+        # shown to the std's second significant digit: "1443 ± 12"
+        v, sd = reading.exx[-1] * 1e6, reading.exx_std[-1] * 1e6
+        d = max(0, 1 - int(np.floor(np.log10(sd))))
+        assert f"{v:.{d}f} ± {sd:.{d}f}" in text
+    assert "G1, gauge over x in [20, 48)" in " ".join(text.split())

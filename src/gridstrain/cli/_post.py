@@ -183,4 +183,4 @@ def gauge_of(args, result, ps, unit, ld, lu, t, **extra):
 
     return gauge(result, region=args.region, point=args.point,
                  polygon=polygon_option(args.polygon), pixel_size=ps, unit=unit,
-                 load=ld, load_unit=lu, time=t, **extra)
+                 px=ps is None, load=ld, load_unit=lu, time=t, **extra)

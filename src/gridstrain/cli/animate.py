@@ -26,8 +26,10 @@ def register(sub) -> None:
         "an MP4 (PyAV: pip install 'gridstrain[video]'), on colour limits fixed over all "
         "the states, with each state's name, time and load in its frame.")
     add_result_options(p)
-    p.add_argument("quantity", help="ux, uy, exx, eyy, exy, rotation, exx_std..., or the "
-                   "derived e1, e2, principal_angle, equivalent, max_shear")
+    p.add_argument("quantity", help="ux, uy, exx, eyy, exy, rotation, exx_std..., the "
+                   "derived e1, e2, principal_angle, equivalent, max_shear, or the finite "
+                   "strains gl_xx, gl_yy, gl_xy (Green-Lagrange), log_xx, log_yy, log_xy "
+                   "(logarithmic), gl_xx_std...")
     p.add_argument("-o", "--output", required=True, metavar="FILE.mp4|FILE.gif",
                    help="the animation; its extension chooses the format")
     p.add_argument("--fps", type=float, default=5.0, help="states per second (default 5)")
@@ -54,7 +56,7 @@ def run(args) -> int:
     check_output_file(out, "animation", args.overwrite, {src.resolve()})
     try:
         path = animate(result, args.quantity, out, fps=args.fps, limits=limits, cmap=cmap,
-                       pixel_size=ps, unit=unit, load=ld, load_unit=lu, time=t,
+                       pixel_size=ps, unit=unit, px=ps is None, load=ld, load_unit=lu, time=t,
                        dpi=args.dpi, strain_units=args.strain_units,
                        overwrite=args.overwrite)
     except ImportError as exc:  # the optional video writer: one line naming the extra

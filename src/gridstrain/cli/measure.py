@@ -635,6 +635,8 @@ def _run(args, progress: _Bar) -> int:
         result = measure_series(
             None if opts.get("reference-frames") is not None else reference, states,
             options)
+    if ps is not None:  # the result carries its file's pixel size (and the outputs use it)
+        result = dataclasses.replace(result, pixel_size=ps, unit=unit)
     if spec is None:
         _refuse_empty(result)
         out = save_result(result, opts["output"], pixel_size=ps, unit=unit,

@@ -37,7 +37,9 @@ def register(sub) -> None:
     p.add_argument("--maps", default="ux,uy,exx,eyy,exy,rotation", metavar="NAMES",
                    help="comma-separated quantities (ux, uy, exx, eyy, exy, rotation, "
                    "exx_std..., and the derived e1, e2, principal_angle, equivalent, "
-                   "max_shear, e1_std...; default ux,uy,exx,eyy,exy,rotation)")
+                   "max_shear, e1_std..., the finite strains gl_xx, gl_yy, gl_xy "
+                   "(Green-Lagrange), log_xx, log_yy, log_xy (logarithmic), gl_xx_std..., "
+                   "rotation_std; default ux,uy,exx,eyy,exy,rotation)")
     add_colour_options(p)
     p.add_argument("--strain-units", choices=("microstrain", "%", "1"),
                    default="microstrain",
@@ -74,13 +76,13 @@ def run(args) -> int:
     micro = args.strain_units
     figures = {f"{n}.{args.format}": (lambda n=n: plot_states(
         result, n, limits=limits, cmap=cmap, microstrain=micro, pixel_size=ps,
-        unit=unit))
+        unit=unit, px=ps is None))
         for n in names}
     # drawn first: a place outside the field, or with no valid pixel, is refused
     # before the maps are drawn
     history = plot_history(result, point=args.point, region=args.region,
                            microstrain=micro, load=ld, load_unit=lu, time=t, pixel_size=ps,
-                           unit=unit)
+                           unit=unit, px=ps is None)
     figures[f"history.{args.format}"] = lambda: history
     # only figures gridstrain wrote there are replaced (the folder's marker lists them)
     directory = OutputDirectory(out, list(figures), overwrite=args.overwrite,

@@ -25,8 +25,10 @@ def register(sub) -> None:
     g = p.add_argument_group("the test (with loads; coordinates in the file's physical "
                              "unit when it has a pixel size, else px; --px forces px)")
     g.add_argument("--region", type=float, nargs=4, metavar=("X0", "Y0", "X1", "Y1"),
-                   help="the gauge: mean over the rectangle x0 <= x < x1, y0 <= y < y1 "
-                   "(default: the whole valid region)")
+                   action="append",
+                   help="a gauge: mean over the rectangle x0 <= x < x1, y0 <= y < y1 "
+                   "(default: the whole valid region); repeated, several gauges G1, "
+                   "G2... side by side in the table, each with its plots and E, nu")
     g.add_argument("--px", action="store_true",
                    help="--region in px even when the file has a pixel size")
     g.add_argument("--area", type=float, metavar="A",
@@ -52,7 +54,8 @@ def run(args) -> int:
     src = Path(os.path.expanduser(args.result))
     out = Path(os.path.expanduser(args.output)) if args.output else src.with_suffix(".html")
     check_output_file(out, "report file", args.overwrite, {src.resolve()})
-    print(write_report(src, out, overwrite=args.overwrite, region=args.region, px=args.px,
+    region = args.region if args.region is None or len(args.region) > 1 else args.region[0]
+    print(write_report(src, out, overwrite=args.overwrite, region=region, px=args.px,
                        area=args.area, area_unit=args.area_unit, axis=args.axis,
                        limits=limits, cmap=cmap))
     return 0

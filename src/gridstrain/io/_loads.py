@@ -193,6 +193,14 @@ def _is_data(fields: list[str], n: int, text_columns: set[int]) -> bool:
         not f or _is_number(f) or k in text_columns for k, f in enumerate(fields))
 
 
+def _is_unit_like(cell: str) -> bool:
+    """Whether a cell of a line of units can be a unit: empty, or one short token
+    (``kN``, ``[s]``, ``µm/m``, ``°C``), no number."""
+    t = _unit_cell(cell)
+    return t is None or (len(t) <= 8 and not any(c.isspace() for c in t)
+                         and not _is_number(t))
+
+
 def _find_layout(lines: list[tuple[int, str]], p) -> _Layout:
     """The delimiter, header, line of units and rows of values (module docstring)."""
     head = lines[:2000]  # a preamble is tens of lines, never thousands
@@ -209,15 +217,22 @@ def _find_layout(lines: list[tuple[int, str]], p) -> _Layout:
             text_columns = {k for k, f in enumerate(cells) if f.lower() == "state"}
             j = i + 1
             units = None
-            if _is_text(fields[j]) and len(fields[j]) == n and j + 1 < len(head):
+            # a line of units holds units only ("s;kN"), never a header's names with
+            # their units ("Zeit [s];Kraft [kN]"), which a preamble line would take
+            if _is_text(fields[j]) and len(fields[j]) == n and j + 1 < len(head) and \
+                    all(_is_unit_like(f) for f in fields[j]):
                 units, j = fields[j], j + 1
             run = 0
             while j + run < len(head) and _is_data(fields[j + run], n, text_columns):
                 run += 1
             # a preamble of "name;value" pairs looks like a header and its rows: the
-            # header is the one with the longest run of rows below it
-            if run and (best is None or run > best[0]):
-                best = (run, i, cells, units, j)
+            # header is the one with the longest run of rows below it; of two with one
+            # run (a header and its line of units, or a preamble line taking the
+            # header for its units), the one naming a load or a time column
+            names = sum(_looks_like(k, _name_and_unit(c)[0]) for c in cells
+                        for k in ("load", "time"))
+            if run and (best is None or (run, names) > best[0]):
+                best = ((run, names), i, cells, units, j)
         if best is not None:
             _, i, cells, units, j = best
             return _Layout(delimiter, head[i][0], cells, units, lines[j:])

@@ -25,6 +25,7 @@ from ._deformation import eulerian_gradient as eulerian_gradient
 from ._deformation import small_strain as small_strain
 from ._derived import (
     DERIVED_STRAINS,
+    FINITE_COMPONENTS,
     FiniteStrains,
     PrincipalStrains,
     finite_strains,
@@ -50,6 +51,7 @@ from ._pair_match import PairMatch, pair_match
 
 __all__ = [
     "DERIVED_STRAINS",
+    "FINITE_COMPONENTS",
     "FRINGE_ORDER_SOURCES",
     "CoarseEstimate",
     "Discontinuities",

@@ -15,7 +15,8 @@ import numpy as np
 
 from .._validation import as_float_array, float_dtype, freeze_arrays
 
-__all__ = ["FiniteStrains", "PrincipalStrains", "finite_strains", "principal_strains"]
+__all__ = ["FINITE_COMPONENTS", "FiniteStrains", "PrincipalStrains", "finite_strains",
+           "principal_strains"]
 
 #: The derived strains of :func:`principal_strains`, with their units.
 DERIVED_STRAINS = {"e1": "1", "e2": "1", "principal_angle": "rad", "equivalent": "1",
@@ -182,6 +183,9 @@ class FiniteStrains:
         Green–Lagrange strain ``E = (F^T F - I) / 2``, dimensionless (tensor shear).
     Lxx, Lyy, Lxy : ndarray
         Lagrangian logarithmic strain ``ln U = ln(F^T F) / 2``, dimensionless.
+    Exx_std, ..., Lxy_std : ndarray or None
+        First-order standard deviations (see :func:`finite_strains`); None when no std
+        of the gradient was given.
     """
 
     Exx: np.ndarray
@@ -190,12 +194,81 @@ class FiniteStrains:
     Lxx: np.ndarray
     Lyy: np.ndarray
     Lxy: np.ndarray
+    Exx_std: np.ndarray | None = None
+    Eyy_std: np.ndarray | None = None
+    Exy_std: np.ndarray | None = None
+    Lxx_std: np.ndarray | None = None
+    Lyy_std: np.ndarray | None = None
+    Lxy_std: np.ndarray | None = None
 
     def __post_init__(self):
         freeze_arrays(self)
 
 
-def finite_strains(exx, eyy, exy, rotation) -> FiniteStrains:
+#: The finite strains' components, by :class:`FiniteStrains` field.
+FINITE_COMPONENTS = ("Exx", "Eyy", "Exy", "Lxx", "Lyy", "Lxy")
+
+# Below this t = 2 h / c, (t / (1 - t^2) - atanh t) / t^3 by its series 2/3 + 4 t^2 / 5
+# + 6 t^4 / 7 (next term 8 t^6 / 9: 1e-12 relative), where the closed form cancels.
+_SERIES_T = 1e-2
+
+
+def _finite(xx, h01, h10, yy):
+    """The six components from the gradient ``[[xx, h01], [h10, yy]]`` (float64)."""
+    Exx = xx + (xx**2 + h10**2) / 2
+    Eyy = yy + (h01**2 + yy**2) / 2
+    Exy = (h01 + h10) / 2 + (xx * h01 + h10 * yy) / 2
+    # C = I + 2 E: its eigenvalues 1 + 2 (m +- h), m and h E's centre and radius
+    m, h = (Exx + Eyy) / 2, np.hypot((Exx - Eyy) / 2, Exy)
+    c2 = 1 + 2 * (m - h)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        f1, f2 = np.log1p(2 * (m + h)) / 2, np.log1p(2 * (m - h)) / 2
+        # (f1 - f2) / (c1 - c2) = log1p((c1 - c2) / c2) / (2 (c1 - c2)): no cancellation,
+        # and 1 / (2 c2) = f'(c) as h -> 0
+        slope = np.where(h > 0, np.log1p(4 * h / c2) / (8 * h), 1 / (2 * c2))
+    iso = (f1 + f2) / 2
+    return (Exx, Eyy, Exy, iso + slope * 2 * (Exx - m), iso + slope * 2 * (Eyy - m),
+            slope * 2 * Exy)
+
+
+def _log_jacobian(Exx, Eyy, Exy) -> dict:
+    """``d(Lxx, Lyy, Lxy) / d(Exx, Eyy, Exy)`` of :func:`_finite`'s closed form, as
+    ``{L: {E: array}}``.
+
+    With ``c = 1 + 2 m``, ``c1,2 = c +- 2 h`` (``C``'s eigenvalues), ``D = Exx - Eyy``
+    and ``P = D dD / 4 + Exy dExy`` (``h dh``): ``iso = (ln c1 + ln c2) / 4`` and
+    ``slope = atanh(t) / (4 h)``, ``t = 2 h / c``, so that ``d iso = (1/c1 + 1/c2) / 2
+    dm - 2 P / (c1 c2)`` and ``d slope = -dm / (c1 c2) + (2 / c^3) Q P``, ``Q = (t / (1 -
+    t^2) - atanh t) / t^3``: every term finite where ``h = 0`` (an equal biaxial
+    state, no strain), ``Q`` by its series there.
+    """
+    m, D = (Exx + Eyy) / 2, Exx - Eyy
+    h = np.hypot(D / 2, Exy)
+    c = 1 + 2 * m
+    c1, c2 = c + 2 * h, c - 2 * h
+    t = 2 * h / c
+    with np.errstate(divide="ignore", invalid="ignore"):
+        slope = np.where(h > 0, np.log1p(4 * h / c2) / (8 * h), 1 / (2 * c2))
+        closed = (t / (1 - t * t) - np.arctanh(t)) / t**3
+    t2 = t * t
+    Q = np.where(np.abs(t) < _SERIES_T, 2 / 3 + t2 * (4 / 5 + t2 * 6 / 7), closed)
+    inv12 = 1 / (c1 * c2)
+    iso_m = (1 / c1 + 1 / c2) / 2
+    slope_P = 2 * Q / c**3
+    # per E component: dm, dD, dP, dExy
+    parts = {"Exx": (0.5, 1.0, D / 4, 0.0), "Eyy": (0.5, -1.0, -D / 4, 0.0),
+             "Exy": (0.0, 0.0, Exy, 1.0)}
+    out = {"Lxx": {}, "Lyy": {}, "Lxy": {}}
+    for e, (dm, dD, dP, dxy) in parts.items():
+        d_iso = iso_m * dm - 2 * inv12 * dP
+        d_slope = -inv12 * dm + slope_P * dP
+        out["Lxx"][e] = d_iso + D * d_slope + slope * dD
+        out["Lyy"][e] = d_iso - D * d_slope - slope * dD
+        out["Lxy"][e] = 2 * Exy * d_slope + 2 * slope * dxy
+    return out
+
+
+def finite_strains(exx, eyy, exy, rotation, *, gradient_std=None) -> FiniteStrains:
     """Green–Lagrange and logarithmic strains from the small-strain tensor and rotation.
 
     Parameters
@@ -205,6 +278,11 @@ def finite_strains(exx, eyy, exy, rotation) -> FiniteStrains:
         dimensionless, as :func:`gridstrain.kinematics.measure` gives it.
     rotation : array_like, same shape
         Its antisymmetric part ``omega = (du_y/dx - du_x/dy) / 2``, rad.
+    gradient_std : 4 array_like of that shape, optional
+        The standard deviations of ``du_x/dx``, ``du_x/dy``, ``du_y/dx``, ``du_y/dy``,
+        their noises taken as uncorrelated: gives the ``*_std`` (see Notes).
+        :meth:`gridstrain.results.SeriesResult.finite_strains` gives those of its
+        uncertainty maps.
 
     Returns
     -------
@@ -226,8 +304,14 @@ def finite_strains(exx, eyy, exy, rotation) -> FiniteStrains:
     a rigid rotation, however large, gives zero; a uniaxial stretch ``1 + e`` gives ``e
     + e^2 / 2`` and ``ln(1 + e)``. Only in-plane components are given (the out-of-plane
     stretch is not measured). These are meaningful when the displacement was measured
-    with the large-displacement correction (``lagrangian=True``); no std is given (the
-    rotation has no std map).
+    with the large-displacement correction (``lagrangian=True``).
+
+    The std are propagated to first order from the gradient's, ``var(f) = sum_k
+    (df/dH_k)^2 s_k^2``: in closed form for Green–Lagrange (``dExx = (1 + H_xx) dH_xx
+    + H_yx dH_yx``...), and through it for the logarithmic strain, whose derivative in
+    ``E`` is in closed form too (finite where ``C``'s two eigenvalues meet). First
+    order holds while the std are small against 1 (always, for a strain measured to
+    1e-4).
 
     Examples
     --------
@@ -242,21 +326,35 @@ def finite_strains(exx, eyy, exy, rotation) -> FiniteStrains:
     dtype = np.result_type(dtype, float_dtype(w.dtype))
     w = w.astype(np.float64, copy=False)
     h01, h10 = xy - w, xy + w
-    Exx = xx + (xx**2 + h10**2) / 2
-    Eyy = yy + (h01**2 + yy**2) / 2
-    Exy = xy + (xx * h01 + h10 * yy) / 2
-    # C = I + 2 E: its eigenvalues 1 + 2 (m +- h), m and h E's centre and radius
-    m, h = (Exx + Eyy) / 2, np.hypot((Exx - Eyy) / 2, Exy)
-    c2 = 1 + 2 * (m - h)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        f1, f2 = np.log1p(2 * (m + h)) / 2, np.log1p(2 * (m - h)) / 2
-        # (f1 - f2) / (c1 - c2) = log1p((c1 - c2) / c2) / (2 (c1 - c2)): no cancellation,
-        # and 1 / (2 c2) = f'(c) as h -> 0
-        slope = np.where(h > 0, np.log1p(4 * h / c2) / (8 * h), 1 / (2 * c2))
-    iso = (f1 + f2) / 2
-    Lxx = iso + slope * 2 * (Exx - m)
-    Lyy = iso + slope * 2 * (Eyy - m)
-    Lxy = slope * 2 * Exy
-    return FiniteStrains(**{k: np.asarray(v, dtype=dtype) for k, v in
-                            {"Exx": Exx, "Eyy": Eyy, "Exy": Exy, "Lxx": Lxx, "Lyy": Lyy,
-                                 "Lxy": Lxy}.items()})
+    grad = (xx, h01, h10, yy)
+    values = _finite(*grad)
+    out = dict(zip(FINITE_COMPONENTS, values, strict=True))
+    if gradient_std is not None:
+        if len(gradient_std) != 4:
+            raise ValueError(f"gradient_std must be the 4 std of du_x/dx, du_x/dy, "
+                             f"du_y/dx, du_y/dy, got {len(gradient_std)} value(s)")
+        stds = []
+        for k, sk in enumerate(gradient_std):
+            a = as_float_array(sk, f"gradient_std[{k}]")
+            if a.shape != xx.shape:
+                raise ValueError(f"gradient_std[{k}] must have the shape of exx "
+                                 f"{xx.shape}, got {a.shape}")
+            dtype = np.result_type(dtype, float_dtype(a.dtype))
+            stds.append(a.astype(np.float64, copy=False))
+        xx_, h01_, h10_, yy_ = grad
+        # Green–Lagrange: d(E) / d(H_xx, H_xy, H_yx, H_yy) in closed form
+        jac = {"Exx": (1 + xx_, 0, h10_, 0), "Eyy": (0, h01_, 0, 1 + yy_),
+               "Exy": (h01_ / 2, (1 + xx_) / 2, (1 + yy_) / 2, h10_ / 2)}
+        for name in ("Exx", "Eyy", "Exy"):
+            out[f"{name}_std"] = np.sqrt(sum(np.square(j * sk) for j, sk in
+                                             zip(jac[name], stds, strict=True)))
+        # the log strain: d(L) / d(E) (_log_jacobian) times d(E) / d(H)
+        dL = _log_jacobian(out["Exx"], out["Eyy"], out["Exy"])
+        for name in ("Lxx", "Lyy", "Lxy"):
+            var = 0.0
+            for k, sk in enumerate(stds):
+                g = sum(dL[name][e] * jac[e][k] for e in ("Exx", "Eyy", "Exy"))
+                var = var + np.square(g * sk)
+            out[f"{name}_std"] = np.sqrt(var)
+    return FiniteStrains(**{k: np.asarray(v, dtype=dtype) for k, v in out.items()})
+

@@ -6,9 +6,10 @@ from pathlib import Path
 
 import numpy as np
 
-from .._validation import as_path, check_choice, check_pixel_size, check_positive, check_type
+from .._validation import as_path, check_choice, check_positive, check_type
 from ..io import atomic_path
 from ..results import SeriesResult, state_loads
+from ._places import drawn_in
 
 FORMATS = (".gif", ".mp4")
 _VIDEO_EXTRA = "MP4 needs PyAV: pip install 'gridstrain[video]'"
@@ -25,7 +26,8 @@ def _frame_text(name, i, load, load_unit, time) -> str:
 
 def animate(result: SeriesResult, name: str, path, *, fps: float = 5.0,
             limits="robust", cmap: str | None = None, pixel_size: float | None = None,
-            unit: str | None = None, load=None, load_unit: str | None = None, time=None,
+            unit: str | None = None, px: bool = False, load=None,
+            load_unit: str | None = None, time=None,
             dpi: float = 100, strain_units: str = "microstrain", overwrite: bool = False,
             progress=None) -> Path:
     """Write an animation of one quantity over the states, on fixed colour limits.
@@ -48,7 +50,10 @@ def animate(result: SeriesResult, name: str, path, *, fps: float = 5.0,
     cmap : str, optional
         A matplotlib colormap; default :func:`gridstrain.post.map_norm`'s choice.
     pixel_size, unit : float, str, optional
-        Displacements and the axes in ``unit`` (px without).
+        Displacements and the axes in ``unit``; default the result's own
+        (:attr:`SeriesResult.pixel_size`), px for a result without one.
+    px : bool
+        In px, even for a result with a pixel size.
     load, load_unit, time : optional
         Shown in each frame's title (default: the result's own).
     dpi : float
@@ -92,7 +97,7 @@ def animate(result: SeriesResult, name: str, path, *, fps: float = 5.0,
             import av  # noqa: F401
         except ImportError:
             raise ImportError(_VIDEO_EXTRA) from None
-    ps, unit = check_pixel_size(pixel_size, unit)
+    ps, unit = drawn_in(result, pixel_size=pixel_size, unit=unit, px=px)
     load, load_unit, time = state_loads(result, load=load, load_unit=load_unit, time=time)
     def values_of(i):
         # in the unit the figures draw (µε, mrad, degrees, the length unit)

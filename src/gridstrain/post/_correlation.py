@@ -48,6 +48,7 @@ import scipy.fft as sfft
 _RADIUS_SIGMAS = 8.0
 
 _COMPONENTS = {"exx": (0, 0), "eyy": (1, 1), "exy": (0, 1)}
+_GRADIENT = {"uxy": (0, 1), "uyx": (1, 0)}
 
 
 def _grid(sigma: float):
@@ -62,17 +63,30 @@ def displacement_correlation(sigma: float, d2) -> np.ndarray:
 
 
 def strain_kernel(lattice, sigma: float, component: str) -> np.ndarray:
-    """``(2R+1, 2R+1)`` correlation of the noise of a strain component, 1 at its centre."""
+    """``(2R+1, 2R+1)`` correlation of the noise of a strain component, 1 at its centre.
+
+    ``component``: ``exx``, ``eyy``, ``exy``; or a component of the displacement
+    gradient ``uxy`` (``du_x/dy``), ``uyx`` (``du_y/dx``), or the ``rotation``
+    ``(du_y/dx - du_x/dy) / 2``: each a sum of the phases' derivatives along the
+    vectors ``c_n`` of the module's docstring.
+    """
     minv = np.linalg.inv(np.array([lattice.k1, lattice.k2], dtype=np.float64))
-    i, j = _COMPONENTS[component]
     dx, dy = _grid(sigma)
     base = np.exp(-(dx * dx + dy * dy) / (4.0 * sigma * sigma))
     total = np.zeros_like(base)
     weight = 0.0
     for n in range(2):
         c = np.zeros(2)
-        c[j] += minv[i, n] / 2
-        c[i] += minv[j, n] / 2
+        if component in _COMPONENTS:
+            i, j = _COMPONENTS[component]
+            c[j] += minv[i, n] / 2
+            c[i] += minv[j, n] / 2
+        elif component == "rotation":
+            c[0] += minv[1, n] / 2
+            c[1] -= minv[0, n] / 2
+        else:  # du_i/dx_j
+            i, j = _GRADIENT[component]
+            c[j] += minv[i, n]
         w = float(c @ c)
         if w == 0.0:
             continue

@@ -8,10 +8,16 @@ from dataclasses import dataclass
 import numpy as np
 
 from .._validation import check_type, freeze_arrays
-from ..kinematics import DERIVED_STRAINS, PrincipalStrains, principal_strains
-from ..results import SeriesResult, state_loads
+from ..kinematics import (
+    DERIVED_STRAINS,
+    FiniteStrains,
+    PrincipalStrains,
+    finite_strains,
+    principal_strains,
+)
+from ..results import FINITE_FIELDS, SeriesResult, state_loads
 from . import _correlation
-from ._places import frame_of, place_mask, points_px, refuse_empty
+from ._places import place_mask, points_px, refuse_empty, result_frame
 from ._units import strain_scale
 
 _STRAINS = ("exx", "eyy", "exy")
@@ -52,6 +58,13 @@ class GaugeReading:
         image (:func:`reference_share`): common to every state, it moves all the
         readings together, so it cancels in differences between states, slopes
         and rates. None where the result does not tell.
+    rotation, rotation_std : (n_states,) float64 ndarray or None
+        Mean rotation ``(du_y/dx - du_x/dy) / 2`` over the gauge and its std, rad; read
+        with ``gauge(..., finite=True)`` from a result measured with the Lagrangian
+        correction, else None.
+    gradient_std : (n_states, 4) float64 ndarray or None
+        Std of the mean ``du_x/dx``, ``du_x/dy``, ``du_y/dx``, ``du_y/dy``: what
+        :meth:`finite_strains` propagates.
     """
 
     states: tuple[str, ...]
@@ -74,9 +87,36 @@ class GaugeReading:
     extensometer_std: np.ndarray | None = None
     extensometer_where: str | None = None
     reference_share: np.ndarray | None = None
+    rotation: np.ndarray | None = None
+    rotation_std: np.ndarray | None = None
+    gradient_std: np.ndarray | None = None
+    lagrangian: bool = True
 
     def __post_init__(self):
         freeze_arrays(self)
+
+    def finite_strains(self) -> FiniteStrains:
+        """The Green–Lagrange and logarithmic strains of the gauge's mean displacement
+        gradient in each state, with their first-order std
+        (:func:`gridstrain.kinematics.finite_strains`): of the mean gradient, as
+        :meth:`principal_strains` is of the mean tensor; NaN std without uncertainty
+        maps.
+
+        Raises
+        ------
+        ValueError
+            The gauge's result was measured with ``lagrangian=False``.
+        """
+        if self.rotation is None and not self.lagrangian:
+            raise ValueError("the finite strains need the Lagrangian displacement "
+                             "gradient, and this gauge's result was measured with "
+                             "lagrangian=False (measure --no-lagrangian)")
+        if self.rotation is None:
+            raise ValueError("the finite strains need the gauge's mean rotation: read "
+                             "the gauge with gauge(..., finite=True) (gauge --finite)")
+        g = self.gradient_std
+        return finite_strains(self.exx, self.eyy, self.exy, self.rotation,
+                              gradient_std=None if g is None else tuple(g.T))
 
     def principal_strains(self) -> PrincipalStrains:
         """The principal strains ``e1``, ``e2``, their angle, the equivalent strain and
@@ -91,11 +131,14 @@ class GaugeReading:
         return principal_strains(self.exx, self.eyy, self.exy, exx_std=self.exx_std,
                                  eyy_std=self.eyy_std, exy_std=self.exy_std)
 
-    def columns(self, *, derived: bool = False) -> dict[str, np.ndarray]:
+    def columns(self, *, derived: bool = False, finite: bool = False
+                ) -> dict[str, np.ndarray]:
         """The table, column by column, each name followed by its unit in brackets.
 
         With ``derived``, the columns of :meth:`principal_strains` after ``exy``:
-        ``e1 [-]``, ``e1_std [-]``... ``principal_angle [rad]``...
+        ``e1 [-]``, ``e1_std [-]``... ``principal_angle [rad]``...; with ``finite``,
+        those of :meth:`finite_strains`: ``gl_xx [-]``, ``gl_xx_std [-]``...
+        ``log_xy_std [-]``.
         """
         cols: dict[str, np.ndarray] = {"state": np.array(self.states, dtype=str)}
         if self.load is not None:
@@ -111,12 +154,18 @@ class GaugeReading:
                 unit = "-" if unit == "1" else unit
                 cols[f"{name} [{unit}]"] = getattr(p, name)
                 cols[f"{name}_std [{unit}]"] = getattr(p, f"{name}_std")
+        if finite:
+            f = self.finite_strains()
+            for name, attr in FINITE_FIELDS.items():
+                cols[f"{name} [-]"] = getattr(f, attr)
+                cols[f"{name}_std [-]"] = getattr(f, f"{attr}_std")
         if self.extensometer is not None:
             cols["extensometer [-]"] = self.extensometer
             cols["extensometer_std [-]"] = self.extensometer_std
         return cols
 
-    def to_csv(self, path, *, derived: bool = False, overwrite: bool = False):
+    def to_csv(self, path, *, derived: bool = False, finite: bool = False,
+               overwrite: bool = False):
         """Write :meth:`columns` to a CSV file, atomically; returns its path.
 
         Floats with 10 significant digits: a strain to 1e-10, far below any noise.
@@ -124,10 +173,11 @@ class GaugeReading:
         """
         from ..io import write_csv
 
-        return write_csv(path, self.columns(derived=derived), overwrite=overwrite,
-                         digits=10)
+        return write_csv(path, self.columns(derived=derived, finite=finite),
+                         overwrite=overwrite, digits=10)
 
-    def table(self, *, strain_units: str = "microstrain", derived: bool = False) -> str:
+    def table(self, *, strain_units: str = "microstrain", derived: bool = False,
+              finite: bool = False) -> str:
         """The readings as a fixed-width text table.
 
         Parameters
@@ -138,11 +188,13 @@ class GaugeReading:
         derived : bool
             Also the principal strains, their angle (degrees), the equivalent strain
             and the maximum shear (:meth:`principal_strains`).
+        finite : bool
+            Also the Green–Lagrange and logarithmic strains (:meth:`finite_strains`).
         """
         factor, label = strain_scale(strain_units)
         # a tenth of a microstrain in every unit: below any noise floor
         decimals = {1e6: 1, 100.0: 5, 1.0: 7}[factor]
-        cols = self.columns(derived=derived)
+        cols = self.columns(derived=derived, finite=finite)
         head, rows = [], []
         for key, arr in cols.items():
             if key.startswith("state"):
@@ -194,17 +246,25 @@ class GaugeReading:
                                                       f"{name} of the mean strain tensor"})
             data[f"{name}_std"] = ("state", getattr(p, f"{name}_std"),
                                    {"units": unit, "long_name": f"first-order std of {name}"})
+        if self.rotation is not None:
+            f = self.finite_strains()
+            for name, attr in FINITE_FIELDS.items():
+                data[name] = ("state", getattr(f, attr), {"units": "1", "long_name":
+                              f"{name} of the mean displacement gradient"})
+                data[f"{name}_std"] = ("state", getattr(f, f"{attr}_std"),
+                                       {"units": "1", "long_name": f"first-order std of "
+                                                                   f"{name}"})
         for name in ("ux", "uy"):
             data[name] = ("state", getattr(self, name), {"units": "px"})
             data[f"{name}_std"] = ("state", getattr(self, f"{name}_std"), {"units": "px"})
         return xr.Dataset(data, coords=coords, attrs={"gauge": self.where})
 
-    def to_pandas(self, *, derived: bool = False):
+    def to_pandas(self, *, derived: bool = False, finite: bool = False):
         """The table as a ``pandas.DataFrame`` indexed by state (needs pandas);
-        ``derived`` as for :meth:`columns`."""
+        ``derived`` and ``finite`` as for :meth:`columns`."""
         import pandas as pd
 
-        cols = self.columns(derived=derived)
+        cols = self.columns(derived=derived, finite=finite)
         return pd.DataFrame({k: v for k, v in cols.items() if k != "state"},
                             index=pd.Index(cols["state"], name="state"))
 
@@ -270,8 +330,9 @@ def _extensometer(result, i, p0, p1, unc):
 
 
 def gauge(result: SeriesResult, *, region=None, point=None, polygon=None,
-          extensometer=None, pixel_size: float | None = None, unit: str | None = None,
-          load=None, load_unit: str | None = None, time=None) -> GaugeReading:
+          extensometer=None, unit: str | None = None, px: bool = False,
+          pixel_size: float | None = None, load=None, load_unit: str | None = None,
+          time=None, finite: bool = False) -> GaugeReading:
     """Mean strain over a region of every state, with its standard deviation.
 
     Parameters
@@ -288,14 +349,29 @@ def gauge(result: SeriesResult, *, region=None, point=None, polygon=None,
     extensometer : (x0, y0, x1, y1) floats, optional
         Two points whose distance is followed: engineering strain ``(l - L) / L``
         from the displacements interpolated (bilinear) at the points.
-    pixel_size, unit : float, str, optional
-        Coordinates above are in ``unit`` (pixel ``x`` at ``x * pixel_size``): give
-        those of the result's file (:func:`gridstrain.results.read_attrs`) to name
-        places in its physical unit, as the command line does; px without them.
-        The rule is written once, in :mod:`gridstrain.post._places`.
+    unit : str, optional
+        The coordinates above are in ``unit``, the result's length unit (``"mm"``:
+        :attr:`SeriesResult.unit`, pixel ``x`` at ``x * result.pixel_size``), as the
+        command line reads them.
+    px : bool
+        The coordinates above are in px.
+    pixel_size : float, optional
+        With ``unit``, for a result that carries no pixel size (one that carries
+        another is refused).
+
+        A place on a result that has a pixel size must say its unit (``unit=`` or
+        ``px=True``): a call without either is refused, naming both, rather than read
+        in a unit its author may not have meant (px before results carried their
+        pixel size). On a result without one, places are px. The rule is written
+        once, in :mod:`gridstrain.post._places`.
     load, time : (n_states,) array_like, optional
         The load (in ``load_unit``) and the time (s) of each loaded state.
         Default: the result's own ``load``, ``load_unit`` and ``time``, if any.
+    finite : bool
+        Also read the mean rotation and the std of the mean displacement gradient,
+        for :meth:`GaugeReading.finite_strains` (three more double sums per state:
+        a gauge takes half as long again). Refused for a result measured with
+        ``lagrangian=False``.
 
     Returns
     -------
@@ -320,7 +396,9 @@ def gauge(result: SeriesResult, *, region=None, point=None, polygon=None,
     variance is ``reference_share``).
     """
     check_type(result, "result", SeriesResult)
-    frame = frame_of(result.shape, pixel_size=pixel_size, unit=unit)
+    frame = result_frame(result, pixel_size=pixel_size, unit=unit, px=px, places=(
+        ("region", region), ("point", point), ("polygon", polygon),
+        ("extensometer", extensometer)))
     mask, where = place_mask(frame, region=region, point=point, polygon=polygon)
     where = f"gauge over {where}" if point is None else f"gauge at {where}"
     load, load_unit, time = state_loads(result, load=load, load_unit=load_unit, time=time)
@@ -329,7 +407,15 @@ def gauge(result: SeriesResult, *, region=None, point=None, polygon=None,
     kernels = {name: _correlation.strain_kernel(result.lattice, result.sigma, name)
                for name in _STRAINS}
     kernels["ux"] = kernels["uy"] = _correlation.displacement_kernel(result.sigma)
-    out = {name: np.full(n, np.nan) for name in (*_STRAINS, "ux", "uy")}
+    # the rotation and the gradient's off-diagonal terms, for the finite strains: their
+    # std maps those of the uncertainty maps' noise model (SeriesResult.finite_strains)
+    finite = check_type(finite, "finite", bool)
+    if finite and not result.has_finite_strains:
+        result.finite_strains(0)  # refused, saying why (an Eulerian result)
+    extra = {"rotation": "exy_std", "uxy": "exx_std", "uyx": "eyy_std"} if finite else {}
+    for name in extra:
+        kernels[name] = _correlation.strain_kernel(result.lattice, result.sigma, name)
+    out = {name: np.full(n, np.nan) for name in (*_STRAINS, "ux", "uy", *extra)}
     std = {name: np.full(n, np.nan) for name in out}
     count = np.zeros(n, dtype=np.int64)
     ext = ext_std = ext_where = None
@@ -347,14 +433,21 @@ def gauge(result: SeriesResult, *, region=None, point=None, polygon=None,
         inside = mask & np.asarray(result.valid[i])
         count[i] = int(inside.sum())
         for name in out:
-            values = np.asarray(result.get_map(name)[i])
+            if name in ("uxy", "uyx"):
+                continue  # their means follow from exy's and the rotation's
+            values = np.asarray(result.measurements[i].rotation if name == "rotation"
+                                else result.get_map(name)[i])
             ok = inside & np.isfinite(values)
             if ok.any():
                 out[name][i] = float(np.mean(values[ok], dtype=np.float64))
-                if unc is not None and f"{name}_std" in unc:
-                    s = np.asarray(unc[f"{name}_std"][i])
-                    ok &= np.isfinite(s)
-                    std[name][i] = _correlation.std_of_mean(s, ok, kernels[name])
+                stds = [n for n in ((name,) if name != "rotation" else
+                                    ("rotation", "uxy", "uyx")) if n in kernels]
+                for k in stds:
+                    key = extra.get(k, f"{k}_std")
+                    if unc is not None and key in unc:
+                        s = np.asarray(unc[key][i])
+                        std[k][i] = _correlation.std_of_mean(s, ok & np.isfinite(s),
+                                                             kernels[k])
         if ext is not None:
             ext[i], ext_std[i] = _extensometer(result, i, p0, p1, unc)
     if not count.any():
@@ -365,5 +458,9 @@ def gauge(result: SeriesResult, *, region=None, point=None, polygon=None,
         exy=out["exy"], exy_std=std["exy"], ux=out["ux"], ux_std=std["ux"],
         uy=out["uy"], uy_std=std["uy"], load=load, load_unit=load_unit, time=time,
         extensometer=ext, extensometer_std=ext_std, extensometer_where=ext_where,
-        reference_share=reference_share(result))
+        reference_share=reference_share(result),
+        rotation=out["rotation"] if finite else None,
+        rotation_std=std["rotation"] if finite else None,
+        gradient_std=np.stack([std["exx"], std["uxy"], std["uyx"], std["eyy"]], axis=1)
+        if finite else None, lagrangian=bool(result.lagrangian))
 

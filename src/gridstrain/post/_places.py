@@ -8,6 +8,11 @@ asked for). The measured field spans ``0 <= x < W s``, ``0 <= y < H s``; a place
 reaching outside it, or holding no valid pixel in any state, is refused in one line
 that names the field's extent (and that of its valid pixels) in the unit the place
 was given in: a wrong place never becomes an empty figure or a NaN reading.
+
+The command line names places in the file's unit, px with ``--px``. The API follows
+the same rule with the unit said (:func:`result_frame`): a result carries its file's
+pixel size, and a place on it says ``unit=`` or ``px=True``; without either it is
+refused, since such a call read px before results carried their pixel size.
 """
 
 from __future__ import annotations
@@ -23,6 +28,9 @@ from ..io import roi_mask
 # A coordinate on the field's edge typed with a rounded pixel size (0.04 mm x 250 px
 # = 10 mm) is on the edge, not outside: relative slack on the extent.
 _SLACK = 1e-9
+# Relative difference below which a pixel size given with a call is the result's own: a
+# value printed to 6 digits and typed back.
+_TYPED = 1e-5
 
 
 @dataclass(frozen=True)
@@ -65,6 +73,75 @@ def frame_of(shape, *, pixel_size: float | None = None, unit: str | None = None,
     if ps is None or px:
         return Frame(tuple(shape), 1.0, "px")
     return Frame(tuple(shape), ps, unit)
+
+
+def result_frame(result, *, pixel_size: float | None = None, unit: str | None = None,
+                 px: bool = False, places=()) -> Frame:
+    """The :class:`Frame` a call's places on ``result`` are named in: the API's rule.
+
+    ``px=True``: pixels. ``unit`` (the result's length unit, ``"mm"``...): that unit,
+    with the result's own pixel size (:attr:`gridstrain.results.SeriesResult.pixel_size`).
+    ``pixel_size`` and ``unit``: those (for a result that carries none; one that
+    carries another is refused). None of them: px for a result without a pixel size;
+    for one with a pixel size, a place given without its unit is refused, naming the
+    two ways to write it, since a call once read in px would now mean the file's unit
+    (the command line's default): the numbers of a script are never silently
+    reinterpreted. ``places`` are ``(name, value)`` of the call's coordinates.
+    """
+    px = bool(px)
+    own_ps, own_unit = getattr(result, "pixel_size", None), getattr(result, "unit", None)
+    shape = tuple(result.shape)
+    if px:
+        if pixel_size is not None or unit is not None:
+            raise ValueError(f"px=True names places in pixels: give it without pixel_size "
+                             f"and unit, got pixel_size={pixel_size!r}, unit={unit!r}")
+        return Frame(shape, 1.0, "px")
+    if pixel_size is None and unit is None:
+        if own_ps is None:
+            return Frame(shape, 1.0, "px")
+        for name, value in places:
+            if value is not None:
+                raise ValueError(
+                    f"{name} {_text(value)} does not say its unit, and this result has a "
+                    f"pixel size ({own_ps:g} {own_unit}): write unit={own_unit!r} to name "
+                    f"it in {own_unit}, as the command line reads it, or px=True for "
+                    "pixels")
+        return Frame(shape, own_ps, own_unit)
+    if pixel_size is None:
+        if own_ps is None:
+            raise ValueError(f"unit={unit!r} needs a pixel size, and this result carries "
+                             "none (measured without --pixel-size or --grid-pitch): give "
+                             "pixel_size= with it, or name the place in px")
+        if not isinstance(unit, str) or unit.strip() != own_unit:
+            raise ValueError(f"unit must be this result's length unit {own_unit!r} (pixel "
+                             f"size {own_ps:g} {own_unit}), or px=True for pixels, got "
+                             f"{unit!r}")
+        return Frame(shape, own_ps, own_unit)
+    ps, u = check_pixel_size(pixel_size, unit)
+    # a pixel size typed from a printed one (0.04 for 0.0400003) is the result's own
+    if own_ps is not None and (u != own_unit or not math.isclose(ps, own_ps,
+                                                                 rel_tol=_TYPED)):
+        raise ValueError(f"pixel_size={ps:g} {u} disagrees with this result's own "
+                         f"({own_ps:g} {own_unit}): give unit={own_unit!r} alone, or "
+                         "px=True, or change the result's with dataclasses.replace(result, "
+                         "pixel_size=..., unit=...)")
+    return Frame(shape, ps, u)
+
+
+def drawn_in(result, *, pixel_size: float | None = None, unit: str | None = None,
+             px: bool = False) -> tuple[float | None, str | None]:
+    """``(pixel_size, unit)`` a figure of ``result`` draws its axes and displacements
+    in: those given, else the result's own (:func:`result_frame`'s rule, no place
+    named); ``(None, None)`` for px."""
+    frame = result_frame(result, pixel_size=pixel_size, unit=unit, px=px)
+    return (None, None) if frame.unit == "px" else (frame.scale, frame.unit)
+
+
+def _text(value) -> str:
+    try:
+        return "(" + ", ".join(f"{float(v):g}" for v in np.ravel(value)) + ")"
+    except (TypeError, ValueError):
+        return repr(value)
 
 
 def _numbers(values, name: str, n: int | None) -> np.ndarray:

@@ -42,7 +42,7 @@ from matplotlib.figure import Figure
 from .._stats import streamed_percentiles
 from .._validation import check_choice, check_finite, check_pixel_size, check_positive, check_type
 from ..io import OutputDirectory, write_atomic
-from ..results import SeriesResult
+from ..results import FINITE_FIELDS, SeriesResult
 
 __all__ = [
     "ROBUST_PERCENTILES",
@@ -471,10 +471,16 @@ QUANTITIES = {
     "principal_angle_std": (r"std $\theta_1$", "rad"),
     "equivalent_std": (r"std $\varepsilon_{eq}$", "1"),
     "max_shear_std": (r"std $(\varepsilon_1 - \varepsilon_2)/2$", "1"),
+    "rotation_std": (r"std $\omega$", "rad"),
+    # finite strains (SeriesResult.finite_strains): Green-Lagrange E and logarithmic
+    **{f"{kind}_{c}{s}": (("std " if s else "") + f"${sym}_{{{c}}}$", "1")
+       for kind, sym in (("gl", "E"), ("log", r"\ln U")) for c in ("xx", "yy", "xy")
+       for s in ("", "_std")},
 }
 _MICRO = "µε"
 # the quantities derived from the strain tensor, and their std
 _DERIVED = ("e1", "e2", "principal_angle", "equivalent", "max_shear")
+_FINITE = tuple(f"{k}_{c}" for k in ("gl", "log") for c in ("xx", "yy", "xy"))
 
 
 def quantity(result, name: str, *, pixel_size: float | None = None,
@@ -503,11 +509,14 @@ def state_quantity(result, name: str, i: int, *, pixel_size: float | None = None
     drawn = _drawn_unit(name, pixel_size, unit, microstrain)
     if name == "rotation":
         return np.asarray(result.measurements[i].rotation) * 1e3, drawn
-    if name.removesuffix("_std") in _DERIVED:
-        maps = result.derived_maps(i)
+    if name.removesuffix("_std") in (*_DERIVED, *_FINITE, "rotation"):
+        # the finite strains asked for: refused, saying why, on an Eulerian result
+        maps = result.derived_maps(i, finite=name.removesuffix("_std") in _FINITE)
         if name not in maps:
             raise ValueError(f"this result has no {name} map (a single frame per series "
                              "gives no uncertainty map)")
+        if name == "rotation_std":
+            return maps[name] * 1e3, drawn
         if name.startswith("principal_angle"):
             return np.degrees(maps[name]), drawn
         values = maps[name]
@@ -529,7 +538,7 @@ def _drawn_unit(name: str, pixel_size, unit, microstrain) -> str:
     from ._units import strain_scale
 
     check_choice(name, "name", tuple(QUANTITIES))
-    if name == "rotation":
+    if name in ("rotation", "rotation_std"):
         return "mrad"
     if name.startswith("principal_angle"):
         return "deg"
@@ -574,7 +583,8 @@ def _nice_length(span: float) -> float:
 
 def plot_states(result, name: str, *, limits="robust", cmap: str | None = None,
                 microstrain=True, pixel_size: float | None = None,
-                unit: str | None = None, columns: int = 3, states=None) -> Figure:
+                unit: str | None = None, px: bool = False, columns: int = 3,
+                states=None) -> Figure:
     """Maps of one quantity for a chosen set of states, on common colour limits.
 
     Parameters
@@ -592,7 +602,10 @@ def plot_states(result, name: str, *, limits="robust", cmap: str | None = None,
     microstrain : bool or {"microstrain", "%", "1"}
         Strains in µε (True, the default), in percent, or dimensionless (False).
     pixel_size, unit : float, str, optional
-        Displacements, the axes and a scale bar in ``unit`` (px without).
+        Displacements, the axes and a scale bar in ``unit``; default the result's own
+        (:attr:`SeriesResult.pixel_size`), px for a result without one.
+    px : bool
+        In px, even for a result with a pixel size.
     columns : int
         Panels per row.
     states : sequence of int, optional
@@ -610,8 +623,9 @@ def plot_states(result, name: str, *, limits="robust", cmap: str | None = None,
     from mpl_toolkits.axes_grid1.anchored_artists import AnchoredSizeBar
 
     from ..results import state_loads
+    from ._places import drawn_in
 
-    ps, unit = check_pixel_size(pixel_size, unit)
+    ps, unit = drawn_in(result, pixel_size=pixel_size, unit=unit, px=px)
     limits = check_limits(limits)
     cmap = check_cmap(cmap)
     n_all = result.n_states
@@ -701,8 +715,8 @@ def _probe(values_of: Callable, result, mask):
 
 def plot_history(result, *, point=None, region=None, names=("exx", "eyy", "exy"),
                  microstrain=True, against: str = "auto", load=None,
-                 load_unit: str | None = None, time=None, pixel_size: float | None = None,
-                 unit: str | None = None) -> Figure:
+                 load_unit: str | None = None, time=None, unit: str | None = None,
+                 px: bool = False, pixel_size: float | None = None) -> Figure:
     """Strain (or any quantity) of all states at a point or averaged over a region.
 
     Parameters
@@ -721,9 +735,10 @@ def plot_history(result, *, point=None, region=None, names=("exx", "eyy", "exy")
         The horizontal axis: "auto" takes the time, else the load, else the state.
     load, load_unit, time : optional
         The states' loads and times (default: the result's own, if any).
-    pixel_size, unit : float, str, optional
-        ``point``, ``region`` and the displacements in ``unit`` (the file's, as for
-        :func:`gridstrain.post.gauge`); px without them.
+    unit, px, pixel_size : optional
+        ``point``, ``region`` and the displacements in ``unit`` or px: the rule of
+        :func:`gridstrain.post.gauge` (a place on a result with a pixel size says its
+        unit).
 
     Returns
     -------
@@ -741,12 +756,13 @@ def plot_history(result, *, point=None, region=None, names=("exx", "eyy", "exy")
     """
     from ..results import state_loads
     from . import gauge
-    from ._places import frame_of, place_mask, refuse_empty
+    from ._places import place_mask, refuse_empty, result_frame
 
     check_choice(against, "against", ("auto", "time", "load", "state"))
     if point is not None and region is not None:
         raise ValueError("give point or region, not both")
-    frame = frame_of(result.shape, pixel_size=pixel_size, unit=unit)
+    frame = result_frame(result, pixel_size=pixel_size, unit=unit, px=px,
+                         places=(("point", point), ("region", region)))
     mask, where = place_mask(frame, region=region, point=point)
     where = f"at {where}" if point is not None else f"mean over {where} (valid pixels)"
     load, load_unit, time = state_loads(result, load=load, load_unit=load_unit, time=time)
@@ -761,7 +777,7 @@ def plot_history(result, *, point=None, region=None, names=("exx", "eyy", "exy")
     unit_drawn = None
     from ._units import strain_scale
 
-    ps, unit = check_pixel_size(pixel_size, unit)
+    ps, unit = (None, None) if frame.unit == "px" else (frame.scale, frame.unit)
     for name in names:
         # displacements in the unit the place is named in, as the maps draw them
         unit_drawn = _drawn_unit(name, ps, unit, microstrain)
@@ -769,14 +785,21 @@ def plot_history(result, *, point=None, region=None, names=("exx", "eyy", "exy")
         scale = strain_scale(microstrain)[0] if kind == "1" else \
             math.degrees(1.0) if name == "principal_angle" else \
             (ps or 1.0) if kind == "px" else 1.0
-        if name in ("exx", "eyy", "exy", "ux", "uy", *_DERIVED):
+        if name in ("exx", "eyy", "exy", "ux", "uy", *_DERIVED, *_FINITE):
             if reading is None:
-                reading = gauge(result, point=point, region=region,
-                                pixel_size=pixel_size, unit=unit)
+                reading = gauge(result, point=point, region=region, px=px,
+                                pixel_size=pixel_size, unit=unit,
+                                finite=any(n in _FINITE for n in names))
             # the derived strains of the gauge's mean tensor, as a rosette reads them
-            source = reading.principal_strains() if name in _DERIVED else reading
-            curve = getattr(source, name) * scale
-            err = getattr(source, f"{name}_std") * scale
+            attr = name
+            if name in _DERIVED:
+                source = reading.principal_strains()
+            elif name in _FINITE:  # of the gauge's mean gradient
+                source, attr = reading.finite_strains(), FINITE_FIELDS[name]
+            else:
+                source = reading
+            curve = getattr(source, attr) * scale
+            err = getattr(source, f"{attr}_std") * scale
             err = err if np.all(np.isfinite(err)) else None
         else:
             curve, err = _probe(lambda i, name=name: state_quantity(

@@ -157,10 +157,11 @@ def render_report(result: SeriesResult, *, attrs: dict | None = None,
         pixel size, unit, creation date, the stored configuration.
     title : str
         The page's title.
-    region : (x0, y0, x1, y1) floats, optional
-        The gauge of the test's section (:func:`gridstrain.post.gauge`), in the
-        file's unit when ``attrs`` give a pixel size, else px. Default: the whole
-        valid region.
+    region : (x0, y0, x1, y1) floats, or a sequence of them, optional
+        The gauge(s) of the test's section (:func:`gridstrain.post.gauge`), in the
+        file's unit when ``attrs`` (or the result) give a pixel size, else px; several
+        gauges ``G1``, ``G2``... share the table (their columns side by side), each
+        with its figures and constants. Default: the whole valid region.
     px : bool
         ``region`` in px even when the file has a pixel size.
     area : float, optional
@@ -188,8 +189,8 @@ def render_report(result: SeriesResult, *, attrs: dict | None = None,
     limits, cmap = check_limits(limits), check_cmap(cmap)
     a = dict(attrs or {})
     ps, unit = a.get("pixel_size"), a.get("unit")
-    if ps is None or unit is None:
-        ps = unit = None
+    if ps is None or unit is None:  # the result's own, when the attributes have none
+        ps, unit = result.pixel_size, result.unit
     test = {"region": region, "px": bool(px), "area": area, "area_unit": area_unit,
             "axis": axis}
     with warnings.catch_warnings():
@@ -213,6 +214,7 @@ def _context(result, a: dict, ps, unit, title: str, test: dict, colours: dict) -
         **_maps_section(result, shown, ps, unit, colours),
         **_states_section(result), **_checks_section(result),
         "uncertainty": [_figure(plot_states(shown, name, pixel_size=ps, unit=unit,
+                                            px=ps is None,
                                             **colours),
                                 f"uncertainty map of {name}")
                         for name in (shown.uncertainty or {}) if name in _UNC],
@@ -237,54 +239,84 @@ def _with_std(value, std, scale: float = 1e6) -> str:
     return f"{v:.{decimals}f} ± {s:.{decimals}f}"
 
 
+def _regions(region) -> list:
+    """``region`` as a list of gauges: None (the whole valid region), one
+    ``(x0, y0, x1, y1)`` or a sequence of them."""
+    if region is None:
+        return [None]
+    try:
+        nested = len(region) > 0 and np.ndim(region[0]) == 1
+    except TypeError:  # not a sequence: refused by the gauge, naming it
+        nested = False
+    return [tuple(r) for r in region] if nested else [region]
+
+
 def _test_section(result, ps, unit, *, region, px: bool, area, area_unit: str,
                   axis: str) -> dict | None:
-    """What the test was run for, when the states have loads: the gauge's strains of
-    every state, their history, and the stress–strain plot with E and ν (with the
-    area) or the load–strain plot (without)."""
+    """What the test was run for, when the states have loads: each gauge's strains of
+    every state (one table, the gauges' columns side by side), their history, and the
+    stress–strain plot with E and ν (with the area) or the load–strain plot
+    (without)."""
     load, load_unit, time = state_loads(result)
     if load is None:
         return None
-    gps, gunit = (None, None) if px else (ps, unit)
-    reading = gauge(result, region=region, pixel_size=gps, unit=gunit)
-    rows = [[name, _num(time[i], ".4g") if time is not None else "–",
-             _num(load[i], ".4g"), int(reading.n_pixels[i]),
-             *(_with_std(getattr(reading, c)[i], getattr(reading, f"{c}_std")[i])
-               for c in ("exx", "eyy", "exy"))]
-            for i, name in enumerate(reading.states)]
-    table = _table(["state", "time (s)", f"load ({load_unit or '–'})", "pixels",
-                    "ε_xx (µε)", "ε_yy (µε)", "ε_xy (µε)"], rows)
-    figures = [_figure(plot_gauge(reading), "gauge history",
-                       "The gauge's mean strains in every state, with one std.")]
-    constants = note = None
-    if area is None:
-        figures.append(_figure(plot_load_strain(reading, axis=axis), "load-strain plot",
-                               "Load against the gauge's strains."))
-        note = ("Young's modulus and Poisson's ratio need the specimen's cross-section: "
-                "gridstrain report RESULT.h5 --area A (in mm² by default).")
-    else:
+    named = {} if px or ps is None else {"pixel_size": ps, "unit": unit}
+    regions = _regions(region)
+    readings = [gauge(result, region=r, px=px, **named) for r in regions]
+    several = len(readings) > 1
+    tags = [f"G{g + 1} " if several else "" for g in range(len(readings))]
+    head = ["state", "time (s)", f"load ({load_unit or '–'})"]
+    for tag in tags:
+        head += [f"{tag}pixels", f"{tag}ε_xx (µε)", f"{tag}ε_yy (µε)", f"{tag}ε_xy (µε)"]
+    rows = [[name, _num(time[i], ".4g") if time is not None else "–", _num(load[i], ".4g"),
+             *(cell for r in readings for cell in (
+                 int(r.n_pixels[i]), *(_with_std(getattr(r, c)[i], getattr(r, f"{c}_std")[i])
+                                       for c in ("exx", "eyy", "exy"))))]
+            for i, name in enumerate(readings[0].states)]
+    figures, constant_rows, notes = [], [], []
+    for tag, reading in zip(tags, readings, strict=True):
+        own = f" ({tag.strip()})" if several else ""
+        figures.append(_figure(plot_gauge(reading), f"gauge history{own}",
+                               f"The gauge's{own} mean strains in every state, with one "
+                               "std."))
+        if area is None:
+            figures.append(_figure(plot_load_strain(reading, axis=axis),
+                                   f"load-strain plot{own}",
+                                   f"Load against the gauge's{own} strains."))
+            continue
         try:
             c = elastic_constants(reading, area=area, area_unit=area_unit, axis=axis)
         except ValueError as exc:  # too few states, no std, constant loads: said so
-            note = f"No elastic constants: {exc}."
+            notes.append(f"No elastic constants{own}: {exc}.")
             figures.append(_figure(plot_load_strain(reading, axis=axis),
-                                   "load-strain plot", "Load against the gauge's strains."))
-        else:
-            figures.append(_figure(plot_stress_strain(c), "stress-strain plot",
-                                   "Stress against the axial and transverse strains, "
-                                   "with the weighted straight-line fits."))
-            constants = _table(["constant", "value", "95 % interval"], [
-                ["Young's modulus E", *_modulus_cells(c)],
-                ["Poisson's ratio ν", f"{c.nu:.4f}",
-                 f"[{c.nu_ci[0]:.4f}, {c.nu_ci[1]:.4f}]"]], left=(0,))
-            note = (f"Fitted on {len(c.states)} states, the stress = load / "
-                    f"{area:g} {area_unit} in {c.stress_unit}, loading along {axis}; "
-                    f"intervals from the {c.interval_basis} (reduced χ² "
-                    f"{c.reduced_chi2[0]:.2f} axial, {c.reduced_chi2[1]:.2f} transverse).")
-    where = reading.where if region is not None else \
-        f"the whole valid region ({reading.where.removeprefix('gauge ')})"
+                                   f"load-strain plot{own}",
+                                   f"Load against the gauge's{own} strains."))
+            continue
+        figures.append(_figure(plot_stress_strain(c), f"stress-strain plot{own}",
+                               f"Stress against the axial and transverse strains{own}, "
+                               "with the weighted straight-line fits."))
+        constant_rows += [[f"Young's modulus E{own}", *_modulus_cells(c)],
+                          [f"Poisson's ratio ν{own}", f"{c.nu:.4f}",
+                           f"[{c.nu_ci[0]:.4f}, {c.nu_ci[1]:.4f}]"]]
+        notes.append(f"Fitted{own} on {len(c.states)} states, the stress = load / "
+                     f"{area:g} {area_unit} in {c.stress_unit}, loading along {axis}; "
+                     f"intervals from the {c.interval_basis} (reduced χ² "
+                     f"{c.reduced_chi2[0]:.2f} axial, {c.reduced_chi2[1]:.2f} "
+                     "transverse).")
+    if area is None:
+        notes.append("Young's modulus and Poisson's ratio need the specimen's "
+                     "cross-section: gridstrain report RESULT.h5 --area A (in mm² by "
+                     "default).")
+    constants = _table(["constant", "value", "95 % interval"], constant_rows, left=(0,)) \
+        if constant_rows else None
+    places = [r.where if g is not None else
+              f"the whole valid region ({r.where.removeprefix('gauge ')})"
+              for g, r in zip(regions, readings, strict=True)]
+    where = places[0] if not several else "; ".join(
+        f"{tag.strip()}, {w}" for tag, w in zip(tags, places, strict=True))
     return {"where": where, "loads": _loads_note(result, load_unit),
-            "table": table, "figures": figures, "constants": constants, "note": note}
+            "table": _table(head, rows), "figures": figures, "constants": constants,
+            "note": " ".join(notes) or None}
 
 
 def _modulus_cells(c) -> list[str]:
@@ -381,7 +413,7 @@ def _maps_section(result, shown, ps, unit, colours: dict) -> dict:
             f"displacements in {unit if ps else 'px'}; outside the valid region the "
             "reference image shows through.")
     # limits given explicitly are in one quantity's unit: they apply to the strains
-    maps = [_figure(plot_states(shown, name, pixel_size=ps, unit=unit,
+    maps = [_figure(plot_states(shown, name, pixel_size=ps, unit=unit, px=ps is None,
                                 cmap=colours["cmap"],
                                 limits=lim if isinstance(lim, str) or name[0] == "e"
                                 else "robust"), f"map of {name}")

@@ -85,8 +85,10 @@ from ._mat import export_mat
 from ._netcdf import export_netcdf
 from ._paraview import export_pvd
 from ._result import DERIVED_FIELDS as DERIVED_FIELDS
+from ._result import FINITE_FIELDS as FINITE_FIELDS
 from ._result import MAP_FIELDS as MAP_FIELDS
 from ._result import SeriesResult as SeriesResult
+from ._result import map_unit as map_unit
 from ._vtk import export_vtk
 
 # the file's functions; the result type and the rest of the face (the streamed file,

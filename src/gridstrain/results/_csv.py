@@ -9,7 +9,7 @@ import numpy as np
 
 from .._validation import check_pixel_size, check_type
 from ..io import write_csv
-from ._result import DERIVED_FIELDS, MAP_FIELDS, SeriesResult
+from ._result import MAP_FIELDS, SeriesResult, map_unit
 
 #: Significant digits of the CSV export: 7 resolves 1e-7 of a value, far below
 #: the noise floor of any map (1e-5 strain, 1e-3 px), and keeps the file small.
@@ -27,8 +27,10 @@ def save_csv(result: SeriesResult, path, *, pixel_size: float | None = None,
     ``ux [px]``, ``uy [px]`` (and in ``unit``), ``exx [1]``, ``eyy [1]``,
     ``exy [1]`` (dimensionless, tensor shear), ``rotation [rad]``, the derived
     strains ``e1 [1]``, ``e2 [1]``, ``principal_angle [rad]``, ``equivalent [1]``,
-    ``max_shear [1]`` (:meth:`SeriesResult.principal_strains`), and the uncertainty
-    maps ``ux_std [px]``..., ``e1_std [1]``... when the result has them. Written
+    ``max_shear [1]`` (:meth:`SeriesResult.principal_strains`), the finite strains
+    ``gl_xx [1]``... ``log_xy [1]`` (:meth:`SeriesResult.finite_strains`, Lagrangian
+    results only), and the uncertainty maps ``ux_std [px]``..., ``e1_std [1]``...,
+    ``gl_xx_std [1]``..., ``rotation_std [rad]`` when the result has them. Written
     atomically by :func:`gridstrain.io.write_csv` (RFC 4180 quoting: names and
     units from other people's files are kept whatever they hold).
 
@@ -56,12 +58,13 @@ def save_csv(result: SeriesResult, path, *, pixel_size: float | None = None,
     rot = np.stack([m.rotation for m in result.measurements])
     cols["rotation [rad]"] = rot[st, yy, xx]
     derived = result.derived_maps()
-    for name in DERIVED_FIELDS:
-        cols[f"{name} [{DERIVED_FIELDS[name]}]"] = derived[name][st, yy, xx]
+    for name, arr in derived.items():
+        if not name.endswith("_std"):
+            cols[f"{name} [{map_unit(name)}]"] = arr[st, yy, xx]
     for name, arr in (result.uncertainty or {}).items():
         u = MAP_FIELDS.get(name.removesuffix("_std"), "1")
         cols[f"{name} [{u}]"] = np.asarray(arr)[st, yy, xx]
-    for name in DERIVED_FIELDS:
-        if f"{name}_std" in derived:
-            cols[f"{name}_std [{DERIVED_FIELDS[name]}]"] = derived[f"{name}_std"][st, yy, xx]
+    for name, arr in derived.items():
+        if name.endswith("_std"):
+            cols[f"{name} [{map_unit(name)}]"] = arr[st, yy, xx]
     return write_csv(path, cols, overwrite=overwrite, digits=digits)

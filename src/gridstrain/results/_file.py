@@ -37,6 +37,7 @@ from ._layout import (
     _READ_VERSIONS,
     _UNC_KEYS,
     FORMAT_VERSION,
+    ROUNDED_TEXT,
     _create_maps,
     _describe_maps,
     _put_state,
@@ -98,7 +99,9 @@ def save_result(result: SeriesResult, path, *, pixel_size: float | None = None,
         Destination (``.h5`` or ``.nc``).
     pixel_size : float, optional
         Size of a pixel on the specimen, in ``unit``: adds ``x_phys``, ``y_phys``,
-        ``ux_phys`` and ``uy_phys``.
+        ``ux_phys`` and ``uy_phys``. Default the result's own
+        (:attr:`SeriesResult.pixel_size`); given, it is the saved result's (loaded
+        back with it).
     unit : str, optional
         Length unit of ``pixel_size`` (``"mm"``...); required with it.
     overwrite : bool
@@ -152,6 +155,10 @@ def save_result(result: SeriesResult, path, *, pixel_size: float | None = None,
     check_type(result, "result", SeriesResult)
     lossless = check_type(lossless, "lossless", bool)
     ps, unit = check_pixel_size(pixel_size, unit)
+    if ps is None:  # the result's own, stored as the file's
+        ps, unit = result.pixel_size, result.unit
+    elif (ps, unit) != (result.pixel_size, result.unit):
+        result = dataclasses.replace(result, pixel_size=ps, unit=unit)
     attrs = check_mapping(attrs, "attrs", allow_none=True)
     H, W = result.shape
     _check_own_maps(result)
@@ -522,7 +529,10 @@ class StreamedResult:
             guesses=tuple(tuple(float(v) for v in r.guess) for r in self.orders),
             guess_sources=tuple(r.source for r in self.orders),
             fringe_orders=tuple(self.orders),
-            uncertainty={k: lazy(k) for k in self.unc_names} or None, **fields)
+            uncertainty={k: lazy(k) for k in self.unc_names} or None,
+            # read from the file: its pixel size, and its rounding when it rounds
+            **{"pixel_size": spec.pixel_size, "unit": spec.unit,
+               "maps_precision": None if spec.lossless else ROUNDED_TEXT, **fields})
         H, W = result.shape
         ps, unit = spec.pixel_size, spec.unit
         _write_dimensions(h5, result, H, W)
@@ -688,7 +698,8 @@ def load(path, *, in_memory: bool = True) -> SeriesResult:
     Returns
     -------
     SeriesResult
-        Equal, field by field, to the result that was saved (arrays bit for bit);
+        Equal, field by field, to the result that was saved (arrays bit for bit),
+        with the pixel size it was saved with (:attr:`SeriesResult.pixel_size`);
         the measurements' ``reference`` and ``deformed`` phase maps are ``None``
         unless they were saved (``save_result(..., phase_maps=True)``).
 
@@ -737,6 +748,8 @@ def load(path, *, in_memory: bool = True) -> SeriesResult:
             def state(arr, i):
                 return _stored(where, h5, arr._names, i, identity=identity)
 
+        own_ps, own_unit = _file_pixel_size(h5)
+        own_precision = _file_precision(h5)
         u, strain = stack(("ux", "uy")), stack(("exx", "eyy", "exy"))
         valid = read("valid", kinds="b")
         rotation = read("rotation", kinds="f")
@@ -750,6 +763,10 @@ def load(path, *, in_memory: bool = True) -> SeriesResult:
         def fill(cls, group, values, row):
             if cls.__name__ == "SeriesResult":
                 values.update(root)
+                # the file's root attributes say its pixel size (files that stored it
+                # there only, or none, load all the same)
+                values.update(pixel_size=own_ps, unit=own_unit,
+                              maps_precision=own_precision)
             elif cls.__name__ == "Measurement" and (
                     row is not None or group.parent.name.endswith("/measurements")):
                 # the state: its row in the measurements written by columns (format 3),
@@ -775,6 +792,28 @@ def load(path, *, in_memory: bool = True) -> SeriesResult:
             raise _Bad(f"{_where(h5[_GROUP], 'result')}: expected a SeriesResult, got "
                        f"{_received(result)}")
         return _check_result(h5.filename, result)
+
+
+def _file_precision(h5) -> str | None:
+    """None for a file whose maps are as measured; else how they were rounded (its
+    ``maps_precision``, or a word for a file that says only ``maps_lossless``)."""
+    lossless = _attr(h5, "maps_lossless") if "maps_lossless" in h5.attrs else True
+    if bool(lossless):
+        return None
+    text = _attr(h5, "maps_precision") if "maps_precision" in h5.attrs else None
+    return str(text) if text else "rounded (float32)"
+
+
+def _file_pixel_size(h5) -> tuple[float | None, str | None]:
+    """The root attributes ``pixel_size`` and ``unit``, checked; ``(None, None)`` when
+    the file has none."""
+    ps, unit = (_attr(h5, k) if k in h5.attrs else None for k in ("pixel_size", "unit"))
+    if ps is None or unit is None:
+        return None, None
+    try:
+        return check_pixel_size(float(ps), str(unit))
+    except (TypeError, ValueError) as exc:
+        raise _Bad(f"{_where(h5, 'pixel_size')}: {exc}") from None
 
 
 #: Root attributes whose type a reader relies on (the report, the plots, the replay).

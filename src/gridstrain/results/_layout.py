@@ -122,6 +122,12 @@ def _write_group(h5, result, attrs: Mapping, *, phase_maps: bool) -> None:
         _encode(g, [("attrs", dict(extra))], memo)
 
 
+#: How a rounded file's maps are stored, in words (its ``maps_precision``).
+ROUNDED_TEXT = (f"float32, each map rounded to {STD_FRACTION:g} of its std at each pixel "
+                f"(rotation: of exy's), the std maps to {STD_BITS} mantissa bits (relative "
+                f"{2.0 ** -(STD_BITS + 1):.2g}); see each variable's rounding attributes")
+
+
 def _write_tables(h5, result, ps, unit, attrs: Mapping, n_series: int, *,
                   lossless: bool) -> None:
     """The variables of the series and states (vibrations, noise floor, metrology) and
@@ -131,12 +137,13 @@ def _write_tables(h5, result, ps, unit, attrs: Mapping, n_series: int, *,
     _write_noise(h5, result, lat)
     _write_metrology(h5, result)
     root = _root_attributes(result, ps, unit, lat)
-    root["maps_lossless"] = bool(lossless)
+    rounded_before = getattr(result, "maps_precision", None)
+    # maps read from a rounded file are not made lossless by being written as they are
+    root["maps_lossless"] = bool(lossless) and rounded_before is None
     root["maps_precision"] = (
-        "lossless: the maps as measured" if lossless else
-        f"float32, each map rounded to {STD_FRACTION:g} of its std at each pixel "
-        f"(rotation: of exy's), the std maps to {STD_BITS} mantissa bits (relative "
-        f"{2.0 ** -(STD_BITS + 1):.2g}); see each variable's rounding attributes")
+        f"written as read from a file that had rounded them: {rounded_before}"
+        if lossless and rounded_before is not None else
+        "lossless: the maps as measured" if lossless else ROUNDED_TEXT)
     for key, value in attrs.items():
         root[_check_key(key, "attrs")] = value
     for key, value in root.items():

@@ -9,7 +9,7 @@ import numpy as np
 
 from .._validation import as_path, check_pixel_size, check_type
 from ..io import write_atomic
-from ._result import DERIVED_FIELDS, MAP_FIELDS, SeriesResult
+from ._result import MAP_FIELDS, SeriesResult, map_unit
 
 
 def export_mat(result: SeriesResult, path, *, pixel_size: float | None = None,
@@ -22,9 +22,10 @@ def export_mat(result: SeriesResult, path, *, pixel_size: float | None = None,
     (cell array of names), ``units`` (a struct), ``k1``, ``k2`` (cycles/px),
     ``sigma`` (px), ``method``; the derived strains ``e1``, ``e2``,
     ``principal_angle`` (rad), ``equivalent``, ``max_shear``
-    (:meth:`SeriesResult.principal_strains`) and their ``*_std`` with uncertainty
-    maps; with loads ``load`` (``n_states`` x 1, its unit in ``units.load``) and with
-    times ``time`` (s).
+    (:meth:`SeriesResult.principal_strains`), the finite strains ``gl_xx``...
+    ``log_xy`` (:meth:`SeriesResult.finite_strains`, Lagrangian results only) and
+    their ``*_std`` and ``rotation_std`` with uncertainty maps; with loads ``load``
+    (``n_states`` x 1, its unit in ``units.load``) and with times ``time`` (s).
     """
     from scipy.io import savemat
 
@@ -45,7 +46,7 @@ def export_mat(result: SeriesResult, path, *, pixel_size: float | None = None,
     derived = result.derived_maps()
     for name, arr in derived.items():
         data[name] = hwn(arr)
-        units[name] = DERIVED_FIELDS[name.removesuffix("_std")]
+        units[name] = map_unit(name)
     if result.load is not None:
         data["load"] = np.asarray(result.load, dtype=np.float64)
         units["load"] = result.load_unit or "1"

@@ -120,8 +120,10 @@ def export_pvd(result: SeriesResult, path, *, pixel_size: float | None = None,
     ``displacement [UNIT]`` (a 3-component vector, see the module's frame),
     ``exx [-]``, ``eyy [-]``, ``exy [-]``, ``rotation [rad]``, the derived strains
     ``e1 [-]``, ``e2 [-]``, ``principal_angle [rad]`` (from X towards Y: the sign of
-    the image frame's angle changes), ``equivalent [-]``, ``max_shear [-]``, the std
-    maps (``exx_std [-]``, ``e1_std [-]``...) and ``valid`` (0/1); NaN where not
+    the image frame's angle changes), ``equivalent [-]``, ``max_shear [-]``, the
+    finite strains ``gl_xx [-]``... ``log_xy [-]`` (Lagrangian results; the shears'
+    sign changes with Y), the std maps (``exx_std [-]``, ``e1_std [-]``...,
+    ``rotation_std [rad]``) and ``valid`` (0/1); NaN where not
     valid. Field data of each state (one value): ``time [s]`` and ``load [UNIT]``
     when known.
     """
@@ -149,17 +151,20 @@ def export_pvd(result: SeriesResult, path, *, pixel_size: float | None = None,
                   "exy [-]": (-_up(result.exy[i]), 1),
                   "rotation [rad]": (-_up(result.measurements[i].rotation), 1)}
         derived = result.derived_maps(i)
-        for key in ("e1", "e2", "principal_angle", "equivalent", "max_shear"):
-            sign = -1.0 if key == "principal_angle" else 1.0  # Y = -y
+        for key, arr in derived.items():
+            if key.endswith("_std"):
+                continue
+            # Y = -y: an angle and a shear change sign
+            sign = -1.0 if key == "principal_angle" or key.endswith("_xy") else 1.0
             fields[f"{key} [{'rad' if key == 'principal_angle' else '-'}]"] = (
-                sign * _up(derived[key]), 1)
+                sign * _up(arr), 1)
         for key, arr in unc.items():
             scale = s if key in ("ux_std", "uy_std") else 1.0
             label = u if key in ("ux_std", "uy_std") else "-"
             fields[f"{key} [{label}]"] = (_up(np.asarray(arr)[i]) * scale, 1)
         for key, arr in derived.items():
             if key.endswith("_std"):
-                label = "rad" if key.startswith("principal_angle") else "-"
+                label = "rad" if key.startswith(("principal_angle", "rotation")) else "-"
                 fields[f"{key} [{label}]"] = (_up(arr), 1)
         fields["valid"] = (np.asarray(result.valid[i])[::-1].astype(np.uint8), 1)
         notes = {"state": result.names[i + 1], "frame": FRAME, "time value": what}

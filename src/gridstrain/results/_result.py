@@ -10,9 +10,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .._progress import FINDINGS, Finding, as_finding
-from .._validation import (
-    check_choice,
-)
+from .._validation import check_choice, check_pixel_size
 from ..kinematics import (
     DERIVED_STRAINS,
     FiniteStrains,
@@ -28,9 +26,22 @@ from ..uncertainty import NoiseFloor
 
 #: Names of the maps, in file order, with their units before ``pixel_size``.
 MAP_FIELDS = {"ux": "px", "uy": "px", "exx": "1", "eyy": "1", "exy": "1"}
-#: The strains derived from the tensor (:meth:`SeriesResult.principal_strains`), with
-#: their units; each has a ``*_std`` when the result has uncertainty maps.
-DERIVED_FIELDS = dict(DERIVED_STRAINS)
+#: The finite strains' maps (:meth:`SeriesResult.finite_strains`): the Green–Lagrange
+#: ``gl_*`` and logarithmic ``log_*`` tensors' components, by the
+#: :class:`~gridstrain.kinematics.FiniteStrains` field each is.
+FINITE_FIELDS = {"gl_xx": "Exx", "gl_yy": "Eyy", "gl_xy": "Exy",
+                 "log_xx": "Lxx", "log_yy": "Lyy", "log_xy": "Lxy"}
+#: The maps derived from the measured ones, with their units: the strains derived from
+#: the tensor (:meth:`SeriesResult.principal_strains`) and the finite strains; each
+#: has a ``*_std`` when the result has uncertainty maps.
+DERIVED_FIELDS = dict(DERIVED_STRAINS) | dict.fromkeys(FINITE_FIELDS, "1")
+
+
+def map_unit(name: str) -> str:
+    """The unit of any map a result offers (``ux``, ``rotation``, ``e1_std``...)."""
+    base = name.removesuffix("_std")
+    return MAP_FIELDS.get(base) or DERIVED_FIELDS.get(base) or \
+        {"rotation": "rad"}[base]
 
 
 # What a result does with itself, implemented by the file and the figures, which know the
@@ -168,6 +179,18 @@ class SeriesResult:
         (``jump_px``, its ``opening_px`` and ``sliding_px``, known modulo the
         period ``pitch_px`` along it); see
         :func:`gridstrain.kinematics.find_discontinuities`.
+    pixel_size : float, optional
+        The length of a pixel on the specimen, in ``unit`` (``measure --pixel-size`` or
+        ``--grid-pitch``; the result file's root attribute): places on the maps are
+        named in ``unit`` by the command line, and in the API with ``unit=``
+        (:mod:`gridstrain.post._places`). None when the file has none (px only).
+    unit : str, optional
+        The length unit of ``pixel_size`` (``"mm"``...); None with it.
+    maps_precision : str, optional
+        None for maps as measured; for maps read from a file that rounded them
+        (:func:`gridstrain.results.save_result` without ``lossless``), that file's
+        ``maps_precision``: a file or export written from them says so, never
+        "lossless".
     """
 
     u: np.ndarray
@@ -209,9 +232,15 @@ class SeriesResult:
     #: ``warnings``' codes, states and figures (:meth:`Finding.record`), as a file
     #: stores them beside the sentences; filled from ``warnings`` when not given.
     findings: tuple = field(default=(), repr=False)
+    pixel_size: float | None = None
+    unit: str | None = None
+    maps_precision: str | None = None
 
     def __post_init__(self):
         _with_findings(self)
+        ps, unit = check_pixel_size(self.pixel_size, self.unit)
+        object.__setattr__(self, "pixel_size", ps)
+        object.__setattr__(self, "unit", unit)
         for name in ("u", "strain", "valid", "mask", "reference_image", "load", "time"):
             arr = getattr(self, name)
             if isinstance(arr, np.ndarray):  # maps read from a file are read-only already
@@ -294,26 +323,75 @@ class SeriesResult:
 
     def finite_strains(self, state: int | None = None) -> FiniteStrains:
         """Green-Lagrange and logarithmic strains, rebuilt from the displacement
-        gradient (the strain tensor and the rotation): see
-        :func:`gridstrain.kinematics.finite_strains`. ``state`` as for
-        :meth:`principal_strains`. Meaningful with ``lagrangian=True`` (the default of
-        :func:`~gridstrain.series.measure_series`)."""
+        gradient (the strain tensor and the rotation), with their first-order std when
+        the result has uncertainty maps: see :func:`gridstrain.kinematics.finite_strains`.
+        ``state`` as for :meth:`principal_strains`.
+
+        The gradient's std are those of the noise model of the uncertainty maps
+        (:func:`gridstrain.uncertainty.predict_uncertainty`): the derivatives of ``u_x``
+        along x and along y have one variance, that of ``exx``, and those of ``u_y``
+        that of ``eyy`` (so that ``exy_std`` is ``sqrt(exx_std^2 + eyy_std^2) / 2``, and
+        so is the rotation's std), the four taken as uncorrelated.
+
+        Raises
+        ------
+        ValueError
+            A result measured with ``lagrangian=False``: its gradient is Eulerian, and
+            the finite strains of :mod:`gridstrain.kinematics` need the Lagrangian one.
+        """
+        if not self.lagrangian:
+            raise ValueError("the finite strains need the Lagrangian displacement "
+                             "gradient, and this result was measured with "
+                             "lagrangian=False (measure --no-lagrangian): measure again "
+                             "without it")
         i = self._states(state)
         rot = self.measurements[i].rotation if state is not None else \
             np.stack([np.asarray(m.rotation) for m in self.measurements])
+        stds = self._gradient_std(i)
         return finite_strains(np.asarray(self.exx[i]), np.asarray(self.eyy[i]),
-                              np.asarray(self.exy[i]), np.asarray(rot))
+                              np.asarray(self.exy[i]), np.asarray(rot), gradient_std=stds)
 
-    def derived_maps(self, state: int | None = None) -> dict[str, np.ndarray]:
+    def _gradient_std(self, i):
+        """The std maps of ``(du_x/dx, du_x/dy, du_y/dx, du_y/dy)`` of state(s) ``i``
+        (see :meth:`finite_strains`), or None without uncertainty maps."""
+        unc = self.uncertainty or {}
+        if "exx_std" not in unc or "eyy_std" not in unc:
+            return None
+        sx, sy = np.asarray(unc["exx_std"][i]), np.asarray(unc["eyy_std"][i])
+        return sx, sx, sy, sy
+
+    @property
+    def has_finite_strains(self) -> bool:
+        """Whether :meth:`finite_strains` has a meaning here (``lagrangian=True``,
+        rotation maps kept)."""
+        return bool(self.lagrangian) and all(getattr(m, "rotation", None) is not None
+                                             for m in self.measurements)
+
+    def derived_maps(self, state: int | None = None, *, finite: bool | None = None
+                     ) -> dict[str, np.ndarray]:
         """The maps of :data:`DERIVED_FIELDS` (and their ``*_std``, with uncertainty
-        maps), by name: those the exports write."""
+        maps, and ``rotation_std``), by name: those the exports write.
+
+        The finite strains (``gl_*``, ``log_*``): with ``finite=None`` (the default)
+        where :attr:`has_finite_strains`, with ``True`` always (refused on an Eulerian
+        result, see :meth:`finite_strains`), with ``False`` never."""
         p = self.principal_strains(state)
-        out = {}
-        for name in DERIVED_FIELDS:
-            out[name] = getattr(p, name)
-        for name in DERIVED_FIELDS:
+        out = {name: getattr(p, name) for name in DERIVED_STRAINS}
+        if finite is None:
+            finite = self.has_finite_strains
+        f = self.finite_strains(state) if finite else None
+        if f is not None:
+            out.update({name: getattr(f, attr) for name, attr in FINITE_FIELDS.items()})
+        for name in DERIVED_STRAINS:
             if getattr(p, f"{name}_std") is not None:
                 out[f"{name}_std"] = getattr(p, f"{name}_std")
+        if f is not None and f.Exx_std is not None:
+            out.update({f"{name}_std": getattr(f, f"{attr}_std")
+                        for name, attr in FINITE_FIELDS.items()})
+        stds = self._gradient_std(self._states(state))
+        if stds is not None:
+            # the rotation's std under the uncertainty maps' noise model: that of exy
+            out["rotation_std"] = np.sqrt(stds[0] ** 2 + stds[2] ** 2) / 2
         return out
 
     def save(self, path, **options):
