@@ -75,6 +75,23 @@ _COARSE_MIN_SAMPLES = 64
 _MIN_PEAK_TO_ALIAS = 1.5
 
 
+# Features that correlate at the pitch this many times better than their aliases are
+# sharper than a lamp's light. A smooth bump of light of std s, band-passed between
+# half a pitch and a pitch, correlates with itself a period p away by about
+# exp(-p^2 / (4 s^2)): 2.5 times less only for s <= 0.52 p, a hot spot half a pitch
+# wide (a focused beam, not a lamp's). Measured: hot spots of std 4 to 25 px moved by
+# a lattice vector at pitches 5 and 6.4, 1.0 to 2.3; printed spots of 1 to 2.5 px,
+# 2.7 to 3.8.
+_SHARP_PEAK_TO_ALIAS = 2.5
+
+
+def sharp(est: CoarseEstimate) -> bool:
+    """Whether the image features ``est`` are too sharp at the pitch to be light
+    (:data:`_SHARP_PEAK_TO_ALIAS`): content printed on or lying on the specimen."""
+    return est.confident and not math.isnan(est.disagreement) and \
+        est.peak_to_alias >= _SHARP_PEAK_TO_ALIAS and not est.tiles[1]
+
+
 # The correlation peak must lie within this fraction of a period (along each wave
 # vector) of the candidate the phases allow: the peak is good to a pixel, a quarter
 # of a 4-px pitch.
@@ -219,6 +236,11 @@ class CoarseEstimate:
         second-best offset over the best's; NaN when not made.
     tiles : (2,) tuple of int
         Of that comparison: tiles agreeing with the order taken, informative tiles.
+    light_doubt : str
+        Where the estimate puts the displacement whole periods from the phases' and
+        the grid's modulus shows them but its contrast cannot tell (a hot spot of the
+        lamp that moved imitates a stain): why the order it gives is not confirmed;
+        empty otherwise.
     """
 
     shift: tuple[float, float]
@@ -231,6 +253,7 @@ class CoarseEstimate:
     reason: str
     residual_ratio: float = math.nan
     tiles: tuple[int, int] = (0, 0)
+    light_doubt: str = ""
 
 
 def coarse_displacement(reference, deformed, lattice: Lattice, *, mask=None,
@@ -366,7 +389,8 @@ class _CoarseReference:
             if not np.any(np.rint(self.lattice.K @ (np.array(est.shift) - phases))):
                 return est  # the order the phases give: nothing moved by whole periods
             field = field_from_phases(z, ok, self.lattice)
-            return self._corroborated(est, reference, current, field, ok, est.shift)
+            return self._corroborated(est, reference, current, field, ok, est.shift,
+                                      None if sharp(est) else deformed)
         if self._futile >= _FUTILE and self._since < _RECHECK:
             # a record on a reference with nothing but the grid: its content has
             # decided nothing state after state, and compared again every _RECHECK
@@ -386,21 +410,27 @@ class _CoarseReference:
                 tiles=tiles, reason=f"{c.reason} (at the pitch: {est.reason})")
             if not any(c.offset):
                 return found
-            return self._corroborated(found, reference, current, u, ok, c.shift)
+            return self._corroborated(found, reference, current, u, ok, c.shift, deformed)
         return dataclasses.replace(est, residual_ratio=c.residual_ratio, tiles=tiles,
                                    reason=f"{est.reason}; below the grid's frequency: "
                                           f"{c.reason}")
 
     def shows(self, reference: PhaseMaps, current: PhaseMaps, u: np.ndarray,
-              ok: np.ndarray, periods, *, material: bool = False) -> tuple[bool, str]:
-        """:func:`_grid_shows` with ``u`` and ``ok`` at this reference's samples."""
-        return _grid_shows(reference, current, u, ok, periods, material=material)
+              ok: np.ndarray, periods, *, material: bool = False,
+              image=None) -> tuple[bool, str]:
+        """:func:`_grid_shows` with ``u`` and ``ok`` at this reference's samples, and the
+        grid's contrast in this reference and the deformed ``image`` when given."""
+        return _grid_shows(reference, current, u, ok, periods, material=material,
+                           images=None if image is None else (self.reference, image))
 
     def _corroborated(self, est: CoarseEstimate, reference: PhaseMaps, current: PhaseMaps,
-                      u: np.ndarray, ok: np.ndarray, shift) -> CoarseEstimate:
+                      u: np.ndarray, ok: np.ndarray, shift, deformed=None) -> CoarseEstimate:
         """``est``, which puts the displacement whole periods from the order the phases
         give (``shift``, px), kept confident only when the grids' own moduli show the
-        same whole periods (:func:`grid_shows`).
+        same whole periods and their contrast in the images (``deformed`` the current
+        one, None for features too sharp to be light: :func:`sharp`) does not put
+        them elsewhere (:func:`grid_shows`); where the contrast cannot tell,
+        ``light_doubt`` says so: the order may be used, not confirmed.
 
         The image's light is the specimen's reflectance times the lighting, plus what
         its surface reflects: a lamp's hot spot or a specular highlight that moved by
@@ -408,19 +438,25 @@ class _CoarseReference:
         grid's modulus, demodulated at the grid's frequency, does not carry what the
         surface reflects (smooth, it adds nothing at that frequency) and carries what is
         printed or lies on the specimen (it multiplies the grid): a whole-period shift
-        that is the specimen's shows in it too."""
+        that is the specimen's shows in it too. A lamp's hot spot multiplies the grid as
+        well, as a stain would: only the grid's contrast, its modulus over the local
+        mean, which no lighting changes (:func:`_contrast`), tells the specimen's
+        content from the light's."""
         # the whole periods ``shift`` adds to the field ``u``, at its median
         v = u[:, ok]
         med = np.array([np.median(c) for c in v])
-        same, seen = self.shows(reference, current, u, ok,
-                                self.lattice.K @ (np.array(shift) - med))
+        same, seen, doubt = _grid_evidence(
+            reference, current, u, ok, self.lattice.K @ (np.array(shift) - med),
+            images=None if deformed is None else (self.reference, deformed))
         if same:
-            return dataclasses.replace(est, reason=f"{est.reason}; {seen}")
+            return dataclasses.replace(est, reason=f"{est.reason}; {seen}",
+                                       light_doubt=doubt)
         return dataclasses.replace(
             est, confident=False,
             reason=f"the image's light puts the displacement whole periods from the "
                    f"phases' smallest ({shift[0]:.2f}, {shift[1]:.2f} px: {est.reason}) but "
-                   f"{seen}: light that moved (a hot spot, a highlight), not the specimen")
+                   f"{seen}: it may be light that moved (a hot spot, a highlight), not the "
+                   f"specimen")
 
     def estimate(self, deformed: np.ndarray, phase_shift) -> CoarseEstimate:
         """:func:`coarse_displacement` of ``deformed`` (float64, checked)."""
@@ -435,7 +471,7 @@ class _CoarseReference:
 
 
 def grid_shows(reference: PhaseMaps, deformed: PhaseMaps, u, valid, periods, *,
-               within=None) -> tuple[bool, str]:
+               within=None, images=None) -> tuple[bool, str]:
     """Whether the grid's own modulus shows a displacement whole periods from ``u``.
 
     Image features that put a displacement whole periods away may follow the light
@@ -461,13 +497,18 @@ def grid_shows(reference: PhaseMaps, deformed: PhaseMaps, u, valid, periods, *,
         The whole periods ``(m, n)`` to test, added to ``u``.
     within : (H, W) bool array_like, optional
         The pixels whose content is compared (default: every pixel).
+    images : ((H, W), (H, W)) array_like, optional
+        The two states' images. Given, the grid's contrast in them (its modulus over
+        the local mean under one window, which a smooth light such as a lamp's hot
+        spot multiplies alike) must pick ``periods`` too: a hot spot multiplies the
+        modulus as a stain would, not the contrast.
 
     Returns
     -------
     (bool, str)
-        Whether the moduli pick ``periods`` among the whole-period offsets (by the
-        rule of the sum over the tiles, ``favoured``, or every rule), and what they
-        say, in words.
+        Whether the moduli (and the contrasts) pick ``periods`` among the
+        whole-period offsets (by the rule of the sum over the tiles, ``favoured``, or
+        every rule), and what they say, in words.
     """
     check_type(reference, "reference", PhaseMaps)
     check_type(deformed, "deformed", PhaseMaps)
@@ -475,18 +516,26 @@ def grid_shows(reference: PhaseMaps, deformed: PhaseMaps, u, valid, periods, *,
     v = check_mask(valid, reference.shape, "valid")[::q, ::q]
     uq = np.asarray(u, dtype=np.float64)[:, ::q, ::q]
     w = None if within is None else check_mask(within, reference.shape, "within")[::q, ::q]
-    return _grid_shows(reference, deformed, uq, v, periods, material=True, within=w)
+    if images is not None:
+        images = tuple(as_image(im, name).astype(np.float64)
+                       for im, name in zip(images, ("images[0]", "images[1]"), strict=True))
+        for im, name in zip(images, ("images[0]", "images[1]"), strict=True):
+            check_same_shape(im.shape, reference.shape, name, "the maps")
+    return _grid_shows(reference, deformed, uq, v, periods, material=True, within=w,
+                       images=images)
 
 
 def _grid_content(reference: PhaseMaps, current: PhaseMaps, u: np.ndarray, ok: np.ndarray,
-                  *, material: bool = False, within=None, around=(0, 0)) -> ContentOrder:
+                  *, material: bool = False, within=None, around=(0, 0),
+                  contents=None) -> ContentOrder:
     """:func:`order_from_content` of the grids' own moduli (the logarithm of the mean
     modulus of the two wave vectors, sampled every ``q`` px) with the field ``u`` (2,
     h, w) and ``ok`` at those samples, over the samples ``within`` (default all), the
     field carried to the others from the nearest of ``ok`` (:func:`_extended`), the
     search centred on the whole periods ``around``. ``material``: ``u`` is the
     displacement at the material point (a measurement's, Lagrangian), not the phases'
-    at the camera's point."""
+    at the camera's point. ``contents``: the two states' content maps at those samples
+    to compare instead of the moduli (:func:`_contrast`)."""
     lattice = reference.lattice
     q = decimation(lattice)
     pitch = max(lattice.pitches)
@@ -502,16 +551,16 @@ def _grid_content(reference: PhaseMaps, current: PhaseMaps, u: np.ndarray, ok: n
         m = smooth_decimate(m, pitch, q) / np.maximum(smooth_decimate(w, pitch, q), 1e-6)
         return np.log(np.maximum(m, 1e-3 * max(float(np.max(m)), 1e-300)))
 
+    a, b = (content(reference), content(current)) if contents is None else contents
     if not ok.any():
-        return order_from_content(content(reference), content(current), u, ok, lattice, q,
-                                  around=around)
+        return order_from_content(a, b, u, ok, lattice, q, around=around)
     # every sample, the field carried to the invalid ones from their nearest valid
     # one, to first order: a hole's edge or the specimen's, where the modulus
     # collapses, lies in the invalid margin round them and is the strongest content
     # the grid carries
     u = _extended(np.asarray(u, dtype=np.float64), ok, q)
     use = np.ones_like(ok) if within is None else within
-    return order_from_content(content(reference), content(current), u, use, lattice, q,
+    return order_from_content(a, b, u, use, lattice, q,
                               around=around, gradient=None if material else gradient(u, q))
 
 
@@ -542,21 +591,80 @@ def _extended(u: np.ndarray, ok: np.ndarray, q: int) -> np.ndarray:
 
 
 def _grid_shows(reference: PhaseMaps, current: PhaseMaps, u: np.ndarray, ok: np.ndarray,
-                periods, *, material: bool = False, within=None) -> tuple[bool, str]:
-    """:func:`grid_shows` with ``u`` and ``ok`` at the samples."""
+                periods, *, material: bool = False, within=None,
+                images=None) -> tuple[bool, str]:
+    """:func:`grid_shows` with ``u`` and ``ok`` at the samples: the modulus, and the
+    contrast as well when ``images`` are given, must show ``periods``."""
+    shown, said, doubt = _grid_evidence(reference, current, u, ok, periods,
+                                        material=material, within=within, images=images)
+    return (shown and not doubt), (doubt or said)
+
+
+def _grid_evidence(reference: PhaseMaps, current: PhaseMaps, u: np.ndarray, ok: np.ndarray,
+                   periods, *, material: bool = False, within=None,
+                   images=None) -> tuple[bool, str, str]:
+    """``(shown, said, doubt)``: whether the grid's modulus shows the whole periods
+    ``periods`` and the grid's contrast in ``images`` (when given) does not put them
+    elsewhere, what they say, and, where the modulus shows them but the contrast
+    cannot tell, why that is no confirmation (empty otherwise)."""
     # the search centred on the periods tested: they are then never at its edge, and
     # the phases' own order lies within its reach for shifts of a few periods
     want = tuple(int(v) for v in np.rint(periods))
     g = _grid_content(reference, current, u, ok, material=material, within=within,
                       around=want)
-    same = want == tuple(g.offset)
-    if same and (g.confident or g.favoured):
-        return True, (f"the grid's own modulus shows the same whole periods (ratio of "
-                      f"residuals {g.residual_ratio:.2f})")
+    shown, said = _says(g, want, "the grid's own modulus")
+    if not shown or images is None:
+        return shown, said, ""
+    q = decimation(reference.lattice)
+    c = _grid_content(reference, current, u, ok, material=material, within=within,
+                      around=want, contents=tuple(_contrast(im, reference.lattice, q)
+                                                  for im in images))
+    what = "its contrast (modulus over the local mean, which no lighting changes)"
+    seen, more = _says(c, want, what)
+    if seen:
+        return True, f"{said}, and {more.removeprefix('its ')}", ""
+    if c.confident or c.favoured:
+        return False, f"{said} but {more}", ""
+    return True, said, (f"not confirmed: the image content that moved could be the light "
+                        f"(a lamp's hot spot multiplies the grid as a stain would): {said} "
+                        f"but {more}")
+
+
+def _says(g: ContentOrder, want: tuple, what: str) -> tuple[bool, str]:
+    """Whether the content comparison ``g`` picks the whole periods ``want``, and what
+    it says, in words, of ``what`` was compared."""
+    if want == tuple(g.offset) and (g.confident or g.favoured):
+        return True, (f"{what} shows the same whole periods (ratio of residuals "
+                      f"{g.residual_ratio:.2f})")
     if not (g.confident or g.favoured):
-        return False, f"the grid's own modulus does not show them ({g.reason})"
-    return False, (f"the grid's own modulus puts them at {g.offset[0]}, {g.offset[1]} "
-                   f"periods ({g.reason})")
+        return False, f"{what} does not show them ({g.reason})"
+    return False, f"{what} puts them at {g.offset[0]}, {g.offset[1]} periods ({g.reason})"
+
+
+def _contrast(image, lattice: Lattice, q: int) -> np.ndarray:
+    """The logarithm of the grid's contrast in ``image``: the mean modulus of its two
+    carriers over its local mean, both demodulated by one Gaussian (std the longer
+    pitch), sampled every ``q`` px from pixel 0.
+
+    The image is the specimen's reflectance ``R`` times the light ``L`` plus what its
+    surface reflects. A smooth ``L`` (a lamp's hot spot, vignetting) multiplies the
+    carrier's modulus and the local mean alike under the one window: their ratio is
+    ``R``'s own, whatever the light does. What is printed on or lies on the specimen
+    changes it (a spot darkening part of a period, a line's width, a hole's or an
+    edge's collapse of the grid), and moves with the specimen."""
+    x = np.asarray(image, dtype=np.float64)
+    pitch = max(lattice.pitches)
+    H, W = x.shape
+
+    def demodulated(kx, ky):
+        # separable: exp(-2 i pi (kx x + ky y))
+        e = np.outer(np.exp(-2j * np.pi * ky * np.arange(H)),
+                     np.exp(-2j * np.pi * kx * np.arange(W))) * x
+        return np.hypot(smooth_decimate(e.real, pitch, q), smooth_decimate(e.imag, pitch, q))
+
+    mod = sum(demodulated(kx, ky) for kx, ky in np.asarray(lattice.K, dtype=np.float64))
+    ratio = mod / 2 / np.maximum(smooth_decimate(x, pitch, q), 1e-300)
+    return np.log(np.maximum(ratio, 1e-3 * max(float(np.max(ratio)), 1e-300)))
 
 
 def _band_weights(m, pitch, q=1) -> tuple[np.ndarray, np.ndarray]:
