@@ -207,7 +207,7 @@ def test_a_hot_spot_moved_by_a_lattice_vector_is_never_confirmed(pitch, hot_sd, 
     # period a first state is followed within; the lamp's hot spot (std 4 to 25 px,
     # +80 % of the light) by a lattice vector, or a lattice vector plus that pixel. It
     # multiplies the grid as a stain would: the image features and the grid's modulus
-    # follow it; only the grid's contrast (modulus over the local mean) cannot
+    # follow it; the ratio of the grid's harmonics cannot
     shape = (160, 192)
     u0 = (0.8, 0.3)
     hot_move = pitch * np.array(move, dtype=float) + (np.array(u0) if plus_u else 0.0)
@@ -221,6 +221,34 @@ def test_a_hot_spot_moved_by_a_lattice_vector_is_never_confirmed(pitch, hot_sd, 
         # the state says why: the content that moved could be the light
         assert "could be the light" in record.detail or "light that moved" in record.detail
         assert any(res.names[1] in m and "not confirmed" in m for m in res.warnings)
+
+
+@pytest.mark.parametrize(("pitch", "hot_sd", "glare_sd", "move"), [
+    (5.0, 10.0, 6.0, (1, 0)), (5.0, 16.0, 5.0, (0, 1)), (5.0, 6.0, 6.0, (1, 0)),
+    (6.4, 25.0, 4.0, (-1, 0))])
+def test_a_lamp_and_its_highlight_moved_together_are_never_confirmed(pitch, hot_sd,
+                                                                     glare_sd, move):
+    # the lamp's hot spot (multiplying the grid: the modulus follows it) and its
+    # specular highlight (adding to the image: the grid's contrast follows it) moved
+    # together by a lattice vector plus the specimen's (0.8, 0.3) px: only what no
+    # light changes, the ratio of the grid's harmonics, may confirm whole periods
+    shape = (160, 192)
+    rng = np.random.default_rng(int(hot_sd))
+    u0 = np.array([0.8, 0.3])
+
+    def disp(X, Y):
+        return u0[0] + 1e-3 * (X - 96), u0[1] - 3e-4 * (Y - 80)
+
+    at = np.array([100.0, 75.0])
+    mv = pitch * np.array(move, dtype=float) + u0
+    light = {"hot": 0.8, "hot_sd": hot_sd, "glare": 0.6, "glare_sd": glare_sd,
+             "full": 1500}
+    ref = photograph(shape, pitch, hot_at=at, glare_at=at, noise=rng, **light)
+    cur = photograph(shape, pitch, disp, hot_at=at + mv, glare_at=at + mv, noise=rng,
+                     **light)
+    res = measure_series(ref, cur, outliers="warn")
+    ((wrong, confirmed),) = _verdicts(res, [disp], pitch)
+    assert not (wrong and confirmed), res.fringe_orders[0].detail
 
 
 @pytest.mark.parametrize(("pitch", "move", "hot"), [

@@ -238,7 +238,7 @@ class CoarseEstimate:
         Of that comparison: tiles agreeing with the order taken, informative tiles.
     light_doubt : str
         Where the estimate puts the displacement whole periods from the phases' and
-        the grid's modulus shows them but its contrast cannot tell (a hot spot of the
+        the grid's modulus shows them but its harmonics' ratio cannot tell (a hot spot of the
         lamp that moved imitates a stain): why the order it gives is not confirmed;
         empty otherwise.
     """
@@ -419,7 +419,8 @@ class _CoarseReference:
               ok: np.ndarray, periods, *, material: bool = False,
               image=None) -> tuple[bool, str]:
         """:func:`_grid_shows` with ``u`` and ``ok`` at this reference's samples, and the
-        grid's contrast in this reference and the deformed ``image`` when given."""
+        ratio of the grid's harmonics in this reference and the deformed ``image`` when
+        given."""
         return _grid_shows(reference, current, u, ok, periods, material=material,
                            images=None if image is None else (self.reference, image))
 
@@ -427,10 +428,11 @@ class _CoarseReference:
                       u: np.ndarray, ok: np.ndarray, shift, deformed=None) -> CoarseEstimate:
         """``est``, which puts the displacement whole periods from the order the phases
         give (``shift``, px), kept confident only when the grids' own moduli show the
-        same whole periods and their contrast in the images (``deformed`` the current
-        one, None for features too sharp to be light: :func:`sharp`) does not put
-        them elsewhere (:func:`grid_shows`); where the contrast cannot tell,
-        ``light_doubt`` says so: the order may be used, not confirmed.
+        same whole periods and the ratio of their harmonics in the images
+        (``deformed`` the current one, None for features too sharp to be light:
+        :func:`sharp`) does not put them elsewhere (:func:`grid_shows`); where that
+        ratio cannot tell, ``light_doubt`` says so: the order may be used, not
+        confirmed.
 
         The image's light is the specimen's reflectance times the lighting, plus what
         its surface reflects: a lamp's hot spot or a specular highlight that moved by
@@ -439,9 +441,9 @@ class _CoarseReference:
         surface reflects (smooth, it adds nothing at that frequency) and carries what is
         printed or lies on the specimen (it multiplies the grid): a whole-period shift
         that is the specimen's shows in it too. A lamp's hot spot multiplies the grid as
-        well, as a stain would: only the grid's contrast, its modulus over the local
-        mean, which no lighting changes (:func:`_contrast`), tells the specimen's
-        content from the light's."""
+        well, as a stain would, and its highlight comes with it: only the ratio of the
+        grid's second harmonic to its first, which no light changes
+        (:func:`_light_free`), tells the specimen's content from the light's."""
         # the whole periods ``shift`` adds to the field ``u``, at its median
         v = u[:, ok]
         med = np.array([np.median(c) for c in v])
@@ -498,15 +500,15 @@ def grid_shows(reference: PhaseMaps, deformed: PhaseMaps, u, valid, periods, *,
     within : (H, W) bool array_like, optional
         The pixels whose content is compared (default: every pixel).
     images : ((H, W), (H, W)) array_like, optional
-        The two states' images. Given, the grid's contrast in them (its modulus over
-        the local mean under one window, which a smooth light such as a lamp's hot
-        spot multiplies alike) must pick ``periods`` too: a hot spot multiplies the
-        modulus as a stain would, not the contrast.
+        The two states' images. Given, the ratio of the grid's second harmonic to its
+        first in them (which a smooth light multiplying the grid, such as a lamp's
+        hot spot, or adding to it, such as a highlight, leaves as it is) must pick
+        ``periods`` too: a hot spot multiplies the modulus as a stain would.
 
     Returns
     -------
     (bool, str)
-        Whether the moduli (and the contrasts) pick ``periods`` among the
+        Whether the moduli (and the harmonics' ratios) pick ``periods`` among the
         whole-period offsets (by the rule of the sum over the tiles, ``favoured``, or
         every rule), and what they say, in words.
     """
@@ -535,7 +537,7 @@ def _grid_content(reference: PhaseMaps, current: PhaseMaps, u: np.ndarray, ok: n
     search centred on the whole periods ``around``. ``material``: ``u`` is the
     displacement at the material point (a measurement's, Lagrangian), not the phases'
     at the camera's point. ``contents``: the two states' content maps at those samples
-    to compare instead of the moduli (:func:`_contrast`)."""
+    to compare instead of the moduli (:func:`_light_free`)."""
     lattice = reference.lattice
     q = decimation(lattice)
     pitch = max(lattice.pitches)
@@ -594,7 +596,7 @@ def _grid_shows(reference: PhaseMaps, current: PhaseMaps, u: np.ndarray, ok: np.
                 periods, *, material: bool = False, within=None,
                 images=None) -> tuple[bool, str]:
     """:func:`grid_shows` with ``u`` and ``ok`` at the samples: the modulus, and the
-    contrast as well when ``images`` are given, must show ``periods``."""
+    harmonics' ratio as well when ``images`` are given, must show ``periods``."""
     shown, said, doubt = _grid_evidence(reference, current, u, ok, periods,
                                         material=material, within=within, images=images)
     return (shown and not doubt), (doubt or said)
@@ -604,9 +606,10 @@ def _grid_evidence(reference: PhaseMaps, current: PhaseMaps, u: np.ndarray, ok: 
                    periods, *, material: bool = False, within=None,
                    images=None) -> tuple[bool, str, str]:
     """``(shown, said, doubt)``: whether the grid's modulus shows the whole periods
-    ``periods`` and the grid's contrast in ``images`` (when given) does not put them
-    elsewhere, what they say, and, where the modulus shows them but the contrast
-    cannot tell, why that is no confirmation (empty otherwise)."""
+    ``periods`` and the ratio of the grid's harmonics in ``images`` (when given,
+    :func:`_light_free`) does not put them elsewhere, what they say, and, where the
+    modulus shows them but that ratio cannot tell, why that is no confirmation (empty
+    otherwise)."""
     # the search centred on the periods tested: they are then never at its edge, and
     # the phases' own order lies within its reach for shifts of a few periods
     want = tuple(int(v) for v in np.rint(periods))
@@ -616,18 +619,26 @@ def _grid_evidence(reference: PhaseMaps, current: PhaseMaps, u: np.ndarray, ok: 
     if not shown or images is None:
         return shown, said, ""
     q = decimation(reference.lattice)
-    c = _grid_content(reference, current, u, ok, material=material, within=within,
-                      around=want, contents=tuple(_contrast(im, reference.lattice, q)
-                                                  for im in images))
-    what = "its contrast (modulus over the local mean, which no lighting changes)"
-    seen, more = _says(c, want, what)
-    if seen:
-        return True, f"{said}, and {more.removeprefix('its ')}", ""
-    if c.confident or c.favoured:
-        return False, f"{said} but {more}", ""
+    lat = reference.lattice
+    told = []
+    # what no light imitates: the ratio of the grid's harmonics, and where it vanishes
+    for what, make in (("its second harmonic over its first", _light_free),
+                       ("the places where it vanishes", _vanishing)):
+        contents = tuple(make(im, lat, q) for im in images)
+        if contents[0] is None:
+            told.append(f"{what} cannot be read at this pitch (folded onto a carrier)")
+            continue
+        c = _grid_content(reference, current, u, ok, material=material, within=within,
+                          around=want, contents=contents)
+        seen, more = _says(c, want, what)
+        if seen:
+            return True, f"{said}, and {more.removeprefix('its ')}", ""
+        if c.confident or c.favoured:
+            return False, f"{said} but {more}", ""
+        told.append(more)
     return True, said, (f"not confirmed: the image content that moved could be the light "
                         f"(a lamp's hot spot multiplies the grid as a stain would): {said} "
-                        f"but {more}")
+                        f"but {'; '.join(told)}")
 
 
 def _says(g: ContentOrder, want: tuple, what: str) -> tuple[bool, str]:
@@ -641,20 +652,30 @@ def _says(g: ContentOrder, want: tuple, what: str) -> tuple[bool, str]:
     return False, f"{what} puts them at {g.offset[0]}, {g.offset[1]} periods ({g.reason})"
 
 
-def _contrast(image, lattice: Lattice, q: int) -> np.ndarray:
-    """The logarithm of the grid's contrast in ``image``: the mean modulus of its two
-    carriers over its local mean, both demodulated by one Gaussian (std the longer
-    pitch), sampled every ``q`` px from pixel 0.
+def _light_free(image, lattice: Lattice, q: int) -> np.ndarray | None:
+    """The logarithm of the ratio of the grid's second harmonics to its carriers in
+    ``image`` (the moduli summed over the two wave vectors), both demodulated by one
+    Gaussian (std the longer pitch), sampled every ``q`` px from pixel 0; None where a
+    second harmonic, folded by the pixels, lies within the window's band of the mean or
+    of a carrier (pitches of 4 px and less, 2 pi sigma |2 k - k'| < 3).
 
-    The image is the specimen's reflectance ``R`` times the light ``L`` plus what its
-    surface reflects. A smooth ``L`` (a lamp's hot spot, vignetting) multiplies the
-    carrier's modulus and the local mean alike under the one window: their ratio is
-    ``R``'s own, whatever the light does. What is printed on or lies on the specimen
-    changes it (a spot darkening part of a period, a line's width, a hole's or an
-    edge's collapse of the grid), and moves with the specimen."""
+    The image is the specimen's reflectance times the light, plus what its surface
+    reflects. A smooth light (a lamp's hot spot, vignetting) multiplies every harmonic
+    of the grid alike under the one window; what the surface reflects (a highlight)
+    adds to the mean alone: their ratio is the print's own, whatever the light does.
+    What is printed on or lies on the specimen and is finer than the window changes
+    it (a spot darkening part of a period, a line's width, an edge), and moves with
+    the specimen. A print without a second harmonic (a sine, or symmetric square
+    lines) has nothing here, and nothing confirms what the light could have done."""
     x = np.asarray(image, dtype=np.float64)
     pitch = max(lattice.pitches)
     H, W = x.shape
+    K = np.asarray(lattice.K, dtype=np.float64)
+    others = np.vstack([np.zeros((1, 2)), K, -K])
+    for k in 2 * K:
+        folded = k - np.rint(k)
+        if np.min(np.hypot(*(others - folded).T)) * 2 * np.pi * pitch < 3.0:
+            return None
 
     def demodulated(kx, ky):
         # separable: exp(-2 i pi (kx x + ky y))
@@ -662,9 +683,30 @@ def _contrast(image, lattice: Lattice, q: int) -> np.ndarray:
                      np.exp(-2j * np.pi * kx * np.arange(W))) * x
         return np.hypot(smooth_decimate(e.real, pitch, q), smooth_decimate(e.imag, pitch, q))
 
-    mod = sum(demodulated(kx, ky) for kx, ky in np.asarray(lattice.K, dtype=np.float64))
-    ratio = mod / 2 / np.maximum(smooth_decimate(x, pitch, q), 1e-300)
+    first = sum(demodulated(kx, ky) for kx, ky in K)
+    second = sum(demodulated(2 * kx, 2 * ky) for kx, ky in K)
+    ratio = second / np.maximum(first, 1e-300)
     return np.log(np.maximum(ratio, 1e-3 * max(float(np.max(ratio)), 1e-300)))
+
+
+def _vanishing(image, lattice: Lattice, q: int) -> np.ndarray:
+    """Where the grid vanishes while the image does not (a hole's or an edge's
+    collapse of the grid): the logarithm of the grid's contrast (its carriers' modulus
+    over the local mean, under one Gaussian of std the longer pitch) relative to its
+    median, kept between 1/16 and 1/4, sampled every ``q`` px. A lamp's light
+    multiplies carrier and mean alike; a highlight lowers the contrast below a
+    quarter only where it outshines the grid's mean level three times over."""
+    x = np.asarray(image, dtype=np.float64)
+    pitch = max(lattice.pitches)
+    H, W = x.shape
+    mod = 0.0
+    for kx, ky in np.asarray(lattice.K, dtype=np.float64):
+        e = np.outer(np.exp(-2j * np.pi * ky * np.arange(H)),
+                     np.exp(-2j * np.pi * kx * np.arange(W))) * x
+        mod = mod + np.hypot(smooth_decimate(e.real, pitch, q),
+                             smooth_decimate(e.imag, pitch, q))
+    c = mod / np.maximum(np.abs(smooth_decimate(x, pitch, q)), 1e-300)
+    return np.log(np.clip(c / max(float(np.median(c)), 1e-300), 1 / 16, 1 / 4))
 
 
 def _band_weights(m, pitch, q=1) -> tuple[np.ndarray, np.ndarray]:

@@ -347,8 +347,8 @@ def check_after_warp(res: Measurement, rec: FringeOrder, coarse: _CoarseReferenc
     def shown(off, image=None):
         # a correction by whole periods only where the grid's own modulus shows it too:
         # the image's light alone (a hot spot, a highlight) may have moved by them; the
-        # smooth content below the grid's frequency also in the grid's contrast, which
-        # a hot spot does not change
+        # smooth content below the grid's frequency also in the ratio of the grid's
+        # harmonics, which no light changes
         return coarse.shows(res.reference, res.deformed, uq, vq, off, material=True,
                             image=image)
 
@@ -358,7 +358,7 @@ def check_after_warp(res: Measurement, rec: FringeOrder, coarse: _CoarseReferenc
             return _unshown(res, rec, t, name, c.reason, seen[1])
         if not any(c.offset) and not rec.confirmed and not shown(c.offset, mean_cur)[0]:
             # the content that matches may be a light that moved with the field's
-            # whole periods: no confirmation without the grid's contrast
+            # whole periods: no confirmation without the grid's harmonics
             return res, rec, []
         return _recheck(res, rec, t, name, c.reason, _content_record(c))
     u = np.stack([nearest_filled(res.u[k], v) for k in range(2)])
@@ -375,7 +375,7 @@ def check_after_warp(res: Measurement, rec: FringeOrder, coarse: _CoarseReferenc
     # the whole periods the content is off, and the correction they call for
     off = np.rint(lattice.K @ np.array(est.shift))
     t = np.linalg.solve(lattice.K, off)
-    light = None if sharp(est) else mean_cur  # features finer than light need no contrast
+    light = None if sharp(est) else mean_cur  # features finer than light: no ratio needed
     if np.any(off) and not (seen := shown(off, light))[0]:
         return _unshown(res, rec, t, name, est.reason, seen[1])
     if not np.any(off) and not rec.confirmed and light is not None \
