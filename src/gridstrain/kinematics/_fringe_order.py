@@ -669,7 +669,6 @@ def _light_free(image, lattice: Lattice, q: int) -> np.ndarray | None:
     lines) has nothing here, and nothing confirms what the light could have done."""
     x = np.asarray(image, dtype=np.float64)
     pitch = max(lattice.pitches)
-    H, W = x.shape
     K = np.asarray(lattice.K, dtype=np.float64)
     others = np.vstack([np.zeros((1, 2)), K, -K])
     for k in 2 * K:
@@ -677,15 +676,7 @@ def _light_free(image, lattice: Lattice, q: int) -> np.ndarray | None:
         if np.min(np.hypot(*(others - folded).T)) * 2 * np.pi * pitch < 3.0:
             return None
 
-    def demodulated(kx, ky):
-        # separable: exp(-2 i pi (kx x + ky y))
-        e = np.outer(np.exp(-2j * np.pi * ky * np.arange(H)),
-                     np.exp(-2j * np.pi * kx * np.arange(W))) * x
-        return np.hypot(smooth_decimate(e.real, pitch, q), smooth_decimate(e.imag, pitch, q))
-
-    first = sum(demodulated(kx, ky) for kx, ky in K)
-    second = sum(demodulated(2 * kx, 2 * ky) for kx, ky in K)
-    ratio = second / np.maximum(first, 1e-300)
+    ratio = _moduli(x, 2 * K, pitch, q) / np.maximum(_moduli(x, K, pitch, q), 1e-300)
     return np.log(np.maximum(ratio, 1e-3 * max(float(np.max(ratio)), 1e-300)))
 
 
@@ -698,15 +689,22 @@ def _vanishing(image, lattice: Lattice, q: int) -> np.ndarray:
     quarter only where it outshines the grid's mean level three times over."""
     x = np.asarray(image, dtype=np.float64)
     pitch = max(lattice.pitches)
+    c = _moduli(x, np.asarray(lattice.K, dtype=np.float64), pitch, q) / np.maximum(
+        np.abs(smooth_decimate(x, pitch, q)), 1e-300)
+    return np.log(np.clip(c / max(float(np.median(c)), 1e-300), 1 / 16, 1 / 4))
+
+
+def _moduli(x: np.ndarray, ks: np.ndarray, s: float, q: int) -> np.ndarray:
+    """The sum over the wave vectors ``ks`` (n, 2) of the moduli of ``x`` demodulated
+    at each by a Gaussian of std ``s`` px, sampled every ``q`` px."""
     H, W = x.shape
-    mod = 0.0
-    for kx, ky in np.asarray(lattice.K, dtype=np.float64):
+    out = 0.0
+    for kx, ky in ks:
+        # separable: exp(-2 i pi (kx x + ky y))
         e = np.outer(np.exp(-2j * np.pi * ky * np.arange(H)),
                      np.exp(-2j * np.pi * kx * np.arange(W))) * x
-        mod = mod + np.hypot(smooth_decimate(e.real, pitch, q),
-                             smooth_decimate(e.imag, pitch, q))
-    c = mod / np.maximum(np.abs(smooth_decimate(x, pitch, q)), 1e-300)
-    return np.log(np.clip(c / max(float(np.median(c)), 1e-300), 1 / 16, 1 / 4))
+        out = out + np.hypot(smooth_decimate(e.real, s, q), smooth_decimate(e.imag, s, q))
+    return out
 
 
 def _band_weights(m, pitch, q=1) -> tuple[np.ndarray, np.ndarray]:
