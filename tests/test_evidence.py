@@ -177,6 +177,94 @@ def test_a_highlight_moved_by_a_lattice_vector_is_not_the_specimen(pitch, glare_
     assert "the grid's own modulus does not show them" in res.fringe_orders[0].detail
 
 
+def _lamp_pair(pitch, shape, u0, *, hot_sd, hot_move, printed, seed, hot=0.8):
+    """A pair under a lamp whose hot spot (std ``hot_sd`` px, +``hot`` of the light)
+    moved by ``hot_move`` px while the specimen moved by ``u0`` px and strained."""
+    rng = np.random.default_rng(seed)
+    at = np.array([100.0, 75.0])
+    D = spots(shape, seed + 5) if printed else None
+
+    def disp(X, Y):
+        return u0[0] + 1e-3 * (X - 96), u0[1] - 3e-4 * (Y - 80)
+
+    ref = photograph(shape, pitch, defects=D, hot=hot, hot_at=at, hot_sd=hot_sd, noise=rng,
+                     full=1800)
+    cur = photograph(shape, pitch, disp, defects=D, hot=hot, hot_sd=hot_sd, noise=rng,
+                     full=1800, hot_at=at + np.asarray(hot_move, dtype=float))
+    return ref, cur, disp
+
+
+@pytest.mark.parametrize(("pitch", "hot_sd", "move", "plus_u", "printed"), [
+    (5.0, 4.0, (1, 0), False, False), (5.0, 4.0, (1, 1), True, True),
+    (5.0, 6.0, (0, 1), False, False), (5.0, 10.0, (1, 0), False, False),
+    (5.0, 16.0, (1, 1), True, True), (5.0, 25.0, (0, 1), False, False),
+    (6.4, 4.0, (1, 0), False, False), (6.4, 6.0, (1, 0), True, True),
+    (6.4, 10.0, (-1, 0), True, False), (6.4, 25.0, (1, 1), False, True),
+])
+def test_a_hot_spot_moved_by_a_lattice_vector_is_never_confirmed(pitch, hot_sd, move,
+                                                                 plus_u, printed):
+    # a pair: the specimen moves by about a pixel (0.8, 0.3) px, more than the 0.1
+    # period a first state is followed within; the lamp's hot spot (std 4 to 25 px,
+    # +80 % of the light) by a lattice vector, or a lattice vector plus that pixel. It
+    # multiplies the grid as a stain would: the image features and the grid's modulus
+    # follow it; the ratio of the grid's harmonics cannot
+    shape = (160, 192)
+    u0 = (0.8, 0.3)
+    hot_move = pitch * np.array(move, dtype=float) + (np.array(u0) if plus_u else 0.0)
+    ref, cur, disp = _lamp_pair(pitch, shape, u0, hot_sd=hot_sd, hot_move=hot_move,
+                                printed=printed, seed=int(10 * hot_sd + pitch))
+    res = measure_series(ref, cur, outliers="warn")
+    ((wrong, confirmed),) = _verdicts(res, [disp], pitch)
+    record = res.fringe_orders[0]
+    assert not (wrong and confirmed), record.detail
+    if wrong:
+        # the state says why: the content that moved could be the light
+        assert "could be the light" in record.detail or "light that moved" in record.detail
+        assert any(res.names[1] in m and "not confirmed" in m for m in res.warnings)
+
+
+@pytest.mark.parametrize(("pitch", "hot_sd", "glare_sd", "move"), [
+    (5.0, 10.0, 6.0, (1, 0)), (5.0, 16.0, 5.0, (0, 1)), (5.0, 6.0, 6.0, (1, 0)),
+    (6.4, 25.0, 4.0, (-1, 0))])
+def test_a_lamp_and_its_highlight_moved_together_are_never_confirmed(pitch, hot_sd,
+                                                                     glare_sd, move):
+    # the lamp's hot spot (multiplying the grid: the modulus follows it) and its
+    # specular highlight (adding to the image: the grid's contrast follows it) moved
+    # together by a lattice vector plus the specimen's (0.8, 0.3) px: only what no
+    # light changes, the ratio of the grid's harmonics, may confirm whole periods
+    shape = (160, 192)
+    rng = np.random.default_rng(int(hot_sd))
+    u0 = np.array([0.8, 0.3])
+
+    def disp(X, Y):
+        return u0[0] + 1e-3 * (X - 96), u0[1] - 3e-4 * (Y - 80)
+
+    at = np.array([100.0, 75.0])
+    mv = pitch * np.array(move, dtype=float) + u0
+    light = {"hot": 0.8, "hot_sd": hot_sd, "glare": 0.6, "glare_sd": glare_sd,
+             "full": 1500}
+    ref = photograph(shape, pitch, hot_at=at, glare_at=at, noise=rng, **light)
+    cur = photograph(shape, pitch, disp, hot_at=at + mv, glare_at=at + mv, noise=rng,
+                     **light)
+    res = measure_series(ref, cur, outliers="warn")
+    ((wrong, confirmed),) = _verdicts(res, [disp], pitch)
+    assert not (wrong and confirmed), res.fringe_orders[0].detail
+
+
+@pytest.mark.parametrize(("pitch", "move", "hot"), [
+    (5.0, (1, 0), 0.0), (5.0, (0, -1), 0.0), (6.4, (2, 0), 0.0), (5.0, (1, 1), 0.2)])
+def test_a_printed_specimen_moved_by_whole_periods_is_confirmed(pitch, move, hot):
+    # the specimen itself moves by whole periods plus (0.8, 0.3) px, its printed spots
+    # (1 to 2.5 px, sharper than any lamp's light) with it, the lamp still
+    shape = (160, 192)
+    u0 = pitch * np.array(move, dtype=float) + np.array([0.8, 0.3])
+    ref, cur, disp = _lamp_pair(pitch, shape, u0, hot_sd=16.0, hot_move=(0.0, 0.0),
+                                printed=True, seed=50 + int(pitch), hot=hot)
+    res = measure_series(ref, cur, outliers="warn")
+    assert _verdicts(res, [disp], pitch) == [(False, True)], res.fringe_orders[0].detail
+    assert res.fringe_orders[0].source == "image features"
+
+
 # ------------------------------------------------------------------------ false alarms
 
 

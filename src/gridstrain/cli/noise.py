@@ -54,8 +54,10 @@ def register(sub) -> None:
     p.add_argument("--bit-depth", type=int, choices=(8, 12, 16),
                    help="override the detected bit depth")
     p.add_argument("--degree", type=int, default=None, choices=(0, 1, 2, 3, 4),
-                   help="polynomial degree of the vibration model (default: 3, or the "
-                   "highest the number of frames allows; 0 = static set-up)")
+                   help="fit a polynomial of this degree in the frames' shifts instead of "
+                   "the default vibration model (the shifts and the carriers' harmonics "
+                   "of order 1 to 3, which holds at any vibration amplitude); 0 = static "
+                   "set-up")
     add_lattice_options(p.add_argument_group("lattice"))
     p.add_argument("--overwrite", action="store_true", help=OVERWRITE_HELP)
     p.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -126,15 +128,11 @@ def _estimate(series, lattice, source: str, degree: int | None, progress):
     """``(noise model, vibration report or None, vibration model degree or None)``:
     from the stack's temporal scatter when it has enough frames (or ``source`` says
     so), else from its first image alone."""
-    fits = [d for d in (3, 2, 1) if series.n_frames >= (d + 1) * (d + 2) // 2 + 3]
-    use_stack = source == "stack" or (source == "auto" and (fits or degree == 0)
-                                      and series.n_frames >= 6)
-    if degree is None and use_stack:
-        # (d + 1)(d + 2) / 2 regressors and 3 degrees of freedom at least
-        if not fits:
-            raise ValueError(f"stack: at least 6 frames are needed to separate the noise "
-                             f"from the vibrations, got {series.n_frames} (use --from image)")
-        degree = fits[0]
+    use_stack = source == "stack" or (source == "auto" and series.n_frames >= 6)
+    if use_stack and degree != 0 and series.n_frames < 6:
+        # the mean, the two shifts and 3 degrees of freedom at least
+        raise ValueError(f"stack: at least 6 frames are needed to separate the noise "
+                         f"from the vibrations, got {series.n_frames} (use --from image)")
     vib = None
     if use_stack:
         model = estimate_noise(series.frames(), lattice, saturation=series.saturation_level,
@@ -159,6 +157,8 @@ def _summary(stack, series, lattice, model, vib, degree, floor) -> dict:
         "result_kind": NOISE_RESULT_KIND,
         "noise": {"K": model.K, "L": model.L, "K_ci": model.K_ci, "L_ci": model.L_ci,
                   "method": model.method, "vibration_model_degree": degree,
+                  "vibration_terms": (None if model.motion_terms is None
+                                      else list(model.motion_terms)),
                   "K_sensor": model.K_sensor, "L_sensor": model.L_sensor,
                   "reduced_chi2": model.reduced_chi2, "units": "stored grey levels"},
         "noise_model": model.as_dict(),
@@ -202,8 +202,9 @@ def _print_report(series, lattice, model, vib, degree, floor, T: int) -> None:
     print(f"lattice: pitches {fmt(lattice.pitches[0])}/{fmt(lattice.pitches[1])} px, "
           f"angles {fmt(lattice.angles[0])}/{fmt(lattice.angles[1])} deg")
     ci = (lambda c: "" if c is None else f"  (95 % CI {fmt(c[0])} to {fmt(c[1])})")  # noqa: E731
-    how = (f"vibrations regressed out, degree {degree}" if vib is not None else
-           "from the first image alone, grid removed by its harmonics")
+    how = ("from the first image alone, grid removed by its harmonics" if vib is None else
+           f"vibrations regressed out, polynomial of degree {degree}" if degree is not None
+           else _motion_words(model.motion_terms or ()))
     print(f"noise Var = K l + L ({how}):")
     print(f"                      K = {fmt(model.K)}{ci(model.K_ci)}")
     print(f"                      L = {fmt(model.L)}{ci(model.L_ci)}   (stored grey levels)")
@@ -220,6 +221,16 @@ def _print_report(series, lattice, model, vib, degree, floor, T: int) -> None:
     u, e = floor.theory_u[0], floor.theory_strain[0]
     print(f"  u_x {fmt(u[0])} px   u_y {fmt(u[1])} px")
     print(f"  e_xx {fmt(e[0])}   e_yy {fmt(e[1])}   e_xy {fmt(e[2])}")
+
+
+def _motion_words(terms) -> str:
+    """How the vibrations were regressed out, from the terms the fit kept."""
+    n_harm = sum(1 for t in terms if t not in ("x", "y"))
+    if not terms:
+        return "stack looks still, plain temporal variance"
+    if not n_harm:
+        return "shifts regressed out"
+    return f"shifts and {n_harm} terms of the carriers' harmonics regressed out"
 
 
 def _arr(a):

@@ -75,6 +75,23 @@ _COARSE_MIN_SAMPLES = 64
 _MIN_PEAK_TO_ALIAS = 1.5
 
 
+# Features that correlate at the pitch this many times better than their aliases are
+# sharper than a lamp's light. A smooth bump of light of std s, band-passed between
+# half a pitch and a pitch, correlates with itself a period p away by about
+# exp(-p^2 / (4 s^2)): 2.5 times less only for s <= 0.52 p, a hot spot half a pitch
+# wide (a focused beam, not a lamp's). Measured: hot spots of std 4 to 25 px moved by
+# a lattice vector at pitches 5 and 6.4, 1.0 to 2.3; printed spots of 1 to 2.5 px,
+# 2.7 to 3.8.
+_SHARP_PEAK_TO_ALIAS = 2.5
+
+
+def sharp(est: CoarseEstimate) -> bool:
+    """Whether the image features ``est`` are too sharp at the pitch to be light
+    (:data:`_SHARP_PEAK_TO_ALIAS`): content printed on or lying on the specimen."""
+    return est.confident and not math.isnan(est.disagreement) and \
+        est.peak_to_alias >= _SHARP_PEAK_TO_ALIAS and not est.tiles[1]
+
+
 # The correlation peak must lie within this fraction of a period (along each wave
 # vector) of the candidate the phases allow: the peak is good to a pixel, a quarter
 # of a 4-px pitch.
@@ -219,6 +236,11 @@ class CoarseEstimate:
         second-best offset over the best's; NaN when not made.
     tiles : (2,) tuple of int
         Of that comparison: tiles agreeing with the order taken, informative tiles.
+    light_doubt : str
+        Where the estimate puts the displacement whole periods from the phases' and
+        the grid's modulus shows them but its harmonics' ratio cannot tell (a hot spot of the
+        lamp that moved imitates a stain): why the order it gives is not confirmed;
+        empty otherwise.
     """
 
     shift: tuple[float, float]
@@ -231,6 +253,7 @@ class CoarseEstimate:
     reason: str
     residual_ratio: float = math.nan
     tiles: tuple[int, int] = (0, 0)
+    light_doubt: str = ""
 
 
 def coarse_displacement(reference, deformed, lattice: Lattice, *, mask=None,
@@ -366,7 +389,8 @@ class _CoarseReference:
             if not np.any(np.rint(self.lattice.K @ (np.array(est.shift) - phases))):
                 return est  # the order the phases give: nothing moved by whole periods
             field = field_from_phases(z, ok, self.lattice)
-            return self._corroborated(est, reference, current, field, ok, est.shift)
+            return self._corroborated(est, reference, current, field, ok, est.shift,
+                                      None if sharp(est) else deformed)
         if self._futile >= _FUTILE and self._since < _RECHECK:
             # a record on a reference with nothing but the grid: its content has
             # decided nothing state after state, and compared again every _RECHECK
@@ -386,21 +410,29 @@ class _CoarseReference:
                 tiles=tiles, reason=f"{c.reason} (at the pitch: {est.reason})")
             if not any(c.offset):
                 return found
-            return self._corroborated(found, reference, current, u, ok, c.shift)
+            return self._corroborated(found, reference, current, u, ok, c.shift, deformed)
         return dataclasses.replace(est, residual_ratio=c.residual_ratio, tiles=tiles,
                                    reason=f"{est.reason}; below the grid's frequency: "
                                           f"{c.reason}")
 
     def shows(self, reference: PhaseMaps, current: PhaseMaps, u: np.ndarray,
-              ok: np.ndarray, periods, *, material: bool = False) -> tuple[bool, str]:
-        """:func:`_grid_shows` with ``u`` and ``ok`` at this reference's samples."""
-        return _grid_shows(reference, current, u, ok, periods, material=material)
+              ok: np.ndarray, periods, *, material: bool = False,
+              image=None) -> tuple[bool, str]:
+        """:func:`_grid_shows` with ``u`` and ``ok`` at this reference's samples, and the
+        ratio of the grid's harmonics in this reference and the deformed ``image`` when
+        given."""
+        return _grid_shows(reference, current, u, ok, periods, material=material,
+                           images=None if image is None else (self.reference, image))
 
     def _corroborated(self, est: CoarseEstimate, reference: PhaseMaps, current: PhaseMaps,
-                      u: np.ndarray, ok: np.ndarray, shift) -> CoarseEstimate:
+                      u: np.ndarray, ok: np.ndarray, shift, deformed=None) -> CoarseEstimate:
         """``est``, which puts the displacement whole periods from the order the phases
         give (``shift``, px), kept confident only when the grids' own moduli show the
-        same whole periods (:func:`grid_shows`).
+        same whole periods and the ratio of their harmonics in the images
+        (``deformed`` the current one, None for features too sharp to be light:
+        :func:`sharp`) does not put them elsewhere (:func:`grid_shows`); where that
+        ratio cannot tell, ``light_doubt`` says so: the order may be used, not
+        confirmed.
 
         The image's light is the specimen's reflectance times the lighting, plus what
         its surface reflects: a lamp's hot spot or a specular highlight that moved by
@@ -408,19 +440,25 @@ class _CoarseReference:
         grid's modulus, demodulated at the grid's frequency, does not carry what the
         surface reflects (smooth, it adds nothing at that frequency) and carries what is
         printed or lies on the specimen (it multiplies the grid): a whole-period shift
-        that is the specimen's shows in it too."""
+        that is the specimen's shows in it too. A lamp's hot spot multiplies the grid as
+        well, as a stain would, and its highlight comes with it: only the ratio of the
+        grid's second harmonic to its first, which no light changes
+        (:func:`_light_free`), tells the specimen's content from the light's."""
         # the whole periods ``shift`` adds to the field ``u``, at its median
         v = u[:, ok]
         med = np.array([np.median(c) for c in v])
-        same, seen = self.shows(reference, current, u, ok,
-                                self.lattice.K @ (np.array(shift) - med))
+        same, seen, doubt = _grid_evidence(
+            reference, current, u, ok, self.lattice.K @ (np.array(shift) - med),
+            images=None if deformed is None else (self.reference, deformed))
         if same:
-            return dataclasses.replace(est, reason=f"{est.reason}; {seen}")
+            return dataclasses.replace(est, reason=f"{est.reason}; {seen}",
+                                       light_doubt=doubt)
         return dataclasses.replace(
             est, confident=False,
             reason=f"the image's light puts the displacement whole periods from the "
                    f"phases' smallest ({shift[0]:.2f}, {shift[1]:.2f} px: {est.reason}) but "
-                   f"{seen}: light that moved (a hot spot, a highlight), not the specimen")
+                   f"{seen}: it may be light that moved (a hot spot, a highlight), not the "
+                   f"specimen")
 
     def estimate(self, deformed: np.ndarray, phase_shift) -> CoarseEstimate:
         """:func:`coarse_displacement` of ``deformed`` (float64, checked)."""
@@ -435,7 +473,7 @@ class _CoarseReference:
 
 
 def grid_shows(reference: PhaseMaps, deformed: PhaseMaps, u, valid, periods, *,
-               within=None) -> tuple[bool, str]:
+               within=None, images=None) -> tuple[bool, str]:
     """Whether the grid's own modulus shows a displacement whole periods from ``u``.
 
     Image features that put a displacement whole periods away may follow the light
@@ -461,13 +499,18 @@ def grid_shows(reference: PhaseMaps, deformed: PhaseMaps, u, valid, periods, *,
         The whole periods ``(m, n)`` to test, added to ``u``.
     within : (H, W) bool array_like, optional
         The pixels whose content is compared (default: every pixel).
+    images : ((H, W), (H, W)) array_like, optional
+        The two states' images. Given, the ratio of the grid's second harmonic to its
+        first in them (which a smooth light multiplying the grid, such as a lamp's
+        hot spot, or adding to it, such as a highlight, leaves as it is) must pick
+        ``periods`` too: a hot spot multiplies the modulus as a stain would.
 
     Returns
     -------
     (bool, str)
-        Whether the moduli pick ``periods`` among the whole-period offsets (by the
-        rule of the sum over the tiles, ``favoured``, or every rule), and what they
-        say, in words.
+        Whether the moduli (and the harmonics' ratios) pick ``periods`` among the
+        whole-period offsets (by the rule of the sum over the tiles, ``favoured``, or
+        every rule), and what they say, in words.
     """
     check_type(reference, "reference", PhaseMaps)
     check_type(deformed, "deformed", PhaseMaps)
@@ -475,18 +518,26 @@ def grid_shows(reference: PhaseMaps, deformed: PhaseMaps, u, valid, periods, *,
     v = check_mask(valid, reference.shape, "valid")[::q, ::q]
     uq = np.asarray(u, dtype=np.float64)[:, ::q, ::q]
     w = None if within is None else check_mask(within, reference.shape, "within")[::q, ::q]
-    return _grid_shows(reference, deformed, uq, v, periods, material=True, within=w)
+    if images is not None:
+        images = tuple(as_image(im, name).astype(np.float64)
+                       for im, name in zip(images, ("images[0]", "images[1]"), strict=True))
+        for im, name in zip(images, ("images[0]", "images[1]"), strict=True):
+            check_same_shape(im.shape, reference.shape, name, "the maps")
+    return _grid_shows(reference, deformed, uq, v, periods, material=True, within=w,
+                       images=images)
 
 
 def _grid_content(reference: PhaseMaps, current: PhaseMaps, u: np.ndarray, ok: np.ndarray,
-                  *, material: bool = False, within=None, around=(0, 0)) -> ContentOrder:
+                  *, material: bool = False, within=None, around=(0, 0),
+                  contents=None) -> ContentOrder:
     """:func:`order_from_content` of the grids' own moduli (the logarithm of the mean
     modulus of the two wave vectors, sampled every ``q`` px) with the field ``u`` (2,
     h, w) and ``ok`` at those samples, over the samples ``within`` (default all), the
     field carried to the others from the nearest of ``ok`` (:func:`_extended`), the
     search centred on the whole periods ``around``. ``material``: ``u`` is the
     displacement at the material point (a measurement's, Lagrangian), not the phases'
-    at the camera's point."""
+    at the camera's point. ``contents``: the two states' content maps at those samples
+    to compare instead of the moduli (:func:`_light_free`)."""
     lattice = reference.lattice
     q = decimation(lattice)
     pitch = max(lattice.pitches)
@@ -502,16 +553,16 @@ def _grid_content(reference: PhaseMaps, current: PhaseMaps, u: np.ndarray, ok: n
         m = smooth_decimate(m, pitch, q) / np.maximum(smooth_decimate(w, pitch, q), 1e-6)
         return np.log(np.maximum(m, 1e-3 * max(float(np.max(m)), 1e-300)))
 
+    a, b = (content(reference), content(current)) if contents is None else contents
     if not ok.any():
-        return order_from_content(content(reference), content(current), u, ok, lattice, q,
-                                  around=around)
+        return order_from_content(a, b, u, ok, lattice, q, around=around)
     # every sample, the field carried to the invalid ones from their nearest valid
     # one, to first order: a hole's edge or the specimen's, where the modulus
     # collapses, lies in the invalid margin round them and is the strongest content
     # the grid carries
     u = _extended(np.asarray(u, dtype=np.float64), ok, q)
     use = np.ones_like(ok) if within is None else within
-    return order_from_content(content(reference), content(current), u, use, lattice, q,
+    return order_from_content(a, b, u, use, lattice, q,
                               around=around, gradient=None if material else gradient(u, q))
 
 
@@ -542,21 +593,118 @@ def _extended(u: np.ndarray, ok: np.ndarray, q: int) -> np.ndarray:
 
 
 def _grid_shows(reference: PhaseMaps, current: PhaseMaps, u: np.ndarray, ok: np.ndarray,
-                periods, *, material: bool = False, within=None) -> tuple[bool, str]:
-    """:func:`grid_shows` with ``u`` and ``ok`` at the samples."""
+                periods, *, material: bool = False, within=None,
+                images=None) -> tuple[bool, str]:
+    """:func:`grid_shows` with ``u`` and ``ok`` at the samples: the modulus, and the
+    harmonics' ratio as well when ``images`` are given, must show ``periods``."""
+    shown, said, doubt = _grid_evidence(reference, current, u, ok, periods,
+                                        material=material, within=within, images=images)
+    return (shown and not doubt), (doubt or said)
+
+
+def _grid_evidence(reference: PhaseMaps, current: PhaseMaps, u: np.ndarray, ok: np.ndarray,
+                   periods, *, material: bool = False, within=None,
+                   images=None) -> tuple[bool, str, str]:
+    """``(shown, said, doubt)``: whether the grid's modulus shows the whole periods
+    ``periods`` and the ratio of the grid's harmonics in ``images`` (when given,
+    :func:`_light_free`) does not put them elsewhere, what they say, and, where the
+    modulus shows them but that ratio cannot tell, why that is no confirmation (empty
+    otherwise)."""
     # the search centred on the periods tested: they are then never at its edge, and
     # the phases' own order lies within its reach for shifts of a few periods
     want = tuple(int(v) for v in np.rint(periods))
     g = _grid_content(reference, current, u, ok, material=material, within=within,
                       around=want)
-    same = want == tuple(g.offset)
-    if same and (g.confident or g.favoured):
-        return True, (f"the grid's own modulus shows the same whole periods (ratio of "
-                      f"residuals {g.residual_ratio:.2f})")
+    shown, said = _says(g, want, "the grid's own modulus")
+    if not shown or images is None:
+        return shown, said, ""
+    q = decimation(reference.lattice)
+    lat = reference.lattice
+    told = []
+    # what no light imitates: the ratio of the grid's harmonics, and where it vanishes
+    for what, make in (("its second harmonic over its first", _light_free),
+                       ("the places where it vanishes", _vanishing)):
+        contents = tuple(make(im, lat, q) for im in images)
+        if contents[0] is None:
+            told.append(f"{what} cannot be read at this pitch (folded onto a carrier)")
+            continue
+        c = _grid_content(reference, current, u, ok, material=material, within=within,
+                          around=want, contents=contents)
+        seen, more = _says(c, want, what)
+        if seen:
+            return True, f"{said}, and {more.removeprefix('its ')}", ""
+        if c.confident or c.favoured:
+            return False, f"{said} but {more}", ""
+        told.append(more)
+    return True, said, (f"not confirmed: the image content that moved could be the light "
+                        f"(a lamp's hot spot multiplies the grid as a stain would): {said} "
+                        f"but {'; '.join(told)}")
+
+
+def _says(g: ContentOrder, want: tuple, what: str) -> tuple[bool, str]:
+    """Whether the content comparison ``g`` picks the whole periods ``want``, and what
+    it says, in words, of ``what`` was compared."""
+    if want == tuple(g.offset) and (g.confident or g.favoured):
+        return True, (f"{what} shows the same whole periods (ratio of residuals "
+                      f"{g.residual_ratio:.2f})")
     if not (g.confident or g.favoured):
-        return False, f"the grid's own modulus does not show them ({g.reason})"
-    return False, (f"the grid's own modulus puts them at {g.offset[0]}, {g.offset[1]} "
-                   f"periods ({g.reason})")
+        return False, f"{what} does not show them ({g.reason})"
+    return False, f"{what} puts them at {g.offset[0]}, {g.offset[1]} periods ({g.reason})"
+
+
+def _light_free(image, lattice: Lattice, q: int) -> np.ndarray | None:
+    """The logarithm of the ratio of the grid's second harmonics to its carriers in
+    ``image`` (the moduli summed over the two wave vectors), both demodulated by one
+    Gaussian (std the longer pitch), sampled every ``q`` px from pixel 0; None where a
+    second harmonic, folded by the pixels, lies within the window's band of the mean or
+    of a carrier (pitches of 4 px and less, 2 pi sigma |2 k - k'| < 3).
+
+    The image is the specimen's reflectance times the light, plus what its surface
+    reflects. A smooth light (a lamp's hot spot, vignetting) multiplies every harmonic
+    of the grid alike under the one window; what the surface reflects (a highlight)
+    adds to the mean alone: their ratio is the print's own, whatever the light does.
+    What is printed on or lies on the specimen and is finer than the window changes
+    it (a spot darkening part of a period, a line's width, an edge), and moves with
+    the specimen. A print without a second harmonic (a sine, or symmetric square
+    lines) has nothing here, and nothing confirms what the light could have done."""
+    x = np.asarray(image, dtype=np.float64)
+    pitch = max(lattice.pitches)
+    K = np.asarray(lattice.K, dtype=np.float64)
+    others = np.vstack([np.zeros((1, 2)), K, -K])
+    for k in 2 * K:
+        folded = k - np.rint(k)
+        if np.min(np.hypot(*(others - folded).T)) * 2 * np.pi * pitch < 3.0:
+            return None
+
+    ratio = _moduli(x, 2 * K, pitch, q) / np.maximum(_moduli(x, K, pitch, q), 1e-300)
+    return np.log(np.maximum(ratio, 1e-3 * max(float(np.max(ratio)), 1e-300)))
+
+
+def _vanishing(image, lattice: Lattice, q: int) -> np.ndarray:
+    """Where the grid vanishes while the image does not (a hole's or an edge's
+    collapse of the grid): the logarithm of the grid's contrast (its carriers' modulus
+    over the local mean, under one Gaussian of std the longer pitch) relative to its
+    median, kept between 1/16 and 1/4, sampled every ``q`` px. A lamp's light
+    multiplies carrier and mean alike; a highlight lowers the contrast below a
+    quarter only where it outshines the grid's mean level three times over."""
+    x = np.asarray(image, dtype=np.float64)
+    pitch = max(lattice.pitches)
+    c = _moduli(x, np.asarray(lattice.K, dtype=np.float64), pitch, q) / np.maximum(
+        np.abs(smooth_decimate(x, pitch, q)), 1e-300)
+    return np.log(np.clip(c / max(float(np.median(c)), 1e-300), 1 / 16, 1 / 4))
+
+
+def _moduli(x: np.ndarray, ks: np.ndarray, s: float, q: int) -> np.ndarray:
+    """The sum over the wave vectors ``ks`` (n, 2) of the moduli of ``x`` demodulated
+    at each by a Gaussian of std ``s`` px, sampled every ``q`` px."""
+    H, W = x.shape
+    out = 0.0
+    for kx, ky in ks:
+        # separable: exp(-2 i pi (kx x + ky y))
+        e = np.outer(np.exp(-2j * np.pi * ky * np.arange(H)),
+                     np.exp(-2j * np.pi * kx * np.arange(W))) * x
+        out = out + np.hypot(smooth_decimate(e.real, s, q), smooth_decimate(e.imag, s, q))
+    return out
 
 
 def _band_weights(m, pitch, q=1) -> tuple[np.ndarray, np.ndarray]:

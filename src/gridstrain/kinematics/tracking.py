@@ -27,6 +27,7 @@ from ._fringe_order import (
     FringeOrder,
     _CoarseReference,
     _from_estimate,
+    sharp,
     strain_if_off,
 )
 from ._grid_free import decimation
@@ -249,6 +250,13 @@ class _Tracker:
         else:
             res = deformation(ref_pm, pm, lagrangian=self.lagrangian, guess=g)
             rec = FringeOrder("user", True, res.guess, "the given guess")
+        if rec.confirmed and rec.source == "image features" and est.light_doubt:
+            # the features' whole periods are used (the grid's modulus shows them) but
+            # nothing that the light cannot imitate confirms them
+            rec = dataclasses.replace(rec, confirmed=False,
+                                      detail=f"{est.light_doubt}; {rec.detail}")
+            warnings.append(f"{name}: fringe order {est.light_doubt}; the displacement "
+                            f"the image features give is kept ({_median_u(res)})")
         if not rec.confirmed:
             rec = _doubt_said(res, rec, warnings)
         # the measurement carries the series' record, not the pair's view of its guess
@@ -366,15 +374,22 @@ def check_after_warp(res: Measurement, rec: FringeOrder, coarse: _CoarseReferenc
     uq, vq = res.u[:, ::q, ::q].astype(np.float64), v[::q, ::q]
     c = coarse.content(mean_cur, uq, vq)
 
-    def shown(off):
+    def shown(off, image=None):
         # a correction by whole periods only where the grid's own modulus shows it too:
-        # the image's light alone (a hot spot, a highlight) may have moved by them
-        return coarse.shows(res.reference, res.deformed, uq, vq, off, material=True)
+        # the image's light alone (a hot spot, a highlight) may have moved by them; the
+        # smooth content below the grid's frequency also in the ratio of the grid's
+        # harmonics, which no light changes
+        return coarse.shows(res.reference, res.deformed, uq, vq, off, material=True,
+                            image=image)
 
     if c.confident:
         t = lattice.periods @ np.array(c.offset, dtype=float)
-        if any(c.offset) and not (seen := shown(c.offset))[0]:
+        if any(c.offset) and not (seen := shown(c.offset, mean_cur))[0]:
             return _unshown(res, rec, t, name, c.reason, seen[1])
+        if not any(c.offset) and not rec.confirmed and not shown(c.offset, mean_cur)[0]:
+            # the content that matches may be a light that moved with the field's
+            # whole periods: no confirmation without the grid's harmonics
+            return res, rec, []
         return _recheck(res, rec, t, name, c.reason, _content_record(c))
     u = np.stack([nearest_filled(res.u[k], v) for k in range(2)])
     H, W = v.shape
@@ -390,8 +405,12 @@ def check_after_warp(res: Measurement, rec: FringeOrder, coarse: _CoarseReferenc
     # the whole periods the content is off, and the correction they call for
     off = np.rint(lattice.K @ np.array(est.shift))
     t = np.linalg.solve(lattice.K, off)
-    if np.any(off) and not (seen := shown(off))[0]:
+    light = None if sharp(est) else mean_cur  # features finer than light: no ratio needed
+    if np.any(off) and not (seen := shown(off, light))[0]:
         return _unshown(res, rec, t, name, est.reason, seen[1])
+    if not np.any(off) and not rec.confirmed and light is not None \
+            and not shown(off, light)[0]:
+        return res, rec, []  # as above: the content may be light that moved
     figures = {"correlation": est.correlation, "peak_to_alias": est.peak_to_alias,
                "disagreement": est.disagreement, "features_shift": est.shift}
     return _recheck(res, rec, t, name, est.reason, figures)

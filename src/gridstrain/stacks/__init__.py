@@ -27,7 +27,11 @@ from ._methods import (
     prefix_stacks,
 )
 from ._methods import phase_offsets as phase_offsets
+from .accumulate import MOTION_TERMS as MOTION_TERMS
 from .accumulate import PassPlan, SeriesPass, SeriesStatistics
+from .accumulate import motion_regressors as motion_regressors
+from .accumulate import nested_motion_fits as nested_motion_fits
+from .accumulate import pick_motion_fit as pick_motion_fit
 from .screening import FrameScreen, Trend, screen_frames
 from .vibration import VibrationReport, frame_shifts, vibration_report
 

@@ -70,7 +70,8 @@ from ._accumulators import FrameOrder, StackResult, _PhaseMean, compensated_resu
 from .screening import FrameProbe, FrameScreen, decide
 from .vibration import RigidProbe, shift_matrix
 
-__all__ = ["MOTION_TERMS", "PassPlan", "SeriesPass", "SeriesStatistics", "motion_sums_bytes"]
+__all__ = ["MOTION_TERMS", "PassPlan", "SeriesPass", "SeriesStatistics", "motion_regressors",
+           "motion_sums_bytes", "nested_motion_fits", "pick_motion_fit"]
 
 # Frames batched per matrix product of the linear sums: the batch costs this many
 # bytes at most (as for method C's sums).
@@ -157,7 +158,37 @@ def _orthonormal(g: np.ndarray, gbar: np.ndarray) -> tuple[np.ndarray, list[int]
     return B, cols
 
 
-def _motion_regressors(theta: np.ndarray, shift: np.ndarray) -> np.ndarray:
+def nested_motion_fits(g: np.ndarray, gbar: np.ndarray, *, min_dof: int):
+    """The nested fits of the motion regressors ``g`` (T, p), a prefix of
+    :data:`MOTION_TERMS`' columns: ``(B, cols, stops)``. The regressors made
+    orthonormal over the frames in their order (``(g - gbar)[:, cols] @ B``,
+    :func:`_orthonormal`), and ``stops``, the numbers ``k`` of orthonormal regressors
+    of the nested fits, one at each group's end (a group wholly collinear with those
+    before it adds no fit), those that leave ``min_dof`` degrees of freedom at least
+    after the mean and the ``k`` regressors. A pixel's residual sum of squares in the
+    fit of the first ``k`` is its centred sum of squares less ``sum_{i<k} z_i^2``,
+    ``z = B^T sum_t (g_t - gbar) d_t``."""
+    T, p = g.shape
+    B, cols = _orthonormal(g, gbar)
+    ends = [e for e in np.cumsum([len(grp) for grp in MOTION_TERMS]) if e <= p]
+    stops = [0] + [sum(1 for c in cols if c < e) for e in ends]
+    return B, cols, list(dict.fromkeys(k for k in stops if T - 1 - k >= min_dof))
+
+
+def pick_motion_fit(means, stops: list[int], cols: list[int]) -> int:
+    """Index into ``stops`` (:func:`nested_motion_fits`) of the fit to keep, given the
+    images' mean residual variance ``means`` of each: the fewest groups whose mean is
+    within :data:`_TERM_GAIN` of the lowest; a still stack keeps the fit on its
+    shifts where it has them."""
+    means = np.asarray(means, dtype=np.float64)
+    best = float(means.min())
+    k_shift = sum(1 for c in cols if c < len(MOTION_TERMS[0]))
+    low = stops.index(k_shift) if k_shift in stops else 0
+    return next((i for i in range(low, len(stops)) if means[i] <= (1 + _TERM_GAIN) * best),
+                int(np.argmin(means)))
+
+
+def motion_regressors(theta: np.ndarray, shift: np.ndarray) -> np.ndarray:
     """The regressors of :data:`MOTION_TERMS` for frames of carrier phase advances
     ``theta`` (T, 2), rad, and shifts ``shift`` (T, 2), px: (T, 26) float64."""
     theta = np.asarray(theta, dtype=np.float64).reshape(-1, 2)
@@ -363,7 +394,7 @@ class SeriesPass:
         a = self._M @ self.theta[t]  # px
         w = np.zeros(self.lin.shape[0])
         w[h] = sign
-        w[self._m0:] = sign * _motion_regressors(self.theta[t], a)[0, :self._n_motion]
+        w[self._m0:] = sign * motion_regressors(self.theta[t], a)[0, :self._n_motion]
         if self.plan.method == "C":
             e = np.exp(-1j * self.theta[t])  # undoes the carrier's advance (eq. 2)
             w[2 + 4 * h:6 + 4 * h] = sign * np.array([e[0].real, e[0].imag, e[1].real,
@@ -514,18 +545,10 @@ class SeriesPass:
         if T < 2:
             return SeriesStatistics(mean, None, "unavailable (a single frame)", 1)
         theta = np.array([self.theta[t] for t in kept]).reshape(T, 2)
-        g = _motion_regressors(theta, theta @ self._M.T)[:, :self._n_motion]
+        g = motion_regressors(theta, theta @ self._M.T)[:, :self._n_motion]
         gbar = g.mean(axis=0)
-        # the groups' regressors made orthonormal over the kept frames, in order: q =
-        # (g - gbar) B, B upper triangular, collinear columns left out
-        B, cols = _orthonormal(g, gbar)
+        B, cols, stops = nested_motion_fits(g, gbar, min_dof=1)
         names = [n for grp in MOTION_TERMS for n in grp]
-        ends = [e for e in np.cumsum([len(grp) for grp in MOTION_TERMS])
-                if e <= self._n_motion]
-        # the nested fits: the first k orthonormal regressors, k at each group's end;
-        # a group wholly collinear with those before it adds no fit
-        stops = [0] + [sum(1 for c in cols if c < e) for e in ends]
-        stops = list(dict.fromkeys(k for k in stops if T - 1 - k >= 1))
         # per pixel, the residual sum of squares of the nested fit of the first k
         # orthonormal regressors is svv - sum_{i<k} z_i^2, z = B^T s (module docstring)
         motion = self.lin[self._m0:]
@@ -538,14 +561,7 @@ class SeriesPass:
         svv, z2 = self._band(pick_px, s1, gbar, B, cols, motion, T)
         z2 = np.concatenate([[0.0], np.cumsum(z2)])
         means = (svv.sum() - z2[stops]) / np.array([T - 1 - k for k in stops])
-        # the fewest groups whose mean residual variance is within _TERM_GAIN of the
-        # lowest; a still stack keeps the fit on its shifts where it has them
-        best = float(means.min())
-        k_shift = sum(1 for c in cols if c < len(MOTION_TERMS[0]))
-        low = stops.index(k_shift) if k_shift in stops else 0
-        pick = next((i for i in range(low, len(stops))
-                     if means[i] <= (1 + _TERM_GAIN) * best), int(np.argmin(means)))
-        k = stops[pick]
+        k = stops[pick_motion_fit(means, stops, cols)]
         var = np.empty(n)
         for i0 in range(0, n, _FIT_BAND):
             i1 = min(i0 + _FIT_BAND, n)
