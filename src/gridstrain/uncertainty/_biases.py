@@ -779,11 +779,14 @@ def _aliasing_window(shape, lattice, mask) -> np.ndarray:
         # 2-D filters' window, to rounding, from two 1-D ones
         sides = []
         for (a, b), size in zip(box, shape, strict=True):
+            # a side on the crop's border is not an edge of the specimen: the Hann
+            # window fades there already
+            lo, hi = (a + n if a > 0 else 0), (b - n if b < size else size)
             side = np.zeros(size)
-            side[a + n:max(a + n, b - n)] = 1.0
+            side[lo:max(lo, hi)] = 1.0
             sides.append(ndimage.gaussian_filter1d(side, p))
         return np.outer(hy * sides[0], hx * sides[1])
-    m = ndimage.binary_erosion(m, iterations=n)
+    m = ndimage.binary_erosion(m, iterations=n, border_value=1)
     return np.outer(hy, hx) * ndimage.gaussian_filter(m.astype(np.float64), p)
 
 
@@ -886,6 +889,7 @@ def smoothing_bias(strain, valid, *, sigma: float) -> dict:
     ii, jj = np.nonzero(inner)
     half = round(_BACKGROUND_SIGMAS * sig / 2)
     band_any = bool(np.any(v & ~inner))
+    normal = None  # the band's normal equations, the same for every component
     for c in e:
         filled = np.where(v, c, 0.0)
         sm = np.divide(ndimage.gaussian_filter(filled, sig), wsum, out=filled)
@@ -915,7 +919,9 @@ def smoothing_bias(strain, valid, *, sigma: float) -> dict:
         seen = mx[-1] > typical
         # a feature at the valid region's edge (a hole's, the frame's) peaks where the
         # twice-smoothed field is cut: taken from the measured field itself there
-        edge = _edge_feature(c, v, inner, sig, half) if band_any else None
+        if band_any and normal is None:
+            normal = _edge_normal(v, inner, sig)
+        edge = _edge_feature(c, v, normal, sig, half) if band_any else None
         if edge is not None and edge[0] > err and edge[3] > typical:
             err, narrow, a, _ = edge
             seen = True
@@ -943,10 +949,54 @@ def smoothing_bias(strain, valid, *, sigma: float) -> dict:
                           f"{_NARROWEST:g} sigma); estimate_max, p95: the Laplacian term"}
 
 
-def _edge_feature(c, v, inner, sig, half):
+_EDGE_POWERS = [(0, 0), (1, 0), (0, 1), (2, 0), (1, 1), (0, 2)]
+
+
+def _edge_normal(v, inner, sig):
+    """``(band, M, ok, moments)`` of the valid pixels ``v`` outside ``inner``: the
+    band's pixels, their 6 x 6 normal matrices of :func:`_edge_feature`'s quadratic
+    fits, those well conditioned, and the function that filters a map's moments
+    there. The three strain components share them: made once."""
+    band = v & ~inner
+    r = _EDGE_FIT * sig
+    t = np.arange(-math.ceil(4 * r), math.ceil(4 * r) + 1, dtype=np.float64)
+    g = np.exp(-0.5 * (t / r) ** 2)
+
+    def moments(f, wanted):
+        # the filters are separable: one row pass serves every column pass of
+        # its power, one row at a time in memory
+        out = {}
+        for a in sorted({p for p, _ in wanted}):
+            row = ndimage.correlate1d(f, g * t**a, axis=1, mode="constant")
+            for q in sorted(q for p, q in wanted if p == a):
+                out[a, q] = ndimage.correlate1d(row, g * t**q, axis=0,
+                                                mode="constant")[band]
+        return out
+
+    wanted = [(a, b) for a in range(5) for b in range(5 - a)]
+    box = filled_box(v)
+    if box is None:
+        mom = moments(v.astype(np.float64), wanted)
+    else:
+        # a rectangle of valid pixels (no mask) is the product of its two sides, and
+        # so are its filtered moments: two 1-D filters each instead of 2-D ones
+        r0, r1, c0, c1 = box
+        sy, sx = np.zeros(v.shape[0]), np.zeros(v.shape[1])
+        sy[r0:r1], sx[c0:c1] = 1.0, 1.0
+        bi, bj = np.nonzero(band)
+        py = [ndimage.correlate1d(sy, g * t**b, mode="constant")[bi] for b in range(5)]
+        px = [ndimage.correlate1d(sx, g * t**a, mode="constant")[bj] for a in range(5)]
+        mom = {(a, b): px[a] * py[b] for a, b in wanted}
+    M = np.stack([np.stack([mom[p[0] + q[0], p[1] + q[1]] for q in _EDGE_POWERS],
+                           axis=-1) for p in _EDGE_POWERS], axis=-2)  # (n, 6, 6)
+    return band, M, np.linalg.cond(M) < 1e8, moments
+
+
+def _edge_feature(c, v, normal, sig, half):
     """``(error, narrow, attenuation, estimate)`` of the Gaussian feature that the
-    measured field ``c`` (samples; ``v`` its valid pixels) shows on the valid pixels
-    outside ``inner`` (a band along the valid region's edge), or None.
+    measured field ``c`` (samples; ``v`` its valid pixels) shows on the band of
+    ``normal`` (:func:`_edge_normal`: the valid pixels along the valid region's
+    edge), or None.
 
     The field is not smoothed again there (the window would be cut by the edge): a
     quadratic is fitted at each pixel of the band by least squares over its valid
@@ -957,28 +1007,12 @@ def _edge_feature(c, v, inner, sig, half):
     samples around and the fitted curvatures give a Gaussian feature of the measured
     field, of width ``s^2 = w^2 + sigma^2`` along each principal direction, and its
     peak error ``dep (prod(s / w) - 1)``."""
-    band = v & ~inner
-    r = _EDGE_FIT * sig
-    t = np.arange(-math.ceil(4 * r), math.ceil(4 * r) + 1, dtype=np.float64)
-    g = np.exp(-0.5 * (t / r) ** 2)
-
-    def moment(f, a, b):
-        out = ndimage.correlate1d(f, g * t**a, axis=1, mode="constant")
-        return ndimage.correlate1d(out, g * t**b, axis=0, mode="constant")[band]
-
-    vf = v.astype(np.float64)
-    mf = np.where(v, c, 0.0)
-    powers = [(0, 0), (1, 0), (0, 1), (2, 0), (1, 1), (0, 2)]
-    mom = {}
-    for a in range(5):
-        for b in range(5 - a):
-            mom[a, b] = moment(vf, a, b)
-    M = np.stack([np.stack([mom[p[0] + q[0], p[1] + q[1]] for q in powers], axis=-1)
-                  for p in powers], axis=-2)  # (n, 6, 6)
-    rhs = np.stack([moment(mf, *p) for p in powers], axis=-1)  # (n, 6)
-    ok = np.linalg.cond(M) < 1e8
+    band, M, ok, moments = normal
     if not ok.any():
         return None
+    mf = np.where(v, c, 0.0)
+    mr = moments(mf, _EDGE_POWERS)
+    rhs = np.stack([mr[p] for p in _EDGE_POWERS], axis=-1)  # (n, 6)
     coef = np.linalg.solve(M[ok], rhs[ok][..., None])[..., 0]
     est = 0.5 * sig**2 * np.abs(2 * (coef[:, 3] + coef[:, 5]))
     k = int(np.argmax(est))
