@@ -315,6 +315,7 @@ def _measured_harmonics(ref, w, lattice, j, k, sigma, mean, floor) -> list[dict]
     # even harmonic of lines half a pitch wide changes sign where the width crosses
     # half the pitch: its average over the image is nil where it is not)
     sep = _separable(w)
+    low_rank = None if sep is not None else _low_rank(w)
 
     # the powers less their weighted means: a square's mean, left in, makes it one
     # with the constant (the carrier's mean amplitude inflated 40 to 90 times)
@@ -345,11 +346,18 @@ def _measured_harmonics(ref, w, lattice, j, k, sigma, mean, floor) -> list[dict]
             M = (ref * wx) @ EX.conj().T  # (H, n)
             rhs = np.sum(EY.conj().T * wy[:, None] * M, axis=0)
         else:
-            sw = np.sqrt(w)
-            A = np.stack([(sw * np.outer(y, x)).ravel() for x, y in pairs], axis=1)
-            AH = A.conj().T
-            gram = AH @ A
-            rhs = AH @ (sw * ref).ravel()
+            # a mask's window is smooth (softened over a pitch) and of low rank: a
+            # sum of a few separable terms (10 to 20 for a rectangular or round hole,
+            # to 1e-10 of the largest), each as cheap as the separable case, instead
+            # of the H W n^2 products of the full design matrix; the projections use
+            # that sum too, so that the fit is an exact least squares with its weights
+            us, ss, vs = low_rank
+            EYc, EXc = EY.conj(), EX.conj()
+            gram = sum(sr * (((EYc * u) @ EY.T) * ((EXc * v) @ EX.T))
+                       for sr, u, v in zip(ss, us.T, vs, strict=True))
+            wl = (us * ss) @ vs
+            M = (ref * wl) @ EXc.T  # (H, n)
+            rhs = np.sum(EYc.T * M, axis=0)
         return gram, rhs
 
     fit_f = [f for *_, f, _ in fit]
@@ -481,6 +489,19 @@ def _inverse(gram):
 # noise: a noise amplitude exceeds it with probability exp(-9) = 1.2e-4, once in
 # about 20 images of 50 harmonics at 9 points.
 _SIGNIFICANT = 9.0
+
+# The singular values of a mask's window below this share of the largest are left
+# out: the weights that remain differ from the window by as little.
+_RANK_TOLERANCE = 1e-10
+
+
+def _low_rank(w):
+    """``(U, s, Vt)`` of the window ``w``: its singular vectors and values down to
+    ``_RANK_TOLERANCE`` of the largest, ``w = U diag(s) Vt`` to that share."""
+    u, sv, vt = np.linalg.svd(w, full_matrices=False)
+    keep = sv > _RANK_TOLERANCE * sv[0]
+    return u[:, keep], sv[keep], vt[keep]
+
 
 def _separable(w):
     """``(wy, wx)`` with ``w == outer(wy, wx)`` (to rounding), or None."""
