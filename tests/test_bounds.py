@@ -76,8 +76,9 @@ COMPACT = [(4, 0.0, 0.2, 0.5, 0.35), (5, 0.0, 0.0, 0.0, 0.5), (5, 0.0, 0.2, 0.5,
 def test_aliasing_bound_holds_for_drifting_prints_and_perfect_optics():
     ratios = _check_aliasing(COMPACT)
     # and it is not vacuous where the errors are large (sharp prints, errors of 0.01
-    # to 0.1 px): within 6 times them (measured 1.2 to 4.7)
-    assert ratios[:4].max() <= 6
+    # to 0.1 px): within 5 times them (measured 1.3 to 4.3; 5.1 when the carrier's
+    # envelope was only linear and the crop's own border eroded)
+    assert ratios[:4].max() <= 5
 
 
 def test_a_drifting_print_is_warned_of():
