@@ -76,8 +76,9 @@ COMPACT = [(4, 0.0, 0.2, 0.5, 0.35), (5, 0.0, 0.0, 0.0, 0.5), (5, 0.0, 0.2, 0.5,
 def test_aliasing_bound_holds_for_drifting_prints_and_perfect_optics():
     ratios = _check_aliasing(COMPACT)
     # and it is not vacuous where the errors are large (sharp prints, errors of 0.01
-    # to 0.1 px): within 6 times them (measured 1.2 to 4.7)
-    assert ratios[:4].max() <= 6
+    # to 0.1 px): within 5 times them (measured 1.3 to 4.3; 5.1 when the carrier's
+    # envelope was only linear and the crop's own border eroded)
+    assert ratios[:4].max() <= 5
 
 
 def test_a_drifting_print_is_warned_of():
@@ -112,6 +113,45 @@ def test_a_noisy_drifting_print_is_within_noise_and_bound():
     assert np.mean(np.any(err > 5 * std, axis=0)[v]) > 0.1
     assert np.mean(np.any(err > 5 * std + bound, axis=0)[v]) <= 0.02
     assert any("alias onto the carrier" in w for w in res.warnings)
+
+
+# Blurred prints of lines half a pitch wide drifting by +-20 % (with and without
+# vignetting): the lens leaves no harmonic near the carriers (the nearest that folds
+# there, the 6th at pitch 7 px, passes a 1-px blur at 1e-6), the errors are 1e-5 px.
+FALSE_ALARMS = [(5, 1.0, 0.2, 0.0, 0.5), (6, 1.0, 0.2, 0.5, 0.5), (7, 1.0, 0.2, 0.5, 0.5),
+                (8, 1.0, 0.2, 0.0, 0.5)]
+
+
+@pytest.mark.parametrize("case", FALSE_ALARMS)
+def test_a_blurred_drifting_print_gets_a_small_bound(case):
+    worst, bound, _ = _aliasing_case(*case)
+    assert worst.max() < FLOOR_PX  # the truth: nothing worth a bound
+    # the carrier's envelope, curved by the drift and the vignetting, is not read
+    # as harmonics: a bound under 0.01 px (measured 0.002 to 0.0064; 0.024 to 0.045
+    # when the envelope was linear and the lighting of degree 4), a third of the
+    # displacement noise std of a camera with 0.3 % noise at this pitch (below)
+    assert bound.max() < 0.01
+
+
+def test_a_low_noise_record_of_a_blurred_drifting_print_is_not_warned_of():
+    """Gaussian noise of 3 grey levels on a paper level of 1000 (a low-noise camera):
+    the aliasing error (1e-5 px) is far below the noise, and no aliasing warning is
+    given."""
+    pitch, blur, dw, vignetting, width = 7, 1.0, 0.2, 0.5, 0.5
+    k1, k2 = lattice_vectors(pitch, 0.6)
+    lat = Lattice(tuple(k1), tuple(k2))
+    disp = stretch(*STRETCH, CENTRE)
+    kw = {"pitch": pitch, "width": width, "dw": dw, "blur": blur, "vignetting": vignetting}
+    rng = np.random.default_rng(7)
+    ref = image((H, W), **kw) + rng.normal(0.0, 3.0, (H, W))
+    cur = image((H, W), displacement=disp, **kw) + rng.normal(0.0, 3.0, (H, W))
+    res = measure_series(ref, cur, lattice=lat, guess=None, outliers="warn")
+    v = np.asarray(res.valid[0])
+    std = float(np.median(np.asarray(res.uncertainty["ux_std"][0])[v]))
+    alias = res.systematic["aliasing"]
+    # the warning's own rule: a bound within twice the noise std does not stand out
+    assert alias["u_px"] < 2 * std, (alias["u_px"], std)
+    assert not any("alias onto the carrier" in w for w in res.warnings)
 
 
 @pytest.mark.slow

@@ -11,7 +11,7 @@ import math
 import numpy as np
 from scipy import ndimage
 
-from .._progress import Finding
+from .._progress import Finding, as_finding
 from .._stats import median
 from .._validation import (
     check_mask,
@@ -255,8 +255,10 @@ class _Tracker:
             # nothing that the light cannot imitate confirms them
             rec = dataclasses.replace(rec, confirmed=False,
                                       detail=f"{est.light_doubt}; {rec.detail}")
-            warnings.append(f"{name}: fringe order {est.light_doubt}; the displacement "
-                            f"the image features give is kept ({_median_u(res)})")
+            warnings.append(Finding("fringe_order.unconfirmed",
+                                    f"{name}: fringe order {est.light_doubt}; the "
+                                    "displacement the image features give is kept "
+                                    f"({_median_u(res)})", state=name))
         if not rec.confirmed:
             rec = _doubt_said(res, rec, warnings)
         # the measurement carries the series' record, not the pair's view of its guess
@@ -292,7 +294,7 @@ def _doubt_said(res: Measurement, rec: FringeOrder, warnings: list) -> FringeOrd
     the last of ``warnings``, the one that says why it is not confirmed."""
     rec, said = with_strain_doubt(res, rec)
     if warnings and said:
-        last = warnings[-1]
+        last = as_finding(warnings[-1], "fringe_order.unconfirmed")
         warnings[-1] = Finding(last.code, last + said, state=last.state, **last.figures,
                                strain_if_off=rec.strain_if_off)
     return rec

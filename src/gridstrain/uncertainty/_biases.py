@@ -6,9 +6,11 @@ the carriers (:func:`aliasing_bias`) and the window's smoothing of strain gradie
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 
 import numpy as np
+import scipy.linalg
 from scipy import ndimage
 
 from .._validation import (
@@ -43,11 +45,17 @@ _OPTICS_CUTOFF = 3.0
 _MODEL_CUTOFF = 1.6
 
 
-def _dtft(img: np.ndarray, w: np.ndarray, k) -> complex:
-    H, W = img.shape
-    ex = np.exp(-2j * np.pi * k[0] * np.arange(W))
-    ey = np.exp(-2j * np.pi * k[1] * np.arange(H))
-    return complex(ey @ (img * w) @ ex)
+def _dtfts(rw: np.ndarray, freqs) -> np.ndarray:
+    """The transform of the weighted image ``rw`` at each frequency of ``freqs``
+    ``(f_x, f_y)``, cycles/px, at once: two matrix products instead of one pass over
+    the image per frequency."""
+    H, W = rw.shape
+    f = np.asarray(freqs, dtype=np.float64).reshape(-1, 2)
+    if not len(f):
+        return np.zeros(0, dtype=np.complex128)
+    ey = np.exp(-2j * np.pi * f[:, 1:2] * np.arange(H))  # (n, H)
+    ex = np.exp(-2j * np.pi * f[:, 0:1] * np.arange(W))  # (n, W)
+    return np.sum((ey @ rw) * ex, axis=1)
 
 
 def aliasing_bias(image, lattice, *, sigma: float, mask=None) -> dict:
@@ -100,13 +108,15 @@ def aliasing_bias(image, lattice, *, sigma: float, mask=None) -> dict:
 
     The amplitudes are measured, not modelled: the harmonics whose folds lie within
     the window's band of a carrier are fitted jointly with the carrier (each amplitude,
-    the carrier's and every harmonic's, allowed to vary linearly across the image; a
+    the carrier's and every harmonic's, allowed to vary linearly across the image, and
+    again with the carrier's quadratically, the smaller of the two shares kept: each
+    fit leaks the carrier's envelope into the folds nearest it in its own way; a
     harmonic's share is its largest ratio to the carrier's at 3 x 3 points over the
     window's region: a print whose line width drifts across the specimen changes that
     share from place to place, and an even harmonic of lines half a pitch wide changes
     sign where the width crosses half the pitch) by weighted least squares, a Hann
     window times the mask, on the image divided by its lighting (a polynomial of
-    degree 4 fitted to it, :func:`_lighting`: a varying lighting would widen the
+    degree 6 fitted to it, :func:`_lighting`: a varying lighting would widen the
     carrier's peak over the bins where the folds lie). The power that noise and print
     defects put at every frequency, measured where no harmonic folds, is taken out in
     quadrature (a local amplitude whose power is under 9 times that noise's is taken
@@ -130,14 +140,16 @@ def aliasing_bias(image, lattice, *, sigma: float, mask=None) -> dict:
     integration, ``sinc(h)``, as the only cut. On noise-free prints of sharp lines
     (``tests/bias_cases.py``: pitch 4 to 8 px, perfect optics or a Gaussian blur of
     0.5 and 1 px, line width drifting by 0 or +-20 % across the frame, vignetting 0 or
-    50 %) the bound holds in 120 of 120 cases, 1.3 to 7.3 times the largest error
-    where it exceeds 0.01 px (``tests/test_bounds.py``; errors under 1e-4 px aside).
-    Harmonics that cannot be measured are counted up to 1.6 cycles/px only.
+    50 %) the bound holds in 120 of 120 cases, 1.2 to 7.1 times the largest error
+    where it exceeds 1e-3 px (median 2.3), and stays under 0.0075 px where the errors
+    are 1e-5 px (blurred prints: no warning at ordinary noise levels;
+    ``tests/test_bounds.py``; errors under 1e-4 px aside). Harmonics that cannot be
+    measured are counted up to 1.6 cycles/px only.
 
     Figures (``tests/test_aliasing.py``): one harmonic of a direct sum, its amplitude
     to 2 % and the measured error 0.8 times the bound; photographs of printed lines
     0.2 to 0.5 pitch wide at pitches 4 to 7 px turned by 0.6 degree (noise-free,
-    stretched by 2 % and -0.6 %), largest errors 0.007 to 0.13 px, bounds 1.2 to 34
+    stretched by 2 % and -0.6 %), largest errors 0.01 to 0.13 px, bounds 1.6 to 22
     times them; a photographed sine grid, under half the noise std.
     """
     img = as_image(image, allow_uniform=True).astype(np.float64)
@@ -165,8 +177,13 @@ def aliasing_bias(image, lattice, *, sigma: float, mask=None) -> dict:
                          "and deformed)")
 
 
-# The degree of the polynomial in (x, y) that stands for the lighting.
-_LIGHT_DEGREE = 4
+# The degree of the polynomial in (x, y) that stands for the lighting: dividing by
+# it divides the carrier too, and what the polynomial misses of the vignetting (the
+# cos^4 law, 50 % at the corners) is left on the carrier's envelope, a curvature the
+# fit reads as harmonics folded near it: degree 4 left bounds of 0.005 to 0.015 px
+# on blurred prints whose errors are 1e-5 px, degree 6 0.001 to 0.008 (degree 8 no
+# less; tests/bias_cases.py).
+_LIGHT_DEGREE = 6
 
 
 def _lighting(img, w) -> np.ndarray:
@@ -204,15 +221,29 @@ _NEGLIGIBLE = 1e-4
 _MEASURE_SIDE = 256
 
 # A harmonic is measured when its fit's variance is at most this many times what it
-# would be alone: beyond, its fold overlaps another's or the carrier's.
-_INFLATION = 2.0
+# would be alone: beyond, its fold overlaps another's or the carrier's. Up to it the
+# noise taken out is the inflated one: a pair of folds two bins either side of the
+# carrier is, over the Hann window, much like the carrier's quadratic envelope
+# (inflations of 5 to 8 at the 192-px side), yet told apart from it.
+_INFLATION = 10.0
+# ... and in the fit whose carrier's envelope is linear (its columns the fewer).
+_INFLATION_LINEAR = 2.0
 
 # Folds closer than this, in bins of the spectrum, are not told apart (the Hann
 # window's main lobe is 2 bins wide each side).
 _APART = 1.5
 
-# The powers of (x, y) that multiply the carrier in the fit.
-_POWERS = ((0, 0), (1, 0), (0, 1))
+# The powers of (x, y) that multiply a harmonic in the fit, and the carrier (its
+# first _CARRIER_TERMS): the carrier's own envelope is quadratic, since the share of
+# the light in the fundamental of lines whose width drifts linearly across the
+# specimen, (1 - f) sin(pi f) / pi with f the line's fraction of the pitch, is not
+# linear in it; a linear envelope leaves the curvature to the harmonics folded a few
+# bins from the carrier, read as harmonics of 0.5 % of it where the lens leaves none
+# (blurred prints of half-pitch lines drifting by +-20 %: bounds of 0.03 to 0.045 px
+# over errors of 1e-5 px).
+_POWERS = ((0, 0), (1, 0), (0, 1), (2, 0), (1, 1), (0, 2))
+_HARMONIC_TERMS = 3
+_LINEAR_TERMS = 3
 _CARRIER_TERMS = len(_POWERS)
 
 # The amplitudes fitted are the image's averages; a print whose lines' widths vary
@@ -284,11 +315,18 @@ def _measured_harmonics(ref, w, lattice, j, k, sigma, mean, floor) -> list[dict]
     # even harmonic of lines half a pitch wide changes sign where the width crosses
     # half the pitch: its average over the image is nil where it is not)
     sep = _separable(w)
+    low_rank = None if sep is not None else _low_rank(w)
+
+    # the powers less their weighted means: a square's mean, left in, makes it one
+    # with the constant (the carrier's mean amplitude inflated 40 to 90 times)
+    mx, my = w.sum(axis=0), w.sum(axis=1)
+    powx = [xx**p - (np.sum(mx * xx**p) / np.sum(mx) if p == 2 else 0.0) for p in range(3)]
+    powy = [yy**p - (np.sum(my * yy**p) / np.sum(my) if p == 2 else 0.0) for p in range(3)]
 
     def waves(f, kind):
         px, py = _POWERS[kind]
-        return (np.exp(2j * np.pi * f[0] * np.arange(W)) * xx**px,
-                np.exp(2j * np.pi * f[1] * np.arange(H)) * yy**py)
+        return (np.exp(2j * np.pi * f[0] * np.arange(W)) * powx[px],
+                np.exp(2j * np.pi * f[1] * np.arange(H)) * powy[py])
 
     def solve(cols):
         # the normal equations through the Gram matrix's pseudo-inverse, which the
@@ -296,7 +334,7 @@ def _measured_harmonics(ref, w, lattice, j, k, sigma, mean, floor) -> list[dict]
         # closer are left out above) keep it well conditioned, and a column it
         # cannot resolve is inflated beyond _INFLATION
         pairs = [waves(fit_f[t] if t >= 0 else k, kind) for t, kind in cols] + \
-            [waves(e, kind) for e in others for kind in range(_CARRIER_TERMS)]
+            [waves(e, kind) for e in others for kind in range(_HARMONIC_TERMS)]
         EX = np.array([x for x, _ in pairs])  # (n, W)
         EY = np.array([y for _, y in pairs])  # (n, H)
         if sep is not None:
@@ -308,15 +346,22 @@ def _measured_harmonics(ref, w, lattice, j, k, sigma, mean, floor) -> list[dict]
             M = (ref * wx) @ EX.conj().T  # (H, n)
             rhs = np.sum(EY.conj().T * wy[:, None] * M, axis=0)
         else:
-            sw = np.sqrt(w)
-            A = np.stack([(sw * np.outer(y, x)).ravel() for x, y in pairs], axis=1)
-            AH = A.conj().T
-            gram = AH @ A
-            rhs = AH @ (sw * ref).ravel()
-        inv = np.linalg.pinv(gram, hermitian=True)
-        return inv @ rhs, inv, np.abs(np.real(np.diag(inv))) * np.real(np.diag(gram))
+            # a mask's window is smooth (softened over a pitch) and of low rank: a
+            # sum of a few separable terms (10 to 20 for a rectangular or round hole,
+            # to 1e-10 of the largest), each as cheap as the separable case, instead
+            # of the H W n^2 products of the full design matrix; the projections use
+            # that sum too, so that the fit is an exact least squares with its weights
+            us, ss, vs = low_rank
+            EYc, EXc = EY.conj(), EX.conj()
+            gram = sum(sr * (((EYc * u) @ EY.T) * ((EXc * v) @ EX.T))
+                       for sr, u, v in zip(ss, us.T, vs, strict=True))
+            wl = (us * ss) @ vs
+            M = (ref * wl) @ EXc.T  # (H, n)
+            rhs = np.sum(EYc.T * M, axis=0)
+        return gram, rhs
 
     fit_f = [f for *_, f, _ in fit]
+    rw = ref * w
     # the image's other strong terms, fitted too (after the columns above): the other
     # carrier and both conjugates, whose window's leak near the carrier would
     # otherwise pass for the folds nearest it
@@ -325,53 +370,39 @@ def _measured_harmonics(ref, w, lattice, j, k, sigma, mean, floor) -> list[dict]
     # the carrier times 1, x, y (column t = -1), and every harmonic t the same: an
     # envelope whose fold lies near the carrier's is inflated (its variance, counted
     # at each point below, grows), but its drift is what is sought
-    cols = [(t, c) for t in range(-1, len(fit)) for c in range(_CARRIER_TERMS)]
-    coef, inv, inflation = solve(cols)
+    cols = [(-1, c) for c in range(_CARRIER_TERMS)] + \
+        [(t, c) for t in range(len(fit)) for c in range(_HARMONIC_TERMS)]
+    gram, rhs = solve(cols)
+    cx, cy = (float(np.sum(mx * xx**2) / np.sum(mx)), float(np.sum(my * yy**2) / np.sum(my)))
     # the envelopes at points over the region the window weighs (its Hann window
     # above a third of its peak): the local amplitudes
-    at = np.array([[1.0, px, py] for px in _SPREAD for py in _SPREAD])  # (P, 3)
-    a_loc = np.abs(at @ coef[:_CARRIER_TERMS])
+    at = np.array([[(px**a - (cx if a == 2 else 0.0)) * (py**b - (cy if b == 2 else 0.0))
+                    for a, b in _POWERS]
+                   for px in _SPREAD for py in _SPREAD])  # (P, _CARRIER_TERMS)
+    # two fits: the carrier's envelope linear (its curvature then leaks into the
+    # folds a few bins from it along the curvature's direction) and quadratic (then
+    # a pair of folds either side of the carrier, across it, resembles the
+    # curvature, and its envelopes take the model's residue); a harmonic of the
+    # print is in both, each fit's leak is its own: the smaller share is kept
+    lin = np.r_[np.arange(_LINEAR_TERMS), np.arange(_CARRIER_TERMS, len(gram))]
+    fits = [_Fit(gram[np.ix_(lin, lin)], rhs[lin], at[:, :_LINEAR_TERMS], _LINEAR_TERMS,
+                 _INFLATION_LINEAR),
+            _Fit(gram, rhs, at, _CARRIER_TERMS, _INFLATION)]
     index: dict = {}
-    for q, (t, _) in enumerate(cols):
-        if t >= 0:
-            index.setdefault(tuple(fit[t][:2]), []).append(q)
+    for q, (t, _) in enumerate(cols[_CARRIER_TERMS:]):
+        index.setdefault(tuple(fit[t][:2]), []).append(q)
     folds = np.array(fit_f).reshape(-1, 2)
     out = []
     for n, m, h, f, delta in near:
         idx = index.get((n, m))
-        measured = bool(idx is not None and inflation[idx[0]] <= _INFLATION
-                        and inflation[0] <= _INFLATION and a_loc.min() > 0)
+        ring = functools.cache(functools.partial(
+            _ring_floor, rw, w, k, f - k, np.vstack([folds, [k]]), (W, H)))
+        shares = [] if idx is None else [
+            r for fi in fits
+            if (r := fi.share(idx, delta, sigma, mean, h, k, floor, ring)) is not None]
+        measured = bool(shares)
         if measured:
-            # the sensor's noise and the print's defects add their power at every
-            # frequency, and the specimen's reflectance (a hole, an edge, a stain)
-            # modulates the carrier, spreading its spectrum around it: both taken out
-            # in quadrature, as measured where no harmonic folds, at random
-            # frequencies and on the ring of the fold's distance around the carrier;
-            # an envelope's value at a point is noisier than its mean by its variance
-            # there over the mean's (the block of the inverse Gram matrix)
-            pts = at[:, :len(idx)]
-            blk = inv[np.ix_(idx, idx)]
-            gain = np.real(np.einsum("pi,ij,pj->p", pts, blk, pts.conj())) / max(
-                np.real(blk[0, 0]), 1e-300)
-            loc2 = np.abs(pts @ coef[idx]) ** 2
-            # (a share that counts for nothing even whole needs no floor)
-            whole = math.sqrt(float(loc2.max())) / float(a_loc.min()) * _transfer(delta, sigma)
-            near_floor = 0.0 if whole < _NEGLIGIBLE else _ring_floor(
-                ref, w, k, f - k, np.vstack([folds, [k]]), (W, H))
-            noise2 = gain * max(floor, near_floor)
-            # a noise amplitude's power is exponential about its mean: the largest
-            # of the 9 points of tens of harmonics would add tens of noise-level
-            # terms; one whose power stands under _SIGNIFICANT times the noise's is
-            # taken as noise
-            r2 = np.where(loc2 > _SIGNIFICANT * noise2, loc2 - noise2, 0.0) \
-                / np.maximum(a_loc, 1e-300) ** 2
-            # a print's reflectance is not negative: none of its Fourier coefficients
-            # exceeds its mean, and the pixel's integration then multiplies each by
-            # mtf(h): what is fitted beyond that is the carrier's modulation, not a
-            # harmonic
-            r_pts = np.minimum(np.sqrt(np.maximum(r2, 0.0)),
-                               abs(mean) / np.maximum(a_loc, 1e-300) * _mtf(h) / _mtf(k))
-            r = float(r_pts.max())
+            r = min(shares)
         elif np.hypot(*h) > _MODEL_CUTOFF:
             # one that cannot be seen, above the cut-off of an f/5.6 lens, is left
             # to those below it: the sharp print's amplitudes summed to 3 cycles/px
@@ -386,10 +417,91 @@ def _measured_harmonics(ref, w, lattice, j, k, sigma, mean, floor) -> list[dict]
     return out
 
 
+class _Fit:
+    """One weighted least-squares fit of the carrier's envelope (its first ``nc``
+    columns) and the harmonics' (three columns each, after it): the Gram matrix
+    ``gram`` and the projections ``rhs``; ``at`` the carrier's terms at the points
+    where the local shares are taken; a harmonic is measured where its variance is at
+    most ``limit`` times what it would be alone."""
+
+    def __init__(self, gram, rhs, at, nc, limit):
+        self.inv = _inverse(gram)
+        self.coef = self.inv @ rhs
+        self.inflation = np.abs(np.real(np.diag(self.inv))) * np.real(np.diag(gram))
+        self.nc, self.limit = nc, limit
+        self.a_loc = np.abs(at @ self.coef[:nc])
+        self.at = at
+
+    def share(self, idx, delta, sigma, mean, h, k, floor, ring) -> float | None:
+        """The harmonic of columns ``idx`` (after the carrier's) relative to the
+        carrier, its largest over the points, less the noise; None if not measured."""
+        idx = [self.nc + q for q in idx]
+        a_loc, inflation = self.a_loc, self.inflation
+        if not (inflation[idx[0]] <= self.limit and inflation[0] <= self.limit
+                and a_loc.min() > 0):
+            return None
+        # the sensor's noise and the print's defects add their power at every
+        # frequency, and the specimen's reflectance (a hole, an edge, a stain)
+        # modulates the carrier, spreading its spectrum around it: both taken out
+        # in quadrature, as measured where no harmonic folds, at random frequencies
+        # and on the ring of the fold's distance around the carrier (``ring()``),
+        # times the inflation of the harmonic's variance by its neighbours; an
+        # envelope's value at a point is noisier than its mean by its variance
+        # there over the mean's (the block of the inverse Gram matrix)
+        pts = self.at[:, :len(idx)]
+        blk = self.inv[np.ix_(idx, idx)]
+        gain = np.real(np.einsum("pi,ij,pj->p", pts, blk, pts.conj())) / max(
+            np.real(blk[0, 0]), 1e-300)
+        loc2 = np.abs(pts @ self.coef[idx]) ** 2
+        # (a share that counts for nothing even whole needs no floor)
+        whole = math.sqrt(float(loc2.max())) / float(a_loc.min()) * _transfer(delta, sigma)
+        near_floor = 0.0 if whole < _NEGLIGIBLE else ring()
+        noise2 = gain * float(inflation[idx[0]]) * max(floor, near_floor)
+        # a noise amplitude's power is exponential about its mean: the largest of
+        # the 9 points of tens of harmonics would add tens of noise-level terms; one
+        # whose power stands under _SIGNIFICANT times the noise's is taken as noise
+        r2 = np.where(loc2 > _SIGNIFICANT * noise2, loc2 - noise2, 0.0) \
+            / np.maximum(a_loc, 1e-300) ** 2
+        # a print's reflectance is not negative: none of its Fourier coefficients
+        # exceeds its mean, and the pixel's integration then multiplies each by
+        # mtf(h): what is fitted beyond that is the carrier's modulation, not a
+        # harmonic
+        r_pts = np.minimum(np.sqrt(np.maximum(r2, 0.0)),
+                           abs(mean) / np.maximum(a_loc, 1e-300) * _mtf(h) / _mtf(k))
+        return float(r_pts.max())
+
+
+def _inverse(gram):
+    """The Gram matrix's inverse: by Cholesky where it is positive definite (a tenth
+    of the cost of the pseudo-inverse's eigen-decomposition), else its pseudo-inverse."""
+    try:
+        c = scipy.linalg.cho_factor(gram, lower=True, check_finite=False)
+        inv = scipy.linalg.cho_solve(c, np.eye(len(gram), dtype=gram.dtype),
+                                     check_finite=False)
+        if np.all(np.isfinite(inv)):
+            return inv
+    except np.linalg.LinAlgError:
+        pass
+    return np.linalg.pinv(gram, hermitian=True)
+
+
 # A harmonic's power at a point below this many times the noise's there is taken as
 # noise: a noise amplitude exceeds it with probability exp(-9) = 1.2e-4, once in
 # about 20 images of 50 harmonics at 9 points.
 _SIGNIFICANT = 9.0
+
+# The singular values of a mask's window below this share of the largest are left
+# out: the weights that remain differ from the window by as little.
+_RANK_TOLERANCE = 1e-10
+
+
+def _low_rank(w):
+    """``(U, s, Vt)`` of the window ``w``: its singular vectors and values down to
+    ``_RANK_TOLERANCE`` of the largest, ``w = U diag(s) Vt`` to that share."""
+    u, sv, vt = np.linalg.svd(w, full_matrices=False)
+    keep = sv > _RANK_TOLERANCE * sv[0]
+    return u[:, keep], sv[keep], vt[keep]
+
 
 def _separable(w):
     """``(wy, wx)`` with ``w == outer(wy, wx)`` (to rounding), or None."""
@@ -412,23 +524,21 @@ _SPREAD = (-0.3, 0.0, 0.3)
 _RING = 12
 
 
-def _ring_floor(ref, w, k, d, avoid, size) -> float:
+def _ring_floor(rw, w, k, d, avoid, size) -> float:
     """The mean power at the carrier ``k`` plus ``d`` turned by ``_RING`` angles around
     it, away (``_APART`` bins or more) from every frequency in ``avoid``: what the
     carrier's own spectrum, spread by the specimen's reflectance, puts at the fold's
     distance from it."""
     total = float(np.sum(w))
     scale = np.asarray(size, dtype=np.float64)
-    rw = ref * w
-    ones = np.ones_like(w)
-    powers = []
+    at = []
     for t in np.arange(1, _RING) * (2 * math.pi / _RING):
         c, s = math.cos(t), math.sin(t)
         f = k + np.array([c * d[0] - s * d[1], s * d[0] + c * d[1]])
         gaps = np.hypot(*((_fold(avoid - f)) * scale).T)
         if gaps.min() >= _APART:
-            powers.append(abs(_dtft(rw, ones, f) / total) ** 2)
-    return float(np.mean(powers)) if powers else 0.0
+            at.append(f)
+    return float(np.mean(np.abs(_dtfts(rw, at) / total) ** 2)) if at else 0.0
 
 
 def _floor(ref, w, lattice) -> float:
@@ -449,7 +559,7 @@ def _floor(ref, w, lattice) -> float:
     if free.size == 0:
         return 0.0
     total = float(np.sum(w))
-    return float(np.mean([abs(_dtft(ref, w, f) / total) ** 2 for f in free]))
+    return float(np.mean(np.abs(_dtfts(ref * w, free) / total) ** 2))
 
 
 def _mtf(f):
@@ -617,7 +727,7 @@ def _sharpness_elsewhere(ref, w, lattice, checker) -> list[tuple[float, int | No
     H, W = ref.shape
     scale = np.array([W, H])  # cycles/px to bins
     ks = [np.array(lattice.k1), np.array(lattice.k2)]
-    a1 = 0.5 * (abs(_dtft(ref, w, ks[0])) + abs(_dtft(ref, w, ks[1])))
+    a1 = 0.5 * float(np.sum(np.abs(_dtfts(ref * w, ks))))
     if not a1 > 0:
         return []
     top = int(_OPTICS_CUTOFF / min(np.hypot(*ks[0]), np.hypot(*ks[1]))) + 1
@@ -630,7 +740,9 @@ def _sharpness_elsewhere(ref, w, lattice, checker) -> list[tuple[float, int | No
         if np.hypot(*h) <= _OPTICS_CUTOFF:
             _group(groups, _fold(h), _model_term(lattice, n, m, ks, 0 if m == 0 else 1,
                                                  checker), special, scale, (n + m) % 2)
-    return [(abs(_dtft(ref, w, g)) / a1 / t, par) for g, t, par in groups if t > 0.01]
+    kept = [(g, t, par) for g, t, par in groups if t > 0.01]
+    seen = np.abs(_dtfts(ref * w, [g for g, _, _ in kept]))
+    return [(float(a) / a1 / t, par) for a, (_, t, par) in zip(seen, kept, strict=True)]
 
 
 def _group(groups: list, f, term, special, scale, parity: int) -> None:
@@ -664,11 +776,12 @@ def _is_checkerboard(ref, w, lattice) -> bool:
     """A checkerboard has the cross harmonics ``2 k1 + k2`` (n + m odd) but not
     ``k1 + k2`` (n + m even); crossed lines have both."""
     k1, k2 = np.array(lattice.k1), np.array(lattice.k2)
-    a1 = 0.5 * (abs(_dtft(ref, w, k1)) + abs(_dtft(ref, w, k2)))
+    a = np.abs(_dtfts(ref * w, [k1, k2, *(_fold(k1 + s * k2) for s in (1, -1)),
+                                *(_fold(2 * k1 + s * k2) for s in (1, -1))]))
+    a1 = 0.5 * (a[0] + a[1])
     if not a1 > 0:
         return False
-    even = max(abs(_dtft(ref, w, _fold(k1 + s * k2))) for s in (1, -1)) / a1
-    odd = max(abs(_dtft(ref, w, _fold(2 * k1 + s * k2))) for s in (1, -1)) / a1
+    even, odd = max(a[2:4]) / a1, max(a[4:6]) / a1
     return bool(odd > 0.03 and even < 0.1 * odd + 0.01)
 
 
@@ -691,11 +804,14 @@ def _aliasing_window(shape, lattice, mask) -> np.ndarray:
         # 2-D filters' window, to rounding, from two 1-D ones
         sides = []
         for (a, b), size in zip(box, shape, strict=True):
+            # a side on the crop's border is not an edge of the specimen: the Hann
+            # window fades there already
+            lo, hi = (a + n if a > 0 else 0), (b - n if b < size else size)
             side = np.zeros(size)
-            side[a + n:max(a + n, b - n)] = 1.0
+            side[lo:max(lo, hi)] = 1.0
             sides.append(ndimage.gaussian_filter1d(side, p))
         return np.outer(hy * sides[0], hx * sides[1])
-    m = ndimage.binary_erosion(m, iterations=n)
+    m = ndimage.binary_erosion(m, iterations=n, border_value=1)
     return np.outer(hy, hx) * ndimage.gaussian_filter(m.astype(np.float64), p)
 
 
