@@ -28,7 +28,7 @@ from .._validation import (
     check_type,
     check_workers,
 )
-from ._exact import _ifft, _one_wave_vector, _one_wave_vector_central
+from ._exact import _ifft, _one_wave_vector
 from ._maps import PhaseMaps
 from ._spectrum import _axis_band, spectrum_block, transfer_function
 from ._validity import _gaps, _region, _shows_grid
@@ -184,14 +184,6 @@ def _wft(image, lattice: Lattice, *, sigma: float | None = None, mask=None,
     :mod:`gridstrain.phase._kernels` when numba is there (``_COMPILED``), in numpy
     otherwise; the exact path where the window is too narrow for a short filter.
 
-    ``derivatives="central"``: ``Im(conj(Psi) (Psi[+1] - Psi[-1])) / (2 |Psi|^2)``,
-    central differences of the demodulated map along each axis, no FFT beyond the
-    one for ``Psi``. Faster (``benchmarks/bench_wft.py``) but a different filter:
-    its bias (about phi'''/6) and its response to the noise differ from the exact
-    derivative by ~1e-6 rad/px on the paper's noise-free fields and by ~5e-5 rad/px
-    on a noisy frame (tests/test_fast.py), far above the 1e-7 rad/px that the exact
-    path meets; it is not used by default.
-
     ``sink`` (exact derivatives, or fast ones in the compiled loops; the numpy fast
     path computes the exact ones instead): instead of keeping the maps, hand each
     block of rows to ``sink(j, r0, r1, psi, dphi, mod)`` as soon as it is computed -- the
@@ -203,11 +195,9 @@ def _wft(image, lattice: Lattice, *, sigma: float | None = None, mask=None,
     transforming many frames reuses the same pages. ``checked``: ``image`` already
     went through :func:`~gridstrain._validation.as_image` (a stack's frames do).
     """
-    check_choice(derivatives, "derivatives", ("auto", "exact", "fast", "central"))
+    check_choice(derivatives, "derivatives", ("auto", "exact", "fast"))
     if derivatives == "auto":
         derivatives = "fast" if _kernels() is not None else "exact"
-    if sink is not None and derivatives == "central":
-        raise ValueError("sink needs the exact or the fast derivatives")
     if not isinstance(lattice, Lattice):
         raise TypeError(f"lattice must be a Lattice, got {type(lattice).__name__}")
     img = image if checked else as_image(image)
@@ -267,10 +257,6 @@ def _wft(image, lattice: Lattice, *, sigma: float | None = None, mask=None,
                 _one_wave_vector_fast(V, k, sigma, H, W, nx, psi[j], dphi[j], mods[j],
                                       works[j], taps=fast[0],
                                       chunk=max(8, _FAST_CHUNK_BYTES // (nx * cdtype.itemsize)))
-            elif derivatives == "central":
-                _one_wave_vector_central(V, k, sigma, H, W, nx, psi[j], dphi[j], mods[j],
-                                         works[j],
-                                         chunk=max(8, _CHUNK_BYTES // (nx * cdtype.itemsize)))
             else:
                 out = None if sink is None else (
                     lambda r0, r1, p, d, md: sink(j, r0, r1, p, d, md))

@@ -628,10 +628,6 @@ def _first_frame(series) -> np.ndarray:
     return next(iter(series.frames(dtype=np.float64, start=0, stop=1)))
 
 
-def _with_first(first, sums):
-    return (first, *sums)
-
-
 class _Pending:
     """A submitted computation and the scattered data it reads.
 
