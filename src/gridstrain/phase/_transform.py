@@ -42,7 +42,7 @@ __all__ = ["DEFAULT_MARGIN", "PhaseMaps", "transfer_function", "wft", "wft_compl
 _PAD_SIGMAS = 8.0
 # Bytes of one block of rows of the final inverse FFTs (three transforms): small
 # enough for the block and its products to stay in cache between the FFT and the
-# products instead of streaming through memory (2x faster than whole images).
+# products instead of streaming through memory.
 _CHUNK_BYTES = 2**21
 
 
@@ -727,7 +727,7 @@ class _Band:
 def _compiled_band(ny: int, nx: int, H: int, W: int, k: tuple, sigma: float, m: int,
                    rdtype: str) -> _Band:
     """The band of wave vector ``k`` for a padded ``ny x nx`` spectrum of an ``H x W``
-    image, computed once for a stack's frames (a frame costs 1 to 2 ms less)."""
+    image, computed once for a stack's frames rather than for each."""
     rdtype = np.dtype(rdtype)
     rows, yruns, nuy, sy = _axis_band(ny, k[1], sigma)
     cols, xruns, nux, sx = _axis_band(nx, k[0], sigma)
