@@ -39,7 +39,14 @@ def test_every_example_is_listed():
     assert {p.name for p in SCRIPTS} == set(EXPECTED)
 
 
-@pytest.mark.parametrize("script", SCRIPTS, ids=[p.name for p in SCRIPTS])
+# the Dask example starts a cluster of its own (most of its time): only in the slow run,
+# tests/test_distributed.py measuring on Dask in the default one
+_SLOW_EXAMPLES = {"05_dask.py"}
+
+
+@pytest.mark.parametrize("script", [
+    pytest.param(p, marks=pytest.mark.slow) if p.name in _SLOW_EXAMPLES else p
+    for p in SCRIPTS], ids=[p.name for p in SCRIPTS])
 def test_example_runs(script, tmp_path):
     if "dask" in script.name and importlib.util.find_spec("distributed") is None:
         pytest.skip("needs the distributed extra")
