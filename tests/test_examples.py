@@ -39,9 +39,13 @@ def test_every_example_is_listed():
     assert {p.name for p in SCRIPTS} == set(EXPECTED)
 
 
-# the Dask example starts a cluster of its own (most of its time): only in the slow run,
-# tests/test_distributed.py measuring on Dask in the default one
-_SLOW_EXAMPLES = {"05_dask.py"}
+# the longest examples run in the slow run only; what each does is tested in the
+# default one: Dask by tests/test_distributed.py (the example starts a cluster of its
+# own), a result's exports and report by tests/test_results.py, a high-speed record by
+# tests/test_sequences.py and tests/test_camera.py, a tensile coupon's E and nu by
+# tests/test_post_constants.py
+_SLOW_EXAMPLES = {"05_dask.py", "06_share_results.py", "08_high_speed_sequence.py",
+                  "09_tensile_coupon.py"}
 
 
 @pytest.mark.parametrize("script", [
