@@ -17,9 +17,6 @@ For each image size and precision it prints the per-frame time of
   numba and compiles the loops, or loads them from numba's disk cache: both are
   timed apart, each in a fresh interpreter, and printed before the table; the
   table's runs follow a warm-up call;
-* ``central``: the same with central-difference derivatives (the private
-  ``gridstrain.phase._transform._wft(..., derivatives="central")``), which costs no FFT beyond
-  those of the phases but breaks the 1e-7 rad/px derivative bound (printed below);
 * ``floor``: one ``rfft2`` and two complex ``ifft2`` of the padded size wft uses,
   with the same library (scipy.fft) -- the least any FFT implementation of the
   window needs for the two phase maps, derivatives not included;
@@ -213,8 +210,8 @@ def study(shape, repeat):
         t = interleaved({"fd": lambda psi=psi, order=order: [difference_derivatives(p, order)
                                                              for p in psi]}, repeat)["fd"]
         print(f"{order:>6} {errs[0]:>12.1e} {errs[1]:>12.1e} {t[2] * 1e3:>18.1f}")
-    print("(order 2 is the central path; the exact path's extra FFTs cost the difference "
-          "between the exact and central columns above)")
+    print("(order 2 needs no FFT beyond the phases' but misses the 1e-7 rad/px "
+          "derivative bound that the exact and fast paths meet)")
 
 
 def main(argv=None):
@@ -247,11 +244,11 @@ def main(argv=None):
           "(wft's workers, the floor's FFT workers); "
           f"pitch = sigma = {args.pitch:g} px; "
           f"best of {args.repeat} interleaved runs")
-    names = (["exact", "fast"] + (["compiled"] if compiled else []) + ["central", "floor"]
+    names = (["exact", "fast"] + (["compiled"] if compiled else []) + ["floor"]
              + ([] if args.no_naive else ["naive"]))
     header = (f"{'size':>10} {'dtype':>8} " + " ".join(f"{n + ' ms':>16}" for n in names)
               + f" {'exact/floor':>12} {'fast/floor':>12} {'compiled/floor':>14} "
-              f"{'central/floor':>14} {'naive/exact':>12} {'peak MiB':>9}"
+              f"{'naive/exact':>12} {'peak MiB':>9}"
               + (f" {'compiled MiB':>12}" if compiled else ""))
     print(header)
     print(f"{'':>19} ratios: best wall (best CPU)")
@@ -266,8 +263,6 @@ def main(argv=None):
             funcs = {"exact": partial(_wft, img, lattice, derivatives="exact",
                                       workers=args.workers),
                      "fast": partial(numpy_fast, img, lattice, args.workers),
-                     "central": partial(_wft, img, lattice, derivatives="central",
-                                        workers=args.workers),
                      "floor": partial(floor, real, cplx, args.workers)}
             if compiled:
                 funcs["compiled"] = partial(_wft, img, lattice, derivatives="fast",
@@ -287,10 +282,9 @@ def main(argv=None):
             comp = ratio("compiled", "floor") if compiled else "-"
             print(f"{shape[0]:>4}x{shape[1]:<5} {np.dtype(dtype).name:>8} {cells} "
                   f"{ratio('exact', 'floor'):>12} {ratio('fast', 'floor'):>12} "
-                  f"{comp:>14} {ratio('central', 'floor'):>14} "
+                  f"{comp:>14} "
                   f"{naive:>12} {peak:>9.0f}" + (f" {peak_c:>12.0f}" if compiled else ""))
         res = _wft(img64, lattice, derivatives="exact")
-        cen = _wft(img64, lattice, derivatives="central")
         v = res.valid
         fast = {dt: numpy_fast(img64.astype(dt), lattice, 1) for dt in (np.float64, np.float32)}
         ex32 = _wft(img64.astype(np.float32), lattice, derivatives="exact")
@@ -304,10 +298,9 @@ def main(argv=None):
                           f"{_worst(comp[np.float32], ex32):.1e} (float32), "
                           f"{_worst(comp[np.float32], res):.1e} (float32 against float64 "
                           "exact), ")
-        notes[-1] += f"central {np.max(np.abs(cen.dphi - res.dphi)[:, :, v]):.1e}"
         if not args.no_naive:
             _, dphi = naive_wft(img64, lattice, sigma)
-            notes[-1] += f", naive {np.max(np.abs(dphi - res.dphi)[:, :, v]):.1e} rad/px"
+            notes[-1] += f"naive {np.max(np.abs(dphi - res.dphi)[:, :, v]):.1e} rad/px"
     for line in notes:
         print(line)
     print("peak MiB (compiled MiB): memory allocated through numpy during one call of "

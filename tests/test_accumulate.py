@@ -15,6 +15,7 @@ import pytest
 from numpy.testing import assert_allclose, assert_array_equal
 
 from gridstrain import Lattice, stacks, wft
+from gridstrain.phase import Window
 from gridstrain.stacks.accumulate import PassPlan, SeriesPass
 from gridstrain.stacks.screening import screen_frames
 from independent_grid import scene
@@ -48,7 +49,7 @@ def data():
 
 def _pass(frames, method="A", chunks=1, **kw):
     T = len(frames)
-    plan = PassPlan(lattice=_lattice(), n_frames=T, method=method, sigma=PITCH, **kw)
+    plan = PassPlan(lattice=_lattice(), n_frames=T, method=method, window=Window(PITCH), **kw)
     bounds = np.linspace(0, T, chunks + 1).round().astype(int)
     parts = []
     for a, b in itertools.pairwise(bounds):
@@ -140,7 +141,7 @@ def test_method_b_and_c_are_those_of_stacks(data):
     assert_allclose(b.phase[:, b.valid], want.phase[:, want.valid], rtol=0, atol=1e-12)
     assert_allclose(b.dphi[:, :, b.valid], want.dphi[:, :, want.valid], rtol=0, atol=1e-15)
     acc = _pass(frames, "C", chunks=3)
-    c = acc.method_c(sigma=PITCH)
+    c = acc.method_c()
     shifts = screen_frames(frames, lat).shifts()
     wc = stacks.method_c(frames, lat, shifts=shifts, sigma=PITCH)
     assert_array_equal(c.maps.valid, wc.maps.valid)
@@ -148,7 +149,7 @@ def test_method_b_and_c_are_those_of_stacks(data):
     # the same realigned sums, one complex turn apart at most: 1e-12 rad
     assert_allclose(c.maps.phase[:, v], wc.maps.phase[:, v], rtol=0, atol=1e-12)
     assert_allclose(c.shifts, wc.shifts, rtol=0, atol=1e-12)
-    half = acc.method_c(sigma=PITCH, halves=(1,))
+    half = acc.method_c(halves=(1,))
     wh = stacks.method_c(frames[6:], lat, shifts=shifts[6:], sigma=PITCH)
     assert_allclose(half.maps.phase[:, v], wh.maps.phase[:, v], rtol=0, atol=1e-12)
 

@@ -32,6 +32,7 @@ from gridstrain import Lattice, stacks  # noqa: E402
 from gridstrain.cli import main  # noqa: E402
 from gridstrain.io import open_series, read_hdf5  # noqa: E402
 from gridstrain.models import kirsch, synthetic  # noqa: E402
+from gridstrain.phase import Window  # noqa: E402
 from gridstrain.results import read_attrs  # noqa: E402
 from gridstrain.series import _distributed as gd  # noqa: E402
 from gridstrain.series import measure_series  # noqa: E402
@@ -520,7 +521,7 @@ def test_method_b_survives_a_worker_killed_mid_run(client, tmp_path, monkeypatch
     try:
         frames = _frames(8, np.random.default_rng(8))
         flag = tmp_path / "killed"
-        plan = PassPlan(lattice=LAT, n_frames=8, method="B", sigma=5.0, margin=4.0)
+        plan = PassPlan(lattice=LAT, n_frames=8, method="B", window=Window(5.0, 4.0))
         killed = gd._submit_pass(client, _DyingSeries(frames, 3, flag), plan).result(
             timeout=120)
         assert flag.exists()  # a worker did die, on frame 3

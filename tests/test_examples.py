@@ -39,7 +39,18 @@ def test_every_example_is_listed():
     assert {p.name for p in SCRIPTS} == set(EXPECTED)
 
 
-@pytest.mark.parametrize("script", SCRIPTS, ids=[p.name for p in SCRIPTS])
+# the longest examples run in the slow run only; what each does is tested in the
+# default one: Dask by tests/test_distributed.py (the example starts a cluster of its
+# own), a result's exports and report by tests/test_results.py, a high-speed record by
+# tests/test_sequences.py and tests/test_camera.py, a tensile coupon's E and nu by
+# tests/test_post_constants.py
+_SLOW_EXAMPLES = {"05_dask.py", "06_share_results.py", "08_high_speed_sequence.py",
+                  "09_tensile_coupon.py"}
+
+
+@pytest.mark.parametrize("script", [
+    pytest.param(p, marks=pytest.mark.slow) if p.name in _SLOW_EXAMPLES else p
+    for p in SCRIPTS], ids=[p.name for p in SCRIPTS])
 def test_example_runs(script, tmp_path):
     if "dask" in script.name and importlib.util.find_spec("distributed") is None:
         pytest.skip("needs the distributed extra")

@@ -120,7 +120,7 @@ def test_blocks_of_rows_give_the_same_maps(monkeypatch):
     np.testing.assert_array_equal(blocks.valid, whole.valid)
 
 
-@pytest.mark.parametrize("derivatives", ["exact", "fast", "central"])
+@pytest.mark.parametrize("derivatives", ["exact", "fast"])
 def test_two_threads_give_the_same_maps(derivatives):
     # one wave vector per thread, each on its own scratch arrays: the same arithmetic
     # on the same numbers, so identical bits (a shared buffer would show here)
@@ -274,60 +274,6 @@ def test_spectrum_block_is_the_full_dft_block(ny, nx, r0, nr, c0, nc):
     block = _spectrum_block(np.fft.rfft2(img), rows, cols, nx)
     # float64 FFT rounding of unit-variance data, ~1e-15 of the spectrum's size
     np.testing.assert_allclose(block, full[np.ix_(rows, cols)], atol=1e-12)
-
-
-def _bump_grid(shape, noisy):
-    """The paper's synthetic fields: phases up to 0.06 and 0.42 rad, |d phi| <= 0.005."""
-    H, W = shape
-    width = 0.42 * math.exp(-0.5) / 0.005  # px
-    lat = Lattice.from_pitch(5.0)
-
-    def phases(X, Y):
-        bump = np.exp(-((X - W / 2) ** 2 + (Y - H / 2) ** 2) / (2 * width**2))
-        return 0.06 * bump, 0.42 * bump
-
-    img = synthetic.grid_image(shape, lat, amplitude=2048.0, phases=phases)
-    return lat, (synthetic.add_noise(img, rng=4) if noisy else img)
-
-
-@pytest.mark.parametrize("noisy", [False, True])
-def test_central_differences_are_faster_but_break_the_derivative_bound(noisy):
-    # The FFT-free derivative (benchmarks/bench_wft.py: about 2/3 of the exact path's
-    # time) is a different filter. Measured against the exact derivative: its
-    # truncation error, a sixth of the third derivative of phi, ~7e-7 rad/px on the
-    # paper's noise-free fields, and ~4e-5 rad/px on a noisy frame, whose noise it
-    # filters differently (sin 2 pi nu instead of 2 pi nu). Both exceed the
-    # 1e-7 rad/px the exact path meets, which is why wft keeps the exact derivatives.
-    lat, img = _bump_grid((256, 256), noisy)
-    exact = wft(img, lat, derivatives="exact")
-    central = _wft(img, lat, derivatives="central")
-    v = exact.valid
-    # the same Psi, the window applied in another order: float64 rounding, ~1e-15
-    np.testing.assert_allclose(central.psi, exact.psi, rtol=1e-13)
-    np.testing.assert_array_equal(central.valid, v)
-    err = np.max(np.abs(central.dphi - exact.dphi)[:, :, v])
-    lo, hi = (1e-7, 3e-6) if not noisy else (1e-5, 3e-4)
-    assert lo < err < hi  # rad/px
-    # float32 keeps its dtype on this path too
-    c32 = _wft(img.astype(np.float32), lat, derivatives="central")
-    assert c32.dphi.dtype == np.float32
-    assert np.max(np.abs(c32.dphi - central.dphi)[:, :, v]) < 1e-6  # float32 bound, rad/px
-
-
-def test_central_differences_are_those_of_the_returned_maps():
-    # off-bin carriers (rotated lattice, sigma above the pitch): the residual
-    # demodulation must enter the differences as it enters Psi
-    lat, shape, sigma, _ = CASES["rotated"]
-    img = _noisy_grid(shape, lat, seed=6)
-    res = _wft(img, lat, sigma=sigma, derivatives="central")
-    p = res.psi
-    centre = p[:, 1:-1, 1:-1]
-    power = np.abs(centre) ** 2
-    dx = np.imag(np.conj(centre) * (p[:, 1:-1, 2:] - p[:, 1:-1, :-2])) / (2 * power)
-    dy = np.imag(np.conj(centre) * (p[:, 2:, 1:-1] - p[:, :-2, 1:-1])) / (2 * power)
-    # float64 rounding of a difference of neighbours, relative to |Psi|: ~1e-16 rad/px
-    np.testing.assert_allclose(res.dphi[:, 0, 1:-1, 1:-1], dx, rtol=0, atol=1e-13)
-    np.testing.assert_allclose(res.dphi[:, 1, 1:-1, 1:-1], dy, rtol=0, atol=1e-13)
 
 
 def _frames(lat, T, shape=(80, 96)):

@@ -767,9 +767,19 @@ sys.exit(main(sys.argv[1:]))
 """
 
 
-@pytest.mark.parametrize("delay", [0.1, 0.5, 1.0, 2.5])
-@pytest.mark.parametrize(("sig", "rc", "word"), [(signal.SIGINT, 130, "interrupted"),
-                                                 (signal.SIGTERM, 143, "terminated")])
+def _signal_cases():
+    """SIGINT at every moment; SIGTERM, handled by the same code, at two of them in the
+    default run and at the others in the slow one."""
+    for sig, rc, word in ((signal.SIGINT, 130, "interrupted"),
+                          (signal.SIGTERM, 143, "terminated")):
+        for delay in (0.1, 0.5, 1.0, 2.5):
+            slow = sig == signal.SIGTERM and delay in (0.5, 2.5)
+            yield pytest.param(delay, sig, rc, word,
+                               marks=pytest.mark.slow if slow else (),
+                               id=f"{int(sig)}-{rc}-{word}-{delay}")
+
+
+@pytest.mark.parametrize(("delay", "sig", "rc", "word"), list(_signal_cases()))
 def test_a_signal_at_any_moment_is_one_line_and_leaves_nothing(data, tmp_path, delay, sig,
                                                                rc, word):
     """The command started in its own process, the signal sent ``delay`` seconds after

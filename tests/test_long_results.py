@@ -163,9 +163,9 @@ def _run(args):
     assert main([str(a) for a in args]) == 0
 
 
-def test_the_commands_read_a_record_state_by_state(record, tmp_path, capsys):
-    """gauge, history, plot and report give the same tables, figures and report under
-    a memory budget that reading the whole file refuses as with no budget."""
+def _outputs_under_budgets(record, tmp_path, capsys, commands):
+    """The files ``commands(path, times, d)`` write, with no memory budget and with one
+    that reading the whole file refuses, each run in its own folder ``d``."""
     path, maps = record
     times = tmp_path / "times.csv"
     times.write_text("load [kN],time [s]\n"
@@ -175,15 +175,35 @@ def test_the_commands_read_a_record_state_by_state(record, tmp_path, capsys):
         d = tmp_path / where
         d.mkdir()
         with memory_budget(budget):
-            _run(["gauge", path, "--region", 20, 16, 60, 48, "-o", d / "gauge.csv"])
-            _run(["history", path, "--loads", times, "-o", d / "history.csv"])
-            _run(["plot", path, "--maps", "exx,ux,rotation,exx_std", "--limits", "robust",
-                  "-o", d / "figures"])
-            _run(["report", path, "-o", d / "report.html"])
+            for args in commands(path, times, d):
+                _run(args)
         outputs[where] = {p.relative_to(d): p.read_bytes() for p in sorted(d.rglob("*"))
                           if p.is_file() and p.name != ".gridstrain"}
     capsys.readouterr()
-    assert len(outputs["free"]) == 8
+    return outputs
+
+
+def test_the_commands_read_a_record_state_by_state(record, tmp_path, capsys):
+    """gauge, history and plot give the same tables and figures under a memory budget
+    that reading the whole file refuses as with no budget."""
+    outputs = _outputs_under_budgets(record, tmp_path, capsys, lambda path, times, d: [
+        ["gauge", path, "--region", 20, 16, 60, 48, "-o", d / "gauge.csv"],
+        ["history", path, "--loads", times, "-o", d / "history.csv"],
+        # a map and its std map: the limits of each read in passes over the states
+        ["plot", path, "--maps", "exx,exx_std", "--limits", "robust", "-o", d / "figures"]])
+    assert len(outputs["free"]) == 5  # the two tables, two maps and the history figure
+    assert outputs["tight"] == outputs["free"]
+
+
+@pytest.mark.slow
+def test_the_report_reads_a_record_state_by_state(record, tmp_path, capsys):
+    """The report too (its figures cost most of its time, whatever the budget); the
+    plot of every kind of map with it."""
+    outputs = _outputs_under_budgets(record, tmp_path, capsys, lambda path, times, d: [
+        ["plot", path, "--maps", "exx,ux,rotation,exx_std", "--limits", "robust",
+         "-o", d / "figures"],
+        ["report", path, "-o", d / "report.html"]])
+    assert len(outputs["free"]) == 6
     assert outputs["tight"] == outputs["free"]
 
 

@@ -115,11 +115,11 @@ def _empirical_vs_predicted(size, draws, seed):
 
 def test_one_frame_uncertainty_maps_match_repeated_draws():
     """One frame per state: the std maps from the single-image noise model against
-    the scatter over 12 noise draws (256 x 256, a hole, non-uniform strain).
-    Measured: ratios 1.00 to 1.03. Tolerance 10 %: the empirical std of 12 draws
-    has a 21 % spread per pixel, its median over the ~100 independent windows of
-    the valid region about 2 %, and the model of one image about 1 %."""
-    res, ratios = _empirical_vs_predicted(256, 12, 0)
+    the scatter over 8 noise draws (256 x 256, a hole, non-uniform strain).
+    Measured: ratios 0.99 to 1.01. Tolerance 10 %: the empirical std of 8 draws
+    has a 27 % spread per pixel, its median over the ~100 independent windows of
+    the valid region about 3 %, and the model of one image about 1 %."""
+    res, ratios = _empirical_vs_predicted(256, 8, 0)
     r = res[0]
     assert r.noise.model["source"] == "single image"
     assert all(np.isfinite(r.noise.theory_u[0]))

@@ -506,7 +506,7 @@ def test_the_split_floor_from_one_half_and_the_mean_is_half_against_half():
     other (computed here from numpy means of the frames), the halves unequal (5
     and 6 frames) and the frames shaken by 0.05 px."""
     from gridstrain import wft
-    from gridstrain.phase import finite_derivatives
+    from gridstrain.phase import Window, finite_derivatives
     from gridstrain.series._floors import _difference_std, _split_floor
     from gridstrain.stacks.accumulate import PassPlan, SeriesPass
 
@@ -524,7 +524,8 @@ def test_the_split_floor_from_one_half_and_the_mean_is_half_against_half():
         acc.add(t, f)
     mask = np.ones(shape, dtype=bool)
     mean = finite_derivatives(wft(np.mean(frames, axis=0), lat, sigma=5.0, mask=mask))
-    su, se = _split_floor(acc, lat, 5.0, mask, 4.0, "A", lambda f, m: None, mean_maps=mean)
+    su, se = _split_floor(acc, lat, Window(5.0, 4.0), mask, "A", lambda f, m: None,
+                          mean_maps=mean)
     h1, h2 = (finite_derivatives(wft(np.mean(frames[sl], axis=0), lat, sigma=5.0, mask=mask))
               for sl in (slice(0, T // 2), slice(T // 2, T)))
     want_u, want_e = _difference_std(h1, h2)

@@ -310,6 +310,9 @@ def _browse(page, profile, *extra):
 
 
 @pytest.mark.skipif(_chromium() is None, reason="headless Chromium is not installed")
+# slow: a demo run and a browser; the page's content is checked in the default run by
+# test_report_is_self_contained and test_report_escapes_everything_read_from_the_file
+@pytest.mark.slow
 def test_report_renders_in_headless_chromium(tmp_path):
     """The demo's report, as a browser shows it: no console error, the maps drawn."""
     demo = tmp_path / "demo"

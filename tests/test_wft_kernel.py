@@ -22,6 +22,7 @@ import pytest
 import gridstrain
 import gridstrain.phase._transform as impl
 from gridstrain import Lattice, wft
+from gridstrain.phase import Window
 from independent_grid import camera, scene
 from test_wft import _direct, _modulated_grid
 
@@ -268,9 +269,10 @@ def test_compiled_sums_of_method_b_are_the_numpy_sums(compiled, monkeypatch, dty
     def sums(kernels):
         monkeypatch.setattr(gs, "_kernels", kernels)
         acc = gs._PhaseMean()
+        window = Window.for_lattice(lat)
         for f in frames:
-            acc.add_frame(f, lat, mask=mask)
-        acc.add_frame(frames[1], lat, mask=mask, remove=True)
+            acc.add_frame(f, lat, window, mask=mask)
+        acc.add_frame(frames[1], lat, window, mask=mask, remove=True)
         return acc
 
     loops, plain = sums(lambda: compiled), sums(lambda: None)

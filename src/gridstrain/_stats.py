@@ -1,8 +1,8 @@
 """Order statistics of large maps.
 
-``np.median`` partially sorts around both middle elements of an even-sized array;
-on a 1040 x 1376 modulus or uncertainty map that costs 11 to 14 ms, against 1.5 ms
-for one partial sort around the upper middle (numpy 2.4). The pipeline takes a
+``np.median`` partially sorts around both middle elements of an even-sized array,
+several times the cost of one partial sort around the upper middle
+(benchmarks/README.md). The pipeline takes a
 dozen such medians per state (the moduli, the uncertainty floors, the regions
 without a grid), so :func:`median` takes the lower middle as the maximum of the
 lower half instead. Most of them are of a boolean-mask gather, a fresh array that
@@ -97,8 +97,8 @@ def row_medians(table: np.ndarray) -> np.ndarray:
     place (it is overwritten, as with ``overwrite_input=True``).
 
     One partial sort of each row around its upper middle, the lower middle the
-    maximum of the lower half: 6 ms against 24 ms for ``np.median`` on the noise
-    estimate's (8320, 300) table of tile periodograms. Rows holding a NaN give NaN.
+    maximum of the lower half (a fraction of ``np.median``'s time on the noise
+    estimate's table of tile periodograms). Rows holding a NaN give NaN.
     """
     n = table.shape[-1]
     if n == 0:

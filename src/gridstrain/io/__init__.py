@@ -15,7 +15,9 @@ Input
     every header size and offset checked against the file first, their significant
     bits as the bit depth and their frame times from the trigger
     (:attr:`FrameSeries.times`, :attr:`FrameSeries.frame_rate`,
-    :attr:`FrameSeries.trigger_frame`). Colour frames are
+    :attr:`FrameSeries.trigger_frame`). Each format is registered once
+    (:class:`ImageFormat`, :func:`register_format`: its suffixes, leading bytes, header
+    scan, frame reader and what it holds), and found by the file's suffix. Colour frames are
     read as their luminance (:func:`to_luminance`,
     ITU-R BT.709 weights) and JPEG files with a note on their lossy compression
     (:attr:`FrameSeries.notes`). :func:`read_mask` reads a specimen mask, grey,
@@ -77,6 +79,10 @@ from .._runtime.memory import (
     memory_budget,
     parse_size,
 )
+
+# every module of a format registers it on import: the camera records' has nothing else
+# to export
+from . import _camera  # noqa: F401
 from ._files import (
     MARKER_NAME,
     HDF5Stream,
@@ -97,6 +103,7 @@ from ._files import (
 # shared with gridstrain's other folders, not part of the public API
 from ._files import check_destination as check_destination
 from ._files import watch_outputs as watch_outputs
+from ._formats import ImageFormat, register_format, unregister_format
 from ._hdf5_attrs import read_hdf5, read_noise_model
 from ._loads import LoadsFile, LoadTable, read_loads
 from ._numbering import FrameGap, RecordNumbering, record_numbering
@@ -120,6 +127,7 @@ __all__ = [
     "FrameGap",
     "FrameSeries",
     "HDF5Stream",
+    "ImageFormat",
     "LoadTable",
     "LoadsFile",
     "MemoryBudgetError",
@@ -146,12 +154,14 @@ __all__ = [
     "read_noise_model",
     "record_numbering",
     "record_outputs",
+    "register_format",
     "roi_mask",
     "space_error",
     "split_frames",
     "state_inputs",
     "sweep_temporary_files",
     "to_luminance",
+    "unregister_format",
     "write_atomic",
     "write_csv",
     "write_hdf5",

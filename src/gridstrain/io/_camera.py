@@ -74,9 +74,7 @@ from pathlib import Path
 import numpy as np
 
 from .._runtime import memory as _memory
-
-#: Camera records read frame by frame from their published layouts.
-CAMERA_EXTENSIONS = (".cine", ".mraw")
+from ._formats import FileInfo, ImageFormat, register_format
 
 # Largest image side accepted from a header: larger sensors do not exist, and the
 # bound keeps every product of header numbers far from overflow.
@@ -132,10 +130,6 @@ class _Layout:
         """Index of the trigger's frame in the record, if it was stored."""
         k = -self.first_number
         return k if 0 <= k < self.n_frames else None
-
-
-def _is_camera(path: Path) -> bool:
-    return path.suffix.lower() in CAMERA_EXTENSIONS
 
 
 # --------------------------------------------------------------------------- reading
@@ -208,7 +202,7 @@ def _frame_offset(fh, layout: _Layout, k: int, name: str) -> int:
     return ptr + ann
 
 
-def _read_camera(path: Path, pages, name: str) -> Iterator[np.ndarray]:
+def _read_camera(path: Path, pages, wheres, name: str) -> Iterator[np.ndarray]:
     """Frames ``pages`` of the record ``path``, read one at a time from one open file."""
     layout = _layout(path, name)
     with open(path, "rb") as fh:
@@ -223,6 +217,14 @@ def _read_camera(path: Path, pages, name: str) -> Iterator[np.ndarray]:
 # frames of a record are read long after the series was opened, maybe in another
 # process, and each process parses the header once.
 _LAYOUTS: dict[tuple, _Layout] = {}
+
+
+def _scan_camera(path: Path, name: str, allow_bool: bool = False) -> FileInfo:
+    """A record's frames from its header: its significant bits, its frame times."""
+    lay = _layout(path, name)
+    n = lay.n_frames
+    return FileInfo(path, (lay.shape,) * n, (lay.dtype,) * n, (1,) * n, lay.bits,
+                    times=lay.times, header_bits=True, note=lay.note)
 
 
 def _layout(path: Path, name: str) -> _Layout:
@@ -613,3 +615,10 @@ def _read_mraw(path: Path, size: int, name: str) -> _Layout:
                       f"{stored}-bit pixels ({count * layout.frame_bytes} bytes) but the "
                       f"file has {size} bytes (a header of another record?)")
     return layout
+
+
+# A record's layout (_Layout) says its frame rate and its trigger's frame.
+register_format(ImageFormat("Phantom cine", (".cine",), _scan_camera, _read_camera,
+                            kind="camera", magic=(b"CI",), stack=True, timing=_layout))
+register_format(ImageFormat("Photron MRAW", (".mraw",), _scan_camera, _read_camera,
+                            kind="camera", stack=True, timing=_layout))

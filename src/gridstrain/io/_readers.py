@@ -1,7 +1,8 @@
 """Reading the files of a series: TIFF pages (packed, compressed, multi-page), PNG, BMP and
-JPEG images through imageio, videos through PyAV, high-speed camera records (Phantom cine,
-Photron MRAW) from their published layouts; each file scanned once for its frames, shape,
-dtype and channels, and a source resolved to its files in natural order.
+JPEG images through imageio, videos through PyAV, each registered as a format
+(:mod:`gridstrain.io._formats`; the high-speed camera records in ``_camera``); each file
+scanned once for its frames, shape, dtype and channels, and a source resolved to its files
+in natural order.
 """
 
 from __future__ import annotations
@@ -13,7 +14,6 @@ import os
 import re
 import threading
 from collections.abc import Iterator
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -22,7 +22,14 @@ import tifffile
 from .._validation import (
     as_path,
 )
-from ._camera import CAMERA_EXTENSIONS, _is_camera, _layout
+from ._formats import (
+    FileInfo,
+    ImageFormat,
+    check_suffix,
+    is_readable_name,
+    register_format,
+    suffixes,
+)
 
 #: File name extensions read as images (compared case-insensitively). JPEG files are
 #: read with a note: lossy compression adds noise the noise model does not describe.
@@ -37,12 +44,6 @@ VIDEO_EXTENSIONS = (".avi", ".mp4", ".mov", ".mkv")
 # Video codecs that keep every grey level: any other adds compression artefacts.
 _LOSSLESS_CODECS = {"rawvideo", "ffv1", "huffyuv", "ffvhuff", "utvideo", "png", "tiff",
                     "qtrle", "r210", "v210", "magicyuv"}
-
-
-_TIFF_EXTENSIONS = (".tif", ".tiff")
-
-
-_JPEG_EXTENSIONS = (".jpg", ".jpeg")
 
 
 #: Weights of R, G, B in the luminance of colour frames: ITU-R BT.709 (the
@@ -63,26 +64,6 @@ def natural_sort_key(text: str | os.PathLike) -> tuple:
     # keys of two strings compare str with str and int with int, position by position.
     key = tuple(int(p) if i % 2 else p.casefold() for i, p in enumerate(parts))
     return (key, s)
-
-
-def _is_image_name(path: Path) -> bool:
-    return path.suffix.lower() in IMAGE_EXTENSIONS + VIDEO_EXTENSIONS + CAMERA_EXTENSIONS
-
-
-def _is_video(path: Path) -> bool:
-    return path.suffix.lower() in VIDEO_EXTENSIONS
-
-
-def _is_tiff(path: Path) -> bool:
-    return path.suffix.lower() in _TIFF_EXTENSIONS
-
-
-def _check_extension(path: Path, name: str) -> None:
-    if not _is_image_name(path):
-        raise ValueError(f"{name}: {path} has extension {path.suffix!r}; supported image "
-                         f"files are {', '.join(IMAGE_EXTENSIONS)}, videos "
-                         f"{', '.join(VIDEO_EXTENSIONS)}, and camera records "
-                         f"{', '.join(CAMERA_EXTENSIONS)}")
 
 
 def _page_layout(shape: tuple[int, ...], samples: int) -> tuple[tuple[int, ...], int, int]:
@@ -200,6 +181,13 @@ def _tiff_file(path: Path, name: str) -> tifffile.TiffFile:
 def _open_tiff(path: Path, name: str) -> Iterator[tifffile.TiffFile]:
     with _tiff_file(path, name) as tif:
         yield tif
+
+
+def _read_tiff(path: Path, pages, wheres, name: str) -> Iterator[np.ndarray]:
+    """The pages ``pages`` of ``path``, from the file this thread keeps open."""
+    with _reading_tiff(path, name) as tif:
+        for page, where in zip(pages, wheres, strict=True):
+            yield _read_tiff_page(tif, page, where, name)
 
 
 class _TiffCursor(threading.local):
@@ -321,7 +309,7 @@ def close_readers() -> None:
     _CURSOR.close()
 
 
-def _read_video(path: Path, pages: list[int], name: str) -> Iterator[np.ndarray]:
+def _read_video(path: Path, pages: list[int], wheres, name: str) -> Iterator[np.ndarray]:
     """Yield the frames ``pages`` of the video ``path``, decoded as they are asked for."""
     try:
         yield from _CURSOR.read(path, pages, name)
@@ -339,28 +327,16 @@ def _imageio():
     return iio
 
 
-def _read_other(path: Path, name: str) -> np.ndarray:
-    try:
-        return np.asarray(_imageio().imread(path))
-    except (FileNotFoundError, PermissionError, MemoryError):
-        raise
-    except Exception as exc:
-        raise OSError(f"{name}: cannot read {path} as an image ({exc})") from exc
-
-
-@dataclass(frozen=True)
-class _FileInfo:
-    path: Path
-    tiff: bool
-    shapes: tuple[tuple[int, int], ...]  # one per page
-    dtypes: tuple[np.dtype, ...]
-    channels: tuple[int, ...] = ()  # samples per pixel of each page (1: grey)
-    bits: int | None = None  # bits per sample stored in the first TIFF page
-    codec: str | None = None  # a video's codec
-    # frame times: a video's, s from its first frame; a camera record's, s from the trigger
-    times: tuple[float, ...] = ()
-    camera: bool = False  # a camera record, whose header says the significant bits
-    note: str = ""  # what the user should know of how its header was read
+def _read_image(path: Path, pages, wheres, name: str) -> Iterator[np.ndarray]:
+    """The single image of ``path``, through imageio, once per page asked."""
+    for _ in pages:
+        try:
+            arr = np.asarray(_imageio().imread(path))
+        except (FileNotFoundError, PermissionError, MemoryError):
+            raise
+        except Exception as exc:
+            raise OSError(f"{name}: cannot read {path} as an image ({exc})") from exc
+        yield arr
 
 
 def _av(name: str, path: Path):
@@ -380,7 +356,7 @@ def _video_format(stream) -> tuple[str, np.dtype]:
     return ("gray16le", np.dtype(np.uint16)) if deep else ("gray", np.dtype(np.uint8))
 
 
-def _scan_video(path: Path, name: str) -> _FileInfo:
+def _scan_video(path: Path, name: str, allow_bool: bool = False) -> FileInfo:
     """The frames of a video: counted by demuxing its packets (no decoding)."""
     av = _av(name, path)
     try:
@@ -402,55 +378,51 @@ def _scan_video(path: Path, name: str) -> _FileInfo:
         raise OSError(f"{name}: cannot read {path} as a video ({exc})") from exc
     if n == 0 or min(shape) <= 1:
         raise OSError(f"{name}: {path} holds no readable video frame")
-    return _FileInfo(path, False, (shape,) * n, (dtype,) * n, (1,) * n, None, codec, times)
+    return FileInfo(path, (shape,) * n, (dtype,) * n, (1,) * n, None, codec, times)
 
 
-def _scan_file(path: Path, name: str, *, allow_bool: bool = False) -> _FileInfo:
+def _scan_tiff(path: Path, name: str, allow_bool: bool = False) -> FileInfo:
     """Read the headers of ``path`` (no pixel data) and check every page."""
-    if _is_video(path):
-        return _scan_video(path, name)
-    if _is_camera(path):
-        lay = _layout(path, name)
-        n = lay.n_frames
-        return _FileInfo(path, False, (lay.shape,) * n, (lay.dtype,) * n, (1,) * n, lay.bits,
-                         times=lay.times, camera=True, note=lay.note)
-    if _is_tiff(path):
-        with _open_tiff(path, name) as tif:
-            with _tiff_log() as log:
-                n = len(tif.pages)
-            _check_tiff_log(log, f"{path} from page {n} on" if n else str(path), name)
-            if n == 0:
-                raise OSError(f"{name}: {path} contains no readable image page "
-                              "(corrupt TIFF?)")
-            shapes, dtypes, channels = [], [], []
-            bits = None
-            for k in range(n):
-                try:
-                    with _tiff_log() as log:
-                        page = tif.pages[k]
-                        shape, samples, dtype = page.shape, page.samplesperpixel, page.dtype
-                        if k == 0:
-                            bps = page.bitspersample
-                            bits = int(bps[0] if isinstance(bps, tuple) else bps)
-                        end = max((o + c for o, c in zip(page.dataoffsets,
-                                                         page.databytecounts, strict=False)),
-                                  default=0)
-                except MemoryError:
-                    raise
-                except Exception as exc:
-                    raise OSError(f"{name}: cannot read page {k} of {path}: {exc}") from exc
-                _check_tiff_log(log, _describe(path, k, n), name)
-                if end > tif.filehandle.size:
-                    raise OSError(f"{name}: {_describe(path, k, n)} is truncated: "
-                                  f"its data end at byte {end} but the file has "
-                                  f"{tif.filehandle.size} bytes")
-                _check_page(shape, samples, dtype, _describe(path, k, n), name,
-                            allow_bool=allow_bool)
-                hw, c, _ = _page_layout(shape, samples)
-                shapes.append(hw)
-                channels.append(c)
-                dtypes.append(np.dtype(dtype))
-        return _FileInfo(path, True, tuple(shapes), tuple(dtypes), tuple(channels), bits)
+    with _open_tiff(path, name) as tif:
+        with _tiff_log() as log:
+            n = len(tif.pages)
+        _check_tiff_log(log, f"{path} from page {n} on" if n else str(path), name)
+        if n == 0:
+            raise OSError(f"{name}: {path} contains no readable image page "
+                          "(corrupt TIFF?)")
+        shapes, dtypes, channels = [], [], []
+        bits = None
+        for k in range(n):
+            try:
+                with _tiff_log() as log:
+                    page = tif.pages[k]
+                    shape, samples, dtype = page.shape, page.samplesperpixel, page.dtype
+                    if k == 0:
+                        bps = page.bitspersample
+                        bits = int(bps[0] if isinstance(bps, tuple) else bps)
+                    end = max((o + c for o, c in zip(page.dataoffsets,
+                                                     page.databytecounts, strict=False)),
+                              default=0)
+            except MemoryError:
+                raise
+            except Exception as exc:
+                raise OSError(f"{name}: cannot read page {k} of {path}: {exc}") from exc
+            _check_tiff_log(log, _describe(path, k, n), name)
+            if end > tif.filehandle.size:
+                raise OSError(f"{name}: {_describe(path, k, n)} is truncated: "
+                              f"its data end at byte {end} but the file has "
+                              f"{tif.filehandle.size} bytes")
+            _check_page(shape, samples, dtype, _describe(path, k, n), name,
+                        allow_bool=allow_bool)
+            hw, c, _ = _page_layout(shape, samples)
+            shapes.append(hw)
+            channels.append(c)
+            dtypes.append(np.dtype(dtype))
+    return FileInfo(path, tuple(shapes), tuple(dtypes), tuple(channels), bits)
+
+
+def _scan_image(path: Path, name: str, allow_bool: bool = False) -> FileInfo:
+    """The header of a PNG, BMP or JPEG file, through imageio."""
     try:
         props = _imageio().improps(path)
     except (FileNotFoundError, PermissionError, MemoryError):
@@ -460,7 +432,7 @@ def _scan_file(path: Path, name: str, *, allow_bool: bool = False) -> _FileInfo:
     shape = tuple(int(s) for s in props.shape)
     _check_page(shape, 1, np.dtype(props.dtype), str(path), name, allow_bool=allow_bool)
     hw, c, _ = _page_layout(shape, 1)
-    return _FileInfo(path, False, (hw,), (np.dtype(props.dtype),), (c,))
+    return FileInfo(path, (hw,), (np.dtype(props.dtype),), (c,))
 
 
 def _resolve_source(source, name: str) -> tuple[Path, ...]:
@@ -476,32 +448,46 @@ def _resolve_source(source, name: str) -> tuple[Path, ...]:
             if p.is_dir():
                 raise ValueError(f"{name}: {p} in the list is a directory; pass the "
                                  "directory itself, not inside a list")
-            _check_extension(p, name)
+            check_suffix(p, name)
             paths.append(p)
         return tuple(paths)
 
     p = as_path(source, name)
     if p.is_dir():
         entries = [e for e in p.iterdir() if e.is_file() and not e.name.startswith(".")]
-        images = sorted((e for e in entries if _is_image_name(e)),
+        images = sorted((e for e in entries if is_readable_name(e)),
                         key=lambda e: natural_sort_key(e.name))
         if not images:
             others = f" ({len(entries)} other file(s) ignored)" if entries else ""
             raise ValueError(f"{name}: directory {p} holds no image file "
-                             f"({', '.join(IMAGE_EXTENSIONS)}){others}")
+                             f"({', '.join(suffixes('image'))}){others}")
         return tuple(images)
     if p.is_file():
-        _check_extension(p, name)
+        check_suffix(p, name)
         return (p,)
     pattern = os.fspath(p)
     if re.search(r"[*?\[]", pattern):
         matches = [Path(m) for m in glob.glob(pattern)]
         files = [m for m in matches if m.is_file()]
-        images = sorted((m for m in files if _is_image_name(m)), key=natural_sort_key)
+        images = sorted((m for m in files if is_readable_name(m)), key=natural_sort_key)
         if not images:
             if files:
                 raise ValueError(f"{name}: glob pattern {pattern!r} matches {len(files)} "
-                                 f"file(s) but no image ({', '.join(IMAGE_EXTENSIONS)})")
+                                 f"file(s) but no image ({', '.join(suffixes('image'))})")
             raise FileNotFoundError(f"{name}: no file matches the glob pattern {pattern!r}")
         return tuple(images)
     raise FileNotFoundError(f"{name}: {p} does not exist")
+
+
+# The formats of this module, in the order error messages list them.
+register_format(ImageFormat("TIFF", (".tif", ".tiff"), _scan_tiff, _read_tiff, stack=True,
+                            magic=(b"II*\x00", b"MM\x00*", b"II+\x00", b"MM\x00+")))
+register_format(ImageFormat("PNG", (".png",), _scan_image, _read_image,
+                            magic=(b"\x89PNG\r\n\x1a\n",)))
+register_format(ImageFormat("BMP", (".bmp",), _scan_image, _read_image, magic=(b"BM",)))
+register_format(ImageFormat(
+    "JPEG", (".jpg", ".jpeg"), _scan_image, _read_image, magic=(b"\xff\xd8\xff",),
+    note="JPEG files; lossy compression adds block artefacts that the noise floor does not "
+         "model: prefer TIFF or PNG"))
+register_format(ImageFormat("video", VIDEO_EXTENSIONS, _scan_video, _read_video, kind="video",
+                            stack=True, magic=(b"\x1aE\xdf\xa3", b"RIFF")))

@@ -230,18 +230,16 @@ def _reference(frames: list):
     if isinstance(frames[0], np.ndarray):
         return np.stack(frames)
     f0 = frames[0]
-    table, numbers, paths, tiff, video, times = [], [], [], [], [], []
+    table, numbers, paths, formats, times = [], [], [], [], []
     for s in frames:
         path = s.paths[0]
         if path not in paths:
             paths.append(path)
-            tiff.append(s._tiff[0])
-            video.append(bool(s._video and s._video[0]))
+            formats.append(s._formats[0])
         _, page, n_pages = s._frames[0]
         table.append((paths.index(path), page, n_pages))
         numbers.append(s._numbers[0])
         times.extend(s._times)
     return dataclasses.replace(f0, name="reference", paths=tuple(paths), _frames=tuple(table),
-                               _tiff=tuple(tiff), _numbers=tuple(numbers),
-                               _video=tuple(video),
+                               _formats=tuple(formats), _numbers=tuple(numbers),
                                _times=tuple(times) if len(times) == len(frames) else ())

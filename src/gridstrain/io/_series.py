@@ -24,20 +24,11 @@ from .._validation import (
     check_shape,
     check_type,
 )
-from ._camera import _is_camera, _layout, _read_camera
+from ._formats import FileInfo, check_suffix, format_named, scan_file
 from ._readers import (
-    _JPEG_EXTENSIONS,
     _LOSSLESS_CODECS,
-    _check_extension,
     _describe,
-    _FileInfo,
-    _open_tiff,
-    _read_other,
-    _read_tiff_page,
-    _read_video,
-    _reading_tiff,
     _resolve_source,
-    _scan_file,
     to_luminance,
 )
 
@@ -107,8 +98,8 @@ class FrameSeries:
     saturation_level: int | None
     # (file index, page index, number of pages in that file) of every frame
     _frames: tuple[tuple[int, int, int], ...] = field(default=(), compare=True)
-    _tiff: tuple[bool, ...] = field(default=(), compare=False)
-    _video: tuple[bool, ...] = field(default=(), compare=False)
+    # the name of each file's format (gridstrain.io._formats)
+    _formats: tuple[str, ...] = field(default=(), compare=False)
     # each frame's time stamp in its file, s (videos that hold them), else ()
     _times: tuple[float, ...] = field(default=(), compare=False)
     channels: int = 1
@@ -134,19 +125,27 @@ class FrameSeries:
         """Frames per second saved, from the header of a camera record (Phantom cine,
         Photron MRAW; the record rate over the save step of a record saved every n-th
         frame); else None."""
-        if len(self.paths) == 1 and _is_camera(self.paths[0]):
-            return _layout(self.paths[0], self.name).frame_rate
-        return None
+        timing = self._timing()
+        return None if timing is None else timing.frame_rate
 
     @property
     def trigger_frame(self) -> int | None:
         """Index in this series of the frame taken at the trigger, from the header of
         a camera record holding every frame (its frame numbered 0); else None."""
-        if len(self.paths) == 1 and _is_camera(self.paths[0]):
-            k = _layout(self.paths[0], self.name).trigger_frame
-            pages = [page for _, page, _ in self._frames]
-            return pages.index(k) if k in pages else None
-        return None
+        timing = self._timing()
+        if timing is None:
+            return None
+        k = timing.trigger_frame
+        pages = [page for _, page, _ in self._frames]
+        return pages.index(k) if k in pages else None
+
+    def _timing(self):
+        """What the header of a single record says of its timing (its format's
+        ``timing``), or None."""
+        if len(self.paths) != 1 or not self._formats:
+            return None
+        fmt = format_named(self._formats[0])
+        return None if fmt.timing is None else fmt.timing(self.paths[0], self.name)
 
     def __len__(self) -> int:
         return len(self._frames)
@@ -206,26 +205,15 @@ class FrameSeries:
         locs = [(self._number(j), *self._frames[j]) for j in indices]
         for f, group in groupby(locs, key=lambda loc: loc[1]):
             path = self.paths[f]
-            video = bool(self._video and self._video[f])
-            if video or _is_camera(path):
-                # a record's frames decoded or read one at a time, as the loop asks
-                group = list(group)
-                pages = [page for _, _, page, _ in group]
-                frames = (_read_video if video else _read_camera)(path, pages, self.name)
-                with contextlib.closing(frames):
-                    for (j, _, page, n_pages), raw in zip(group, frames, strict=True):
-                        where = f"frame {j} ({_describe(path, page, n_pages)})"
-                        yield where, self._checked(raw, where)
-            elif self._tiff[f]:
-                with _reading_tiff(path, self.name) as tif:
-                    for j, _, page, n_pages in group:
-                        where = f"frame {j} ({_describe(path, page, n_pages)})"
-                        yield where, self._checked(_read_tiff_page(tif, page, where,
-                                                                   self.name), where)
-            else:
-                for j, _, _, _ in group:
-                    where = f"frame {j} ({path})"
-                    yield where, self._checked(_read_other(path, self.name), where)
+            group = list(group)
+            pages = [page for _, _, page, _ in group]
+            wheres = [f"frame {j} ({_describe(path, page, n_pages)})"
+                      for j, _, page, n_pages in group]
+            # the frames read one at a time, as the loop asks
+            frames = format_named(self._formats[f]).read(path, pages, wheres, self.name)
+            with contextlib.closing(frames):
+                for where, raw in zip(wheres, frames, strict=True):
+                    yield where, self._checked(raw, where)
 
     def _checked(self, raw: np.ndarray, where: str) -> np.ndarray:
         if self.channels > 1 and raw.ndim == 3 and self.channels in (raw.shape[0],
@@ -474,7 +462,7 @@ def open_series(source, *, name: str = "series", bit_depth: int | None = None
     """
     name = check_name(name, "name")
     paths = _resolve_source(source, name)
-    infos = [_scan_file(p, name) for p in paths]
+    infos = [scan_file(p, name) for p in paths]
     ref = infos[0]
     stored, channels = ref.dtypes[0], ref.channels[0]
     frames = _frame_table(infos, name)
@@ -482,8 +470,7 @@ def open_series(source, *, name: str = "series", bit_depth: int | None = None
     dtype = np.dtype(np.float64) if channels > 1 else stored
     series = FrameSeries(name=name, paths=paths, shape=ref.shapes[0], dtype=dtype,
                          bit_depth=None, scale=1, saturation_level=None, _frames=frames,
-                         _tiff=tuple(info.tiff for info in infos),
-                         _video=tuple(info.codec is not None for info in infos),
+                         _formats=tuple(info.format for info in infos),
                          _times=_frame_times(infos),
                          channels=channels, notes=_reading_notes(infos, channels, name))
     first = []
@@ -492,7 +479,7 @@ def open_series(source, *, name: str = "series", bit_depth: int | None = None
         _check_decoded(paths[0], ref.shapes[0], stored, channels, n, name)
         first = [raw for _, raw in series._iter_raw(range(n))]
         if bit_depth is None and ref.bits is not None and (
-                ref.camera or ref.bits < 8 * stored.itemsize):
+                ref.header_bits or ref.bits < 8 * stored.itemsize):
             # packed data (10-bit, 12-bit TIFFs) and camera records say their depth
             bit_depth = ref.bits
     bits, scale, sat = _depth(stored, first, bit_depth, paths[0], name)
@@ -523,8 +510,7 @@ def split_frames(series: FrameSeries) -> list[FrameSeries]:
         name = f"{path.stem}[{page}]" if n_pages > 1 else path.stem
         out.append(dataclasses.replace(
             series, name=name, paths=(path,), _frames=((0, page, n_pages),),
-            _tiff=(series._tiff[f],), _numbers=(series._number(j),),
-            _video=(series._video[f],) if series._video else (),
+            _formats=(series._formats[f],), _numbers=(series._number(j),),
             _times=(series._times[j],) if series._times else (),
             notes=series.notes if j == 0 else ()))
     return out
@@ -544,14 +530,14 @@ def _check_decoded(path: Path, shape, dtype: np.dtype, channels: int, n: int,
                        "free")
 
 
-def _frame_times(infos: list[_FileInfo]) -> tuple[float, ...]:
+def _frame_times(infos: list[FileInfo]) -> tuple[float, ...]:
     """Every frame's time stamp, s, when every file holds them (a single video)."""
     if len(infos) != 1 or not infos[0].times:
         return ()
     return infos[0].times
 
 
-def _frame_table(infos: list[_FileInfo], name: str) -> tuple[tuple[int, int, int], ...]:
+def _frame_table(infos: list[FileInfo], name: str) -> tuple[tuple[int, int, int], ...]:
     """``(file index, page index, pages in that file)`` of every frame, once every page
     is checked to match the first one's channels, size and pixel type."""
     ref = infos[0]
@@ -576,10 +562,9 @@ def _frame_table(infos: list[_FileInfo], name: str) -> tuple[tuple[int, int, int
     return tuple(frames)
 
 
-def _reading_notes(infos: list[_FileInfo], channels: int, name: str) -> tuple[str, ...]:
+def _reading_notes(infos: list[FileInfo], channels: int, name: str) -> tuple[str, ...]:
     """What the user should know about how the frames are read (colour, JPEG, lossy
     video codecs, a camera header's times left out)."""
-    paths = [info.path for info in infos]
     notes = []
     lossy = sorted({i.codec for i in infos if i.codec and i.codec not in _LOSSLESS_CODECS})
     if lossy:
@@ -594,9 +579,8 @@ def _reading_notes(infos: list[_FileInfo], channels: int, name: str) -> tuple[st
         how = ("the grey channel kept" if channels == 2 else "converted to luminance "
                "0.2126 R + 0.7152 G + 0.0722 B (ITU-R BT.709), alpha ignored")
         notes.append(f"{name}: colour frames ({what}), {how}")
-    if any(p.suffix.lower() in _JPEG_EXTENSIONS for p in paths):
-        notes.append(f"{name}: JPEG files; lossy compression adds block artefacts that "
-                     "the noise floor does not model: prefer TIFF or PNG")
+    formats = dict.fromkeys(i.format for i in infos)  # each once, in file order
+    notes += [f"{name}: {format_named(f).note}" for f in formats if format_named(f).note]
     notes += [f"{name}: {i.note}" for i in infos if i.note]
     return tuple(notes)
 
@@ -709,8 +693,8 @@ def read_mask(path, shape, *, name: str = "mask") -> np.ndarray:
         raise FileNotFoundError(f"{name}: {p} does not exist")
     if p.is_dir():
         raise ValueError(f"{name}: {p} is a directory, expected an image file")
-    _check_extension(p, name)
-    info = _scan_file(p, name, allow_bool=True)
+    check_suffix(p, name)
+    info = scan_file(p, name, allow_bool=True)
     if len(info.shapes) != 1:
         raise ValueError(f"{name}: {p} has {len(info.shapes)} pages, expected a single "
                          "image")
@@ -718,11 +702,8 @@ def read_mask(path, shape, *, name: str = "mask") -> np.ndarray:
         raise ValueError(f"{name}: {p} has shape {info.shapes[0]}, expected {shape} (the "
                          "frames' shape (H, W))")
     _check_decoded(p, shape, info.dtypes[0], info.channels[0], 1, name)
-    if info.tiff:
-        with _open_tiff(p, name) as tif:
-            arr = _read_tiff_page(tif, 0, str(p), name)
-    else:
-        arr = _read_other(p, name)
+    with contextlib.closing(format_named(info.format).read(p, [0], [str(p)], name)) as frames:
+        arr = next(frames)
     if arr.dtype.kind == "f" and not np.all(np.isfinite(arr)):
         raise ValueError(f"{name}: {p} has NaN or infinite pixels")
     c = info.channels[0]

@@ -188,8 +188,8 @@ def prefilter_columns(out, j0, j1):  # pragma: no cover
     j < j1`` of ``out`` (Hp, Wp, n), filtered along the rows' axis in place. Columns
     are independent: blocks of columns may run on several threads. The same
     recursions as :func:`_recurse`, written out on the block of ``out`` itself: on a
-    strided 2-D view of the block, ``_recurse`` gives the same bits in 1.6 times the
-    time (38 against 24 ms for two complex 1040 x 1376 maps)."""
+    strided 2-D view of the block, ``_recurse`` gives the same bits in more time
+    (benchmarks/README.md)."""
     n = out.shape[0]
     nm = out.shape[2]
     z = _POLE

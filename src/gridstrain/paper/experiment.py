@@ -75,7 +75,7 @@ from .._validation import (
 )
 from ..io import OutputDirectory, provenance
 from ..models import PROFILES, line_profile
-from ..phase import Lattice, PhaseMaps, wft
+from ..phase import Lattice, PhaseMaps, Window, wft
 from ..stacks import MeanImage, MethodC, method_a, method_b, method_c, phase_offsets
 from ..stacks._accumulators import _PhaseMean
 from ._cases import _DERIVATIVES, QUANTITIES, _all_cases, _get
@@ -204,6 +204,7 @@ def _job(setup, rep, case, report=None) -> dict:
     noise = np.random.default_rng(np.random.SeedSequence([setup["seed"], rep, 1000 + case]))
     frames = iter_frames(phases, shifts, rng=noise, K=setup["K"], L=setup["L"],
                          bits=setup["bits"], **setup["gen"])
+    window = Window.for_lattice(lattice, sigma=sigma)
     acc_a, acc_b, acc_c = MeanImage(), _PhaseMean(), MethodC(lattice)
     set_a, set_b = set(Ts), set(Tbs)
     out = {}
@@ -211,7 +212,7 @@ def _job(setup, rep, case, report=None) -> dict:
         acc_a.add(frame)
         acc_c.add(frame)  # shifts measured from the frames, as in the lab
         if t <= Tbs[-1]:
-            acc_b.add_frame(frame, lattice, sigma=sigma)
+            acc_b.add_frame(frame, lattice, window)
         delta = phase_offsets(shifts[:t], lattice, exact=False)  # eqs. (29)-(30)
         if t in set_a:
             avg = acc_a.mean()
@@ -220,7 +221,7 @@ def _job(setup, rep, case, report=None) -> dict:
             out.update({("A", case, q, t): v * v for q, v in vals.items()})
             # method C: the mean position, exactly linear in the shifts
             mean_pos = 2 * math.pi * lattice.K @ shifts[:t].mean(axis=0)
-            vals = _rmse_all(acc_c.result(sigma=sigma).maps, gt, region, mean_pos)
+            vals = _rmse_all(acc_c.result(window).maps, gt, region, mean_pos)
             out.update({("C", case, q, t): v * v for q, v in vals.items()})
         if t in set_b:
             vals = _rmse_all(acc_b.result().maps, gt, region, delta)

@@ -159,8 +159,8 @@ def transform_to_edges(image, lattice: Lattice, window: Window, *, mask=None,
     spec = np.zeros(big.shape, dtype=bool)
     spec[P:P + H, P:P + W] = m
     # the first maps: the masked transform, biased near the edges
-    pm = _wft(big, lattice, sigma=sigma, mask=spec, margin=window.margin,
-              min_modulus=window.min_modulus, derivatives="exact", checked=True)
+    pm = _wft(big, lattice, mask=spec, derivatives="exact", checked=True,
+              **window.options())
     trusted = ndimage.distance_transform_edt(np.pad(spec, 1))[1:-1, 1:-1] > depth * sigma
     if not trusted.any():
         raise ValueError(f"mask: no pixel lies {depth:g} sigmas ({depth * sigma:.3g} px) "
@@ -207,9 +207,8 @@ def transform_to_edges(image, lattice: Lattice, window: Window, *, mask=None,
             carrier = 2 * math.pi * (K[j, 0] * X + K[j, 1] * Y)
             values += 2 * np.abs(psi[si, sj]) * np.cos(carrier + phi)
         fill[qi, qj] = values
-        pm = _wft(fill.astype(img.dtype), lattice, sigma=sigma, mask=None,
-                  margin=window.margin, min_modulus=window.min_modulus,
-                  derivatives="exact", checked=True)
+        pm = _wft(fill.astype(img.dtype), lattice, mask=None, derivatives="exact",
+                  checked=True, **window.options())
     inner = (slice(P, P + H), slice(P, P + W))
     # Psi at the frame's own coordinates (conventions: the absolute carrier)
     shift = np.exp(2j * math.pi * P * (K[:, 0] + K[:, 1])).astype(pm.psi.dtype)
@@ -283,7 +282,7 @@ def edge_noise_gain(mask, lattice: Lattice, window: Window) -> tuple[np.ndarray,
     if m.ndim != 2:
         raise ValueError(f"mask must be a 2-D boolean array, got shape {m.shape}")
     prof = _gain_profiles(tuple(map(float, lattice.k1)), tuple(map(float, lattice.k2)),
-                          window.sigma, window.margin)
+                          window)
     padded = np.pad(m, 1, constant_values=False)
     # the distance to the nearest pixel off the specimen along the row, and the column
     # (a sampling that makes the other axis far away)
@@ -309,7 +308,7 @@ _STRIP_SIGMAS = 60
 
 
 @functools.lru_cache(maxsize=8)
-def _gain_profiles(k1: tuple, k2: tuple, sigma: float, margin: float) -> np.ndarray:
+def _gain_profiles(k1: tuple, k2: tuple, window: Window) -> np.ndarray:
     """``(2 normals, 5 maps, n)``: the std of ``(u_x, u_y, e_xx, e_yy, e_xy)`` at
     ``0 .. n - 1`` px from an edge whose normal is x (first) or y, over the
     interior's, for :func:`transform_to_edges`.
@@ -324,7 +323,7 @@ def _gain_profiles(k1: tuple, k2: tuple, sigma: float, margin: float) -> np.ndar
     divided by that of the strip's middle.
     """
     lattice = Lattice(k1, k2)
-    window = Window(sigma, margin)
+    sigma = window.sigma
     band = math.ceil(window.band)
     reach = band + math.ceil(2 * window.band)  # the band, the trusted pixels' windows
     n_along, n_across = math.ceil(_STRIP_SIGMAS * sigma) + 2 * reach, 2 * reach + 1

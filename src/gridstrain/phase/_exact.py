@@ -1,5 +1,5 @@
-"""The exact phase derivatives of the transform (the analytic derivative of the window) and
-the central differences, one wave vector at a time.
+"""The exact phase derivatives of the transform (the analytic derivative of the window),
+one wave vector at a time.
 """
 
 from __future__ import annotations
@@ -101,75 +101,3 @@ def _one_wave_vector(V, k, sigma, H, W, nx, psi, dphi, mod, work, *, chunk: int,
         if sink is not None:
             sink(r0, r1, ps, dp, mod[r0:r1])
 
-
-def _one_wave_vector_central(V, k, sigma, H, W, nx, psi, dphi, mod, work, *, chunk: int):
-    """:func:`_one_wave_vector` with central-difference derivatives (see :func:`_wft`).
-
-    Only ``Psi`` is transformed, by blocks of rows with one more row above and below,
-    and the differences at the image's edge use the transform just outside it (that
-    of the zero-extended image), as the exact path does.
-    """
-    ny = V.shape[0]
-    cdtype = V.dtype
-    rows, yruns, nuy, sy = _axis_band(ny, k[1], sigma)
-    cols, xruns, nux, sx = _axis_band(nx, k[0], sigma)
-    block = spectrum_block(V, rows, cols, nx)
-    block *= transfer_function(nux, sigma).astype(cdtype)
-    gy = transfer_function(nuy, sigma).astype(cdtype)
-    Y = work.get("Y", (ny, cols.size), cdtype)
-    for gap in _gaps(yruns, ny):
-        Y[gap] = 0
-    for dst, src in yruns:
-        np.multiply(block[src], gy[src, None], out=Y[dst])
-    A = _ifft(Y, 0)
-    # rows -1 .. H (row -1 of the periodic transform is row ny - 1), demodulated
-    # along y by the residual (less than half a bin) left by the shift of the band
-    Ae = work.get("Ae", (H + 2, cols.size), cdtype)
-    Ae[0] = A[ny - 1]
-    Ae[1:] = A[:H + 1]
-    ry = sy / ny - k[1]
-    if ry != 0:
-        Ae *= np.exp(2j * math.pi * ry * np.arange(-1, H + 1)).astype(cdtype)[:, None]
-    # along x the residual stays in c; it enters the differences as exp(+-i theta)
-    theta = 2 * math.pi * (sx / nx - k[0])
-    ex = np.exp(1j * theta * np.arange(W)).astype(cdtype) if theta != 0 else None
-    turn = cdtype.type(np.exp(1j * theta))
-    gaps = _gaps(xruns, nx)
-    h_max = min(chunk, H)
-    X = work.get("X", (h_max + 2, nx), cdtype)
-    cc = work.get("cc", (h_max, W), cdtype)
-    prod = work.get("prod", (2, h_max, W), cdtype)
-    for r0 in range(0, H, chunk):
-        r1 = min(r0 + chunk, H)
-        h = r1 - r0
-        Xh = X[:h + 2]
-        for gap in gaps:
-            Xh[:, gap] = 0
-        for dst, src in xruns:
-            Xh[:, dst] = Ae[r0:r1 + 2, src]
-        out = _ifft(Xh, 1)
-        c = out[1:-1, :W]
-        if ex is None:
-            psi[r0:r1] = c
-        else:
-            np.multiply(c, ex, out=psi[r0:r1])
-        np.abs(c, out=mod[r0:r1])
-        ch = cc[:h]
-        np.conjugate(c, out=ch)
-        ph = prod[:, :h]
-        # x: c[x + 1] - c[x - 1], where x = -1 is column nx - 1 of the periodic transform
-        d = ph[0]
-        if ex is None:
-            np.subtract(out[1:-1, 2:W + 1], out[1:-1, :W - 1], out=d[:, 1:])
-            np.subtract(out[1:-1, 1], out[1:-1, nx - 1], out=d[:, 0])
-        else:
-            np.multiply(out[1:-1, 1:W + 1], turn, out=d)
-            d[:, 1:] -= out[1:-1, :W - 1] * np.conj(turn)
-            d[:, 0] -= out[1:-1, nx - 1] * np.conj(turn)
-        np.subtract(out[2:, :W], out[:-2, :W], out=ph[1])
-        ph *= ch
-        # in the maps' own precision: float32 loops for a float32 frame
-        inv = np.square(mod[r0:r1])
-        np.reciprocal(inv, out=inv)
-        inv *= inv.dtype.type(0.5)
-        np.multiply(ph.imag, inv, out=dphi[:, r0:r1])

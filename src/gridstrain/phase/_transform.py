@@ -28,7 +28,7 @@ from .._validation import (
     check_type,
     check_workers,
 )
-from ._exact import _ifft, _one_wave_vector, _one_wave_vector_central
+from ._exact import _ifft, _one_wave_vector
 from ._maps import PhaseMaps
 from ._spectrum import _axis_band, spectrum_block, transfer_function
 from ._validity import _gaps, _region, _shows_grid
@@ -42,7 +42,7 @@ __all__ = ["DEFAULT_MARGIN", "PhaseMaps", "transfer_function", "wft", "wft_compl
 _PAD_SIGMAS = 8.0
 # Bytes of one block of rows of the final inverse FFTs (three transforms): small
 # enough for the block and its products to stay in cache between the FFT and the
-# products instead of streaming through memory (2x faster than whole images).
+# products instead of streaming through memory.
 _CHUNK_BYTES = 2**21
 
 
@@ -184,14 +184,6 @@ def _wft(image, lattice: Lattice, *, sigma: float | None = None, mask=None,
     :mod:`gridstrain.phase._kernels` when numba is there (``_COMPILED``), in numpy
     otherwise; the exact path where the window is too narrow for a short filter.
 
-    ``derivatives="central"``: ``Im(conj(Psi) (Psi[+1] - Psi[-1])) / (2 |Psi|^2)``,
-    central differences of the demodulated map along each axis, no FFT beyond the
-    one for ``Psi``. Faster (``benchmarks/bench_wft.py``) but a different filter:
-    its bias (about phi'''/6) and its response to the noise differ from the exact
-    derivative by ~1e-6 rad/px on the paper's noise-free fields and by ~5e-5 rad/px
-    on a noisy frame (tests/test_fast.py), far above the 1e-7 rad/px that the exact
-    path meets; it is not used by default.
-
     ``sink`` (exact derivatives, or fast ones in the compiled loops; the numpy fast
     path computes the exact ones instead): instead of keeping the maps, hand each
     block of rows to ``sink(j, r0, r1, psi, dphi, mod)`` as soon as it is computed -- the
@@ -203,11 +195,9 @@ def _wft(image, lattice: Lattice, *, sigma: float | None = None, mask=None,
     transforming many frames reuses the same pages. ``checked``: ``image`` already
     went through :func:`~gridstrain._validation.as_image` (a stack's frames do).
     """
-    check_choice(derivatives, "derivatives", ("auto", "exact", "fast", "central"))
+    check_choice(derivatives, "derivatives", ("auto", "exact", "fast"))
     if derivatives == "auto":
         derivatives = "fast" if _kernels() is not None else "exact"
-    if sink is not None and derivatives == "central":
-        raise ValueError("sink needs the exact or the fast derivatives")
     if not isinstance(lattice, Lattice):
         raise TypeError(f"lattice must be a Lattice, got {type(lattice).__name__}")
     img = image if checked else as_image(image)
@@ -267,10 +257,6 @@ def _wft(image, lattice: Lattice, *, sigma: float | None = None, mask=None,
                 _one_wave_vector_fast(V, k, sigma, H, W, nx, psi[j], dphi[j], mods[j],
                                       works[j], taps=fast[0],
                                       chunk=max(8, _FAST_CHUNK_BYTES // (nx * cdtype.itemsize)))
-            elif derivatives == "central":
-                _one_wave_vector_central(V, k, sigma, H, W, nx, psi[j], dphi[j], mods[j],
-                                         works[j],
-                                         chunk=max(8, _CHUNK_BYTES // (nx * cdtype.itemsize)))
             else:
                 out = None if sink is None else (
                     lambda r0, r1, p, d, md: sink(j, r0, r1, p, d, md))
@@ -741,7 +727,7 @@ class _Band:
 def _compiled_band(ny: int, nx: int, H: int, W: int, k: tuple, sigma: float, m: int,
                    rdtype: str) -> _Band:
     """The band of wave vector ``k`` for a padded ``ny x nx`` spectrum of an ``H x W``
-    image, computed once for a stack's frames (a frame costs 1 to 2 ms less)."""
+    image, computed once for a stack's frames rather than for each."""
     rdtype = np.dtype(rdtype)
     rows, yruns, nuy, sy = _axis_band(ny, k[1], sigma)
     cols, xruns, nux, sx = _axis_band(nx, k[0], sigma)

@@ -40,8 +40,8 @@ from .._runtime.memory import available_memory, format_size
 from ._result import SeriesResult
 
 # Lossless filters of the images, masks and tables: gzip is read everywhere. Level 1:
-# the 1040 x 1376 reference image in 40 ms and 2.25 MB, against 54 ms and 2.19 MB at
-# level 4 (gridstrain.io.write_hdf5's level, for data written once and kept)
+# nearly the size of level 4 (gridstrain.io.write_hdf5's level, for data written once
+# and kept) for less CPU (benchmarks/README.md)
 _FILTERS = {"compression": "gzip", "compression_opts": 1, "shuffle": True,
             "fletcher32": True}
 _TYPE, _CLASS, _KEYS, _TUPLES, _LISTS = "_type", "_class", "_keys", "_tuple_attrs", "_list_attrs"

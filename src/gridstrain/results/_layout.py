@@ -275,8 +275,8 @@ def _create_maps(h5, arrays: dict, n: int, ps, dtype=None, *, lossless: bool = T
                               fillvalue=False, **_FILTERS)
             continue
         if lossless:
-            # the measured maps' lower bytes are noise: deflating them took 0.2 s a map
-            # of 1040 x 1376 for 12 % of its size
+            # the measured maps' lower bytes are noise: deflate would spend CPU on
+            # them for little size (benchmarks/README.md)
             h5.create_dataset(name, shape=shape, dtype=np.dtype(dtype or arr.dtype),
                               chunks=(1, *arr.shape), fillvalue=np.nan, **_CHECKSUM)
             continue

@@ -54,12 +54,11 @@ from .._validation import (
     check_float_dtype,
     check_int,
     check_mask,
-    check_positive,
     check_type,
     float_dtype,
 )
 from ..io import FrameSeries, open_series
-from ..phase import DEFAULT_MARGIN, Lattice, wft
+from ..phase import DEFAULT_MARGIN, Lattice, Window, transform
 from ..stacks import StackResult, with_screening
 from ..stacks._accumulators import _PhaseMean
 from ..stacks.accumulate import SeriesPass
@@ -87,9 +86,8 @@ _PASS_TASKS = 16
 # Frames per task at the least: each task makes and ships back its sums (80 bytes a
 # pixel for method B's transforms, 48 for the pixel sums: 191 MB at 1040 x 1376),
 # which costs as much as transforming about 3 frames (allocated, pickled, sent,
-# added in the tree). Method B, 100 + 100 frames of 1040 x 1376 on 2 loopback
-# workers of 1 thread: 16 frames (6 tasks a series) took 14.7 s on 1 worker and
-# 10.3 s on 2, 32 frames (3 tasks) 12.8 s and 8.7 s (benchmarks/bench_dask.py)
+# added in the tree): fewer, larger tasks finish sooner (benchmarks/README.md, "Figures
+# behind the code")
 _MIN_CHUNK_FRAMES = 32
 
 
@@ -227,8 +225,8 @@ def connect(scheduler, *, n_workers: int | None = None,
             raise ValueError(f"n_workers must be a positive integer, got {n_workers!r}")
         # Dask starts its workers with glibc's MALLOC_TRIM_THRESHOLD_ at 64 KiB, which
         # freezes the mmap threshold: every array of the transforms is then mapped
-        # and unmapped afresh, and a 512 x 512 transform takes 1.5 times longer
-        # (measured); the workers of this cluster keep glibc's adaptive default.
+        # and unmapped afresh, which slows every transform down (benchmarks/README.md);
+        # the workers of this cluster keep glibc's adaptive default.
         key = "distributed.nanny.pre-spawn-environ"
         configured = _dask_config().get(key, default={})
         environ = {k: v for k, v in configured.items() if k != "MALLOC_TRIM_THRESHOLD_"}
@@ -427,23 +425,18 @@ def mean_image_dask(stack, *, split_every: int | None = None):
     return arr.astype(np.float64).mean(axis=0, dtype=np.float64, split_every=k)
 
 
-def _method_a_result(mean: np.ndarray, lattice, sigma, mask, margin, n: int,
+def _method_a_result(mean: np.ndarray, lattice, window: Window, mask, n: int,
                      dtype=np.float64) -> StackResult:
     # the float64 mean transformed in the frames' precision (gridstrain.conventions)
-    maps = wft(mean.astype(dtype, copy=False), lattice, sigma=sigma, mask=mask, margin=margin)
+    maps = transform(mean.astype(dtype, copy=False), lattice, window, mask=mask)
     return StackResult(maps=maps, n_frames=n, method="A", mean_image=mean)
 
 
-def _check_options(sigma, mask, margin, shape):
-    sigma = check_positive(sigma, "sigma", allow_none=True)
-    margin = check_positive(margin, "margin")
-    m = None if mask is None else check_mask(mask, shape)
-    return sigma, m, margin
-
-
-def _check_common(lattice, sigma, mask, margin, shape):
+def _check_common(lattice, sigma, mask, margin, shape) -> tuple[Window, np.ndarray | None]:
+    """The window, checked against the lattice, and the mask."""
     check_type(lattice, "lattice", Lattice)
-    return _check_options(sigma, mask, margin, shape)
+    window = Window.for_lattice(lattice, sigma=sigma, margin=margin)
+    return window, None if mask is None else check_mask(mask, shape)
 
 
 def method_a_dask(stack, lattice: Lattice, *, sigma: float | None = None, mask=None,
@@ -481,10 +474,10 @@ def method_a_dask(stack, lattice: Lattice, *, sigma: float | None = None, mask=N
     """
     dask, _ = _dask()
     arr = _stack(stack)
-    sigma, m, margin = _check_common(lattice, sigma, mask, margin, arr.shape[1:])
+    window, m = _check_common(lattice, sigma, mask, margin, arr.shape[1:])
     mean = mean_image_dask(arr, split_every=split_every)
     # the transform runs where the mean is (one task): no round trip of the image
-    graph = dask.delayed(_method_a_result, pure=True)(mean, lattice, sigma, m, margin,
+    graph = dask.delayed(_method_a_result, pure=True)(mean, lattice, window, m,
                                                       int(arr.shape[0]),
                                                       float_dtype(arr.dtype))
     if screen:
@@ -523,12 +516,12 @@ def _screened(graph, blocks, lattice: Lattice, shape, split_every: int):
 # --------------------------------------------------------------------------- method B
 
 
-def _block_sums(block: np.ndarray, lattice, sigma, mask, margin) -> _PhaseMean:
+def _block_sums(block: np.ndarray, lattice, window: Window, mask) -> _PhaseMean:
     """Method B's sums over the frames of ``block``, one transform at a time (one
     task)."""
     acc = _PhaseMean()
     for frame in block:
-        acc.add_frame(frame, lattice, sigma=sigma, mask=mask, margin=margin)
+        acc.add_frame(frame, lattice, window, mask=mask)
     if acc.n == 0:
         raise ValueError("frames must hold at least one image, got none")
     return acc
@@ -558,13 +551,13 @@ def _tree(parts: list, combine, split_every: int):
     return parts[0]
 
 
-def _method_b_graph(arr, lattice, sigma, mask, margin, split_every, screen: bool = False):
+def _method_b_graph(arr, lattice, window: Window, mask, split_every, screen: bool = False):
     dask, _ = _dask()
     # one key for the mask: the tasks refer to it instead of each carrying a copy
     m = None if mask is None else dask.delayed(mask, pure=True)
     leaf = dask.delayed(_block_sums, pure=True)
     blocks = arr.to_delayed().ravel()
-    parts = [leaf(block, lattice, sigma, m, margin) for block in blocks]
+    parts = [leaf(block, lattice, window, m) for block in blocks]
     graph = dask.delayed(_method_b_result, pure=True)(_tree(parts, _merged, split_every))
     # the probe reads the chunks the sums read (the same keys: one read each)
     return _screened(graph, blocks, lattice, arr.shape[1:], split_every) if screen \
@@ -612,9 +605,9 @@ def method_b_dask(stack, lattice: Lattice, *, sigma: float | None = None, mask=N
     (about 90 bytes per pixel each) and never the frames' maps together.
     """
     arr = _stack(stack)
-    sigma, m, margin = _check_common(lattice, sigma, mask, margin, arr.shape[1:])
+    window, m = _check_common(lattice, sigma, mask, margin, arr.shape[1:])
     k = _check_split_every(split_every)
-    graph = _method_b_graph(arr, lattice, sigma, m, margin, k, screen=bool(screen))
+    graph = _method_b_graph(arr, lattice, window, m, k, screen=bool(screen))
     return _compute([graph], client)[0] if compute else graph
 
 
@@ -626,10 +619,6 @@ def method_b_dask(stack, lattice: Lattice, *, sigma: float | None = None, mask=N
 
 def _first_frame(series) -> np.ndarray:
     return next(iter(series.frames(dtype=np.float64, start=0, stop=1)))
-
-
-def _with_first(first, sums):
-    return (first, *sums)
 
 
 class _Pending:

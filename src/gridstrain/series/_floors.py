@@ -78,7 +78,7 @@ def _theory_floor(var_ref, T_ref, mod_ref, var_s, T_s, mod_s, sigma, lattice):
     return su, se
 
 
-def _split_floor(acc: SeriesPass, lattice, sigma, mask, margin, method: str, report,
+def _split_floor(acc: SeriesPass, lattice, window: Window, mask, method: str, report,
                  mean_maps: PhaseMaps | None = None):
     """Spatial std of a half-against-half measurement of the reference, from the
     halves' sums of its pass (method A, or method C when it was the method).
@@ -103,7 +103,6 @@ def _split_floor(acc: SeriesPass, lattice, sigma, mask, margin, method: str, rep
     to a noise floor ten times larger.
     """
     n1, n2 = acc.half_counts()
-    window = Window(sigma, margin)
     if mean_maps is not None and method == "A":
         img = acc.half_means()[0]
         h1 = finite_derivatives(transform(img, lattice, window, mask=mask, workers=None))
@@ -115,8 +114,7 @@ def _split_floor(acc: SeriesPass, lattice, sigma, mask, margin, method: str, rep
     halves = []
     for h in (0, 1):
         if method == "C":
-            halves.append(acc.method_c(sigma=window.sigma, mask=mask, margin=window.margin,
-                                       halves=(h,)).maps)
+            halves.append(acc.method_c(mask=mask, halves=(h,)).maps)
         else:
             img = acc.half_means()[h]
             halves.append(transform(img, lattice, window, mask=mask, workers=None))
@@ -277,8 +275,8 @@ class _ReferenceFloor:
         self.alias_said = False  # the aliasing's warning, given once a run
         T1, T2 = ref_pass.half_counts()
         if min(T1, T2) >= 1:
-            self.su, self.se = _split_floor(ref_pass, lattice, window.sigma, r.mask,
-                                            window.margin, method, report, mean_maps=r.maps)
+            self.su, self.se = _split_floor(ref_pass, lattice, window, r.mask, method, report,
+                                            mean_maps=r.maps)
         else:
             self.su, self.se, (T1, T2) = np.full(2, np.nan), np.full(3, np.nan), (1, 1)
             warnings.append(Finding(

@@ -162,8 +162,7 @@ def _plan(s, lattice: Lattice, method: str, window: Window, mask: np.ndarray,
     reference's mask (the states': the whole frame), as its phase maps do; regions
     without a grid, known only from the mean image, may change that afterwards.
     ``lattice``: the series' own wave vectors (:func:`_carrier`)."""
-    return PassPlan(lattice=lattice, n_frames=s.n_frames, method=method, sigma=window.sigma,
-                    margin=window.margin,
+    return PassPlan(lattice=lattice, n_frames=s.n_frames, method=method, window=window,
                     transform_mask=(mask if is_ref else np.ones(s.shape, dtype=bool))
                     if method == "B" else None,
                     saturation_level=s.saturation_level, scale=int(s.scale),
@@ -482,7 +481,7 @@ def _one_series(s, acc: SeriesPass, base, window: Window, max_saturation: float,
         used = _grid_support(stats.mean, plan.lattice, window, base)
     steps.step(2 * _WFT_COST, f"{s.name}: phase maps")
     if method == "C":
-        res = acc.method_c(sigma=window.sigma, mask=used, margin=window.margin)
+        res = acc.method_c(mask=used)
         pm = finite_derivatives(res.maps)
         notes.extend(Finding("vibration", f"{s.name}: {w}", state=s.name)
                      for w in res.warnings)

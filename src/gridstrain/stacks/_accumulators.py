@@ -19,7 +19,6 @@ from .._validation import (
     image_array,
 )
 from ..phase import (
-    DEFAULT_MARGIN,
     Lattice,
     PhaseMaps,
     Window,
@@ -227,7 +226,7 @@ class _PhaseMean:
         self._lock = threading.Lock()
         self._local = threading.local()
 
-    def _start(self, shape, lattice: Lattice, sigma, dtype) -> None:
+    def _start(self, shape, lattice: Lattice, window: Window, dtype) -> None:
         H, W = shape
         self.unit = np.zeros((2, H, W), dtype=np.complex128)
         self.mod = np.zeros((2, H, W), dtype=np.float64)
@@ -236,13 +235,14 @@ class _PhaseMean:
         # again (remove=True) takes its invalid pixels with it
         self.invalid = np.zeros((H, W), dtype=np.int32)
         self.lattice = lattice
-        self.sigma = float(lattice.pitch if sigma is None else sigma)
+        self.sigma = window.sigma
         self.dtype = np.dtype(dtype)
 
-    def add_frame(self, img, lattice: Lattice, *, sigma=None, mask=None,
-                  margin: float = DEFAULT_MARGIN, index: int = 0,
-                  order: FrameOrder | None = None, remove: bool = False) -> None:
-        """Add the WFT of ``img`` (as :func:`~gridstrain.phase.wft` computes it).
+    def add_frame(self, img, lattice: Lattice, window: Window, *, mask=None,
+                  index: int = 0, order: FrameOrder | None = None,
+                  remove: bool = False) -> None:
+        """Add the WFT of ``img`` through ``window`` (as :func:`~gridstrain.phase.wft`
+        computes it).
 
         With ``order``, ``index`` is the frame's rank in the stack (from 0), and its
         blocks are added after those of frame ``index - 1``. ``remove=True`` takes
@@ -252,7 +252,7 @@ class _PhaseMean:
         H, W = img.shape
         with self._lock:
             if not hasattr(self, "unit"):
-                self._start((H, W), lattice, sigma, precision)
+                self._start((H, W), lattice, window, precision)
             elif self.unit.shape[1:] != (H, W):
                 raise ValueError(f"frames must all have the shape {self.unit.shape[1:]}, "
                                  f"got {(H, W)}")
@@ -295,7 +295,6 @@ class _PhaseMean:
             if order is not None:
                 order.release((j, r0), index)
 
-        window = Window.for_lattice(lattice, sigma=sigma, margin=margin)
         valid = transform(img, lattice, window, mask=mask, sink=sink, work=work, checked=True)
         with self._lock:
             accumulate(self.invalid, ~valid, out=self.invalid, casting="unsafe")
@@ -442,7 +441,7 @@ class MethodC:
             shift = self.given[t]
         self.acc.add(shift)
 
-    def result(self, *, sigma=None, mask=None, margin=DEFAULT_MARGIN) -> StackResult:
+    def result(self, window: Window, *, mask=None) -> StackResult:
         n = self.acc.n
         K = self.lattice.K
         measured = np.array(self.measured)
@@ -469,14 +468,16 @@ class MethodC:
                     f"follow eq. (2) (frame t is s(x + a_t)) and are in px, or let "
                     f"method C measure them")
         return compensated_result(lambda c: self.acc.averages(c), centre, n, self.acc.dtype,
-                                   used, self.parts, self.lattice, sigma=sigma, mask=mask,
-                                   margin=margin, warnings=warnings)
+                                   used, self.parts, self.lattice, window, mask=mask,
+                                   warnings=warnings)
 
 
 def compensated_result(averages, centre, n: int, dtype, used: np.ndarray, parts: list,
-                        lattice: Lattice, *, sigma, mask, margin, warnings: list) -> StackResult:
-    """Method C's maps from its realigned sums: ``averages(centre)`` gives the two
-    weighted means (2, H, W) turned by ``exp(+i centre)``; ``used`` (n, 2) are the
+                        lattice: Lattice, window: Window, *, mask,
+                        warnings: list) -> StackResult:
+    """Method C's maps from its realigned sums, transformed through ``window``:
+    ``averages(centre)`` gives the two weighted means (2, H, W) turned by
+    ``exp(+i centre)``; ``used`` (n, 2) are the
     shifts the weights used, ``parts`` the frames' quadrant shifts (n, 4, 2) for
     the rigidity check (or fewer than ``n``: not checked)."""
     K = lattice.K
@@ -497,7 +498,7 @@ def compensated_result(averages, centre, n: int, dtype, used: np.ndarray, parts:
                 f"translation is compensated; the rest (rotation, non-rigid "
                 f"vibration) averages as under method A, with its contrast loss "
                 f"and phase offsets that now vary across the field")
-    s = float(lattice.pitch if sigma is None else sigma)
+    s = window.sigma
     spread = float(np.sqrt(np.mean(np.sum((used - used.mean(axis=0)) ** 2, axis=1)) / 2))
     widening = math.sqrt(1 + spread**2 / s**2) - 1
     if widening > _MAX_WINDOW_WIDENING:
@@ -506,8 +507,7 @@ def compensated_result(averages, centre, n: int, dtype, used: np.ndarray, parts:
             f"window: the maps are those of a window {widening:.1%} wider than sigma = "
             f"{s:.3g} px (variance sigma^2 + Var(a)); the spatial resolution is "
             f"that much coarser (as for methods A and B)")
-    maps = wft_complex(averages(centre), lattice, sigma=sigma, mask=mask, margin=margin,
-                       dtype=dtype)
+    maps = wft_complex(averages(centre), lattice, mask=mask, dtype=dtype, **window.options())
     return StackResult(maps=maps, n_frames=n, method="C",
                        shifts=np.array(used, dtype=np.float64), motion_residual=residual,
                        warnings=tuple(warnings))

@@ -33,7 +33,7 @@ from .._validation import (
     check_workers,
     image_array,
 )
-from ..phase import DEFAULT_MARGIN, Lattice, PhaseMaps
+from ..phase import DEFAULT_MARGIN, Lattice, PhaseMaps, Window
 from ._accumulators import FrameOrder, MeanImage, MethodC, StackResult, _PhaseMean, with_screening
 from .screening import FrameProbe
 
@@ -267,14 +267,14 @@ def method_b(frames, lattice: Lattice, *, sigma: float | None = None, mask=None,
     check_type(lattice, "lattice", Lattice)
     progress = progress or null_progress
     n_workers = check_workers(workers)
+    window = Window.for_lattice(lattice, sigma=sigma, margin=margin)
     acc = _PhaseMean()
     order = FrameOrder() if n_workers > 1 else None
 
     def transform(item):
         i, img, total = item
         try:
-            acc.add_frame(img, lattice, sigma=sigma, mask=mask, margin=margin, index=i,
-                          order=order)
+            acc.add_frame(img, lattice, window, mask=mask, index=i, order=order)
         except BaseException:
             if order is not None:
                 order.fail(i)  # the frames after this one must not wait for it
@@ -390,6 +390,7 @@ def method_c(frames, lattice: Lattice, *, shifts=None, sigma: float | None = Non
     ``benchmarks/bench_method_c.py``.
     """
     check_type(lattice, "lattice", Lattice)
+    window = Window.for_lattice(lattice, sigma=sigma, margin=margin)
     progress = progress or null_progress
     run = MethodC(lattice, shifts)
     screener = _Screener(lattice, screen)
@@ -403,7 +404,7 @@ def method_c(frames, lattice: Lattice, *, shifts=None, sigma: float | None = Non
     if run.given is not None and len(run.given) != run.acc.n:
         raise ValueError(f"shifts must have one row per frame: got {len(run.given)} rows "
                          f"for {run.acc.n} frames")
-    res = screener.result(run.result(sigma=sigma, mask=mask, margin=margin))
+    res = screener.result(run.result(window, mask=mask))
     progress(1.0, "method C: done")
     return res
 
@@ -443,23 +444,24 @@ def prefix_stacks(frames, lattice: Lattice, counts, *, method: str = "A",
     check_choice(method, "method", ("A", "B", "C"))
     wanted = _check_counts(counts)
     progress = progress or null_progress
+    window = Window.for_lattice(lattice, sigma=sigma)
     acc = {"A": MeanImage, "B": _PhaseMean, "C": lambda: MethodC(lattice)}[method]()
     k = 0
     last = wanted[-1]
     n = 0
     for i, img, _ in _frames(frames):
         if method == "B":
-            acc.add_frame(img, lattice, sigma=sigma, mask=mask)
+            acc.add_frame(img, lattice, window, mask=mask)
         else:
             acc.add(img)
         n = i + 1
         progress(n / last, f"method {method}: frame {n}/{last}")
         if n == wanted[k]:
             if method == "A":
-                maps, avg = acc.transform(lattice, sigma=sigma, mask=mask)
+                maps, avg = acc.transform(lattice, mask=mask, **window.options())
                 yield StackResult(maps=maps, n_frames=n, method="A", mean_image=avg)
             elif method == "C":
-                yield acc.result(sigma=sigma, mask=mask)
+                yield acc.result(window, mask=mask)
             else:
                 yield acc.result()
             k += 1

@@ -64,7 +64,8 @@ import numpy as np
 from scipy import linalg
 from scipy.linalg import blas
 
-from ..phase import DEFAULT_MARGIN, Lattice
+from .._validation import check_type
+from ..phase import Lattice, Window
 from ..phase._transform import _kernels
 from ._accumulators import FrameOrder, StackResult, _PhaseMean, compensated_result
 from .screening import FrameProbe, FrameScreen, decide
@@ -212,10 +213,9 @@ class PassPlan:
         n_frames // 2``.
     method : {"A", "B", "C"}
         "B" adds the frames' transforms, "C" their realigned sums.
-    sigma : float, optional
-        Method B's window, px.
-    margin : float
-        Method B's invalid band, in sigmas.
+    window : Window, optional
+        The transforms' window: method B's frames, method C's result (default: the
+        lattice's pitch and the default margin).
     transform_mask : (H, W) bool ndarray, optional
         Method B's mask (the windows' support).
     saturation_level : float, optional
@@ -229,8 +229,7 @@ class PassPlan:
     lattice: Lattice
     n_frames: int
     method: str = "A"
-    sigma: float | None = None
-    margin: float = DEFAULT_MARGIN
+    window: Window | None = None
     transform_mask: np.ndarray | None = None
     saturation_level: float | None = None
     scale: int = 1
@@ -242,6 +241,9 @@ class PassPlan:
                              f"{self.method!r}")
         if self.n_frames < 1:
             raise ValueError(f"n_frames must be at least 1, got {self.n_frames!r}")
+        if self.window is None:
+            object.__setattr__(self, "window", Window.for_lattice(self.lattice))
+        check_type(self.window, "window", Window)
 
 
 @dataclass(frozen=True, eq=False)
@@ -375,8 +377,7 @@ class SeriesPass:
                       remove: bool = False) -> None:
         """Add (or take out) method B's transform of frame ``t``; thread-safe."""
         p = self.plan
-        self.transforms.add_frame(frame, p.lattice,
-                                  sigma=p.sigma, mask=p.transform_mask, margin=p.margin,
+        self.transforms.add_frame(frame, p.lattice, p.window, mask=p.transform_mask,
                                   index=t, order=order, remove=remove)
 
     def remove(self, t: int, frame) -> None:
@@ -649,11 +650,11 @@ class SeriesPass:
             return transforms.result(consume=True)
         return self.transforms.result()
 
-    def method_c(self, *, sigma: float | None = None, mask=None,
-                 margin: float = DEFAULT_MARGIN, halves: tuple = (0, 1)) -> StackResult:
+    def method_c(self, *, mask=None, halves: tuple = (0, 1)) -> StackResult:
         """Method C's result over the kept frames of ``halves``
-        (:func:`gridstrain.stacks.method_c`), the frames realigned by their shifts
-        centred on the mean position of all the kept frames."""
+        (:func:`gridstrain.stacks.method_c`) through the plan's window, the frames
+        realigned by their shifts centred on the mean position of all the kept
+        frames."""
         if self.plan.method != "C":
             raise ValueError("the pass was not planned for method C")
         if self.lin is None:
@@ -691,7 +692,7 @@ class SeriesPass:
         if dtype.kind != "f":
             dtype = np.dtype(np.float64)
         return compensated_result(averages, centre, n, dtype, used, parts,
-                                   self.plan.lattice, sigma=sigma, mask=mask, margin=margin,
+                                   self.plan.lattice, self.plan.window, mask=mask,
                                    warnings=())
 
     def __repr__(self) -> str:

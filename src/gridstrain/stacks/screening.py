@@ -517,7 +517,7 @@ class FrameProbe:
         f, lev = _clipped(arr, self.saturation_level, self.scale, self._count, top=top)
         if arr.dtype != np.float64 and arr.dtype != np.float32:
             arr = arr.astype(np.float64)
-        # np.dot: BLAS, several times faster than numpy's matmul loop for this shape;
+        # np.dot: BLAS, not numpy's slower matmul loop for this shape;
         # a block of columns is a strided view BLAS reads in place
         P = [np.dot(arr[:, xs], R) for xs, R in self._blocks]
         whole = P[0][:, :5] if len(P) == 1 else np.add.reduce([p[:, :5] for p in P])

@@ -76,8 +76,8 @@ class CarrierProbe:
         self._wsum = wx.sum() * wy.sum()
 
     def __call__(self, frame: np.ndarray) -> np.ndarray:
-        # np.dot: numpy's matmul takes a loop several times slower than BLAS for a
-        # product this narrow (measured with numpy 2.4)
+        # np.dot: BLAS; numpy's matmul takes a slower loop of its own for a product
+        # this narrow (benchmarks/README.md)
         return self.from_rows(np.dot(frame, self._right))
 
     def from_rows(self, P: np.ndarray) -> np.ndarray:

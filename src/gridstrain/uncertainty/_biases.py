@@ -1158,19 +1158,3 @@ def nearest_index(valid: np.ndarray) -> tuple:
                 np.clip(np.arange(W), c0, c1 - 1)[None, :])
     return tuple(ndimage.distance_transform_edt(~valid, return_distances=False,
                                                 return_indices=True))
-
-
-def local_departure(e: np.ndarray, valid: np.ndarray, sigma: float, nearest=None) -> np.ndarray:
-    """``e`` less its median over 8 sigma around, taken on a grid of step ``sigma``
-    (a ridge 2 to 3 sigmas wide holds 3 of the 9 columns of the median's window,
-    which keeps it out of its background at a sigma^2-th of the full median's
-    cost); invalid pixels take their nearest valid neighbour's value
-    (``nearest``: :func:`nearest_index` of ``valid``, when known)."""
-    f = nearest_filled(np.asarray(e, dtype=np.float64), valid, nearest)
-    step = max(1, int(sigma))
-    coarse = f[::step, ::step]
-    size = max(3, round(8.0 * sigma / step) | 1)
-    bg = ndimage.median_filter(coarse, size=size, mode="nearest")
-    zoom = (f.shape[0] / bg.shape[0], f.shape[1] / bg.shape[1])
-    full = ndimage.zoom(bg, zoom, order=1, mode="nearest", grid_mode=True)
-    return f - full[:f.shape[0], :f.shape[1]]
