@@ -9,6 +9,8 @@
 - ``_aliasing``: the systematic error of the grid's harmonics aliasing onto the
   carriers, its bound and advice;
 - ``_smoothing``: the systematic error of the window's smoothing of strain gradients;
+- ``_contrast``: the bias next to a change of the grid's contrast (a stain, a shadow),
+  bounded per pixel (:func:`contrast_step_bound`);
 - ``_nearest``: each pixel's nearest valid pixel, and fields filled from it;
 - :mod:`~gridstrain.uncertainty.floors`: the noise floors a series measurement states.
 
@@ -20,6 +22,7 @@ from __future__ import annotations
 # shared with gridstrain's other folders, not part of the public API
 from ._aliasing import aliasing_advice as aliasing_advice
 from ._aliasing import aliasing_bias
+from ._contrast import CONTRAST_STEP_PX, contrast_step_bound
 from ._maps import FWHM_PER_SIGMA as FWHM_PER_SIGMA
 from ._maps import SPATIAL_RESOLUTION_PER_SIGMA as SPATIAL_RESOLUTION_PER_SIGMA
 from ._maps import (
@@ -46,12 +49,14 @@ from ._noise_image import estimate_noise_image
 from ._smoothing import smoothing_bias
 
 __all__ = [
+    "CONTRAST_STEP_PX",
     "NOISE_RESULT_KIND",
     "NoiseFloor",
     "NoiseModel",
     "Uncertainty",
     "aliasing_bias",
     "anscombe",
+    "contrast_step_bound",
     "displacement_strain_std",
     "estimate_noise",
     "estimate_noise_image",
