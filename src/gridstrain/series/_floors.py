@@ -420,7 +420,7 @@ _CONTRAST_FACTOR = 2.0
 # ... or, where no noise is known, this many times the bound's median over the valid
 # pixels, the level the moduli's noise sets: on 24 noisy uniform grids (checkerboards
 # and lines, 0 and 10 degrees, with and without a hole moving with the specimen) the
-# largest bound was 1.3 to 3.0 times the median.
+# largest bound was 1.3 to 2.0 times the median.
 _CONTRAST_OVER_MEDIAN = 4.0
 
 
