@@ -202,8 +202,8 @@ def _pair(run, st: _State) -> None:
 def _contrast(run, st: _State) -> None:
     """The per-pixel bound of the bias next to a change of the grid's contrast, made
     while the state's transforms are at hand; stated against the noise once the
-    uncertainty maps are made. About one transform's time (1024 x 1024 px: 0.95 times
-    a wft, 0.15 times the pair's measure), hence one of the sampled checks."""
+    uncertainty maps are made. About one transform's time (1024 x 1024 px: 0.95-1.02 times
+    a wft, 0.09-0.15 times the pair's measure), hence one of the sampled checks."""
     r = st.res
     if r.reference is None or r.deformed is None:
         return

@@ -32,6 +32,9 @@ __all__ = ["CONTRAST_STEP_PX", "contrast_step_bound"]
 #: the leak is what makes the error.
 CONTRAST_STEP_PX = 0.3
 
+# Pixels whose material points are computed at once.
+_BLOCK = 1 << 20
+
 
 def _log_gradient(psi: np.ndarray) -> np.ndarray:
     """``grad ln |psi|`` per px, ``(d/dx, d/dy)``; zero where the modulus is zero."""
@@ -71,15 +74,23 @@ def contrast_step_bound(reference_psi, deformed_psi, u, valid, *, sigma: float) 
         raise ValueError(f"reference_psi and deformed_psi must be (n, H, W) with (H, W) "
                          f"valid's shape {v.shape}, got {ref.shape} and {dfm.shape}")
     H, W = v.shape
-    uu = np.where(v, np.asarray(u, dtype=np.float64), 0.0)
-    rows, cols = np.mgrid[0:H, 0:W].astype(np.float64)
-    at = [rows + uu[1], cols + uu[0]]  # the material point in the deformed state
+    u = np.asarray(u)
     s = np.zeros((H, W))
+    # the material points' coordinates by blocks of rows: two float64 maps of the
+    # image's size would be the largest arrays of the bound
+    step = max(1, _BLOCK // W)
+    cols = np.arange(W, dtype=np.float64)[None, :]
     for r, d in zip(ref, dfm, strict=True):
         gr = _log_gradient(r)
-        gd = np.stack([ndimage.map_coordinates(g, at, order=1, mode="nearest")
-                       for g in _log_gradient(d)])
-        np.maximum(s, np.hypot(*(gd - gr)), out=s)
+        gd = _log_gradient(d)
+        for r0 in range(0, H, step):
+            b = slice(r0, min(H, r0 + step))
+            vb = v[b]
+            rows = np.arange(b.start, b.stop, dtype=np.float64)[:, None]
+            at = [rows + np.where(vb, u[1, b], 0.0), cols + np.where(vb, u[0, b], 0.0)]
+            dx, dy = (ndimage.map_coordinates(g, at, order=1, mode="nearest") - q[b]
+                      for g, q in zip(gd, gr, strict=True))
+            np.maximum(s[b], np.hypot(dx, dy), out=s[b])
     # the steepness ripples within a period where the leak does not (the grid's
     # harmonics in the modulus): its largest value within a sigma bounds the leak,
     # over the valid pixels only (an invalid one is not followed by u, and a hole's
