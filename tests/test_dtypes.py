@@ -273,6 +273,16 @@ def _smoothing_bias(dt):
     assert all(v is None or isinstance(v, float) for v in b["p95"])
 
 
+def _contrast_step_bound(dt):
+    # a bound made from maps of either precision: float64, finite on the valid pixels
+    ref, cur = _ref_cur(dt)
+    m = gridstrain.measure(ref[0], cur[0], lattice=LAT, guess=None)
+    b = uncertainty.contrast_step_bound(m.reference.psi, m.deformed.psi, m.u, m.valid,
+                                        sigma=m.sigma)
+    assert b.dtype == np.float64
+    assert np.all(np.isfinite(b[m.valid]))
+
+
 def _pair_match(dt):
     # figures of a check, float64 whatever the images' dtype
     from gridstrain.kinematics import pair_match
@@ -317,6 +327,7 @@ ENTRY_POINTS = {
     "method_b_dask": _dask,
     "estimate_noise_image": _estimate_noise_image, "aliasing_bias": _aliasing_bias,
     "smoothing_bias": _smoothing_bias, "pair_match": _pair_match,
+    "contrast_step_bound": _contrast_step_bound,
 }
 # Public functions that take no image: their outputs are float64 by construction
 # (frequencies; metrology's figures), files (save_*, load: the dtypes saved), or the

@@ -224,7 +224,7 @@ def test_aliasing_window_of_a_rectangle_is_the_two_dimensional_one(box):
     erosion takes the pixels beyond it as valid."""
     from scipy import ndimage
 
-    from gridstrain.uncertainty._biases import _aliasing_window
+    from gridstrain.uncertainty._aliasing import _aliasing_window
 
     H, W = 120, 150
     lat = Lattice.from_pitch(4.6, angle=10.0)
@@ -252,7 +252,7 @@ def test_nearest_valid_pixel_of_a_rectangle_is_the_distance_transforms():
     # not a rectangle still goes through the transform
     from scipy import ndimage
 
-    from gridstrain.uncertainty._biases import nearest_filled, nearest_index
+    from gridstrain.uncertainty._nearest import nearest_filled, nearest_index
 
     rng = np.random.default_rng(4)
     a = rng.normal(size=(37, 53))

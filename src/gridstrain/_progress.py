@@ -183,6 +183,10 @@ FINDINGS = _kinds(
     ("smoothing.bias", "warning",
      "the window's smoothing of strain gradients may exceed the noise",
      "a smaller sigma"),
+    ("contrast.step", "warning",
+     "the grid's contrast changes between the states (a stain, a shadow, a hole's edge): "
+     "the displacement next to it may be biased beyond the noise",
+     "mask the region, or light and prepare the specimen so that its contrast stays"),
     ("saturation", "warning", "clipped pixels in a series", "lower the exposure"),
     ("contrast.vibration", "note",
      "vibrations lower method A's averaged contrast", "method C"),

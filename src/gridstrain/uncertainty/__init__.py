@@ -6,7 +6,12 @@
 - ``_maps``: the per-pixel standard deviation of the phases, the displacement and the
   strain (:func:`predict_uncertainty`), the noise floor of a state (:class:`NoiseFloor`)
   and the metrological figures (:func:`metrology`);
-- ``_biases``: the systematic errors (aliasing of harmonics, the window's smoothing);
+- ``_aliasing``: the systematic error of the grid's harmonics aliasing onto the
+  carriers, its bound and advice;
+- ``_smoothing``: the systematic error of the window's smoothing of strain gradients;
+- ``_contrast``: the bias next to a change of the grid's contrast (a stain, a shadow),
+  bounded per pixel (:func:`contrast_step_bound`);
+- ``_nearest``: each pixel's nearest valid pixel, and fields filled from it;
 - :mod:`~gridstrain.uncertainty.floors`: the noise floors a series measurement states.
 
 The noise model's public path is :mod:`gridstrain.uncertainty`.
@@ -15,10 +20,9 @@ The noise model's public path is :mod:`gridstrain.uncertainty`.
 from __future__ import annotations
 
 # shared with gridstrain's other folders, not part of the public API
-from ._biases import aliasing_advice as aliasing_advice
-from ._biases import aliasing_bias, smoothing_bias
-from ._biases import nearest_filled as nearest_filled
-from ._biases import nearest_index as nearest_index
+from ._aliasing import aliasing_advice as aliasing_advice
+from ._aliasing import aliasing_bias
+from ._contrast import CONTRAST_STEP_PX, contrast_step_bound
 from ._maps import FWHM_PER_SIGMA as FWHM_PER_SIGMA
 from ._maps import SPATIAL_RESOLUTION_PER_SIGMA as SPATIAL_RESOLUTION_PER_SIGMA
 from ._maps import (
@@ -32,6 +36,8 @@ from ._maps import (
 )
 from ._maps import phase_variance as phase_variance
 from ._maps import std_from_phase_variance as std_from_phase_variance
+from ._nearest import nearest_filled as nearest_filled
+from ._nearest import nearest_index as nearest_index
 from ._noise import (
     NOISE_RESULT_KIND,
     NoiseModel,
@@ -40,14 +46,17 @@ from ._noise import (
     inverse_anscombe,
 )
 from ._noise_image import estimate_noise_image
+from ._smoothing import smoothing_bias
 
 __all__ = [
+    "CONTRAST_STEP_PX",
     "NOISE_RESULT_KIND",
     "NoiseFloor",
     "NoiseModel",
     "Uncertainty",
     "aliasing_bias",
     "anscombe",
+    "contrast_step_bound",
     "displacement_strain_std",
     "estimate_noise",
     "estimate_noise_image",
