@@ -628,6 +628,11 @@ def _grid_evidence(reference: PhaseMaps, current: PhaseMaps, u: np.ndarray, ok: 
         if contents[0] is None:
             told.append(f"{what} cannot be read at this pitch (folded onto a carrier)")
             continue
+        if all(float(np.ptp(c)) == 0.0 for c in contents):
+            # a grid that vanishes nowhere: its clipped contrast is one value in both
+            # images, and no offset of it is better than another
+            told.append(f"{what}: none in either image")
+            continue
         c = _grid_content(reference, current, u, ok, material=material, within=within,
                           around=want, contents=contents)
         seen, more = _says(c, want, what)
