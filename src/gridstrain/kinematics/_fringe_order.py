@@ -415,14 +415,17 @@ class _CoarseReference:
                                    reason=f"{est.reason}; below the grid's frequency: "
                                           f"{c.reason}")
 
-    def shows(self, reference: PhaseMaps, current: PhaseMaps, u: np.ndarray,
-              ok: np.ndarray, periods, *, material: bool = False,
-              image=None) -> tuple[bool, str]:
-        """:func:`_grid_shows` with ``u`` and ``ok`` at this reference's samples, and the
-        ratio of the grid's harmonics in this reference and the deformed ``image`` when
-        given."""
-        return _grid_shows(reference, current, u, ok, periods, material=material,
-                           images=None if image is None else (self.reference, image))
+    def evidence(self, reference: PhaseMaps, current: PhaseMaps, u: np.ndarray,
+                 ok: np.ndarray, periods, *, material: bool = False,
+                 image=None) -> tuple[bool, str, str]:
+        """:func:`_grid_evidence` with ``u`` and ``ok`` at this reference's samples, and
+        the ratio of the grid's harmonics in this reference and the deformed ``image``
+        when given: ``(shown, said, doubt)``, whether the grid's modulus shows the whole
+        ``periods`` (and nothing the light cannot imitate puts them elsewhere), what it
+        says, and why that is no confirmation where only the light's evidence shows
+        them (empty otherwise)."""
+        return _grid_evidence(reference, current, u, ok, periods, material=material,
+                              images=None if image is None else (self.reference, image))
 
     def _corroborated(self, est: CoarseEstimate, reference: PhaseMaps, current: PhaseMaps,
                       u: np.ndarray, ok: np.ndarray, shift, deformed=None) -> CoarseEstimate:
