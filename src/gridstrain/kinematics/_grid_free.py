@@ -279,11 +279,8 @@ def order_from_content(ref_gf: np.ndarray, cur_gf: np.ndarray, u: np.ndarray,
         return none
     b = np.arange(-2 * _REFINE, 2 * _REFINE + 1) / 2
     half = np.stack(np.meshgrid(b, b, indexing="ij"), -1).reshape(-1, 2) + centre
-    # each tile's residuals floored at the rounding of its samples' values: content
-    # that the maps do not hold decides nothing
-    scale = max(float(np.max(np.abs(ref_gf[sel]))), float(np.max(np.abs(cur_gf))))
-    floor = np.array([tiles.size(k) for k in range(tiles.n)]) * (_ROUNDING * scale) ** 2
-    E = np.maximum(energies(sel, tiles, half), 0.0) + floor
+    # content that the maps do not hold decides nothing
+    E = tiles.floored(energies(sel, tiles, half), np.abs(ref_gf[sel]).max(), cur_gf)
     integer = np.all(half == np.rint(half), axis=1)
     edge = np.any(np.abs(half - centre) >= _REFINE, axis=1)
 
@@ -366,6 +363,13 @@ class _Tiles:
         """Samples in tile ``k``."""
         a, b = self.spans[k]
         return b - a
+
+    def floored(self, E: np.ndarray, largest: float, other: np.ndarray) -> np.ndarray:
+        """Residuals ``E`` (n, tiles) floored at the rounding (``_ROUNDING``) of their
+        samples' values: at most ``largest`` or those of the map ``other``."""
+        scale = max(float(largest), float(np.max(np.abs(other))))
+        sizes = np.array([self.size(k) for k in range(self.n)], dtype=np.float64)
+        return np.maximum(E, 0.0) + sizes * (_ROUNDING * scale) ** 2
 
     def residuals(self, d: np.ndarray) -> np.ndarray:
         """Per row of ``d`` (n, samples in ``order``) and tile, the sum of squares
