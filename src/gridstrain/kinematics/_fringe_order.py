@@ -619,6 +619,13 @@ def _grid_evidence(reference: PhaseMaps, current: PhaseMaps, u: np.ndarray, ok: 
     g = _grid_content(reference, current, u, ok, material=material, within=within,
                       around=want)
     shown, said = _says(g, want, "the grid's own modulus")
+    if not shown and want == tuple(g.offset) and g.tiles_agreeing == g.tiles_informative > 0:
+        # too little of the modulus's content to decide over the whole frame (stains
+        # covering a tile or two of a large one), but where it decides it shows these
+        # periods and nowhere others: corroboration enough to use them, never to confirm
+        return True, said, (f"not confirmed: the image content that moved could be the "
+                            f"light, and {said}, though each of its informative tiles "
+                            f"shows them")
     if not shown or images is None:
         return shown, said, ""
     q = decimation(reference.lattice)
