@@ -129,7 +129,12 @@ def test_rotated_checkerboard_large_displacement_end_to_end():
     res = measure(ref, cur)  # lattice detected, fringe order from the printed spots
     assert res.guess_source == "auto"
     assert res.fringe_order.source == "image features"
-    assert res.fringe_order.confirmed
+    # the spots correlate at the pitch 2.46 times better than their aliases, within
+    # what a lamp's hot spot reaches (up to 2.3), and a square checkerboard has no
+    # second harmonic to tell them from light: the order they give is used, not
+    # confirmed, as measure_series says of the same pair
+    assert not res.fringe_order.confirmed
+    assert "could be the light" in res.fringe_order.detail
     np.testing.assert_allclose(res.lattice.pitches, lat.pitches, rtol=1e-4)
     yy, xx = np.mgrid[0:N, 0:N].astype(float)
     truth = np.array(U(xx, yy))

@@ -716,7 +716,11 @@ def _fringe_order_record(g, source, coarse):
     if source == "user":
         order = FringeOrder("user", True, gmed, "the given guess")
     elif source == "auto":
-        order = _from_estimate(coarse, "image features", True, gmed, coarse.reason)
+        # the features' whole periods are used (the grid's modulus shows them), but
+        # where nothing the light cannot imitate shows them too they are not confirmed
+        order = _from_estimate(coarse, "image features", not coarse.light_doubt, gmed,
+                               f"{coarse.light_doubt}; {coarse.reason}"
+                               if coarse.light_doubt else coarse.reason)
     elif coarse is not None:
         order = _from_estimate(coarse, "smallest displacement", False, gmed,
                                f"image features undecided ({coarse.reason})")

@@ -415,14 +415,17 @@ class _CoarseReference:
                                    reason=f"{est.reason}; below the grid's frequency: "
                                           f"{c.reason}")
 
-    def shows(self, reference: PhaseMaps, current: PhaseMaps, u: np.ndarray,
-              ok: np.ndarray, periods, *, material: bool = False,
-              image=None) -> tuple[bool, str]:
-        """:func:`_grid_shows` with ``u`` and ``ok`` at this reference's samples, and the
-        ratio of the grid's harmonics in this reference and the deformed ``image`` when
-        given."""
-        return _grid_shows(reference, current, u, ok, periods, material=material,
-                           images=None if image is None else (self.reference, image))
+    def evidence(self, reference: PhaseMaps, current: PhaseMaps, u: np.ndarray,
+                 ok: np.ndarray, periods, *, material: bool = False,
+                 image=None) -> tuple[bool, str, str]:
+        """:func:`_grid_evidence` with ``u`` and ``ok`` at this reference's samples, and
+        the ratio of the grid's harmonics in this reference and the deformed ``image``
+        when given: ``(shown, said, doubt)``, whether the grid's modulus shows the whole
+        ``periods`` (and nothing the light cannot imitate puts them elsewhere), what it
+        says, and why that is no confirmation where only the light's evidence shows
+        them (empty otherwise)."""
+        return _grid_evidence(reference, current, u, ok, periods, material=material,
+                              images=None if image is None else (self.reference, image))
 
     def _corroborated(self, est: CoarseEstimate, reference: PhaseMaps, current: PhaseMaps,
                       u: np.ndarray, ok: np.ndarray, shift, deformed=None) -> CoarseEstimate:
@@ -616,6 +619,13 @@ def _grid_evidence(reference: PhaseMaps, current: PhaseMaps, u: np.ndarray, ok: 
     g = _grid_content(reference, current, u, ok, material=material, within=within,
                       around=want)
     shown, said = _says(g, want, "the grid's own modulus")
+    if not shown and want == tuple(g.offset) and g.tiles_agreeing == g.tiles_informative > 0:
+        # too little of the modulus's content to decide over the whole frame (stains
+        # covering a tile or two of a large one), but where it decides it shows these
+        # periods and nowhere others: corroboration enough to use them, never to confirm
+        return True, said, (f"not confirmed: the image content that moved could be the "
+                            f"light, and {said}, though each of its informative tiles "
+                            f"shows them")
     if not shown or images is None:
         return shown, said, ""
     q = decimation(reference.lattice)
@@ -627,6 +637,11 @@ def _grid_evidence(reference: PhaseMaps, current: PhaseMaps, u: np.ndarray, ok: 
         contents = tuple(make(im, lat, q) for im in images)
         if contents[0] is None:
             told.append(f"{what} cannot be read at this pitch (folded onto a carrier)")
+            continue
+        if all(float(np.ptp(c)) == 0.0 for c in contents):
+            # a grid that vanishes nowhere: its clipped contrast is one value in both
+            # images, and no offset of it is better than another
+            told.append(f"{what}: none in either image")
             continue
         c = _grid_content(reference, current, u, ok, material=material, within=within,
                           around=want, contents=contents)

@@ -73,6 +73,14 @@ _REFINE = 2
 # Interpolated samples per call, a few megabytes of coordinates.
 _CHUNK = 2**18
 
+# Residuals within this many float64 roundings of the compared values are equal: two
+# maps without content (a grid that vanishes nowhere: its clipped contrast is one
+# constant in both images) leave every offset a residual of 1e-32 or exactly 0, whose
+# ratios are those of rounding errors (2.6 "favoured" an offset 3 periods away on a
+# rotated checkerboard). Content at the level of a 12-bit sensor's noise, low-passed by
+# a pitch, leaves 1e-12 a sample and more, 1e13 times this floor.
+_ROUNDING = 1e3 * np.finfo(np.float64).eps
+
 
 @dataclass(frozen=True)
 class ContentOrder:
@@ -271,7 +279,8 @@ def order_from_content(ref_gf: np.ndarray, cur_gf: np.ndarray, u: np.ndarray,
         return none
     b = np.arange(-2 * _REFINE, 2 * _REFINE + 1) / 2
     half = np.stack(np.meshgrid(b, b, indexing="ij"), -1).reshape(-1, 2) + centre
-    E = energies(sel, tiles, half)
+    # content that the maps do not hold decides nothing
+    E = tiles.floored(energies(sel, tiles, half), np.abs(ref_gf[sel]).max(), cur_gf)
     integer = np.all(half == np.rint(half), axis=1)
     edge = np.any(np.abs(half - centre) >= _REFINE, axis=1)
 
@@ -354,6 +363,13 @@ class _Tiles:
         """Samples in tile ``k``."""
         a, b = self.spans[k]
         return b - a
+
+    def floored(self, E: np.ndarray, largest: float, other: np.ndarray) -> np.ndarray:
+        """Residuals ``E`` (n, tiles) floored at the rounding (``_ROUNDING``) of their
+        samples' values: at most ``largest`` or those of the map ``other``."""
+        scale = max(float(largest), float(np.max(np.abs(other))))
+        sizes = np.array([self.size(k) for k in range(self.n)], dtype=np.float64)
+        return np.maximum(E, 0.0) + sizes * (_ROUNDING * scale) ** 2
 
     def residuals(self, d: np.ndarray) -> np.ndarray:
         """Per row of ``d`` (n, samples in ``order``) and tile, the sum of squares

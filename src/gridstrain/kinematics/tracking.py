@@ -379,20 +379,21 @@ def check_after_warp(res: Measurement, rec: FringeOrder, coarse: _CoarseReferenc
     def shown(off, image=None):
         # a correction by whole periods only where the grid's own modulus shows it too:
         # the image's light alone (a hot spot, a highlight) may have moved by them; the
-        # smooth content below the grid's frequency also in the ratio of the grid's
-        # harmonics, which no light changes
-        return coarse.shows(res.reference, res.deformed, uq, vq, off, material=True,
-                            image=image)
+        # smooth content below the grid's frequency confirmed only by the ratio of the
+        # grid's harmonics, which no light changes (the doubt where it cannot tell)
+        return coarse.evidence(res.reference, res.deformed, uq, vq, off, material=True,
+                               image=image)
 
     if c.confident:
         t = lattice.periods @ np.array(c.offset, dtype=float)
-        if any(c.offset) and not (seen := shown(c.offset, mean_cur))[0]:
-            return _unshown(res, rec, t, name, c.reason, seen[1])
-        if not any(c.offset) and not rec.confirmed and not shown(c.offset, mean_cur)[0]:
+        seen, said, doubt = shown(c.offset, mean_cur)
+        if any(c.offset) and not seen:
+            return _unshown(res, rec, t, name, c.reason, said)
+        if not any(c.offset) and not rec.confirmed and (doubt or not seen):
             # the content that matches may be a light that moved with the field's
             # whole periods: no confirmation without the grid's harmonics
             return res, rec, []
-        return _recheck(res, rec, t, name, c.reason, _content_record(c))
+        return _recheck(res, rec, t, name, c.reason, _content_record(c), doubt=doubt)
     u = np.stack([nearest_filled(res.u[k], v) for k in range(2)])
     H, W = v.shape
     yy, xx = np.mgrid[0:H, 0:W].astype(np.float64)
@@ -408,14 +409,15 @@ def check_after_warp(res: Measurement, rec: FringeOrder, coarse: _CoarseReferenc
     off = np.rint(lattice.K @ np.array(est.shift))
     t = np.linalg.solve(lattice.K, off)
     light = None if sharp(est) else mean_cur  # features finer than light: no ratio needed
-    if np.any(off) and not (seen := shown(off, light))[0]:
-        return _unshown(res, rec, t, name, est.reason, seen[1])
-    if not np.any(off) and not rec.confirmed and light is not None \
-            and not shown(off, light)[0]:
+    seen, said, doubt = shown(off, light) if np.any(off) or light is not None \
+        else (True, "", "")
+    if np.any(off) and not seen:
+        return _unshown(res, rec, t, name, est.reason, said)
+    if not np.any(off) and not rec.confirmed and (doubt or not seen):
         return res, rec, []  # as above: the content may be light that moved
     figures = {"correlation": est.correlation, "peak_to_alias": est.peak_to_alias,
                "disagreement": est.disagreement, "features_shift": est.shift}
-    return _recheck(res, rec, t, name, est.reason, figures)
+    return _recheck(res, rec, t, name, est.reason, figures, doubt=doubt)
 
 
 def _unshown(res: Measurement, rec: FringeOrder, t, name: str, reason: str, seen: str):
@@ -443,10 +445,14 @@ def _content_record(c) -> dict:
             "tiles_informative": c.tiles_informative}
 
 
-def _recheck(res: Measurement, rec: FringeOrder, t, name: str, reason: str, figures: dict):
+def _recheck(res: Measurement, rec: FringeOrder, t, name: str, reason: str, figures: dict,
+             *, doubt: str = ""):
     """``(res, rec, warnings)`` once the warped-back content says that the measured
     displacement needs ``t`` (px, a lattice vector) added: confirmed if ``t`` is 0,
-    measured again from the guess moved by ``t`` if not."""
+    measured again from the guess moved by ``t`` if not. ``doubt``: why only evidence
+    the light can imitate shows ``t`` (the image's content and the grid's modulus, with
+    nothing else against them): the displacement they support is taken, not
+    confirmed."""
     if not np.any(np.rint(res.lattice.K @ t)):
         if rec.confirmed:
             return res, rec, []
@@ -457,10 +463,23 @@ def _recheck(res: Measurement, rec: FringeOrder, t, name: str, reason: str, figu
     before = _median_u(res)
     g = np.array(res.guess, dtype=float) + t
     again = deformation(res.reference, res.deformed, lagrangian=res.lagrangian, guess=g)
+    seen = (f"the deformed image warped back by the field {before} showed the "
+            f"reference's content {t[0]:.2f}, {t[1]:.2f} px away ({reason})")
+    if doubt:
+        # two kinds of evidence on the specimen's side against none: the better
+        # supported displacement, said as a choice, not as a fact
+        rec, strain = with_strain_doubt(again, FringeOrder(
+            "image features", False, again.guess,
+            f"{seen}; {doubt}; {rec.source} had given {before}", **figures))
+        return again, rec, [Finding(
+            "fringe_order.unconfirmed",
+            f"{name}: fringe order {doubt}; warped back by {before}, the deformed image's "
+            f"content lay {t[0]:.2f}, {t[1]:.2f} px from the reference's, and the grid's "
+            f"modulus agrees: {_median_u(again)} is taken, not confirmed{strain}",
+            state=name, offset_px=[float(t[0]), float(t[1])],
+            strain_if_off=rec.strain_if_off)]
     rec = FringeOrder("image features", True, again.guess,
-                      f"the deformed image warped back by the field {before} showed the "
-                      f"reference's content {t[0]:.2f}, {t[1]:.2f} px away "
-                      f"({reason}); {rec.source} had given it", **figures)
+                      f"{seen}; {rec.source} had given it", **figures)
     return again, rec, [Finding("fringe_order.corrected",
                                 f"{name}: the displacement was whole periods off "
                                 f"({before}): warped back by it, the deformed image's "
