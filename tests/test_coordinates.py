@@ -283,6 +283,49 @@ def test_history_of_an_mm_gauge_is_the_px_one(result_file):
                     atol=5 * float(np.max(mm.exx_rate_std)))
 
 
+def test_history_of_a_result_by_the_rule_of_places(result_file):
+    _, res = result_file
+    # places and velocities on the result itself, in its unit: the gauge's history
+    h = history(res, region=REGION_MM, unit="mm", window=5, finite=True)
+    g = history(gauge(res, region=REGION_MM, unit="mm", finite=True), window=5,
+                unit="mm", finite=True)
+    assert_array_equal(h.vx, g.vx)
+    assert_array_equal(h.gl_xx, g.gl_xx)
+    assert h.unit == "mm"
+    # the same pixels read in px: velocities PS times smaller (to rounding)
+    assert_allclose(history(res, region=_mm_to_px(REGION_MM), px=True, window=5).vx,
+                    h.vx / PS, rtol=1e-12)
+    # the imposed stretch's Green-Lagrange strain e + e^2 / 2 (exact for the uniaxial
+    # Lagrangian stretch of the generator), within 5 std of the smoothed reading
+    e = np.array(STRAINS)
+    assert np.all(np.abs(h.gl_xx - (e + e**2 / 2)) < 5 * h.gl_xx_std)
+    assert np.all(np.abs(h.gl_yy - (-NU * e + (NU * e) ** 2 / 2)) < 5 * h.gl_yy_std)
+    # a velocity without its unit on a result with a pixel size: refused
+    with pytest.raises(ValueError, match=r"do not say their unit.*unit='mm'"):
+        history(res, window=5)
+    with pytest.raises(ValueError, match=r"does not say its unit"):
+        history(res, region=REGION_MM, window=5)
+
+
+def test_cli_history_finite(result_file, tmp_path, capsys):
+    path, res = result_file
+    code, out, err = _run(["history", path, "--region", *REGION_MM, "--window", 5,
+                           "--finite", "--strain-units", "%", "-o", tmp_path / "h.csv"],
+                          capsys)
+    assert code == 0, err
+    lines = out.splitlines()
+    assert "gl_xx [%]" in lines[1], lines[1]
+    assert "vx [mm/s]" in lines[1], lines[1]
+    want = history(res, region=REGION_MM, unit="mm", window=5, finite=True)
+    rows = _csv_rows(tmp_path / "h.csv")
+    # the CSV's 10 digits
+    assert_allclose([float(r["gl_xx [-]"]) for r in rows], want.gl_xx, rtol=1e-9)
+    assert_allclose([float(r["log_yy_rate [1/s]"]) for r in rows], want.log_yy_rate,
+                    rtol=1e-9)
+    # the table in percent: the first state's gl_xx to 1e-5 %
+    assert f"{want.gl_xx[0] * 100:.5f}" in lines[2]
+
+
 def _curves(fig):
     return [np.asarray(line.get_ydata()) for line in fig.axes[0].lines
             if len(line.get_ydata()) == len(STRAINS)]

@@ -52,7 +52,7 @@ def run(args) -> int:
     out = output_path(args, src, "history CSV")
     reading = gauge_of(args, result, ps, unit, ld, lu, t, finite=args.finite)
     h = history(reading, window=args.window, order=args.order, pixel_size=ps, unit=unit,
-                px=ps is None)
+                px=ps is None, finite=args.finite)
     factor, label = strain_scale(args.strain_units)
     # a tenth of a microstrain in every unit, as gauge's table
     digits = {1e6: 1, 100.0: 5, 1.0: 7}[factor]
