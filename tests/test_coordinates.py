@@ -346,7 +346,14 @@ def test_plot_history_mm_and_px(result_file):
     ux_px = plot_history(res, point=(125, 100), names=("ux", "ux_std"), px=True)
     for a, b in zip(_curves(ux_mm), _curves(ux_px), strict=True):
         assert_allclose(a, b * PS, rtol=1e-12)
-    assert ux_mm.axes[0].get_ylabel() == "(mm)"
+    assert ux_mm.axes[0].get_ylabel() == "displacement (mm)"
+    # the axis says what it draws, in the unit drawn
+    assert mm.axes[0].get_ylabel() == "strain (µε)"
+    pct = plot_history(res, region=REGION_MM, unit="mm", names=("gl_xx",), microstrain="%")
+    assert pct.axes[0].get_ylabel() == "strain (%)"
+    # a strain and a displacement on one axis would be read against one label: refused
+    with pytest.raises(ValueError, match=r"share one unit.*exx \(µε\), ux \(mm\)"):
+        plot_history(res, region=REGION_MM, unit="mm", names=("exx", "ux"))
     assert_allclose(_curves(ux_mm)[0], np.asarray(res.ux[:, 100, 125]) * PS, rtol=1e-12)
     # a quantity outside the gauge (the rotation) on the same pixels
     rot_mm = plot_history(res, point=(5.0, 4.0), names=("rotation",), pixel_size=PS,
