@@ -381,6 +381,8 @@ def test_command_prints_E_and_writes_the_curves(record, tmp_path, capsys):
     ("nopix", [], "has no pixel size"),
     ("good", ["--free-edge", "front"], "invalid choice: 'front'"),
     ("good", ["--density", "-5"], "density"),
+    # the filter's window longer than the record: named by the option that sets it
+    ("good", ["--smoothing", "99", "4"], "--smoothing WINDOW ORDER: window must be odd"),
 ])
 def test_command_errors_are_one_line(record, capsys, which, args, message):
     argv = ["stress-gauge", str(record[which]), "--density", "2700", "--free-edge",
