@@ -592,3 +592,20 @@ def test_a_replaced_result_is_saved_with_its_own_maps(result_file, tmp_path):
     with pytest.raises(ValueError, match=r"result\.u must be a"):
         dataclasses.replace(res, u=np.concatenate([u, u[:1]])).save(tmp_path / "x.h5")
     assert not (tmp_path / "x.h5").exists()
+
+
+def test_noise_floor_table_keeps_its_columns_under_long_state_names(result_file):
+    from gridstrain.cli._summary import report_lines
+
+    _, res = result_file
+    # a camera's file names, longer than the 9 characters the column once had
+    named = dataclasses.replace(res, names=("reference", *(f"frame{k:06d}" for k in
+                                                           range(1, len(STRAINS) + 1))))
+    lines = report_lines(named)
+    start = next(i for i, line in enumerate(lines) if line.startswith("noise floor"))
+    head = lines[start]
+    rows = [line for line in lines[start + 1:start + 9] if re.search(r"\de-\d\d", line)]
+    assert len(rows) >= 4
+    # every row's first number starts at the same column, one after "u_x px" begins
+    cols = {re.search(r"\d\.\d\de-\d\d", line).start() for line in rows}
+    assert cols == {head.index("u_x px") + 1}, (head, rows)
