@@ -215,3 +215,8 @@ def test_report_state_table_says_displacements_in_the_maps_unit(tested):
     v = np.asarray(res.valid[0])
     # the oracle: the mean of the valid pixels of state 0's u_x, px to mm, 4 digits
     assert f"{float(np.mean(np.asarray(res.ux[0])[v])) * 0.05:.4g}" in _text(table)
+    # numbers in a µε column without an exponent: a noise floor of 834 µε reads 830
+    assert "e+" not in _text(table)
+    from gridstrain.post._report import _micro
+
+    assert (_micro(8.34e-4), _micro(1.26e-5), _micro(float("nan"))) == ("830", "13", "–")

@@ -109,6 +109,13 @@ def _num(x, spec: str = ".3g") -> str:
     return "–" if not math.isfinite(v) else format(v, spec)
 
 
+def _micro(x) -> str:
+    """A noise floor in µε to two significant digits, without an exponent (830, not
+    8.3e+02, in a column headed µε)."""
+    text = _num(x * 1e6 if x is not None else None, ".2g")
+    return text if text == "–" else f"{float(text):g}"
+
+
 def _table(header, rows, left=(0,)) -> dict:
     """A table for the template; the columns ``left`` hold text."""
     return {"header": list(header), "rows": [[str(c) for c in r] for r in rows],
@@ -436,8 +443,7 @@ def _states_section(result, ps=None, unit=None) -> dict:
         v = np.asarray(result.valid[i])
         means = [float(np.mean(np.asarray(result.get_map(k)[i])[v])) if v.any()
                  else math.nan for k in MAP_FIELDS]
-        noise = [_num(t * 1e6, ".2g") + (f" / {_num(h * 1e6, '.2g')}"
-                                         if math.isfinite(float(h)) else "")
+        noise = [_micro(t) + (f" / {_micro(h)}" if math.isfinite(float(h)) else "")
                  for t, h in zip(nf.theory_strain[i], nf.split_strain[i], strict=True)]
         pair = pairs.get(name)
         rows.append([name, "–" if time is None else _num(time[i], ".4g"),
