@@ -283,6 +283,49 @@ def test_history_of_an_mm_gauge_is_the_px_one(result_file):
                     atol=5 * float(np.max(mm.exx_rate_std)))
 
 
+def test_history_of_a_result_by_the_rule_of_places(result_file):
+    _, res = result_file
+    # places and velocities on the result itself, in its unit: the gauge's history
+    h = history(res, region=REGION_MM, unit="mm", window=5, finite=True)
+    g = history(gauge(res, region=REGION_MM, unit="mm", finite=True), window=5,
+                unit="mm", finite=True)
+    assert_array_equal(h.vx, g.vx)
+    assert_array_equal(h.gl_xx, g.gl_xx)
+    assert h.unit == "mm"
+    # the same pixels read in px: velocities PS times smaller (to rounding)
+    assert_allclose(history(res, region=_mm_to_px(REGION_MM), px=True, window=5).vx,
+                    h.vx / PS, rtol=1e-12)
+    # the imposed stretch's Green-Lagrange strain e + e^2 / 2 (exact for the uniaxial
+    # Lagrangian stretch of the generator), within 5 std of the smoothed reading
+    e = np.array(STRAINS)
+    assert np.all(np.abs(h.gl_xx - (e + e**2 / 2)) < 5 * h.gl_xx_std)
+    assert np.all(np.abs(h.gl_yy - (-NU * e + (NU * e) ** 2 / 2)) < 5 * h.gl_yy_std)
+    # a velocity without its unit on a result with a pixel size: refused
+    with pytest.raises(ValueError, match=r"do not say their unit.*unit='mm'"):
+        history(res, window=5)
+    with pytest.raises(ValueError, match=r"does not say its unit"):
+        history(res, region=REGION_MM, window=5)
+
+
+def test_cli_history_finite(result_file, tmp_path, capsys):
+    path, res = result_file
+    code, out, err = _run(["history", path, "--region", *REGION_MM, "--window", 5,
+                           "--finite", "--strain-units", "%", "-o", tmp_path / "h.csv"],
+                          capsys)
+    assert code == 0, err
+    lines = out.splitlines()
+    assert "gl_xx [%]" in lines[1], lines[1]
+    assert "vx [mm/s]" in lines[1], lines[1]
+    want = history(res, region=REGION_MM, unit="mm", window=5, finite=True)
+    rows = _csv_rows(tmp_path / "h.csv")
+    # the CSV's 10 digits
+    assert_allclose([float(r["gl_xx [-]"]) for r in rows], want.gl_xx, rtol=1e-9)
+    assert_allclose([float(r["log_yy_rate [1/s]"]) for r in rows], want.log_yy_rate,
+                    rtol=1e-9)
+    # the table in percent: the first state's gl_xx to 1e-5 %
+    assert f"{want.gl_xx[0] * 100:.5f}" in lines[2]
+
+
 def _curves(fig):
     return [np.asarray(line.get_ydata()) for line in fig.axes[0].lines
             if len(line.get_ydata()) == len(STRAINS)]
@@ -303,7 +346,14 @@ def test_plot_history_mm_and_px(result_file):
     ux_px = plot_history(res, point=(125, 100), names=("ux", "ux_std"), px=True)
     for a, b in zip(_curves(ux_mm), _curves(ux_px), strict=True):
         assert_allclose(a, b * PS, rtol=1e-12)
-    assert ux_mm.axes[0].get_ylabel() == "(mm)"
+    assert ux_mm.axes[0].get_ylabel() == "displacement (mm)"
+    # the axis says what it draws, in the unit drawn
+    assert mm.axes[0].get_ylabel() == "strain (µε)"
+    pct = plot_history(res, region=REGION_MM, unit="mm", names=("gl_xx",), microstrain="%")
+    assert pct.axes[0].get_ylabel() == "strain (%)"
+    # a strain and a displacement on one axis would be read against one label: refused
+    with pytest.raises(ValueError, match=r"share one unit.*exx \(µε\), ux \(mm\)"):
+        plot_history(res, region=REGION_MM, unit="mm", names=("exx", "ux"))
     assert_allclose(_curves(ux_mm)[0], np.asarray(res.ux[:, 100, 125]) * PS, rtol=1e-12)
     # a quantity outside the gauge (the rotation) on the same pixels
     rot_mm = plot_history(res, point=(5.0, 4.0), names=("rotation",), pixel_size=PS,
@@ -542,3 +592,20 @@ def test_a_replaced_result_is_saved_with_its_own_maps(result_file, tmp_path):
     with pytest.raises(ValueError, match=r"result\.u must be a"):
         dataclasses.replace(res, u=np.concatenate([u, u[:1]])).save(tmp_path / "x.h5")
     assert not (tmp_path / "x.h5").exists()
+
+
+def test_noise_floor_table_keeps_its_columns_under_long_state_names(result_file):
+    from gridstrain.cli._summary import report_lines
+
+    _, res = result_file
+    # a camera's file names, longer than the 9 characters the column once had
+    named = dataclasses.replace(res, names=("reference", *(f"frame{k:06d}" for k in
+                                                           range(1, len(STRAINS) + 1))))
+    lines = report_lines(named)
+    start = next(i for i, line in enumerate(lines) if line.startswith("noise floor"))
+    head = lines[start]
+    rows = [line for line in lines[start + 1:start + 9] if re.search(r"\de-\d\d", line)]
+    assert len(rows) >= 4
+    # every row's first number starts at the same column, one after "u_x px" begins
+    cols = {re.search(r"\d\.\d\de-\d\d", line).start() for line in rows}
+    assert cols == {head.index("u_x px") + 1}, (head, rows)

@@ -90,8 +90,8 @@ def test_export_writes_every_format_with_loads_times_and_derived_strains(stored,
         assert set(rows["time [s]"]) == {TIMES[k]}
         x, y = rows["x [px]"].to_numpy(), rows["y [px]"].to_numpy()
         # 7 significant digits: 5e-7 relative (5e-10 on these 1e-3 strains)
-        assert_allclose(rows["exx [1]"], res.exx[k][y, x], rtol=5e-7, atol=0)
-        assert_allclose(rows["e1 [1]"], e1[k][y, x], rtol=5e-7, atol=0)
+        assert_allclose(rows["exx [-]"], res.exx[k][y, x], rtol=5e-7, atol=0)
+        assert_allclose(rows["e1 [-]"], e1[k][y, x], rtol=5e-7, atol=0)
         assert_allclose(rows["ux [mm]"], res.ux[k][y, x] * 0.02, rtol=5e-7, atol=0)
 
     xr = pytest.importorskip("xarray")
@@ -240,11 +240,11 @@ def test_every_export_carries_the_finite_strains_and_their_std(stored, tmp_path)
     assert m["log_xy_std"].shape == (N, N, 2)
     pd = pytest.importorskip("pandas")
     df = pd.read_csv(f"{prefix}.csv", keep_default_na=False)
-    for col in ("gl_xx [1]", "log_yy [1]", "gl_xy_std [1]", "rotation_std [rad]"):
+    for col in ("gl_xx [-]", "log_yy [-]", "gl_xy_std [-]", "rotation_std [rad]"):
         assert col in df.columns
     rows = df[df["state"] == NAMES[1]]
     x, y = rows["x [px]"].to_numpy(), rows["y [px]"].to_numpy()
-    assert_allclose(rows["gl_yy [1]"], gl["gl_yy"][0][y, x], rtol=5e-7, atol=1e-13)
+    assert_allclose(rows["gl_yy [-]"], gl["gl_yy"][0][y, x], rtol=5e-7, atol=1e-13)
     _, root = _field_data(tmp_path / "f_vti" / "state_00000.vti")
     # float32 for viewing: 6e-8 relative of 1e-3 strains
     assert_allclose(_point_array(root, "gl_xy [-]"), -gl["gl_xy"][0], atol=1e-9)

@@ -417,3 +417,26 @@ def test_identify_result_and_command(beam_file, tmp_path, capsys):
     assert "error:" in err
     assert main([*args, "--stress-out", str(stress)]) == 2  # exists, no --overwrite
     assert len(capsys.readouterr().err.strip().splitlines()) == 1
+
+
+def test_identify_uses_the_result_s_own_pixel_size(beam_file):
+    res, _, _ = beam_file  # measured here: no pixel size of its own
+    own = dataclasses.replace(res, pixel_size=PIXEL, unit="mm")
+    kw = {"thickness": THICKNESS, "loaded_edge": "left", "load_direction": "y",
+          "load": LOADS, "load_unit": "N"}
+    given = identify(res, pixel_size=PIXEL, unit="mm", **kw)
+    fit = identify(own, **kw)
+    # the same lengths: the same E to the last digit, in MPa (N and mm)
+    assert fit.E == given.E
+    assert (fit.pixel_size, fit.unit, fit.stress_unit) == (PIXEL, "mm", "MPa")
+    # another pixel size or unit: refused in one line naming both, before any work
+    for ps, unit in ((PIXEL * 1.01, "mm"), (PIXEL / 1000, "m")):
+        with pytest.raises(ValueError, match=rf"pixel_size={ps:g} {unit} disagrees with "
+                                             rf"this result's own \({PIXEL:g} mm\)") as e:
+            identify(own, pixel_size=ps, unit=unit, **kw)
+        assert "\n" not in str(e.value)
+        assert "px=True" not in str(e.value)  # identify names no place in px
+    # a result without one, and none given: refused, saying how to give it
+    with pytest.raises(ValueError, match="identify needs the pixel size, and this result "
+                                         "carries none"):
+        identify(res, **kw)

@@ -199,7 +199,7 @@ def test_derived_strains_drawn_in_percent_and_degrees(sheared):
 
     p = gauge(res).principal_strains()
     assert_allclose(line.get_ydata(), 100 * p.e1, rtol=1e-12)
-    assert fig.axes[0].get_ylabel() == "(%)"
+    assert fig.axes[0].get_ylabel() == "strain (%)"
     # the truth, e1 of the applied tensor (1.58e-3 s), within 4 stated std (2.7e-4 on
     # the 530 valid pixels of two 2-frame 64 px states: e1 follows exx here)
     truth = np.array([1.0, 2.0]) * (0.5e-3 + np.hypot(1.0e-3, 0.4e-3))

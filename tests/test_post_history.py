@@ -3,9 +3,11 @@ derivatives of a gauge's readings, with their std."""
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
-from scipy.signal import savgol_filter
+from scipy.signal import savgol_coeffs, savgol_filter
 
 from gridstrain.post import GaugeReading, history
 
@@ -78,3 +80,84 @@ def test_uneven_or_missing_times_are_refused():
         history(_reading(x, x, s, None))
     with pytest.raises(ValueError, match="window must be odd"):
         history(_reading(x, x, s), window=4)
+
+
+def _stretch_reading(t, lx, ly, s):
+    """A gauge under the uniform stretch ``(lx(t), ly(t))`` without rotation: the
+    Lagrangian gradient is ``diag(lx - 1, ly - 1)``, each of its four components with
+    the std ``s``."""
+    n = t.size
+    z = np.zeros(n)
+    std = np.full(n, s)
+    return GaugeReading(
+        states=tuple(f"s{i}" for i in range(n)), where="test", n_pixels=np.ones(n, int),
+        exx=lx - 1, exx_std=std, eyy=ly - 1, eyy_std=std, exy=z, exy_std=std,
+        ux=z, ux_std=std, uy=z, uy_std=std, time=t, rotation=z, rotation_std=std,
+        gradient_std=np.tile(std[:, None], (1, 4)), pixel_size=0.05, unit="mm")
+
+
+def test_finite_strain_history_of_a_uniform_stretch_is_exact():
+    # a 30 % stretch ramped along x, an exponential one along y: the Green-Lagrange
+    # xx strain (lx^2 - 1) / 2 = a t + a^2 t^2 / 2 is quadratic in time and the
+    # logarithmic yy strain ln ly = b t linear, so the order-2 filter reproduces both
+    # and their rates exactly (to rounding, 1e-9 of the strains)
+    t = T - T[0]
+    a, b = 0.3 / t[-1], -0.1 / t[-1]
+    lx, ly = 1 + a * t, np.exp(b * t)
+    s = 1e-5
+    h = history(_stretch_reading(t + 1.0, lx, ly, s), window=7, order=2, unit="mm",
+                finite=True)
+    assert_allclose = np.testing.assert_allclose
+    assert_allclose(h.gl_xx, a * t + a**2 * t**2 / 2, rtol=0, atol=1e-12)
+    assert_allclose(h.gl_xx_rate, a + a**2 * t, rtol=1e-9)
+    assert_allclose(h.log_yy, b * t, rtol=0, atol=1e-12)
+    assert_allclose(h.log_yy_rate, b, rtol=1e-9)
+    assert_allclose(h.gl_xy, 0.0, atol=1e-15)
+    # at 30 % the small strain misses the Green-Lagrange one by a^2 t^2 / 2 = 4.5 %
+    assert h.exx[-1] < 0.96 * h.gl_xx[-1]
+    # the std: the Green-Lagrange xx strain moves by lx per unit du_x/dx (first
+    # order), so its rate's std is that of scipy's derivative weights on lx * s
+    w = savgol_coeffs(7, 2, deriv=1, delta=0.002, use="dot")
+    i = N // 2
+    assert_allclose(h.gl_xx_rate_std[i], s * np.sqrt(np.sum((w * lx[i - 3:i + 4]) ** 2)),
+                    rtol=1e-9)
+    cols = h.columns()
+    assert cols["gl_xx_rate [1/s]"] is h.gl_xx_rate
+    assert cols["log_yy_std [-]"] is h.log_yy_std
+    # without finite, no finite column
+    plain = history(_stretch_reading(t + 1.0, lx, ly, s), window=7, unit="mm")
+    assert plain.gl_xx is None
+    assert "gl_xx [-]" not in plain.columns()
+
+
+def test_velocities_say_their_unit_by_the_rule_of_places():
+    t = T - T[0]
+    ux = 3.0 + 20.0 * t  # px
+    z = np.zeros(N)
+    r = dataclasses.replace(_reading(z, ux, np.full(N, 1e-5)), pixel_size=0.05,
+                            unit="mm")
+    mm = history(r, unit="mm")
+    assert mm.unit == "mm"
+    np.testing.assert_allclose(mm.vx, 20.0 * 0.05, rtol=1e-9)
+    px = history(r, px=True)
+    assert px.unit == "px"
+    np.testing.assert_allclose(px.vx, 20.0, rtol=1e-9)
+    # the result's own pixel size given again is accepted
+    np.testing.assert_array_equal(history(r, pixel_size=0.05, unit="mm").vx, mm.vx)
+    # without either: refused, since the call once gave px/s
+    with pytest.raises(ValueError, match=r"do not say their unit.*unit='mm'.*px=True"):
+        history(r)
+    with pytest.raises(ValueError, match=r"pixel_size=0.04 mm disagrees .* \(0.05 mm\)"):
+        history(r, pixel_size=0.04, unit="mm")
+    with pytest.raises(ValueError, match="length unit 'mm'"):
+        history(r, unit="um")
+    with pytest.raises(ValueError, match="px=True gives the velocities in px/s"):
+        history(r, px=True, unit="mm")
+    # a reading of a result without a pixel size: px, as before
+    assert history(_reading(z, ux, np.full(N, 1e-5))).unit == "px"
+    # a place needs the result, not a reading
+    with pytest.raises(TypeError, match="region name a place on a result"):
+        history(r, unit="mm", region=(0, 0, 1, 1))
+    # finite strains need the gauge's rotation
+    with pytest.raises(ValueError, match=r"gauge\(\.\.\., finite=True\)"):
+        history(r, unit="mm", finite=True)

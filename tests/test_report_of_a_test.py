@@ -3,6 +3,7 @@ in plain values; the maps' colour limits come from the signal (robust percentile
 
 from __future__ import annotations
 
+import dataclasses
 import html
 import re
 
@@ -200,3 +201,22 @@ def test_report_of_several_gauges_side_by_side(tested, tmp_path):
         d = max(0, 1 - int(np.floor(np.log10(sd))))
         assert f"{v:.{d}f} ± {sd:.{d}f}" in text
     assert "G1, gauge over x in [20, 48)" in " ".join(text.split())
+
+
+def test_report_state_table_says_displacements_in_the_maps_unit(tested):
+    # the maps and the histories draw displacements in mm on a result with a pixel
+    # size: the per-state table says the same unit, with the same numbers
+    res = dataclasses.replace(load(tested), pixel_size=0.05, unit="mm")
+    page = render_report(res)
+    table = next(t for t in re.findall(r"<table>(.*?)</table>", page, flags=re.S)
+                 if "mean ε_xx" in t)
+    assert "mean u_x (mm)" in table
+    assert "(px)" not in table
+    v = np.asarray(res.valid[0])
+    # the oracle: the mean of the valid pixels of state 0's u_x, px to mm, 4 digits
+    assert f"{float(np.mean(np.asarray(res.ux[0])[v])) * 0.05:.4g}" in _text(table)
+    # numbers in a µε column without an exponent: a noise floor of 834 µε reads 830
+    assert "e+" not in _text(table)
+    from gridstrain.post._report import _micro
+
+    assert (_micro(8.34e-4), _micro(1.26e-5), _micro(float("nan"))) == ("830", "13", "–")

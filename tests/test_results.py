@@ -256,8 +256,8 @@ def test_csv_export_units_in_header_and_values(result, tmp_path):
     path = save_csv(result, tmp_path / "r.csv", pixel_size=0.02, unit="mm")
     df = pd.read_csv(path)
     assert list(df.columns[:10]) == ["state", "x [px]", "y [px]", "x [mm]", "y [mm]",
-                                     "ux [px]", "ux [mm]", "uy [px]", "uy [mm]", "exx [1]"]
-    assert "exx_std [1]" in df.columns
+                                     "ux [px]", "ux [mm]", "uy [px]", "uy [mm]", "exx [-]"]
+    assert "exx_std [-]" in df.columns
     assert len(df) == int(result.valid.sum())
     assert set(df["state"]) == set(result.names[1:])  # the states' names
     s1 = df[df["state"] == result.names[2]]
@@ -265,7 +265,7 @@ def test_csv_export_units_in_header_and_values(result, tmp_path):
     # 7 significant digits: half a unit of the 7th digit is at most 5e-7 relative,
     # 2e-9 on these 4e-3 strains and 1e-7 px on sub-pixel displacements, far below
     # any noise floor (1e-5 strain, 1e-3 px)
-    assert_allclose(s1["exx [1]"], result.exx[1][y, x], rtol=5e-7, atol=0)
+    assert_allclose(s1["exx [-]"], result.exx[1][y, x], rtol=5e-7, atol=0)
     assert_allclose(s1["ux [mm]"], result.ux[1][y, x] * 0.02, rtol=5e-7, atol=0)
     assert_allclose(s1["x [mm]"], x * 0.02, rtol=5e-7)
     # and much smaller than the shortest round-trip decimals of every float64

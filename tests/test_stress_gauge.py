@@ -381,6 +381,8 @@ def test_command_prints_E_and_writes_the_curves(record, tmp_path, capsys):
     ("nopix", [], "has no pixel size"),
     ("good", ["--free-edge", "front"], "invalid choice: 'front'"),
     ("good", ["--density", "-5"], "density"),
+    # the filter's window longer than the record: named by the option that sets it
+    ("good", ["--smoothing", "99", "4"], "--smoothing WINDOW ORDER: window must be odd"),
 ])
 def test_command_errors_are_one_line(record, capsys, which, args, message):
     argv = ["stress-gauge", str(record[which]), "--density", "2700", "--free-edge",
@@ -393,3 +395,26 @@ def test_command_errors_are_one_line(record, capsys, which, args, message):
     assert rc == 2
     assert message in err, err
     assert len(err.strip().splitlines()) == 1, err
+
+
+def test_the_result_s_own_pixel_size_is_used_and_another_refused(record):
+    bare = record["result"]  # measured here: no pixel size of its own
+    res = dataclasses.replace(bare, pixel_size=record["ps"], unit="mm")
+    given = stress_gauge_of(bare, density=RHO, free_edge="left", pixel_size=record["ps"],
+                            unit="mm")
+    own = stress_gauge_of(res, density=RHO, free_edge="left")
+    assert own.E == given.E
+    assert own.unit == "mm"
+    np.testing.assert_array_equal(own.distance, given.distance)
+    # its own given again, as typed from 6 printed digits: the same, to the last digit
+    again = stress_gauge_of(res, density=RHO, free_edge="left",
+                            pixel_size=record["ps"] * (1 + 2e-6), unit="mm")
+    assert again.E == own.E
+    # another: refused in one line naming both, before any work
+    for ps, unit in ((0.25, "mm"), (3e-4, "m")):
+        with pytest.raises(ValueError, match=rf"pixel_size={ps:g} {unit} disagrees with "
+                                             r"this result's own \(0.3 mm\)") as info:
+            stress_gauge_of(res, density=RHO, free_edge="left", pixel_size=ps, unit=unit)
+        assert "\n" not in str(info.value)
+    with pytest.raises(ValueError, match="length unit 'mm'"):
+        stress_gauge_of(res, density=RHO, free_edge="left", unit="m")

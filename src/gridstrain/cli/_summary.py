@@ -99,11 +99,14 @@ def report_lines(result: SeriesResult, *, pixel_size: float | None = None,
     if single:
         lines.append(f"  {len(single)} series of one frame: no vibration to measure")
     nf = result.noise
-    lines += ["", "noise floor (1 std at a pixel)            u_x px    u_y px    e_xx      "
-              "e_yy      e_xy"]
     empty = [i for i in range(result.n_states) if not result.valid[i].any()] \
         if record else []
     shown, note = _listed(result.n_states, empty)
+    # the state names' column as wide as the longest shown (frame000001: 11), so that
+    # the numbers stay under their heads
+    w = max([9, *(len(result.names[i + 1]) for i in shown)])
+    lines += ["", f"{'noise floor (1 std at a pixel)':<{w + 33}}u_x px    u_y px    e_xx"
+              "      e_yy      e_xy"]
     for i in shown:
         given = (nf.model or {}).get("source", "").startswith("given")
         theory = "theory, given camera model" if given else "theory, measured sensor noise"
@@ -117,7 +120,7 @@ def report_lines(result: SeriesResult, *, pixel_size: float | None = None,
             rows.append(("uncertainty maps, median", med[:2], med[2:]))
         rows.append(("vibration offset (rigid)", nf.vibration_u[i], None))
         for k, (name, u, e) in enumerate(rows):
-            head = f"  {result.names[i + 1] if k == 0 else '':<9} {name:<30}"
+            head = f"  {result.names[i + 1] if k == 0 else '':<{w}} {name:<30}"
             es = "  ".join(f"{_fmt(x):<8}" for x in e) if e is not None else \
                 "-         -         -"
             lines.append(f"{head} {_fmt(u[0]):<8}  {_fmt(u[1]):<8}  {es}")

@@ -76,9 +76,15 @@ def run(args) -> int:
                          "--frame-rate HZ")
     edge = None if args.edge_at is None else args.edge_at / ps
     window, order = args.smoothing
-    g = stress_gauge_of(result, density=args.density, free_edge=args.free_edge,
-                        pixel_size=ps, unit=unit, edge=edge, window=window, order=order,
-                        strain_floor=args.strain_floor)
+    try:
+        g = stress_gauge_of(result, density=args.density, free_edge=args.free_edge,
+                            pixel_size=ps, unit=unit, edge=edge, window=window,
+                            order=order, strain_floor=args.strain_floor)
+    except ValueError as exc:
+        # the filter's window and order are --smoothing's two numbers here
+        if str(exc).startswith(("window ", "order ")):
+            raise ValueError(f"--smoothing WINDOW ORDER: {exc}") from None
+        raise
     if curves is not None:
         from ..io import write_csv
 

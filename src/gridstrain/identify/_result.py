@@ -6,8 +6,8 @@ from __future__ import annotations
 import numpy as np
 from scipy import ndimage
 
-from .._validation import check_pixel_size, check_type
-from ..post import frame_of, place_mask, refuse_empty, strain_noise_correlation
+from .._validation import check_type
+from ..post import frame_of, own_length, place_mask, refuse_empty, strain_noise_correlation
 from ..results import SeriesResult
 from ._identify import VirtualFields, virtual_fields
 
@@ -56,7 +56,8 @@ def _region_mask(shape, ps, unit, region):
 
 
 def identify(result: SeriesResult, *, thickness: float, loaded_edge: str,
-             load_direction: str, pixel_size: float, unit: str, load=None,
+             load_direction: str, pixel_size: float | None = None,
+             unit: str | None = None, load=None,
              load_unit: str | None = None, region=None, elements=None) -> VirtualFields:
     """Young's modulus and Poisson's ratio of a measured result by the virtual fields
     method (:func:`virtual_fields` on its maps).
@@ -69,10 +70,12 @@ def identify(result: SeriesResult, *, thickness: float, loaded_edge: str,
         The specimen's thickness, ``unit``.
     loaded_edge : {"left", "right", "top", "bottom"}
     load_direction : {"x", "y"}
-    pixel_size : float
-    unit : str
-        The length unit of ``pixel_size``, ``thickness`` and ``region`` (the result
-        file's own: :func:`gridstrain.results.read_attrs`).
+    pixel_size : float, optional
+    unit : str, optional
+        The length unit of ``pixel_size``, ``thickness`` and ``region``. Default: the
+        result's own (:attr:`SeriesResult.pixel_size`, :attr:`SeriesResult.unit`);
+        given, they must be its own (a pixel size typed from a printed one, within
+        1e-5, is): another is refused naming both, since it would scale E.
     load : (n_states,) array_like, optional
         The loads, ``load_unit`` (default: the result's own). A leading value for the
         reference is dropped.
@@ -108,10 +111,12 @@ def identify(result: SeriesResult, *, thickness: float, loaded_edge: str,
         the field's extent in ``unit``).
     """
     check_type(result, "result", SeriesResult)
-    ps, unit = check_pixel_size(pixel_size, unit)
+    ps, unit = own_length(result.pixel_size, result.unit, pixel_size=pixel_size,
+                          unit=unit, px_too=False)
     if ps is None:
-        raise ValueError("identify needs the pixel size (the result's, or measure "
-                         "--pixel-size): moduli need lengths")
+        raise ValueError("identify needs the pixel size, and this result carries none: "
+                         "measure with --pixel-size SIZE --unit mm, or give pixel_size= "
+                         "and unit=: moduli need lengths")
     unc = result.uncertainty
     if unc is None or any(f"{k}_std" not in unc for k in _STRAINS):
         raise ValueError("the result has no strain uncertainty maps (exx_std, eyy_std, "

@@ -727,8 +727,9 @@ def _free_edge_position(mask: np.ndarray, free_edge: str) -> float:
     return float(idx[0] - 0.5) if sign > 0 else float(idx[-1] + 0.5)
 
 
-def stress_gauge_of(result, *, density: float, free_edge: str, pixel_size: float,
-                    unit: str, edge: float | None = None, window: int = 9, order: int = 4,
+def stress_gauge_of(result, *, density: float, free_edge: str,
+                    pixel_size: float | None = None, unit: str | None = None,
+                    edge: float | None = None, window: int = 9, order: int = 4,
                     strip_fit: int | None = None, strain_floor: float = 0.1
                     ) -> StressGauge:
     """:func:`stress_gauge` on a measured impact record.
@@ -743,11 +744,13 @@ def stress_gauge_of(result, *, density: float, free_edge: str, pixel_size: float
     density : float
         kg/m^3.
     free_edge : {"left", "right", "top", "bottom"}
-    pixel_size : float
-        Size of a pixel in ``unit`` (the one stored in the result's file:
-        :func:`gridstrain.results.read_attrs`).
-    unit : str
-        One of :data:`METRES`.
+    pixel_size : float, optional
+        Size of a pixel in ``unit``. Default: the result's own
+        (:attr:`gridstrain.results.SeriesResult.pixel_size`); given, it must be its
+        own (within 1e-5: typed from a printed one): another is refused naming both,
+        since it would scale the stress.
+    unit : str, optional
+        One of :data:`METRES`; default: the result's own.
     edge : float, optional
         Position of the free edge along the axis, px. Default: the border of the
         result's specimen mask on that side (the image's border without a mask).
@@ -767,7 +770,7 @@ def stress_gauge_of(result, *, density: float, free_edge: str, pixel_size: float
     ValueError, TypeError
         A result without times or without a pixel size, and :func:`stress_gauge`'s.
     """
-    from ..post import reference_share
+    from ..post import own_length, reference_share
     from ..results import SeriesResult
 
     if not isinstance(result, SeriesResult):
@@ -776,10 +779,12 @@ def stress_gauge_of(result, *, density: float, free_edge: str, pixel_size: float
         raise ValueError("the result has no times: measure the impact record with "
                          "--each-frame --frame-rate HZ (each_frame=True, frame_rate=HZ), "
                          "or give a loads file with a 'time [s]' column")
-    if pixel_size is None or unit is None:
-        raise ValueError("the stress gauge needs the pixel size: measure with "
-                         "--pixel-size SIZE --unit mm (save_result(..., pixel_size=, "
-                         f"unit=)), got pixel_size={pixel_size!r}, unit={unit!r}")
+    pixel_size, unit = own_length(result.pixel_size, result.unit, pixel_size=pixel_size,
+                                  unit=unit, px_too=False)
+    if pixel_size is None:
+        raise ValueError("the stress gauge needs the pixel size, and this result carries "
+                         "none: measure with --pixel-size SIZE --unit mm, or give "
+                         "pixel_size= and unit=")
     free_edge = check_choice(free_edge, "free_edge", tuple(FREE_EDGES))
     axis, _ = FREE_EDGES[free_edge]
     comp = 0 if axis == "x" else 1

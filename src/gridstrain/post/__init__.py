@@ -27,7 +27,7 @@ from ._correlation import strain_noise_correlation
 from ._gauges import GaugeReading, gauge, reference_share
 from ._history import History, history
 from ._loads import read_loads
-from ._places import frame_of, place_mask, refuse_empty
+from ._places import frame_of, own_length, place_mask, refuse_empty
 from ._units import STRAIN_UNITS, strain_scale
 
 # public name -> private module that defines it, imported on first use
@@ -43,7 +43,7 @@ _LAZY = {
 
 __all__ = ["STRAIN_UNITS", "ElasticConstants", "GaugeReading", "History", "animate",
            "elastic_constants", "frame_of", "gauge", "history", "modulus_unit",
-           "place_mask", "read_loads", "refuse_empty",
+           "own_length", "place_mask", "read_loads", "refuse_empty",
            "reference_share", "strain_noise_correlation", "strain_scale", "stress_unit",
            *sorted(_LAZY)]
 

@@ -65,6 +65,12 @@ class GaugeReading:
     gradient_std : (n_states, 4) float64 ndarray or None
         Std of the mean ``du_x/dx``, ``du_x/dy``, ``du_y/dx``, ``du_y/dy``: what
         :meth:`finite_strains` propagates.
+    lagrangian : bool
+        Whether the result's strains are Lagrangian.
+    pixel_size, unit : float, str or None
+        The pixel size of the gauge's result and its length unit (None for a result
+        without one), whatever unit the place was named in: :func:`history` gives the
+        velocity in it.
     """
 
     states: tuple[str, ...]
@@ -91,6 +97,8 @@ class GaugeReading:
     rotation_std: np.ndarray | None = None
     gradient_std: np.ndarray | None = None
     lagrangian: bool = True
+    pixel_size: float | None = None
+    unit: str | None = None
 
     def __post_init__(self):
         freeze_arrays(self)
@@ -462,5 +470,6 @@ def gauge(result: SeriesResult, *, region=None, point=None, polygon=None,
         rotation=out["rotation"] if finite else None,
         rotation_std=std["rotation"] if finite else None,
         gradient_std=np.stack([std["exx"], std["uxy"], std["uyx"], std["eyy"]], axis=1)
-        if finite else None, lagrangian=bool(result.lagrangian))
+        if finite else None, lagrangian=bool(result.lagrangian),
+        pixel_size=result.pixel_size, unit=result.unit)
 

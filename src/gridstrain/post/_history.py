@@ -7,8 +7,10 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.signal import savgol_filter
 
-from .._validation import check_int, check_pixel_size, check_type, freeze_arrays
-from ._gauges import GaugeReading
+from .._validation import check_int, check_type, freeze_arrays
+from ..results import FINITE_FIELDS, SeriesResult
+from ._gauges import GaugeReading, gauge
+from ._places import own_length
 
 #: Largest departure of a time step from the mean step, relative: the
 #: Savitzky-Golay weights assume evenly spaced samples.
@@ -80,6 +82,11 @@ class History:
         Its acceleration, ``unit``/s^2.
     unit : str
         Length unit (px without a pixel size).
+    gl_xx, gl_yy, gl_xy, log_xx, log_yy, log_xy : ndarray or None
+        With ``finite``: the smoothed Green–Lagrange and logarithmic strains of the
+        gauge's mean displacement gradient (:meth:`GaugeReading.finite_strains`),
+        dimensionless, and their rates ``gl_xx_rate``... (1/s), each with its std;
+        else None.
     """
 
     states: tuple[str, ...]
@@ -107,9 +114,38 @@ class History:
     ax_std: np.ndarray
     ay: np.ndarray
     ay_std: np.ndarray
+    gl_xx: np.ndarray | None = None
+    gl_xx_std: np.ndarray | None = None
+    gl_yy: np.ndarray | None = None
+    gl_yy_std: np.ndarray | None = None
+    gl_xy: np.ndarray | None = None
+    gl_xy_std: np.ndarray | None = None
+    log_xx: np.ndarray | None = None
+    log_xx_std: np.ndarray | None = None
+    log_yy: np.ndarray | None = None
+    log_yy_std: np.ndarray | None = None
+    log_xy: np.ndarray | None = None
+    log_xy_std: np.ndarray | None = None
+    gl_xx_rate: np.ndarray | None = None
+    gl_xx_rate_std: np.ndarray | None = None
+    gl_yy_rate: np.ndarray | None = None
+    gl_yy_rate_std: np.ndarray | None = None
+    gl_xy_rate: np.ndarray | None = None
+    gl_xy_rate_std: np.ndarray | None = None
+    log_xx_rate: np.ndarray | None = None
+    log_xx_rate_std: np.ndarray | None = None
+    log_yy_rate: np.ndarray | None = None
+    log_yy_rate_std: np.ndarray | None = None
+    log_xy_rate: np.ndarray | None = None
+    log_xy_rate_std: np.ndarray | None = None
 
     def __post_init__(self):
         freeze_arrays(self)
+
+    @property
+    def finite(self) -> bool:
+        """Whether the finite strains were smoothed (``history(..., finite=True)``)."""
+        return self.gl_xx is not None
 
     def columns(self) -> dict[str, np.ndarray]:
         """The table, each column name followed by its unit in brackets."""
@@ -117,6 +153,9 @@ class History:
         units = {"exx": "-", "eyy": "-", "exy": "-", "exx_rate": "1/s", "eyy_rate": "1/s",
                  "exy_rate": "1/s", "vx": f"{u}/s", "vy": f"{u}/s", "ax": f"{u}/s2",
                  "ay": f"{u}/s2"}
+        if self.finite:
+            for name in FINITE_FIELDS:
+                units |= {name: "-", f"{name}_rate": "1/s"}
         cols: dict[str, np.ndarray] = {"state": np.array(self.states, dtype=str),
                                        "time [s]": self.time}
         for name, unit in units.items():
@@ -131,22 +170,37 @@ class History:
         return write_csv(path, self.columns(), overwrite=overwrite, digits=10)
 
 
-def history(reading: GaugeReading, *, window: int = 5, order: int = 2,
-            pixel_size: float | None = None, unit: str | None = None) -> History:
+def history(reading, *, window: int = 5, order: int = 2,
+            pixel_size: float | None = None, unit: str | None = None, px: bool = False,
+            finite: bool = False, **places) -> History:
     """Smoothed strains, strain rates, velocity and acceleration of a gauge over time.
 
     Parameters
     ----------
-    reading : GaugeReading
-        With the states' times (:func:`gauge`'s ``time``), evenly spaced (within
-        0.1 % of the mean step).
+    reading : GaugeReading or SeriesResult
+        A gauge's readings (:func:`gauge`), with the states' times, evenly spaced
+        (within 0.1 % of the mean step); or a result, read here by :func:`gauge` with
+        ``places`` (``region=``, ``point=``, ``polygon=``, ``load=``, ``time=``...),
+        ``unit``, ``pixel_size``, ``px`` and ``finite``.
     window : int
         States in the Savitzky-Golay window: odd, more than ``order``, at most the
         number of states.
     order : int
         Degree of the fitted polynomial, at least 2 (for the acceleration).
     pixel_size, unit : float, str, optional
-        Velocity and acceleration in ``unit`` (px without).
+        The velocity and acceleration in ``unit``: the gauge's result's own length
+        unit (``"mm"``, :attr:`GaugeReading.unit`), whose pixel size is used; with
+        ``pixel_size`` too, for a reading whose result carries none (one that carries
+        another is refused, naming both).
+    px : bool
+        The velocity and acceleration in px (and, for a result, the places in px).
+        A reading whose result has a pixel size must say which (``unit=`` or
+        ``px=True``): without either the call is refused, naming both, since it once
+        gave px/s and the command line gives the file's unit. Without a pixel size,
+        px.
+    finite : bool
+        Also smooth and differentiate the Green–Lagrange and logarithmic strains
+        (:meth:`GaugeReading.finite_strains`; a reading taken with ``finite=True``).
 
     Returns
     -------
@@ -161,12 +215,22 @@ def history(reading: GaugeReading, *, window: int = 5, order: int = 2,
     (sum_j w_j sqrt(f_j) s_j)^2``. The common part cancels in a derivative (its
     weights sum to zero) and stays whole in the smoothed strain. Without the
     share, the states are taken as independent, which overstates the std of a
-    derivative by up to sqrt(2).
+    derivative by up to sqrt(2). The finite strains' std are propagated the same
+    way, their first-order std (:func:`gridstrain.kinematics.finite_strains`) split
+    by the same share: to first order they are linear in the displacement gradient,
+    whose noise is shared alike.
     """
+    finite = check_type(finite, "finite", bool)
+    if isinstance(reading, SeriesResult):
+        reading = gauge(reading, pixel_size=pixel_size, unit=unit, px=px, finite=finite,
+                        **places)
+    elif places:
+        raise TypeError(f"{', '.join(sorted(places))} name a place on a result: give "
+                        "them to gauge(), or give history() the result itself")
     check_type(reading, "reading", GaugeReading)
     window = check_int(window, "window", minimum=3)
     order = check_int(order, "order", minimum=2)
-    ps, unit = check_pixel_size(pixel_size, unit)
+    ps, unit = _velocity_length(reading, pixel_size=pixel_size, unit=unit, px=px)
     t = reading.time
     if t is None:
         raise ValueError("the gauge has no times: give them (--loads FILE.csv with a "
@@ -182,9 +246,14 @@ def history(reading: GaugeReading, *, window: int = 5, order: int = 2,
                          f"(steps from {dt.min():.6g} to {dt.max():.6g} s)")
     s = 1.0 if ps is None else ps
     f = reading.reference_share
+    strains = {name: (getattr(reading, name), getattr(reading, f"{name}_std"))
+               for name in ("exx", "eyy", "exy")}
+    if finite:
+        fs = reading.finite_strains()  # refused, saying why, without the rotation
+        strains |= {name: (getattr(fs, attr), _std(getattr(fs, f"{attr}_std"), n))
+                    for name, attr in FINITE_FIELDS.items()}
     out = {}
-    for name in ("exx", "eyy", "exy"):
-        x, e = getattr(reading, name), getattr(reading, f"{name}_std")
+    for name, (x, e) in strains.items():
         out[name], out[f"{name}_std"] = _apply(x, e, window, order, 0, step, f)
         out[f"{name}_rate"], out[f"{name}_rate_std"] = _apply(x, e, window, order, 1, step,
                                                               f)
@@ -194,3 +263,27 @@ def history(reading: GaugeReading, *, window: int = 5, order: int = 2,
         out[f"a{comp}"], out[f"a{comp}_std"] = _apply(x, e, window, order, 2, step, f)
     return History(states=reading.states, time=t, window=window, order=order,
                    unit=unit or "px", **out)
+
+
+def _std(value, n):
+    """A std that may be None (no uncertainty maps) as NaN: the readings' convention."""
+    return np.full(n, np.nan) if value is None else np.asarray(value, dtype=np.float64)
+
+
+def _velocity_length(reading, *, pixel_size, unit, px):
+    """``(pixel_size, unit)`` of the velocities, ``(None, None)`` for px: the rule of
+    places (:func:`gridstrain.post._places.result_frame`) on the reading's result."""
+    own_ps, own_unit = reading.pixel_size, reading.unit
+    if check_type(px, "px", bool):
+        if pixel_size is not None or unit is not None:
+            raise ValueError(f"px=True gives the velocities in px/s: give it without "
+                             f"pixel_size and unit, got pixel_size={pixel_size!r}, "
+                             f"unit={unit!r}")
+        return None, None
+    if pixel_size is None and unit is None and own_ps is not None:
+        raise ValueError(
+            f"the velocities do not say their unit, and this gauge's result has a pixel "
+            f"size ({own_ps:g} {own_unit}): write unit={own_unit!r} for {own_unit}/s, as "
+            "the command line gives them, or px=True for px/s")
+    return own_length(own_ps, own_unit, pixel_size=pixel_size, unit=unit,
+                      what="this gauge's result")

@@ -107,25 +107,48 @@ def result_frame(result, *, pixel_size: float | None = None, unit: str | None = 
                     f"it in {own_unit}, as the command line reads it, or px=True for "
                     "pixels")
         return Frame(shape, own_ps, own_unit)
+    ps, u = own_length(own_ps, own_unit, pixel_size=pixel_size, unit=unit)
+    return Frame(shape, ps, u)
+
+
+def own_length(own_ps: float | None, own_unit: str | None, *,
+               pixel_size: float | None = None, unit: str | None = None,
+               what: str = "this result", px_too: bool = True
+               ) -> tuple[float | None, str | None]:
+    """``(pixel_size, unit)`` of a call on something that carries its own (a result, a
+    gauge's reading; ``own_ps`` None when it carries none).
+
+    None given: its own. ``unit`` alone: it must be its own unit, with its own pixel
+    size. Both: for one that carries none, those; else they must be its own (a size
+    typed from a printed one, within ``1e-5``, is, and its own is used): one that
+    contradicts it is refused
+    naming both, since a length scale taken from the call would silently change every
+    length and modulus that follows. ``px_too``: the messages offer ``px=True`` (a call
+    that can name px).
+    """
+    alt = ", or px=True for pixels" if px_too else ""
+    if pixel_size is None and unit is None:
+        return own_ps, own_unit
     if pixel_size is None:
         if own_ps is None:
-            raise ValueError(f"unit={unit!r} needs a pixel size, and this result carries "
+            raise ValueError(f"unit={unit!r} needs a pixel size, and {what} carries "
                              "none (measured without --pixel-size or --grid-pitch): give "
-                             "pixel_size= with it, or name the place in px")
+                             f"pixel_size= with it{alt}")
         if not isinstance(unit, str) or unit.strip() != own_unit:
-            raise ValueError(f"unit must be this result's length unit {own_unit!r} (pixel "
-                             f"size {own_ps:g} {own_unit}), or px=True for pixels, got "
-                             f"{unit!r}")
-        return Frame(shape, own_ps, own_unit)
-    ps, u = check_pixel_size(pixel_size, unit)
+            raise ValueError(f"unit must be {what}'s length unit {own_unit!r} (pixel "
+                             f"size {own_ps:g} {own_unit}){alt}, got {unit!r}")
+        return own_ps, own_unit
+    ps, u = check_pixel_size(pixel_size, own_unit if unit is None and own_ps is not None
+                             else unit)
     # a pixel size typed from a printed one (0.04 for 0.0400003) is the result's own
     if own_ps is not None and (u != own_unit or not math.isclose(ps, own_ps,
                                                                  rel_tol=_TYPED)):
-        raise ValueError(f"pixel_size={ps:g} {u} disagrees with this result's own "
-                         f"({own_ps:g} {own_unit}): give unit={own_unit!r} alone, or "
-                         "px=True, or change the result's with dataclasses.replace(result, "
+        raise ValueError(f"pixel_size={ps:g} {u} disagrees with {what}'s own "
+                         f"({own_ps:g} {own_unit}): give unit={own_unit!r} alone{alt}, "
+                         "or change the result's with dataclasses.replace(result, "
                          "pixel_size=..., unit=...)")
-    return Frame(shape, ps, u)
+    # an equal one is the own one, to the last digit
+    return (own_ps, own_unit) if own_ps is not None else (ps, u)
 
 
 def drawn_in(result, *, pixel_size: float | None = None, unit: str | None = None,

@@ -778,9 +778,19 @@ def plot_history(result, *, point=None, region=None, names=("exx", "eyy", "exy")
     from ._units import strain_scale
 
     ps, unit = (None, None) if frame.unit == "px" else (frame.scale, frame.unit)
+    names = tuple(names)
+    if not names:
+        raise ValueError("names must hold at least one quantity, got none")
+    # one axis, one unit: a strain in % and a displacement in mm on one axis would be
+    # read against a label true for one of them only
+    drawn = {name: _drawn_unit(name, ps, unit, microstrain) for name in names}
+    if len(set(drawn.values())) > 1:
+        raise ValueError("names must share one unit to be drawn on one axis, got "
+                         + ", ".join(f"{n} ({u})" for n, u in drawn.items())
+                         + ": draw them in separate figures")
     for name in names:
         # displacements in the unit the place is named in, as the maps draw them
-        unit_drawn = _drawn_unit(name, ps, unit, microstrain)
+        unit_drawn = drawn[name]
         kind = QUANTITIES[name][1]
         scale = strain_scale(microstrain)[0] if kind == "1" else \
             math.degrees(1.0) if name == "principal_angle" else \
@@ -815,7 +825,11 @@ def plot_history(result, *, point=None, region=None, names=("exx", "eyy", "exy")
     else:
         ax.set_xlabel({"time": "time (s)", "load": f"load ({load_unit or '-'})",
                        "state": "state"}[against])
-    ax.set_ylabel(f"({unit_drawn})")
+    # the names share one unit (checked above); their kind names the axis
+    kind = QUANTITIES[names[0]][1]
+    what = "angle" if any(n.startswith("principal_angle") for n in names) else \
+        {"1": "strain", "px": "displacement", "rad": "rotation"}[kind]
+    ax.set_ylabel(f"{what} ({unit_drawn})")
     ax.set_title(where, fontsize=9)
     ax.legend(fontsize=8)
     fig.tight_layout()

@@ -109,6 +109,13 @@ def _num(x, spec: str = ".3g") -> str:
     return "–" if not math.isfinite(v) else format(v, spec)
 
 
+def _micro(x) -> str:
+    """A noise floor in µε to two significant digits, without an exponent (830, not
+    8.3e+02, in a column headed µε)."""
+    text = _num(x * 1e6 if x is not None else None, ".2g")
+    return text if text == "–" else f"{float(text):g}"
+
+
 def _table(header, rows, left=(0,)) -> dict:
     """A table for the template; the columns ``left`` hold text."""
     return {"header": list(header), "rows": [[str(c) for c in r] for r in rows],
@@ -212,7 +219,7 @@ def _context(result, a: dict, ps, unit, title: str, test: dict, colours: dict) -
         "test": _test_section(result, ps, unit, **test),
         **_series_section(result, states), **_lattice_section(result),
         **_maps_section(result, shown, ps, unit, colours),
-        **_states_section(result), **_checks_section(result),
+        **_states_section(result, ps, unit), **_checks_section(result),
         "uncertainty": [_figure(plot_states(shown, name, pixel_size=ps, unit=unit,
                                             px=ps is None,
                                             **colours),
@@ -421,38 +428,40 @@ def _maps_section(result, shown, ps, unit, colours: dict) -> dict:
     return {"maps_note": note, "maps": maps}
 
 
-def _states_section(result) -> dict:
+def _states_section(result, ps=None, unit=None) -> dict:
     """One row per state (time, load, valid fraction, mean of each map over its valid
     pixels, noise floor, pair check, iterations, fringe order), and the histories of
-    the means."""
+    the means; displacements in ``unit`` with the pixel size ``ps``, as the maps and
+    the histories draw them, else px."""
     load, load_unit, time = state_loads(result)
     nf = result.noise
     pairs = {r["state"]: r for r in (result.systematic or {}).get("pair_match", ())}
+    length = unit if ps else "px"
     rows = []
     for i, m in enumerate(result.measurements):
         name = result.names[i + 1]
         v = np.asarray(result.valid[i])
         means = [float(np.mean(np.asarray(result.get_map(k)[i])[v])) if v.any()
                  else math.nan for k in MAP_FIELDS]
-        noise = [_num(t * 1e6, ".2g") + (f" / {_num(h * 1e6, '.2g')}"
-                                         if math.isfinite(float(h)) else "")
+        noise = [_micro(t) + (f" / {_micro(h)}" if math.isfinite(float(h)) else "")
                  for t, h in zip(nf.theory_strain[i], nf.split_strain[i], strict=True)]
         pair = pairs.get(name)
         rows.append([name, "–" if time is None else _num(time[i], ".4g"),
                      "–" if load is None else _num(load[i], ".4g"), f"{v.mean():.1%}",
-                     _num(means[0], ".4f"), _num(means[1], ".4f"),
+                     *(_num(x * (ps or 1.0), ".4g" if ps else ".4f") for x in means[:2]),
                      *(_num(x * 1e6, ".1f") for x in means[2:]), *noise,
                      "–" if pair is None else f"{pair['verdict']} ({_num(pair['match'], '.2f')})",
                      m.iterations, _fringe_order(result, i)])
     table = _table(["state", "time (s)", f"load ({load_unit or '–'})", "valid",
-                    "mean u_x (px)", "mean u_y (px)", "mean ε_xx (µε)", "mean ε_yy (µε)",
-                    "mean ε_xy (µε)", "noise ε_xx (µε)", "noise ε_yy (µε)",
+                    f"mean u_x ({length})", f"mean u_y ({length})", "mean ε_xx (µε)",
+                    "mean ε_yy (µε)", "mean ε_xy (µε)", "noise ε_xx (µε)", "noise ε_yy (µε)",
                     "noise ε_xy (µε)", "pair check", "iterations", "fringe order"],
                    rows, left=(0, 12, 14))
     histories = []
     if result.n_states > 1:
         for names, what in ((("exx", "eyy", "exy"), "Strain"), (("ux", "uy"), "Displacement")):
-            fig = plot_history(result, names=names)
+            fig = plot_history(result, names=names, pixel_size=ps, unit=unit,
+                               px=ps is None)
             _thin_ticks(fig, result.n_states)
             histories.append(_figure(fig, f"{what.lower()} of the states",
                                      f"{what} of every state, mean over the valid pixels."))
