@@ -336,12 +336,16 @@ def _rounded(h5, k: int, arrays: dict, ps) -> dict:
         if arr.dtype == bool:
             out[name] = arr
             continue
-        values = np.asarray(arr, dtype=np.float64) * scale
+        values = np.asarray(arr, dtype=np.float64)
         attrs = h5[name].attrs
         if attrs.get("rounding") != "std" or STD_OF[name] not in stds:
-            out[name] = values.astype(np.float32)  # no std: float32's own precision
+            # no std: float32's own precision
+            out[name] = (values * scale if scale != 1.0 else values).astype(np.float32)
             continue
-        out[name], worst = round_to_std(values, stds[STD_OF[name]] * scale)
+        std = stds[STD_OF[name]]
+        if scale != 1.0:  # a physical unit: a product per map, none for the px maps
+            values, std = values * scale, std * scale
+        out[name], worst = round_to_std(values, std)
         errors = np.array(attrs[MAX_ERROR_ATTR], dtype=np.float64)
         errors[k] = worst
         attrs[MAX_ERROR_ATTR] = errors
