@@ -261,4 +261,6 @@ def test_rounding_to_the_std_keeps_the_bits_a_power_of_two_step_allows():
     assert np.all(np.abs(kept[finite] - r[finite]) <= 2.0**-6 * np.abs(r[finite]))
     m, _ = np.frexp(kept[finite])
     assert np.all((m * 2**6) % 1 == 0)  # no bit beyond the sixth significant one
-    assert kept[0, 0] == 0 and kept[0, 1] == np.inf and np.isnan(kept[0, 2])
+    assert kept[0, 0] == 0
+    assert kept[0, 1] == np.inf
+    assert np.isnan(kept[0, 2])
