@@ -303,17 +303,17 @@ def _put_state(h5, k: int, arrays: dict, ps, *, lossless: bool = True) -> None:
     if not lossless:
         arrays = _rounded(h5, k, arrays, ps)
     for name, arr in arrays.items():
-        _uncached(h5, name)[k] = arr
+        (h5[name] if lossless else _uncached(h5, name))[k] = arr
         if lossless and ps is not None and name in ("ux", "uy"):
-            _uncached(h5, f"{name}_phys")[k] = np.asarray(arr) * ps
+            h5[f"{name}_phys"][k] = np.asarray(arr) * ps
 
 
 def _uncached(h5, name: str) -> h5py.Dataset:
-    """Variable ``name`` of ``h5`` opened without a chunk cache: a state's map is one
-    whole chunk, written once, so that it goes to its filters and the file at once
-    rather than through a cache buffer allocated, filled and copied for it (the same
-    bytes in the file; 32 instead of 40 ms for a state's 12 maps of 250 x 400,
-    compressed)."""
+    """Variable ``name`` of ``h5`` opened without a chunk cache: a state's compressed
+    map is one whole chunk, written once, so that it goes to its filters and the file
+    at once rather than through a cache buffer allocated, filled and copied for it
+    (the same bytes in the file; the uncompressed maps of a lossless file gained
+    nothing from it)."""
     dapl = h5py.h5p.create(h5py.h5p.DATASET_ACCESS)
     dapl.set_chunk_cache(0, 0, 1.0)  # slots, bytes, preemption
     return h5py.Dataset(h5py.h5d.open(h5.id, name.encode(), dapl))
