@@ -220,3 +220,47 @@ def test_measure_stores_rounded_maps_unless_lossless(frames, tmp_path, capsys):
         with h5py.File(out, "r") as h5:
             assert bool(h5.attrs["maps_lossless"]) is lossless, flags
             assert h5["exx"].dtype == dtype, flags
+
+
+def test_rounding_to_the_std_keeps_the_bits_a_power_of_two_step_allows():
+    """Oracle: the step each value is rounded to, found by searching the powers of two
+    (the largest q with q <= 2 f s), and the rounding done on Python floats; the
+    std just below and at a power of two included, where a logarithm rounds up."""
+    from gridstrain.results._precision import STD_FRACTION, round_relative, round_to_std
+
+    rng = np.random.default_rng(7)
+    f = STD_FRACTION
+    s = np.abs(rng.normal(size=(6, 7))) * 1e-4
+    s[0, :3] = [2.0**-14 / (2 * f), np.nextafter(2.0**-14, 0.0) / (2 * f), 2.0**-40]
+    v = rng.normal(size=s.shape) * 1e-2
+    v[1, 1], s[2, 2], s[3, 3] = np.nan, 0.0, np.nan  # kept as float32 holds them
+    got, worst = round_to_std(v, s)
+    errors = []
+    for (i, j), x in np.ndenumerate(v):
+        t = 2 * f * s[i, j]
+        if not (np.isfinite(x) and np.isfinite(s[i, j]) and s[i, j] > 0):
+            assert got[i, j] == np.float32(x) or np.isnan(x)
+            continue
+        q = 2.0 ** np.floor(np.log2(t))
+        while q > t:  # the logarithm rounded up: one power lower
+            q /= 2
+        while 2 * q <= t:
+            q *= 2
+        want = np.float32(round(x / q) * q)
+        assert got[i, j] == want, (i, j)
+        errors.append(abs(float(want) - x) / s[i, j])
+        if abs(x) / q < 2**23:  # float32 holds the value to its step
+            assert errors[-1] <= f  # the bound of the module: half a step, f of the std
+    # the 2**-40 std: float32 cannot hold the value to it, and the figure says so
+    assert worst == max(errors) > f
+    # 5 mantissa bits kept: relative error at most 2**-6, the value's power of two kept
+    r = rng.normal(size=(5, 5)) * 10.0 ** rng.uniform(-6, 6, size=(5, 5))
+    r[0, 0], r[0, 1], r[0, 2] = 0.0, np.inf, np.nan
+    kept = round_relative(r).astype(np.float64)
+    finite = np.isfinite(r) & (r != 0)
+    assert np.all(np.abs(kept[finite] - r[finite]) <= 2.0**-6 * np.abs(r[finite]))
+    m, _ = np.frexp(kept[finite])
+    assert np.all((m * 2**6) % 1 == 0)  # no bit beyond the sixth significant one
+    assert kept[0, 0] == 0
+    assert kept[0, 1] == np.inf
+    assert np.isnan(kept[0, 2])

@@ -303,9 +303,20 @@ def _put_state(h5, k: int, arrays: dict, ps, *, lossless: bool = True) -> None:
     if not lossless:
         arrays = _rounded(h5, k, arrays, ps)
     for name, arr in arrays.items():
-        h5[name][k] = arr
+        (h5[name] if lossless else _uncached(h5, name))[k] = arr
         if lossless and ps is not None and name in ("ux", "uy"):
             h5[f"{name}_phys"][k] = np.asarray(arr) * ps
+
+
+def _uncached(h5, name: str) -> h5py.Dataset:
+    """Variable ``name`` of ``h5`` opened without a chunk cache: a state's compressed
+    map is one whole chunk, written once, so that it goes to its filters and the file
+    at once rather than through a cache buffer allocated, filled and copied for it
+    (the same bytes in the file; the uncompressed maps of a lossless file gained
+    nothing from it)."""
+    dapl = h5py.h5p.create(h5py.h5p.DATASET_ACCESS)
+    dapl.set_chunk_cache(0, 0, 1.0)  # slots, bytes, preemption
+    return h5py.Dataset(h5py.h5d.open(h5.id, name.encode(), dapl))
 
 
 def _rounded(h5, k: int, arrays: dict, ps) -> dict:
@@ -325,12 +336,16 @@ def _rounded(h5, k: int, arrays: dict, ps) -> dict:
         if arr.dtype == bool:
             out[name] = arr
             continue
-        values = np.asarray(arr, dtype=np.float64) * scale
+        values = np.asarray(arr, dtype=np.float64)
         attrs = h5[name].attrs
         if attrs.get("rounding") != "std" or STD_OF[name] not in stds:
-            out[name] = values.astype(np.float32)  # no std: float32's own precision
+            # no std: float32's own precision
+            out[name] = (values * scale if scale != 1.0 else values).astype(np.float32)
             continue
-        out[name], worst = round_to_std(values, stds[STD_OF[name]] * scale)
+        std = stds[STD_OF[name]]
+        if scale != 1.0:  # a physical unit: a product per map, none for the px maps
+            values, std = values * scale, std * scale
+        out[name], worst = round_to_std(values, std)
         errors = np.array(attrs[MAX_ERROR_ATTR], dtype=np.float64)
         errors[k] = worst
         attrs[MAX_ERROR_ATTR] = errors

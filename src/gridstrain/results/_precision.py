@@ -67,20 +67,35 @@ def round_to_std(values, std, *, fraction: float = STD_FRACTION) -> tuple[np.nda
     """
     v = np.asarray(values, dtype=np.float64)
     s = np.asarray(std, dtype=np.float64)
-    if np.any(np.abs(v[np.isfinite(v)]) > _F32_MAX):
+    a = np.abs(v)
+    over = a > _F32_MAX
+    if over.any() and np.isfinite(a[over]).any():
         raise ValueError(f"values must fit float32 (|v| <= {_F32_MAX:.3g}) to be stored "
                          "rounded; store the result losslessly")
     use = np.isfinite(s) & (s > 0) & np.isfinite(v)
-    out = v.copy()
-    with np.errstate(divide="ignore", invalid="ignore"):
-        q = np.exp2(np.floor(np.log2(2.0 * fraction * s[use])))
-        # q a power of two: v / q, its rounding and the product are exact in float64
-        out[use] = np.round(v[use] / q) * q
-    rounded = out.astype(np.float32)
     if not use.any():
-        return rounded, float("nan")
-    err = np.abs(rounded[use].astype(np.float64) - v[use]) / s[use]
-    return rounded, float(err.max())
+        return v.astype(np.float32), float("nan")
+    # q = 2**floor(log2(2 f s)): the exponent bits of 2 f s alone, on the whole map
+    # (a boolean gather of each operand cost twice the arithmetic); exact where
+    # np.log2 could round up just below a power of two
+    q = _leading_bit(2.0 * fraction * s)
+    tiny = use & ~(q > 0)  # 2 f s subnormal: no exponent bits to take
+    if tiny.any():
+        q[tiny] = np.exp2(np.floor(np.log2(2.0 * fraction * s[tiny])))
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        # q a power of two: v / q, its rounding and the product are exact in float64
+        out = np.round(v / q)
+        out *= q
+        rounded = np.where(use, out, v).astype(np.float32)
+        err = np.abs(rounded - v)
+        err /= s
+    return rounded, float(err.max(where=use, initial=-np.inf))
+
+
+def _leading_bit(x: np.ndarray) -> np.ndarray:
+    """``2**floor(log2(|x|))`` of each normal float64 of ``x`` (its exponent bits with a
+    zero mantissa): 0 for zeros and subnormals, inf for infinities and NaN."""
+    return (x.view(np.uint64) & np.uint64(0x7FF0_0000_0000_0000)).view(np.float64)
 
 
 def round_relative(values, *, bits: int = STD_BITS) -> np.ndarray:
@@ -98,9 +113,11 @@ def round_relative(values, *, bits: int = STD_BITS) -> np.ndarray:
     (H, W) float32 ndarray
     """
     v = np.asarray(values, dtype=np.float64)
-    out = v.copy()
-    use = np.isfinite(v) & (v != 0)
-    _, e = np.frexp(v[use])  # |v| = m 2**e, m in [0.5, 1): its leading bit is 2**(e - 1)
-    q = np.exp2((e - 1 - bits).astype(np.float64))
-    out[use] = np.round(v[use] / q) * q
-    return out.astype(np.float32)
+    # |v| = m 2**e with m in [1, 2): the kept bits' last is 2**(e - bits), a power of
+    # two, so v / q, its rounding and the product are exact in float64
+    q = _leading_bit(v) * 2.0 ** -bits
+    use = np.isfinite(q) & (q > 0)  # NaN, infinities, zeros (and subnormals) as given
+    with np.errstate(divide="ignore", invalid="ignore"):
+        out = np.round(v / q)
+        out *= q
+    return np.where(use, out, v).astype(np.float32)
