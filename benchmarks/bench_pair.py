@@ -38,6 +38,13 @@ itself) and the threads a user gets (``--tuned-only`` leaves it out).
   specimen would read the same (``--auto`` drops the guess from the tuned case too);
 * ``start-up``: ``gridstrain --help`` against ``python -c "import numpy"``.
 
+``--stages`` adds one more run of the tuned case with each part's CPU time taken
+inside the process (``time.process_time``, all threads): the imports, the series
+pass (reading, screening, transforms), the noise floor, the window, the states'
+carriers, the aliasing bound, and every stage of
+:data:`gridstrain.series._stages.STAGES` by name; what is left is the rest
+(arguments, the file's opening and closing, the findings).
+
 Each run's displacement is compared with the imposed field (RMS over the pixels
 both declare valid, 5 sigma away from the borders), so that the speed is that of a
 right answer.
@@ -98,6 +105,39 @@ u_xy = lsa.compute_displacement(phi_0, phi_t, min_iter=6)
 # real part along x (columns), imaginary part along y (rows): checked against the
 # imposed field (its README states the opposite)
 np.save(sys.argv[3], np.stack([u_xy.real, u_xy.imag]))
+"""
+
+# the tuned command with each part timed inside the process (see --stages); the
+# private modules are the benchmark's business, the package never imports them so
+STAGES_SCRIPT = """
+import dataclasses, json, resource, sys, time
+t0 = time.process_time()
+from gridstrain.series import _floors, _loop, _stages
+import gridstrain.cli.measure
+from gridstrain.cli import main
+cpu = {"imports": time.process_time() - t0}
+
+def timed(name, fn):
+    def run(*args, **kwargs):
+        t = time.process_time()
+        try:
+            return fn(*args, **kwargs)
+        finally:
+            cpu[name] = cpu.get(name, 0.0) + time.process_time() - t
+    return run
+
+_stages.STAGES = tuple(dataclasses.replace(s, run=timed("stage " + s.name, s.run))
+                       for s in _stages.STAGES)
+_loop._one_series = timed("series pass", _loop._one_series)
+_floors._Noise.complete = timed("noise floor", _floors._Noise.complete)
+_loop._window = timed("window", _loop._window)
+_loop._carriers = timed("carriers", _loop._carriers)
+_loop.aliasing_bias = timed("aliasing bound", _loop.aliasing_bias)
+main(sys.argv[2:])
+ru = resource.getrusage(resource.RUSAGE_SELF)
+cpu["total"] = ru.ru_utime + ru.ru_stime
+with open(sys.argv[1], "w") as f:
+    json.dump(cpu, f)
 """
 
 
@@ -174,6 +214,9 @@ def main(argv=None):
                     help="only the tuned case (the displacement given, one thread), not "
                          "also the defaults case (the fringe order found by gridstrain, "
                          "threads as a user gets them)")
+    ap.add_argument("--stages", action="store_true",
+                    help="also time the tuned case's parts inside one run (imports, series "
+                         "pass, noise floor, each stage)")
     args = ap.parse_args(argv)
     shape = tuple(int(v) for v in args.size.lower().split("x"))
 
@@ -199,6 +242,8 @@ def main(argv=None):
                   + ("" if one_thread else "; threads as a user gets them"))
             ratios[case] = _case(args, shape, tmp, case, given, one_thread,
                                  (row, col, row + uy, col + ux))
+        if args.stages:
+            _stages(tmp, guess)
         if len(ratios) > 1 and all(r is not None for r in ratios.values()):
             print("\nCPU time ratio openlsa / gridstrain: "
                   + ", ".join(f"{c} {r:.2f}" for c, r in ratios.items()))
@@ -275,6 +320,26 @@ def _case(args, shape, tmp, case, given, one_thread, point):
     print(json.dumps({n: round(v, 3) for n, v in best.items()}))
     print(f"load average after the case: {os.getloadavg()[0]:.1f}")
     return ratio
+
+
+def _stages(tmp, guess) -> None:
+    """Print the CPU time of each part of one tuned run, timed inside the process."""
+    env = dict(os.environ, **ONE_THREAD)
+    env["PYTHONPATH"] = os.pathsep.join([str(ROOT / "src"), env.get("PYTHONPATH", "")])
+    env.pop("PYTHONDONTWRITEBYTECODE", None)
+    env["PYTHONPYCACHEPREFIX"] = str(tmp / "pycache")
+    out = tmp / "stages.json"
+    subprocess.run([sys.executable, "-c", STAGES_SCRIPT, str(out), "measure",
+                    str(tmp / "ref.tif"), str(tmp / "def.tif"), "-o", str(tmp / "stages.h5"),
+                    "--quiet", "--overwrite", *guess], env=env, check=True,
+                   stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    cpu = json.loads(out.read_text())
+    total = cpu.pop("total")
+    print("\ntuned, one run timed by parts (CPU s, all threads):")
+    for name, t in cpu.items():
+        print(f"  {name:<28} {t:6.2f}")
+    print(f"  {'the rest':<28} {total - sum(cpu.values()):6.2f}")
+    print(f"  {'total':<28} {total:6.2f}")
 
 
 def _read_ours(f):
