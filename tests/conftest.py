@@ -6,6 +6,22 @@ import pytest
 from gridstrain import Lattice
 from gridstrain.models import synthetic
 
+# the BLAS limit held for a worker's whole life (released with the process)
+_BLAS_LIMIT = []
+
+
+def pytest_configure(config):
+    # Under pytest-xdist every worker is a process of its own with OpenBLAS's default
+    # pool (one thread less than the cores, per copy: numpy's and scipy's): two workers
+    # on 2 cores would each spin BLAS threads against the other's transforms. The
+    # measurements keep BLAS on the calling thread anyway (threads.one_blas_thread);
+    # the rest of a test's small products gain nothing from more.
+    if hasattr(config, "workerinput"):
+        import scipy.linalg  # noqa: F401  (its own OpenBLAS copy, loaded to be limited)
+        from threadpoolctl import threadpool_limits
+
+        _BLAS_LIMIT.append(threadpool_limits(limits=1, user_api="blas"))
+
 
 @pytest.fixture(scope="session")
 def lattice5():
