@@ -14,6 +14,7 @@ along x. Nothing of gridstrain's generator is used.
 from __future__ import annotations
 
 import errno
+import io
 import json
 import os
 import signal
@@ -850,3 +851,24 @@ def test_an_interrupt_that_surfaces_as_another_error_is_still_the_interrupt(
     assert len(err) == 1, err
     assert "interrupted" in err[0]
     assert _leftovers(out) == []
+
+
+class _ClosedPipe(io.StringIO):
+    """A stdout whose reader has gone (``gridstrain measure ... | head -1``)."""
+
+    def write(self, text):
+        raise BrokenPipeError(32, "Broken pipe")
+
+
+def test_a_closed_pipe_keeps_the_outputs_it_replaced(data, tmp_path, monkeypatch, capsys):
+    """``measure -o a.h5 --overwrite | head -1``: the reader leaving breaks no output.
+    The new result was complete once renamed into place; removing it as a failed run's
+    would lose both it and the file it replaced."""
+    out = tmp_path / "a.h5"
+    argv = ["measure", data / "ref.tif", data / "load.tif", "-o", out]
+    assert _run([*argv, "--quiet"]) == 0, capsys.readouterr().err
+    monkeypatch.setattr(sys, "stdout", _ClosedPipe())
+    assert _run([*argv, "--overwrite"]) == 141  # a pipe's status: 128 + SIGPIPE
+    monkeypatch.undo()
+    assert gridstrain.load(out).n_states == 1
+    assert "Traceback" not in capsys.readouterr().err

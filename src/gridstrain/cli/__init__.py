@@ -246,6 +246,13 @@ def _main(argv) -> int:
         return 2
     except (KeyboardInterrupt, Terminated):
         raise
+    except BrokenPipeError:
+        # the reader of the printed lines went away; the outputs are kept (Outputs):
+        # the rest of what would be printed goes nowhere, and the exit status is a
+        # pipe's (128 + SIGPIPE)
+        with contextlib.suppress(OSError, ValueError):
+            os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 141
     except BaseException as exc:
         _as_signal(exc)
         if isinstance(exc, SystemExit | GeneratorExit):

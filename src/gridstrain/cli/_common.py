@@ -192,7 +192,10 @@ class Outputs:
 
     def __exit__(self, kind, exc, tb) -> None:
         self._watch.__exit__(None, None, None)
-        if exc is not None:
+        # a reader that stops reading the command's printed lines (``| head -1``)
+        # breaks no output: each is complete once renamed into place, and removing
+        # one that replaced an earlier file (--overwrite) would lose both
+        if exc is not None and not isinstance(exc, BrokenPipeError):
             self.rollback()
         else:
             self._list_as_ours()
