@@ -210,9 +210,13 @@ def test_default_takes_the_compiled_loops_when_numba_is_there(compiled, monkeypa
 def test_without_numba_the_numpy_paths_run(monkeypatch):
     # numba missing (an import that fails): the default is the exact path and
     # "fast" the numpy filter; the loops of gridstrain.phase._kernels stay uncompiled
+    import gridstrain.phase
+
     monkeypatch.setitem(sys.modules, "numba", None)
+    # the compiled module, where this worker imported it already, comes back after the
+    # test (monkeypatch restores both); the uncompiled one imported here never stays
     monkeypatch.delitem(sys.modules, "gridstrain.phase._kernels", raising=False)
-    monkeypatch.delattr(gridstrain, "_kernels", raising=False)
+    monkeypatch.delattr(gridstrain.phase, "_kernels", raising=False)
     impl._load_kernels.cache_clear()
     try:
         assert impl._kernels() is None
@@ -230,6 +234,9 @@ def test_without_numba_the_numpy_paths_run(monkeypatch):
         assert calls == []
     finally:
         impl._load_kernels.cache_clear()
+        sys.modules.pop("gridstrain.phase._kernels", None)
+        if hasattr(gridstrain.phase, "_kernels"):
+            delattr(gridstrain.phase, "_kernels")
 
 
 def _loaded_after(code: str) -> set[str]:
