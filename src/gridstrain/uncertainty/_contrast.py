@@ -19,12 +19,15 @@ A hole's edge moving with the specimen (0.3 to 3.4 px) gives a bound of 0.001 to
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from scipy import ndimage
 
+from .._progress import Finding
 from .._validation import check_positive
 
-__all__ = ["CONTRAST_STEP_PX", "contrast_step_bound"]
+__all__ = ["CONTRAST_STEP_PX", "contrast_step_bound", "contrast_step_findings"]
 
 #: The bound's displacement per unit of the steepness's change, px: above the
 #: largest error over steepness measured (0.24 for a step of the mean level alone,
@@ -34,6 +37,20 @@ CONTRAST_STEP_PX = 0.3
 
 # Pixels whose material points are computed at once.
 _BLOCK = 1 << 20
+
+# A contrast step's bound is stated where it exceeds this many times the pixel's
+# displacement noise std |(std u_x, std u_y)|: on grids of uniform contrast the bound
+# made from the noise of the moduli stays within about one std (0.4 to 0.9 of twice
+# it on noisy checkerboards and line grids; tests/test_small_defects.py).
+_CONTRAST_FACTOR = 2.0
+# ... or, where no noise is known, this many times the bound's median over the valid
+# pixels, the level the moduli's noise sets: on 24 noisy uniform grids (checkerboards
+# and lines, 0 and 10 degrees, with and without a hole moving with the specimen) the
+# largest bound was 1.3 to 2.0 times the median.
+_CONTRAST_OVER_MEDIAN = 4.0
+# ... and never below this displacement, px: below it no measurement can tell a bias
+# from noise (the floor of the aliasing bound's finding too).
+_MIN_PX = 1e-3
 
 
 def _log_gradient(psi: np.ndarray) -> np.ndarray:
@@ -99,3 +116,63 @@ def contrast_step_bound(reference_psi, deformed_psi, u, valid, *, sigma: float) 
     size = 2 * int(np.ceil(sigma)) + 1
     s = ndimage.maximum_filter(s, size=size, mode="nearest")
     return np.where(v, CONTRAST_STEP_PX * sigma * s, np.nan)
+
+
+def contrast_step_findings(bound, valid, *, noise=None, name: str = "state"
+                           ) -> list[Finding]:
+    """The finding of a change of the grid's contrast whose bias bound exceeds the
+    noise: the pixels beyond it counted, or none.
+
+    Parameters
+    ----------
+    bound : (H, W) float array_like
+        :func:`contrast_step_bound`, px.
+    valid : (H, W) bool array_like
+    noise : mapping or (float, float), optional
+        The displacement noise: maps ``{"ux_std": (H, W), "uy_std": (H, W)}`` px
+        (a result's uncertainty maps), or the state's floors ``(std u_x, std u_y)``
+        px. Default (or NaN floors): not known.
+    name : str
+        The state, in the sentence and the finding's ``state``.
+
+    Returns
+    -------
+    list of Finding
+        None, or one ``"contrast.step"`` finding with its figures ``pixels``,
+        ``fraction`` (of the valid pixels) and ``max_px``.
+
+    Notes
+    -----
+    A pixel counts where its bound exceeds twice the noise std
+    ``|(std u_x, std u_y)|`` (on grids of uniform contrast the bound stays within
+    about one std) and 1e-3 px; without a noise, four times the bound's median over
+    the valid pixels (the level the moduli's noise sets: at most twice it on uniform
+    grids).
+    """
+    v = np.asarray(valid, dtype=bool)
+    if not v.any():
+        return []
+    b = np.asarray(bound, dtype=np.float64)[v]
+    if isinstance(noise, dict):
+        level = _CONTRAST_FACTOR * np.hypot(np.asarray(noise["ux_std"]),
+                                            np.asarray(noise["uy_std"]))[v]
+        against = f"{_CONTRAST_FACTOR:g} times the noise std"
+    elif noise is not None and all(math.isfinite(float(x)) for x in noise):
+        level = _CONTRAST_FACTOR * math.hypot(*(float(x) for x in noise))
+        against = f"{_CONTRAST_FACTOR:g} times the noise std"
+    else:
+        level = _CONTRAST_OVER_MEDIAN * float(np.median(b))
+        against = (f"{_CONTRAST_OVER_MEDIAN:g} times the bound's median (the noise "
+                   "not known)")
+    beyond = (b > level) & (b > _MIN_PX)
+    n = int(np.count_nonzero(beyond))
+    if not n:
+        return []
+    worst = float(np.max(b))
+    text = (f"{name}: the grid's contrast changes between the states (a stain, a shadow, a "
+            f"hole's edge): next to it the displacement may be biased by up to {worst:.2g} px, "
+            f"more than {against} on {n} valid pixels "
+            f"({n / b.size:.1%}); gridstrain.uncertainty.contrast_step_bound maps the bound; "
+            "mask the region or keep the contrast steady")
+    return [Finding("contrast.step", text, state=name, pixels=n, fraction=n / b.size,
+                    max_px=worst)]
