@@ -135,21 +135,6 @@ def _spread(n: int, k: int) -> list[int]:
     return np.unique(np.linspace(0, n - 1, k).round().astype(int)).tolist()
 
 
-def _subset(result, states: list[int]):
-    """The result restricted to some states, for the figures of their maps (those
-    states alone read from a result whose maps stay in its file)."""
-    if states == list(range(result.n_states)):
-        return result
-    idx = np.array(states)
-    return dataclasses.replace(
-        result, u=np.asarray(result.u[idx]), strain=np.asarray(result.strain[idx]),
-        valid=np.asarray(result.valid[idx]),
-        measurements=tuple(result.measurements[i] for i in states),
-        names=(result.names[0], *(result.names[i + 1] for i in states)),
-        uncertainty=None if result.uncertainty is None else
-        {k: np.asarray(v[idx]) for k, v in result.uncertainty.items()})
-
-
 def render_report(result: SeriesResult, *, attrs: dict | None = None,
                   title: str = "gridstrain result", region=None, px: bool = False,
                   area: float | None = None, area_unit: str = "mm2", axis: str = "x",
@@ -211,20 +196,18 @@ def render_report(result: SeriesResult, *, attrs: dict | None = None,
 def _context(result, a: dict, ps, unit, title: str, test: dict, colours: dict) -> dict:
     """The values the template shows: texts, tables and figures."""
     states = _shown_states(result.n_states)
-    shown = _subset(result, states)
     return {
         "title": title, "summary": _summary(result, a, ps, unit),
         # most serious first (their codes' severity), each with its code
         "warnings": sorted(result.warnings, key=lambda w: -SEVERITIES.index(w.severity)),
         "test": _test_section(result, ps, unit, **test),
         **_series_section(result, states), **_lattice_section(result),
-        **_maps_section(result, shown, ps, unit, colours),
+        **_maps_section(result, states, ps, unit, colours),
         **_states_section(result, ps, unit), **_checks_section(result),
-        "uncertainty": [_figure(plot_states(shown, name, pixel_size=ps, unit=unit,
-                                            px=ps is None,
-                                            **colours),
+        "uncertainty": [_figure(plot_states(result, name, pixel_size=ps, unit=unit,
+                                            px=ps is None, states=states, **colours),
                                 f"uncertainty map of {name}")
-                        for name in (shown.uncertainty or {}) if name in _UNC],
+                        for name in (result.uncertainty or {}) if name in _UNC],
         "extra": _extra_fields(result),
         "parameters": _table(["parameter", "value"],
                              [[str(k), _plain(v)] for k, v in result.parameters.items()],
@@ -405,9 +388,11 @@ def _series_section(result, states: list[int]) -> dict:
     return {"series": table, "vibration_figures": figures, "vibration_note": note}
 
 
-def _maps_section(result, shown, ps, unit, colours: dict) -> dict:
-    """The maps of the shown states on colour limits common to them."""
-    n, k = result.n_states, shown.n_states
+def _maps_section(result, states: list[int], ps, unit, colours: dict) -> dict:
+    """The maps of the shown ``states`` on colour limits common to every state: the
+    full result is drawn with its states chosen, so that each panel carries its own
+    state's load and time."""
+    n, k = result.n_states, len(states)
     which = "Every state" if k == n else (
         f"{k} of the {n} states (the first, the last and evenly spaced ones; the "
         "histories and the table below hold every state)")
@@ -420,8 +405,8 @@ def _maps_section(result, shown, ps, unit, colours: dict) -> dict:
             f"displacements in {unit if ps else 'px'}; outside the valid region the "
             "reference image shows through.")
     # limits given explicitly are in one quantity's unit: they apply to the strains
-    maps = [_figure(plot_states(shown, name, pixel_size=ps, unit=unit, px=ps is None,
-                                cmap=colours["cmap"],
+    maps = [_figure(plot_states(result, name, pixel_size=ps, unit=unit, px=ps is None,
+                                states=states, cmap=colours["cmap"],
                                 limits=lim if isinstance(lim, str) or name[0] == "e"
                                 else "robust"), f"map of {name}")
             for name in (*MAP_FIELDS, "rotation")]
@@ -462,7 +447,8 @@ def _states_section(result, ps=None, unit=None) -> dict:
         for names, what in ((("exx", "eyy", "exy"), "Strain"), (("ux", "uy"), "Displacement")):
             fig = plot_history(result, names=names, pixel_size=ps, unit=unit,
                                px=ps is None)
-            _thin_ticks(fig, result.n_states)
+            if time is None and load is None:  # else drawn against them, not the state
+                _thin_ticks(fig, result.n_states)
             histories.append(_figure(fig, f"{what.lower()} of the states",
                                      f"{what} of every state, mean over the valid pixels."))
     return {"states": table, "histories": histories}
@@ -482,7 +468,8 @@ def _checks_section(result) -> dict:
 
 
 def _thin_ticks(fig, n: int) -> None:
-    """At most :data:`_TICKS` state labels on a history's axis, by state index."""
+    """At most :data:`_TICKS` state labels on a history's axis, by state index (a
+    history drawn against the states: one against time or load keeps its axis)."""
     if n <= _TICKS:
         return
     ax = fig.axes[0]
