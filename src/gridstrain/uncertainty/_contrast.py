@@ -62,6 +62,50 @@ def _log_gradient(psi: np.ndarray) -> np.ndarray:
     return np.stack([gx, gy])
 
 
+def contrast_step_bytes(shape) -> int:
+    """Bytes :func:`contrast_step_bound` allocates on maps of ``shape`` ``(H, W)``
+    beyond its inputs, at its peak: for the memory budget of a measurement, whose
+    sampled checks make the bound while the state's transforms are held.
+
+    The larger of a carrier's log-modulus gradients being made (72 bytes a pixel:
+    the bound's map, the reference's gradients and the deformed state's with their
+    temporaries) and a block of rows' material points beside both gradients (40
+    bytes a pixel and 48 a pixel of the block, at most ``_BLOCK`` pixels), and
+    256 KiB of small arrays: the peaks ``tracemalloc`` measures, 72 to 88.4 bytes a
+    pixel from 12 kpx to 4.2 Mpx (tests/test_memory.py).
+    """
+    H, W = (int(v) for v in shape)
+    block = min(H, max(1, _BLOCK // max(W, 1))) * W
+    return max(72 * H * W, 40 * H * W + 48 * block) + 2**18
+
+
+def _steepest_change(s: np.ndarray, r: np.ndarray, d: np.ndarray, u: np.ndarray,
+                     v: np.ndarray) -> None:
+    """``s = max(s, |grad ln|d|(x + u) - grad ln|r|(x)|)`` for one carrier, in place;
+    its gradients and a block's temporaries are freed on return (the budget's
+    :func:`contrast_step_bytes`)."""
+    H, W = v.shape
+    gr = _log_gradient(r)
+    gd = _log_gradient(d)
+    # the material points' coordinates by blocks of rows: two float64 maps of the
+    # image's size would be the largest arrays of the bound
+    step = max(1, _BLOCK // W)
+    for r0 in range(0, H, step):
+        _block_change(s, gr, gd, u, v, slice(r0, min(H, r0 + step)))
+
+
+def _block_change(s, gr, gd, u, v, b: slice) -> None:
+    """:func:`_steepest_change` on the rows ``b``."""
+    W = v.shape[1]
+    vb = v[b]
+    rows = np.arange(b.start, b.stop, dtype=np.float64)[:, None]
+    cols = np.arange(W, dtype=np.float64)[None, :]
+    at = [rows + np.where(vb, u[1, b], 0.0), cols + np.where(vb, u[0, b], 0.0)]
+    dx, dy = (ndimage.map_coordinates(g, at, order=1, mode="nearest") - q[b]
+              for g, q in zip(gd, gr, strict=True))
+    np.maximum(s[b], np.hypot(dx, dy), out=s[b])
+
+
 def contrast_step_bound(reference_psi, deformed_psi, u, valid, *, sigma: float) -> np.ndarray:
     """A per-pixel bound on the displacement's bias next to a change of the grid's
     contrast, px (NaN where not ``valid``).
@@ -93,21 +137,8 @@ def contrast_step_bound(reference_psi, deformed_psi, u, valid, *, sigma: float) 
     H, W = v.shape
     u = np.asarray(u)
     s = np.zeros((H, W))
-    # the material points' coordinates by blocks of rows: two float64 maps of the
-    # image's size would be the largest arrays of the bound
-    step = max(1, _BLOCK // W)
-    cols = np.arange(W, dtype=np.float64)[None, :]
     for r, d in zip(ref, dfm, strict=True):
-        gr = _log_gradient(r)
-        gd = _log_gradient(d)
-        for r0 in range(0, H, step):
-            b = slice(r0, min(H, r0 + step))
-            vb = v[b]
-            rows = np.arange(b.start, b.stop, dtype=np.float64)[:, None]
-            at = [rows + np.where(vb, u[1, b], 0.0), cols + np.where(vb, u[0, b], 0.0)]
-            dx, dy = (ndimage.map_coordinates(g, at, order=1, mode="nearest") - q[b]
-                      for g, q in zip(gd, gr, strict=True))
-            np.maximum(s[b], np.hypot(dx, dy), out=s[b])
+        _steepest_change(s, r, d, u, v)
     # the steepness ripples within a period where the leak does not (the grid's
     # harmonics in the modulus): its largest value within a sigma bounds the leak,
     # over the valid pixels only (an invalid one is not followed by u, and a hole's
