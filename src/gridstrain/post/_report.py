@@ -42,7 +42,7 @@ import numpy as np
 
 from .._progress import SEVERITIES
 from .._validation import as_path, check_choice, check_positive, check_type
-from ..io import write_atomic
+from ..io import available_memory, write_atomic
 from ..results import MAP_FIELDS, SeriesResult, load, read_attrs, state_loads
 from ._constants import elastic_constants
 from ._gauges import gauge
@@ -69,6 +69,10 @@ _DPI = 90
 _MAX_HEIGHT_PX = 4000
 _TICKS = 12  # state labels on a history's axis, at most
 _UNC = ("ux_std", "uy_std", "exx_std", "eyy_std", "exy_std")
+# The report reads its maps into memory once when they take at most this share of the
+# memory available (the figures, the percentiles and the matplotlib canvases take the
+# rest); else state by state from the file, as often as its figures need them.
+_IN_MEMORY_SHARE = 0.25
 
 
 def _template():
@@ -135,6 +139,32 @@ def _spread(n: int, k: int) -> list[int]:
     return np.unique(np.linspace(0, n - 1, k).round().astype(int)).tolist()
 
 
+def _maps_read_once(result: SeriesResult) -> SeriesResult:
+    """``result`` with its per-state maps read from its file in one read each, when
+    they fit :data:`_IN_MEMORY_SHARE` of the memory available: the report's figures,
+    table and histories then read each state's maps from memory rather than the file
+    (a dozen reads of every state of a long record, most of the report's time beside
+    the drawing). The same values (a lazy map reads what loading would): the same
+    page. Left as it is when its maps are in memory already or do not fit."""
+    stored = [a for a in (result.u, result.strain, result.valid,
+                          *(result.uncertainty or {}).values(),
+                          *(m.rotation for m in result.measurements))
+              if not isinstance(a, np.ndarray)]
+    if not stored:
+        return result
+    need = sum(int(np.prod(a.shape)) * np.dtype(a.dtype).itemsize for a in stored)
+    if need > _IN_MEMORY_SHARE * available_memory()[0]:
+        return result
+    measurements = tuple(m if isinstance(m.rotation, np.ndarray) else
+                         dataclasses.replace(m, rotation=np.asarray(m.rotation))
+                         for m in result.measurements)
+    return dataclasses.replace(
+        result, u=np.asarray(result.u), strain=np.asarray(result.strain),
+        valid=np.asarray(result.valid), measurements=measurements,
+        uncertainty=None if result.uncertainty is None else
+        {k: np.asarray(v) for k, v in result.uncertainty.items()})
+
+
 def render_report(result: SeriesResult, *, attrs: dict | None = None,
                   title: str = "gridstrain result", region=None, px: bool = False,
                   area: float | None = None, area_unit: str = "mm2", axis: str = "x",
@@ -185,6 +215,7 @@ def render_report(result: SeriesResult, *, attrs: dict | None = None,
         ps, unit = result.pixel_size, result.unit
     test = {"region": region, "px": bool(px), "area": area, "area_unit": area_unit,
             "axis": axis}
+    result = _maps_read_once(result)
     with warnings.catch_warnings():
         # long state names squeeze a figure's margins; it is drawn all the same
         warnings.filterwarnings("ignore", "Tight layout not applied", UserWarning)
