@@ -10,8 +10,9 @@ For each frame size and method it writes a reference and loaded series
 REF STATE -o out.h5 --quiet --method M`` in a fresh interpreter and prints the peak
 resident memory of the child (``VmHWM``) beside the estimate of
 :func:`gridstrain._runtime.memory.measurement_bytes` plus the sums of the variance's harmonic
-terms that ``--frames`` allows (:func:`gridstrain.stacks.accumulate.motion_sums_bytes`,
-as the budget check adds them), and their ratio (the estimate must lie
+terms that ``--frames`` allows (:func:`gridstrain.stacks.accumulate.motion_sums_bytes`)
+and the contrast-step bound's temporaries (:func:`gridstrain.uncertainty.contrast_step_bytes`),
+as the budget check adds them, and their ratio (the estimate must lie
 above the peak: the ratio is the margin of the refusal). With ``--held`` it adds runs
 with ``--phase-maps`` and two states, whose maps are all held to the end.
 """
@@ -26,6 +27,7 @@ from pathlib import Path
 from _common import cli_command, machine, run_child, write_states
 from gridstrain._runtime.memory import measurement_bytes
 from gridstrain.stacks.accumulate import motion_sums_bytes
+from gridstrain.uncertainty import contrast_step_bytes
 
 MiB = 2**20
 
@@ -56,7 +58,8 @@ def main(argv=None):
                     cmd.append("--phase-maps")
                 peak = run_child(cmd, peak=True)["peak"]
                 model = motion_sums_bytes((n, n), args.frames) + measurement_bytes(
-                    (n, n), method=method, n_states=states, held_states=held)
+                    (n, n), method=method, n_states=states, held_states=held) + \
+                    contrast_step_bytes((n, n))
                 print(f"{n:>6} {method:>6} {states:>6} {held!s:>5} {peak / MiB:>9.0f} "
                       f"{model / MiB:>10.0f} {model / peak:>10.2f}", flush=True)
     return 0

@@ -246,7 +246,9 @@ def _case_method_d(d, t):
     return [d / "ref", d / "load.tif", "--method", "D"]
 
 
-def _case_missing_out_dir(d, t):
+def _case_out_dir_is_a_file(d, t):
+    # a missing folder is made (mkdir -p); a file in its way is refused
+    (t / "nodir").write_text("a file")
     return [d / "ref", d / "load.tif", "-o", t / "nodir" / "out.h5"]
 
 
@@ -300,8 +302,9 @@ def _case_bit_depth(d, t):
     return [d / "ref", d / "load.tif", "--bit-depth", "20"]
 
 
-def _case_missing_csv_dir(d, t):
-    return [d / "ref", d / "load.tif", "--csv", t / "nodir" / "x.csv"]
+def _case_csv_dir_is_a_file(d, t):
+    (t / "nodir").write_text("a file")
+    return [d / "ref", d / "load.tif", "--csv", t / "nodir" / "sub" / "x.csv"]
 
 
 def _case_figures_is_file(d, t):
@@ -494,3 +497,48 @@ def test_demo_bad_options(bad, tmp_path, capsys):
     assert len(err) == 1
     assert err[0].startswith("gridstrain demo: error:")
     assert not (tmp_path / "d").exists()
+
+
+def test_outputs_into_folders_not_made_yet(data, tmp_path, capsys):
+    """Every option that writes into a folder makes the missing ones (mkdir -p): the
+    result, its CSV, exports, report and figures of measure, then report, export,
+    plot and gauge on the result; a refused run leaves no folder behind."""
+    out = tmp_path / "a" / "b" / "maps.h5"
+    rc = _run(["measure", data / "ref", data / "load.tif", "-o", out, "--mask",
+               data / "mask.tif", "--csv", tmp_path / "c" / "d" / "maps.csv",
+               "--export", "mat", "--report", tmp_path / "r" / "s" / "r.html",
+               "--figures", tmp_path / "f" / "g" / "figs", "--quiet"])
+    assert rc == 0, capsys.readouterr().err
+    for p in (out, out.with_suffix(".mat"), tmp_path / "c" / "d" / "maps.csv",
+              tmp_path / "r" / "s" / "r.html"):
+        assert p.is_file(), p
+    assert sorted(p.name for p in (tmp_path / "f" / "g" / "figs").glob("*.png")) == \
+        sorted(figure_names(1))
+    for argv, made in (
+            (["report", out, "-o", tmp_path / "R" / "x" / "r.html"], "R/x/r.html"),
+            (["export", out, "--to", "csv,vtk", "-o", tmp_path / "E" / "x" / "pre"],
+             "E/x/pre.pvd"),
+            (["plot", out, "--maps", "exx", "-o", tmp_path / "P" / "x" / "figs"],
+             "P/x/figs/exx.png"),
+            (["gauge", out, "-o", tmp_path / "G" / "x" / "g.csv"], "G/x/g.csv")):
+        assert _run(argv) == 0, capsys.readouterr().err
+        assert (tmp_path / made).is_file(), made
+    capsys.readouterr()
+    # refused after the folders of the first output were made: none is left
+    (tmp_path / "taken.csv").write_text("not gridstrain's\n")
+    rc = _run(["measure", data / "ref", data / "load.tif", "-o",
+               tmp_path / "n1" / "n2" / "maps.h5", "--csv", tmp_path / "taken.csv",
+               "--quiet"])
+    assert rc == 2
+    assert len(capsys.readouterr().err.strip().splitlines()) == 1
+    assert not (tmp_path / "n1").exists()
+    # refused for what the result lacks (a history of a result without times)
+    assert _run(["history", out, "-o", tmp_path / "H" / "x" / "h.csv"]) == 2
+    assert not (tmp_path / "H").exists()
+    capsys.readouterr()
+    # a folder that cannot be made (a file in the way): one line naming it
+    assert _run(["gauge", out, "-o", tmp_path / "taken.csv" / "g.csv"]) == 2
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1
+    assert "taken.csv" in err
+    assert "a file" in err

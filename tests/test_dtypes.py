@@ -283,6 +283,19 @@ def _contrast_step_bound(dt):
     assert np.all(np.isfinite(b[m.valid]))
 
 
+def _contrast_step_findings(dt):
+    # findings of a bound from either precision: their figures plain floats and ints
+    ref, cur = _ref_cur(dt)
+    m = gridstrain.measure(ref[0], cur[0], lattice=LAT, guess=None)
+    b = m.contrast_step_bound()
+    assert b.dtype == np.float64
+    # the bound's spread as the noise: its largest pixels are stated
+    found = uncertainty.contrast_step_findings(b, m.valid, noise=(0.0, 0.0), name="s")
+    assert [f.code for f in found] == ["contrast.step"]
+    assert isinstance(found[0].figures["max_px"], float)
+    assert isinstance(found[0].figures["pixels"], int)
+
+
 def _pair_match(dt):
     # figures of a check, float64 whatever the images' dtype
     from gridstrain.kinematics import pair_match
@@ -328,6 +341,7 @@ ENTRY_POINTS = {
     "estimate_noise_image": _estimate_noise_image, "aliasing_bias": _aliasing_bias,
     "smoothing_bias": _smoothing_bias, "pair_match": _pair_match,
     "contrast_step_bound": _contrast_step_bound,
+    "contrast_step_findings": _contrast_step_findings,
 }
 # Public functions that take no image: their outputs are float64 by construction
 # (frequencies; metrology's figures), files (save_*, load: the dtypes saved), or the

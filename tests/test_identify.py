@@ -440,3 +440,29 @@ def test_identify_uses_the_result_s_own_pixel_size(beam_file):
     with pytest.raises(ValueError, match="identify needs the pixel size, and this result "
                                          "carries none"):
         identify(res, **kw)
+
+
+def test_region_in_px(beam_file, capsys):
+    """``--px`` (and ``px=True``) name the region in px, by the rule of every command
+    (gridstrain.post's places); the thickness and the moduli keep the file's mm."""
+    from gridstrain.cli import main
+
+    res, path, loads = beam_file
+    kw = {"thickness": THICKNESS, "loaded_edge": "left", "load_direction": "y",
+          "load": LOADS, "load_unit": "N"}
+    mm = identify(res, region=(0, 0, 30, 10), pixel_size=PIXEL, unit="mm", **kw)
+    px = identify(res, region=(0, 0, 144, 48), px=True, pixel_size=PIXEL, unit="mm", **kw)
+    assert px.n_pixels == mm.n_pixels == H * 144
+    assert px.E == mm.E  # the same pixels, the same lengths: the same modulus
+    args = ["identify", str(path), "--thickness", str(THICKNESS), "--loaded-edge", "left",
+            "--load-direction", "y", "--loads", str(loads), "--json"]
+    assert main([*args, "--px", "--region", "0", "0", "144", "48"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["n_pixels"] == H * 144
+    assert out["E"] == pytest.approx(mm.E, rel=1e-9)
+    # a region past the field in px is refused in px, in one line
+    assert main([*args, "--px", "--region", "0", "0", "300", "48"]) == 2
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1
+    assert "px" in err
+    assert "outside" in err

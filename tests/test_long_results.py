@@ -252,3 +252,25 @@ def test_streamed_percentiles_of_nothing_are_nan():
     n, lo, hi, p = streamed_percentiles(chunks, (0.5, 99.5))
     assert n == 0
     assert np.isnan([lo, hi, *p]).all()
+
+
+def test_the_report_reads_each_map_once_when_it_fits(record, monkeypatch):
+    """A record whose maps fit the memory is read once into memory for its report (one
+    read of each map's dataset, one per state for the rotation), not once per figure,
+    table and history (each state's maps a dozen times): the same page."""
+    from gridstrain.post import render_report
+    from gridstrain.results import _file
+
+    path, _ = record
+    page = render_report(load(path), title="r")
+    reads = []
+    read = _file.StoredMaps._read
+
+    def counted(self, states):
+        reads.append(states)
+        return read(self, states)
+
+    monkeypatch.setattr(_file.StoredMaps, "_read", counted)
+    assert render_report(load(path, in_memory=False), title="r") == page
+    # u, strain, valid and 5 std maps whole, 16 rotations
+    assert len(reads) <= 8 + N_STATES

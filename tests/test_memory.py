@@ -163,3 +163,48 @@ def test_model_grows_with_pixels_methods_and_held_states():
             for n in (1, 2, 3)]
     assert held[0] > a
     assert held[2] - held[1] == held[1] - held[0] > 0
+
+
+@pytest.mark.parametrize("shape", [(96, 128), (700, 700), (1100, 1000), (1600, 1400)])
+def test_contrast_step_model_covers_the_bounds_measured_peak(shape):
+    """The contrast step's bound allocates a carrier's log-modulus gradients and a
+    block of rows' material points beyond its inputs: the budget's figure for it
+    (contrast_step_bytes) is at least the peak tracemalloc measures (88 bytes a pixel
+    where one block holds the image; 1100 x 1000 px takes two blocks)."""
+    import tracemalloc
+
+    from gridstrain.uncertainty import contrast_step_bound, contrast_step_bytes
+
+    rng = np.random.default_rng(3)
+    ref = rng.normal(size=(2, *shape)) + 1j * rng.normal(size=(2, *shape)) + 3.0
+    dfm = ref * (1.0 + 0.01 * rng.normal(size=(2, *shape)))
+    u = rng.normal(0.0, 0.5, (2, *shape))
+    valid = np.ones(shape, dtype=bool)
+    tracemalloc.start()
+    try:
+        contrast_step_bound(ref, dfm, u, valid, sigma=5.0)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    model = contrast_step_bytes(shape)
+    assert model >= peak
+    assert model <= 1.3 * peak  # and not a blanket figure: within 30 % above it
+
+
+def test_budget_check_counts_the_contrast_step(monkeypatch):
+    """The estimate the budget checks holds the contrast step's temporaries beside
+    the calibrated figures and the motion sums."""
+    from gridstrain.series import _inputs
+    from gridstrain.stacks.accumulate import motion_sums_bytes
+    from gridstrain.uncertainty import contrast_step_bytes
+
+    seen = []
+    monkeypatch.setattr(_memory, "check_fits", lambda nbytes, **k: seen.append(nbytes))
+    monkeypatch.setattr(_memory, "resident_memory", lambda: 0)
+
+    class Series:
+        shape, n_frames = (512, 640), 4
+
+    _inputs._check_memory([Series(), Series()], method="A", held=False)
+    assert seen == [_memory.measurement_bytes((512, 640), method="A")
+                    + motion_sums_bytes((512, 640), 4) + contrast_step_bytes((512, 640))]

@@ -573,3 +573,49 @@ def test_report_of_a_long_sequence_stays_one_readable_page(tmp_path):
     fig.add_subplot().plot([0, 1])
     png = base64.b64decode(_figure(fig, "tall")["png"])
     assert int.from_bytes(png[20:24], "big") <= 4000
+
+
+def test_report_of_a_long_loaded_sequence_titles_each_state_with_its_own_load(
+        tmp_path, monkeypatch):
+    """Beyond 12 states with loads and times (a machine's log): each drawn state's
+    panel carries its own load and time, the maps' title says which of all the
+    states are shown, and the histories keep their time axis (no state-index ticks
+    laid over seconds)."""
+    import dataclasses
+
+    from gridstrain.post import _report
+
+    rng = np.random.default_rng(31)
+    n, size = 15, 48
+
+    def frames(strain):
+        img = synthetic.grid_image((size, size), LAT, amplitude=1500.0,
+                                   displacement=lambda X, Y: (strain * X, 0.0 * Y)) + 200.0
+        return np.array([synthetic.add_noise(img, rng=rng) for _ in range(2)])
+
+    res = measure_series(frames(0.0), [frames(1e-4 * (k + 1)) for k in range(n)],
+                         lattice=LAT, order="independent", guess=(0.0, 0.0))
+    load = 0.25 * np.arange(1, n + 1)  # kN
+    time = 2.0 * np.arange(1, n + 1)  # s
+    res = dataclasses.replace(res, load=load, load_unit="kN", time=time)
+    drawn = []
+    figure = _report._figure
+    monkeypatch.setattr(_report, "_figure",
+                        lambda fig, alt, *a: drawn.append((alt, fig)) or figure(fig, alt, *a))
+    text = _report.render_report(res)
+    assert f"6 of the {n} states" in text
+    (exx,) = [fig for alt, fig in drawn if alt == "map of exx"]
+    shown = _report._shown_states(n)
+    titles = [ax.get_title() for ax in exx.axes if ax.get_title()]
+    assert len(titles) == len(shown)
+    for i, title in zip(shown, titles, strict=True):
+        assert f"t = {time[i]:.4g} s" in title
+        assert f"{load[i]:.4g} kN" in title
+    assert f"6 of {n} states shown" in exx.get_suptitle()
+    (history,) = [fig for alt, fig in drawn if alt == "strain of the states"]
+    ax = history.axes[0]
+    assert ax.get_xlabel() == "time (s)"
+    lo, hi = ax.get_xlim()
+    # the seconds drawn, not state indices
+    assert lo < time[0]
+    assert time[-1] < hi

@@ -187,7 +187,7 @@ def test_uniform_grids_raise_no_contrast_step_finding(kind, angle, hole):
     of the moduli's noise stays within the displacement's noise, and no pixel is
     stated beyond it."""
     from gridstrain import measure
-    from gridstrain.series._floors import contrast_step_finding
+    from gridstrain.uncertainty import contrast_step_findings
 
     def moved(X, Y):
         return 0.3 + 1e-3 * (X - 64), -0.2 + 0 * Y
@@ -204,7 +204,11 @@ def test_uniform_grids_raise_no_contrast_step_finding(kind, angle, hole):
     err = res.u - np.stack([tx, ty])
     # the noise std of each component, measured against the truth
     std = {c: float(np.std(e[res.valid])) for c, e in zip(("ux", "uy"), err, strict=True)}
-    assert contrast_step_finding("s", _bound(res), res.valid, None, std) == []
+    noise = (std["ux"], std["uy"])
+    assert contrast_step_findings(_bound(res), res.valid, noise=noise, name="s") == []
+    # the measurement's own: the same bound, the same (no) finding
+    np.testing.assert_array_equal(res.contrast_step_bound(), _bound(res))
+    assert res.contrast_step_findings(noise=noise) == []
 
 
 def test_a_stain_under_noise_is_stated_with_its_pixels_counted():
@@ -212,21 +216,25 @@ def test_a_stain_under_noise_is_stated_with_its_pixels_counted():
     state, counts the pixels whose bound exceeds twice the noise and gives the
     largest bound, at least the largest noise-free error (0.10 px)."""
     from gridstrain import measure
-    from gridstrain.series._floors import contrast_step_finding
+    from gridstrain.uncertainty import contrast_step_findings
 
     rng = np.random.default_rng(2)
     ref = camera(_contrast_step(0.0), 0.5, 5.0, rng).astype(float)
     cur = camera(_contrast_step(0.5, mean_drop=0.5), 0.5, 5.0, rng).astype(float)
     res = measure(ref, cur, lattice=LAT, guess=None)
     # the displacement noise std of this pair, measured on the same images
-    std = {"ux": 0.0033 / np.sqrt(2), "uy": 0.0033 / np.sqrt(2)}
-    said = contrast_step_finding("s1", _bound(res), res.valid, None, std)
+    noise = (0.0033 / np.sqrt(2), 0.0033 / np.sqrt(2))
+    said = contrast_step_findings(_bound(res), res.valid, noise=noise, name="s1")
     assert [f.code for f in said] == ["contrast.step"]
     f = said[0]
     assert f.state == "s1"
     # the step's band: a few sigmas either side of it, rows all along
     assert 0 < f.figures["pixels"] < np.count_nonzero(res.valid)
     assert f.figures["max_px"] >= 0.10
+    # the pair API states it as measure_series does: the same sentence and figures
+    (own,) = res.contrast_step_findings(noise=noise, name="s1")
+    assert own == f
+    assert dict(own.figures) == dict(f.figures)
 
 
 @pytest.mark.parametrize("case", ["contrast step", "uniform"])

@@ -418,3 +418,15 @@ def test_the_result_s_own_pixel_size_is_used_and_another_refused(record):
         assert "\n" not in str(info.value)
     with pytest.raises(ValueError, match="length unit 'mm'"):
         stress_gauge_of(res, density=RHO, free_edge="left", unit="m")
+
+
+def test_command_edge_at_in_px(record, capsys):
+    """``--px``: ``--edge-at`` in px (the stress keeps mm): -5 px is -1.5 mm."""
+    args = ["stress-gauge", str(record["good"]), "--density", "2700", "--free-edge",
+            "left", "--json", "--edge-at"]
+    assert main([*args, "-1.5"]) == 0
+    mm = json.loads(capsys.readouterr().out)
+    assert main([*args, "-5", "--px"]) == 0
+    px = json.loads(capsys.readouterr().out)
+    assert px["strip_width"] == pytest.approx(mm["strip_width"], rel=1e-12)
+    assert px["E"] == pytest.approx(mm["E"], rel=1e-12)

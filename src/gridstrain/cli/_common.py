@@ -105,15 +105,34 @@ OVERWRITE_HELP = ("replace the file of that name if an earlier gridstrain run wr
                   "and it is unchanged since (never another file)")
 
 
+def make_folder(folder: Path, what: str) -> Path:
+    """Create ``folder`` and its missing parents (``mkdir -p``) for an output (``what``
+    names it in the message). Each folder made is recorded by the command's
+    :class:`Outputs`, which removes it again, if still empty, when the run then fails:
+    a refused or failed run leaves no folder behind."""
+    from ..io import make_directory
+
+    try:
+        return make_directory(folder, parents=True)
+    except (FileExistsError, NotADirectoryError) as exc:
+        raise ValueError(f"cannot create the folder {folder} for the {what}: "
+                         f"{exc.filename or folder} is a file, not a folder") from None
+    except OSError as exc:
+        raise ValueError(f"cannot create the folder {folder} for the {what}: "
+                         f"{exc.strerror or exc}") from None
+
+
 def check_output_file(path: Path, what: str, overwrite: bool, inputs=frozenset()) -> None:
     """Refuse, before any work, an output that would fail or clobber at the end: with
     ``--overwrite``, a file that gridstrain did not write (or that changed since) is
-    not replaced (:func:`gridstrain.io.written_by_gridstrain`)."""
+    not replaced (:func:`gridstrain.io.written_by_gridstrain`). Its missing folders
+    are created (:func:`make_folder`)."""
     from ..io import MARKER_NAME, written_by_gridstrain
 
     if path.resolve() in inputs:
         raise ValueError(f"{what} {path} is one of the input files; inputs are never "
                          "modified")
+    make_folder(path.parent, what)
     check_destination(path, overwrite, what=what, how="--overwrite")
     if overwrite and (path.exists() or path.is_symlink()) and \
             not written_by_gridstrain(path):

@@ -153,15 +153,19 @@ def _identity(src: Path):
     return (st.st_dev, st.st_ino, st.st_size, st.st_mtime_ns)
 
 
-def open_result(args):
-    """``(result, path, pixel_size, unit, load, load_unit, time)`` of the command's file."""
+def open_result(args, *, px_drops_scale: bool = True):
+    """``(result, path, pixel_size, unit, load, load_unit, time)`` of the command's file.
+
+    ``--px`` names places in px; with ``px_drops_scale`` it also drops the file's pixel
+    size (every length in px), else the command keeps it for its other lengths (a
+    modulus's thickness) and hands ``--px`` to the places alone."""
     from ..post import read_loads
     from ..results import state_loads
 
     src = Path(os.path.expanduser(args.result))
     result, attrs = load_with_attrs(src)
     ps, unit = attrs.get("pixel_size"), attrs.get("unit")
-    if ps is None or unit is None or getattr(args, "px", False):
+    if ps is None or unit is None or (px_drops_scale and getattr(args, "px", False)):
         ps = unit = None
     if getattr(args, "loads", None):
         own = state_loads(result)[2]

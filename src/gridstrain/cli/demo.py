@@ -137,7 +137,7 @@ def _prepare(out: Path, steps: int, overwrite: bool) -> OutputDirectory:
     names = [f"record/{_frame_name(k)}" for k in range(steps + 1)]
     names += ["mask.tif", "loads.csv", "maps.h5", "truth.h5", "report.html"]
     return OutputDirectory(out, names, overwrite=overwrite, exclusive=("record",),
-                           what="demo directory")
+                           parents=True, what="demo directory")
 
 
 def _truth(args) -> dict:

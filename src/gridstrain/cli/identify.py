@@ -34,9 +34,11 @@ def register(sub) -> None:
     p.add_argument("--load-direction", required=True, choices=("x", "y"),
                    help="the load's component: x along the columns, y down the rows")
     p.add_argument("--region", type=float, nargs=4, metavar=("X0", "Y0", "X1", "Y1"),
-                   help="only x0 <= x < x1, y0 <= y < y1 (the file's length unit; "
-                   "default: the whole valid region); its edges are the loaded, gripped "
-                   "and free edges")
+                   help="only x0 <= x < x1, y0 <= y < y1 (the file's length unit, px with "
+                   "--px; default: the whole valid region); its edges are the loaded, "
+                   "gripped and free edges")
+    p.add_argument("--px", action="store_true",
+                   help="--region in px (the thickness stays in the file's length unit)")
     p.add_argument("--elements", type=int, nargs=2, metavar=("NY", "NX"),
                    help="elements of the virtual fields' mesh along y and x (default: "
                    "about square, 8 along the longer side)")
@@ -70,7 +72,7 @@ def _write_stress(path: Path, fit, result, overwrite: bool) -> None:
 def run(args) -> int:
     from ..identify import identify
 
-    result, src, ps, unit, ld, lu, _ = open_result(args)
+    result, src, ps, unit, ld, lu, _ = open_result(args, px_drops_scale=False)
     if ps is None:
         raise ValueError(f"{src} has no pixel size: moduli need lengths (measure it with "
                          f"--pixel-size SIZE --unit mm)")
@@ -79,7 +81,8 @@ def run(args) -> int:
         check_output_file(out, "stress file", args.overwrite, {src.resolve()})
     fit = identify(result, thickness=args.thickness, loaded_edge=args.loaded_edge,
                    load_direction=args.load_direction, pixel_size=ps, unit=unit, load=ld,
-                   load_unit=lu, region=args.region, elements=args.elements)
+                   load_unit=lu, region=args.region, px=args.px,
+                   elements=args.elements)
     if out is not None:
         _write_stress(out, fit, result, args.overwrite)
     if args.json:

@@ -59,6 +59,7 @@ from ._common import (
     add_option,
     check_output_file,
     lattice_option,
+    make_folder,
     quiet_dask_logs,
     xy_pairs,
 )
@@ -474,8 +475,10 @@ def _check_outputs(opts: dict, n_states: int, inputs: set[Path]) -> None:
         # only figures an earlier run wrote there are replaced (its marker lists them)
         from ..post import figure_names  # matplotlib only when figures are asked
 
-        OutputDirectory(os.path.expanduser(opts["figures"]), figure_names(n_states),
-                        overwrite=opts["overwrite"], what="figures directory")
+        figures = Path(os.path.expanduser(opts["figures"]))
+        make_folder(figures.parent, "figures directory")  # the folder itself: save_figures
+        OutputDirectory(figures, figure_names(n_states), overwrite=opts["overwrite"],
+                        what="figures directory")
     for f in opts.get("export") or ():
         if _export_path(out, f).resolve() == out.resolve():
             raise ValueError(f"--export {f} would write {out}, the output file itself: "

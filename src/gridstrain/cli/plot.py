@@ -86,7 +86,7 @@ def run(args) -> int:
     figures[f"history.{args.format}"] = lambda: history
     # only figures gridstrain wrote there are replaced (the folder's marker lists them)
     directory = OutputDirectory(out, list(figures), overwrite=args.overwrite,
-                                what="output directory")
+                                parents=True, what="output directory")
     # build every figure before writing any: a bad option leaves no partial set
     built = {name: make() for name, make in figures.items()}
     directory.prepare()

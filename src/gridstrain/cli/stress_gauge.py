@@ -33,7 +33,10 @@ def register(sub) -> None:
                    "axis is x, the stress sxx; top/bottom: y, syy)")
     p.add_argument("--edge-at", type=float, metavar="POS",
                    help="position of the free edge along the axis, in the result's unit "
-                   "(default: the border of the result's specimen mask on that side)")
+                   "(px with --px; default: the border of the result's specimen mask on "
+                   "that side)")
+    p.add_argument("--px", action="store_true",
+                   help="--edge-at in px (the stress keeps the file's length unit)")
     p.add_argument("--smoothing", type=int, nargs=2, default=(9, 4),
                    metavar=("WINDOW", "ORDER"),
                    help="the Savitzky-Golay filter over time: states in the window (odd) "
@@ -74,7 +77,12 @@ def run(args) -> int:
     if result.time is None:
         raise ValueError(f"{src} has no times: measure the record with --each-frame "
                          "--frame-rate HZ")
-    edge = None if args.edge_at is None else args.edge_at / ps
+    from ..post import frame_of
+
+    # --edge-at in the unit places are named in (gridstrain.post's rule); it may lie
+    # outside the field (a free end beyond the image), so it is scaled, not checked
+    frame = frame_of(result.shape, pixel_size=ps, unit=unit, px=args.px)
+    edge = None if args.edge_at is None else args.edge_at / frame.scale
     window, order = args.smoothing
     try:
         g = stress_gauge_of(result, density=args.density, free_edge=args.free_edge,

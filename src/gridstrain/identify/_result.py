@@ -47,18 +47,19 @@ def _loads(result, load, load_unit):
     return arr, (load_unit or "N")
 
 
-def _region_mask(shape, ps, unit, region):
-    """The pixels of ``region`` (in ``unit``), by the rule every command names places
-    with (:func:`gridstrain.post.place_mask`)."""
+def _region_mask(frame, region):
+    """The pixels of ``region`` (in the frame's unit), by the rule every command names
+    places with (:func:`gridstrain.post.place_mask`)."""
     if region is None:
-        return np.ones(shape, dtype=bool)
-    return place_mask(frame_of(shape, pixel_size=ps, unit=unit), region=region)[0]
+        return np.ones(frame.shape, dtype=bool)
+    return place_mask(frame, region=region)[0]
 
 
 def identify(result: SeriesResult, *, thickness: float, loaded_edge: str,
              load_direction: str, pixel_size: float | None = None,
              unit: str | None = None, load=None,
-             load_unit: str | None = None, region=None, elements=None) -> VirtualFields:
+             load_unit: str | None = None, region=None, px: bool = False,
+             elements=None) -> VirtualFields:
     """Young's modulus and Poisson's ratio of a measured result by the virtual fields
     method (:func:`virtual_fields` on its maps).
 
@@ -83,7 +84,11 @@ def identify(result: SeriesResult, *, thickness: float, loaded_edge: str,
         Default: the result's, else ``"N"``.
     region : (x0, y0, x1, y1) floats, optional
         Only the pixels whose centre lies in ``x0 <= x < x1``, ``y0 <= y < y1``
-        (``unit``); its edges are then the loaded, gripped and free edges.
+        (``unit``, px with ``px``); its edges are then the loaded, gripped and free
+        edges.
+    px : bool
+        ``region`` in px (:mod:`gridstrain.post`'s rule for places); ``thickness`` and
+        the moduli keep ``unit``.
     elements : (int, int), optional
 
     Returns
@@ -122,7 +127,8 @@ def identify(result: SeriesResult, *, thickness: float, loaded_edge: str,
         raise ValueError("the result has no strain uncertainty maps (exx_std, eyy_std, "
                          "exy_std): the virtual fields' weights and intervals need them")
     load, load_unit = _loads(result, load, load_unit)
-    keep = _region_mask(result.shape, ps, unit, region)
+    frame = frame_of(result.shape, pixel_size=ps, unit=unit, px=px)
+    keep = _region_mask(frame, region)
     n = result.n_states
     valid = np.zeros((n, *result.shape), dtype=bool)
     strain = np.empty((n, 3, *result.shape))
@@ -133,7 +139,6 @@ def identify(result: SeriesResult, *, thickness: float, loaded_edge: str,
             strain[i, c] = result.get_map(name)[i]
             std[i, c] = unc[f"{name}_std"][i]
     if region is not None and not valid.any():
-        frame = frame_of(result.shape, pixel_size=ps, unit=unit)
         refuse_empty(frame, f"region {' '.join(f'{v:g}' for v in region)} {frame.unit}",
                      lambda i: result.valid[i], n)
     return virtual_fields(strain, std, load, thickness=thickness, loaded_edge=loaded_edge,

@@ -102,6 +102,7 @@ from ._files import (
 
 # shared with gridstrain's other folders, not part of the public API
 from ._files import check_destination as check_destination
+from ._files import make_directory as make_directory
 from ._files import watch_outputs as watch_outputs
 from ._formats import ImageFormat, register_format, unregister_format
 from ._hdf5_attrs import read_hdf5, read_noise_model

@@ -39,6 +39,7 @@ from ..phase import (
     wft,
 )
 from ..phase.lattice import reference_carrier, state_carrier
+from ..uncertainty import contrast_step_bound, contrast_step_findings
 from ._fringe_order import (
     FringeOrder,
     _CoarseReference,
@@ -144,6 +145,42 @@ class Measurement:
     def exy(self) -> np.ndarray:
         """(H, W) shear strain (tensor component, half the engineering shear)."""
         return self.strain[2]
+
+    def contrast_step_bound(self) -> np.ndarray:
+        """(H, W) float64 bound of the displacement's bias next to a change of the
+        grid's contrast between the two states (a stain, a shadow, a hole's edge), px,
+        NaN where not valid: :func:`gridstrain.uncertainty.contrast_step_bound` of
+        this measurement's transforms, the bound ``measure_series`` states per state.
+
+        Raises
+        ------
+        ValueError
+            A measurement that no longer holds its phase maps (``reference`` or
+            ``deformed`` None).
+        """
+        if self.reference is None or self.deformed is None:
+            raise ValueError("this measurement holds no phase maps (reference or "
+                             "deformed is None): the contrast step's bound needs both "
+                             "states' transforms; measure the pair again")
+        return contrast_step_bound(self.reference.psi, self.deformed.psi, self.u,
+                                   self.valid, sigma=self.sigma)
+
+    def contrast_step_findings(self, *, noise=None, name: str = "deformed") -> list:
+        """The ``"contrast.step"`` finding of :meth:`contrast_step_bound` where it
+        exceeds the noise (:func:`gridstrain.uncertainty.contrast_step_findings`,
+        the rule ``measure_series`` states each state's by), or none.
+
+        Parameters
+        ----------
+        noise : mapping or (float, float), optional
+            Displacement noise maps ``{"ux_std", "uy_std"}`` or floors
+            ``(std u_x, std u_y)``, px (:func:`gridstrain.predict_uncertainty`);
+            default: not known, the bound's own median sets the level.
+        name : str
+            The state, in the sentence.
+        """
+        return contrast_step_findings(self.contrast_step_bound(), self.valid, noise=noise,
+                                      name=name)
 
     def __repr__(self) -> str:
         H, W = self.valid.shape

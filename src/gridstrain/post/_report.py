@@ -42,7 +42,7 @@ import numpy as np
 
 from .._progress import SEVERITIES
 from .._validation import as_path, check_choice, check_positive, check_type
-from ..io import write_atomic
+from ..io import available_memory, write_atomic
 from ..results import MAP_FIELDS, SeriesResult, load, read_attrs, state_loads
 from ._constants import elastic_constants
 from ._gauges import gauge
@@ -69,6 +69,10 @@ _DPI = 90
 _MAX_HEIGHT_PX = 4000
 _TICKS = 12  # state labels on a history's axis, at most
 _UNC = ("ux_std", "uy_std", "exx_std", "eyy_std", "exy_std")
+# The report reads its maps into memory once when they take at most this share of the
+# memory available (the figures, the percentiles and the matplotlib canvases take the
+# rest); else state by state from the file, as often as its figures need them.
+_IN_MEMORY_SHARE = 0.25
 
 
 def _template():
@@ -135,19 +139,30 @@ def _spread(n: int, k: int) -> list[int]:
     return np.unique(np.linspace(0, n - 1, k).round().astype(int)).tolist()
 
 
-def _subset(result, states: list[int]):
-    """The result restricted to some states, for the figures of their maps (those
-    states alone read from a result whose maps stay in its file)."""
-    if states == list(range(result.n_states)):
+def _maps_read_once(result: SeriesResult) -> SeriesResult:
+    """``result`` with its per-state maps read from its file in one read each, when
+    they fit :data:`_IN_MEMORY_SHARE` of the memory available: the report's figures,
+    table and histories then read each state's maps from memory rather than the file
+    (a dozen reads of every state of a long record, most of the report's time beside
+    the drawing). The same values (a lazy map reads what loading would): the same
+    page. Left as it is when its maps are in memory already or do not fit."""
+    stored = [a for a in (result.u, result.strain, result.valid,
+                          *(result.uncertainty or {}).values(),
+                          *(m.rotation for m in result.measurements))
+              if not isinstance(a, np.ndarray)]
+    if not stored:
         return result
-    idx = np.array(states)
+    need = sum(int(np.prod(a.shape)) * np.dtype(a.dtype).itemsize for a in stored)
+    if need > _IN_MEMORY_SHARE * available_memory()[0]:
+        return result
+    measurements = tuple(m if isinstance(m.rotation, np.ndarray) else
+                         dataclasses.replace(m, rotation=np.asarray(m.rotation))
+                         for m in result.measurements)
     return dataclasses.replace(
-        result, u=np.asarray(result.u[idx]), strain=np.asarray(result.strain[idx]),
-        valid=np.asarray(result.valid[idx]),
-        measurements=tuple(result.measurements[i] for i in states),
-        names=(result.names[0], *(result.names[i + 1] for i in states)),
+        result, u=np.asarray(result.u), strain=np.asarray(result.strain),
+        valid=np.asarray(result.valid), measurements=measurements,
         uncertainty=None if result.uncertainty is None else
-        {k: np.asarray(v[idx]) for k, v in result.uncertainty.items()})
+        {k: np.asarray(v) for k, v in result.uncertainty.items()})
 
 
 def render_report(result: SeriesResult, *, attrs: dict | None = None,
@@ -200,6 +215,7 @@ def render_report(result: SeriesResult, *, attrs: dict | None = None,
         ps, unit = result.pixel_size, result.unit
     test = {"region": region, "px": bool(px), "area": area, "area_unit": area_unit,
             "axis": axis}
+    result = _maps_read_once(result)
     with warnings.catch_warnings():
         # long state names squeeze a figure's margins; it is drawn all the same
         warnings.filterwarnings("ignore", "Tight layout not applied", UserWarning)
@@ -211,20 +227,18 @@ def render_report(result: SeriesResult, *, attrs: dict | None = None,
 def _context(result, a: dict, ps, unit, title: str, test: dict, colours: dict) -> dict:
     """The values the template shows: texts, tables and figures."""
     states = _shown_states(result.n_states)
-    shown = _subset(result, states)
     return {
         "title": title, "summary": _summary(result, a, ps, unit),
         # most serious first (their codes' severity), each with its code
         "warnings": sorted(result.warnings, key=lambda w: -SEVERITIES.index(w.severity)),
         "test": _test_section(result, ps, unit, **test),
         **_series_section(result, states), **_lattice_section(result),
-        **_maps_section(result, shown, ps, unit, colours),
+        **_maps_section(result, states, ps, unit, colours),
         **_states_section(result, ps, unit), **_checks_section(result),
-        "uncertainty": [_figure(plot_states(shown, name, pixel_size=ps, unit=unit,
-                                            px=ps is None,
-                                            **colours),
+        "uncertainty": [_figure(plot_states(result, name, pixel_size=ps, unit=unit,
+                                            px=ps is None, states=states, **colours),
                                 f"uncertainty map of {name}")
-                        for name in (shown.uncertainty or {}) if name in _UNC],
+                        for name in (result.uncertainty or {}) if name in _UNC],
         "extra": _extra_fields(result),
         "parameters": _table(["parameter", "value"],
                              [[str(k), _plain(v)] for k, v in result.parameters.items()],
@@ -405,9 +419,11 @@ def _series_section(result, states: list[int]) -> dict:
     return {"series": table, "vibration_figures": figures, "vibration_note": note}
 
 
-def _maps_section(result, shown, ps, unit, colours: dict) -> dict:
-    """The maps of the shown states on colour limits common to them."""
-    n, k = result.n_states, shown.n_states
+def _maps_section(result, states: list[int], ps, unit, colours: dict) -> dict:
+    """The maps of the shown ``states`` on colour limits common to every state: the
+    full result is drawn with its states chosen, so that each panel carries its own
+    state's load and time."""
+    n, k = result.n_states, len(states)
     which = "Every state" if k == n else (
         f"{k} of the {n} states (the first, the last and evenly spaced ones; the "
         "histories and the table below hold every state)")
@@ -420,8 +436,8 @@ def _maps_section(result, shown, ps, unit, colours: dict) -> dict:
             f"displacements in {unit if ps else 'px'}; outside the valid region the "
             "reference image shows through.")
     # limits given explicitly are in one quantity's unit: they apply to the strains
-    maps = [_figure(plot_states(shown, name, pixel_size=ps, unit=unit, px=ps is None,
-                                cmap=colours["cmap"],
+    maps = [_figure(plot_states(result, name, pixel_size=ps, unit=unit, px=ps is None,
+                                states=states, cmap=colours["cmap"],
                                 limits=lim if isinstance(lim, str) or name[0] == "e"
                                 else "robust"), f"map of {name}")
             for name in (*MAP_FIELDS, "rotation")]
@@ -462,7 +478,8 @@ def _states_section(result, ps=None, unit=None) -> dict:
         for names, what in ((("exx", "eyy", "exy"), "Strain"), (("ux", "uy"), "Displacement")):
             fig = plot_history(result, names=names, pixel_size=ps, unit=unit,
                                px=ps is None)
-            _thin_ticks(fig, result.n_states)
+            if time is None and load is None:  # else drawn against them, not the state
+                _thin_ticks(fig, result.n_states)
             histories.append(_figure(fig, f"{what.lower()} of the states",
                                      f"{what} of every state, mean over the valid pixels."))
     return {"states": table, "histories": histories}
@@ -482,7 +499,8 @@ def _checks_section(result) -> dict:
 
 
 def _thin_ticks(fig, n: int) -> None:
-    """At most :data:`_TICKS` state labels on a history's axis, by state index."""
+    """At most :data:`_TICKS` state labels on a history's axis, by state index (a
+    history drawn against the states: one against time or load keeps its axis)."""
     if n <= _TICKS:
         return
     ax = fig.axes[0]

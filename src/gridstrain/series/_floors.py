@@ -410,50 +410,6 @@ def _aliasing_warning(name: str, m: Measurement, fl: dict, alias: dict,
             + " (the reference's print at its pitch: the states after it share the bound)")
 
 
-# A contrast step's bound is stated where it exceeds this many times the pixel's
-# displacement noise std |(std u_x, std u_y)|: on grids of uniform contrast the bound
-# made from the noise of the moduli stays within about one std (0.4 to 0.9 of twice
-# it on noisy checkerboards and line grids; tests/test_small_defects.py).
-_CONTRAST_FACTOR = 2.0
-# ... or, where no noise is known, this many times the bound's median over the valid
-# pixels, the level the moduli's noise sets: on 24 noisy uniform grids (checkerboards
-# and lines, 0 and 10 degrees, with and without a hole moving with the specimen) the
-# largest bound was 1.3 to 2.0 times the median.
-_CONTRAST_OVER_MEDIAN = 4.0
-
-
-def contrast_step_finding(name: str, bound: np.ndarray, valid: np.ndarray,
-                          unc: dict | None, fl: dict) -> list[Finding]:
-    """The finding of a change of the grid's contrast whose bias
-    (:func:`gridstrain.uncertainty.contrast_step_bound`, ``bound``) exceeds the noise:
-    the pixels beyond it counted, or none."""
-    if not valid.any():
-        return []
-    b = bound[valid]
-    if unc is not None:
-        level = _CONTRAST_FACTOR * np.hypot(unc["ux_std"], unc["uy_std"])[valid]
-        against = f"{_CONTRAST_FACTOR:g} times the noise std"
-    elif all(math.isfinite(fl[k]) for k in ("ux", "uy")):  # no map: the state's floors
-        level = _CONTRAST_FACTOR * math.hypot(fl["ux"], fl["uy"])
-        against = f"{_CONTRAST_FACTOR:g} times the noise std"
-    else:
-        level = _CONTRAST_OVER_MEDIAN * float(np.median(b))
-        against = (f"{_CONTRAST_OVER_MEDIAN:g} times the bound's median (the noise "
-                   "not known)")
-    beyond = (b > level) & (b > _ALIAS_MIN_PX)
-    n = int(np.count_nonzero(beyond))
-    if not n:
-        return []
-    worst = float(np.max(b))
-    text = (f"{name}: the grid's contrast changes between the states (a stain, a shadow, a "
-            f"hole's edge): next to it the displacement may be biased by up to {worst:.2g} px, "
-            f"more than {against} on {n} valid pixels "
-            f"({n / b.size:.1%}); gridstrain.uncertainty.contrast_step_bound maps the bound; "
-            "mask the region or keep the contrast steady")
-    return [Finding("contrast.step", text, state=name, pixels=n, fraction=n / b.size,
-                    max_px=worst)]
-
-
 def _smoothing_warnings(name: str, m: Measurement, fl: dict, smooth: dict) -> list[str]:
     """Warnings for the window's smoothing of one state's strain gradients where its
     bias can exceed the noise."""

@@ -23,6 +23,7 @@ from ..io import FrameSeries, StateInputs, open_series, read_mask, record_number
 from ..phase import Lattice
 from ..phase.window import min_side
 from ..stacks.accumulate import motion_sums_bytes
+from ..uncertainty import contrast_step_bytes
 
 
 class _ArraySeries:
@@ -315,6 +316,9 @@ def _check_memory(series: list, *, method: str, held: bool) -> None:
     # the pass over the longest series: the sums of its variance's harmonic terms
     # (gridstrain.stacks.accumulate), on top of the calibrated 4-frame figures
     peak += motion_sums_bytes(series[0].shape, max(s.n_frames for s in series))
+    # the sampled checks' contrast-step bound, made while a state's transforms are
+    # held: its temporaries on top (the calibrated figures predate it)
+    peak += contrast_step_bytes(series[0].shape)
     H, W = series[0].shape
     advice = ("measure a smaller region (crop the frames), fewer states at once"
               + (", each state written as measured (an output file, without "

@@ -40,8 +40,12 @@ from ..kinematics import (
     without_discontinuities,
 )
 from ..kinematics.tracking import SMALL_STEP, check_after_warp, state_runs
-from ..uncertainty import contrast_step_bound, nearest_filled, nearest_index
-from ._floors import contrast_step_finding
+from ..uncertainty import (
+    contrast_step_bound,
+    contrast_step_findings,
+    nearest_filled,
+    nearest_index,
+)
 from ._passes import _WFT_COST, _pair_check
 from ._sinks import empty_state_message
 
@@ -235,8 +239,10 @@ def _uncertainty(run, st: _State) -> None:
     st.say(said, "aliasing.bound")
     bound, st.contrast = st.contrast, None
     if bound is not None:
-        st.notes.extend(contrast_step_finding(st.name, bound, st.res.valid, st.unc,
-                                              st.floors))
+        # the noise: the uncertainty maps, else the state's floors
+        noise = st.unc if st.unc is not None else (st.floors["ux"], st.floors["uy"])
+        st.notes.extend(contrast_step_findings(bound, st.res.valid, noise=noise,
+                                               name=st.name))
 
 
 def _smoothing(run, st: _State) -> None:

@@ -22,7 +22,8 @@ from __future__ import annotations
 # shared with gridstrain's other folders, not part of the public API
 from ._aliasing import aliasing_advice as aliasing_advice
 from ._aliasing import aliasing_bias
-from ._contrast import CONTRAST_STEP_PX, contrast_step_bound
+from ._contrast import CONTRAST_STEP_PX, contrast_step_bound, contrast_step_findings
+from ._contrast import contrast_step_bytes as contrast_step_bytes
 from ._maps import FWHM_PER_SIGMA as FWHM_PER_SIGMA
 from ._maps import SPATIAL_RESOLUTION_PER_SIGMA as SPATIAL_RESOLUTION_PER_SIGMA
 from ._maps import (
@@ -57,6 +58,7 @@ __all__ = [
     "aliasing_bias",
     "anscombe",
     "contrast_step_bound",
+    "contrast_step_findings",
     "displacement_strain_std",
     "estimate_noise",
     "estimate_noise_image",

@@ -19,12 +19,15 @@ A hole's edge moving with the specimen (0.3 to 3.4 px) gives a bound of 0.001 to
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from scipy import ndimage
 
+from .._progress import Finding
 from .._validation import check_positive
 
-__all__ = ["CONTRAST_STEP_PX", "contrast_step_bound"]
+__all__ = ["CONTRAST_STEP_PX", "contrast_step_bound", "contrast_step_findings"]
 
 #: The bound's displacement per unit of the steepness's change, px: above the
 #: largest error over steepness measured (0.24 for a step of the mean level alone,
@@ -35,6 +38,20 @@ CONTRAST_STEP_PX = 0.3
 # Pixels whose material points are computed at once.
 _BLOCK = 1 << 20
 
+# A contrast step's bound is stated where it exceeds this many times the pixel's
+# displacement noise std |(std u_x, std u_y)|: on grids of uniform contrast the bound
+# made from the noise of the moduli stays within about one std (0.4 to 0.9 of twice
+# it on noisy checkerboards and line grids; tests/test_small_defects.py).
+_CONTRAST_FACTOR = 2.0
+# ... or, where no noise is known, this many times the bound's median over the valid
+# pixels, the level the moduli's noise sets: on 24 noisy uniform grids (checkerboards
+# and lines, 0 and 10 degrees, with and without a hole moving with the specimen) the
+# largest bound was 1.3 to 2.0 times the median.
+_CONTRAST_OVER_MEDIAN = 4.0
+# ... and never below this displacement, px: below it no measurement can tell a bias
+# from noise (the floor of the aliasing bound's finding too).
+_MIN_PX = 1e-3
+
 
 def _log_gradient(psi: np.ndarray) -> np.ndarray:
     """``grad ln |psi|`` per px, ``(d/dx, d/dy)``; zero where the modulus is zero."""
@@ -43,6 +60,50 @@ def _log_gradient(psi: np.ndarray) -> np.ndarray:
     lg = np.log(np.maximum(mod, tiny))
     gy, gx = np.gradient(lg)
     return np.stack([gx, gy])
+
+
+def contrast_step_bytes(shape) -> int:
+    """Bytes :func:`contrast_step_bound` allocates on maps of ``shape`` ``(H, W)``
+    beyond its inputs, at its peak: for the memory budget of a measurement, whose
+    sampled checks make the bound while the state's transforms are held.
+
+    The larger of a carrier's log-modulus gradients being made (72 bytes a pixel:
+    the bound's map, the reference's gradients and the deformed state's with their
+    temporaries) and a block of rows' material points beside both gradients (40
+    bytes a pixel and 48 a pixel of the block, at most ``_BLOCK`` pixels), and
+    256 KiB of small arrays: the peaks ``tracemalloc`` measures, 72 to 88.4 bytes a
+    pixel from 12 kpx to 4.2 Mpx (tests/test_memory.py).
+    """
+    H, W = (int(v) for v in shape)
+    block = min(H, max(1, _BLOCK // max(W, 1))) * W
+    return max(72 * H * W, 40 * H * W + 48 * block) + 2**18
+
+
+def _steepest_change(s: np.ndarray, r: np.ndarray, d: np.ndarray, u: np.ndarray,
+                     v: np.ndarray) -> None:
+    """``s = max(s, |grad ln|d|(x + u) - grad ln|r|(x)|)`` for one carrier, in place;
+    its gradients and a block's temporaries are freed on return (the budget's
+    :func:`contrast_step_bytes`)."""
+    H, W = v.shape
+    gr = _log_gradient(r)
+    gd = _log_gradient(d)
+    # the material points' coordinates by blocks of rows: two float64 maps of the
+    # image's size would be the largest arrays of the bound
+    step = max(1, _BLOCK // W)
+    for r0 in range(0, H, step):
+        _block_change(s, gr, gd, u, v, slice(r0, min(H, r0 + step)))
+
+
+def _block_change(s, gr, gd, u, v, b: slice) -> None:
+    """:func:`_steepest_change` on the rows ``b``."""
+    W = v.shape[1]
+    vb = v[b]
+    rows = np.arange(b.start, b.stop, dtype=np.float64)[:, None]
+    cols = np.arange(W, dtype=np.float64)[None, :]
+    at = [rows + np.where(vb, u[1, b], 0.0), cols + np.where(vb, u[0, b], 0.0)]
+    dx, dy = (ndimage.map_coordinates(g, at, order=1, mode="nearest") - q[b]
+              for g, q in zip(gd, gr, strict=True))
+    np.maximum(s[b], np.hypot(dx, dy), out=s[b])
 
 
 def contrast_step_bound(reference_psi, deformed_psi, u, valid, *, sigma: float) -> np.ndarray:
@@ -76,21 +137,8 @@ def contrast_step_bound(reference_psi, deformed_psi, u, valid, *, sigma: float) 
     H, W = v.shape
     u = np.asarray(u)
     s = np.zeros((H, W))
-    # the material points' coordinates by blocks of rows: two float64 maps of the
-    # image's size would be the largest arrays of the bound
-    step = max(1, _BLOCK // W)
-    cols = np.arange(W, dtype=np.float64)[None, :]
     for r, d in zip(ref, dfm, strict=True):
-        gr = _log_gradient(r)
-        gd = _log_gradient(d)
-        for r0 in range(0, H, step):
-            b = slice(r0, min(H, r0 + step))
-            vb = v[b]
-            rows = np.arange(b.start, b.stop, dtype=np.float64)[:, None]
-            at = [rows + np.where(vb, u[1, b], 0.0), cols + np.where(vb, u[0, b], 0.0)]
-            dx, dy = (ndimage.map_coordinates(g, at, order=1, mode="nearest") - q[b]
-                      for g, q in zip(gd, gr, strict=True))
-            np.maximum(s[b], np.hypot(dx, dy), out=s[b])
+        _steepest_change(s, r, d, u, v)
     # the steepness ripples within a period where the leak does not (the grid's
     # harmonics in the modulus): its largest value within a sigma bounds the leak,
     # over the valid pixels only (an invalid one is not followed by u, and a hole's
@@ -99,3 +147,63 @@ def contrast_step_bound(reference_psi, deformed_psi, u, valid, *, sigma: float) 
     size = 2 * int(np.ceil(sigma)) + 1
     s = ndimage.maximum_filter(s, size=size, mode="nearest")
     return np.where(v, CONTRAST_STEP_PX * sigma * s, np.nan)
+
+
+def contrast_step_findings(bound, valid, *, noise=None, name: str = "state"
+                           ) -> list[Finding]:
+    """The finding of a change of the grid's contrast whose bias bound exceeds the
+    noise: the pixels beyond it counted, or none.
+
+    Parameters
+    ----------
+    bound : (H, W) float array_like
+        :func:`contrast_step_bound`, px.
+    valid : (H, W) bool array_like
+    noise : mapping or (float, float), optional
+        The displacement noise: maps ``{"ux_std": (H, W), "uy_std": (H, W)}`` px
+        (a result's uncertainty maps), or the state's floors ``(std u_x, std u_y)``
+        px. Default (or NaN floors): not known.
+    name : str
+        The state, in the sentence and the finding's ``state``.
+
+    Returns
+    -------
+    list of Finding
+        None, or one ``"contrast.step"`` finding with its figures ``pixels``,
+        ``fraction`` (of the valid pixels) and ``max_px``.
+
+    Notes
+    -----
+    A pixel counts where its bound exceeds twice the noise std
+    ``|(std u_x, std u_y)|`` (on grids of uniform contrast the bound stays within
+    about one std) and 1e-3 px; without a noise, four times the bound's median over
+    the valid pixels (the level the moduli's noise sets: at most twice it on uniform
+    grids).
+    """
+    v = np.asarray(valid, dtype=bool)
+    if not v.any():
+        return []
+    b = np.asarray(bound, dtype=np.float64)[v]
+    if isinstance(noise, dict):
+        level = _CONTRAST_FACTOR * np.hypot(np.asarray(noise["ux_std"]),
+                                            np.asarray(noise["uy_std"]))[v]
+        against = f"{_CONTRAST_FACTOR:g} times the noise std"
+    elif noise is not None and all(math.isfinite(float(x)) for x in noise):
+        level = _CONTRAST_FACTOR * math.hypot(*(float(x) for x in noise))
+        against = f"{_CONTRAST_FACTOR:g} times the noise std"
+    else:
+        level = _CONTRAST_OVER_MEDIAN * float(np.median(b))
+        against = (f"{_CONTRAST_OVER_MEDIAN:g} times the bound's median (the noise "
+                   "not known)")
+    beyond = (b > level) & (b > _MIN_PX)
+    n = int(np.count_nonzero(beyond))
+    if not n:
+        return []
+    worst = float(np.max(b))
+    text = (f"{name}: the grid's contrast changes between the states (a stain, a shadow, a "
+            f"hole's edge): next to it the displacement may be biased by up to {worst:.2g} px, "
+            f"more than {against} on {n} valid pixels "
+            f"({n / b.size:.1%}); gridstrain.uncertainty.contrast_step_bound maps the bound; "
+            "mask the region or keep the contrast steady")
+    return [Finding("contrast.step", text, state=name, pixels=n, fraction=n / b.size,
+                    max_px=worst)]
