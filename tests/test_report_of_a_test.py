@@ -220,3 +220,53 @@ def test_report_state_table_says_displacements_in_the_maps_unit(tested):
     from gridstrain.post._report import _micro
 
     assert (_micro(8.34e-4), _micro(1.26e-5), _micro(float("nan"))) == ("830", "13", "–")
+
+
+@pytest.fixture(scope="module")
+def unloaded(tmp_path_factory):
+    """Two strain states of :func:`_grid` measured without loads, saved."""
+    d = tmp_path_factory.mktemp("unloaded")
+    rng = np.random.default_rng(43)
+    res = measure_series(_grid(0.0, 0.0, rng), [_grid(5e-4, -1.6e-4, rng),
+                                               _grid(1e-3, -3.3e-4, rng)])
+    return save_result(res, d / "r.h5")
+
+
+def test_report_gauge_of_a_result_without_loads(unloaded, tmp_path):
+    """A region named on a result without loads is gauged (its strains per state and
+    their history), not silently ignored; no load column, no E; the note says why."""
+    out = tmp_path / "g.html"
+    region = (20.0, 20.0, 76.0, 76.0)
+    assert main(["report", str(unloaded), "-o", str(out), "--region",
+                 *map(str, region)]) == 0
+    page = out.read_text(encoding="utf-8")
+    section = page[page.index("<h2>The test</h2>"):page.index("<h2>Maps</h2>")]
+    text = " ".join(_text(section).split())
+    assert "gauge over x in [20, 76)" in text
+    assert "load (" not in text  # the gauge's table has no load column
+    assert 'alt="gauge history"' in section
+    assert "The states have no loads" in text
+    # the oracle: the gauge of that region alone, last state, as the table prints it
+    reading = gauge(load(unloaded), region=region)
+    v, sd = reading.exx[-1] * 1e6, reading.exx_std[-1] * 1e6
+    d = max(0, 1 - int(np.floor(np.log10(sd))))
+    assert f"{v:.{d}f} ± {sd:.{d}f}" in text
+
+
+def test_report_region_outside_a_result_without_loads_is_refused(unloaded, tmp_path,
+                                                                 capsys):
+    # outside the 96-px field: one line naming the field's extent, no page
+    out = tmp_path / "far.html"
+    assert main(["report", str(unloaded), "-o", str(out), "--region",
+                 "500", "500", "600", "600"]) != 0
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1
+    assert "96" in err
+    assert not out.exists()
+
+
+def test_report_of_a_result_without_loads_and_no_region_has_no_test_section(unloaded,
+                                                                           tmp_path):
+    out = tmp_path / "plain.html"
+    assert main(["report", str(unloaded), "-o", str(out)]) == 0
+    assert "<h2>The test</h2>" not in out.read_text(encoding="utf-8")

@@ -13,17 +13,19 @@ def register(sub) -> None:
     p = sub.add_parser(
         "report", help="a self-contained HTML report of a result file",
         description="Write one HTML file (figures embedded, nothing fetched from the "
-        "network): when the states have loads, a gauge's strains in every state, their "
-        "history and the load-strain plot, or with --area the stress-strain plot with "
-        "Young's modulus and Poisson's ratio and their 95 percent intervals; the maps "
+        "network): when the states have loads or a --region is named, a gauge's strains "
+        "in every state and their history; with loads the load-strain plot, or with "
+        "--area the stress-strain plot with Young's modulus and Poisson's ratio and "
+        "their 95 percent intervals; the maps "
         "of every state on colour limits they share; one table with a row per state "
         "and one with a row per image series; the uncertainty maps, the lattice, the "
         "warnings and the run's provenance.")
     p.add_argument("result", metavar="RESULT.h5", help="a file written by gridstrain measure")
     p.add_argument("-o", "--output", metavar="REPORT.html",
                    help="output file (default: RESULT.html next to the result)")
-    g = p.add_argument_group("the test (with loads; coordinates in the file's physical "
-                             "unit when it has a pixel size, else px; --px forces px)")
+    g = p.add_argument_group("the test (a gauge; E and nu need loads; coordinates in "
+                             "the file's physical unit when it has a pixel size, else "
+                             "px; --px forces px)")
     g.add_argument("--region", type=float, nargs=4, metavar=("X0", "Y0", "X1", "Y1"),
                    action="append",
                    help="a gauge: mean over the rectangle x0 <= x < x1, y0 <= y < y1 "

@@ -4,8 +4,9 @@
 single HTML file: no script, no style sheet or font fetched, every figure a PNG
 embedded as a ``data:`` URI, so the page shows the same offline, attached to an
 e-mail or archived with the data. It shows first what the test was run for: when
-the states have loads, a gauge (the whole valid region, or the region given) with
-its strains and their std in every state, their history, and the load–strain plot,
+the states have loads or a region is given, a gauge (the whole valid region, or the
+region given) with its strains and their std in every state and their history; with
+loads the load–strain plot,
 or with the specimen's cross-section the stress–strain plot with Young's modulus
 and Poisson's ratio and their 95 % intervals (:func:`gridstrain.post.
 elastic_constants`). Then the maps on colour limits shared by the states (robust
@@ -183,7 +184,8 @@ def render_report(result: SeriesResult, *, attrs: dict | None = None,
         The gauge(s) of the test's section (:func:`gridstrain.post.gauge`), in the
         file's unit when ``attrs`` (or the result) give a pixel size, else px; several
         gauges ``G1``, ``G2``... share the table (their columns side by side), each
-        with its figures and constants. Default: the whole valid region.
+        with its figures and constants. Default: the whole valid region. Gauged
+        also when the states have no loads (no load column, plot or constants then).
     px : bool
         ``region`` in px even when the file has a pixel size.
     area : float, optional
@@ -279,17 +281,19 @@ def _test_section(result, ps, unit, *, region, px: bool, area, area_unit: str,
     stress–strain plot with E and ν (with the area) or the load–strain plot
     (without)."""
     load, load_unit, time = state_loads(result)
-    if load is None:
+    if load is None and region is None:
         return None
     named = {} if px or ps is None else {"pixel_size": ps, "unit": unit}
     regions = _regions(region)
     readings = [gauge(result, region=r, px=px, **named) for r in regions]
     several = len(readings) > 1
     tags = [f"G{g + 1} " if several else "" for g in range(len(readings))]
-    head = ["state", "time (s)", f"load ({load_unit or '–'})"]
+    head = ["state", "time (s)", *([f"load ({load_unit or '–'})"] if load is not None
+                                   else [])]
     for tag in tags:
         head += [f"{tag}pixels", f"{tag}ε_xx (µε)", f"{tag}ε_yy (µε)", f"{tag}ε_xy (µε)"]
-    rows = [[name, _num(time[i], ".4g") if time is not None else "–", _num(load[i], ".4g"),
+    rows = [[name, _num(time[i], ".4g") if time is not None else "–",
+             *([_num(load[i], ".4g")] if load is not None else []),
              *(cell for r in readings for cell in (
                  int(r.n_pixels[i]), *(_with_std(getattr(r, c)[i], getattr(r, f"{c}_std")[i])
                                        for c in ("exx", "eyy", "exy"))))]
@@ -300,6 +304,8 @@ def _test_section(result, ps, unit, *, region, px: bool, area, area_unit: str,
         figures.append(_figure(plot_gauge(reading), f"gauge history{own}",
                                f"The gauge's{own} mean strains in every state, with one "
                                "std."))
+        if load is None:
+            continue
         if area is None:
             figures.append(_figure(plot_load_strain(reading, axis=axis),
                                    f"load-strain plot{own}",
@@ -324,7 +330,10 @@ def _test_section(result, ps, unit, *, region, px: bool, area, area_unit: str,
                      f"intervals from the {c.interval_basis} (reduced χ² "
                      f"{c.reduced_chi2[0]:.2f} axial, {c.reduced_chi2[1]:.2f} "
                      "transverse).")
-    if area is None:
+    if load is None:
+        notes.append("The states have no loads: no load-strain plot, Young's modulus "
+                     "or Poisson's ratio (measure --loads FILE records them).")
+    elif area is None:
         notes.append("Young's modulus and Poisson's ratio need the specimen's "
                      "cross-section: gridstrain report RESULT.h5 --area A (in mm² by "
                      "default).")
@@ -335,7 +344,8 @@ def _test_section(result, ps, unit, *, region, px: bool, area, area_unit: str,
               for g, r in zip(regions, readings, strict=True)]
     where = places[0] if not several else "; ".join(
         f"{tag.strip()}, {w}" for tag, w in zip(tags, places, strict=True))
-    return {"where": where, "loads": _loads_note(result, load_unit),
+    return {"where": where,
+            "loads": _loads_note(result, load_unit) if load is not None else None,
             "table": _table(head, rows), "figures": figures, "constants": constants,
             "note": " ".join(notes) or None}
 
