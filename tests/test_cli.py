@@ -542,3 +542,17 @@ def test_outputs_into_folders_not_made_yet(data, tmp_path, capsys):
     assert len(err.strip().splitlines()) == 1
     assert "taken.csv" in err
     assert "a file" in err
+
+
+def test_python_dash_m_gridstrain_is_the_command():
+    # `python -m gridstrain` runs the same command line as `gridstrain`
+    import subprocess
+    import sys
+
+    p = subprocess.run([sys.executable, "-m", "gridstrain", "--version"],
+                       capture_output=True, text=True, timeout=120, check=False)
+    q = subprocess.run([sys.executable, "-m", "gridstrain.cli", "--version"],
+                       capture_output=True, text=True, timeout=120, check=False)
+    assert p.returncode == 0, p.stderr
+    assert p.stdout == q.stdout
+    assert "gridstrain" in p.stdout
