@@ -312,3 +312,29 @@ def test_the_compiled_rounding_gives_the_numpy_paths_bits(shape, monkeypatch):
     monkeypatch.setattr(_precision, "_COMPILED", False)
     with pytest.raises(ValueError, match="fit float32"):
         _precision.round_to_std(np.full(shape, 1e39), np.ones(shape))
+
+
+def test_a_chunk_encoded_by_the_compiled_loops_is_the_one_hdf5_writes(held, tmp_path,
+                                                                      monkeypatch):
+    """Each compressed map's chunk (rounded maps, std maps, maps in physical units, the
+    validity), shuffled, deflated and checksummed by gridstrain's loops and written
+    directly, holds the bytes HDF5's own filters write: the same file for any reader."""
+    from gridstrain.results import _precision
+
+    if _precision._load_kernels() is None:
+        pytest.skip("numba is not installed")
+    paths = {}
+    for compiled in (False, True):
+        monkeypatch.setattr(_precision, "_COMPILED", compiled)
+        paths[compiled] = save_result(held, tmp_path / f"{compiled}.h5", pixel_size=PS,
+                                      unit="mm")
+    with h5py.File(paths[False], "r") as a, h5py.File(paths[True], "r") as b:
+        names = [n for n, d in a.items() if isinstance(d, h5py.Dataset)
+                 and d.compression == "gzip" and d.ndim == 3 and d.chunks[0] == 1]
+        assert {"ux", "exx_std", "ux_phys", "valid"} <= set(names)
+        for name in names:
+            assert b[name].id.get_create_plist().get_nfilters() == 3
+            for k in range(a[name].shape[0]):
+                want = a[name].id.read_direct_chunk((k, 0, 0))
+                assert b[name].id.read_direct_chunk((k, 0, 0)) == want, (name, k)
+            assert_array_equal(b[name][()], a[name][()])

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import dataclasses
 import os
+import zlib
 from collections.abc import Mapping
 
 import h5py
@@ -29,6 +30,7 @@ from ._precision import (
     STD_BITS,
     STD_FRACTION,
     STD_OF,
+    _kernels,
     round_relative,
     round_to_std,
 )
@@ -303,9 +305,50 @@ def _put_state(h5, k: int, arrays: dict, ps, *, lossless: bool = True) -> None:
     if not lossless:
         arrays = _rounded(h5, k, arrays, ps)
     for name, arr in arrays.items():
-        (h5[name] if lossless else _uncached(h5, name))[k] = arr
-        if lossless and ps is not None and name in ("ux", "uy"):
+        if not lossless:
+            _put_compressed(h5, name, k, arr)
+            continue
+        h5[name][k] = arr
+        if ps is not None and name in ("ux", "uy"):
             h5[f"{name}_phys"][k] = np.asarray(arr) * ps
+
+
+# A compressed map's filters in HDF5's pipeline order, as _FILTERS creates them
+_PIPELINE = (h5py.h5z.FILTER_SHUFFLE, h5py.h5z.FILTER_DEFLATE, h5py.h5z.FILTER_FLETCHER32)
+
+
+def _put_compressed(h5, name: str, k: int, arr: np.ndarray) -> None:
+    """State ``k``'s map ``arr`` into the compressed variable ``name``, one chunk. With
+    the compiled loops, the chunk is encoded here and written as it is: shuffled,
+    deflated by zlib and checksummed as HDF5's filters do, the same bytes
+    (:mod:`gridstrain.results._kernels`), without the copies of the map that HDF5's
+    pipeline makes; through the pipeline otherwise, or for a variable whose filters or
+    chunks are not a compressed map's."""
+    ds = _uncached(h5, name)
+    kern = _kernels()
+    level = None if kern is None else _deflate_level(ds, arr)
+    if level is None:
+        ds[k] = arr
+        return
+    raw = np.ascontiguousarray(arr).reshape(-1).view(np.uint8)
+    shuffled = np.empty_like(raw)
+    kern.shuffle(raw, arr.dtype.itemsize, shuffled)
+    data = zlib.compress(shuffled, level)
+    check = int(kern.fletcher32(np.frombuffer(data, dtype=np.uint8)))
+    ds.id.write_direct_chunk((k, *(0,) * arr.ndim), data + check.to_bytes(4, "little"))
+
+
+def _deflate_level(ds: h5py.Dataset, arr) -> int | None:
+    """The deflate level of ``ds`` when a state's map ``arr`` is one whole chunk of it
+    in its own dtype and its filters are :data:`_PIPELINE`; None otherwise."""
+    if not (isinstance(arr, np.ndarray) and arr.dtype == ds.dtype and arr.size > 1
+            and ds.chunks == (1, *arr.shape)):
+        return None
+    dcpl = ds.id.get_create_plist()
+    filters = [dcpl.get_filter(i) for i in range(dcpl.get_nfilters())]
+    if tuple(f[0] for f in filters) != _PIPELINE:
+        return None
+    return int(filters[1][2][0])
 
 
 def _uncached(h5, name: str) -> h5py.Dataset:

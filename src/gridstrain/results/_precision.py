@@ -47,7 +47,7 @@ STD_OF = {"ux": "ux_std", "uy": "uy_std", "exx": "exx_std", "eyy": "eyy_std",
 
 _F32_MAX = float(np.finfo(np.float32).max)
 
-# The roundings run in the compiled loops of gridstrain.results._precision_kernels (numba,
+# The roundings run in the compiled loops of gridstrain.results._kernels (numba,
 # the "fast" extra) when installed, loaded on the first rounding: one pass over a map
 # instead of about ten, the same bits. False forces the numpy path (what runs without
 # numba).
@@ -61,10 +61,10 @@ _TOO_LARGE = (f"values must fit float32 (|v| <= {_F32_MAX:.3g}) to be stored rou
 def _load_kernels():
     """The module of compiled rounding loops, or None when numba cannot be imported."""
     try:
-        from . import _precision_kernels
+        from . import _kernels
     except ImportError:
         return None
-    return _precision_kernels
+    return _kernels
 
 
 def _kernels():

@@ -1,13 +1,25 @@
-"""Compiled loops of the maps' rounding (numba, the ``fast`` extra).
+"""Compiled loops of the result file (numba, the ``fast`` extra): the maps' rounding and
+the encoding of their chunks.
 
-Imported only by :mod:`gridstrain.results._precision`, on the first rounding, never
-when gridstrain is imported. Each loop makes one pass over a map where the numpy path
-of :func:`~gridstrain.results._precision.round_to_std` and
+Imported only by :mod:`gridstrain.results._precision` and
+:mod:`gridstrain.results._layout`, on the first rounding or write, never when gridstrain
+is imported.
+
+The rounding loops make one pass over a map where the numpy path of
+:func:`~gridstrain.results._precision.round_to_std` and
 :func:`~gridstrain.results._precision.round_relative` makes about ten over whole
 temporaries (the step, the quotient, its rounding, the product, the choice, the cast,
 the error and its maximum), with the same operations on each value in the same order:
 the same bits (``tests/test_compact_results.py`` compares both paths and a search of
 the powers of two).
+
+A compressed map is one chunk that goes through HDF5's filters shuffle, deflate and
+Fletcher-32 in that order. :func:`shuffle` and :func:`fletcher32` are HDF5's own
+(``H5Zshuffle.c``; ``H5_checksum_fletcher32`` in ``H5checksum.c``, its sum stored after
+the data, little-endian), and deflate is the same zlib that HDF5 calls (``compress2`` at
+the file's level, as Python's ``zlib.compress``): the chunk written directly holds the
+bytes HDF5's pipeline would have written (``tests/test_compact_results.py`` compares
+them), without the pipeline's copies of each map.
 """
 
 from __future__ import annotations
@@ -82,3 +94,42 @@ def round_relative(v, scale, out):  # pragma: no cover
             out[i] = np.float32(np.rint(x / q) * q)
         else:
             out[i] = np.float32(x)
+
+
+@njit(**_OPTIONS)
+def shuffle(data, itemsize, out):  # pragma: no cover
+    """HDF5's shuffle filter: ``out`` (n,) uint8 holds the first byte of every element of
+    ``data`` (n,) uint8, then every second byte, and so on; ``itemsize`` bytes an
+    element (n a multiple of it)."""
+    m = data.size // itemsize
+    for b in range(itemsize):
+        o = b * m
+        for i in range(m):
+            out[o + i] = data[i * itemsize + b]
+
+
+@njit(**_OPTIONS)
+def fletcher32(data):  # pragma: no cover
+    """HDF5's Fletcher-32 checksum of ``data`` (n,) uint8: big-endian 16-bit words,
+    the sums folded every 360 words, an odd last byte as a word's high byte."""
+    n = data.size // 2
+    s1 = 0
+    s2 = 0
+    i = 0
+    while n:
+        t = min(n, 360)
+        n -= t
+        for _ in range(t):
+            s1 += (np.int64(data[i]) << 8) | np.int64(data[i + 1])
+            i += 2
+            s2 += s1
+        s1 = (s1 & 0xFFFF) + (s1 >> 16)
+        s2 = (s2 & 0xFFFF) + (s2 >> 16)
+    if data.size % 2:
+        s1 += np.int64(data[i]) << 8
+        s2 += s1
+        s1 = (s1 & 0xFFFF) + (s1 >> 16)
+        s2 = (s2 & 0xFFFF) + (s2 >> 16)
+    s1 = (s1 & 0xFFFF) + (s1 >> 16)
+    s2 = (s2 & 0xFFFF) + (s2 >> 16)
+    return (s2 << 16) | s1
