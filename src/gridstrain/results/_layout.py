@@ -236,6 +236,7 @@ def _write_maps(h5, result, ps, unit, H: int, W: int, *, lossless: bool) -> None
     come back from the file with those maps. The rotation, which the result does
     not hold, is the measurement's."""
     unc = result.uncertainty or {}
+    errors: dict = {}  # the largest rounding errors, written once (_rounded)
     for k, m in enumerate(result.measurements):
         own = dataclasses.replace(m, u=np.asarray(result.u[k]),
                                   strain=np.asarray(result.strain[k]),
@@ -243,7 +244,8 @@ def _write_maps(h5, result, ps, unit, H: int, W: int, *, lossless: bool) -> None
         arrays = _state_arrays(own, {n: a[k] for n, a in unc.items()})
         if k == 0:
             _create_maps(h5, arrays, result.n_states, ps, lossless=lossless)
-        _put_state(h5, k, arrays, ps, lossless=lossless)
+        _put_state(h5, k, arrays, ps, lossless=lossless, errors=errors)
+    _put_errors(h5, errors)
     _describe_maps(h5, ps, unit, H, W, list(unc))
     _write_images(h5, result, ps)
 
@@ -300,10 +302,18 @@ def _rounding_attrs(name: str, arrays: dict, n: int) -> dict:
             MAX_ERROR_ATTR: np.full(n, np.nan)}
 
 
-def _put_state(h5, k: int, arrays: dict, ps, *, lossless: bool = True) -> None:
-    """Write state ``k``'s maps into the variables of :func:`_create_maps`."""
+def _put_state(h5, k: int, arrays: dict, ps, *, lossless: bool = True,
+               errors: dict | None = None) -> None:
+    """Write state ``k``'s maps into the variables of :func:`_create_maps`. A rounded
+    file's largest errors go to ``errors`` (see :func:`_rounded`), which the caller
+    writing many states then writes once (:func:`_put_errors`); into the file at
+    once without it."""
     if not lossless:
-        arrays = _rounded(h5, k, arrays, ps)
+        now = errors is None
+        errors = {} if now else errors
+        arrays = _rounded(h5, k, arrays, ps, errors)
+        if now:
+            _put_errors(h5, errors)
     for name, arr in arrays.items():
         if not lossless:
             _put_compressed(h5, name, k, arr)
@@ -362,9 +372,12 @@ def _uncached(h5, name: str) -> h5py.Dataset:
     return h5py.Dataset(h5py.h5d.open(h5.id, name.encode(), dapl))
 
 
-def _rounded(h5, k: int, arrays: dict, ps) -> dict:
+def _rounded(h5, k: int, arrays: dict, ps, errors: dict) -> dict:
     """State ``k``'s maps as a rounded file stores them (``*_phys`` included), the
-    largest error over the std of each written into its variable's attributes."""
+    largest error over the std of each put at ``k`` in ``errors[name]``: its
+    variable's attribute :data:`MAX_ERROR_ATTR` as read from the file on its first
+    state, to be written back by :func:`_put_errors` (an attribute read and written
+    for every map of every state cost about 1 ms a state)."""
     out = {}
     stds = {}
     for name, arr in arrays.items():
@@ -380,19 +393,27 @@ def _rounded(h5, k: int, arrays: dict, ps) -> dict:
             out[name] = arr
             continue
         values = np.asarray(arr, dtype=np.float64)
-        attrs = h5[name].attrs
-        if attrs.get("rounding") != "std" or STD_OF[name] not in stds:
+        if name not in errors:  # None: a variable not rounded to a std
+            attrs = h5[name].attrs
+            errors[name] = np.array(attrs[MAX_ERROR_ATTR], dtype=np.float64) \
+                if attrs.get("rounding") == "std" else None
+        if errors[name] is None or STD_OF[name] not in stds:
             # no std: float32's own precision
             out[name] = (values * scale if scale != 1.0 else values).astype(np.float32)
             continue
         std = stds[STD_OF[name]]
         if scale != 1.0:  # a physical unit: a product per map, none for the px maps
             values, std = values * scale, std * scale
-        out[name], worst = round_to_std(values, std)
-        errors = np.array(attrs[MAX_ERROR_ATTR], dtype=np.float64)
-        errors[k] = worst
-        attrs[MAX_ERROR_ATTR] = errors
+        out[name], errors[name][k] = round_to_std(values, std)
     return out
+
+
+def _put_errors(h5, errors: dict) -> None:
+    """The largest rounding errors gathered by :func:`_rounded` into their variables'
+    attributes."""
+    for name, e in errors.items():
+        if e is not None:
+            h5[name].attrs[MAX_ERROR_ATTR] = e
 
 
 def _write_vibrations(h5, result, n_series: int) -> None:
