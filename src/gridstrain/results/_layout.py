@@ -236,7 +236,7 @@ def _write_maps(h5, result, ps, unit, H: int, W: int, *, lossless: bool) -> None
     come back from the file with those maps. The rotation, which the result does
     not hold, is the measurement's."""
     unc = result.uncertainty or {}
-    errors: dict = {}  # the largest rounding errors, written once (_rounded)
+    kept = _Kept()  # the largest rounding errors, written once, and open variables
     for k, m in enumerate(result.measurements):
         own = dataclasses.replace(m, u=np.asarray(result.u[k]),
                                   strain=np.asarray(result.strain[k]),
@@ -244,8 +244,8 @@ def _write_maps(h5, result, ps, unit, H: int, W: int, *, lossless: bool) -> None
         arrays = _state_arrays(own, {n: a[k] for n, a in unc.items()})
         if k == 0:
             _create_maps(h5, arrays, result.n_states, ps, lossless=lossless)
-        _put_state(h5, k, arrays, ps, lossless=lossless, errors=errors)
-    _put_errors(h5, errors)
+        _put_state(h5, k, arrays, ps, lossless=lossless, kept=kept)
+    _put_errors(h5, kept)
     _describe_maps(h5, ps, unit, H, W, list(unc))
     _write_images(h5, result, ps)
 
@@ -302,21 +302,31 @@ def _rounding_attrs(name: str, arrays: dict, n: int) -> dict:
             MAX_ERROR_ATTR: np.full(n, np.nan)}
 
 
+class _Kept:
+    """What a writer of many states keeps from one state to the next: a rounded
+    file's largest errors (``errors``, see :func:`_rounded`), written once by
+    :func:`_put_errors`, and its compressed variables opened for
+    :func:`_put_compressed` (``opened``: name -> the dataset and its deflate level)."""
+
+    def __init__(self):
+        self.errors: dict = {}
+        self.opened: dict = {}
+
+
 def _put_state(h5, k: int, arrays: dict, ps, *, lossless: bool = True,
-               errors: dict | None = None) -> None:
+               kept: _Kept | None = None) -> None:
     """Write state ``k``'s maps into the variables of :func:`_create_maps`. A rounded
-    file's largest errors go to ``errors`` (see :func:`_rounded`), which the caller
-    writing many states then writes once (:func:`_put_errors`); into the file at
-    once without it."""
+    file's largest errors go to ``kept``, which the caller writing many states
+    then writes once (:func:`_put_errors`); into the file at once without it."""
     if not lossless:
-        now = errors is None
-        errors = {} if now else errors
-        arrays = _rounded(h5, k, arrays, ps, errors)
+        now = kept is None
+        kept = _Kept() if now else kept
+        arrays = _rounded(h5, k, arrays, ps, kept.errors)
         if now:
-            _put_errors(h5, errors)
+            _put_errors(h5, kept)
     for name, arr in arrays.items():
         if not lossless:
-            _put_compressed(h5, name, k, arr)
+            _put_compressed(h5, name, k, arr, kept.opened)
             continue
         h5[name][k] = arr
         if ps is not None and name in ("ux", "uy"):
@@ -327,17 +337,23 @@ def _put_state(h5, k: int, arrays: dict, ps, *, lossless: bool = True,
 _PIPELINE = (h5py.h5z.FILTER_SHUFFLE, h5py.h5z.FILTER_DEFLATE, h5py.h5z.FILTER_FLETCHER32)
 
 
-def _put_compressed(h5, name: str, k: int, arr: np.ndarray) -> None:
+def _put_compressed(h5, name: str, k: int, arr: np.ndarray, opened: dict) -> None:
     """State ``k``'s map ``arr`` into the compressed variable ``name``, one chunk. With
     the compiled loops, the chunk is encoded here and written as it is: shuffled,
     deflated by zlib and checksummed as HDF5's filters do, the same bytes
     (:mod:`gridstrain.results._kernels`), without the copies of the map that HDF5's
     pipeline makes; through the pipeline otherwise, or for a variable whose filters or
-    chunks are not a compressed map's."""
-    ds = _uncached(h5, name)
+    chunks are not a compressed map's. ``opened``: the variables opened for earlier
+    states, name -> (dataset, deflate level or None, the dtype and shape of the map
+    it was found for), kept for the next."""
     kern = _kernels()
-    level = None if kern is None else _deflate_level(ds, arr)
-    if level is None:
+    if name not in opened:
+        ds = _uncached(h5, name)
+        level = None if kern is None else _deflate_level(ds, arr)
+        opened[name] = ds, level, getattr(arr, "dtype", None), getattr(arr, "shape", None)
+    ds, level, dtype, shape = opened[name]
+    if level is None or kern is None or not (
+            isinstance(arr, np.ndarray) and arr.dtype == dtype and arr.shape == shape):
         ds[k] = arr
         return
     raw = np.ascontiguousarray(arr).reshape(-1).view(np.uint8)
@@ -408,10 +424,10 @@ def _rounded(h5, k: int, arrays: dict, ps, errors: dict) -> dict:
     return out
 
 
-def _put_errors(h5, errors: dict) -> None:
+def _put_errors(h5, kept: _Kept) -> None:
     """The largest rounding errors gathered by :func:`_rounded` into their variables'
     attributes."""
-    for name, e in errors.items():
+    for name, e in kept.errors.items():
         if e is not None:
             h5[name].attrs[MAX_ERROR_ATTR] = e
 
