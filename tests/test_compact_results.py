@@ -222,17 +222,29 @@ def test_measure_stores_rounded_maps_unless_lossless(frames, tmp_path, capsys):
             assert h5["exx"].dtype == dtype, flags
 
 
-def test_rounding_to_the_std_keeps_the_bits_a_power_of_two_step_allows():
+_COMPILED_PATHS = [pytest.param(False, id="numpy"), pytest.param(True, id="compiled")]
+
+
+@pytest.mark.parametrize("compiled", _COMPILED_PATHS)
+def test_rounding_to_the_std_keeps_the_bits_a_power_of_two_step_allows(compiled, monkeypatch):
     """Oracle: the step each value is rounded to, found by searching the powers of two
     (the largest q with q <= 2 f s), and the rounding done on Python floats; the
-    std just below and at a power of two included, where a logarithm rounds up."""
+    std just below and at a power of two included, where a logarithm rounds up, and a
+    std whose 2 f s is subnormal (no exponent bits to read). Both paths: numpy and the
+    compiled loops."""
+    from gridstrain.results import _precision
     from gridstrain.results._precision import STD_FRACTION, round_relative, round_to_std
 
+    if compiled and _precision._load_kernels() is None:
+        pytest.skip("numba is not installed")
+    monkeypatch.setattr(_precision, "_COMPILED", compiled)
     rng = np.random.default_rng(7)
     f = STD_FRACTION
     s = np.abs(rng.normal(size=(6, 7))) * 1e-4
     s[0, :3] = [2.0**-14 / (2 * f), np.nextafter(2.0**-14, 0.0) / (2 * f), 2.0**-40]
+    s[4, 4] = 3e-310  # 2 f s subnormal
     v = rng.normal(size=s.shape) * 1e-2
+    v[4, 4] = 7e-310  # a few steps of the subnormal std's
     v[1, 1], s[2, 2], s[3, 3] = np.nan, 0.0, np.nan  # kept as float32 holds them
     got, worst = round_to_std(v, s)
     errors = []
@@ -249,7 +261,7 @@ def test_rounding_to_the_std_keeps_the_bits_a_power_of_two_step_allows():
         want = np.float32(round(x / q) * q)
         assert got[i, j] == want, (i, j)
         errors.append(abs(float(want) - x) / s[i, j])
-        if abs(x) / q < 2**23:  # float32 holds the value to its step
+        if abs(x) / q < 2**23 and q >= 2.0**-149:  # float32 holds the value to its step
             assert errors[-1] <= f  # the bound of the module: half a step, f of the std
     # the 2**-40 std: float32 cannot hold the value to it, and the figure says so
     assert worst == max(errors) > f
@@ -264,3 +276,65 @@ def test_rounding_to_the_std_keeps_the_bits_a_power_of_two_step_allows():
     assert kept[0, 0] == 0
     assert kept[0, 1] == np.inf
     assert np.isnan(kept[0, 2])
+
+
+@pytest.mark.parametrize("shape", [(250, 400), (7,), ()])
+def test_the_compiled_rounding_gives_the_numpy_paths_bits(shape, monkeypatch):
+    """The compiled loops against the numpy path, bit for bit: maps of every scale
+    (1e-12 to 1e3), with NaN, infinities, zeros, negative and zero stds, subnormal
+    values and stds, values a rounding step's half off a step, and the largest error."""
+    from gridstrain.results import _precision
+
+    if _precision._load_kernels() is None:
+        pytest.skip("numba is not installed")
+    rng = np.random.default_rng(11)
+    n = int(np.prod(shape))
+    scale = 10.0 ** rng.uniform(-12, 3, size=n)
+    v = rng.normal(size=n) * scale
+    s = np.abs(rng.normal(size=n)) * scale * 10.0 ** rng.uniform(-3, 1, size=n)
+    special = [np.nan, np.inf, -np.inf, 0.0, -0.0, 5e-324, -3e-310, 1e38, -3.3e38]
+    for k, x in enumerate(special[: n // 3]):
+        v[3 * k] = x
+        s[3 * k + 1] = [np.nan, np.inf, 0.0, -1.0, 5e-324, 3e-310, 1e30, 2.0, 0.5][k]
+    if n > 40:  # values exactly halfway between two steps: round half to even
+        q = 2.0 ** np.floor(np.log2(2 * _precision.STD_FRACTION * s[30:40]))
+        v[30:40] = (np.arange(10) + 0.5) * q
+    v, s = v.reshape(shape), s.reshape(shape)
+    got = {}
+    for compiled in (False, True):
+        monkeypatch.setattr(_precision, "_COMPILED", compiled)
+        got[compiled] = (*_precision.round_to_std(v, s), _precision.round_relative(v),
+                         _precision.round_relative(s, bits=0))
+    for a, b in zip(got[False], got[True], strict=True):
+        assert_array_equal(np.atleast_1d(a).view(np.uint8), np.atleast_1d(b).view(np.uint8))
+    with pytest.raises(ValueError, match="fit float32"):
+        _precision.round_to_std(np.full(shape, 1e39), np.ones(shape))
+    monkeypatch.setattr(_precision, "_COMPILED", False)
+    with pytest.raises(ValueError, match="fit float32"):
+        _precision.round_to_std(np.full(shape, 1e39), np.ones(shape))
+
+
+def test_a_chunk_encoded_by_the_compiled_loops_is_the_one_hdf5_writes(held, tmp_path,
+                                                                      monkeypatch):
+    """Each compressed map's chunk (rounded maps, std maps, maps in physical units, the
+    validity), shuffled, deflated and checksummed by gridstrain's loops and written
+    directly, holds the bytes HDF5's own filters write: the same file for any reader."""
+    from gridstrain.results import _precision
+
+    if _precision._load_kernels() is None:
+        pytest.skip("numba is not installed")
+    paths = {}
+    for compiled in (False, True):
+        monkeypatch.setattr(_precision, "_COMPILED", compiled)
+        paths[compiled] = save_result(held, tmp_path / f"{compiled}.h5", pixel_size=PS,
+                                      unit="mm")
+    with h5py.File(paths[False], "r") as a, h5py.File(paths[True], "r") as b:
+        names = [n for n, d in a.items() if isinstance(d, h5py.Dataset)
+                 and d.compression == "gzip" and d.ndim == 3 and d.chunks[0] == 1]
+        assert {"ux", "exx_std", "ux_phys", "valid"} <= set(names)
+        for name in names:
+            assert b[name].id.get_create_plist().get_nfilters() == 3
+            for k in range(a[name].shape[0]):
+                want = a[name].id.read_direct_chunk((k, 0, 0))
+                assert b[name].id.read_direct_chunk((k, 0, 0)) == want, (name, k)
+            assert_array_equal(b[name][()], a[name][()])

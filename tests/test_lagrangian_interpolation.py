@@ -102,6 +102,28 @@ def test_compiled_spline_equals_map_coordinates(monkeypatch, complex_maps):
     np.testing.assert_allclose(plain(coords), want, rtol=0, atol=1e-12)
 
 
+@pytest.mark.parametrize("shape", [(6, 9), (40, 50), (250, 400)])
+def test_compiled_prefilter_equals_scipys_spline_filter(shape):
+    # the compiled prefilter's coefficients against scipy.ndimage.spline_filter of each
+    # edge-padded map, to rounding: a short line (30 x 33 padded, under the 35 terms of
+    # the initial sum's horizon, where the wrapped terms count), a test's size and a
+    # benchmark frame's (the wrapped terms all under the horizon, left out); the maps
+    # span 1e6 so that a term left out would show against the smaller coefficients
+    pytest.importorskip("numba")
+    rng = np.random.default_rng(3)
+    arr = (rng.standard_normal((2, *shape)) + 1j * rng.standard_normal((2, *shape))) \
+        * np.logspace(0, 6, shape[1])
+    spline = kinematics._Spline(arr)
+    assert spline.kern is not None
+    pad = kinematics._SPLINE_PAD
+    planes = [p for a in arr for p in (a.real, a.imag)]
+    for k, p in enumerate(planes):
+        want = ndimage.spline_filter(np.pad(p, pad, mode="edge"), 3, mode="nearest")
+        # float64 rounding of sums whose terms reach the largest coefficient
+        np.testing.assert_allclose(spline.coef[..., k], want, rtol=0,
+                                   atol=1e-14 * np.abs(want).max())
+
+
 def _noisy_pair(shift, strain, *, seed, n=160):
     """Maps of a noisy pair generated here in numpy: two cosine families at 7 deg,
     10 grey levels of noise on 1000, the deformed image the reference pattern at

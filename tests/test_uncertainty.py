@@ -271,3 +271,6 @@ def test_nearest_valid_pixel_of_a_rectangle_is_the_distance_transforms():
         np.testing.assert_array_equal(got[0], want[0])
         np.testing.assert_array_equal(got[1], want[1])
         np.testing.assert_array_equal(nearest_filled(a, valid), a[want[0], want[1]])
+        # a stack of maps (the displacement's two components) filled map by map
+        np.testing.assert_array_equal(nearest_filled(np.stack([a, -a]), valid),
+                                      np.stack([a, -a])[:, want[0], want[1]])

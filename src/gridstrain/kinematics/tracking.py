@@ -17,7 +17,7 @@ from .._validation import (
     check_mask,
 )
 from ..phase import Lattice, PhaseMaps
-from ..uncertainty import nearest_filled, nearest_index
+from ..uncertainty import nearest_filled
 from ._deformation import (
     Measurement,
     _Handover,
@@ -53,8 +53,7 @@ def _filled(u: np.ndarray, valid: np.ndarray) -> np.ndarray | None:
         return None
     if valid.all():
         return np.array(u)
-    rows, cols = nearest_index(valid)
-    return u[:, rows, cols]
+    return nearest_filled(u, valid)
 
 
 def _largest_step(res: Measurement, field: np.ndarray, lattice: Lattice,

@@ -40,6 +40,8 @@ from ._layout import (
     ROUNDED_TEXT,
     _create_maps,
     _describe_maps,
+    _Kept,
+    _put_errors,
     _put_state,
     _state_arrays,
     _write_dimensions,
@@ -446,6 +448,7 @@ class StreamedResult:
         self.measurements, self.orders, self.floors, self.smoothing = [], [], [], []
         self.unc_names: list[str] = []
         self._lossless: dict[int, bool] = {}  # state -> u stored in its own precision
+        self._kept = _Kept()  # the largest rounding errors, written at the end
 
     def __enter__(self):
         return self
@@ -470,7 +473,8 @@ class StreamedResult:
         lossless = self.spec.lossless
         _create_maps(self.h5, arrays, self.n, self.spec.pixel_size, self.spec.dtype,
                      lossless=lossless)
-        _put_state(self.h5, i, arrays, self.spec.pixel_size, lossless=lossless)
+        _put_state(self.h5, i, arrays, self.spec.pixel_size, lossless=lossless,
+                   kept=self._kept)
         self._lossless[i] = lossless and self.h5["ux"].dtype == res.u.dtype
         self.stream.check()  # a full disk is reported now, not after the last state
         if not self.measurements:
@@ -535,6 +539,7 @@ class StreamedResult:
                "maps_precision": None if spec.lossless else ROUNDED_TEXT, **fields})
         H, W = result.shape
         ps, unit = spec.pixel_size, spec.unit
+        _put_errors(h5, self._kept)
         _write_dimensions(h5, result, H, W)
         _describe_maps(h5, ps, unit, H, W, self.unc_names)
         _write_images(h5, result, ps)

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import dataclasses
 import os
+import zlib
 from collections.abc import Mapping
 
 import h5py
@@ -29,6 +30,7 @@ from ._precision import (
     STD_BITS,
     STD_FRACTION,
     STD_OF,
+    _kernels,
     round_relative,
     round_to_std,
 )
@@ -234,6 +236,7 @@ def _write_maps(h5, result, ps, unit, H: int, W: int, *, lossless: bool) -> None
     come back from the file with those maps. The rotation, which the result does
     not hold, is the measurement's."""
     unc = result.uncertainty or {}
+    kept = _Kept()  # the largest rounding errors, written once, and open variables
     for k, m in enumerate(result.measurements):
         own = dataclasses.replace(m, u=np.asarray(result.u[k]),
                                   strain=np.asarray(result.strain[k]),
@@ -241,7 +244,8 @@ def _write_maps(h5, result, ps, unit, H: int, W: int, *, lossless: bool) -> None
         arrays = _state_arrays(own, {n: a[k] for n, a in unc.items()})
         if k == 0:
             _create_maps(h5, arrays, result.n_states, ps, lossless=lossless)
-        _put_state(h5, k, arrays, ps, lossless=lossless)
+        _put_state(h5, k, arrays, ps, lossless=lossless, kept=kept)
+    _put_errors(h5, kept)
     _describe_maps(h5, ps, unit, H, W, list(unc))
     _write_images(h5, result, ps)
 
@@ -298,14 +302,79 @@ def _rounding_attrs(name: str, arrays: dict, n: int) -> dict:
             MAX_ERROR_ATTR: np.full(n, np.nan)}
 
 
-def _put_state(h5, k: int, arrays: dict, ps, *, lossless: bool = True) -> None:
-    """Write state ``k``'s maps into the variables of :func:`_create_maps`."""
+class _Kept:
+    """What a writer of many states keeps from one state to the next: a rounded
+    file's largest errors (``errors``, see :func:`_rounded`), written once by
+    :func:`_put_errors`, and its compressed variables opened for
+    :func:`_put_compressed` (``opened``: name -> the dataset and its deflate level)."""
+
+    def __init__(self):
+        self.errors: dict = {}
+        self.opened: dict = {}
+
+
+def _put_state(h5, k: int, arrays: dict, ps, *, lossless: bool = True,
+               kept: _Kept | None = None) -> None:
+    """Write state ``k``'s maps into the variables of :func:`_create_maps`. A rounded
+    file's largest errors go to ``kept``, which the caller writing many states
+    then writes once (:func:`_put_errors`); into the file at once without it."""
     if not lossless:
-        arrays = _rounded(h5, k, arrays, ps)
+        now = kept is None
+        kept = _Kept() if now else kept
+        arrays = _rounded(h5, k, arrays, ps, kept.errors)
+        if now:
+            _put_errors(h5, kept)
     for name, arr in arrays.items():
-        (h5[name] if lossless else _uncached(h5, name))[k] = arr
-        if lossless and ps is not None and name in ("ux", "uy"):
+        if not lossless:
+            _put_compressed(h5, name, k, arr, kept.opened)
+            continue
+        h5[name][k] = arr
+        if ps is not None and name in ("ux", "uy"):
             h5[f"{name}_phys"][k] = np.asarray(arr) * ps
+
+
+# A compressed map's filters in HDF5's pipeline order, as _FILTERS creates them
+_PIPELINE = (h5py.h5z.FILTER_SHUFFLE, h5py.h5z.FILTER_DEFLATE, h5py.h5z.FILTER_FLETCHER32)
+
+
+def _put_compressed(h5, name: str, k: int, arr: np.ndarray, opened: dict) -> None:
+    """State ``k``'s map ``arr`` into the compressed variable ``name``, one chunk. With
+    the compiled loops, the chunk is encoded here and written as it is: shuffled,
+    deflated by zlib and checksummed as HDF5's filters do, the same bytes
+    (:mod:`gridstrain.results._kernels`), without the copies of the map that HDF5's
+    pipeline makes; through the pipeline otherwise, or for a variable whose filters or
+    chunks are not a compressed map's. ``opened``: the variables opened for earlier
+    states, name -> (dataset, deflate level or None, the dtype and shape of the map
+    it was found for), kept for the next."""
+    kern = _kernels()
+    if name not in opened:
+        ds = _uncached(h5, name)
+        level = None if kern is None else _deflate_level(ds, arr)
+        opened[name] = ds, level, getattr(arr, "dtype", None), getattr(arr, "shape", None)
+    ds, level, dtype, shape = opened[name]
+    if level is None or kern is None or not (
+            isinstance(arr, np.ndarray) and arr.dtype == dtype and arr.shape == shape):
+        ds[k] = arr
+        return
+    raw = np.ascontiguousarray(arr).reshape(-1).view(np.uint8)
+    shuffled = np.empty_like(raw)
+    kern.shuffle(raw, arr.dtype.itemsize, shuffled)
+    data = zlib.compress(shuffled, level)
+    check = int(kern.fletcher32(np.frombuffer(data, dtype=np.uint8)))
+    ds.id.write_direct_chunk((k, *(0,) * arr.ndim), data + check.to_bytes(4, "little"))
+
+
+def _deflate_level(ds: h5py.Dataset, arr) -> int | None:
+    """The deflate level of ``ds`` when a state's map ``arr`` is one whole chunk of it
+    in its own dtype and its filters are :data:`_PIPELINE`; None otherwise."""
+    if not (isinstance(arr, np.ndarray) and arr.dtype == ds.dtype and arr.size > 1
+            and ds.chunks == (1, *arr.shape)):
+        return None
+    dcpl = ds.id.get_create_plist()
+    filters = [dcpl.get_filter(i) for i in range(dcpl.get_nfilters())]
+    if tuple(f[0] for f in filters) != _PIPELINE:
+        return None
+    return int(filters[1][2][0])
 
 
 def _uncached(h5, name: str) -> h5py.Dataset:
@@ -319,9 +388,12 @@ def _uncached(h5, name: str) -> h5py.Dataset:
     return h5py.Dataset(h5py.h5d.open(h5.id, name.encode(), dapl))
 
 
-def _rounded(h5, k: int, arrays: dict, ps) -> dict:
+def _rounded(h5, k: int, arrays: dict, ps, errors: dict) -> dict:
     """State ``k``'s maps as a rounded file stores them (``*_phys`` included), the
-    largest error over the std of each written into its variable's attributes."""
+    largest error over the std of each put at ``k`` in ``errors[name]``: its
+    variable's attribute :data:`MAX_ERROR_ATTR` as read from the file on its first
+    state, to be written back by :func:`_put_errors` (an attribute read and written
+    for every map of every state cost about 1 ms a state)."""
     out = {}
     stds = {}
     for name, arr in arrays.items():
@@ -337,19 +409,27 @@ def _rounded(h5, k: int, arrays: dict, ps) -> dict:
             out[name] = arr
             continue
         values = np.asarray(arr, dtype=np.float64)
-        attrs = h5[name].attrs
-        if attrs.get("rounding") != "std" or STD_OF[name] not in stds:
+        if name not in errors:  # None: a variable not rounded to a std
+            attrs = h5[name].attrs
+            errors[name] = np.array(attrs[MAX_ERROR_ATTR], dtype=np.float64) \
+                if attrs.get("rounding") == "std" else None
+        if errors[name] is None or STD_OF[name] not in stds:
             # no std: float32's own precision
             out[name] = (values * scale if scale != 1.0 else values).astype(np.float32)
             continue
         std = stds[STD_OF[name]]
         if scale != 1.0:  # a physical unit: a product per map, none for the px maps
             values, std = values * scale, std * scale
-        out[name], worst = round_to_std(values, std)
-        errors = np.array(attrs[MAX_ERROR_ATTR], dtype=np.float64)
-        errors[k] = worst
-        attrs[MAX_ERROR_ATTR] = errors
+        out[name], errors[name][k] = round_to_std(values, std)
     return out
+
+
+def _put_errors(h5, kept: _Kept) -> None:
+    """The largest rounding errors gathered by :func:`_rounded` into their variables'
+    attributes."""
+    for name, e in kept.errors.items():
+        if e is not None:
+            h5[name].attrs[MAX_ERROR_ATTR] = e
 
 
 def _write_vibrations(h5, result, n_series: int) -> None:

@@ -27,6 +27,8 @@ Computational Science* 1, 713-724. https://doi.org/10.1038/s43588-021-00156-2
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 
 #: The largest rounding error of a measured map, over its std at the same pixel.
@@ -44,6 +46,29 @@ STD_OF = {"ux": "ux_std", "uy": "uy_std", "exx": "exx_std", "eyy": "eyy_std",
           "uy_phys": "uy_std"}
 
 _F32_MAX = float(np.finfo(np.float32).max)
+
+# The roundings run in the compiled loops of gridstrain.results._kernels (numba,
+# the "fast" extra) when installed, loaded on the first rounding: one pass over a map
+# instead of about ten, the same bits. False forces the numpy path (what runs without
+# numba).
+_COMPILED = True
+
+_TOO_LARGE = (f"values must fit float32 (|v| <= {_F32_MAX:.3g}) to be stored rounded; "
+              "store the result losslessly")
+
+
+@functools.cache
+def _load_kernels():
+    """The module of compiled rounding loops, or None when numba cannot be imported."""
+    try:
+        from . import _kernels
+    except ImportError:
+        return None
+    return _kernels
+
+
+def _kernels():
+    return _load_kernels() if _COMPILED else None
 
 
 def round_to_std(values, std, *, fraction: float = STD_FRACTION) -> tuple[np.ndarray, float]:
@@ -67,11 +92,18 @@ def round_to_std(values, std, *, fraction: float = STD_FRACTION) -> tuple[np.nda
     """
     v = np.asarray(values, dtype=np.float64)
     s = np.asarray(std, dtype=np.float64)
+    kern = _kernels()
+    if kern is not None and v.shape == s.shape:
+        out = np.empty(v.shape, dtype=np.float32)
+        worst, used, over = kern.round_to_std(np.ravel(v), np.ravel(s), 2.0 * fraction,
+                                              _F32_MAX, out.reshape(-1))
+        if over:
+            raise ValueError(_TOO_LARGE)
+        return out, (float(worst) if used else float("nan"))
     a = np.abs(v)
     over = a > _F32_MAX
     if over.any() and np.isfinite(a[over]).any():
-        raise ValueError(f"values must fit float32 (|v| <= {_F32_MAX:.3g}) to be stored "
-                         "rounded; store the result losslessly")
+        raise ValueError(_TOO_LARGE)
     use = np.isfinite(s) & (s > 0) & np.isfinite(v)
     if not use.any():
         return v.astype(np.float32), float("nan")
@@ -81,7 +113,7 @@ def round_to_std(values, std, *, fraction: float = STD_FRACTION) -> tuple[np.nda
     q = _leading_bit(2.0 * fraction * s)
     tiny = use & ~(q > 0)  # 2 f s subnormal: no exponent bits to take
     if tiny.any():
-        q[tiny] = np.exp2(np.floor(np.log2(2.0 * fraction * s[tiny])))
+        q[tiny] = np.ldexp(0.5, np.frexp(2.0 * fraction * s[tiny])[1])
     with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
         # q a power of two: v / q, its rounding and the product are exact in float64
         out = np.round(v / q)
@@ -113,6 +145,11 @@ def round_relative(values, *, bits: int = STD_BITS) -> np.ndarray:
     (H, W) float32 ndarray
     """
     v = np.asarray(values, dtype=np.float64)
+    kern = _kernels()
+    if kern is not None:
+        out = np.empty(v.shape, dtype=np.float32)
+        kern.round_relative(np.ravel(v), 2.0 ** -bits, out.reshape(-1))
+        return out
     # |v| = m 2**e with m in [1, 2): the kept bits' last is 2**(e - bits), a power of
     # two, so v / q, its rounding and the product are exact in float64
     q = _leading_bit(v) * 2.0 ** -bits
