@@ -12,6 +12,8 @@ maps (``estimate_noise_image`` needs 160 px a side).
 
 from __future__ import annotations
 
+import zlib
+
 import h5py
 import numpy as np
 import pytest
@@ -318,7 +320,9 @@ def test_a_chunk_encoded_by_the_compiled_loops_is_the_one_hdf5_writes(held, tmp_
                                                                       monkeypatch):
     """Each compressed map's chunk (rounded maps, std maps, maps in physical units, the
     validity), shuffled, deflated and checksummed by gridstrain's loops and written
-    directly, holds the bytes HDF5's own filters write: the same file for any reader."""
+    directly, decodes through HDF5's own filters (checksum verified) to the values
+    HDF5's filter pipeline stores. The compressed bytes themselves are compared only
+    where Python's zlib is HDF5's (another zlib build may deflate otherwise, validly)."""
     from gridstrain.results import _precision
 
     if _precision._load_kernels() is None:
@@ -331,10 +335,17 @@ def test_a_chunk_encoded_by_the_compiled_loops_is_the_one_hdf5_writes(held, tmp_
     with h5py.File(paths[False], "r") as a, h5py.File(paths[True], "r") as b:
         names = [n for n, d in a.items() if isinstance(d, h5py.Dataset)
                  and d.compression == "gzip" and d.ndim == 3 and d.chunks[0] == 1]
+        # HDF5's deflate of the first chunk (its last 4 bytes the checksum) against
+        # Python's zlib at the same level
+        _, raw = a[names[0]].id.read_direct_chunk((0, 0, 0))
+        level = a[names[0]].compression_opts
+        same_zlib = zlib.compress(zlib.decompress(raw[:-4]), level) == raw[:-4]
         assert {"ux", "exx_std", "ux_phys", "valid"} <= set(names)
         for name in names:
             assert b[name].id.get_create_plist().get_nfilters() == 3
             for k in range(a[name].shape[0]):
-                want = a[name].id.read_direct_chunk((k, 0, 0))
-                assert b[name].id.read_direct_chunk((k, 0, 0)) == want, (name, k)
-            assert_array_equal(b[name][()], a[name][()])
+                assert_array_equal(b[name][k], a[name][k])  # Fletcher-32 checked
+            if same_zlib:
+                for k in range(a[name].shape[0]):
+                    want = a[name].id.read_direct_chunk((k, 0, 0))
+                    assert b[name].id.read_direct_chunk((k, 0, 0)) == want, (name, k)
