@@ -241,6 +241,9 @@ def test_a_stain_is_not_a_jump():
     (5.0, 0.0, 3.0, 0.0, 3, "checker"),
     (5.0, 45.0, 7.0, 0.0, 4, "checker"),
     (6.0, 0.0, 1.5, 0.5, 5, "cross"),
+    # half a period: the dark opening looks like one more line of the grid and keeps
+    # its modulus (0.89 of the sides'), the ridge's narrow width tells the tear
+    (6.0, 0.0, 3.0, 0.3, 61, "cross"),
 ])
 def test_a_torn_grid_is_still_cut(p, angle, opening, sliding, seed, pattern):
     shape = (160, 224)

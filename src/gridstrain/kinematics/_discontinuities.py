@@ -86,16 +86,28 @@ _MAX_TEAR_PERIODS = 0.6
 # local period changes by 20 % within the window keeps 0.6 and more.
 _TORN_MODULUS = 0.5
 # ... and a ridge that integrates to more than this many periods (and at most to
-# _MAX_TEAR_PERIODS) is a tear only where the grid's modulus at its crest (the deformed
-# state's at ``X + u`` over the reference's at ``X``, the smallest within sigma of the
-# crest, over its level 3 to 4 sigma away on each side) falls below _TORN_DIP: two
-# phasors 0.35 period apart or more keep at most |cos(0.35 pi)| = 0.45 of it at the
-# line, a gap without grid less (measured 0.58 to 0.65 for openings of 0.3 to 0.45
-# period and gaps of 2 to 7 px at a lattice period of 7 px), where an intact
-# checkerboard rising by half a period along a family over three periods keeps 0.83
-# to 0.85. Below it the dip cannot tell (0.77 measured for an opening of 0.28 period)
-# and a small jump is a tear as its narrow ridge says.
+# _MAX_TEAR_PERIODS) is a tear only where the grid shows one, as a steep continuous
+# gradient of an intact grid integrating to a third to half a period, narrower than
+# the window, leaves as narrow a ridge (a rise of half a period along a family over
+# three periods). Below it neither the width nor the modulus tells them apart (jumps
+# of 0.1 to 0.25 period measured 0.9 to 1.46 sigma wide and dips of 0.8 to 0.95; a
+# steep gradient of 0.33 period 1.41 and 0.92): a small jump is a tear as its narrow
+# ridge says, and a whole period cannot hide in it.
 _SMALL_TEAR_PERIODS = 0.35
+# The grid shows the tear where the ridge's sections are at most this many sigmas wide
+# (the median): two sides' phasors mixing by the window narrow a jump's ridge as they
+# near half a period (0.16 to 0.76 sigma measured for openings of 0.35 to 0.5 period
+# at lattice periods of 5 to 7 px), where a continuous rise over three periods is
+# seen 1.36 to 1.37 sigma wide.
+_TEAR_WIDTH = 1.1
+# ... or where the grid's modulus at its crest (the deformed state's at ``X + u`` over
+# the reference's at ``X``, the smallest within sigma of the crest, over its level 3 to
+# 4 sigma away on each side; the median over the sections) falls below this: two
+# phasors near half a period apart, or a gap without grid, empty the window's centre
+# (0.34 to 0.54 measured for openings of 0.35 to 0.5 period; 0.59 for a gap of 7 px),
+# where an intact checkerboard rising by half a period along a family over three
+# periods keeps 0.83 to 0.86. A dark gap of half a period in a grid of dark lines
+# looks like one more line and keeps 0.89: the width then tells.
 _TORN_DIP = 0.75
 # Pixels within this many sigmas of a ridge's core are left out: the window's
 # error there, delta/2 erfc(d / sqrt(2) sigma), reaches the noise beyond it only for
@@ -187,7 +199,12 @@ def find_discontinuities(m: Measurement, *, min_jump: float = _MIN_JUMP) -> Disc
     integrates to more than 0.6 period is a steep gradient of an intact grid,
     followed and not cut, unless the grid's modulus collapses along it (the
     deformed state's at ``X + u`` over the reference's at ``X`` below half its
-    median). A jump of a whole number of pitches leaves no trace in the phases
+    median). One that integrates to 0.35 to 0.6 period is a tear only where the grid
+    shows it: its sections at most 1.1 sigma wide (the phasors' mixing narrows a
+    jump's ridge as they near half a period), or the modulus at its crest below 0.75
+    of its sides' (the window's centre emptied by the mixing or by a gap); a steep
+    gradient narrower than the window keeps both (1.36 sigma, 0.85). A jump of a
+    whole number of pitches leaves no trace in the phases
     (the grid is the same on both sides): only the stretches of a crack whose
     opening differs from it are seen, and the jump is known modulo the period.
     """
@@ -238,7 +255,7 @@ def find_discontinuities(m: Measurement, *, min_jump: float = _MIN_JUMP) -> Disc
     sections["dip"] = _crest_dips(sections, modulus, m.lattice, sigma)
     jumps = [k for k in np.unique(lab[seeds])
              if _is_jump(sections, k, sigma)
-             and _is_tear(sections, k, (lab == k) & low, modulus)]
+             and _is_tear(sections, k, (lab == k) & low, modulus, sigma)]
     core = np.isin(lab, jumps) & low
     if not core.any():
         return Discontinuities(core=empty, band=empty.copy(), regions=(),
@@ -437,24 +454,22 @@ def _crest_dips(sections: dict, modulus: _ModulusRatio, lattice, sigma: float):
         return dip / sides
 
 
-def _is_tear(sections: dict, k: int, core: np.ndarray, modulus: _ModulusRatio) -> bool:
+def _is_tear(sections: dict, k: int, core: np.ndarray, modulus: _ModulusRatio,
+             sigma: float) -> bool:
     """Whether the ridge ``k`` (its ``core`` pixels) is a torn grid.
 
-    Its sections integrate (the median over those on valid pixels) to at most
-    ``_SMALL_TEAR_PERIODS``: a small jump, a tear (a steep gradient that small is
-    seen wider than the window, :data:`_MAX_WIDTH`). Up to ``_MAX_TEAR_PERIODS``, as a
-    jump seen modulo the lattice does, only where the grid's modulus at its crest
-    falls below ``_TORN_DIP`` of the sides' (the median over its sections): two
-    phasors near half a period apart, or a gap without grid, empty the window's
-    centre; a steep gradient of an intact grid keeps its modulus there. Past that
-    integral, only where the grid's modulus collapses along it (``_TORN_MODULUS``): a
+    By what its sections integrate to (the median over those on valid pixels): up to
+    ``_SMALL_TEAR_PERIODS``, a small jump, a tear; up to ``_MAX_TEAR_PERIODS``, as a
+    jump seen modulo the lattice does, a tear only where the grid shows it: the
+    sections are at most ``_TEAR_WIDTH`` sigmas wide, or the grid's modulus at the
+    crest falls below ``_TORN_DIP`` of the sides' (the medians over the sections);
+    past it, only where the grid's modulus collapses along it (``_TORN_MODULUS``): a
     steep gradient integrates to what it is, a period or more. A ridge without a
     section on valid pixels is judged by the dip alone (a tear where none can be
-    read). What is not a tear is followed, not cut: the phases are continuous across
-    it."""
+    read). What is not a tear is a steep gradient of an intact grid: the phases are
+    continuous across it, and it is followed, not cut."""
     mine = (sections["label"] == k) & sections["ok"]
-    mine_all = sections["label"] == k
-    dips = sections["dip"][mine_all]
+    dips = sections["dip"][sections["label"] == k]
     dips = dips[np.isfinite(dips)]
     emptied = not dips.size or float(np.median(dips)) < _TORN_DIP
     if not mine.any():
@@ -463,7 +478,7 @@ def _is_tear(sections: dict, k: int, core: np.ndarray, modulus: _ModulusRatio) -
     if periods <= _SMALL_TEAR_PERIODS:
         return True
     if periods <= _MAX_TEAR_PERIODS:
-        return emptied
+        return emptied or float(np.median(sections["width"][mine])) <= _TEAR_WIDTH * sigma
     return not modulus.along(core) >= _TORN_MODULUS
 
 
