@@ -473,6 +473,15 @@ def _is_tear(sections: dict, k: int, core: np.ndarray, modulus: _ModulusRatio,
     dips = dips[np.isfinite(dips)]
     emptied = not dips.size or float(np.median(dips)) < _TORN_DIP
     if not mine.any():
+        # its sections run off the valid pixels (a ridge near a border, or the image
+        # a few windows wide): their integrals, over the filled strain, still tell a
+        # rise past _MAX_TEAR_PERIODS, a period or more, from a jump seen modulo the
+        # lattice; along a hole where the deformed grid vanished they read nothing
+        # (NaN) and the dip decides
+        rough = sections["periods"][sections["label"] == k]
+        rough = rough[np.isfinite(rough)]
+        if rough.size and float(np.median(rough)) > _MAX_TEAR_PERIODS:
+            return not modulus.along(core) >= _TORN_MODULUS
         return emptied
     periods = float(np.median(sections["periods"][mine]))
     if periods <= _SMALL_TEAR_PERIODS:
