@@ -252,10 +252,9 @@ def find_discontinuities(m: Measurement, *, min_jump: float = _MIN_JUMP) -> Disc
     sections = _sections(strain, valid, sigma, dep, seeds, lab)
     sections["periods"] = _phase_jumps(sections, m.lattice)
     modulus = _ModulusRatio(m)
-    sections["dip"] = _crest_dips(sections, modulus, m.lattice, sigma)
     jumps = [k for k in np.unique(lab[seeds])
              if _is_jump(sections, k, sigma)
-             and _is_tear(sections, k, (lab == k) & low, modulus, sigma)]
+             and _is_tear(sections, k, (lab == k) & low, modulus, m.lattice, sigma)]
     core = np.isin(lab, jumps) & low
     if not core.any():
         return Discontinuities(core=empty, band=empty.copy(), regions=(),
@@ -380,9 +379,9 @@ def _phase_jumps(sections: dict, lattice) -> np.ndarray:
 class _ModulusRatio:
     """The deformed grid's modulus at ``X + u`` over the reference's at ``X``, per wave
     vector, relative to its median over the valid pixels (made on first use: only a
-    ridge seeded needs it). The same material point is compared: the lighting and the
-    print cancel, and what is left is the grid's own change (torn, or its period
-    changed within the window)."""
+    ridge the width and the integral leave in doubt needs it). The same material
+    point is compared: the lighting and the print cancel, and what is left is the
+    grid's own change (torn, or its period changed within the window)."""
 
     def __init__(self, m: Measurement):
         self.m = m
@@ -455,7 +454,7 @@ def _crest_dips(sections: dict, modulus: _ModulusRatio, lattice, sigma: float):
 
 
 def _is_tear(sections: dict, k: int, core: np.ndarray, modulus: _ModulusRatio,
-             sigma: float) -> bool:
+             lattice, sigma: float) -> bool:
     """Whether the ridge ``k`` (its ``core`` pixels) is a torn grid.
 
     By what its sections integrate to (the median over those on valid pixels): up to
@@ -469,9 +468,14 @@ def _is_tear(sections: dict, k: int, core: np.ndarray, modulus: _ModulusRatio,
     read). What is not a tear is a steep gradient of an intact grid: the phases are
     continuous across it, and it is followed, not cut."""
     mine = (sections["label"] == k) & sections["ok"]
-    dips = sections["dip"][sections["label"] == k]
-    dips = dips[np.isfinite(dips)]
-    emptied = not dips.size or float(np.median(dips)) < _TORN_DIP
+
+    def emptied() -> bool:
+        if "dip" not in sections:  # the ratio maps made once, for the first that asks
+            sections["dip"] = _crest_dips(sections, modulus, lattice, sigma)
+        dips = sections["dip"][sections["label"] == k]
+        dips = dips[np.isfinite(dips)]
+        return not dips.size or float(np.median(dips)) < _TORN_DIP
+
     if not mine.any():
         # its sections run off the valid pixels (a ridge near a border, or the image
         # a few windows wide): their integrals, over the filled strain, still tell a
@@ -482,12 +486,13 @@ def _is_tear(sections: dict, k: int, core: np.ndarray, modulus: _ModulusRatio,
         rough = rough[np.isfinite(rough)]
         if rough.size and float(np.median(rough)) > _MAX_TEAR_PERIODS:
             return not modulus.along(core) >= _TORN_MODULUS
-        return emptied
+        return emptied()
     periods = float(np.median(sections["periods"][mine]))
     if periods <= _SMALL_TEAR_PERIODS:
         return True
     if periods <= _MAX_TEAR_PERIODS:
-        return emptied or float(np.median(sections["width"][mine])) <= _TEAR_WIDTH * sigma
+        return (float(np.median(sections["width"][mine])) <= _TEAR_WIDTH * sigma
+                or emptied())
     return not modulus.along(core) >= _TORN_MODULUS
 
 
