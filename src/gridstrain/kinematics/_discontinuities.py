@@ -85,6 +85,30 @@ _MAX_TEAR_PERIODS = 0.6
 # Half a period of opening cancels the two sides' phasors (0); an intact grid whose
 # local period changes by 20 % within the window keeps 0.6 and more.
 _TORN_MODULUS = 0.5
+# ... and a ridge that integrates to more than this many periods (and at most to
+# _MAX_TEAR_PERIODS) is a tear only where the grid shows one, as a steep continuous
+# gradient of an intact grid integrating to a third to half a period, narrower than
+# the window, leaves as narrow a ridge (a rise of half a period along a family over
+# three periods). Below it neither the width nor the modulus tells them apart (jumps
+# of 0.1 to 0.25 period measured 0.9 to 1.46 sigma wide and dips of 0.8 to 0.95; a
+# steep gradient of 0.33 period 1.41 and 0.92): a small jump is a tear as its narrow
+# ridge says, and a whole period cannot hide in it.
+_SMALL_TEAR_PERIODS = 0.35
+# The grid shows the tear where the ridge's sections are at most this many sigmas wide
+# (the median): two sides' phasors mixing by the window narrow a jump's ridge as they
+# near half a period (0.16 to 0.76 sigma measured for openings of 0.35 to 0.5 period
+# at lattice periods of 5 to 7 px), where a continuous rise over three periods is
+# seen 1.36 to 1.37 sigma wide.
+_TEAR_WIDTH = 1.1
+# ... or where the grid's modulus at its crest (the deformed state's at ``X + u`` over
+# the reference's at ``X``, the smallest within sigma of the crest, over its level 3 to
+# 4 sigma away on each side; the median over the sections) falls below this: two
+# phasors near half a period apart, or a gap without grid, empty the window's centre
+# (0.34 to 0.54 measured for openings of 0.35 to 0.5 period; 0.59 for a gap of 7 px),
+# where an intact checkerboard rising by half a period along a family over three
+# periods keeps 0.83 to 0.86. A dark gap of half a period in a grid of dark lines
+# looks like one more line and keeps 0.89: the width then tells.
+_TORN_DIP = 0.75
 # Pixels within this many sigmas of a ridge's core are left out: the window's
 # error there, delta/2 erfc(d / sqrt(2) sigma), reaches the noise beyond it only for
 # jumps of several pixels (1e-3 of delta/2 at the core's edge plus 2 sigma).
@@ -175,7 +199,12 @@ def find_discontinuities(m: Measurement, *, min_jump: float = _MIN_JUMP) -> Disc
     integrates to more than 0.6 period is a steep gradient of an intact grid,
     followed and not cut, unless the grid's modulus collapses along it (the
     deformed state's at ``X + u`` over the reference's at ``X`` below half its
-    median). A jump of a whole number of pitches leaves no trace in the phases
+    median). One that integrates to 0.35 to 0.6 period is a tear only where the grid
+    shows it: its sections at most 1.1 sigma wide (the phasors' mixing narrows a
+    jump's ridge as they near half a period), or the modulus at its crest below 0.75
+    of its sides' (the window's centre emptied by the mixing or by a gap); a steep
+    gradient narrower than the window keeps both (1.36 sigma, 0.85). A jump of a
+    whole number of pitches leaves no trace in the phases
     (the grid is the same on both sides): only the stretches of a crack whose
     opening differs from it are seen, and the jump is known modulo the period.
     """
@@ -225,7 +254,7 @@ def find_discontinuities(m: Measurement, *, min_jump: float = _MIN_JUMP) -> Disc
     modulus = _ModulusRatio(m)
     jumps = [k for k in np.unique(lab[seeds])
              if _is_jump(sections, k, sigma)
-             and _is_tear(sections, k, (lab == k) & low, modulus)]
+             and _is_tear(sections, k, (lab == k) & low, modulus, m.lattice, sigma)]
     core = np.isin(lab, jumps) & low
     if not core.any():
         return Discontinuities(core=empty, band=empty.copy(), regions=(),
@@ -263,7 +292,8 @@ def _sections(strain, valid, sigma, dep, seeds, lab) -> dict:
     pi)`` times its height), the
     ``opening`` and ``sliding`` jumps (px; the integral of the strain tensor across,
     ``n.E.n`` and ``2 t.E.n``), the normal ``n`` (x, y), and ``ok``: the section
-    lies on valid pixels.
+    lies on valid pixels, and ``crest``: where along the normal the crest lies from
+    the seed, px.
     """
     step = max(1, int(sigma))
     pick = np.zeros_like(seeds)
@@ -322,7 +352,8 @@ def _sections(strain, valid, sigma, dep, seeds, lab) -> dict:
     opening = exx * nx * nx + eyy * ny * ny + 2 * exy * nx * ny
     sliding = 2 * ((eyy - exx) * nx * ny + exy * (nx * nx - ny * ny))
     return {"rows": rows, "cols": cols, "label": lab[rows, cols], "width": width,
-            "opening": opening, "sliding": sliding, "n": n, "ok": ok}
+            "opening": opening, "sliding": sliding, "n": n, "ok": ok,
+            "crest": t[crest]}
 
 
 def _is_jump(sections: dict, k: int, sigma: float) -> bool:
@@ -346,50 +377,122 @@ def _phase_jumps(sections: dict, lattice) -> np.ndarray:
 
 
 class _ModulusRatio:
-    """The deformed grid's modulus at ``X + u`` over the reference's at ``X``, both
-    wave vectors, relative to its median over the valid pixels (made on first use: only
-    a ridge that integrates past half a period needs it)."""
+    """The deformed grid's modulus at ``X + u`` over the reference's at ``X``, per wave
+    vector, relative to its median over the valid pixels (made on first use: only a
+    ridge the width and the integral leave in doubt needs it). The same material
+    point is compared: the lighting and the print cancel, and what is left is the
+    grid's own change (torn, or its period changed within the window)."""
 
     def __init__(self, m: Measurement):
         self.m = m
         self._ratio = None
 
-    def along(self, core: np.ndarray) -> float:
-        """The median over ``core`` of the smaller wave vector's ratio; NaN without
-        the phase maps."""
+    def maps(self) -> np.ndarray | None:
+        """(2, H, W) ratio maps; None without the phase maps."""
         m = self.m
-        if m.reference is None or m.deformed is None or not core.any():
-            return math.nan
+        if m.reference is None or m.deformed is None:
+            return None
         if self._ratio is None:
             v = np.asarray(m.valid, dtype=bool)
             H, W = v.shape
             yy, xx = np.mgrid[0:H, 0:W].astype(np.float64)
             u = np.stack([nearest_filled(np.asarray(c, dtype=np.float64), v)
                           for c in m.u])
-            out = np.full((H, W), np.inf)
+            out = np.empty((2, H, W))
             for j in range(2):
                 ref = np.abs(m.reference.psi[j])
                 cur = ndimage.map_coordinates(np.abs(m.deformed.psi[j]),
                                               [yy + u[1], xx + u[0]], order=1,
                                               mode="nearest")
                 r = cur / np.maximum(ref, 1e-12 * float(np.max(ref[v])))
-                np.minimum(out, r / max(float(np.median(r[v])), 1e-300), out=out)
+                out[j] = r / max(float(np.median(r[v])), 1e-300)
             self._ratio = out
-        return float(np.median(self._ratio[core]))
+        return self._ratio
+
+    def along(self, core: np.ndarray) -> float:
+        """The median over ``core`` of the smaller wave vector's ratio; NaN without
+        the phase maps."""
+        ratio = self.maps()
+        if ratio is None or not core.any():
+            return math.nan
+        return float(np.median(np.min(ratio[:, core], axis=0)))
 
 
-def _is_tear(sections: dict, k: int, core: np.ndarray, modulus: _ModulusRatio) -> bool:
-    """Whether the ridge ``k`` (its ``core`` pixels) can be a torn grid: its sections
-    integrate to at most ``_MAX_TEAR_PERIODS`` (the median over those on valid
-    pixels), as a jump seen modulo the lattice does; or, past it, the grid's modulus
-    collapses along it (``_TORN_MODULUS``). A steep gradient of an intact grid
-    integrates to what it is, a period or more, with its modulus kept: the phases are
-    continuous across it and it is followed, not cut."""
+def _crest_dips(sections: dict, modulus: _ModulusRatio, lattice, sigma: float):
+    """Per section, the grid's modulus at the crest relative to the sides' (NaN where
+    it cannot be read): the smallest ratio within ``sigma`` of the crest over the mean
+    of its medians 3 to 4 sigma away on each side, along the wave vector that the
+    section's jump ``b`` turns most (``|K b|`` nearest to half a period, the one two
+    torn sides' phasors, mixed by the window, would cancel most).
+
+    Read on every section, valid or not: where the deformed grid vanished along an
+    opening the ratio there (computed from the transforms, not their validity) is
+    the tear's own evidence.
+    """
+    ratio = modulus.maps()
+    n_sec = sections["rows"].size
+    if ratio is None or n_sec == 0:
+        return np.full(n_sec, np.nan)
+    nx, ny = sections["n"]
+    b = np.stack([sections["opening"] * nx - sections["sliding"] * ny,
+                  sections["opening"] * ny + sections["sliding"] * nx])
+    j = np.argmin(np.abs(np.cos(np.pi * (lattice.K @ b))), axis=0)
+    reach = math.ceil(4.0 * sigma)
+    t = np.arange(-reach, reach + 1, dtype=np.float64)
+    cy = sections["rows"] + sections["crest"] * ny
+    cx = sections["cols"] + sections["crest"] * nx
+    yy = cy[:, None] + t[None, :] * ny[:, None]
+    xx = cx[:, None] + t[None, :] * nx[:, None]
+    prof = np.stack([ndimage.map_coordinates(r, [yy, xx], order=1, mode="nearest")
+                     for r in ratio])[j, np.arange(n_sec)]  # (sections, samples)
+    dip = np.min(prof[:, np.abs(t) <= sigma], axis=1)
+    far = np.abs(t) >= 3.0 * sigma
+    sides = 0.5 * (np.median(prof[:, far & (t < 0)], axis=1)
+                   + np.median(prof[:, far & (t > 0)], axis=1))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return dip / sides
+
+
+def _is_tear(sections: dict, k: int, core: np.ndarray, modulus: _ModulusRatio,
+             lattice, sigma: float) -> bool:
+    """Whether the ridge ``k`` (its ``core`` pixels) is a torn grid.
+
+    By what its sections integrate to (the median over those on valid pixels): up to
+    ``_SMALL_TEAR_PERIODS``, a small jump, a tear; up to ``_MAX_TEAR_PERIODS``, as a
+    jump seen modulo the lattice does, a tear only where the grid shows it: the
+    sections are at most ``_TEAR_WIDTH`` sigmas wide, or the grid's modulus at the
+    crest falls below ``_TORN_DIP`` of the sides' (the medians over the sections);
+    past it, only where the grid's modulus collapses along it (``_TORN_MODULUS``): a
+    steep gradient integrates to what it is, a period or more. A ridge without a
+    section on valid pixels is judged by the dip alone (a tear where none can be
+    read). What is not a tear is a steep gradient of an intact grid: the phases are
+    continuous across it, and it is followed, not cut."""
     mine = (sections["label"] == k) & sections["ok"]
+
+    def emptied() -> bool:
+        if "dip" not in sections:  # the ratio maps made once, for the first that asks
+            sections["dip"] = _crest_dips(sections, modulus, lattice, sigma)
+        dips = sections["dip"][sections["label"] == k]
+        dips = dips[np.isfinite(dips)]
+        return not dips.size or float(np.median(dips)) < _TORN_DIP
+
     if not mine.any():
+        # its sections run off the valid pixels (a ridge near a border, or the image
+        # a few windows wide): their integrals, over the filled strain, still tell a
+        # rise past _MAX_TEAR_PERIODS, a period or more, from a jump seen modulo the
+        # lattice; along a hole where the deformed grid vanished they read nothing
+        # (NaN) and the dip decides
+        rough = sections["periods"][sections["label"] == k]
+        rough = rough[np.isfinite(rough)]
+        if rough.size and float(np.median(rough)) > _MAX_TEAR_PERIODS:
+            return not modulus.along(core) >= _TORN_MODULUS
+        return emptied()
+    periods = float(np.median(sections["periods"][mine]))
+    if periods <= _SMALL_TEAR_PERIODS:
         return True
-    if float(np.median(sections["periods"][mine])) <= _MAX_TEAR_PERIODS:
-        return True
+    if periods <= _MAX_TEAR_PERIODS:
+        return (float(np.median(sections["width"][mine])) <= _TEAR_WIDTH * sigma
+                or emptied())
     return not modulus.along(core) >= _TORN_MODULUS
 
 
