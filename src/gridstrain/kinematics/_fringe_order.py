@@ -26,6 +26,7 @@ from ..phase import Lattice, PhaseMaps, filled_box
 from ..uncertainty import nearest_index
 from ._grid_free import (
     ContentOrder,
+    _gaussian_at,
     decimation,
     field_from_phases,
     gradient,
@@ -551,9 +552,8 @@ def _grid_content(reference: PhaseMaps, current: PhaseMaps, u: np.ndarray, ok: n
         # over the window's weights within the frame: near a border the transform
         # sums a truncated window, its modulus falling as they do
         m = np.mean(np.abs(pm.psi), axis=0, dtype=np.float64)
-        w = ndimage.gaussian_filter(np.ones(m.shape), pm.sigma, mode="constant",
-                                    truncate=4.0)
-        m = smooth_decimate(m, pitch, q) / np.maximum(smooth_decimate(w, pitch, q), 1e-6)
+        m = smooth_decimate(m, pitch, q) / np.maximum(_window_weights(m.shape, pm.sigma,
+                                                                      pitch, q), 1e-6)
         return np.log(np.maximum(m, 1e-3 * max(float(np.max(m)), 1e-300)))
 
     a, b = (content(reference), content(current)) if contents is None else contents
@@ -567,6 +567,15 @@ def _grid_content(reference: PhaseMaps, current: PhaseMaps, u: np.ndarray, ok: n
     use = np.ones_like(ok) if within is None else within
     return order_from_content(a, b, u, use, lattice, q,
                               around=around, gradient=None if material else gradient(u, q))
+
+
+def _window_weights(shape, sigma: float, s: float, q: int) -> np.ndarray:
+    """The window's weights within a frame of ``shape`` (a Gaussian of std ``sigma``
+    over ones, zero beyond the border) smoothed and sampled as
+    :func:`smooth_decimate` does with ``s`` and ``q``: separable, the product of two
+    profiles (the same values as the filtered whole frame to within rounding)."""
+    return np.outer(*(_gaussian_at(ndimage.gaussian_filter1d(
+        np.ones(n), sigma, mode="constant", truncate=4.0), s, q, 0) for n in shape))
 
 
 def _extended(u: np.ndarray, ok: np.ndarray, q: int) -> np.ndarray:
