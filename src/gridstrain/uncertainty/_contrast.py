@@ -36,13 +36,14 @@ CONTRAST_STEP_PX = 0.3
 _BLOCK = 1 << 20
 
 
-def _log_gradient(psi: np.ndarray) -> np.ndarray:
+def _log_gradient(psi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """``grad ln |psi|`` per px, ``(d/dx, d/dy)``; zero where the modulus is zero."""
     mod = np.abs(psi)
     tiny = np.finfo(np.float64).tiny
-    lg = np.log(np.maximum(mod, tiny))
+    lg = np.log(np.maximum(mod, tiny, out=mod) if mod.dtype == np.float64 else
+                np.maximum(mod, tiny))
     gy, gx = np.gradient(lg)
-    return np.stack([gx, gy])
+    return gx, gy
 
 
 def contrast_step_bound(reference_psi, deformed_psi, u, valid, *, sigma: float) -> np.ndarray:
