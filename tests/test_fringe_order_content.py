@@ -251,3 +251,33 @@ def test_the_window_weights_from_two_profiles_are_the_whole_frame_filtered():
     w = ndimage.gaussian_filter(np.ones(shape), sigma, mode="constant", truncate=4.0)
     np.testing.assert_allclose(_window_weights(shape, sigma, pitch, q),
                                smooth_decimate(w, pitch, q), rtol=1e-14, atol=0)
+
+
+def test_the_content_memo_gives_back_only_what_the_same_object_made():
+    # a state's features and its check after the warp compare the same objects: made
+    # once; another object (a later state's image, equal or not) is made again, and a
+    # freed object is neither kept alive nor taken for one at its address
+    import gc
+    import weakref
+
+    from gridstrain.kinematics._fringe_order import _Contents
+
+    calls = []
+
+    def make(a, k):
+        calls.append(k)
+        return a.sum() * k
+
+    memo = _Contents()
+    ref, cur = np.ones((4, 4)), np.full((4, 4), 2.0)
+    for _ in range(2):
+        assert memo(make, ref, 3) == 48.0
+        assert memo(make, cur, 3) == 96.0
+    assert calls == [3, 3]
+    assert memo(make, cur, 4) == 128.0  # other arguments: made again
+    assert memo(make, cur.copy(), 4) == 128.0  # an equal copy is another object
+    assert calls == [3, 3, 4, 4]
+    gone = weakref.ref(cur)
+    del cur
+    gc.collect()
+    assert gone() is None
