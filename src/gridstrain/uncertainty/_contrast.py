@@ -88,7 +88,10 @@ def contrast_step_bound(reference_psi, deformed_psi, u, valid, *, sigma: float) 
             b = slice(r0, min(H, r0 + step))
             vb = v[b]
             rows = np.arange(b.start, b.stop, dtype=np.float64)[:, None]
-            at = [rows + np.where(vb, u[1, b], 0.0), cols + np.where(vb, u[0, b], 0.0)]
+            # one (2, h, W) array for both maps (a list is made into one at each call)
+            at = np.empty((2, *vb.shape))
+            np.add(rows, np.where(vb, u[1, b], 0.0), out=at[0])
+            np.add(cols, np.where(vb, u[0, b], 0.0), out=at[1])
             dx, dy = (ndimage.map_coordinates(g, at, order=1, mode="nearest") - q[b]
                       for g, q in zip(gd, gr, strict=True))
             np.maximum(s[b], np.hypot(dx, dy), out=s[b])
