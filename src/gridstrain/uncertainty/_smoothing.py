@@ -231,9 +231,11 @@ class _EdgeFit:
 
 def _band_taps(band: np.ndarray, R: int):
     """:class:`_BandTaps` of ``band``, or None where the band and the pixels within
-    ``R`` rows of it are more than a quarter of the map (whole-map filters then)."""
+    ``R`` rows of it are more than an eighth of the map (whole-map filters then: the
+    gathers hold ``2 R + 1`` values a pixel, and a thin band, a frame's or a hole's
+    edge, is a few percent of it)."""
     need = ndimage.binary_dilation(band, structure=np.ones((2 * R + 1, 1), bool))
-    if 4 * np.count_nonzero(need) > band.size:
+    if 8 * np.count_nonzero(need) > band.size:
         return None
     return _BandTaps(band, need, R)
 
