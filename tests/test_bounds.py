@@ -230,3 +230,37 @@ def test_noise_alone_is_no_feature():
     # 4 std: the largest of ~5000 smoothed-noise samples of the Laplacian term, at
     # 1.1 std typical, times the factor 3, measured 2.4 to 3.3 std
     assert max(b["max"]) <= 4e-4
+
+
+@pytest.mark.parametrize("kind", ["frame", "hole", "ragged"])
+def test_the_edge_fit_moments_at_the_band_are_the_whole_map_filters(kind):
+    # the separable moments summed only where the band needs them (a frame's or a
+    # hole's edge; a ragged mask whose band is most of the map takes the whole-map
+    # filters) against the two whole-map correlations, read at the band: within
+    # rounding (a few 1e-16 of the largest moment)
+    import math
+
+    from gridstrain.uncertainty._smoothing import _EdgeFit
+
+    rng = np.random.default_rng(5)
+    # a thin band is an eighth of the map at most from about 500 px up; a ragged mask's
+    # is most of any map
+    H, W = (150, 180) if kind == "ragged" else (600, 720)
+    yy, xx = np.mgrid[0:H, 0:W]
+    v = np.zeros((H, W), bool)
+    v[8:-8, 10:-10] = True
+    if kind == "hole":
+        v[(yy - 300) ** 2 + (xx - 340) ** 2 < 60**2] = False
+    if kind == "ragged":
+        v &= rng.random((H, W)) > 0.05
+    sig = 3.0
+    fit = _EdgeFit(v, ndimage.binary_erosion(v, iterations=math.ceil(2 * sig)), sig)
+    assert (fit._at is None) == (kind == "ragged")
+    f = np.where(v, 1e-3 * np.sin(xx / 9.0) + 1e-4 * rng.standard_normal((H, W)), 0.0)
+    powers = [(a, b) for a in range(5) for b in range(5 - a)]
+    got = fit.moments(f, powers)
+    for a, b in powers:
+        rows = ndimage.correlate1d(f, fit.g * fit.t**a, axis=1, mode="constant")
+        want = ndimage.correlate1d(rows, fit.g * fit.t**b, axis=0, mode="constant")[fit.band]
+        np.testing.assert_allclose(got[a, b], want, rtol=0,
+                                   atol=1e-14 * np.max(np.abs(want)))

@@ -222,3 +222,62 @@ def test_a_record_on_a_bare_grid_compares_its_content_only_now_and_then(monkeypa
     assert [r.confirmed for r in gated.fringe_orders] == \
         [r.confirmed for r in every.fringe_orders]
     assert [r.source for r in gated.fringe_orders] == [r.source for r in every.fringe_orders]
+
+
+@pytest.mark.parametrize(("shape", "s", "q"), [((104, 137), 6.0, 6), ((97, 64), 5.3, 5),
+                                               ((50, 81), 3.0, 1), ((33, 40), 2.2, 3)])
+def test_the_low_pass_summed_at_the_samples_kept_is_the_filter_bit_for_bit(shape, s, q):
+    # the same kernel and order of summation as scipy's symmetric correlation, only at
+    # the samples kept: the same bits, not merely close ones
+    from scipy import ndimage
+
+    from gridstrain.kinematics._grid_free import smooth_decimate
+
+    a = np.random.default_rng(3).random(shape) * 4000.0
+    full = ndimage.gaussian_filter1d(a, s, axis=0, mode="constant", truncate=4.0)[::q]
+    full = ndimage.gaussian_filter1d(full, s, axis=1, mode="constant", truncate=4.0)[:, ::q]
+    assert np.array_equal(smooth_decimate(a, s, q), full)
+
+
+def test_the_window_weights_from_two_profiles_are_the_whole_frame_filtered():
+    # separable: the product of the two profiles is the 2-D filter of a frame of ones
+    # to within rounding (a few 1e-16 relative)
+    from scipy import ndimage
+
+    from gridstrain.kinematics._fringe_order import _window_weights
+    from gridstrain.kinematics._grid_free import smooth_decimate
+
+    shape, sigma, pitch, q = (130, 171), 5.0, 6.0, 6
+    w = ndimage.gaussian_filter(np.ones(shape), sigma, mode="constant", truncate=4.0)
+    np.testing.assert_allclose(_window_weights(shape, sigma, pitch, q),
+                               smooth_decimate(w, pitch, q), rtol=1e-14, atol=0)
+
+
+def test_the_content_memo_gives_back_only_what_the_same_object_made():
+    # a state's features and its check after the warp compare the same objects: made
+    # once; another object (a later state's image, equal or not) is made again, and a
+    # freed object is neither kept alive nor taken for one at its address
+    import gc
+    import weakref
+
+    from gridstrain.kinematics._fringe_order import _Contents
+
+    calls = []
+
+    def make(a, k):
+        calls.append(k)
+        return a.sum() * k
+
+    memo = _Contents()
+    ref, cur = np.ones((4, 4)), np.full((4, 4), 2.0)
+    for _ in range(2):
+        assert memo(make, ref, 3) == 48.0
+        assert memo(make, cur, 3) == 96.0
+    assert calls == [3, 3]
+    assert memo(make, cur, 4) == 128.0  # other arguments: made again
+    assert memo(make, cur.copy(), 4) == 128.0  # an equal copy is another object
+    assert calls == [3, 3, 4, 4]
+    gone = weakref.ref(cur)
+    del cur
+    gc.collect()
+    assert gone() is None

@@ -169,7 +169,7 @@ def test_model_grows_with_pixels_methods_and_held_states():
 def test_contrast_step_model_covers_the_bounds_measured_peak(shape):
     """The contrast step's bound allocates a carrier's log-modulus gradients and a
     block of rows' material points beyond its inputs: the budget's figure for it
-    (contrast_step_bytes) is at least the peak tracemalloc measures (88 bytes a pixel
+    (contrast_step_bytes) is at least the peak tracemalloc measures (80 bytes a pixel
     where one block holds the image; 1100 x 1000 px takes two blocks)."""
     import tracemalloc
 

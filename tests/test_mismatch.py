@@ -254,3 +254,22 @@ def test_the_frames_of_one_record_are_not_compared(tmp_path):
         tifffile.imwrite(tmp_path / f"f{t}.tif", f)
     res = measure_series(tmp_path / "f0.tif", [tmp_path / f"f{t}.tif" for t in (1, 2, 3)])
     assert "same record" not in [r["verdict"] for r in res.systematic["pair_match"]]
+
+
+@pytest.mark.parametrize("q", [1, 5, 6])
+def test_the_pair_checks_low_pass_sums_at_the_rows_kept_bit_for_bit(q):
+    # the columns' filter summed at the rows kept only: the bits of filtering every row
+    from scipy import ndimage
+
+    from gridstrain.kinematics._pair_match import _low_pass
+
+    rng = np.random.default_rng(11)
+    a = rng.random((90, 121)) * 3000.0
+    m = rng.random(a.shape) > 0.05
+
+    def old(f, s):
+        f = ndimage.gaussian_filter1d(f, s, axis=1, mode="constant")[:, ::q]
+        return ndimage.gaussian_filter1d(f, s, axis=0, mode="constant")[::q]
+
+    want = old(np.where(m, a, 0.0), 6.0) / np.maximum(old(m.astype(np.float64), 6.0), 1e-12)
+    assert np.array_equal(_low_pass(a, m, 6.0, q), want)

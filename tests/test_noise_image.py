@@ -199,3 +199,49 @@ def test_single_image_read_noise_is_never_negative():
     # K within 10 % in every draw: on 256 x 320 px its single-image standard error is
     # about 3 %, K and L trading against each other (measured: within 6.2 %)
     assert np.max(np.abs(np.array(Ks) / K - 1)) < 0.10
+
+
+@pytest.mark.parametrize(("pitch", "angle"), [(6.0, 12.0), (5.3, -20.0), (4.0, 0.0)])
+def test_grid_removal_filter_is_the_one_of_the_notch_by_notch_loop(pitch, angle):
+    # the candidates' bins and peaks taken at once, each notch written through slices
+    # (two where it wraps round the spectrum's edge): the same filter, bit for bit, as
+    # the loop that gathered and scattered each notch's block
+    import math
+
+    from gridstrain import Lattice
+    from gridstrain.uncertainty import _noise_image as N
+
+    shape, tile, s = (200, 260), 128, 0.02
+    lattice = Lattice.from_pitch(pitch, angle=angle)
+    spec = np.random.default_rng(7).random((tile, tile)) + 1.0
+    spec[3, 5] = spec[-3, -5] = 40.0  # a strong peak: a wide notch where it is a harmonic
+
+    cand = N._harmonics(lattice, N._MAX_ORDER)
+    near = np.zeros((tile, tile), dtype=bool)
+    for fy, fx in cand:
+        iy, ix = round(fy * tile) % tile, round(fx * tile) % tile
+        near[np.ix_(np.arange(iy - 3, iy + 4) % tile, np.arange(ix - 3, ix + 4) % tile)] = True
+    far = spec[~near] if (~near).sum() >= 20 else spec.ravel()
+    floor = float(np.median(far)) if (~near).sum() >= 20 else float(np.quantile(far, 0.1))
+    n = np.arange(-N._MAX_ORDER, N._MAX_ORDER + 1)
+    nn, mm = np.meshgrid(n, n)
+    always = (np.abs(nn) + np.abs(mm)).ravel() <= 1
+    want = np.ones(shape)
+    fy_all, fx_all = np.fft.fftfreq(shape[0]), np.fft.fftfreq(shape[1])
+    used = []
+    for (fy, fx), keep in zip(cand, always, strict=True):
+        iy, ix = round(fy * tile) % tile, round(fx * tile) % tile
+        local = spec[np.ix_(np.arange(iy - 1, iy + 2) % tile, np.arange(ix - 1, ix + 2) % tile)]
+        if not keep and local.max() <= N._PEAK_FACTOR * floor:
+            continue
+        used.append((fy, fx))
+        sh = s * (1.0 + N._WIDEN * math.log10(max(float(local.max()) / floor, 1.0)))
+        dy = (fy_all - fy + 0.5) % 1.0 - 0.5
+        dx = (fx_all - fx + 0.5) % 1.0 - 0.5
+        ri, ci = np.nonzero(np.abs(dy) < 8 * sh)[0], np.nonzero(np.abs(dx) < 8 * sh)[0]
+        g = np.exp(-0.5 * dy[ri, None] ** 2 / sh**2) * np.exp(-0.5 * dx[None, ci] ** 2 / sh**2)
+        want[np.ix_(ri, ci)] *= (1.0 - g) ** 2
+
+    got, got_used = N._residual_filter(shape, lattice, spec, s)
+    assert np.array_equal(got, want)
+    assert np.array_equal(got_used, np.array(used))

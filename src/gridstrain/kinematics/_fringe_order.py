@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import weakref
 from dataclasses import dataclass
 
 import numpy as np
@@ -26,6 +27,7 @@ from ..phase import Lattice, PhaseMaps, filled_box
 from ..uncertainty import nearest_index
 from ._grid_free import (
     ContentOrder,
+    _gaussian_at,
     decimation,
     field_from_phases,
     gradient,
@@ -332,6 +334,33 @@ _FUTILE = 3
 _RECHECK = 8
 
 
+class _Contents:
+    """What a function makes of an image or a state's transforms (a content map at the
+    samples), kept while the same object is asked for again: a state's image features
+    and its check once warped back compare the same two images and transforms, and the
+    reference's stay for every state. Two objects a function (the reference's and the
+    latest state's), each held by a weak reference: an object freed is never taken for
+    another one at its address, and nothing is kept alive for the memo's sake."""
+
+    def __init__(self):
+        self._kept: dict = {}
+
+    def __call__(self, make, obj, *args):
+        kept = self._kept.setdefault(make, [])
+        for ref, given, out in kept:
+            if ref() is obj and given == args:
+                return out
+        out = make(obj, *args)
+        kept.insert(0, (weakref.ref(obj), args, out))
+        del kept[2:]
+        return out
+
+
+def _made(memo, make, obj, *args):
+    """``make(obj, *args)``, from ``memo`` (:class:`_Contents`) when one is given."""
+    return make(obj, *args) if memo is None else memo(make, obj, *args)
+
+
 class _CoarseReference:
     """The reference's side of :func:`coarse_displacement` (its band-passed image,
     masks and transforms), computed once and used for every deformed image of a
@@ -345,6 +374,7 @@ class _CoarseReference:
         # states in a row whose content below the grid's frequency decided nothing
         # (no tile informative), and the states decided since the last comparison
         self._futile = self._since = 0
+        self._contents = _Contents()
 
     def side(self, whole: bool) -> _Side:
         if whole not in self._sides:
@@ -364,8 +394,8 @@ class _CoarseReference:
         """:func:`order_from_content` of ``deformed`` with the field ``u`` (2, h, w)
         and ``ok`` at the reference's grid-free samples."""
         ref, q = self.grid_free()
-        return order_from_content(ref, grid_free(deformed, self.lattice, q), u, ok,
-                                  self.lattice, q, gradient=gradient)
+        return order_from_content(ref, self._contents(grid_free, deformed, self.lattice, q),
+                                  u, ok, self.lattice, q, gradient=gradient)
 
     def decide(self, deformed: np.ndarray, reference: PhaseMaps,
                current: PhaseMaps) -> CoarseEstimate:
@@ -425,7 +455,8 @@ class _CoarseReference:
         says, and why that is no confirmation where only the light's evidence shows
         them (empty otherwise)."""
         return _grid_evidence(reference, current, u, ok, periods, material=material,
-                              images=None if image is None else (self.reference, image))
+                              images=None if image is None else (self.reference, image),
+                              memo=self._contents)
 
     def _corroborated(self, est: CoarseEstimate, reference: PhaseMaps, current: PhaseMaps,
                       u: np.ndarray, ok: np.ndarray, shift, deformed=None) -> CoarseEstimate:
@@ -452,7 +483,8 @@ class _CoarseReference:
         med = np.array([np.median(c) for c in v])
         same, seen, doubt = _grid_evidence(
             reference, current, u, ok, self.lattice.K @ (np.array(shift) - med),
-            images=None if deformed is None else (self.reference, deformed))
+            images=None if deformed is None else (self.reference, deformed),
+            memo=self._contents)
         if same:
             return dataclasses.replace(est, reason=f"{est.reason}; {seen}",
                                        light_doubt=doubt)
@@ -532,7 +564,7 @@ def grid_shows(reference: PhaseMaps, deformed: PhaseMaps, u, valid, periods, *,
 
 def _grid_content(reference: PhaseMaps, current: PhaseMaps, u: np.ndarray, ok: np.ndarray,
                   *, material: bool = False, within=None, around=(0, 0),
-                  contents=None) -> ContentOrder:
+                  contents=None, memo=None) -> ContentOrder:
     """:func:`order_from_content` of the grids' own moduli (the logarithm of the mean
     modulus of the two wave vectors, sampled every ``q`` px) with the field ``u`` (2,
     h, w) and ``ok`` at those samples, over the samples ``within`` (default all), the
@@ -540,23 +572,13 @@ def _grid_content(reference: PhaseMaps, current: PhaseMaps, u: np.ndarray, ok: n
     search centred on the whole periods ``around``. ``material``: ``u`` is the
     displacement at the material point (a measurement's, Lagrangian), not the phases'
     at the camera's point. ``contents``: the two states' content maps at those samples
-    to compare instead of the moduli (:func:`_light_free`)."""
+    to compare instead of the moduli (:func:`_light_free`); ``memo``: a
+    :class:`_Contents` the moduli's maps are kept in."""
     lattice = reference.lattice
     q = decimation(lattice)
     pitch = max(lattice.pitches)
-
-    def content(pm):
-        # low-passed by a Gaussian of a pitch as the image's content is (the moire of
-        # the grid's harmonics with the pixels ripples the modulus by a few 1e-3),
-        # over the window's weights within the frame: near a border the transform
-        # sums a truncated window, its modulus falling as they do
-        m = np.mean(np.abs(pm.psi), axis=0, dtype=np.float64)
-        w = ndimage.gaussian_filter(np.ones(m.shape), pm.sigma, mode="constant",
-                                    truncate=4.0)
-        m = smooth_decimate(m, pitch, q) / np.maximum(smooth_decimate(w, pitch, q), 1e-6)
-        return np.log(np.maximum(m, 1e-3 * max(float(np.max(m)), 1e-300)))
-
-    a, b = (content(reference), content(current)) if contents is None else contents
+    a, b = (_made(memo, _modulus_content, pm, pitch, q) for pm in (reference, current)) \
+        if contents is None else contents
     if not ok.any():
         return order_from_content(a, b, u, ok, lattice, q, around=around)
     # every sample, the field carried to the invalid ones from their nearest valid
@@ -567,6 +589,28 @@ def _grid_content(reference: PhaseMaps, current: PhaseMaps, u: np.ndarray, ok: n
     use = np.ones_like(ok) if within is None else within
     return order_from_content(a, b, u, use, lattice, q,
                               around=around, gradient=None if material else gradient(u, q))
+
+
+def _modulus_content(pm: PhaseMaps, pitch: float, q: int) -> np.ndarray:
+    """The logarithm of the mean modulus of ``pm``'s two wave vectors, low-passed by a
+    Gaussian of std ``pitch`` px and sampled every ``q`` px (:func:`_grid_content`)."""
+    # low-passed by a Gaussian of a pitch as the image's content is (the moire of the
+    # grid's harmonics with the pixels ripples the modulus by a few 1e-3), over the
+    # window's weights within the frame: near a border the transform sums a truncated
+    # window, its modulus falling as they do
+    m = np.mean(np.abs(pm.psi), axis=0, dtype=np.float64)
+    m = smooth_decimate(m, pitch, q) / np.maximum(_window_weights(m.shape, pm.sigma,
+                                                                  pitch, q), 1e-6)
+    return np.log(np.maximum(m, 1e-3 * max(float(np.max(m)), 1e-300)))
+
+
+def _window_weights(shape, sigma: float, s: float, q: int) -> np.ndarray:
+    """The window's weights within a frame of ``shape`` (a Gaussian of std ``sigma``
+    over ones, zero beyond the border) smoothed and sampled as
+    :func:`smooth_decimate` does with ``s`` and ``q``: separable, the product of two
+    profiles (the same values as the filtered whole frame to within rounding)."""
+    return np.outer(*(_gaussian_at(ndimage.gaussian_filter1d(
+        np.ones(n), sigma, mode="constant", truncate=4.0), s, q, 0) for n in shape))
 
 
 def _extended(u: np.ndarray, ok: np.ndarray, q: int) -> np.ndarray:
@@ -607,17 +651,17 @@ def _grid_shows(reference: PhaseMaps, current: PhaseMaps, u: np.ndarray, ok: np.
 
 def _grid_evidence(reference: PhaseMaps, current: PhaseMaps, u: np.ndarray, ok: np.ndarray,
                    periods, *, material: bool = False, within=None,
-                   images=None) -> tuple[bool, str, str]:
+                   images=None, memo=None) -> tuple[bool, str, str]:
     """``(shown, said, doubt)``: whether the grid's modulus shows the whole periods
     ``periods`` and the ratio of the grid's harmonics in ``images`` (when given,
     :func:`_light_free`) does not put them elsewhere, what they say, and, where the
     modulus shows them but that ratio cannot tell, why that is no confirmation (empty
-    otherwise)."""
+    otherwise). ``memo``: a :class:`_Contents` the content maps are kept in."""
     # the search centred on the periods tested: they are then never at its edge, and
     # the phases' own order lies within its reach for shifts of a few periods
     want = tuple(int(v) for v in np.rint(periods))
     g = _grid_content(reference, current, u, ok, material=material, within=within,
-                      around=want)
+                      around=want, memo=memo)
     shown, said = _says(g, want, "the grid's own modulus")
     if not shown and want == tuple(g.offset) and g.tiles_agreeing == g.tiles_informative > 0:
         # too little of the modulus's content to decide over the whole frame (stains
@@ -634,7 +678,7 @@ def _grid_evidence(reference: PhaseMaps, current: PhaseMaps, u: np.ndarray, ok: 
     # what no light imitates: the ratio of the grid's harmonics, and where it vanishes
     for what, make in (("its second harmonic over its first", _light_free),
                        ("the places where it vanishes", _vanishing)):
-        contents = tuple(make(im, lat, q) for im in images)
+        contents = tuple(_made(memo, make, im, lat, q) for im in images)
         if contents[0] is None:
             told.append(f"{what} cannot be read at this pitch (folded onto a carrier)")
             continue

@@ -69,7 +69,7 @@ from dataclasses import asdict, dataclass
 import numpy as np
 from scipy import ndimage
 
-from ._grid_free import frame_weights
+from ._grid_free import _gaussian_at, frame_weights
 
 # The high-pass's Gaussian, in pitches: printing defects and texture of one to a few
 # pitches pass; the lighting (a lamp's spot spans hundreds of periods) leaves
@@ -202,9 +202,10 @@ def _low_pass(a: np.ndarray, m: np.ndarray, s: float, q: int = 1) -> np.ndarray:
 
     def smooth(f):
         # along the rows first, where the pixels are contiguous, on the whole frame;
-        # then along the columns, on the q times fewer columns kept
+        # then along the columns, on the q times fewer columns kept and summed at the
+        # rows kept only (the same bits: _gaussian_at)
         f = ndimage.gaussian_filter1d(f, s, axis=1, mode="constant")[:, ::q]
-        return ndimage.gaussian_filter1d(f, s, axis=0, mode="constant")[::q]
+        return _gaussian_at(f, s, q, 0)
 
     if m.all():
         return smooth(a) / frame_weights(m.shape, s, q)

@@ -53,13 +53,14 @@ _CONTRAST_OVER_MEDIAN = 4.0
 _MIN_PX = 1e-3
 
 
-def _log_gradient(psi: np.ndarray) -> np.ndarray:
+def _log_gradient(psi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """``grad ln |psi|`` per px, ``(d/dx, d/dy)``; zero where the modulus is zero."""
     mod = np.abs(psi)
     tiny = np.finfo(np.float64).tiny
-    lg = np.log(np.maximum(mod, tiny))
+    lg = np.log(np.maximum(mod, tiny, out=mod) if mod.dtype == np.float64 else
+                np.maximum(mod, tiny))
     gy, gx = np.gradient(lg)
-    return np.stack([gx, gy])
+    return gx, gy
 
 
 def contrast_step_bytes(shape) -> int:
@@ -67,16 +68,17 @@ def contrast_step_bytes(shape) -> int:
     beyond its inputs, at its peak: for the memory budget of a measurement, whose
     sampled checks make the bound while the state's transforms are held.
 
-    The larger of a carrier's log-modulus gradients being made (72 bytes a pixel:
+    The larger of a carrier's log-modulus gradients being made (66 bytes a pixel:
     the bound's map, the reference's gradients and the deformed state's with their
-    temporaries) and a block of rows' material points beside both gradients (40
-    bytes a pixel and 48 a pixel of the block, at most ``_BLOCK`` pixels), and
-    256 KiB of small arrays: the peaks ``tracemalloc`` measures, 72 to 88.4 bytes a
-    pixel from 12 kpx to 4.2 Mpx (tests/test_memory.py).
+    temporaries; 64 measured) and a block of rows' material points beside both
+    gradients (42 bytes a pixel and 40 a pixel of the block, at most ``_BLOCK``
+    pixels; 40 and 40 measured), and 128 KiB of small arrays: 1.03 to 1.15 times the
+    peaks ``tracemalloc`` measures, 64 to 80 bytes a pixel from 12 kpx to 2.2 Mpx
+    (tests/test_memory.py).
     """
     H, W = (int(v) for v in shape)
     block = min(H, max(1, _BLOCK // max(W, 1))) * W
-    return max(72 * H * W, 40 * H * W + 48 * block) + 2**18
+    return max(66 * H * W, 42 * H * W + 40 * block) + 2**17
 
 
 def _steepest_change(s: np.ndarray, r: np.ndarray, d: np.ndarray, u: np.ndarray,
@@ -100,7 +102,10 @@ def _block_change(s, gr, gd, u, v, b: slice) -> None:
     vb = v[b]
     rows = np.arange(b.start, b.stop, dtype=np.float64)[:, None]
     cols = np.arange(W, dtype=np.float64)[None, :]
-    at = [rows + np.where(vb, u[1, b], 0.0), cols + np.where(vb, u[0, b], 0.0)]
+    # one (2, h, W) array for both maps (a list is made into one at each call)
+    at = np.empty((2, *vb.shape))
+    np.add(rows, np.where(vb, u[1, b], 0.0), out=at[0])
+    np.add(cols, np.where(vb, u[0, b], 0.0), out=at[1])
     dx, dy = (ndimage.map_coordinates(g, at, order=1, mode="nearest") - q[b]
               for g, q in zip(gd, gr, strict=True))
     np.maximum(s[b], np.hypot(dx, dy), out=s[b])

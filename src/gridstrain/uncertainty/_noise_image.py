@@ -130,11 +130,14 @@ def _residual_filter(shape, lattice: Lattice, spec: np.ndarray, s: float):
     H, W = shape
     tile = spec.shape[0]
     cand = _harmonics(lattice, _MAX_ORDER)
+    # each candidate's tile bin (rounded half to even, as round() does), all at once
+    iy, ix = (np.rint(cand[:, a] * tile).astype(np.intp) % tile for a in range(2))
     # noise floor: tile bins more than 3 bins from every candidate
     near = np.zeros((tile, tile), dtype=bool)
-    for fy, fx in cand:
-        iy, ix = round(fy * tile) % tile, round(fx * tile) % tile
-        near[np.ix_(np.arange(iy - 3, iy + 4) % tile, np.arange(ix - 3, ix + 4) % tile)] = True
+    d = np.arange(-3, 4)
+    near[((iy[:, None] + d) % tile)[:, :, None], ((ix[:, None] + d) % tile)[:, None, :]] = True
+    # each candidate's largest bin within one (3 x 3, wrapped)
+    peaks = ndimage.maximum_filter(spec, size=3, mode="wrap")[iy, ix]
     far = spec[~near] if (~near).sum() >= 20 else spec.ravel()
     floor = float(np.median(far)) if (~near).sum() >= 20 else float(np.quantile(far, 0.1))
     n = np.arange(-_MAX_ORDER, _MAX_ORDER + 1)
@@ -143,20 +146,33 @@ def _residual_filter(shape, lattice: Lattice, spec: np.ndarray, s: float):
     out = np.ones((H, W))
     fy_all, fx_all = np.fft.fftfreq(H), np.fft.fftfreq(W)
     used = []
-    for (fy, fx), keep in zip(cand, always, strict=True):
-        iy, ix = round(fy * tile) % tile, round(fx * tile) % tile
-        local = spec[np.ix_(np.arange(iy - 1, iy + 2) % tile, np.arange(ix - 1, ix + 2) % tile)]
-        if not keep and local.max() <= _PEAK_FACTOR * floor:
+    for (fy, fx), keep, peak in zip(cand, always, peaks, strict=True):
+        if not keep and peak <= _PEAK_FACTOR * floor:
             continue
         used.append((fy, fx))
         # strong peaks carry strong skirts (texture, lighting, strain): wider notches
-        sh = s * (1.0 + _WIDEN * math.log10(max(float(local.max()) / floor, 1.0)))
+        sh = s * (1.0 + _WIDEN * math.log10(max(float(peak) / floor, 1.0)))
         dy = (fy_all - fy + 0.5) % 1.0 - 0.5
         dx = (fx_all - fx + 0.5) % 1.0 - 0.5
         ri, ci = np.nonzero(np.abs(dy) < 8 * sh)[0], np.nonzero(np.abs(dx) < 8 * sh)[0]
         g = np.exp(-0.5 * dy[ri, None] ** 2 / sh**2) * np.exp(-0.5 * dx[None, ci] ** 2 / sh**2)
-        out[np.ix_(ri, ci)] *= (1.0 - g) ** 2
+        g = (1.0 - g) ** 2
+        # the notch's rows and columns are a run each, or two where it wraps round the
+        # spectrum's edge: written through slices, not gathered and scattered
+        for rs, ra in _runs(ri):
+            for cs, ca in _runs(ci):
+                out[rs, cs] *= g[ra, ca]
     return out, np.array(used)
+
+
+def _runs(idx: np.ndarray) -> list[tuple[slice, slice]]:
+    """The runs of consecutive values of the increasing indices ``idx``: ``(slice of
+    the values, slice of their places in idx)`` each."""
+    if idx.size == 0:
+        return []
+    cut = np.flatnonzero(np.diff(idx) != 1) + 1
+    return [(slice(int(idx[a]), int(idx[b - 1]) + 1), slice(int(a), int(b)))
+            for a, b in zip(np.r_[0, cut], np.r_[cut, idx.size], strict=True)]
 
 
 def _clipped_variance(r: np.ndarray) -> float:

@@ -181,8 +181,9 @@ class _EdgeFit:
         r = _EDGE_FIT * sig
         self.t = np.arange(-math.ceil(4 * r), math.ceil(4 * r) + 1, dtype=np.float64)
         self.g = np.exp(-0.5 * (self.t / r) ** 2)
+        self._at = _band_taps(self.band, len(self.t) // 2)
         vf = v.astype(np.float64)
-        mom = {(a, b): self.moment(vf, a, b) for a in range(5) for b in range(5 - a)}
+        mom = self.moments(vf, [(a, b) for a in range(5) for b in range(5 - a)])
         P = self._POWERS
         M = np.stack([np.stack([mom[p[0] + q[0], p[1] + q[1]] for q in P], axis=-1)
                       for p in P], axis=-2)  # (n, 6, 6)
@@ -195,17 +196,81 @@ class _EdgeFit:
         bi, bj = np.nonzero(self.band)
         self.bi, self.bj = bi[self.ok], bj[self.ok]
 
-    def moment(self, f, a, b):
-        out = ndimage.correlate1d(f, self.g * self.t**a, axis=1, mode="constant")
-        return ndimage.correlate1d(out, self.g * self.t**b, axis=0,
-                                   mode="constant")[self.band]
+    def moments(self, f, powers) -> dict:
+        """``{(a, b): m}``: the moments ``sum g(s) g(t) s^a t^b f(i + t, j + s)`` (``s``
+        along the rows, ``t`` down the columns; zero beyond the frame) at the band
+        pixels, for each ``(a, b)`` of ``powers``: separable, the sums along the rows
+        taken only where the sums down the columns need them."""
+        def taps(p):
+            return self.g * self.t**p
+
+        if self._at is None:  # a band that is most of the map: whole-map filters
+            rows = {a: ndimage.correlate1d(f, taps(a), axis=1, mode="constant")
+                    for a in {a for a, _ in powers}}
+            return {(a, b): ndimage.correlate1d(rows[a], taps(b), axis=0,
+                                                mode="constant")[self.band]
+                    for a, b in powers}
+        first = sorted({a for a, _ in powers})
+        rows = self._at.along_rows(f, np.stack([taps(a) for a in first], axis=1))
+        out = {}
+        for k, a in enumerate(first):
+            second = [b for a2, b in powers if a2 == a]
+            cols = self._at.down_columns(rows[:, k], np.stack([taps(b) for b in second],
+                                                              axis=1))
+            out.update({(a, b): cols[:, n] for n, b in enumerate(second)})
+        return out
 
     def coefficients(self, c: np.ndarray) -> np.ndarray:
         """``(n, 6)``: the fitted quadratic's coefficients at the well-conditioned band
         pixels."""
         mf = np.where(self.v, c, 0.0)
-        rhs = np.stack([self.moment(mf, *p) for p in self._POWERS], axis=-1)[self.ok]
+        mom = self.moments(mf, self._POWERS)
+        rhs = np.stack([mom[p] for p in self._POWERS], axis=-1)[self.ok]
         return np.einsum("nij,nj->ni", self.inv, rhs)
+
+
+def _band_taps(band: np.ndarray, R: int):
+    """:class:`_BandTaps` of ``band``, or None where the band and the pixels within
+    ``R`` rows of it are more than an eighth of the map (whole-map filters then: the
+    gathers hold ``2 R + 1`` values a pixel, and a thin band, a frame's or a hole's
+    edge, is a few percent of it)."""
+    need = ndimage.binary_dilation(band, structure=np.ones((2 * R + 1, 1), bool))
+    if 8 * np.count_nonzero(need) > band.size:
+        return None
+    return _BandTaps(band, need, R)
+
+
+class _BandTaps:
+    """A separable filter of ``2 R + 1`` taps along each axis (zero beyond the frame)
+    evaluated at the pixels of ``band`` alone: the sums along the rows at the pixels
+    within ``R`` rows of the band, then those down the columns at the band's own. The
+    band along the valid region's edge is a thin part of the map, and the sums a few
+    percent of the whole-map filters' (:func:`_band_taps`)."""
+
+    def __init__(self, band: np.ndarray, need: np.ndarray, R: int):
+        H, W = band.shape
+        self.shape, self.R = (H, W), R
+        off = np.arange(-R, R + 1)
+        self.ni, self.nj = np.nonzero(need)
+        # flat indices into the map padded by R zeros on each side of its rows
+        self.rows = (self.ni * (W + 2 * R) + self.nj + R)[:, None] + off[None, :]
+        bi, bj = np.nonzero(band)
+        # ... and into the first sums' map padded by R zero rows above and below
+        self.cols = ((bi + R) * W + bj)[:, None] + (off * W)[None, :]
+
+    def along_rows(self, f: np.ndarray, taps: np.ndarray) -> np.ndarray:
+        """``(n_need, k)``: ``f`` (H, W) filtered along its rows by each column of
+        ``taps`` (2 R + 1, k) at the pixels the second sums need."""
+        R = self.R
+        return np.pad(f, ((0, 0), (R, R))).ravel()[self.rows] @ taps
+
+    def down_columns(self, h: np.ndarray, taps: np.ndarray) -> np.ndarray:
+        """``(n_band, k)``: the first sums ``h`` (n_need,) filtered down the columns
+        by each column of ``taps`` (2 R + 1, k) at the band pixels."""
+        H, W = self.shape
+        full = np.zeros((H + 2 * self.R, W))
+        full[self.ni + self.R, self.nj] = h
+        return full.ravel()[self.cols] @ taps
 
 
 def _edge_feature(c, v, fit: _EdgeFit, sig, half):
