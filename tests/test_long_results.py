@@ -274,3 +274,17 @@ def test_the_report_reads_each_map_once_when_it_fits(record, monkeypatch):
     assert render_report(load(path, in_memory=False), title="r") == page
     # u, strain, valid and 5 std maps whole, 16 rotations
     assert len(reads) <= 8 + N_STATES
+
+
+def test_the_report_reads_state_by_state_where_the_memory_is_unknown(record, monkeypatch):
+    """Where the system tells no available memory (no cgroup, no /proc: macOS,
+    Windows), the report takes a 4-GiB machine's share, not an unbounded one: a
+    record larger than that is read state by state, never whole."""
+    from gridstrain.post import _report
+
+    path, _ = record
+    monkeypatch.setattr(_report, "available_memory", lambda: (2**63 - 1, "unknown"))
+    lazy = load(path, in_memory=False)
+    assert _report._maps_read_once(lazy) is not lazy  # this small record fits 1 GiB
+    monkeypatch.setattr(_report, "_UNKNOWN_MEMORY", 1024)  # a record over the share
+    assert _report._maps_read_once(lazy) is lazy

@@ -74,6 +74,10 @@ _UNC = ("ux_std", "uy_std", "exx_std", "eyy_std", "exy_std")
 # memory available (the figures, the percentiles and the matplotlib canvases take the
 # rest); else state by state from the file, as often as its figures need them.
 _IN_MEMORY_SHARE = 0.25
+# ... of this many bytes where the system tells no available memory (neither cgroups
+# nor /proc: macOS, Windows): a 4-GiB machine's, so that a long record is still read
+# state by state there.
+_UNKNOWN_MEMORY = 4 * 2**30
 
 
 def _template():
@@ -154,7 +158,10 @@ def _maps_read_once(result: SeriesResult) -> SeriesResult:
     if not stored:
         return result
     need = sum(int(np.prod(a.shape)) * np.dtype(a.dtype).itemsize for a in stored)
-    if need > _IN_MEMORY_SHARE * available_memory()[0]:
+    free, source = available_memory()
+    if source == "unknown":  # a system that says nothing: at most the known floor
+        free = _UNKNOWN_MEMORY
+    if need > _IN_MEMORY_SHARE * free:
         return result
     measurements = tuple(m if isinstance(m.rotation, np.ndarray) else
                          dataclasses.replace(m, rotation=np.asarray(m.rotation))
