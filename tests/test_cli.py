@@ -556,3 +556,31 @@ def test_python_dash_m_gridstrain_is_the_command():
     assert p.returncode == 0, p.stderr
     assert p.stdout == q.stdout
     assert "gridstrain" in p.stdout
+
+
+def test_a_folder_removed_under_a_run_is_made_again(data, tmp_path, capsys, monkeypatch):
+    """Two runs write into the same new folder; the one that made it fails and removes
+    it while still empty: the other, which found it there, makes it again when it
+    writes its file rather than failing at the end with its work lost."""
+    from gridstrain.post import _report
+
+    out = tmp_path / "maps.h5"
+    assert _run(["measure", data / "ref", data / "load.tif", "-o", out, "--quiet"]) == 0
+    shared = tmp_path / "shared"
+    shared.mkdir()  # made by the other run, before this one started
+    render = _report.render_report
+
+    def render_then_lose_the_folder(*args, **kwargs):
+        text = render(*args, **kwargs)
+        shared.rmdir()  # the other run's rollback, while this one was drawing
+        return text
+
+    monkeypatch.setattr(_report, "render_report", render_then_lose_the_folder)
+    rc = _run(["report", out, "-o", shared / "r.html"])
+    assert rc == 0, capsys.readouterr().err
+    assert (shared / "r.html").is_file()
+    # and an API writer outside a command still refuses a missing folder
+    from gridstrain.io import write_atomic
+
+    with pytest.raises(FileNotFoundError, match="does not exist"):
+        write_atomic(tmp_path / "nowhere" / "x.bin", b"x")

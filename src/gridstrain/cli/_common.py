@@ -205,7 +205,7 @@ class Outputs:
     def __enter__(self) -> Outputs:
         from ..io import watch_outputs
 
-        self._watch = watch_outputs(self._record)
+        self._watch = watch_outputs(self._record, make_parents=True)
         self._watch.__enter__()
         return self
 

@@ -48,6 +48,10 @@ def check_destination(path, overwrite: bool, *, what: str = "output file",
     """
     dest = as_path(path, "path")
     parent = dest.parent
+    if not parent.is_dir() and any(_parents_made):
+        # a command's folders, made when it started, removed since by another run
+        # that made them too and then failed: made again (and this run's to remove)
+        make_directory(parent, parents=True)
     if not parent.is_dir():
         raise FileNotFoundError(f"output directory {parent} does not exist (for the {what} "
                                 f"{dest})")
@@ -67,22 +71,30 @@ def check_destination(path, overwrite: bool, *, what: str = "output file",
 # command line's transaction): ("file", path) once a file is renamed into place,
 # ("dir", path) once a directory is made.
 _observers: list = []
+# One entry per watch_outputs block: whether a file's missing folders are made when it
+# is written (the command line's, whose outputs' folders it makes anyway).
+_parents_made: list[bool] = []
 
 
 @contextlib.contextmanager
-def watch_outputs(observer) -> Iterator[None]:
+def watch_outputs(observer, *, make_parents: bool = False) -> Iterator[None]:
     """Call ``observer(kind, path)`` for every output committed inside the block.
 
     ``kind`` is ``"file"`` when :func:`atomic_path` has renamed a complete file
     onto ``path`` (every file gridstrain writes goes through it) and ``"dir"``
     when :func:`make_directory` has created the directory ``path``. The command
-    line records them to remove them all if the run fails afterwards.
+    line records them to remove them all if the run fails afterwards. With
+    ``make_parents``, a file's folder missing when it is written is made again
+    (:func:`check_destination`): another run that made the same new folder and then
+    failed removed it while it was still empty.
     """
     _observers.append(observer)
+    _parents_made.append(bool(make_parents))
     try:
         yield
     finally:
         _observers.remove(observer)
+        _parents_made.pop()
 
 
 def _committed(kind: str, path: Path) -> None:
