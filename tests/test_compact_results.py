@@ -323,15 +323,25 @@ def test_a_chunk_encoded_by_the_compiled_loops_is_the_one_hdf5_writes(held, tmp_
     directly, decodes through HDF5's own filters (checksum verified) to the values
     HDF5's filter pipeline stores. The compressed bytes themselves are compared only
     where Python's zlib is HDF5's (another zlib build may deflate otherwise, validly)."""
-    from gridstrain.results import _precision
+    from gridstrain.results import _layout, _precision
 
     if _precision._load_kernels() is None:
         pytest.skip("numba is not installed")
+    levels = []  # the deflate level of each map written directly (None: by HDF5)
+    decide = _layout._deflate_level
+
+    def counted(ds, arr):
+        levels.append(decide(ds, arr))
+        return levels[-1]
+
+    monkeypatch.setattr(_layout, "_deflate_level", counted)
     paths = {}
     for compiled in (False, True):
         monkeypatch.setattr(_precision, "_COMPILED", compiled)
         paths[compiled] = save_result(held, tmp_path / f"{compiled}.h5", pixel_size=PS,
                                       unit="mm")
+    # the compiled run wrote its compressed maps directly (this test is about them)
+    assert sum(v is not None for v in levels) >= 4
     with h5py.File(paths[False], "r") as a, h5py.File(paths[True], "r") as b:
         names = [n for n, d in a.items() if isinstance(d, h5py.Dataset)
                  and d.compression == "gzip" and d.ndim == 3 and d.chunks[0] == 1]
@@ -349,3 +359,21 @@ def test_a_chunk_encoded_by_the_compiled_loops_is_the_one_hdf5_writes(held, tmp_
                 for k in range(a[name].shape[0]):
                     want = a[name].id.read_direct_chunk((k, 0, 0))
                     assert b[name].id.read_direct_chunk((k, 0, 0)) == want, (name, k)
+
+
+@pytest.mark.parametrize("compiled", [False, True])
+def test_a_std_too_small_for_any_step_keeps_the_value(compiled, monkeypatch):
+    """A std whose step underflows to 0 (5e-324), or a value so large against its std
+    that the step lies below its last float64 bit, keeps the value as float32 casts
+    it: never a step of 0.5 or an infinity for a finite value; the error attribute
+    says how far float32 is then from a tenth of the std."""
+    from gridstrain.results import _precision
+
+    if compiled and _precision._load_kernels() is None:
+        pytest.skip("numba is not installed")
+    monkeypatch.setattr(_precision, "_COMPILED", compiled)
+    v = np.array([0.3, 1.0, 1e10, 0.3, 2.0])
+    s = np.array([5e-324, 1e-318, 1e-300, 1e-323, 1e-9])
+    rounded, worst = _precision.round_to_std(v, s)
+    assert_array_equal(rounded, v.astype(np.float32))
+    assert worst == np.inf  # float32 cannot hold 0.3 to a tenth of 5e-324

@@ -69,7 +69,10 @@ def round_to_std(v, s, two_f, f32_max, out):  # pragma: no cover
             q = _leading_bit(t, cell, bits)
             if not q > 0.0:  # subnormal: the power of two from the exponent frexp gives
                 q = math.ldexp(0.5, math.frexp(t)[1])
-            r = np.float32(np.rint(x / q) * q)
+            if t > 0.0 and a < q * 9007199254740992.0:  # 2**53: else no bit to drop
+                r = np.float32(np.rint(x / q) * q)
+            else:  # a step of 0 (2 f s underflows) or below x's last bit: x itself
+                r = np.float32(x)
             e = abs(np.float64(r) - x) / si
             if e > worst:
                 worst = e

@@ -114,11 +114,13 @@ def round_to_std(values, std, *, fraction: float = STD_FRACTION) -> tuple[np.nda
     tiny = use & ~(q > 0)  # 2 f s subnormal: no exponent bits to take
     if tiny.any():
         q[tiny] = np.ldexp(0.5, np.frexp(2.0 * fraction * s[tiny])[1])
+    # a step of 0 (2 f s underflows) or below the value's last bit keeps the value
+    step = use & (2.0 * fraction * s > 0) & (a < q * 2.0**53)
     with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
         # q a power of two: v / q, its rounding and the product are exact in float64
         out = np.round(v / q)
         out *= q
-        rounded = np.where(use, out, v).astype(np.float32)
+        rounded = np.where(step, out, v).astype(np.float32)
         err = np.abs(rounded - v)
         err /= s
     return rounded, float(err.max(where=use, initial=-np.inf))
