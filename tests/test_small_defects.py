@@ -237,6 +237,35 @@ def test_a_stain_under_noise_is_stated_with_its_pixels_counted():
     assert dict(own.figures) == dict(f.figures)
 
 
+def test_the_contrast_step_takes_the_noise_in_the_forms_the_api_gives():
+    """The noise as predict_uncertainty gives it (an Uncertainty, its u_std, its
+    median()), as maps or as floors: the same finding as the floors it stands for;
+    a form it cannot read is refused in one line naming the accepted ones."""
+    from gridstrain import measure, predict_uncertainty
+    from gridstrain.uncertainty import contrast_step_findings
+
+    rng = np.random.default_rng(2)
+    ref = camera(_contrast_step(0.0), 0.5, 5.0, rng).astype(float)
+    cur = camera(_contrast_step(0.5, mean_drop=0.5), 0.5, 5.0, rng).astype(float)
+    res = measure(ref, cur, lattice=LAT, guess=None)
+    # the sensor's 5-grey-level read noise (its shot noise left out: a floor)
+    unc = predict_uncertainty(res.reference, res.deformed, variance_ref=25.0,
+                              variance_def=25.0)
+    b = _bound(res)
+    maps = contrast_step_findings(b, res.valid, noise={"ux_std": unc.u_std[0],
+                                                       "uy_std": unc.u_std[1]})
+    assert [f.code for f in maps] == ["contrast.step"]
+    assert contrast_step_findings(b, res.valid, noise=unc) == maps
+    assert contrast_step_findings(b, res.valid, noise=unc.u_std) == maps
+    med = unc.median()
+    floors = contrast_step_findings(b, res.valid, noise=(med["ux"], med["uy"]))
+    assert contrast_step_findings(b, res.valid, noise=med) == floors
+    assert res.contrast_step_findings(noise=unc, name="state") == maps
+    for bad in ("loud", np.ones((3, 5, 5)), {"u": 1.0}):
+        with pytest.raises(ValueError, match=r"noise must be|noise as a mapping"):
+            contrast_step_findings(b, res.valid, noise=bad)
+
+
 @pytest.mark.parametrize("case", ["contrast step", "uniform"])
 def test_a_series_states_a_contrast_step_and_not_a_uniform_grid(case):
     """Through ``measure_series`` (images large enough for the noise to be estimated

@@ -172,10 +172,11 @@ class Measurement:
 
         Parameters
         ----------
-        noise : mapping or (float, float), optional
-            Displacement noise maps ``{"ux_std", "uy_std"}`` or floors
-            ``(std u_x, std u_y)``, px (:func:`gridstrain.predict_uncertainty`);
-            default: not known, the bound's own median sets the level.
+        noise : Uncertainty, (2, H, W) array, mapping or (float, float), optional
+            The displacement noise, px: what :func:`gridstrain.predict_uncertainty`
+            returns (or its ``u_std``, or its ``median()``), maps
+            ``{"ux_std", "uy_std"}``, or floors ``(std u_x, std u_y)``; default: not
+            known, the bound's own median sets the level.
         name : str
             The state, in the sentence.
         """

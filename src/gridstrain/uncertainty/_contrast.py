@@ -20,6 +20,7 @@ A hole's edge moving with the specimen (0.3 to 3.4 px) gives a bound of 0.001 to
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 
 import numpy as np
 from scipy import ndimage
@@ -154,6 +155,40 @@ def contrast_step_bound(reference_psi, deformed_psi, u, valid, *, sigma: float) 
     return np.where(v, CONTRAST_STEP_PX * sigma * s, np.nan)
 
 
+def _noise_std(noise, shape):
+    """``|(std u_x, std u_y)|`` px of ``noise`` in any of the forms
+    :func:`contrast_step_findings` takes: an (H, W) map, a float, or None where the
+    noise is not known (None, NaN floors)."""
+    if noise is None:
+        return None
+    if hasattr(noise, "u_std"):  # an Uncertainty (gridstrain.predict_uncertainty)
+        noise = noise.u_std
+    if isinstance(noise, Mapping):  # a result's std maps, or Uncertainty.median()
+        keys = next((k for k in (("ux_std", "uy_std"), ("ux", "uy"))
+                     if all(c in noise for c in k)), None)
+        if keys is None:
+            raise ValueError("noise as a mapping must hold 'ux_std' and 'uy_std' (or "
+                             "Uncertainty.median()'s 'ux' and 'uy'), got the keys "
+                             f"{sorted(map(str, noise))}")
+        pair = noise[keys[0]], noise[keys[1]]
+    else:
+        pair = noise
+    try:
+        ux, uy = (np.asarray(x, dtype=np.float64) for x in pair)
+        std = np.hypot(ux, uy)
+    except (TypeError, ValueError):
+        std = None
+    if std is None or std.shape not in ((), tuple(shape)):
+        raise ValueError(
+            "noise must be an Uncertainty, its (2, H, W) u_std, a mapping with "
+            "'ux_std' and 'uy_std' (maps or floats), or the floors (std u_x, std u_y) "
+            f"px, on the valid map's shape {tuple(shape)}; got {type(noise).__name__}"
+            + (f" of shape {std.shape}" if std is not None else ""))
+    if std.ndim == 0:
+        return float(std) if math.isfinite(float(std)) else None
+    return std
+
+
 def contrast_step_findings(bound, valid, *, noise=None, name: str = "state"
                            ) -> list[Finding]:
     """The finding of a change of the grid's contrast whose bias bound exceeds the
@@ -164,10 +199,12 @@ def contrast_step_findings(bound, valid, *, noise=None, name: str = "state"
     bound : (H, W) float array_like
         :func:`contrast_step_bound`, px.
     valid : (H, W) bool array_like
-    noise : mapping or (float, float), optional
-        The displacement noise: maps ``{"ux_std": (H, W), "uy_std": (H, W)}`` px
-        (a result's uncertainty maps), or the state's floors ``(std u_x, std u_y)``
-        px. Default (or NaN floors): not known.
+    noise : Uncertainty, (2, H, W) array, mapping or (float, float), optional
+        The displacement noise, px: an :class:`Uncertainty` (its ``u_std``) or its
+        ``(2, H, W)`` ``u_std``, a mapping ``{"ux_std": ..., "uy_std": ...}`` of maps
+        (a result's uncertainty maps) or ``Uncertainty.median()``'s floats (keys
+        ``"ux"``, ``"uy"``), or the state's floors ``(std u_x, std u_y)``. Default
+        (or NaN floors): not known. Any other form is refused, naming these.
     name : str
         The state, in the sentence and the finding's ``state``.
 
@@ -189,12 +226,9 @@ def contrast_step_findings(bound, valid, *, noise=None, name: str = "state"
     if not v.any():
         return []
     b = np.asarray(bound, dtype=np.float64)[v]
-    if isinstance(noise, dict):
-        level = _CONTRAST_FACTOR * np.hypot(np.asarray(noise["ux_std"]),
-                                            np.asarray(noise["uy_std"]))[v]
-        against = f"{_CONTRAST_FACTOR:g} times the noise std"
-    elif noise is not None and all(math.isfinite(float(x)) for x in noise):
-        level = _CONTRAST_FACTOR * math.hypot(*(float(x) for x in noise))
+    std = _noise_std(noise, v.shape)
+    if std is not None:
+        level = _CONTRAST_FACTOR * std[v] if np.ndim(std) else _CONTRAST_FACTOR * std
         against = f"{_CONTRAST_FACTOR:g} times the noise std"
     else:
         level = _CONTRAST_OVER_MEDIAN * float(np.median(b))
