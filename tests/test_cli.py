@@ -584,3 +584,21 @@ def test_a_folder_removed_under_a_run_is_made_again(data, tmp_path, capsys, monk
 
     with pytest.raises(FileNotFoundError, match="does not exist"):
         write_atomic(tmp_path / "nowhere" / "x.bin", b"x")
+
+
+def test_an_output_through_a_symbolic_link_to_nothing_is_refused(data, tmp_path, capsys):
+    """A folder named through a dangling symbolic link is refused in one line naming
+    the link: never made wherever the link points (plot made it there before)."""
+    out = tmp_path / "maps.h5"
+    assert _run(["measure", data / "ref", data / "load.tif", "-o", out, "--quiet"]) == 0
+    capsys.readouterr()
+    target = tmp_path / "nowhere"
+    (tmp_path / "dl").symlink_to(target)
+    for argv in (["plot", out, "--maps", "exx", "-o", tmp_path / "dl" / "figs"],
+                 ["report", out, "-o", tmp_path / "dl" / "x" / "r.html"],
+                 ["gauge", out, "-o", tmp_path / "dl" / "g.csv"]):
+        assert _run(argv) == 2
+        err = capsys.readouterr().err.strip()
+        assert len(err.splitlines()) == 1
+        assert "symbolic link" in err
+        assert not target.exists()

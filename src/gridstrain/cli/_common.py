@@ -114,6 +114,9 @@ def make_folder(folder: Path, what: str) -> Path:
 
     try:
         return make_directory(folder, parents=True)
+    except FileNotFoundError as exc:  # through a symbolic link to nothing
+        raise ValueError(f"cannot create the folder {folder} for the {what}: "
+                         f"{str(exc).split(': ', 1)[-1]}") from None
     except (FileExistsError, NotADirectoryError) as exc:
         raise ValueError(f"cannot create the folder {folder} for the {what}: "
                          f"{exc.filename or folder} is a file, not a folder") from None

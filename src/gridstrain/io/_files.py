@@ -102,10 +102,21 @@ def _committed(kind: str, path: Path) -> None:
         observer(kind, path)
 
 
+def _refuse_dangling_link(path: Path, what: str) -> None:
+    """Refuse ``path`` where it or a parent is a symbolic link to nothing: a folder
+    made through it would appear wherever the link points."""
+    for d in (path, *path.parents):
+        if d.is_symlink() and not d.exists():
+            raise FileNotFoundError(f"{what} {path}: {d} is a symbolic link to "
+                                    f"{os.readlink(d)}, which does not exist")
+
+
 def make_directory(path, *, parents: bool = False) -> Path:
     """Create the directory ``path`` if it is missing (with its missing parents if
-    ``parents``), telling :func:`watch_outputs` of each directory created."""
+    ``parents``), telling :func:`watch_outputs` of each directory created; refused
+    through a symbolic link to nothing."""
     dest = as_path(path, "path")
+    _refuse_dangling_link(dest, "folder")
     missing = []
     for d in (dest, *dest.parents):
         if d.is_dir() or d.is_symlink():
@@ -735,7 +746,9 @@ class OutputDirectory:
                  parents: bool = False, adopt: bool = True,
                  what: str = "output directory"):
         self.what = check_name(what, "what")
-        self.path = Path(os.path.realpath(as_path(path, what)))
+        given = as_path(path, what)
+        _refuse_dangling_link(given, what)
+        self.path = Path(os.path.realpath(given))
         self.names = tuple(self._rel(n) for n in names)
         self.exclusive = tuple(self._rel(d) for d in exclusive)
         self.overwrite = bool(overwrite)
