@@ -353,6 +353,23 @@ def test_bad_input_gives_one_line_and_no_output(case, data, tmp_path, capsys):
     assert _hashes(data) == data_before
 
 
+@pytest.mark.parametrize("extra", [("--report", "out.h5"),
+                                   ("--csv", "out.csv", "--export", "csv"),
+                                   ("--report", "out.mat", "--export", "mat,vtk")])
+def test_two_outputs_of_one_run_under_one_name_are_refused(extra, data, tmp_path, capsys):
+    """The result, its CSV, its exports and its report are four files: two of them
+    under one name would leave one in place of the other (with --overwrite, the
+    report in place of the result), so the run is refused before it starts."""
+    extra = [tmp_path / v if v.startswith("out.") else v for v in extra]
+    rc = _run(["measure", data / "ref", data / "load.tif", "--quiet", "--overwrite",
+               "-o", tmp_path / "out.h5", *extra])
+    err = capsys.readouterr().err.splitlines()
+    assert rc == 2
+    assert len(err) == 1
+    assert "name the same file" in err[0]
+    assert list(tmp_path.iterdir()) == []
+
+
 def test_at_least_fifteen_kinds_of_bad_input():
     assert len(CASES) >= 15
 
