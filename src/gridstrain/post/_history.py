@@ -234,7 +234,8 @@ def history(reading, *, window: int = 5, order: int = 2,
     t = reading.time
     if t is None:
         raise ValueError("the gauge has no times: give them (--loads FILE.csv with a "
-                         "'time [s]' column, or gauge(..., time=...))")
+                         "'time [s]' column, or gauge(..., time=...)), or measure the "
+                         "record with the camera's --frame-rate HZ")
     n = t.size
     if window % 2 == 0 or window <= order or window > n:
         raise ValueError(f"window must be odd, above order ({order}) and at most the "
