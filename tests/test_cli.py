@@ -619,3 +619,20 @@ def test_an_output_through_a_symbolic_link_to_nothing_is_refused(data, tmp_path,
         assert len(err.splitlines()) == 1
         assert "symbolic link" in err
         assert not target.exists()
+
+
+def test_every_option_with_a_default_says_it_in_its_help():
+    """A user reads --help for the units and the defaults: every option of every
+    command that has a default value names it."""
+    import argparse
+
+    from gridstrain.cli import build_parser
+
+    parser = build_parser()
+    sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+    silent = [(name, a.option_strings[0]) for name, sp in sub.choices.items()
+              for a in sp._actions
+              if a.option_strings and a.help not in (None, argparse.SUPPRESS)
+              and not isinstance(a, argparse._HelpAction | argparse._VersionAction)
+              and a.default not in (None, False, True) and "default" not in a.help]
+    assert silent == []
