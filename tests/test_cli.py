@@ -353,6 +353,23 @@ def test_bad_input_gives_one_line_and_no_output(case, data, tmp_path, capsys):
     assert _hashes(data) == data_before
 
 
+@pytest.mark.parametrize("extra", [("--report", "out.h5"),
+                                   ("--csv", "out.csv", "--export", "csv"),
+                                   ("--report", "out.mat", "--export", "mat,vtk")])
+def test_two_outputs_of_one_run_under_one_name_are_refused(extra, data, tmp_path, capsys):
+    """The result, its CSV, its exports and its report are four files: two of them
+    under one name would leave one in place of the other (with --overwrite, the
+    report in place of the result), so the run is refused before it starts."""
+    extra = [tmp_path / v if v.startswith("out.") else v for v in extra]
+    rc = _run(["measure", data / "ref", data / "load.tif", "--quiet", "--overwrite",
+               "-o", tmp_path / "out.h5", *extra])
+    err = capsys.readouterr().err.splitlines()
+    assert rc == 2
+    assert len(err) == 1
+    assert "name the same file" in err[0]
+    assert list(tmp_path.iterdir()) == []
+
+
 def test_at_least_fifteen_kinds_of_bad_input():
     assert len(CASES) >= 15
 
@@ -602,3 +619,20 @@ def test_an_output_through_a_symbolic_link_to_nothing_is_refused(data, tmp_path,
         assert len(err.splitlines()) == 1
         assert "symbolic link" in err
         assert not target.exists()
+
+
+def test_every_option_with_a_default_says_it_in_its_help():
+    """A user reads --help for the units and the defaults: every option of every
+    command that has a default value names it."""
+    import argparse
+
+    from gridstrain.cli import build_parser
+
+    parser = build_parser()
+    sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+    silent = [(name, a.option_strings[0]) for name, sp in sub.choices.items()
+              for a in sp._actions
+              if a.option_strings and a.help not in (None, argparse.SUPPRESS)
+              and not isinstance(a, argparse._HelpAction | argparse._VersionAction)
+              and a.default not in (None, False, True) and "default" not in a.help]
+    assert silent == []

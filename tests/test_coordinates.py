@@ -263,6 +263,9 @@ def test_extensometer_mm_and_px(result_file):
     mm = gauge(res, extensometer=ends, pixel_size=PS, unit="mm")
     px = gauge(res, extensometer=_mm_to_px(ends), px=True)
     assert_array_equal(mm.extensometer, px.extensometer)
+    # its length in the unit its ends were named in, and in px
+    assert mm.extensometer_where.endswith("L = 6 mm (150.0 px)")
+    assert px.extensometer_where.endswith("L = 150.0 px")
     # the engineering strain between two points of a homogeneous field is exx; the
     # displacement noise of two points 150 px apart gives ~1e-5 (5 std)
     assert_allclose(mm.extensometer, STRAINS, rtol=0,

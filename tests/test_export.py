@@ -296,3 +296,16 @@ def test_a_streamed_result_carries_its_files_pixel_size_and_rounding(tmp_path):
                            output=ResultFile(tmp_path / "e.h5", lossless=True))
     assert exact.maps_precision is None
     assert exact.pixel_size is None
+
+
+def test_a_prefix_given_with_an_export_suffix_is_not_doubled(stored, tmp_path, capsys):
+    """``-o maps.mat`` writes maps.mat (and maps.csv), never maps.mat.mat."""
+    path = stored[1]
+    assert main(["export", str(path), "--to", "mat,csv", "-o", str(tmp_path / "m.mat")]) == 0
+    assert capsys.readouterr().out.split("\n")[:2] == [f"{tmp_path / 'm'}.mat",
+                                                       f"{tmp_path / 'm'}.csv"]
+    assert not (tmp_path / "m.mat.mat").exists()
+    assert (tmp_path / "m.csv").exists()
+    # a dot inside a name that is no export's suffix stays part of the name
+    assert main(["export", str(path), "--to", "csv", "-o", str(tmp_path / "run.2")]) == 0
+    assert (tmp_path / "run.2.csv").exists()

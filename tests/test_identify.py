@@ -317,6 +317,26 @@ def test_a_region_short_of_the_free_edges_is_refused():
     assert pytest.approx(E, rel=3e-3) == r.E  # 9 of 9216 px left out: 1e-3
 
 
+def test_a_ragged_cross_section_is_not_a_cut_free_edge():
+    """The frame's border column valid in a few rows only (a record measured up to
+    its edges): the region's gripped side is then ragged by a pixel. Its missing
+    pixels face the cross-section, not a free edge: accepted, the sparse
+    side columns left out, not refused as a region short of the free edges."""
+    strain = np.stack([cantilever(f)[0] for f in LOADS])
+    std = np.full_like(strain, 1e-7)
+    specimen = np.ones((H, W), dtype=bool)
+    part = np.zeros((H, W), dtype=bool)
+    part[:, :144] = True
+    part[:5, 144] = True  # the next column, in five rows only
+    r = _run(strain, std, LOADS, valid=part, specimen=specimen)
+    assert pytest.approx(E, rel=1e-3) == r.E  # the sparse column dropped: as above
+    # free edges cut short are still refused, ragged side or not
+    inner = part.copy()
+    inner[:8] = inner[40:] = False
+    with pytest.raises(ValueError, match="stops short of the specimen's free edges"):
+        _run(strain, std, LOADS, valid=inner, specimen=specimen)
+
+
 def test_argument_errors():
     strain = np.stack([cantilever(f)[0] for f in LOADS])
     std = np.full_like(strain, 1e-4)

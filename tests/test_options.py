@@ -270,3 +270,14 @@ def test_a_replay_measures_the_same(tmp_path, capsys):
     assert c.parameters == p
     np.testing.assert_array_equal(np.asarray(c.u), np.asarray(a.u))
     np.testing.assert_array_equal(c.load, a.load)
+
+
+def test_to_edges_help_says_what_the_continuation_gets_exact():
+    """The continuation measures a strain linear in space exactly at the edge pixels
+    (tests/test_edges.py) and does not carry the grid's harmonics: the help says
+    both, not a bias from the strain's gradient."""
+    o = next(o for o in OPTIONS if o.name == "to_edges")
+    for text in (o.help, o.doc):
+        assert "linear in space" in text
+        assert "harmonics" in text
+        assert "gradient" not in text

@@ -153,3 +153,16 @@ def test_soft_and_imperial_moduli_keep_a_sensible_unit():
     odd = elastic_constants(_reading(load, "kgf", load / 2.0 / 7e3), area=2.0)
     assert odd.stress_unit == "kgf/mm2"
     assert odd.E_text().startswith("7000 kgf/mm2")
+
+
+def test_a_strain_range_in_microstrain_is_told_what_the_strains_are():
+    """The tables print microstrain; --strain-range is dimensionless. A range that
+    holds no state names the option and the span of the states' axial strains."""
+    load = np.linspace(100.0, 1000.0, 6)
+    axial = load / 20.0 / E  # 71 to 714 µε
+    with pytest.raises(ValueError, match="a fit needs at least 3 states") as info:
+        elastic_constants(_reading(load, "N", axial), area=20.0, strain_range=(100, 600))
+    msg = str(info.value)
+    assert "strain_range (--strain-range)" in msg
+    assert "dimensionless" in msg
+    assert f"{axial.min():.3g} to {axial.max():.3g}" in msg

@@ -76,7 +76,7 @@ def test_uneven_or_missing_times_are_refused():
     uneven[5] += 0.0005
     with pytest.raises(ValueError, match="evenly spaced"):
         history(_reading(x, x, s, uneven))
-    with pytest.raises(ValueError, match="no times"):
+    with pytest.raises(ValueError, match=r"no times.*--frame-rate"):
         history(_reading(x, x, s, None))
     with pytest.raises(ValueError, match="window must be odd"):
         history(_reading(x, x, s), window=4)
@@ -161,3 +161,13 @@ def test_velocities_say_their_unit_by_the_rule_of_places():
     # finite strains need the gauge's rotation
     with pytest.raises(ValueError, match=r"gauge\(\.\.\., finite=True\)"):
         history(r, unit="mm", finite=True)
+
+
+def test_a_dropped_frame_is_named_where_the_times_break():
+    """A record with a frame dropped (states numbered by their files: 3 then 5) has
+    one step twice the others: the refusal names the two states around it."""
+    x = np.zeros(N)
+    s = np.full(N, 1e-5)
+    dropped = np.delete(0.002 * np.arange(N + 1) + 1.0, 4)  # frame 4 missing
+    with pytest.raises(ValueError, match=r"evenly spaced.*0\.004 s from s3 to s4"):
+        history(_reading(x, x, s, dropped))

@@ -270,3 +270,31 @@ def test_report_of_a_result_without_loads_and_no_region_has_no_test_section(unlo
     out = tmp_path / "plain.html"
     assert main(["report", str(unloaded), "-o", str(out)]) == 0
     assert "<h2>The test</h2>" not in out.read_text(encoding="utf-8")
+
+
+def test_report_area_on_a_result_without_loads_says_e_needs_them(unloaded, tmp_path):
+    """--area asks for E: on a result without loads the test is shown (the gauge of
+    the whole valid region) with the note that says what is missing, never dropped
+    without a word."""
+    out = tmp_path / "area.html"
+    assert main(["report", str(unloaded), "-o", str(out), "--area", "20"]) == 0
+    page = out.read_text(encoding="utf-8")
+    assert "<h2>The test</h2>" in page
+    assert "The states have no loads" in " ".join(_text(page).split())
+
+
+def test_report_takes_the_loads_file_as_the_other_commands_do(unloaded, tmp_path):
+    """``report --loads`` gives the states their loads (a machine's file, one row per
+    state), as gauge, modulus and export do: the table's load column and the
+    constants then come from it."""
+    loads = tmp_path / "loads.csv"
+    loads.write_text("Schritt;Kraft [kN]\n1;0,7\n2;1,4\n", encoding="utf-8")
+    out = tmp_path / "loaded.html"
+    assert main(["report", str(unloaded), "-o", str(out), "--loads", str(loads)]) == 0
+    text = " ".join(_text(out.read_text(encoding="utf-8")).split())
+    assert "load (kN)" in text
+    assert "The states have no loads" not in text
+    # the options that say how to read a loads file need one
+    assert main(["report", str(unloaded), "-o", str(tmp_path / "x.html"),
+                 "--loads-offset", "0.2"]) == 2
+    assert not (tmp_path / "x.html").exists()

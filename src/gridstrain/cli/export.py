@@ -31,8 +31,8 @@ def register(sub) -> None:
                    help=f"comma-separated formats among {', '.join(_FORMATS)} "
                    "(e.g. mat,csv)")
     p.add_argument("-o", "--output", metavar="PREFIX",
-                   help="path and name of the files without their suffix (default: the "
-                   "result's, next to it)")
+                   help="path and name of the files, their suffix added (a .mat, .csv, "
+                   ".pvd or .nc given is dropped; default: the result's, next to it)")
     p.add_argument("--px", action="store_true",
                    help="lengths in px even when the file has a pixel size")
     p.add_argument("--overwrite", action="store_true",
@@ -50,13 +50,16 @@ def _formats(text: str) -> list[str]:
 
 @reads_result
 def run(args) -> int:
-    from ..results import export, export_path
+    from ..results import EXPORTS, export, export_path
 
     formats = _formats(args.to)
     result, src, ps, unit, ld, lu, t = open_result(args)
     if getattr(args, "loads", None):
         result = dataclasses.replace(result, load=ld, load_unit=lu, time=t)
     stem = Path(os.path.expanduser(args.output)) if args.output else src.with_suffix("")
+    if args.output and stem.suffix.lower() in {e.suffix for e in EXPORTS.values()}:
+        # "-o maps.mat" names the files maps.*, not maps.mat.mat
+        stem = stem.with_suffix("")
     if not stem.name or stem.name in (".", ".."):
         raise ValueError(f"-o must name the files (a path and a name without suffix), got "
                          f"{args.output!r}")

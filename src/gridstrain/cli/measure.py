@@ -465,11 +465,10 @@ def _options(args, config: _Config | None = None) -> dict:
 def _check_outputs(opts: dict, n_states: int, inputs: set[Path]) -> None:
     """Refuse, before any work, what would fail or clobber at the end."""
     out = Path(os.path.expanduser(opts["output"]))
+    _check_distinct(opts, out)
     check_output_file(out, "output file", opts["overwrite"], inputs)
     if opts.get("csv"):
         csv = Path(os.path.expanduser(opts["csv"]))
-        if csv.resolve() == out.resolve():
-            raise ValueError(f"--csv {csv} is the output file itself")
         check_output_file(csv, "CSV file", opts["overwrite"], inputs)
     if opts.get("figures"):
         # only figures an earlier run wrote there are replaced (its marker lists them)
@@ -480,13 +479,31 @@ def _check_outputs(opts: dict, n_states: int, inputs: set[Path]) -> None:
         OutputDirectory(figures, figure_names(n_states), overwrite=opts["overwrite"],
                         what="figures directory")
     for f in opts.get("export") or ():
-        if _export_path(out, f).resolve() == out.resolve():
-            raise ValueError(f"--export {f} would write {out}, the output file itself: "
-                             f"name the output with another suffix (.h5)")
         check_output_file(_export_path(out, f), f"{f} export", opts["overwrite"], inputs)
     if opts.get("report"):
         check_output_file(Path(os.path.expanduser(opts["report"])), "report file",
                           opts["overwrite"], inputs)
+
+
+def _check_distinct(opts: dict, out: Path) -> None:
+    """Refuse two of the run's files under one name: the second written would replace
+    the first (with --overwrite, silently: a report in place of the result)."""
+    named = [("-o", out)]
+    if opts.get("csv"):
+        named.append(("--csv", Path(os.path.expanduser(opts["csv"]))))
+    named += [(f"--export {f}", _export_path(out, f)) for f in opts.get("export") or ()]
+    if opts.get("report"):
+        named.append(("--report", Path(os.path.expanduser(opts["report"]))))
+    seen: dict[Path, str] = {}
+    for flag, path in named:
+        key = path.resolve()
+        if key in seen:
+            hint = (" (an export is named after the output: give the output the "
+                    "suffix .h5)" if seen[key] == "-o" and flag.startswith("--export")
+                    else "")
+            raise ValueError(f"{seen[key]} and {flag} name the same file {path}: give "
+                             f"each output its own name{hint}")
+        seen[key] = flag
 
 
 def _export_path(out: Path, fmt: str) -> Path:

@@ -50,7 +50,8 @@ def register(sub) -> None:
                       "when the file has a pixel size")
     p.add_argument("--dpi", type=int, default=150, help="resolution (default 150; 300 for "
                    "print)")
-    p.add_argument("--format", choices=_FORMATS, default="png", help="file format")
+    p.add_argument("--format", choices=_FORMATS, default="png",
+                   help="file format (default png)")
     p.add_argument("--overwrite", action="store_true", help="replace existing figures")
     p.set_defaults(func=run)
 

@@ -6,14 +6,22 @@ import os
 from pathlib import Path
 
 from ._common import OVERWRITE_HELP, check_output_file
-from ._post import add_colour_options, cmap_option, limits_option, reads_result
+from ._post import (
+    add_colour_options,
+    add_loads_options,
+    cmap_option,
+    limits_option,
+    open_result,
+    reads_result,
+)
 
 
 def register(sub) -> None:
     p = sub.add_parser(
         "report", help="a self-contained HTML report of a result file",
         description="Write one HTML file (figures embedded, nothing fetched from the "
-        "network): when the states have loads or a --region is named, a gauge's strains "
+        "network): when the states have loads (the result's or --loads) or a --region or "
+        "--area is named, a gauge's strains "
         "in every state and their history; with loads the load-strain plot, or with "
         "--area the stress-strain plot with Young's modulus and Poisson's ratio and "
         "their 95 percent intervals; the maps "
@@ -23,6 +31,7 @@ def register(sub) -> None:
     p.add_argument("result", metavar="RESULT.h5", help="a file written by gridstrain measure")
     p.add_argument("-o", "--output", metavar="REPORT.html",
                    help="output file (default: RESULT.html next to the result)")
+    add_loads_options(p, default=" (default: those stored in the result, if any)")
     g = p.add_argument_group("the test (a gauge; E and nu need loads; coordinates in "
                              "the file's physical unit when it has a pixel size, else "
                              "px; --px forces px)")
@@ -56,8 +65,14 @@ def run(args) -> int:
     src = Path(os.path.expanduser(args.result))
     out = Path(os.path.expanduser(args.output)) if args.output else src.with_suffix(".html")
     check_output_file(out, "report file", args.overwrite, {src.resolve()})
+    loads = {}
+    if any(getattr(args, f) is not None for f in ("loads", "load_column", "time_column",
+                                                   "loads_offset")):
+        # read as gauge and modulus read it (a flag without --loads refused there)
+        _, _, _, _, ld, lu, t = open_result(args)
+        loads = {"load": ld, "load_unit": lu, "time": t}
     region = args.region if args.region is None or len(args.region) > 1 else args.region[0]
     print(write_report(src, out, overwrite=args.overwrite, region=region, px=args.px,
                        area=args.area, area_unit=args.area_unit, axis=args.axis,
-                       limits=limits, cmap=cmap))
+                       limits=limits, cmap=cmap, **loads))
     return 0

@@ -207,8 +207,15 @@ def elastic_constants(reading: GaugeReading, *, area: float, area_unit: str = "m
     own = 1.0 if reading.reference_share is None else \
         np.sqrt(1.0 - reading.reference_share[keep])
     if keep.sum() < 3:
-        raise ValueError(f"a fit needs at least 3 states, got {int(keep.sum())} "
-                         f"(strain_range {strain_range!r})")
+        if strain_range is None:
+            raise ValueError(f"a fit needs at least 3 states, got {int(keep.sum())}")
+        # the tables print microstrain: a range written in it holds no state
+        seen = axial[np.isfinite(axial)]
+        span = (f"; the states' axial strains span {seen.min():.3g} to {seen.max():.3g}"
+                if seen.size else "")
+        raise ValueError(f"a fit needs at least 3 states, got {int(keep.sum())} in "
+                         f"strain_range (--strain-range) [{lo:g}, {hi:g}], dimensionless "
+                         f"(1e-3 is 1000 µε){span}")
     factor, unit = stress_unit(reading.load_unit, area_unit)
     stress = reading.load[keep] / area * factor
     if np.all(stress == stress[0]):  # else "Singular matrix" from the fit

@@ -435,8 +435,12 @@ def gauge(result: SeriesResult, *, region=None, point=None, polygon=None,
                              f"{extensometer!r}")
         ext, ext_std = np.full(n, np.nan), np.full(n, np.nan)
         e = np.asarray(extensometer, dtype=float)
+        length_px = float(np.hypot(*(p1 - p0)))
+        # the length in the unit the points were named in, and in px (the window's unit)
+        length = (f"L = {length_px:.1f} px" if frame.unit == "px" else
+                  f"L = {length_px * frame.scale:.4g} {frame.unit} ({length_px:.1f} px)")
         ext_where = (f"({e[0]:g}, {e[1]:g}) to ({e[2]:g}, {e[3]:g}) {frame.unit}, "
-                     f"L = {np.hypot(*(p1 - p0)):.1f} px")
+                     f"{length}")
     for i in range(n):
         inside = mask & np.asarray(result.valid[i])
         count[i] = int(inside.sum())

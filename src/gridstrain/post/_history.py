@@ -234,7 +234,8 @@ def history(reading, *, window: int = 5, order: int = 2,
     t = reading.time
     if t is None:
         raise ValueError("the gauge has no times: give them (--loads FILE.csv with a "
-                         "'time [s]' column, or gauge(..., time=...))")
+                         "'time [s]' column, or gauge(..., time=...)), or measure the "
+                         "record with the camera's --frame-rate HZ")
     n = t.size
     if window % 2 == 0 or window <= order or window > n:
         raise ValueError(f"window must be odd, above order ({order}) and at most the "
@@ -242,8 +243,13 @@ def history(reading, *, window: int = 5, order: int = 2,
     dt = np.diff(t)
     step = float(dt.mean())
     if np.max(np.abs(dt - step)) > _UNIFORM * step:
+        # name where it breaks: a dropped frame is one step twice the others
+        k = int(np.argmax(np.abs(dt - float(np.median(dt)))))
         raise ValueError(f"time must be evenly spaced for the Savitzky-Golay filter "
-                         f"(steps from {dt.min():.6g} to {dt.max():.6g} s)")
+                         f"(steps from {dt.min():.6g} to {dt.max():.6g} s; "
+                         f"{dt[k]:.6g} s from {reading.states[k]} to "
+                         f"{reading.states[k + 1]}: a frame missing, or a state of "
+                         "another time, there)")
     s = 1.0 if ps is None else ps
     f = reading.reference_share
     strains = {name: (getattr(reading, name), getattr(reading, f"{name}_std"))

@@ -4,7 +4,7 @@
 single HTML file: no script, no style sheet or font fetched, every figure a PNG
 embedded as a ``data:`` URI, so the page shows the same offline, attached to an
 e-mail or archived with the data. It shows first what the test was run for: when
-the states have loads or a region is given, a gauge (the whole valid region, or the
+the states have loads or a region or an area is given, a gauge (the whole valid region, or the
 region given) with its strains and their std in every state and their history; with
 loads the load–strain plot,
 or with the specimen's cross-section the stress–strain plot with Young's modulus
@@ -44,7 +44,8 @@ import numpy as np
 from .._progress import SEVERITIES
 from .._validation import as_path, check_choice, check_positive, check_type
 from ..io import available_memory, write_atomic
-from ..results import MAP_FIELDS, SeriesResult, load, read_attrs, state_loads
+from ..results import MAP_FIELDS, SeriesResult, read_attrs, state_loads
+from ..results import load as load_result
 from ._constants import elastic_constants
 from ._gauges import gauge
 from ._plotting import (
@@ -288,8 +289,8 @@ def _test_section(result, ps, unit, *, region, px: bool, area, area_unit: str,
     stress–strain plot with E and ν (with the area) or the load–strain plot
     (without)."""
     load, load_unit, time = state_loads(result)
-    if load is None and region is None:
-        return None
+    if load is None and region is None and area is None:
+        return None  # nothing asked of a test; --area asks for E, and hears what is missing
     named = {} if px or ps is None else {"pixel_size": ps, "unit": unit}
     regions = _regions(region)
     readings = [gauge(result, region=r, px=px, **named) for r in regions]
@@ -339,7 +340,8 @@ def _test_section(result, ps, unit, *, region, px: bool, area, area_unit: str,
                      "transverse).")
     if load is None:
         notes.append("The states have no loads: no load-strain plot, Young's modulus "
-                     "or Poisson's ratio (measure --loads FILE records them).")
+                     "or Poisson's ratio (measure --loads FILE records them; report "
+                     "--loads FILE gives them to the page).")
     elif area is None:
         notes.append("Young's modulus and Poisson's ratio need the specimen's "
                      "cross-section: gridstrain report RESULT.h5 --area A (in mm² by "
@@ -613,7 +615,8 @@ def _extra_fields(result) -> dict | None:
     return _table(["field", "value"], rows, left=(0, 1)) if rows else None
 
 
-def write_report(result_path, html_path, *, overwrite: bool = False, **options) -> Path:
+def write_report(result_path, html_path, *, overwrite: bool = False, load=None,
+                 load_unit: str | None = None, time=None, **options) -> Path:
     """Write the HTML report of a result file, atomically.
 
     Parameters
@@ -624,6 +627,10 @@ def write_report(result_path, html_path, *, overwrite: bool = False, **options) 
         Destination (``.html``).
     overwrite : bool
         Replace an existing file.
+    load, load_unit, time : (S,) array_like, str, (S,) array_like, optional
+        Each state's load, its unit and time, in place of the file's (those
+        :func:`gridstrain.post.read_loads` reads from a testing machine's file);
+        ``None`` keeps the file's.
     **options
         ``region``, ``px``, ``area``, ``area_unit``, ``axis``, ``limits``, ``cmap``
         of :func:`render_report`.
@@ -633,7 +640,10 @@ def write_report(result_path, html_path, *, overwrite: bool = False, **options) 
     pathlib.Path
     """
     src = as_path(result_path, "result_path")
-    result = load(src, in_memory=False)
+    result = load_result(src, in_memory=False)
+    if load is not None:
+        result = dataclasses.replace(result, load=load, load_unit=load_unit,
+                                     time=result.time if time is None else time)
     text = render_report(result, attrs=read_attrs(src), title=f"gridstrain: {src.name}",
                          **options)
     dest = as_path(html_path, "html_path")

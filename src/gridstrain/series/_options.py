@@ -334,14 +334,19 @@ OPTIONS: tuple[Option, ...] = (
     window (:func:`gridstrain.phase.transform_to_edges`), so that ``valid``
     reaches them rather than stopping ``margin`` sigmas short. The pixels within
     that band are then edge pixels (:func:`gridstrain.phase.edge_pixels` of the
-    result's ``mask`` and window), exact for a uniform strain, biased by the
-    strain's gradient along the edge's normal otherwise (about
-    ``2.2 sigma d eps/dn`` at the edge for ``sigma`` = the pitch).""",
+    result's ``mask`` and window), exact for a strain uniform or linear in space,
+    biased by its second derivative along the edge's normal otherwise (about
+    ``-4.1 sigma^2 eps''`` at the edge for ``sigma`` = the pitch). The grid's
+    harmonics are not continued: a print far from a sine (a square or ``sin^3``
+    profile, a checkerboard) keeps part of the cut window's bias there, up to
+    several 1e-3 of strain.""",
            flag="--to-edges", kind="bool", group="window",
            help="measure up to the specimen's edges (method A): the grid continued beyond "
            "them by its own phase before the window; the band of --margin sigmas is then "
-           "edge pixels, exact for a uniform strain, biased by about 2.2 sigma times the "
-           "strain's gradient normal to the edge"),
+           "edge pixels, exact for a strain uniform or linear in space on a grid close to "
+           "a sine, biased by about -4.1 sigma^2 times the strain's second derivative "
+           "normal to the edge; a print with strong harmonics (square lines, a "
+           "checkerboard) keeps part of the cut window's bias there, up to several 1e-3"),
     Option("mask", None, _any, """mask : (H, W) bool array_like or path, optional
     True (nonzero, for an image file) on the specimen, in the reference
     configuration. Regions without a grid are masked automatically on top. Not in
