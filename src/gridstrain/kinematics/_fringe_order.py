@@ -128,7 +128,10 @@ class FringeOrder:
         previous state with an increment below ``_MAX_STEP`` periods everywhere (a
         step that is plausibly less than half a period; the first state of a series
         from the reference within ``SMALL_STEP``), not contradicted by image
-        features. Where two kinds of evidence disagree the state is not confirmed.
+        features, and over valid pixels that hold together (a field that bands of
+        invalid pixels part, where a gradient too steep for the window or a tear
+        dimmed the grid, may have each part whole periods from the others: not
+        confirmed). Where two kinds of evidence disagree the state is not confirmed.
         A state not confirmed may be one or more periods off.
     guess : (2,) tuple of float
         Median of the guess field that fixed the order, px.
