@@ -45,6 +45,7 @@ from ._fringe_order import (
     _CoarseReference,
     _from_estimate,
     coarse_displacement,  # noqa: F401  (named by the docstrings)
+    cut_into_parts,
     solve_k,
     strain_if_off,
 )
@@ -490,6 +491,11 @@ def deformation(reference: PhaseMaps, deformed: PhaseMaps, *, lagrangian: bool =
     strain, rotation = small_strain(G), 0.5 * (G[1, 0] - G[0, 1])
     del G
     u, strain, rotation = _outside_nan(valid, dt, u, strain, rotation)
+    if order.confirmed and order.source == "image features" and \
+            (parts := cut_into_parts(valid)):
+        # the features' rigid shift fixed the part that carries them
+        order = dataclasses.replace(order, confirmed=False,
+                                    detail=f"{parts}; {order.detail}")
     return Measurement(u=u, strain=strain, rotation=rotation, valid=valid, lattice=lattice,
                        sigma=reference.sigma, lagrangian=bool(lagrangian),
                        iterations=iterations, step_rms=step, guess=gmed,

@@ -27,6 +27,7 @@ from ._fringe_order import (
     FringeOrder,
     _CoarseReference,
     _from_estimate,
+    cut_into_parts,
     sharp,
     strain_if_off,
 )
@@ -45,14 +46,6 @@ _MAX_STEP = 0.4
 # period). The first state of a series is followed from the reference (its
 # displacement is the step) when its smallest displacement is within it.
 SMALL_STEP = 0.1
-# A small step ties the whole periods of the pixels it is taken on only as far as
-# continuity reaches: where the invalid pixels cut the valid ones into parts (a band where
-# the grid's modulus fell: a gradient too steep for the window, a tear not declared), each
-# part may be whole periods from the others, its own step small notwithstanding (a rise of
-# a period across the band reads as none on either side). The order is confirmed only
-# when one part (8-connected) holds this share of the valid pixels: specks cut off by the
-# noise, a hundredth of them at most, cannot make a state wrong on more than that.
-_TIED = 0.99
 
 
 def _filled(u: np.ndarray, valid: np.ndarray) -> np.ndarray | None:
@@ -266,8 +259,8 @@ class _Tracker:
                                     f"{name}: fringe order {est.light_doubt}; the "
                                     "displacement the image features give is kept "
                                     f"({_median_u(res)})", state=name))
-        if rec.confirmed and rec.source == "previous state" and \
-                (parts := _cut_into_parts(res.valid)):
+        if rec.confirmed and rec.source in ("previous state", "image features") and \
+                (parts := cut_into_parts(res.valid)):
             rec = dataclasses.replace(rec, confirmed=False, detail=f"{parts}; {rec.detail}")
             warnings.append(Finding(
                 "fringe_order.unconfirmed",
@@ -312,22 +305,6 @@ def _doubt_said(res: Measurement, rec: FringeOrder, warnings: list) -> FringeOrd
         warnings[-1] = Finding(last.code, last + said, state=last.state, **last.figures,
                                strain_if_off=rec.strain_if_off)
     return rec
-
-
-def _cut_into_parts(valid: np.ndarray) -> str:
-    """Why a small step does not tie the whole periods of ``valid``'s pixels (no part
-    holds :data:`_TIED` of them), or "" when it does."""
-    labels, n = ndimage.label(valid, structure=np.ones((3, 3), dtype=bool))
-    if n <= 1:
-        return ""
-    sizes = np.bincount(labels.ravel())[1:]
-    largest = int(sizes.max())
-    if largest >= _TIED * int(sizes.sum()):
-        return ""
-    return (f"the valid pixels fall into {n} parts (the largest holds "
-            f"{largest / sizes.sum():.0%} of them), parted by invalid bands where the "
-            "grid's modulus fell (a gradient too steep for the window or a tear): a small "
-            "step within each part does not tie their whole periods to each other")
 
 
 def _first_step(ref_pm: PhaseMaps, pm: PhaseMaps, lagrangian: bool):
@@ -483,13 +460,18 @@ def _recheck(res: Measurement, rec: FringeOrder, t, name: str, reason: str, figu
     the light can imitate shows ``t`` (the image's content and the grid's modulus, with
     nothing else against them): the displacement they support is taken, not
     confirmed."""
+    # the content compared over the whole field is the larger part's: a field parted in
+    # two by invalid bands keeps the other part's whole periods in doubt
+    parts = cut_into_parts(res.valid)
     if not np.any(np.rint(res.lattice.K @ t)):
-        if rec.confirmed:
+        if rec.confirmed or parts:
             return res, rec, []
         return res, dataclasses.replace(
             rec, confirmed=True, source="image features", strain_if_off=math.nan,
             detail=f"the deformed image warped back by the measured field matches the "
                    f"reference's content ({reason}); {rec.detail}", **figures), []
+    if parts and not doubt:
+        doubt = f"not confirmed: {parts}"
     before = _median_u(res)
     g = np.array(res.guess, dtype=float) + t
     again = deformation(res.reference, res.deformed, lagrangian=res.lagrangian, guess=g)
