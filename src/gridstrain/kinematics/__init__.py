@@ -45,6 +45,7 @@ from ._fringe_order import (
     coarse_displacement,
     grid_shows,
 )
+from ._fringe_order import cut_into_parts as cut_into_parts
 from ._fringe_order import phase_products as phase_products
 from ._fringe_order import solve_k as solve_k
 from ._pair_match import PairMatch, pair_match
