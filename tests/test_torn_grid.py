@@ -235,9 +235,9 @@ def _wrong(res, disp, period):
     (6.0, 0.0, 3, 4, "checker", None),
     # printed spots: the image features' rigid shift is the larger part's, and the
     # whole-field content warped back matches it: the pair and the series confirmed
-    # states 1 or 2 periods off on 8 to 30 % of their valid pixels; the series now
-    # checks each part on its own content, as across a crack (the far part, too narrow
-    # to decide, is left out)
+    # states 1 or 2 periods off on 8 to 30 % of their valid pixels; both now check each
+    # part on its own content, as across a crack (the far part, too narrow to decide,
+    # is left out)
     (6.0, 0.0, 2, 3, "checker", 7),
     (6.0, 30.0, 1, 2, "checker", 7),
 ])
@@ -259,8 +259,11 @@ def test_a_gradient_too_steep_to_follow_is_never_confirmed_wrong(p, angle, perio
     if wrong:  # said, and why
         assert "parts" in rec.detail, rec.detail
         assert any("fringe order not confirmed" in m for m in res.warnings), res.warnings
-    pair = measure(ref, cur)  # the pair's record: nothing but the grid, never confirmed
+    pair = measure(ref, cur)
     assert not (_wrong(pair, disp, period) and pair.fringe_order.confirmed)
+    if spots is not None:  # the pair checks each part as the series does
+        assert not _wrong(pair, disp, period), pair.fringe_order.detail
+        assert pair.fringe_order.confirmed, pair.fringe_order.detail
 
 
 @pytest.mark.parametrize(("p", "angle", "opening", "pattern"), [
