@@ -24,6 +24,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from gridstrain import measure
 from gridstrain.series import measure_series
 
 OVER = 4  # sub-samples per pixel and axis
@@ -112,20 +113,23 @@ def _whole(X, Y):
 
 
 def _errors(res, disp):
-    """(2, n) displacement errors at the valid pixels, px."""
-    v = np.asarray(res.valid[0])
+    """(2, n) displacement errors at the valid pixels, px, of a series' first state or
+    of a pair's measurement."""
+    v, u = np.asarray(res.valid), np.asarray(res.u)
+    if v.ndim == 3:
+        v, u = v[0], u[0]
     H, W = v.shape
     yy, xx = np.mgrid[0:H, 0:W].astype(np.float64)
-    return (np.asarray(res.u[0]) - np.stack(disp(xx, yy)))[:, v]
+    return (u - np.stack(disp(xx, yy)))[:, v]
 
 
-def steep_pair(p, angle, rise, seed, shape, *, pattern="checker", spots=None):
-    """A rise of ``rise`` px of u_x over about three lattice periods (10 to 90 %), the
+def steep_pair(p, angle, rise, seed, shape, *, pattern="checker", spots=None, over=3.0):
+    """A rise of ``rise`` px of u_x over about ``over`` lattice periods (10 to 90 %), the
     grid intact: ``u_x = rise/2 (1 + tanh((X - x0) / w))``, x0 beyond the middle so
     that most of the field stays near zero."""
     W = shape[1]
     period = p * np.sqrt(2) if pattern == "checker" else p  # the lattice's period
-    w = 3 * period / 2.2
+    w = over * period / 2.2
 
     def disp(X, Y):
         return rise / 2 * (1 + np.tanh((X - 0.62 * W) / w)) + 0 * Y, 0 * Y
@@ -209,6 +213,81 @@ def test_a_steep_gradient_at_a_coarse_pitch_is_followed(angle, rise, seed):
     assert res.discontinuities == ((),), res.warnings
     # px: as above, a quarter of the 21.5 px period
     assert np.abs(_errors(res, disp)).max() < period / 4
+
+
+def _wrong(res, disp, period):
+    """Whether more than 1 % of the valid pixels are a quarter period off or more."""
+    err = _errors(res, disp)
+    return err.shape[1] > 0 and np.mean(np.any(np.abs(err) > period / 4, axis=0)) > 0.01
+
+
+@pytest.mark.parametrize(("p", "angle", "periods", "over", "pattern", "spots"), [
+    # u_x rising by 1 to 3 lattice periods over 2 to 4: the grid's period changes within
+    # the window by up to 0.8 of itself, its modulus falls below validity along the rise,
+    # and the band of invalid pixels it leaves parts the field in two; the far side, a
+    # whole number of periods up, reads as a small displacement like the near one (7 to
+    # 27 % of the valid pixels 1 to 3 periods off); followed from the reference by a
+    # "small step" on each side, these states were confirmed
+    (6.0, 0.0, 1, 2, "cross", None),
+    (6.0, 0.0, 2, 4, "cross", None),
+    (10.0, 0.0, 1, 2, "cross", None),
+    (6.0, 45.0, 1, 2, "checker", None),
+    (6.0, 0.0, 3, 4, "checker", None),
+    # printed spots: the image features' rigid shift is the larger part's, and the
+    # whole-field content warped back matches it: the pair and the series confirmed
+    # states 1 or 2 periods off on 8 to 30 % of their valid pixels; both now check each
+    # part on its own content, as across a crack (the far part, too narrow to decide,
+    # is left out)
+    (6.0, 0.0, 2, 3, "checker", 7),
+    (6.0, 30.0, 1, 2, "checker", 7),
+])
+def test_a_gradient_too_steep_to_follow_is_never_confirmed_wrong(p, angle, periods, over,
+                                                                pattern, spots):
+    shape = (160, 256)
+    period = p * np.sqrt(2) if pattern == "checker" else p
+    ref, cur, disp, period = steep_pair(p, angle, periods * period, 3, shape,
+                                        pattern=pattern, spots=spots, over=over)
+    res = measure_series(ref, cur)
+    rec = res.fringe_orders[0]
+    # wrong: a quarter period off on more than 1 % of the valid pixels (a whole period
+    # is 6 to 14 px; the window's bias on the rise is a tenth of a period)
+    wrong = _wrong(res, disp, period)
+    assert not (wrong and rec.confirmed), rec.detail
+    if spots is not None:  # each part fixed by its own features, or left out
+        assert not wrong, rec.detail
+        assert rec.confirmed, rec.detail
+    if wrong:  # said, and why
+        assert "parts" in rec.detail, rec.detail
+        assert any("fringe order not confirmed" in m for m in res.warnings), res.warnings
+    pair = measure(ref, cur)
+    assert not (_wrong(pair, disp, period) and pair.fringe_order.confirmed)
+    if spots is not None:  # the pair checks each part as the series does
+        assert not _wrong(pair, disp, period), pair.fringe_order.detail
+        assert pair.fringe_order.confirmed, pair.fringe_order.detail
+
+
+@pytest.mark.parametrize(("p", "angle", "opening", "pattern"), [
+    # the record of the issue: 4.5 px in a 6 px line grid, three quarters of a period
+    # (a quarter the other way): the opening looks like a thick line
+    (6.0, 0.0, 4.5, "cross"),
+    (6.0, 0.0, 6.0, "cross"),
+    (8.0, 45.0, 6.0, "cross"),
+    # across a turned checkerboard's diagonal lattice: 4.5 and 6 px openings measured
+    # 1 period off on 40 to 44 % of the valid pixels, not cut
+    (6.0, 45.0, 4.5, "checker"),
+    (8.0, 45.0, 6.0, "checker"),
+    (8.0, 0.0, 6.0, "checker"),
+])
+def test_an_opening_is_never_confirmed_wrong(p, angle, opening, pattern):
+    shape = (160, 224)
+    ref, cur, disp, _ = torn_pair(p, angle, opening, 0.0, int(opening * 10) + int(p), shape,
+                                  pattern=pattern)
+    period = p * np.sqrt(2) if pattern == "checker" else p
+    res = measure_series(ref, cur)
+    assert not (_wrong(res, disp, period) and res.fringe_orders[0].confirmed), \
+        res.fringe_orders[0].detail
+    pair = measure(ref, cur)
+    assert not (_wrong(pair, disp, period) and pair.fringe_order.confirmed)
 
 
 # ------------------------------------------------------------------- a stain is no tear

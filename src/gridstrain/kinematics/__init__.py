@@ -1,8 +1,8 @@
 """Kinematics: displacement and strain maps from the phases of two states.
 
 - ``_deformation``: the displacement (eq. 34, with the large-displacement correction of
-  the Lagrangian description) and the small-strain tensor (eq. 35), :func:`deformation`
-  and :func:`measure`;
+  the Lagrangian description) and the small-strain tensor (eq. 35), :func:`deformation`;
+- ``_measure``: the pair's measurement from two images, :func:`measure`;
 - ``_fringe_order``: how the whole number of periods of a displacement is fixed
   (:class:`FringeOrder`), the image-feature estimate (:func:`coarse_displacement`) and
   whether the grid's own modulus shows a whole-period shift (:func:`grid_shows`);
@@ -18,7 +18,7 @@
 
 from __future__ import annotations
 
-from ._deformation import Measurement, deformation, measure
+from ._deformation import Measurement, deformation
 
 # shared with gridstrain's other folders, not part of the public API
 from ._deformation import eulerian_gradient as eulerian_gradient
@@ -45,8 +45,10 @@ from ._fringe_order import (
     coarse_displacement,
     grid_shows,
 )
+from ._fringe_order import cut_into_parts as cut_into_parts
 from ._fringe_order import phase_products as phase_products
 from ._fringe_order import solve_k as solve_k
+from ._measure import measure
 from ._pair_match import PairMatch, pair_match
 
 __all__ = [

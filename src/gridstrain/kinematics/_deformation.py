@@ -18,7 +18,6 @@ from skimage.restoration import unwrap_phase
 from .._runtime.threads import map_leaves
 from .._stats import median
 from .._validation import (
-    as_image,
     check_int,
     check_mask,
     check_positive,
@@ -27,29 +26,21 @@ from .._validation import (
     check_workers,
 )
 from ..phase import (
-    DEFAULT_MARGIN,
-    MIN_MODULUS,
     Lattice,
     PhaseMaps,
-    coupling_corrected,
-    demodulated_at,
-    detect_lattice,
     filled_box,
-    no_grid,
-    wft,
 )
-from ..phase.lattice import reference_carrier, state_carrier
 from ..uncertainty import contrast_step_bound, contrast_step_findings
 from ._fringe_order import (
     FringeOrder,
     _CoarseReference,
     _from_estimate,
     coarse_displacement,  # noqa: F401  (named by the docstrings)
+    cut_into_parts,
     solve_k,
-    strain_if_off,
 )
 
-__all__ = ["Measurement", "deformation", "measure"]
+__all__ = ["Measurement", "deformation"]
 
 # Spline order used to evaluate the deformed maps at x + u. The demodulated maps are
 # band-limited by the window (their spectrum falls as exp(-2 pi^2 sigma^2 nu^2)), so
@@ -491,6 +482,11 @@ def deformation(reference: PhaseMaps, deformed: PhaseMaps, *, lagrangian: bool =
     strain, rotation = small_strain(G), 0.5 * (G[1, 0] - G[0, 1])
     del G
     u, strain, rotation = _outside_nan(valid, dt, u, strain, rotation)
+    if order.confirmed and order.source == "image features" and \
+            (parts := cut_into_parts(valid)):
+        # the features' rigid shift fixed the part that carries them
+        order = dataclasses.replace(order, confirmed=False,
+                                    detail=f"{parts}; {order.detail}")
     return Measurement(u=u, strain=strain, rotation=rotation, valid=valid, lattice=lattice,
                        sigma=reference.sigma, lagrangian=bool(lagrangian),
                        iterations=iterations, step_rms=step, guess=gmed,
@@ -765,86 +761,3 @@ def _fringe_order_record(g, source, coarse):
     else:
         order = FringeOrder("smallest displacement", False, gmed, "guess=None")
     return gmed, order
-
-
-def measure(reference, deformed, *, lattice: Lattice | None = None,
-            sigma: float | None = None, mask=None, lagrangian: bool = True,
-            guess="auto", margin: float = DEFAULT_MARGIN) -> Measurement:
-    """Displacement and strain maps between a reference and a deformed grid image.
-
-    Parameters
-    ----------
-    reference, deformed : (H, W) array_like
-        Grid images of the specimen before and after loading (grey levels).
-    lattice : Lattice, optional
-        The grid's wave vectors; detected on the reference image by default.
-    sigma : float, optional
-        Window standard deviation, px (default: the pitch).
-    mask : (H, W) bool array_like, optional
-        True on the specimen, in the reference configuration. The reference's
-        regions without a grid (a hole or background left unmasked: the modulus
-        below a quarter of its median, :func:`gridstrain.phase.no_grid`) are masked
-        too, so that the band of ``margin`` sigmas around them is invalid, as
-        :func:`gridstrain.measure_series` does.
-    lagrangian : bool
-        Large-displacement correction (default on); see :func:`deformation`.
-    guess : "auto", None, (2,) or (2, H, W) array_like
-        Initial displacement fixing the fringe order. ``"auto"`` uses the images'
-        features (:func:`coarse_displacement`) when they are conclusive and falls
-        back to the smallest displacement the phases allow otherwise;
-        :attr:`Measurement.fringe_order` says which, and whether it is confirmed.
-    margin : float
-        Invalid band along borders and mask edges, in units of ``sigma``.
-
-    Returns
-    -------
-    Measurement
-
-    Examples
-    --------
-    >>> import numpy as np
-    >>> from gridstrain import Lattice, measure
-    >>> from gridstrain.models import synthetic
-    >>> lat = Lattice.from_pitch(5.0)
-    >>> ref = synthetic.grid_image((96, 96), lat)
-    >>> cur = synthetic.grid_image((96, 96), lat,
-    ...                            displacement=lambda X, Y: (0.3 + 0 * X, -0.2 + 0 * Y))
-    >>> res = measure(ref, cur, lattice=lat, guess=None)
-    >>> [round(float(np.nanmean(c)), 5) for c in res.u]
-    [0.3, -0.2]
-    """
-    ref = as_image(reference, "reference")
-    cur = as_image(deformed, "deformed")
-    check_same_shape(cur.shape, ref.shape, "deformed", "reference")
-    m = check_mask(mask, ref.shape)
-    if check_type(lattice, "lattice", Lattice, allow_none=True) is None:
-        lattice = detect_lattice(ref, mask=m)
-    pm_ref = wft(ref, lattice, sigma=sigma, mask=m, margin=margin, workers=None)
-    nogrid = no_grid(pm_ref.modulus, pm_ref.valid, m, MIN_MODULUS, away=pm_ref.sigma)
-    if nogrid.any():
-        # a hole or background left unmasked: masked, so that the windows straddling
-        # it are invalid as along a mask's edge (as measure_series does)
-        m = m & ~nogrid
-        if not m.any():
-            raise ValueError("reference: no pixel shows a grid at the lattice's wave "
-                             f"vectors (pitch {lattice.pitch:.4g} px)")
-        pm_ref = wft(ref, lattice, sigma=sigma, mask=m, margin=margin, workers=None)
-    # each transform corrected at its own carrier, before any change of carrier: the
-    # window's phase-modulus coupling (gridstrain.phase.coupling_corrected)
-    pm_ref = coupling_corrected(pm_ref)
-    # the deformed specimen has moved: its mask is not the reference's, so the
-    # deformed image is transformed whole and validity comes from its own moduli; at
-    # its own carrier, a window off it biases the phase where the grid's amplitude
-    # varies (gridstrain.phase.demodulated_at)
-    carrier = state_carrier(cur, lattice, reference_carrier(ref, lattice))
-    pm_cur = coupling_corrected(wft(cur, carrier, sigma=pm_ref.sigma, margin=margin,
-                                    workers=None))
-    if carrier is not lattice:
-        pm_cur = demodulated_at(pm_cur, lattice)
-    res = deformation(pm_ref, pm_cur, lagrangian=lagrangian, guess=guess,
-                      _images=(ref, cur, m))
-    if res.fringe_order is not None and not res.fringe_order.confirmed:
-        # how far its strain may be off too (FringeOrder.strain_if_off)
-        res = dataclasses.replace(res, fringe_order=dataclasses.replace(
-            res.fringe_order, strain_if_off=strain_if_off(res)))
-    return res

@@ -674,7 +674,7 @@ class Part:
 
 
 def check_parts(m: Measurement, before, reference_image, deformed_image, *,
-                mask=None) -> tuple[Measurement, tuple[Part, ...]]:
+                mask=None, cause: str = "the crack cuts") -> tuple[Measurement, tuple[Part, ...]]:
     """Each part a crack cuts the field into, its fringe order fixed by its own content.
 
     No continuity joins the two sides of an open crack: the whole periods of
@@ -702,6 +702,10 @@ def check_parts(m: Measurement, before, reference_image, deformed_image, *,
         The states' images (mean images of their stacks), grey levels.
     mask : (H, W) bool array_like, optional
         True on the specimen in the reference image.
+    cause : str
+        What parted the field and how, as the record says it (``"the crack cuts"``;
+        ``"invalid bands part"`` where no jump was found: a gradient too steep for
+        the window).
 
     Returns
     -------
@@ -783,7 +787,8 @@ def check_parts(m: Measurement, before, reference_image, deformed_image, *,
                           detail=detail))
     if drop.any():
         again = _left_out(again, drop)
-    again = dataclasses.replace(again, fringe_order=_parts_record(m.fringe_order, parts),
+    again = dataclasses.replace(again, fringe_order=_parts_record(m.fringe_order, parts,
+                                                                  cause),
                                 reference=m.reference)
     return again, tuple(parts)
 
@@ -801,11 +806,12 @@ def _part_estimate(ref, warped, lattice, mask, territory):
     return whole if whole.confident or whole.peak_to_alias > est.peak_to_alias else est
 
 
-def _parts_record(rec: FringeOrder | None, parts: list[Part]) -> FringeOrder:
+def _parts_record(rec: FringeOrder | None, parts: list[Part],
+                  cause: str = "the crack cuts") -> FringeOrder:
     """The state's fringe-order record once each part was checked on its own."""
     said = "; ".join(f"{p.describe()}: {p.detail}" + (", left out" if p.left_out else "")
                      for p in parts)
-    head = f"the crack cuts the field into {len(parts)} parts: {said}"
+    head = f"{cause} the field into {len(parts)} parts: {said}"
     if rec is None:
         rec = FringeOrder("smallest displacement", False)
     if any(p.confirmed for p in parts):

@@ -104,6 +104,33 @@ _MAX_DISAGREEMENT = 0.25
 FRINGE_ORDER_SOURCES = ("previous state", "image features", "user", "smallest displacement")
 
 
+# A small step, or image features compared as one rigid shift, tie the whole periods of
+# the pixels they are taken on only as far as continuity reaches: where the invalid pixels
+# cut the valid ones into parts (a band where the grid's modulus fell: a gradient too
+# steep for the window, a tear not declared), each part may be whole periods from the
+# others (a rise of a period across the band reads as none on either side, and the
+# features' shift is the larger part's). The order is confirmed only when one part
+# (8-connected) holds this share of the valid pixels: specks cut off by the noise, a
+# hundredth of them at most, cannot make a state wrong on more than that.
+_TIED = 0.99
+
+
+def cut_into_parts(valid: np.ndarray) -> str:
+    """Why one whole number of periods found for ``valid``'s pixels does not hold for all
+    of them (no part holds :data:`_TIED` of them), or "" when it does."""
+    labels, n = ndimage.label(valid, structure=np.ones((3, 3), dtype=bool))
+    if n <= 1:
+        return ""
+    sizes = np.bincount(labels.ravel())[1:]
+    largest = int(sizes.max())
+    if largest >= _TIED * int(sizes.sum()):
+        return ""
+    return (f"the valid pixels fall into {n} parts (the largest holds "
+            f"{largest / sizes.sum():.0%} of them), parted by invalid bands where the "
+            "grid's modulus fell (a gradient too steep for the window or a tear): what "
+            "fixes the whole periods of one part does not tie the others to it")
+
+
 @dataclass(frozen=True)
 class FringeOrder:
     """How the whole number of periods (the fringe order) of a displacement was fixed.
@@ -128,7 +155,10 @@ class FringeOrder:
         previous state with an increment below ``_MAX_STEP`` periods everywhere (a
         step that is plausibly less than half a period; the first state of a series
         from the reference within ``SMALL_STEP``), not contradicted by image
-        features. Where two kinds of evidence disagree the state is not confirmed.
+        features, and over valid pixels that hold together (a field that bands of
+        invalid pixels part, where a gradient too steep for the window or a tear
+        dimmed the grid, may have each part whole periods from the others: not
+        confirmed). Where two kinds of evidence disagree the state is not confirmed.
         A state not confirmed may be one or more periods off.
     guess : (2,) tuple of float
         Median of the guess field that fixed the order, px.

@@ -27,6 +27,7 @@ from ._fringe_order import (
     FringeOrder,
     _CoarseReference,
     _from_estimate,
+    cut_into_parts,
     sharp,
     strain_if_off,
 )
@@ -258,6 +259,13 @@ class _Tracker:
                                     f"{name}: fringe order {est.light_doubt}; the "
                                     "displacement the image features give is kept "
                                     f"({_median_u(res)})", state=name))
+        if rec.confirmed and rec.source in ("previous state", "image features") and \
+                (parts := cut_into_parts(res.valid)):
+            rec = dataclasses.replace(rec, confirmed=False, detail=f"{parts}; {rec.detail}")
+            warnings.append(Finding(
+                "fringe_order.unconfirmed",
+                f"{name}: {parts}: fringe order not confirmed; " + _what_to_do(self.lattice),
+                state=name))
         if not rec.confirmed:
             rec = _doubt_said(res, rec, warnings)
         # the measurement carries the series' record, not the pair's view of its guess
@@ -452,13 +460,18 @@ def _recheck(res: Measurement, rec: FringeOrder, t, name: str, reason: str, figu
     the light can imitate shows ``t`` (the image's content and the grid's modulus, with
     nothing else against them): the displacement they support is taken, not
     confirmed."""
+    # the content compared over the whole field is the larger part's: a field parted in
+    # two by invalid bands keeps the other part's whole periods in doubt
+    parts = cut_into_parts(res.valid)
     if not np.any(np.rint(res.lattice.K @ t)):
-        if rec.confirmed:
+        if rec.confirmed or parts:
             return res, rec, []
         return res, dataclasses.replace(
             rec, confirmed=True, source="image features", strain_if_off=math.nan,
             detail=f"the deformed image warped back by the measured field matches the "
                    f"reference's content ({reason}); {rec.detail}", **figures), []
+    if parts and not doubt:
+        doubt = f"not confirmed: {parts}"
     before = _median_u(res)
     g = np.array(res.guess, dtype=float) + t
     again = deformation(res.reference, res.deformed, lagrangian=res.lagrangian, guess=g)

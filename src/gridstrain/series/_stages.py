@@ -36,6 +36,7 @@ from ..kinematics import (
     CoarseEstimate,
     Measurement,
     check_parts,
+    cut_into_parts,
     find_discontinuities,
     without_discontinuities,
 )
@@ -324,7 +325,7 @@ def _discontinuities(res: Measurement, rec, name: str, images, follow) -> tuple:
     record, the jumps' regions, and the warnings naming them."""
     disc = find_discontinuities(res)
     if not disc:
-        return res, rec, (), []
+        return _parted(res, rec, name, images)
     before = res.valid
     guess = None
     if follow is not None:
@@ -353,6 +354,26 @@ def _discontinuities(res: Measurement, rec, name: str, images, follow) -> tuple:
             "an opening of more than half a pitch one of them may be whole periods off; "
             "pass a guess or an intermediate state", state=name, parts=after))
     return res, rec, tuple(disc.regions), said
+
+
+def _parted(res: Measurement, rec, name: str, images) -> tuple:
+    """``(res, rec, (), warnings)`` of a state with no jump: where invalid bands part
+    its field (a gradient too steep for the window dims the grid along it) and its order
+    is not confirmed, each part's whole periods from its own content, as across a crack
+    (:func:`check_parts`), taken when one part is confirmed so."""
+    if images is None or rec.confirmed or res.reference is None or \
+            not cut_into_parts(res.valid):
+        return res, rec, (), []
+    checked, parts = check_parts(dataclasses.replace(res, fringe_order=rec),
+                                 res.reference.valid, images[0], images[1], mask=images[2],
+                                 cause="invalid bands (no jump found) part")
+    if not any(p.confirmed for p in parts):
+        return res, rec, (), []
+    said = [Finding("jump.part",
+                    f"{name}: the part of the field at {p.describe()}, parted from the rest "
+                    f"by invalid bands, {p.detail}" + (": left out" if p.left_out else ""),
+                    state=name) for p in parts if p.left_out or any(p.shift_px)]
+    return checked, checked.fringe_order, (), said
 
 
 def _parts_notes(parts: tuple, name: str, lattice) -> list[Finding]:
