@@ -127,6 +127,8 @@ def test_shifts_plot_shows_the_series(rng, tmp_path):
     assert [p.name for p in tmp_path.iterdir()] == ["v.png"]  # no temporary left
     with pytest.raises(FileExistsError):
         save_figure(fig, path)
+    with pytest.raises(ValueError, match=r"must end in \.png"):
+        save_figure(fig, tmp_path / "v.pdf")  # PNG bytes under a PDF's name: refused
 
 
 def test_save_figures_count_and_names(tmp_path):

@@ -104,6 +104,14 @@ def test_modulus_command(coupon, tmp_path, capsys):
     # no loads: one line, exit 2
     assert main(["modulus", str(path), "--area", "20"]) == 2
     assert "no loads" in capsys.readouterr().err
+    # a plot named without .png (a PNG under another name opens as nothing): refused
+    for name in ("ss", "ss.pdf"):
+        assert main(["modulus", str(path), "--region", *map(str, REGION), "--area",
+                     str(AREA), "--loads", str(loads), "--plot", str(tmp_path / name)]) == 2
+        err = capsys.readouterr().err.strip()
+        assert len(err.splitlines()) == 1
+        assert "--plot must name a .png file" in err
+        assert not (tmp_path / name).exists()
 
 
 def _reading(load, load_unit, axial):

@@ -125,6 +125,19 @@ def make_folder(folder: Path, what: str) -> Path:
                          f"{exc.strerror or exc}") from None
 
 
+def png_option(value: str | None, flag: str = "--plot") -> Path | None:
+    """A figure's file from the command line (written as PNG): its path, or None;
+    another suffix refused naming ``flag`` (a PNG named .pdf or without a suffix
+    opens as nothing)."""
+    if value is None:
+        return None
+    path = Path(os.path.expanduser(value))
+    if path.suffix.lower() != ".png":
+        raise ValueError(f"{flag} must name a .png file (the figure is written as a "
+                         f"PNG), got {value!r}")
+    return path
+
+
 def check_output_file(path: Path, what: str, overwrite: bool, inputs=frozenset()) -> None:
     """Refuse, before any work, an output that would fail or clobber at the end: with
     ``--overwrite``, a file that gridstrain did not write (or that changed since) is

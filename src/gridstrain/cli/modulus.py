@@ -2,10 +2,7 @@
 
 from __future__ import annotations
 
-import os
-from pathlib import Path
-
-from ._common import OVERWRITE_HELP, check_output_file, print_json
+from ._common import OVERWRITE_HELP, check_output_file, png_option, print_json
 from ._post import add_gauge_options, add_result_options, gauge_of, open_result, reads_result
 
 SUMMARY = ("Young's modulus and Poisson's ratio with their intervals, from a gauge and the "
@@ -41,8 +38,8 @@ def register(sub) -> None:
 def run(args) -> int:
     from ..post import elastic_constants
 
+    plot = png_option(args.plot)
     result, src, ps, unit, ld, lu, t = open_result(args)
-    plot = Path(os.path.expanduser(args.plot)) if args.plot else None
     if plot is not None:
         check_output_file(plot, "plot file", args.overwrite, {src.resolve()})
     reading = gauge_of(args, result, ps, unit, ld, lu, t)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-from ._common import check_output_file, print_json
+from ._common import check_output_file, png_option, print_json
 from ._post import add_result_options, reads_result
 
 SUMMARY = ("Young's modulus at high strain rate from an impact record: stress from the "
@@ -67,7 +67,7 @@ def run(args) -> int:
 
     src = Path(os.path.expanduser(args.result))
     curves = _output(args.curves, "curves file", args, src)
-    plot = _output(args.plot, "plot file", args, src)
+    plot = _output(str(png_option(args.plot)) if args.plot else None, "plot file", args, src)
     attrs = read_attrs(src)
     ps, unit = attrs.get("pixel_size"), attrs.get("unit")
     if ps is None or unit is None:

@@ -344,9 +344,14 @@ def save_figure(fig: Figure, path, *, overwrite: bool = False) -> Path:
     """Write ``fig`` as a PNG, atomically (see :func:`gridstrain.io.write_atomic`).
 
     The PNG is drawn in memory and then written, so that a full disk is one
-    ``OSError`` naming the file and leaves nothing behind.
+    ``OSError`` naming the file and leaves nothing behind. ``path`` must end in
+    ``.png``.
     """
-    return write_atomic(Path(os.fspath(path)), _png(fig), overwrite=overwrite)
+    dest = Path(os.fspath(path))
+    if dest.suffix.lower() != ".png":
+        raise ValueError(f"path must end in .png (the figure is written as a PNG), got "
+                         f"{dest.name!r}")
+    return write_atomic(dest, _png(fig), overwrite=overwrite)
 
 
 def _png(fig: Figure):
