@@ -77,7 +77,7 @@ def test_animate_command_mp4_and_gif(series_file, tmp_path, capsys):
     meta = iio.immeta(mp4, plugin="pyav")
     assert meta["fps"] == pytest.approx(5.0)
     assert main(["animate", str(path), "exx", "-o", str(tmp_path / "a.avi")]) == 2
-    assert "must end in .gif or .mp4" in capsys.readouterr().err
+    assert "-o must end in .gif or .mp4" in capsys.readouterr().err  # names the flag
 
 
 def test_missing_video_extra_is_one_line(series_file, tmp_path, capsys, monkeypatch):

@@ -48,9 +48,12 @@ def register(sub) -> None:
 
 @reads_result
 def run(args) -> int:
-    from ..post import animate
+    from ..post import ANIMATION_FORMATS, animate
 
     out = Path(os.path.expanduser(args.output))
+    if out.suffix.lower() not in ANIMATION_FORMATS:
+        raise ValueError(f"-o must end in {' or '.join(ANIMATION_FORMATS)}, got "
+                         f"{args.output!r}")
     limits, cmap = limits_option(args.limits), cmap_option(args.cmap)
     result, src, ps, unit, ld, lu, t = open_result(args)
     check_output_file(out, "animation", args.overwrite, {src.resolve()})

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import importlib
 
+from ._animate import FORMATS as ANIMATION_FORMATS
 from ._animate import animate
 from ._constants import ElasticConstants, elastic_constants, modulus_unit, stress_unit
 from ._correlation import strain_noise_correlation
@@ -41,7 +42,8 @@ _LAZY = {
     **dict.fromkeys(("render_report", "write_report"), "_report"),
 }
 
-__all__ = ["STRAIN_UNITS", "ElasticConstants", "GaugeReading", "History", "animate",
+__all__ = ["ANIMATION_FORMATS", "STRAIN_UNITS", "ElasticConstants", "GaugeReading", "History",
+           "animate",
            "elastic_constants", "frame_of", "gauge", "history", "modulus_unit",
            "own_length", "place_mask", "read_loads", "refuse_empty",
            "reference_share", "strain_noise_correlation", "strain_scale", "stress_unit",
