@@ -439,3 +439,17 @@ def test_a_preamble_of_name_value_lines_is_never_the_header(tmp_path, n, units_r
     assert table.unit == "kN"
     np.testing.assert_allclose(table.load, _oracle(CAMERA, t_ms, counts), rtol=0,
                                atol=ATOL_KN)
+
+
+@pytest.mark.parametrize("decimal", [".", ","])
+def test_one_column_with_either_decimal_mark(tmp_path, decimal):
+    """A one-column export (a header, one value a state) with a decimal point or a
+    decimal comma: the same loads, the column named, no delimiter claimed."""
+    p = tmp_path / "one.csv"
+    p.write_text("Kraft [kN]\n" + "".join(f"{v}\n".replace(".", decimal)
+                                          for v in (0.7, 1.4, 2.1)), encoding="utf-8")
+    t = read_loads(p, states=["a", "b", "c"])
+    np.testing.assert_array_equal(t.load, [0.7, 1.4, 2.1])  # exact: parsed, not computed
+    assert t.unit == "kN"
+    assert t.source["decimal"] == decimal
+    assert t.source["load_column"] == "Kraft [kN]"

@@ -53,10 +53,12 @@ def _loads_line(result) -> list[str]:
         return []
     sep = {"\t": "tab", " ": "spaces", "whitespace": "spaces"}.get(src["delimiter"],
                                                                  repr(src["delimiter"]))
+    sep = "one column" if src["delimiter"] == "none (one column)" else \
+        f"{sep} between columns"
     how = (f"at the states' times + {src['offset_s']:g} s on {src['time_column']!r}, "
            "linear interpolation" if src["method"] == "linear interpolation in time"
            else src["method"])
-    return [f"loads: {src['file']} ({src['encoding']}, {sep} between columns, decimal "
+    return [f"loads: {src['file']} ({src['encoding']}, {sep}, decimal "
             f"{src['decimal']!r}), {src['load_column']!r} {how}; "
             f"SHA-256 {src['sha256'][:12]}..."]
 

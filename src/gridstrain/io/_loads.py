@@ -204,8 +204,10 @@ def _is_unit_like(cell: str) -> bool:
 def _find_layout(lines: list[tuple[int, str]], p) -> _Layout:
     """The delimiter, header, line of units and rows of values (module docstring)."""
     head = lines[:2000]  # a preamble is tens of lines, never thousands
-    # tab, ";", "," or white space between two columns or more; else one column
-    for delimiter, least in (("\t", 2), (";", 2), (",", 2), (None, 2), (",", 1)):
+    # tab, ";", "," or white space between two columns or more; else one column (its
+    # values with a decimal point, or, split at nothing, with a decimal comma)
+    for delimiter, least in (("\t", 2), (";", 2), (",", 2), (None, 2), (",", 1),
+                             ("\t", 1)):
         split = _splitter(delimiter, p)
         fields = [split(r, line) for r, line in head]
         best = None
@@ -553,7 +555,8 @@ def read_loads(path, *, states, reference: str | None = None, times=None,
                          "column to shift")
     source = {
         "file": os.path.abspath(p), "sha256": hashlib.sha256(raw).hexdigest(), "encoding": encoding,
-        "delimiter": "whitespace" if lay.delimiter is None else lay.delimiter,
+        "delimiter": "whitespace" if lay.delimiter is None else
+        "none (one column)" if len(lay.header) == 1 else lay.delimiter,
         "decimal": "," if comma else ".", "header_row": int(row), "rows": len(rows),
         "load_column": cells[columns["load"]], "load_unit": units[columns["load"]],
         "load_factor": float(load_factor),
