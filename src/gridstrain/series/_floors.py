@@ -394,11 +394,10 @@ class _ReferenceFloor:
                           frames=tuple(int(d.T) for d in done), **rows)
 
 
-# The edge band's harmonic bias is stated where one image's, seen on the reference,
-# exceeds this many times the band's largest stated strain std: the reference's noise
-# alone puts the one image's largest value over the band's few hundred windows at
-# about 3 times its own std, 0.7 of the stated (reference and state).
-_EDGE_BIAS_NOISE = 4.0
+# The edge band's harmonic bias (its bound, twice EDGE_HARMONIC_SPREAD times one
+# image's, noise-free: gridstrain.phase.edge_harmonic_bias) is stated where it exceeds
+# this many times the band's largest stated strain std: the bias the std maps miss.
+_EDGE_BIAS_NOISE = 1.0
 # ... and this strain: a cosine print's noise-free 1e-7 stays unsaid.
 _EDGE_BIAS_MIN = 1e-5
 
@@ -432,9 +431,9 @@ def _edge_harmonics_warning(name: str, eb: dict, unc, m: Measurement,
         noise = np.array([fl[k] for k in comps], dtype=float)
     noise = np.where(np.isfinite(noise), noise, 0.0)
     one = eb["one_image"]
-    if not np.any((one > _EDGE_BIAS_NOISE * noise) & (one > _EDGE_BIAS_MIN)):
-        return None
     bound = 2 * EDGE_HARMONIC_SPREAD * one
+    if not np.any((bound > _EDGE_BIAS_NOISE * noise) & (bound > _EDGE_BIAS_MIN)):
+        return None
     return Finding(
         "edges.harmonics",
         f"{name}: the print's harmonics are not continued beyond the edges: the strain "
