@@ -180,6 +180,14 @@ FINDINGS = _kinds(
     ("aliasing.bound", "warning",
      "the grid's harmonics alias onto the carrier above the noise",
      "a sharper print, another pitch, or a larger sigma"),
+    ("edges.partial", "warning",
+     "the mask's outermost pixels show the grid only in part (the specimen's edge crosses "
+     "them): the grid continued over them, their maps the continuation's",
+     "none, or draw the mask one pixel inside the specimen's edge"),
+    ("edges.harmonics", "warning",
+     "the print's harmonics are not continued beyond the edges: the strain in the edge "
+     "band is biased beyond what the std maps state",
+     "a sinusoidal print, or leave out the edge band, or measure without --to-edges"),
     ("smoothing.bias", "warning",
      "the window's smoothing of strain gradients may exceed the noise",
      "a smaller sigma"),

@@ -16,9 +16,12 @@ from __future__ import annotations
 from ._coupling import coupling_corrected
 from ._edges import (
     EDGE_DEPTH,
+    EDGE_HARMONIC_SPREAD,
     EDGE_PASSES,
+    edge_harmonic_bias,
     edge_noise_gain,
     edge_pixels,
+    partly_covered,
     transform_to_edges,
 )
 from ._maps import PhaseMaps, demodulated_at, finite_derivatives
@@ -37,6 +40,7 @@ from .window import MIN_MODULUS, Window
 __all__ = [
     "DEFAULT_MARGIN",
     "EDGE_DEPTH",
+    "EDGE_HARMONIC_SPREAD",
     "EDGE_PASSES",
     "MIN_MODULUS",
     "Lattice",
@@ -45,11 +49,13 @@ __all__ = [
     "coupling_corrected",
     "demodulated_at",
     "detect_lattice",
+    "edge_harmonic_bias",
     "edge_noise_gain",
     "edge_pixels",
     "finite_derivatives",
     "follow_lattice",
     "no_grid",
+    "partly_covered",
     "transfer_function",
     "transform",
     "transform_to_edges",

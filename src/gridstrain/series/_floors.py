@@ -27,10 +27,13 @@ from ..kinematics import (
     solve_k,
 )
 from ..phase import (
+    EDGE_HARMONIC_SPREAD,
     Lattice,
     PhaseMaps,
     Window,
+    edge_harmonic_bias,
     edge_noise_gain,
+    edge_pixels,
     finite_derivatives,
     transform,
 )
@@ -272,6 +275,8 @@ class _ReferenceFloor:
         self.r, self.lattice, self.sigma = r, lattice, window.sigma
         # measured up to the edges: the factors on the std there (gridstrain.phase)
         self.edge_gain = edge_noise_gain(r.mask, lattice, window) if to_edges else None
+        # ... and the bias the print's harmonics leave there (stated once a run)
+        self.edge_bias = _edge_band_bias(r, lattice, window) if to_edges else None
         self.alias_said = False  # the aliasing's warning, given once a run
         T1, T2 = ref_pass.half_counts()
         if min(T1, T2) >= 1:
@@ -329,6 +334,11 @@ class _ReferenceFloor:
                       "exx": float(row["theory_strain"][0]),
                       "eyy": float(row["theory_strain"][1]),
                       "exy": float(row["theory_strain"][2])}
+        if self.edge_bias is not None:
+            said = _edge_harmonics_warning(c.name, self.edge_bias, unc, res, floors)
+            self.edge_bias = None
+            if said is not None:
+                warnings.append(said)
         if not self.alias_said:  # the reference's print at its pitch: once a run
             said = _aliasing_warning(c.name, res, floors, alias, self.lattice)
             if said is not None:
@@ -382,6 +392,59 @@ class _ReferenceFloor:
                           variance_method=tuple(d.variance_method for d in done),
                           modulus=np.array([d.modulus for d in done]), model=model_info,
                           frames=tuple(int(d.T) for d in done), **rows)
+
+
+# The edge band's harmonic bias (its bound, twice EDGE_HARMONIC_SPREAD times one
+# image's, noise-free: gridstrain.phase.edge_harmonic_bias) is stated where it exceeds
+# this many times the band's largest stated strain std: the bias the std maps miss.
+_EDGE_BIAS_NOISE = 1.0
+# ... and this strain: a cosine print's noise-free 1e-7 stays unsaid.
+_EDGE_BIAS_MIN = 1e-5
+
+
+def _edge_band_bias(r: _Measured, lattice: Lattice, window: Window) -> dict:
+    """The reference's one-image strain bias from its print's harmonics in the edge
+    band of its mask (:func:`edge_harmonic_bias`): the band, its largest value per
+    component, and the band's width."""
+    band = edge_pixels(r.mask, window)
+    if not band.any():
+        return {"band": band, "one_image": np.zeros(3), "band_px": float(window.band),
+                "margin": float(window.margin)}
+    b = edge_harmonic_bias(r.stats.mean, lattice, window, mask=r.mask)
+    return {"band": band, "one_image": np.abs(b[:, band]).max(axis=1),
+            "band_px": float(window.band), "margin": float(window.margin)}
+
+
+def _edge_harmonics_warning(name: str, eb: dict, unc, m: Measurement,
+                            fl: dict) -> Finding | None:
+    """The warning of the edge band's bias from the print's harmonics (not continued
+    beyond the edges) where it stands out of the band's noise, or None: one image's
+    bias seen on the reference, times :data:`EDGE_HARMONIC_SPREAD` for another
+    position of the grid against the edges, twice for two images."""
+    comps = ("exx", "eyy", "exy")
+    band = eb["band"] & m.valid
+    if not band.any():
+        return None
+    if unc is not None:
+        noise = np.array([float(np.nanmax(unc[f"{k}_std"][band])) for k in comps])
+    else:
+        noise = np.array([fl[k] for k in comps], dtype=float)
+    noise = np.where(np.isfinite(noise), noise, 0.0)
+    one = eb["one_image"]
+    bound = 2 * EDGE_HARMONIC_SPREAD * one
+    if not np.any((bound > _EDGE_BIAS_NOISE * noise) & (bound > _EDGE_BIAS_MIN)):
+        return None
+    return Finding(
+        "edges.harmonics",
+        f"{name}: the print's harmonics are not continued beyond the edges: the strain "
+        f"within {eb['band_px']:.3g} px ({eb['margin']:g} sigmas) of the mask's edges "
+        f"may be biased by up to {bound[0]:.2g} (e_xx), {bound[1]:.2g} (e_yy), "
+        f"{bound[2]:.2g} (e_xy), not held by the std maps (one image's bias seen on the "
+        f"reference, up to {one.max():.2g}, times {EDGE_HARMONIC_SPREAD:g} for another "
+        "position of the grid against the edges and twice for two images); a "
+        "sinusoidal print, or leave that band out, or measure without --to-edges",
+        state=name, strain_bias=[float(v) for v in bound], band_px=eb["band_px"],
+        one_image=[float(v) for v in one])
 
 
 def _aliasing_warning(name: str, m: Measurement, fl: dict, alias: dict,

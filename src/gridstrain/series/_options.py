@@ -339,14 +339,18 @@ OPTIONS: tuple[Option, ...] = (
     ``-4.1 sigma^2 eps''`` at the edge for ``sigma`` = the pitch). The grid's
     harmonics are not continued: a print far from a sine (a square or ``sin^3``
     profile, a checkerboard) keeps part of the cut window's bias there, up to
-    several 1e-3 of strain.""",
+    several 1e-3 of strain; the reference's is measured and said (finding
+    ``edges.harmonics``, its bound). The mask's outermost pixels that show the grid
+    in part (a mask drawn at the specimen's edge) are continued over (finding
+    ``edges.partial``).""",
            flag="--to-edges", kind="bool", group="window",
            help="measure up to the specimen's edges (method A): the grid continued beyond "
            "them by its own phase before the window; the band of --margin sigmas is then "
            "edge pixels, exact for a strain uniform or linear in space on a grid close to "
            "a sine, biased by about -4.1 sigma^2 times the strain's second derivative "
            "normal to the edge; a print with strong harmonics (square lines, a "
-           "checkerboard) keeps part of the cut window's bias there, up to several 1e-3"),
+           "checkerboard) keeps part of the cut window's bias there, up to several 1e-3, "
+           "stated (edges.harmonics)"),
     Option("mask", None, _any, """mask : (H, W) bool array_like or path, optional
     True (nonzero, for an image file) on the specimen, in the reference
     configuration. Regions without a grid are masked automatically on top. Not in

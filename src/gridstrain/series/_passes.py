@@ -28,6 +28,7 @@ from ..phase import (
     detect_lattice,
     finite_derivatives,
     no_grid,
+    partly_covered,
     transform,
     transform_to_edges,
 )
@@ -378,6 +379,20 @@ def _phase_maps_a(image, lattice: Lattice, window: Window, mask, *, to_edges: bo
     return finite_derivatives(pm), m
 
 
+def _edge_findings(name: str, image, pm: PhaseMaps, used) -> list:
+    """The mask's outermost pixels of a measurement up to the edges that show the grid
+    in part (continued over, :func:`~gridstrain.phase.partly_covered`)."""
+    part = partly_covered(image, pm, used)
+    if not part.any():
+        return []
+    n = int(part.sum())
+    return [Finding(
+        "edges.partial", f"{name}: {n} of the mask's outermost pixels show the grid "
+        "only in part (the specimen's edge crosses them: a mask drawn at or beyond it): "
+        "taken as outside and the grid continued over them; their maps are the "
+        "continuation's", state=name, pixels=n)]
+
+
 def _less(m: np.ndarray, nogrid: np.ndarray) -> np.ndarray:
     m = m & ~nogrid
     if not m.any():
@@ -477,6 +492,8 @@ def _one_series(s, acc: SeriesPass, base, window: Window, max_saturation: float,
     acc.release(keep_halves=base is not None)  # the reference's halves: its noise floor
     if method == "A":
         pm, used = _phase_maps_a(stats.mean, plan.lattice, window, base, to_edges=to_edges)
+        if to_edges and base is not None:  # the reference's mask: once a run
+            notes.extend(_edge_findings(s.name, stats.mean, pm, used))
     else:  # the mean image gives the mask only
         used = _grid_support(stats.mean, plan.lattice, window, base)
     steps.step(2 * _WFT_COST, f"{s.name}: phase maps")
