@@ -283,6 +283,32 @@ def _contrast_step_bound(dt):
     assert np.all(np.isfinite(b[m.valid]))
 
 
+def _edge_maps(dt):
+    ref, _ = _ref_cur(dt)
+    mask = np.zeros((N, N), dtype=bool)
+    mask[8:56, 8:56] = True  # a specimen with free edges 8 px inside the frame
+    window = phase.Window(5.0)
+    return ref[0], mask, window, phase.transform_to_edges(ref[0], LAT, window, mask=mask)
+
+
+def _partly_covered(dt):
+    # a mask's partly covered edge pixels from maps of either precision: a bool map
+    image, mask, _, maps = _edge_maps(dt)
+    _check_maps(maps, dt)
+    covered = phase.partly_covered(image, maps, mask)
+    assert covered.dtype == np.bool_
+    assert covered.shape == mask.shape
+
+
+def _edge_harmonic_bias(dt):
+    # the harmonics' bias of the edge band, a bound: float64 whatever the input
+    image, mask, window, maps = _edge_maps(dt)
+    b = phase.edge_harmonic_bias(image, LAT, window, mask=mask, maps=maps)
+    assert b.dtype == np.float64
+    assert b.shape == (3, N, N)
+    assert np.all(np.isfinite(b))
+
+
 def _contrast_step_findings(dt):
     # findings of a bound from either precision: their figures plain floats and ints
     ref, cur = _ref_cur(dt)
@@ -342,6 +368,7 @@ ENTRY_POINTS = {
     "smoothing_bias": _smoothing_bias, "pair_match": _pair_match,
     "contrast_step_bound": _contrast_step_bound,
     "contrast_step_findings": _contrast_step_findings,
+    "partly_covered": _partly_covered, "edge_harmonic_bias": _edge_harmonic_bias,
 }
 # Public functions that take no image: their outputs are float64 by construction
 # (frequencies; metrology's figures), files (save_*, load: the dtypes saved), or the
