@@ -22,6 +22,7 @@ import pytest
 import gridstrain
 import gridstrain.phase._transform as impl
 from gridstrain import Lattice, wft
+from gridstrain._runtime.fft import name as fft_name
 from gridstrain.phase import Window
 from independent_grid import camera, scene
 from test_wft import _direct, _modulated_grid
@@ -227,8 +228,13 @@ def test_without_numba_the_numpy_paths_run(monkeypatch):
         np.testing.assert_array_equal(default.dphi, exact.dphi)
         np.testing.assert_array_equal(default.psi, exact.psi)
         fast = wft(img, lat, derivatives="fast")
-        # the numpy filter keeps the transform bit for bit
-        np.testing.assert_array_equal(fast.psi, exact.psi)
+        # the numpy filter keeps the transform (bit for bit on pocketfft; MKL's batched
+        # and single transforms round differently: a few roundings of |Psi|)
+        if fft_name() == "mkl":
+            scale = np.max(np.abs(exact.psi))
+            assert np.max(np.abs(fast.psi - exact.psi)) < 16 * np.finfo(float).eps * scale
+        else:
+            np.testing.assert_array_equal(fast.psi, exact.psi)
         # float64 design bound of the filter (see tests/test_wft.py)
         assert np.max(np.abs(fast.dphi - exact.dphi)[:, :, exact.valid]) < 4e-8
         assert calls == []
