@@ -385,7 +385,8 @@ NO_IMAGE = {"edge_noise_gain", "edge_pixels", "transfer_function", "save_result"
 # finite_derivatives, coupling_corrected, transform: PhaseMaps; the discontinuities:
 # a Measurement; grid_shows: PhaseMaps; no_grid: a modulus map), or names a state
 # (empty_state_message).
-NOT_CALLED = {"check_parts", "coupling_corrected", "demodulated_at", "empty_state_message",
+NOT_CALLED = {"check_parted", "check_parts", "coupling_corrected", "demodulated_at",
+              "empty_state_message",
               "grid_shows", "no_grid",
               "find_discontinuities", "finite_derivatives", "transform",
               "without_discontinuities"}

@@ -34,6 +34,7 @@ from ._derived import (
 from ._discontinuities import (
     Discontinuities,
     Part,
+    check_parted,
     check_parts,
     find_discontinuities,
     without_discontinuities,
@@ -63,6 +64,7 @@ __all__ = [
     "PairMatch",
     "Part",
     "PrincipalStrains",
+    "check_parted",
     "check_parts",
     "coarse_displacement",
     "deformation",

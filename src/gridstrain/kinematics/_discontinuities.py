@@ -32,7 +32,7 @@ from .._validation import as_image, check_mask, check_positive, check_same_shape
 from ..stacks.screening import MAD_TO_STD
 from ..uncertainty import nearest_filled, nearest_index
 from ._deformation import Measurement, deformation
-from ._fringe_order import FringeOrder, coarse_displacement, grid_shows
+from ._fringe_order import FringeOrder, coarse_displacement, cut_into_parts, grid_shows
 
 __all__ = ["Discontinuities", "Part", "check_parts", "find_discontinuities",
            "without_discontinuities"]
@@ -671,6 +671,24 @@ class Part:
         """Where the part lies, in words."""
         return (f"rows {self.rows[0]}-{self.rows[1]}, columns {self.cols[0]}-"
                 f"{self.cols[1]}")
+
+
+def check_parted(m: Measurement, reference_image, deformed_image, *, mask=None
+                 ) -> tuple[Measurement, tuple[Part, ...]]:
+    """``m`` with each part's whole periods from its own content where invalid bands
+    part its field without a jump (a gradient too steep for the window dims the grid
+    along it) and its fringe order is not confirmed (:func:`check_parts`, the parts it
+    cannot decide left out), when one part is confirmed so; else ``m`` as it is and no
+    part. The rule the pair API and measure_series share."""
+    order = m.fringe_order
+    if order is None or order.confirmed or m.reference is None or \
+            not cut_into_parts(m.valid):
+        return m, ()
+    checked, parts = check_parts(m, m.reference.valid, reference_image, deformed_image,
+                                 mask=mask, cause="invalid bands (no jump found) part")
+    if not any(p.confirmed for p in parts):
+        return m, ()
+    return checked, parts
 
 
 def check_parts(m: Measurement, before, reference_image, deformed_image, *,

@@ -20,8 +20,8 @@ from ..phase import (
 )
 from ..phase.lattice import reference_carrier, state_carrier
 from ._deformation import Measurement, deformation
-from ._discontinuities import check_parts
-from ._fringe_order import cut_into_parts, strain_if_off
+from ._discontinuities import check_parted
+from ._fringe_order import strain_if_off
 
 __all__ = ["measure"]
 
@@ -104,16 +104,9 @@ def measure(reference, deformed, *, lattice: Lattice | None = None,
         pm_cur = demodulated_at(pm_cur, lattice)
     res = deformation(pm_ref, pm_cur, lagrangian=lagrangian, guess=guess,
                       _images=(ref, cur, m))
-    if res.guess_source == "auto" and not res.fringe_order.confirmed and \
-            cut_into_parts(res.valid):
-        # invalid bands part the field (a gradient too steep for the window dims the grid
-        # along it): each part's whole periods from its own content, as across a crack,
-        # the parts it cannot decide left out, when one part is confirmed so (as
-        # measure_series does)
-        checked, parts = check_parts(res, res.reference.valid, ref, cur, mask=m,
-                                     cause="invalid bands (no jump found) part")
-        if any(p.confirmed for p in parts):
-            res = checked
+    if res.guess_source == "auto":
+        # invalid bands part the field: each part by its own content (as measure_series)
+        res, _ = check_parted(res, ref, cur, mask=m)
     if res.fringe_order is not None and not res.fringe_order.confirmed:
         # how far its strain may be off too (FringeOrder.strain_if_off)
         res = dataclasses.replace(res, fringe_order=dataclasses.replace(

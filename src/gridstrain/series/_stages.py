@@ -35,8 +35,8 @@ from .._progress import Finding, findings_of
 from ..kinematics import (
     CoarseEstimate,
     Measurement,
+    check_parted,
     check_parts,
-    cut_into_parts,
     find_discontinuities,
     without_discontinuities,
 )
@@ -361,13 +361,11 @@ def _parted(res: Measurement, rec, name: str, images) -> tuple:
     its field (a gradient too steep for the window dims the grid along it) and its order
     is not confirmed, each part's whole periods from its own content, as across a crack
     (:func:`check_parts`), taken when one part is confirmed so."""
-    if images is None or rec.confirmed or res.reference is None or \
-            not cut_into_parts(res.valid):
+    if images is None:
         return res, rec, (), []
-    checked, parts = check_parts(dataclasses.replace(res, fringe_order=rec),
-                                 res.reference.valid, images[0], images[1], mask=images[2],
-                                 cause="invalid bands (no jump found) part")
-    if not any(p.confirmed for p in parts):
+    checked, parts = check_parted(dataclasses.replace(res, fringe_order=rec), images[0],
+                                  images[1], mask=images[2])
+    if not parts:
         return res, rec, (), []
     said = [Finding("jump.part",
                     f"{name}: the part of the field at {p.describe()}, parted from the rest "
