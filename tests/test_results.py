@@ -536,6 +536,14 @@ def test_measure_figures_share_one_norm_per_quantity(result, tmp_path, monkeypat
     assert norm.vmax > 1.5 * E0 * 1e6
 
 
+def _stretched_pair(strain, size, rng):
+    """Two noisy frames of a cross grid of :data:`LAT`, ``size`` px square, stretched
+    by ``strain`` along x (mean 200 + 1500-grey-level grid, the synthetic noise)."""
+    img = synthetic.grid_image((size, size), LAT, amplitude=1500.0,
+                               displacement=lambda X, Y: (strain * X, 0.0 * Y)) + 200.0
+    return np.array([synthetic.add_noise(img, rng=rng) for _ in range(2)])
+
+
 def test_report_of_a_long_sequence_stays_one_readable_page(tmp_path):
     """Beyond 12 states: the maps of six states, histories and one row per state."""
     from matplotlib.figure import Figure
@@ -547,9 +555,7 @@ def test_report_of_a_long_sequence_stays_one_readable_page(tmp_path):
     size = 48
 
     def frames(strain):
-        img = synthetic.grid_image((size, size), LAT, amplitude=1500.0,
-                                   displacement=lambda X, Y: (strain * X, 0.0 * Y)) + 200.0
-        return np.array([synthetic.add_noise(img, rng=rng) for _ in range(2)])
+        return _stretched_pair(strain, size, rng)
 
     res = measure_series(frames(0.0), [frames(1e-4 * (k + 1)) for k in range(n)],
                          lattice=LAT, order="independent", guess=(0.0, 0.0))
@@ -589,9 +595,7 @@ def test_report_of_a_long_loaded_sequence_titles_each_state_with_its_own_load(
     n, size = 15, 48
 
     def frames(strain):
-        img = synthetic.grid_image((size, size), LAT, amplitude=1500.0,
-                                   displacement=lambda X, Y: (strain * X, 0.0 * Y)) + 200.0
-        return np.array([synthetic.add_noise(img, rng=rng) for _ in range(2)])
+        return _stretched_pair(strain, size, rng)
 
     res = measure_series(frames(0.0), [frames(1e-4 * (k + 1)) for k in range(n)],
                          lattice=LAT, order="independent", guess=(0.0, 0.0))
