@@ -316,17 +316,26 @@ def test_the_compiled_rounding_gives_the_numpy_paths_bits(shape, monkeypatch):
         _precision.round_to_std(np.full(shape, 1e39), np.ones(shape))
 
 
-def test_a_chunk_encoded_by_the_compiled_loops_is_the_one_hdf5_writes(held, tmp_path,
+@pytest.mark.parametrize("deflate", ["isal", "zlib"])
+def test_a_chunk_encoded_by_the_compiled_loops_is_the_one_hdf5_writes(deflate, held, tmp_path,
                                                                       monkeypatch):
     """Each compressed map's chunk (rounded maps, std maps, maps in physical units, the
     validity), shuffled, deflated and checksummed by gridstrain's loops and written
     directly, decodes through HDF5's own filters (checksum verified) to the values
-    HDF5's filter pipeline stores. The compressed bytes themselves are compared only
-    where Python's zlib is HDF5's (another zlib build may deflate otherwise, validly)."""
+    HDF5's filter pipeline stores, deflated by ISA-L or by zlib. With zlib the
+    compressed bytes themselves are compared, where Python's zlib is HDF5's (another
+    zlib build may deflate otherwise, validly); ISA-L's are other bytes, of the same
+    format."""
     from gridstrain.results import _layout, _precision
 
     if _precision._load_kernels() is None:
         pytest.skip("numba is not installed")
+    if deflate == "isal":
+        pytest.importorskip("isal")
+        monkeypatch.setattr(_layout, "_DEFLATE", None)  # chosen again: ISA-L's
+        assert _layout._deflate() is not zlib.compress
+    else:
+        monkeypatch.setattr(_layout, "_DEFLATE", zlib.compress)
     levels = []  # the deflate level of each map written directly (None: by HDF5)
     decide = _layout._deflate_level
 
@@ -349,7 +358,8 @@ def test_a_chunk_encoded_by_the_compiled_loops_is_the_one_hdf5_writes(held, tmp_
         # Python's zlib at the same level
         _, raw = a[names[0]].id.read_direct_chunk((0, 0, 0))
         level = a[names[0]].compression_opts
-        same_zlib = zlib.compress(zlib.decompress(raw[:-4]), level) == raw[:-4]
+        same_zlib = deflate == "zlib" and \
+            zlib.compress(zlib.decompress(raw[:-4]), level) == raw[:-4]
         assert {"ux", "exx_std", "ux_phys", "valid"} <= set(names)
         for name in names:
             assert b[name].id.get_create_plist().get_nfilters() == 3

@@ -16,10 +16,12 @@ the powers of two).
 A compressed map is one chunk that goes through HDF5's filters shuffle, deflate and
 Fletcher-32 in that order. :func:`shuffle` and :func:`fletcher32` are HDF5's own
 (``H5Zshuffle.c``; ``H5_checksum_fletcher32`` in ``H5checksum.c``, its sum stored after
-the data, little-endian), and deflate is the same zlib that HDF5 calls (``compress2`` at
-the file's level, as Python's ``zlib.compress``): the chunk written directly holds the
-bytes HDF5's pipeline would have written (``tests/test_compact_results.py`` compares
-them), without the pipeline's copies of each map.
+the data, little-endian), and the deflate between them writes the zlib format HDF5's
+filter inflates (ISA-L's when installed, else the same zlib that HDF5 calls, at the
+file's level): the chunk written directly decodes through HDF5's filters to the values
+its pipeline stores, and with zlib it holds the very bytes the pipeline would have
+written (``tests/test_compact_results.py`` compares both), without the pipeline's copies
+of each map.
 """
 
 from __future__ import annotations
