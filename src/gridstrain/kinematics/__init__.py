@@ -13,7 +13,9 @@
 - ``_derived``: what the strain tensor gives besides its components: the principal,
   equivalent and maximum shear strains with their std (:func:`principal_strains`) and
   the finite strains rebuilt from the displacement gradient (:func:`finite_strains`);
-- ``_spline_kernels``: the compiled cubic splines (numba), loaded on first use.
+- ``_spline_kernels``: the compiled cubic splines (numba), loaded on first use;
+- ``_bilinear_kernels``: the compiled bilinear reads of the images' content compared
+  at whole-period offsets (numba), loaded on first use.
 """
 
 from __future__ import annotations

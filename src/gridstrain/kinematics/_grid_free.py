@@ -41,6 +41,7 @@ leaves every ratio near 1: the order stays unconfirmed.
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
@@ -179,6 +180,36 @@ def _gaussian_at(a, s, q, axis):
     return out
 
 
+# The compiled bilinear reads (gridstrain.kinematics._bilinear_kernels, the "fast"
+# extra) when installed: loaded on the first comparison, never at import. False forces
+# scipy's map_coordinates (what runs without numba).
+_COMPILED = True
+
+
+@functools.cache
+def _load_kernels():
+    """The module of the compiled reads, or None when numba cannot be imported."""
+    try:
+        from . import _bilinear_kernels
+    except ImportError:
+        return None
+    return _bilinear_kernels
+
+
+def bilinear(img: np.ndarray, coords: np.ndarray) -> np.ndarray:
+    """``scipy.ndimage.map_coordinates(img, coords, order=1, mode="nearest")`` for a
+    float64 ``img`` (H, W) and ``coords`` (2, n), the same bits, by a compiled loop
+    when numba is installed."""
+    kern = _load_kernels() if _COMPILED else None
+    if kern is None or img.dtype != np.float64:
+        return ndimage.map_coordinates(img, coords, order=1, mode="nearest")
+    c = np.asarray(coords, dtype=np.float64)
+    out = np.empty(c.shape[1])
+    kern.bilinear_at(np.ascontiguousarray(img), np.ascontiguousarray(c[0]),
+                     np.ascontiguousarray(c[1]), out)
+    return out
+
+
 def decimation(lattice: Lattice) -> int:
     """Samples every ``q`` px: a pitch (the low-pass keeps 7e-3 at the new Nyquist
     frequency, and nothing the content holds above it)."""
@@ -286,8 +317,7 @@ def order_from_content(ref_gf: np.ndarray, cur_gf: np.ndarray, u: np.ndarray,
         for i0 in range(0, len(offsets), per):
             t = shifts[i0:i0 + per]
             coords = base[:, None, :] + np.einsum("abs,nb->ans", Ms, t)
-            d = ndimage.map_coordinates(cur_gf, coords.reshape(2, -1), order=1,
-                                        mode="nearest").reshape(len(t), -1)
+            d = bilinear(cur_gf, coords.reshape(2, -1)).reshape(len(t), -1)
             d -= ref
             out[i0:i0 + per] = tiles.residuals(d)
         return out

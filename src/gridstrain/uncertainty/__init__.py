@@ -10,7 +10,8 @@
   carriers, its bound and advice;
 - ``_smoothing``: the systematic error of the window's smoothing of strain gradients;
 - ``_contrast``: the bias next to a change of the grid's contrast (a stain, a shadow),
-  bounded per pixel (:func:`contrast_step_bound`);
+  bounded per pixel (:func:`contrast_step_bound`), its compiled loop in ``_kernels``
+  (numba, loaded on first use);
 - ``_nearest``: each pixel's nearest valid pixel, and fields filled from it;
 - :mod:`~gridstrain.uncertainty.floors`: the noise floors a series measurement states.
 
