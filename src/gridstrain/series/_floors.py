@@ -11,7 +11,6 @@ import numbers
 from collections.abc import Sequence
 
 import numpy as np
-from scipy import ndimage
 
 from .. import theory
 from .._progress import Finding, Progress
@@ -44,6 +43,7 @@ from ..uncertainty import (
     NoiseModel,
     aliasing_advice,
     estimate_noise_image,
+    noise_weighted,
     phase_variance,
     smoothing_bias,
     std_from_phase_variance,
@@ -300,8 +300,7 @@ class _ReferenceFloor:
         if r.stats.variance is None:
             return None
         # the weight of a pixel's noise in Psi is g^2, a Gaussian of std sigma / sqrt 2
-        return ndimage.gaussian_filter(r.stats.variance, self.sigma / math.sqrt(2),
-                                       mode="nearest", truncate=5.0)
+        return noise_weighted(r.stats.variance, self.sigma)
 
     def state(self, c: _Measured, sc: _Summary, res: Measurement, alias: dict,
               warnings: list) -> tuple:

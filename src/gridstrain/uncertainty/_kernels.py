@@ -1,0 +1,71 @@
+"""Compiled loops of the uncertainty maps (numba, the ``fast`` extra).
+
+Imported only by :func:`gridstrain.uncertainty._maps._load_kernels`, on the first
+uncertainty map that uses them, never when gridstrain is imported (numba's own import
+takes a few hundred milliseconds).
+
+:func:`gaussian_nearest` is ``scipy.ndimage.gaussian_filter(a, mode="nearest")`` of a
+float64 map with scipy's kernel: its sums in scipy's order for a symmetric kernel
+(``correlate1d``: the centre tap, then each pair of taps from the outermost in, the
+pair added before it is weighted), along the rows' axis first, each product and sum
+rounded on its own (no fused multiply-add), so that the values are the same bits
+(``tests/test_fast.py`` compares them). The loops run along contiguous rows, which LLVM
+vectorises without changing any value's arithmetic.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+try:
+    from numba import njit
+except ImportError:  # the module stays importable (its doctests are collected)
+    njit = None
+
+__all__: list[str] = []
+
+# whether the loops below are compiled; without numba they stay plain Python
+# functions, which gridstrain.uncertainty._maps never calls (it runs scipy instead)
+AVAILABLE = njit is not None
+
+# no fast-math licence at all: each product and sum rounded as scipy's C loop rounds it
+_OPTIONS = {"cache": True, "nogil": True, "error_model": "numpy", "boundscheck": False}
+_jit = njit(**_OPTIONS) if AVAILABLE else (lambda func: func)
+
+
+@_jit
+def gaussian_nearest(a, w, tmp, out):  # pragma: no cover
+    """``out`` (H, W) float64: ``a`` (H, W) float64 correlated with the symmetric
+    kernel of half ``w`` (``w[0]`` the centre tap, ``w[d]`` the two taps at distance
+    ``d``) along axis 0 into ``tmp`` (H, W), then along axis 1; the borders continued
+    by their nearest value. H and W at least 1."""
+    H, W = a.shape
+    r = w.size - 1
+    for i in range(H):
+        for j in range(W):
+            tmp[i, j] = a[i, j] * w[0]
+        for d in range(r, 0, -1):
+            up = max(i - d, 0)
+            down = min(i + d, H - 1)
+            wd = w[d]
+            for j in range(W):
+                tmp[i, j] += (a[up, j] + a[down, j]) * wd
+    # each row continued by r copies of its end values, then correlated along it;
+    # the taps read as two shifted slices of that line, so that the loop over the
+    # columns vectorises
+    line = np.empty(W + 2 * r)
+    for i in range(H):
+        src = tmp[i]
+        dst = out[i]
+        for j in range(r):
+            line[j] = src[0]
+            line[r + W + j] = src[W - 1]
+        for j in range(W):
+            line[r + j] = src[j]
+            dst[j] = src[j] * w[0]
+        for d in range(r, 0, -1):
+            wd = w[d]
+            left = line[r - d:r - d + W]
+            right = line[r + d:r + d + W]
+            for j in range(W):
+                dst[j] += (left[j] + right[j]) * wd
