@@ -19,11 +19,12 @@ from ._outliers import _saturation_warning, _Screened
 
 
 def _median_modulus(pm: PhaseMaps, valid: np.ndarray) -> np.ndarray:
-    mod = pm.modulus
     sel = valid if valid.any() else pm.valid
     if not sel.any():
         return np.full(2, np.nan)
-    return np.array([median(mod[j][sel], overwrite_input=True) for j in range(2)])
+    # the moduli of the selected pixels only (|Psi| value by value, the same numbers)
+    return np.array([median(np.abs(pm.psi[j][sel]), overwrite_input=True)
+                     for j in range(2)])
 
 
 @dataclass(frozen=True)
