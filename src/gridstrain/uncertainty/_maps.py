@@ -298,9 +298,19 @@ def phase_variance(maps: PhaseMaps, variance) -> np.ndarray:
 
 
 def std_from_phase_variance(var_ref_phase: np.ndarray, deformed: PhaseMaps, *,
-                             variance_def, valid) -> tuple[np.ndarray, np.ndarray]:
+                             variance_def, valid, medians: bool = False) -> tuple:
     """:func:`displacement_strain_std` with the reference's phase variance given
-    (:func:`phase_variance`)."""
+    (:func:`phase_variance`).
+
+    With ``medians``, also the median of each of the five maps over the ``valid``
+    pixels, ``[ux, uy, exx, eyy, exy]`` (:func:`gridstrain._stats.median`'s values):
+    ``u_std`` and the normal strains' std are non-decreasing functions of one
+    displacement variance each (its square root, and that of its product by
+    ``dg2 / g2``), so that one selection of that variance's middle values gives both
+    medians (:func:`gridstrain._stats.middle_values`). The variances are sums of
+    products of non-negative numbers (or NaN where ``Psi = 0``): no square root of a
+    negative one makes a NaN that the selection would not see.
+    """
     g2, dg2 = window_energy(deformed.sigma)
     shape = deformed.shape
     var_phase = var_ref_phase.copy()
@@ -314,17 +324,34 @@ def std_from_phase_variance(var_ref_phase: np.ndarray, deformed: PhaseMaps, *,
         # where Psi = 0 (no signal) the variance is inf, and 0 x inf NaN: invalid pixels
         var_u = np.tensordot(M2, var_phase, axes=1)  # (2, H, W), eq. (34)
     del var_phase
+    valid = np.asarray(valid, dtype=bool)
+    ratio = dg2 / g2
+    # the displacement variances' middle values over the valid pixels, before the maps
+    # are formed in place of them
+    pairs = [_stats.middle_values(var_u[i][valid], overwrite_input=True)
+             for i in range(2)] if medians else None
     # eq. (35): m = x and m = y alike; the strains' variances formed in their output
     strain_std = np.empty((3, *shape))
-    np.multiply(var_u, dg2 / g2, out=strain_std[:2])
+    np.multiply(var_u, ratio, out=strain_std[:2])
     np.add(strain_std[0], strain_std[1], out=strain_std[2])
     strain_std[2] *= 0.25
     np.sqrt(strain_std, out=strain_std)
     u_std = np.sqrt(var_u, out=var_u)
-    nan = ~np.asarray(valid, dtype=bool)
+    nan = ~valid
     np.copyto(u_std, np.nan, where=nan)
     np.copyto(strain_std, np.nan, where=nan)
-    return u_std, strain_std
+    if not medians:
+        return u_std, strain_std
+    n = int(np.count_nonzero(valid))
+
+    def mid(pair, f):  # median's arithmetic on f of the middle values
+        lower, upper = f(pair[0]), f(pair[1])
+        return float(upper) if n % 2 else float((lower + upper) / 2)
+
+    found = [mid(p, np.sqrt) for p in pairs]
+    found += [mid(p, lambda v: np.sqrt(v * ratio)) for p in pairs]
+    found.append(_stats.median(strain_std[2][valid], overwrite_input=True))
+    return u_std, strain_std, found
 
 
 @dataclass(frozen=True, eq=False)
