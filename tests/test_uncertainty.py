@@ -208,6 +208,40 @@ def test_std_maps_medians_from_one_selection_are_the_maps_medians(odd):
     assert all(np.isnan(median(m[valid])) for m in (*u, *e))
 
 
+@pytest.mark.parametrize("dtype", [np.complex128, np.complex64])
+def test_the_compiled_std_maps_are_the_numpy_paths_bits(dtype, monkeypatch):
+    """The std maps of a state by the compiled loops (gridstrain.uncertainty._kernels)
+    and by numpy, bit for bit: float64 and float32 maps, a pixel without signal
+    (Psi = 0), a NaN variance, invalid pixels; and a scalar variance (numpy's path
+    for both)."""
+    from gridstrain.uncertainty import _maps
+
+    if _maps._load_kernels() is None:
+        pytest.skip("numba is not installed")
+    lat = Lattice.from_pitch(5.0, angle=-4.0)
+    rng = np.random.default_rng(21)
+    shape = (90, 130)
+    a = synthetic.grid_image(shape, lat) + rng.normal(0, 0.02, shape)
+    b = synthetic.grid_image(shape, lat, amplitude=0.4) + rng.normal(0, 0.02, shape)
+    pa, pb = wft(a, lat), wft(b, lat)
+    psi = pb.psi.astype(dtype)
+    psi[1, 40, 50] = 0
+    pb = dataclasses.replace(pb, psi=psi)
+    v = 1e-4 * (1 + rng.random(shape))  # grey levels^2
+    v[45, 60] = np.nan
+    valid = pa.valid & pb.valid
+    var_ref = _maps.phase_variance(pa, v)
+    for variance in (v, 2e-4):
+        got = {}
+        for compiled in (False, True):
+            monkeypatch.setattr(_maps, "_COMPILED", compiled)
+            got[compiled] = _maps.std_from_phase_variance(var_ref, pb, variance_def=variance,
+                                                          valid=valid, medians=True)
+        for x, y in zip(got[False][:2], got[True][:2], strict=True):
+            assert_array_equal(x.view(np.uint64), y.view(np.uint64))
+        np.testing.assert_array_equal(got[False][2], got[True][2])
+
+
 def test_a_fitted_negative_L_is_taken_where_the_model_stands():
     """A noise fit with small read noise can give L < 0 (its interval holds zero):
     the variance map is K l + L where that is positive, and 0 below (the model is

@@ -11,6 +11,13 @@ pair added before it is weighted), along the rows' axis first, each product and 
 rounded on its own (no fused multiply-add), so that the values are the same bits
 (``tests/test_fast.py`` compares them). The loops run along contiguous rows, which LLVM
 vectorises without changing any value's arithmetic.
+
+:func:`phase_variance_sum` and :func:`std_from_variance` are the two halves of
+:func:`gridstrain.uncertainty.std_from_phase_variance` around its product by the
+lattice's matrix (BLAS's, left to numpy): one pass each over the maps where numpy makes
+about ten, with the same operations on each value in the same order, the same bits
+(``tests/test_uncertainty.py`` compares both paths). The moduli ``|Psi|`` come from
+numpy (its complex modulus is not libm's ``hypot``, which numba's would be).
 """
 
 from __future__ import annotations
@@ -69,3 +76,40 @@ def gaussian_nearest(a, w, tmp, out):  # pragma: no cover
             right = line[r + d:r + d + W]
             for j in range(W):
                 dst[j] += (left[j] + right[j]) * wd
+
+
+@_jit
+def phase_variance_sum(var_ref, variance, mod, half_g2, out):  # pragma: no cover
+    """``out`` (2, n): ``var_ref`` (2, n) plus each wave vector's phase variance of the
+    deformed maps, ``variance * half_g2 / mod**2`` (``mod`` (2, n) the moduli
+    ``|Psi|``, ``variance`` (n,) the sensor's), each operation rounded as numpy
+    rounds it in :func:`gridstrain.uncertainty.std_from_phase_variance`."""
+    n = variance.size
+    for j in range(2):
+        r = var_ref[j]
+        m = mod[j]
+        o = out[j]
+        for i in range(n):
+            mi = m[i]
+            o[i] = r[i] + (variance[i] * half_g2) / (mi * mi)
+
+
+@_jit
+def std_from_variance(var_u, valid, ratio, u_std, strain_std):  # pragma: no cover
+    """``u_std`` (2, n) and ``strain_std`` (3, n) from the displacement variances
+    ``var_u`` (2, n), NaN off ``valid`` (n,): ``sqrt(var_u)``, ``sqrt(var_u ratio)``
+    and ``sqrt((var_u[0] ratio + var_u[1] ratio) / 4)`` (eq. 35)."""
+    n = valid.size
+    for i in range(n):
+        v0 = var_u[0, i]
+        v1 = var_u[1, i]
+        s0 = v0 * ratio
+        s1 = v1 * ratio
+        s2 = (s0 + s1) * 0.25
+        # every value computed, then chosen: no branch, the loop vectorises
+        ok = valid[i]
+        u_std[0, i] = np.sqrt(v0) if ok else np.nan
+        u_std[1, i] = np.sqrt(v1) if ok else np.nan
+        strain_std[0, i] = np.sqrt(s0) if ok else np.nan
+        strain_std[1, i] = np.sqrt(s1) if ok else np.nan
+        strain_std[2, i] = np.sqrt(s2) if ok else np.nan

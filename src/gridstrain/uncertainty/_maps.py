@@ -89,6 +89,12 @@ def _half_kernel(sd: float) -> np.ndarray:
     return half
 
 
+def _rows(a: np.ndarray, n: int) -> np.ndarray:
+    """``a`` as ``n`` contiguous float64 (or bool) rows of its pixels, for the compiled
+    loops (a view when it is one already)."""
+    return np.ascontiguousarray(a).reshape(n, -1)
+
+
 def noise_weighted(values, sigma: float) -> np.ndarray:
     """``values`` (H, W) averaged with the weight each pixel's noise has in ``Psi``:
     ``g^2``, a Gaussian of std ``sigma / sqrt 2`` (truncated at 5 of its stds, the
@@ -313,13 +319,24 @@ def std_from_phase_variance(var_ref_phase: np.ndarray, deformed: PhaseMaps, *,
     """
     g2, dg2 = window_energy(deformed.sigma)
     shape = deformed.shape
-    var_phase = var_ref_phase.copy()
+    kern = _kernels()
+    variance_def = np.asarray(variance_def, dtype=np.float64)
+    if kern is not None and variance_def.shape != shape:
+        kern = None  # a scalar variance: numpy's broadcasting
     with np.errstate(divide="ignore", invalid="ignore"):
-        vg = np.asarray(variance_def, dtype=np.float64) * (g2 / 2)
-        for j in range(2):
-            m2 = np.abs(deformed.psi[j]).astype(np.float64, copy=False)
-            m2 *= m2
-            var_phase[j] += vg / m2
+        if kern is not None:  # one pass, the same operations (_kernels)
+            var_phase = np.empty((2, *shape))
+            mod = np.abs(deformed.psi).astype(np.float64, copy=False)
+            kern.phase_variance_sum(_rows(var_ref_phase, 2), _rows(variance_def, 1)[0],
+                                    _rows(mod, 2), g2 / 2, var_phase.reshape(2, -1))
+            del mod
+        else:
+            var_phase = var_ref_phase.copy()
+            vg = variance_def * (g2 / 2)
+            for j in range(2):
+                m2 = np.abs(deformed.psi[j]).astype(np.float64, copy=False)
+                m2 *= m2
+                var_phase[j] += vg / m2
         M2 = (np.linalg.inv(deformed.lattice.K) / (2 * np.pi)) ** 2
         # where Psi = 0 (no signal) the variance is inf, and 0 x inf NaN: invalid pixels
         var_u = np.tensordot(M2, var_phase, axes=1)  # (2, H, W), eq. (34)
@@ -332,14 +349,20 @@ def std_from_phase_variance(var_ref_phase: np.ndarray, deformed: PhaseMaps, *,
              for i in range(2)] if medians else None
     # eq. (35): m = x and m = y alike; the strains' variances formed in their output
     strain_std = np.empty((3, *shape))
-    np.multiply(var_u, ratio, out=strain_std[:2])
-    np.add(strain_std[0], strain_std[1], out=strain_std[2])
-    strain_std[2] *= 0.25
-    np.sqrt(strain_std, out=strain_std)
-    u_std = np.sqrt(var_u, out=var_u)
-    nan = ~valid
-    np.copyto(u_std, np.nan, where=nan)
-    np.copyto(strain_std, np.nan, where=nan)
+    if kern is not None:  # one pass, the same operations (_kernels)
+        # u_std in a map of its own: outputs apart from the inputs vectorise
+        u_std = np.empty((2, *shape))
+        kern.std_from_variance(_rows(var_u, 2), _rows(valid, 1)[0], ratio,
+                               u_std.reshape(2, -1), strain_std.reshape(3, -1))
+    else:
+        np.multiply(var_u, ratio, out=strain_std[:2])
+        np.add(strain_std[0], strain_std[1], out=strain_std[2])
+        strain_std[2] *= 0.25
+        np.sqrt(strain_std, out=strain_std)
+        u_std = np.sqrt(var_u, out=var_u)
+        nan = ~valid
+        np.copyto(u_std, np.nan, where=nan)
+        np.copyto(strain_std, np.nan, where=nan)
     if not medians:
         return u_std, strain_std
     n = int(np.count_nonzero(valid))
