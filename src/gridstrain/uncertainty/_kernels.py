@@ -113,3 +113,39 @@ def std_from_variance(var_u, valid, ratio, u_std, strain_std):  # pragma: no cov
         strain_std[0, i] = np.sqrt(s0) if ok else np.nan
         strain_std[1, i] = np.sqrt(s1) if ok else np.nan
         strain_std[2, i] = np.sqrt(s2) if ok else np.nan
+
+
+@_jit
+def bilinear_nearest(g, ay, ax, out):  # pragma: no cover
+    """``out`` (n,): ``g`` (H, W) float64 interpolated linearly at the points ``(ay,
+    ax)`` (n,) (rows, columns), the indices beyond the map taken at its
+    nearest row or column: ``scipy.ndimage.map_coordinates(g, (ay, ax), order=1,
+    mode="nearest")`` with scipy's arithmetic (the weights ``1 - t`` and ``1 - (1 -
+    t)``, each corner's value times its row's weight then its column's, summed from
+    zero in C order). False, and nothing done, when a point is not finite."""
+    H, W = g.shape
+    for i in range(ay.size):
+        if not (np.isfinite(ay[i]) and np.isfinite(ax[i])):
+            return False
+    for i in range(ay.size):
+        y = ay[i]
+        x = ax[i]
+        fy = np.floor(y)
+        fx = np.floor(x)
+        wy0 = 1.0 - (y - fy)
+        wx0 = 1.0 - (x - fx)
+        wy1 = 1.0 - wy0
+        wx1 = 1.0 - wx0
+        iy = int(fy)
+        ix = int(fx)
+        r0 = min(max(iy, 0), H - 1)
+        r1 = min(max(iy + 1, 0), H - 1)
+        c0 = min(max(ix, 0), W - 1)
+        c1 = min(max(ix + 1, 0), W - 1)
+        t = 0.0
+        t += g[r0, c0] * wy0 * wx0
+        t += g[r0, c1] * wy0 * wx1
+        t += g[r1, c0] * wy1 * wx0
+        t += g[r1, c1] * wy1 * wx1
+        out[i] = t
+    return True
