@@ -161,8 +161,9 @@ def test_displacement_strain_std_is_predict_uncertainty_without_its_phase_maps()
     assert_allclose(e[:, valid], full.strain_std[:, valid], rtol=1e-14)
 
 
+@pytest.mark.parametrize("hole", [False, True])
 @pytest.mark.parametrize("odd", [False, True])
-def test_std_maps_medians_from_one_selection_are_the_maps_medians(odd):
+def test_std_maps_medians_from_one_selection_are_the_maps_medians(odd, hole):
     """The floors of a state: the medians of its five std maps over its valid pixels,
     the displacement's and the normal strains' from one selection of each displacement
     variance (non-decreasing functions of it), the same values as the medians of the
@@ -180,7 +181,9 @@ def test_std_maps_medians_from_one_selection_are_the_maps_medians(odd):
     b = synthetic.grid_image(shape, lat, amplitude=0.3) + rng.normal(0, 0.02, shape)
     pa, pb = wft(a, lat), wft(b, lat)
     v = 1e-4 * (1 + rng.random(shape))  # grey levels^2
-    valid = pa.valid & pb.valid
+    valid = pa.valid & pb.valid  # a box (sliced), or with a hole (gathered)
+    if hole:
+        valid[60:70, 80:95] = False
     if bool(valid.sum() % 2) != odd:  # one pixel more or less
         valid[100, 100] = not valid[100, 100]
     assert bool(valid.sum() % 2) == odd
@@ -188,7 +191,7 @@ def test_std_maps_medians_from_one_selection_are_the_maps_medians(odd):
     u, e, found = std_from_phase_variance(var_ref, pb, variance_def=v, valid=valid,
                                           medians=True)
     u2, e2 = std_from_phase_variance(var_ref, pb, variance_def=v, valid=valid)
-    assert_array_equal(u, u2)
+    assert_array_equal(u, u2)  # the maps untouched by the medians' selections
     assert_array_equal(e, e2)
     want = [median(m[valid]) for m in (*u, *e)]
     assert found == want  # bit for bit

@@ -29,7 +29,7 @@ from .._validation import (
     check_same_shape,
     check_type,
 )
-from ..phase import PhaseMaps
+from ..phase import PhaseMaps, filled_box
 from ..theory import window_energy
 
 __all__ = ["NoiseFloor", "Uncertainty", "displacement_strain_std", "metrology", "noise_floor",
@@ -343,10 +343,21 @@ def std_from_phase_variance(var_ref_phase: np.ndarray, deformed: PhaseMaps, *,
     del var_phase
     valid = np.asarray(valid, dtype=bool)
     ratio = dg2 / g2
-    # the displacement variances' middle values over the valid pixels, before the maps
-    # are formed in place of them
-    pairs = [_stats.middle_values(var_u[i][valid], overwrite_input=True)
-             for i in range(2)] if medians else None
+    # the displacement variances' middle values over the valid pixels: the box they
+    # fill (a view, not to be sorted in place), else their gather
+    box = filled_box(valid) if medians else None
+
+    def at_valid(a):
+        """``(values, whether they may be sorted in place)``"""
+        if box is None:
+            return a[valid], True
+        r0, r1, c0, c1 = box
+        return a[r0:r1, c0:c1], False
+
+    pairs = []
+    for i in range(2 if medians else 0):
+        values, own = at_valid(var_u[i])
+        pairs.append(_stats.middle_values(values, overwrite_input=own))
     # eq. (35): m = x and m = y alike; the strains' variances formed in their output
     strain_std = np.empty((3, *shape))
     if kern is not None:  # one pass, the same operations (_kernels)
@@ -373,7 +384,8 @@ def std_from_phase_variance(var_ref_phase: np.ndarray, deformed: PhaseMaps, *,
 
     found = [mid(p, np.sqrt) for p in pairs]
     found += [mid(p, lambda v: np.sqrt(v * ratio)) for p in pairs]
-    found.append(_stats.median(strain_std[2][valid], overwrite_input=True))
+    values, own = at_valid(strain_std[2])
+    found.append(_stats.median(values, overwrite_input=own))
     return u_std, strain_std, found
 
 
