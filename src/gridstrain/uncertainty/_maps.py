@@ -321,8 +321,9 @@ def std_from_phase_variance(var_ref_phase: np.ndarray, deformed: PhaseMaps, *,
     shape = deformed.shape
     kern = _kernels()
     variance_def = np.asarray(variance_def, dtype=np.float64)
-    if kern is not None and variance_def.shape != shape:
-        kern = None  # a scalar variance: numpy's broadcasting
+    if kern is not None and (variance_def.shape != shape
+                             or np.asarray(var_ref_phase).dtype != np.float64):
+        kern = None  # a scalar variance (numpy's broadcasting), or another precision
     with np.errstate(divide="ignore", invalid="ignore"):
         if kern is not None:  # one pass, the same operations (_kernels)
             var_phase = np.empty((2, *shape))
