@@ -10,6 +10,8 @@ lower half instead. Most of them are of a boolean-mask gather, a fresh array tha
 ``_BRACKET_MIN`` values on, the two middle values are selected among the few values
 that a sorted subsample brackets them with (:func:`_middle_pair`), read in three
 passes over the data instead of a partial sort of all of it: the same two values.
+:func:`middle_values` gives those two values themselves, for the medians of several
+maps that are non-decreasing functions of one (the uncertainty floors).
 :func:`row_medians` does the same along the rows of a table.
 """
 
