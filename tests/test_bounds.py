@@ -264,3 +264,32 @@ def test_the_edge_fit_moments_at_the_band_are_the_whole_map_filters(kind):
         want = ndimage.correlate1d(rows, fit.g * fit.t**b, axis=0, mode="constant")[fit.band]
         np.testing.assert_allclose(got[a, b], want, rtol=0,
                                    atol=1e-14 * np.max(np.abs(want)))
+
+
+def test_the_edge_fit_of_a_valid_region_seen_before_is_the_one_solved_then():
+    # the states of a record share their valid region: its edge fit's normal equations
+    # are solved once and kept; the smoothing records are the same as solved afresh,
+    # and another region (another window, another mask) is solved for itself
+    from gridstrain.uncertainty import _smoothing
+
+    rng = np.random.default_rng(8)
+    H, W = 120, 150
+    yy, xx = np.mgrid[0:H, 0:W]
+    v = np.zeros((H, W), bool)
+    v[6:-6, 9:-9] = True
+    v[(yy - 60) ** 2 + (xx - 70) ** 2 < 15**2] = False
+    e = np.stack([1e-3 * np.exp(-((xx - 40.0) ** 2 + (yy - 50.0) ** 2) / (2 * 4.0**2))
+                  + 1e-5 * rng.standard_normal((H, W)) for _ in range(3)])
+    e[:, ~v] = np.nan
+    other = v.copy()
+    other[:, :20] = False
+    for valid, sigma in ((v, 5.0), (v, 4.0), (other, 5.0)):
+        _smoothing._LAST_FIT[0] = None
+        fresh = smoothing_bias(e, valid, sigma=sigma)
+        kept = smoothing_bias(e, valid, sigma=sigma)  # from the kept fit
+        assert kept == fresh
+    # a region after another: solved again, the same as afresh
+    smoothing_bias(e, v, sigma=5.0)
+    after = smoothing_bias(e, other, sigma=5.0)
+    _smoothing._LAST_FIT[0] = None
+    assert after == smoothing_bias(e, other, sigma=5.0)

@@ -261,6 +261,36 @@ def test_median_of_integers_is_numpy_median():
     assert _median(np.array([3, -7, 5], dtype=np.int32)) == 3.0
 
 
+@pytest.mark.parametrize("compiled", [False, True])
+@pytest.mark.parametrize(("shape", "sigma"), [((250, 400), 5.0), ((64, 65), 1.4),
+                                              ((7, 5), 9.0), ((1, 30), 3.0), ((30, 1), 3.0),
+                                              ((40, 50), 28.0)])
+def test_noise_weighted_mean_is_scipys_gaussian_filter(shape, sigma, compiled, monkeypatch):
+    """The g^2-weighted mean of the uncertainty maps: scipy's gaussian_filter bit for
+    bit, compiled or not; with lines shorter than the kernel (the nearest value
+    repeated), grey levels of every scale, and NaN and inf spreading as scipy's."""
+    from gridstrain.uncertainty import _maps
+
+    if compiled and _maps._load_kernels() is None:
+        pytest.skip("numba is not installed")
+    monkeypatch.setattr(_maps, "_COMPILED", compiled)
+    rng = np.random.default_rng(shape[0] * 100 + shape[1])
+    values = rng.normal(size=shape) * 10.0 ** rng.uniform(-3, 4, size=shape) + 1e3
+    sd = sigma / math.sqrt(2)
+    want = ndimage.gaussian_filter(values, sd, mode="nearest", truncate=5.0)
+    got = _maps.noise_weighted(values, sigma)
+    assert got.dtype == np.float64
+    np.testing.assert_array_equal(got.view(np.uint64), want.view(np.uint64))
+    values[shape[0] // 2, shape[1] // 3] = np.nan
+    values[0, -1] = np.inf
+    want = ndimage.gaussian_filter(values, sd, mode="nearest", truncate=5.0)
+    np.testing.assert_array_equal(_maps.noise_weighted(values, sigma), want)
+    view = rng.normal(size=(shape[0] + 4, shape[1] + 6))[2:-2, 3:-3]  # not contiguous
+    np.testing.assert_array_equal(_maps.noise_weighted(view, sigma),
+                                  ndimage.gaussian_filter(view, sd, mode="nearest",
+                                                          truncate=5.0))
+
+
 @pytest.mark.parametrize(("ny", "nx", "r0", "nr", "c0", "nc"),
                          [(12, 16, 10, 5, 13, 6), (9, 10, 0, 9, 0, 10), (12, 15, 3, 4, 2, 4)])
 def test_spectrum_block_is_the_full_dft_block(ny, nx, r0, nr, c0, nc):

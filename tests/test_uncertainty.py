@@ -1,5 +1,7 @@
 """Uncertainty maps against the empirical scatter over repeated synthetic stacks."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 from numpy.testing import assert_allclose, assert_array_equal
@@ -157,6 +159,90 @@ def test_displacement_strain_std_is_predict_uncertainty_without_its_phase_maps()
     # the same sums in another order: a few ulps
     assert_allclose(u[:, valid], full.u_std[:, valid], rtol=1e-14)
     assert_allclose(e[:, valid], full.strain_std[:, valid], rtol=1e-14)
+
+
+@pytest.mark.parametrize("hole", [False, True])
+@pytest.mark.parametrize("odd", [False, True])
+def test_std_maps_medians_from_one_selection_are_the_maps_medians(odd, hole):
+    """The floors of a state: the medians of its five std maps over its valid pixels,
+    the displacement's and the normal strains' from one selection of each displacement
+    variance (non-decreasing functions of it), the same values as the medians of the
+    maps themselves; over an odd and an even count of valid pixels (the mean of two
+    middle values), large enough to be bracketed; a pixel without signal (Psi = 0: an
+    infinite variance) and a NaN variance, which makes every median NaN as it makes
+    the maps'."""
+    from gridstrain._stats import median
+    from gridstrain.uncertainty import phase_variance, std_from_phase_variance
+
+    lat = Lattice.from_pitch(5.0, angle=7.0)
+    rng = np.random.default_rng(12)
+    shape = (200, 260)
+    a = synthetic.grid_image(shape, lat) + rng.normal(0, 0.02, shape)
+    b = synthetic.grid_image(shape, lat, amplitude=0.3) + rng.normal(0, 0.02, shape)
+    pa, pb = wft(a, lat), wft(b, lat)
+    v = 1e-4 * (1 + rng.random(shape))  # grey levels^2
+    valid = pa.valid & pb.valid  # a box (sliced), or with a hole (gathered)
+    if hole:
+        valid[60:70, 80:95] = False
+    if bool(valid.sum() % 2) != odd:  # one pixel more or less
+        valid[100, 100] = not valid[100, 100]
+    assert bool(valid.sum() % 2) == odd
+    var_ref = phase_variance(pa, v)
+    u, e, found = std_from_phase_variance(var_ref, pb, variance_def=v, valid=valid,
+                                          medians=True)
+    u2, e2 = std_from_phase_variance(var_ref, pb, variance_def=v, valid=valid)
+    assert_array_equal(u, u2)  # the maps untouched by the medians' selections
+    assert_array_equal(e, e2)
+    want = [median(m[valid]) for m in (*u, *e)]
+    assert found == want  # bit for bit
+    # no signal at a valid pixel: an infinite variance there, the medians unmoved
+    i, j = np.argwhere(valid)[7]
+    psi = pb.psi.copy()
+    psi[0][i, j] = 0
+    pz = dataclasses.replace(pb, psi=psi)
+    u, e, found = std_from_phase_variance(var_ref, pz, variance_def=v, valid=valid,
+                                          medians=True)
+    assert found == [median(m[valid]) for m in (*u, *e)]
+    # a NaN variance at a valid pixel: every median NaN, as the maps'
+    v[i, j] = np.nan
+    u, e, found = std_from_phase_variance(var_ref, pb, variance_def=v, valid=valid,
+                                          medians=True)
+    assert all(np.isnan(f) for f in found)
+    assert all(np.isnan(median(m[valid])) for m in (*u, *e))
+
+
+@pytest.mark.parametrize("dtype", [np.complex128, np.complex64])
+def test_the_compiled_std_maps_are_the_numpy_paths_bits(dtype, monkeypatch):
+    """The std maps of a state by the compiled loops (gridstrain.uncertainty._kernels)
+    and by numpy, bit for bit: float64 and float32 maps, a pixel without signal
+    (Psi = 0), a NaN variance, invalid pixels; and a scalar variance (numpy's path
+    for both)."""
+    from gridstrain.uncertainty import _maps
+
+    if _maps._load_kernels() is None:
+        pytest.skip("numba is not installed")
+    lat = Lattice.from_pitch(5.0, angle=-4.0)
+    rng = np.random.default_rng(21)
+    shape = (90, 130)
+    a = synthetic.grid_image(shape, lat) + rng.normal(0, 0.02, shape)
+    b = synthetic.grid_image(shape, lat, amplitude=0.4) + rng.normal(0, 0.02, shape)
+    pa, pb = wft(a, lat), wft(b, lat)
+    psi = pb.psi.astype(dtype)
+    psi[1, 40, 50] = 0
+    pb = dataclasses.replace(pb, psi=psi)
+    v = 1e-4 * (1 + rng.random(shape))  # grey levels^2
+    v[45, 60] = np.nan
+    valid = pa.valid & pb.valid
+    var_ref = _maps.phase_variance(pa, v)
+    for variance in (v, 2e-4):
+        got = {}
+        for compiled in (False, True):
+            monkeypatch.setattr(_maps, "_COMPILED", compiled)
+            got[compiled] = _maps.std_from_phase_variance(var_ref, pb, variance_def=variance,
+                                                          valid=valid, medians=True)
+        for x, y in zip(got[False][:2], got[True][:2], strict=True):
+            assert_array_equal(x.view(np.uint64), y.view(np.uint64))
+        np.testing.assert_array_equal(got[False][2], got[True][2])
 
 
 def test_a_fitted_negative_L_is_taken_where_the_model_stands():

@@ -13,6 +13,7 @@ import numpy as np
 from scipy import fft as sfft
 from scipy import ndimage
 
+from .._stats import median
 from .._validation import as_image, as_pair, check_finite, check_mask, check_positive, check_type
 
 __all__ = ["Lattice", "detect_lattice", "follow_lattice"]
@@ -168,6 +169,15 @@ class Lattice:
         return (f"Lattice(k1=({self.k1[0]:.6g}, {self.k1[1]:.6g}), "
                 f"k2=({self.k2[0]:.6g}, {self.k2[1]:.6g}); pitches {p1:.5g}/{p2:.5g} px, "
                 f"angles {a1:.4g}/{a2:.4g} deg)")
+
+
+@functools.lru_cache(maxsize=4)
+def _hann_2d(h: int, w: int) -> np.ndarray:
+    """The 2-D Hann window of an ``h x w`` crop (read-only): the same for every state
+    of a record."""
+    out = np.outer(_window(h), _window(w))
+    out.flags.writeable = False
+    return out
 
 
 def _window(n: int) -> np.ndarray:
@@ -396,11 +406,14 @@ def _windowed_crop(img, m):
     r0, c0 = (H - h) // 2, (W - w) // 2
     sub = img[r0:r0 + h, c0:c0 + w].astype(np.float64)
     msub = m[r0:r0 + h, c0:c0 + w]
-    if not msub.any():
-        raise ValueError("mask selects no pixel in the central part of the image used to "
-                         "detect the lattice; pass the lattice explicitly")
-    mean = float(sub[msub].mean())
-    data = np.where(msub, sub - mean, 0.0) * np.outer(_window(h), _window(w))
+    if msub.all():  # no pixel masked (a state's frame): the crop itself, not a gather
+        sub -= float(sub.mean())
+    else:
+        if not msub.any():
+            raise ValueError("mask selects no pixel in the central part of the image used "
+                             "to detect the lattice; pass the lattice explicitly")
+        sub = np.where(msub, sub - float(sub[msub].mean()), 0.0)
+    data = sub * _hann_2d(h, w)
     if not np.any(data):
         raise ValueError("image is uniform over the mask: no grid to detect")
     return data, r0, c0
@@ -478,7 +491,7 @@ def _prominence(spec: np.ndarray, fr: np.ndarray, iy: int, ix: int, n: int) -> f
     cols = np.flatnonzero(fr[0, :] <= r + 2 * tol)
     sub = np.ix_(rows, cols)
     sel = np.abs(fr[sub] - r) <= tol
-    bg = float(np.median(spec[sub][sel]))
+    bg = median(spec[sub][sel], overwrite_input=True)  # np.median's value
     return float(spec[iy, ix]) / bg if bg > 0 else np.inf
 
 
@@ -490,11 +503,14 @@ def _dtft_taylor(data, k, x, y):
     ``y^n cos``, ``y^n sin`` (n = 0, 1, 2) with the data, then dot products along x.
     """
     ty = 2 * np.pi * k[1] * y
-    rows = np.stack([y**n * f(ty) for n in range(3) for f in (np.cos, np.sin)]) @ data
+    cos, sin = np.cos(ty), np.sin(ty)
+    y2 = y**2
+    rows = np.stack([cos, sin, y * cos, y * sin, y2 * cos, y2 * sin]) @ data
     R = rows[0::2] - 1j * rows[1::2]  # R[n] = sum_y y^n exp(-2 i pi ky y) data
     ex = np.exp(-2j * np.pi * k[0] * x)
     # S[a, b] = sum x^a y^b w v exp(-2 i pi k.x)
-    S = {(a, b): (R[b] * x**a) @ ex for a in range(3) for b in range(3 - a)}
+    xa = (None, x, x**2)
+    S = {(a, b): (R[b] * xa[a] if a else R[b]) @ ex for a in range(3) for b in range(3 - a)}
     c = -2j * np.pi
     F = S[0, 0]
     dF = np.array([c * S[1, 0], c * S[0, 1]])

@@ -11,7 +11,6 @@ import numbers
 from collections.abc import Sequence
 
 import numpy as np
-from scipy import ndimage
 
 from .. import theory
 from .._progress import Finding, Progress
@@ -44,6 +43,7 @@ from ..uncertainty import (
     NoiseModel,
     aliasing_advice,
     estimate_noise_image,
+    noise_weighted,
     phase_variance,
     smoothing_bias,
     std_from_phase_variance,
@@ -300,8 +300,7 @@ class _ReferenceFloor:
         if r.stats.variance is None:
             return None
         # the weight of a pixel's noise in Psi is g^2, a Gaussian of std sigma / sqrt 2
-        return ndimage.gaussian_filter(r.stats.variance, self.sigma / math.sqrt(2),
-                                       mode="nearest", truncate=5.0)
+        return noise_weighted(r.stats.variance, self.sigma)
 
     def state(self, c: _Measured, sc: _Summary, res: Measurement, alias: dict,
               warnings: list) -> tuple:
@@ -318,17 +317,19 @@ class _ReferenceFloor:
             vib_u = theory.displacement_noise_std(offs[0], offs[1], self.lattice)
         row = {"theory_u": th_u, "theory_strain": th_e, "split_u": self.su * scale,
                "split_strain": self.se * scale, "vibration_u": vib_u}
-        unc = self._uncertainty(c, res)
+        unc, medians = self._uncertainty(c, res)
         if ref.kept_flagged or sc.kept_flagged:
             # frames flagged but kept: the precision of this state is not known
             row = {k: np.full_like(np.asarray(v, dtype=float), np.nan) for k, v in row.items()}
             if unc is not None:
                 unc = {k: np.full_like(v, np.nan) for k, v in unc.items()}
+                medians = None
         for k, v in row.items():
             self.rows[k].append(np.asarray(v, dtype=float))
         if unc is not None and res.valid.any():
             floors = {k.removesuffix("_std"): median(a[res.valid], overwrite_input=True)
-                      for k, a in unc.items()}
+                      for k, a in unc.items()} if medians is None else \
+                dict(zip(("ux", "uy", "exx", "eyy", "exy"), medians, strict=True))
         else:
             floors = {"ux": float(row["theory_u"][0]), "uy": float(row["theory_u"][1]),
                       "exx": float(row["theory_strain"][0]),
@@ -364,25 +365,31 @@ class _ReferenceFloor:
                 "definition": f"not computed: {why}", "computed": False}
 
     def _uncertainty(self, c: _Measured, res: Measurement):
+        """``(maps, medians)``: the state's uncertainty maps (None without a noise
+        variance) and their medians over its valid pixels, ``[ux, uy, exx, eyy,
+        exy]`` (None where the maps are not those :func:`std_from_phase_variance`
+        gives: scaled up to the edges)."""
         local = self._local(c)
         # a single-frame series is taken as noisy per frame as the other one
         v_ref = self.local_ref if self.local_ref is not None else local
         v_def = local if local is not None else self.local_ref
         if v_ref is None:
-            return None
+            return None, None
         if self.local_ref is None:
             var_ref = phase_variance(self.r.maps, v_ref / self.sr.T)
         else:  # the reference's side, the same for every state: made once
             if self.var_ref_phase is None:
                 self.var_ref_phase = phase_variance(self.r.maps, v_ref / self.sr.T)
             var_ref = self.var_ref_phase
-        u_std, strain_std = std_from_phase_variance(
-            var_ref, c.maps, variance_def=v_def / c.series.n_frames, valid=res.valid)
+        u_std, strain_std, *medians = std_from_phase_variance(
+            var_ref, c.maps, variance_def=v_def / c.series.n_frames, valid=res.valid,
+            medians=self.edge_gain is None)
         if self.edge_gain is not None:
             u_std *= self.edge_gain[0]
             strain_std *= self.edge_gain[1]
         names = ("ux_std", "uy_std", "exx_std", "eyy_std", "exy_std")
-        return dict(zip(names, (*u_std, *strain_std), strict=True))
+        return dict(zip(names, (*u_std, *strain_std), strict=True)), \
+            (medians[0] if medians else None)
 
     def noise_floor(self, done: list, model_info: dict) -> NoiseFloor:
         n = len(done) - 1

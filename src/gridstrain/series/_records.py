@@ -12,18 +12,22 @@ from dataclasses import dataclass
 import numpy as np
 
 from .._stats import median
-from ..phase import PhaseMaps
+from ..phase import PhaseMaps, filled_box
 from ..stacks.screening import FrameScreen
 from ..stacks.vibration import VibrationReport
 from ._outliers import _saturation_warning, _Screened
 
 
 def _median_modulus(pm: PhaseMaps, valid: np.ndarray) -> np.ndarray:
-    mod = pm.modulus
     sel = valid if valid.any() else pm.valid
     if not sel.any():
         return np.full(2, np.nan)
-    return np.array([median(mod[j][sel], overwrite_input=True) for j in range(2)])
+    # the moduli of the selected pixels only (|Psi| value by value, the same numbers):
+    # the box they fill sliced, else gathered
+    box = filled_box(sel)
+    at = sel if box is None else np.s_[box[0]:box[1], box[2]:box[3]]
+    return np.array([median(np.abs(pm.psi[j][at]), overwrite_input=True)
+                     for j in range(2)])
 
 
 @dataclass(frozen=True)

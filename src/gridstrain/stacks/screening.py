@@ -480,6 +480,15 @@ class FrameProbe:
         self._count = None if mask is None or np.all(mask) else np.asarray(mask, dtype=bool)
         self.carrier = CarrierProbe(lattice, self.shape)
         self.tiles = _tiles(self.shape, lattice)
+        # a probe's sums are in its block's own coordinates: the blocks of one size
+        # share theirs (the 16 tiles of a frame come in one to four sizes)
+        probes = {self.shape: self.carrier}
+
+        def probe(h: int, w: int) -> CarrierProbe:
+            if (h, w) not in probes:
+                probes[h, w] = CarrierProbe(lattice, (h, w))
+            return probes[h, w]
+
         # One product per column of tiles, of the frame's columns there with a (w, 10)
         # matrix: the whole frame's x sums over those columns (summed over the blocks
         # afterwards) and the tiles'. The frame is read once, and each pixel meets 10
@@ -488,7 +497,7 @@ class FrameProbe:
         right = self.carrier._right
         self._blocks = [] if cols else [(slice(None), right)]
         for x0, x1 in cols:
-            tp = CarrierProbe(lattice, (self.shape[0], x1 - x0))
+            tp = probe(self.shape[0], x1 - x0)
             self._blocks.append((slice(x0, x1),
                                  np.ascontiguousarray(np.hstack([right[x0:x1], tp._right]))))
         # per column of tiles, the y sums of every tile of the column at once: each
@@ -502,7 +511,7 @@ class FrameProbe:
             dc = np.empty((len(col), 2), dtype=np.complex128)
             wsum = np.empty(len(col))
             for n, (_, ys) in enumerate(col):
-                tp = CarrierProbe(lattice, (ys.stop - ys.start, x1 - x0))
+                tp = probe(ys.stop - ys.start, x1 - x0)
                 wy[ys, n], ey[ys, n] = tp._wy, tp._ey
                 dc[n], wsum[n] = tp._dc, tp._wsum
             self._ysums.append(([i for i, _ in col], wy, ey, dc, wsum))

@@ -36,6 +36,7 @@ from ._maps import (
     noise_variance_map,
     predict_uncertainty,
 )
+from ._maps import noise_weighted as noise_weighted
 from ._maps import phase_variance as phase_variance
 from ._maps import std_from_phase_variance as std_from_phase_variance
 from ._nearest import nearest_filled as nearest_filled

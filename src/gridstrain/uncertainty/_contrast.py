@@ -19,7 +19,6 @@ A hole's edge moving with the specimen (0.3 to 3.4 px) gives a bound of 0.001 to
 
 from __future__ import annotations
 
-import functools
 import math
 from collections.abc import Mapping
 
@@ -29,6 +28,7 @@ from scipy import ndimage
 from .._progress import Finding
 from .._runtime.threads import map_leaves
 from .._validation import check_positive, check_workers
+from ._maps import _load_kernels
 
 __all__ = ["CONTRAST_STEP_PX", "contrast_step_bound", "contrast_step_findings"]
 
@@ -49,18 +49,11 @@ _COMPILED = True
 _KERNEL_ROWS = 64
 
 
-@functools.cache
-def _load_kernels():
-    """The module of the compiled loop, or None when numba cannot be imported."""
-    try:
-        from . import _kernels
-    except ImportError:
-        return None
-    return _kernels
-
-
 def _kernel():
+    """The compiled loops (:func:`gridstrain.uncertainty._maps._load_kernels`), unless
+    switched off."""
     return _load_kernels() if _COMPILED else None
+
 
 # A contrast step's bound is stated where it exceeds this many times the pixel's
 # displacement noise std |(std u_x, std u_y)|: on grids of uniform contrast the bound
@@ -117,7 +110,10 @@ def _steepest_change(s: np.ndarray, r: np.ndarray, d: np.ndarray, u: np.ndarray,
     gd = _log_gradient(d)
     kern = _kernel()
     if kern is not None:  # weights once per point, and no temporaries
+        # C-ordered arrays only: one compiled signature, whatever views are given
         uu = np.ascontiguousarray(u, dtype=np.float64)
+        v = np.ascontiguousarray(v)
+        gr, gd = ([np.ascontiguousarray(g) for g in pair] for pair in (gr, gd))
         blocks = [(i, min(i + _KERNEL_ROWS, H)) for i in range(0, H, _KERNEL_ROWS)]
         map_leaves(lambda b: kern.steepest_change(s, *gr, *gd, uu, v, *b), blocks,
                    max(min(check_workers(None), len(blocks)), 1))

@@ -1,36 +1,137 @@
-"""Compiled loop of the contrast step's bound (numba, the ``fast`` extra).
+"""Compiled loops of the uncertainty maps (numba, the ``fast`` extra).
 
-Imported only by :mod:`gridstrain.uncertainty._contrast`, on the first bound, never
-when gridstrain is imported (numba's import and its cached machine code cost a
-fresh process about 0.4 s of CPU, shared with every other compiled loop).
+Imported only by :func:`gridstrain.uncertainty._maps._load_kernels`, on the first
+uncertainty map that uses them, never when gridstrain is imported (numba's own import
+takes a few hundred milliseconds).
 
-The bound reads the deformed state's log-modulus gradients at the material points
-``x + u``: two calls of ``scipy.ndimage.map_coordinates(order=1, mode="nearest")``
-per carrier, each computing every point's weights again, then the differences, their
-norm and the running maximum, each a pass over the image. Here one loop does it all,
-with the weights once per point and scipy's arithmetic, so that the values are the
-same bits (``tests/test_contrast_kernel.py`` compares it with the numpy path that runs
-without numba).
+:func:`gaussian_nearest` is ``scipy.ndimage.gaussian_filter(a, mode="nearest")`` of a
+float64 map with scipy's kernel: its sums in scipy's order for a symmetric kernel
+(``correlate1d``: the centre tap, then each pair of taps from the outermost in, the
+pair added before it is weighted), along the rows' axis first, each product and sum
+rounded on its own (no fused multiply-add), so that the values are the same bits
+(``tests/test_fast.py`` compares them). The loops run along contiguous rows, which LLVM
+vectorises without changing any value's arithmetic.
+
+:func:`phase_variance_sum` and :func:`std_from_variance` are the two halves of
+:func:`gridstrain.uncertainty.std_from_phase_variance` around its product by the
+lattice's matrix (BLAS's, left to numpy): one pass each over the maps where numpy makes
+about ten, with the same operations on each value in the same order, the same bits
+(``tests/test_uncertainty.py`` compares both paths). The moduli ``|Psi|`` come from
+numpy (its complex modulus is not libm's ``hypot``, which numba's would be).
+
+:func:`steepest_change` is the contrast step's bound
+(:func:`gridstrain.uncertainty.contrast_step_bound`) at the material points ``x + u``:
+where the numpy path calls ``scipy.ndimage.map_coordinates(order=1, mode="nearest")``
+twice per carrier, each computing every point's weights again, then the differences,
+their norm and the running maximum, each a pass over the image, one loop does it all
+with the weights once per point and scipy's arithmetic, the same bits
+(``tests/test_contrast_kernel.py`` compares it with the numpy path).
 """
 
 from __future__ import annotations
 
 import math
 
-from numba import njit
+import numpy as np
+
+try:
+    from numba import njit
+except ImportError:  # the module stays importable (its doctests are collected)
+    njit = None
 
 __all__: list[str] = []
 
+# whether the loops below are compiled; without numba they stay plain Python
+# functions, which gridstrain.uncertainty._maps never calls (it runs scipy instead)
+AVAILABLE = njit is not None
+
+# no fast-math licence at all: each product and sum rounded as scipy's C loop rounds it
 _OPTIONS = {"cache": True, "nogil": True, "error_model": "numpy", "boundscheck": False}
+_jit = njit(**_OPTIONS) if AVAILABLE else (lambda func: func)
 
 
-@njit(**_OPTIONS)
+@_jit
+def gaussian_nearest(a, w, tmp, out):  # pragma: no cover
+    """``out`` (H, W) float64: ``a`` (H, W) float64 correlated with the symmetric
+    kernel of half ``w`` (``w[0]`` the centre tap, ``w[d]`` the two taps at distance
+    ``d``) along axis 0 into ``tmp`` (H, W), then along axis 1; the borders continued
+    by their nearest value. H and W at least 1."""
+    H, W = a.shape
+    r = w.size - 1
+    for i in range(H):
+        for j in range(W):
+            tmp[i, j] = a[i, j] * w[0]
+        for d in range(r, 0, -1):
+            up = max(i - d, 0)
+            down = min(i + d, H - 1)
+            wd = w[d]
+            for j in range(W):
+                tmp[i, j] += (a[up, j] + a[down, j]) * wd
+    # each row continued by r copies of its end values, then correlated along it;
+    # the taps read as two shifted slices of that line, so that the loop over the
+    # columns vectorises
+    line = np.empty(W + 2 * r)
+    for i in range(H):
+        src = tmp[i]
+        dst = out[i]
+        for j in range(r):
+            line[j] = src[0]
+            line[r + W + j] = src[W - 1]
+        for j in range(W):
+            line[r + j] = src[j]
+            dst[j] = src[j] * w[0]
+        for d in range(r, 0, -1):
+            wd = w[d]
+            left = line[r - d:r - d + W]
+            right = line[r + d:r + d + W]
+            for j in range(W):
+                dst[j] += (left[j] + right[j]) * wd
+
+
+@_jit
+def phase_variance_sum(var_ref, variance, mod, half_g2, out):  # pragma: no cover
+    """``out`` (2, n): ``var_ref`` (2, n) plus each wave vector's phase variance of the
+    deformed maps, ``variance * half_g2 / mod**2`` (``mod`` (2, n) the moduli
+    ``|Psi|``, ``variance`` (n,) the sensor's), each operation rounded as numpy
+    rounds it in :func:`gridstrain.uncertainty.std_from_phase_variance`."""
+    n = variance.size
+    for j in range(2):
+        r = var_ref[j]
+        m = mod[j]
+        o = out[j]
+        for i in range(n):
+            mi = m[i]
+            o[i] = r[i] + (variance[i] * half_g2) / (mi * mi)
+
+
+@_jit
+def std_from_variance(var_u, valid, ratio, u_std, strain_std):  # pragma: no cover
+    """``u_std`` (2, n) and ``strain_std`` (3, n) from the displacement variances
+    ``var_u`` (2, n), NaN off ``valid`` (n,): ``sqrt(var_u)``, ``sqrt(var_u ratio)``
+    and ``sqrt((var_u[0] ratio + var_u[1] ratio) / 4)`` (eq. 35)."""
+    n = valid.size
+    for i in range(n):
+        v0 = var_u[0, i]
+        v1 = var_u[1, i]
+        s0 = v0 * ratio
+        s1 = v1 * ratio
+        s2 = (s0 + s1) * 0.25
+        # every value computed, then chosen: no branch, the loop vectorises
+        ok = valid[i]
+        u_std[0, i] = np.sqrt(v0) if ok else np.nan
+        u_std[1, i] = np.sqrt(v1) if ok else np.nan
+        strain_std[0, i] = np.sqrt(s0) if ok else np.nan
+        strain_std[1, i] = np.sqrt(s1) if ok else np.nan
+        strain_std[2, i] = np.sqrt(s2) if ok else np.nan
+
+
+@_jit
 def _clamped(k, n):  # pragma: no cover
     """A neighbour's index as scipy's mode "nearest" takes it: within ``[0, n - 1]``."""
     return min(max(k, 0), n - 1)
 
 
-@njit(**_OPTIONS)
+@_jit
 def steepest_change(s, rx, ry, dx, dy, u, v, i0, i1):  # pragma: no cover
     """``s = max(s, |(dx, dy)(x + u) - (rx, ry)(x)|)`` on the rows ``i0 <= i < i1``, in
     place: ``(dx, dy)`` read at ``x + u`` (``x`` where not ``v``) by bilinear

@@ -167,6 +167,14 @@ def smoothing_bias(strain, valid, *, sigma: float) -> dict:
                           f"{_NARROWEST:g} sigma); estimate_max, p95: the Laplacian term"}
 
 
+# The edge fit's solved normal equations of the last valid region (its decimated
+# valid pixels, band and window, kept with them): the states of a record share their
+# valid region, and solving them is half of smoothing_bias's time (8.7 of 16.4 ms on a
+# 250 x 400 state at sigma = 5 px). One region is kept, read-only: its inverse 6 x 6
+# matrices, 288 bytes a pixel of the band.
+_LAST_FIT: list = [None]
+
+
 class _EdgeFit:
     """The weighted least-squares quadratic fit on the band of valid pixels outside
     ``inner`` (see :func:`_edge_feature`), for any field on those pixels: the moments
@@ -182,6 +190,11 @@ class _EdgeFit:
         self.t = np.arange(-math.ceil(4 * r), math.ceil(4 * r) + 1, dtype=np.float64)
         self.g = np.exp(-0.5 * (self.t / r) ** 2)
         self._at = _band_taps(self.band, len(self.t) // 2)
+        last = _LAST_FIT[0]
+        if last is not None and last[0] == sig and last[1].shape == v.shape \
+                and np.array_equal(last[1], v) and np.array_equal(last[2], self.band):
+            self.ok, self.inv, self.bi, self.bj = last[3]
+            return
         vf = v.astype(np.float64)
         mom = self.moments(vf, [(a, b) for a in range(5) for b in range(5 - a)])
         P = self._POWERS
@@ -195,6 +208,11 @@ class _EdgeFit:
         self.inv = np.linalg.inv(M[self.ok]) if self.ok.any() else None
         bi, bj = np.nonzero(self.band)
         self.bi, self.bj = bi[self.ok], bj[self.ok]
+        solved = (self.ok, self.inv, self.bi, self.bj)
+        for a in solved:
+            if a is not None:
+                a.flags.writeable = False
+        _LAST_FIT[0] = (sig, v.copy(), self.band.copy(), solved)
 
     def moments(self, f, powers) -> dict:
         """``{(a, b): m}``: the moments ``sum g(s) g(t) s^a t^b f(i + t, j + s)`` (``s``
