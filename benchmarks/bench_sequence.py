@@ -6,7 +6,11 @@ Poisson-Gaussian noise), frame ``t`` displaced by ``t / 20`` of
 :func:`_common.state_displacement`'s step: a first frame taken as the reference
 (``--reference-frames 1``) and every later frame a state. A state's CPU time is the
 difference of two runs (``--short`` and ``--states`` states) over the difference of
-their numbers of states, so that imports, the reference and the lattice cancel.
+their numbers of states, so that imports, the reference and the lattice cancel. Both
+runs must be long records (more than twice ``SAMPLE_EVERY``, 20 states), where the
+expensive checks are sampled: a short run of 20 states or fewer checks every state in
+full, and its difference with a long one would take those checks off the light
+states' cost (the script refuses it).
 Two FFT floors of a frame are printed, one thread each, and the ratio to both: the
 transforms a state of this record cannot avoid as the pipeline computes them (the
 frames are integers, computed in float64: one complex ``fft2`` and two ``ifft2``, one
@@ -16,7 +20,7 @@ halving and float32's: about 1.6 to 2 times. Then the CPU of each stage of a sta
 (:data:`gridstrain.series._stages.STAGES`, and the pass's own steps), measured in this
 process between the progress messages that name them, over the ``--states`` record.
 
-    python benchmarks/bench_sequence.py [--states 100] [--short 10] [--memory 1000]
+    python benchmarks/bench_sequence.py [--states 130] [--short 30] [--memory 1000]
 """
 
 from __future__ import annotations
@@ -33,6 +37,7 @@ import tifffile
 from _common import cli_command, machine, run_child, state_displacement
 from gridstrain import Lattice
 from gridstrain.models import synthetic
+from gridstrain.series._stages import SAMPLE_EVERY
 
 SHAPE = (250, 400)
 
@@ -95,12 +100,15 @@ def run(cli, record: Path, out: Path, *, peak: bool = False) -> dict:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--states", type=int, default=100)
-    ap.add_argument("--short", type=int, default=10)
+    ap.add_argument("--states", type=int, default=130)
+    ap.add_argument("--short", type=int, default=30)
     ap.add_argument("--memory", type=int, default=0,
                     help="also the peak memory of a record of this many states against "
                     "--states (e.g. 1000)")
     args = ap.parse_args()
+    if min(args.short, args.states) <= 2 * SAMPLE_EVERY or args.short >= args.states:
+        ap.error(f"--short and --states must exceed {2 * SAMPLE_EVERY} (a long record, "
+                 "its checks sampled) and --states the larger")
     print(machine())
     cli = cli_command()
     floor = fft_floor()
