@@ -603,12 +603,18 @@ def _lagrangian_fixed_point(u, reference, deformed, valid, tol, max_iter):
         ref = np.ascontiguousarray(reference.psi, dtype=np.complex128).view(np.float64)
         solve = np.ascontiguousarray(-np.linalg.inv(K) / (2 * np.pi))
 
+        def block_step(i0, i1):
+            prod = np.empty((4, i1 - i0, shape[1]))
+            kern.residual_products(psi_cur.coef, float(_SPLINE_PAD), u, ref, valid, prod,
+                                   i0, i1)
+            angles = prod[:2]  # written over the products it is taken from
+            np.arctan2(prod[0], prod[1], out=angles[0])
+            np.arctan2(prod[2], prod[3], out=angles[1])
+            return kern.fixed_point_update(angles, u, two_pi_K, solve, valid, i0, i1)
+
         def one_step():
             # the blocks' sums added in the blocks' order, whatever the threads
-            return math.fsum(_by_blocks(shape[0], _BLOCK_ROWS, lambda i0, i1:
-                                        kern.fixed_point_step(psi_cur.coef, float(_SPLINE_PAD),
-                                                              u, ref, two_pi_K, solve, valid,
-                                                              i0, i1)))
+            return math.fsum(_by_blocks(shape[0], _BLOCK_ROWS, block_step))
     else:
         u = _newton_start(u, deformed, two_pi_K)
         q = _contraction(deformed, K)
