@@ -308,6 +308,17 @@ def _unwrap(wrapped: np.ndarray, valid: np.ndarray, pairs=None, around=None) -> 
     # the map so that a field spread over less than 2 pi shows no jump
     sub = wrapped[::4, ::4][valid[::4, ::4]]
     c = float(np.angle(np.sum(np.exp(1j * sub)))) if sub.size else 0.0
+    kern = _load_kernels() if _COMPILED else None
+    if kern is not None and wrapped.dtype == np.float64:
+        # the same operations in two passes at most, each stopped at its first jump
+        s = np.empty(wrapped.shape)
+        near = np.empty((0, 0)) if around is None else np.ascontiguousarray(around,
+                                                                            dtype=np.float64)
+        if kern.unwrap_by_turns(np.ascontiguousarray(wrapped), np.ascontiguousarray(valid),
+                                c, near, s) < 2:
+            return s
+        del s, near
+        return _scikit_image_unwrap(wrapped, valid)
     # s = mod(wrapped - c + pi, 2 pi) - pi, in one buffer
     s = np.subtract(wrapped, c)
     s += np.pi
@@ -337,6 +348,11 @@ def _unwrap(wrapped: np.ndarray, valid: np.ndarray, pairs=None, around=None) -> 
         if not (_jumps(s, rows, 1) or _jumps(s, cols, 0)):
             np.copyto(s, 0.0, where=~valid)
             return s
+    return _scikit_image_unwrap(wrapped, valid)
+
+
+def _scikit_image_unwrap(wrapped, valid):
+    """scikit-image's ``unwrap_phase`` of ``wrapped`` over ``valid``, 0 elsewhere."""
     ma = np.ma.masked_array(wrapped, mask=~valid)
     return np.ma.filled(unwrap_phase(ma, rng=0), 0.0)
 
@@ -521,11 +537,17 @@ def _unwrapped_displacement(reference, deformed, valid, K, g) -> np.ndarray:
     the guess ``g`` ((2, H, W), px)."""
     # one wave vector at a time: a complex product of (H, W), not of (2, H, W)
     dphase = np.empty(reference.psi.shape, dtype=np.float64)
+    real = np.empty(reference.shape, dtype=np.float64)
     for j in range(2):
         z = np.conjugate(reference.psi[j])
         z *= deformed.psi[j]
-        np.arctan2(z.imag, z.real, out=dphase[j])  # np.angle, written in place
+        # np.angle, written in place: arctan2 of contiguous parts takes half the time
+        # of the complex map's strided views, for the same values
+        np.copyto(real, z.real)
+        np.copyto(dphase[j], z.imag)
         del z
+        np.arctan2(dphase[j], real, out=dphase[j])
+    del real
     # a rectangle of valid pixels is one region: no labels needed
     labels, n_regions = (None, 1) if filled_box(valid) else ndimage.label(valid)
     if n_regions == 0:
@@ -544,10 +566,16 @@ def _unwrapped_displacement(reference, deformed, valid, K, g) -> np.ndarray:
     # that bring K (u - g) closest to 0 are taken on it, and added back as
     # dphase + 2 pi n (u -> u - K^-1 n) before the one solve
     kg = K @ g[:, 0, 0] if constant else None
+    kern = _load_kernels() if _COMPILED else None
     for lab in range(1, n_regions + 1):
         sel = valid if n_regions == 1 else labels == lab
         n = np.empty(2)
         for j in range(2):
+            if kern is not None and (n_j := _whole_turns(
+                    kern, dphase[j], sel, g, K[j], kg[j] if constant else 0.0,
+                    constant)) is not None:
+                n[j] = n_j  # the median's whole number, without sorting
+                continue
             t = dphase[j][sel]  # a fresh gather, sorted in place by the median
             t *= -1 / (2 * np.pi)
             if constant:
@@ -564,6 +592,29 @@ def _unwrapped_displacement(reference, deformed, valid, K, g) -> np.ndarray:
     np.negative(u, out=u)
     u /= 2 * np.pi
     return u
+
+
+# How far, in periods, every pixel's phase change from the guess must lie within the
+# half-period either side of one whole number for that number to be taken as the one
+# its median rounds to: far above the rounding by which the compiled loop's values
+# may differ from numpy's (1e-15 period), far below the noise.
+_TURNS_MARGIN = 1e-6
+
+
+def _whole_turns(kern, dphase, sel, g, k, kg, constant):
+    """``rint(median(t))`` of :func:`_unwrapped_displacement`'s ``t`` over ``sel``
+    where every ``t`` lies within :data:`_TURNS_MARGIN` of the same half-period
+    interval around a whole number (then every value, and so the median, rounds to
+    it: rint is monotone), or None."""
+    lo, hi, finite = kern.turns_range(np.ascontiguousarray(dphase), sel,
+                                      g[:, :1, :1] if constant else g, float(k[0]),
+                                      float(k[1]), float(kg), constant)
+    if not finite or lo > hi:
+        return None
+    n = float(np.rint(lo))
+    if lo - (n - 0.5) > _TURNS_MARGIN and (n + 0.5) - hi > _TURNS_MARGIN:
+        return n
+    return None
 
 
 def _lagrangian_fixed_point(u, reference, deformed, valid, tol, max_iter):

@@ -17,7 +17,11 @@ loop: the four maps about ten times faster than four calls of ``map_coordinates`
 the same numbers to rounding (``tests/test_lagrangian_interpolation.py`` compares every
 loop with the scipy and numpy path that runs without numba).
 
-Every loop works on a range of rows (the prefilter's second half on a range of
+The shortcuts of the phase difference's unwrapping (:func:`unwrap_by_turns`) and the
+whole periods of its fringe order (:func:`turns_range`) are here too: numpy's
+operations in one or two passes that stop at the first jump, the same bits.
+
+Every loop of the correction works on a range of rows (the prefilter's second half on a range of
 columns) and releases the GIL: :mod:`gridstrain.kinematics` runs fixed blocks of
 them on the usable cores, with the same result on any number of threads.
 """
@@ -417,3 +421,135 @@ def newton_start(u0, d, cur_valid, two_pi_k, m_of_d, a_med, u, i0, i1):  # pragm
                 u[0, i, j] = mx
                 u[1, i, j] = my
     return q if finite else math.inf
+
+
+# ----------------------------------------------------------- the phase difference's turns
+
+
+@njit(**_OPTIONS)
+def _turned_row(wrapped, c, s, i):  # pragma: no cover
+    """Row ``i`` of ``s = mod(wrapped - c + pi, 2 pi) - pi``, as numpy computes it;
+    False where a value left ``[-2 pi, 4 pi)`` before the ``mod`` (a NaN, a
+    ``c`` far from the map), whose row must then take numpy's ``fmod``.
+
+    Within that interval ``np.mod(x, b)`` (C ``fmod``, moved into ``[0, b)``, +0.0 for
+    an exact multiple) is ``x + b``, ``x`` or ``x - b`` (exact there), written as
+    selections that the compiler vectorises: ``fmod``'s exact division took ten times
+    as long as the rest of the pass."""
+    W = wrapped.shape[1]
+    b = 2.0 * math.pi
+    inside = True
+    for j in range(W):
+        x = wrapped[i, j] - c
+        x += math.pi
+        lo = b if x < 0.0 else 0.0
+        hi = b if x >= b else 0.0
+        inside &= x >= -b and x < 2.0 * b
+        s[i, j] = ((x + lo) - hi) - math.pi
+    if inside:
+        return True
+    for j in range(W):
+        x = wrapped[i, j] - c
+        x += math.pi
+        m = np.fmod(x, b)
+        if m != 0.0:
+            if m < 0.0:
+                m += b
+        else:
+            m = 0.0
+        s[i, j] = m - math.pi
+    return False
+
+
+@njit(**_OPTIONS)
+def _row_jumps(s, valid, i):  # pragma: no cover
+    """Whether two valid neighbours of ``s`` along row ``i``, or between rows ``i - 1``
+    and ``i``, differ by pi or more (without a branch per pixel: vectorised)."""
+    W = s.shape[1]
+    jump = False
+    for j in range(W - 1):
+        jump |= valid[i, j] & valid[i, j + 1] & (abs(s[i, j + 1] - s[i, j]) >= math.pi)
+    if i > 0:
+        for j in range(W):
+            jump |= valid[i, j] & valid[i - 1, j] & (abs(s[i, j] - s[i - 1, j]) >= math.pi)
+    return jump
+
+
+@njit(**_OPTIONS)
+def unwrap_by_turns(wrapped, valid, c, around, s):  # pragma: no cover
+    """The shortcuts of :func:`gridstrain.kinematics._unwrap` in two passes at most,
+    the same operations as its numpy path (the same bits); returns 0 or 1, the
+    shortcut taken (``s`` (H, W) then the unwrapped map, 0 off ``valid``), or 2 where
+    neither holds (scikit-image must run; ``s`` is scratch).
+
+    0: ``s = mod(wrapped - c + pi, 2 pi) - pi`` shows no jump of pi or more between
+    valid neighbours, and ``wrapped`` plus the whole turns of ``s + c - wrapped`` is
+    returned. 1: ``around`` (H, W), when given (its first axis not empty), is finite,
+    and ``wrapped`` plus the whole turns of ``around - wrapped`` shows no jump. Each
+    pass stops at its first jump.
+    """
+    H, W = wrapped.shape
+    two_pi = 2.0 * math.pi
+    jump = False
+    for i in range(H):
+        _turned_row(wrapped, c, s, i)
+        if _row_jumps(s, valid, i):
+            jump = True
+            break
+    if not jump:
+        for i in range(H):
+            for j in range(W):
+                if valid[i, j]:
+                    w = wrapped[i, j]
+                    x = s[i, j] + c
+                    x -= w
+                    x /= two_pi
+                    x = np.rint(x)
+                    x *= two_pi
+                    s[i, j] = x + w
+                else:
+                    s[i, j] = 0.0
+        return 0
+    if around.shape[0] == 0:
+        return 2
+    for i in range(H):
+        for j in range(W):
+            if not math.isfinite(around[i, j]):
+                return 2
+    for i in range(H):
+        for j in range(W):
+            if valid[i, j]:
+                w = wrapped[i, j]
+                x = around[i, j] - w
+                x /= two_pi
+                x = np.rint(x)
+                x *= two_pi
+                s[i, j] = x + w
+            else:
+                s[i, j] = 0.0
+        if _row_jumps(s, valid, i):
+            return 2
+    return 1
+
+
+@njit(**_OPTIONS)
+def turns_range(dphase, sel, g, k0, k1, kg, constant):  # pragma: no cover
+    """The smallest and largest ``t = -dphase / 2 pi - (k0 g_x + k1 g_y)`` (``- kg``
+    where ``constant``) over ``sel``, periods, and whether every one is finite:
+    where all lie within one half-period either side of the same whole number, that
+    number is the one the median of ``t`` rounds to, found without sorting.
+    ``dphase``, ``sel`` (H, W); ``g`` (2, H, W), read only where not ``constant``."""
+    H, W = dphase.shape
+    lo = math.inf
+    hi = -math.inf
+    finite = True
+    scale = -1.0 / (2.0 * math.pi)
+    for i in range(H):
+        for j in range(W):
+            if sel[i, j]:
+                t = dphase[i, j] * scale
+                t -= kg if constant else k0 * g[0, i, j] + k1 * g[1, i, j]
+                finite &= math.isfinite(t)
+                lo = min(lo, t)
+                hi = max(hi, t)
+    return lo, hi, finite
