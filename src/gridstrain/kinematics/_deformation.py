@@ -487,16 +487,15 @@ def deformation(reference: PhaseMaps, deformed: PhaseMaps, *, lagrangian: bool =
         # the starting field is handed over, not kept here: the first step frees it
         u, iterations, step = _lagrangian_fixed_point(start.pop(), reference, deformed,
                                                       valid, tol, max_iter)
-        G, valid = _lagrangian_gradient(u, reference, deformed, D_ref)
+        strain, rotation, valid = _lagrangian_gradient(u, reference, deformed, D_ref)
     else:
         u = start.pop()
-        G = eulerian_gradient(K, deformed.dphi.astype(np.float64) - D_ref)
+        strain, rotation = _strain_rotation(
+            eulerian_gradient(K, deformed.dphi.astype(np.float64) - D_ref))
     del D_ref
 
     # computed in float64, returned in the maps' precision (gridstrain.conventions)
     dt = np.result_type(reference.dphi.dtype, deformed.dphi.dtype)
-    strain, rotation = small_strain(G), 0.5 * (G[1, 0] - G[0, 1])
-    del G
     u, strain, rotation = _outside_nan(valid, dt, u, strain, rotation)
     if order.confirmed and order.source == "image features" and \
             (parts := cut_into_parts(valid)):
@@ -520,6 +519,12 @@ def small_strain(G: np.ndarray) -> np.ndarray:
     """The small-strain tensor ``(e_xx, e_yy, e_xy)`` (3, ...) of the gradient ``G``
     (2, 2, ...), tensor shear (:mod:`gridstrain.conventions`)."""
     return np.stack([G[0, 0], G[1, 1], 0.5 * (G[0, 1] + G[1, 0])])
+
+
+def _strain_rotation(G):
+    """The small strain (3, ...) and the rotation ``(du_y/dx - du_x/dy)/2`` of the
+    gradient ``G`` (2, 2, ...)."""
+    return small_strain(G), 0.5 * (G[1, 0] - G[0, 1])
 
 
 def _outside_nan(valid, dtype, *maps):
@@ -754,23 +759,26 @@ def _contraction(deformed, K) -> float:
 
 
 def _lagrangian_gradient(u, reference, deformed, D_ref):
-    """Exact Lagrangian displacement gradient ``G`` ((2, 2, H, W)) with the deformed
-    state's derivatives taken at ``X + u``, and the pixels valid in both states."""
+    """The small strain (3, H, W) and the rotation (H, W) of the exact Lagrangian
+    displacement gradient ``G`` with the deformed state's derivatives taken at
+    ``X + u`` (:func:`_strain_rotation`), and the pixels valid in both states."""
     shape = reference.shape
     K = reference.lattice.K
     # Where Psi is exactly 0 (deep in a masked area) its derivatives are undefined;
     # a spline's prefilter would spread one NaN over whole rows: the spline takes them
     # as zeros (the pixels are invalid anyway)
     spline = _Spline(deformed.dphi)  # the four derivatives, evaluated together
-    if spline.kern is not None:  # one compiled loop: validity, derivatives and G
-        G = np.empty((2, 2, *shape))
+    if spline.kern is not None:  # one compiled loop: validity, derivatives, G, strain
+        strain = np.empty((3, *shape))
+        rotation = np.empty(shape)
         valid = np.empty(shape, dtype=bool)
         args = (spline.coef, float(_SPLINE_PAD), np.ascontiguousarray(u, dtype=np.float64),
                 np.ascontiguousarray(deformed.valid), np.ascontiguousarray(reference.valid),
-                np.ascontiguousarray(D_ref, dtype=np.float64), 2 * np.pi * K, G, valid)
+                np.ascontiguousarray(D_ref, dtype=np.float64), 2 * np.pi * K, strain,
+                rotation, valid)
         _by_blocks(shape[0], _BLOCK_ROWS,
                    lambda i0, i1: spline.kern.lagrangian_gradient(*args, i0, i1))
-        return G, valid
+        return strain, rotation, valid
     yy, xx = np.mgrid[0:shape[0], 0:shape[1]].astype(np.float64)
     coords = np.stack([yy + u[1], xx + u[0]])
     inside = ((coords[0] >= 0) & (coords[0] <= shape[0] - 1)
@@ -792,7 +800,7 @@ def _lagrangian_gradient(u, reference, deformed, D_ref):
     G[0, 1] = (a11 * B[0, 1] - a01 * B[1, 1]) * rdet
     G[1, 0] = (a00 * B[1, 0] - a10 * B[0, 0]) * rdet
     G[1, 1] = (a00 * B[1, 1] - a10 * B[0, 1]) * rdet
-    return G, valid
+    return *_strain_rotation(G), valid
 
 
 def _fringe_order_record(g, source, coarse):

@@ -310,18 +310,21 @@ def prefilter_columns(out, j0, j1):  # pragma: no cover
 
 
 @njit(**_OPTIONS)
-def lagrangian_gradient(coef, offset, u, cur_valid, ref_valid, d_ref, two_pi_k, g,
-                        valid, i0, i1):  # pragma: no cover
+def lagrangian_gradient(coef, offset, u, cur_valid, ref_valid, d_ref, two_pi_k, strain,
+                        rotation, valid, i0, i1):  # pragma: no cover
     """The exact Lagrangian displacement gradient and the pixels valid in both states.
 
     ``coef`` (Hp, Wp, 4): the prefiltered deformed phase derivatives ``D_00, D_01,
     D_10, D_11``; ``u`` (2, H, W); ``cur_valid``, ``ref_valid`` (H, W) bool; ``d_ref``
-    (2, 2, H, W) the reference's derivatives; ``two_pi_k`` = ``2 pi K``. Writes ``g``
-    (2, 2, H, W), ``(2 pi K + D_def(X + u)) G = D_ref - D_def(X + u)`` by Cramer's
-    rule, and ``valid`` (H, W): valid in the reference, ``X + u`` inside the image
-    and the bilinear interpolation of the deformed validity there above 0.999, as
-    :func:`gridstrain.kinematics._lagrangian_gradient` computes with scipy. On the
-    rows ``i0 <= i < i1`` only.
+    (2, 2, H, W) the reference's derivatives; ``two_pi_k`` = ``2 pi K``. Solves
+    ``(2 pi K + D_def(X + u)) G = D_ref - D_def(X + u)`` by Cramer's rule and writes
+    its small strain ``strain`` (3, H, W), ``(G_00, G_11, (G_01 + G_10) / 2)``, its
+    rotation ``rotation`` (H, W), ``(G_10 - G_01) / 2``, and ``valid`` (H, W): valid in
+    the reference, ``X + u`` inside the image and the bilinear interpolation of the
+    deformed validity there above 0.999, as
+    :func:`gridstrain.kinematics._lagrangian_gradient` computes with scipy and numpy;
+    ``strain`` and ``rotation`` are NaN where not ``valid`` (the measurement's value
+    there: the spline is not evaluated). On the rows ``i0 <= i < i1`` only.
     """
     _, H, W = u.shape
     for i in range(i0, i1):
@@ -346,6 +349,10 @@ def lagrangian_gradient(coef, offset, u, cur_valid, ref_valid, d_ref, two_pi_k, 
                             w += (ty if a else 1.0 - ty) * (tx if b else 1.0 - tx)
                 ok = w > 0.999
             valid[i, j] = ok
+            if not ok:  # NaN where not valid, as the measurement reports it
+                strain[0, i, j] = strain[1, i, j] = strain[2, i, j] = math.nan
+                rotation[i, j] = math.nan
+                continue
             d00, d01, d10, d11 = _at4(coef, y + offset, x + offset)
             a00 = two_pi_k[0, 0] + d00
             a01 = two_pi_k[0, 1] + d01
@@ -356,10 +363,12 @@ def lagrangian_gradient(coef, offset, u, cur_valid, ref_valid, d_ref, two_pi_k, 
             b10 = d_ref[1, 0, i, j] - d10
             b11 = d_ref[1, 1, i, j] - d11
             rdet = 1.0 / (a00 * a11 - a01 * a10)
-            g[0, 0, i, j] = (a11 * b00 - a01 * b10) * rdet
-            g[0, 1, i, j] = (a11 * b01 - a01 * b11) * rdet
-            g[1, 0, i, j] = (a00 * b10 - a10 * b00) * rdet
-            g[1, 1, i, j] = (a00 * b11 - a10 * b01) * rdet
+            g01 = (a11 * b01 - a01 * b11) * rdet
+            g10 = (a00 * b10 - a10 * b00) * rdet
+            strain[0, i, j] = (a11 * b00 - a01 * b10) * rdet
+            strain[1, i, j] = (a00 * b11 - a10 * b01) * rdet
+            strain[2, i, j] = 0.5 * (g01 + g10)
+            rotation[i, j] = 0.5 * (g10 - g01)
 
 
 @njit(**_OPTIONS)
