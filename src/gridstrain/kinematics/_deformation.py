@@ -714,7 +714,8 @@ def _median_start(deformed, two_pi_K) -> np.ndarray:
     if v.any():
         for a in range(2):
             for b in range(2):
-                D[a, b] = median(deformed.dphi[a, b][v].astype(np.float64),
+                # the gather is a fresh array: sorted in place, not copied again
+                D[a, b] = median(deformed.dphi[a, b][v].astype(np.float64, copy=False),
                                  overwrite_input=True)
     A = np.linalg.solve(two_pi_K + D, two_pi_K)
     return A if np.all(np.isfinite(A)) else np.eye(2)
