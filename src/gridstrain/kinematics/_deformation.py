@@ -302,7 +302,8 @@ def _unwrap(wrapped: np.ndarray, valid: np.ndarray, pairs=None, around=None) -> 
     is the continuous map scikit-image's merges reach (the same proof, with the
     guess's smooth map in place of the constant), spread over any number of fringes.
     Otherwise scikit-image runs. ``pairs``: the valid neighbours along rows and along
-    columns, when the caller has them.
+    columns, when the caller has them. ``around`` may be given as a function that
+    returns it, called only where it is needed.
     """
     # any constant would do for the proof; the circular mean of a subsample centres
     # the map so that a field spread over less than 2 pi shows no jump
@@ -312,12 +313,16 @@ def _unwrap(wrapped: np.ndarray, valid: np.ndarray, pairs=None, around=None) -> 
     if kern is not None and wrapped.dtype == np.float64:
         # the same operations in two passes at most, each stopped at its first jump
         s = np.empty(wrapped.shape)
-        near = np.empty((0, 0)) if around is None else np.ascontiguousarray(around,
-                                                                            dtype=np.float64)
-        if kern.unwrap_by_turns(np.ascontiguousarray(wrapped), np.ascontiguousarray(valid),
-                                c, near, s) < 2:
+        wrapped, valid = np.ascontiguousarray(wrapped), np.ascontiguousarray(valid)
+        if kern.unwrap_by_turns(wrapped, valid, c, np.empty((0, 0)), s) == 0:
             return s
-        del s, near
+        if around is not None:
+            near = np.ascontiguousarray(around() if callable(around) else around,
+                                        dtype=np.float64)
+            if kern.unwrap_by_turns(wrapped, valid, c, near, s, False) < 2:
+                return s
+            del near
+        del s
         return _scikit_image_unwrap(wrapped, valid)
     # s = mod(wrapped - c + pi, 2 pi) - pi, in one buffer
     s = np.subtract(wrapped, c)
@@ -338,6 +343,8 @@ def _unwrap(wrapped: np.ndarray, valid: np.ndarray, pairs=None, around=None) -> 
         s += wrapped
         np.copyto(s, 0.0, where=~valid)  # a masked write, without gathering indices
         return s
+    if around is not None and callable(around):
+        around = around()
     if around is not None and np.isfinite(around).all():
         # t = wrapped + 2 pi rint((around - wrapped) / 2 pi), in s's buffer
         np.subtract(around, wrapped, out=s)
@@ -564,7 +571,9 @@ def _unwrapped_displacement(reference, deformed, valid, K, g) -> np.ndarray:
     # many fringes unwraps without scikit-image
     constant = g.strides[1:] == (0, 0)  # a (u_x, u_y) pair broadcast: K g once
     for j in range(2):  # unwrapped in place
-        around = None if constant else -2 * np.pi * (K[j, 0] * g[0] + K[j, 1] * g[1])
+        # the guess's phase, computed only where the map turned by a constant jumps
+        around = None if constant else \
+            (lambda j=j: -2 * np.pi * (K[j, 0] * g[0] + K[j, 1] * g[1]))
         dphase[j] = _unwrap(dphase[j], valid, pairs, around)
         del around
     # fringe order per connected region, closest to the guess: the whole periods n

@@ -485,7 +485,7 @@ def _row_jumps(s, valid, i):  # pragma: no cover
 
 
 @njit(**_OPTIONS)
-def unwrap_by_turns(wrapped, valid, c, around, s):  # pragma: no cover
+def unwrap_by_turns(wrapped, valid, c, around, s, turned=True):  # pragma: no cover
     """The shortcuts of :func:`gridstrain.kinematics._unwrap` in two passes at most,
     the same operations as its numpy path (the same bits); returns 0 or 1, the
     shortcut taken (``s`` (H, W) then the unwrapped map, 0 off ``valid``), or 2 where
@@ -495,12 +495,13 @@ def unwrap_by_turns(wrapped, valid, c, around, s):  # pragma: no cover
     valid neighbours, and ``wrapped`` plus the whole turns of ``s + c - wrapped`` is
     returned. 1: ``around`` (H, W), when given (its first axis not empty), is finite,
     and ``wrapped`` plus the whole turns of ``around - wrapped`` shows no jump. Each
-    pass stops at its first jump.
+    pass stops at its first jump. Without ``turned``, the first shortcut is taken as
+    failed (a call before found its jump).
     """
     H, W = wrapped.shape
     two_pi = 2.0 * math.pi
-    jump = False
-    for i in range(H):
+    jump = not turned
+    for i in range(H if turned else 0):
         _turned_row(wrapped, c, s, i)
         if _row_jumps(s, valid, i):
             jump = True
