@@ -389,15 +389,17 @@ def test_compiled_correction_is_the_same_on_any_number_of_threads(monkeypatch):
     if kinematics._load_kernels() is None:
         pytest.skip("numba is not installed")
     ref, cur = _noisy_pair((9.2, -4.1), (3e-3, -2e-3), seed=21)
+    # threads on maps this small too (by default they run on the calling thread)
+    monkeypatch.setattr(kinematics, "_THREADED_PIXELS", 0)
     runs = []
     for threads in (1, 2, 3):
         monkeypatch.setattr(kinematics, "check_workers", lambda _w, n=threads: n)
         calls = []
         real = kinematics._by_blocks
 
-        def spy(n, size, fn, calls=calls, real=real):
+        def spy(n, size, fn, pixels, calls=calls, real=real):
             calls.append(n)
-            return real(n, size, fn)
+            return real(n, size, fn, pixels)
 
         monkeypatch.setattr(kinematics, "_by_blocks", spy)
         runs.append(deformation(ref, cur, guess=(9.0, -4.0), tol=1e-9))
@@ -411,3 +413,22 @@ def test_compiled_correction_is_the_same_on_any_number_of_threads(monkeypatch):
         np.testing.assert_array_equal(other.valid, one.valid)
         np.testing.assert_array_equal(other.u, one.u)
         np.testing.assert_array_equal(other.strain, one.strain)
+
+
+def test_small_maps_run_their_blocks_on_the_calling_thread(monkeypatch):
+    """Below _THREADED_PIXELS the blocks are not handed to the pool's threads, from
+    it on they are (on the usable cores)."""
+    from gridstrain._runtime import threads as pool
+
+    workers = []
+    real = pool.map_leaves
+
+    def spy(fn, items, n):
+        workers.append(n)
+        return real(fn, items, n)
+
+    monkeypatch.setattr(kinematics, "map_leaves", spy)
+    monkeypatch.setattr(kinematics, "check_workers", lambda _w: 2)
+    kinematics._by_blocks(300, 64, lambda i0, i1: i1 - i0, kinematics._THREADED_PIXELS - 1)
+    kinematics._by_blocks(300, 64, lambda i0, i1: i1 - i0, kinematics._THREADED_PIXELS)
+    assert workers == [1, 2]

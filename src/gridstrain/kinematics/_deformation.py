@@ -197,14 +197,21 @@ _COMPILED = True
 # the same bit for bit on any number of threads.
 _BLOCK_ROWS = 64
 _BLOCK_COLUMNS = 128
+# Maps of fewer pixels run their blocks on the calling thread alone: on a 250 x 400
+# state the helper thread cost 0.6 to 0.9 ms more CPU of the kinematics' 17 ms
+# (handing each block over, the coefficients' cache lines moving between cores) for a
+# few milliseconds of wall time; a 512 x 512 map and larger keep the cores.
+_THREADED_PIXELS = 2**18
 
 
-def _by_blocks(n: int, size: int, fn) -> list:
+def _by_blocks(n: int, size: int, fn, pixels: int) -> list:
     """``fn(i0, i1)`` for the blocks ``[i0, i1)`` of ``size`` indices that tile
-    ``range(n)``, on up to the usable cores (``fn`` must release the GIL: the
-    compiled loops do); their results in the blocks' order."""
+    ``range(n)``, on up to the usable cores for a map of ``pixels`` pixels from
+    :data:`_THREADED_PIXELS` (``fn`` must release the GIL: the compiled loops do);
+    their results in the blocks' order."""
     blocks = [(i, min(i + size, n)) for i in range(0, n, size)]
-    return map_leaves(lambda b: fn(*b), blocks, max(min(check_workers(None), len(blocks)), 1))
+    workers = check_workers(None) if pixels >= _THREADED_PIXELS else 1
+    return map_leaves(lambda b: fn(*b), blocks, max(min(workers, len(blocks)), 1))
 
 
 @functools.cache
@@ -252,9 +259,9 @@ class _Spline:
             src = src.view(np.float64) if self.is_complex else src
             coef = self.coef
             _by_blocks(Hp, _BLOCK_ROWS, lambda i0, i1: kern.prefilter_rows(
-                src, self.is_complex, _SPLINE_PAD, coef, i0, i1))
+                src, self.is_complex, _SPLINE_PAD, coef, i0, i1), Hp * Wp)
             _by_blocks(Wp, _BLOCK_COLUMNS,
-                       lambda j0, j1: kern.prefilter_columns(coef, j0, j1))
+                       lambda j0, j1: kern.prefilter_columns(coef, j0, j1), Hp * Wp)
             return
         self.coef = []
         for p in planes:
@@ -662,7 +669,7 @@ def _lagrangian_fixed_point(u, reference, deformed, valid, tol, max_iter):
         m_of_d = np.linalg.inv(two_pi_K)
         a_med = _median_start(deformed, two_pi_K)
         q = max(_by_blocks(shape[0], _BLOCK_ROWS, lambda i0, i1: kern.newton_start(
-            u0, d, cur_valid, two_pi_K, m_of_d, a_med, start, i0, i1)))
+            u0, d, cur_valid, two_pi_K, m_of_d, a_med, start, i0, i1), u0[0].size))
         u = start
         # the reference's maps as they are (their real view), unless they are complex64
         ref = np.ascontiguousarray(reference.psi, dtype=np.complex128).view(np.float64)
@@ -679,7 +686,7 @@ def _lagrangian_fixed_point(u, reference, deformed, valid, tol, max_iter):
 
         def one_step():
             # the blocks' sums added in the blocks' order, whatever the threads
-            return math.fsum(_by_blocks(shape[0], _BLOCK_ROWS, block_step))
+            return math.fsum(_by_blocks(shape[0], _BLOCK_ROWS, block_step, u[0].size))
     else:
         u = _newton_start(u, deformed, two_pi_K)
         q = _contraction(deformed, K)
@@ -787,7 +794,8 @@ def _lagrangian_gradient(u, reference, deformed, D_ref):
                 np.ascontiguousarray(D_ref, dtype=np.float64), 2 * np.pi * K, strain,
                 rotation, valid)
         _by_blocks(shape[0], _BLOCK_ROWS,
-                   lambda i0, i1: spline.kern.lagrangian_gradient(*args, i0, i1))
+                   lambda i0, i1: spline.kern.lagrangian_gradient(*args, i0, i1),
+                   rotation.size)
         return strain, rotation, valid
     yy, xx = np.mgrid[0:shape[0], 0:shape[1]].astype(np.float64)
     coords = np.stack([yy + u[1], xx + u[0]])
