@@ -178,6 +178,11 @@ _GAIN = (1.0 - _POLE) * (1.0 - 1.0 / _POLE)
 _HORIZON = math.ceil(math.log(1e-20) / math.log(-_POLE))
 
 
+# The maps a prefilter holds (interleaved, the last axis): always four, written as a
+# constant in the recursions' loops so that LLVM unrolls and vectorises them (the
+# columns' half of the prefilter of four 250 x 400 maps 0.40 -> 0.28 ms, the rows'
+# 0.39 -> 0.34 ms, one core, the same bits).
+_PLANES = 4
 # Rows whose recursions run in lockstep: along a row each step waits for the one
 # before, and a row's four maps alone leave the core idle between them; eight rows
 # give it 32 independent sums (the first half of the prefilter of four 250 x 400 maps
@@ -202,6 +207,9 @@ def prefilter_rows(src, complex_view, pad, out, i0, i1):  # pragma: no cover
     by up to 1e-7). Rows are independent: blocks of rows may run on several threads.
     """
     Hp, Wp, nm = out.shape
+    if nm != _PLANES:
+        raise ValueError("the prefilter holds four maps")
+    nm = _PLANES
     H, W = Hp - 2 * pad, Wp - 2 * pad
     g = _GAIN * _GAIN
     s = np.empty((_LOCKSTEP, nm))
@@ -226,7 +234,7 @@ def _recurse_rows(out, b0, b1, s, first):  # pragma: no cover
     ``b0 <= i < b1`` (at most :data:`_LOCKSTEP`), each row and map on its own, the rows
     in lockstep; ``s``, ``first`` (_LOCKSTEP, nm) scratch."""
     n = out.shape[1]
-    nm = out.shape[2]
+    nm = _PLANES
     nb = b1 - b0
     z = _POLE
     zn = z ** n
@@ -271,7 +279,9 @@ def prefilter_columns(out, j0, j1):  # pragma: no cover
     the rows' recursion on a strided 2-D view of the block gives the same bits in
     more time (benchmarks/README.md)."""
     n = out.shape[0]
-    nm = out.shape[2]
+    if out.shape[2] != _PLANES:
+        raise ValueError("the prefilter holds four maps")
+    nm = _PLANES
     z = _POLE
     zn = z ** n
     w = j1 - j0
