@@ -38,13 +38,19 @@ __all__: list[str] = []
 _OPTIONS = {"cache": True, "nogil": True, "error_model": "numpy", "boundscheck": False}
 
 
+# The B-spline's 1/6, multiplied rather than divided by 6: eight divisions a point
+# took a sixth of the evaluation's time (four maps at 100 000 points 2.9 -> 2.6 ms);
+# the weights differ by an ulp, the maps by about 1e-15 of their values.
+_SIXTH = 1.0 / 6.0
+
+
 @njit(**_OPTIONS)
 def _weights(t):  # pragma: no cover
     """Cubic B-spline weights of the four samples floor(v) - 1 .. floor(v) + 2,
     ``t = v - floor(v)``."""
     s = 1.0 - t
-    return (s * s * s / 6.0, (3.0 * t * t * t - 6.0 * t * t + 4.0) / 6.0,
-            (3.0 * s * s * s - 6.0 * s * s + 4.0) / 6.0, t * t * t / 6.0)
+    return (s * s * s * _SIXTH, (3.0 * t * t * t - 6.0 * t * t + 4.0) * _SIXTH,
+            (3.0 * s * s * s - 6.0 * s * s + 4.0) * _SIXTH, t * t * t * _SIXTH)
 
 
 @njit(**_OPTIONS)
