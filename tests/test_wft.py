@@ -384,7 +384,7 @@ def test_modulus_threshold_is_the_medians(monkeypatch, case, dtype):
 
     fast = both()
     monkeypatch.setattr(_validity, "_median_at_most", lambda values: np.nan)
-    for got, want in zip(fast, both()):
+    for got, want in zip(fast, both(), strict=True):
         np.testing.assert_array_equal(got, want)
     if case == "hole":
         assert fast[2].any()
