@@ -1,5 +1,7 @@
 """The deformed maps evaluated off the pixel grid (Lagrangian correction) against a direct sum."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 from scipy import ndimage
@@ -213,12 +215,18 @@ def _check_against_scikit_image(monkeypatch, wrapped, valid, calls, **kw):
         np.testing.assert_allclose(t, np.rint(t[0]), rtol=0, atol=1e-12)
 
 
+# the shortcuts' compiled loop (numba) and their numpy operations
+_PATHS = [pytest.param(True, id="compiled"), pytest.param(False, id="numpy")]
+
+
+@pytest.mark.parametrize("compiled", _PATHS)
 @pytest.mark.parametrize(("amplitude", "offset", "calls"),
                          [(2.0, 0.0, 0), (2.0, 2.5, 0), (6.0, 0.0, 1)])  # rad
 def test_unwrap_shortcut_decides_what_scikit_image_decides(monkeypatch, amplitude, offset,
-                                                           calls):
+                                                           calls, compiled):
     # spread over less than a fringe (2 x 2 rad), centred or offset so that the
     # wrapped map jumps: scikit-image is spared; over three fringes it runs
+    monkeypatch.setattr(kinematics, "_COMPILED", compiled)
     rng = np.random.default_rng(int(amplitude * 10 + offset))
     yy, xx = np.mgrid[0:120, 0:150].astype(float)
     phase = (offset + amplitude * np.sin(xx / 40) * np.cos(yy / 30)
@@ -231,11 +239,13 @@ def test_unwrap_shortcut_decides_what_scikit_image_decides(monkeypatch, amplitud
     (0.0, 0),  # a previous state's field, a few tenths of a radian off
     (0.6, 1),  # a patch where the guess is 0.6 turn off (a crack opened): no shortcut
 ])
+@pytest.mark.parametrize("compiled", _PATHS)
 def test_unwrap_around_a_guess_decides_what_scikit_image_decides(monkeypatch, guess_error,
-                                                                 calls):
+                                                                 calls, compiled):
     """A field spread over seven fringes (a record's late state) is unwrapped around
     the phase its guess predicts, scikit-image spared, when the result has no jump;
     where the guess is wrong by more than half a turn somewhere, scikit-image runs."""
+    monkeypatch.setattr(kinematics, "_COMPILED", compiled)
     rng = np.random.default_rng(7)
     yy, xx = np.mgrid[0:120, 0:150].astype(float)
     phase = 0.3 * xx + 4.0 * np.sin(yy / 25) + 0.2 * rng.standard_normal(xx.shape)
@@ -244,6 +254,69 @@ def test_unwrap_around_a_guess_decides_what_scikit_image_decides(monkeypatch, gu
     around[10:30, 10:40] += 2 * np.pi * guess_error
     _check_against_scikit_image(monkeypatch, np.angle(np.exp(1j * phase)),
                                 _two_regions(rng, xx.shape), calls, around=around)
+
+
+def _both_paths(monkeypatch, fn):
+    """``fn()`` with the compiled loops and with numpy only."""
+    if kinematics._load_kernels() is None:
+        pytest.skip("numba is not installed")
+    fast = fn()
+    monkeypatch.setattr(kinematics, "_COMPILED", False)
+    plain = fn()
+    monkeypatch.setattr(kinematics, "_COMPILED", True)
+    return fast, plain
+
+
+@pytest.mark.parametrize("case", ["centred", "offset", "around", "around-nan",
+                                  "no-shortcut", "nan-inside"])
+def test_compiled_unwrap_is_numpys_bit_for_bit(monkeypatch, case):
+    """The shortcuts' compiled loop does numpy's operations (its ``mod`` by selections
+    within [-2 pi, 4 pi), numpy's own ``fmod`` beyond): the same bits, and scikit-image
+    called where numpy calls it."""
+    rng = np.random.default_rng(11)
+    yy, xx = np.mgrid[0:120, 0:150].astype(float)
+    spread = 0.3 * xx if case.startswith("around") or case == "no-shortcut" else 0.0
+    phase = spread + 1.0 * np.sin(yy / 25) + 0.2 * rng.standard_normal(xx.shape)
+    if case == "offset":
+        phase += 2.9  # the wrapped map jumps; turned by its circular mean, it does not
+    wrapped = np.angle(np.exp(1j * phase))
+    if case == "nan-inside":
+        # a value fmod must take: the row left to numpy's (with no jump elsewhere:
+        # scikit-image does not return on a NaN)
+        wrapped[5, 7] = np.nan
+    valid = _two_regions(rng, xx.shape)
+    around = None
+    if case.startswith("around"):
+        around = phase + 0.4 * np.cos(xx / 30) + 2 * np.pi * np.where(xx < 75, 3, -2)
+        if case == "around-nan":
+            around[3, 3] = np.nan
+    fast, plain = _both_paths(monkeypatch,
+                              lambda: kinematics._unwrap(wrapped, valid, around=around))
+    np.testing.assert_array_equal(fast.view(np.int64), plain.view(np.int64))
+
+
+@pytest.mark.parametrize("guess", ["field", "constant", "half-period-off"])
+def test_compiled_fringe_order_is_numpys(monkeypatch, guess):
+    """The whole periods each region takes: where every pixel's phase change from the
+    guess rounds to one whole number the compiled loop takes it without the median;
+    elsewhere (a patch half a period off) the median decides, as in numpy. Two
+    regions, each with its own order: the same bits."""
+    rng = np.random.default_rng(5)
+    ref, cur = _noisy_pair((2.7, -1.4), (2e-3, -3e-3), seed=9)
+    valid = _two_regions(rng, ref.shape)
+    ref = dataclasses.replace(ref, valid=ref.valid & valid)
+    K = ref.lattice.K
+    v = ref.valid & cur.valid
+    if guess == "constant":
+        g = np.broadcast_to(np.array([2.7 + 5.0, -1.4])[:, None, None], (2, *ref.shape))
+    else:
+        yy, xx = np.mgrid[0:ref.shape[0], 0:ref.shape[1]].astype(float)
+        g = np.stack([2.7 + 0.02 * np.sin(yy / 9) + 5.0 * (xx < 75), -1.4 + 0 * xx])
+        if guess == "half-period-off":
+            g[0, 20:60, 20:60] += 0.6 * 5.0  # px: 0.6 period along x
+    fast, plain = _both_paths(
+        monkeypatch, lambda: kinematics._unwrapped_displacement(ref, cur, v, K, g))
+    np.testing.assert_array_equal(fast.view(np.int64), plain.view(np.int64))
 
 
 def test_correction_stops_within_tol_of_its_fixed_point():
@@ -316,15 +389,17 @@ def test_compiled_correction_is_the_same_on_any_number_of_threads(monkeypatch):
     if kinematics._load_kernels() is None:
         pytest.skip("numba is not installed")
     ref, cur = _noisy_pair((9.2, -4.1), (3e-3, -2e-3), seed=21)
+    # threads on maps this small too (by default they run on the calling thread)
+    monkeypatch.setattr(kinematics, "_THREADED_PIXELS", 0)
     runs = []
     for threads in (1, 2, 3):
         monkeypatch.setattr(kinematics, "check_workers", lambda _w, n=threads: n)
         calls = []
         real = kinematics._by_blocks
 
-        def spy(n, size, fn, calls=calls, real=real):
+        def spy(n, size, fn, pixels, calls=calls, real=real):
             calls.append(n)
-            return real(n, size, fn)
+            return real(n, size, fn, pixels)
 
         monkeypatch.setattr(kinematics, "_by_blocks", spy)
         runs.append(deformation(ref, cur, guess=(9.0, -4.0), tol=1e-9))
@@ -338,3 +413,22 @@ def test_compiled_correction_is_the_same_on_any_number_of_threads(monkeypatch):
         np.testing.assert_array_equal(other.valid, one.valid)
         np.testing.assert_array_equal(other.u, one.u)
         np.testing.assert_array_equal(other.strain, one.strain)
+
+
+def test_small_maps_run_their_blocks_on_the_calling_thread(monkeypatch):
+    """Below _THREADED_PIXELS the blocks are not handed to the pool's threads, from
+    it on they are (on the usable cores)."""
+    from gridstrain._runtime import threads as pool
+
+    workers = []
+    real = pool.map_leaves
+
+    def spy(fn, items, n):
+        workers.append(n)
+        return real(fn, items, n)
+
+    monkeypatch.setattr(kinematics, "map_leaves", spy)
+    monkeypatch.setattr(kinematics, "check_workers", lambda _w: 2)
+    kinematics._by_blocks(300, 64, lambda i0, i1: i1 - i0, kinematics._THREADED_PIXELS - 1)
+    kinematics._by_blocks(300, 64, lambda i0, i1: i1 - i0, kinematics._THREADED_PIXELS)
+    assert workers == [1, 2]

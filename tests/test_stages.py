@@ -153,3 +153,31 @@ def test_the_json_summary_gives_each_finding_its_code(tmp_path):
     assert len(summary["findings"]) == len(summary["warnings"]) > 0
     assert all(f["code"] in FINDINGS and f["severity"] == FINDINGS[f["code"]].severity
                for f in summary["findings"])
+
+
+@pytest.mark.parametrize(("shape", "workers"), [((100, 160), 1), ((512, 512), None)])
+def test_small_states_are_transformed_on_the_calling_thread(monkeypatch, shape, workers):
+    # a state's phase maps (method A): one thread below _THREADED_PIXELS, the usable
+    # cores from it on; the same maps either way (the transform's two wave vectors are
+    # independent)
+    from gridstrain.phase import Window
+    from gridstrain.series import _passes
+
+    lat = Lattice.from_pitch(5.0)
+    img = synthetic.grid_image(shape, lat, amplitude=1000.0)
+    seen = []
+    real = _passes.transform
+
+    def spy(*args, **kwargs):
+        seen.append(kwargs["workers"])
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(_passes, "transform", spy)
+    window = Window(sigma=5.0)
+    pm, _ = _passes._phase_maps_a(img, lat, window, None)
+    assert seen == [workers]
+    monkeypatch.setattr(_passes, "_THREADED_PIXELS", 0 if workers == 1 else 2**40)
+    other, _ = _passes._phase_maps_a(img, lat, window, None)
+    assert seen[1] == (None if workers == 1 else 1)
+    np.testing.assert_array_equal(pm.psi, other.psi)
+    np.testing.assert_array_equal(pm.dphi, other.dphi)

@@ -341,3 +341,67 @@ def test_derivatives_option_is_checked():
     lat, img = _modulated_grid((64, 64))
     with pytest.raises(ValueError, match="derivatives"):
         wft(img, lat, derivatives="central")
+
+
+# --- the grid's modulus threshold without its median where a bound of it decides -------
+
+def _moduli(case, rng, dtype):
+    """Two moduli maps (2, 160, 200): a grid that shows everywhere (down to a
+    third of the median at the borders, as a window cut by a corner), or with a hole,
+    a NaN, or too few values to bound the median."""
+    yy, xx = np.mgrid[0:160, 0:200]
+    edge = np.minimum(np.minimum(yy, 159 - yy), np.minimum(xx, 199 - xx))
+    mod = (1000 + 20 * rng.standard_normal((2, 160, 200))) * np.minimum(1, 0.34 + edge / 10)
+    if case == "hole":
+        mod[1, 50:60, 70:90] *= 0.05
+    elif case == "nan":
+        mod[0, 40, 40] = np.nan
+    elif case == "few":  # under _BOUND_MIN values: the median is taken
+        mod = mod[:, :80, :80]
+    return mod.astype(dtype)
+
+
+@pytest.mark.parametrize("dtype", [np.float64, np.float32])
+@pytest.mark.parametrize("case", ["shows", "hole", "nan", "few"])
+def test_modulus_threshold_is_the_medians(monkeypatch, case, dtype):
+    # the pixels below min_modulus times the median, with the bound of the median
+    # that spares taking it and without (the bound switched off): the same maps
+    from gridstrain.phase import _validity
+
+    rng = np.random.default_rng(3)
+    mod = _moduli(case, rng, dtype)
+    H, W = mod.shape[1:]
+    valid = np.zeros((H, W), dtype=bool)
+    valid[8:-8, 8:-8] = True
+    box = np.s_[8:H - 8, 8:W - 8]
+    mask = np.ones((H, W), dtype=bool)
+    mask[:3] = False
+
+    def both():
+        return (_validity._shows_grid(list(mod), valid, box, mask, 0.25),
+                _validity._shows_grid(list(mod), valid, None, mask, 0.25),
+                _validity.no_grid(mod, valid, mask, 0.25))
+
+    fast = both()
+    monkeypatch.setattr(_validity, "_median_at_most", lambda values: np.nan)
+    for got, want in zip(fast, both(), strict=True):
+        np.testing.assert_array_equal(got, want)
+    if case == "hole":
+        assert fast[2].any()
+    else:
+        assert not fast[2].any()
+
+
+@pytest.mark.parametrize("seed", range(20))
+def test_median_bound_is_at_least_the_median(seed):
+    # a value proved at least the median, or NaN: never below it, whatever the
+    # distribution (heavy tails, ties, an even or odd count)
+    from gridstrain.phase._validity import _median_at_most
+
+    rng = np.random.default_rng(seed)
+    n = int(rng.integers(2**14, 2**16))
+    values = [rng.standard_normal(n), rng.standard_cauchy(n), rng.integers(0, 5, n) * 1.0,
+              rng.standard_normal(n).astype(np.float32)][seed % 4]
+    bound = _median_at_most(values)
+    assert np.isnan(bound) or bound >= np.median(values)
+    assert not np.isnan(_median_at_most(rng.standard_normal(n)))  # found, usually

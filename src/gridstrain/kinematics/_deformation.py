@@ -197,14 +197,21 @@ _COMPILED = True
 # the same bit for bit on any number of threads.
 _BLOCK_ROWS = 64
 _BLOCK_COLUMNS = 128
+# Maps of fewer pixels run their blocks on the calling thread alone: on a 250 x 400
+# state the helper thread cost 0.6 to 0.9 ms more CPU of the kinematics' 17 ms
+# (handing each block over, the coefficients' cache lines moving between cores) for a
+# few milliseconds of wall time; a 512 x 512 map and larger keep the cores.
+_THREADED_PIXELS = 2**18
 
 
-def _by_blocks(n: int, size: int, fn) -> list:
+def _by_blocks(n: int, size: int, fn, pixels: int) -> list:
     """``fn(i0, i1)`` for the blocks ``[i0, i1)`` of ``size`` indices that tile
-    ``range(n)``, on up to the usable cores (``fn`` must release the GIL: the
-    compiled loops do); their results in the blocks' order."""
+    ``range(n)``, on up to the usable cores for a map of ``pixels`` pixels from
+    :data:`_THREADED_PIXELS` (``fn`` must release the GIL: the compiled loops do);
+    their results in the blocks' order."""
     blocks = [(i, min(i + size, n)) for i in range(0, n, size)]
-    return map_leaves(lambda b: fn(*b), blocks, max(min(check_workers(None), len(blocks)), 1))
+    workers = check_workers(None) if pixels >= _THREADED_PIXELS else 1
+    return map_leaves(lambda b: fn(*b), blocks, max(min(workers, len(blocks)), 1))
 
 
 @functools.cache
@@ -252,9 +259,9 @@ class _Spline:
             src = src.view(np.float64) if self.is_complex else src
             coef = self.coef
             _by_blocks(Hp, _BLOCK_ROWS, lambda i0, i1: kern.prefilter_rows(
-                src, self.is_complex, _SPLINE_PAD, coef, i0, i1))
+                src, self.is_complex, _SPLINE_PAD, coef, i0, i1), Hp * Wp)
             _by_blocks(Wp, _BLOCK_COLUMNS,
-                       lambda j0, j1: kern.prefilter_columns(coef, j0, j1))
+                       lambda j0, j1: kern.prefilter_columns(coef, j0, j1), Hp * Wp)
             return
         self.coef = []
         for p in planes:
@@ -302,12 +309,28 @@ def _unwrap(wrapped: np.ndarray, valid: np.ndarray, pairs=None, around=None) -> 
     is the continuous map scikit-image's merges reach (the same proof, with the
     guess's smooth map in place of the constant), spread over any number of fringes.
     Otherwise scikit-image runs. ``pairs``: the valid neighbours along rows and along
-    columns, when the caller has them.
+    columns, when the caller has them. ``around`` may be given as a function that
+    returns it, called only where it is needed.
     """
     # any constant would do for the proof; the circular mean of a subsample centres
     # the map so that a field spread over less than 2 pi shows no jump
     sub = wrapped[::4, ::4][valid[::4, ::4]]
     c = float(np.angle(np.sum(np.exp(1j * sub)))) if sub.size else 0.0
+    kern = _load_kernels() if _COMPILED else None
+    if kern is not None and wrapped.dtype == np.float64:
+        # the same operations in two passes at most, each stopped at its first jump
+        s = np.empty(wrapped.shape)
+        wrapped, valid = np.ascontiguousarray(wrapped), np.ascontiguousarray(valid)
+        if kern.unwrap_by_turns(wrapped, valid, c, np.empty((0, 0)), s) == 0:
+            return s
+        if around is not None:
+            near = np.ascontiguousarray(around() if callable(around) else around,
+                                        dtype=np.float64)
+            if kern.unwrap_by_turns(wrapped, valid, c, near, s, False) < 2:
+                return s
+            del near
+        del s
+        return _scikit_image_unwrap(wrapped, valid)
     # s = mod(wrapped - c + pi, 2 pi) - pi, in one buffer
     s = np.subtract(wrapped, c)
     s += np.pi
@@ -327,6 +350,8 @@ def _unwrap(wrapped: np.ndarray, valid: np.ndarray, pairs=None, around=None) -> 
         s += wrapped
         np.copyto(s, 0.0, where=~valid)  # a masked write, without gathering indices
         return s
+    if around is not None and callable(around):
+        around = around()
     if around is not None and np.isfinite(around).all():
         # t = wrapped + 2 pi rint((around - wrapped) / 2 pi), in s's buffer
         np.subtract(around, wrapped, out=s)
@@ -337,6 +362,11 @@ def _unwrap(wrapped: np.ndarray, valid: np.ndarray, pairs=None, around=None) -> 
         if not (_jumps(s, rows, 1) or _jumps(s, cols, 0)):
             np.copyto(s, 0.0, where=~valid)
             return s
+    return _scikit_image_unwrap(wrapped, valid)
+
+
+def _scikit_image_unwrap(wrapped, valid):
+    """scikit-image's ``unwrap_phase`` of ``wrapped`` over ``valid``, 0 elsewhere."""
     ma = np.ma.masked_array(wrapped, mask=~valid)
     return np.ma.filled(unwrap_phase(ma, rng=0), 0.0)
 
@@ -471,16 +501,15 @@ def deformation(reference: PhaseMaps, deformed: PhaseMaps, *, lagrangian: bool =
         # the starting field is handed over, not kept here: the first step frees it
         u, iterations, step = _lagrangian_fixed_point(start.pop(), reference, deformed,
                                                       valid, tol, max_iter)
-        G, valid = _lagrangian_gradient(u, reference, deformed, D_ref)
+        strain, rotation, valid = _lagrangian_gradient(u, reference, deformed, D_ref)
     else:
         u = start.pop()
-        G = eulerian_gradient(K, deformed.dphi.astype(np.float64) - D_ref)
+        strain, rotation = _strain_rotation(
+            eulerian_gradient(K, deformed.dphi.astype(np.float64) - D_ref))
     del D_ref
 
     # computed in float64, returned in the maps' precision (gridstrain.conventions)
     dt = np.result_type(reference.dphi.dtype, deformed.dphi.dtype)
-    strain, rotation = small_strain(G), 0.5 * (G[1, 0] - G[0, 1])
-    del G
     u, strain, rotation = _outside_nan(valid, dt, u, strain, rotation)
     if order.confirmed and order.source == "image features" and \
             (parts := cut_into_parts(valid)):
@@ -506,6 +535,12 @@ def small_strain(G: np.ndarray) -> np.ndarray:
     return np.stack([G[0, 0], G[1, 1], 0.5 * (G[0, 1] + G[1, 0])])
 
 
+def _strain_rotation(G):
+    """The small strain (3, ...) and the rotation ``(du_y/dx - du_x/dy)/2`` of the
+    gradient ``G`` (2, 2, ...)."""
+    return small_strain(G), 0.5 * (G[1, 0] - G[0, 1])
+
+
 def _outside_nan(valid, dtype, *maps):
     """The ``maps`` (fresh float64 arrays, changed in place) NaN outside ``valid``, in
     ``dtype``."""
@@ -521,11 +556,17 @@ def _unwrapped_displacement(reference, deformed, valid, K, g) -> np.ndarray:
     the guess ``g`` ((2, H, W), px)."""
     # one wave vector at a time: a complex product of (H, W), not of (2, H, W)
     dphase = np.empty(reference.psi.shape, dtype=np.float64)
+    real = np.empty(reference.shape, dtype=np.float64)
     for j in range(2):
         z = np.conjugate(reference.psi[j])
         z *= deformed.psi[j]
-        np.arctan2(z.imag, z.real, out=dphase[j])  # np.angle, written in place
+        # np.angle, written in place: arctan2 of contiguous parts takes half the time
+        # of the complex map's strided views, for the same values
+        np.copyto(real, z.real)
+        np.copyto(dphase[j], z.imag)
         del z
+        np.arctan2(dphase[j], real, out=dphase[j])
+    del real
     # a rectangle of valid pixels is one region: no labels needed
     labels, n_regions = (None, 1) if filled_box(valid) else ndimage.label(valid)
     if n_regions == 0:
@@ -537,17 +578,25 @@ def _unwrapped_displacement(reference, deformed, valid, K, g) -> np.ndarray:
     # many fringes unwraps without scikit-image
     constant = g.strides[1:] == (0, 0)  # a (u_x, u_y) pair broadcast: K g once
     for j in range(2):  # unwrapped in place
-        around = None if constant else -2 * np.pi * (K[j, 0] * g[0] + K[j, 1] * g[1])
+        # the guess's phase, computed only where the map turned by a constant jumps
+        around = None if constant else \
+            (lambda j=j: -2 * np.pi * (K[j, 0] * g[0] + K[j, 1] * g[1]))
         dphase[j] = _unwrap(dphase[j], valid, pairs, around)
         del around
     # fringe order per connected region, closest to the guess: the whole periods n
     # that bring K (u - g) closest to 0 are taken on it, and added back as
     # dphase + 2 pi n (u -> u - K^-1 n) before the one solve
     kg = K @ g[:, 0, 0] if constant else None
+    kern = _load_kernels() if _COMPILED else None
     for lab in range(1, n_regions + 1):
         sel = valid if n_regions == 1 else labels == lab
         n = np.empty(2)
         for j in range(2):
+            if kern is not None and (n_j := _whole_turns(
+                    kern, dphase[j], sel, g, K[j], kg[j] if constant else 0.0,
+                    constant)) is not None:
+                n[j] = n_j  # the median's whole number, without sorting
+                continue
             t = dphase[j][sel]  # a fresh gather, sorted in place by the median
             t *= -1 / (2 * np.pi)
             if constant:
@@ -564,6 +613,29 @@ def _unwrapped_displacement(reference, deformed, valid, K, g) -> np.ndarray:
     np.negative(u, out=u)
     u /= 2 * np.pi
     return u
+
+
+# How far, in periods, every pixel's phase change from the guess must lie within the
+# half-period either side of one whole number for that number to be taken as the one
+# its median rounds to: far above the rounding by which the compiled loop's values
+# may differ from numpy's (1e-15 period), far below the noise.
+_TURNS_MARGIN = 1e-6
+
+
+def _whole_turns(kern, dphase, sel, g, k, kg, constant):
+    """``rint(median(t))`` of :func:`_unwrapped_displacement`'s ``t`` over ``sel``
+    where every ``t`` lies within :data:`_TURNS_MARGIN` of the same half-period
+    interval around a whole number (then every value, and so the median, rounds to
+    it: rint is monotone), or None."""
+    lo, hi, finite = kern.turns_range(np.ascontiguousarray(dphase), sel,
+                                      g[:, :1, :1] if constant else g, float(k[0]),
+                                      float(k[1]), float(kg), constant)
+    if not finite or lo > hi:
+        return None
+    n = float(np.rint(lo))
+    if lo - (n - 0.5) > _TURNS_MARGIN and (n + 0.5) - hi > _TURNS_MARGIN:
+        return n
+    return None
 
 
 def _lagrangian_fixed_point(u, reference, deformed, valid, tol, max_iter):
@@ -597,18 +669,24 @@ def _lagrangian_fixed_point(u, reference, deformed, valid, tol, max_iter):
         m_of_d = np.linalg.inv(two_pi_K)
         a_med = _median_start(deformed, two_pi_K)
         q = max(_by_blocks(shape[0], _BLOCK_ROWS, lambda i0, i1: kern.newton_start(
-            u0, d, cur_valid, two_pi_K, m_of_d, a_med, start, i0, i1)))
+            u0, d, cur_valid, two_pi_K, m_of_d, a_med, start, i0, i1), u0[0].size))
         u = start
         # the reference's maps as they are (their real view), unless they are complex64
         ref = np.ascontiguousarray(reference.psi, dtype=np.complex128).view(np.float64)
         solve = np.ascontiguousarray(-np.linalg.inv(K) / (2 * np.pi))
 
+        def block_step(i0, i1):
+            prod = np.empty((4, i1 - i0, shape[1]))
+            kern.residual_products(psi_cur.coef, float(_SPLINE_PAD), u, ref, valid, prod,
+                                   i0, i1)
+            angles = prod[:2]  # written over the products it is taken from
+            np.arctan2(prod[0], prod[1], out=angles[0])
+            np.arctan2(prod[2], prod[3], out=angles[1])
+            return kern.fixed_point_update(angles, u, two_pi_K, solve, valid, i0, i1)
+
         def one_step():
             # the blocks' sums added in the blocks' order, whatever the threads
-            return math.fsum(_by_blocks(shape[0], _BLOCK_ROWS, lambda i0, i1:
-                                        kern.fixed_point_step(psi_cur.coef, float(_SPLINE_PAD),
-                                                              u, ref, two_pi_K, solve, valid,
-                                                              i0, i1)))
+            return math.fsum(_by_blocks(shape[0], _BLOCK_ROWS, block_step, u[0].size))
     else:
         u = _newton_start(u, deformed, two_pi_K)
         q = _contraction(deformed, K)
@@ -652,7 +730,8 @@ def _median_start(deformed, two_pi_K) -> np.ndarray:
     if v.any():
         for a in range(2):
             for b in range(2):
-                D[a, b] = median(deformed.dphi[a, b][v].astype(np.float64),
+                # the gather is a fresh array: sorted in place, not copied again
+                D[a, b] = median(deformed.dphi[a, b][v].astype(np.float64, copy=False),
                                  overwrite_input=True)
     A = np.linalg.solve(two_pi_K + D, two_pi_K)
     return A if np.all(np.isfinite(A)) else np.eye(2)
@@ -697,23 +776,27 @@ def _contraction(deformed, K) -> float:
 
 
 def _lagrangian_gradient(u, reference, deformed, D_ref):
-    """Exact Lagrangian displacement gradient ``G`` ((2, 2, H, W)) with the deformed
-    state's derivatives taken at ``X + u``, and the pixels valid in both states."""
+    """The small strain (3, H, W) and the rotation (H, W) of the exact Lagrangian
+    displacement gradient ``G`` with the deformed state's derivatives taken at
+    ``X + u`` (:func:`_strain_rotation`), and the pixels valid in both states."""
     shape = reference.shape
     K = reference.lattice.K
     # Where Psi is exactly 0 (deep in a masked area) its derivatives are undefined;
     # a spline's prefilter would spread one NaN over whole rows: the spline takes them
     # as zeros (the pixels are invalid anyway)
     spline = _Spline(deformed.dphi)  # the four derivatives, evaluated together
-    if spline.kern is not None:  # one compiled loop: validity, derivatives and G
-        G = np.empty((2, 2, *shape))
+    if spline.kern is not None:  # one compiled loop: validity, derivatives, G, strain
+        strain = np.empty((3, *shape))
+        rotation = np.empty(shape)
         valid = np.empty(shape, dtype=bool)
         args = (spline.coef, float(_SPLINE_PAD), np.ascontiguousarray(u, dtype=np.float64),
                 np.ascontiguousarray(deformed.valid), np.ascontiguousarray(reference.valid),
-                np.ascontiguousarray(D_ref, dtype=np.float64), 2 * np.pi * K, G, valid)
+                np.ascontiguousarray(D_ref, dtype=np.float64), 2 * np.pi * K, strain,
+                rotation, valid)
         _by_blocks(shape[0], _BLOCK_ROWS,
-                   lambda i0, i1: spline.kern.lagrangian_gradient(*args, i0, i1))
-        return G, valid
+                   lambda i0, i1: spline.kern.lagrangian_gradient(*args, i0, i1),
+                   rotation.size)
+        return strain, rotation, valid
     yy, xx = np.mgrid[0:shape[0], 0:shape[1]].astype(np.float64)
     coords = np.stack([yy + u[1], xx + u[0]])
     inside = ((coords[0] >= 0) & (coords[0] <= shape[0] - 1)
@@ -735,7 +818,7 @@ def _lagrangian_gradient(u, reference, deformed, D_ref):
     G[0, 1] = (a11 * B[0, 1] - a01 * B[1, 1]) * rdet
     G[1, 0] = (a00 * B[1, 0] - a10 * B[0, 0]) * rdet
     G[1, 1] = (a00 * B[1, 1] - a10 * B[0, 1]) * rdet
-    return G, valid
+    return *_strain_rotation(G), valid
 
 
 def _fringe_order_record(g, source, coarse):

@@ -11,13 +11,17 @@ spline weights of every point again for each; the correction evaluates four maps
 at once (the real and imaginary parts of both transforms, or the four phase
 derivatives) at the same points. Here the weights are computed once per point, the
 maps are interleaved, ``(H, W, 4)``, so that the four coefficients of a neighbour
-share a cache line, and what the correction does with the values (the residual,
-its wrapping and the update; the Lagrangian gradient) is done in the same loop: the
-four maps about ten times faster than four calls of ``map_coordinates``, the same
-numbers to rounding (``tests/test_lagrangian_interpolation.py`` compares every
+share a cache line, and what the correction does with the values (the products
+whose arguments are the residuals; the Lagrangian gradient) is done in the same
+loop: the four maps about ten times faster than four calls of ``map_coordinates``,
+the same numbers to rounding (``tests/test_lagrangian_interpolation.py`` compares every
 loop with the scipy and numpy path that runs without numba).
 
-Every loop works on a range of rows (the prefilter's second half on a range of
+The shortcuts of the phase difference's unwrapping (:func:`unwrap_by_turns`) and the
+whole periods of its fringe order (:func:`turns_range`) are here too: numpy's
+operations in one or two passes that stop at the first jump, the same bits.
+
+Every loop of the correction works on a range of rows (the prefilter's second half on a range of
 columns) and releases the GIL: :mod:`gridstrain.kinematics` runs fixed blocks of
 them on the usable cores, with the same result on any number of threads.
 """
@@ -34,13 +38,19 @@ __all__: list[str] = []
 _OPTIONS = {"cache": True, "nogil": True, "error_model": "numpy", "boundscheck": False}
 
 
+# The B-spline's 1/6, multiplied rather than divided by 6: eight divisions a point
+# took a sixth of the evaluation's time (four maps at 100 000 points 2.9 -> 2.6 ms);
+# the weights differ by an ulp, the maps by about 1e-15 of their values.
+_SIXTH = 1.0 / 6.0
+
+
 @njit(**_OPTIONS)
 def _weights(t):  # pragma: no cover
     """Cubic B-spline weights of the four samples floor(v) - 1 .. floor(v) + 2,
     ``t = v - floor(v)``."""
     s = 1.0 - t
-    return (s * s * s / 6.0, (3.0 * t * t * t - 6.0 * t * t + 4.0) / 6.0,
-            (3.0 * s * s * s - 6.0 * s * s + 4.0) / 6.0, t * t * t / 6.0)
+    return (s * s * s * _SIXTH, (3.0 * t * t * t - 6.0 * t * t + 4.0) * _SIXTH,
+            (3.0 * s * s * s - 6.0 * s * s + 4.0) * _SIXTH, t * t * t * _SIXTH)
 
 
 @njit(**_OPTIONS)
@@ -94,37 +104,60 @@ def cubic4_at(coef, offset, cy, cx, out):  # pragma: no cover
 
 
 @njit(**_OPTIONS)
-def fixed_point_step(coef, offset, u, ref, two_pi_k, solve, valid, i0,
-                     i1):  # pragma: no cover
-    """One step of the large-displacement fixed point, in place; returns ``sum du^2``.
+def residual_products(coef, offset, u, ref, valid, prod, i0, i1):  # pragma: no cover
+    """The products whose arguments are a step of the large-displacement fixed point's
+    residuals (:func:`fixed_point_update`), on the rows ``i0 <= i < i1``.
 
     ``coef`` (Hp, Wp, 4): the prefiltered deformed transforms ``Re Psi_1, Im Psi_1,
-    Re Psi_2, Im Psi_2``; ``u`` (2, H, W) the displacement, updated at the ``valid``
-    pixels; ``ref`` (2, H, 2W) the reference transforms ``Psi_1, Psi_2`` as real views
-    (real and imaginary parts side by side);
-    ``two_pi_k`` = ``2 pi K`` and ``solve`` = ``-K^-1 / 2 pi`` (2, 2). At ``X``:
-    ``r_j = wrap(arg(Psi_j,def(X + u) conj Psi_j,ref(X)) + 2 pi k_j.u)`` and
-    ``du = -K^-1 r / 2 pi``, as :func:`gridstrain.kinematics._lagrangian_fixed_point`
-    computes with numpy. On the rows ``i0 <= i < i1`` only (rows are independent).
+    Re Psi_2, Im Psi_2``; ``u`` (2, H, W) the displacement; ``ref`` (2, H, 2W) the
+    reference transforms ``Psi_1, Psi_2`` as real views (real and imaginary parts side
+    by side). Writes ``prod`` (4, i1 - i0, W): the imaginary and real parts of
+    ``Psi_j,def(X + u) conj Psi_j,ref(X)`` for j = 1, 2, at the ``valid`` pixels (0
+    elsewhere). Their arguments are taken by numpy's ``arctan2`` over the block (a
+    vectorised loop where the CPU has one, some ten times faster than one ``atan2``
+    per pixel here), as the numpy path takes them.
+    """
+    W = u.shape[2]
+    for i in range(i0, i1):
+        k = i - i0
+        for j in range(W):
+            if not valid[i, j]:
+                prod[0, k, j] = prod[1, k, j] = prod[2, k, j] = prod[3, k, j] = 0.0
+                continue
+            p0, p1, p2, p3 = _at4(coef, i + u[1, i, j] + offset, j + u[0, i, j] + offset)
+            c0 = ref[0, i, 2 * j]
+            d0 = ref[0, i, 2 * j + 1]
+            c1 = ref[1, i, 2 * j]
+            d1 = ref[1, i, 2 * j + 1]
+            prod[0, k, j] = p1 * c0 - p0 * d0
+            prod[1, k, j] = p0 * c0 + p1 * d0
+            prod[2, k, j] = p3 * c1 - p2 * d1
+            prod[3, k, j] = p2 * c1 + p3 * d1
+
+
+@njit(**_OPTIONS)
+def fixed_point_update(angles, u, two_pi_k, solve, valid, i0, i1):  # pragma: no cover
+    """One step of the large-displacement fixed point on the rows ``i0 <= i < i1``,
+    in place; returns ``sum du^2``.
+
+    ``angles`` (2, i1 - i0, W): ``arg(Psi_j,def(X + u) conj Psi_j,ref(X))`` of the
+    block (:func:`residual_products`); ``u`` (2, H, W) the displacement, updated at
+    the ``valid`` pixels; ``two_pi_k`` = ``2 pi K`` and ``solve`` = ``-K^-1 / 2 pi``
+    (2, 2). At ``X``: ``r_j = wrap(arg(...) + 2 pi k_j.u)`` and ``du = -K^-1 r / 2
+    pi``, as :func:`gridstrain.kinematics._lagrangian_fixed_point` computes with numpy.
     """
     W = u.shape[2]
     two_pi = 2.0 * math.pi
     total = 0.0
     for i in range(i0, i1):
+        k = i - i0
         for j in range(W):
             if not valid[i, j]:
                 continue
             ux = u[0, i, j]
             uy = u[1, i, j]
-            p0, p1, p2, p3 = _at4(coef, i + uy + offset, j + ux + offset)
-            c0 = ref[0, i, 2 * j]
-            d0 = ref[0, i, 2 * j + 1]
-            c1 = ref[1, i, 2 * j]
-            d1 = ref[1, i, 2 * j + 1]
-            r0 = math.atan2(p1 * c0 - p0 * d0, p0 * c0 + p1 * d0)
-            r1 = math.atan2(p3 * c1 - p2 * d1, p2 * c1 + p3 * d1)
-            r0 += two_pi_k[0, 0] * ux + two_pi_k[0, 1] * uy
-            r1 += two_pi_k[1, 0] * ux + two_pi_k[1, 1] * uy
+            r0 = angles[0, k, j] + (two_pi_k[0, 0] * ux + two_pi_k[0, 1] * uy)
+            r1 = angles[1, k, j] + (two_pi_k[1, 0] * ux + two_pi_k[1, 1] * uy)
             # wrapped to (-pi, pi], as pi - mod(pi - r, 2 pi)
             t0 = math.pi - r0
             t1 = math.pi - r1
@@ -151,6 +184,11 @@ _GAIN = (1.0 - _POLE) * (1.0 - 1.0 / _POLE)
 _HORIZON = math.ceil(math.log(1e-20) / math.log(-_POLE))
 
 
+# The maps a prefilter holds (interleaved, the last axis): always four, written as a
+# constant in the recursions' loops so that LLVM unrolls and vectorises them (the
+# columns' half of the prefilter of four 250 x 400 maps 0.40 -> 0.28 ms, the rows'
+# 0.39 -> 0.34 ms, one core, the same bits).
+_PLANES = 4
 # Rows whose recursions run in lockstep: along a row each step waits for the one
 # before, and a row's four maps alone leave the core idle between them; eight rows
 # give it 32 independent sums (the first half of the prefilter of four 250 x 400 maps
@@ -175,6 +213,9 @@ def prefilter_rows(src, complex_view, pad, out, i0, i1):  # pragma: no cover
     by up to 1e-7). Rows are independent: blocks of rows may run on several threads.
     """
     Hp, Wp, nm = out.shape
+    if nm != _PLANES:
+        raise ValueError("the prefilter holds four maps")
+    nm = _PLANES
     H, W = Hp - 2 * pad, Wp - 2 * pad
     g = _GAIN * _GAIN
     s = np.empty((_LOCKSTEP, nm))
@@ -199,7 +240,7 @@ def _recurse_rows(out, b0, b1, s, first):  # pragma: no cover
     ``b0 <= i < b1`` (at most :data:`_LOCKSTEP`), each row and map on its own, the rows
     in lockstep; ``s``, ``first`` (_LOCKSTEP, nm) scratch."""
     n = out.shape[1]
-    nm = out.shape[2]
+    nm = _PLANES
     nb = b1 - b0
     z = _POLE
     zn = z ** n
@@ -244,7 +285,9 @@ def prefilter_columns(out, j0, j1):  # pragma: no cover
     the rows' recursion on a strided 2-D view of the block gives the same bits in
     more time (benchmarks/README.md)."""
     n = out.shape[0]
-    nm = out.shape[2]
+    if out.shape[2] != _PLANES:
+        raise ValueError("the prefilter holds four maps")
+    nm = _PLANES
     z = _POLE
     zn = z ** n
     w = j1 - j0
@@ -283,18 +326,21 @@ def prefilter_columns(out, j0, j1):  # pragma: no cover
 
 
 @njit(**_OPTIONS)
-def lagrangian_gradient(coef, offset, u, cur_valid, ref_valid, d_ref, two_pi_k, g,
-                        valid, i0, i1):  # pragma: no cover
+def lagrangian_gradient(coef, offset, u, cur_valid, ref_valid, d_ref, two_pi_k, strain,
+                        rotation, valid, i0, i1):  # pragma: no cover
     """The exact Lagrangian displacement gradient and the pixels valid in both states.
 
     ``coef`` (Hp, Wp, 4): the prefiltered deformed phase derivatives ``D_00, D_01,
     D_10, D_11``; ``u`` (2, H, W); ``cur_valid``, ``ref_valid`` (H, W) bool; ``d_ref``
-    (2, 2, H, W) the reference's derivatives; ``two_pi_k`` = ``2 pi K``. Writes ``g``
-    (2, 2, H, W), ``(2 pi K + D_def(X + u)) G = D_ref - D_def(X + u)`` by Cramer's
-    rule, and ``valid`` (H, W): valid in the reference, ``X + u`` inside the image
-    and the bilinear interpolation of the deformed validity there above 0.999, as
-    :func:`gridstrain.kinematics._lagrangian_gradient` computes with scipy. On the
-    rows ``i0 <= i < i1`` only.
+    (2, 2, H, W) the reference's derivatives; ``two_pi_k`` = ``2 pi K``. Solves
+    ``(2 pi K + D_def(X + u)) G = D_ref - D_def(X + u)`` by Cramer's rule and writes
+    its small strain ``strain`` (3, H, W), ``(G_00, G_11, (G_01 + G_10) / 2)``, its
+    rotation ``rotation`` (H, W), ``(G_10 - G_01) / 2``, and ``valid`` (H, W): valid in
+    the reference, ``X + u`` inside the image and the bilinear interpolation of the
+    deformed validity there above 0.999, as
+    :func:`gridstrain.kinematics._lagrangian_gradient` computes with scipy and numpy;
+    ``strain`` and ``rotation`` are NaN where not ``valid`` (the measurement's value
+    there: the spline is not evaluated). On the rows ``i0 <= i < i1`` only.
     """
     _, H, W = u.shape
     for i in range(i0, i1):
@@ -319,6 +365,10 @@ def lagrangian_gradient(coef, offset, u, cur_valid, ref_valid, d_ref, two_pi_k, 
                             w += (ty if a else 1.0 - ty) * (tx if b else 1.0 - tx)
                 ok = w > 0.999
             valid[i, j] = ok
+            if not ok:  # NaN where not valid, as the measurement reports it
+                strain[0, i, j] = strain[1, i, j] = strain[2, i, j] = math.nan
+                rotation[i, j] = math.nan
+                continue
             d00, d01, d10, d11 = _at4(coef, y + offset, x + offset)
             a00 = two_pi_k[0, 0] + d00
             a01 = two_pi_k[0, 1] + d01
@@ -329,10 +379,12 @@ def lagrangian_gradient(coef, offset, u, cur_valid, ref_valid, d_ref, two_pi_k, 
             b10 = d_ref[1, 0, i, j] - d10
             b11 = d_ref[1, 1, i, j] - d11
             rdet = 1.0 / (a00 * a11 - a01 * a10)
-            g[0, 0, i, j] = (a11 * b00 - a01 * b10) * rdet
-            g[0, 1, i, j] = (a11 * b01 - a01 * b11) * rdet
-            g[1, 0, i, j] = (a00 * b10 - a10 * b00) * rdet
-            g[1, 1, i, j] = (a00 * b11 - a10 * b01) * rdet
+            g01 = (a11 * b01 - a01 * b11) * rdet
+            g10 = (a00 * b10 - a10 * b00) * rdet
+            strain[0, i, j] = (a11 * b00 - a01 * b10) * rdet
+            strain[1, i, j] = (a00 * b11 - a10 * b01) * rdet
+            strain[2, i, j] = 0.5 * (g01 + g10)
+            rotation[i, j] = 0.5 * (g10 - g01)
 
 
 @njit(**_OPTIONS)
@@ -394,3 +446,136 @@ def newton_start(u0, d, cur_valid, two_pi_k, m_of_d, a_med, u, i0, i1):  # pragm
                 u[0, i, j] = mx
                 u[1, i, j] = my
     return q if finite else math.inf
+
+
+# ----------------------------------------------------------- the phase difference's turns
+
+
+@njit(**_OPTIONS)
+def _turned_row(wrapped, c, s, i):  # pragma: no cover
+    """Row ``i`` of ``s = mod(wrapped - c + pi, 2 pi) - pi``, as numpy computes it;
+    False where a value left ``[-2 pi, 4 pi)`` before the ``mod`` (a NaN, a
+    ``c`` far from the map), whose row must then take numpy's ``fmod``.
+
+    Within that interval ``np.mod(x, b)`` (C ``fmod``, moved into ``[0, b)``, +0.0 for
+    an exact multiple) is ``x + b``, ``x`` or ``x - b`` (exact there), written as
+    selections that the compiler vectorises: ``fmod``'s exact division took ten times
+    as long as the rest of the pass."""
+    W = wrapped.shape[1]
+    b = 2.0 * math.pi
+    inside = True
+    for j in range(W):
+        x = wrapped[i, j] - c
+        x += math.pi
+        lo = b if x < 0.0 else 0.0
+        hi = b if x >= b else 0.0
+        inside &= x >= -b and x < 2.0 * b
+        s[i, j] = ((x + lo) - hi) - math.pi
+    if inside:
+        return True
+    for j in range(W):
+        x = wrapped[i, j] - c
+        x += math.pi
+        m = np.fmod(x, b)
+        if m != 0.0:
+            if m < 0.0:
+                m += b
+        else:
+            m = 0.0
+        s[i, j] = m - math.pi
+    return False
+
+
+@njit(**_OPTIONS)
+def _row_jumps(s, valid, i):  # pragma: no cover
+    """Whether two valid neighbours of ``s`` along row ``i``, or between rows ``i - 1``
+    and ``i``, differ by pi or more (without a branch per pixel: vectorised)."""
+    W = s.shape[1]
+    jump = False
+    for j in range(W - 1):
+        jump |= valid[i, j] & valid[i, j + 1] & (abs(s[i, j + 1] - s[i, j]) >= math.pi)
+    if i > 0:
+        for j in range(W):
+            jump |= valid[i, j] & valid[i - 1, j] & (abs(s[i, j] - s[i - 1, j]) >= math.pi)
+    return jump
+
+
+@njit(**_OPTIONS)
+def unwrap_by_turns(wrapped, valid, c, around, s, turned=True):  # pragma: no cover
+    """The shortcuts of :func:`gridstrain.kinematics._unwrap` in two passes at most,
+    the same operations as its numpy path (the same bits); returns 0 or 1, the
+    shortcut taken (``s`` (H, W) then the unwrapped map, 0 off ``valid``), or 2 where
+    neither holds (scikit-image must run; ``s`` is scratch).
+
+    0: ``s = mod(wrapped - c + pi, 2 pi) - pi`` shows no jump of pi or more between
+    valid neighbours, and ``wrapped`` plus the whole turns of ``s + c - wrapped`` is
+    returned. 1: ``around`` (H, W), when given (its first axis not empty), is finite,
+    and ``wrapped`` plus the whole turns of ``around - wrapped`` shows no jump. Each
+    pass stops at its first jump. Without ``turned``, the first shortcut is taken as
+    failed (a call before found its jump).
+    """
+    H, W = wrapped.shape
+    two_pi = 2.0 * math.pi
+    jump = not turned
+    for i in range(H if turned else 0):
+        _turned_row(wrapped, c, s, i)
+        if _row_jumps(s, valid, i):
+            jump = True
+            break
+    if not jump:
+        for i in range(H):
+            for j in range(W):
+                if valid[i, j]:
+                    w = wrapped[i, j]
+                    x = s[i, j] + c
+                    x -= w
+                    x /= two_pi
+                    x = np.rint(x)
+                    x *= two_pi
+                    s[i, j] = x + w
+                else:
+                    s[i, j] = 0.0
+        return 0
+    if around.shape[0] == 0:
+        return 2
+    for i in range(H):
+        for j in range(W):
+            if not math.isfinite(around[i, j]):
+                return 2
+    for i in range(H):
+        for j in range(W):
+            if valid[i, j]:
+                w = wrapped[i, j]
+                x = around[i, j] - w
+                x /= two_pi
+                x = np.rint(x)
+                x *= two_pi
+                s[i, j] = x + w
+            else:
+                s[i, j] = 0.0
+        if _row_jumps(s, valid, i):
+            return 2
+    return 1
+
+
+@njit(**_OPTIONS)
+def turns_range(dphase, sel, g, k0, k1, kg, constant):  # pragma: no cover
+    """The smallest and largest ``t = -dphase / 2 pi - (k0 g_x + k1 g_y)`` (``- kg``
+    where ``constant``) over ``sel``, periods, and whether every one is finite:
+    where all lie within one half-period either side of the same whole number, that
+    number is the one the median of ``t`` rounds to, found without sorting.
+    ``dphase``, ``sel`` (H, W); ``g`` (2, H, W), read only where not ``constant``."""
+    H, W = dphase.shape
+    lo = math.inf
+    hi = -math.inf
+    finite = True
+    scale = -1.0 / (2.0 * math.pi)
+    for i in range(H):
+        for j in range(W):
+            if sel[i, j]:
+                t = dphase[i, j] * scale
+                t -= kg if constant else k0 * g[0, i, j] + k1 * g[1, i, j]
+                finite &= math.isfinite(t)
+                lo = min(lo, t)
+                hi = max(hi, t)
+    return lo, hi, finite
