@@ -98,9 +98,22 @@ def test_modulus_command(coupon, tmp_path, capsys):
     rc = main(["modulus", str(path), "--region", *map(str, REGION), "--area", str(AREA),
                "--loads", str(loads)])
     assert rc == 0
-    line = capsys.readouterr().out.splitlines()[1]
-    assert line.startswith("E  = 70.")
-    assert line.endswith("] GPa")
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[1].startswith("E  = 70.")
+    assert lines[1].endswith("] GPa")
+    assert not any(line.startswith("note:") for line in lines)  # a metal's modulus
+    # the same area in m2 given as mm2 (the default unit): E a million times too large,
+    # printed with a note that names the area's unit, and in the JSON
+    args = ["modulus", str(path), "--region", *map(str, REGION), "--area",
+            str(AREA * 1e-6), "--loads", str(loads)]
+    assert main(args) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[1].startswith("E  = 7.0")
+    assert "PPa" not in lines[1]
+    assert lines[2].startswith("note: E = ")
+    assert "--area-unit" in lines[2]
+    assert main([*args, "--json"]) == 0
+    assert "--area-unit" in json.loads(capsys.readouterr().out)["doubt"]
     # no loads: one line, exit 2
     assert main(["modulus", str(path), "--area", "20"]) == 2
     assert "no loads" in capsys.readouterr().err
@@ -146,6 +159,34 @@ def test_stress_in_mpa_and_modulus_in_gpa(load_unit, area, area_unit, to_mpa, sh
     assert abs(c.E / E - 1) < 1e-9
     assert c.E_text().startswith(f"{shown}, 95 % interval [")
     assert c.E_text().endswith("] GPa")
+
+
+@pytest.mark.parametrize(("load_unit", "area_unit", "stress_mpa", "doubt"), [
+    ("N", "mm2", 70e3, False),     # aluminium
+    ("N", "mm2", 1.2e6, False),    # diamond, the stiffest solid
+    ("N", "mm2", 1e-3, False),     # a soft gel, 1 kPa
+    ("N", "mm2", 70e9, True),      # an area in m2 given as mm2
+    # aluminium's 70 GPa with an area in mm2 given as m2 reads 70 kPa, a soft solid's
+    # modulus: the range cannot tell, nothing said
+    ("N", "m2", 70e3, False),
+    ("lbf", "in2", 1e7 / 145.0377, False),  # 10 Msi
+    ("lbf", "in2", 1e13 / 145.0377, True),
+    ("kgf", "mm2", 70e9, False),   # a unit of unknown scale: nothing said
+])
+def test_a_modulus_no_solid_has_is_doubted(load_unit, area_unit, stress_mpa, doubt):
+    """E outside 100 Pa to 2 TPa is a unit's slip: ``unit_doubt`` says so, naming the
+    area's unit; a modulus any solid may have, or a stress of unknown scale, is not
+    doubted."""
+    load = np.linspace(1.0, 10.0, 6)
+    per = {"MPa": 1.0, "psi": 1 / 145.0377}
+    c = elastic_constants(_reading(load, load_unit, load / 2.0 / (stress_mpa /
+                                   per.get("psi" if load_unit == "lbf" else "MPa"))),
+                          area=2.0, area_unit=area_unit)
+    text = c.unit_doubt()
+    assert (text is not None) == doubt
+    if doubt:
+        assert "--area-unit" in text
+        assert text.startswith(f"E = {c.E_text(3).split(',')[0]}")
 
 
 def test_soft_and_imperial_moduli_keep_a_sensible_unit():

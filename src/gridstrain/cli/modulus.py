@@ -58,6 +58,8 @@ def run(args) -> int:
         return 0
     print(reading.where)
     print(f"E  = {c.E_text()}")
+    if c.unit_doubt() is not None:
+        print(f"note: {c.unit_doubt()}")
     print(f"nu = {c.nu:.4f}, 95 % interval [{c.nu_ci[0]:.4f}, {c.nu_ci[1]:.4f}]")
     print(f"{len(c.states)} states fitted; intervals from the {c.interval_basis} (reduced "
           f"chi2 {c.reduced_chi2[0]:.2f} axial, {c.reduced_chi2[1]:.2f} transverse)")

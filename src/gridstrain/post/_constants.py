@@ -66,6 +66,13 @@ def modulus_unit(value: float, unit: str) -> tuple[float, str]:
 #: Two-sided coverage of the intervals.
 LEVEL = 0.95
 
+#: Young's moduli of solids lie between these, MPa (soft gels about 1 kPa, diamond
+#: 1.2 TPa): a fitted E outside is a unit's slip, not a material's (an area in m2 read
+#: as mm2 makes E a million times too large).
+SOLID_MODULI_MPA = (1e-4, 2e6)
+# MPa in one unit of the stress units whose scale is known
+_MPA_PER = {"MPa": 1.0, "psi": 0.006894757293168361}
+
 
 @dataclass(frozen=True)
 class ElasticConstants:
@@ -120,13 +127,28 @@ class ElasticConstants:
         return (f"{self.E * scale:.{digits}g} {unit}, {LEVEL * 100:g} % interval "
                 f"[{lo:.{digits}g}, {hi:.{digits}g}] {unit}")
 
+    def unit_doubt(self) -> str | None:
+        """A sentence when ``E`` lies outside any solid's Young's modulus
+        (:data:`SOLID_MODULI_MPA`), naming what to check; None otherwise, or when the
+        stress unit's scale is not known."""
+        per = _MPA_PER.get(self.stress_unit)
+        if per is None or not math.isfinite(self.E):
+            return None
+        lo, hi = SOLID_MODULI_MPA
+        if lo <= self.E * per <= hi:
+            return None
+        return (f"E = {self.E_text(3).split(',')[0]} is no solid's Young's modulus (about "
+                "1 kPa for a soft gel to 1.2 TPa for diamond): check the cross-section's "
+                "value and unit (area_unit, --area-unit, mm2 by default: an area in m2 "
+                "given as mm2 makes E a million times too large) and the loads' unit")
+
     def to_dict(self) -> dict:
         """The constants as JSON-ready values, units included."""
         return {"E": self.E, "E_ci": list(self.E_ci), "E_unit": self.stress_unit,
                 "nu": self.nu, "nu_ci": list(self.nu_ci), "nu_unit": "1",
                 "level": LEVEL, "axis": self.axis, "states": list(self.states),
                 "interval_basis": self.interval_basis,
-                "reduced_chi2": list(self.reduced_chi2)}
+                "reduced_chi2": list(self.reduced_chi2), "doubt": self.unit_doubt()}
 
 
 def _fit(x, y, s):

@@ -338,6 +338,8 @@ def _test_section(result, ps, unit, *, region, px: bool, area, area_unit: str,
                      f"intervals from the {c.interval_basis} (reduced χ² "
                      f"{c.reduced_chi2[0]:.2f} axial, {c.reduced_chi2[1]:.2f} "
                      "transverse).")
+        if c.unit_doubt() is not None:
+            notes.append(f"{c.unit_doubt()}{own}.")
     if load is None:
         notes.append("The states have no loads: no load-strain plot, Young's modulus "
                      "or Poisson's ratio (measure --loads FILE records them; report "
