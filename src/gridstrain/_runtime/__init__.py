@@ -5,5 +5,7 @@
 - :mod:`.threads`: BLAS kept on the calling thread inside the frame loops, bounded
   thread pools, and the process settings the command line makes before numpy loads;
 - :mod:`.memory`: the memory a measurement needs and the budget it is held to;
-- :mod:`.paging`: read-only copies of large arrays in a file mapping.
+- :mod:`.paging`: read-only copies of large arrays in a file mapping;
+- :mod:`.compiled`: each folder's compiled loops (numba), loaded on first use or not at
+  all.
 """

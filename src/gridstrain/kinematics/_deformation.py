@@ -15,6 +15,7 @@ import numpy as np
 from scipy import ndimage
 from skimage.restoration import unwrap_phase
 
+from .._runtime import compiled
 from .._runtime.threads import map_leaves
 from .._stats import median
 from .._validation import (
@@ -216,12 +217,8 @@ def _by_blocks(n: int, size: int, fn, pixels: int) -> list:
 
 @functools.cache
 def _load_kernels():
-    """The module of compiled spline loops, or None when numba cannot be imported."""
-    try:
-        from . import _spline_kernels
-    except ImportError:
-        return None
-    return _spline_kernels
+    """The module of compiled spline loops (:func:`gridstrain._runtime.compiled.load`), or None."""
+    return compiled.load(__package__, "._spline_kernels")
 
 
 class _Spline:

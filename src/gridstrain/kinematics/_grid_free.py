@@ -48,6 +48,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import ndimage
 
+from .._runtime import compiled
 from ..phase import Lattice
 
 # A tile decides only if every other whole-period offset leaves this many times its
@@ -188,12 +189,8 @@ _COMPILED = True
 
 @functools.cache
 def _load_kernels():
-    """The module of the compiled reads, or None when numba cannot be imported."""
-    try:
-        from . import _bilinear_kernels
-    except ImportError:
-        return None
-    return _bilinear_kernels
+    """The module of the compiled reads (:func:`gridstrain._runtime.compiled.load`), or None."""
+    return compiled.load(__package__, "._bilinear_kernels")
 
 
 def bilinear(img: np.ndarray, coords: np.ndarray) -> np.ndarray:

@@ -9,7 +9,6 @@ centred unit-sum Gaussian, mean removal and zero extension) of
 from __future__ import annotations
 
 import functools
-import importlib
 import math
 from dataclasses import dataclass
 
@@ -17,6 +16,7 @@ import numpy as np
 from numpy.lib.stride_tricks import as_strided
 from scipy import fft as sfft
 
+from .._runtime import compiled
 from .._runtime import fft as _fft
 from .._runtime.threads import map_leaves
 from .._validation import (
@@ -614,15 +614,8 @@ _COMPILED_CHUNK_BYTES = 2**19
 
 @functools.cache
 def _load_kernels():
-    """The module of compiled loops, or None when numba cannot be imported or cannot
-    set up its cache (no writable directory: numba refuses at the decorators)."""
-    try:
-        # looked up in sys.modules, not as the package's attribute: a test that
-        # removes the module makes it load again
-        kernels = importlib.import_module("._kernels", __package__)
-    except RuntimeError:
-        return None
-    return kernels if kernels.AVAILABLE else None
+    """The module of compiled loops (:func:`gridstrain._runtime.compiled.load`), or None."""
+    return compiled.load(__package__, "._kernels")
 
 
 def _kernels():

@@ -31,6 +31,8 @@ import functools
 
 import numpy as np
 
+from .._runtime import compiled
+
 #: The largest rounding error of a measured map, over its std at the same pixel.
 STD_FRACTION = 0.1
 #: Mantissa bits a std map keeps (of float32's 23): relative error <= 2**-6 = 1.6 %.
@@ -59,12 +61,9 @@ _TOO_LARGE = (f"values must fit float32 (|v| <= {_F32_MAX:.3g}) to be stored rou
 
 @functools.cache
 def _load_kernels():
-    """The module of compiled rounding loops, or None when numba cannot be imported."""
-    try:
-        from . import _kernels
-    except ImportError:
-        return None
-    return _kernels
+    """The module of compiled rounding loops (:func:`gridstrain._runtime.compiled.load`),
+    or None."""
+    return compiled.load(__package__, "._kernels")
 
 
 def _kernels():

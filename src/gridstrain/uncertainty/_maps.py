@@ -12,7 +12,6 @@ strain. Conventions: :mod:`gridstrain.conventions`.
 from __future__ import annotations
 
 import functools
-import importlib
 import math
 from dataclasses import dataclass
 
@@ -20,6 +19,7 @@ import numpy as np
 from scipy import ndimage
 
 from .. import _stats
+from .._runtime import compiled
 from .._validation import (
     as_float_array,
     as_image,
@@ -61,13 +61,8 @@ _G2_TRUNCATE = 5.0
 
 @functools.cache
 def _load_kernels():
-    """The module of compiled loops, or None when numba cannot be imported or cannot
-    set up its cache (no writable directory: numba refuses at the decorators)."""
-    try:
-        kernels = importlib.import_module("._kernels", __package__)
-    except RuntimeError:
-        return None
-    return kernels if kernels.AVAILABLE else None
+    """The module of compiled loops (:func:`gridstrain._runtime.compiled.load`), or None."""
+    return compiled.load(__package__, "._kernels")
 
 
 def _kernels():
