@@ -501,6 +501,24 @@ def _row_jumps(s, valid, i):  # pragma: no cover
 
 
 @njit(**_OPTIONS)
+def _whole_turns_row(wrapped, s, c, valid, i):  # pragma: no cover
+    """Row ``i`` of ``s`` replaced by ``wrapped`` plus the whole turns of ``s + c -
+    wrapped`` (0 off ``valid``), as the numpy path rounds them."""
+    two_pi = 2.0 * math.pi
+    for j in range(s.shape[1]):
+        if valid[i, j]:
+            w = wrapped[i, j]
+            x = s[i, j] + c
+            x -= w
+            x /= two_pi
+            x = np.rint(x)
+            x *= two_pi
+            s[i, j] = x + w
+        else:
+            s[i, j] = 0.0
+
+
+@njit(**_OPTIONS)
 def unwrap_by_turns(wrapped, valid, c, around, s, turned=True):  # pragma: no cover
     """The shortcuts of :func:`gridstrain.kinematics._unwrap` in two passes at most,
     the same operations as its numpy path (the same bits); returns 0 or 1, the
@@ -515,7 +533,6 @@ def unwrap_by_turns(wrapped, valid, c, around, s, turned=True):  # pragma: no co
     failed (a call before found its jump).
     """
     H, W = wrapped.shape
-    two_pi = 2.0 * math.pi
     jump = not turned
     for i in range(H if turned else 0):
         _turned_row(wrapped, c, s, i)
@@ -524,17 +541,7 @@ def unwrap_by_turns(wrapped, valid, c, around, s, turned=True):  # pragma: no co
             break
     if not jump:
         for i in range(H):
-            for j in range(W):
-                if valid[i, j]:
-                    w = wrapped[i, j]
-                    x = s[i, j] + c
-                    x -= w
-                    x /= two_pi
-                    x = np.rint(x)
-                    x *= two_pi
-                    s[i, j] = x + w
-                else:
-                    s[i, j] = 0.0
+            _whole_turns_row(wrapped, s, c, valid, i)
         return 0
     if around.shape[0] == 0:
         return 2
@@ -543,16 +550,8 @@ def unwrap_by_turns(wrapped, valid, c, around, s, turned=True):  # pragma: no co
             if not math.isfinite(around[i, j]):
                 return 2
     for i in range(H):
-        for j in range(W):
-            if valid[i, j]:
-                w = wrapped[i, j]
-                x = around[i, j] - w
-                x /= two_pi
-                x = np.rint(x)
-                x *= two_pi
-                s[i, j] = x + w
-            else:
-                s[i, j] = 0.0
+        s[i] = around[i]
+        _whole_turns_row(wrapped, s, 0.0, valid, i)
         if _row_jumps(s, valid, i):
             return 2
     return 1
