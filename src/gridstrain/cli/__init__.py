@@ -216,13 +216,20 @@ def _where(argv) -> str:
     return f"gridstrain {command}" if command in _COMMANDS else "gridstrain"
 
 
+def _own_process() -> None:
+    """What the command sets in a process of its own, before numpy is imported: BLAS on
+    one thread, no huge pages where the kernel would stall for them, one malloc arena,
+    the freed blocks kept (:mod:`gridstrain._runtime.threads`)."""
+    blas_on_one_thread_from_start()
+    no_huge_page_stalls_from_start()
+    one_malloc_arena()
+    keep_freed_memory()
+
+
 def _main(argv) -> int:
     if argv is None:  # the process is the command's own (not a caller's)
         argv = sys.argv[1:]
-        blas_on_one_thread_from_start()
-        no_huge_page_stalls_from_start()
-        one_malloc_arena()
-        keep_freed_memory()
+        _own_process()
     # the top level has no option taking a value: the first word is the sub-command
     command = next((a for a in argv if not a.startswith("-")), None)
     parser = build_parser([command] if command in _COMMANDS else [])
