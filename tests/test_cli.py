@@ -575,6 +575,50 @@ def test_python_dash_m_gridstrain_is_the_command():
     assert "gridstrain" in p.stdout
 
 
+_ENTRY = """
+import atexit, sys, threading, time
+marker, wait_for = sys.argv[1], sys.argv[2] == "thread"
+atexit.register(lambda: open(marker, "a").write("exit handler ran;"))
+if wait_for:  # a thread still working when the command returns
+    threading.Thread(target=lambda: (time.sleep(0.5),
+                                     open(marker, "a").write("thread ended;"))).start()
+sys.argv = ["gridstrain", *sys.argv[3:]]
+print("printed before;", end="")
+from gridstrain.cli import entry
+entry()
+"""
+
+
+@pytest.mark.parametrize("thread", ["thread", "none"])
+def test_the_commands_own_process_ends_with_its_handlers_run(thread, data, tmp_path):
+    """The console script's end (cli.entry) skips the interpreter's teardown only: the
+    exit status is the command's, what was printed is flushed, Python's exit handlers
+    run, a thread still working is waited for, the result is whole."""
+    import subprocess
+    import sys
+
+    marker = tmp_path / "marker.txt"
+    out = tmp_path / "maps.h5"
+    p = subprocess.run([sys.executable, "-c", _ENTRY, str(marker), thread, "measure",
+                        str(data / "ref"), str(data / "load.tif"), "-o", str(out),
+                        "--quiet"], capture_output=True, text=True, timeout=300,
+                       check=False)
+    assert p.returncode == 0, p.stderr
+    assert p.stdout.startswith("printed before;")
+    done = marker.read_text()
+    assert "exit handler ran;" in done
+    assert ("thread ended;" in done) == (thread == "thread")
+    assert np.isfinite(load(out).ux).any()  # the state measured, readable
+    # a refused input: its one line and status 2, the handlers run all the same
+    marker.unlink()
+    q = subprocess.run([sys.executable, "-c", _ENTRY, str(marker), "none", "gauge",
+                        str(tmp_path / "missing.h5")], capture_output=True, text=True,
+                       timeout=300, check=False)
+    assert q.returncode == 2
+    assert len(q.stderr.strip().splitlines()) == 1
+    assert marker.read_text() == "exit handler ran;"
+
+
 def test_a_folder_removed_under_a_run_is_made_again(data, tmp_path, capsys, monkeypatch):
     """Two runs write into the same new folder; the one that made it fails and removes
     it while still empty: the other, which found it there, makes it again when it

@@ -1,7 +1,5 @@
 """``python -m gridstrain``: the same as the ``gridstrain`` command."""
 
-import sys
+from .cli import entry
 
-from .cli import main
-
-sys.exit(main())
+entry()

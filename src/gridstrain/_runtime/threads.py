@@ -207,6 +207,16 @@ def _shared_pool(threads: int) -> ThreadPoolExecutor:
         return pool
 
 
+def stop_shared_pools() -> None:
+    """Stop this process's kept pools (:func:`map_leaves`'), once their threads are
+    done: the end of a process that will not wait for them."""
+    with _POOLS_LOCK:
+        pools = [p for (pid, _), p in _POOLS.items() if pid == os.getpid()]
+        _POOLS.clear()
+    for pool in pools:
+        pool.shutdown(wait=True)
+
+
 def map_leaves(fn: Callable, items: Iterable, workers: int) -> list:
     """``[fn(item) for item in items]`` on up to ``workers`` threads: the calling
     thread and ``workers - 1`` threads of a pool kept between calls.

@@ -20,6 +20,7 @@ numerical core, h5py or matplotlib.
 from __future__ import annotations
 
 import argparse
+import atexit
 import contextlib
 import importlib
 import importlib.util
@@ -34,6 +35,7 @@ from .._runtime.threads import (
     keep_freed_memory,
     no_huge_page_stalls_from_start,
     one_malloc_arena,
+    stop_shared_pools,
 )
 
 # sub-command -> the one-line summary its module's parser declares (a test checks
@@ -191,8 +193,41 @@ def _is_dask_error(exc: BaseException) -> bool:
     return False
 
 
+def entry() -> None:
+    """Entry point of the ``gridstrain`` console script and of ``python -m gridstrain``
+    (and ``gridstrain.cli``): :func:`main` in a process of its own, which ends once
+    its outputs are closed and its output streams flushed.
+
+    Python's exit handlers run (:mod:`atexit`: temporary folders, weak finalizers),
+    then the process exits without the interpreter's teardown of every module and of
+    the compiled loops' libraries (0.3 s of CPU after a 1040 x 1376 pair, a tenth of
+    its measurement). Where that cannot be known safe (a stream that fails to flush, a
+    thread still running, an interpreter without :func:`atexit._run_exitfuncs`), the
+    interpreter exits as usual.
+    """
+    rc = main()
+    stop_shared_pools()
+    run_exit_handlers = getattr(atexit, "_run_exitfuncs", None)
+    try:
+        for stream in (sys.stdout, sys.stderr):
+            if stream is not None:
+                stream.flush()
+    except (OSError, ValueError):  # reported by the interpreter's own exit, as always
+        sys.exit(rc)
+    others = [t for t in threading.enumerate()
+              if t is not threading.main_thread() and t.is_alive() and not t.daemon]
+    if others or run_exit_handlers is None:
+        sys.exit(rc)
+    run_exit_handlers()
+    for stream in (sys.stdout, sys.stderr):  # what a handler printed
+        with contextlib.suppress(OSError, ValueError, AttributeError):
+            stream.flush()
+    os._exit(int(rc))
+
+
 def main(argv=None) -> int:
-    """Entry point of the ``gridstrain`` console script."""
+    """The command line on ``argv`` (``sys.argv[1:]`` when None, the process then
+    taken as the command's own: :func:`entry`); returns the exit status."""
     try:
         # from the first instant: a signal while the modules load is one line too
         with _signals():

@@ -1,7 +1,5 @@
 """``python -m gridstrain.cli``: the same as the ``gridstrain`` command."""
 
-import sys
+from . import entry
 
-from . import main
-
-sys.exit(main())
+entry()
