@@ -35,15 +35,15 @@ def _one_wave_vector(V, k, sigma, H, W, nx, psi, dphi, mod, work, *, chunk: int,
     """
     ny = V.shape[0]
     cdtype = V.dtype
-    rows, yruns, nuy, sy = _axis_band(ny, k[1], sigma)
-    cols, xruns, nux, sx = _axis_band(nx, k[0], sigma)
+    rows, yruns, nuy, sy, gy = _axis_band(ny, k[1], sigma)
+    cols, xruns, nux, sx, gx = _axis_band(nx, k[0], sigma)
     # a complex image's full spectrum (wft_complex), or a real one's half spectrum
     block = V[np.ix_(rows, cols)] if V.shape[1] == nx else spectrum_block(V, rows, cols, nx)
     # complex transfer values: a complex times real product would go through a
     # slow mixed-type loop
-    gy = transfer_function(nuy, sigma).astype(cdtype)
+    gy = gy.astype(cdtype)
     dgy = transfer_function(nuy, sigma, derivative=True).astype(cdtype)
-    gx = transfer_function(nux, sigma).astype(cdtype)
+    gx = gx.astype(cdtype)
     dgx = transfer_function(nux, sigma, derivative=True).astype(cdtype)
 
     # along y: window and its derivative, for the band's columns only. The x-window

@@ -139,25 +139,26 @@ def _sum3(out, a1, a2, a3, h1, l1, h2, l2, h3, l3, first):  # pragma: no cover
 
 
 @_jit
-def _taps3(out, v, c0, n0, a, first):  # pragma: no cover
-    """``out[x] (+)= sum_{n = n0 .. n0 + 2} a[n-1] (v[c0 + x + n] - v[c0 + x - n])``:
-    x filter on one row, three taps."""
+def _rows_d(out, P, r, c0, a):  # pragma: no cover
+    """``out[x] = sum_n a[n-1] (P[r + n, c0 + x] - P[r - n, c0 + x])``: the y filter at
+    row ``r``; taps grouped as in :func:`_dx` (no tap of zero weight read)."""
+    m = a.size
     W = out.size
-    a1, a2, a3, n2, n3 = _three(a, n0)
-    _sum3(out, a1, a2, a3, v[c0 + n0:c0 + n0 + W], v[c0 - n0:c0 - n0 + W],
-          v[c0 + n2:c0 + n2 + W], v[c0 - n2:c0 - n2 + W],
-          v[c0 + n3:c0 + n3 + W], v[c0 - n3:c0 - n3 + W], first)
-
-
-@_jit
-def _rows3(out, P, r, c0, n0, a, first):  # pragma: no cover
-    """``out[x] (+)= sum_{n = n0 .. n0 + 2} a[n-1] (P[r + n, c0 + x] - P[r - n, c0 + x])``:
-    y filter, three taps."""
-    W = out.size
-    a1, a2, a3, n2, n3 = _three(a, n0)
-    _sum3(out, a1, a2, a3, P[r + n0, c0:c0 + W], P[r - n0, c0:c0 + W],
-          P[r + n2, c0:c0 + W], P[r - n2, c0:c0 + W],
-          P[r + n3, c0:c0 + W], P[r - n3, c0:c0 + W], first)
+    n = 1
+    while n <= m:
+        if n == 1 or n + 2 <= m:
+            a1, a2, a3, n2, n3 = _three(a, n)
+            _sum3(out, a1, a2, a3, P[r + n, c0:c0 + W], P[r - n, c0:c0 + W],
+                  P[r + n2, c0:c0 + W], P[r - n2, c0:c0 + W],
+                  P[r + n3, c0:c0 + W], P[r - n3, c0:c0 + W], n == 1)
+            n += 3
+        elif n + 1 == m:
+            _sum2(out, a[n - 1], a[n], P[r + n, c0:c0 + W], P[r - n, c0:c0 + W],
+                  P[r + n + 1, c0:c0 + W], P[r - n - 1, c0:c0 + W])
+            n += 2
+        else:
+            _sum1(out, a[n - 1], P[r + n, c0:c0 + W], P[r - n, c0:c0 + W])
+            n += 1
 
 
 @_jit
@@ -184,20 +185,19 @@ def phase_derivatives(re, im, taps, y0, y1, base, psi, mod, dx, dy, out0,
     scratch for one row's filtered values.
 
     Each loop below runs over a contiguous row with few arrays and three taps at a
-    time: LLVM vectorises those (with more arrays that might overlap in one loop it
-    gives up), and the sums stay in registers over three taps.
+    time (the last one or two by loops of their own, no tap of zero weight read):
+    LLVM vectorises those (with more arrays that might overlap in one loop it gives
+    up), and the sums stay in registers over three taps.
     """
     m = taps.size
     W = mod.shape[1]
     fxr, fxi, fyr, fyi = tmp[0, :W], tmp[1, :W], tmp[2, :W], tmp[3, :W]
     for y in range(y0, y1):
         r = y + m - base
-        for n0 in range(1, m + 1, 3):
-            first = n0 == 1
-            _taps3(fxr, re[r], m, n0, taps, first)
-            _taps3(fxi, im[r], m, n0, taps, first)
-            _rows3(fyr, re, r, m, n0, taps, first)
-            _rows3(fyi, im, r, m, n0, taps, first)
+        _dx(fxr, re[r], taps)
+        _dx(fxi, im[r], taps)
+        _rows_d(fyr, re, r, m, taps)
+        _rows_d(fyi, im, r, m, taps)
         pr = re[r, m:m + W]
         pi = im[r, m:m + W]
         o = y - out0

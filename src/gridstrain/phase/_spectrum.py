@@ -51,14 +51,16 @@ def transfer_function(nu, sigma: float, *, derivative: bool = False) -> np.ndarr
 def _axis_band(n: int, k: float, sigma: float):
     """One axis of the band where the window's transfer function ``G(f - k)`` is non-zero.
 
-    Returns ``(idx, runs, nu, shift)``: the FFT indices of the band; the band as
+    Returns ``(idx, runs, nu, shift, g)``: the FFT indices of the band; the band as
     ``(dst, src)`` slice pairs placing entry ``src`` of ``idx`` at ``dst`` in a spectrum
     shifted down by ``shift`` bins (the bin nearest ``k``, so that the inverse FFT
-    comes out demodulated by ``exp(-2 i pi shift x / n)``); and ``nu = f - k`` on the
-    band, cycles/px.
+    comes out demodulated by ``exp(-2 i pi shift x / n)``); ``nu = f - k`` on the
+    band, cycles/px; and the transfer function there, ``transfer_function(nu,
+    sigma)`` (the same bits: it is taken value by value).
     """
     nu_all = (sfft.fftfreq(n) - k + 0.5) % 1.0 - 0.5
-    idx = np.flatnonzero(transfer_function(nu_all, sigma))
+    g_all = transfer_function(nu_all, sigma)
+    idx = np.flatnonzero(g_all)
     shift = round(k * n)
     pos = (idx - shift) % n
     # pos is circularly contiguous (the transfer function decreases with |nu|):
@@ -67,7 +69,7 @@ def _axis_band(n: int, k: float, sigma: float):
     bounds = [0, *cuts.tolist(), idx.size]
     runs = [(slice(int(pos[i]), int(pos[j - 1]) + 1), slice(i, j))
             for i, j in itertools.pairwise(bounds)]
-    return idx, runs, nu_all[idx], shift
+    return idx, runs, nu_all[idx], shift, g_all[idx]
 
 
 def spectrum_block(V: np.ndarray, rows: np.ndarray, cols: np.ndarray, nx: int) -> np.ndarray:

@@ -495,12 +495,12 @@ def _one_wave_vector_fast(V, k, sigma, H, W, nx, psi, dphi, mod, work, *, taps,
     cdtype = V.dtype
     rdtype = mod.dtype
     m = taps.size
-    rows, yruns, nuy, sy = _axis_band(ny, k[1], sigma)
-    cols, xruns, nux, sx = _axis_band(nx, k[0], sigma)
+    rows, yruns, _, sy, gy = _axis_band(ny, k[1], sigma)
+    cols, xruns, _, sx, gx = _axis_band(nx, k[0], sigma)
     block = V[np.ix_(rows, cols)] if V.shape[1] == nx else spectrum_block(V, rows, cols, nx)
     # the window along x applied on the small band, so that the blocks below are copies
-    block *= transfer_function(nux, sigma).astype(cdtype)
-    gy = transfer_function(nuy, sigma).astype(cdtype)
+    block *= gx.astype(cdtype)
+    gy = gy.astype(cdtype)
     # along y: rows -m .. H + m - 1 of the periodic transform (the y differentiator's
     # reach beyond the image), as Y[0 : H + 2m]
     Y = work.get("Y", (m + ny, cols.size), cdtype)
@@ -722,16 +722,15 @@ def _compiled_band(ny: int, nx: int, H: int, W: int, k: tuple, sigma: float, m: 
     """The band of wave vector ``k`` for a padded ``ny x nx`` spectrum of an ``H x W``
     image, computed once for a stack's frames rather than for each."""
     rdtype = np.dtype(rdtype)
-    rows, yruns, nuy, sy = _axis_band(ny, k[1], sigma)
-    cols, xruns, nux, sx = _axis_band(nx, k[0], sigma)
+    rows, yruns, _, sy, gy = _axis_band(ny, k[1], sigma)
+    cols, xruns, _, sx, gx = _axis_band(nx, k[0], sigma)
     # the carrier's residuals (less than half a bin) along y and x, on the extended
     # rows and columns; applied in the compiled pass
     ey = np.exp(2j * math.pi * (sy / ny - k[1]) * np.arange(-m, H + m))
     ex = np.exp(2j * math.pi * (sx / nx - k[0]) * np.arange(-m, W + m))
     return _Band(
         rows=rows, dst=(rows - sy) % ny, cols=cols, ygaps=_gaps(yruns, ny),
-        gx=transfer_function(nux, sigma).astype(rdtype),
-        gy=transfer_function(nuy, sigma).astype(rdtype),
+        gx=gx.astype(rdtype), gy=gy.astype(rdtype),
         runs=np.array([(d.start, s.start, d.stop - d.start) for d, s in xruns],
                       dtype=np.int64),
         gaps=np.array([(g.start, g.stop) for g in _gaps(xruns, nx)],

@@ -99,16 +99,21 @@ def no_grid(modulus, valid, mask, min_modulus: float, *, away: float = 0.0) -> n
         True where ``mask`` holds a pixel without a grid.
     """
     ref = valid if valid.any() else mask
+    full = bool(mask.all())
+    # a full mask's valid pixels are a box (the band along the border): its values
+    # sliced rather than gathered (the same values, so the same median)
+    box = filled_box(ref) if full else None
     out = np.zeros(mask.shape, dtype=bool)
     for j in range(2):
-        values = modulus[j][ref]
-        if min_modulus * _median_at_most(values) <= np.min(modulus[j], where=mask,
-                                                            initial=np.inf):
+        values = (modulus[j][ref] if box is None
+                  else modulus[j][box[0]:box[1], box[2]:box[3]])
+        least = modulus[j].min() if full else np.min(modulus[j], where=mask, initial=np.inf)
+        if min_modulus * _median_at_most(values) <= least:
             continue  # every pixel of the mask reaches the fraction of a bound of the median
-        out |= modulus[j] < min_modulus * median(values, overwrite_input=True)
+        out |= modulus[j] < min_modulus * median(values, overwrite_input=box is None)
     out &= mask
     if away > 0 and out.any():
-        out &= _region(mask, bool(mask.all()), away)[0]
+        out &= _region(mask, full, away)[0]
     return out
 
 
