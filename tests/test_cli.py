@@ -5,6 +5,7 @@ from __future__ import annotations
 import hashlib
 import json
 import math
+import os
 import shlex
 from pathlib import Path
 
@@ -617,6 +618,53 @@ def test_the_commands_own_process_ends_with_its_handlers_run(thread, data, tmp_p
     assert q.returncode == 2
     assert len(q.stderr.strip().splitlines()) == 1
     assert marker.read_text() == "exit handler ran;"
+
+
+def test_python_dash_m_run_by_a_callers_runpy_leaves_the_caller_running(tmp_path):
+    """``python -m gridstrain``'s module run inside another program (runpy, as an IDE
+    or a test harness runs it) raises SystemExit as always: the caller catches it, goes
+    on, and its own open files are whole (the process's fast end is the command's own
+    process's only)."""
+    import subprocess
+    import sys
+
+    host = (
+        "import runpy, sys\n"
+        "out = open(sys.argv[1], 'w')\n"
+        "out.write('before;')\n"
+        "sys.argv = ['gridstrain', 'gauge', sys.argv[2]]\n"
+        "try:\n"
+        "    runpy.run_module('gridstrain', run_name='__main__', alter_sys=True)\n"
+        "except SystemExit as exc:\n"
+        "    out.write(f'caught {exc.code};')\n"
+        "out.write('after')\n"
+        "out.close()\n")
+    # a probe of the interpreter's teardown: an object whose finaliser writes a word
+    probe = tmp_path / "probe"
+    probe.mkdir()
+    (probe / "sitecustomize.py").write_text(
+        "import sys\n"
+        "class _Probe:\n"
+        "    def __del__(self):\n"
+        "        sys.stderr.write('TEARDOWN')\n"
+        "sys._gridstrain_probe = _Probe()\n")
+    env = dict(os.environ)
+    env["PYTHONPATH"] = os.pathsep.join([str(probe), env.get("PYTHONPATH", "")])
+    log = tmp_path / "host.log"
+    p = subprocess.run([sys.executable, "-c", host, str(log), str(tmp_path / "none.h5")],
+                       capture_output=True, text=True, timeout=120, check=False, env=env)
+    assert p.returncode == 0, p.stderr
+    assert log.read_text() == "before;caught 2;after"
+    assert p.stderr.endswith("TEARDOWN")  # the caller's process ended as usual
+    # python -m run by the interpreter itself: the command's own process, ended
+    # without the teardown, its status and its one line kept
+    for module in ("gridstrain", "gridstrain.cli"):
+        q = subprocess.run([sys.executable, "-m", module, "gauge", str(tmp_path / "none.h5")],
+                           capture_output=True, text=True, timeout=120, check=False,
+                           env=env)
+        assert q.returncode == 2
+        assert "TEARDOWN" not in q.stderr
+        assert len(q.stderr.strip().splitlines()) == 1
 
 
 def test_a_folder_removed_under_a_run_is_made_again(data, tmp_path, capsys, monkeypatch):

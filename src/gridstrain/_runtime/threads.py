@@ -116,11 +116,12 @@ def no_huge_page_stalls_from_start() -> bool:
 _M_ARENA_MAX = -8
 _M_MMAP_THRESHOLD = -3
 _M_TRIM_THRESHOLD = -1
-# Blocks below this are served from the heap: the most glibc allows (32 MiB on 64-bit),
-# so that a complex map of a 1040 x 1376 frame (22.9 MB) is one of them; larger ones are
-# mapped and unmapped as before (a 2048 x 2048 float64 map and up). The top of the heap
-# is trimmed past 128 MiB: 64 MiB held fewer than 3 such maps, and their pages went
-# back to the system between two stages (308,000 page faults a pair against 244,000).
+# Blocks below this are served from the heap: 32 MiB, the highest glibc's own threshold
+# reaches on 64-bit, so that a complex map of a 1040 x 1376 frame (22.9 MB) is one of
+# them; larger ones are mapped and unmapped as before (a 2048 x 2048 float64 map and
+# up). The top of the heap is trimmed past 128 MiB: 64 MiB held fewer than 3 such
+# maps, and their pages went back to the system between two stages (308,000 page
+# faults a pair against 244,000).
 _MMAP_THRESHOLD = 32 * 2**20
 _TRIM_THRESHOLD = 128 * 2**20
 

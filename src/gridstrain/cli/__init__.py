@@ -193,19 +193,23 @@ def _is_dask_error(exc: BaseException) -> bool:
     return False
 
 
-def entry() -> None:
+def entry(*, own_process: bool = True) -> None:
     """Entry point of the ``gridstrain`` console script and of ``python -m gridstrain``
-    (and ``gridstrain.cli``): :func:`main` in a process of its own, which ends once
-    its outputs are closed and its output streams flushed.
+    (and ``gridstrain.cli``): :func:`main`, then the end of the process.
 
-    Python's exit handlers run (:mod:`atexit`: temporary folders, weak finalizers),
-    then the process exits without the interpreter's teardown of every module and of
-    the compiled loops' libraries (0.3 s of CPU after a 1040 x 1376 pair, a tenth of
-    its measurement). Where that cannot be known safe (a stream that fails to flush, a
-    thread still running, an interpreter without :func:`atexit._run_exitfuncs`), the
-    interpreter exits as usual.
+    In a process of the command's own (``own_process``: the console script, or ``python
+    -m`` started by the interpreter itself, :func:`started_by_dash_m`) it ends once its
+    outputs are closed and its output streams flushed: Python's exit handlers run
+    (:mod:`atexit`: temporary folders, weak finalizers), then the process exits without
+    the interpreter's teardown of every module and of the compiled loops' libraries
+    (0.3 s of CPU after a 1040 x 1376 pair, a tenth of its measurement). Otherwise (a
+    caller's ``runpy``, ``python -i``), and where that cannot be known safe (a stream
+    that fails to flush, a thread still running, an interpreter without
+    :func:`atexit._run_exitfuncs`), it raises SystemExit as usual.
     """
     rc = main()
+    if not own_process or sys.flags.interactive:
+        sys.exit(rc)
     stop_shared_pools()
     run_exit_handlers = getattr(atexit, "_run_exitfuncs", None)
     try:
@@ -223,6 +227,18 @@ def entry() -> None:
         with contextlib.suppress(OSError, ValueError, AttributeError):
             stream.flush()
     os._exit(int(rc))
+
+
+def started_by_dash_m() -> bool:
+    """Whether this process's first Python frame is the interpreter's own ``python -m``
+    (runpy's ``_run_module_as_main``): the module runs as the process's command, not
+    inside a caller's program that ran it through :mod:`runpy`."""
+    runpy = sys.modules.get("runpy")
+    first = getattr(getattr(runpy, "_run_module_as_main", None), "__code__", None)
+    frame = sys._getframe()
+    while frame.f_back is not None:
+        frame = frame.f_back
+    return first is not None and frame.f_code is first
 
 
 def main(argv=None) -> int:

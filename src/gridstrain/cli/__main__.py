@@ -1,5 +1,5 @@
 """``python -m gridstrain.cli``: the same as the ``gridstrain`` command."""
 
-from . import entry
+from . import entry, started_by_dash_m
 
-entry()
+entry(own_process=started_by_dash_m())

@@ -384,7 +384,9 @@ def _beyond_small_step(ref_pm: PhaseMaps, pm: PhaseMaps, lagrangian: bool) -> bo
         if a_med is None:
             a_med = _median_start(pm, two_pi_K)
         e0 = max(b, float(np.linalg.norm(a_med - np.eye(2), 2)) * a) + b
-        if kn * (1 + q) * e0 >= 0.5 - margin or a + b + q * e0 + 2 > R:
+        # every point the iterations visit, from the start (within e0 of u*) on, lies
+        # within a + b + e0 of X: inside the box where q bounds M
+        if kn * (1 + q) * e0 >= 0.5 - margin or a + b + e0 + 2 > R:
             continue
         if periods[r, c] - kn * (b + q * e0) > SMALL_STEP + margin:
             return True
