@@ -270,8 +270,6 @@ def test_the_edge_fit_of_a_valid_region_seen_before_is_the_one_solved_then():
     # the states of a record share their valid region: its edge fit's normal equations
     # are solved once and kept; the smoothing records are the same as solved afresh,
     # and another region (another window, another mask) is solved for itself
-    from gridstrain.uncertainty import _smoothing
-
     rng = np.random.default_rng(8)
     H, W = 120, 150
     yy, xx = np.mgrid[0:H, 0:W]
@@ -283,13 +281,16 @@ def test_the_edge_fit_of_a_valid_region_seen_before_is_the_one_solved_then():
     e[:, ~v] = np.nan
     other = v.copy()
     other[:, :20] = False
+    keep = [None]
     for valid, sigma in ((v, 5.0), (v, 4.0), (other, 5.0)):
-        _smoothing._LAST_FIT[0] = None
+        keep[0] = None
         fresh = smoothing_bias(e, valid, sigma=sigma)
-        kept = smoothing_bias(e, valid, sigma=sigma)  # from the kept fit
+        solved = smoothing_bias(e, valid, sigma=sigma, keep=keep)
+        kept = smoothing_bias(e, valid, sigma=sigma, keep=keep)  # from the kept fit
+        assert keep[0] is not None
         assert kept == fresh
+        assert solved == fresh
     # a region after another: solved again, the same as afresh
-    smoothing_bias(e, v, sigma=5.0)
-    after = smoothing_bias(e, other, sigma=5.0)
-    _smoothing._LAST_FIT[0] = None
+    smoothing_bias(e, v, sigma=5.0, keep=keep)
+    after = smoothing_bias(e, other, sigma=5.0, keep=keep)
     assert after == smoothing_bias(e, other, sigma=5.0)

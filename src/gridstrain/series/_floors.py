@@ -275,6 +275,7 @@ class _ReferenceFloor:
         self.r, self.lattice, self.sigma = r, lattice, window.sigma
         # measured up to the edges: the factors on the std there (gridstrain.phase)
         self.edge_gain = edge_noise_gain(r.mask, lattice, window) if to_edges else None
+        self.edge_fit: list = [None]  # the smoothing bound's edge fit, kept for the run
         # ... and the bias the print's harmonics leave there (stated once a run)
         self.edge_bias = _edge_band_bias(r, lattice, window) if to_edges else None
         self.alias_said = False  # the aliasing's warning, given once a run
@@ -350,7 +351,7 @@ class _ReferenceFloor:
     def smoothing(self, name: str, res: Measurement, floors: dict) -> tuple:
         """``(record, warnings)`` of the window's smoothing of state ``name``'s strain
         gradients (:func:`smoothing_bias`), against its ``floors``."""
-        smooth = smoothing_bias(res.strain, res.valid, sigma=self.sigma)
+        smooth = smoothing_bias(res.strain, res.valid, sigma=self.sigma, keep=self.edge_fit)
         smooth["computed"] = True
         return smooth, _smoothing_warnings(name, res, floors, smooth)
 

@@ -22,7 +22,7 @@ _SMOOTHING_FACTOR = 3.0
 # sigma wide (std) stands out of the median over them.
 _BACKGROUND_SIGMAS = 20.0
 
-def smoothing_bias(strain, valid, *, sigma: float) -> dict:
+def smoothing_bias(strain, valid, *, sigma: float, keep: list | None = None) -> dict:
     """The window's smoothing of strain gradients, estimated from the measured field.
 
     Parameters
@@ -32,6 +32,12 @@ def smoothing_bias(strain, valid, *, sigma: float) -> dict:
     valid : (H, W) bool array_like
     sigma : float
         Window standard deviation, px.
+    keep : list of one item, optional
+        Held by a caller that estimates fields of one valid region again and again (a
+        record's states): the edge fit's solved normal equations, half of this
+        function's time, are kept in it and used again while the region, the window
+        and the decimation are the same (``[None]`` to start; the records are the
+        same as without it).
 
     Returns
     -------
@@ -109,7 +115,7 @@ def smoothing_bias(strain, valid, *, sigma: float) -> dict:
     half = round(_BACKGROUND_SIGMAS * sig / 2)
     # the edge fit's normal equations depend on the valid pixels only: solved once for
     # the three components (their SVDs were most of this function's time)
-    fit = _EdgeFit(v, inner, sig) if np.any(v & ~inner) else None
+    fit = _EdgeFit(v, inner, sig, keep) if np.any(v & ~inner) else None
     for c in e:
         filled = np.where(v, c, 0.0)
         sm = np.divide(ndimage.gaussian_filter(filled, sig), wsum, out=filled)
@@ -167,30 +173,28 @@ def smoothing_bias(strain, valid, *, sigma: float) -> dict:
                           f"{_NARROWEST:g} sigma); estimate_max, p95: the Laplacian term"}
 
 
-# The edge fit's solved normal equations of the last valid region (its decimated
-# valid pixels, band and window, kept with them): the states of a record share their
-# valid region, and solving them is half of smoothing_bias's time (8.7 of 16.4 ms on a
-# 250 x 400 state at sigma = 5 px). One region is kept, read-only: its inverse 6 x 6
-# matrices, 288 bytes a pixel of the band.
-_LAST_FIT: list = [None]
-
-
 class _EdgeFit:
     """The weighted least-squares quadratic fit on the band of valid pixels outside
     ``inner`` (see :func:`_edge_feature`), for any field on those pixels: the moments
     of the valid pixels are filtered separably, and each band pixel's 6 x 6 normal
-    equations inverted once where they are well conditioned."""
+    equations inverted once where they are well conditioned. ``keep`` (a one-item
+    list, or None): the solved equations of the last region given with it (its
+    decimated valid pixels, band and window), used again for the same region: the
+    states of a record share their valid region, and solving them is half of
+    :func:`smoothing_bias`'s time (8.7 of 16.4 ms on a 250 x 400 state at sigma = 5
+    px); read-only, its inverse 6 x 6 matrices 288 bytes a pixel of the band."""
 
     _POWERS = ((0, 0), (1, 0), (0, 1), (2, 0), (1, 1), (0, 2))
 
-    def __init__(self, v: np.ndarray, inner: np.ndarray, sig: float):
+    def __init__(self, v: np.ndarray, inner: np.ndarray, sig: float,
+                 keep: list | None = None):
         self.v = v
         self.band = v & ~inner
         r = _EDGE_FIT * sig
         self.t = np.arange(-math.ceil(4 * r), math.ceil(4 * r) + 1, dtype=np.float64)
         self.g = np.exp(-0.5 * (self.t / r) ** 2)
         self._at = _band_taps(self.band, len(self.t) // 2)
-        last = _LAST_FIT[0]
+        last = keep[0] if keep is not None else None
         if last is not None and last[0] == sig and last[1].shape == v.shape \
                 and np.array_equal(last[1], v) and np.array_equal(last[2], self.band):
             self.ok, self.inv, self.bi, self.bj = last[3]
@@ -212,7 +216,8 @@ class _EdgeFit:
         for a in solved:
             if a is not None:
                 a.flags.writeable = False
-        _LAST_FIT[0] = (sig, v.copy(), self.band.copy(), solved)
+        if keep is not None:
+            keep[0] = (sig, v.copy(), self.band.copy(), solved)
 
     def moments(self, f, powers) -> dict:
         """``{(a, b): m}``: the moments ``sum g(s) g(t) s^a t^b f(i + t, j + s)`` (``s``
