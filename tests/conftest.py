@@ -43,3 +43,20 @@ def rigid(ux, uy):
 @pytest.fixture
 def rng():
     return np.random.default_rng(20150101)
+
+
+@pytest.fixture
+def spy(monkeypatch):
+    """``spy(owner, name)``: the list of the first argument after ``self`` of every
+    later call of method ``name`` of class ``owner``, the method still run."""
+    def watch(owner, name):
+        seen = []
+        real = getattr(owner, name)
+
+        def called(self, first, *args, **kwargs):
+            seen.append(first)
+            return real(self, first, *args, **kwargs)
+
+        monkeypatch.setattr(owner, name, called)
+        return seen
+    return watch

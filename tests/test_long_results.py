@@ -254,7 +254,7 @@ def test_streamed_percentiles_of_nothing_are_nan():
     assert np.isnan([lo, hi, *p]).all()
 
 
-def test_the_report_reads_each_map_once_when_it_fits(record, monkeypatch):
+def test_the_report_reads_each_map_once_when_it_fits(record, spy):
     """A record whose maps fit the memory is read once into memory for its report (one
     read of each map's dataset, one per state for the rotation), not once per figure,
     table and history (each state's maps a dozen times): the same page."""
@@ -263,14 +263,7 @@ def test_the_report_reads_each_map_once_when_it_fits(record, monkeypatch):
 
     path, _ = record
     page = render_report(load(path), title="r")
-    reads = []
-    read = _file.StoredMaps._read
-
-    def counted(self, states):
-        reads.append(states)
-        return read(self, states)
-
-    monkeypatch.setattr(_file.StoredMaps, "_read", counted)
+    reads = spy(_file.StoredMaps, "_read")
     assert render_report(load(path, in_memory=False), title="r") == page
     # u, strain, valid and 5 std maps whole, 16 rotations
     assert len(reads) <= 8 + N_STATES

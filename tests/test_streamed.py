@@ -200,7 +200,7 @@ def test_each_state_is_the_direct_measurement_of_its_frames(data, tmp_path, meth
 
 
 def test_the_previous_field_read_back_from_the_file_gives_the_same_states(data, tmp_path,
-                                                                          monkeypatch):
+                                                                          monkeypatch, spy):
     """Each state's guess is the previous state's field: kept in memory when it is
     small, read back from the result file when it is large (the bits the file holds,
     u in float64). Both ways must give the same maps and fringe order records; the
@@ -211,14 +211,7 @@ def test_the_previous_field_read_back_from_the_file_gives_the_same_states(data, 
     ref, states = data
     kept = measure_series(ref, states, lattice=LAT,
                           output=ResultFile(tmp_path / "kept.h5", lossless=True))
-    calls = []
-    real = _file.StreamedResult.reader
-
-    def spy(self, i):
-        calls.append(i)
-        return real(self, i)
-
-    monkeypatch.setattr(_file.StreamedResult, "reader", spy)
+    calls = spy(_file.StreamedResult, "reader")
     monkeypatch.setattr(_loop, "_FOLLOW_IN_MEMORY", 0)
     read = measure_series(ref, states, lattice=LAT,
                           output=ResultFile(tmp_path / "read.h5", lossless=True))
