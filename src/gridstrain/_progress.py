@@ -215,6 +215,10 @@ FINDINGS = _kinds(
     ("checks.sampled", "note",
      "states of a long record whose expensive checks were sampled, not run",
      "measure with fewer states, or the states in doubt, to check each"),
+    ("modulus.units", "doubt",
+     "a fitted Young's modulus no solid has (outside 100 Pa to 2 TPa): a unit's slip",
+     "check the cross-section and its unit (--area-unit, mm2 by default) and the loads' "
+     "unit"),
     ("input", "warning", "how the inputs were read or ordered", "none"),
     ("other", "warning", "a finding of a part that gives it no code of its own",
      "read its sentence"),

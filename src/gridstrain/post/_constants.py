@@ -8,6 +8,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import stats
 
+from .._progress import Finding
 from .._validation import check_choice, check_positive, check_type
 from ._gauges import GaugeReading
 
@@ -127,20 +128,24 @@ class ElasticConstants:
         return (f"{self.E * scale:.{digits}g} {unit}, {LEVEL * 100:g} % interval "
                 f"[{lo:.{digits}g}, {hi:.{digits}g}] {unit}")
 
-    def unit_doubt(self) -> str | None:
-        """A sentence when ``E`` lies outside any solid's Young's modulus
-        (:data:`SOLID_MODULI_MPA`), naming what to check; None otherwise, or when the
-        stress unit's scale is not known."""
+    def unit_doubt(self) -> Finding | None:
+        """A ``modulus.units`` finding (:data:`gridstrain.FINDINGS`; its sentence names
+        what to check, its figures ``E_mpa``) when ``E`` lies outside any solid's
+        Young's modulus (:data:`SOLID_MODULI_MPA`); None otherwise, or when the stress
+        unit's scale is not known."""
         per = _MPA_PER.get(self.stress_unit)
         if per is None or not math.isfinite(self.E):
             return None
         lo, hi = SOLID_MODULI_MPA
         if lo <= self.E * per <= hi:
             return None
-        return (f"E = {self.E_text(3).split(',')[0]} is no solid's Young's modulus (about "
-                "1 kPa for a soft gel to 1.2 TPa for diamond): check the cross-section's "
-                "value and unit (area_unit, --area-unit, mm2 by default: an area in m2 "
-                "given as mm2 makes E a million times too large) and the loads' unit")
+        return Finding(
+            "modulus.units",
+            f"E = {self.E_text(3).split(',')[0]} is no solid's Young's modulus (about "
+            "1 kPa for a soft gel to 1.2 TPa for diamond): check the cross-section's "
+            "value and unit (area_unit, --area-unit, mm2 by default: an area in m2 "
+            "given as mm2 makes E a million times too large) and the loads' unit",
+            E_mpa=self.E * per)
 
     def to_dict(self) -> dict:
         """The constants as JSON-ready values, units included."""
