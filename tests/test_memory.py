@@ -165,18 +165,16 @@ def test_model_grows_with_pixels_methods_and_held_states():
     assert held[2] - held[1] == held[1] - held[0] > 0
 
 
-_CONTRAST_SHAPES = [(96, 128), (700, 700), (1100, 1000), (1600, 1400)]
+@pytest.mark.parametrize("shape", [(96, 128), (700, 700), (1100, 1000), (1600, 1400)])
+def test_contrast_step_model_covers_the_bounds_measured_peak(shape):
+    """The contrast step's bound allocates a carrier's log-modulus gradients and a
+    block of rows' material points beyond its inputs: the budget's figure for it
+    (contrast_step_bytes) is at least the peak tracemalloc measures (80 bytes a pixel
+    where one block holds the image; 1100 x 1000 px takes two blocks)."""
+    import tracemalloc
 
-# The bound's peaks measured in an interpreter of their own: tracemalloc counts every
-# thread's allocations, other tests' included; inside the whole suite (in CI, and with
-# both cores loaded) the smallest size's peak read 0.18 MB above its figure, never
-# when measured alone
-_CONTRAST_PEAKS = """
-import json, sys, tracemalloc
-import numpy as np
-from gridstrain.uncertainty import contrast_step_bound
-peaks = {}
-for shape in json.loads(sys.argv[1]):
+    from gridstrain.uncertainty import contrast_step_bound, contrast_step_bytes
+
     rng = np.random.default_rng(3)
     ref = rng.normal(size=(2, *shape)) + 1j * rng.normal(size=(2, *shape)) + 3.0
     dfm = ref * (1.0 + 0.01 * rng.normal(size=(2, *shape)))
@@ -186,33 +184,11 @@ for shape in json.loads(sys.argv[1]):
     # loop, the thread pool its blocks run on) is not the bound's memory
     contrast_step_bound(ref, dfm, u, valid, sigma=5.0)
     tracemalloc.start()
-    contrast_step_bound(ref, dfm, u, valid, sigma=5.0)
-    peaks[str(tuple(shape))] = tracemalloc.get_traced_memory()[1]
-    tracemalloc.stop()
-print(json.dumps(peaks))
-"""
-
-
-@pytest.fixture(scope="module")
-def contrast_peaks():
-    import json
-    import subprocess
-    import sys
-
-    p = subprocess.run([sys.executable, "-c", _CONTRAST_PEAKS, json.dumps(_CONTRAST_SHAPES)],
-                       capture_output=True, text=True, timeout=600, check=True)
-    return json.loads(p.stdout.strip().splitlines()[-1])
-
-
-@pytest.mark.parametrize("shape", _CONTRAST_SHAPES)
-def test_contrast_step_model_covers_the_bounds_measured_peak(shape, contrast_peaks):
-    """The contrast step's bound allocates a carrier's log-modulus gradients and a
-    block of rows' material points beyond its inputs: the budget's figure for it
-    (contrast_step_bytes) is at least the peak tracemalloc measures (80 bytes a pixel
-    where one block holds the image; 1100 x 1000 px takes two blocks)."""
-    from gridstrain.uncertainty import contrast_step_bytes
-
-    peak = contrast_peaks[str(shape)]
+    try:
+        contrast_step_bound(ref, dfm, u, valid, sigma=5.0)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
     model = contrast_step_bytes(shape)
     assert model >= peak
     assert model <= 1.3 * peak  # and not a blanket figure: within 30 % above it
