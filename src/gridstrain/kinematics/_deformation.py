@@ -16,7 +16,7 @@ from scipy import ndimage
 from skimage.restoration import unwrap_phase
 
 from .._runtime import compiled
-from .._runtime.threads import map_leaves
+from .._runtime.threads import THREADED_PIXELS, map_leaves
 from .._stats import median
 from .._validation import (
     check_int,
@@ -198,11 +198,8 @@ _COMPILED = True
 # the same bit for bit on any number of threads.
 _BLOCK_ROWS = 64
 _BLOCK_COLUMNS = 128
-# Maps of fewer pixels run their blocks on the calling thread alone: on a 250 x 400
-# state the helper thread cost 0.6 to 0.9 ms more CPU of the kinematics' 17 ms
-# (handing each block over, the coefficients' cache lines moving between cores) for a
-# few milliseconds of wall time; a 512 x 512 map and larger keep the cores.
-_THREADED_PIXELS = 2**18
+# Maps of fewer pixels run their blocks on the calling thread alone
+_THREADED_PIXELS = THREADED_PIXELS
 
 
 def _by_blocks(n: int, size: int, fn, pixels: int) -> list:

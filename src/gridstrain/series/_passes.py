@@ -14,7 +14,7 @@ import numpy as np
 from scipy import ndimage
 
 from .._progress import Finding, Progress, findings_of, null_progress
-from .._runtime.threads import map_bounded
+from .._runtime.threads import THREADED_PIXELS, map_bounded
 from .._stats import median
 from .._validation import (
     check_workers,
@@ -357,10 +357,8 @@ _EDGE_BEYOND = 6
 
 
 # Images of fewer pixels are transformed on the calling thread alone, rather than one
-# wave vector on each of two threads: on a 250 x 400 state the second thread cost
-# about 0.9 ms more CPU of the phase maps' 7.5 ms (measure_series in process, 100
-# states), for under 2 ms of wall time; a 512 x 512 image and larger keep both.
-_THREADED_PIXELS = 2**18
+# wave vector on each of two threads
+_THREADED_PIXELS = THREADED_PIXELS
 
 
 def _phase_maps_a(image, lattice: Lattice, window: Window, mask, *, to_edges: bool = False):

@@ -26,7 +26,7 @@ import numpy as np
 from scipy import ndimage
 
 from .._progress import Finding
-from .._runtime.threads import map_leaves
+from .._runtime.threads import THREADED_PIXELS, map_leaves
 from .._validation import check_positive, check_workers
 from ._maps import _load_kernels
 
@@ -115,8 +115,10 @@ def _steepest_change(s: np.ndarray, r: np.ndarray, d: np.ndarray, u: np.ndarray,
         v = np.ascontiguousarray(v)
         gr, gd = ([np.ascontiguousarray(g) for g in pair] for pair in (gr, gd))
         blocks = [(i, min(i + _KERNEL_ROWS, H)) for i in range(0, H, _KERNEL_ROWS)]
+        # on the calling thread alone below THREADED_PIXELS, as the other loops
+        workers = check_workers(None) if v.size >= THREADED_PIXELS else 1
         map_leaves(lambda b: kern.steepest_change(s, *gr, *gd, uu, v, *b), blocks,
-                   max(min(check_workers(None), len(blocks)), 1))
+                   max(min(workers, len(blocks)), 1))
         return
     # the material points' coordinates by blocks of rows: two float64 maps of the
     # image's size would be the largest arrays of the bound
