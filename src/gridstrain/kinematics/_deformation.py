@@ -544,23 +544,38 @@ def _outside_nan(valid, dtype, *maps):
     return tuple(a.astype(dtype, copy=False) for a in maps)
 
 
+def _real_view(psi: np.ndarray) -> np.ndarray:
+    """The complex maps ``psi`` (2, H, W) as (2, H, 2W) float64, real and imaginary
+    parts side by side: a view of them (of a complex128 copy where they are not)."""
+    return np.ascontiguousarray(psi, dtype=np.complex128).view(np.float64)
+
+
+def _phase_difference(ref_psi, cur_psi, out) -> None:
+    """``out[j] = arg(cur_psi[j] conj ref_psi[j])`` (2, H, W), with numpy."""
+    # one wave vector at a time: a complex product of (H, W), not of (2, H, W)
+    real = np.empty(out.shape[1:], dtype=np.float64)
+    for j in range(2):
+        z = np.conjugate(ref_psi[j])
+        z *= cur_psi[j]
+        # np.angle, written in place: arctan2 of contiguous parts takes half the time
+        # of the complex map's strided views, for the same values
+        np.copyto(real, z.real)
+        np.copyto(out[j], z.imag)
+        del z
+        np.arctan2(out[j], real, out=out[j])
+
+
 def _unwrapped_displacement(reference, deformed, valid, K, g) -> np.ndarray:
     """(2, H, W) displacement of eq. (34) from the unwrapped phase difference, each
     connected valid region shifted by the whole periods that bring it closest to
     the guess ``g`` ((2, H, W), px)."""
-    # one wave vector at a time: a complex product of (H, W), not of (2, H, W)
     dphase = np.empty(reference.psi.shape, dtype=np.float64)
-    real = np.empty(reference.shape, dtype=np.float64)
-    for j in range(2):
-        z = np.conjugate(reference.psi[j])
-        z *= deformed.psi[j]
-        # np.angle, written in place: arctan2 of contiguous parts takes half the time
-        # of the complex map's strided views, for the same values
-        np.copyto(real, z.real)
-        np.copyto(dphase[j], z.imag)
-        del z
-        np.arctan2(dphase[j], real, out=dphase[j])
-    del real
+    kern = _load_kernels() if _COMPILED else None
+    if kern is not None and reference.psi.dtype == deformed.psi.dtype == np.complex128:
+        # the product and its argument in one loop, no temporary
+        kern.phase_difference(_real_view(reference.psi), _real_view(deformed.psi), dphase)
+    else:
+        _phase_difference(reference.psi, deformed.psi, dphase)
     # a rectangle of valid pixels is one region: no labels needed
     labels, n_regions = (None, 1) if filled_box(valid) else ndimage.label(valid)
     if n_regions == 0:
@@ -581,7 +596,6 @@ def _unwrapped_displacement(reference, deformed, valid, K, g) -> np.ndarray:
     # that bring K (u - g) closest to 0 are taken on it, and added back as
     # dphase + 2 pi n (u -> u - K^-1 n) before the one solve
     kg = K @ g[:, 0, 0] if constant else None
-    kern = _load_kernels() if _COMPILED else None
     for lab in range(1, n_regions + 1):
         sel = valid if n_regions == 1 else labels == lab
         n = np.empty(2)
@@ -666,16 +680,18 @@ def _lagrangian_fixed_point(u, reference, deformed, valid, tol, max_iter):
             u0, d, cur_valid, two_pi_K, m_of_d, a_med, start, i0, i1), u0[0].size))
         u = start
         # the reference's maps as they are (their real view), unless they are complex64
-        ref = np.ascontiguousarray(reference.psi, dtype=np.complex128).view(np.float64)
+        ref = _real_view(reference.psi)
         solve = np.ascontiguousarray(-np.linalg.inv(K) / (2 * np.pi))
 
         def block_step(i0, i1):
             prod = np.empty((4, i1 - i0, shape[1]))
             kern.residual_products(psi_cur.coef, float(_SPLINE_PAD), u, ref, valid, prod,
                                    i0, i1)
-            angles = prod[:2]  # written over the products it is taken from
-            np.arctan2(prod[0], prod[1], out=angles[0])
-            np.arctan2(prod[2], prod[3], out=angles[1])
+            # an array of their own: written over the products, the loop's vectorised
+            # path would not run (numba's check of overlapping arrays)
+            angles = np.empty((2, i1 - i0, shape[1]))
+            kern.arctan2(prod[0], prod[1], angles[0])
+            kern.arctan2(prod[2], prod[3], angles[1])
             return kern.fixed_point_update(angles, u, two_pi_K, solve, valid, i0, i1)
 
         def one_step():

@@ -36,6 +36,10 @@ from numba import njit
 __all__: list[str] = []
 
 _OPTIONS = {"cache": True, "nogil": True, "error_model": "numpy", "boundscheck": False}
+# The spline's sums with their products fused (FMA where the CPU has it): the
+# evaluation of four maps at 100 000 points 3.6 -> 2.9 ms, each sum's rounding one
+# step less (values within 1e-15 of their own size of the unfused ones)
+_FUSED = {**_OPTIONS, "fastmath": {"contract"}}
 
 
 # The B-spline's 1/6, multiplied rather than divided by 6: eight divisions a point
@@ -44,7 +48,7 @@ _OPTIONS = {"cache": True, "nogil": True, "error_model": "numpy", "boundscheck":
 _SIXTH = 1.0 / 6.0
 
 
-@njit(**_OPTIONS)
+@njit(**_FUSED)
 def _weights(t):  # pragma: no cover
     """Cubic B-spline weights of the four samples floor(v) - 1 .. floor(v) + 2,
     ``t = v - floor(v)``."""
@@ -53,7 +57,7 @@ def _weights(t):  # pragma: no cover
             (3.0 * s * s * s - 6.0 * s * s + 4.0) * _SIXTH, t * t * t * _SIXTH)
 
 
-@njit(**_OPTIONS)
+@njit(**_FUSED)
 def _at4(coef, y, x):  # pragma: no cover
     """The four interleaved maps of ``coef`` at the padded point ``(y, x)``,
     clamped to the map as :func:`cubic4_at` does."""
@@ -82,7 +86,7 @@ def _at4(coef, y, x):  # pragma: no cover
     return a0, a1, a2, a3
 
 
-@njit(**_OPTIONS)
+@njit(**_FUSED)
 def cubic4_at(coef, offset, cy, cx, out):  # pragma: no cover
     """``out[:, i, j]``: the four maps of ``coef`` at ``(cy[i, j], cx[i, j]) + offset``.
 
@@ -103,7 +107,7 @@ def cubic4_at(coef, offset, cy, cx, out):  # pragma: no cover
             out[3, i, j] = a3
 
 
-@njit(**_OPTIONS)
+@njit(**_FUSED)
 def residual_products(coef, offset, u, ref, valid, prod, i0, i1):  # pragma: no cover
     """The products whose arguments are a step of the large-displacement fixed point's
     residuals (:func:`fixed_point_update`), on the rows ``i0 <= i < i1``.
@@ -169,6 +173,74 @@ def fixed_point_update(angles, u, two_pi_k, solve, valid, i0, i1):  # pragma: no
             u[1, i, j] = uy + dy
             total += dx * dx + dy * dy
     return total
+
+
+# arctan on [-tan(pi/8), tan(pi/8)] as t + t z R(z), z = t^2: R the polynomial of
+# degree 10 that interpolates (arctan(sqrt z) / sqrt z - 1) / z at the 11 Chebyshev
+# nodes of [0, tan^2(pi/8)] (computed in 60-digit arithmetic): its error is below
+# 6e-18 of arctan's value there, far under an ulp; the result's error (at most 2 ulp
+# over +-pi, tests/test_lagrangian_interpolation.py) comes from the octant's
+# constants. glibc's atan2 takes about 20 ns a point and numpy calls it once a point
+# where the CPU has no AVX-512; these lines take some 2 ns, vectorised by LLVM (the
+# fixed point's two maps a step, and the start's phase difference: about 2 ms of CPU
+# a step at 250 x 400 px).
+_ATAN = (-0.3333333333333333, 0.1999999999999552, -0.14285714284666542,
+         0.11111111015256361, -0.09090904578123903, 0.07692183190826087,
+         -0.06664511447381948, 0.0585814891280221, -0.0508544973794026,
+         0.03923165829558719, -0.01917688711906226)
+_A0, _A1, _A2, _A3, _A4, _A5, _A6, _A7, _A8, _A9, _A10 = _ATAN
+_TAN_EIGHTH = math.tan(math.pi / 8)
+_QUARTER, _HALF = math.pi / 4, math.pi / 2
+
+
+@njit(inline="always", **_OPTIONS)
+def _atan2(y, x):  # pragma: no cover
+    """``numpy.arctan2(y, x)`` to 2 ulp, branch-free: the signs of zeros, infinities
+    and NaN as numpy has them."""
+    ax, ay = abs(x), abs(y)
+    swap = ay > ax  # a NaN leaves it False, and reaches t
+    big, small = (ay, ax) if swap else (ax, ay)
+    # past tan(pi/8) the ratio is turned by pi/4: (s - b) / (s + b), one division;
+    # two infinities are turned to 0 (pi/4 and its octants)
+    infinite = small == math.inf
+    turn = infinite or small > _TAN_EIGHTH * big
+    num = small - big if turn else small
+    den = small + big if turn else big
+    # where both are 0 the octant's constants give the signed zeros and pi
+    t = 0.0 if den == 0.0 or infinite else num / den
+    z = t * t
+    r = ((((((((((_A10 * z + _A9) * z + _A8) * z + _A7) * z + _A6) * z + _A5) * z + _A4)
+             * z + _A3) * z + _A2) * z + _A1) * z + _A0)
+    a = t + t * z * r
+    a = _QUARTER + a if turn else a
+    a = _HALF - a if swap else a
+    a = math.pi - a if math.copysign(1.0, x) < 0.0 else a
+    return math.copysign(a, y)
+
+
+@njit(**_OPTIONS)
+def arctan2(y, x, out):  # pragma: no cover
+    """``out = numpy.arctan2(y, x)`` to 2 ulp (:func:`_atan2`), for C-ordered arrays
+    of one shape (``out`` may be ``y`` or ``x``)."""
+    yf, xf, of = y.ravel(), x.ravel(), out.ravel()
+    for i in range(of.size):
+        of[i] = _atan2(yf[i], xf[i])
+
+
+@njit(**_OPTIONS)
+def phase_difference(ref, cur, out):  # pragma: no cover
+    """``out[j] = arg(Psi_j,cur conj Psi_j,ref)`` (2, H, W), from the transforms'
+    real views ``ref`` and ``cur`` (2, H, 2W): the product as numpy computes it, its
+    argument by :func:`_atan2`."""
+    n, H, W = out.shape
+    for j in range(n):
+        for i in range(H):
+            for k in range(W):
+                a = ref[j, i, 2 * k]
+                b = ref[j, i, 2 * k + 1]
+                c = cur[j, i, 2 * k]
+                d = cur[j, i, 2 * k + 1]
+                out[j, i, k] = _atan2(a * d - b * c, a * c + b * d)
 
 
 # The pole of the cubic B-spline's inverse filter, and the gain that makes the
@@ -325,7 +397,7 @@ def prefilter_columns(out, j0, j1):  # pragma: no cover
                 out[k, j, p] = z * (out[k + 1, j, p] - out[k, j, p])
 
 
-@njit(**_OPTIONS)
+@njit(**_FUSED)
 def lagrangian_gradient(coef, offset, u, cur_valid, ref_valid, d_ref, two_pi_k, strain,
                         rotation, valid, i0, i1):  # pragma: no cover
     """The exact Lagrangian displacement gradient and the pixels valid in both states.
