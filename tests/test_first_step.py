@@ -5,6 +5,7 @@ the measurement (:func:`_first_step`, the oracle) finds it small."""
 from __future__ import annotations
 
 import dataclasses
+import types
 
 import numpy as np
 import pytest
@@ -71,3 +72,38 @@ def test_no_valid_pixel_proves_nothing():
     none = np.zeros(SHAPE, bool)
     cur = dataclasses.replace(cur, valid=none)
     assert not _beyond_small_step(ref, cur, True)
+
+
+@pytest.mark.parametrize("compiled", [True, False])
+def test_largest_step_is_the_largest_change_along_each_wave_vector(monkeypatch, compiled):
+    """The step a state is followed by, against a direct loop over the pixels valid in
+    both states: ``max |k_j . (u - field)|`` in periods; inf where no pixel is left or
+    a change is not finite."""
+    from gridstrain.kinematics import _deformation as kin
+    from gridstrain.kinematics.tracking import _largest_step
+
+    if compiled and kin._load_kernels() is None:
+        pytest.skip("numba is not installed")
+    monkeypatch.setattr(kin, "_COMPILED", compiled)
+    rng = np.random.default_rng(2)
+    lattice = Lattice.from_pitch(5.0, angle=17.0)
+    shape = (31, 43)
+    u = rng.normal(0.0, 0.3, (2, *shape))
+    field = rng.normal(0.0, 0.3, (2, *shape))
+    valid = rng.random(shape) > 0.3
+    before = rng.random(shape) > 0.2
+    res = types.SimpleNamespace(u=u, valid=valid)  # what the step reads of a measurement
+    want = 0.0
+    for i in range(shape[0]):
+        for j in range(shape[1]):
+            if valid[i, j] and before[i, j]:
+                for k in (lattice.k1, lattice.k2):
+                    d = k[0] * (u[0, i, j] - field[0, i, j]) + k[1] * (u[1, i, j] - field[1, i, j])
+                    want = max(want, abs(d))
+    # periods: the products' rounding only (1e-15 of a period)
+    assert _largest_step(res, field, lattice, before) == pytest.approx(want, abs=1e-14)
+    assert _largest_step(res, field, lattice, np.zeros(shape, bool)) == np.inf
+    bad = np.where(valid & before)
+    field[0][bad[0][3], bad[1][3]] = np.nan
+    assert _largest_step(res, field, lattice, before) == np.inf
+

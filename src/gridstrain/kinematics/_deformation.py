@@ -212,6 +212,12 @@ def _by_blocks(n: int, size: int, fn, pixels: int) -> list:
     return map_leaves(lambda b: fn(*b), blocks, max(min(workers, len(blocks)), 1))
 
 
+def kinematics_compiled() -> bool:
+    """Whether the kinematics use their compiled loops where numba is installed (a
+    test turns :data:`_COMPILED` off to compare them with numpy's)."""
+    return _COMPILED
+
+
 @functools.cache
 def _load_kernels():
     """The module of compiled spline loops (:func:`gridstrain._runtime.compiled.load`), or None."""

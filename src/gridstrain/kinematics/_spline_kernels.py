@@ -243,6 +243,24 @@ def phase_difference(ref, cur, out):  # pragma: no cover
                 out[j, i, k] = _atan2(a * d - b * c, a * c + b * d)
 
 
+@njit(**_OPTIONS)
+def largest_step(u, field, v, K):  # pragma: no cover
+    """The largest ``|K (u - field)|`` (periods along each wave vector) over the
+    pixels ``v``; -1 where there is none, inf where one is not finite."""
+    k00, k01, k10, k11 = K[0, 0], K[0, 1], K[1, 0], K[1, 1]
+    _, H, W = u.shape
+    best = -1.0
+    for i in range(H):
+        for j in range(W):
+            if v[i, j]:
+                d0 = u[0, i, j] - field[0, i, j]
+                d1 = u[1, i, j] - field[1, i, j]
+                a = max(abs(k00 * d0 + k01 * d1), abs(k10 * d0 + k11 * d1))
+                if not a <= best:
+                    best = a if a == a else math.inf
+    return best
+
+
 # The pole of the cubic B-spline's inverse filter, and the gain that makes the
 # filter's DC response 1 (Unser 1999): scipy.ndimage's values.
 _POLE = math.sqrt(3.0) - 2.0
