@@ -496,3 +496,38 @@ def test_compiled_phase_difference_is_numpys_to_two_ulp(monkeypatch):
     ok = ~np.isnan(plain)
     np.testing.assert_array_equal(np.signbit(fast[ok]), np.signbit(plain[ok]))
     np.testing.assert_allclose(fast[ok], plain[ok], rtol=0, atol=2 * np.spacing(np.pi))
+
+
+def test_gradient_box_shortcut_decides_what_the_interpolated_validity_decides():
+    """Where the deformed state's valid pixels fill a rectangle, the gradient's loop
+    skips the bilinear interpolation of the validity for points whose four
+    neighbours lie inside it; points near its edges (fractions of 0, 1e-4, 1e-3
+    and 0.5 px past an edge) still get it: the same validity and strain bits as the
+    loop told of no rectangle."""
+    kern = kinematics._load_kernels()
+    if kern is None:
+        pytest.skip("numba is not installed")
+    rng = np.random.default_rng(12)
+    H, W = 60, 80
+    coef = rng.standard_normal((H + 2 * kinematics._SPLINE_PAD, W + 2 * kinematics._SPLINE_PAD, 4))
+    cur_valid = np.zeros((H, W), bool)
+    cur_valid[7:50, 9:71] = True
+    # displacements that bring X + u onto, just past and well past the rectangle's edges
+    frac = rng.choice([0.0, 1e-4, 9.99e-4, 1.001e-3, 0.5, -1e-4, -0.5], (2, H, W))
+    u = rng.integers(-3, 4, (2, H, W)) + frac
+    ref_valid = rng.random((H, W)) > 0.1
+    d_ref = rng.standard_normal((2, 2, H, W))
+    two_pi_k = 2 * np.pi * Lattice.from_pitch(SIGMA, angle=7.0).K
+    out = []
+    for box in ((7, 50, 9, 71), (0, 0, 0, 0)):
+        strain, rotation = np.empty((3, H, W)), np.empty((H, W))
+        valid = np.empty((H, W), bool)
+        kern.lagrangian_gradient(coef, float(kinematics._SPLINE_PAD), u, cur_valid,
+                                 np.array(box, dtype=np.int64), ref_valid, d_ref, two_pi_k,
+                                 strain, rotation, valid, 0, H)
+        out.append((strain, rotation, valid))
+    (s1, r1, v1), (s2, r2, v2) = out
+    np.testing.assert_array_equal(v1, v2)
+    assert 0.2 < v1.mean() < 0.8
+    np.testing.assert_array_equal(s1.view(np.int64), s2.view(np.int64))
+    np.testing.assert_array_equal(r1.view(np.int64), r2.view(np.int64))

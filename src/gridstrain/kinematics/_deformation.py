@@ -805,8 +805,11 @@ def _lagrangian_gradient(u, reference, deformed, D_ref):
         strain = np.empty((3, *shape))
         rotation = np.empty(shape)
         valid = np.empty(shape, dtype=bool)
+        box = filled_box(deformed.valid)
         args = (spline.coef, float(_SPLINE_PAD), np.ascontiguousarray(u, dtype=np.float64),
-                np.ascontiguousarray(deformed.valid), np.ascontiguousarray(reference.valid),
+                np.ascontiguousarray(deformed.valid),
+                np.array(box if box is not None else (0, 0, 0, 0), dtype=np.int64),
+                np.ascontiguousarray(reference.valid),
                 np.ascontiguousarray(D_ref, dtype=np.float64), 2 * np.pi * K, strain,
                 rotation, valid)
         _by_blocks(shape[0], _BLOCK_ROWS,

@@ -416,8 +416,8 @@ def prefilter_columns(out, j0, j1):  # pragma: no cover
 
 
 @njit(**_FUSED)
-def lagrangian_gradient(coef, offset, u, cur_valid, ref_valid, d_ref, two_pi_k, strain,
-                        rotation, valid, i0, i1):  # pragma: no cover
+def lagrangian_gradient(coef, offset, u, cur_valid, box, ref_valid, d_ref, two_pi_k,
+                        strain, rotation, valid, i0, i1):  # pragma: no cover
     """The exact Lagrangian displacement gradient and the pixels valid in both states.
 
     ``coef`` (Hp, Wp, 4): the prefiltered deformed phase derivatives ``D_00, D_01,
@@ -427,25 +427,29 @@ def lagrangian_gradient(coef, offset, u, cur_valid, ref_valid, d_ref, two_pi_k, 
     its small strain ``strain`` (3, H, W), ``(G_00, G_11, (G_01 + G_10) / 2)``, its
     rotation ``rotation`` (H, W), ``(G_10 - G_01) / 2``, and ``valid`` (H, W): valid in
     the reference, ``X + u`` inside the image and the bilinear interpolation of the
-    deformed validity there above 0.999, as
+    deformed validity there above 0.999 (``box`` (4,) int64: rows ``box[0] <= r <
+    box[1]`` and columns ``box[2] <= c < box[3]`` all valid in the deformed state, or
+    an empty one: where the four neighbours lie in it the interpolation is 1, not
+    computed; 3.2 -> 2.7 ms at 250 x 400 px), as
     :func:`gridstrain.kinematics._lagrangian_gradient` computes with scipy and numpy;
     ``strain`` and ``rotation`` are NaN where not ``valid`` (the measurement's value
     there: the spline is not evaluated). On the rows ``i0 <= i < i1`` only.
     """
     _, H, W = u.shape
+    r0, r1, c0, c1 = box[0], box[1], box[2], box[3]
     for i in range(i0, i1):
         for j in range(W):
             y = i + u[1, i, j]
             x = j + u[0, i, j]
             ok = ref_valid[i, j] and y >= 0.0 and y <= H - 1.0 and x >= 0.0 \
                 and x <= W - 1.0
-            if ok:
-                fy = math.floor(y)
-                fx = math.floor(x)
+            fy = math.floor(y)
+            fx = math.floor(x)
+            y0 = int(fy) if ok else 0  # (y, x) may be any number where not ok
+            x0 = int(fx) if ok else 0
+            if ok and not (r0 <= y0 and y0 + 1 < r1 and c0 <= x0 and x0 + 1 < c1):
                 ty = y - fy
                 tx = x - fx
-                y0 = int(fy)
-                x0 = int(fx)
                 w = 0.0
                 for a in range(2):
                     for b in range(2):
