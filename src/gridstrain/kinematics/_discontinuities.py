@@ -527,8 +527,9 @@ def _no_seed_possible(strain: np.ndarray, valid: np.ndarray, threshold: float) -
     factor 0.999 leaves room for the interpolation's rounding.
     """
     for comp in strain:
-        vals = comp[valid]
-        span = float(np.max(vals)) - float(np.min(vals))
+        # reduced where valid, without gathering them (the same values)
+        span = float(np.max(comp, where=valid, initial=-np.inf)) \
+            - float(np.min(comp, where=valid, initial=np.inf))
         if not span < 0.999 * threshold:  # NaN included: the search decides
             return False
     return True

@@ -118,6 +118,8 @@ _TIED = 0.99
 def cut_into_parts(valid: np.ndarray) -> str:
     """Why one whole number of periods found for ``valid``'s pixels does not hold for all
     of them (no part holds :data:`_TIED` of them), or "" when it does."""
+    if filled_box(valid) is not None:  # a rectangle is one part: no labels needed
+        return ""
     labels, n = ndimage.label(valid, structure=np.ones((3, 3), dtype=bool))
     if n <= 1:
         return ""

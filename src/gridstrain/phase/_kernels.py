@@ -217,6 +217,28 @@ def phase_derivatives(re, im, taps, y0, y1, base, psi, mod, dx, dy, out0,
 _exact_jit = njit(**(_OPTIONS | {"fastmath": False})) if AVAILABLE else (lambda func: func)
 
 
+@_jit
+def carrier_moved(src, ex_re, ex_im, ey_re, ey_im, out):  # pragma: no cover
+    """``out = src ex[x] ey[y]`` (the complex products taken in that order, as numpy
+    takes them, to an ulp or two of their modulus), ``src`` and ``out`` (H, 2W) real views of
+    one complex map (``out`` may be ``src``), ``ex`` (W,) and ``ey`` (H,) the
+    carrier's change along x and y, in the map's precision."""
+    H = src.shape[0]
+    W = ex_re.size
+    for y in range(H):
+        e = ey_re[y]
+        f = ey_im[y]
+        for x in range(W):
+            a = src[y, 2 * x]
+            b = src[y, 2 * x + 1]
+            c = ex_re[x]
+            d = ex_im[x]
+            re = a * c - b * d
+            im = a * d + b * c
+            out[y, 2 * x] = re * e - im * f
+            out[y, 2 * x + 1] = re * f + im * e
+
+
 @_exact_jit
 def add_unit_sums(psi, mod, dphi, unit, msum, dsum, one, sign):  # pragma: no cover
     """Add (``sign`` 1) or take out (-1) one block of a frame's maps to method B's sums.

@@ -93,10 +93,22 @@ def _carrier_moved(pm: PhaseMaps, psi: np.ndarray, dphi: np.ndarray,
     ctype = psi.dtype
     x = np.arange(W, dtype=np.float64)
     y = np.arange(H, dtype=np.float64)
+    from ._transform import _kernels  # (it imports this module)
+
+    kern = _kernels()
+    real = np.finfo(ctype).dtype
     for j in range(2):
-        np.multiply(pm.psi[j], np.exp(2j * np.pi * dk[j, 0] * x).astype(ctype)[None, :],
-                    out=psi[j])
-        psi[j] *= np.exp(2j * np.pi * dk[j, 1] * y).astype(ctype)[:, None]
+        ex = np.exp(2j * np.pi * dk[j, 0] * x).astype(ctype)
+        ey = np.exp(2j * np.pi * dk[j, 1] * y).astype(ctype)
+        src = pm.psi[j]
+        if kern is not None and src.dtype == ctype and src.flags.c_contiguous \
+                and psi[j].flags.c_contiguous:
+            # one pass of both products (the whole move 1.0 -> 0.7 ms at 250 x 400 px)
+            kern.carrier_moved(src.view(real), ex.real.copy(), ex.imag.copy(),
+                               ey.real.copy(), ey.imag.copy(), psi[j].view(real))
+        else:
+            np.multiply(src, ex[None, :], out=psi[j])
+            psi[j] *= ey[:, None]
         np.add(pm.dphi[j, 0], 2 * np.pi * dk[j, 0], out=dphi[j, 0])
         np.add(pm.dphi[j, 1], 2 * np.pi * dk[j, 1], out=dphi[j, 1])
     return PhaseMaps(psi=psi, dphi=dphi, valid=np.array(pm.valid), lattice=lattice,
