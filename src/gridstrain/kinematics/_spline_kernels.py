@@ -152,26 +152,33 @@ def fixed_point_update(angles, u, two_pi_k, solve, valid, i0, i1):  # pragma: no
     """
     W = u.shape[2]
     two_pi = 2.0 * math.pi
+    k00, k01, k10, k11 = two_pi_k[0, 0], two_pi_k[0, 1], two_pi_k[1, 0], two_pi_k[1, 1]
+    s00, s01, s10, s11 = solve[0, 0], solve[0, 1], solve[1, 0], solve[1, 1]
+    # a row's steps without a branch (selections: LLVM vectorises the loop, 0.76 ->
+    # 0.52 ms at 250 x 400 px), their squares then added in the pixels' order (an
+    # invalid pixel's 0 changes no sum): the same bits as one loop over the valid ones
+    sq = np.empty(W)
     total = 0.0
     for i in range(i0, i1):
         k = i - i0
         for j in range(W):
-            if not valid[i, j]:
-                continue
+            v = valid[i, j]
             ux = u[0, i, j]
             uy = u[1, i, j]
-            r0 = angles[0, k, j] + (two_pi_k[0, 0] * ux + two_pi_k[0, 1] * uy)
-            r1 = angles[1, k, j] + (two_pi_k[1, 0] * ux + two_pi_k[1, 1] * uy)
+            r0 = angles[0, k, j] + (k00 * ux + k01 * uy)
+            r1 = angles[1, k, j] + (k10 * ux + k11 * uy)
             # wrapped to (-pi, pi], as pi - mod(pi - r, 2 pi)
             t0 = math.pi - r0
             t1 = math.pi - r1
             r0 = math.pi - (t0 - two_pi * math.floor(t0 / two_pi))
             r1 = math.pi - (t1 - two_pi * math.floor(t1 / two_pi))
-            dx = solve[0, 0] * r0 + solve[0, 1] * r1
-            dy = solve[1, 0] * r0 + solve[1, 1] * r1
-            u[0, i, j] = ux + dx
-            u[1, i, j] = uy + dy
-            total += dx * dx + dy * dy
+            dx = s00 * r0 + s01 * r1
+            dy = s10 * r0 + s11 * r1
+            u[0, i, j] = ux + dx if v else ux
+            u[1, i, j] = uy + dy if v else uy
+            sq[j] = dx * dx + dy * dy if v else 0.0
+        for j in range(W):
+            total += sq[j]
     return total
 
 
@@ -497,48 +504,51 @@ def newton_start(u0, d, cur_valid, two_pi_k, m_of_d, a_med, u, i0, i1):  # pragm
     """
     W = u0.shape[2]
     two_pi = 2.0 * math.pi
+    k00, k01, k10, k11 = two_pi_k[0, 0], two_pi_k[0, 1], two_pi_k[1, 0], two_pi_k[1, 1]
+    n00, n01, n10, n11 = m_of_d[0, 0], m_of_d[0, 1], m_of_d[1, 0], m_of_d[1, 1]
+    e00, e01, e10, e11 = a_med[0, 0], a_med[0, 1], a_med[1, 0], a_med[1, 1]
+    # a row without a branch (selections: LLVM vectorises the loop, 1.2 -> 0.5 ms at
+    # 250 x 400 px), its norms then reduced in the pixels' order: the same bits
+    norms = np.empty(W)
     q = 0.0
     finite = True
     for i in range(i0, i1):
         for j in range(W):
             x0 = u0[0, i, j]
             y0 = u0[1, i, j]
-            u[0, i, j] = x0
-            u[1, i, j] = y0
-            if not cur_valid[i, j]:
-                continue
+            v = cur_valid[i, j]
             d00 = d[0, 0, i, j]
             d01 = d[0, 1, i, j]
             d10 = d[1, 0, i, j]
             d11 = d[1, 1, i, j]
-            m00 = m_of_d[0, 0] * d00 + m_of_d[0, 1] * d10
-            m01 = m_of_d[0, 0] * d01 + m_of_d[0, 1] * d11
-            m10 = m_of_d[1, 0] * d00 + m_of_d[1, 1] * d10
-            m11 = m_of_d[1, 0] * d01 + m_of_d[1, 1] * d11
+            m00 = n00 * d00 + n01 * d10
+            m01 = n00 * d01 + n01 * d11
+            m10 = n10 * d00 + n11 * d10
+            m11 = n10 * d01 + n11 * d11
             f = math.sqrt(m00 * m00 + m01 * m01 + m10 * m10 + m11 * m11)
+            norms[j] = f if v else 0.0
+            b0 = k00 * x0 + k01 * y0
+            b1 = k10 * x0 + k11 * y0
+            a00 = k00 + d00
+            a01 = k01 + d01
+            a10 = k10 + d10
+            a11 = k11 + d11
+            rdet = 1.0 / (a00 * a11 - a01 * a10)
+            nx = (a11 * b0 - a01 * b1) * rdet
+            ny = (a00 * b1 - a10 * b0) * rdet
+            mx = e00 * x0 + e01 * y0
+            my = e10 * x0 + e11 * y0
+            c0 = (k00 * (nx - mx) + k01 * (ny - my)) / two_pi
+            c1 = (k10 * (nx - mx) + k11 * (ny - my)) / two_pi
+            keep = abs(c0) < 0.1 and abs(c1) < 0.1
+            u[0, i, j] = (nx if keep else mx) if v else x0
+            u[1, i, j] = (ny if keep else my) if v else y0
+        for j in range(W):
+            f = norms[j]
             if not math.isfinite(f):
                 finite = False
             elif f > q:
                 q = f
-            b0 = two_pi_k[0, 0] * x0 + two_pi_k[0, 1] * y0
-            b1 = two_pi_k[1, 0] * x0 + two_pi_k[1, 1] * y0
-            a00 = two_pi_k[0, 0] + d00
-            a01 = two_pi_k[0, 1] + d01
-            a10 = two_pi_k[1, 0] + d10
-            a11 = two_pi_k[1, 1] + d11
-            rdet = 1.0 / (a00 * a11 - a01 * a10)
-            nx = (a11 * b0 - a01 * b1) * rdet
-            ny = (a00 * b1 - a10 * b0) * rdet
-            mx = a_med[0, 0] * x0 + a_med[0, 1] * y0
-            my = a_med[1, 0] * x0 + a_med[1, 1] * y0
-            c0 = (two_pi_k[0, 0] * (nx - mx) + two_pi_k[0, 1] * (ny - my)) / two_pi
-            c1 = (two_pi_k[1, 0] * (nx - mx) + two_pi_k[1, 1] * (ny - my)) / two_pi
-            if abs(c0) < 0.1 and abs(c1) < 0.1:
-                u[0, i, j] = nx
-                u[1, i, j] = ny
-            else:
-                u[0, i, j] = mx
-                u[1, i, j] = my
     return q if finite else math.inf
 
 
