@@ -328,8 +328,12 @@ def test_pipeline_on_the_cluster_matches_single_process(client, method, monkeypa
     v = want.valid
     assert_allclose(got.u[:, :, v[0]], want.u[:, :, v[0]], rtol=0, atol=U_TOL)
     assert_allclose(got.strain[:, :, v[0]], want.strain[:, :, v[0]], rtol=0, atol=STRAIN_TOL)
-    # the temporal variances: sums of noise-sized squares in another order
-    assert_allclose(got.noise.sensor_variance, want.noise.sensor_variance, rtol=1e-12)
+    # the temporal variances: sums of squares of grey levels near 2000 less the square
+    # of their sum, in another order; the difference cancels some 2000 times over a
+    # variance near 2000 grey levels^2, so a reordering moves it by a few 1e-12 of
+    # itself (3e-12 with numpy 2.4 and dask 2026.8 on an AVX2 machine); 1e-9 of a
+    # noise variance changes no uncertainty a user reads
+    assert_allclose(got.noise.sensor_variance, want.noise.sensor_variance, rtol=1e-9)
     for name, arr in want.uncertainty.items():
         assert_allclose(got.uncertainty[name], arr, rtol=1e-9, equal_nan=True)
     assert_allclose(got.reference_image, want.reference_image, rtol=1e-14)
