@@ -163,12 +163,12 @@ def test_demodulated_at_multiplies_by_the_carriers_change(monkeypatch, compiled,
     float32: the rounding of the exponentials' arguments, up to 3 rad here, and of the
     two products; a wrong sign or axis is off by the whole change), the derivatives
     moved by ``2 pi (k - k')``."""
-    from gridstrain.phase import _transform, demodulated_at, wft
+    from gridstrain.phase import _maps, demodulated_at, wft
     from gridstrain.phase.lattice import Carrier
 
-    if compiled and _transform._load_kernels() is None:
+    if compiled and _maps._load_kernels() is None:
         pytest.skip("numba is not installed")
-    monkeypatch.setattr(_transform, "_COMPILED", compiled)
+    monkeypatch.setattr(_maps, "_COMPILED", compiled)
     img, _ = scene((64, 90), pitch=5.0, angle=10.0, hole=False)
     lat = Lattice.from_pitch(5.0, angle=10.0)
     k = lat.K @ np.array([[1.02, 0.01], [-0.03, 0.99]])

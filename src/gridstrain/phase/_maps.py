@@ -5,10 +5,12 @@ carrier (:func:`demodulated_at`) and the derivatives the kinematics take
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
 
+from .._runtime import compiled
 from .lattice import Lattice
 
 
@@ -66,6 +68,17 @@ class PhaseMaps:
                 f"{self.valid.mean():.1%} valid, {self.lattice!r})")
 
 
+# The carrier's move by the compiled loop of gridstrain.phase._kernels (numba, the "fast"
+# extra), when installed; False forces numpy's two products.
+_COMPILED = True
+
+
+@functools.cache
+def _load_kernels():
+    """The module of compiled loops (:func:`gridstrain._runtime.compiled.load`), or None."""
+    return compiled.load(__package__, "._kernels")
+
+
 def demodulated_at(pm: PhaseMaps, lattice: Lattice) -> PhaseMaps:
     """``pm``'s maps as demodulated by ``lattice``'s carrier rather than its own.
 
@@ -93,9 +106,7 @@ def _carrier_moved(pm: PhaseMaps, psi: np.ndarray, dphi: np.ndarray,
     ctype = psi.dtype
     x = np.arange(W, dtype=np.float64)
     y = np.arange(H, dtype=np.float64)
-    from ._transform import _kernels  # (it imports this module)
-
-    kern = _kernels()
+    kern = _load_kernels() if _COMPILED else None
     real = np.finfo(ctype).dtype
     for j in range(2):
         ex = np.exp(2j * np.pi * dk[j, 0] * x).astype(ctype)
