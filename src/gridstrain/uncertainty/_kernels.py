@@ -116,13 +116,21 @@ def std_from_variance(var_u, valid, ratio, u_std, strain_std):  # pragma: no cov
         s0 = v0 * ratio
         s1 = v1 * ratio
         s2 = (s0 + s1) * 0.25
-        # every value computed, then chosen: no branch, the loop vectorises
+        # every value computed, then chosen: no branch, the loop vectorises. math.sqrt
+        # is LLVM's sqrt, which vectorises; numba's np.sqrt of a scalar kept the loop
+        # scalar (1.27 -> 0.35 ms at 250 x 400 px, one core). Both are IEEE's square
+        # root, correctly rounded: the same bits.
         ok = valid[i]
-        u_std[0, i] = np.sqrt(v0) if ok else np.nan
-        u_std[1, i] = np.sqrt(v1) if ok else np.nan
-        strain_std[0, i] = np.sqrt(s0) if ok else np.nan
-        strain_std[1, i] = np.sqrt(s1) if ok else np.nan
-        strain_std[2, i] = np.sqrt(s2) if ok else np.nan
+        r0 = math.sqrt(v0)
+        r1 = math.sqrt(v1)
+        q0 = math.sqrt(s0)
+        q1 = math.sqrt(s1)
+        q2 = math.sqrt(s2)
+        u_std[0, i] = r0 if ok else np.nan
+        u_std[1, i] = r1 if ok else np.nan
+        strain_std[0, i] = q0 if ok else np.nan
+        strain_std[1, i] = q1 if ok else np.nan
+        strain_std[2, i] = q2 if ok else np.nan
 
 
 @_jit
