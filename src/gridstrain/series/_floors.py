@@ -6,6 +6,7 @@ against each other), and the systematic errors worth a warning.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 import numbers
 from collections.abc import Sequence
@@ -59,6 +60,11 @@ _ALIAS_FACTOR = 2.0
 
 
 
+# The reference's side of every state's theory floor is the same: kept, not computed
+# again for each state (two of the four calls, 0.04 ms a state of 250 x 400 px, one core)
+_wft_noise_std = functools.lru_cache(maxsize=8)(theory.wft_noise_std)
+
+
 def _theory_floor(var_ref, T_ref, mod_ref, var_s, T_s, mod_s, sigma, lattice):
     """(2,) px and (3,) strain from the WFT noise theory; NaN when unavailable."""
     if not (math.isfinite(var_ref) or math.isfinite(var_s)):
@@ -70,10 +76,10 @@ def _theory_floor(var_ref, T_ref, mod_ref, var_s, T_s, mod_s, sigma, lattice):
         return np.full(2, np.nan), np.full(3, np.nan)
     ph_r, d_r, ph_s, d_s = [], [], [], []
     for j in range(2):
-        p, d = theory.wft_noise_std(var_ref / T_ref, float(mod_ref[j]), sigma)  # Prop. 2.3
+        p, d = _wft_noise_std(var_ref / T_ref, float(mod_ref[j]), sigma)  # Prop. 2.3
         ph_r.append(p)
         d_r.append(d)
-        p, d = theory.wft_noise_std(var_s / T_s, float(mod_s[j]), sigma)
+        p, d = _wft_noise_std(var_s / T_s, float(mod_s[j]), sigma)
         ph_s.append(p)
         d_s.append(d)
     su = theory.displacement_noise_std(ph_r, ph_s, lattice)  # eq. (34)
