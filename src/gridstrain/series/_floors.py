@@ -303,11 +303,13 @@ class _ReferenceFloor:
         self.rows: dict[str, list] = {k: [] for k in ("theory_u", "theory_strain", "split_u",
                                                       "split_strain", "vibration_u")}
 
-    def _local(self, r: _Measured):
+    def _local(self, r: _Measured, where=None):
+        """The sensor's variance of ``r`` averaged as its noise enters Psi; with
+        ``where``, at the box of those pixels alone (NaN elsewhere)."""
         if r.stats.variance is None:
             return None
         # the weight of a pixel's noise in Psi is g^2, a Gaussian of std sigma / sqrt 2
-        return noise_weighted(r.stats.variance, self.sigma)
+        return noise_weighted(r.stats.variance, self.sigma, where=where)
 
     def state(self, c: _Measured, sc: _Summary, res: Measurement, alias: dict,
               warnings: list) -> tuple:
@@ -376,7 +378,8 @@ class _ReferenceFloor:
         variance) and their medians over its valid pixels, ``[ux, uy, exx, eyy,
         exy]`` (None where the maps are not those :func:`std_from_phase_variance`
         gives: scaled up to the edges)."""
-        local = self._local(c)
+        # the maps are read at the state's valid pixels alone (NaN elsewhere)
+        local = self._local(c, res.valid)
         # a single-frame series is taken as noisy per frame as the other one
         v_ref = self.local_ref if self.local_ref is not None else local
         v_def = local if local is not None else self.local_ref
