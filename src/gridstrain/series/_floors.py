@@ -391,8 +391,10 @@ class _ReferenceFloor:
             if self.var_ref_phase is None:
                 self.var_ref_phase = phase_variance(self.r.maps, v_ref / self.sr.T)
             var_ref = self.var_ref_phase
+        T = c.series.n_frames
+        # a one-frame state's variance as it is (x / 1 is x): no map of its quotient
         u_std, strain_std, *medians = std_from_phase_variance(
-            var_ref, c.maps, variance_def=v_def / c.series.n_frames, valid=res.valid,
+            var_ref, c.maps, variance_def=v_def if T == 1 else v_def / T, valid=res.valid,
             medians=self.edge_gain is None)
         if self.edge_gain is not None:
             u_std *= self.edge_gain[0]
