@@ -316,6 +316,35 @@ def test_the_compiled_rounding_gives_the_numpy_paths_bits(shape, monkeypatch):
         _precision.round_to_std(np.full(shape, 1e39), np.ones(shape))
 
 
+@pytest.mark.parametrize("scale", [1.0, 0.0125, 3e5])
+def test_rounding_to_the_smaller_std_is_the_products_rounded(scale, monkeypatch):
+    """A map rounded against the smaller of its measured and stored std, in a physical
+    unit (``scale``), by the compiled loop: the bits of the numpy path's ``fmin``, its
+    products by the scale and :func:`round_to_std`; with NaN on either std, stored stds
+    above and below the measured ones, zeros, infinities and a subnormal step (which
+    the scalar loop rounds)."""
+    from gridstrain.results import _precision
+
+    if _precision._load_kernels() is None:
+        pytest.skip("numba is not installed")
+    rng = np.random.default_rng(17)
+    n = 500
+    v = rng.normal(size=n) * 10.0 ** rng.uniform(-6, 2, size=n)
+    s = np.abs(rng.normal(size=n)) * 10.0 ** rng.uniform(-7, 1, size=n)
+    stored = _precision.round_relative(s)
+    v[:6] = [np.nan, np.inf, 0.0, -0.0, 1e-310, 3.0]
+    s[6:12] = [np.nan, 0.0, np.inf, -1.0, 1e-320, 2.0]
+    stored[12:15] = [np.nan, 0.0, np.inf]
+    got = {}
+    for compiled in (False, True):
+        monkeypatch.setattr(_precision, "_COMPILED", compiled)
+        got[compiled] = _precision.round_to_least_std(v, s, stored, scale=scale)
+    want = _precision.round_to_std(v * scale, np.fmin(s, stored) * scale)
+    for g in got.values():
+        assert_array_equal(g[0].view(np.uint32), want[0].view(np.uint32))
+        assert np.float64(g[1]).tobytes() == np.float64(want[1]).tobytes()
+
+
 @pytest.mark.parametrize("deflate", ["isal", "zlib"])
 def test_a_chunk_encoded_by_the_compiled_loops_is_the_one_hdf5_writes(deflate, held, tmp_path,
                                                                       monkeypatch):

@@ -291,6 +291,37 @@ def test_noise_weighted_mean_is_scipys_gaussian_filter(shape, sigma, compiled, m
                                                           truncate=5.0))
 
 
+@pytest.mark.parametrize("compiled", [False, True])
+@pytest.mark.parametrize(("shape", "sigma", "box"),
+                         [((250, 400), 5.0, (20, 230, 20, 380)), ((64, 65), 1.4, (0, 64, 3, 65)),
+                          ((40, 50), 28.0, (5, 6, 49, 50)), ((30, 20), 3.0, (0, 30, 0, 20)),
+                          ((30, 20), 3.0, None)])
+def test_noise_weighted_mean_at_some_pixels_is_the_whole_maps(shape, sigma, box, compiled,
+                                                             monkeypatch):
+    """The g^2-weighted mean asked at some pixels (``where``): scipy's whole-map filter
+    bit for bit in the box that holds them, NaN outside it; the box at the map's
+    borders, one pixel, the whole map, and no pixel at all (all NaN)."""
+    from gridstrain.uncertainty import _maps
+
+    if compiled and _maps._load_kernels() is None:
+        pytest.skip("numba is not installed")
+    monkeypatch.setattr(_maps, "_COMPILED", compiled)
+    rng = np.random.default_rng(shape[0] + shape[1])
+    values = rng.normal(size=shape) * 10.0 ** rng.uniform(-3, 4, size=shape) + 1e3
+    want = ndimage.gaussian_filter(values, sigma / math.sqrt(2), mode="nearest",
+                                   truncate=5.0)
+    where = np.zeros(shape, dtype=bool)
+    inside = np.zeros(shape, dtype=bool)
+    if box is not None:
+        r0, r1, c0, c1 = box
+        inside[r0:r1, c0:c1] = True
+        # the box's corners and a pixel within it: the box that holds them is the box
+        where[r0, c0] = where[r1 - 1, c1 - 1] = where[(r0 + r1) // 2, (c0 + c1) // 2] = True
+    got = _maps.noise_weighted(values, sigma, where=where)
+    np.testing.assert_array_equal(got[inside].view(np.uint64), want[inside].view(np.uint64))
+    assert np.isnan(got[~inside]).all()
+
+
 @pytest.mark.parametrize(("ny", "nx", "r0", "nr", "c0", "nc"),
                          [(12, 16, 10, 5, 13, 6), (9, 10, 0, 9, 0, 10), (12, 15, 3, 4, 2, 4)])
 def test_spectrum_block_is_the_full_dft_block(ny, nx, r0, nr, c0, nc):

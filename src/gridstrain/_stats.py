@@ -103,8 +103,10 @@ def _middle_pair(flat: np.ndarray):
     half = 3 * math.sqrt(m) + 2
     lo = sample[max(0, math.floor(k / n * m - half))]
     hi = sample[min(m - 1, math.ceil(k / n * m + half))]
-    below = int(np.count_nonzero(flat < lo))
-    inside = (flat >= lo)
+    # no NaN: the values below lo are those not at or above it (one comparison fewer
+    # over the data)
+    inside = flat >= lo
+    below = n - int(np.count_nonzero(inside))
     inside &= flat <= hi
     # np.compress gathers through the indices of the True values, found without a
     # branch per value: a boolean index branches on each, and the bracket's values lie

@@ -29,7 +29,9 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
+from llvmlite import ir
+from numba import njit, types
+from numba.extending import intrinsic
 
 __all__: list[str] = []
 
@@ -47,6 +49,66 @@ def _leading_bit(x, cell, bits):  # pragma: no cover
     cell[0] = x
     bits[0] &= _EXPONENT
     return cell[0]
+
+
+@intrinsic
+def _bits(typingctx, x):  # pragma: no cover
+    """The uint64 bits of the float64 ``x`` (a register's bitcast, no memory)."""
+    def codegen(context, builder, sig, args):
+        return builder.bitcast(args[0], ir.IntType(64))
+    return types.uint64(types.float64), codegen
+
+
+@intrinsic
+def _from_bits(typingctx, b):  # pragma: no cover
+    """The float64 of the uint64 bits ``b``."""
+    def codegen(context, builder, sig, args):
+        return builder.bitcast(args[0], ir.DoubleType())
+    return types.float64(types.uint64), codegen
+
+
+_INF = math.inf
+
+
+@njit(**_OPTIONS)
+def round_to_least_std(v, s, stored, scale, two_f, f32_max, out):  # pragma: no cover
+    """:func:`round_to_std` of ``v scale`` against the std ``fmin(s, stored) scale``
+    (``stored`` (n,), float32 or float64: the std map as the file keeps it), without
+    either product or the smaller std in a map of their own; returns :func:`round_to_std`'s
+    three figures and the number of pixels whose step ``2 f s`` is subnormal, which this
+    loop does not round (:func:`round_to_std` does: the caller's to run it then).
+
+    Branch-free, each value's arithmetic that of :func:`round_to_std` (the exponent bits
+    read by a bitcast rather than through memory), so that the loop vectorises: 0.43 ->
+    0.25 ms a map of 250 x 400 px, one core. The largest error is taken on the errors'
+    bits, which order as the errors do (non-negative)."""
+    worst = np.uint64(0)
+    used = 0
+    counted = 0
+    over = False
+    slow = 0
+    for i in range(v.size):
+        x = v[i] * scale
+        s0 = s[i]
+        s1 = np.float64(stored[i])
+        si = (s1 if (s1 < s0 or s0 != s0) else s0) * scale  # np.fmin's choice
+        a = abs(x)
+        over |= (a > f32_max) & (a < _INF)
+        use = (si > 0.0) & (si < _INF) & (a < _INF)
+        t = two_f * si
+        q = _from_bits(_bits(t) & _EXPONENT)
+        slow += use & (q == 0.0) & (t > 0.0)
+        step = use & (t > 0.0) & (a < q * 9007199254740992.0)
+        rounded = np.float32(np.rint(x / q) * q)
+        r = rounded if step else np.float32(x)
+        e = abs(np.float64(r) - x) / si
+        # a NaN error (a step of inf) is passed over, as round_to_std's comparison does
+        counts = use & (e <= _INF)
+        worst = max(worst, _bits(e) if counts else np.uint64(0))
+        counted += counts
+        used += use
+        out[i] = r
+    return (_from_bits(worst) if counted else -_INF), used, over, slow
 
 
 @njit(**_OPTIONS)

@@ -32,7 +32,7 @@ from ._precision import (
     STD_OF,
     _kernels,
     round_relative,
-    round_to_std,
+    round_to_least_std,
 )
 from ._result import MAP_FIELDS
 
@@ -424,8 +424,9 @@ def _rounded(h5, k: int, arrays: dict, ps, errors: dict) -> dict:
     for name, arr in arrays.items():
         if name.endswith("_std"):
             out[name] = round_relative(arr)
-            # the bound holds against the measured std and the stored one alike
-            stds[name] = np.fmin(np.asarray(arr, dtype=np.float64), out[name])
+            # the bound holds against the measured std and the stored one alike: the
+            # smaller of the two, taken pixel by pixel as each map is rounded
+            stds[name] = arr
     todo = [(n, a, 1.0) for n, a in arrays.items() if not n.endswith("_std")]
     if ps is not None:
         todo += [(f"{n}_phys", arrays[n], ps) for n in ("ux", "uy")]
@@ -442,10 +443,9 @@ def _rounded(h5, k: int, arrays: dict, ps, errors: dict) -> dict:
             # no std: float32's own precision
             out[name] = (values * scale if scale != 1.0 else values).astype(np.float32)
             continue
-        std = stds[STD_OF[name]]
-        if scale != 1.0:  # a physical unit: a product per map, none for the px maps
-            values, std = values * scale, std * scale
-        out[name], errors[name][k] = round_to_std(values, std)
+        std = STD_OF[name]
+        out[name], errors[name][k] = round_to_least_std(values, stds[std], out[std],
+                                                        scale=scale)
     return out
 
 

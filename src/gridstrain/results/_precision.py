@@ -93,12 +93,7 @@ def round_to_std(values, std, *, fraction: float = STD_FRACTION) -> tuple[np.nda
     s = np.asarray(std, dtype=np.float64)
     kern = _kernels()
     if kern is not None and v.shape == s.shape:
-        out = np.empty(v.shape, dtype=np.float32)
-        worst, used, over = kern.round_to_std(np.ravel(v), np.ravel(s), 2.0 * fraction,
-                                              _F32_MAX, out.reshape(-1))
-        if over:
-            raise ValueError(_TOO_LARGE)
-        return out, (float(worst) if used else float("nan"))
+        return _compiled_round(kern, v, s, s, 1.0, fraction)
     a = np.abs(v)
     over = a > _F32_MAX
     if over.any() and np.isfinite(a[over]).any():
@@ -123,6 +118,41 @@ def round_to_std(values, std, *, fraction: float = STD_FRACTION) -> tuple[np.nda
         err = np.abs(rounded - v)
         err /= s
     return rounded, float(err.max(where=use, initial=-np.inf))
+
+
+def round_to_least_std(values, std, stored, *, scale: float = 1.0,
+                       fraction: float = STD_FRACTION) -> tuple[np.ndarray, float]:
+    """:func:`round_to_std` of ``values * scale`` against the std ``np.fmin(std,
+    stored) * scale``: a map in a physical unit (``scale`` the pixel size) rounded to
+    the smaller of its measured std ``std`` and the std as the file keeps it
+    (``stored``, :func:`round_relative`'s), so that the bound holds against both. The
+    same bits as those products and :func:`round_to_std`; by one compiled pass, without
+    the products or the smaller std in a map of their own, where numba is installed."""
+    v = np.asarray(values, dtype=np.float64)
+    s = np.asarray(std, dtype=np.float64)
+    kern = _kernels()
+    if kern is not None and v.shape == s.shape == np.shape(stored):
+        return _compiled_round(kern, v, s, np.asarray(stored), float(scale), fraction)
+    s = np.fmin(s, stored)
+    if scale != 1.0:
+        v, s = v * scale, s * scale
+    return round_to_std(v, s, fraction=fraction)
+
+
+def _compiled_round(kern, v, s, stored, scale: float, fraction: float):
+    """:func:`round_to_least_std` by the compiled loops (``v``, ``s`` float64 of one
+    shape, ``stored`` of theirs)."""
+    out = np.empty(v.shape, dtype=np.float32)
+    flat = out.reshape(-1)
+    worst, used, over, slow = kern.round_to_least_std(
+        np.ravel(v), np.ravel(s), np.ravel(stored), scale, 2.0 * fraction, _F32_MAX, flat)
+    if slow:  # a step 2 f s subnormal somewhere: the scalar loop, which rounds to it
+        least = np.fmin(s, stored) * scale
+        worst, used, over = kern.round_to_std(np.ravel(v * scale), np.ravel(least),
+                                              2.0 * fraction, _F32_MAX, flat)
+    if over:
+        raise ValueError(_TOO_LARGE)
+    return out, (float(worst) if used else float("nan"))
 
 
 def _leading_bit(x: np.ndarray) -> np.ndarray:

@@ -90,7 +90,7 @@ def _rows(a: np.ndarray, n: int) -> np.ndarray:
     return np.ascontiguousarray(a).reshape(n, -1)
 
 
-def noise_weighted(values, sigma: float) -> np.ndarray:
+def noise_weighted(values, sigma: float, *, where=None) -> np.ndarray:
     """``values`` (H, W) averaged with the weight each pixel's noise has in ``Psi``:
     ``g^2``, a Gaussian of std ``sigma / sqrt 2`` (truncated at 5 of its stds, the
     borders continued by their nearest pixel); float64.
@@ -100,19 +100,46 @@ def noise_weighted(values, sigma: float) -> np.ndarray:
     :mod:`gridstrain.uncertainty._kernels` on a float64 map when numba is installed
     (0.5 against 1.6 ms at 250 x 400 px and sigma = 5 px, one core), by scipy
     otherwise.
+
+    With ``where`` (H, W) bool, the pixels the caller reads: the mean is made over
+    the rows and columns of the box that holds them (the same bits there), NaN
+    elsewhere; a state's maps, whose uncertainty is read at its valid pixels alone,
+    skip the margin (0.82 -> 0.62 ms at 250 x 400 px, sigma = 5 px and a margin of
+    20 px, one core).
     """
     a = np.asarray(values)
     sd = sigma / math.sqrt(2)
     kern = _kernels()
+    box = None if where is None else _bounding_box(np.asarray(where, dtype=bool))
     # scipy leaves an axis unfiltered for a std of 1e-15 or less
     if kern is None or a.dtype != np.float64 or a.ndim != 2 or a.size == 0 \
             or not sd > 1e-15:
-        return ndimage.gaussian_filter(a.astype(np.float64, copy=False), sd, mode="nearest",
-                                       truncate=_G2_TRUNCATE)
+        out = ndimage.gaussian_filter(a.astype(np.float64, copy=False), sd, mode="nearest",
+                                      truncate=_G2_TRUNCATE)
+        if box is not None:
+            outside = np.ones(out.shape, dtype=bool)
+            outside[box[0]:box[1], box[2]:box[3]] = False
+            out[outside] = np.nan
+        return out
     a = np.ascontiguousarray(a)
-    out = np.empty(a.shape)
-    kern.gaussian_nearest(a, _half_kernel(float(sd)), np.empty(a.shape), out)
+    if box is None:
+        out = np.empty(a.shape)
+        kern.gaussian_nearest(a, _half_kernel(float(sd)), np.empty(a.shape), out)
+        return out
+    out = np.full(a.shape, np.nan)
+    if box[0] < box[1]:
+        kern.gaussian_nearest_box(a, _half_kernel(float(sd)), np.empty(a.shape), out, *box)
     return out
+
+
+def _bounding_box(where: np.ndarray) -> tuple[int, int, int, int]:
+    """``(r0, r1, c0, c1)``: the smallest box of rows ``r0:r1`` and columns ``c0:c1``
+    that holds the True pixels of ``where`` (an empty box, ``(0, 0, 0, 0)``, for none)."""
+    rows = np.flatnonzero(where.any(axis=1))
+    if rows.size == 0:
+        return 0, 0, 0, 0
+    cols = np.flatnonzero(where.any(axis=0))
+    return int(rows[0]), int(rows[-1]) + 1, int(cols[0]), int(cols[-1]) + 1
 
 
 @dataclass(frozen=True, eq=False)
