@@ -122,7 +122,7 @@ def test_compiled_prefilter_equals_scipys_spline_filter(shape):
     for k, p in enumerate(planes):
         want = ndimage.spline_filter(np.pad(p, pad, mode="edge"), 3, mode="nearest")
         # float64 rounding of sums whose terms reach the largest coefficient
-        np.testing.assert_allclose(spline.coef[..., k], want, rtol=0,
+        np.testing.assert_allclose(spline.coef[k], want, rtol=0,
                                    atol=1e-14 * np.abs(want).max())
 
 
@@ -509,7 +509,7 @@ def test_gradient_box_shortcut_decides_what_the_interpolated_validity_decides():
         pytest.skip("numba is not installed")
     rng = np.random.default_rng(12)
     H, W = 60, 80
-    coef = rng.standard_normal((H + 2 * kinematics._SPLINE_PAD, W + 2 * kinematics._SPLINE_PAD, 4))
+    coef = rng.standard_normal((4, H + 2 * kinematics._SPLINE_PAD, W + 2 * kinematics._SPLINE_PAD))
     cur_valid = np.zeros((H, W), bool)
     cur_valid[7:50, 9:71] = True
     # displacements that bring X + u onto, just past and well past the rectangle's edges
@@ -531,3 +531,32 @@ def test_gradient_box_shortcut_decides_what_the_interpolated_validity_decides():
     assert 0.2 < v1.mean() < 0.8
     np.testing.assert_array_equal(s1.view(np.int64), s2.view(np.int64))
     np.testing.assert_array_equal(r1.view(np.int64), r2.view(np.int64))
+
+
+def test_compiled_evaluation_by_runs_equals_map_coordinates():
+    """The compiled evaluation of four coefficient planes at a smooth field's points
+    (long runs of points sharing their neighbourhoods' rows, cut where the field
+    crosses a pixel), at points 20 px beyond the padding (clamped to the padded map
+    first, one point at a time) and at NaN ones, against scipy's ``map_coordinates``
+    of each plane (``prefilter=False``, ``mode="nearest"``) at the clamped points: to
+    float64 rounding of sums of 16 terms of coefficients up to 3 (5e-13)."""
+    kern = kinematics._load_kernels()
+    if kern is None:
+        pytest.skip("numba is not installed")
+    rng = np.random.default_rng(21)
+    H, W, pad = 50, 70, kinematics._SPLINE_PAD
+    coef = rng.standard_normal((4, H + 2 * pad, W + 2 * pad))
+    yy, xx = np.mgrid[0:H, 0:W].astype(float)
+    cy = yy + 2.3 + 0.8 * np.sin(xx / 9)  # crosses whole pixels along each row
+    cx = xx - 4.6 + 3e-2 * (yy - 25)
+    cy[5, 10:20] = -30.0  # beyond the padding: clamped
+    cx[40, 60:] = W + 25.0
+    cy[7, 3] = np.nan
+    out = np.full((4, H, W), -7.0)
+    kern.cubic4_at(coef, float(pad), cy, cx, out)
+    ok = np.isfinite(cy)
+    # a point beyond the padded map is first clamped to it (cubic4_at's docstring)
+    at = [np.clip(cy[ok] + pad, 0, H + 2 * pad - 1), np.clip(cx[ok] + pad, 0, W + 2 * pad - 1)]
+    for p in range(4):
+        want = ndimage.map_coordinates(coef[p], at, order=3, mode="nearest", prefilter=False)
+        np.testing.assert_allclose(out[p][ok], want, rtol=0, atol=1e-14 * 16 * 3)

@@ -251,9 +251,10 @@ class _Spline:
         kern = _load_kernels() if _COMPILED and order == 3 and len(planes) == 4 else None
         self.kern = kern
         if kern is not None:
-            # interleaved (Hp, Wp, 4): a neighbour's four coefficients in one cache line;
-            # read from the maps themselves (a complex map as its real view), not a copy
-            self.coef = np.empty((Hp, Wp, 4))
+            # one plane a map (4, Hp, Wp): a row of points reads each map's rows at
+            # unit stride (the compiled evaluation's runs); read from the maps
+            # themselves (a complex map as its real view), not a copy
+            self.coef = np.empty((4, Hp, Wp))
             dt = np.complex128 if self.is_complex else np.float64
             src = np.ascontiguousarray(flat, dtype=dt)
             src = src.view(np.float64) if self.is_complex else src
