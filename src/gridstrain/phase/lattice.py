@@ -319,51 +319,107 @@ def follow_lattice(image, lattice: Lattice, *, mask=None,
     m = check_mask(mask, img.shape)
     data, _, _ = _windowed_crop(img, m)  # a wave vector does not depend on the origin
     h, w = data.shape
-    spec = np.abs(sfft.fft2(data))
-    fx, fy, fr, nears = _follow_bins(h, w, tuple(map(float, lattice.k1)),
-                                     tuple(map(float, lattice.k2)), max_change)
+    fx, fy, ncol, discs = _follow_bins(h, w, tuple(map(float, lattice.k1)),
+                                       tuple(map(float, lattice.k2)), max_change)
+    spec = _half_spectrum(data, ncol)
     x = np.arange(w, dtype=float)
     y = np.arange(h, dtype=float)
     out = []
-    for j, (k, (rows, cols, near)) in enumerate(zip((lattice.k1, lattice.k2), nears,
-                                                    strict=True)):
+    for j, (k, (rows, cols, near, flat)) in enumerate(zip((lattice.k1, lattice.k2), discs,
+                                                          strict=True)):
         kv = np.array(k)
-        sub = np.ix_(rows, cols)
         if not near.any():
             raise ValueError(f"image of shape {img.shape} is too small to follow the lattice")
-        score = np.where(near, spec[sub], -1.0)
+        score = np.where(near, np.abs(spec[flat]), -1.0)
         r, c = np.unravel_index(int(np.argmax(score)), score.shape)
         iy, ix = int(rows[r]), int(cols[c])
-        prom = _prominence(spec, fr, iy, ix, min(h, w))
+        bg = median(np.abs(spec[_annulus(h, w, iy, ix, ncol)]), overwrite_input=True)
+        prom = float(score[r, c]) / bg if bg > 0 else np.inf
         if prom < _MIN_PROMINENCE:
             raise ValueError(
                 f"no grid within {max_change:.0%} of k{j + 1} = ({kv[0]:.4g}, {kv[1]:.4g}) "
                 f"cycles/px: the strongest peak there stands only {prom:.3g} times above "
                 "the spectrum at its frequency (a grid gives > 100)")
-        out.append(_refine(data, np.array([fx[0, ix], fy[iy, 0]]), x, y, h, w))
+        out.append(_refine(data, np.array([fx[ix], fy[iy]]), x, y, h, w))
     return Lattice(tuple(out[0]), tuple(out[1]))
+
+
+def _half_spectrum(data: np.ndarray, ncol: int) -> np.ndarray:
+    """The flattened spectrum of the real ``data`` (H, W) over the first ``ncol``
+    columns of its real half-plane (``fx >= 0``), ``(H * ncol,)`` complex: ``rfft2``'s
+    values there, its row transforms then the column transforms of those columns only.
+
+    A real image's spectrum is conjugate symmetric, ``|F(-k)| = |F(k)|``: the half-plane
+    holds every magnitude of the full one, and the discs and annuli that
+    :func:`follow_lattice` reads lie within ``ncol`` columns of it (their own, or
+    their mirror's). 0.78 ms -> 0.33 ms a 250 x 400 frame, one core, against the
+    magnitude of the whole complex ``fft2``.
+    """
+    rows = sfft.rfft(data, axis=1)
+    return sfft.fft(rows[:, :ncol], axis=0).ravel()
+
+
+def _to_half(h: int, w: int, iy: np.ndarray, ix: np.ndarray, ncol: int) -> np.ndarray:
+    """Indices into :func:`_half_spectrum`'s ``(H * ncol,)`` array of the full
+    spectrum's bins ``(iy, ix)`` (broadcast): a bin of ``fx < 0`` is read at its
+    mirror ``(-iy, -ix)``, of the same magnitude."""
+    iy, ix = np.broadcast_arrays(np.asarray(iy), np.asarray(ix))
+    neg = sfft.fftfreq(w)[ix] < 0
+    ry = np.where(neg, (-iy) % h, iy)
+    rx = np.where(neg, (-ix) % w, ix)
+    return ry * ncol + rx
+
+
+@functools.lru_cache(maxsize=16)
+def _annulus(h: int, w: int, iy: int, ix: int, ncol: int) -> np.ndarray:
+    """Indices into :func:`_half_spectrum` of the annulus of :func:`_prominence` about
+    the full spectrum's bin ``(iy, ix)``, each bin of the full spectrum once (its
+    magnitude read at its mirror where ``fx < 0``): the same multiset of magnitudes,
+    hence the same median. The peak moves by less than a bin between the states of a
+    record: its annulus is computed once (read-only)."""
+    fy = sfft.fftfreq(h)[:, None]
+    fx = sfft.fftfreq(w)[None, :]
+    fr = np.hypot(fx, fy)
+    r, tol = fr[iy, ix], 1.5 / min(h, w)
+    rows = np.flatnonzero(fr[:, 0] <= r + 2 * tol)
+    cols = np.flatnonzero(fr[0, :] <= r + 2 * tol)
+    sel = np.abs(fr[np.ix_(rows, cols)] - r) <= tol
+    ry, rx = np.nonzero(sel)
+    out = _to_half(h, w, rows[ry], cols[rx], ncol)
+    out.flags.writeable = False
+    return out
 
 
 @functools.lru_cache(maxsize=4)
 def _follow_bins(h: int, w: int, k1: tuple, k2: tuple, max_change: float):
-    """The frequency grids of an ``h x w`` spectrum and, per wave vector, the rows and
-    columns of the disc of radius ``max_change |k|`` around it and the disc's bins
-    below Nyquist among them: the same for every state of a record (read-only)."""
-    fy = sfft.fftfreq(h)[:, None]
-    fx = sfft.fftfreq(w)[None, :]
-    fr = np.hypot(fx, fy)
-    nears = []
+    """The frequencies ``fx`` (W,) and ``fy`` (H,) of an ``h x w`` spectrum, the
+    columns of the half-plane :func:`follow_lattice` reads, and per wave vector the
+    rows and columns of the disc of radius ``max_change |k|`` around it, the disc's
+    bins below Nyquist among them and their indices into :func:`_half_spectrum`: the
+    same for every state of a record (read-only)."""
+    fy = sfft.fftfreq(h)
+    fx = sfft.fftfreq(w)
+    discs = []
+    reach = 0.0  # the largest |fx| of a bin read: a disc's, or an annulus' (a peak's |f|)
     for k in (k1, k2):
         radius = max_change * float(np.hypot(*k))
         # the disc's rows and columns only (a margin for rounding), and its bins there
-        rows = np.flatnonzero(np.abs(fy[:, 0] - k[1]) <= 1.001 * radius)
-        cols = np.flatnonzero(np.abs(fx[0] - k[0]) <= 1.001 * radius)
-        near = (np.hypot(fx[0, cols][None, :] - k[0], fy[rows, 0][:, None] - k[1])
-                <= radius) & (fr[np.ix_(rows, cols)] < 0.5)
-        nears.append((rows, cols, near))
-    for a in (fx, fy, fr, *(a for n in nears for a in n)):
+        rows = np.flatnonzero(np.abs(fy - k[1]) <= 1.001 * radius)
+        cols = np.flatnonzero(np.abs(fx - k[0]) <= 1.001 * radius)
+        fr = np.hypot(fx[cols][None, :], fy[rows][:, None])
+        near = (np.hypot(fx[cols][None, :] - k[0], fy[rows][:, None] - k[1])
+                <= radius) & (fr < 0.5)
+        discs.append([rows, cols, near])
+        reach = max(reach, float(np.abs(fx[cols]).max(initial=0.0)),
+                    float(fr[near].max(initial=0.0)))
+    # the annulus of _prominence reaches |fx| <= |f| + 3 / min(h, w); two columns'
+    # margin for the rounding of the frequencies
+    ncol = min(w // 2 + 1, int(np.ceil((reach + 3.0 / min(h, w)) * w)) + 2)
+    for d in discs:
+        d.append(_to_half(h, w, d[0][:, None], d[1][None, :], ncol))
+    for a in (fx, fy, *(a for d in discs for a in d)):
         a.flags.writeable = False
-    return fx, fy, fr, tuple(nears)
+    return fx, fy, ncol, tuple(tuple(d) for d in discs)
 
 
 def reference_carrier(image, lattice: Lattice) -> np.ndarray | None:
