@@ -36,9 +36,9 @@ _MAX_DETECT_SIZE = 1024
 # this relative difference: a grid printed with one pitch, imaged square-on by square
 # pixels, shows pitches equal to far better (the detection's error is ~1e-5).
 _SAME_PITCH = 0.01
-# Newton refinement of a peak: at most this many steps, stopping when one moves the
-# frequency by less than this many FFT bins (1e-9 bin on a 1024 px crop is 1e-12
-# cycle/px, a relative pitch error of 5e-12 at a pitch of 5 px).
+# Newton refinement of a peak: at most this many steps, stopping when the next would
+# move the frequency by less than this many FFT bins (1e-9 bin on a 1024 px crop is
+# 1e-12 cycle/px, a relative pitch error of 5e-12 at a pitch of 5 px; see _refine).
 _NEWTON_STEPS = 8
 _NEWTON_TOL = 1e-9
 # Largest relative change of a wave vector that follow_lattice searches.
@@ -551,30 +551,32 @@ def _prominence(spec: np.ndarray, fr: np.ndarray, iy: int, ix: int, n: int) -> f
     return float(spec[iy, ix]) / bg if bg > 0 else np.inf
 
 
-def _dtft_taylor(data, k, x, y):
-    """``|F(k)|^2`` and its gradient and Hessian in ``k``, ``F`` the windowed DTFT.
+def _log_power_taylor(data, k, x, y, x2, y2, scale) -> tuple[float, ...]:
+    """The gradient ``(gx, gy)`` and Hessian ``(hxx, hxy, hyy)`` of ``log |F(k)|^2`` in
+    FFT bins (``scale``: a bin in ``kx`` and ``ky``, cycles/px), ``F`` the windowed
+    DTFT; ``x2``, ``y2`` the squares of the coordinates.
 
     ``F(k) = sum w v exp(-2 i pi k.x)``; each derivative in ``k`` brings a factor
     ``-2 i pi x`` (or ``y``) into the sum. Separable: one product of the six rows
-    ``y^n cos``, ``y^n sin`` (n = 0, 1, 2) with the data, then dot products along x.
+    ``y^n cos``, ``y^n sin`` (n = 0, 1, 2) with the data, then three products along x
+    of the moments ``x^a`` (a + n <= 2). With ``a_i = F_i / F``, the logarithm's
+    gradient is ``2 Re a_i`` and its Hessian ``2 Re (F_ij / F - a_i a_j)``.
     """
     ty = 2 * np.pi * k[1] * y
     cos, sin = np.cos(ty), np.sin(ty)
-    y2 = y**2
     rows = np.stack([cos, sin, y * cos, y * sin, y2 * cos, y2 * sin]) @ data
     R = rows[0::2] - 1j * rows[1::2]  # R[n] = sum_y y^n exp(-2 i pi ky y) data
     ex = np.exp(-2j * np.pi * k[0] * x)
     # S[a, b] = sum x^a y^b w v exp(-2 i pi k.x)
-    xa = (None, x, x**2)
-    S = {(a, b): (R[b] * xa[a] if a else R[b]) @ ex for a in range(3) for b in range(3 - a)}
-    c = -2j * np.pi
-    F = S[0, 0]
-    dF = np.array([c * S[1, 0], c * S[0, 1]])
-    d2F = c * c * np.array([[S[2, 0], S[1, 1]], [S[1, 1], S[0, 2]]])
-    power = abs(F) ** 2
-    grad = 2 * np.real(np.conj(F) * dF)
-    hess = 2 * np.real(np.conj(dF)[:, None] * dF[None, :] + np.conj(F) * d2F)
-    return power, grad, hess
+    s00, s01, s02 = (R @ ex).tolist()
+    s10, s11 = ((R[:2] * x) @ ex).tolist()
+    s20 = complex((R[0] * x2) @ ex)
+    cx, cy = -2j * np.pi * float(scale[0]), -2j * np.pi * float(scale[1])
+    ax, ay = cx * s10 / s00, cy * s01 / s00
+    hxx = 2 * (cx * cx * s20 / s00 - ax * ax).real
+    hxy = 2 * (cx * cy * s11 / s00 - ax * ay).real
+    hyy = 2 * (cy * cy * s02 / s00 - ay * ay).real
+    return 2 * ax.real, 2 * ay.real, hxx, hxy, hyy
 
 
 def _refine(data, k0, x, y, h, w) -> np.ndarray:
@@ -583,26 +585,30 @@ def _refine(data, k0, x, y, h, w) -> np.ndarray:
     Newton's method on ``log |F|^2`` with its exact gradient and Hessian: from the
     nearest bin (within half a bin of the maximum, well inside the main lobe of the
     Hann window, two bins wide, where the logarithm is concave and nearly
-    quadratic) it converges quadratically, in 3 to 5 steps (each about three DTFT
-    evaluations; Nelder-Mead needed about a hundred). Should a step leave the lobe
-    or the Hessian stop being negative definite (a strong neighbouring peak),
-    Nelder-Mead on the magnitude takes over.
+    quadratic) it converges quadratically, in 2 or 3 steps of one DTFT evaluation
+    each (Nelder-Mead needed about a hundred). It stops once a step is below
+    ``sqrt(_NEWTON_TOL)`` bins: the error it leaves is ``C s^2`` for a step ``s``,
+    with ``C`` below 0.15 per bin over 1558 steps of detections (pitches 3.1 to 12 px,
+    frames of 96 to 512 px, grids and checkerboards, with and without noise), hence
+    below ``_NEWTON_TOL`` bins. Should a step leave the lobe or the Hessian stop
+    being negative definite (a strong neighbouring peak), Nelder-Mead on the
+    magnitude takes over.
     """
     scale = np.array([1.0 / w, 1.0 / h])  # one FFT bin in each direction
-    z = np.zeros(2)
+    x2, y2 = x * x, y * y
+    zx = zy = 0.0
     for _ in range(_NEWTON_STEPS):
-        power, grad, hess = _dtft_taylor(data, k0 + z * scale, x, y)
-        # log |F|^2, nearly quadratic over the main lobe, in bins (d/dz = scale d/dk)
-        g = grad * scale / power
-        H = hess * np.outer(scale, scale) / power - np.outer(g, g)
-        if not (H[0, 0] < 0 and np.linalg.det(H) > 0):
+        k = (k0[0] + zx * scale[0], k0[1] + zy * scale[1])
+        gx, gy, hxx, hxy, hyy = _log_power_taylor(data, k, x, y, x2, y2, scale)
+        det = hxx * hyy - hxy * hxy
+        if not (hxx < 0 and det > 0):
             return _refine_nelder_mead(data, k0, x, y, scale)
-        step = -np.linalg.solve(H, g)
-        z = z + step
-        if np.max(np.abs(z)) > 1.0:
+        sx, sy = (hxy * gy - hyy * gx) / det, (hxy * gx - hxx * gy) / det
+        zx, zy = zx + sx, zy + sy
+        if max(abs(zx), abs(zy)) > 1.0:
             return _refine_nelder_mead(data, k0, x, y, scale)
-        if np.max(np.abs(step)) < _NEWTON_TOL:
-            return k0 + z * scale
+        if max(abs(sx), abs(sy)) ** 2 < _NEWTON_TOL:
+            return k0 + np.array([zx, zy]) * scale
     return _refine_nelder_mead(data, k0, x, y, scale)
 
 
