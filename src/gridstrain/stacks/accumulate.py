@@ -68,7 +68,7 @@ from .._validation import check_type
 from ..phase import Lattice, Window
 from ..phase._transform import _kernels
 from ._accumulators import FrameOrder, StackResult, _PhaseMean, compensated_result
-from .screening import FrameProbe, FrameScreen, decide
+from .screening import _RESIDUAL_FRAMES, FrameProbe, FrameScreen, decide
 from .vibration import RigidProbe, shift_matrix
 
 __all__ = ["MOTION_TERMS", "PassPlan", "SeriesPass", "SeriesStatistics", "motion_regressors",
@@ -307,8 +307,8 @@ class SeriesPass:
         H, W = self.shape = self.origin.shape
         lat = plan.lattice
         self.probe = FrameProbe(lat, self.shape, saturation_level=plan.saturation_level,
-                                scale=plan.scale, mask=plan.count_mask)
-        self._c0 = self.probe.carrier(self.origin)  # the basis of every shift
+                                scale=plan.scale, mask=plan.count_mask,
+                                residual=plan.n_frames >= _RESIDUAL_FRAMES)
         self._M = shift_matrix(lat)
         self.records: dict = {}  # t -> FrameRecord
         self.theta: dict = {}  # t -> (2,) carrier phase advance against the origin, rad
@@ -320,6 +320,11 @@ class SeriesPass:
         # regressors g_t (MOTION_TERMS): what release() keeps is a prefix
         self._m0 = 2 + (8 if plan.method == "C" else 0)
         self._n_motion = _motion_rows(plan.n_frames)
+        # the carriers' phase advances weigh method C's sums and the motion's
+        # regressors; a series too short for them (fewer than 4 frames, method A or B:
+        # every one-frame state of a record) measures none, nor the origin's carrier
+        self._advances = plan.method == "C" or self._n_motion > 0
+        self._c0 = self.probe.carrier(self.origin) if self._advances else None
         rows = self._m0 + self._n_motion
         self.lin = np.zeros((rows, H * W), dtype=np.float64)
         self.sq = np.zeros(H * W, dtype=np.float64)  # sum d^2
@@ -364,7 +369,8 @@ class SeriesPass:
         # the probe converts an integer frame itself, its extrema taken as stored
         rec = self.probe(arr)
         self.records[t] = rec
-        self.theta[t] = np.angle(rec.coefficients * np.conj(self._c0))  # eq. (2)
+        if self._advances:
+            self.theta[t] = np.angle(rec.coefficients * np.conj(self._c0))  # eq. (2)
         if self._rigid is not None:
             _, parts = self._rigid(arr)
             if parts is not None:
@@ -392,10 +398,11 @@ class SeriesPass:
 
     def _sums(self, t: int, arr: np.ndarray, sign: float) -> None:
         h = self._half(t)
-        a = self._M @ self.theta[t]  # px
         w = np.zeros(self.lin.shape[0])
         w[h] = sign
-        w[self._m0:] = sign * motion_regressors(self.theta[t], a)[0, :self._n_motion]
+        if self._n_motion:
+            a = self._M @ self.theta[t]  # px
+            w[self._m0:] = sign * motion_regressors(self.theta[t], a)[0, :self._n_motion]
         if self.plan.method == "C":
             e = np.exp(-1j * self.theta[t])  # undoes the carrier's advance (eq. 2)
             w[2 + 4 * h:6 + 4 * h] = sign * np.array([e[0].real, e[0].imag, e[1].real,
@@ -545,8 +552,11 @@ class SeriesPass:
         mean = self.origin + s1.reshape(H, W) / T
         if T < 2:
             return SeriesStatistics(mean, None, "unavailable (a single frame)", 1)
-        theta = np.array([self.theta[t] for t in kept]).reshape(T, 2)
-        g = motion_regressors(theta, theta @ self._M.T)[:, :self._n_motion]
+        if self._n_motion:
+            theta = np.array([self.theta[t] for t in kept]).reshape(T, 2)
+            g = motion_regressors(theta, theta @ self._M.T)[:, :self._n_motion]
+        else:  # nothing to regress on: a plain temporal variance
+            g = np.zeros((T, 0))
         gbar = g.mean(axis=0)
         B, cols, stops = nested_motion_fits(g, gbar, min_dof=1)
         names = [n for grp in MOTION_TERMS for n in grp]
