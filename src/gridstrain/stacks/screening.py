@@ -307,13 +307,18 @@ class FrameScreen:
 def _tiles(shape: tuple[int, int], lattice: Lattice) -> list[tuple[slice, slice]]:
     """Tiles of the residual test, or none when the image holds fewer than two."""
     p = max(lattice.pitches)
-    n = [min(_MAX_TILES, int(s // (_TILE_PITCHES * p))) for s in shape]
-    if min(n) < 2:
-        return []
+    n = tuple(min(_MAX_TILES, int(s // (_TILE_PITCHES * p))) for s in shape)
+    return [] if min(n) < 2 else list(_tile_slices(tuple(shape), n))
+
+
+@functools.lru_cache(maxsize=8)
+def _tile_slices(shape: tuple[int, int], n: tuple[int, int]) -> tuple:
+    """The ``n[0] x n[1]`` tiles of a frame of ``shape``, row by row: the same for
+    every state of a record."""
     edges = [np.linspace(0, s, k + 1).round().astype(int) for s, k in zip(shape, n, strict=True)]
-    return [(slice(y0, y1), slice(x0, x1))
-            for y0, y1 in zip(edges[0][:-1], edges[0][1:], strict=True)
-            for x0, x1 in zip(edges[1][:-1], edges[1][1:], strict=True)]
+    return tuple((slice(int(y0), int(y1)), slice(int(x0), int(x1)))
+                 for y0, y1 in zip(edges[0][:-1], edges[0][1:], strict=True)
+                 for x0, x1 in zip(edges[1][:-1], edges[1][1:], strict=True))
 
 
 def _clipped(frame: np.ndarray, level: float | None, scale: int, mask, *,
