@@ -133,3 +133,41 @@ def test_newton_refinement_equals_the_nelder_mead_maximum(monkeypatch):
     simplex = detect_lattice(img)
     # the same maximum: they agree to Nelder-Mead's own tolerance, 1e-5 bin
     np.testing.assert_allclose(newton.K, simplex.K, rtol=0, atol=1e-5 / 384)
+
+
+@pytest.mark.parametrize(("pitch", "angle"), [(5.37, 12.3), (4.13, 35.0), (6.1, -17.0)])
+def test_followed_wave_vectors_within_the_newton_tolerance(pitch, angle):
+    lat = Lattice.from_pitch(pitch, angle=angle)
+    start = Lattice.from_pitch(pitch * 1.02, angle=angle + 1.0)
+    found = lattice_module.follow_lattice(_two_cosines(lat), start)
+    # off the FFT grid the two cosines' DTFT maxima are their wave vectors to 2e-15
+    # cycles/px (side lobes, measured); Newton stops within 1e-9 bin of the maximum,
+    # 2e-12 cycles/px on 512 px
+    np.testing.assert_allclose(found.K, lat.K, rtol=0, atol=2e-12)
+
+
+@pytest.mark.parametrize("shape", [(250, 400), (251, 399), (96, 128), (97, 97)])
+def test_half_spectrum_holds_the_full_spectrums_magnitudes(shape):
+    h, w = shape
+    data = np.random.default_rng(1).normal(size=shape)
+    lat = Lattice.from_pitch(5.0, angle=20.0)
+    _, _, ncol, discs = lattice_module._follow_bins(h, w, lat.k1, lat.k2, 0.3)
+    half = lattice_module._half_spectrum(data, ncol)
+    full = np.abs(np.fft.fft2(data))  # numpy's complex transform of the whole plane
+    iy, ix = np.meshgrid(np.arange(h), np.arange(w), indexing="ij")
+    reach = np.abs(np.fft.fftfreq(w))[ix] * w < ncol - 1  # every bin of |fx| in reach
+    idx = lattice_module._to_half(h, w, iy[reach], ix[reach], ncol)
+    # |F(-k)| = |F(k)| for a real image: the same magnitudes to the transforms'
+    # rounding (1e-13 of the largest, for sums of 1e5 unit-variance values)
+    np.testing.assert_allclose(np.abs(half[idx]), full[reach], rtol=0,
+                               atol=1e-13 * full.max())
+    for rows, cols, _near, flat in discs:
+        np.testing.assert_allclose(np.abs(half[flat]), full[np.ix_(rows, cols)], rtol=0,
+                                   atol=1e-13 * full.max())
+    for (r, c) in [(3, 5), (h - 7, w - 40), (h // 2, 1)]:
+        ann = lattice_module._annulus(h, w, r, c, w // 2 + 1)
+        fr = np.hypot(np.fft.fftfreq(w)[None, :], np.fft.fftfreq(h)[:, None])
+        sel = np.abs(fr - fr[r, c]) <= 1.5 / min(h, w)
+        assert ann.size == sel.sum()
+        assert np.median(np.abs(lattice_module._half_spectrum(data, w // 2 + 1)[ann])) \
+            == pytest.approx(np.median(full[sel]), rel=1e-13)

@@ -68,7 +68,7 @@ from .._validation import check_type
 from ..phase import Lattice, Window
 from ..phase._transform import _kernels
 from ._accumulators import FrameOrder, StackResult, _PhaseMean, compensated_result
-from .screening import FrameProbe, FrameScreen, decide
+from .screening import _RESIDUAL_FRAMES, FrameProbe, FrameScreen, decide
 from .vibration import RigidProbe, shift_matrix
 
 __all__ = ["MOTION_TERMS", "PassPlan", "SeriesPass", "SeriesStatistics", "motion_regressors",
@@ -278,6 +278,21 @@ class SeriesStatistics:
     dof: int = 0
 
 
+class _Zeros:
+    """float64 zeros of ``shape``, allocated where first read."""
+
+    __slots__ = ("shape",)
+
+    def __init__(self, shape: tuple):
+        self.shape = shape
+
+    def __getstate__(self):
+        return self.shape
+
+    def __setstate__(self, state):
+        self.shape = state
+
+
 class SeriesPass:
     """The mergeable sums of one pass over (part of) a series.
 
@@ -307,8 +322,8 @@ class SeriesPass:
         H, W = self.shape = self.origin.shape
         lat = plan.lattice
         self.probe = FrameProbe(lat, self.shape, saturation_level=plan.saturation_level,
-                                scale=plan.scale, mask=plan.count_mask)
-        self._c0 = self.probe.carrier(self.origin)  # the basis of every shift
+                                scale=plan.scale, mask=plan.count_mask,
+                                residual=plan.n_frames >= _RESIDUAL_FRAMES)
         self._M = shift_matrix(lat)
         self.records: dict = {}  # t -> FrameRecord
         self.theta: dict = {}  # t -> (2,) carrier phase advance against the origin, rad
@@ -320,9 +335,17 @@ class SeriesPass:
         # regressors g_t (MOTION_TERMS): what release() keeps is a prefix
         self._m0 = 2 + (8 if plan.method == "C" else 0)
         self._n_motion = _motion_rows(plan.n_frames)
+        # the carriers' phase advances weigh method C's sums and the motion's
+        # regressors; a series too short for them (fewer than 4 frames, method A or B:
+        # every one-frame state of a record) measures none, nor the origin's carrier
+        self._advances = plan.method == "C" or self._n_motion > 0
+        self._c0 = self.probe.carrier(self.origin) if self._advances else None
         rows = self._m0 + self._n_motion
-        self.lin = np.zeros((rows, H * W), dtype=np.float64)
-        self.sq = np.zeros(H * W, dtype=np.float64)  # sum d^2
+        # zeros until a frame other than the origin comes: a one-frame series (every
+        # state of a record) never writes them, nor reads them (statistics), and their
+        # 24 bytes a pixel cost 0.2 to 0.5 ms to clear on 250 x 400 px
+        self.lin = _Zeros((rows, H * W))
+        self.sq = _Zeros((H * W,))  # sum d^2
         # method C's weights sum: sum_t exp(-i theta_tj) per half, (2 halves, 2)
         self.wsum = np.zeros((2, 2), dtype=np.complex128)
         # the batch: the frames' differences to the origin (float64), or, when the
@@ -331,11 +354,35 @@ class SeriesPass:
         self._w: list = []  # pending weight rows
         self._signs: list = []  # their frames' signs (+1 added, -1 taken out)
         self._tmp = None  # scratch image
+        self._summed = False  # whether a frame other than the origin entered the sums
         self._rigid = None
         if plan.method == "C":
             self._rigid = RigidProbe(lat, self.shape)
             self._rigid(self.origin)  # quadrant shifts against the origin
         self.transforms = _PhaseMean() if plan.method == "B" else None
+
+    @property
+    def lin(self) -> np.ndarray | None:
+        """The linear sums (rows: module docstring, by pixel); None once released."""
+        if isinstance(self._lin, _Zeros):
+            self._lin = np.zeros(self._lin.shape)
+        return self._lin
+
+    @lin.setter
+    def lin(self, value) -> None:
+        self._lin = value
+
+    @property
+    def sq(self) -> np.ndarray | None:
+        """The sum of the squared differences to the origin, by pixel; None once
+        released."""
+        if isinstance(self._sq, _Zeros):
+            self._sq = np.zeros(self._sq.shape)
+        return self._sq
+
+    @sq.setter
+    def sq(self, value) -> None:
+        self._sq = value
 
     # ------------------------------------------------------------------ adding
 
@@ -364,7 +411,8 @@ class SeriesPass:
         # the probe converts an integer frame itself, its extrema taken as stored
         rec = self.probe(arr)
         self.records[t] = rec
-        self.theta[t] = np.angle(rec.coefficients * np.conj(self._c0))  # eq. (2)
+        if self._advances:
+            self.theta[t] = np.angle(rec.coefficients * np.conj(self._c0))  # eq. (2)
         if self._rigid is not None:
             _, parts = self._rigid(arr)
             if parts is not None:
@@ -392,10 +440,11 @@ class SeriesPass:
 
     def _sums(self, t: int, arr: np.ndarray, sign: float) -> None:
         h = self._half(t)
-        a = self._M @ self.theta[t]  # px
-        w = np.zeros(self.lin.shape[0])
+        w = np.zeros(self._lin.shape[0])
         w[h] = sign
-        w[self._m0:] = sign * motion_regressors(self.theta[t], a)[0, :self._n_motion]
+        if self._n_motion:
+            a = self._M @ self.theta[t]  # px
+            w[self._m0:] = sign * motion_regressors(self.theta[t], a)[0, :self._n_motion]
         if self.plan.method == "C":
             e = np.exp(-1j * self.theta[t])  # undoes the carrier's advance (eq. 2)
             w[2 + 4 * h:6 + 4 * h] = sign * np.array([e[0].real, e[0].imag, e[1].real,
@@ -403,6 +452,7 @@ class SeriesPass:
             self.wsum[h] += sign * e
         if t == 0 and np.array_equal(arr, self.origin):
             return  # the origin itself: d = 0 adds nothing to the pixel sums
+        self._summed = True
         raw = self._raw_dtype(arr)
         if raw != self._buf.dtype or self._buf.shape[0] == 0:
             self._flush()
@@ -503,6 +553,7 @@ class SeriesPass:
         out.theta = {**self.theta, **other.theta}
         out.parts = {**self.parts, **other.parts}
         out.removed = self.removed | other.removed
+        out._summed = self._summed or other._summed
         if other.dtype is not None:
             out.dtype = other.dtype if self.dtype is None else np.promote_types(
                 self.dtype, other.dtype)
@@ -533,20 +584,27 @@ class SeriesPass:
     def statistics(self) -> SeriesStatistics:
         """Mean image and noise variance of the kept frames (the variance's fit: module
         docstring)."""
-        if self.sq is None or self.lin.shape[0] < self._m0 + self._n_motion:
+        if self._sq is None or self._lin.shape[0] < self._m0 + self._n_motion:
             raise ValueError("the pixel sums were released")
         self._flush()
         kept = self.kept
         T = len(kept)
         if T == 0:
             raise ValueError("no frame left in the sums")
+        if T < 2 and not self._summed:
+            # the origin alone (a one-frame state): its sums are zeros, not read
+            return SeriesStatistics(self.origin + 0.0, None, "unavailable (a single frame)",
+                                    1)
         H, W = self.shape
         s1 = self.lin[0] + self.lin[1]  # (HW,)
         mean = self.origin + s1.reshape(H, W) / T
         if T < 2:
             return SeriesStatistics(mean, None, "unavailable (a single frame)", 1)
-        theta = np.array([self.theta[t] for t in kept]).reshape(T, 2)
-        g = motion_regressors(theta, theta @ self._M.T)[:, :self._n_motion]
+        if self._n_motion:
+            theta = np.array([self.theta[t] for t in kept]).reshape(T, 2)
+            g = motion_regressors(theta, theta @ self._M.T)[:, :self._n_motion]
+        else:  # nothing to regress on: a plain temporal variance
+            g = np.zeros((T, 0))
         gbar = g.mean(axis=0)
         B, cols, stops = nested_motion_fits(g, gbar, min_dof=1)
         names = [n for grp in MOTION_TERMS for n in grp]
@@ -608,7 +666,7 @@ class SeriesPass:
         self._buf = np.empty((1, 0))
         if not keep_method:
             self.transforms = None
-        if self.lin is None:
+        if self._lin is None:
             return
         if self.plan.method == "C" and (keep_method or keep_halves):
             keep = self._m0  # its rows follow the halves' sums in the same array
@@ -617,8 +675,9 @@ class SeriesPass:
         else:
             self.lin = self.origin = None  # the origin only completes the sums
             return
-        if self.lin.shape[0] > keep:  # the motion's sums: only the variance needs them
-            self.lin = np.array(self.lin[:keep])
+        if self._lin.shape[0] > keep:  # the motion's sums: only the variance needs them
+            self.lin = (_Zeros((keep, self._lin.shape[1])) if isinstance(self._lin, _Zeros)
+                        else np.array(self._lin[:keep]))
 
     def half_counts(self) -> tuple[int, int]:
         """Frames kept in each half."""

@@ -18,6 +18,7 @@ Fourier transform.
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Iterable
 from dataclasses import dataclass
@@ -47,6 +48,28 @@ def _apodisation(n: int) -> np.ndarray:
     return np.sin(np.pi * (np.arange(n) + 0.5) / n) ** 4
 
 
+@functools.lru_cache(maxsize=32)
+def _window_sums(n: int) -> tuple[np.ndarray, float]:
+    """:func:`_apodisation` of ``n`` samples (read-only) and its sum: the same for
+    every frame (and every tile) of that side."""
+    w = _apodisation(n)
+    w.flags.writeable = False
+    return w, float(w.sum())
+
+
+def carrier_phases(lattice: Lattice, shape: tuple[int, int]):
+    """The carriers' factors along the columns and rows of an ``(H, W)`` frame, from
+    pixel 0: ``(cos ax, sin ax, exp(-i ax))`` with ``ax = 2 pi x k_j,x`` (W, 2), and
+    ``exp(-i ay)`` with ``ay = 2 pi y k_j,y`` (H, 2). A block's probe of ``h x w`` px,
+    whose sums are in its own coordinates, takes their first ``w`` and ``h`` rows
+    (:class:`CarrierProbe`, ``phases=``): a frame's tiles share one evaluation."""
+    H, W = shape
+    K = lattice.K
+    ax = 2 * np.pi * np.outer(np.arange(W, dtype=np.float64), K[:, 0])  # (W, 2)
+    ay = 2 * np.pi * np.outer(np.arange(H, dtype=np.float64), K[:, 1])  # (H, 2)
+    return np.cos(ax), np.sin(ax), np.exp(-1j * ax), np.exp(-1j * ay)
+
+
 class CarrierProbe:
     """Global windowed Fourier coefficients of a frame at ``k1`` and ``k2``.
 
@@ -55,25 +78,24 @@ class CarrierProbe:
     carrier at absolute pixel coordinates (:mod:`gridstrain.conventions`).
     """
 
-    def __init__(self, lattice: Lattice, shape: tuple[int, int]):
+    def __init__(self, lattice: Lattice, shape: tuple[int, int], *, phases=None):
         H, W = shape
         self.shape = (H, W)
-        wx, wy = _apodisation(W), _apodisation(H)
-        x = np.arange(W, dtype=np.float64)
-        y = np.arange(H, dtype=np.float64)
-        K = lattice.K
+        (wx, sx), (wy, sy) = _window_sums(W), _window_sums(H)
+        # the carriers' factors from pixel 0 (carrier_phases), or the first rows of a
+        # larger frame's: the same values
+        cos, sin, ex, ey = carrier_phases(lattice, shape) if phases is None else phases
         # Columns: the window (for the weighted mean), then cos and sin of the x part
         # of each carrier, all weighted by wx: one real BLAS product per frame.
-        ax = 2 * np.pi * np.outer(x, K[:, 0])  # (W, 2)
-        self._right = np.column_stack([wx, wx[:, None] * np.cos(ax),
-                                       wx[:, None] * np.sin(ax)])  # (W, 5)
-        ay = 2 * np.pi * np.outer(y, K[:, 1])  # (H, 2)
-        self._ey = wy[:, None] * np.exp(-1j * ay)  # (H, 2), y part with its window
+        self._right = np.empty((W, 5))
+        self._right[:, 0] = wx
+        np.multiply(wx[:, None], cos[:W], out=self._right[:, 1:3])
+        np.multiply(wx[:, None], sin[:W], out=self._right[:, 3:5])  # (W, 5)
+        self._ey = wy[:, None] * ey[:H]  # (H, 2), y part with its window
         self._wy = wy
-        ex = wx[:, None] * np.exp(-1j * ax)
         # sum of w exp(-2 i pi k.xi): what subtracting the mean m removes from c_j
-        self._dc = ex.sum(axis=0) * self._ey.sum(axis=0)  # (2,)
-        self._wsum = wx.sum() * wy.sum()
+        self._dc = (wx[:, None] * ex[:W]).sum(axis=0) * self._ey.sum(axis=0)  # (2,)
+        self._wsum = sx * sy
 
     def __call__(self, frame: np.ndarray) -> np.ndarray:
         # np.dot: BLAS; numpy's matmul takes a slower loop of its own for a product
