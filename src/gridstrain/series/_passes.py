@@ -505,7 +505,7 @@ def _one_series(s, acc: SeriesPass, base, window: Window, max_saturation: float,
             notes.extend(_edge_findings(s.name, stats.mean, pm, used))
     else:  # the mean image gives the mask only
         used = _grid_support(stats.mean, plan.lattice, window, base)
-    steps.step(2 * _WFT_COST, f"{s.name}: phase maps")
+    steps.step(1.5 * _WFT_COST, f"{s.name}: phase maps")
     if method == "C":
         res = acc.method_c(mask=used)
         pm = finite_derivatives(res.maps)
