@@ -442,11 +442,16 @@ def prefilter_rows(src, complex_view, pad, out, i0, i1):  # pragma: no cover
                     # a NaN or an infinity would spread over whole rows and columns
                     row[j, p] = g * v if math.isfinite(v) else 0.0
         _recurse_rows(block, 0, b1 - b0, s, first)
-        for p in range(nm):
-            for i in range(b0, b1):
-                row = out[p, i]
-                for j in range(Wp):
-                    row[j] = block[i - b0, j, p]
+        for i in range(b0, b1):  # unsigned indices: the loop vectorises
+            flat = block[i - b0].ravel()
+            r0, r1, r2, r3 = out[0, i], out[1, i], out[2, i], out[3, i]
+            for jj in range(Wp):
+                j = np.uint64(jj)
+                k = np.uint64(4 * jj)
+                r0[j] = flat[k]
+                r1[j] = flat[k + np.uint64(1)]
+                r2[j] = flat[k + np.uint64(2)]
+                r3[j] = flat[k + np.uint64(3)]
 
 
 @njit(**_OPTIONS)
