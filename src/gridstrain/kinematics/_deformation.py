@@ -736,20 +736,33 @@ def _lagrangian_fixed_point(u, reference, deformed, valid, tol, max_iter):
     return u, iterations, step
 
 
+# The median derivatives of the start's linear map from every _START_STRIDE-th row and
+# column of a map of at least _START_SUBSAMPLED valid pixels (some 1000 of them then).
+_START_STRIDE = 4
+_START_SUBSAMPLED = 2**14
+
+
 def _median_start(deformed, two_pi_K) -> np.ndarray:
     """``(2 pi K + D_med)^-1 2 pi K`` (2, 2), ``D_med`` the median of the deformed
-    state's phase derivatives over its valid pixels: the start's linear map for the
+    state's phase derivatives over its valid pixels (over every fourth row and column
+    of them on a large map): the start's linear map for the
     field's mean gradient. A rotation of 10 degrees moves ``X + u`` by 0.17 |u| from
     the Eulerian start, half a period at 15 px from the centre: the start must take
     the mean gradient in wherever the local derivatives cannot be trusted."""
     v = deformed.valid
+    # every _START_STRIDE-th row and column where the map has many valid pixels: the
+    # mean gradient does not need each of them (1.7 -> 0.2 ms at 250 x 400 px), and
+    # the start it gives is the one taken only where a pixel's own is a tenth of a
+    # period off it
+    step = _START_STRIDE if np.count_nonzero(v) >= _START_SUBSAMPLED else 1
+    v = v[::step, ::step]
     D = np.zeros((2, 2))
     if v.any():
         for a in range(2):
             for b in range(2):
                 # the gather is a fresh array: sorted in place, not copied again
-                D[a, b] = median(deformed.dphi[a, b][v].astype(np.float64, copy=False),
-                                 overwrite_input=True)
+                D[a, b] = median(deformed.dphi[a, b][::step, ::step][v].astype(
+                    np.float64, copy=False), overwrite_input=True)
     A = np.linalg.solve(two_pi_K + D, two_pi_K)
     return A if np.all(np.isfinite(A)) else np.eye(2)
 
