@@ -113,18 +113,8 @@ def _row_weights(cy, cx, offset, ok, Hp, Wp, wy, wx, oy, ox):  # pragma: no cove
         fy = math.floor(y)
         fx = math.floor(x)
         inside = ok[j] and fy >= 1.0 and fy <= Hp - 3.0 and fx >= 1.0 and fx <= Wp - 3.0
-        t = y - fy if inside else 0.0
-        s = 1.0 - t
-        wy[0, j] = s * s * s * _SIXTH
-        wy[1, j] = (3.0 * t * t * t - 6.0 * t * t + 4.0) * _SIXTH
-        wy[2, j] = (3.0 * s * s * s - 6.0 * s * s + 4.0) * _SIXTH
-        wy[3, j] = t * t * t * _SIXTH
-        t = x - fx if inside else 0.0
-        s = 1.0 - t
-        wx[0, j] = s * s * s * _SIXTH
-        wx[1, j] = (3.0 * t * t * t - 6.0 * t * t + 4.0) * _SIXTH
-        wx[2, j] = (3.0 * s * s * s - 6.0 * s * s + 4.0) * _SIXTH
-        wx[3, j] = t * t * t * _SIXTH
+        wy[0, j], wy[1, j], wy[2, j], wy[3, j] = _weights(y - fy if inside else 0.0)
+        wx[0, j], wx[1, j], wx[2, j], wx[3, j] = _weights(x - fx if inside else 0.0)
         oy[j] = int(fy) - 1 if inside else _OUTSIDE
         ox[j] = int(fx) - 1 - j if inside else 0
 

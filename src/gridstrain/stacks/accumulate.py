@@ -293,6 +293,26 @@ class _Zeros:
         self.shape = state
 
 
+class _ZerosOnRead:
+    """An attribute of sums: an array, a :class:`_Zeros` that becomes float64 zeros of
+    its shape where first read (in ``_<name>``), or None once released."""
+
+    def __set_name__(self, owner, name: str):
+        self.private = f"_{name}"
+
+    def __get__(self, obj, owner=None):
+        if obj is None:
+            return self
+        value = getattr(obj, self.private)
+        if isinstance(value, _Zeros):
+            value = np.zeros(value.shape)
+            setattr(obj, self.private, value)
+        return value
+
+    def __set__(self, obj, value) -> None:
+        setattr(obj, self.private, value)
+
+
 class SeriesPass:
     """The mergeable sums of one pass over (part of) a series.
 
@@ -313,6 +333,11 @@ class SeriesPass:
     eight float64 images. The per-frame records are a few hundred bytes a frame.
     The motion's sums are freed by :meth:`release`.
     """
+
+    #: The linear sums (rows: module docstring, by pixel); None once released.
+    lin = _ZerosOnRead()
+    #: The sum of the squared differences to the origin, by pixel; None once released.
+    sq = _ZerosOnRead()
 
     def __init__(self, plan: PassPlan, origin):
         if not isinstance(plan, PassPlan):
@@ -361,28 +386,6 @@ class SeriesPass:
             self._rigid(self.origin)  # quadrant shifts against the origin
         self.transforms = _PhaseMean() if plan.method == "B" else None
 
-    @property
-    def lin(self) -> np.ndarray | None:
-        """The linear sums (rows: module docstring, by pixel); None once released."""
-        if isinstance(self._lin, _Zeros):
-            self._lin = np.zeros(self._lin.shape)
-        return self._lin
-
-    @lin.setter
-    def lin(self, value) -> None:
-        self._lin = value
-
-    @property
-    def sq(self) -> np.ndarray | None:
-        """The sum of the squared differences to the origin, by pixel; None once
-        released."""
-        if isinstance(self._sq, _Zeros):
-            self._sq = np.zeros(self._sq.shape)
-        return self._sq
-
-    @sq.setter
-    def sq(self, value) -> None:
-        self._sq = value
 
     # ------------------------------------------------------------------ adding
 
