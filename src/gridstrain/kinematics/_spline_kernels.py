@@ -143,6 +143,14 @@ def _run(out, r0, r1, r2, r3, c, wy, wx, j0, j1):  # pragma: no cover
         out[j] = a
 
 
+@njit(**_OPTIONS)
+def _row_scratch(W):  # pragma: no cover
+    """The scratch of :func:`_row_values` for rows of ``W`` points: the weights ``wy``,
+    ``wx`` (4, W), the runs' ``oy``, ``ox`` (W,) int64 and the values ``vals`` (4, W)."""
+    return (np.empty((4, W)), np.empty((4, W)), np.empty(W, dtype=np.int64),
+            np.empty(W, dtype=np.int64), np.empty((4, W)))
+
+
 @njit(**_FUSED)
 def _row_values(coef, offset, cy, cx, ok, vals, wy, wx, oy, ox):  # pragma: no cover
     """The four maps of ``coef`` (4, Hp, Wp) at one row's points ``(cy[j], cx[j]) +
@@ -186,11 +194,7 @@ def cubic4_at(coef, offset, cy, cx, out):  # pragma: no cover
     """
     H, W = cy.shape
     ok = np.ones(W, dtype=np.bool_)
-    wy = np.empty((4, W))
-    wx = np.empty((4, W))
-    oy = np.empty(W, dtype=np.int64)
-    ox = np.empty(W, dtype=np.int64)
-    vals = np.empty((4, W))
+    wy, wx, oy, ox, vals = _row_scratch(W)
     for i in range(H):
         _row_values(coef, offset, cy[i], cx[i], ok, vals, wy, wx, oy, ox)
         for p in range(4):
@@ -213,11 +217,7 @@ def residual_products(coef, offset, u, ref, valid, prod, i0, i1):  # pragma: no 
     W = u.shape[2]
     cy = np.empty(W)
     cx = np.empty(W)
-    wy = np.empty((4, W))
-    wx = np.empty((4, W))
-    oy = np.empty(W, dtype=np.int64)
-    ox = np.empty(W, dtype=np.int64)
-    vals = np.empty((4, W))
+    wy, wx, oy, ox, vals = _row_scratch(W)
     for i in range(i0, i1):
         k = i - i0
         for j in range(W):
@@ -577,11 +577,7 @@ def lagrangian_gradient(coef, offset, u, cur_valid, box, ref_valid, d_ref, two_p
     cy = np.empty(W)
     cx = np.empty(W)
     ok = np.empty(W, dtype=np.bool_)
-    wy = np.empty((4, W))
-    wx = np.empty((4, W))
-    oy = np.empty(W, dtype=np.int64)
-    ox = np.empty(W, dtype=np.int64)
-    vals = np.empty((4, W))
+    wy, wx, oy, ox, vals = _row_scratch(W)
     for i in range(i0, i1):
         for j in range(W):
             y = i + u[1, i, j]
