@@ -379,13 +379,11 @@ class SeriesPass:
         self._w: list = []  # pending weight rows
         self._signs: list = []  # their frames' signs (+1 added, -1 taken out)
         self._tmp = None  # scratch image
-        self._summed = False  # whether a frame other than the origin entered the sums
         self._rigid = None
         if plan.method == "C":
             self._rigid = RigidProbe(lat, self.shape)
             self._rigid(self.origin)  # quadrant shifts against the origin
         self.transforms = _PhaseMean() if plan.method == "B" else None
-
 
     # ------------------------------------------------------------------ adding
 
@@ -455,7 +453,6 @@ class SeriesPass:
             self.wsum[h] += sign * e
         if t == 0 and np.array_equal(arr, self.origin):
             return  # the origin itself: d = 0 adds nothing to the pixel sums
-        self._summed = True
         raw = self._raw_dtype(arr)
         if raw != self._buf.dtype or self._buf.shape[0] == 0:
             self._flush()
@@ -556,7 +553,6 @@ class SeriesPass:
         out.theta = {**self.theta, **other.theta}
         out.parts = {**self.parts, **other.parts}
         out.removed = self.removed | other.removed
-        out._summed = self._summed or other._summed
         if other.dtype is not None:
             out.dtype = other.dtype if self.dtype is None else np.promote_types(
                 self.dtype, other.dtype)
@@ -594,8 +590,9 @@ class SeriesPass:
         T = len(kept)
         if T == 0:
             raise ValueError("no frame left in the sums")
-        if T < 2 and not self._summed:
-            # the origin alone (a one-frame state): its sums are zeros, not read
+        if T < 2 and isinstance(self._lin, _Zeros):
+            # the origin alone (a one-frame state): no frame entered its sums (they are
+            # still zeros to come), which are not read
             return SeriesStatistics(self.origin + 0.0, None, "unavailable (a single frame)",
                                     1)
         H, W = self.shape
