@@ -212,16 +212,16 @@ def _by_blocks(n: int, size: int, fn, pixels: int) -> list:
     return map_leaves(lambda b: fn(*b), blocks, max(min(workers, len(blocks)), 1))
 
 
-def kinematics_compiled() -> bool:
-    """Whether the kinematics use their compiled loops where numba is installed (a
-    test turns :data:`_COMPILED` off to compare them with numpy's)."""
-    return _COMPILED
-
-
 @functools.cache
 def _load_kernels():
     """The module of compiled spline loops (:func:`gridstrain._runtime.compiled.load`), or None."""
     return compiled.load(__package__, "._spline_kernels")
+
+
+def _kernels():
+    """:func:`_load_kernels`, unless the compiled loops are switched off
+    (:data:`_COMPILED`, which a test turns off to compare them with numpy's)."""
+    return _load_kernels() if _COMPILED else None
 
 
 class _Spline:
@@ -248,7 +248,7 @@ class _Spline:
         flat = arr.reshape(-1, *arr.shape[-2:])
         planes = [p for a in flat for p in ((a.real, a.imag) if self.is_complex else (a,))]
         Hp, Wp = (n + 2 * _SPLINE_PAD for n in arr.shape[-2:])
-        kern = _load_kernels() if _COMPILED and order == 3 and len(planes) == 4 else None
+        kern = _kernels() if order == 3 and len(planes) == 4 else None
         self.kern = kern
         if kern is not None:
             # one plane a map (4, Hp, Wp): a row of points reads each map's rows at
@@ -317,7 +317,7 @@ def _unwrap(wrapped: np.ndarray, valid: np.ndarray, pairs=None, around=None) -> 
     # the map so that a field spread over less than 2 pi shows no jump
     sub = wrapped[::4, ::4][valid[::4, ::4]]
     c = float(np.angle(np.sum(np.exp(1j * sub)))) if sub.size else 0.0
-    kern = _load_kernels() if _COMPILED else None
+    kern = _kernels()
     if kern is not None and wrapped.dtype == np.float64:
         # the same operations in two passes at most, each stopped at its first jump
         s = np.empty(wrapped.shape)
@@ -577,7 +577,7 @@ def _unwrapped_displacement(reference, deformed, valid, K, g) -> np.ndarray:
     connected valid region shifted by the whole periods that bring it closest to
     the guess ``g`` ((2, H, W), px)."""
     dphase = np.empty(reference.psi.shape, dtype=np.float64)
-    kern = _load_kernels() if _COMPILED else None
+    kern = _kernels()
     if kern is not None and reference.psi.dtype == deformed.psi.dtype == np.complex128:
         # the product and its argument in one loop, no temporary
         kern.phase_difference(_real_view(reference.psi), _real_view(deformed.psi), dphase)

@@ -21,9 +21,8 @@ from ..uncertainty import nearest_filled
 from ._deformation import (
     Measurement,
     _Handover,
-    _load_kernels,
+    _kernels,
     deformation,
-    kinematics_compiled,
 )
 from ._fringe_order import (
     FringeOrder,
@@ -69,7 +68,7 @@ def _largest_step(res: Measurement, field: np.ndarray, lattice: Lattice,
     add three (2, H, W) temporaries to the kinematics' peak (a state followed from
     the previous one peaked 56 MiB higher than the first at 2048^2)."""
     v = res.valid & before
-    kern = _load_kernels() if kinematics_compiled() else None
+    kern = _kernels()
     if kern is not None and np.shape(field) == res.u.shape:
         largest = kern.largest_step(res.u, field, v, np.ascontiguousarray(lattice.K))
         return math.inf if largest < 0 else largest

@@ -75,7 +75,8 @@ _COMPILED = True
 
 @functools.cache
 def _load_kernels():
-    """The module of compiled loops (:func:`gridstrain._runtime.compiled.load`), or None."""
+    """The module of the phase folder's compiled loops (:mod:`gridstrain.phase._kernels`,
+    :func:`gridstrain._runtime.compiled.load`), or None: the transform's too."""
     return compiled.load(__package__, "._kernels")
 
 

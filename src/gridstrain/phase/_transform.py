@@ -16,7 +16,6 @@ import numpy as np
 from numpy.lib.stride_tricks import as_strided
 from scipy import fft as sfft
 
-from .._runtime import compiled
 from .._runtime import fft as _fft
 from .._runtime.threads import map_leaves
 from .._validation import (
@@ -29,7 +28,7 @@ from .._validation import (
     check_workers,
 )
 from ._exact import _ifft, _one_wave_vector
-from ._maps import PhaseMaps
+from ._maps import PhaseMaps, _load_kernels
 from ._spectrum import _axis_band, spectrum_block, transfer_function
 from ._validity import _gaps, _region, _shows_grid
 from .lattice import Lattice
@@ -610,12 +609,6 @@ _COMPILED = True
 # and the rows of the demodulated planes it fills, stay in cache until the compiled
 # loop reads them.
 _COMPILED_CHUNK_BYTES = 2**19
-
-
-@functools.cache
-def _load_kernels():
-    """The module of compiled loops (:func:`gridstrain._runtime.compiled.load`), or None."""
-    return compiled.load(__package__, "._kernels")
 
 
 def _kernels():
