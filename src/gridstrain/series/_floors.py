@@ -79,7 +79,7 @@ def _theory_floor(var_ref, T_ref, mod_ref, var_s, T_s, mod_s, sigma, lattice):
         p, d = _wft_noise_std(var_ref / T_ref, float(mod_ref[j]), sigma)  # Prop. 2.3
         ph_r.append(p)
         d_r.append(d)
-        p, d = _wft_noise_std(var_s / T_s, float(mod_s[j]), sigma)
+        p, d = theory.wft_noise_std(var_s / T_s, float(mod_s[j]), sigma)  # its own
         ph_s.append(p)
         d_s.append(d)
     su = theory.displacement_noise_std(ph_r, ph_s, lattice)  # eq. (34)
