@@ -378,13 +378,8 @@ def _annulus(h: int, w: int, iy: int, ix: int, ncol: int) -> np.ndarray:
     magnitude read at its mirror where ``fx < 0``): the same multiset of magnitudes,
     hence the same median. The peak moves by less than a bin between the states of a
     record: its annulus is computed once (read-only)."""
-    fy = sfft.fftfreq(h)[:, None]
-    fx = sfft.fftfreq(w)[None, :]
-    fr = np.hypot(fx, fy)
-    r, tol = fr[iy, ix], 1.5 / min(h, w)
-    rows = np.flatnonzero(fr[:, 0] <= r + 2 * tol)
-    cols = np.flatnonzero(fr[0, :] <= r + 2 * tol)
-    sel = np.abs(fr[np.ix_(rows, cols)] - r) <= tol
+    fr = np.hypot(sfft.fftfreq(w)[None, :], sfft.fftfreq(h)[:, None])
+    rows, cols, sel = _ring(fr, iy, ix, min(h, w))
     ry, rx = np.nonzero(sel)
     out = _to_half(h, w, rows[ry], cols[rx], ncol)
     out.flags.writeable = False
@@ -541,15 +536,21 @@ def _prominence(spec: np.ndarray, fr: np.ndarray, iy: int, ix: int, n: int) -> f
     most a few peaks, so its median is the background a periodic pattern must stand
     out of: isotropic content (noise, a natural scene, a speckle) does not.
     """
+    rows, cols, sel = _ring(fr, iy, ix, n)
+    bg = median(spec[np.ix_(rows, cols)][sel], overwrite_input=True)  # np.median's value
+    return float(spec[iy, ix]) / bg if bg > 0 else np.inf
+
+
+def _ring(fr: np.ndarray, iy: int, ix: int, n: int):
+    """The annulus of :func:`_prominence` about the bin ``(iy, ix)`` of the map of
+    spatial frequencies ``fr`` (column 0 holding ``|fy|``, row 0 ``|fx|``), ``n`` the
+    crop's smaller side: the rows and columns it crosses (the margin covers the
+    rounding of its outer radius: the same bins, a ninth of the map) and its bins
+    among them."""
     r, tol = fr[iy, ix], 1.5 / n
-    # only the rows and columns the annulus crosses (column 0 holds |fy|, row 0 |fx|;
-    # the margin covers the rounding of r + tol): the same bins, a ninth of the map
     rows = np.flatnonzero(fr[:, 0] <= r + 2 * tol)
     cols = np.flatnonzero(fr[0, :] <= r + 2 * tol)
-    sub = np.ix_(rows, cols)
-    sel = np.abs(fr[sub] - r) <= tol
-    bg = median(spec[sub][sel], overwrite_input=True)  # np.median's value
-    return float(spec[iy, ix]) / bg if bg > 0 else np.inf
+    return rows, cols, np.abs(fr[np.ix_(rows, cols)] - r) <= tol
 
 
 def _log_power_taylors(data, ks, x, y, x2, y2, scale) -> list[tuple[float, ...]]:
