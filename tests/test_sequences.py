@@ -92,6 +92,27 @@ def test_multipage_tiff_gives_the_folders_maps(measured, frames):
     np.testing.assert_array_equal(np.asarray(other.strain), np.asarray(res.strain))
 
 
+def test_one_integer_frame_a_state_is_transformed_in_float32_within_its_rounding(
+        measured, frames, tmp_path):
+    res, _, _ = measured
+    assert frames.dtype == np.uint16  # 12-bit frames stored x16: exact in float32
+    as_float = _folder(tmp_path, frames.astype(np.float64), "float")
+    want = measure_series(None, as_float, reference_frames=1)
+    # an integer record's maps keep float64, the precision of integer frames
+    assert np.asarray(res.u).dtype == np.asarray(want.u).dtype == np.float64
+    np.testing.assert_array_equal(res.valid, want.valid)
+    v = np.asarray(want.valid)[:, None]
+    # the float64 frames are transformed in float64: the integer ones, one a state, in
+    # float32, whose rounding moved u by 2e-7 px and the strain by 2e-7 on this
+    # record; 1e-6 px and 1e-6 strain bound it, a tenth of the 1e-5 strain asked of
+    # a measurement and a thousandth of one frame's noise (~1e-3 px), which a frame
+    # transformed at a wrong scale or carrier would reach
+    du = np.abs(np.asarray(res.u) - np.asarray(want.u))
+    de = np.abs(np.asarray(res.strain) - np.asarray(want.strain))
+    assert np.max(du, where=v & np.ones(du.shape, bool), initial=0) < 1e-6
+    assert np.max(de, where=v & np.ones(de.shape, bool), initial=0) < 1e-6
+
+
 def test_a_record_is_refused_as_one_state(measured):
     _, folder, _ = measured
     with pytest.raises(ValueError, match=r"rec: its 12 frames are a sequence.*--each-frame"):

@@ -56,6 +56,7 @@ from ._passes import (
     _plan,
     _run_pass,
     _Steps,
+    widened,
 )
 from ._sinks import _InMemory, _streamed
 from ._stages import _Policy, _State, measure_state, stages_cost
@@ -364,6 +365,8 @@ class _Series:
         out = dataclasses.replace(out, maps=coupling_corrected(out.maps))
         if self.plans[k].lattice != o.lattice:  # a state at its own carrier (_carrier)
             out = dataclasses.replace(out, maps=demodulated_in_place(out.maps, o.lattice))
+        if not self.f32:  # a frame transformed in float32: its maps in float64 from here
+            out = dataclasses.replace(out, maps=widened(out.maps))
         # the phase maps' weight of two transforms: 1.5 for the transform (_one_series),
         # 0.5 here, so that the correction's time is reported by its own name
         steps.step(0.5 * _WFT_COST, f"{s.name}: coupling correction")
