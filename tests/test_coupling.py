@@ -138,6 +138,29 @@ def test_float32_maps_stay_float32():
     assert np.abs(np.angle(f32.psi * np.conj(f64.psi)))[:, v].max() < 1e-5
 
 
+@pytest.mark.parametrize("compiled", [True, False])
+def test_float32_maps_corrected_into_float64(compiled, monkeypatch):
+    from gridstrain.phase import _transform
+
+    monkeypatch.setattr(_transform, "_COMPILED", compiled)
+    img, _, _ = _scene(1.5, 0.5, 4.0)
+    lat = Lattice.from_pitch(PITCH)
+    pm32 = wft(img.astype(np.float32), lat, sigma=SIGMA)
+    before = pm32.psi.copy()
+    wide, narrow = coupling_corrected(pm32, dtype=np.float64), coupling_corrected(pm32)
+    np.testing.assert_array_equal(pm32.psi, before)  # the given maps are not written
+    assert wide.psi.dtype == np.complex128
+    assert wide.dphi.dtype == np.float64
+    v = pm32.valid
+    # the same float32 correction, written in float64 rather than rounded to float32:
+    # within float32's rounding of the maps (6e-8 relative; 1e-6 rad and rad/px bound
+    # it, a thousandth of a frame's phase noise)
+    assert np.abs(np.angle(wide.psi * np.conj(narrow.psi)))[:, v].max() < 1e-6
+    np.testing.assert_allclose(wide.dphi[:, :, v], narrow.dphi[:, :, v], atol=1e-6)
+    with pytest.raises(ValueError, match="dtype must be float32 or float64"):
+        coupling_corrected(pm32, dtype=np.int16)
+
+
 # --- the compiled loops (numba, the fast extra) against the numpy path ----------------
 
 def _strained_scene():

@@ -78,8 +78,8 @@ Precision
       are exact there), at half the cost of float64, and adds it to its float64
       sums; its maps are float64 as above. A series of one such frame (a record
       measured frame by frame, a pair) is transformed and its phase-modulus
-      coupling corrected in float32 in the same way, and its maps widened to
-      float64 before the kinematics (a third of float64's cost; u and strain
+      coupling corrected in float32 in the same way, the correction writing its
+      maps in float64 (a third of float64's cost; u and strain
       within 2e-7 px and 2e-7 of float64's on a 12-bit record,
       ``tests/test_sequences.py``). The rounding this leaves, against
       float64 transforms, was 1.7e-7 rad in phase and 4e-8 rad/px in derivative on

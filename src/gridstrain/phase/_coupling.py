@@ -14,6 +14,7 @@ from __future__ import annotations
 import numpy as np
 from scipy import ndimage
 
+from .._validation import check_float_dtype
 from ._maps import PhaseMaps
 from ._transform import _differentiator, _kernels
 
@@ -27,7 +28,7 @@ _SATURATION = 0.2
 _STEEPEST = 0.25
 
 
-def coupling_corrected(pm: PhaseMaps) -> PhaseMaps:
+def coupling_corrected(pm: PhaseMaps, *, dtype=None) -> PhaseMaps:
     """``pm`` with the phase-modulus coupling of its window taken out, to second order.
 
     For the Gaussian window, moving the carrier by ``omega / 2 pi`` (and demodulating
@@ -50,12 +51,16 @@ def coupling_corrected(pm: PhaseMaps) -> PhaseMaps:
         Maps of one transform, demodulated at the carrier they were transformed at
         (not yet brought to another by :func:`~gridstrain.phase.demodulated_at`:
         ``omega`` is the mismatch with that carrier).
+    dtype : {None, numpy.float32, numpy.float64}
+        The precision of the maps returned (None: ``pm``'s). float64 from float32 maps
+        widens them as they are written: the maps of a frame transformed in float32
+        take their float64 precision here, without a copy of their own.
 
     Returns
     -------
     PhaseMaps
         The same validity, lattice and window; ``psi`` and ``dphi`` corrected, in their
-        dtypes.
+        dtypes (``dtype``'s where given).
 
     Notes
     -----
@@ -91,8 +96,9 @@ def coupling_corrected(pm: PhaseMaps) -> PhaseMaps:
     found = _differentiator(sigma, np.dtype(np.float64))
     # central differences where the window is too narrow for a short filter
     taps = found[0] if found is not None else np.array([0.5])
-    psi = np.empty(pm.psi.shape, pm.psi.dtype)
-    dphi = np.empty(pm.dphi.shape, pm.dphi.dtype)
+    real = pm.dphi.dtype if dtype is None else check_float_dtype(dtype, allow_none=False)
+    psi = np.empty(pm.psi.shape, np.result_type(real, np.complex64))
+    dphi = np.empty(pm.dphi.shape, real)
     kern = _kernels()
     if kern is not None:
         _compiled(kern, pm, sigma, taps, psi, dphi)
@@ -116,15 +122,16 @@ def _compiled(kern, pm: PhaseMaps, sigma: float, taps: np.ndarray, psi: np.ndarr
     rows = np.empty((3, R, W), np.float32)
     tmp = np.empty((5, W), np.float32)
     f32 = np.float32
-    real = psi.real.dtype
     for j in range(2):
-        src = np.ascontiguousarray(pm.psi[j]).view(real)
+        src = np.ascontiguousarray(pm.psi[j])
+        src = src.view(src.real.dtype)
         with np.errstate(divide="ignore"):  # no signal at all: 1 / 0, then NaN maps
             inv = 1 / np.float64(kern.max_norm(src))
         kern.coupling_rows(src, np.ascontiguousarray(pm.dphi[j]), inv,
                            a, f32(sigma**2),
                            f32((sigma / _STEEPEST) ** 2), f32(0.5 * sigma**2),
-                           f32(_SATURATION), psi[j].view(real), dphi[j], ring, rows, tmp)
+                           f32(_SATURATION), psi[j].view(dphi.dtype), dphi[j], ring, rows,
+                           tmp)
 
 
 def _numpy(pm: PhaseMaps, sigma: float, weights: np.ndarray, psi: np.ndarray,

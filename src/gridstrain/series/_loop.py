@@ -56,7 +56,6 @@ from ._passes import (
     _plan,
     _run_pass,
     _Steps,
-    widened,
 )
 from ._sinks import _InMemory, _streamed
 from ._stages import _Policy, _State, measure_state, stages_cost
@@ -361,12 +360,12 @@ class _Series:
             steps.step(n * _pass_cost(o.method), f"{s.name}: one pass")
         out = _one_series(s, acc, self.m if k == 0 else None, o.window, o.max_saturation,
                           o.outliers, o.method, self.f32, steps, to_edges=o.to_edges)
-        # at the carrier it was transformed at (gridstrain.phase.coupling_corrected)
-        out = dataclasses.replace(out, maps=coupling_corrected(out.maps))
+        # at the carrier it was transformed at (gridstrain.phase.coupling_corrected); a
+        # frame transformed in float32 (_one_series) gets its float64 maps there
+        out = dataclasses.replace(out, maps=coupling_corrected(
+            out.maps, dtype=np.float32 if self.f32 else np.float64))
         if self.plans[k].lattice != o.lattice:  # a state at its own carrier (_carrier)
             out = dataclasses.replace(out, maps=demodulated_in_place(out.maps, o.lattice))
-        if not self.f32:  # a frame transformed in float32: its maps in float64 from here
-            out = dataclasses.replace(out, maps=widened(out.maps))
         # the phase maps' weight of two transforms: 1.5 for the transform (_one_series),
         # 0.5 here, so that the correction's time is reported by its own name
         steps.step(0.5 * _WFT_COST, f"{s.name}: coupling correction")

@@ -528,22 +528,13 @@ def _one_series(s, acc: SeriesPass, base, window: Window, max_saturation: float,
 def _transformed_image(s, mean: np.ndarray) -> np.ndarray:
     """The image method A transforms: the mean of the frames of ``s``, in float32 when
     it is one integer frame of at most 16 bits (exact in float32), as method B
-    transforms each of its frames, at a third of float64's cost with the correction
-    of the phase-modulus coupling; :func:`widened` brings its maps back to float64
-    (:mod:`gridstrain.conventions`, precision)."""
+    transforms each of its frames: its transform and the correction of its
+    phase-modulus coupling take a third of float64's time, and the correction writes
+    its maps in float64 (:mod:`gridstrain.conventions`, precision)."""
     dt = np.dtype(s.dtype)
     if s.n_frames == 1 and dt.kind in "ui" and dt.itemsize <= 2:
         return mean.astype(np.float32)
     return mean
-
-
-def widened(pm: PhaseMaps) -> PhaseMaps:
-    """The maps of a frame transformed in float32 (:func:`_transformed_image`) in
-    float64, the precision of an integer frame's maps; other maps as they are."""
-    if pm.psi.dtype != np.complex64:
-        return pm
-    return dataclasses.replace(pm, psi=pm.psi.astype(np.complex128),
-                               dphi=pm.dphi.astype(np.float64))
 
 
 def _centred(pm: PhaseMaps, shifts: np.ndarray, name: str, method: str):
