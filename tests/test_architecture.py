@@ -33,16 +33,8 @@ CORE = {
     "phase", "stacks", "kinematics", "uncertainty", "theory", "models",
 }
 
-# private names still imported across parts, each for a reason a test pins down: the
-# compiled loops' loader and method B's accumulator are reached by name by the tests of
-# the compiled kernels, and the tracker by the test of a state without a valid pixel
-SHARED_PRIVATE = {
-    ("stacks._accumulators", "phase._transform._kernels"),
-    ("stacks.accumulate", "phase._transform._kernels"),
-    ("series._distributed", "stacks._accumulators._PhaseMean"),
-    ("paper.experiment", "stacks._accumulators._PhaseMean"),
-    ("series._loop", "kinematics.tracking._Tracker"),
-}
+# private names still imported across parts, each for a reason a test pins down
+SHARED_PRIVATE: set = set()
 
 
 def _module_name(path: Path, root: Path) -> str:

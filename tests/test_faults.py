@@ -508,13 +508,13 @@ def test_an_all_invalid_result_is_never_written(data, tmp_path, capsys, monkeypa
 
     import gridstrain.kinematics.tracking as gp
 
-    real = gp._Tracker.measure
+    real = gp.Tracker.measure
 
     def all_invalid(self, *a, **k):  # a state measured, none of its pixels valid
         res, rec, notes = real(self, *a, **k)
         return dataclasses.replace(res, valid=np.zeros_like(res.valid)), rec, notes
 
-    monkeypatch.setattr(gp._Tracker, "measure", all_invalid)
+    monkeypatch.setattr(gp.Tracker, "measure", all_invalid)
     # each state written as it is measured, and with every state held to the end
     for extra in ([], ["--phase-maps"]):
         rc = _run(["measure", data / "ref.tif", data / "load.tif", "-o", tmp_path / "o.h5",

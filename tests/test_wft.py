@@ -177,7 +177,7 @@ def fast_path(request, monkeypatch):
 
     if request.param == "compiled":
         pytest.importorskip("numba")
-        assert impl._kernels() is not None
+        assert impl.compiled_loops() is not None
     else:
         monkeypatch.setattr(impl, "_COMPILED", False)
     return request.param

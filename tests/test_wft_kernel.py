@@ -36,7 +36,7 @@ BOUND = {np.float64: 1e-7, np.float32: 1e-6}
 def compiled():
     """The compiled loops (the tests that need them are skipped without numba)."""
     pytest.importorskip("numba")
-    kern = impl._kernels()
+    kern = impl.compiled_loops()
     assert kern is not None
     return kern
 
@@ -220,7 +220,7 @@ def test_without_numba_the_numpy_paths_run(monkeypatch):
     monkeypatch.delattr(gridstrain.phase, "_kernels", raising=False)
     impl._load_kernels.cache_clear()
     try:
-        assert impl._kernels() is None
+        assert impl.compiled_loops() is None
         calls = _spy(monkeypatch)
         lat, img = _modulated_grid((96, 96))
         default = wft(img, lat)
@@ -280,8 +280,8 @@ def test_compiled_sums_of_method_b_are_the_numpy_sums(compiled, monkeypatch, dty
     monkeypatch.setattr(impl, "_COMPILED_CHUNK_BYTES", 2**14)
 
     def sums(kernels):
-        monkeypatch.setattr(gs, "_kernels", kernels)
-        acc = gs._PhaseMean()
+        monkeypatch.setattr(gs, "compiled_loops", kernels)
+        acc = gs.PhaseMean()
         window = Window.for_lattice(lat)
         for f in frames:
             acc.add_frame(f, lat, window, mask=mask)

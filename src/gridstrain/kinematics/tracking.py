@@ -128,7 +128,7 @@ def with_strain_doubt(res: Measurement, rec: FringeOrder) -> tuple[FringeOrder, 
                  "if the displacement is a period off)")
 
 
-class _Tracker:
+class Tracker:
     """Measure the states one after the other and fix each one's fringe order (see
     :class:`FringeOrder`): in series order, a state's guess is the previous state's
     field (:meth:`follow`), which is all that is kept of it."""

@@ -76,8 +76,7 @@ from .._validation import (
 from ..io import OutputDirectory, provenance
 from ..models import PROFILES, line_profile
 from ..phase import Lattice, PhaseMaps, Window, wft
-from ..stacks import MeanImage, MethodC, method_a, method_b, method_c, phase_offsets
-from ..stacks._accumulators import _PhaseMean
+from ..stacks import MeanImage, MethodC, PhaseMean, method_a, method_b, method_c, phase_offsets
 from ._cases import _DERIVATIVES, QUANTITIES, _all_cases, _get
 from ._summary import _at, _write
 from .dataset import (
@@ -205,7 +204,7 @@ def _job(setup, rep, case, report=None) -> dict:
     frames = iter_frames(phases, shifts, rng=noise, K=setup["K"], L=setup["L"],
                          bits=setup["bits"], **setup["gen"])
     window = Window.for_lattice(lattice, sigma=sigma)
-    acc_a, acc_b, acc_c = MeanImage(), _PhaseMean(), MethodC(lattice)
+    acc_a, acc_b, acc_c = MeanImage(), PhaseMean(), MethodC(lattice)
     set_a, set_b = set(Ts), set(Tbs)
     out = {}
     for t, frame in enumerate(frames, start=1):

@@ -32,6 +32,7 @@ from ._spectrum import spectrum_block as spectrum_block
 from ._spectrum import transfer_function
 from ._transform import DEFAULT_MARGIN, transform, wft, wft_complex
 from ._transform import Workspace as Workspace
+from ._transform import compiled_loops as compiled_loops
 from ._validity import filled_box as filled_box
 from ._validity import no_grid
 from .lattice import Lattice, detect_lattice, follow_lattice

@@ -16,7 +16,7 @@ from scipy import ndimage
 
 from .._validation import check_float_dtype
 from ._maps import PhaseMaps
-from ._transform import _differentiator, _kernels
+from ._transform import _differentiator, compiled_loops
 
 # The largest correction, rad: well above the coupling of print defects at a mismatch of
 # a few degrees (0.01-0.05 rad, which tanh leaves within 0.2 % at 0.02 / 0.2), well below
@@ -99,7 +99,7 @@ def coupling_corrected(pm: PhaseMaps, *, dtype=None) -> PhaseMaps:
     real = pm.dphi.dtype if dtype is None else check_float_dtype(dtype, allow_none=False)
     psi = np.empty(pm.psi.shape, np.result_type(real, np.complex64))
     dphi = np.empty(pm.dphi.shape, real)
-    kern = _kernels()
+    kern = compiled_loops()
     if kern is not None:
         _compiled(kern, pm, sigma, taps, psi, dphi)
     else:

@@ -248,7 +248,7 @@ def add_unit_sums(psi, mod, dphi, unit, msum, dsum, one, sign):  # pragma: no co
     ``msum`` (h, W), ``dsum`` (2, h, W) float64: the rows of the sums of the unit
     phasors ``psi / |psi|`` (real view), of the moduli and of the derivatives. Where
     ``|psi| = 0`` (no signal, no direction) the phasor and the derivatives add 0.
-    As :class:`gridstrain.stacks._PhaseMean`'s numpy path: the phasor is ``psi``
+    As :class:`gridstrain.stacks.PhaseMean`'s numpy path: the phasor is ``psi``
     times the reciprocal of the modulus, taken in the frame's precision (``one``, 1
     in that precision) and then in float64.
     """

@@ -196,7 +196,7 @@ def _wft(image, lattice: Lattice, *, sigma: float | None = None, mask=None,
     """
     check_choice(derivatives, "derivatives", ("auto", "exact", "fast"))
     if derivatives == "auto":
-        derivatives = "fast" if _kernels() is not None else "exact"
+        derivatives = "fast" if compiled_loops() is not None else "exact"
     if not isinstance(lattice, Lattice):
         raise TypeError(f"lattice must be a Lattice, got {type(lattice).__name__}")
     img = image if checked else as_image(image)
@@ -221,7 +221,7 @@ def _wft(image, lattice: Lattice, *, sigma: float | None = None, mask=None,
     chunk = max(8, _CHUNK_BYTES // (3 * nx * cdtype.itemsize))
     valid, box = _region(m, full, margin * sigma)
     fast = _differentiator(float(sigma), dtype) if derivatives == "fast" else None
-    kern = _kernels() if fast is not None else None
+    kern = compiled_loops() if fast is not None else None
     if sink is not None and kern is None:
         fast = None  # the numpy fast path keeps whole maps: the exact one streams
     psi = dphi = None  # the compiled loops stream to a sink from blocks of their own
@@ -611,8 +611,11 @@ _COMPILED = True
 _COMPILED_CHUNK_BYTES = 2**19
 
 
-def _kernels():
-    """:func:`_load_kernels`, unless the compiled loops are switched off."""
+def compiled_loops():
+    """The module of the phase folder's compiled loops (:mod:`gridstrain.phase._kernels`,
+    loaded by :func:`_load_kernels`), or None where numba is not installed or the
+    loops are switched off (``_COMPILED``, which tests turn off to compare them with
+    numpy's)."""
     return _load_kernels() if _COMPILED else None
 
 

@@ -59,8 +59,7 @@ from .._validation import (
 )
 from ..io import FrameSeries, open_series
 from ..phase import DEFAULT_MARGIN, Lattice, Window, transform
-from ..stacks import StackResult, with_screening
-from ..stacks._accumulators import _PhaseMean
+from ..stacks import PhaseMean, StackResult, with_screening
 from ..stacks.accumulate import SeriesPass
 from ..stacks.screening import FrameProbe
 
@@ -516,10 +515,10 @@ def _screened(graph, blocks, lattice: Lattice, shape, split_every: int):
 # --------------------------------------------------------------------------- method B
 
 
-def _block_sums(block: np.ndarray, lattice, window: Window, mask) -> _PhaseMean:
+def _block_sums(block: np.ndarray, lattice, window: Window, mask) -> PhaseMean:
     """Method B's sums over the frames of ``block``, one transform at a time (one
     task)."""
-    acc = _PhaseMean()
+    acc = PhaseMean()
     for frame in block:
         acc.add_frame(frame, lattice, window, mask=mask)
     if acc.n == 0:
@@ -536,7 +535,7 @@ def _merged(*parts):
     return acc
 
 
-def _method_b_result(acc: _PhaseMean) -> StackResult:
+def _method_b_result(acc: PhaseMean) -> StackResult:
     """gridstrain.stacks.method_b's result from the sums over every frame."""
     return acc.result()
 

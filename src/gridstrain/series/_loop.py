@@ -20,7 +20,7 @@ from .._runtime import paging as _paging
 from .._runtime.threads import one_blas_thread
 from .._validation import check_sigma
 from ..io import StateInputs, close_readers, state_inputs
-from ..kinematics.tracking import SMALL_STEP, _Tracker
+from ..kinematics.tracking import SMALL_STEP, Tracker
 from ..phase import Lattice, Window, coupling_corrected, demodulated_in_place
 from ..phase.lattice import reference_carrier
 from ..results import SeriesResult
@@ -220,7 +220,7 @@ class _Run:
     pager: object
     noise: _Noise
     floor: _ReferenceFloor | None = None
-    tracker: _Tracker | None = None
+    tracker: Tracker | None = None
     policy: _Policy | None = None
     alias: dict | None = None
     done: list = dataclasses.field(default_factory=list)
@@ -261,7 +261,7 @@ def _measure(series: list, guesses: list, m: np.ndarray, o: MeasureOptions, step
                                     to_edges=o.to_edges)
         del ref_pass
         r = run.floor.r  # without its variance map: the floor keeps the smoothed one
-        run.tracker = _Tracker(r.maps, r.stats.mean, r.mask, lattice, o.order, o.lagrangian)
+        run.tracker = Tracker(r.maps, r.stats.mean, r.mask, lattice, o.order, o.lagrangian)
         run.alias = aliasing_bias(r.stats.mean, lattice, sigma=window.sigma, mask=r.mask)
         run.policy = _Policy(n_states, o.order, all(s.n_frames == 1 for s in series[1:]))
         cracks, matches = [], []

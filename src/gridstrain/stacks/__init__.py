@@ -15,6 +15,7 @@ from __future__ import annotations
 from ._accumulators import FrameOrder as FrameOrder
 from ._accumulators import MeanImage as MeanImage
 from ._accumulators import MethodC as MethodC
+from ._accumulators import PhaseMean as PhaseMean
 from ._accumulators import StackResult
 from ._accumulators import with_screening as with_screening
 from ._methods import (

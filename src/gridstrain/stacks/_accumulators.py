@@ -1,5 +1,5 @@
 """The accumulators of a stack, frame by frame: the mean image, method B's sums of unit
-phasors, moduli and derivatives (``_PhaseMean``), method C's compensated sums, and the
+phasors, moduli and derivatives (``PhaseMean``), method C's compensated sums, and the
 :class:`StackResult` they end in.
 """
 
@@ -23,11 +23,11 @@ from ..phase import (
     PhaseMaps,
     Window,
     Workspace,
+    compiled_loops,
     transform,
     wft,
     wft_complex,
 )
-from ..phase._transform import _kernels
 from .screening import FrameProbe, FrameScreen, decide
 from .vibration import RigidProbe
 
@@ -200,7 +200,7 @@ def _transform_input(frame, name: str = "frame") -> tuple[np.ndarray, np.dtype]:
     return img, img.dtype
 
 
-class _PhaseMean:
+class PhaseMean:
     """Running sums of the frames' WFTs for method B.
 
     Each frame is transformed block of rows by block of rows and its contributions
@@ -265,7 +265,7 @@ class _PhaseMean:
         # numpy's slow mixed complex-by-real loops
         unit = self.unit.view(np.float64).reshape(2, H, W, 2)
         accumulate = np.subtract if remove else np.add  # a frame taken out, or added
-        kern = _kernels()
+        kern = compiled_loops()
 
         def sink(j, r0, r1, psi, dphi, mod):
             h = r1 - r0
@@ -300,14 +300,14 @@ class _PhaseMean:
             accumulate(self.invalid, ~valid, out=self.invalid, casting="unsafe")
             self.n += -1 if remove else 1
 
-    def merge(self, other: _PhaseMean) -> _PhaseMean:
+    def merge(self, other: PhaseMean) -> PhaseMean:
         """A new accumulator holding the sums of ``self`` and ``other`` (both
         non-empty, unchanged)."""
         return self._combined(other)
 
-    def _combined(self, other: _PhaseMean | None = None) -> _PhaseMean:
+    def _combined(self, other: PhaseMean | None = None) -> PhaseMean:
         """A new accumulator with the sums of ``self`` (copied) plus ``other``'s."""
-        out = _PhaseMean()
+        out = PhaseMean()
         out.n = self.n + (0 if other is None else other.n)
         for name in ("unit", "mod", "dphi", "invalid"):
             mine = getattr(self, name)

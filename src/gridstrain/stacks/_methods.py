@@ -34,7 +34,7 @@ from .._validation import (
     image_array,
 )
 from ..phase import DEFAULT_MARGIN, Lattice, PhaseMaps, Window
-from ._accumulators import FrameOrder, MeanImage, MethodC, StackResult, _PhaseMean, with_screening
+from ._accumulators import FrameOrder, MeanImage, MethodC, PhaseMean, StackResult, with_screening
 from .screening import FrameProbe
 
 __all__ = [
@@ -268,7 +268,7 @@ def method_b(frames, lattice: Lattice, *, sigma: float | None = None, mask=None,
     progress = progress or null_progress
     n_workers = check_workers(workers)
     window = Window.for_lattice(lattice, sigma=sigma, margin=margin)
-    acc = _PhaseMean()
+    acc = PhaseMean()
     order = FrameOrder() if n_workers > 1 else None
 
     def transform(item):
@@ -445,7 +445,7 @@ def prefix_stacks(frames, lattice: Lattice, counts, *, method: str = "A",
     wanted = _check_counts(counts)
     progress = progress or null_progress
     window = Window.for_lattice(lattice, sigma=sigma)
-    acc = {"A": MeanImage, "B": _PhaseMean, "C": lambda: MethodC(lattice)}[method]()
+    acc = {"A": MeanImage, "B": PhaseMean, "C": lambda: MethodC(lattice)}[method]()
     k = 0
     last = wanted[-1]
     n = 0

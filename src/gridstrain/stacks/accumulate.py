@@ -65,9 +65,8 @@ from scipy import linalg
 from scipy.linalg import blas
 
 from .._validation import check_type
-from ..phase import Lattice, Window
-from ..phase._transform import _kernels
-from ._accumulators import FrameOrder, StackResult, _PhaseMean, compensated_result
+from ..phase import Lattice, Window, compiled_loops
+from ._accumulators import FrameOrder, PhaseMean, StackResult, compensated_result
 from .screening import _RESIDUAL_FRAMES, FrameProbe, FrameScreen, decide
 from .vibration import RigidProbe, shift_matrix
 
@@ -383,7 +382,7 @@ class SeriesPass:
         if plan.method == "C":
             self._rigid = RigidProbe(lat, self.shape)
             self._rigid(self.origin)  # quadrant shifts against the origin
-        self.transforms = _PhaseMean() if plan.method == "B" else None
+        self.transforms = PhaseMean() if plan.method == "B" else None
 
     # ------------------------------------------------------------------ adding
 
@@ -472,7 +471,7 @@ class SeriesPass:
     def _raw_dtype(arr: np.ndarray) -> np.dtype:
         """How a frame waits in the batch: as read (integers of at most 16 bits, the
         compiled loop there to sum them), else as its float64 difference."""
-        if arr.dtype.kind in "ui" and arr.dtype.itemsize <= 2 and _kernels() is not None:
+        if arr.dtype.kind in "ui" and arr.dtype.itemsize <= 2 and compiled_loops() is not None:
             return arr.dtype
         return np.dtype(np.float64)
 
@@ -497,7 +496,7 @@ class SeriesPass:
         self._signs.clear()
         D = self._buf[:b]
         if D.dtype != np.float64:  # raw frames: the compiled loop (gridstrain.phase._kernels)
-            kern = _kernels()
+            kern = compiled_loops()
             if kern is not None:
                 kern.add_differences(self._buf, b, self.origin.reshape(-1), W, signs,
                                      self.lin, self.sq)
