@@ -162,6 +162,66 @@ class Tracker:
             return None
         return self.coarse.decide(np.asarray(mean, dtype=np.float64), self.ref_pm, pm)
 
+    def _followed(self, pm: PhaseMaps, est, prev, place: int, name: str,
+                  warnings: list) -> tuple:
+        """``(Measurement, FringeOrder)`` of a state followed from the previous one in
+        series order (``prev``, as :meth:`follow` kept it), checked against the image
+        features ``est``; what it finds goes to ``warnings``."""
+        ref_pm = self.ref_pm
+        get, prev_ok, prev_name = prev
+        # the previous field, its invalid pixels filled, is handed over to the
+        # kinematics (not held here while they run); the step is taken on the
+        # previous state's valid pixels, where the field is its u unchanged
+        res = deformation(ref_pm, pm, lagrangian=self.lagrangian,
+                          guess=_Handover(_filled(*get())))
+        u_prev, before = get()
+        step = _largest_step(res, u_prev, self.lattice, before)
+        del u_prev, before
+        gmed = res.guess
+        away = est.confident and bool(np.max(np.abs(self.lattice.K @ est.shift)) >= 0.5)
+        if est.confident and _order_offset(res, est.shift, self.lattice) < 0.5:
+            rec = _from_estimate(est, "previous state", True, gmed,
+                                 f"followed from {prev_name} (step {step:.2f} period); "
+                                 f"image features agree ({est.reason})", step)
+        elif est.confident and (step > _MAX_STEP or (away and step > SMALL_STEP)):
+            # conclusive features that moved with the specimen beat the assumption
+            # of a step below half a period where the step followed is not small:
+            # the step was larger
+            followed = _median_u(res)
+            res = deformation(ref_pm, pm, lagrangian=self.lagrangian, guess=est.shift)
+            rec = _from_estimate(est, "image features", True, res.guess,
+                                 f"{est.reason}; followed from {prev_name} it would "
+                                 f"have been {followed}", step)
+            warnings.append(Finding(
+                "fringe_order.features_used",
+                f"{name}: image features fix the displacement at {_median_u(res)}, "
+                f"whole periods from {followed} followed from {prev_name}: the load "
+                "step was more than half a period; the features were used",
+                state=name, step=step))
+        elif est.confident:
+            # two kinds of evidence disagree: a small step followed, and features
+            # whole periods away (light that moved: a hot spot, a highlight) or at
+            # no motion (content fixed to the camera: dust, hot pixels)
+            rec, said = _disagreement(res, est, prev_name, step, name)
+            warnings.append(said)
+        elif step > _MAX_STEP:
+            rec = _from_estimate(est, "previous state", False, gmed,
+                                 f"followed from {prev_name}, but the displacement "
+                                 f"changed by up to {step:.2f} period", step)
+            warnings.append(Finding(
+                "fringe_order.unconfirmed",
+                f"{name}: the displacement changed by up to {step:.2f} period since "
+                f"{prev_name}, more than the {_MAX_STEP} a load step can be followed "
+                "with: fringe order not confirmed; " + _what_to_do(self.lattice),
+                state=name, step=step))
+        else:
+            rec = _from_estimate(est, "previous state", prev_ok, gmed,
+                                 f"followed from {prev_name} (step {step:.2f} period)"
+                                 + ("" if prev_ok else ", itself not confirmed"), step)
+            if not prev_ok:
+                self.inherited.append((place, name))
+        return res, rec
+
     def measure(self, pm: PhaseMaps, est, g, name: str):
         """``(Measurement, FringeOrder, warnings)`` of the next state, with ``est``
         from :meth:`features`."""
@@ -171,58 +231,7 @@ class Tracker:
         prev, self.prev = self.prev, None  # the next state's guess comes from this one
         first = None  # the first state's smallest displacement, once measured
         if isinstance(g, str) and self.order == "series" and prev is not None:
-            get, prev_ok, prev_name = prev
-            # the previous field, its invalid pixels filled, is handed over to the
-            # kinematics (not held here while they run); the step is taken on the
-            # previous state's valid pixels, where the field is its u unchanged
-            res = deformation(ref_pm, pm, lagrangian=self.lagrangian,
-                              guess=_Handover(_filled(*get())))
-            u_prev, before = get()
-            step = _largest_step(res, u_prev, self.lattice, before)
-            del u_prev, before
-            gmed = res.guess
-            away = est.confident and bool(np.max(np.abs(self.lattice.K @ est.shift)) >= 0.5)
-            if est.confident and _order_offset(res, est.shift, self.lattice) < 0.5:
-                rec = _from_estimate(est, "previous state", True, gmed,
-                                     f"followed from {prev_name} (step {step:.2f} period); "
-                                     f"image features agree ({est.reason})", step)
-            elif est.confident and (step > _MAX_STEP or (away and step > SMALL_STEP)):
-                # conclusive features that moved with the specimen beat the assumption
-                # of a step below half a period where the step followed is not small:
-                # the step was larger
-                followed = _median_u(res)
-                res = deformation(ref_pm, pm, lagrangian=self.lagrangian, guess=est.shift)
-                rec = _from_estimate(est, "image features", True, res.guess,
-                                     f"{est.reason}; followed from {prev_name} it would "
-                                     f"have been {followed}", step)
-                warnings.append(Finding(
-                    "fringe_order.features_used",
-                    f"{name}: image features fix the displacement at {_median_u(res)}, "
-                    f"whole periods from {followed} followed from {prev_name}: the load "
-                    "step was more than half a period; the features were used",
-                    state=name, step=step))
-            elif est.confident:
-                # two kinds of evidence disagree: a small step followed, and features
-                # whole periods away (light that moved: a hot spot, a highlight) or at
-                # no motion (content fixed to the camera: dust, hot pixels)
-                rec, said = _disagreement(res, est, prev_name, step, name)
-                warnings.append(said)
-            elif step > _MAX_STEP:
-                rec = _from_estimate(est, "previous state", False, gmed,
-                                     f"followed from {prev_name}, but the displacement "
-                                     f"changed by up to {step:.2f} period", step)
-                warnings.append(Finding(
-                    "fringe_order.unconfirmed",
-                    f"{name}: the displacement changed by up to {step:.2f} period since "
-                    f"{prev_name}, more than the {_MAX_STEP} a load step can be followed "
-                    "with: fringe order not confirmed; " + _what_to_do(self.lattice),
-                    state=name, step=step))
-            else:
-                rec = _from_estimate(est, "previous state", prev_ok, gmed,
-                                     f"followed from {prev_name} (step {step:.2f} period)"
-                                     + ("" if prev_ok else ", itself not confirmed"), step)
-                if not prev_ok:
-                    self.inherited.append((place, name))
+            res, rec = self._followed(pm, est, prev, place, name, warnings)
         elif isinstance(g, str) and self.order == "series" and place == 0 and \
                 not (est.confident and _beyond_small_step(ref_pm, pm, self.lagrangian)) \
                 and (first := _first_step(ref_pm, pm, self.lagrangian))[1] <= SMALL_STEP:
