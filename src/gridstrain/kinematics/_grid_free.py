@@ -246,6 +246,60 @@ def largest_region(ok: np.ndarray) -> np.ndarray:
     return labels == 1 + int(np.argmax(sizes))
 
 
+class _Search:
+    """What :func:`order_from_content` compares: each reference sample's image in the
+    deformed grid-free image (``cx``, ``cy``, samples) through ``(I + G)``, and the
+    residuals of the tiles' content at offsets of whole or half periods."""
+
+    def __init__(self, ref_gf, cur_gf, u, ok, lattice: Lattice, q: int, gradient):
+        self.ref_gf, self.cur_gf, self.q = ref_gf, cur_gf, q
+        self.h, self.w = h, w = ref_gf.shape
+        self.P = P = lattice.periods
+        self.period = float(np.max(np.hypot(*P))) / q  # samples
+        self.yy, self.xx = yy, xx = np.mgrid[0:h, 0:w].astype(np.float64)
+        if gradient is None:
+            gradient = np.zeros((2, 2, 1, 1))
+        self.ok = largest_region(ok & np.all(np.isfinite(u), axis=0)
+                                 & np.all(np.isfinite(gradient), axis=(0, 1)))
+        self.M = M = np.eye(2)[:, :, None, None] + gradient  # (I + G) at each sample
+        ux = M[0, 0] * u[0] + M[0, 1] * u[1]
+        uy = M[1, 0] * u[0] + M[1, 1] * u[1]
+        self.cx, self.cy = (xx + ux / q), (yy + uy / q)
+
+    def compared(self, centre, periods, step=1):
+        """The samples (every ``step``-th along each axis) whose images at every
+        offset searched lie inside the deformed image, and their tiles."""
+        cx, cy = self.cx, self.cy
+        H2, W2 = self.cur_gf.shape
+        t = self.P @ np.asarray(centre, dtype=float) / self.q
+        reach = (periods + 1) * self.period
+        with np.errstate(invalid="ignore"):
+            s = self.ok & (cx + t[0] >= reach) & (cx + t[0] <= W2 - 1 - reach) \
+                & (cy + t[1] >= reach) & (cy + t[1] <= H2 - 1 - reach)
+        if step > 1:
+            s &= (self.yy % step == 0) & (self.xx % step == 0)
+        return s, _Tiles(self.xx[s], self.yy[s])
+
+    def energies(self, sel, tiles, offsets):
+        """The tiles' residuals (n, tiles) at the ``offsets`` (n, 2), in periods."""
+        base = np.stack([self.cy[sel], self.cx[sel]])[:, tiles.order]
+        ref = self.ref_gf[sel][tiles.order]
+        # (I + G) at the samples, rows as (y, x) and columns as (x, y)
+        m = np.broadcast_to(self.M, (2, 2, self.h, self.w))
+        Ms = np.stack([[m[1, 0][sel], m[1, 1][sel]],
+                       [m[0, 0][sel], m[0, 1][sel]]])[:, :, tiles.order]
+        shifts = offsets @ self.P.T / self.q  # (n, 2) as (x, y), samples
+        out = np.empty((len(offsets), tiles.n))
+        per = max(1, _CHUNK // base.shape[1])
+        for i0 in range(0, len(offsets), per):
+            t = shifts[i0:i0 + per]
+            coords = base[:, None, :] + np.einsum("abs,nb->ans", Ms, t)
+            d = bilinear(self.cur_gf, coords.reshape(2, -1)).reshape(len(t), -1)
+            d -= ref
+            out[i0:i0 + per] = tiles.residuals(d)
+        return out
+
+
 def order_from_content(ref_gf: np.ndarray, cur_gf: np.ndarray, u: np.ndarray,
                        ok: np.ndarray, lattice: Lattice, q: int, *,
                        around=(0, 0), gradient=None) -> ContentOrder:
@@ -275,50 +329,8 @@ def order_from_content(ref_gf: np.ndarray, cur_gf: np.ndarray, u: np.ndarray,
     -------
     ContentOrder
     """
-    h, w = ref_gf.shape
-    P = lattice.periods
-    period = float(np.max(np.hypot(*P))) / q  # samples
-    yy, xx = np.mgrid[0:h, 0:w].astype(np.float64)
-    if gradient is None:
-        gradient = np.zeros((2, 2, 1, 1))
-    ok = largest_region(ok & np.all(np.isfinite(u), axis=0)
-                        & np.all(np.isfinite(gradient), axis=(0, 1)))
-    M = np.eye(2)[:, :, None, None] + gradient  # (I + G) at each sample
-    ux = M[0, 0] * u[0] + M[0, 1] * u[1]
-    uy = M[1, 0] * u[0] + M[1, 1] * u[1]
-    cx, cy = (xx + ux / q), (yy + uy / q)
-    H2, W2 = cur_gf.shape
-
-    def compared(centre, periods, step=1):
-        """The samples (every ``step``-th along each axis) whose images at every
-        offset searched lie inside the deformed image, and their tiles."""
-        t = P @ np.asarray(centre, dtype=float) / q
-        reach = (periods + 1) * period
-        with np.errstate(invalid="ignore"):
-            s = ok & (cx + t[0] >= reach) & (cx + t[0] <= W2 - 1 - reach) \
-                & (cy + t[1] >= reach) & (cy + t[1] <= H2 - 1 - reach)
-        if step > 1:
-            s &= (yy % step == 0) & (xx % step == 0)
-        return s, _Tiles(xx[s], yy[s])
-
-    def energies(sel, tiles, offsets):  # (n, 2) in periods -> (n, tiles)
-        base = np.stack([cy[sel], cx[sel]])[:, tiles.order]
-        ref = ref_gf[sel][tiles.order]
-        # (I + G) at the samples, rows as (y, x) and columns as (x, y)
-        m = np.broadcast_to(M, (2, 2, h, w))
-        Ms = np.stack([[m[1, 0][sel], m[1, 1][sel]],
-                       [m[0, 0][sel], m[0, 1][sel]]])[:, :, tiles.order]
-        shifts = offsets @ P.T / q  # (n, 2) as (x, y), samples
-        out = np.empty((len(offsets), tiles.n))
-        per = max(1, _CHUNK // base.shape[1])
-        for i0 in range(0, len(offsets), per):
-            t = shifts[i0:i0 + per]
-            coords = base[:, None, :] + np.einsum("abs,nb->ans", Ms, t)
-            d = bilinear(cur_gf, coords.reshape(2, -1)).reshape(len(t), -1)
-            d -= ref
-            out[i0:i0 + per] = tiles.residuals(d)
-        return out
-
+    search = _Search(ref_gf, cur_gf, u, ok, lattice, q, gradient)
+    ok, P, compared, energies = search.ok, search.P, search.compared, search.energies
     none = ContentOrder(False, "too few samples of the images' content to compare",
                         tuple(int(v) for v in around), (math.nan, math.nan), 1.0)
     # whole periods first, around the given centre, as far as the images allow (half
