@@ -479,29 +479,34 @@ def _filter_rows(T: np.ndarray, src: np.ndarray, out: np.ndarray):
         np.matmul(T, s, out=o)
 
 
-def _one_wave_vector_fast(V, k, sigma, H, W, nx, psi, dphi, mod, work, *, taps,
-                          chunk: int):
-    """:func:`_one_wave_vector` with the derivatives from ``Psi`` alone (see :func:`_wft`).
+def _psi_rows(psi, halo, buf, m: int, lo: int, hi: int):
+    """Rows ``lo .. hi - 1`` (``-m <= lo``) of ``psi`` (H, W) contiguous: ``psi``'s own,
+    the ``halo``'s (2m, W: rows -m .. -1, then H .. H + m - 1) and zeros beyond,
+    copied into ``buf`` where they are not a slice of ``psi``."""
+    H = psi.shape[0]
+    if lo >= 0 and hi <= H:
+        return psi[lo:hi]
+    out = buf[:hi - lo]
+    for r in range(lo, hi):
+        out[r - lo] = (halo[m + r] if r < 0 else psi[r] if r < H
+                       else halo[m + r - H] if r < H + m else 0)
+    return out
 
-    One inverse transform per wave vector: along y for the band's columns, then along
-    x by blocks of rows, transposed (x along the rows of the block) so that the
-    differentiator along x is a matrix product over rows, as the one along y is on
-    the finished rows of ``psi``, a block behind. The transform is demodulated (the
-    carrier's residual too) before it is differentiated, and rows and columns just
-    outside the image come from the periodic transform, as the exact path's do.
-    """
+
+def _along_y(V, k, sigma, H, nx, m, work):
+    """The first half of :func:`_one_wave_vector_fast`'s inverse transform: the band of
+    wave vector ``k`` windowed and transformed back along y, demodulated by the
+    carrier's residual along y, rows -m .. H + m - 1 of the periodic transform (the y
+    differentiator's reach beyond the image) as ``A[0 : H + 2m]`` (the band's
+    columns); and the x band's runs and shift (:func:`_axis_band`)."""
     ny = V.shape[0]
     cdtype = V.dtype
-    rdtype = mod.dtype
-    m = taps.size
     rows, yruns, _, sy, gy = _axis_band(ny, k[1], sigma)
     cols, xruns, _, sx, gx = _axis_band(nx, k[0], sigma)
     block = V[np.ix_(rows, cols)] if V.shape[1] == nx else spectrum_block(V, rows, cols, nx)
-    # the window along x applied on the small band, so that the blocks below are copies
+    # the window along x applied on the small band, so that the blocks after are copies
     block *= gx.astype(cdtype)
     gy = gy.astype(cdtype)
-    # along y: rows -m .. H + m - 1 of the periodic transform (the y differentiator's
-    # reach beyond the image), as Y[0 : H + 2m]
     Y = work.get("Y", (m + ny, cols.size), cdtype)
     for gap in _gaps(yruns, ny):
         Y[m + gap.start:m + gap.stop] = 0
@@ -513,6 +518,24 @@ def _one_wave_vector_fast(V, k, sigma, H, W, nx, psi, dphi, mod, work, *, taps,
     ry = sy / ny - k[1]
     if ry != 0:
         A *= np.exp(2j * math.pi * ry * np.arange(-m, H + m)).astype(cdtype)[:, None]
+    return A, (xruns, sx)
+
+
+def _one_wave_vector_fast(V, k, sigma, H, W, nx, psi, dphi, mod, work, *, taps,
+                          chunk: int):
+    """:func:`_one_wave_vector` with the derivatives from ``Psi`` alone (see :func:`_wft`).
+
+    One inverse transform per wave vector: along y for the band's columns, then along
+    x by blocks of rows, transposed (x along the rows of the block) so that the
+    differentiator along x is a matrix product over rows, as the one along y is on
+    the finished rows of ``psi``, a block behind. The transform is demodulated (the
+    carrier's residual too) before it is differentiated, and rows and columns just
+    outside the image come from the periodic transform, as the exact path's do.
+    """
+    cdtype = V.dtype
+    rdtype = mod.dtype
+    m = taps.size
+    A, (xruns, sx) = _along_y(V, k, sigma, H, nx, m, work)
 
     # along x, by blocks of (extended) rows, transposed: XT[m + x, i] for x = -m ..
     Wt = -(-W // _TILE) * _TILE  # whole tiles of the x differentiator
@@ -531,20 +554,10 @@ def _one_wave_vector_fast(V, k, sigma, H, W, nx, psi, dphi, mod, work, *, taps,
     rinv = work.get("rinv", ((h_max + m + _YROWS) * W,), rdtype)
     it = np.dtype(rdtype).itemsize
 
-    def rows_of_psi(lo, hi):
-        """psi rows lo..hi-1 (-m <= lo), the halo and zeros beyond, contiguous."""
-        if lo >= 0 and hi <= H:
-            return psi[lo:hi]
-        out = src_buf[:hi - lo]
-        for r in range(lo, hi):
-            out[r - lo] = (halo[m + r] if r < 0 else psi[r] if r < H
-                           else halo[m + r - H] if r < H + m else 0)
-        return out
-
     def along_y(y0, y1):
         # rows y0..y1: d phi/dy = Im(conj(psi) D psi) / |psi|^2
         n = -(-(y1 - y0) // _YROWS) * _YROWS
-        src = rows_of_psi(y0 - m, y0 + n + m)
+        src = _psi_rows(psi, halo, src_buf, m, y0 - m, y0 + n + m)
         _filter_rows(Ty, src.view(rdtype), dy[:n].view(rdtype))
         c = cc[:(y1 - y0) * W].reshape(y1 - y0, W)
         np.conjugate(psi[y0:y1], out=c)
