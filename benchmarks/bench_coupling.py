@@ -56,7 +56,7 @@ def main(argv=None):
     if args.keep_freed and not keep_freed_memory():
         parser.error("--keep-freed needs glibc's malloc")
     print(machine())
-    compiled = _transform._kernels() is not None
+    compiled = _transform.compiled_loops() is not None
     print(f"compiled loops: {'numba' if compiled else 'not available (numba missing)'}; "
           f"freed memory {'kept' if args.keep_freed else 'returned (malloc default)'}; "
           f"{'float32' if args.float32 else 'float64'} images")

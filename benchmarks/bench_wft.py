@@ -229,7 +229,7 @@ def main(argv=None):
     args = ap.parse_args(argv)
 
     print(f"machine: {machine()}")
-    compiled = _impl._kernels() is not None
+    compiled = _impl.compiled_loops() is not None
     if compiled:
         with tempfile.TemporaryDirectory() as cache:
             cold = first_call_seconds(cache)
