@@ -47,6 +47,7 @@ __all__ = [
     "check_sigma",
     "check_type",
     "check_workers",
+    "exact_in_float32",
     "float_dtype",
     "freeze_arrays",
     "image_array",
@@ -56,6 +57,14 @@ __all__ = [
 def float_dtype(dtype) -> np.dtype:
     """The computation dtype for input of ``dtype`` (float32 stays float32)."""
     return np.dtype(np.float32) if np.dtype(dtype) == np.float32 else np.dtype(np.float64)
+
+
+def exact_in_float32(dtype) -> bool:
+    """Whether every value of ``dtype`` is exact in float32: integers of at most 16
+    bits, the frames that are transformed (method B) or summed (the compiled pass) as
+    they are stored (:mod:`gridstrain.conventions`, precision)."""
+    dt = np.dtype(dtype)
+    return dt.kind in "ui" and dt.itemsize <= 2
 
 
 def as_image(image, name: str = "image", *, allow_uniform: bool = False,

@@ -18,6 +18,7 @@ from .._runtime.threads import THREADED_PIXELS, map_bounded
 from .._stats import median
 from .._validation import (
     check_workers,
+    exact_in_float32,
 )
 from ..kinematics import PairMatch, pair_match
 from ..phase import (
@@ -531,8 +532,7 @@ def _transformed_image(s, mean: np.ndarray) -> np.ndarray:
     transforms each of its frames: its transform and the correction of its
     phase-modulus coupling take a third of float64's time, and the correction writes
     its maps in float64 (:mod:`gridstrain.conventions`, precision)."""
-    dt = np.dtype(s.dtype)
-    if s.n_frames == 1 and dt.kind in "ui" and dt.itemsize <= 2:
+    if s.n_frames == 1 and exact_in_float32(s.dtype):
         return mean.astype(np.float32)
     return mean
 

@@ -15,6 +15,7 @@ from scipy.linalg import blas
 from .._validation import (
     as_image,
     as_shifts,
+    exact_in_float32,
     float_dtype,
     image_array,
 )
@@ -194,7 +195,7 @@ def _transform_input(frame, name: str = "frame") -> tuple[np.ndarray, np.dtype]:
     precision (:func:`gridstrain._validation.as_image`).
     """
     raw = image_array(frame, name)
-    if raw.dtype.kind in "ui" and raw.dtype.itemsize <= 2:
+    if exact_in_float32(raw.dtype):
         return as_image(raw, name, dtype=np.float32), np.dtype(np.float64)
     img = as_image(raw, name)
     return img, img.dtype

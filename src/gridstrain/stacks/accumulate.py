@@ -64,7 +64,7 @@ import numpy as np
 from scipy import linalg
 from scipy.linalg import blas
 
-from .._validation import check_type
+from .._validation import check_type, exact_in_float32
 from ..phase import Lattice, Window, compiled_loops
 from ._accumulators import FrameOrder, PhaseMean, StackResult, compensated_result
 from .screening import _RESIDUAL_FRAMES, FrameProbe, FrameScreen, decide
@@ -471,7 +471,7 @@ class SeriesPass:
     def _raw_dtype(arr: np.ndarray) -> np.dtype:
         """How a frame waits in the batch: as read (integers of at most 16 bits, the
         compiled loop there to sum them), else as its float64 difference."""
-        if arr.dtype.kind in "ui" and arr.dtype.itemsize <= 2 and compiled_loops() is not None:
+        if exact_in_float32(arr.dtype) and compiled_loops() is not None:
             return arr.dtype
         return np.dtype(np.float64)
 
