@@ -32,17 +32,17 @@ import numpy as np
 from _common import grid_test_image, interleaved, machine
 from gridstrain import wft
 from gridstrain._runtime.threads import keep_freed_memory
-from gridstrain.phase import _transform, coupling_corrected
+from gridstrain.phase import _maps, coupling_corrected
 
 
 def _numpy_path(maps):
     """:func:`coupling_corrected` with the compiled loops switched off."""
-    saved = _transform._COMPILED
-    _transform._COMPILED = False
+    saved = _maps._COMPILED
+    _maps._COMPILED = False
     try:
         return coupling_corrected(maps)
     finally:
-        _transform._COMPILED = saved
+        _maps._COMPILED = saved
 
 
 def main(argv=None):
@@ -56,7 +56,7 @@ def main(argv=None):
     if args.keep_freed and not keep_freed_memory():
         parser.error("--keep-freed needs glibc's malloc")
     print(machine())
-    compiled = _transform.compiled_loops() is not None
+    compiled = _maps.compiled_loops() is not None
     print(f"compiled loops: {'numba' if compiled else 'not available (numba missing)'}; "
           f"freed memory {'kept' if args.keep_freed else 'returned (malloc default)'}; "
           f"{'float32' if args.float32 else 'float64'} images")

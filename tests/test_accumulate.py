@@ -269,11 +269,11 @@ def test_stacks_method_b_is_the_direct_average(data):
 
 @pytest.mark.parametrize("compiled", [True, False])
 def test_integer_frames_as_read_give_the_direct_sums(data, compiled, monkeypatch):
-    from gridstrain.phase import _transform as _wft
+    from gridstrain.phase import _maps as phase_maps
 
-    if compiled and _wft._load_kernels() is None:
+    if compiled and phase_maps._load_kernels() is None:
         pytest.skip("the compiled loops need numba (the fast extra)")
-    monkeypatch.setattr(_wft, "_COMPILED", compiled)
+    monkeypatch.setattr(phase_maps, "_COMPILED", compiled)
     frames, _ = data
     raw = frames.astype(np.uint16)  # 12-bit levels stored x16: exact in uint16
     bad = raw.copy()
@@ -294,15 +294,15 @@ def test_integer_frames_as_read_give_the_direct_sums(data, compiled, monkeypatch
 
 
 def test_compiled_and_numpy_sums_agree_for_method_c(data, monkeypatch):
-    from gridstrain.phase import _transform as _wft
+    from gridstrain.phase import _maps as phase_maps
 
-    if _wft._load_kernels() is None:
+    if phase_maps._load_kernels() is None:
         pytest.skip("the compiled loops need numba (the fast extra)")
     frames, _ = data
     raw = frames.astype(np.uint16)
     out = {}
     for compiled in (True, False):
-        monkeypatch.setattr(_wft, "_COMPILED", compiled)
+        monkeypatch.setattr(phase_maps, "_COMPILED", compiled)
         acc = _pass(raw, "C", chunks=3)
         acc.remove(7, raw[7])
         acc._flush()
@@ -345,13 +345,13 @@ def test_a_frame_read_as_float_leaves_the_raw_batch_exact(data):
 
 
 def test_raw_frames_pending_when_the_compiled_loops_are_switched_off(data, monkeypatch):
-    from gridstrain.phase import _transform as _wft
+    from gridstrain.phase import _maps as phase_maps
 
-    if _wft._load_kernels() is None:
+    if phase_maps._load_kernels() is None:
         pytest.skip("the compiled loops need numba (the fast extra)")
     frames, _ = data
     acc = _pending_raw_pass(frames.astype(np.uint16))
-    monkeypatch.setattr(_wft, "_COMPILED", False)
+    monkeypatch.setattr(phase_maps, "_COMPILED", False)
     # flushed by numpy instead: the same sums
     _assert_direct_sums(acc.statistics(), frames, list(range(12)))
 

@@ -140,9 +140,9 @@ def test_float32_maps_stay_float32():
 
 @pytest.mark.parametrize("compiled", [True, False])
 def test_float32_maps_corrected_into_float64(compiled, monkeypatch):
-    from gridstrain.phase import _transform
+    from gridstrain.phase import _maps as phase_maps
 
-    monkeypatch.setattr(_transform, "_COMPILED", compiled)
+    monkeypatch.setattr(phase_maps, "_COMPILED", compiled)
     img, _, _ = _scene(1.5, 0.5, 4.0)
     lat = Lattice.from_pitch(PITCH)
     pm32 = wft(img.astype(np.float32), lat, sigma=SIGMA)
@@ -179,21 +179,21 @@ def _strained_scene():
 
 
 def _both_paths(pm, monkeypatch):
-    from gridstrain.phase import _transform
+    from gridstrain.phase import _maps as phase_maps
 
     compiled = coupling_corrected(pm)
     with monkeypatch.context() as patch:
-        patch.setattr(_transform, "_COMPILED", False)
+        patch.setattr(phase_maps, "_COMPILED", False)
         numpy = coupling_corrected(pm)
     return compiled, numpy
 
 
 @pytest.fixture
 def kernels():
-    from gridstrain.phase import _transform
+    from gridstrain.phase import _maps as phase_maps
 
     pytest.importorskip("numba")
-    assert _transform.compiled_loops() is not None
+    assert phase_maps.compiled_loops() is not None
 
 
 @pytest.mark.parametrize("dtype", [np.float64, np.float32])
@@ -241,11 +241,11 @@ def test_undefined_values_are_left_uncorrected_by_both_paths(kernels, monkeypatc
 
 @pytest.mark.parametrize("compiled", [True, False])
 def test_an_image_scaled_by_a_power_of_two_gives_the_same_maps(compiled, monkeypatch):
-    from gridstrain.phase import _transform
+    from gridstrain.phase import _maps as phase_maps
 
-    if compiled and _transform.compiled_loops() is None:
+    if compiled and phase_maps.compiled_loops() is None:
         pytest.skip("the compiled loops need numba (the fast extra)")
-    monkeypatch.setattr(_transform, "_COMPILED", compiled)
+    monkeypatch.setattr(phase_maps, "_COMPILED", compiled)
     img, _ = _strained_scene()
     lat = Lattice.from_pitch(5.0)
     one = coupling_corrected(wft(img, lat))

@@ -109,7 +109,7 @@ def test_without_vibration_method_c_is_method_a(monkeypatch):
     # mean image; the two paths differ by rounding only, once method A takes the
     # exact derivatives as method C does (not the compiled filter wft's default
     # takes with numba, within 4e-8 rad/px of them: tests/test_wft_kernel.py)
-    monkeypatch.setattr(importlib.import_module("gridstrain.phase._transform"), "_COMPILED", False)
+    monkeypatch.setattr(importlib.import_module("gridstrain.phase._maps"), "_COMPILED", False)
     rng = np.random.default_rng(2)
     frames = [noisy(grid((80, 90)), rng) for _ in range(5)]
     a = method_a(frames, LAT).maps

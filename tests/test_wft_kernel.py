@@ -20,6 +20,7 @@ import numpy as np
 import pytest
 
 import gridstrain
+import gridstrain.phase._maps as phase_maps
 import gridstrain.phase._transform as impl
 from gridstrain import Lattice, wft
 from gridstrain._runtime.fft import name as fft_name
@@ -36,7 +37,7 @@ BOUND = {np.float64: 1e-7, np.float32: 1e-6}
 def compiled():
     """The compiled loops (the tests that need them are skipped without numba)."""
     pytest.importorskip("numba")
-    kern = impl.compiled_loops()
+    kern = phase_maps.compiled_loops()
     assert kern is not None
     return kern
 
@@ -108,7 +109,7 @@ def test_compiled_equals_the_numpy_filter_to_rounding(compiled, monkeypatch, dty
     lat, img = _modulated_grid((140, 160), angle=23.0)
     img = img + np.random.default_rng(8).normal(0.0, 20.0, img.shape)
     mine = wft(img.astype(dtype), lat, sigma=6.1, derivatives="fast")
-    monkeypatch.setattr(impl, "_COMPILED", False)
+    monkeypatch.setattr(phase_maps, "_COMPILED", False)
     ref = wft(img.astype(dtype), lat, sigma=6.1, derivatives="fast")
     np.testing.assert_array_equal(mine.valid, ref.valid)
     v = ref.valid
@@ -129,7 +130,7 @@ def test_no_signal_gives_undefined_derivatives_as_numpy_does(compiled, monkeypat
     mask = img > 0
     lat = Lattice.from_pitch(5.0, angle=10.0)
     mine = wft(img, lat, mask=mask, derivatives="fast")
-    monkeypatch.setattr(impl, "_COMPILED", False)
+    monkeypatch.setattr(phase_maps, "_COMPILED", False)
     ref = wft(img, lat, mask=mask, derivatives="fast")
     assert np.all(mine.psi == 0)
     assert np.all(np.isnan(mine.dphi))
@@ -190,7 +191,7 @@ def test_compiled_sink_hands_over_the_same_maps(compiled, monkeypatch, dtype, wo
 def test_sink_without_the_compiled_loops_streams_the_exact_maps(monkeypatch):
     # the numpy fast path keeps whole maps: asked to stream, it computes the exact
     # derivatives, block by block
-    monkeypatch.setattr(impl, "_COMPILED", False)
+    monkeypatch.setattr(phase_maps, "_COMPILED", False)
     lat, img = _modulated_grid((96, 110))
     calls = _spy(monkeypatch)
     fast = _streamed(img, lat, derivatives="fast")
@@ -218,9 +219,9 @@ def test_without_numba_the_numpy_paths_run(monkeypatch):
     # test (monkeypatch restores both); the uncompiled one imported here never stays
     monkeypatch.delitem(sys.modules, "gridstrain.phase._kernels", raising=False)
     monkeypatch.delattr(gridstrain.phase, "_kernels", raising=False)
-    impl._load_kernels.cache_clear()
+    phase_maps._load_kernels.cache_clear()
     try:
-        assert impl.compiled_loops() is None
+        assert phase_maps.compiled_loops() is None
         calls = _spy(monkeypatch)
         lat, img = _modulated_grid((96, 96))
         default = wft(img, lat)
@@ -239,7 +240,7 @@ def test_without_numba_the_numpy_paths_run(monkeypatch):
         assert np.max(np.abs(fast.dphi - exact.dphi)[:, :, exact.valid]) < 4e-8
         assert calls == []
     finally:
-        impl._load_kernels.cache_clear()
+        phase_maps._load_kernels.cache_clear()
         sys.modules.pop("gridstrain.phase._kernels", None)
         if hasattr(gridstrain.phase, "_kernels"):
             delattr(gridstrain.phase, "_kernels")
@@ -312,3 +313,19 @@ def test_compiled_sums_skip_the_direction_where_psi_is_zero(compiled):
     compiled.add_unit_sums(psi.view(np.float64), mod, dphi, unit, msum, dsum, 1.0, -1.0)
     np.testing.assert_allclose(unit, 1, rtol=1e-15)  # taken out again
     np.testing.assert_allclose(dsum, 1, rtol=1e-15)
+
+
+def test_the_phase_folders_compiled_loops_have_one_switch(monkeypatch):
+    """The transform, the coupling correction and the carrier's move ask one switch
+    (``gridstrain.phase._maps._COMPILED``): turned off there, none of them sees the
+    compiled loops, and no other module holds a switch of its own that a test could
+    patch while the loops it meant to turn off still ran."""
+    import gridstrain.phase._coupling as coupling
+
+    pytest.importorskip("numba")
+    for module in (impl, coupling, phase_maps):
+        assert module.compiled_loops() is not None
+    assert not hasattr(impl, "_COMPILED") and not hasattr(coupling, "_COMPILED")
+    monkeypatch.setattr(phase_maps, "_COMPILED", False)
+    for module in (impl, coupling, phase_maps):
+        assert module.compiled_loops() is None

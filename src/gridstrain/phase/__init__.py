@@ -25,6 +25,7 @@ from ._edges import (
     transform_to_edges,
 )
 from ._maps import PhaseMaps, demodulated_at, finite_derivatives
+from ._maps import compiled_loops as compiled_loops
 from ._maps import demodulated_in_place as demodulated_in_place
 
 # shared with gridstrain's other folders, not part of the public API
@@ -32,7 +33,6 @@ from ._spectrum import spectrum_block as spectrum_block
 from ._spectrum import transfer_function
 from ._transform import DEFAULT_MARGIN, transform, wft, wft_complex
 from ._transform import Workspace as Workspace
-from ._transform import compiled_loops as compiled_loops
 from ._validity import filled_box as filled_box
 from ._validity import no_grid
 from .lattice import Lattice, detect_lattice, follow_lattice

@@ -15,8 +15,8 @@ import numpy as np
 from scipy import ndimage
 
 from .._validation import check_float_dtype
-from ._maps import PhaseMaps
-from ._transform import _differentiator, compiled_loops
+from ._maps import PhaseMaps, compiled_loops
+from ._transform import _differentiator
 
 # The largest correction, rad: well above the coupling of print defects at a mismatch of
 # a few degrees (0.01-0.05 rad, which tanh leaves within 0.2 % at 0.02 / 0.2), well below

@@ -1,7 +1,7 @@
 """Compiled loops of the windowed Fourier transform and of its coupling correction
 (numba, the ``fast`` extra).
 
-Imported only by :func:`gridstrain.phase._transform._load_kernels`, on the first
+Imported only by :func:`gridstrain.phase._maps._load_kernels`, on the first
 transform or correction that uses them, never when gridstrain is imported: numba's own
 import takes a few hundred milliseconds, and compiling takes seconds the first time
 (the machine code is then cached on disk, ``cache=True``, and loaded in about a tenth

@@ -68,16 +68,26 @@ class PhaseMaps:
                 f"{self.valid.mean():.1%} valid, {self.lattice!r})")
 
 
-# The carrier's move by the compiled loop of gridstrain.phase._kernels (numba, the "fast"
-# extra), when installed; False forces numpy's two products.
+# The phase folder's compiled loops (gridstrain.phase._kernels: numba, the "fast" extra)
+# for the transform's derivatives, the coupling correction and the carrier's move, when
+# installed: loaded on the first use, never at import. The one switch of them all: False
+# forces the numpy paths (what a machine without numba runs), which tests set to compare
+# the two.
 _COMPILED = True
 
 
 @functools.cache
 def _load_kernels():
     """The module of the phase folder's compiled loops (:mod:`gridstrain.phase._kernels`,
-    :func:`gridstrain._runtime.compiled.load`), or None: the transform's too."""
+    :func:`gridstrain._runtime.compiled.load`), or None without numba."""
     return compiled.load(__package__, "._kernels")
+
+
+def compiled_loops():
+    """The module of the phase folder's compiled loops (:mod:`gridstrain.phase._kernels`),
+    or None where numba is not installed or the loops are switched off
+    (:data:`_COMPILED`)."""
+    return _load_kernels() if _COMPILED else None
 
 
 def demodulated_at(pm: PhaseMaps, lattice: Lattice) -> PhaseMaps:
@@ -107,7 +117,7 @@ def _carrier_moved(pm: PhaseMaps, psi: np.ndarray, dphi: np.ndarray,
     ctype = psi.dtype
     x = np.arange(W, dtype=np.float64)
     y = np.arange(H, dtype=np.float64)
-    kern = _load_kernels() if _COMPILED else None
+    kern = compiled_loops()
     real = np.finfo(ctype).dtype
     for j in range(2):
         ex = np.exp(2j * np.pi * dk[j, 0] * x).astype(ctype)

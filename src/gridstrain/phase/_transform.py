@@ -28,7 +28,7 @@ from .._validation import (
     check_workers,
 )
 from ._exact import _ifft, _one_wave_vector
-from ._maps import PhaseMaps, _load_kernels
+from ._maps import PhaseMaps, compiled_loops
 from ._spectrum import _axis_band, spectrum_block, transfer_function
 from ._validity import _gaps, _region, _shows_grid
 from .lattice import Lattice
@@ -180,8 +180,9 @@ def _wft(image, lattice: Lattice, *, sigma: float | None = None, mask=None,
 
     ``derivatives="fast"``: ``Psi`` alone, differentiated by a least-squares filter
     (:func:`wft`'s Notes, :func:`_differentiator`), in the compiled loops of
-    :mod:`gridstrain.phase._kernels` when numba is there (``_COMPILED``), in numpy
-    otherwise; the exact path where the window is too narrow for a short filter.
+    :mod:`gridstrain.phase._kernels` when numba is there
+    (:func:`~gridstrain.phase.compiled_loops`), in numpy otherwise; the exact path
+    where the window is too narrow for a short filter.
 
     ``sink`` (exact derivatives, or fast ones in the compiled loops; the numpy fast
     path computes the exact ones instead): instead of keeping the maps, hand each
@@ -614,22 +615,12 @@ def _one_wave_vector_fast(V, k, sigma, H, W, nx, psi, dphi, mod, work, *, taps,
             done = ylim
 
 
-# Phase derivatives from Psi by the compiled loops of gridstrain.phase._kernels (numba, the
-# "fast" extra), when installed: loaded on the first transform that needs them, never
-# at import. False forces the numpy paths (what a machine without numba runs).
-_COMPILED = True
+# Phase derivatives from Psi by the compiled loops of gridstrain.phase._kernels when
+# installed (gridstrain.phase._maps.compiled_loops, and its one switch).
 # Bytes of one block of rows of the compiled path's inverse FFT along x: the block,
 # and the rows of the demodulated planes it fills, stay in cache until the compiled
 # loop reads them.
 _COMPILED_CHUNK_BYTES = 2**19
-
-
-def compiled_loops():
-    """The module of the phase folder's compiled loops (:mod:`gridstrain.phase._kernels`,
-    loaded by :func:`_load_kernels`), or None where numba is not installed or the
-    loops are switched off (``_COMPILED``, which tests turn off to compare them with
-    numpy's)."""
-    return _load_kernels() if _COMPILED else None
 
 
 def _one_wave_vector_compiled(V, k, sigma, H, W, nx, psi, dphi, mod, work, *, taps,
