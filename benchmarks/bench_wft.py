@@ -60,15 +60,18 @@ from gridstrain.phase._transform import _PAD_SIGMAS, _wft
 
 _fft = importlib.import_module("gridstrain._runtime.fft")
 _impl = importlib.import_module("gridstrain.phase._transform")
+# the phase folder's compiled loops and their one switch
+_loops = importlib.import_module("gridstrain.phase._maps")
 
 
 def numpy_fast(img, lattice, workers):
     """``derivatives="fast"`` with the compiled loops switched off."""
-    _impl._COMPILED = False
+    saved = _loops._COMPILED
+    _loops._COMPILED = False
     try:
         return _wft(img, lattice, derivatives="fast", workers=workers)
     finally:
-        _impl._COMPILED = True
+        _loops._COMPILED = saved
 
 
 _FIRST_CALL = """
@@ -229,7 +232,7 @@ def main(argv=None):
     args = ap.parse_args(argv)
 
     print(f"machine: {machine()}")
-    compiled = _impl.compiled_loops() is not None
+    compiled = _loops.compiled_loops() is not None
     if compiled:
         with tempfile.TemporaryDirectory() as cache:
             cold = first_call_seconds(cache)

@@ -56,11 +56,22 @@ def _missing(path: Path) -> list[str]:
                 if isinstance(obj, types.ModuleType):
                     modules[a.asname or a.name] = obj
     for node in ast.walk(tree):
+        # read or assigned: a switch set on a module that no longer has it (a flag
+        # moved elsewhere) creates an attribute nothing reads, and the script silently
+        # runs what it meant to switch off
         if isinstance(node, ast.Attribute) and isinstance(node.value, ast.Name) \
-                and node.value.id in modules and isinstance(node.ctx, ast.Load):
+                and node.value.id in modules:
             mod = modules[node.value.id]
             if not hasattr(mod, node.attr):
                 missing.append(f"{mod.__name__}.{node.attr} (line {node.lineno})")
+        elif isinstance(node, ast.Call) and isinstance(node.func, ast.Name) \
+                and node.func.id == "setattr" and len(node.args) >= 2 \
+                and isinstance(node.args[0], ast.Name) and node.args[0].id in modules \
+                and isinstance(node.args[1], ast.Constant) \
+                and isinstance(node.args[1].value, str):
+            mod = modules[node.args[0].id]
+            if not hasattr(mod, node.args[1].value):
+                missing.append(f"{mod.__name__}.{node.args[1].value} (line {node.lineno})")
     return missing
 
 
@@ -81,7 +92,13 @@ def test_a_renamed_name_is_caught(tmp_path):
                       "from gridstrain.stacks import _PhaseMean\n"
                       "_impl = importlib.import_module('gridstrain.phase._transform')\n"
                       "def main():\n"
-                      "    return _transform._kernels(), impl.compiled_loops(), _impl._kernels\n")
-    assert _missing(script) == ["gridstrain.stacks._PhaseMean",
-                                "gridstrain.phase._transform._kernels (line 7)",
-                                "gridstrain.phase._transform._kernels (line 7)"]
+                      "    return _transform._kernels(), impl.compiled_loops(), _impl._kernels\n"
+                      "def numpy_path():\n"
+                      "    _impl._SWITCH = False\n"
+                      "    setattr(impl, '_SWITCH', False)\n")
+    assert sorted(_missing(script)) == sorted([
+        "gridstrain.stacks._PhaseMean",
+        "gridstrain.phase._transform._kernels (line 7)",
+        "gridstrain.phase._transform._kernels (line 7)",
+        "gridstrain.phase._transform._SWITCH (line 9)",
+        "gridstrain.phase._transform._SWITCH (line 10)"])

@@ -325,7 +325,8 @@ def test_the_phase_folders_compiled_loops_have_one_switch(monkeypatch):
     pytest.importorskip("numba")
     for module in (impl, coupling, phase_maps):
         assert module.compiled_loops() is not None
-    assert not hasattr(impl, "_COMPILED") and not hasattr(coupling, "_COMPILED")
+    assert not hasattr(impl, "_COMPILED")
+    assert not hasattr(coupling, "_COMPILED")
     monkeypatch.setattr(phase_maps, "_COMPILED", False)
     for module in (impl, coupling, phase_maps):
         assert module.compiled_loops() is None

@@ -1,10 +1,10 @@
-"""Compiled loops of the windowed Fourier transform and of its coupling correction
-(numba, the ``fast`` extra).
+"""Compiled loops of the windowed Fourier transform, of its coupling correction, of the
+carrier's move and of method B's sums (numba, the ``fast`` extra).
 
 Imported only by :func:`gridstrain.phase._maps._load_kernels`, on the first
-transform or correction that uses them, never when gridstrain is imported: numba's own
-import takes a few hundred milliseconds, and compiling takes seconds the first time
-(the machine code is then cached on disk, ``cache=True``, and loaded in about a tenth
+transform, correction or move that uses them, never when gridstrain is imported:
+numba's own import takes a few hundred milliseconds, and compiling takes seconds the
+first time (the machine code is then cached on disk, ``cache=True``, and loaded in about a tenth
 of that).
 
 The loops are written for one dtype at a time: a float32 frame runs float32
