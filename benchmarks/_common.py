@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import math
 import os
 import platform
@@ -18,6 +19,20 @@ import scipy
 
 from gridstrain import Lattice
 from gridstrain.models import synthetic
+from gridstrain.phase import _maps as _phase_loops
+
+
+@contextlib.contextmanager
+def phase_loops_off():
+    """The phase folder's compiled loops switched off (its one switch,
+    ``gridstrain.phase._maps._COMPILED``) while the block runs: the numpy paths a
+    machine without numba runs, timed beside the compiled ones."""
+    saved = _phase_loops._COMPILED
+    _phase_loops._COMPILED = False
+    try:
+        yield
+    finally:
+        _phase_loops._COMPILED = saved
 
 
 def machine() -> str:

@@ -29,20 +29,16 @@ import argparse
 
 import numpy as np
 
-from _common import grid_test_image, interleaved, machine
+from _common import grid_test_image, interleaved, machine, phase_loops_off
 from gridstrain import wft
 from gridstrain._runtime.threads import keep_freed_memory
-from gridstrain.phase import _maps, coupling_corrected
+from gridstrain.phase import compiled_loops, coupling_corrected
 
 
 def _numpy_path(maps):
     """:func:`coupling_corrected` with the compiled loops switched off."""
-    saved = _maps._COMPILED
-    _maps._COMPILED = False
-    try:
+    with phase_loops_off():
         return coupling_corrected(maps)
-    finally:
-        _maps._COMPILED = saved
 
 
 def main(argv=None):
@@ -56,7 +52,7 @@ def main(argv=None):
     if args.keep_freed and not keep_freed_memory():
         parser.error("--keep-freed needs glibc's malloc")
     print(machine())
-    compiled = _maps.compiled_loops() is not None
+    compiled = compiled_loops() is not None
     print(f"compiled loops: {'numba' if compiled else 'not available (numba missing)'}; "
           f"freed memory {'kept' if args.keep_freed else 'returned (malloc default)'}; "
           f"{'float32' if args.float32 else 'float64'} images")

@@ -54,24 +54,19 @@ if __name__ == "__main__":  # before numpy loads OpenBLAS: its idle threads spin
 import numpy as np
 from scipy import fft as sfft
 
-from _common import grid_test_image, interleaved, machine
+from _common import grid_test_image, interleaved, machine, phase_loops_off
 from gridstrain import wft
+from gridstrain.phase import compiled_loops
 from gridstrain.phase._transform import _PAD_SIGMAS, _wft
 
 _fft = importlib.import_module("gridstrain._runtime.fft")
 _impl = importlib.import_module("gridstrain.phase._transform")
-# the phase folder's compiled loops and their one switch
-_loops = importlib.import_module("gridstrain.phase._maps")
 
 
 def numpy_fast(img, lattice, workers):
     """``derivatives="fast"`` with the compiled loops switched off."""
-    saved = _loops._COMPILED
-    _loops._COMPILED = False
-    try:
+    with phase_loops_off():
         return _wft(img, lattice, derivatives="fast", workers=workers)
-    finally:
-        _loops._COMPILED = saved
 
 
 _FIRST_CALL = """
@@ -232,7 +227,7 @@ def main(argv=None):
     args = ap.parse_args(argv)
 
     print(f"machine: {machine()}")
-    compiled = _loops.compiled_loops() is not None
+    compiled = compiled_loops() is not None
     if compiled:
         with tempfile.TemporaryDirectory() as cache:
             cold = first_call_seconds(cache)

@@ -4,8 +4,8 @@ carrier's move and of method B's sums (numba, the ``fast`` extra).
 Imported only by :func:`gridstrain.phase._maps._load_kernels`, on the first
 transform, correction or move that uses them, never when gridstrain is imported:
 numba's own import takes a few hundred milliseconds, and compiling takes seconds the
-first time (the machine code is then cached on disk, ``cache=True``, and loaded in about a tenth
-of that).
+first time (the machine code is then cached on disk, ``cache=True``, and loaded in
+about a tenth of that).
 
 The loops are written for one dtype at a time: a float32 frame runs float32
 arithmetic throughout (no literal constant that would promote it to float64), and

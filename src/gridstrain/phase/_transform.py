@@ -615,9 +615,6 @@ def _one_wave_vector_fast(V, k, sigma, H, W, nx, psi, dphi, mod, work, *, taps,
             done = ylim
 
 
-# Phase derivatives from Psi by the compiled loops of gridstrain.phase._kernels when
-# installed (gridstrain.phase._maps.compiled_loops, and its one switch).
-
 # Bytes of one block of rows of the compiled path's inverse FFT along x: the block,
 # and the rows of the demodulated planes it fills, stay in cache until the compiled
 # loop reads them.
