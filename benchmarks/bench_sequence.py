@@ -23,7 +23,14 @@ before), 1.6 to 2 times as long. Then the CPU of each stage of a state
 (:data:`gridstrain.series._stages.STAGES`, and the pass's own steps), measured in this
 process between the progress messages that name them, over the ``--states`` record.
 
-    python benchmarks/bench_sequence.py [--states 130] [--short 30] [--repeat 3] [--memory 1000]
+With ``--alone``, the main computations of a state (its frame's reading, the carrier's
+search, the transform, the coupling correction, the kinematics, the summary's median
+modulus, the local noise, the uncertainty maps and the store) are timed inside the
+measurement and again alone (:func:`parts_alone`): the sum alone over the floor is
+what the state would cost if each ran at its own best, with nothing else around.
+
+    python benchmarks/bench_sequence.py [--states 130] [--short 30] [--repeat 3]
+        [--memory 1000] [--alone]
 """
 
 from __future__ import annotations
@@ -96,6 +103,81 @@ def stage_cpu(record: Path, out: Path, n: int) -> dict:
     return {k: v / n for k, v in cpu.items()}
 
 
+def parts_alone(record: Path, out: Path, n: int, *, after: int = 40,
+                repeat: int = 7) -> list[tuple[str, float, float, float]]:
+    """The main computations of a state, timed inside the measurement of ``record``
+    (``n`` states) and alone: ``(name, calls a state, ms a state inside, ms a state
+    alone)``.
+
+    Inside: the median CPU of a call, once ``after`` calls of it have run (numba's
+    compilations and the reference's first calls are over), times its calls a state.
+    Alone: two of its later calls run again ``repeat`` times at once on the same
+    arguments, the least taken, times its calls a state; the inputs are then warm in
+    the caches, so that this is the least that computation takes as written, what
+    a state would cost if nothing around it took the caches or the interpreter's
+    time. A guess field handed over to the kinematics is handed over anew to each run.
+    """
+    from gridstrain.kinematics import _deformation, tracking
+    from gridstrain.results import _file
+    from gridstrain.series import _floors, _loop, _passes, _records, measure_series
+
+    parts = (("the frame's pass (reading)", _loop, _loop._run_pass),
+             ("the carrier's search", _passes, _passes.state_carrier),
+             ("transform", _passes, _passes.transform),
+             ("coupling correction", _loop, _loop.coupling_corrected),
+             ("kinematics", tracking, tracking.deformation),
+             ("the summary's median modulus", _records, _records._median_modulus),
+             ("local noise", _floors._ReferenceFloor, _floors._ReferenceFloor._local),
+             ("uncertainty maps", _floors, _floors.std_from_phase_variance),
+             ("store", _file, _file._put_state))
+    inside: dict[str, list] = {}
+    alone: dict[str, list] = {}
+    calls: dict[str, int] = {}
+
+    def timed(name, f):
+        def run(*a, **k):
+            guess = k.get("guess")
+            field = guess.take() if isinstance(guess, _deformation._Handover) else None
+            if field is not None:
+                k["guess"] = _deformation._Handover(field)
+            c0 = time.process_time()
+            r = f(*a, **k)
+            dt = time.process_time() - c0
+            calls[name] = i = calls.get(name, 0) + 1
+            if i > after:
+                inside.setdefault(name, []).append(dt)
+            if i in (after + 20, after + 50):
+                best = np.inf
+                for _ in range(repeat):
+                    if field is not None:
+                        k["guess"] = _deformation._Handover(field)
+                    c0 = time.process_time()
+                    f(*a, **k)
+                    best = min(best, time.process_time() - c0)
+                alone.setdefault(name, []).append(best)
+            return r
+        return run
+
+    saved = []
+    for name, owner, f in parts:
+        # each function replaced where the measurement calls it, by its own name there
+        assert getattr(owner, f.__name__) is f, f"{owner.__name__}.{f.__name__}"
+        saved.append((owner, f.__name__, f))
+        setattr(owner, f.__name__, timed(name, f))
+    try:
+        measure_series(None, str(record), reference_frames=1, output=str(out))
+    finally:
+        for owner, attr, f in saved:
+            setattr(owner, attr, f)
+    rows = []
+    for name, _, _ in parts:
+        per = calls.get(name, 0) / n
+        if name in inside and name in alone:
+            rows.append((name, per, float(np.median(inside[name])) * per,
+                         min(alone[name]) * per))
+    return rows
+
+
 def run(cli, record: Path, out: Path, *, peak: bool = False) -> dict:
     return run_child([*cli, "measure", str(record), "--reference-frames", "1", "-o",
                       str(out), "--quiet", "--overwrite"], peak=peak)
@@ -107,6 +189,9 @@ def main() -> None:
     ap.add_argument("--short", type=int, default=30)
     ap.add_argument("--repeat", type=int, default=3,
                     help="runs of each record, interleaved; the least CPU time is taken")
+    ap.add_argument("--alone", action="store_true",
+                    help="also the main computations of a state timed alone, against "
+                    "their time inside the measurement (parts_alone)")
     ap.add_argument("--memory", type=int, default=0,
                     help="also the peak memory of a record of this many states against "
                     "--states (e.g. 1000)")
@@ -139,6 +224,8 @@ def main() -> None:
                   f"(least of {1 if n == args.memory else args.repeat}), "
                   f"peak {runs[n]['peak'] / 2**20:.0f} MiB")
         stages = stage_cpu(d / f"rec{args.states}.tif", d / "stages.h5", args.states)
+        parts = parts_alone(d / f"rec{args.states}.tif", d / "alone.h5", args.states) \
+            if args.alone else []
     per = (runs[args.states]["cpu"] - runs[args.short]["cpu"]) / (args.states - args.short)
     print(f"CPU per one-frame state of {SHAPE[0]} x {SHAPE[1]} px: {per * 1e3:.1f} ms; "
           f"FFT floor of a frame (float32 rfft2 + 2 ifft2): {least * 1e3:.2f} ms, ratio "
@@ -149,6 +236,16 @@ def main() -> None:
     for name, t in sorted(stages.items(), key=lambda kv: -kv[1]):
         if t * 1e3 >= 0.05:
             print(f"  {name:<24} {t * 1e3:7.1f}")
+    if parts:
+        print("the main computations of a state, ms a state: inside the measurement, and "
+              "alone (re-run at once on their inputs, the least of 7)")
+        for name, calls, t_in, t_alone in parts:
+            print(f"  {name:<30} {calls:4.2f} a state {t_in * 1e3:7.2f} {t_alone * 1e3:7.2f}")
+        t_in = sum(p[2] for p in parts)
+        t_alone = sum(p[3] for p in parts)
+        print(f"  {'together':<30} {'':11} {t_in * 1e3:7.2f} {t_alone * 1e3:7.2f} "
+              f"(alone: {t_alone / least:.1f} times the float32 floor; the state's "
+              f"other work inside: {(per - t_in) * 1e3:.1f} ms)")
     if args.memory:
         a, b = runs[args.states]["peak"], runs[args.memory]["peak"]
         print(f"peak memory {args.memory} states / {args.states} states: {b / a:.3f} "
