@@ -103,15 +103,16 @@ def stage_cpu(record: Path, out: Path, n: int) -> dict:
     return {k: v / n for k, v in cpu.items()}
 
 
-def parts_alone(record: Path, out: Path, n: int, *, after: int = 40,
+def parts_alone(record: Path, out: Path, n: int, *,
                 repeat: int = 7) -> list[tuple[str, float, float, float]]:
     """The main computations of a state, timed inside the measurement of ``record``
     (``n`` states) and alone: ``(name, calls a state, ms a state inside, ms a state
     alone)``.
 
-    Inside: the median CPU of a call, once ``after`` calls of it have run (numba's
-    compilations and the reference's first calls are over), times its calls a state.
-    Alone: two of its later calls run again ``repeat`` times at once on the same
+    Inside: the median CPU of a call, once the first third of the states' calls of it
+    have run (at most 40: numba's compilations and the reference's first calls are
+    over), times its calls a state. Alone: two of its later calls (a third and two
+    thirds of the way through the rest) run again ``repeat`` times at once on the same
     arguments, the least taken, times its calls a state; the inputs are then warm in
     the caches, so that this is the least that computation takes as written, what
     a state would cost if nothing around it took the caches or the interpreter's
@@ -130,6 +131,8 @@ def parts_alone(record: Path, out: Path, n: int, *, after: int = 40,
              ("local noise", _floors._ReferenceFloor, _floors._ReferenceFloor._local),
              ("uncertainty maps", _floors, _floors.std_from_phase_variance),
              ("store", _file, _file._put_state))
+    after = min(40, n // 3)
+    picks = (after + (n - after) // 3, after + 2 * (n - after) // 3)
     inside: dict[str, list] = {}
     alone: dict[str, list] = {}
     calls: dict[str, int] = {}
@@ -146,7 +149,7 @@ def parts_alone(record: Path, out: Path, n: int, *, after: int = 40,
             calls[name] = i = calls.get(name, 0) + 1
             if i > after:
                 inside.setdefault(name, []).append(dt)
-            if i in (after + 20, after + 50):
+            if i in picks:
                 best = np.inf
                 for _ in range(repeat):
                     if field is not None:
