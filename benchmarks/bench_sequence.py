@@ -23,11 +23,12 @@ before), 1.6 to 2 times as long. Then the CPU of each stage of a state
 (:data:`gridstrain.series._stages.STAGES`, and the pass's own steps), measured in this
 process between the progress messages that name them, over the ``--states`` record.
 
-With ``--alone``, the main computations of a state (its frame's reading, the carrier's
+With ``--alone``, the main computations of a state (its frame's pass, the carrier's
 search, the transform, the coupling correction, the kinematics, the summary's median
 modulus, the local noise, the uncertainty maps and the store) are timed inside the
-measurement and again alone (:func:`parts_alone`): the sum alone over the floor is
-what the state would cost if each ran at its own best, with nothing else around.
+measurement (the median and the least over its states) and again alone, two states'
+calls re-run on their inputs (:func:`parts_alone`); their sums are printed over the
+float32 floor.
 
     python benchmarks/bench_sequence.py [--states 130] [--short 30] [--repeat 3]
         [--memory 1000] [--alone]
@@ -104,25 +105,27 @@ def stage_cpu(record: Path, out: Path, n: int) -> dict:
 
 
 def parts_alone(record: Path, out: Path, n: int, *,
-                repeat: int = 7) -> list[tuple[str, float, float, float]]:
+                repeat: int = 7) -> list[tuple[str, float, float, float, float]]:
     """The main computations of a state, timed inside the measurement of ``record``
-    (``n`` states) and alone: ``(name, calls a state, ms a state inside, ms a state
-    alone)``.
+    (``n`` states) and alone: ``(name, calls a state, ms a state inside (median), ms a
+    state inside (least), ms a state alone)``.
 
-    Inside: the median CPU of a call, once the first third of the states' calls of it
-    have run (at most 40: numba's compilations and the reference's first calls are
-    over), times its calls a state. Alone: two of its later calls (a third and two
-    thirds of the way through the rest) run again ``repeat`` times at once on the same
-    arguments, the least taken, times its calls a state; the inputs are then warm in
-    the caches, so that this is the least that computation takes as written, what
-    a state would cost if nothing around it took the caches or the interpreter's
-    time. A guess field handed over to the kinematics is handed over anew to each run.
+    Inside: each call's CPU once the first third of its calls have run (at most 40:
+    numba's compilations and the reference's first calls are over), its median and
+    its least over the record, times its calls a state (the reference's calls
+    counted with the states'). Alone: two of its later calls (a third and two thirds
+    of the way through the rest) run again ``repeat`` times at once on the same
+    arguments, the least taken, times its calls a state: the cost of those two
+    states' calls with their inputs warm in the caches and nothing else running. A
+    guess field handed over to the kinematics is handed over anew to each run. A part
+    the measurement does not call through the name patched here, or calls too few
+    times to be timed, is an error, not a row left out.
     """
     from gridstrain.kinematics import _deformation, tracking
     from gridstrain.results import _file
     from gridstrain.series import _floors, _loop, _passes, _records, measure_series
 
-    parts = (("the frame's pass (reading)", _loop, _loop._run_pass),
+    parts = (("the frame's pass (read, probe)", _loop, _loop._run_pass),
              ("the carrier's search", _passes, _passes.state_carrier),
              ("transform", _passes, _passes.transform),
              ("coupling correction", _loop, _loop.coupling_corrected),
@@ -131,6 +134,9 @@ def parts_alone(record: Path, out: Path, n: int, *,
              ("local noise", _floors._ReferenceFloor, _floors._ReferenceFloor._local),
              ("uncertainty maps", _floors, _floors.std_from_phase_variance),
              ("store", _file, _file._put_state))
+    for _, owner, f in parts:  # each replaced where the measurement looks it up
+        if getattr(owner, f.__name__, None) is not f:
+            raise RuntimeError(f"{owner.__name__} holds no {f.__name__} of its own to time")
     after = min(40, n // 3)
     picks = (after + (n - after) // 3, after + 2 * (n - after) // 3)
     inside: dict[str, list] = {}
@@ -162,22 +168,22 @@ def parts_alone(record: Path, out: Path, n: int, *,
         return run
 
     saved = []
-    for name, owner, f in parts:
-        # each function replaced where the measurement calls it, by its own name there
-        assert getattr(owner, f.__name__) is f, f"{owner.__name__}.{f.__name__}"
-        saved.append((owner, f.__name__, f))
-        setattr(owner, f.__name__, timed(name, f))
     try:
+        for name, owner, f in parts:
+            saved.append((owner, f.__name__, f))
+            setattr(owner, f.__name__, timed(name, f))
         measure_series(None, str(record), reference_frames=1, output=str(out))
     finally:
         for owner, attr, f in saved:
             setattr(owner, attr, f)
     rows = []
     for name, _, _ in parts:
-        per = calls.get(name, 0) / n
-        if name in inside and name in alone:
-            rows.append((name, per, float(np.median(inside[name])) * per,
-                         min(alone[name]) * per))
+        if len(alone.get(name, ())) < len(picks):
+            raise RuntimeError(f"{name}: called {calls.get(name, 0)} times over {n} states, "
+                               f"too few to be timed (its calls {picks} re-run alone)")
+        per = calls[name] / n
+        rows.append((name, per, float(np.median(inside[name])) * per,
+                     min(inside[name]) * per, min(alone[name]) * per))
     return rows
 
 
@@ -240,15 +246,17 @@ def main() -> None:
         if t * 1e3 >= 0.05:
             print(f"  {name:<24} {t * 1e3:7.1f}")
     if parts:
-        print("the main computations of a state, ms a state: inside the measurement, and "
-              "alone (re-run at once on their inputs, the least of 7)")
-        for name, calls, t_in, t_alone in parts:
-            print(f"  {name:<30} {calls:4.2f} a state {t_in * 1e3:7.2f} {t_alone * 1e3:7.2f}")
-        t_in = sum(p[2] for p in parts)
-        t_alone = sum(p[3] for p in parts)
-        print(f"  {'together':<30} {'':11} {t_in * 1e3:7.2f} {t_alone * 1e3:7.2f} "
-              f"(alone: {t_alone / least:.1f} times the float32 floor; the state's "
-              f"other work inside: {(per - t_in) * 1e3:.1f} ms)")
+        print("the main computations of a state, ms a state: inside the measurement (the "
+              "median and the least of its states), and alone (two states' calls re-run "
+              "at once on their inputs, the least of 7)")
+        print(f"  {'':<30} {'calls':>5} {'median':>7} {'least':>7} {'alone':>7}")
+        for name, calls, t_med, t_least, t_alone in parts:
+            print(f"  {name:<30} {calls:5.2f} {t_med * 1e3:7.2f} {t_least * 1e3:7.2f} "
+                  f"{t_alone * 1e3:7.2f}")
+        sums = [sum(p[k] for p in parts) for k in (2, 3, 4)]
+        print(f"  {'together':<30} {'':5} " + " ".join(f"{t * 1e3:7.2f}" for t in sums))
+        print("  over the float32 floor:" + " " * 14
+              + " ".join(f"{t / least:7.1f}" for t in sums))
     if args.memory:
         a, b = runs[args.states]["peak"], runs[args.memory]["peak"]
         print(f"peak memory {args.memory} states / {args.states} states: {b / a:.3f} "
