@@ -29,6 +29,7 @@ import pytest
 import tifffile
 
 import gridstrain
+from findings import said
 from gridstrain.results import load
 from world_camera import (
     Specimen,
@@ -148,8 +149,9 @@ def test_a_pair_of_different_specimens_is_named(tmp_path):
     paths = _pair(tmp_path, None, other=other)
     proc, out = _measure(tmp_path, *paths)
     if proc.returncode == 0:  # measured: one warning names the state's file and the reference
-        warnings = json.loads(proc.stdout)["warnings"]
-        assert [w for w in warnings if "def.tif" in w and "reference" in w], warnings
+        summary = json.loads(proc.stdout)
+        mismatch = said(summary, "pair.mismatch")
+        assert [w for w in mismatch if "def.tif" in w and "reference" in w], summary["warnings"]
     else:  # refused: one line naming both files, and no result
         lines = proc.stderr.strip().splitlines()
         assert len(lines) == 1, proc.stderr
@@ -195,7 +197,7 @@ def test_a_grid_of_narrow_lines_at_pitch_5(tmp_path, record_property):
     # harmonics' aliasing beside it; 2 % as for the pairs above
     assert beyond <= 0.02, (beyond, alias)
     # a median error six times the noise std (0.004 px) is said, not only bounded
-    assert [w for w in summary["warnings"] if "alias onto the carrier" in w]
+    assert said(summary, "aliasing.bound")
 
 # --- an edge crack ---------------------------------------------------------------
 
@@ -290,7 +292,7 @@ def test_a_strain_concentration_is_not_a_crack(tmp_path, record_property):
     record_property("valid", int(np.asarray(res.valid[0]).sum()))
     record_property("discontinuities", len(res.discontinuities[0]))
     assert not res.discontinuities[0], res.discontinuities[0]
-    assert not [w for w in summary["warnings"] if "jump" in w], summary["warnings"]
+    assert not said(summary, "jump.found", "jump.part"), summary["warnings"]
 
 # --- a stained checkerboard moved by almost two periods ---------------------------
 
@@ -345,9 +347,9 @@ def test_a_stained_checkerboard_moved_by_11_px_is_measured_not_confirmed(tmp_pat
     # a lamp's hot spot moved with the specimen by whole periods reads the same:
     # not confirmed, and the warning says so and why
     assert not order.confirmed, order.detail
-    said = [w for w in summary["warnings"] if "not confirmed" in w]
-    assert said, summary["warnings"]
-    assert "could be the light" in said[0], said
+    doubt = said(summary, "fringe_order.unconfirmed")
+    assert doubt, summary["warnings"]
+    assert "could be the light" in doubt[0], doubt
 
 
 # --- a load-step record ----------------------------------------------------------

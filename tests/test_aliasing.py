@@ -10,6 +10,7 @@ import math
 import numpy as np
 import pytest
 
+from findings import said
 from gridstrain import Lattice
 from gridstrain.series import measure_series
 from gridstrain.uncertainty import aliasing_bias
@@ -155,9 +156,9 @@ def test_harmonics_on_the_carrier_take_a_sharp_prints_bound():
     assert not any(r["measured"] for r in alias["harmonics"])
     # measured 0.022 px; the sharp print's bound, 0.14 px, holds
     assert np.all(np.abs(err).max(axis=1) <= np.array(alias["u_px_components"]))
-    said = [w for w in res.warnings if "alias onto the carrier" in w]
-    assert said
-    assert "cannot be seen in one image" in said[0]
+    bound = said(res.warnings, "aliasing.bound")
+    assert bound
+    assert "cannot be seen in one image" in bound[0]
 
 
 @pytest.mark.slow
@@ -172,13 +173,13 @@ def test_noisy_photographs_are_within_noise_plus_bound_and_warned(pitch, width):
     # 5 std is exceeded by 6e-7 of Gaussian noise; 2 % as the acceptance tests allow
     # for the window's bias where lighting and print vary
     assert np.mean(np.any(np.abs(err) > 5 * std + bound, axis=0)) <= 0.02
-    said = [w for w in res.warnings if "alias onto the carrier" in w]
+    warned = said(res.warnings, "aliasing.bound")
     if alias["u_px"] > 2 * float(np.median(std)):
-        assert said
-        assert "px" in said[0]
-        assert "sigma" in said[0]
+        assert warned
+        assert "px" in warned[0]
+        assert "sigma" in warned[0]
     else:
-        assert not said
+        assert not warned
 
 
 def test_a_sine_grid_states_a_small_bound_and_no_warning():
@@ -193,4 +194,4 @@ def test_a_sine_grid_states_a_small_bound_and_no_warning():
     # a sine has no harmonics: what is fitted at their folds is the noise's and the
     # lighting's, below twice the displacement noise, the level that is warned of
     assert res.systematic["aliasing"]["u_px"] < 2 * std
-    assert not any("alias" in w for w in res.warnings)
+    assert not said(res.warnings, "aliasing.bound")

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 import tifffile
 
+from findings import said
 from gridstrain import Lattice, __version__
 from gridstrain.cli import main
 from gridstrain.io import read_hdf5
@@ -172,7 +173,8 @@ def test_a_frame_of_another_state_is_excluded_and_named(tmp_path, capsys):
     assert "frame 5" in out.err
     assert "another state" in out.err
     assert summary["n_frames"] == 15
-    assert any("excluded 1 of 16 frames" in w for w in summary["warnings"])
+    (excluded,) = said(summary, "screening.flagged")
+    assert "excluded 1 of 16 frames" in excluded
     # the camera's gain, as without that frame (5 %: the statistical error of 15
     # frames of 160^2 is about 1 %)
     assert summary["noise"]["K_sensor"] == pytest.approx(0.28, rel=0.05)

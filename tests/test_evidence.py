@@ -19,6 +19,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from findings import said
 from gridstrain.kinematics import measure, pair_match
 from gridstrain.series import measure_series
 from lab_light import photograph, spots
@@ -53,7 +54,7 @@ def test_a_steep_continuous_gradient_is_followed_not_cut(pitch, printed, seed):
     cur = photograph((H, W), pitch, disp, defects=D, noise=rng, full=2000)
     res = measure_series(ref, cur)
     assert res.discontinuities == ((),)
-    assert not any("jump" in m for m in res.warnings), res.warnings
+    assert not said(res.warnings, "jump.found", "jump.part"), res.warnings
     v = np.asarray(res.valid[0])
     # the steep part is measured, not left out: its column holds the frame's band
     assert v[:, W // 2].sum() >= 0.9 * v[:, 40].sum()
@@ -79,7 +80,7 @@ def test_a_torn_grid_is_still_cut():
     (regions,) = res.discontinuities
     assert len(regions) == 1
     assert regions[0]["rows"][0] < 80.3 < regions[0]["rows"][1]
-    assert any("jumps" in m for m in res.warnings)
+    assert said(res.warnings, "jump.found")
     # px: the pixels left are right (noise 3e-3 px; a side a period off is 6.4 px)
     assert np.abs(_errors(res, 0, disp)).max() < 0.05
 
@@ -173,7 +174,7 @@ def test_a_highlight_moved_by_a_lattice_vector_is_not_the_specimen(pitch, glare_
     assert not (wrong and confirmed)
     assert not wrong  # the phases' smallest displacement is kept: right
     # no correction stated as a fact; the record says which evidence said what
-    assert not any("it is now" in m for m in res.warnings), res.warnings
+    assert not said(res.warnings, "fringe_order.corrected"), res.warnings
     assert "the grid's own modulus does not show them" in res.fringe_orders[0].detail
 
 
@@ -316,7 +317,7 @@ def test_an_ordinary_tensile_test_is_confirmed_by_following(pitch):
                for r, n in zip(records[1:], res.names[1:-1], strict=True))
     assert all(r.step < 0.05 for r in records)
     # no flag on an ordinary state: no doubt on the order, none on the strain
-    assert not any("not confirmed" in m or "may be off" in m for m in res.warnings), \
+    assert not said(res.warnings, "fringe_order.unconfirmed", "fringe_order.inherited"), \
         res.warnings
 
 

@@ -22,6 +22,7 @@ import numpy as np
 import pytest
 import tifffile
 
+from findings import said
 from gridstrain import Lattice, wft
 from gridstrain.cli import main
 from gridstrain.kinematics import deformation
@@ -156,9 +157,8 @@ def test_nothing_that_moves_with_the_specimen_leaves_the_order_unconfirmed(kind,
     e = res.strain[0]
     err = np.abs(np.stack([e[0][v] - 1e-3, e[1][v] + 5e-4, e[2][v]])).max(axis=0)
     assert 0 < order.strain_if_off < 2 * np.percentile(err, 95)
-    said = [w for w in res.warnings if "not confirmed" in w]
-    assert len(said) == 1
-    assert "strain may be off too" in said[0]
+    (doubt,) = said(res.warnings, "fringe_order.unconfirmed")
+    assert "strain may be off too" in doubt
 
 
 def test_strain_if_off_is_the_strain_a_period_away():

@@ -11,6 +11,7 @@ import pytest
 import tifffile
 from numpy.testing import assert_allclose, assert_array_equal
 
+from findings import said
 from gridstrain.cli import main
 from gridstrain.results import load, read_attrs
 from gridstrain.series import measure_series
@@ -59,7 +60,7 @@ def test_rgb_tiff_series_gives_the_maps_of_its_luminance(tmp_path):
             tifffile.imwrite(tmp_path / f"{name}_grey" / f"f{k}.tif", g,
                              photometric="minisblack")
     colour = measure_series(tmp_path / "ref", tmp_path / "cur", lattice=None)
-    assert any("colour frames (RGB)" in w for w in colour.warnings)
+    assert any("colour frames (RGB)" in w for w in said(colour.warnings, "input"))
 
     def lum(frames):
         rgb = [np.stack([g, np.clip(g * 0.9 + 12, 0, 255).astype(np.uint8), g // 2],
@@ -88,7 +89,7 @@ def test_jpeg_pair(tmp_path):
         g = _u8(_grid(strain), rng)
         iio.imwrite(tmp_path / name, np.stack([g, g, g], -1), quality=95)
     res = measure_series(tmp_path / "ref.jpg", tmp_path / "def.jpg")
-    assert any("JPEG" in w for w in res.warnings)
+    assert any("JPEG" in w for w in said(res.warnings, "input"))
     # oracle: the decoded JPEG pixels, made grey by hand
     decoded = [iio.imread(tmp_path / n).astype(float) @ [0.2126, 0.7152, 0.0722]
                for n in ("ref.jpg", "def.jpg")]

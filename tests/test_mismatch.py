@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 import tifffile
 
+from findings import said
 from gridstrain import measure_series
 from gridstrain.kinematics import pair_match
 from independent_grid import camera, scene
@@ -92,7 +93,7 @@ def _pair_record(res):
 
 
 def _mismatch_warnings(res):
-    return [w for w in res.warnings if "same specimen" in w]
+    return said(res.warnings, "pair.mismatch")
 
 
 TRUE_PAIRS = {

@@ -13,6 +13,14 @@ from ..results import MAP_FIELDS, SeriesResult
 from ..uncertainty import FWHM_PER_SIGMA, SPATIAL_RESOLUTION_PER_SIGMA
 
 
+def findings_json(found) -> list[dict]:
+    """A JSON summary's ``"findings"``: each of ``found`` (the summary's ``"warnings"``,
+    in their order) with its code, severity, state and figures, for a reader that
+    selects them by code."""
+    return [{"code": w.code, "severity": w.severity, "state": w.state,
+             "figures": w.record()["figures"]} for w in found]
+
+
 def _fmt(x: float, spec: str = ".2e") -> str:
     return "n/a" if x is None or not math.isfinite(x) else format(x, spec)
 
@@ -315,9 +323,7 @@ def summary(result: SeriesResult, *, outputs: dict, seconds: float,
         "metrology": result.metrology,
         "systematic_errors": result.systematic,
         "warnings": list(result.warnings),
-        # the same findings, each with its code, severity, state and figures
-        "findings": [{"code": w.code, "severity": w.severity, "state": w.state,
-                      "figures": w.record()["figures"]} for w in result.warnings],
+        "findings": findings_json(result.warnings),
         "seconds": seconds,
     }
 

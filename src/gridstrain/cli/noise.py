@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .._progress import bar
+from .._progress import bar, findings_of
 from .._validation import check_int
 from ..io import open_series, provenance, write_atomic, write_hdf5
 from ..phase import detect_lattice, wft
@@ -30,6 +30,7 @@ from ._common import (
     lattice_option,
     print_json,
 )
+from ._summary import findings_json
 
 
 def register(sub) -> None:
@@ -84,7 +85,8 @@ def run(args) -> int:
     floor = noise_floor(maps, mean, K=model.K, L=model.L, frames=T)
     progress(1.0, "done")
     summary = _summary(args.stack, series, lattice, model, vib, degree, floor)
-    summary["warnings"] = notes
+    summary["warnings"] = list(notes)
+    summary["findings"] = findings_json(notes)
     for note in notes:  # on stderr, whatever the output: a warning, not a result
         print(f"gridstrain noise: warning: {note}", file=sys.stderr)
     if out is not None:
@@ -121,7 +123,8 @@ def _screened(series, lattice):
     sc = screen_frames(series.frames(), lattice, saturation_level=series.saturation_level,
                        scale=series.scale, max_saturation=1.0)
     keep, notes = outlier_verdict(series, sc, "exclude")
-    return (series if len(keep) == series.n_frames else series.subset(keep)), notes
+    return ((series if len(keep) == series.n_frames else series.subset(keep)),
+            findings_of(notes, "screening.flagged", series.name))
 
 
 def _estimate(series, lattice, source: str, degree: int | None, progress):
