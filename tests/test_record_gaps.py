@@ -147,7 +147,7 @@ def test_cine_trigger_time_of_garbage_falls_back_to_its_frame_rate(tmp_path, fra
     _patch(path, 40, "<I", 0xFFFFFFFF)  # TriggerTime's seconds
     s = open_series(path, name="state")
     np.testing.assert_allclose(s.times, (np.arange(4) - 1) / 1000, rtol=1e-15)
-    (note,) = [n for n in s.notes if "TriggerTime" in n]
+    (note,) = [n for n in said(s.notes, "input") if "TriggerTime" in n]
     assert note.startswith("state: rec.cine: the header's TriggerTime")
     assert "-4.29e+09 s from the trigger" in note
     # no FrameRate either: no times at all

@@ -33,6 +33,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .._progress import Finding
 from .._validation import check_int
 from ._readers import natural_sort_key
 from ._series import FrameSeries, open_series, split_frames
@@ -103,9 +104,10 @@ def natural_order(sources, *, keep_order: bool = False) -> tuple[list, str, tupl
 
     Returns
     -------
-    (list, str, tuple of int or None, list of str)
+    (list, str, tuple of int or None, list of Finding)
         The sources in order; ``"natural"``, ``"reordered"`` or ``"given"``; the
-        permutation applied (index in ``sources`` of each, or None); warnings.
+        permutation applied (index in ``sources`` of each, or None); warnings, each a
+        finding of code ``input`` (:class:`gridstrain.Finding`).
     """
     items = list(sources)
     if not all(_is_file_path(s) for s in items):
@@ -118,14 +120,14 @@ def natural_order(sources, *, keep_order: bool = False) -> tuple[list, str, tupl
         return items, "natural", None, []
     first = ", ".join(paths[i].name for i in range(min(3, len(paths))))
     if keep_order:
-        return items, "given", None, [
-            f"the {len(items)} files are kept in the order given ({first}, ...: "
-            "keep_order=True, --keep-order), which is not their natural order"]
+        return items, "given", None, [Finding(
+            "input", f"the {len(items)} files are kept in the order given ({first}, ...: "
+            "keep_order=True, --keep-order), which is not their natural order")]
     natural = ", ".join(paths[i].name for i in perm[:3])
-    return [items[i] for i in perm], "reordered", tuple(perm), [
-        f"the {len(items)} files were given in the order {first}, ... (a shell's sort) "
-        f"and are measured in natural order, {natural}, ...; keep_order=True "
-        "(--keep-order) keeps the order given"]
+    return [items[i] for i in perm], "reordered", tuple(perm), [Finding(
+        "input", f"the {len(items)} files were given in the order {first}, ... (a shell's "
+        f"sort) and are measured in natural order, {natural}, ...; keep_order=True "
+        "(--keep-order) keeps the order given", permutation=list(perm))]
 
 
 def _unique(series: list) -> list:

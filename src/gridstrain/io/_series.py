@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 import numpy.typing as npt
 
+from .._progress import Finding
 from .._runtime import memory as _memory
 from .._validation import (
     as_path,
@@ -83,10 +84,11 @@ class FrameSeries:
         frames (grey+alpha, RGB, RGBA), read as their luminance
         (:func:`to_luminance`, float64; ``dtype`` is then float64 and the bit
         depth and saturation level are those of one channel).
-    notes : tuple of str
+    notes : tuple of Finding
         What the user should know about how the frames were read (colour
-        conversion, lossy JPEG compression); the pipeline records them in the
-        result's warnings.
+        conversion, lossy JPEG compression), each a finding of code ``input``
+        (:class:`gridstrain.Finding`, its sentence the ``str``); the pipeline records
+        them in the result's warnings.
     """
 
     name: str
@@ -562,9 +564,9 @@ def _frame_table(infos: list[FileInfo], name: str) -> tuple[tuple[int, int, int]
     return tuple(frames)
 
 
-def _reading_notes(infos: list[FileInfo], channels: int, name: str) -> tuple[str, ...]:
+def _reading_notes(infos: list[FileInfo], channels: int, name: str) -> tuple[Finding, ...]:
     """What the user should know about how the frames are read (colour, JPEG, lossy
-    video codecs, a camera header's times left out)."""
+    video codecs, a camera header's times left out), as findings of code ``input``."""
     notes = []
     lossy = sorted({i.codec for i in infos if i.codec and i.codec not in _LOSSLESS_CODECS})
     if lossy:
@@ -582,7 +584,7 @@ def _reading_notes(infos: list[FileInfo], channels: int, name: str) -> tuple[str
     formats = dict.fromkeys(i.format for i in infos)  # each once, in file order
     notes += [f"{name}: {format_named(f).note}" for f in formats if format_named(f).note]
     notes += [f"{name}: {i.note}" for i in infos if i.note]
-    return tuple(notes)
+    return tuple(Finding("input", n, state=name) for n in notes)
 
 
 # --------------------------------------------------------------------------- saturation

@@ -12,6 +12,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 from scipy.linalg import blas
 
+from .._progress import Finding
 from .._validation import (
     as_image,
     as_shifts,
@@ -81,10 +82,12 @@ class StackResult:
         Method C only: RMS departure of the frames' motion from a rigid translation,
         px (spread of the shifts of the frame's quadrants about its shift, see
         :func:`method_c`); None when not measured (frames under 64 px, one frame).
-    warnings : tuple of str
-        What the caller must know about this result: frames the screening flagged
-        (they are in the average), method C's motion that is not rigid or given
-        shifts that disagree with the frames.
+    warnings : tuple of Finding
+        What the caller must know about this result, each a finding
+        (:class:`gridstrain.Finding`, its sentence the ``str``): frames the screening
+        flagged, which are in the average (code ``screening.flagged``); method C's
+        motion that is not rigid, vibrations that widen the window, or given shifts
+        that disagree with the frames (code ``vibration``).
     screening : FrameScreen or None
         What :func:`gridstrain.stacks.screening.decide` found on each frame (no grid, low
         contrast, slipped, of another state, clipped), None when not screened.
@@ -97,7 +100,7 @@ class StackResult:
     resultant: np.ndarray | None = None
     shifts: np.ndarray | None = None
     motion_residual: float | None = None
-    warnings: tuple[str, ...] = ()
+    warnings: tuple[Finding, ...] = ()
     screening: FrameScreen | None = None
 
     def __post_init__(self):
@@ -118,7 +121,8 @@ def with_screening(res: StackResult, records, probe: FrameProbe) -> StackResult:
     try:
         sc = decide(records, probe)
     except ValueError as exc:  # no frame shows a grid at the lattice's wave vectors
-        return replace(res, warnings=(*res.warnings, f"frames: {exc}"))
+        return replace(res, warnings=(*res.warnings,
+                                      Finding("screening.flagged", f"frames: {exc}")))
     bad = sc.flagged
     if not bad:
         return replace(res, screening=sc)
@@ -126,7 +130,9 @@ def with_screening(res: StackResult, records, probe: FrameProbe) -> StackResult:
                f"averaged all the same: {sc.listing()}; leave them out of frames, or "
                "measure with gridstrain.measure_series (gridstrain measure), which "
                "excludes them")
-    return replace(res, screening=sc, warnings=(*res.warnings, warning))
+    return replace(res, screening=sc,
+                   warnings=(*res.warnings, Finding("screening.flagged", warning,
+                                                    flagged=list(bad))))
 
 
 class MeanImage:
@@ -462,12 +468,13 @@ class MethodC:
             d = np.angle(np.exp(1j * d) * np.conj(np.mean(np.exp(1j * d), axis=0)))
             miss = float(np.sqrt(np.mean(d**2)))
             if n > 1 and miss > _MAX_WEIGHT_PHASE_ERROR:
-                warnings.append(
+                warnings.append(Finding(
+                    "vibration",
                     f"method C: the given shifts disagree with the frames' carrier phases "
                     f"by {miss:.3g} rad RMS (beyond {_MAX_WEIGHT_PHASE_ERROR} rad); the "
                     f"frames are realigned with the wrong phases. Check that the shifts "
                     f"follow eq. (2) (frame t is s(x + a_t)) and are in px, or let "
-                    f"method C measure them")
+                    f"method C measure them", disagreement_rad=miss))
         return compensated_result(lambda c: self.acc.averages(c), centre, n, self.acc.dtype,
                                    used, self.parts, self.lattice, window, mask=mask,
                                    warnings=warnings)
@@ -492,22 +499,26 @@ def compensated_result(averages, centre, n: int, dtype, used: np.ndarray, parts:
         miss = 2 * math.pi * float(np.max(np.hypot(K[:, 0], K[:, 1]))) * residual
         if miss > _MAX_WEIGHT_PHASE_ERROR:
             worst = int(np.argmax(np.sum(R**2, axis=(1, 2))))
-            warnings.append(
+            warnings.append(Finding(
+                "vibration",
                 f"method C: the frames' motion is not a rigid translation: the "
                 f"quadrants of a frame move apart by {residual:.3g} px RMS (worst: "
                 f"frame {worst}), i.e. {miss:.3g} rad on the carrier. Only the "
                 f"translation is compensated; the rest (rotation, non-rigid "
                 f"vibration) averages as under method A, with its contrast loss "
-                f"and phase offsets that now vary across the field")
+                f"and phase offsets that now vary across the field",
+                residual_px=residual, worst_frame=worst))
     s = window.sigma
     spread = float(np.sqrt(np.mean(np.sum((used - used.mean(axis=0)) ** 2, axis=1)) / 2))
     widening = math.sqrt(1 + spread**2 / s**2) - 1
     if widening > _MAX_WINDOW_WIDENING:
-        warnings.append(
+        warnings.append(Finding(
+            "vibration",
             f"method C: vibrations of {spread:.3g} px RMS move the phase maps under the "
             f"window: the maps are those of a window {widening:.1%} wider than sigma = "
             f"{s:.3g} px (variance sigma^2 + Var(a)); the spatial resolution is "
-            f"that much coarser (as for methods A and B)")
+            f"that much coarser (as for methods A and B)", spread_px=spread,
+            widening=widening))
     maps = wft_complex(averages(centre), lattice, mask=mask, dtype=dtype, **window.options())
     return StackResult(maps=maps, n_frames=n, method="C",
                        shifts=np.array(used, dtype=np.float64), motion_residual=residual,
