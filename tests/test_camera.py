@@ -20,6 +20,7 @@ import pytest
 import tifffile
 
 from camera_files import SETUP_LENGTH, pack12, write_cine, write_mraw
+from findings import said
 from gridstrain.io import MemoryBudgetError, memory_budget, open_series
 from gridstrain.series import measure_series
 from sequence_record import record
@@ -321,7 +322,7 @@ def test_headers_of_real_fastcam_records(tmp_path, header, shape, n, stored, tim
     if times is None:
         assert s.times is None
         assert s.frame_rate is None
-        assert any("read without times" in n for n in s.notes)
+        assert any("read without times" in n for n in said(s.notes, "input"))
     else:
         np.testing.assert_allclose(s.times, times, rtol=1e-15)
         assert not s.notes
@@ -338,7 +339,7 @@ def test_mraw_save_step_beyond_the_frames_recorded_gives_no_times(tmp_path, fram
     assert s.times is None
     assert s.frame_rate is None
     # and the user is told why, naming the series and the header
-    (note,) = [n for n in s.notes if "without times" in n]
+    (note,) = [n for n in said(s.notes, "input") if "without times" in n]
     assert note.startswith("state: rec.cihx gives a save step of 2500 over 400 recorded "
                            "frames")
 

@@ -138,11 +138,11 @@ def test_a_hot_spot_moving_through_a_load_series_confirms_nothing_wrong(pitch, h
     elif not res.fringe_orders[0].confirmed:
         # the image features followed the light: the state says which evidence said
         # what, keeps the followed displacement, and the later states inherit the doubt
-        said = [m for m in res.warnings if m.startswith(res.names[1] + ":")
-                and "disagree by whole periods" in m]
-        assert said, res.warnings
-        assert "light that moved" in said[0]
-        assert "followed displacement is kept" in said[0]
+        told = [m for m in said(res.warnings, "fringe_order.unconfirmed")
+                if m.state == res.names[1] and "disagree by whole periods" in m]
+        assert told, res.warnings
+        assert "light that moved" in told[0]
+        assert "followed displacement is kept" in told[0]
         assert not any(r.confirmed for r in res.fringe_orders[1:])
     else:
         # the features, not shown by the grid's modulus, did not decide: followed
@@ -221,7 +221,8 @@ def test_a_hot_spot_moved_by_a_lattice_vector_is_never_confirmed(pitch, hot_sd, 
     if wrong:
         # the state says why: the content that moved could be the light
         assert "could be the light" in record.detail or "light that moved" in record.detail
-        assert any(res.names[1] in m and "not confirmed" in m for m in res.warnings)
+        assert [m for m in said(res.warnings, "fringe_order.unconfirmed")
+                if m.state == res.names[1]]
 
 
 @pytest.mark.parametrize(("hot_sd", "move", "plus_u", "printed"), [

@@ -243,7 +243,7 @@ def test_independent_order_measures_each_state_on_its_own(tmp_path):
     assert indep.parameters["order"] == "independent"
     assert [r.source for r in indep.fringe_orders] == ["smallest displacement"] * 2
     assert not any(r.confirmed for r in indep.fringe_orders)
-    assert sum("not confirmed" in w for w in indep.warnings) == 2
+    assert len(said(indep.warnings, "fringe_order.unconfirmed")) == 2
 
 
 def test_a_step_of_nearly_half_a_period_is_flagged():
@@ -259,7 +259,8 @@ def test_a_step_of_nearly_half_a_period_is_flagged():
     assert second.source == "previous state"
     assert not second.confirmed
     assert 0.4 < second.step < 0.5  # periods: the 2.3-px step, measured
-    assert any(res.names[2] in w and "changed by up to" in w for w in res.warnings)
+    assert any(w.state == res.names[2] and "changed by up to" in w
+               for w in said(res.warnings, "fringe_order.unconfirmed"))
 
 
 def test_printed_features_take_over_when_a_step_exceeds_half_a_period():
@@ -277,7 +278,7 @@ def test_printed_features_take_over_when_a_step_exceeds_half_a_period():
         v = res.valid[i]
         # px: noise-free rigid motions; a lost period would be 4.1 px
         assert np.max(np.abs(res.u[i][:, v] - np.array(t)[:, None])) < 0.05
-    assert sum("more than half a period" in w for w in res.warnings) == 2
+    assert len(said(res.warnings, "fringe_order.features_used")) == 2
 
 
 # --------------------------------------------------------------------------- pairs
@@ -297,7 +298,8 @@ def test_featureless_pair_moved_more_than_half_a_period_is_never_confirmed(tmp_p
     assert order["confirmed"] is False
     # the image features (the vignette is fixed to the camera) cannot choose
     assert order["peak_to_alias"] is None or order["peak_to_alias"] < 1.5
-    warning = [w for w in summary["warnings"] if w.startswith("moved:")]
+    warning = [w for w, f in zip(summary["warnings"], summary["findings"], strict=True)
+               if f["code"] == "fringe_order.unconfirmed" and f["state"] == "moved"]
     assert warning
     assert "--guess" in warning[0]
     assert "intermediate image" in warning[0]

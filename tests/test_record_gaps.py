@@ -154,7 +154,8 @@ def test_cine_trigger_time_of_garbage_falls_back_to_its_frame_rate(tmp_path, fra
     _patch(path, 84 + 768, "<I", 0)
     s = open_series(path, name="state")
     assert s.times is None
-    assert any("TriggerTime" in n and "read without times" in n for n in s.notes)
+    assert any("TriggerTime" in n and "read without times" in n
+               for n in said(s.notes, "input"))
 
 
 @pytest.mark.parametrize("rate", [5e-324, float("inf"), float("nan"), -1000.0, 0.0])
@@ -190,4 +191,4 @@ def test_cli_measures_a_record_of_absurd_rate_without_times(tmp_path, frames):
     assert p.returncode == 0, p.stderr
     s = json.loads(p.stdout)
     assert all(st.get("time_s") is None for st in s["states"])
-    assert sum("'Record Rate(fps)'" in w for w in s["warnings"]) == 1
+    assert sum("'Record Rate(fps)'" in w for w in said(s, "input")) == 1
