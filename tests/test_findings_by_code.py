@@ -1,11 +1,13 @@
-"""The tests select findings by their code, never by the words of their sentences.
+"""The tests (and the package) select findings by their code, never by the words of
+their sentences.
 
 A selection such as ``[w for w in res.warnings if "jump" in w]`` keeps its meaning
 only while the sentence keeps that word; asserted absent, it passes for good once the
 sentence is reworded. Every selection from a result's warnings, a JSON summary's or a
 series' reading notes goes through :func:`findings.said` (by code); words are
-asserted only on what it selected. This test reads the test files' syntax trees and
-names every comprehension that filters warnings or notes by a string's presence.
+asserted only on what it selected. This test reads the syntax trees of the tests and
+of the package's modules, and names every comprehension that filters warnings or
+notes by a string's presence.
 """
 
 from __future__ import annotations
@@ -81,8 +83,12 @@ def selections_by_words(source: str) -> list[int]:
     return lines
 
 
-def test_no_test_selects_findings_by_words():
-    found = {p.name: lines for p in sorted(HERE.glob("test_*.py"))
+def test_no_test_and_no_command_selects_findings_by_words():
+    # the tests, and the package itself: the CLI, the report and the JSON summary
+    # select findings by code too
+    files = [*sorted(HERE.glob("test_*.py")),
+             *sorted((HERE.parent / "src" / "gridstrain").rglob("*.py"))]
+    found = {str(p.relative_to(HERE.parent)): lines for p in files
              if (lines := selections_by_words(p.read_text(encoding="utf-8")))}
     assert not found, f"findings selected by words, not by code (findings.said): {found}"
 
