@@ -199,6 +199,9 @@ def test_featureless_load_series_is_followed_through_the_cli(tmp_path, capsys, k
     for o in orders[1:]:
         assert o["step_periods"] < 0.4
     assert any("load01" in w for w in said(summary, "fringe_order.unconfirmed"))
+    # and the later states' inherited doubt is said once, naming them
+    (inherited,) = said(summary, "fringe_order.inherited")
+    assert f"load02 to load{N_STEPS:02d}" in inherited
     with h5py.File(out, "r") as h5:
         assert [str(x) for x in h5.attrs["fringe_order_source"]] == \
             [o["source"] for o in orders]
