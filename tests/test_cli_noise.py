@@ -181,3 +181,23 @@ def test_a_frame_of_another_state_is_excluded_and_named(tmp_path, capsys):
     # and the frame would have biased it: the same estimate with the frame kept
     kept = estimate_noise(frames.astype(float), lat, saturation=65535, scale=16)
     assert abs(kept.K_sensor / 0.28 - 1) > 0.08
+
+
+def test_how_the_frames_were_read_is_said_by_code(tmp_path, capsys):
+    """A colour stack is converted to grey before its noise is estimated: the command
+    says so, on stderr and in its JSON summary, as a finding of code ``input``."""
+    lat = Lattice.from_pitch(5.0)
+    rng = np.random.default_rng(2)
+    grey = [np.clip(synthetic.add_noise(synthetic.grid_image((160, 160), lat, amplitude=100.0),
+                                        rng=rng), 0, 255) for _ in range(4)]
+    rgb = np.array([np.stack([g, g, g], axis=-1) for g in grey]).astype(np.uint8)
+    path = tmp_path / "rgb.tif"
+    tifffile.imwrite(path, rgb, photometric="rgb")
+    assert main(["noise", str(path), "--json"]) == 0
+    out = capsys.readouterr()
+    summary = json.loads(out.out)
+    (colour,) = said(summary, "input")
+    assert "colour frames (RGB)" in colour
+    assert "colour frames (RGB)" in out.err
+    (record,) = [f for f in summary["findings"] if f["code"] == "input"]
+    assert record["figures"] == {"reading": "colour", "channels": 3}

@@ -25,13 +25,25 @@ HERE = Path(__file__).parent
 _FOUND = {"warnings", "notes"}
 
 
+# calls that give back the findings they are given, reordered or counted
+_SAME = {"sorted", "reversed", "list", "tuple", "set", "enumerate", "filter"}
+
+
 def _is_found(node: ast.AST) -> bool:
-    """Whether ``node`` is ``x.warnings``, ``x.notes``, ``x["warnings"]`` or ``x["notes"]``."""
+    """Whether ``node`` is ``x.warnings``, ``x.notes``, ``x["warnings"]`` or
+    ``x["notes"]``, a slice of one (``x.warnings[1:]``) or one given to ``sorted``,
+    ``enumerate``, ``filter``... (not to ``zip``: a zip of sentences with their codes
+    is how a JSON summary or a file's attributes are selected by code)."""
     if isinstance(node, ast.Attribute):
         return node.attr in _FOUND
     if isinstance(node, ast.Subscript):
         key = node.slice
-        return isinstance(key, ast.Constant) and key.value in _FOUND
+        if isinstance(key, ast.Constant):
+            return key.value in _FOUND
+        return isinstance(key, ast.Slice) and _is_found(node.value)
+    if isinstance(node, ast.Call) and isinstance(node.func, ast.Name) \
+            and node.func.id in _SAME:
+        return any(_is_found(a) for a in node.args)
     return False
 
 
@@ -73,12 +85,19 @@ def selections_by_words(source: str) -> list[int]:
     ...)``) looks into the sentence of its loop variable."""
     lines = []
     for node in ast.walk(ast.parse(source)):
-        if not isinstance(node, ast.ListComp | ast.GeneratorExp | ast.SetComp):
+        if isinstance(node, ast.For) and _is_found(node.iter):
+            # a loop over findings whose body looks into their sentences
+            names = {n.id for n in ast.walk(node.target) if isinstance(n, ast.Name)}
+            if any(_by_words(b, names) for b in node.body):
+                lines.append(node.lineno)
+        if not isinstance(node, ast.ListComp | ast.GeneratorExp | ast.SetComp
+                          | ast.DictComp):
             continue
+        elt = (node.key, node.value) if isinstance(node, ast.DictComp) else (node.elt,)
         for gen in node.generators:
             names = {n.id for n in ast.walk(gen.target) if isinstance(n, ast.Name)}
             if _is_found(gen.iter) and (any(_by_words(c, names) for c in gen.ifs)
-                                        or _by_words(node.elt, names)):
+                                        or any(_by_words(e, names) for e in elt)):
                 lines.append(node.lineno)
     return lines
 
@@ -101,15 +120,21 @@ def test_the_check_sees_each_form_of_selection():
               '[n for n in s.notes if "TriggerTime" in n]',
               '[w for w in summary["warnings"] if any(t in w.lower() for t in ("a", "b"))]',
               '[m for m in res.warnings if m.startswith(name + ":")]',
-              'sum("not confirmed" in w for w in indep.warnings)')
+              'sum("not confirmed" in w for w in indep.warnings)',
+              'all(w.startswith("1 of 8") for w in rotated.warnings[1:])',
+              '[w for w in sorted(res.warnings) if "jump" in w]',
+              '{w: 1 for w in res.warnings if "jump" in w}')
     for line in caught:
         assert selections_by_words(line) == [1], line
+    loop = 'for w in res.warnings:\n    if "jump" in w:\n        n += 1\n'
+    assert selections_by_words(loop) == [1]
     fine = ('said(res.warnings, "jump.found")',
             'any("rows" in w for w in said(res.warnings, "jump.found"))',
             '[w for w in res.warnings if w.code == "jump.found"]',
             '[w for w in res.warnings if w.code in ("jump.found", "jump.part")]',
             '[w for w in res.warnings if "s1" in w.state]',
-            '"x" in res.warnings[0]')
+            '"x" in res.warnings[0]',
+            '[w for w, c in zip(s["warnings"], s["warning_codes"]) if c == "a" and "x" in w]')
     for line in fine:
         assert selections_by_words(line) == [], line
 

@@ -139,9 +139,9 @@ def test_another_specimen_at_the_same_pitch_is_refused_naming_both_files(tmp_pat
     assert "--outliers warn" in text  # what to do if they are one specimen after all
     # asked to go on, the measurement says it and records the figure
     res = measure_series(tmp_path / "REF", [tmp_path / "DEF"], outliers="warn")
-    (said,) = _mismatch_warnings(res)
-    assert "REF" in said
-    assert "DEF" in said
+    (told,) = _mismatch_warnings(res)
+    assert "REF" in told
+    assert "DEF" in told
     rec = _pair_record(res)
     assert rec["conclusive"]
     assert rec["verdict"] in ("mismatch", "nothing matches")

@@ -290,13 +290,16 @@ def test_videos_are_read_frame_by_frame(tmp_path):
     # a lossless codec gives back every grey level; read in any order
     for k in (3, 0, 4):
         np.testing.assert_array_equal(inputs.states[k].read(0, dtype=None), frames[k])
-    assert not any("lossy" in n for n in said(inputs.states[0].notes, "input"))
+    # how it was read, said: its luma plane, and no lossy codec
+    assert [n.figures["reading"] for n in said(inputs.states[0].notes, "input")] == ["luma"]
     # the stream's time stamps, at its 25 frames per second
     np.testing.assert_allclose([s.times[0] for s in inputs.states], np.arange(5) / 25,
                                atol=1e-12)
     _video(tmp_path / "rec.mp4", frames, "mpeg4", "yuv420p")
     s = state_inputs(tmp_path / "rec.mp4", each_frame=True).states[0]
-    assert any("lossy codec(s) mpeg4" in n for n in said(s.notes, "input"))
+    (lossy,) = [n for n in said(s.notes, "input") if n.figures["reading"] == "lossy codec"]
+    assert lossy.figures["codecs"] == ["mpeg4"]
+    assert "lossy codec(s) mpeg4" in lossy
 
 
 def test_a_video_is_decoded_as_its_frames_are_asked_for(tmp_path):

@@ -267,6 +267,11 @@ class Finding(str):
     def advice(self) -> str:
         return FINDINGS[self.code].advice
 
+    def restated(self, text: str, *, state: str | None) -> Finding:
+        """The same finding (its code and figures) as ``text`` said of ``state``: a
+        part's finding said of the series or state it was made for."""
+        return Finding(self.code, text, state=state, **self.figures)
+
     def record(self) -> dict:
         """``{"code", "state", "figures"}``: what a result file keeps beside the
         sentence (figures as plain numbers and strings)."""

@@ -75,9 +75,11 @@ def run(args) -> int:
     progress = bar(quiet=args.quiet or args.json)
     mean = series.mean(progress=lambda f, m: progress(0.3 * f, "mean image"))
     lattice = lattice_given or detect_lattice(mean)
+    read_notes = tuple(series.notes)  # how the frames were read (colour, lossy codecs)
     series, notes = _screened(series, lattice)
     if notes:
         mean = series.mean()
+    notes = [*read_notes, *notes]
     model, vib, degree = _estimate(series, lattice, args.source, args.degree, progress)
     progress(0.9, "noise floor")
     T = args.frames or series.n_frames

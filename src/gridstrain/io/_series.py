@@ -105,7 +105,7 @@ class FrameSeries:
     # each frame's time stamp in its file, s (videos that hold them), else ()
     _times: tuple[float, ...] = field(default=(), compare=False)
     channels: int = 1
-    notes: tuple[str, ...] = ()
+    notes: tuple[Finding, ...] = ()
     # number of every frame in the series it was taken from (subset); () : 0, 1, ...
     _numbers: tuple[int, ...] = field(default=(), compare=True)
 
@@ -566,25 +566,33 @@ def _frame_table(infos: list[FileInfo], name: str) -> tuple[tuple[int, int, int]
 
 def _reading_notes(infos: list[FileInfo], channels: int, name: str) -> tuple[Finding, ...]:
     """What the user should know about how the frames are read (colour, JPEG, lossy
-    video codecs, a camera header's times left out), as findings of code ``input``."""
+    video codecs, a camera header's times left out), as findings of code ``input``
+    whose figure ``reading`` says which: ``"lossy codec"`` (with ``codecs``),
+    ``"luma"``, ``"colour"`` (with ``channels``), ``"format"`` (with ``format``) or
+    ``"file"`` (a file's own note, with ``file``)."""
     notes = []
     lossy = sorted({i.codec for i in infos if i.codec and i.codec not in _LOSSLESS_CODECS})
     if lossy:
-        notes.append(f"{name}: video frames compressed by the lossy codec(s) "
-                     f"{', '.join(lossy)}; compression artefacts add noise the noise floor "
-                     "does not model and may bias the phase: record with a lossless codec "
-                     "or as TIFF")
+        notes.append(Finding(
+            "input", f"{name}: video frames compressed by the lossy codec(s) "
+            f"{', '.join(lossy)}; compression artefacts add noise the noise floor "
+            "does not model and may bias the phase: record with a lossless codec or as TIFF",
+            state=name, reading="lossy codec", codecs=lossy))
     if any(i.codec for i in infos):
-        notes.append(f"{name}: video frames read as the grey levels of their luma plane")
+        notes.append(Finding("input", f"{name}: video frames read as the grey levels of "
+                             "their luma plane", state=name, reading="luma"))
     if channels > 1:
         what = {2: "grey and alpha", 3: "RGB", 4: "RGBA"}[channels]
         how = ("the grey channel kept" if channels == 2 else "converted to luminance "
                "0.2126 R + 0.7152 G + 0.0722 B (ITU-R BT.709), alpha ignored")
-        notes.append(f"{name}: colour frames ({what}), {how}")
+        notes.append(Finding("input", f"{name}: colour frames ({what}), {how}", state=name,
+                             reading="colour", channels=channels))
     formats = dict.fromkeys(i.format for i in infos)  # each once, in file order
-    notes += [f"{name}: {format_named(f).note}" for f in formats if format_named(f).note]
-    notes += [f"{name}: {i.note}" for i in infos if i.note]
-    return tuple(Finding("input", n, state=name) for n in notes)
+    notes += [Finding("input", f"{name}: {format_named(f).note}", state=name,
+                      reading="format", format=f) for f in formats if format_named(f).note]
+    notes += [Finding("input", f"{name}: {i.note}", state=name, reading="file",
+                      file=Path(i.path).name) for i in infos if i.note]
+    return tuple(notes)
 
 
 # --------------------------------------------------------------------------- saturation

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .._progress import Finding, Progress, as_finding, findings_of, null_progress
+from .._progress import Progress, as_finding, findings_of, null_progress
 from .._runtime import paging as _paging
 from .._runtime.threads import one_blas_thread
 from .._validation import check_sigma
@@ -157,7 +157,7 @@ def measure_series(reference, states, options: MeasureOptions | None = None,
     steps = _Steps(progress, _total_cost(series, o))
     # how the frames were read (colour converted, lossy JPEG), series by series: each
     # note said of the series (a record's state) it was read for
-    warnings = [Finding(as_finding(n, "input").code, n, state=s.name)
+    warnings = [as_finding(n, "input").restated(n, state=s.name)
                 for s in series for n in getattr(s, "notes", ())]
     warnings += findings_of(given.warnings, "input")
     if not (each_frame or given.reference is not None or reference_frames):

@@ -13,7 +13,7 @@ from collections.abc import Iterable
 import numpy as np
 from scipy import ndimage
 
-from .._progress import Finding, Progress, findings_of, null_progress
+from .._progress import Finding, Progress, as_finding, findings_of, null_progress
 from .._runtime.threads import THREADED_PIXELS, map_bounded
 from .._stats import median
 from .._validation import (
@@ -452,16 +452,20 @@ def _method_b_maps(s, sc: _Screened, acc: SeriesPass, used: np.ndarray, window: 
 _SUGGEST_C_CONTRAST = 0.98
 
 
-def _contrast_notes(vib) -> list[str]:
-    """Series whose vibrations cost method A more than method C's extra time."""
+def _contrast_notes(vib) -> list[Finding]:
+    """Series whose vibrations cost method A more than method C's extra time, each
+    said of its series."""
     out = []
     for v in vib:
         c = min(v.contrast_factor)
         if math.isfinite(c) and c < _SUGGEST_C_CONTRAST:
-            out.append(f"{v.name}: vibrations of ({v.std[0]:.3g}, {v.std[1]:.3g}) px std "
-                       f"lower the averaged grid's contrast to {c:.3f} (Prop. 2.2, eq. 14): "
-                       f"method A's strain noise is {1 / c - 1:.1%} above that of method C, "
-                       "which realigns the frames before averaging (--method C)")
+            out.append(Finding(
+                "contrast.vibration",
+                f"{v.name}: vibrations of ({v.std[0]:.3g}, {v.std[1]:.3g}) px std "
+                f"lower the averaged grid's contrast to {c:.3f} (Prop. 2.2, eq. 14): "
+                f"method A's strain noise is {1 / c - 1:.1%} above that of method C, "
+                "which realigns the frames before averaging (--method C)",
+                state=v.name, contrast=float(c)))
     return out
 
 
@@ -511,7 +515,8 @@ def _one_series(s, acc: SeriesPass, base, window: Window, max_saturation: float,
     if method == "C":
         res = acc.method_c(mask=used)
         pm = finite_derivatives(res.maps)
-        notes.extend(Finding("vibration", f"{s.name}: {w}", state=s.name)
+        # each said of this series, with its code and figures
+        notes.extend(as_finding(w, "vibration").restated(f"{s.name}: {w}", state=s.name)
                      for w in res.warnings)
         del res
     elif method == "B":
