@@ -192,3 +192,76 @@ def test_cli_measures_a_record_of_absurd_rate_without_times(tmp_path, frames):
     s = json.loads(p.stdout)
     assert all(st.get("time_s") is None for st in s["states"])
     assert sum("'Record Rate(fps)'" in w for w in said(s, "input")) == 1
+
+
+# --------------------------------------------------------------------------- a loads file
+
+
+def _loads(path, labels):
+    """A state column naming ``labels``, the load of each the frame number in kN (the
+    oracle: a state's load is its own number, whatever the rows' order)."""
+    rows = "".join(f"{s};{int(s[1:])}\n" for s in labels)
+    path.write_text("state;load [kN]\n" + rows)
+    return path
+
+
+def test_a_state_column_names_the_frames_the_record_lacks(tmp_path, frames):
+    """The testing machine's table lists every frame the camera was triggered for: the
+    reference's (f010) and the one the camera dropped (f014) too. Their rows are
+    skipped and said by code; every measured state gets its own row's load."""
+    numbers = [10, 11, 12, 13, 15, 16, 17]
+    folder = _write(tmp_path / "rec", frames[[0, 1, 2, 3, 5, 6, 7]], numbers)
+    labels = [f"f{n:03d}" for n in (10, 11, 12, 13, 14, 17, 16, 15)]  # rows 2 to 9
+    csv = _loads(tmp_path / "loads.csv", labels)
+    # and a last row naming the reference as gridstrain does: skipped, as a result's
+    # commands skip it
+    csv.write_text(csv.read_text() + "reference;0\n")
+    res = measure_series(None, folder, reference_frames=1, loads=csv)
+    assert res.names[1:] == ("f011", "f012", "f013", "f015", "f016", "f017")
+    np.testing.assert_array_equal(res.load, [11, 12, 13, 15, 16, 17])
+    (told,) = [w for w in said(res.warnings, "input") if "loads file" in w]
+    assert told.figures["states"] == ["f010", "f014"]
+    assert told.figures["rows"] == [2, 6]  # as a text editor numbers the lines
+    assert "dropped by the camera" in told
+
+
+@pytest.mark.parametrize(("extra", "match"), [
+    ("f018", r"row 9: state 'f018' is not one of the states measured"),  # after the last
+    ("f14", r"state 'f14' is not one of"),  # not written as the record's numbers
+    ("g014", r"state 'g014' is not one of"),  # another name
+])
+def test_a_state_column_still_refuses_what_is_not_a_frame_the_record_lacks(tmp_path, extra,
+                                                                           match):
+    from gridstrain.io import read_loads
+
+    states = ["f011", "f012", "f013", "f015"]
+    csv = _loads(tmp_path / "loads.csv", [*states, "f014", "f010", "f016", extra])
+    with pytest.raises(ValueError, match=match):
+        read_loads(csv, states=[*states, "f016"])
+    # and a state without its row, whatever the rows skipped
+    with pytest.raises(ValueError, match=r"no row for 1 state\(s\) \(f016\)"):
+        read_loads(_loads(tmp_path / "l2.csv", [*states, "f014"]), states=[*states, "f016"])
+
+
+def test_a_command_reading_a_result_says_the_rows_it_skips(tmp_path, frames, capsys):
+    from gridstrain.cli import main
+
+    numbers = [10, 11, 12, 13, 15, 16, 17]
+    folder = _write(tmp_path / "rec", frames[[0, 1, 2, 3, 5, 6, 7]], numbers)
+    out = tmp_path / "maps.h5"
+    assert main(["measure", str(folder), "--reference-frames", "1", "-o", str(out),
+                 "--quiet"]) == 0
+    csv = _loads(tmp_path / "loads.csv", [f"f{n:03d}" for n in range(10, 18)])
+    capsys.readouterr()
+    table = tmp_path / "gauge.csv"
+    assert main(["gauge", str(out), "--loads", str(csv), "-o", str(table)]) == 0
+    got = capsys.readouterr()
+    # one line on stderr naming the rows skipped; the gauge's loads are the states' own
+    (line,) = got.err.strip().splitlines()
+    assert line.startswith("gridstrain gauge: warning: loads file loads.csv: ")
+    assert "f010" in line
+    assert "f014" in line
+    rows = [line.split(",") for line in table.read_text().splitlines()]
+    assert rows[0][:2] == ["state", "load [kN]"]
+    assert [(r[0], float(r[1])) for r in rows[1:]] == [
+        (f"f{n:03d}", float(n)) for n in (11, 12, 13, 15, 16, 17)]

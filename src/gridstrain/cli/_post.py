@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import functools
 import os
+import sys
 from pathlib import Path
 
 from ..series import OPTIONS
@@ -159,7 +160,7 @@ def open_result(args, *, px_drops_scale: bool = True):
     ``--px`` names places in px; with ``px_drops_scale`` it also drops the file's pixel
     size (every length in px), else the command keeps it for its other lengths (a
     modulus's thickness) and hands ``--px`` to the places alone."""
-    from ..post import read_loads
+    from ..io import LoadsFile
     from ..results import state_loads
 
     src = Path(os.path.expanduser(args.result))
@@ -169,9 +170,13 @@ def open_result(args, *, px_drops_scale: bool = True):
         ps = unit = None
     if getattr(args, "loads", None):
         own = state_loads(result)[2]
-        ld, lu, t = read_loads(os.path.expanduser(args.loads), result.names, times=own,
-                               load_column=args.load_column, time_column=args.time_column,
-                               offset=args.loads_offset or 0.0)
+        table = LoadsFile(os.path.expanduser(args.loads), load_column=args.load_column,
+                          time_column=args.time_column, offset=args.loads_offset or 0.0
+                          ).read(result.names[1:], reference=result.names[0], times=own)
+        for note in table.notes:  # rows skipped as frames the record lacks
+            print(f"gridstrain {getattr(args, 'command', '')}: warning: {note}",
+                  file=sys.stderr)
+        ld, lu, t = table.load, table.unit, table.time
         if t is None:
             t = own
     else:

@@ -23,6 +23,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .._progress import Finding
 from .._validation import as_path, check_finite
 
 # a number as exports write it: a point or (with a non-comma delimiter) a comma as the
@@ -67,12 +68,17 @@ class LoadTable:
         ``time_unit`` and ``time_factor`` (to s; None without a time column),
         ``offset_s`` and ``method``: ``"linear interpolation in time"``, ``"one
         row per state"`` or ``"state column"``.
+    notes : tuple of Finding
+        What the caller should say of the reading: the rows of a ``state`` column
+        skipped because they name frames the record lacks (code ``input``, figures
+        ``rows`` and ``states``; see :func:`read_loads`).
     """
 
     load: np.ndarray
     unit: str
     time: np.ndarray | None
     source: dict = field(default_factory=dict)
+    notes: tuple = ()
 
     def __post_init__(self):
         for a in (self.load, self.time):
@@ -385,7 +391,8 @@ def read_loads(path, *, states, reference: str | None = None, times=None,
     The file is read as the machine wrote it (delimiter, decimal comma, preamble,
     units in the header, encoding: see Notes). A ``state``
     column names the state of each row (every state once, in any order; a row
-    naming ``reference`` is skipped). Otherwise, with ``times`` and a time column,
+    naming ``reference``, a frame the camera dropped or one before the first state
+    is skipped and said: see Notes). Otherwise, with ``times`` and a time column,
     the log is joined to the states by time; else it holds one row per state, in
     their order.
 
@@ -455,7 +462,14 @@ def read_loads(path, *, states, reference: str | None = None, times=None,
     µs, ms, s, min, h).
 
     **Joining the log to the states.**
-    With a ``state`` column, each row names its state. Otherwise, when the states'
+    With a ``state`` column, each row names its state. Where the states' names are
+    the numbered frames of one record (``f011``, ``f012``..., one group of digits
+    varying, written with as many digits), a row naming a frame of that numbering
+    that was not measured is skipped, not refused, when its number lies before the
+    last state's: a frame the camera dropped (``f014`` between ``f013`` and
+    ``f015``) or one before the first state (the reference's own frames); the
+    table's :attr:`~LoadTable.notes` name those rows. Any other name that is not a
+    state's is refused, and every state needs its row. Otherwise, when the states'
     times on the camera's clock are known (``times``: the frame rate or the camera's
     time stamps) and the file has a time column, each state's load is the log's
     load linearly interpolated at ``time + offset`` on the log's clock, ``offset``
@@ -521,12 +535,14 @@ def read_loads(path, *, states, reference: str | None = None, times=None,
     load_log = numbers["load"] * load_factor
     time_log = numbers["time"] * time_factor if ti is not None else None
     _refuse_constant(load_log, cells[columns["load"]], p)
+    notes: tuple = ()
     if "state" in columns:
         if times is not None and ti is not None:
             raise ValueError(f"loads file {p}: a 'state' column and a time column while the "
                              "states' times are known (the frame rate or the camera's time "
                              "stamps); give a log without a state column to join by time")
-        load, time = _by_state(names, reference, rows, texts["state"], load_log, time_log, p)
+        load, time, notes = _by_state(names, reference, rows, texts["state"], load_log,
+                                      time_log, p)
         method = "state column"
     elif times is not None and ti is not None:
         _refuse_backwards(time_log, rows, cells[ti], p)
@@ -564,7 +580,7 @@ def read_loads(path, *, states, reference: str | None = None, times=None,
         "time_unit": units[ti] if ti is not None else None,
         "time_factor": time_factor, "offset_s": float(offset), "method": method,
     }
-    return LoadTable(load=load, unit=unit, time=time, source=source)
+    return LoadTable(load=load, unit=unit, time=time, source=source, notes=notes)
 
 
 def _interpolated(times: np.ndarray, offset: float, time_log: np.ndarray,
@@ -586,16 +602,24 @@ def _interpolated(times: np.ndarray, offset: float, time_log: np.ndarray,
 
 
 def _by_state(names, reference, rows, labels, load_log, time_log, p):
-    """Loads (and times) of a file whose ``state`` column names each row's state."""
+    """Loads (and times) of a file whose ``state`` column names each row's state, and
+    the finding naming the rows skipped as frames the record lacks (:func:`_lacked`)."""
     index = {n: i for i, n in enumerate(names)}
     load = np.full(len(names), np.nan)
     time = None if time_log is None else np.full(len(names), np.nan)
     seen: dict[int, int] = {}
     skipped = False
+    lacked = _lacked(names)
+    dropped: list[tuple[int, str]] = []
+    before: list[tuple[int, str]] = []
     for k, (row, name) in enumerate(zip(rows, labels, strict=True)):
         if reference is not None and name == reference and name not in index \
                 and not skipped:
             skipped = True
+            continue
+        where = None if name in index else lacked(name)
+        if where is not None:
+            (dropped if where == "dropped" else before).append((int(row), name))
             continue
         if name not in index:
             raise ValueError(f"loads file {p}, row {row}: state {name!r} is not one of "
@@ -613,4 +637,64 @@ def _by_state(names, reference, rows, labels, load_log, time_log, p):
         missing = [n for i, n in enumerate(names) if i not in seen]
         raise ValueError(f"loads file {p}: no row for {len(missing)} state(s) "
                          f"({', '.join(missing[:3])}{', ...' if len(missing) > 3 else ''})")
-    return load, time
+    return load, time, _lacked_notes(p, dropped, before)
+
+
+def _lacked(names):
+    """``lacked(label)``: ``"dropped"`` where ``label`` names a frame of the record
+    whose numbered frames the states ``names`` are (one template, one group of digits
+    varying, each written with as many digits) that no state is, between the first
+    state's number and the last's; ``"before"`` below the first's; None otherwise
+    (not of the numbering, or after the last state: refused by the caller)."""
+    def never(label):
+        return None
+
+    if len(names) < 2 or len({re.sub(r"\d+", "#", n) for n in names}) != 1:
+        return never
+    groups = [re.findall(r"\d+", n) for n in names]
+    varying = [i for i in range(len(groups[0])) if len({g[i] for g in groups}) > 1]
+    if len(varying) != 1:
+        return never
+    v = varying[0]
+    template = re.sub(r"\d+", "#", names[0])
+    widths = {len(g[v]) for g in groups}
+    numbers = {int(g[v]) for g in groups}
+    first, last = min(numbers), max(numbers)
+
+    def lacked(label):
+        if re.sub(r"\d+", "#", label) != template:
+            return None
+        got = re.findall(r"\d+", label)
+        if any(got[i] != groups[0][i] for i in range(len(got)) if i != v):
+            return None
+        if len(widths) == 1 and len(got[v]) not in widths:
+            return None  # f14 beside f011 ... f017: not of their numbering
+        n = int(got[v])
+        if n in numbers or n > last:
+            return None
+        return "dropped" if n > first else "before"
+
+    return lacked
+
+
+def _lacked_notes(p, dropped, before) -> tuple:
+    """The finding naming the rows skipped as frames the record lacks."""
+    if not dropped and not before:
+        return ()
+
+    def listed(pairs):
+        more = ", ..." if len(pairs) > 5 else ""
+        return (", ".join(n for _, n in pairs[:5]) + more + " (row(s) "
+                + ", ".join(str(r) for r, _ in pairs[:5]) + more + ")")
+
+    parts = []
+    if dropped:
+        parts.append(f"{len(dropped)} row(s) name frames the record lacks between its "
+                     f"states (dropped by the camera?): {listed(dropped)}")
+    if before:
+        parts.append(f"{len(before)} row(s) name frames before its first state (the "
+                     f"reference's?): {listed(before)}")
+    skipped = sorted(dropped + before)  # in the file's order
+    return (Finding("input", f"loads file {p.name}: " + "; ".join(parts)
+                    + "; their loads are not used",
+                    rows=[r for r, _ in skipped], states=[n for _, n in skipped]),)

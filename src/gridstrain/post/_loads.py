@@ -11,7 +11,8 @@ def read_loads(path, names, *, times=None, load_column: str | None = None,
                time_column: str | None = None, offset: float = 0.0
                ) -> tuple[np.ndarray, str, np.ndarray | None]:
     """Loads (and times) of a result's states from a testing machine's export
-    (:func:`gridstrain.io.read_loads`; a row naming the reference is skipped).
+    (:func:`gridstrain.io.read_loads`; a row naming the reference is skipped, and so
+    is a row naming a frame the record lacks, which that function's table says).
 
     Parameters
     ----------

@@ -296,7 +296,9 @@ def _loads_and_times(loads, frame_rate, series: list, *, each_frame: bool,
 
         if isinstance(loads, str | os.PathLike | LoadsFile):
             spec = loads if isinstance(loads, LoadsFile) else LoadsFile(loads)
-            table = spec.read(names, times=time)
+            # a row naming the reference is skipped, as when a result is read
+            table = spec.read(names, reference=series[0].name, times=time)
+            notes += table.notes  # the rows skipped as frames the record lacks
             load, unit, source = table.load, table.unit, dict(table.source)
             time = table.time if time is None else time
         else:
