@@ -87,7 +87,7 @@ def run(args) -> int:
     floor = noise_floor(maps, mean, K=model.K, L=model.L, frames=T)
     progress(1.0, "done")
     summary = _summary(args.stack, series, lattice, model, vib, degree, floor)
-    summary["warnings"] = list(notes)
+    summary["warnings"] = notes
     summary["findings"] = findings_json(notes)
     for note in notes:  # on stderr, whatever the output: a warning, not a result
         print(f"gridstrain noise: warning: {note}", file=sys.stderr)

@@ -25,6 +25,7 @@ import numpy as np
 
 from .._progress import Finding
 from .._validation import as_path, check_finite
+from ._numbering import _numbers_from_names
 
 # a number as exports write it: a point or (with a non-comma delimiter) a comma as the
 # decimal mark, an optional exponent; no thousands separator
@@ -643,34 +644,23 @@ def _by_state(names, reference, rows, labels, load_log, time_log, p):
 def _lacked(names):
     """``lacked(label)``: ``"dropped"`` where ``label`` names a frame of the record
     whose numbered frames the states ``names`` are (one template, one group of digits
-    varying, each written with as many digits) that no state is, between the first
-    state's number and the last's; ``"before"`` below the first's; None otherwise
-    (not of the numbering, or after the last state: refused by the caller)."""
-    def never(label):
-        return None
-
-    if len(names) < 2 or len({re.sub(r"\d+", "#", n) for n in names}) != 1:
-        return never
-    groups = [re.findall(r"\d+", n) for n in names]
-    varying = [i for i in range(len(groups[0])) if len({g[i] for g in groups}) > 1]
-    if len(varying) != 1:
-        return never
-    v = varying[0]
-    template = re.sub(r"\d+", "#", names[0])
-    widths = {len(g[v]) for g in groups}
-    numbers = {int(g[v]) for g in groups}
+    varying: :func:`gridstrain.io._numbering._numbers_from_names`, each name as long
+    as the others where theirs are) that no state is, between the first state's
+    number and the last's; ``"before"`` below the first's; None otherwise (not of the
+    numbering, or after the last state: refused by the caller)."""
+    numbers = _numbers_from_names(list(names)) if len(names) >= 2 else None
+    if numbers is None:
+        return lambda label: None
+    lengths = {len(n) for n in names}
     first, last = min(numbers), max(numbers)
 
     def lacked(label):
-        if re.sub(r"\d+", "#", label) != template:
-            return None
-        got = re.findall(r"\d+", label)
-        if any(got[i] != groups[0][i] for i in range(len(got)) if i != v):
-            return None
-        if len(widths) == 1 and len(got[v]) not in widths:
-            return None  # f14 beside f011 ... f017: not of their numbering
-        n = int(got[v])
-        if n in numbers or n > last:
+        if len(lengths) == 1 and len(label) not in lengths:
+            return None  # f14 beside f011 ... f017: not written as their numbers
+        # of the family when adding it leaves one group of digits varying
+        with_label = _numbers_from_names([*names, label])
+        n = None if with_label is None else with_label[-1]
+        if n is None or n in numbers or n > last:
             return None
         return "dropped" if n > first else "before"
 

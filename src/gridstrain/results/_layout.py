@@ -524,7 +524,7 @@ def _root_attributes(result, ps, unit, lat) -> dict:
         "warnings": list(result.warnings),
         # each warning's code (gridstrain.FINDINGS), in the same order: what a reader of
         # the attributes alone selects them by
-        "warning_codes": [getattr(w, "code", "other") for w in result.warnings],
+        "warning_codes": [w.code for w in result.warnings],
         # how each state's whole number of periods was fixed (FringeOrder)
         "fringe_order_source": [r.source for r in result.fringe_orders],
         "fringe_order_confirmed": [bool(r.confirmed) for r in result.fringe_orders],
